@@ -1,0 +1,77 @@
+# restird — build, test, run, bench. `make help` lists the targets.
+# Every target first makes sure the Debian packages are installed (scripts/install-deps.sh).
+
+CC      ?= cc
+SAN     ?= 0
+BUILD   := build
+ifeq ($(SAN),1)
+  OPT   := -O1 -g -fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=undefined
+  OBJ   := $(BUILD)/obj-san
+else
+  OPT   := -O2 -g -fno-math-errno
+  OBJ   := $(BUILD)/obj
+endif
+CFLAGS  += -std=c17 -D_DEFAULT_SOURCE -Wall -Wextra -Wshadow -Wno-missing-field-initializers $(OPT) -MMD -MP -pthread
+LDLIBS  := -lembree3 -lOpenEXRCore -lassimp -lcjson -lm -pthread
+CFLAGS  += $(shell pkg-config --cflags OpenEXR 2>/dev/null)
+PYTHON  := /usr/bin/python3
+DEPS_OK := $(BUILD)/.deps-ok
+
+RENDERER_SRC := $(wildcard renderer/*.c)
+RENDERER_OBJ := $(RENDERER_SRC:%.c=$(OBJ)/%.o)
+CLI_SRC      := server/cli.c
+UNIT_SRC     := $(wildcard tests/unit/test_*.c)
+UNIT_BIN     := $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
+
+.PHONY: all deps test test-unit test-py run bench clean help
+all: $(BUILD)/restir
+
+help:
+	@echo "make            build build/restir (offline CLI)"
+	@echo "make test       unit, statistical and end-to-end tests (SAN=1 for ASan/UBSan)"
+	@echo "make run        render the default scene (cornell-box) to build/run.exr"
+	@echo "make bench      benchmarks (not tests): see docs/benchmarks.md"
+	@echo "make clean      remove everything make made"
+
+deps: $(DEPS_OK)
+$(DEPS_OK): scripts/install-deps.sh
+	@bash scripts/install-deps.sh
+	@mkdir -p $(BUILD) && touch $@
+
+$(OBJ)/%.o: %.c | $(DEPS_OK)
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -Irenderer -c $< -o $@
+
+$(OBJ)/librenderer.a: $(RENDERER_OBJ)
+	@rm -f $@
+	ar rcs $@ $^
+
+$(BUILD)/restir: $(OBJ)/server/cli.o $(OBJ)/librenderer.a
+	$(CC) $(CFLAGS) $^ $(LDLIBS) -o $@
+
+$(BUILD)/tests/%: $(OBJ)/tests/unit/%.o $(OBJ)/librenderer.a
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) $^ $(LDLIBS) -o $@
+
+$(OBJ)/tests/unit/%.o: tests/unit/%.c | $(DEPS_OK)
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -Irenderer -Itests -c $< -o $@
+
+test: test-unit test-py
+
+test-unit: $(UNIT_BIN)
+	@fail=0; for t in $(UNIT_BIN); do echo "== $$t"; ./$$t || fail=1; done; exit $$fail
+
+test-py: $(BUILD)/restir
+	RESTIR_BIN=$(abspath $(BUILD)/restir) $(PYTHON) -m pytest -q tests
+
+run: $(BUILD)/restir
+	./$(BUILD)/restir render scenes/cornell-box/scene.json --method pt --spp 64 --size 256x256 -o $(BUILD)/run.exr
+
+bench: $(BUILD)/restir
+	bash bench/run.sh
+
+clean:
+	rm -rf $(BUILD) .pytest_cache tests/__pycache__
+
+-include $(RENDERER_OBJ:.o=.d) $(OBJ)/server/cli.d $(UNIT_SRC:tests/unit/%.c=$(OBJ)/tests/unit/%.d)

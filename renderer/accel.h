@@ -1,0 +1,40 @@
+/* accel.h — ray queries against a committed scene (the Embree home is accel.c).
+ * Unnamed shapes are merged into one static bottom level; every named shape (and every sphere
+ * with a non-uniform scale, i.e. an ellipsoid) gets its own instance, so moving a named shape
+ * re-commits only the top level. Queries are thread-safe and allocation-free. */
+#ifndef RESTIRD_ACCEL_H
+#define RESTIRD_ACCEL_H
+
+#include <stdint.h>
+
+#include "err.h"
+#include "vec.h"
+
+struct scene;
+struct accel;
+
+struct hit {
+    float t;          /* distance along the (unit) ray direction */
+    uint32_t shape;   /* index into scene->shapes */
+    uint32_t prim;    /* triangle index within the shape (0 for spheres) */
+    float b1, b2;     /* barycentrics of triangle vertices 1 and 2 */
+    struct vec3 ng;   /* geometric normal in world space, unit length, front-face side */
+};
+
+/* Per-thread query counters; callers sum them after a pass (rays/s in frame stats). */
+struct ray_counters { uint64_t intersect, occluded; };
+
+struct accel *accel_new(const struct scene *scene, struct err *err);
+void accel_free(struct accel *accel);
+/* Closest hit with t in (tmin, tmax); `dir` must be unit length. */
+bool accel_intersect(const struct accel *accel, struct vec3 org, struct vec3 dir, float tmin, float tmax,
+                     struct hit *hit, struct ray_counters *counters);
+/* True when anything blocks (tmin, tmax). */
+bool accel_occluded(const struct accel *accel, struct vec3 org, struct vec3 dir, float tmin, float tmax,
+                    struct ray_counters *counters);
+/* Moves a named (instanced) shape; false if the shape is not instanced. Takes effect after
+ * accel_commit_top. Not thread-safe against concurrent queries. */
+bool accel_set_transform(struct accel *accel, uint32_t shape, const struct xform *to_world);
+void accel_commit_top(struct accel *accel);
+
+#endif

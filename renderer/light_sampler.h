@@ -1,0 +1,36 @@
+/* light_sampler.h — picks emitters proportionally to emitted power (alias table over emissive
+ * triangles, emissive spheres and the constant environment) and samples points on them
+ * uniformly by area. pdfs are explicit about their measure: pdf_a on surfaces, pdf_w for the
+ * environment. Immutable after creation; thread-safe. */
+#ifndef RESTIRD_LIGHT_SAMPLER_H
+#define RESTIRD_LIGHT_SAMPLER_H
+
+#include <stdint.h>
+
+#include "err.h"
+#include "vec.h"
+
+struct scene;
+struct light_sampler;
+
+struct light_sample {
+    bool is_env;        /* environment: `dir` is set, p/n are not */
+    struct vec3 p, n;   /* point on the emitter and its geometric normal (front side) */
+    struct vec3 dir;    /* environment: direction towards the environment */
+    uint32_t shape, prim;
+    float pdf_a;        /* area pdf of p including the emitter choice (surfaces) */
+    float pdf_w;        /* solid-angle pdf of dir including the emitter choice (environment) */
+};
+
+struct light_sampler *light_sampler_new(const struct scene *scene, struct err *err);
+void light_sampler_free(struct light_sampler *ls);
+/* Number of emitters (triangles + spheres + environment); 0 = no light at all. */
+uint32_t light_sampler_count(const struct light_sampler *ls);
+bool light_sampler_sample(const struct light_sampler *ls, float u_pick, float u1, float u2, struct light_sample *out);
+/* Area pdf that light_sampler_sample produces the point on (shape, prim): used for MIS when a
+ * BSDF-sampled ray hits an emitter. */
+float light_sampler_pdf_a(const struct light_sampler *ls, uint32_t shape, uint32_t prim);
+/* Solid-angle pdf of sampling the environment in any direction (uniform sphere). */
+float light_sampler_env_pdf_w(const struct light_sampler *ls);
+
+#endif

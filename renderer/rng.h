@@ -1,0 +1,52 @@
+/* rng.h — PCG32 random streams with stateless seeding.
+ * A stream is derived by hashing (session seed, frame, pixel, pass, sample), never from a
+ * thread id, so images do not depend on the thread count. Refs: O'Neill 2014 (PCG). */
+#ifndef RESTIRD_RNG_H
+#define RESTIRD_RNG_H
+
+#include <stdint.h>
+
+struct rng { uint64_t state, inc; };
+
+/* 64-bit finaliser (SplitMix64) used to spread seed words. */
+static inline uint64_t rng_mix64(uint64_t z)
+{
+    z += 0x9e3779b97f4a7c15ull;
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    return z ^ (z >> 31);
+}
+
+static inline uint32_t rng_next_u32(struct rng *r)
+{
+    uint64_t old = r->state;
+    r->state = old * 6364136223846793005ull + r->inc;
+    uint32_t xorshifted = (uint32_t)(((old >> 18u) ^ old) >> 27u);
+    uint32_t rot = (uint32_t)(old >> 59u);
+    return (xorshifted >> rot) | (xorshifted << ((-rot) & 31));
+}
+
+/* Stream for (seed, a, b, c): distinct tuples give independent-looking streams. */
+static inline struct rng rng_make(uint64_t seed, uint64_t a, uint64_t b, uint64_t c)
+{
+    uint64_t h = rng_mix64(seed ^ rng_mix64(a ^ rng_mix64(b ^ rng_mix64(c))));
+    struct rng r = {0, (rng_mix64(h + 1) << 1u) | 1u};
+    rng_next_u32(&r);
+    r.state += h;
+    rng_next_u32(&r);
+    return r;
+}
+
+/* Uniform float in [0, 1): 24 random mantissa bits, never returns 1. */
+static inline float rng_next_float(struct rng *r)
+{
+    return (float)(rng_next_u32(r) >> 8) * 0x1p-24f;
+}
+
+static inline double rng_next_double(struct rng *r)
+{
+    uint64_t hi = rng_next_u32(r), lo = rng_next_u32(r);
+    return (double)(((hi << 32) | lo) >> 11) * 0x1p-53;
+}
+
+#endif

@@ -1,0 +1,77 @@
+/* scene.h — the loaded, render-ready scene: camera, materials, shapes, environment, and (after
+ * scene_commit) the acceleration structure and the light sampler.
+ * Shapes are either triangle meshes (quad, box, disk and mesh files all become meshes at load)
+ * or analytic spheres, each with its own object-to-world transform. A committed scene is
+ * immutable and shared by sessions through a reference count.
+ * Refs: shared design SCENES.md; docs/scene-format.md documents the JSON. */
+#ifndef RESTIRD_SCENE_H
+#define RESTIRD_SCENE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "err.h"
+#include "material.h"
+#include "vec.h"
+
+#define SCENE_NAME_MAX 64
+
+enum shape_kind { SHAPE_MESH, SHAPE_SPHERE };
+
+struct shape {
+    enum shape_kind kind;
+    char name[SCENE_NAME_MAX];  /* "" when unnamed; named shapes can be animated */
+    uint32_t material;          /* index into scene->materials */
+    struct xform to_world;      /* object -> world */
+    bool caustic_caster;        /* flagged for specular manifold sampling */
+    /* SHAPE_MESH, object space. Front face = counter-clockwise winding (right-hand rule). */
+    uint32_t vertex_count, triangle_count;
+    struct vec3 *positions;     /* vertex_count */
+    struct vec3 *normals;       /* vertex_count, or NULL (flat shading) */
+    uint32_t *indices;          /* 3 * triangle_count, each < vertex_count */
+    /* SHAPE_SPHERE, object space. Front face = outside. */
+    struct vec3 center;
+    float radius;
+};
+
+struct camera_desc {
+    struct vec3 position, look_at, up;
+    float fov_deg;  /* vertical field of view */
+};
+
+struct accel;
+struct light_sampler;
+
+struct scene {
+    struct camera_desc camera;
+    uint32_t material_count;
+    struct material *materials;
+    char (*material_names)[SCENE_NAME_MAX];
+    uint32_t shape_count;
+    struct shape *shapes;
+    struct vec3 env_radiance;   /* constant environment radiance; zero = none */
+
+    /* Filled by scene_commit. */
+    struct accel *accel;
+    struct light_sampler *lights;
+    struct vec3 bounds_min, bounds_max;
+    int refcount;
+};
+
+/* Loads and validates a scene file; mesh paths resolve relative to the file's folder.
+ * Errors name the JSON pointer (or mesh file and line/element). Returns NULL on error. */
+struct scene *scene_load_file(const char *path, struct err *err);
+/* Same from a JSON text of `len` bytes (need not be NUL-terminated). */
+struct scene *scene_load_json(const char *json, size_t len, const char *base_dir, struct err *err);
+
+/* Builds the acceleration structure and light sampler; the scene is immutable afterwards. */
+bool scene_commit(struct scene *scene, struct err *err);
+/* Reference counting; scene_release frees at zero. A new scene has refcount 1. */
+void scene_retain(struct scene *scene);
+void scene_release(struct scene *scene);
+
+/* Index of the material/shape with this name, or -1. */
+int scene_find_material(const struct scene *scene, const char *name);
+int scene_find_shape(const struct scene *scene, const char *name);
+
+#endif

@@ -1,0 +1,142 @@
+/* vec.h — small value types for geometry and colour: vec3 (float), affine transforms.
+ * Header-only and allocation-free; every renderer file may include it.
+ * Colours are linear RGB stored in the same vec3 as positions and directions. */
+#ifndef RESTIRD_VEC_H
+#define RESTIRD_VEC_H
+
+#include <math.h>
+#include <stdbool.h>
+
+#define PI_F 3.14159265358979323846f
+#define INV_PI_F 0.31830988618379067154f
+
+struct vec3 { float x, y, z; };
+
+static inline struct vec3 vec3_make(float x, float y, float z) { return (struct vec3){x, y, z}; }
+static inline struct vec3 vec3_splat(float s) { return (struct vec3){s, s, s}; }
+static inline struct vec3 vec3_add(struct vec3 a, struct vec3 b) { return (struct vec3){a.x + b.x, a.y + b.y, a.z + b.z}; }
+static inline struct vec3 vec3_sub(struct vec3 a, struct vec3 b) { return (struct vec3){a.x - b.x, a.y - b.y, a.z - b.z}; }
+static inline struct vec3 vec3_mul(struct vec3 a, struct vec3 b) { return (struct vec3){a.x * b.x, a.y * b.y, a.z * b.z}; }
+static inline struct vec3 vec3_div(struct vec3 a, struct vec3 b) { return (struct vec3){a.x / b.x, a.y / b.y, a.z / b.z}; }
+static inline struct vec3 vec3_scale(struct vec3 a, float s) { return (struct vec3){a.x * s, a.y * s, a.z * s}; }
+static inline struct vec3 vec3_neg(struct vec3 a) { return (struct vec3){-a.x, -a.y, -a.z}; }
+static inline float vec3_dot(struct vec3 a, struct vec3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+static inline struct vec3 vec3_cross(struct vec3 a, struct vec3 b)
+{
+    return (struct vec3){a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+}
+static inline float vec3_length2(struct vec3 a) { return vec3_dot(a, a); }
+static inline float vec3_length(struct vec3 a) { return sqrtf(vec3_dot(a, a)); }
+static inline struct vec3 vec3_normalize(struct vec3 a)
+{
+    float l = vec3_length(a);
+    return l > 0.0f ? vec3_scale(a, 1.0f / l) : a;
+}
+static inline struct vec3 vec3_madd(struct vec3 a, struct vec3 b, float s)  /* a + b*s */
+{
+    return (struct vec3){a.x + b.x * s, a.y + b.y * s, a.z + b.z * s};
+}
+static inline float vec3_max_comp(struct vec3 a) { return fmaxf(a.x, fmaxf(a.y, a.z)); }
+static inline float vec3_min_comp(struct vec3 a) { return fminf(a.x, fminf(a.y, a.z)); }
+static inline float vec3_sum(struct vec3 a) { return a.x + a.y + a.z; }
+static inline bool vec3_is_zero(struct vec3 a) { return a.x == 0.0f && a.y == 0.0f && a.z == 0.0f; }
+static inline bool vec3_is_finite(struct vec3 a) { return isfinite(a.x) && isfinite(a.y) && isfinite(a.z); }
+static inline float vec3_comp(struct vec3 a, int i) { return i == 0 ? a.x : (i == 1 ? a.y : a.z); }
+/* Rec. 709 luminance of a linear RGB colour. */
+static inline float vec3_luminance(struct vec3 c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
+
+/* Orthonormal basis around unit n (Duff et al. 2017, branchless). */
+struct frame { struct vec3 s, t, n; };
+static inline struct frame frame_from_normal(struct vec3 n)
+{
+    float sign = copysignf(1.0f, n.z);
+    float a = -1.0f / (sign + n.z);
+    float b = n.x * n.y * a;
+    struct frame f;
+    f.s = (struct vec3){1.0f + sign * n.x * n.x * a, sign * b, -sign * n.x};
+    f.t = (struct vec3){b, sign + n.y * n.y * a, -n.y};
+    f.n = n;
+    return f;
+}
+static inline struct vec3 frame_to_local(const struct frame *f, struct vec3 v)
+{
+    return (struct vec3){vec3_dot(v, f->s), vec3_dot(v, f->t), vec3_dot(v, f->n)};
+}
+static inline struct vec3 frame_to_world(const struct frame *f, struct vec3 v)
+{
+    return vec3_add(vec3_add(vec3_scale(f->s, v.x), vec3_scale(f->t, v.y)), vec3_scale(f->n, v.z));
+}
+
+/* Affine transform: p' = M p + t, with M stored row-major in m[r][c], c = 3 the translation. */
+struct xform { float m[3][4]; };
+
+static inline struct xform xform_identity(void)
+{
+    return (struct xform){{{1, 0, 0, 0}, {0, 1, 0, 0}, {0, 0, 1, 0}}};
+}
+static inline struct vec3 xform_point(const struct xform *x, struct vec3 p)
+{
+    return (struct vec3){
+        x->m[0][0] * p.x + x->m[0][1] * p.y + x->m[0][2] * p.z + x->m[0][3],
+        x->m[1][0] * p.x + x->m[1][1] * p.y + x->m[1][2] * p.z + x->m[1][3],
+        x->m[2][0] * p.x + x->m[2][1] * p.y + x->m[2][2] * p.z + x->m[2][3]};
+}
+static inline struct vec3 xform_vector(const struct xform *x, struct vec3 v)
+{
+    return (struct vec3){
+        x->m[0][0] * v.x + x->m[0][1] * v.y + x->m[0][2] * v.z,
+        x->m[1][0] * v.x + x->m[1][1] * v.y + x->m[1][2] * v.z,
+        x->m[2][0] * v.x + x->m[2][1] * v.y + x->m[2][2] * v.z};
+}
+/* a * b (apply b first). */
+static inline struct xform xform_compose(const struct xform *a, const struct xform *b)
+{
+    struct xform r;
+    for (int i = 0; i < 3; i++) {
+        for (int j = 0; j < 4; j++) {
+            float s = (j == 3) ? a->m[i][3] : 0.0f;
+            for (int k = 0; k < 3; k++) s += a->m[i][k] * b->m[k][j];
+            r.m[i][j] = s;
+        }
+    }
+    return r;
+}
+static inline float xform_det3(const struct xform *x)
+{
+    const float (*m)[4] = x->m;
+    return m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) -
+           m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0]) +
+           m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+}
+/* Inverse of an affine transform; false when the linear part is singular. */
+static inline bool xform_invert(const struct xform *x, struct xform *out)
+{
+    const float (*m)[4] = x->m;
+    float det = xform_det3(x);
+    if (!(fabsf(det) > 1e-30f)) return false;
+    float id = 1.0f / det;
+    struct xform r;
+    r.m[0][0] = (m[1][1] * m[2][2] - m[1][2] * m[2][1]) * id;
+    r.m[0][1] = (m[0][2] * m[2][1] - m[0][1] * m[2][2]) * id;
+    r.m[0][2] = (m[0][1] * m[1][2] - m[0][2] * m[1][1]) * id;
+    r.m[1][0] = (m[1][2] * m[2][0] - m[1][0] * m[2][2]) * id;
+    r.m[1][1] = (m[0][0] * m[2][2] - m[0][2] * m[2][0]) * id;
+    r.m[1][2] = (m[0][2] * m[1][0] - m[0][0] * m[1][2]) * id;
+    r.m[2][0] = (m[1][0] * m[2][1] - m[1][1] * m[2][0]) * id;
+    r.m[2][1] = (m[0][1] * m[2][0] - m[0][0] * m[2][1]) * id;
+    r.m[2][2] = (m[0][0] * m[1][1] - m[0][1] * m[1][0]) * id;
+    for (int i = 0; i < 3; i++)
+        r.m[i][3] = -(r.m[i][0] * m[0][3] + r.m[i][1] * m[1][3] + r.m[i][2] * m[2][3]);
+    *out = r;
+    return true;
+}
+/* Normal transform: inverse transpose of the linear part (inv = inverse of x). */
+static inline struct vec3 xform_normal(const struct xform *inv, struct vec3 n)
+{
+    return (struct vec3){
+        inv->m[0][0] * n.x + inv->m[1][0] * n.y + inv->m[2][0] * n.z,
+        inv->m[0][1] * n.x + inv->m[1][1] * n.y + inv->m[2][1] * n.z,
+        inv->m[0][2] * n.x + inv->m[1][2] * n.y + inv->m[2][2] * n.z};
+}
+
+#endif

@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Installs every Debian package restird needs to build, test and benchmark.
+# Idempotent: does nothing (and needs no network) when all packages are present.
+set -euo pipefail
+
+packages=(
+  build-essential pkg-config
+  libembree-dev          # ray tracing backend (Embree 3)
+  libopenexr-dev         # EXR I/O through the C API (openexr.h)
+  libmicrohttpd-dev      # HTTP daemon
+  libcjson-dev           # JSON
+  libassimp-dev          # PLY / OBJ mesh loading
+  python3-pytest python3-numpy python3-openimageio openimageio-tools  # tests
+  embree-tools           # the benchmark peer (Embree's pathtracer tutorial)
+)
+
+missing=()
+for p in "${packages[@]}"; do
+  if [ "$(dpkg-query -W -f='${Status}' "$p" 2>/dev/null)" != "install ok installed" ]; then
+    missing+=("$p")
+  fi
+done
+[ ${#missing[@]} -eq 0 ] && exit 0
+
+echo "install-deps: installing ${missing[*]}" >&2
+sudo=""
+if [ "$(id -u)" -ne 0 ]; then
+  command -v sudo >/dev/null || { echo "install-deps: need root or sudo to install: ${missing[*]}" >&2; exit 1; }
+  sudo=sudo
+fi
+export DEBIAN_FRONTEND=noninteractive
+$sudo apt-get update -qq
+$sudo apt-get install -y -qq --no-install-recommends "${missing[@]}"
