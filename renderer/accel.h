@@ -36,5 +36,7 @@ bool accel_occluded(const struct accel *accel, struct vec3 org, struct vec3 dir,
  * accel_commit_top. Not thread-safe against concurrent queries. */
 bool accel_set_transform(struct accel *accel, uint32_t shape, const struct xform *to_world);
 void accel_commit_top(struct accel *accel);
+/* Current object-to-world transform of a shape (baked shapes: their scene transform). */
+const struct xform *accel_shape_to_world(const struct accel *accel, uint32_t shape);
 
 #endif

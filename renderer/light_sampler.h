@@ -33,4 +33,14 @@ float light_sampler_pdf_a(const struct light_sampler *ls, uint32_t shape, uint32
 /* Solid-angle pdf of sampling the environment in any direction (uniform sphere). */
 float light_sampler_env_pdf_w(const struct light_sampler *ls);
 
+#include "material.h"
+
+/* Radiance a material emits towards a direction making cosine `cos_front` with the emitter's
+ * front (geometric) normal: one-sided emitters are black from behind. */
+static inline struct vec3 light_sampler_emitted(const struct material *m, float cos_front)
+{
+    if (cos_front > 0.0f || (m->two_sided_emission && cos_front < 0.0f)) return m->emission;
+    return vec3_splat(0.0f);
+}
+
 #endif

@@ -1,0 +1,300 @@
+/* accel.c — the only file that includes Embree. Builds one static bottom level for all
+ * unnamed shapes (geometry baked to world space) and one instanced bottom level per named
+ * shape or ellipsoid, under a top-level scene; answers closest-hit and occlusion queries.
+ * Must not know about materials or lights. Counts every query in caller-owned counters.
+ * Refs: Embree 3 API (rtcore.h); instancing keeps per-frame transform updates to a top-level
+ * re-commit (ARCHITECTURE.md "accel"). */
+#include "accel.h"
+
+#include <embree3/rtcore.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "scene.h"
+
+struct accel {
+    RTCDevice device;
+    RTCScene top;
+    RTCScene static_blas;     /* NULL when every shape is instanced */
+    uint32_t *static_geom_to_shape;  /* geomID in static_blas -> shape index */
+    uint32_t static_geom_count;
+    uint32_t *inst_to_shape;  /* instance geomID in top -> shape index */
+    uint32_t inst_count;
+    int32_t *shape_to_inst;   /* shape -> instance geomID in top, or -1 */
+    RTCScene *inst_blas;      /* inst_count bottom levels */
+    struct xform *to_world;   /* current object->world per shape */
+    struct xform *to_object;  /* inverse of to_world per shape */
+    uint32_t static_inst_id;  /* geomID of the static instance in top */
+};
+
+static void accel_error_cb(void *user, enum RTCError code, const char *str)
+{
+    (void)user;
+    /* Embree reports API misuse here; our builders validate inputs first, so this is a bug. */
+    fprintf(stderr, "restird: embree error %d: %s\n", (int)code, str ? str : "");
+}
+
+static bool accel_needs_instance(const struct shape *s)
+{
+    if (s->name[0]) return true;
+    if (s->kind == SHAPE_SPHERE) {
+        /* Spheres bake into the static level only under a similarity transform. */
+        struct vec3 c0 = xform_vector(&s->to_world, vec3_make(1, 0, 0));
+        struct vec3 c1 = xform_vector(&s->to_world, vec3_make(0, 1, 0));
+        struct vec3 c2 = xform_vector(&s->to_world, vec3_make(0, 0, 1));
+        float l0 = vec3_length(c0), l1 = vec3_length(c1), l2 = vec3_length(c2);
+        float lm = fmaxf(l0, fmaxf(l1, l2));
+        if (fabsf(l0 - l1) > 1e-5f * lm || fabsf(l0 - l2) > 1e-5f * lm) return true;
+        if (fabsf(vec3_dot(c0, c1)) > 1e-5f * lm * lm || fabsf(vec3_dot(c0, c2)) > 1e-5f * lm * lm ||
+            fabsf(vec3_dot(c1, c2)) > 1e-5f * lm * lm)
+            return true;
+    }
+    return false;
+}
+
+/* Adds the shape's geometry to `blas`, transformed by `xf` (identity for instanced shapes). */
+static bool accel_add_geometry(RTCDevice dev, RTCScene blas, const struct shape *s, const struct xform *xf,
+                               unsigned *geom_id, struct err *err)
+{
+    RTCGeometry g;
+    if (s->kind == SHAPE_MESH) {
+        g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
+        float *v = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float),
+                                           s->vertex_count);
+        unsigned *idx = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned),
+                                                s->triangle_count);
+        if (!v || !idx) {
+            rtcReleaseGeometry(g);
+            return err_set(err, ERR_NOMEM, NULL, "embree: out of memory for a mesh of %u triangles", s->triangle_count);
+        }
+        for (uint32_t i = 0; i < s->vertex_count; i++) {
+            struct vec3 p = xform_point(xf, s->positions[i]);
+            v[3 * i] = p.x;
+            v[3 * i + 1] = p.y;
+            v[3 * i + 2] = p.z;
+        }
+        memcpy(idx, s->indices, 3 * sizeof(unsigned) * s->triangle_count);
+    } else {
+        g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_SPHERE_POINT);
+        float *v = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT4, 4 * sizeof(float), 1);
+        if (!v) {
+            rtcReleaseGeometry(g);
+            return err_set(err, ERR_NOMEM, NULL, "embree: out of memory for a sphere");
+        }
+        struct vec3 c = xform_point(xf, s->center);
+        float scale = vec3_length(xform_vector(xf, vec3_make(1, 0, 0)));
+        v[0] = c.x;
+        v[1] = c.y;
+        v[2] = c.z;
+        v[3] = s->radius * scale;
+    }
+    rtcCommitGeometry(g);
+    *geom_id = rtcAttachGeometry(blas, g);
+    rtcReleaseGeometry(g);
+    return true;
+}
+
+static void accel_set_instance_xform(RTCGeometry inst, const struct xform *xf)
+{
+    rtcSetGeometryTransform(inst, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, &xf->m[0][0]);
+}
+
+struct accel *accel_new(const struct scene *scene, struct err *err)
+{
+    struct accel *a = calloc(1, sizeof *a);
+    uint32_t n = scene->shape_count;
+    if (!a) goto nomem;
+    a->shape_to_inst = malloc((n ? n : 1) * sizeof *a->shape_to_inst);
+    a->inst_to_shape = malloc((n ? n : 1) * sizeof *a->inst_to_shape);
+    a->static_geom_to_shape = malloc((n ? n : 1) * sizeof *a->static_geom_to_shape);
+    a->inst_blas = calloc(n ? n : 1, sizeof *a->inst_blas);
+    a->to_world = malloc((n ? n : 1) * sizeof *a->to_world);
+    a->to_object = malloc((n ? n : 1) * sizeof *a->to_object);
+    if (!a->shape_to_inst || !a->inst_to_shape || !a->static_geom_to_shape || !a->inst_blas || !a->to_world ||
+        !a->to_object)
+        goto nomem;
+
+    a->device = rtcNewDevice(NULL);
+    if (!a->device) {
+        err_set(err, ERR_INTERNAL, NULL, "embree: cannot create a device (error %d)", (int)rtcGetDeviceError(NULL));
+        accel_free(a);
+        return NULL;
+    }
+    rtcSetDeviceErrorFunction(a->device, accel_error_cb, NULL);
+    a->top = rtcNewScene(a->device);
+    rtcSetSceneBuildQuality(a->top, RTC_BUILD_QUALITY_LOW);
+    rtcSetSceneFlags(a->top, RTC_SCENE_FLAG_DYNAMIC);
+
+    struct xform identity = xform_identity();
+    for (uint32_t i = 0; i < n; i++) {
+        const struct shape *s = &scene->shapes[i];
+        a->to_world[i] = s->to_world;
+        if (!xform_invert(&s->to_world, &a->to_object[i])) {
+            char where[64];
+            snprintf(where, sizeof where, "/shapes/%u/transform", i);
+            err_set(err, ERR_INVALID, where, "transform is singular");
+            accel_free(a);
+            return NULL;
+        }
+        a->shape_to_inst[i] = -1;
+        if (accel_needs_instance(s)) {
+            RTCScene blas = rtcNewScene(a->device);
+            rtcSetSceneBuildQuality(blas, RTC_BUILD_QUALITY_HIGH);
+            unsigned gid;
+            if (!accel_add_geometry(a->device, blas, s, &identity, &gid, err)) {
+                rtcReleaseScene(blas);
+                accel_free(a);
+                return NULL;
+            }
+            rtcCommitScene(blas);
+            RTCGeometry inst = rtcNewGeometry(a->device, RTC_GEOMETRY_TYPE_INSTANCE);
+            rtcSetGeometryInstancedScene(inst, blas);
+            accel_set_instance_xform(inst, &s->to_world);
+            rtcCommitGeometry(inst);
+            unsigned iid = rtcAttachGeometry(a->top, inst);
+            rtcReleaseGeometry(inst);
+            a->inst_blas[a->inst_count] = blas;
+            a->inst_to_shape[iid] = i;  /* ids are dense from 0 in attach order */
+            a->shape_to_inst[i] = (int32_t)iid;
+            a->inst_count++;
+        } else {
+            if (!a->static_blas) {
+                a->static_blas = rtcNewScene(a->device);
+                rtcSetSceneBuildQuality(a->static_blas, RTC_BUILD_QUALITY_HIGH);
+            }
+            unsigned gid;
+            if (!accel_add_geometry(a->device, a->static_blas, s, &s->to_world, &gid, err)) {
+                accel_free(a);
+                return NULL;
+            }
+            a->static_geom_to_shape[gid] = i;
+            a->static_geom_count++;
+        }
+    }
+    a->static_inst_id = RTC_INVALID_GEOMETRY_ID;
+    if (a->static_blas) {
+        rtcCommitScene(a->static_blas);
+        RTCGeometry inst = rtcNewGeometry(a->device, RTC_GEOMETRY_TYPE_INSTANCE);
+        rtcSetGeometryInstancedScene(inst, a->static_blas);
+        accel_set_instance_xform(inst, &identity);
+        rtcCommitGeometry(inst);
+        a->static_inst_id = rtcAttachGeometry(a->top, inst);
+        rtcReleaseGeometry(inst);
+    }
+    rtcCommitScene(a->top);
+    enum RTCError e = rtcGetDeviceError(a->device);
+    if (e != RTC_ERROR_NONE) {
+        err_set(err, ERR_INTERNAL, NULL, "embree: scene build failed (error %d)", (int)e);
+        accel_free(a);
+        return NULL;
+    }
+    return a;
+
+nomem:
+    accel_free(a);
+    err_set(err, ERR_NOMEM, NULL, "out of memory building the acceleration structure");
+    return NULL;
+}
+
+void accel_free(struct accel *a)
+{
+    if (!a) return;
+    if (a->top) rtcReleaseScene(a->top);
+    if (a->static_blas) rtcReleaseScene(a->static_blas);
+    for (uint32_t i = 0; i < a->inst_count; i++) rtcReleaseScene(a->inst_blas[i]);
+    if (a->device) rtcReleaseDevice(a->device);
+    free(a->shape_to_inst);
+    free(a->inst_to_shape);
+    free(a->static_geom_to_shape);
+    free(a->inst_blas);
+    free(a->to_world);
+    free(a->to_object);
+    free(a);
+}
+
+bool accel_intersect(const struct accel *a, struct vec3 org, struct vec3 dir, float tmin, float tmax,
+                     struct hit *hit, struct ray_counters *counters)
+{
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    struct RTCRayHit rh;
+    rh.ray.org_x = org.x;
+    rh.ray.org_y = org.y;
+    rh.ray.org_z = org.z;
+    rh.ray.dir_x = dir.x;
+    rh.ray.dir_y = dir.y;
+    rh.ray.dir_z = dir.z;
+    rh.ray.tnear = tmin;
+    rh.ray.tfar = tmax;
+    rh.ray.time = 0.0f;
+    rh.ray.mask = 0xFFFFFFFFu;
+    rh.ray.id = 0;
+    rh.ray.flags = 0;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(a->top, &ctx, &rh);
+    counters->intersect++;
+    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+
+    unsigned iid = rh.hit.instID[0];
+    uint32_t shape = (iid == a->static_inst_id) ? a->static_geom_to_shape[rh.hit.geomID] : a->inst_to_shape[iid];
+    /* Embree's Ng is unnormalised and, for instanced hits, in the instance's object space. For
+     * triangles it already points to the counter-clockwise (front) side, for spheres outwards
+     * (both checked by tests/unit/test_core.c). */
+    struct vec3 ng = vec3_make(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
+    hit->t = rh.ray.tfar;
+    hit->shape = shape;
+    hit->prim = rh.hit.primID;
+    hit->b1 = rh.hit.u;
+    hit->b2 = rh.hit.v;
+    if (iid != a->static_inst_id) ng = xform_normal(&a->to_object[shape], ng);
+    hit->ng = vec3_normalize(ng);
+    return true;
+}
+
+bool accel_occluded(const struct accel *a, struct vec3 org, struct vec3 dir, float tmin, float tmax,
+                    struct ray_counters *counters)
+{
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    struct RTCRay ray;
+    ray.org_x = org.x;
+    ray.org_y = org.y;
+    ray.org_z = org.z;
+    ray.dir_x = dir.x;
+    ray.dir_y = dir.y;
+    ray.dir_z = dir.z;
+    ray.tnear = tmin;
+    ray.tfar = tmax;
+    ray.time = 0.0f;
+    ray.mask = 0xFFFFFFFFu;
+    ray.id = 0;
+    ray.flags = 0;
+    rtcOccluded1(a->top, &ctx, &ray);
+    counters->occluded++;
+    return ray.tfar < 0.0f;  /* Embree sets tfar = -inf on a hit */
+}
+
+bool accel_set_transform(struct accel *a, uint32_t shape, const struct xform *to_world)
+{
+    int32_t iid = a->shape_to_inst[shape];
+    struct xform inv;
+    if (iid < 0 || !xform_invert(to_world, &inv)) return false;
+    RTCGeometry inst = rtcGetGeometry(a->top, (unsigned)iid);
+    accel_set_instance_xform(inst, to_world);
+    rtcCommitGeometry(inst);
+    a->to_world[shape] = *to_world;
+    a->to_object[shape] = inv;
+    return true;
+}
+
+void accel_commit_top(struct accel *a)
+{
+    rtcCommitScene(a->top);
+}
+
+const struct xform *accel_shape_to_world(const struct accel *a, uint32_t shape)
+{
+    return &a->to_world[shape];
+}

@@ -1,0 +1,21 @@
+/* camera.c — pinhole camera (see camera.h). */
+#include "camera.h"
+
+void camera_init(struct camera *cam, const struct camera_desc *desc, uint32_t width, uint32_t height)
+{
+    cam->position = desc->position;
+    cam->forward = vec3_normalize(vec3_sub(desc->look_at, desc->position));
+    cam->right = vec3_normalize(vec3_cross(cam->forward, desc->up));
+    cam->up = vec3_cross(cam->right, cam->forward);
+    cam->tan_half_fov_y = tanf(0.5f * desc->fov_deg * PI_F / 180.0f);
+    cam->aspect = (float)width / (float)height;
+    cam->width = width;
+    cam->height = height;
+}
+
+struct vec3 camera_ray_dir(const struct camera *cam, float px, float py)
+{
+    float sx = (2.0f * px / (float)cam->width - 1.0f) * cam->tan_half_fov_y * cam->aspect;
+    float sy = (1.0f - 2.0f * py / (float)cam->height) * cam->tan_half_fov_y;
+    return vec3_normalize(vec3_add(cam->forward, vec3_add(vec3_scale(cam->right, sx), vec3_scale(cam->up, sy))));
+}

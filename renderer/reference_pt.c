@@ -1,0 +1,239 @@
+/* reference_pt.c — method `pt` (see reference_pt.h).
+ * Estimator per path vertex (Veach 1997 §9.2, one-sample-each MIS with the power heuristic):
+ *   emission reached by BSDF sampling, weighted w_bsdf = p_bsdf^2 / (p_bsdf^2 + p_light^2),
+ *   plus NEE towards one light sample, weighted w_light = p_light^2 / (p_light^2 + p_bsdf^2),
+ * with all pdfs in solid angle at the shading point (area pdfs converted by dist^2 / |cos|).
+ * Russian roulette survival q = min(0.95, max(throughput)) after rr_depth bounces keeps the
+ * estimator unbiased. Random numbers come from a PCG stream per (seed, frame, pixel, sample),
+ * so images do not depend on the thread count. */
+#include "reference_pt.h"
+
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "accel.h"
+#include "camera.h"
+#include "light_sampler.h"
+#include "material.h"
+#include "rng.h"
+#include "sampling.h"
+#include "surface.h"
+
+#define PT_TILE 16
+#define PT_MAX_WORKERS 1024
+
+struct pt_job {
+    const struct scene *scene;
+    const struct pt_params *params;
+    struct camera camera;
+    struct image *out;
+    uint32_t tiles_x;
+    struct render_stats worker_stats[PT_MAX_WORKERS];
+};
+
+struct pt_params reference_pt_defaults(uint32_t width, uint32_t height)
+{
+    return (struct pt_params){.width = width, .height = height, .spp = 16, .max_depth = 64, .rr_depth = 3};
+}
+
+/* Radiance along one camera ray. */
+static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
+                               struct vec3 dir, struct rng *rng, struct ray_counters *rc)
+{
+    const struct light_sampler *lights = scene->lights;
+    struct vec3 L = vec3_splat(0.0f), beta = vec3_splat(1.0f);
+    float prev_pdf_w = 0.0f;   /* solid-angle pdf of the BSDF sample that produced `dir` */
+    bool prev_delta = true;    /* camera rays and delta scattering get no MIS on emission */
+    struct vec3 prev_p = org;
+
+    for (uint32_t depth = 0;; depth++) {
+        struct hit hit;
+        if (!accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, &hit, rc)) {
+            if (!vec3_is_zero(scene->env_radiance)) {
+                float w = 1.0f;
+                if (!prev_delta) w = sampling_power_heuristic(prev_pdf_w, light_sampler_env_pdf_w(lights));
+                L = vec3_add(L, vec3_scale(vec3_mul(beta, scene->env_radiance), w));
+            }
+            break;
+        }
+        struct surface s;
+        surface_from_hit(scene, &hit, org, dir, &s);
+        const struct material *m = &scene->materials[s.material];
+
+        if (material_is_emissive(m)) {
+            struct vec3 Le = light_sampler_emitted(m, -vec3_dot(dir, s.ng));
+            if (!vec3_is_zero(Le)) {
+                float w = 1.0f;
+                if (!prev_delta) {
+                    float d2 = vec3_length2(vec3_sub(s.p, prev_p));
+                    float pdf_light_w = sampling_area_to_solid_angle(light_sampler_pdf_a(lights, s.shape, s.prim), d2,
+                                                                     vec3_dot(dir, s.ng));
+                    w = sampling_power_heuristic(prev_pdf_w, pdf_light_w);
+                }
+                L = vec3_add(L, vec3_scale(vec3_mul(beta, Le), w));
+            }
+        }
+        if (depth >= params->max_depth) break;
+
+        struct vec3 wo_world = vec3_neg(dir);
+        struct vec3 wo = frame_to_local(&s.frame, wo_world);
+        unsigned flags = material_flags(m);
+
+        /* Next-event estimation: one light sample, MIS-weighted against BSDF sampling. */
+        if ((flags & (BSDF_DIFFUSE | BSDF_GLOSSY)) && light_sampler_count(lights) > 0) {
+            float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
+            struct light_sample ls;
+            if (light_sampler_sample(lights, ul, u1, u2, &ls)) {
+                struct vec3 wi_world, Le;
+                float dist, pdf_light_w;
+                bool ok = true;
+                if (ls.is_env) {
+                    wi_world = ls.dir;
+                    dist = INFINITY;
+                    pdf_light_w = ls.pdf_w;
+                    Le = scene->env_radiance;
+                } else {
+                    struct vec3 d = vec3_sub(ls.p, s.p);
+                    float d2 = vec3_length2(d);
+                    dist = sqrtf(d2);
+                    wi_world = vec3_scale(d, 1.0f / dist);
+                    float cos_l = -vec3_dot(wi_world, ls.n);
+                    Le = light_sampler_emitted(&scene->materials[scene->shapes[ls.shape].material], cos_l);
+                    pdf_light_w = sampling_area_to_solid_angle(ls.pdf_a, d2, cos_l);
+                    ok = d2 > 0.0f && pdf_light_w > 0.0f;
+                }
+                struct vec3 wi = frame_to_local(&s.frame, wi_world);
+                /* Reject directions on different sides of the geometric and shading normals:
+                 * they would leak light through the surface. */
+                ok = ok && !vec3_is_zero(Le) && vec3_dot(wi_world, s.ng) * wi.z > 0.0f;
+                if (ok) {
+                    struct vec3 f = material_eval(m, wo, wi, TRANSPORT_RADIANCE);
+                    if (!vec3_is_zero(f)) {
+                        struct vec3 o = surface_offset(s.p, s.ng, wi_world);
+                        float tmax = ls.is_env ? INFINITY : dist * (1.0f - 1e-4f);
+                        if (!accel_occluded(scene->accel, o, wi_world, 0.0f, tmax, rc)) {
+                            float pdf_bsdf_w = material_pdf(m, wo, wi);
+                            float w = sampling_power_heuristic(pdf_light_w, pdf_bsdf_w);
+                            struct vec3 c = vec3_scale(vec3_mul(f, Le), fabsf(wi.z) * w / pdf_light_w);
+                            L = vec3_add(L, vec3_mul(beta, c));
+                        }
+                    }
+                }
+            }
+        } else {
+            /* Keep the random stream aligned whether or not NEE ran. */
+            rng_next_float(rng);
+            rng_next_float(rng);
+            rng_next_float(rng);
+        }
+
+        /* BSDF sampling continues the path. */
+        float u_lobe = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
+        struct bsdf_sample bs;
+        if (!material_sample(m, wo, u_lobe, u1, u2, TRANSPORT_RADIANCE, &bs) || !(bs.pdf_w > 0.0f)) break;
+        struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
+        if (vec3_dot(wi_world, s.ng) * bs.wi.z <= 0.0f) break;
+        beta = vec3_mul(beta, vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w));
+        prev_delta = (bs.flags & BSDF_DELTA) != 0;
+        prev_pdf_w = bs.pdf_w;
+        prev_p = s.p;
+
+        float u_rr = rng_next_float(rng);
+        if (depth + 1 >= params->rr_depth) {
+            float q = fminf(0.95f, vec3_max_comp(beta));
+            if (!(q > 0.0f) || u_rr >= q) break;
+            beta = vec3_scale(beta, 1.0f / q);
+        }
+        org = surface_offset(s.p, s.ng, wi_world);
+        dir = wi_world;
+    }
+    return L;
+}
+
+static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
+{
+    struct pt_job *job = ctx;
+    const struct pt_params *p = job->params;
+    struct render_stats *st = &job->worker_stats[worker];
+    struct ray_counters rc = {0, 0};
+    uint32_t tx = tile % job->tiles_x, ty = tile / job->tiles_x;
+    uint32_t x0 = p->crop_x0 + tx * PT_TILE, y0 = p->crop_y0 + ty * PT_TILE;
+    uint32_t x1 = x0 + PT_TILE < p->crop_x1 ? x0 + PT_TILE : p->crop_x1;
+    uint32_t y1 = y0 + PT_TILE < p->crop_y1 ? y0 + PT_TILE : p->crop_y1;
+    for (uint32_t y = y0; y < y1; y++) {
+        for (uint32_t x = x0; x < x1; x++) {
+            uint64_t pixel = (uint64_t)y * p->width + x;
+            double acc[3] = {0, 0, 0};
+            for (uint32_t s = 0; s < p->spp; s++) {
+                struct rng rng = rng_make(p->seed, p->frame, pixel, s);
+                float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
+                struct vec3 dir = camera_ray_dir(&job->camera, (float)x + jx, (float)y + jy);
+                struct vec3 L = pt_radiance(job->scene, p, job->camera.position, dir, &rng, &rc);
+                if (!vec3_is_finite(L)) {
+                    st->nonfinite++;
+                    continue;
+                }
+                acc[0] += L.x;
+                acc[1] += L.y;
+                acc[2] += L.z;
+            }
+            double inv = 1.0 / p->spp;
+            job->out->pixels[pixel] = vec3_make((float)(acc[0] * inv), (float)(acc[1] * inv), (float)(acc[2] * inv));
+            st->samples += p->spp;
+        }
+    }
+    st->rays_intersect += rc.intersect;
+    st->rays_occluded += rc.occluded;
+}
+
+bool reference_pt_render(const struct scene *scene, const struct pt_params *params, struct image *out,
+                         struct render_stats *stats, parallel_progress_fn *progress, void *progress_ctx,
+                         struct err *err)
+{
+    if (!scene->accel || !scene->lights) return err_set(err, ERR_INVALID, NULL, "scene is not committed");
+    if (params->spp == 0) return err_set(err, ERR_INVALID, "spp", "spp must be at least 1");
+    struct pt_params p = *params;
+    if (p.crop_x1 == 0 && p.crop_y1 == 0) {
+        p.crop_x0 = p.crop_y0 = 0;
+        p.crop_x1 = p.width;
+        p.crop_y1 = p.height;
+    }
+    if (p.crop_x0 >= p.crop_x1 || p.crop_y0 >= p.crop_y1 || p.crop_x1 > p.width || p.crop_y1 > p.height)
+        return err_set(err, ERR_INVALID, "crop", "crop window [%u,%u)x[%u,%u) is empty or outside %ux%u", p.crop_x0,
+                       p.crop_x1, p.crop_y0, p.crop_y1, p.width, p.height);
+    if (!image_init(out, p.width, p.height, err)) return false;
+
+    struct pt_job *job = calloc(1, sizeof *job);
+    if (!job) {
+        image_destroy(out);
+        return err_set(err, ERR_NOMEM, NULL, "out of memory");
+    }
+    job->scene = scene;
+    job->params = &p;
+    job->out = out;
+    camera_init(&job->camera, &scene->camera, p.width, p.height);
+    job->tiles_x = (p.crop_x1 - p.crop_x0 + PT_TILE - 1) / PT_TILE;
+    uint32_t tiles_y = (p.crop_y1 - p.crop_y0 + PT_TILE - 1) / PT_TILE;
+    unsigned threads = p.threads ? p.threads : parallel_default_threads();
+    if (threads > PT_MAX_WORKERS) threads = PT_MAX_WORKERS;
+
+    struct timespec t0, t1;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    bool ok = parallel_run(threads, job->tiles_x * tiles_y, pt_tile, job, progress, progress_ctx, err);
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+
+    if (stats) {
+        memset(stats, 0, sizeof *stats);
+        for (unsigned i = 0; i < threads; i++) {
+            stats->rays_intersect += job->worker_stats[i].rays_intersect;
+            stats->rays_occluded += job->worker_stats[i].rays_occluded;
+            stats->samples += job->worker_stats[i].samples;
+            stats->nonfinite += job->worker_stats[i].nonfinite;
+        }
+        stats->render_ms = (double)(t1.tv_sec - t0.tv_sec) * 1e3 + (double)(t1.tv_nsec - t0.tv_nsec) * 1e-6;
+    }
+    free(job);
+    if (!ok) image_destroy(out);
+    return ok;
+}

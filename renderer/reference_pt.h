@@ -1,0 +1,41 @@
+/* reference_pt.h — the ground-truth path tracer (method `pt`): unidirectional path tracing with
+ * next-event estimation and BSDF sampling combined by the power heuristic, Russian roulette,
+ * and a box pixel filter (one uniformly jittered position per sample). Every other method is
+ * tested against it, so it favours plain, checkable code over tricks. */
+#ifndef RESTIRD_REFERENCE_PT_H
+#define RESTIRD_REFERENCE_PT_H
+
+#include <stdint.h>
+
+#include "image.h"
+#include "parallel.h"
+#include "scene.h"
+
+struct pt_params {
+    uint32_t width, height;
+    uint32_t spp;          /* samples per pixel, >= 1 */
+    uint32_t max_depth;    /* maximum number of scattering events (bounces); 0 = emitters only */
+    uint32_t rr_depth;     /* Russian roulette starts after this many bounces */
+    uint64_t seed;
+    uint32_t frame;        /* decorrelates frames of one session */
+    unsigned threads;      /* 0 = all cores */
+    /* Optional crop (inclusive-exclusive pixel window); all zero = the whole image. */
+    uint32_t crop_x0, crop_y0, crop_x1, crop_y1;
+};
+
+struct render_stats {
+    uint64_t rays_intersect, rays_occluded;
+    uint64_t samples;
+    uint64_t nonfinite;    /* samples dropped because their value was NaN or Inf */
+    double render_ms;
+};
+
+/* Defaults: 16 spp, max_depth 64, rr_depth 3, seed 0, all cores, whole image. */
+struct pt_params reference_pt_defaults(uint32_t width, uint32_t height);
+
+/* Renders into `out` (initialised here to width x height; pixels outside a crop stay 0). */
+bool reference_pt_render(const struct scene *scene, const struct pt_params *params, struct image *out,
+                         struct render_stats *stats, parallel_progress_fn *progress, void *progress_ctx,
+                         struct err *err);
+
+#endif

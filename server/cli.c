@@ -1,0 +1,225 @@
+/* cli.c — `build/restir`, the offline command line: render a scene file to EXR, or compare two
+ * EXR images. A thin front end over renderer/: it parses arguments strictly, reports progress
+ * on a terminal, and prints one summary (or one JSON object with --json). Exit status: 0 done,
+ * 1 the work failed (the message says why), 2 the command line is wrong. */
+#include <errno.h>
+#include <inttypes.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "exrio.h"
+#include "metrics.h"
+#include "reference_pt.h"
+#include "scene.h"
+
+#define CLI_USAGE                                                                                  \
+    "usage:\n"                                                                                     \
+    "  restir render SCENE.json [--method pt] [--spp N] [--size WxH] [--seed S] [--frame F]\n"    \
+    "                [--threads T] [--max-depth D] [--crop X0,Y0,X1,Y1] [--half] [--json] -o OUT.exr\n" \
+    "  restir compare A.exr B.exr      (B is the reference; prints one JSON object)\n"             \
+    "defaults: --method pt --spp 16 --size 256x256 --seed 0 --max-depth 64, all cores, float EXR\n"
+
+static int cli_usage_error(const char *fmt, const char *arg)
+{
+    fprintf(stderr, "restir: ");
+    fprintf(stderr, fmt, arg);
+    fprintf(stderr, "\n%s", CLI_USAGE);
+    return 2;
+}
+
+static bool cli_parse_u64(const char *s, uint64_t max, uint64_t *out)
+{
+    if (!s || !*s || *s == '-' || *s == '+') return false;
+    errno = 0;
+    char *end;
+    unsigned long long v = strtoull(s, &end, 10);
+    if (errno || *end || v > max) return false;
+    *out = v;
+    return true;
+}
+
+static bool cli_parse_u32(const char *s, uint32_t max, uint32_t *out)
+{
+    uint64_t v;
+    if (!cli_parse_u64(s, max, &v)) return false;
+    *out = (uint32_t)v;
+    return true;
+}
+
+static bool cli_parse_size(const char *s, uint32_t *w, uint32_t *h)
+{
+    char buf[64];
+    if (!s || strlen(s) >= sizeof buf) return false;
+    strcpy(buf, s);
+    char *x = strchr(buf, 'x');
+    if (!x) return false;
+    *x = 0;
+    return cli_parse_u32(buf, 16384, w) && cli_parse_u32(x + 1, 16384, h) && *w > 0 && *h > 0;
+}
+
+static bool cli_parse_crop(const char *s, uint32_t v[4])
+{
+    char buf[128];
+    if (!s || strlen(s) >= sizeof buf) return false;
+    strcpy(buf, s);
+    char *save = NULL, *tok = strtok_r(buf, ",", &save);
+    for (int i = 0; i < 4; i++) {
+        if (!tok || !cli_parse_u32(tok, 16384, &v[i])) return false;
+        tok = strtok_r(NULL, ",", &save);
+    }
+    return tok == NULL;
+}
+
+static void cli_progress(void *ctx, uint32_t done, uint32_t total)
+{
+    (void)ctx;
+    int width = 40, filled = total ? (int)((uint64_t)done * width / total) : width;
+    fprintf(stderr, "\r[%.*s%*s] %3u%%", filled, "########################################", width - filled, "",
+            total ? (unsigned)((uint64_t)done * 100 / total) : 100u);
+    if (done == total) fputc('\n', stderr);
+    fflush(stderr);
+}
+
+static int cli_render(int argc, char **argv)
+{
+    const char *scene_path = NULL, *out_path = NULL, *method = "pt";
+    uint32_t width = 256, height = 256;
+    struct pt_params p = reference_pt_defaults(width, height);
+    bool half = false, json = false;
+    uint32_t crop[4] = {0, 0, 0, 0};
+    bool has_crop = false;
+
+    for (int i = 0; i < argc; i++) {
+        const char *a = argv[i];
+        const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+        if (strcmp(a, "--half") == 0) { half = true; continue; }
+        if (strcmp(a, "--json") == 0) { json = true; continue; }
+        if (a[0] != '-') {
+            if (scene_path) return cli_usage_error("unexpected argument '%s'", a);
+            scene_path = a;
+            continue;
+        }
+        if (!v) return cli_usage_error("option %s needs a value", a);
+        i++;
+        uint64_t u64;
+        if (strcmp(a, "-o") == 0) out_path = v;
+        else if (strcmp(a, "--method") == 0) method = v;
+        else if (strcmp(a, "--spp") == 0) {
+            if (!cli_parse_u32(v, 1u << 24, &p.spp) || p.spp == 0) return cli_usage_error("--spp: expected 1..16777216, got '%s'", v);
+        } else if (strcmp(a, "--size") == 0) {
+            if (!cli_parse_size(v, &width, &height)) return cli_usage_error("--size: expected WxH with sides 1..16384, got '%s'", v);
+        } else if (strcmp(a, "--seed") == 0) {
+            if (!cli_parse_u64(v, UINT64_MAX, &u64)) return cli_usage_error("--seed: expected a non-negative integer, got '%s'", v);
+            p.seed = u64;
+        } else if (strcmp(a, "--frame") == 0) {
+            if (!cli_parse_u32(v, UINT32_MAX, &p.frame)) return cli_usage_error("--frame: expected a non-negative integer, got '%s'", v);
+        } else if (strcmp(a, "--threads") == 0) {
+            uint32_t t;
+            if (!cli_parse_u32(v, 1024, &t)) return cli_usage_error("--threads: expected 0..1024 (0 = all cores), got '%s'", v);
+            p.threads = t;
+        } else if (strcmp(a, "--max-depth") == 0) {
+            if (!cli_parse_u32(v, 1024, &p.max_depth)) return cli_usage_error("--max-depth: expected 0..1024, got '%s'", v);
+        } else if (strcmp(a, "--crop") == 0) {
+            if (!cli_parse_crop(v, crop)) return cli_usage_error("--crop: expected X0,Y0,X1,Y1, got '%s'", v);
+            has_crop = true;
+        } else return cli_usage_error("unknown option '%s'", a);
+    }
+    if (!scene_path) return cli_usage_error("%s", "render needs a scene file");
+    if (!out_path) return cli_usage_error("%s", "render needs -o OUT.exr");
+    if (strcmp(method, "pt") != 0) return cli_usage_error("--method: unknown method '%s' (available: pt)", method);
+    p.width = width;
+    p.height = height;
+    if (has_crop) {
+        p.crop_x0 = crop[0];
+        p.crop_y0 = crop[1];
+        p.crop_x1 = crop[2];
+        p.crop_y1 = crop[3];
+    }
+
+    struct err err = {0};
+    char msg[1024];
+    struct scene *scene = scene_load_file(scene_path, &err);
+    if (!scene || !scene_commit(scene, &err)) {
+        fprintf(stderr, "restir: %s: %s\n", scene_path, err_format(&err, msg, sizeof msg));
+        if (scene) scene_release(scene);
+        return 1;
+    }
+    struct image img;
+    struct render_stats st;
+    bool tty = isatty(STDERR_FILENO) && !json;
+    if (!reference_pt_render(scene, &p, &img, &st, tty ? cli_progress : NULL, NULL, &err)) {
+        fprintf(stderr, "restir: render failed: %s\n", err_format(&err, msg, sizeof msg));
+        scene_release(scene);
+        return 1;
+    }
+    struct exrio_write_opts wo = {.pixel = half ? EXRIO_HALF : EXRIO_FLOAT, .compression = EXRIO_ZIP};
+    bool wrote = exrio_write_file(out_path, &img, &wo, &err);
+    if (!wrote) fprintf(stderr, "restir: cannot write %s: %s\n", out_path, err_format(&err, msg, sizeof msg));
+
+    double mean[3] = {0, 0, 0};
+    for (size_t i = 0; i < (size_t)img.width * img.height; i++) {
+        mean[0] += img.pixels[i].x;
+        mean[1] += img.pixels[i].y;
+        mean[2] += img.pixels[i].z;
+    }
+    for (int c = 0; c < 3; c++) mean[c] /= (double)img.width * img.height;
+    uint64_t rays = st.rays_intersect + st.rays_occluded;
+    double rays_per_s = st.render_ms > 0 ? rays / (st.render_ms * 1e-3) : 0.0;
+    unsigned threads = p.threads ? p.threads : parallel_default_threads();
+    if (json) {
+        printf("{\"method\":\"%s\",\"width\":%u,\"height\":%u,\"spp\":%u,\"seed\":%" PRIu64 ",\"threads\":%u,"
+               "\"time_ms\":%.3f,\"rays\":%" PRIu64 ",\"rays_intersect\":%" PRIu64 ",\"rays_occluded\":%" PRIu64
+               ",\"rays_per_s\":%.6g,\"samples\":%" PRIu64 ",\"nonfinite\":%" PRIu64 ",\"mean\":[%.9g,%.9g,%.9g]}\n",
+               method, width, height, p.spp, p.seed, threads, st.render_ms, rays, st.rays_intersect, st.rays_occluded,
+               rays_per_s, st.samples, st.nonfinite, mean[0], mean[1], mean[2]);
+    } else {
+        fprintf(stderr, "%s: %ux%u, %u spp, %s: %.3f s, %.2f Mrays/s (%" PRIu64 " rays, %u threads)%s\n", out_path,
+                width, height, p.spp, method, st.render_ms * 1e-3, rays_per_s * 1e-6, rays, threads,
+                st.nonfinite ? ", non-finite samples dropped" : "");
+    }
+    image_destroy(&img);
+    scene_release(scene);
+    return wrote ? 0 : 1;
+}
+
+static int cli_compare(int argc, char **argv)
+{
+    if (argc != 2) return cli_usage_error("%s", "compare needs exactly two EXR files");
+    struct err err = {0};
+    char msg[1024];
+    struct image a, b;
+    if (!exrio_read_file(argv[0], &a, &err)) {
+        fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
+        return 1;
+    }
+    if (!exrio_read_file(argv[1], &b, &err)) {
+        fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
+        image_destroy(&a);
+        return 1;
+    }
+    struct metrics m;
+    bool ok = metrics_compare(&a, &b, &m, &err);
+    char json[2048];
+    if (ok) ok = metrics_format_json(&m, json, sizeof json, &err);
+    if (ok) {
+        printf("%s\n", json);
+    } else {
+        fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
+    }
+    image_destroy(&a);
+    image_destroy(&b);
+    return ok ? 0 : 1;
+}
+
+int main(int argc, char **argv)
+{
+    if (argc < 2 || strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0) {
+        fputs(CLI_USAGE, argc < 2 ? stderr : stdout);
+        return argc < 2 ? 2 : 0;
+    }
+    if (strcmp(argv[1], "render") == 0) return cli_render(argc - 2, argv + 2);
+    if (strcmp(argv[1], "compare") == 0) return cli_compare(argc - 2, argv + 2);
+    return cli_usage_error("unknown command '%s' (render, compare)", argv[1]);
+}

@@ -1,0 +1,45 @@
+"""Shared fixtures for the Python test tier: the CLI binary, renders and EXR reading.
+
+Run through `make test` (which builds build/restir first) with Debian's /usr/bin/python3 so that
+numpy and OpenImageIO are importable."""
+import json
+import os
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+BIN = os.environ.get("RESTIR_BIN", str(ROOT / "build" / "restir"))
+
+
+def read_exr(path):
+    """Reads an EXR with OpenImageIO (independent of our reader): float32 array H x W x C."""
+    inp = oiio.ImageInput.open(str(path))
+    assert inp is not None, oiio.geterror()
+    try:
+        pixels = inp.read_image(oiio.FLOAT)
+    finally:
+        inp.close()
+    assert pixels is not None
+    return np.asarray(pixels, dtype=np.float64)
+
+
+def render(scene, out, *, spp=4, size="32x32", seed=0, extra=()):
+    """Runs `restir render --json` and returns (image RGB, stats dict)."""
+    cmd = [BIN, "render", str(scene), "--spp", str(spp), "--size", size, "--seed", str(seed),
+           "--json", "-o", str(out), *extra]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, f"{cmd}: {res.stderr}"
+    return read_exr(out)[:, :, :3], json.loads(res.stdout)
+
+
+def run_cli(*args, timeout=120):
+    return subprocess.run([BIN, *map(str, args)], capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture
+def scenes():
+    return ROOT / "scenes"

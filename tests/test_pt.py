@@ -1,0 +1,154 @@
+"""Reference path tracer: end-to-end through the CLI, unbiasedness and analytic furnaces.
+
+Each statistical test has a negative control showing that the same machinery rejects an image
+that is wrong by a few percent, so a pass means something."""
+import json
+
+import numpy as np
+import pytest
+
+from conftest import read_exr, render, run_cli
+from stats import ztest_runs
+
+
+def test_cornell_box_renders(tmp_path, scenes):
+    img, st = render(scenes / "cornell-box" / "scene.json", tmp_path / "cb.exr", spp=4, size="32x32")
+    assert img.shape == (32, 32, 3)
+    assert np.isfinite(img).all() and (img >= 0).all()
+    assert st["nonfinite"] == 0
+    assert st["rays"] == st["rays_intersect"] + st["rays_occluded"] > 0
+    # The box is lit: warm light (17, 12, 4) on white walls makes red > green > blue on average.
+    m = img.reshape(-1, 3).mean(axis=0)
+    assert m[0] > m[1] > m[2] > 0
+
+
+def test_result_independent_of_thread_count(tmp_path, scenes):
+    sc = scenes / "cornell-box" / "scene.json"
+    a, _ = render(sc, tmp_path / "a.exr", spp=2, seed=9, extra=["--threads", "1"])
+    b, _ = render(sc, tmp_path / "b.exr", spp=2, seed=9, extra=["--threads", "3"])
+    assert np.array_equal(a, b)
+
+
+def _runs(scene, tmp_path, seeds, spp, size="32x32", extra=()):
+    return np.stack([render(scene, tmp_path / f"r{s}.exr", spp=spp, size=size, seed=s, extra=extra)[0] for s in seeds])
+
+
+def test_pt_unbiased_independent_renders_agree(tmp_path, scenes):
+    """Two groups with different seeds and different sample allocations agree per pixel."""
+    sc = scenes / "cornell-box" / "scene.json"
+    a = _runs(sc, tmp_path, range(0, 24), spp=32)
+    b = _runs(sc, tmp_path, range(1000, 1048), spp=16)
+    res = ztest_runs(a, b)
+    assert res.passed, str(res)
+    # Negative control: the same comparison rejects an image 3 % too bright.
+    bad = ztest_runs(a * 1.03, b)
+    assert not bad.passed, str(bad)
+
+
+def _sphere_coverage(size, cam_pos, look_at, fov_deg, center, radius, ss=4):
+    """Fraction of each pixel's area whose camera ray hits the sphere (ss x ss subsamples)."""
+    w = h = size
+    pos, look = np.array(cam_pos, float), np.array(look_at, float)
+    fwd = (look - pos) / np.linalg.norm(look - pos)
+    right = np.cross(fwd, [0.0, 1.0, 0.0]); right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    t = np.tan(np.radians(fov_deg) / 2)
+    cov = np.zeros((h, w))
+    off = (np.arange(ss) + 0.5) / ss
+    for y in range(h):
+        for x in range(w):
+            px, py = np.meshgrid(x + off, y + off)
+            sx = (2 * px / w - 1) * t * (w / h)
+            sy = (1 - 2 * py / h) * t
+            d = fwd[None, None] + sx[..., None] * right + sy[..., None] * up
+            d /= np.linalg.norm(d, axis=-1, keepdims=True)
+            oc = pos - np.array(center, float)
+            b = (d * oc).sum(-1)
+            disc = b * b - (oc @ oc - radius * radius)
+            cov[y, x] = np.mean(disc > 0)
+    return cov
+
+
+@pytest.mark.parametrize("albedo", [1.0, 0.5])
+def test_furnace_convex_sphere(tmp_path, albedo):
+    """A diffuse sphere of albedo a in a uniform environment of radiance 1: the sphere shows a,
+    the background 1 (a convex object sees only the environment)."""
+    size = 24
+    cam = {"position": [0, 0, -4], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_deg": 40}
+    scene = {
+        "camera": cam,
+        "materials": {"m": {"type": "diffuse", "albedo": [albedo] * 3}},
+        "shapes": [{"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "m"}],
+        "environment": {"radiance": [1, 1, 1]},
+    }
+    path = tmp_path / "furnace.json"
+    path.write_text(json.dumps(scene))
+    runs = _runs(path, tmp_path, range(12), spp=8, size=f"{size}x{size}")
+    cov = _sphere_coverage(size, cam["position"], cam["look_at"], cam["fov_deg"], [0, 0, 0], 1.0)
+    # Only pixels fully on or fully off the sphere have an exactly known expectation.
+    known = (cov == 0) | (cov == 1)
+    expected = np.where(cov == 1, albedo, 1.0)[..., None].repeat(3, axis=2)
+    res = ztest_runs(runs[:, known], expected=expected[known])
+    assert res.passed, str(res)
+    assert known.sum() > 0.8 * size * size
+    if albedo == 1.0:
+        # Albedo 1 under a uniform environment: every pixel is exactly 1 whatever the coverage.
+        assert ztest_runs(runs, expected=1.0).passed
+    bad = ztest_runs(runs[:, known] * 1.03, expected=expected[known])
+    assert not bad.passed, str(bad)
+
+
+def test_furnace_closed_emissive_sphere(tmp_path):
+    """Camera inside a closed diffuse sphere of albedo a emitting Le on its inside: radiance is
+    Le / (1 - a) everywhere (geometric series of bounces). Exercises Russian roulette, deep
+    paths, two-sided emission and MIS between emitter hits and NEE."""
+    albedo, le = 0.6, 0.5
+    scene = {
+        "camera": {"position": [0.1, 0.2, -0.3], "look_at": [0, 0, 1], "up": [0, 1, 0], "fov_deg": 60},
+        "materials": {"m": {"type": "diffuse", "albedo": [albedo] * 3, "emission": [le] * 3, "two_sided": True}},
+        "shapes": [{"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "m"}],
+    }
+    path = tmp_path / "closed.json"
+    path.write_text(json.dumps(scene))
+    runs = _runs(path, tmp_path, range(12), spp=8, size="16x16")
+    res = ztest_runs(runs, expected=le / (1 - albedo))
+    assert res.passed, str(res)
+    assert not ztest_runs(runs * 1.03, expected=le / (1 - albedo)).passed
+
+
+def test_cli_usage_errors(tmp_path, scenes):
+    sc = scenes / "cornell-box" / "scene.json"
+    cases = [
+        ((), 2, "usage"),
+        (("render", sc), 2, "needs -o"),
+        (("render", sc, "--spp", "0", "-o", tmp_path / "x.exr"), 2, "--spp"),
+        (("render", sc, "--size", "32by32", "-o", tmp_path / "x.exr"), 2, "--size"),
+        (("render", sc, "--method", "bogus", "-o", tmp_path / "x.exr"), 2, "unknown method 'bogus'"),
+        (("render", sc, "--frobnicate", "1", "-o", tmp_path / "x.exr"), 2, "unknown option '--frobnicate'"),
+        (("render", tmp_path / "missing.json", "-o", tmp_path / "x.exr"), 1, "missing.json"),
+        (("compare", tmp_path / "nope.exr", tmp_path / "nope2.exr"), 1, "nope.exr"),
+    ]
+    for args, code, text in cases:
+        res = run_cli(*args)
+        assert res.returncode == code, (args, res.stderr)
+        assert text in res.stderr, (args, res.stderr)
+
+
+def test_compare_metrics(tmp_path, scenes):
+    sc = scenes / "cornell-box" / "scene.json"
+    render(sc, tmp_path / "a.exr", spp=4, seed=1)
+    render(sc, tmp_path / "b.exr", spp=4, seed=2)
+    same = run_cli("compare", tmp_path / "a.exr", tmp_path / "a.exr")
+    assert same.returncode == 0, same.stderr
+    m = json.loads(same.stdout)
+    assert m["mape"] == 0 and m["rmse"] == 0
+    diff = run_cli("compare", tmp_path / "a.exr", tmp_path / "b.exr")
+    m = json.loads(diff.stdout)
+    a, b = read_exr(tmp_path / "a.exr")[..., :3], read_exr(tmp_path / "b.exr")[..., :3]
+    rmse = np.sqrt(np.mean((a - b) ** 2))
+    mape = np.mean(np.abs(a - b) / (b + 0.01 * b.mean()))
+    assert m["rmse"] == pytest.approx(rmse, rel=1e-5)
+    assert m["mape"] == pytest.approx(mape, rel=1e-5)
+    render(sc, tmp_path / "small.exr", spp=1, size="16x16")
+    bad = run_cli("compare", tmp_path / "a.exr", tmp_path / "small.exr")
+    assert bad.returncode == 1 and "32x32" in bad.stderr and "16x16" in bad.stderr

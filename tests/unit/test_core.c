@@ -1,0 +1,262 @@
+/* test_core.c — unit tests for the renderer's base pieces: RNG streams, alias tables, the
+ * Embree backend (hit distances, front-face normals, instancing), ray origin offsets, the
+ * light sampler's pdfs and the camera. Scenes are built in code so these tests do not depend
+ * on the JSON loader. */
+#include <math.h>
+#include <stdlib.h>
+
+#include "accel.h"
+#include "camera.h"
+#include "distrib.h"
+#include "light_sampler.h"
+#include "rng.h"
+#include "scene.h"
+#include "surface.h"
+#include "test.h"
+
+/* χ² statistic critical value for `dof` degrees of freedom at significance 1e-4
+ * (Wilson–Hilferty approximation; z = 3.719). */
+static double chi2_critical(int dof)
+{
+    double z = 3.719, k = dof;
+    double t = 1.0 - 2.0 / (9.0 * k) + z * sqrt(2.0 / (9.0 * k));
+    return k * t * t * t;
+}
+
+static void test_rng_uniform_chi2(void)
+{
+    enum { BINS = 64, N = 640000 };
+    int counts[BINS] = {0};
+    struct rng r = rng_make(7, 1, 2, 3);
+    for (int i = 0; i < N; i++) {
+        float u = rng_next_float(&r);
+        CHECK(u >= 0.0f && u < 1.0f);
+        counts[(int)(u * BINS)]++;
+    }
+    double chi2 = 0, e = (double)N / BINS;
+    for (int i = 0; i < BINS; i++) chi2 += (counts[i] - e) * (counts[i] - e) / e;
+    CHECK_MSG(chi2 < chi2_critical(BINS - 1), "chi2 %.2f", chi2);
+}
+
+static void test_rng_streams_differ(void)
+{
+    /* Streams of neighbouring pixels must not be shifted copies of each other. */
+    struct rng a = rng_make(0, 0, 0, 0), b = rng_make(0, 0, 1, 0);
+    uint32_t xa[16], xb[16];
+    for (int i = 0; i < 16; i++) { xa[i] = rng_next_u32(&a); xb[i] = rng_next_u32(&b); }
+    int same = 0;
+    for (int i = 0; i < 16; i++)
+        for (int j = 0; j < 16; j++) same += xa[i] == xb[j];
+    CHECK(same == 0);
+    struct rng c = rng_make(0, 0, 1, 0);
+    CHECK(rng_next_u32(&c) == xb[0]);  /* deterministic */
+}
+
+static void test_distrib_chi2(void)
+{
+    double w[5] = {1.0, 0.0, 3.0, 0.5, 10.0};
+    struct distrib d;
+    struct err err;
+    CHECK(distrib_init(&d, w, 5, &err));
+    double total = 14.5;
+    int counts[5] = {0};
+    struct rng r = rng_make(1, 0, 0, 0);
+    enum { N = 400000 };
+    for (int i = 0; i < N; i++) {
+        float pmf;
+        uint32_t k = distrib_sample(&d, rng_next_float(&r), &pmf);
+        CHECK(k < 5);
+        CHECK_NEAR(pmf, w[k] / total, 1e-6);
+        counts[k]++;
+    }
+    CHECK(counts[1] == 0);
+    double chi2 = 0;
+    for (int k = 0; k < 5; k++) {
+        if (w[k] == 0) continue;
+        double e = N * w[k] / total;
+        chi2 += (counts[k] - e) * (counts[k] - e) / e;
+    }
+    CHECK_MSG(chi2 < chi2_critical(3), "chi2 %.2f", chi2);
+    distrib_destroy(&d);
+    double bad[2] = {1.0, NAN};
+    CHECK(!distrib_init(&d, bad, 2, &err) && err.code == ERR_INVALID);
+}
+
+/* A scene with a floor quad (y = 0, front +y, 10 x 10 around the origin, named or not) and an
+ * emissive quad facing down at y = 5. */
+static struct scene *make_scene(bool named_floor)
+{
+    struct scene *s = calloc(1, sizeof *s);
+    s->refcount = 1;
+    s->camera = (struct camera_desc){{0, 2, -10}, {0, 2, 0}, {0, 1, 0}, 40.0f};
+    s->material_count = 2;
+    s->materials = calloc(2, sizeof *s->materials);
+    s->material_names = calloc(2, sizeof *s->material_names);
+    s->materials[0] = (struct material){.kind = MATERIAL_DIFFUSE, .albedo = {0.5f, 0.5f, 0.5f}};
+    s->materials[1] = (struct material){.kind = MATERIAL_DIFFUSE, .emission = {4, 4, 4}};
+    strcpy(s->material_names[0], "grey");
+    strcpy(s->material_names[1], "lamp");
+    s->shape_count = 3;
+    s->shapes = calloc(3, sizeof *s->shapes);
+    for (int i = 0; i < 2; i++) {
+        struct shape *sh = &s->shapes[i];
+        float y = i == 0 ? 0.0f : 5.0f, e = i == 0 ? 5.0f : 1.0f;
+        sh->kind = SHAPE_MESH;
+        sh->material = (uint32_t)i;
+        sh->to_world = xform_identity();
+        sh->vertex_count = 4;
+        sh->triangle_count = 2;
+        sh->positions = malloc(4 * sizeof *sh->positions);
+        sh->indices = malloc(6 * sizeof *sh->indices);
+        /* Counter-clockwise seen from +y for the floor; from -y for the lamp. */
+        struct vec3 up[4] = {{-e, y, -e}, {-e, y, e}, {e, y, e}, {e, y, -e}};
+        for (int v = 0; v < 4; v++) sh->positions[i == 0 ? v : 3 - v] = up[v];
+        uint32_t idx[6] = {0, 1, 2, 0, 2, 3};
+        memcpy(sh->indices, idx, sizeof idx);
+    }
+    if (named_floor) strcpy(s->shapes[0].name, "floor");
+    /* A sphere of radius 1 at (3, 1, 0), scaled non-uniformly into an ellipsoid (instanced). */
+    struct shape *sp = &s->shapes[2];
+    sp->kind = SHAPE_SPHERE;
+    sp->material = 0;
+    sp->center = vec3_make(0, 0, 0);
+    sp->radius = 1.0f;
+    sp->to_world = xform_identity();
+    sp->to_world.m[0][0] = 2.0f;  /* x semi-axis 2 */
+    sp->to_world.m[0][3] = 3.0f;
+    sp->to_world.m[1][3] = 1.0f;
+    return s;
+}
+
+static void check_floor_hits(struct scene *s)
+{
+    struct ray_counters rc = {0, 0};
+    struct hit h;
+    /* From above: hits the floor at t = 2 with normal +y. */
+    CHECK(accel_intersect(s->accel, vec3_make(-2, 2, 0), vec3_make(0, -1, 0), 0, INFINITY, &h, &rc));
+    CHECK_NEAR(h.t, 2.0f, 1e-5);
+    CHECK(h.shape == 0);
+    CHECK_NEAR(h.ng.y, 1.0f, 1e-6);
+    /* Up to the lamp: front face points down. */
+    CHECK(accel_intersect(s->accel, vec3_make(0, 2, 0), vec3_make(0, 1, 0), 0, INFINITY, &h, &rc));
+    CHECK(h.shape == 1);
+    CHECK_NEAR(h.ng.y, -1.0f, 1e-6);
+    /* The ellipsoid: along -x from x = 10 at y = 1 hits x = 3 + 2 = 5, normal +x. */
+    CHECK(accel_intersect(s->accel, vec3_make(10, 1, 0), vec3_make(-1, 0, 0), 0, INFINITY, &h, &rc));
+    CHECK(h.shape == 2);
+    CHECK_NEAR(h.t, 5.0f, 1e-4);
+    CHECK_NEAR(h.ng.x, 1.0f, 1e-5);
+    struct surface su;
+    surface_from_hit(s, &h, vec3_make(10, 1, 0), vec3_make(-1, 0, 0), &su);
+    CHECK_NEAR(su.p.x, 5.0f, 1e-5);
+    /* From the top of the ellipsoid (y = 2 at x = 3): the normal is +y. */
+    CHECK(accel_intersect(s->accel, vec3_make(3, 4, 0), vec3_make(0, -1, 0), 0, INFINITY, &h, &rc));
+    CHECK(h.shape == 2);
+    CHECK_NEAR(h.ng.y, 1.0f, 1e-5);
+    /* Occlusion of a segment that ends before the lamp, and one that crosses it. */
+    CHECK(!accel_occluded(s->accel, vec3_make(0.5f, 1, 0), vec3_make(0, 1, 0), 0, 3.0f, &rc));
+    CHECK(accel_occluded(s->accel, vec3_make(0.5f, 1, 0), vec3_make(0, 1, 0), 0, 5.0f, &rc));
+    CHECK(rc.intersect == 4 && rc.occluded == 2);
+}
+
+static void test_accel_static_and_instanced(void)
+{
+    for (int named = 0; named < 2; named++) {
+        struct scene *s = make_scene(named);
+        struct err err = {0};
+        CHECK_MSG(scene_commit(s, &err), "%s", err.message);
+        check_floor_hits(s);
+        scene_release(s);
+    }
+}
+
+static void test_accel_move_instance(void)
+{
+    struct scene *s = make_scene(true);
+    struct err err = {0};
+    CHECK(scene_commit(s, &err));
+    struct xform up = xform_identity();
+    up.m[1][3] = 1.0f;  /* lift the floor to y = 1 */
+    CHECK(accel_set_transform(s->accel, 0, &up));
+    CHECK(!accel_set_transform(s->accel, 1, &up));  /* unnamed: baked, not movable */
+    accel_commit_top(s->accel);
+    struct ray_counters rc = {0, 0};
+    struct hit h;
+    CHECK(accel_intersect(s->accel, vec3_make(-2, 3, 0), vec3_make(0, -1, 0), 0, INFINITY, &h, &rc));
+    CHECK_NEAR(h.t, 2.0f, 1e-5);
+    struct surface su;
+    surface_from_hit(s, &h, vec3_make(-2, 3, 0), vec3_make(0, -1, 0), &su);
+    CHECK_NEAR(su.p.y, 1.0f, 1e-6);
+    scene_release(s);
+}
+
+static void test_offset_avoids_self_hit(void)
+{
+    struct scene *s = make_scene(false);
+    struct err err = {0};
+    CHECK(scene_commit(s, &err));
+    struct rng r = rng_make(3, 0, 0, 0);
+    struct ray_counters rc = {0, 0};
+    int self = 0;
+    for (int i = 0; i < 20000; i++) {
+        /* Points on the floor far from the origin (large ULPs) leaving at grazing angles. */
+        struct vec3 p = vec3_make(4.9f * (2 * rng_next_float(&r) - 1), 0.0f, 4.9f * (2 * rng_next_float(&r) - 1));
+        float a = 1e-3f + 0.5f * rng_next_float(&r);
+        struct vec3 d = vec3_normalize(vec3_make(cosf(6.28f * a), a * 0.01f, sinf(6.28f * a)));
+        struct hit h;
+        struct vec3 o = surface_offset(p, vec3_make(0, 1, 0), d);
+        if (accel_intersect(s->accel, o, d, 0, INFINITY, &h, &rc) && h.shape == 0) self++;
+    }
+    CHECK_MSG(self == 0, "%d self-intersections", self);
+    scene_release(s);
+}
+
+static void test_light_sampler_pdfs(void)
+{
+    struct scene *s = make_scene(false);
+    struct err err = {0};
+    CHECK(scene_commit(s, &err));
+    const struct light_sampler *ls = s->lights;
+    CHECK(light_sampler_count(ls) == 2);  /* the lamp's two triangles */
+    struct rng r = rng_make(5, 0, 0, 0);
+    double mean_x = 0, mean_z = 0;
+    enum { N = 100000 };
+    for (int i = 0; i < N; i++) {
+        struct light_sample smp;
+        CHECK(light_sampler_sample(ls, rng_next_float(&r), rng_next_float(&r), rng_next_float(&r), &smp));
+        CHECK_NEAR(smp.p.y, 5.0f, 1e-6);
+        CHECK(fabsf(smp.p.x) <= 1.0f && fabsf(smp.p.z) <= 1.0f);
+        CHECK_NEAR(smp.n.y, -1.0f, 1e-6);
+        /* Uniform over the 2 x 2 lamp: pdf_a = 1/4 everywhere, and pdf_a() agrees. */
+        CHECK_NEAR(smp.pdf_a, 0.25f, 1e-6);
+        CHECK_NEAR(light_sampler_pdf_a(ls, smp.shape, smp.prim), smp.pdf_a, 1e-7);
+        mean_x += smp.p.x;
+        mean_z += smp.p.z;
+    }
+    /* Uniform over [-1,1]^2: means 0 with standard error 1/sqrt(3N). */
+    CHECK(fabs(mean_x / N) < 4.0 / sqrt(3.0 * N));
+    CHECK(fabs(mean_z / N) < 4.0 / sqrt(3.0 * N));
+    CHECK(light_sampler_pdf_a(ls, 0, 0) == 0.0f);  /* the floor is no emitter */
+    CHECK(light_sampler_emitted(&s->materials[1], 0.5f).x == 4.0f);
+    CHECK(light_sampler_emitted(&s->materials[1], -0.5f).x == 0.0f);  /* one-sided */
+    scene_release(s);
+}
+
+static void test_camera_rays(void)
+{
+    struct camera_desc d = {{278, 273, -800}, {278, 273, 0}, {0, 1, 0}, 39.3077f};
+    struct camera c;
+    camera_init(&c, &d, 200, 100);
+    struct vec3 mid = camera_ray_dir(&c, 100, 50);
+    CHECK_NEAR(mid.z, 1.0f, 1e-6);
+    /* The top edge centre is fov/2 above the axis. */
+    struct vec3 top = camera_ray_dir(&c, 100, 0);
+    CHECK_NEAR(atan2f(top.y, top.z) * 180.0f / PI_F, 39.3077f / 2, 1e-3);
+    /* Image right is -x for a camera looking down +z with +y up (right-handed). */
+    struct vec3 right = camera_ray_dir(&c, 200, 50);
+    CHECK(right.x < 0.0f);
+}
+
+TEST_MAIN(TEST(test_rng_uniform_chi2), TEST(test_rng_streams_differ), TEST(test_distrib_chi2),
+          TEST(test_accel_static_and_instanced), TEST(test_accel_move_instance), TEST(test_offset_avoids_self_hit),
+          TEST(test_light_sampler_pdfs), TEST(test_camera_rays))
