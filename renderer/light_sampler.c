@@ -183,7 +183,8 @@ float light_sampler_pdf_a(const struct light_sampler *ls, uint32_t shape, uint32
 {
     if (shape >= ls->shape_count || ls->shape_first[shape] < 0) return 0.0f;
     uint64_t i = (uint64_t)ls->shape_first[shape] + (ls->entries[ls->shape_first[shape]].kind == LIGHT_TRIANGLE ? prim : 0);
-    if (i >= ls->count) return 0.0f;
+    /* Zero-area triangles (accepted in mesh files) get zero power and are never sampled. */
+    if (i >= ls->count || !(ls->entries[i].area > 0.0f)) return 0.0f;
     return ls->dist.pmf[i] / ls->entries[i].area;
 }
 
