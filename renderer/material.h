@@ -38,7 +38,8 @@ struct material {
     struct vec3 albedo;       /* DIFFUSE: reflectance in [0, 1] */
     struct vec3 eta, k;       /* CONDUCTOR: complex index of refraction per channel */
     float ior;                /* DIELECTRIC: interior / exterior index, > 0, != 1 */
-    float roughness;          /* CONDUCTOR, DIELECTRIC: GGX alpha; 0 = perfectly smooth (delta) */
+    float roughness;          /* CONDUCTOR, DIELECTRIC: GGX alpha; 0 = perfectly smooth (delta).
+                                 Below MICROFACET_DELTA_ALPHA (1e-4) it is treated as 0. */
     struct vec3 emission;     /* radiance leaving the front face (any kind); zero = not emissive */
     bool two_sided_emission;  /* emits from both faces */
 };
@@ -49,7 +50,10 @@ struct bsdf_sample {
                          |cos wi| / pdf_w, gives the throughput; pdf_w is then the discrete
                          lobe probability) */
     float pdf_w;      /* solid-angle pdf of wi given wo, including the lobe choice */
-    float pdf_rev_w;  /* solid-angle pdf of sampling wo given wi (same lobe measure) */
+    float pdf_rev_w;  /* solid-angle pdf of sampling wo given wi through the same lobe, i.e.
+                         material_pdf_lobe(m, lobe, wi, wo); for delta lobes the discrete
+                         probability of choosing that lobe from wi (refraction: the reverse
+                         crossing's 1 - F) */
     int lobe;         /* index of the sampled lobe, 0 .. material_lobe_count()-1 */
     unsigned flags;   /* flags of the sampled lobe */
 };
@@ -75,7 +79,13 @@ struct vec3 material_eval_lobe(const struct material *m, int lobe, struct vec3 w
                                enum transport_mode mode);
 float material_pdf_lobe(const struct material *m, int lobe, struct vec3 wo, struct vec3 wi);
 /* Samples a lobe (with u_lobe) and a direction (with u1, u2). Returns false when no direction
- * can be produced (wo grazing, total absorption, wi below the surface): the path ends. */
+ * can be produced (wo grazing, total absorption, wi below the surface): the path ends.
+ * For non-delta lobes f and pdf_w are material_eval_lobe / material_pdf_lobe recomputed at the
+ * returned wi, so they agree with later evaluations exactly. Weights f |cos wi| / pdf_w:
+ * diffuse = albedo; conductor F(wo.m) G2 / G1(wo) <= F; dielectric reflection <= 1, refraction <= 1 in
+ * TRANSPORT_IMPORTANCE and <= (eta_wo / eta_wi)^2 in TRANSPORT_RADIANCE (Veach 1997 §5.2:
+ * f_radiance(wo, wi) / eta_wo^2 = f_radiance(wi, wo) / eta_wi^2, f_importance(wo, wi) =
+ * f_radiance(wi, wo)). */
 bool material_sample(const struct material *m, struct vec3 wo, float u_lobe, float u1, float u2,
                      enum transport_mode mode, struct bsdf_sample *out);
 
