@@ -1,0 +1,162 @@
+/* test_metrics.c — MAPE / RMSE / relMSE against values computed by hand on tiny images,
+ * size mismatch errors, NaN/Inf exclusion and counting, and the JSON formatting (null for
+ * non-finite, never a bare nan).
+ * Refs: metrics.h for the definitions; ReSTIR BDPT paper footnote 3 for MAPE. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "metrics.h"
+#include "test.h"
+
+static struct image make(uint32_t w, uint32_t h, const struct vec3 *px)
+{
+    struct image img;
+    struct err err;
+    if (image_init(&img, w, h, &err) && px) memcpy(img.pixels, px, sizeof *px * w * h);
+    return img;
+}
+
+/* ref = (1,2,3),(4,5,6): mean 21/6 = 3.5, so MAPE's offset is 0.035.
+ * image differs by +0.5 at ref 1 and +1 at ref 6:
+ *   MAPE   = (0.5/1.035 + 1/6.035) / 6
+ *   RMSE   = sqrt((0.25 + 1) / 6)
+ *   relMSE = (0.25/(1 + 0.01) + 1/(36 + 0.01)) / 6 */
+static void test_hand_computed_2x1(void)
+{
+    struct vec3 r[2] = {{1, 2, 3}, {4, 5, 6}}, a[2] = {{1.5f, 2, 3}, {4, 5, 7}};
+    struct image ref = make(2, 1, r), img = make(2, 1, a);
+    struct metrics m;
+    struct err err = {0};
+    CHECK(metrics_compare(&img, &ref, &m, &err));
+    CHECK_NEAR(m.mape, (0.5 / 1.035 + 1.0 / 6.035) / 6.0, 1e-15);
+    CHECK_NEAR(m.mape, 0.10813197838160916, 1e-15);
+    CHECK_NEAR(m.rmse, 0.45643546458763845, 1e-15);
+    CHECK_NEAR(m.relmse, 0.04588246939106574, 1e-15);
+    CHECK_NEAR(m.ref_mean, 3.5, 0.0);
+    CHECK(m.width == 2 && m.height == 1 && m.pixels_used == 2 && m.samples == 6);
+    CHECK(m.nan_image == 0 && m.nan_ref == 0 && m.inf_image == 0 && m.inf_ref == 0);
+
+    /* The metric is not symmetric: swapping the roles changes the denominators. */
+    struct metrics s;
+    CHECK(metrics_compare(&ref, &img, &s, &err));
+    CHECK(fabs(s.mape - m.mape) > 1e-3);
+    CHECK_NEAR(s.rmse, m.rmse, 1e-15);
+    image_destroy(&ref);
+    image_destroy(&img);
+}
+
+static void test_identical_is_zero(void)
+{
+    struct vec3 r[3] = {{0.1f, 0.2f, 0.3f}, {0, 0, 0}, {7, 8, 9}};
+    struct image ref = make(3, 1, r), img = make(3, 1, r);
+    struct metrics m;
+    CHECK(metrics_compare(&img, &ref, &m, NULL));
+    CHECK(m.mape == 0.0 && m.rmse == 0.0 && m.relmse == 0.0);
+    image_destroy(&ref);
+    image_destroy(&img);
+}
+
+/* A large image with a constant error: double accumulation keeps the means exact enough. */
+static void test_large_constant_error(void)
+{
+    struct image ref = make(1000, 1000, NULL), img = make(1000, 1000, NULL);
+    if (!ref.pixels || !img.pixels) { CHECK(0); return; }
+    for (size_t i = 0; i < 1000000; i++) {
+        ref.pixels[i] = vec3_splat(1.0f);
+        img.pixels[i] = vec3_splat(1.25f);
+    }
+    struct metrics m;
+    CHECK(metrics_compare(&img, &ref, &m, NULL));
+    CHECK_NEAR(m.mape, 0.25 / 1.01, 1e-12);
+    CHECK_NEAR(m.rmse, 0.25, 1e-12);
+    CHECK_NEAR(m.relmse, 0.0625 / 1.01, 1e-12);
+    CHECK(m.samples == 3000000);
+    image_destroy(&ref);
+    image_destroy(&img);
+}
+
+static void test_size_mismatch(void)
+{
+    struct vec3 p[2] = {{1, 1, 1}, {1, 1, 1}};
+    struct image a = make(2, 1, p), b = make(1, 2, p);
+    struct metrics m;
+    struct err err = {0};
+    CHECK(!metrics_compare(&a, &b, &m, &err));
+    CHECK(err.code == ERR_INVALID);
+    CHECK_MSG(strstr(err.message, "2x1") && strstr(err.message, "1x2"), "%s", err.message);
+    struct image empty = {0};
+    CHECK(!metrics_compare(&a, &empty, &m, &err) && err.code == ERR_INVALID);
+    image_destroy(&a);
+    image_destroy(&b);
+}
+
+/* Pixel 1 has a NaN in the image, pixel 2 an Inf in the reference, pixel 3 both a NaN and an
+ * Inf in the image: only pixel 0 enters the sums, and its values alone decide the metrics. */
+static void test_nonfinite_excluded(void)
+{
+    struct vec3 r[4] = {{2, 2, 2}, {1, 1, 1}, {INFINITY, 1, 1}, {1, 1, 1}};
+    struct vec3 a[4] = {{3, 2, 2}, {1, NAN, 1}, {1, 1, 1}, {NAN, -INFINITY, 1}};
+    struct image ref = make(4, 1, r), img = make(4, 1, a);
+    struct metrics m;
+    CHECK(metrics_compare(&img, &ref, &m, NULL));
+    CHECK(m.pixels_used == 1 && m.samples == 3);
+    CHECK(m.nan_image == 2 && m.inf_image == 1 && m.nan_ref == 0 && m.inf_ref == 1);
+    CHECK_NEAR(m.ref_mean, 2.0, 0.0);
+    CHECK_NEAR(m.mape, (1.0 / 2.02) / 3.0, 1e-15);
+    CHECK_NEAR(m.rmse, sqrt(1.0 / 3.0), 1e-15);
+    CHECK_NEAR(m.relmse, (1.0 / 4.01) / 3.0, 1e-15);
+    CHECK(isfinite(m.mape) && isfinite(m.rmse) && isfinite(m.relmse));
+    image_destroy(&ref);
+    image_destroy(&img);
+}
+
+static void test_json(void)
+{
+    struct vec3 r[2] = {{1, 2, 3}, {4, 5, 6}};
+    struct image ref = make(2, 1, r), img = make(2, 1, r);
+    struct metrics m;
+    CHECK(metrics_compare(&img, &ref, &m, NULL));
+    char buf[METRICS_JSON_MAX];
+    struct err err = {0};
+    CHECK(metrics_format_json(&m, buf, sizeof buf, &err));
+    CHECK_MSG(strcmp(buf, "{\"width\":2,\"height\":1,\"pixels_used\":2,\"samples\":6,\"mape\":0,"
+                          "\"rmse\":0,\"relmse\":0,\"ref_mean\":3.5,\"nan\":{\"a\":0,\"b\":0},"
+                          "\"inf\":{\"a\":0,\"b\":0}}") == 0, "%s", buf);
+
+    /* %.9g for real values. */
+    struct vec3 a[2] = {{1.5f, 2, 3}, {4, 5, 7}};
+    struct image img2 = make(2, 1, a);
+    CHECK(metrics_compare(&img2, &ref, &m, NULL));
+    CHECK(metrics_format_json(&m, buf, sizeof buf, &err));
+    CHECK_MSG(strstr(buf, "\"mape\":0.108131978,\"rmse\":0.456435465,\"relmse\":0.0458824694,"), "%s", buf);
+
+    /* Black reference: MAPE undefined -> null; all pixels non-finite -> every metric null. */
+    struct vec3 z[2] = {{0, 0, 0}, {0, 0, 0}};
+    struct image black = make(2, 1, z);
+    CHECK(metrics_compare(&img, &black, &m, NULL));
+    CHECK(isnan(m.mape) && isfinite(m.rmse));
+    CHECK(metrics_format_json(&m, buf, sizeof buf, &err));
+    CHECK_MSG(strstr(buf, "\"mape\":null,\"rmse\":") && !strstr(buf, ":nan") && !strstr(buf, ":-nan") &&
+                  !strstr(buf, ":inf"),
+              "%s", buf);
+    struct vec3 n[2] = {{NAN, 0, 0}, {0, INFINITY, 0}};
+    struct image bad = make(2, 1, n);
+    CHECK(metrics_compare(&bad, &ref, &m, NULL));
+    CHECK(m.pixels_used == 0);
+    CHECK(metrics_format_json(&m, buf, sizeof buf, &err));
+    CHECK_MSG(strstr(buf, "\"mape\":null,\"rmse\":null,\"relmse\":null,\"ref_mean\":null,"
+                          "\"nan\":{\"a\":1,\"b\":0},\"inf\":{\"a\":1,\"b\":0}}"), "%s", buf);
+
+    /* Too small a buffer is an error, not a silently cut object. */
+    char tiny[40];
+    CHECK(!metrics_format_json(&m, tiny, sizeof tiny, &err) && err.code == ERR_LIMIT);
+    image_destroy(&ref);
+    image_destroy(&img);
+    image_destroy(&img2);
+    image_destroy(&black);
+    image_destroy(&bad);
+}
+
+TEST_MAIN(TEST(test_hand_computed_2x1), TEST(test_identical_is_zero), TEST(test_large_constant_error),
+          TEST(test_size_mismatch), TEST(test_nonfinite_excluded), TEST(test_json))
