@@ -4,13 +4,15 @@
 CC      ?= cc
 SAN     ?= 0
 BUILD   := build
+# Sanitizer builds live in their own tree (build/san/) so the two kinds never mix.
 ifeq ($(SAN),1)
   OPT   := -O1 -g -fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=undefined
-  OBJ   := $(BUILD)/obj-san
+  OUT   := $(BUILD)/san
 else
   OPT   := -O2 -g -fno-math-errno
-  OBJ   := $(BUILD)/obj
+  OUT   := $(BUILD)
 endif
+OBJ     := $(OUT)/obj
 CFLAGS  += -std=c17 -D_DEFAULT_SOURCE -Wall -Wextra -Wshadow -Wno-missing-field-initializers $(OPT) -MMD -MP -pthread
 LDLIBS  := -lembree3 -lOpenEXRCore -lassimp -lcjson -lm -pthread
 CFLAGS  += $(shell pkg-config --cflags OpenEXR 2>/dev/null)
@@ -21,10 +23,11 @@ RENDERER_SRC := $(wildcard renderer/*.c)
 RENDERER_OBJ := $(RENDERER_SRC:%.c=$(OBJ)/%.o)
 CLI_SRC      := server/cli.c
 UNIT_SRC     := $(wildcard tests/unit/test_*.c)
-UNIT_BIN     := $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
+UNIT_BIN     := $(UNIT_SRC:tests/unit/%.c=$(OUT)/tests/%)
 
 .PHONY: all deps test test-unit test-py run bench clean help
-all: $(BUILD)/restir
+.SECONDARY:
+all: $(OUT)/restir
 
 help:
 	@echo "make            build build/restir (offline CLI)"
@@ -46,10 +49,10 @@ $(OBJ)/librenderer.a: $(RENDERER_OBJ)
 	@rm -f $@
 	ar rcs $@ $^
 
-$(BUILD)/restir: $(OBJ)/server/cli.o $(OBJ)/librenderer.a
+$(OUT)/restir: $(OBJ)/server/cli.o $(OBJ)/librenderer.a
 	$(CC) $(CFLAGS) $^ $(LDLIBS) -o $@
 
-$(BUILD)/tests/%: $(OBJ)/tests/unit/%.o $(OBJ)/librenderer.a
+$(OUT)/tests/%: $(OBJ)/tests/unit/%.o $(OBJ)/librenderer.a
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) $^ $(LDLIBS) -o $@
 
@@ -62,13 +65,13 @@ test: test-unit test-py
 test-unit: $(UNIT_BIN)
 	@fail=0; for t in $(UNIT_BIN); do echo "== $$t"; ./$$t || fail=1; done; exit $$fail
 
-test-py: $(BUILD)/restir
-	RESTIR_BIN=$(abspath $(BUILD)/restir) $(PYTHON) -m pytest -q tests
+test-py: $(OUT)/restir
+	RESTIR_BIN=$(abspath $(OUT)/restir) $(PYTHON) -m pytest -q -p no:cacheprovider tests
 
-run: $(BUILD)/restir
-	./$(BUILD)/restir render scenes/cornell-box/scene.json --method pt --spp 64 --size 256x256 -o $(BUILD)/run.exr
+run: $(OUT)/restir
+	./$(OUT)/restir render scenes/cornell-box/scene.json --method pt --spp 64 --size 256x256 -o $(BUILD)/run.exr
 
-bench: $(BUILD)/restir
+bench: $(OUT)/restir $(OBJ)/librenderer.a
 	bash bench/run.sh
 
 clean:
