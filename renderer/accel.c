@@ -1,6 +1,6 @@
-/* accel.c — the only file that includes Embree. Builds one static bottom level for all
- * unnamed shapes (geometry baked to world space) and one instanced bottom level per named
- * shape or ellipsoid, under a top-level scene; answers closest-hit and occlusion queries.
+/* accel.c — the only file that includes Embree. Builds the scene's BVH (flat when nothing
+ * moves; two-level when some shapes are movable, see accel_new) and answers closest-hit and
+ * occlusion queries.
  * Must not know about materials or lights. Counts every query in caller-owned counters.
  * Refs: Embree 3 API (rtcore.h); instancing keeps per-frame transform updates to a top-level
  * re-commit (ARCHITECTURE.md "accel"). */
@@ -16,16 +16,15 @@
 struct accel {
     RTCDevice device;
     RTCScene top;
-    RTCScene static_blas;     /* NULL when every shape is instanced */
-    uint32_t *static_geom_to_shape;  /* geomID in static_blas -> shape index */
-    uint32_t static_geom_count;
-    uint32_t *inst_to_shape;  /* instance geomID in top -> shape index */
+    RTCScene static_blas;     /* two-level layout only: the static geometry's bottom level */
+    unsigned static_inst_id;  /* its instance id in top, or RTC_INVALID_GEOMETRY_ID */
+    uint32_t *top_shape;      /* geomID in top (direct geometry or instance) -> shape */
+    uint32_t *static_shape;   /* geomID in static_blas -> shape */
+    int32_t *shape_to_inst;   /* shape -> instance id in top if movable, else -1 */
+    RTCScene *inst_blas;      /* bottom levels of instanced shapes */
     uint32_t inst_count;
-    int32_t *shape_to_inst;   /* shape -> instance geomID in top, or -1 */
-    RTCScene *inst_blas;      /* inst_count bottom levels */
     struct xform *to_world;   /* current object->world per shape */
     struct xform *to_object;  /* inverse of to_world per shape */
-    uint32_t static_inst_id;  /* geomID of the static instance in top */
 };
 
 static void accel_error_cb(void *user, enum RTCError code, const char *str)
@@ -35,26 +34,22 @@ static void accel_error_cb(void *user, enum RTCError code, const char *str)
     fprintf(stderr, "restird: embree error %d: %s\n", (int)code, str ? str : "");
 }
 
-static bool accel_needs_instance(const struct shape *s)
+/* A sphere can be baked into world space only under a similarity transform; otherwise it is an
+ * ellipsoid and needs an instance. */
+static bool accel_is_ellipsoid(const struct shape *s)
 {
-    if (s->name[0]) return true;
-    if (s->kind == SHAPE_SPHERE) {
-        /* Spheres bake into the static level only under a similarity transform. */
-        struct vec3 c0 = xform_vector(&s->to_world, vec3_make(1, 0, 0));
-        struct vec3 c1 = xform_vector(&s->to_world, vec3_make(0, 1, 0));
-        struct vec3 c2 = xform_vector(&s->to_world, vec3_make(0, 0, 1));
-        float l0 = vec3_length(c0), l1 = vec3_length(c1), l2 = vec3_length(c2);
-        float lm = fmaxf(l0, fmaxf(l1, l2));
-        if (fabsf(l0 - l1) > 1e-5f * lm || fabsf(l0 - l2) > 1e-5f * lm) return true;
-        if (fabsf(vec3_dot(c0, c1)) > 1e-5f * lm * lm || fabsf(vec3_dot(c0, c2)) > 1e-5f * lm * lm ||
-            fabsf(vec3_dot(c1, c2)) > 1e-5f * lm * lm)
-            return true;
-    }
-    return false;
+    if (s->kind != SHAPE_SPHERE) return false;
+    struct vec3 c0 = xform_vector(&s->to_world, vec3_make(1, 0, 0));
+    struct vec3 c1 = xform_vector(&s->to_world, vec3_make(0, 1, 0));
+    struct vec3 c2 = xform_vector(&s->to_world, vec3_make(0, 0, 1));
+    float l0 = vec3_length(c0), l1 = vec3_length(c1), l2 = vec3_length(c2);
+    float lm = fmaxf(l0, fmaxf(l1, l2)), eps = 1e-5f * lm;
+    return fabsf(l0 - l1) > eps || fabsf(l0 - l2) > eps || fabsf(vec3_dot(c0, c1)) > eps * lm ||
+           fabsf(vec3_dot(c0, c2)) > eps * lm || fabsf(vec3_dot(c1, c2)) > eps * lm;
 }
 
-/* Adds the shape's geometry to `blas`, transformed by `xf` (identity for instanced shapes). */
-static bool accel_add_geometry(RTCDevice dev, RTCScene blas, const struct shape *s, const struct xform *xf,
+/* Adds the shape's geometry to `target`, transformed by `xf` (identity for instanced shapes). */
+static bool accel_add_geometry(RTCDevice dev, RTCScene target, const struct shape *s, const struct xform *xf,
                                unsigned *geom_id, struct err *err)
 {
     RTCGeometry g;
@@ -90,30 +85,52 @@ static bool accel_add_geometry(RTCDevice dev, RTCScene blas, const struct shape 
         v[3] = s->radius * scale;
     }
     rtcCommitGeometry(g);
-    *geom_id = rtcAttachGeometry(blas, g);
+    *geom_id = rtcAttachGeometry(target, g);
     rtcReleaseGeometry(g);
     return true;
 }
 
-static void accel_set_instance_xform(RTCGeometry inst, const struct xform *xf)
+/* Attaches `blas` to the top level as an instance placed by `xf`; returns its geomID. */
+static unsigned accel_attach_instance(struct accel *a, RTCScene blas, const struct xform *xf)
 {
+    RTCGeometry inst = rtcNewGeometry(a->device, RTC_GEOMETRY_TYPE_INSTANCE);
+    rtcSetGeometryInstancedScene(inst, blas);
     rtcSetGeometryTransform(inst, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, &xf->m[0][0]);
+    rtcCommitGeometry(inst);
+    unsigned id = rtcAttachGeometry(a->top, inst);
+    rtcReleaseGeometry(inst);
+    return id;
 }
 
-struct accel *accel_new(const struct scene *scene, struct err *err)
+static bool accel_alloc(struct accel *a, uint32_t n)
+{
+    size_t m = n ? n : 1;
+    /* Top-level ids: at most one per shape plus the static instance. */
+    a->top_shape = malloc((m + 1) * sizeof *a->top_shape);
+    a->static_shape = malloc(m * sizeof *a->static_shape);
+    a->shape_to_inst = malloc(m * sizeof *a->shape_to_inst);
+    a->inst_blas = calloc(m, sizeof *a->inst_blas);
+    a->to_world = malloc(m * sizeof *a->to_world);
+    a->to_object = malloc(m * sizeof *a->to_object);
+    return a->top_shape && a->static_shape && a->shape_to_inst && a->inst_blas && a->to_world && a->to_object;
+}
+
+/* Layouts. With no movable shape, all geometry sits directly in one flat top-level scene (the
+ * fastest traversal; ellipsoids still need an instance each). With movable shapes, static
+ * geometry goes into one bottom level, instanced once, beside one instance per movable shape,
+ * so that moving a shape rebuilds only a top level of a few boxes, never the static BVH. */
+struct accel *accel_new(const struct scene *scene, const bool *movable, struct err *err)
 {
     struct accel *a = calloc(1, sizeof *a);
     uint32_t n = scene->shape_count;
-    if (!a) goto nomem;
-    a->shape_to_inst = malloc((n ? n : 1) * sizeof *a->shape_to_inst);
-    a->inst_to_shape = malloc((n ? n : 1) * sizeof *a->inst_to_shape);
-    a->static_geom_to_shape = malloc((n ? n : 1) * sizeof *a->static_geom_to_shape);
-    a->inst_blas = calloc(n ? n : 1, sizeof *a->inst_blas);
-    a->to_world = malloc((n ? n : 1) * sizeof *a->to_world);
-    a->to_object = malloc((n ? n : 1) * sizeof *a->to_object);
-    if (!a->shape_to_inst || !a->inst_to_shape || !a->static_geom_to_shape || !a->inst_blas || !a->to_world ||
-        !a->to_object)
-        goto nomem;
+    if (!a || !accel_alloc(a, n)) {
+        accel_free(a);
+        err_set(err, ERR_NOMEM, NULL, "out of memory building the acceleration structure");
+        return NULL;
+    }
+    a->static_inst_id = RTC_INVALID_GEOMETRY_ID;
+    bool two_level = false;
+    for (uint32_t i = 0; movable && i < n; i++) two_level |= movable[i];
 
     a->device = rtcNewDevice(NULL);
     if (!a->device) {
@@ -123,13 +140,18 @@ struct accel *accel_new(const struct scene *scene, struct err *err)
     }
     rtcSetDeviceErrorFunction(a->device, accel_error_cb, NULL);
     a->top = rtcNewScene(a->device);
-    rtcSetSceneBuildQuality(a->top, RTC_BUILD_QUALITY_LOW);
-    rtcSetSceneFlags(a->top, RTC_SCENE_FLAG_DYNAMIC);
+    if (two_level) {
+        rtcSetSceneBuildQuality(a->top, RTC_BUILD_QUALITY_LOW);
+        rtcSetSceneFlags(a->top, RTC_SCENE_FLAG_DYNAMIC);
+    } else {
+        rtcSetSceneBuildQuality(a->top, RTC_BUILD_QUALITY_HIGH);
+    }
 
     struct xform identity = xform_identity();
     for (uint32_t i = 0; i < n; i++) {
         const struct shape *s = &scene->shapes[i];
         a->to_world[i] = s->to_world;
+        a->shape_to_inst[i] = -1;
         if (!xform_invert(&s->to_world, &a->to_object[i])) {
             char where[64];
             snprintf(where, sizeof where, "/shapes/%u/transform", i);
@@ -137,50 +159,41 @@ struct accel *accel_new(const struct scene *scene, struct err *err)
             accel_free(a);
             return NULL;
         }
-        a->shape_to_inst[i] = -1;
-        if (accel_needs_instance(s)) {
+        bool is_movable = movable && movable[i];
+        unsigned gid;
+        if (is_movable || accel_is_ellipsoid(s)) {
             RTCScene blas = rtcNewScene(a->device);
             rtcSetSceneBuildQuality(blas, RTC_BUILD_QUALITY_HIGH);
-            unsigned gid;
+            a->inst_blas[a->inst_count++] = blas;
             if (!accel_add_geometry(a->device, blas, s, &identity, &gid, err)) {
-                rtcReleaseScene(blas);
                 accel_free(a);
                 return NULL;
             }
             rtcCommitScene(blas);
-            RTCGeometry inst = rtcNewGeometry(a->device, RTC_GEOMETRY_TYPE_INSTANCE);
-            rtcSetGeometryInstancedScene(inst, blas);
-            accel_set_instance_xform(inst, &s->to_world);
-            rtcCommitGeometry(inst);
-            unsigned iid = rtcAttachGeometry(a->top, inst);
-            rtcReleaseGeometry(inst);
-            a->inst_blas[a->inst_count] = blas;
-            a->inst_to_shape[iid] = i;  /* ids are dense from 0 in attach order */
-            a->shape_to_inst[i] = (int32_t)iid;
-            a->inst_count++;
-        } else {
+            unsigned iid = accel_attach_instance(a, blas, &s->to_world);
+            a->top_shape[iid] = i;
+            if (is_movable) a->shape_to_inst[i] = (int32_t)iid;
+        } else if (two_level) {
             if (!a->static_blas) {
                 a->static_blas = rtcNewScene(a->device);
                 rtcSetSceneBuildQuality(a->static_blas, RTC_BUILD_QUALITY_HIGH);
             }
-            unsigned gid;
             if (!accel_add_geometry(a->device, a->static_blas, s, &s->to_world, &gid, err)) {
                 accel_free(a);
                 return NULL;
             }
-            a->static_geom_to_shape[gid] = i;
-            a->static_geom_count++;
+            a->static_shape[gid] = i;
+        } else {
+            if (!accel_add_geometry(a->device, a->top, s, &s->to_world, &gid, err)) {
+                accel_free(a);
+                return NULL;
+            }
+            a->top_shape[gid] = i;
         }
     }
-    a->static_inst_id = RTC_INVALID_GEOMETRY_ID;
     if (a->static_blas) {
         rtcCommitScene(a->static_blas);
-        RTCGeometry inst = rtcNewGeometry(a->device, RTC_GEOMETRY_TYPE_INSTANCE);
-        rtcSetGeometryInstancedScene(inst, a->static_blas);
-        accel_set_instance_xform(inst, &identity);
-        rtcCommitGeometry(inst);
-        a->static_inst_id = rtcAttachGeometry(a->top, inst);
-        rtcReleaseGeometry(inst);
+        a->static_inst_id = accel_attach_instance(a, a->static_blas, &identity);
     }
     rtcCommitScene(a->top);
     enum RTCError e = rtcGetDeviceError(a->device);
@@ -190,11 +203,6 @@ struct accel *accel_new(const struct scene *scene, struct err *err)
         return NULL;
     }
     return a;
-
-nomem:
-    accel_free(a);
-    err_set(err, ERR_NOMEM, NULL, "out of memory building the acceleration structure");
-    return NULL;
 }
 
 void accel_free(struct accel *a)
@@ -205,8 +213,8 @@ void accel_free(struct accel *a)
     for (uint32_t i = 0; i < a->inst_count; i++) rtcReleaseScene(a->inst_blas[i]);
     if (a->device) rtcReleaseDevice(a->device);
     free(a->shape_to_inst);
-    free(a->inst_to_shape);
-    free(a->static_geom_to_shape);
+    free(a->top_shape);
+    free(a->static_shape);
     free(a->inst_blas);
     free(a->to_world);
     free(a->to_object);
@@ -237,18 +245,25 @@ bool accel_intersect(const struct accel *a, struct vec3 org, struct vec3 dir, fl
     counters->intersect++;
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
 
-    unsigned iid = rh.hit.instID[0];
-    uint32_t shape = (iid == a->static_inst_id) ? a->static_geom_to_shape[rh.hit.geomID] : a->inst_to_shape[iid];
     /* Embree's Ng is unnormalised and, for instanced hits, in the instance's object space. For
      * triangles it already points to the counter-clockwise (front) side, for spheres outwards
      * (both checked by tests/unit/test_core.c). */
+    unsigned iid = rh.hit.instID[0];
     struct vec3 ng = vec3_make(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
+    uint32_t shape;
+    if (iid == RTC_INVALID_GEOMETRY_ID) {
+        shape = a->top_shape[rh.hit.geomID];
+    } else if (iid == a->static_inst_id) {
+        shape = a->static_shape[rh.hit.geomID];
+    } else {
+        shape = a->top_shape[iid];
+        ng = xform_normal(&a->to_object[shape], ng);
+    }
     hit->t = rh.ray.tfar;
     hit->shape = shape;
     hit->prim = rh.hit.primID;
     hit->b1 = rh.hit.u;
     hit->b2 = rh.hit.v;
-    if (iid != a->static_inst_id) ng = xform_normal(&a->to_object[shape], ng);
     hit->ng = vec3_normalize(ng);
     return true;
 }
@@ -282,7 +297,7 @@ bool accel_set_transform(struct accel *a, uint32_t shape, const struct xform *to
     struct xform inv;
     if (iid < 0 || !xform_invert(to_world, &inv)) return false;
     RTCGeometry inst = rtcGetGeometry(a->top, (unsigned)iid);
-    accel_set_instance_xform(inst, to_world);
+    rtcSetGeometryTransform(inst, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, &to_world->m[0][0]);
     rtcCommitGeometry(inst);
     a->to_world[shape] = *to_world;
     a->to_object[shape] = inv;

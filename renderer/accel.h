@@ -1,7 +1,7 @@
 /* accel.h — ray queries against a committed scene (the Embree home is accel.c).
- * Unnamed shapes are merged into one static bottom level; every named shape (and every sphere
- * with a non-uniform scale, i.e. an ellipsoid) gets its own instance, so moving a named shape
- * re-commits only the top level. Queries are thread-safe and allocation-free. */
+ * Only shapes declared movable get an instance of their own (moving one re-commits just the
+ * top level); everything else is baked into world space, in one flat BVH when nothing moves,
+ * since a second traversal level costs every ray. Queries are thread-safe, allocation-free. */
 #ifndef RESTIRD_ACCEL_H
 #define RESTIRD_ACCEL_H
 
@@ -24,7 +24,9 @@ struct hit {
 /* Per-thread query counters; callers sum them after a pass (rays/s in frame stats). */
 struct ray_counters { uint64_t intersect, occluded; };
 
-struct accel *accel_new(const struct scene *scene, struct err *err);
+/* movable: NULL, or one flag per shape; a flagged shape can be moved with
+ * accel_set_transform. The scene must outlive the accel. */
+struct accel *accel_new(const struct scene *scene, const bool *movable, struct err *err);
 void accel_free(struct accel *accel);
 /* Closest hit with t in (tmin, tmax); `dir` must be unit length. */
 bool accel_intersect(const struct accel *accel, struct vec3 org, struct vec3 dir, float tmin, float tmax,
@@ -32,7 +34,7 @@ bool accel_intersect(const struct accel *accel, struct vec3 org, struct vec3 dir
 /* True when anything blocks (tmin, tmax). */
 bool accel_occluded(const struct accel *accel, struct vec3 org, struct vec3 dir, float tmin, float tmax,
                     struct ray_counters *counters);
-/* Moves a named (instanced) shape; false if the shape is not instanced. Takes effect after
+/* Moves a shape that was declared movable; false otherwise. Takes effect after
  * accel_commit_top. Not thread-safe against concurrent queries. */
 bool accel_set_transform(struct accel *accel, uint32_t shape, const struct xform *to_world);
 void accel_commit_top(struct accel *accel);

@@ -49,7 +49,9 @@ bool scene_commit(struct scene *scene, struct err *err)
     if (scene->shape_count == 0) lo = hi = vec3_splat(0.0f);
     scene->bounds_min = lo;
     scene->bounds_max = hi;
-    scene->accel = accel_new(scene, err);
+    /* Static renders move nothing; sessions that animate shapes build their own accel with those
+     * shapes movable. */
+    scene->accel = accel_new(scene, NULL, err);
     if (!scene->accel) return false;
     scene->lights = light_sampler_new(scene, err);
     return scene->lights != NULL;

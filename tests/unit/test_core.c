@@ -159,12 +159,19 @@ static void check_floor_hits(struct scene *s)
     CHECK(rc.intersect == 4 && rc.occluded == 2);
 }
 
-static void test_accel_static_and_instanced(void)
+static void test_accel_flat_and_two_level(void)
 {
-    for (int named = 0; named < 2; named++) {
-        struct scene *s = make_scene(named);
+    for (int layout = 0; layout < 2; layout++) {
+        struct scene *s = make_scene(layout);
         struct err err = {0};
         CHECK_MSG(scene_commit(s, &err), "%s", err.message);
+        if (layout == 1) {
+            /* Same queries with the floor movable (two-level layout). */
+            bool movable[3] = {true, false, false};
+            accel_free(s->accel);
+            s->accel = accel_new(s, movable, &err);
+            CHECK(s->accel != NULL);
+        }
         check_floor_hits(s);
         scene_release(s);
     }
@@ -175,10 +182,14 @@ static void test_accel_move_instance(void)
     struct scene *s = make_scene(true);
     struct err err = {0};
     CHECK(scene_commit(s, &err));
+    bool movable[3] = {true, false, false};
+    accel_free(s->accel);
+    s->accel = accel_new(s, movable, &err);
+    CHECK(s->accel != NULL);
     struct xform up = xform_identity();
     up.m[1][3] = 1.0f;  /* lift the floor to y = 1 */
     CHECK(accel_set_transform(s->accel, 0, &up));
-    CHECK(!accel_set_transform(s->accel, 1, &up));  /* unnamed: baked, not movable */
+    CHECK(!accel_set_transform(s->accel, 1, &up));  /* not movable: baked */
     accel_commit_top(s->accel);
     struct ray_counters rc = {0, 0};
     struct hit h;
@@ -258,5 +269,5 @@ static void test_camera_rays(void)
 }
 
 TEST_MAIN(TEST(test_rng_uniform_chi2), TEST(test_rng_streams_differ), TEST(test_distrib_chi2),
-          TEST(test_accel_static_and_instanced), TEST(test_accel_move_instance), TEST(test_offset_avoids_self_hit),
+          TEST(test_accel_flat_and_two_level), TEST(test_accel_move_instance), TEST(test_offset_avoids_self_hit),
           TEST(test_light_sampler_pdfs), TEST(test_camera_rays))
