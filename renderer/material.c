@@ -45,9 +45,15 @@ float material_lobe_roughness(const struct material *m, int lobe)
 
 unsigned material_flags(const struct material *m)
 {
-    unsigned flags = 0;
-    for (int i = 0; i < material_lobe_count(m); i++) flags |= material_lobe_flags(m, i);
-    return flags;
+    /* The union of material_lobe_flags over all lobes, spelled out: it is asked at every path
+     * vertex. */
+    unsigned spread = microfacet_is_delta(m->roughness) ? BSDF_DELTA : BSDF_GLOSSY;
+    switch (m->kind) {
+    case MATERIAL_DIFFUSE: return BSDF_REFLECTION | BSDF_DIFFUSE;
+    case MATERIAL_CONDUCTOR: return BSDF_REFLECTION | spread;
+    case MATERIAL_DIELECTRIC: return BSDF_REFLECTION | BSDF_TRANSMISSION | spread;
+    }
+    return 0;
 }
 
 struct vec3 material_eval_lobe(const struct material *m, int lobe, struct vec3 wo, struct vec3 wi,

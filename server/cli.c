@@ -199,7 +199,7 @@ static int cli_compare(int argc, char **argv)
         image_destroy(&a);
         return 1;
     }
-    struct metrics m;
+    struct metrics m = {0};
     bool ok = metrics_compare(&a, &b, &m, &err);
     char json[2048];
     if (ok) ok = metrics_format_json(&m, json, sizeof json, &err);
