@@ -17,7 +17,7 @@ endif
 AR      := gcc-ar
 OBJ     := $(OUT)/obj
 CFLAGS  += -std=c17 -D_DEFAULT_SOURCE -Wall -Wextra -Wshadow -Wno-missing-field-initializers $(OPT) -MMD -MP -pthread
-LDLIBS  := -lembree3 -lOpenEXRCore -lassimp -lcjson -lm -pthread
+LDLIBS  := -lembree3 -lOpenEXRCore -ldeflate -lassimp -lcjson -lm -pthread
 CFLAGS  += $(shell pkg-config --cflags OpenEXR 2>/dev/null)
 PYTHON  := /usr/bin/python3
 DEPS_OK := $(BUILD)/.deps-ok

@@ -69,7 +69,7 @@ EXR_BIN=""
 if [ -f bench/exr_encode.c ]; then
   if [ -f build/obj/librenderer.a ] && \
      cc -O2 -std=c17 -D_DEFAULT_SOURCE -Irenderer bench/exr_encode.c build/obj/librenderer.a \
-        -lOpenEXRCore -lembree3 -lassimp -lcjson -lm -pthread $(pkg-config --cflags OpenEXR) \
+        -lOpenEXRCore -ldeflate -lembree3 -lassimp -lcjson -lm -pthread $(pkg-config --cflags OpenEXR) \
         -o "$OUT/exr_encode"; then
     EXR_BIN=$OUT/exr_encode
   else
