@@ -17,9 +17,11 @@
 #define CLI_USAGE                                                                                  \
     "usage:\n"                                                                                     \
     "  restir render SCENE.json [--method pt] [--spp N] [--size WxH] [--seed S] [--frame F]\n"    \
-    "                [--threads T] [--max-depth D] [--crop X0,Y0,X1,Y1] [--half] [--json] -o OUT.exr\n" \
+    "                [--threads T] [--max-depth D] [--rr-depth R] [--crop X0,Y0,X1,Y1] [--half] [--json]\n"    \
+    "                -o OUT.exr\n" \
     "  restir compare A.exr B.exr      (B is the reference; prints one JSON object)\n"             \
-    "defaults: --method pt --spp 16 --size 256x256 --seed 0 --max-depth 64, all cores, float EXR\n"
+    "defaults: --method pt --spp 16 --size 256x256 --seed 0 --max-depth 64 --rr-depth 3 (Russian\n"         \
+    "roulette after R bounces; R >= max depth turns it off), all cores, float EXR\n"
 
 static int cli_usage_error(const char *fmt, const char *arg)
 {
@@ -121,6 +123,8 @@ static int cli_render(int argc, char **argv)
             p.threads = t;
         } else if (strcmp(a, "--max-depth") == 0) {
             if (!cli_parse_u32(v, 1024, &p.max_depth)) return cli_usage_error("--max-depth: expected 0..1024, got '%s'", v);
+        } else if (strcmp(a, "--rr-depth") == 0) {
+            if (!cli_parse_u32(v, 1u << 20, &p.rr_depth)) return cli_usage_error("--rr-depth: expected 0..1048576, got '%s'", v);
         } else if (strcmp(a, "--crop") == 0) {
             if (!cli_parse_crop(v, crop)) return cli_usage_error("--crop: expected X0,Y0,X1,Y1, got '%s'", v);
             has_crop = true;

@@ -49,9 +49,17 @@ def sidak_threshold(n_tests, alpha=0.01):
     return NormalDist().inv_cdf(1.0 - per_test / 2.0)
 
 
-def ztest_runs(runs_a, runs_b=None, expected=None):
+FLOAT_REL_FLOOR = 1e-5
+
+
+def ztest_runs(runs_a, runs_b=None, expected=None, rel_floor=FLOAT_REL_FLOOR):
     """runs_a, runs_b: arrays K x H x W x C of independent renders. Either runs_b (a second set)
-    or `expected` (an exact image, H x W x C, or a scalar) is the comparison."""
+    or `expected` (an exact image, H x W x C, or a scalar) is the comparison.
+
+    rel_floor: a standard-error floor relative to the value. Pixels whose paths all carry the
+    same weight up to float rounding (e.g. lossless specular paths that end before Russian
+    roulette) have a sample variance of ~1e-14; without a floor their rounding error of ~1e-7
+    would read as a huge z. A difference below float precision is not evidence of bias."""
     a = np.asarray(runs_a, dtype=np.float64)
     ka = a.shape[0]
     mean_a = a.mean(axis=0)
@@ -73,7 +81,7 @@ def ztest_runs(runs_a, runs_b=None, expected=None):
         g_diff = img_a.mean() - mean_b.mean()
         g_se = np.sqrt(img_a.var(ddof=1) / ka)
         dof = ka - 1
-    se = np.sqrt(var_a + var_b)
+    se = np.sqrt(var_a + var_b + (rel_floor * np.maximum(np.abs(mean_a), np.abs(mean_b))) ** 2)
     diff = mean_a - mean_b
     # Where both sides have zero variance the values must agree exactly (up to float rounding).
     exact = se == 0
@@ -81,5 +89,6 @@ def ztest_runs(runs_a, runs_b=None, expected=None):
     n = z.size
     thr = sidak_threshold(n)
     frac = float(np.mean(np.abs(z) <= thr))
+    g_se = np.sqrt(g_se**2 + (rel_floor * abs(mean_b.mean())) ** 2)
     global_z = float(g_diff / g_se) if g_se > 0 else (0.0 if abs(g_diff) < 1e-9 else float("inf"))
     return ZTest(frac, float(np.max(np.abs(z))), global_z, thr, t_quantile(GLOBAL_P / 2, dof))

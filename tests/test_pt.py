@@ -98,6 +98,36 @@ def test_furnace_convex_sphere(tmp_path, albedo):
     assert not bad.passed, str(bad)
 
 
+@pytest.mark.parametrize("material", [
+    {"type": "dielectric", "ior": 1.5},
+    {"type": "dielectric", "ior": 1.33},
+    {"type": "conductor", "eta": [0.05, 0.05, 0.05], "k": [1000, 1000, 1000], "roughness": 0},
+])
+def test_furnace_lossless_specular_sphere(tmp_path, material):
+    """A lossless smooth sphere (glass, or a mirror with Fresnel ~ 1) in a uniform environment
+    of radiance 1 renders 1 everywhere: every path leaves for the environment and nothing is
+    absorbed. For glass this checks the radiance scaling by eta^2 on the way in and 1/eta^2 on
+    the way out (Veach 1997 §5.2), delta-lobe selection by Fresnel, and that delta vertices get
+    no MIS against environment sampling. Russian roulette is off here (it is tested by the
+    closed furnace): with it, a few samples carry 1/q and rarer ones 0, a skewed distribution
+    that a dozen runs cannot estimate; without it every path weight is 1 up to rounding, so any
+    error in the refraction or Fresnel weights shows at once."""
+    scene = {
+        "camera": {"position": [0, 0, -4], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_deg": 35},
+        "materials": {"m": material},
+        "shapes": [{"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "m"}],
+        "environment": {"radiance": [1, 1, 1]},
+    }
+    path = tmp_path / "specular.json"
+    path.write_text(json.dumps(scene))
+    runs = _runs(path, tmp_path, range(12), spp=8, size="16x16", extra=["--rr-depth", "1000"])
+    # Mirror: Fresnel of a conductor with k = 1000 is 1 to within 1e-6.
+    assert np.abs(runs - 1.0).max() < 1e-4 if material["type"] == "conductor" else True
+    res = ztest_runs(runs, expected=1.0)
+    assert res.passed, str(res)
+    assert not ztest_runs(runs * 1.03, expected=1.0).passed
+
+
 def test_furnace_closed_emissive_sphere(tmp_path):
     """Camera inside a closed diffuse sphere of albedo a emitting Le on its inside: radiance is
     Le / (1 - a) everywhere (geometric series of bounces). Exercises Russian roulette, deep
