@@ -34,7 +34,7 @@ struct pt_job {
 
 struct pt_params reference_pt_defaults(uint32_t width, uint32_t height)
 {
-    return (struct pt_params){.width = width, .height = height, .spp = 16, .max_depth = 64, .rr_depth = 3};
+    return (struct pt_params){.width = width, .height = height, .spp = 16, .max_depth = 64, .rr_depth = 3, .nee = true};
 }
 
 /* Radiance along one camera ray. */
@@ -52,7 +52,7 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         if (!accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, &hit, rc)) {
             if (!vec3_is_zero(scene->env_radiance)) {
                 float w = 1.0f;
-                if (!prev_delta) w = sampling_power_heuristic(prev_pdf_w, light_sampler_env_pdf_w(lights));
+                if (!prev_delta && params->nee) w = sampling_power_heuristic(prev_pdf_w, light_sampler_env_pdf_w(lights));
                 L = vec3_add(L, vec3_scale(vec3_mul(beta, scene->env_radiance), w));
             }
             break;
@@ -65,7 +65,7 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
             struct vec3 Le = light_sampler_emitted(m, -vec3_dot(dir, s.ng));
             if (!vec3_is_zero(Le)) {
                 float w = 1.0f;
-                if (!prev_delta) {
+                if (!prev_delta && params->nee) {
                     float d2 = vec3_length2(vec3_sub(s.p, prev_p));
                     float pdf_light_w = sampling_area_to_solid_angle(light_sampler_pdf_a(lights, s.shape, s.prim), d2,
                                                                      vec3_dot(dir, s.ng));
@@ -81,7 +81,7 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         unsigned flags = material_flags(m);
 
         /* Next-event estimation: one light sample, MIS-weighted against BSDF sampling. */
-        if ((flags & (BSDF_DIFFUSE | BSDF_GLOSSY)) && light_sampler_count(lights) > 0) {
+        if (params->nee && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY)) && light_sampler_count(lights) > 0) {
             float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
             struct light_sample ls;
             if (light_sampler_sample(lights, ul, u1, u2, &ls)) {

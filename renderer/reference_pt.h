@@ -18,6 +18,8 @@ struct pt_params {
     uint32_t rr_depth;     /* Russian roulette starts after this many bounces */
     uint64_t seed;
     uint32_t frame;        /* decorrelates frames of one session */
+    bool nee;              /* next-event estimation + MIS (default); false = BSDF sampling only,
+                              a second unbiased estimator that tests the first one's MIS weights */
     unsigned threads;      /* 0 = all cores */
     /* Optional crop (inclusive-exclusive pixel window); all zero = the whole image. */
     uint32_t crop_x0, crop_y0, crop_x1, crop_y1;
@@ -30,7 +32,7 @@ struct render_stats {
     double render_ms;
 };
 
-/* Defaults: 16 spp, max_depth 64, rr_depth 3, seed 0, all cores, whole image. */
+/* Defaults: 16 spp, max_depth 64, rr_depth 3, NEE on, seed 0, all cores, whole image. */
 struct pt_params reference_pt_defaults(uint32_t width, uint32_t height);
 
 /* Renders into `out` (initialised here to width x height; pixels outside a crop stay 0). */

@@ -17,11 +17,12 @@
 #define CLI_USAGE                                                                                  \
     "usage:\n"                                                                                     \
     "  restir render SCENE.json [--method pt] [--spp N] [--size WxH] [--seed S] [--frame F]\n"    \
-    "                [--threads T] [--max-depth D] [--rr-depth R] [--crop X0,Y0,X1,Y1] [--half] [--json]\n"    \
-    "                -o OUT.exr\n" \
+    "                [--threads T] [--max-depth D] [--rr-depth R] [--no-nee] [--crop X0,Y0,X1,Y1]\n"    \
+    "                [--half] [--json] -o OUT.exr\n" \
     "  restir compare A.exr B.exr      (B is the reference; prints one JSON object)\n"             \
     "defaults: --method pt --spp 16 --size 256x256 --seed 0 --max-depth 64 --rr-depth 3 (Russian\n"         \
-    "roulette after R bounces; R >= max depth turns it off), all cores, float EXR\n"
+    "roulette after R bounces; R >= max depth turns it off), next-event estimation with MIS\n"     \
+    "(--no-nee: BSDF sampling only), all cores, float EXR\n"
 
 static int cli_usage_error(const char *fmt, const char *arg)
 {
@@ -98,6 +99,7 @@ static int cli_render(int argc, char **argv)
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
         if (strcmp(a, "--half") == 0) { half = true; continue; }
         if (strcmp(a, "--json") == 0) { json = true; continue; }
+        if (strcmp(a, "--no-nee") == 0) { p.nee = false; continue; }
         if (a[0] != '-') {
             if (scene_path) return cli_usage_error("unexpected argument '%s'", a);
             scene_path = a;
