@@ -18,13 +18,14 @@ AR      := gcc-ar
 OBJ     := $(OUT)/obj
 CFLAGS  += -std=c17 -D_DEFAULT_SOURCE -Wall -Wextra -Wshadow -Wno-missing-field-initializers $(OPT) -MMD -MP -pthread
 LDLIBS  := -lembree3 -lOpenEXRCore -ldeflate -lassimp -lcjson -lm -pthread
-CFLAGS  += $(shell pkg-config --cflags OpenEXR 2>/dev/null)
+# Deferred ('='), so it is evaluated by the compile commands, after $(DEPS_OK) has installed
+# pkg-config and OpenEXR on a fresh machine, not when the Makefile is read.
+OPENEXR_CFLAGS = $(shell pkg-config --cflags OpenEXR 2>/dev/null)
 PYTHON  := /usr/bin/python3
 DEPS_OK := $(BUILD)/.deps-ok
 
 RENDERER_SRC := $(wildcard renderer/*.c)
 RENDERER_OBJ := $(RENDERER_SRC:%.c=$(OBJ)/%.o)
-CLI_SRC      := server/cli.c
 UNIT_SRC     := $(wildcard tests/unit/test_*.c)
 UNIT_BIN     := $(UNIT_SRC:tests/unit/%.c=$(OUT)/tests/%)
 
@@ -46,7 +47,7 @@ $(DEPS_OK): scripts/install-deps.sh
 
 $(OBJ)/%.o: %.c Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
-	$(CC) $(CFLAGS) -Irenderer -c $< -o $@
+	$(CC) $(CFLAGS) $(OPENEXR_CFLAGS) -Irenderer -c $< -o $@
 
 $(OBJ)/librenderer.a: $(RENDERER_OBJ)
 	@rm -f $@
@@ -61,7 +62,7 @@ $(OUT)/tests/%: $(OBJ)/tests/unit/%.o $(OBJ)/librenderer.a
 
 $(OBJ)/tests/unit/%.o: tests/unit/%.c Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
-	$(CC) $(CFLAGS) -Irenderer -Itests -c $< -o $@
+	$(CC) $(CFLAGS) $(OPENEXR_CFLAGS) -Irenderer -Itests -c $< -o $@
 
 test: test-unit test-py
 

@@ -115,3 +115,15 @@ bool metrics_format_json(const struct metrics *m, char *buf, size_t size, struct
 #undef METRICS_PUT
     return true;
 }
+
+void metrics_image_mean(const struct image *img, double mean[3])
+{
+    double s[3] = {0, 0, 0};
+    size_t n = (size_t)img->width * img->height;
+    for (size_t i = 0; i < n; i++) {
+        s[0] += img->pixels[i].x;
+        s[1] += img->pixels[i].y;
+        s[2] += img->pixels[i].z;
+    }
+    for (int c = 0; c < 3; c++) mean[c] = n ? s[c] / (double)n : 0.0;
+}

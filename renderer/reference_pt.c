@@ -131,7 +131,7 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         /* BSDF sampling continues the path. */
         float u_lobe = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
         struct bsdf_sample bs;
-        if (!material_sample(m, wo, u_lobe, u1, u2, TRANSPORT_RADIANCE, &bs) || !(bs.pdf_w > 0.0f)) break;
+        if (!material_sample(m, wo, u_lobe, u1, u2, TRANSPORT_RADIANCE, &bs)) break;  /* pdf_w > 0 then */
         struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
         if (vec3_dot(wi_world, s.ng) * bs.wi.z <= 0.0f) break;
         beta = vec3_mul(beta, vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w));
@@ -231,6 +231,7 @@ bool reference_pt_render(const struct scene *scene, const struct pt_params *para
             stats->samples += job->worker_stats[i].samples;
             stats->nonfinite += job->worker_stats[i].nonfinite;
         }
+        stats->threads = threads;
         stats->render_ms = (double)(t1.tv_sec - t0.tv_sec) * 1e3 + (double)(t1.tv_nsec - t0.tv_nsec) * 1e-6;
     }
     free(job);

@@ -29,6 +29,7 @@ struct render_stats {
     uint64_t rays_intersect, rays_occluded;
     uint64_t samples;
     uint64_t nonfinite;    /* samples dropped because their value was NaN or Inf */
+    unsigned threads;      /* worker threads used */
     double render_ms;
 };
 

@@ -164,16 +164,11 @@ static int cli_render(int argc, char **argv)
     bool wrote = exrio_write_file(out_path, &img, &wo, &err);
     if (!wrote) fprintf(stderr, "restir: cannot write %s: %s\n", out_path, err_format(&err, msg, sizeof msg));
 
-    double mean[3] = {0, 0, 0};
-    for (size_t i = 0; i < (size_t)img.width * img.height; i++) {
-        mean[0] += img.pixels[i].x;
-        mean[1] += img.pixels[i].y;
-        mean[2] += img.pixels[i].z;
-    }
-    for (int c = 0; c < 3; c++) mean[c] /= (double)img.width * img.height;
+    double mean[3];
+    metrics_image_mean(&img, mean);
     uint64_t rays = st.rays_intersect + st.rays_occluded;
     double rays_per_s = st.render_ms > 0 ? rays / (st.render_ms * 1e-3) : 0.0;
-    unsigned threads = p.threads ? p.threads : parallel_default_threads();
+    unsigned threads = st.threads;
     if (json) {
         printf("{\"method\":\"%s\",\"width\":%u,\"height\":%u,\"spp\":%u,\"seed\":%" PRIu64 ",\"threads\":%u,"
                "\"time_ms\":%.3f,\"rays\":%" PRIu64 ",\"rays_intersect\":%" PRIu64 ",\"rays_occluded\":%" PRIu64

@@ -158,5 +158,18 @@ static void test_json(void)
     image_destroy(&bad);
 }
 
-TEST_MAIN(TEST(test_hand_computed_2x1), TEST(test_identical_is_zero), TEST(test_large_constant_error),
+static void test_image_mean(void)
+{
+    struct image img;
+    struct err err;
+    CHECK(image_init(&img, 2, 1, &err));
+    img.pixels[0] = vec3_make(1.0f, 2.0f, 0.0f);
+    img.pixels[1] = vec3_make(3.0f, 0.5f, -1.0f);
+    double mean[3];
+    metrics_image_mean(&img, mean);
+    CHECK(mean[0] == 2.0 && mean[1] == 1.25 && mean[2] == -0.5);
+    image_destroy(&img);
+}
+
+TEST_MAIN(TEST(test_image_mean), TEST(test_hand_computed_2x1), TEST(test_identical_is_zero), TEST(test_large_constant_error),
           TEST(test_size_mismatch), TEST(test_nonfinite_excluded), TEST(test_json))
