@@ -805,7 +805,7 @@ static bool exrio_read_source(struct exrio_source *src, const char *where, struc
 {
     exr_context_t ctxt = NULL;
     if (!exrio_open(src, where, &ctxt, err)) return false;
-    struct exrio_layout lay;
+    struct exrio_layout lay = {0};
     bool ok = exrio_gate(ctxt, where, &lay, err);
     if (ok) {
         ok = image_init(out, lay.width, lay.height, err);

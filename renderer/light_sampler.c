@@ -149,11 +149,7 @@ bool light_sampler_sample(const struct light_sampler *ls, float u_pick, float u1
     float pmf;
     uint32_t i = distrib_sample(&ls->dist, u_pick, &pmf);
     const struct light_entry *e = &ls->entries[i];
-    out->shape = e->shape;
-    out->prim = e->prim;
-    out->is_env = false;
-    out->pdf_a = 0.0f;
-    out->pdf_w = 0.0f;
+    *out = (struct light_sample){.shape = e->shape, .prim = e->prim};  /* every field defined */
     switch (e->kind) {
     case LIGHT_TRIANGLE: {
         float b1, b2;

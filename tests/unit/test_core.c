@@ -234,7 +234,10 @@ static void test_light_sampler_pdfs(void)
     enum { N = 100000 };
     for (int i = 0; i < N; i++) {
         struct light_sample smp;
-        CHECK(light_sampler_sample(ls, rng_next_float(&r), rng_next_float(&r), rng_next_float(&r), &smp));
+        if (!light_sampler_sample(ls, rng_next_float(&r), rng_next_float(&r), rng_next_float(&r), &smp)) {
+            CHECK_MSG(false, "light sample %d failed", i);
+            break;
+        }
         CHECK_NEAR(smp.p.y, 5.0f, 1e-6);
         CHECK(fabsf(smp.p.x) <= 1.0f && fabsf(smp.p.z) <= 1.0f);
         CHECK_NEAR(smp.n.y, -1.0f, 1e-6);
