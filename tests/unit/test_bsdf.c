@@ -221,6 +221,8 @@ static double integrand_f_cos(const struct integrand *in, struct vec3 w)
  * x < a + 1, else Legendre's continued fraction for Q evaluated with the modified Lentz method. */
 static double stat_gamma_q(double a, double x)
 {
+    /* A NaN or infinite statistic means the test is broken: report p = 0 (reject), never 1. */
+    if (isnan(x) || isinf(x)) return 0.0;
     if (!(x > 0.0)) return 1.0;
     double log_prefactor = -x + a * log(x) - lgamma(a);
     if (x < a + 1.0) {
@@ -274,8 +276,10 @@ struct chi2_result {
 
 static long chi2_samples(void) { return fast_mode() ? 200000 : 1000000; }
 
-/* Runs the chi-square test of material_sample() against scale * material_pdf(). */
-static void chi2_run(const struct chi2_case *c, double scale, uint64_t seed, struct chi2_result *res)
+/* Runs the chi-square test of material_sample() against scale * material_pdf() of `pdf_m`
+ * (NULL: the sampled material itself; another material: a deliberately wrong density). */
+static void chi2_run(const struct chi2_case *c, double scale, const struct material *pdf_m, uint64_t seed,
+                     struct chi2_result *res)
 {
     const int nz = fast_mode() ? 20 : 40, np = fast_mode() ? 40 : 80;
     const int ncells = nz * np;
@@ -312,7 +316,7 @@ static void chi2_run(const struct chi2_case *c, double scale, uint64_t seed, str
     obs[ncells] = res->lost;
 
     /* Expected counts. */
-    struct integrand in = {integrand_pdf, &c->m, c->wo, TRANSPORT_RADIANCE, scale, 0.0f};
+    struct integrand in = {integrand_pdf, pdf_m ? pdf_m : &c->m, c->wo, TRANSPORT_RADIANCE, scale, 0.0f};
     double total = quad_sphere(&in, -1.0, 1.0, nz, np, 1e-7, expct);
     res->pdf_integral = total / scale;
     for (int i = 0; i < ncells; i++) expct[i] *= (double)n;
@@ -442,7 +446,7 @@ static void test_chi2_sampling_matches_pdf(void)
     double alpha = stat_alpha(), p_min = 1.0, p_max = 0.0;
     for (int i = 0; i < chi2_case_count; i++) {
         struct chi2_result res;
-        chi2_run(&chi2_cases[i], 1.0, 1000 + (uint64_t)i, &res);
+        chi2_run(&chi2_cases[i], 1.0, NULL, 1000 + (uint64_t)i, &res);
         CHECK_MSG(res.p > alpha, "%s: chi2 %.1f dof %d p %.3g < %.3g", chi2_cases[i].name, res.chi2, res.dof,
                   res.p, alpha);
         CHECK_MSG(res.pdf_mismatch == 0, "%s: %ld samples whose pdf_w differs from material_pdf",
@@ -471,8 +475,17 @@ static void test_chi2_rejects_wrong_pdf(void)
     double alpha = stat_alpha();
     for (int i = 0; i < 3; i++) {
         struct chi2_result res;
-        chi2_run(&cases[i], 1.1, 77 + (uint64_t)i, &res);
+        chi2_run(&cases[i], 1.1, NULL, 77 + (uint64_t)i, &res);
         CHECK_MSG(res.p < alpha, "%s with pdf * 1.1: p %.3g not rejected", cases[i].name, res.p);
+    }
+    /* A wrong shape with the right total mass: sample alpha, test against the pdf of
+     * 1.05 * alpha. (A scaled pdf only shows that a wrong normalisation is caught.) */
+    for (int i = 1; i < 3; i++) {
+        struct material wrong = cases[i].m;
+        wrong.roughness *= 1.05f;
+        struct chi2_result res;
+        chi2_run(&cases[i], 1.0, &wrong, 91 + (uint64_t)i, &res);
+        CHECK_MSG(res.p < alpha, "%s against the pdf of roughness x1.05: p %.3g not rejected", cases[i].name, res.p);
     }
 }
 

@@ -356,7 +356,18 @@ static void test_transform_order(void)
     CHECK(s->shapes[0].positions[3].y == 1.0f && s->shapes[0].positions[3].z == 0.0f);
     scene_release(s);
 
-    /* Uniform scalar scale; a non-emissive sphere may be an ellipsoid. */
+    /* Y before Z: (0,0,1) -Ry90-> (1,0,0) -Rz90-> (0,1,0). Z before Y would give (1,0,0). */
+    s = load_shape("{\"type\": \"quad\", \"material\": \"white\", \"vertices\": [[0,0,0],[1,0,0],[1,1,0],[0,1,0]], "
+                   "\"transform\": {\"rotate_deg\": [0, 90, 90]}}");
+    CHECK(s != NULL);
+    if (!s) return;
+    p = xform_point(&s->shapes[0].to_world, vec3_make(0, 0, 1));
+    CHECK_NEAR(p.x, 0.0, 1e-6);
+    CHECK_NEAR(p.y, 1.0, 1e-6);
+    CHECK_NEAR(p.z, 0.0, 1e-6);
+    scene_release(s);
+
+    /* Per-axis scale; a non-emissive sphere may be an ellipsoid. */
     s = load_shape("{\"type\": \"sphere\", \"material\": \"white\", \"center\": [0, 0, 0], \"radius\": 1, "
                    "\"transform\": {\"scale\": [1, 3, 1]}}");
     CHECK(s != NULL);
@@ -364,6 +375,15 @@ static void test_transform_order(void)
         CHECK_NEAR(xform_point(&s->shapes[0].to_world, vec3_make(0, 1, 0)).y, 3.0, 1e-6);
         scene_release(s);
     }
+}
+
+/* The material named `name`; a failed CHECK (and the first material, so the caller's reads
+ * stay in bounds) when it is missing. */
+static const struct material *material_named(const struct scene *s, const char *name)
+{
+    int i = scene_find_material(s, name);
+    CHECK_MSG(i >= 0, "material '%s' missing", name);
+    return &s->materials[i >= 0 ? i : 0];
 }
 
 static void test_materials_mapping(void)
@@ -379,13 +399,13 @@ static void test_materials_mapping(void)
     CHECK_MSG(s != NULL, "%s: %s", err.where, err.message);
     if (!s) return;
     CHECK(s->shape_count == 0 && s->material_count == 4);
-    const struct material *au = &s->materials[scene_find_material(s, "au")];
+    const struct material *au = material_named(s, "au");
     CHECK(au->kind == MATERIAL_CONDUCTOR && au->eta.y == 0.2f && au->k.x == 3.0f && au->roughness == 0.25f);
-    const struct material *g = &s->materials[scene_find_material(s, "glass")];
+    const struct material *g = material_named(s, "glass");
     CHECK(g->kind == MATERIAL_DIELECTRIC && g->ior == 1.5f && g->roughness == 0.0f);
-    const struct material *r = &s->materials[scene_find_material(s, "rough")];
+    const struct material *r = material_named(s, "rough");
     CHECK(r->ior == 1.33f && r->roughness == 0.1f);
-    const struct material *l = &s->materials[scene_find_material(s, "lamp")];
+    const struct material *l = material_named(s, "lamp");
     CHECK(l->two_sided_emission && l->emission.z == 3.0f && material_is_emissive(l));
     CHECK(s->env_radiance.y == 0.2f);
     scene_release(s);
