@@ -253,51 +253,48 @@ static exr_compression_t exrio_to_lib_compression(enum exrio_compression c)
     }
 }
 
-/* Works around an OpenEXR Core encoder bug (present in Debian's 3.1.5, fixed upstream by
- * openexr PR #2307 in 2026): when zlib's output for a chunk is exactly as long as the packed
- * input, the library stores the zlib bytes, but every reader takes a chunk whose stored size
- * equals its unpacked size to be uncompressed, and decodes garbage. The file format's rule is
- * to store raw bytes whenever compression does not make the chunk smaller, so we apply it.
- * The library's own routine travels in encoding_user_data (per pipeline, so thread-safe).
- * RLE and PIZ already compare with >=; for them this only repeats their own copy. */
-typedef exr_result_t exrio_compress_fn(exr_encode_pipeline_t *enc);
-struct exrio_compress_hook {
-    exrio_compress_fn *lib;                   /* the library's routine (non-ZIP codecs) */
-    struct libdeflate_compressor *deflate;    /* ZIP/ZIPS: our own deflate, see below */
+/* zlib level of ZIP/ZIPS chunks: fast enough for interactive frames, files within a few
+ * per cent of level 6 on noisy renders. */
+#define EXRIO_ZIP_LEVEL 1
+
+struct exrio_zip {
+    struct libdeflate_compressor *deflate;
     unsigned char *scratch;                   /* reordered + predicted chunk */
     size_t scratch_size;
 };
 
-static exr_result_t exrio_compress_fixed(exr_encode_pipeline_t *enc)
+/* The encode pipeline's buffers come from these, so exrio_zip_compress may replace the
+ * compressed buffer with malloc and know the pipeline frees it with free (the context's
+ * default allocator is a process-wide setting we must not rely on). */
+static void *exrio_pipeline_alloc(exr_transcoding_pipeline_buffer_id_t id, size_t size)
 {
-    const struct exrio_compress_hook *hook = enc->encoding_user_data;
-    exr_result_t rv = hook->lib(enc);
-    if (rv == EXR_ERR_SUCCESS && enc->compressed_buffer &&
-        enc->compressed_buffer != enc->packed_buffer && enc->compressed_bytes >= enc->packed_bytes &&
-        enc->compressed_alloc_size >= enc->packed_bytes) {
-        memcpy(enc->compressed_buffer, enc->packed_buffer, enc->packed_bytes);
-        enc->compressed_bytes = enc->packed_bytes;
-    }
-    return rv;
+    (void)id;
+    return malloc(size);
+}
+static void exrio_pipeline_free(exr_transcoding_pipeline_buffer_id_t id, void *p)
+{
+    (void)id;
+    free(p);
 }
 
 /* ZIP and ZIPS chunks compressed by libdeflate instead of the library's zlib: the same zlib
  * stream format (any reader inflates it), about twice as fast at level 1, which is most of a
  * frame's encode time. The transform before deflate is the file format's: bytes split into
  * even- and odd-indexed halves, then each byte replaced by its difference to the previous one
- * plus 128 (modulo 256). A chunk that does not shrink is stored raw, as the format requires
- * (which also avoids the library bug described above). Buffers are the pipeline's: the
- * compressed buffer is allocated with malloc, which is what the library frees it with, since
- * our contexts use the default allocator. */
+ * plus 128 (modulo 256). A chunk that does not shrink is stored raw, as the format requires.
+ * That rule also avoids a bug of libOpenEXRCore 3.1.5's own ZIP encoder (upstream openexr
+ * issue 2306): it stored zlib bytes exactly as long as the raw chunk, which every reader then
+ * decodes as raw (tests/unit/test_exrio.c: test_zip_output_equal_to_raw_size). */
 static exr_result_t exrio_zip_compress(exr_encode_pipeline_t *enc)
 {
-    struct exrio_compress_hook *hook = enc->encoding_user_data;
+    struct exrio_zip *hook = enc->encoding_user_data;
     size_t n = enc->packed_bytes;
     const unsigned char *in = enc->packed_buffer;
     size_t bound = libdeflate_zlib_compress_bound(hook->deflate, n);
     size_t need = bound > n ? bound : n;
     if (enc->compressed_alloc_size < need) {
-        free(enc->compressed_buffer);
+        /* A buffer of size 0 may alias packed_buffer: never ours to free. */
+        if (enc->compressed_alloc_size > 0) free(enc->compressed_buffer);
         enc->compressed_buffer = malloc(need);
         enc->compressed_alloc_size = enc->compressed_buffer ? need : 0;
         if (!enc->compressed_buffer) return EXR_ERR_OUT_OF_MEMORY;
@@ -345,7 +342,7 @@ static bool exrio_encode(exr_context_t ctxt, const struct image *img,
                              1, 1);
     if (rv == EXR_ERR_SUCCESS &&
         (opts->compression == EXRIO_ZIP || opts->compression == EXRIO_ZIPS))
-        rv = exr_set_zip_compression_level(ctxt, part, 1);
+        rv = exr_set_zip_compression_level(ctxt, part, EXRIO_ZIP_LEVEL);
     if (rv == EXR_ERR_SUCCESS) rv = exr_write_header(ctxt);
     if (rv != EXR_ERR_SUCCESS) return exrio_lib_fail(err, ERR_INTERNAL, where, rv, "EXR header");
 
@@ -355,9 +352,9 @@ static bool exrio_encode(exr_context_t ctxt, const struct image *img,
         return exrio_lib_fail(err, ERR_INTERNAL, where, rv, "EXR chunk layout");
 
     exr_encode_pipeline_t enc = EXR_ENCODE_PIPELINE_INITIALIZER;
-    struct exrio_compress_hook hook = {NULL, NULL, NULL, 0};
+    struct exrio_zip hook = {NULL, NULL, 0};
     bool zip = opts->compression == EXRIO_ZIP || opts->compression == EXRIO_ZIPS;
-    if (zip && !(hook.deflate = libdeflate_alloc_compressor(1)))
+    if (zip && !(hook.deflate = libdeflate_alloc_compressor(EXRIO_ZIP_LEVEL)))
         return err_set(err, ERR_NOMEM, where, "out of memory for the ZIP compressor");
     bool started = false, ok = true;
     for (int32_t y = 0; ok && y < (int32_t)img->height; y += lines) {
@@ -390,9 +387,10 @@ static bool exrio_encode(exr_context_t ctxt, const struct image *img,
         if (!started) {
             rv = exr_encoding_choose_default_routines(ctxt, part, &enc);
             started = true;
-            if (rv == EXR_ERR_SUCCESS && enc.compress_fn) {
-                hook.lib = enc.compress_fn;
-                enc.compress_fn = zip ? exrio_zip_compress : exrio_compress_fixed;
+            enc.alloc_fn = exrio_pipeline_alloc;
+            enc.free_fn = exrio_pipeline_free;
+            if (rv == EXR_ERR_SUCCESS && zip) {
+                enc.compress_fn = exrio_zip_compress;
                 enc.encoding_user_data = &hook;
             }
         }
@@ -422,7 +420,7 @@ bool exrio_write_mem(const struct image *img, const struct exrio_write_opts *opt
     init.error_handler_fn = exrio_lib_error;
     init.user_data = &sink;
     init.write_fn = exrio_sink_write;
-    init.zip_level = 1;
+    init.zip_level = EXRIO_ZIP_LEVEL;
     exr_context_t ctxt = NULL;
     exr_result_t rv = exr_start_write(&ctxt, where, EXR_WRITE_FILE_DIRECTLY, &init);
     if (rv != EXR_ERR_SUCCESS) {

@@ -116,14 +116,18 @@ bool metrics_format_json(const struct metrics *m, char *buf, size_t size, struct
     return true;
 }
 
-void metrics_image_mean(const struct image *img, double mean[3])
+uint64_t metrics_image_mean(const struct image *img, double mean[3])
 {
     double s[3] = {0, 0, 0};
-    size_t n = (size_t)img->width * img->height;
+    size_t n = (size_t)img->width * img->height, used = 0;
     for (size_t i = 0; i < n; i++) {
-        s[0] += img->pixels[i].x;
-        s[1] += img->pixels[i].y;
-        s[2] += img->pixels[i].z;
+        struct vec3 p = img->pixels[i];
+        if (!vec3_is_finite(p)) continue;
+        s[0] += p.x;
+        s[1] += p.y;
+        s[2] += p.z;
+        used++;
     }
-    for (int c = 0; c < 3; c++) mean[c] = n ? s[c] / (double)n : 0.0;
+    for (int c = 0; c < 3; c++) mean[c] = used ? s[c] / (double)used : 0.0;
+    return n - used;
 }

@@ -43,15 +43,15 @@ struct metrics {
 bool metrics_compare(const struct image *image, const struct image *ref, struct metrics *out,
                      struct err *err);
 
+/* Per-channel mean over the image's finite pixels, accumulated in double; returns how many
+ * pixels were left out because a channel was NaN or Inf. An empty image gives means of 0. */
+uint64_t metrics_image_mean(const struct image *img, double mean[3]);
+
 /* One JSON object, no newline, numbers as %.9g and non-finite values as null:
  *   {"width":W,"height":H,"pixels_used":N,"samples":S,"mape":x,"rmse":x,"relmse":x,
  *    "ref_mean":x,"nan":{"a":n,"b":n},"inf":{"a":n,"b":n}}
  * where "a" is the image and "b" the reference. Fits in METRICS_JSON_MAX bytes; false with
  * ERR_LIMIT if `size` is too small (buf then holds a truncated, unusable string). */
-/* Per-channel mean of an image over all pixels, accumulated in double (non-finite values
- * propagate: a render reports its dropped samples separately). */
-void metrics_image_mean(const struct image *img, double mean[3]);
-
 #define METRICS_JSON_MAX 512
 bool metrics_format_json(const struct metrics *m, char *buf, size_t size, struct err *err);
 

@@ -166,8 +166,16 @@ static void test_image_mean(void)
     img.pixels[0] = vec3_make(1.0f, 2.0f, 0.0f);
     img.pixels[1] = vec3_make(3.0f, 0.5f, -1.0f);
     double mean[3];
-    metrics_image_mean(&img, mean);
+    CHECK(metrics_image_mean(&img, mean) == 0);
     CHECK(mean[0] == 2.0 && mean[1] == 1.25 && mean[2] == -0.5);
+    image_destroy(&img);
+    /* A NaN or Inf pixel is left out and counted, never summed. */
+    CHECK(image_init(&img, 3, 1, &err));
+    img.pixels[0] = vec3_make(1.0f, 1.0f, 1.0f);
+    img.pixels[1] = vec3_make(NAN, 0.0f, 0.0f);
+    img.pixels[2] = vec3_make(3.0f, INFINITY, 3.0f);
+    CHECK(metrics_image_mean(&img, mean) == 2);
+    CHECK(mean[0] == 1.0 && mean[1] == 1.0 && mean[2] == 1.0);
     image_destroy(&img);
 }
 
