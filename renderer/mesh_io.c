@@ -7,6 +7,8 @@
  * Must not: generate normals, join vertices, or touch scene structures. */
 #include "mesh_io.h"
 
+#include "fileio.h"
+
 #include <assimp/cfileio.h>
 #include <assimp/cimport.h>
 #include <assimp/postprocess.h>
@@ -657,36 +659,9 @@ bool mesh_io_load_file(const char *path, const char *name_for_errors, const char
     memset(out, 0, sizeof *out);
     if (!ext) ext = mesh_io_format_of(path);
     if (!ext) return err_set(err, ERR_UNSUPPORTED, name, "mesh file '%s' is not .ply or .obj", name);
-    FILE *f = fopen(path, "rb");
-    if (!f) {
-        int e = errno;
-        if (e == ENOENT || e == ENOTDIR)
-            return err_set(err, ERR_NOT_FOUND, name, "mesh file '%s' not found", name);
-        return err_set(err, ERR_IO, name, "cannot open mesh file '%s': %s", name, strerror(e));
-    }
-    struct stat st;
-    if (fstat(fileno(f), &st) != 0 || !S_ISREG(st.st_mode)) {
-        fclose(f);
-        return err_set(err, ERR_IO, name, "mesh file '%s' is not a regular file", name);
-    }
-    if ((uint64_t)st.st_size > MESH_IO_MAX_FILE_BYTES) {
-        fclose(f);
-        return err_set(err, ERR_LIMIT, name, "mesh file '%s' is %lld bytes, more than the limit of %u", name,
-                       (long long)st.st_size, MESH_IO_MAX_FILE_BYTES);
-    }
-    size_t size = (size_t)st.st_size;
-    char *buf = malloc(size ? size : 1);
-    if (!buf) {
-        fclose(f);
-        return err_set(err, ERR_NOMEM, name, "out of memory reading '%s'", name);
-    }
-    size_t got = fread(buf, 1, size, f);
-    bool read_error = ferror(f);
-    fclose(f);
-    if (got != size || read_error) {
-        free(buf);
-        return err_set(err, ERR_IO, name, "cannot read mesh file '%s' (%zu of %zu bytes)", name, got, size);
-    }
+    char *buf;
+    size_t size;
+    if (!fileio_read_all(path, "mesh file", name, MESH_IO_MAX_FILE_BYTES, &buf, &size, err)) return false;
     bool ok = mesh_io_load_memory(buf, size, name, ext, out, err);
     free(buf);
     return ok;

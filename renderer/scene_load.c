@@ -16,6 +16,7 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include "fileio.h"
 #include "mesh_io.h"
 
 #define SCENE_LOAD_MAX_JSON_BYTES (4u << 20)
@@ -924,45 +925,24 @@ struct scene *scene_load_json(const char *json, size_t len, const char *base_dir
 
 struct scene *scene_load_file(const char *path, struct err *err)
 {
-    FILE *f = fopen(path, "rb");
-    if (!f) {
-        int e = errno;
-        if (e == ENOENT || e == ENOTDIR) err_set(err, ERR_NOT_FOUND, path, "scene file '%s' not found", path);
-        else err_set(err, ERR_IO, path, "cannot open scene file '%s': %s", path, strerror(e));
+    char *buf;
+    size_t size;
+    if (!fileio_read_all(path, "scene file", path, SCENE_LOAD_MAX_JSON_BYTES, &buf, &size, err)) {
+        /* An oversized scene is a limit of the document itself, like an oversized JSON text. */
+        if (err && err->code == ERR_LIMIT) snprintf(err->where, sizeof err->where, "/");
         return NULL;
     }
-    struct stat st;
-    if (fstat(fileno(f), &st) != 0 || !S_ISREG(st.st_mode)) {
-        fclose(f);
-        err_set(err, ERR_IO, path, "scene file '%s' is not a regular file", path);
-        return NULL;
-    }
-    if ((uint64_t)st.st_size > SCENE_LOAD_MAX_JSON_BYTES) {
-        fclose(f);
-        err_set(err, ERR_LIMIT, "/", "scene file '%s' is %lld bytes, more than the limit of %u (4 MiB)", path,
-                (long long)st.st_size, SCENE_LOAD_MAX_JSON_BYTES);
-        return NULL;
-    }
-    size_t size = (size_t)st.st_size;
-    char *buf = malloc(size + 1);
     const char *slash = strrchr(path, '/');
     size_t dlen = slash ? (slash == path ? 1 : (size_t)(slash - path)) : 1;
     char *dir = malloc(dlen + 1);
-    if (!buf || !dir) {
-        fclose(f);
-        free(buf);
-        free(dir);
-        err_set(err, ERR_NOMEM, path, "out of memory");
-        return NULL;
-    }
-    memcpy(dir, slash ? path : ".", dlen);
-    dir[dlen] = '\0';
-    size_t got = fread(buf, 1, size, f);
-    bool bad = ferror(f) || got != size;
-    fclose(f);
     struct scene *scene = NULL;
-    if (bad) err_set(err, ERR_IO, path, "cannot read scene file '%s' (%zu of %zu bytes)", path, got, size);
-    else scene = scene_load_json(buf, size, dir, err);
+    if (!dir) {
+        err_set(err, ERR_NOMEM, path, "out of memory");
+    } else {
+        memcpy(dir, slash ? path : ".", dlen);
+        dir[dlen] = '\0';
+        scene = scene_load_json(buf, size, dir, err);
+    }
     free(buf);
     free(dir);
     return scene;

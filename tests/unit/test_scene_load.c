@@ -517,6 +517,27 @@ static void test_mesh_symlink_escape(void)
     rmdir(dir);
 }
 
+/* A FIFO (or device) named as a mesh or scene is refused at once: opening a FIFO for reading
+ * used to wait for a writer forever. alarm() turns a regression into a failed run, not a hang. */
+static void test_fifo_refused(void)
+{
+    char dir[] = "/tmp/restird-scene-XXXXXX";
+    CHECK(mkdtemp(dir) != NULL);
+    char fifo[4200];
+    snprintf(fifo, sizeof fifo, "%s/m.ply", dir);
+    CHECK(mkfifo(fifo, 0600) == 0);
+    alarm(20);
+    const char *json = "{" CAM ", " WHITE ", \"shapes\": [{\"type\": \"mesh\", \"material\": \"white\", \"file\": \"m.ply\"}]}";
+    struct err err = {0};
+    struct scene *s = scene_load_json(json, strlen(json), dir, &err);
+    CHECK(s == NULL && err.code == ERR_IO && strstr(err.message, "not a regular file") != NULL);
+    if (s) scene_release(s);
+    CHECK(scene_load_file(fifo, &err) == NULL && err.code == ERR_IO);
+    alarm(0);
+    unlink(fifo);
+    rmdir(dir);
+}
+
 /* ---- robustness ---- */
 
 static char *read_text(const char *path, size_t *len)
@@ -683,7 +704,7 @@ static void test_many_named_shapes(void)
     free(text);
 }
 
-TEST_MAIN(TEST(test_corpus_manifest), TEST(test_corpus_complete), TEST(test_library_scenes_load),
+TEST_MAIN(TEST(test_fifo_refused), TEST(test_corpus_manifest), TEST(test_corpus_complete), TEST(test_library_scenes_load),
           TEST(test_cornell_box_exact), TEST(test_quad_geometry), TEST(test_box_geometry), TEST(test_disk_geometry),
           TEST(test_sphere_and_defaults), TEST(test_transform_order), TEST(test_materials_mapping),
           TEST(test_mesh_io_files), TEST(test_mesh_io_memory_errors), TEST(test_mesh_in_scene),
