@@ -811,7 +811,7 @@ static bool scene_load_check_nul_escapes(const char *json, size_t len, struct er
         if (json[i + 1] == 'u' && i + 5 < len && memcmp(json + i + 2, "0000", 4) == 0) {
             unsigned line, col;
             scene_load_line_col(json, len, i, &line, &col);
-            return err_set(err, ERR_INVALID, "/", "\\u0000 in a string at line %u, column %u (byte %zu) is not allowed",
+            return err_set(err, ERR_INVALID, "", "\\u0000 in a string at line %u, column %u (byte %zu) is not allowed",
                            line, col, i);
         }
         i++;  /* skip the escaped character (it may be a quote) */
@@ -847,7 +847,7 @@ static bool scene_load_parse(const char *json, size_t len, cJSON **out, struct e
     if (nul) {
         size_t off = (size_t)(nul - json);
         scene_load_line_col(json, len, off, &line, &col);
-        return err_set(err, ERR_PARSE, "/", "JSON syntax error at line %u, column %u (byte %zu): NUL byte", line, col, off);
+        return err_set(err, ERR_PARSE, "", "JSON syntax error at line %u, column %u (byte %zu): NUL byte", line, col, off);
     }
     const char *end = json;
     cJSON *root = cJSON_ParseWithLengthOpts(json, len, &end, false);
@@ -858,13 +858,13 @@ static bool scene_load_parse(const char *json, size_t len, cJSON **out, struct e
         if (off + 1 >= len && scene_load_unclosed(json, len)) off = len;
         scene_load_line_col(json, len, off, &line, &col);
         if (off >= len)
-            return err_set(err, ERR_PARSE, "/", "JSON syntax error at line %u, column %u (byte %zu): unexpected end of input",
+            return err_set(err, ERR_PARSE, "", "JSON syntax error at line %u, column %u (byte %zu): unexpected end of input",
                            line, col, off);
         unsigned char ch = (unsigned char)json[off];
         if (ch >= 0x20 && ch < 0x7f)
-            return err_set(err, ERR_PARSE, "/", "JSON syntax error at line %u, column %u (byte %zu): unexpected '%c'",
+            return err_set(err, ERR_PARSE, "", "JSON syntax error at line %u, column %u (byte %zu): unexpected '%c'",
                            line, col, off, ch);
-        return err_set(err, ERR_PARSE, "/", "JSON syntax error at line %u, column %u (byte %zu): unexpected byte 0x%02x",
+        return err_set(err, ERR_PARSE, "", "JSON syntax error at line %u, column %u (byte %zu): unexpected byte 0x%02x",
                        line, col, off, ch);
     }
     size_t off = (size_t)(end - json);
@@ -872,7 +872,7 @@ static bool scene_load_parse(const char *json, size_t len, cJSON **out, struct e
     if (off < len) {
         cJSON_Delete(root);
         scene_load_line_col(json, len, off, &line, &col);
-        return err_set(err, ERR_PARSE, "/", "JSON syntax error at line %u, column %u (byte %zu): trailing characters after the scene object",
+        return err_set(err, ERR_PARSE, "", "JSON syntax error at line %u, column %u (byte %zu): trailing characters after the scene object",
                        line, col, off);
     }
     if (!scene_load_check_nul_escapes(json, len, err)) {
@@ -889,11 +889,11 @@ struct scene *scene_load_json(const char *json, size_t len, const char *base_dir
 {
     static const char *const keys[] = {"format", "camera", "materials", "shapes", "environment", NULL};
     if (!json && len) {
-        err_set(err, ERR_INVALID, "/", "no JSON text");
+        err_set(err, ERR_INVALID, "", "no JSON text");
         return NULL;
     }
     if (len > SCENE_LOAD_MAX_JSON_BYTES) {
-        err_set(err, ERR_LIMIT, "/", "scene JSON is %zu bytes, more than the limit of %u (4 MiB)", len,
+        err_set(err, ERR_LIMIT, "", "scene JSON is %zu bytes, more than the limit of %u (4 MiB)", len,
                 SCENE_LOAD_MAX_JSON_BYTES);
         return NULL;
     }
@@ -902,12 +902,12 @@ struct scene *scene_load_json(const char *json, size_t len, const char *base_dir
     struct scene *scene = calloc(1, sizeof *scene);
     if (!scene) {
         cJSON_Delete(root);
-        err_set(err, ERR_NOMEM, "/", "out of memory");
+        err_set(err, ERR_NOMEM, "", "out of memory");
         return NULL;
     }
     scene->refcount = 1;
     struct scene_load L = {scene, base_dir, NULL, err};
-    bool ok = scene_load_object(root, "/", "the scene to be an", err) &&
+    bool ok = scene_load_object(root, "", "the scene to be an", err) &&
               scene_load_check_keys(root, "", keys, " at the top level", err) &&
               scene_load_format(root, err) &&
               scene_load_camera(root, &scene->camera, err) &&
@@ -928,8 +928,9 @@ struct scene *scene_load_file(const char *path, struct err *err)
     char *buf;
     size_t size;
     if (!fileio_read_all(path, "scene file", path, SCENE_LOAD_MAX_JSON_BYTES, &buf, &size, err)) {
-        /* An oversized scene is a limit of the document itself, like an oversized JSON text. */
-        if (err && err->code == ERR_LIMIT) snprintf(err->where, sizeof err->where, "/");
+        /* An oversized scene is a limit of the whole document ("" in RFC 6901), like an
+         * oversized JSON text. */
+        if (err && err->code == ERR_LIMIT) err->where[0] = '\0';
         return NULL;
     }
     const char *slash = strrchr(path, '/');
