@@ -25,11 +25,14 @@
 #define SCENE_LOAD_DISK_SEGMENTS 64u
 #define SCENE_LOAD_PTR 256  /* same size as err.where: deeper pointers are truncated, never overrun */
 
+struct scene_load_names;
+
 struct scene_load {
     struct scene *scene;
     const char *base_dir;  /* NULL: mesh shapes are refused */
     char *real_base;       /* realpath of base_dir, resolved on first mesh */
     struct err *err;
+    struct scene_load_names *material_index;  /* material name -> index, for shapes */
 };
 
 /* ---- JSON pointers (RFC 6901: "~" -> "~0", "/" -> "~1") ---- */
@@ -257,6 +260,16 @@ static int64_t scene_load_names_insert(struct scene_load_names *s, const char *k
     }
 }
 
+/* Value stored for key, or -1. */
+static int64_t scene_load_names_find(const struct scene_load_names *s, const char *key)
+{
+    uint64_t h = 1469598103934665603ull;  /* FNV-1a, as in scene_load_names_insert */
+    for (const char *c = key; *c; c++) h = (h ^ (unsigned char)*c) * 1099511628211ull;
+    for (size_t i = (size_t)h & s->mask; s->keys[i]; i = (i + 1) & s->mask)
+        if (strcmp(s->keys[i], key) == 0) return s->values[i];
+    return -1;
+}
+
 /* ---- top-level parts ---- */
 
 static bool scene_load_camera(const cJSON *root, struct camera_desc *cam, struct err *err)
@@ -339,7 +352,10 @@ static bool scene_load_material(const cJSON *m, const char *ptr, struct material
            scene_load_key_bool(m, ptr, "two_sided", &out->two_sided_emission, err);
 }
 
-static bool scene_load_materials(const cJSON *root, struct scene *scene, struct err *err)
+/* Fills scene->materials and `names` (keys borrowed from the cJSON tree; the caller destroys
+ * `names` after the shapes have resolved their materials through it). */
+static bool scene_load_materials(const cJSON *root, struct scene *scene, struct scene_load_names *names,
+                                 struct err *err)
 {
     const cJSON *ms = scene_load_require(root, "", "materials", err);
     if (!ms || !scene_load_object(ms, "/materials", "an", err)) return false;
@@ -348,11 +364,8 @@ static bool scene_load_materials(const cJSON *root, struct scene *scene, struct 
         return err_set(err, ERR_LIMIT, "/materials", "%d materials, more than the limit of %u", n, SCENE_LOAD_MAX_MATERIALS);
     scene->materials = calloc((size_t)n + 1, sizeof *scene->materials);
     scene->material_names = calloc((size_t)n + 1, sizeof *scene->material_names);
-    struct scene_load_names names = {0};
-    if (!scene->materials || !scene->material_names || !scene_load_names_init(&names, (size_t)n)) {
-        scene_load_names_destroy(&names);
+    if (!scene->materials || !scene->material_names || !scene_load_names_init(names, (size_t)n))
         return err_set(err, ERR_NOMEM, "/materials", "out of memory");
-    }
     scene->material_count = (uint32_t)n;
     bool ok = true;
     char p[SCENE_LOAD_PTR];
@@ -361,14 +374,13 @@ static bool scene_load_materials(const cJSON *root, struct scene *scene, struct 
         scene_load_ptr_key(p, "/materials", m->string);
         if (!scene_load_valid_name(m->string))
             ok = err_set(err, ERR_INVALID, p, "invalid material name: names must match [A-Za-z0-9_-]{1,63}");
-        else if (scene_load_names_insert(&names, m->string, i) >= 0)
+        else if (scene_load_names_insert(names, m->string, i) >= 0)
             ok = err_set(err, ERR_INVALID, p, "duplicate key (material '%s' is defined twice)", m->string);
         else {
             snprintf(scene->material_names[i], SCENE_NAME_MAX, "%s", m->string);
             ok = scene_load_material(m, p, &scene->materials[i], err);
         }
     }
-    scene_load_names_destroy(&names);
     return ok;
 }
 
@@ -716,7 +728,7 @@ static bool scene_load_shape(struct scene_load *L, const cJSON *sh, const char *
     scene_load_ptr_key(p, ptr, "material");
     const char *mname = scene_load_string(mv, p, err);
     if (!mname) return false;
-    int mi = scene_find_material(L->scene, mname);
+    int64_t mi = scene_load_names_find(L->material_index, mname);
     if (mi < 0) return err_set(err, ERR_NOT_FOUND, p, "unknown material '%.64s'", mname);
     s->material = (uint32_t)mi;
 
@@ -906,15 +918,17 @@ struct scene *scene_load_json(const char *json, size_t len, const char *base_dir
         return NULL;
     }
     scene->refcount = 1;
-    struct scene_load L = {scene, base_dir, NULL, err};
+    struct scene_load_names material_index = {0};
+    struct scene_load L = {scene, base_dir, NULL, err, &material_index};
     bool ok = scene_load_object(root, "", "the scene to be an", err) &&
               scene_load_check_keys(root, "", keys, " at the top level", err) &&
               scene_load_format(root, err) &&
               scene_load_camera(root, &scene->camera, err) &&
-              scene_load_materials(root, scene, err) &&
+              scene_load_materials(root, scene, &material_index, err) &&
               scene_load_environment(root, &scene->env_radiance, err) &&
               scene_load_shapes(&L, root);
     free(L.real_base);
+    scene_load_names_destroy(&material_index);
     cJSON_Delete(root);
     if (!ok) {
         scene_release(scene);
