@@ -22,6 +22,7 @@
 #define SCENE_LOAD_MAX_JSON_BYTES (4u << 20)
 #define SCENE_LOAD_MAX_SHAPES 100000u
 #define SCENE_LOAD_MAX_MATERIALS 4096u
+#define SCENE_LOAD_MAX_TRIANGLES (32u << 20)  /* all meshes of a scene together */
 #define SCENE_LOAD_DISK_SEGMENTS 64u
 #define SCENE_LOAD_PTR 256  /* same size as err.where: deeper pointers are truncated, never overrun */
 
@@ -33,6 +34,12 @@ struct scene_load {
     char *real_base;       /* realpath of base_dir, resolved on first mesh */
     struct err *err;
     struct scene_load_names *material_index;  /* material name -> index, for shapes */
+    /* Mesh files decoded in this load: resolved path -> index of the first shape that loaded
+     * it, so a file named by many shapes is decoded once (the others copy its arrays). */
+    struct scene_load_names *mesh_index;
+    char **mesh_paths;                        /* owned keys of mesh_index */
+    size_t mesh_path_count;
+    uint64_t triangles;                       /* all shapes so far, against the scene budget */
 };
 
 /* ---- JSON pointers (RFC 6901: "~" -> "~0", "/" -> "~1") ---- */
@@ -581,6 +588,24 @@ static bool scene_load_sphere(const cJSON *sh, const char *ptr, struct shape *s,
 
 /* Mesh paths are relative, '/'-separated, without "..", and must resolve (symbolic links
  * included) inside the scene folder: a scene cannot make the server read other files. */
+/* A mesh shape whose file an earlier shape already loaded: a copy of its arrays. */
+static bool scene_load_copy_mesh(const struct shape *from, struct shape *s, const char *p, struct err *err)
+{
+    size_t nv = from->vertex_count, nt = from->triangle_count;
+    s->kind = SHAPE_MESH;
+    s->positions = malloc(nv * sizeof *s->positions);
+    s->normals = from->normals ? malloc(nv * sizeof *s->normals) : NULL;
+    s->indices = malloc(3 * nt * sizeof *s->indices);
+    if (!s->positions || !s->indices || (from->normals && !s->normals))
+        return err_set(err, ERR_NOMEM, p, "out of memory copying a mesh");
+    memcpy(s->positions, from->positions, nv * sizeof *s->positions);
+    if (from->normals) memcpy(s->normals, from->normals, nv * sizeof *s->normals);
+    memcpy(s->indices, from->indices, 3 * nt * sizeof *s->indices);
+    s->vertex_count = from->vertex_count;
+    s->triangle_count = from->triangle_count;
+    return true;
+}
+
 static bool scene_load_mesh(struct scene_load *L, const cJSON *sh, const char *ptr, struct shape *s)
 {
     struct err *err = L->err;
@@ -629,9 +654,20 @@ static bool scene_load_mesh(struct scene_load *L, const cJSON *sh, const char *p
         free(real);
         return err_set(err, ERR_INVALID, p, "mesh file '%s' resolves outside the scene folder", file);
     }
+    int64_t first = scene_load_names_find(L->mesh_index, real);
+    if (first >= 0) {
+        free(real);
+        return scene_load_copy_mesh(&L->scene->shapes[first], s, p, err);
+    }
     struct mesh m;
     bool ok = mesh_io_load_file(real, file, ext, &m, err);
-    free(real);
+    if (ok) {
+        /* Remember the file; the key is owned by mesh_paths (freed with the loader). */
+        L->mesh_paths[L->mesh_path_count++] = real;
+        scene_load_names_insert(L->mesh_index, real, (uint32_t)(s - L->scene->shapes));
+    } else {
+        free(real);
+    }
     if (!ok) {
         /* Not found / unreadable is about the scene's reference: point at it. Parse errors keep
          * the file (and line) mesh_io reported. */
@@ -774,14 +810,27 @@ static bool scene_load_shapes(struct scene_load *L, const cJSON *root)
         return err_set(err, ERR_NOMEM, "/shapes", "out of memory");
     }
     L->scene->shape_count = (uint32_t)n;
-    bool ok = true;
+    struct scene_load_names meshes = {0};
+    L->mesh_index = &meshes;
+    L->mesh_paths = calloc((size_t)n + 1, sizeof *L->mesh_paths);
+    bool ok = L->mesh_paths && scene_load_names_init(&meshes, (size_t)n);
+    if (!ok) err_set(err, ERR_NOMEM, "/shapes", "out of memory");
     char p[SCENE_LOAD_PTR];
     uint32_t i = 0;
     for (const cJSON *sh = ss->child; sh && ok; sh = sh->next, i++) {
         scene_load_ptr_index(p, "/shapes", i);
         ok = scene_load_shape(L, sh, p, &L->scene->shapes[i], &names, i);
+        L->triangles += L->scene->shapes[i].triangle_count;
+        if (ok && L->triangles > SCENE_LOAD_MAX_TRIANGLES)
+            ok = err_set(err, ERR_LIMIT, p, "the scene's meshes reach %llu triangles, more than the limit of %u",
+                         (unsigned long long)L->triangles, SCENE_LOAD_MAX_TRIANGLES);
     }
     scene_load_names_destroy(&names);
+    scene_load_names_destroy(&meshes);
+    for (size_t k = 0; k < L->mesh_path_count; k++) free(L->mesh_paths[k]);
+    free(L->mesh_paths);
+    L->mesh_index = NULL;
+    L->mesh_paths = NULL;
     return ok;
 }
 

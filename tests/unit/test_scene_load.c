@@ -497,6 +497,36 @@ static void test_mesh_in_scene(void)
     CHECK(err.code == ERR_NOT_FOUND && strcmp(err.where, "/shapes/0/file") == 0);
 }
 
+/* A file named by many shapes is decoded once and copied: every shape gets the same geometry
+ * in arrays of its own (scene_release frees each shape's arrays), and the two spellings of
+ * one file ("tetra.ply", "./tetra.ply") are one file. */
+static void test_mesh_shared_by_shapes(void)
+{
+    enum { N = 300 };
+    size_t cap = 200 + N * 80;
+    char *json = malloc(cap);
+    size_t n = (size_t)snprintf(json, cap, "{" CAM ", " WHITE ", \"shapes\": [");
+    for (int i = 0; i < N; i++)
+        n += (size_t)snprintf(json + n, cap - n, "%s{\"type\": \"mesh\", \"material\": \"white\", \"file\": \"%s\"}",
+                              i ? "," : "", i % 2 ? "./tetra.ply" : "tetra.ply");
+    snprintf(json + n, cap - n, "]}");
+    struct err err = {0};
+    struct scene *s = load_str(json, &err);
+    free(json);
+    CHECK_MSG(s != NULL, "%s: %s", err.where, err.message);
+    if (!s) return;
+    const struct shape *a = &s->shapes[0];
+    for (int i = 1; i < N; i++) {
+        const struct shape *b = &s->shapes[i];
+        CHECK(b->kind == SHAPE_MESH && b->triangle_count == a->triangle_count && b->vertex_count == a->vertex_count);
+        CHECK(b->positions != a->positions && b->indices != a->indices && (!a->normals || b->normals != a->normals));
+        CHECK(memcmp(b->positions, a->positions, a->vertex_count * sizeof *a->positions) == 0);
+        CHECK(memcmp(b->indices, a->indices, 3 * a->triangle_count * sizeof *a->indices) == 0);
+        CHECK((a->normals == NULL) == (b->normals == NULL));
+    }
+    scene_release(s);
+}
+
 /* A symbolic link inside the scene folder must not lead outside it. */
 static void test_mesh_symlink_escape(void)
 {
@@ -705,7 +735,7 @@ static void test_many_named_shapes(void)
     free(text);
 }
 
-TEST_MAIN(TEST(test_fifo_refused), TEST(test_corpus_manifest), TEST(test_corpus_complete), TEST(test_library_scenes_load),
+TEST_MAIN(TEST(test_mesh_shared_by_shapes), TEST(test_fifo_refused), TEST(test_corpus_manifest), TEST(test_corpus_complete), TEST(test_library_scenes_load),
           TEST(test_cornell_box_exact), TEST(test_quad_geometry), TEST(test_box_geometry), TEST(test_disk_geometry),
           TEST(test_sphere_and_defaults), TEST(test_transform_order), TEST(test_materials_mapping),
           TEST(test_mesh_io_files), TEST(test_mesh_io_memory_errors), TEST(test_mesh_in_scene),
