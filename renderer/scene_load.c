@@ -838,12 +838,14 @@ static bool scene_load_format(const cJSON *root, struct err *err)
 {
     const cJSON *f = cJSON_GetObjectItemCaseSensitive(root, "format");
     if (!f) return true;
-    float v;
-    if (!scene_load_float(f, "/format", &v, err)) return false;
-    if (v == 1.0f) return true;
-    if (v == floorf(v) && v > 1.0f)
-        return err_set(err, ERR_UNSUPPORTED, "/format", "format %g is not supported (this build reads format 1)", (double)v);
-    return err_set(err, ERR_INVALID, "/format", "format must be 1, got %g", (double)v);
+    /* Compared as the exact double: a version number is not a rounded quantity. */
+    if (!cJSON_IsNumber(f))
+        return err_set(err, ERR_INVALID, "/format", "expected the number 1, got %s", scene_load_type_name(f));
+    double v = f->valuedouble;
+    if (v == 1.0) return true;
+    if (isfinite(v) && v == floor(v) && v > 1.0)
+        return err_set(err, ERR_UNSUPPORTED, "/format", "format %.17g is not supported (this build reads format 1)", v);
+    return err_set(err, ERR_INVALID, "/format", "format must be 1, got %.17g", v);
 }
 
 /* ---- text-level checks ---- */
