@@ -453,22 +453,38 @@ bool exrio_write_file(const char *path, const struct image *img,
         if (err) snprintf(err->where, sizeof err->where, "%s", path);
         return false;
     }
-    FILE *f = fopen(path, "wb");
-    if (!f) {
+    /* Written beside the target and renamed over it: readers see the old file or the whole
+     * new one, never a partial frame, and a failed write leaves the old file in place. */
+    static unsigned exrio_tmp_counter;
+    char tmp[4096];
+    int n = snprintf(tmp, sizeof tmp, "%s.tmp-%ld-%u", path, (long)getpid(),
+                     __atomic_fetch_add(&exrio_tmp_counter, 1u, __ATOMIC_RELAXED));
+    if (n < 0 || (size_t)n >= sizeof tmp) {
+        free(buf);
+        return err_set(err, ERR_INVALID, path, "output path is too long");
+    }
+    int fd = open(tmp, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+    if (fd < 0) {
         int e = errno;
         free(buf);
-        return err_set(err, e == ENOENT ? ERR_NOT_FOUND : ERR_IO, path, "cannot create: %s",
-                       strerror(e));
+        return err_set(err, e == ENOENT ? ERR_NOT_FOUND : ERR_IO, path, "cannot create: %s", strerror(e));
     }
-    bool ok = fwrite(buf, 1, size, f) == size;
-    int e = errno;
-    if (fclose(f) != 0 && ok) {
-        ok = false;
-        e = errno;
+    size_t done = 0;
+    int e = 0;
+    while (done < size) {
+        ssize_t w = write(fd, buf + done, size - done);
+        if (w < 0 && errno == EINTR) continue;
+        if (w <= 0) {
+            e = w < 0 ? errno : EIO;
+            break;
+        }
+        done += (size_t)w;
     }
     free(buf);
-    if (!ok) {
-        remove(path);
+    if (close(fd) != 0 && !e) e = errno;
+    if (!e && rename(tmp, path) != 0) e = errno;
+    if (e) {
+        unlink(tmp);
         return err_set(err, ERR_IO, path, "write failed: %s", strerror(e));
     }
     return true;

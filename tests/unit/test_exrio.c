@@ -3,6 +3,7 @@
  * Independent of exrio internals: headers for gate tests are built byte by byte here from the
  * OpenEXR file layout, and AOV values are checked by parsing uncompressed chunks directly.
  * Refs: OpenEXR "File Layout" document (magic, version flags, attributes, offset tables). */
+#include <dirent.h>
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -315,6 +316,21 @@ static void test_float_roundtrip_file(void)
     }
     if (f) fclose(f);
     free(buf);
+    /* Overwriting replaces the file whole (written beside it, then renamed) and leaves no
+     * temporary file behind. */
+    struct image small = make_image(3, 2, 1);
+    CHECK_MSG(exrio_write_file(path, &small, &o, &err), "%s", err.message);
+    ok = exrio_read_file(path, &back, &err);
+    CHECK(ok && back.width == 3 && back.height == 2);
+    if (ok) image_destroy(&back);
+    char tmp_prefix[300];
+    snprintf(tmp_prefix, sizeof tmp_prefix, "%s.tmp-", strrchr(path, '/') + 1);
+    DIR *d = opendir("/tmp");
+    int leftovers = 0;
+    for (struct dirent *de; d && (de = readdir(d));) leftovers += strncmp(de->d_name, tmp_prefix, strlen(tmp_prefix)) == 0;
+    if (d) closedir(d);
+    CHECK(leftovers == 0);
+    image_destroy(&small);
     remove(path);
     image_destroy(&img);
 }
