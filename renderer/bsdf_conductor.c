@@ -7,16 +7,13 @@
 #include "fresnel.h"
 #include "microfacet.h"
 
-/* Mirror v to the upper hemisphere when wo is below (sign = sign of wo.z). */
-static struct vec3 bsdf_conductor_flip(struct vec3 v, float sign) { return vec3_make(v.x, v.y, v.z * sign); }
-
 struct vec3 bsdf_conductor_eval(const struct material *m, struct vec3 wo, struct vec3 wi)
 {
     float alpha = m->roughness;
     if (microfacet_is_delta(alpha) || !(wo.z * wi.z > 0.0f)) return vec3_splat(0.0f);
     float sign = wo.z > 0.0f ? 1.0f : -1.0f;
-    wo = bsdf_conductor_flip(wo, sign);
-    wi = bsdf_conductor_flip(wi, sign);
+    wo = microfacet_flip_z(wo, sign);
+    wi = microfacet_flip_z(wi, sign);
     struct vec3 h = vec3_add(wo, wi);
     if (!(vec3_length2(h) > 0.0f)) return vec3_splat(0.0f);
     struct vec3 mh = vec3_normalize(h);  /* reflection half vector (Walter eq. 13) */
@@ -31,8 +28,8 @@ float bsdf_conductor_pdf(const struct material *m, struct vec3 wo, struct vec3 w
     float alpha = m->roughness;
     if (microfacet_is_delta(alpha) || !(wo.z * wi.z > 0.0f)) return 0.0f;
     float sign = wo.z > 0.0f ? 1.0f : -1.0f;
-    wo = bsdf_conductor_flip(wo, sign);
-    wi = bsdf_conductor_flip(wi, sign);
+    wo = microfacet_flip_z(wo, sign);
+    wi = microfacet_flip_z(wi, sign);
     struct vec3 h = vec3_add(wo, wi);
     if (!(vec3_length2(h) > 0.0f)) return 0.0f;
     struct vec3 mh = vec3_normalize(h);
@@ -59,13 +56,13 @@ bool bsdf_conductor_sample(const struct material *m, struct vec3 wo, float u1, f
         return true;
     }
     float sign = wo.z > 0.0f ? 1.0f : -1.0f;
-    struct vec3 wo_up = bsdf_conductor_flip(wo, sign);
+    struct vec3 wo_up = microfacet_flip_z(wo, sign);
     struct vec3 mh = microfacet_sample_visible(wo_up, alpha, u1, u2);
     float wo_m = vec3_dot(wo_up, mh);
     if (!(wo_m > 0.0f)) return false;
-    struct vec3 wi_up = vec3_sub(vec3_scale(mh, 2.0f * wo_m), wo_up);
+    struct vec3 wi_up = microfacet_reflect(wo_up, mh, wo_m);
     if (!(wi_up.z > 0.0f)) return false;  /* reflected below the horizon: the sample is lost */
-    struct vec3 wi = vec3_normalize(bsdf_conductor_flip(wi_up, sign));
+    struct vec3 wi = vec3_normalize(microfacet_flip_z(wi_up, sign));
     /* f and pdf are re-evaluated from (wo, wi) rather than taken from the sampled m so that
      * sample() and eval()/pdf() agree to the last bit; shift mappings depend on that. */
     out->wi = wi;

@@ -28,8 +28,6 @@ static struct bsdf_dielectric_side bsdf_dielectric_side_of(const struct material
     return s;
 }
 
-static struct vec3 bsdf_dielectric_flip(struct vec3 v, float sign) { return vec3_make(v.x, v.y, v.z * sign); }
-
 /* Refracts w (w.n > 0, pointing away) through the plane with normal n, eta = eta_t / eta_i.
  * Snell's law in vector form; false under total internal reflection. */
 static bool bsdf_dielectric_refract(struct vec3 w, struct vec3 n, float eta, struct vec3 *out)
@@ -68,8 +66,8 @@ struct vec3 bsdf_dielectric_eval_lobe(const struct material *m, int lobe, struct
     bool reflect = wo.z * wi.z > 0.0f;
     if (reflect != (lobe == 0)) return vec3_splat(0.0f);
     struct bsdf_dielectric_side side = bsdf_dielectric_side_of(m, wo.z);
-    wo = bsdf_dielectric_flip(wo, side.sign);
-    wi = bsdf_dielectric_flip(wi, side.sign);
+    wo = microfacet_flip_z(wo, side.sign);
+    wi = microfacet_flip_z(wi, side.sign);
     struct vec3 mh;
     float wo_m, wi_m;
     if (!bsdf_dielectric_half(wo, wi, side.eta, reflect, &mh, &wo_m, &wi_m)) return vec3_splat(0.0f);
@@ -98,8 +96,8 @@ float bsdf_dielectric_pdf_lobe(const struct material *m, int lobe, struct vec3 w
     bool reflect = wo.z * wi.z > 0.0f;
     if (reflect != (lobe == 0)) return 0.0f;
     struct bsdf_dielectric_side side = bsdf_dielectric_side_of(m, wo.z);
-    wo = bsdf_dielectric_flip(wo, side.sign);
-    wi = bsdf_dielectric_flip(wi, side.sign);
+    wo = microfacet_flip_z(wo, side.sign);
+    wi = microfacet_flip_z(wi, side.sign);
     struct vec3 mh;
     float wo_m, wi_m;
     if (!bsdf_dielectric_half(wo, wi, side.eta, reflect, &mh, &wo_m, &wi_m)) return 0.0f;
@@ -135,7 +133,7 @@ static bool bsdf_dielectric_sample_smooth(const struct material *m, struct vec3 
         return true;
     }
     struct vec3 wt;
-    if (!bsdf_dielectric_refract(bsdf_dielectric_flip(wo, side.sign), vec3_make(0.0f, 0.0f, 1.0f),
+    if (!bsdf_dielectric_refract(microfacet_flip_z(wo, side.sign), vec3_make(0.0f, 0.0f, 1.0f),
                                  side.eta, &wt))
         return false;  /* unreachable: TIR means fr = 1 > u_lobe */
     float cos_t = fabsf(wt.z);
@@ -144,7 +142,7 @@ static bool bsdf_dielectric_sample_smooth(const struct material *m, struct vec3 
     /* 1 - F in the transmittance form: accurate near TIR, and the reverse crossing (pdf_rev_w)
      * gets bit-identical probability. */
     float tr = fresnel_dielectric_transmittance(cos_o, cos_t, side.eta_wo, side.eta_wi);
-    out->wi = bsdf_dielectric_flip(wt, side.sign);
+    out->wi = microfacet_flip_z(wt, side.sign);
     out->f = vec3_splat(tr * scale / cos_t);
     out->pdf_w = tr;
     out->pdf_rev_w = fresnel_dielectric_transmittance(cos_t, cos_o, side.eta_wi, side.eta_wo);
@@ -160,7 +158,7 @@ bool bsdf_dielectric_sample(const struct material *m, struct vec3 wo, float u_lo
     if (microfacet_is_delta(alpha)) return bsdf_dielectric_sample_smooth(m, wo, u_lobe, mode, out);
 
     struct bsdf_dielectric_side side = bsdf_dielectric_side_of(m, wo.z);
-    struct vec3 wo_up = bsdf_dielectric_flip(wo, side.sign);
+    struct vec3 wo_up = microfacet_flip_z(wo, side.sign);
     struct vec3 mh = microfacet_sample_visible(wo_up, alpha, u1, u2);
     float wo_m = vec3_dot(wo_up, mh);
     if (!(wo_m > 0.0f)) return false;
@@ -168,7 +166,7 @@ bool bsdf_dielectric_sample(const struct material *m, struct vec3 wo, float u_lo
     struct vec3 wi_up;
     int lobe;
     if (u_lobe < fr) {
-        wi_up = vec3_sub(vec3_scale(mh, 2.0f * wo_m), wo_up);
+        wi_up = microfacet_reflect(wo_up, mh, wo_m);
         if (!(wi_up.z > 0.0f)) return false;  /* reflected below the horizon: lost */
         lobe = 0;
     } else {
@@ -176,7 +174,7 @@ bool bsdf_dielectric_sample(const struct material *m, struct vec3 wo, float u_lo
         if (!(wi_up.z < 0.0f)) return false;  /* refracted back above the surface: lost */
         lobe = 1;
     }
-    struct vec3 wi = vec3_normalize(bsdf_dielectric_flip(wi_up, side.sign));
+    struct vec3 wi = vec3_normalize(microfacet_flip_z(wi_up, side.sign));
     /* Re-evaluated from (wo, wi) so that sample() agrees with eval_lobe()/pdf_lobe() exactly
      * (the lobe probability F(wo.m) is part of pdf_lobe). */
     out->wi = wi;

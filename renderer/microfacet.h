@@ -50,4 +50,14 @@ struct vec3 microfacet_sample_visible(struct vec3 wo, float alpha, float u1, flo
  * wo.m <= 0. */
 float microfacet_pdf_visible(struct vec3 wo, struct vec3 m, float alpha);
 
+/* v mirrored through the tangent plane when sign < 0 (BSDFs evaluate with wo in the upper
+ * hemisphere and mirror the result back). */
+static inline struct vec3 microfacet_flip_z(struct vec3 v, float sign) { return vec3_make(v.x, v.y, v.z * sign); }
+
+/* wo reflected about the microfacet normal m, given wo_m = wo.m: 2 (wo.m) m - wo. */
+static inline struct vec3 microfacet_reflect(struct vec3 wo, struct vec3 m, float wo_m)
+{
+    return vec3_sub(vec3_scale(m, 2.0f * wo_m), wo);
+}
+
 #endif
