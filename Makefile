@@ -18,6 +18,7 @@ AR      := gcc-ar
 OBJ     := $(OUT)/obj
 CFLAGS  += -std=c17 -D_DEFAULT_SOURCE -Wall -Wextra -Wshadow -Wno-missing-field-initializers $(OPT) -MMD -MP -pthread
 LDLIBS  := -lembree3 -lOpenEXRCore -ldeflate -lassimp -lcjson -lm -pthread
+SERVER_LDLIBS := -lmicrohttpd
 # Deferred ('='), so it is evaluated by the compile commands, after $(DEPS_OK) has installed
 # pkg-config and OpenEXR on a fresh machine, not when the Makefile is read.
 OPENEXR_CFLAGS = $(shell pkg-config --cflags OpenEXR 2>/dev/null)
@@ -26,17 +27,23 @@ DEPS_OK := $(BUILD)/.deps-ok
 
 RENDERER_SRC := $(wildcard renderer/*.c)
 RENDERER_OBJ := $(RENDERER_SRC:%.c=$(OBJ)/%.o)
+PROTOCOL_SRC := $(wildcard protocol/*.c)
+PROTOCOL_OBJ := $(PROTOCOL_SRC:%.c=$(OBJ)/%.o)
+# The daemon's modules as a library (everything but the two programs' main files), so unit
+# tests can link the registry and the HTTP-free parts of the server.
+SERVER_SRC   := $(filter-out server/main.c server/cli.c,$(wildcard server/*.c))
+SERVER_OBJ   := $(SERVER_SRC:%.c=$(OBJ)/%.o)
 UNIT_SRC     := $(wildcard tests/unit/test_*.c)
 UNIT_BIN     := $(UNIT_SRC:tests/unit/%.c=$(OUT)/tests/%)
 
 .PHONY: all deps test test-unit test-py run bench clean help
 .SECONDARY:
-all: $(OUT)/restir
+all: $(OUT)/restir $(OUT)/restird
 
 help:
-	@echo "make            build build/restir (offline CLI)"
+	@echo "make            build build/restir (offline CLI) and build/restird (the daemon)"
 	@echo "make test       unit, statistical and end-to-end tests (SAN=1 for ASan/UBSan)"
-	@echo "make run        render the default scene (cornell-box) to build/run.exr"
+	@echo "make run        start the daemon on 127.0.0.1:8080 with a default session on cornell-box"
 	@echo "make bench      benchmarks (not tests): see docs/benchmarks.md"
 	@echo "make clean      remove everything make made"
 
@@ -45,41 +52,71 @@ $(DEPS_OK): scripts/install-deps.sh
 	@bash scripts/install-deps.sh
 	@mkdir -p $(BUILD) && touch $@
 
-$(OBJ)/%.o: %.c Makefile | $(DEPS_OK)
+# Include paths follow the layers: renderer/ sees only itself, protocol/ sees the renderer,
+# server/ sees both.
+$(OBJ)/renderer/%.o: renderer/%.c Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) $(OPENEXR_CFLAGS) -Irenderer -c $< -o $@
+
+$(OBJ)/protocol/%.o: protocol/%.c Makefile | $(DEPS_OK)
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -Irenderer -Iprotocol -c $< -o $@
+
+$(OBJ)/server/%.o: server/%.c Makefile | $(DEPS_OK)
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -Irenderer -Iprotocol -Iserver -c $< -o $@
 
 $(OBJ)/librenderer.a: $(RENDERER_OBJ)
 	@rm -f $@
 	$(AR) rcs $@ $^
 
+$(OBJ)/libprotocol.a: $(PROTOCOL_OBJ)
+	@rm -f $@
+	$(AR) rcs $@ $^
+
+$(OBJ)/libserver.a: $(SERVER_OBJ)
+	@rm -f $@
+	$(AR) rcs $@ $^
+
+# The API description is linked into the daemon as bytes, so GET /v1/openapi.yaml cannot drift
+# from the file in the tree.
+$(OBJ)/openapi.o: protocol/openapi.yaml Makefile | $(DEPS_OK)
+	@mkdir -p $(dir $@)
+	ld -r -b binary -z noexecstack -o $@ $<
+
 $(OUT)/restir: $(OBJ)/server/cli.o $(OBJ)/librenderer.a
 	$(CC) $(CFLAGS) $^ $(LDLIBS) -o $@
 
-$(OUT)/tests/%: $(OBJ)/tests/unit/%.o $(OBJ)/librenderer.a
+$(OUT)/restird: $(OBJ)/server/main.o $(OBJ)/openapi.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
+	$(CC) $(CFLAGS) $^ $(SERVER_LDLIBS) $(LDLIBS) -o $@
+
+$(OUT)/tests/%: $(OBJ)/tests/unit/%.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
 	@mkdir -p $(dir $@)
-	$(CC) $(CFLAGS) $^ $(LDLIBS) -o $@
+	$(CC) $(CFLAGS) $^ $(SERVER_LDLIBS) $(LDLIBS) -o $@
 
 $(OBJ)/tests/unit/%.o: tests/unit/%.c Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
-	$(CC) $(CFLAGS) $(OPENEXR_CFLAGS) -Irenderer -Itests -c $< -o $@
+	$(CC) $(CFLAGS) $(OPENEXR_CFLAGS) -Irenderer -Iprotocol -Iserver -Itests -c $< -o $@
 
 test: test-unit test-py
 
 test-unit: $(UNIT_BIN)
 	@fail=0; for t in $(UNIT_BIN); do echo "== $$t"; ./$$t || fail=1; done; exit $$fail
 
-test-py: $(OUT)/restir
-	RESTIR_BIN=$(abspath $(OUT)/restir) $(PYTHON) -m pytest -q -p no:cacheprovider tests
+test-py: $(OUT)/restir $(OUT)/restird
+	RESTIR_BIN=$(abspath $(OUT)/restir) RESTIRD_BIN=$(abspath $(OUT)/restird) $(PYTHON) -m pytest -q -p no:cacheprovider tests
 
-run: $(OUT)/restir
-	./$(OUT)/restir render scenes/cornell-box/scene.json --method pt --spp 64 --size 256x256 -o $(BUILD)/run.exr
+# The daemon on 127.0.0.1:8080 with a ready session on the Cornell box; it prints the curl line
+# that fetches a frame. Ctrl-C stops it cleanly.
+run: $(OUT)/restird
+	./$(OUT)/restird --listen 127.0.0.1:8080 --default-session cornell-box
 
-bench: $(OUT)/restir $(OBJ)/librenderer.a
+bench: $(OUT)/restir $(OUT)/restird $(OBJ)/librenderer.a
 	bash bench/run.sh
 	bash bench/instr_per_ray.sh | tee $(BUILD)/bench/instr.json
+	$(PYTHON) bench/server_bench.py | tee $(BUILD)/bench/server.json
 
 clean:
 	rm -rf $(BUILD) .pytest_cache tests/__pycache__
 
--include $(RENDERER_OBJ:.o=.d) $(OBJ)/server/cli.d $(UNIT_SRC:tests/unit/%.c=$(OBJ)/tests/unit/%.d)
+-include $(RENDERER_OBJ:.o=.d) $(PROTOCOL_OBJ:.o=.d) $(SERVER_OBJ:.o=.d) $(OBJ)/server/cli.d $(OBJ)/server/main.d $(UNIT_SRC:tests/unit/%.c=$(OBJ)/tests/unit/%.d)

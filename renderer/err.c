@@ -29,6 +29,8 @@ const char *err_code_name(enum err_code code)
     case ERR_UNSUPPORTED: return "unsupported";
     case ERR_NOMEM: return "nomem";
     case ERR_INTERNAL: return "internal";
+    case ERR_CONFLICT: return "conflict";
+    case ERR_BUSY: return "busy";
     }
     return "unknown";
 }

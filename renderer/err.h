@@ -16,6 +16,8 @@ enum err_code {
     ERR_UNSUPPORTED, /* valid input this build does not handle */
     ERR_NOMEM,
     ERR_INTERNAL,    /* a library we call failed in a way the caller cannot fix */
+    ERR_CONFLICT,    /* the request contradicts the current state (a session is busy, live) */
+    ERR_BUSY,        /* a queue or memory budget is full; retrying later can succeed */
 };
 
 struct err {

@@ -9,13 +9,14 @@
 
 #include <errno.h>
 #include <fcntl.h>
-#include <libdeflate.h>
 #include <openexr.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
 #include <unistd.h>
+
+#include "deflate.h"
 
 #define EXRIO_MEM_NAME "<memory>"
 /* EXR channel names without the long-name flag; every reader accepts these. */
@@ -258,7 +259,7 @@ static exr_compression_t exrio_to_lib_compression(enum exrio_compression c)
 #define EXRIO_ZIP_LEVEL 1
 
 struct exrio_zip {
-    struct libdeflate_compressor *deflate;
+    struct deflate *deflate;
     unsigned char *scratch;                   /* reordered + predicted chunk */
     size_t scratch_size;
 };
@@ -277,9 +278,9 @@ static void exrio_pipeline_free(exr_transcoding_pipeline_buffer_id_t id, void *p
     free(p);
 }
 
-/* ZIP and ZIPS chunks compressed by libdeflate instead of the library's zlib: the same zlib
- * stream format (any reader inflates it), about twice as fast at level 1, which is most of a
- * frame's encode time. The transform before deflate is the file format's: bytes split into
+/* ZIP and ZIPS chunks compressed by libdeflate (through deflate.h) instead of the library's
+ * zlib: the same zlib stream format (any reader inflates it), about twice as fast at level 1,
+ * which is most of a frame's encode time. The transform before deflate is the file format's: bytes split into
  * even- and odd-indexed halves, then each byte replaced by its difference to the previous one
  * plus 128 (modulo 256). A chunk that does not shrink is stored raw, as the format requires.
  * That rule also avoids a bug of libOpenEXRCore 3.1.5's own ZIP encoder (upstream openexr
@@ -290,7 +291,7 @@ static exr_result_t exrio_zip_compress(exr_encode_pipeline_t *enc)
     struct exrio_zip *hook = enc->encoding_user_data;
     size_t n = enc->packed_bytes;
     const unsigned char *in = enc->packed_buffer;
-    size_t bound = libdeflate_zlib_compress_bound(hook->deflate, n);
+    size_t bound = deflate_zlib_bound(hook->deflate, n);
     size_t need = bound > n ? bound : n;
     if (enc->compressed_alloc_size < need) {
         /* A buffer of size 0 may alias packed_buffer: never ours to free. */
@@ -315,7 +316,7 @@ static exr_result_t exrio_zip_compress(exr_encode_pipeline_t *enc)
         t[i] = (unsigned char)(cur - prev + 128u);
         prev = cur;
     }
-    size_t got = libdeflate_zlib_compress(hook->deflate, t, n, enc->compressed_buffer, enc->compressed_alloc_size);
+    size_t got = deflate_zlib(hook->deflate, t, n, enc->compressed_buffer, enc->compressed_alloc_size);
     if (got == 0 || got >= n) {
         memcpy(enc->compressed_buffer, in, n);
         got = n;
@@ -354,7 +355,7 @@ static bool exrio_encode(exr_context_t ctxt, const struct image *img,
     exr_encode_pipeline_t enc = EXR_ENCODE_PIPELINE_INITIALIZER;
     struct exrio_zip hook = {NULL, NULL, 0};
     bool zip = opts->compression == EXRIO_ZIP || opts->compression == EXRIO_ZIPS;
-    if (zip && !(hook.deflate = libdeflate_alloc_compressor(EXRIO_ZIP_LEVEL)))
+    if (zip && !(hook.deflate = deflate_new(EXRIO_ZIP_LEVEL, NULL)))
         return err_set(err, ERR_NOMEM, where, "out of memory for the ZIP compressor");
     bool started = false, ok = true;
     for (int32_t y = 0; ok && y < (int32_t)img->height; y += lines) {
@@ -398,7 +399,7 @@ static bool exrio_encode(exr_context_t ctxt, const struct image *img,
         if (rv != EXR_ERR_SUCCESS) ok = exrio_lib_fail(err, ERR_INTERNAL, where, rv, "EXR encode");
     }
     if (started) exr_encoding_destroy(ctxt, &enc);
-    if (hook.deflate) libdeflate_free_compressor(hook.deflate);
+    deflate_free(hook.deflate);
     free(hook.scratch);
     return ok;
 }

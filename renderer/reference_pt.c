@@ -212,7 +212,7 @@ bool reference_pt_render(const struct scene *scene, const struct pt_params *para
     job->scene = scene;
     job->params = &p;
     job->out = out;
-    camera_init(&job->camera, &scene->camera, p.width, p.height);
+    camera_init(&job->camera, p.camera ? p.camera : &scene->camera, p.width, p.height);
     job->tiles_x = (p.crop_x1 - p.crop_x0 + PT_TILE - 1) / PT_TILE;
     uint32_t tiles_y = (p.crop_y1 - p.crop_y0 + PT_TILE - 1) / PT_TILE;
     unsigned threads = p.threads ? p.threads : parallel_default_threads();

@@ -21,6 +21,7 @@ struct pt_params {
     bool nee;              /* next-event estimation + MIS (default); false = BSDF sampling only,
                               a second unbiased estimator that tests the first one's MIS weights */
     unsigned threads;      /* 0 = all cores */
+    const struct camera_desc *camera;  /* NULL = the scene's camera */
     /* Optional crop (inclusive-exclusive pixel window); all zero = the whole image. */
     uint32_t crop_x0, crop_y0, crop_x1, crop_y1;
 };

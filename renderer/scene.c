@@ -3,6 +3,7 @@
  * light_sampler.c. */
 #include "scene.h"
 
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -14,11 +15,14 @@ static void scene_free(struct scene *scene)
     if (!scene) return;
     accel_free(scene->accel);
     light_sampler_free(scene->lights);
-    for (uint32_t i = 0; i < scene->shape_count; i++) {
-        free(scene->shapes[i].positions);
-        free(scene->shapes[i].normals);
-        free(scene->shapes[i].indices);
+    if (!scene->base) {
+        for (uint32_t i = 0; i < scene->shape_count; i++) {
+            free(scene->shapes[i].positions);
+            free(scene->shapes[i].normals);
+            free(scene->shapes[i].indices);
+        }
     }
+    scene_release(scene->base);
     free(scene->shapes);
     free(scene->materials);
     free(scene->material_names);
@@ -55,6 +59,70 @@ bool scene_commit(struct scene *scene, struct err *err)
     if (!scene->accel) return false;
     scene->lights = light_sampler_new(scene, err);
     return scene->lights != NULL;
+}
+
+struct scene *scene_derive(struct scene *base, const struct scene_shape_override *overrides, uint32_t count,
+                           struct err *err)
+{
+    char where[32];
+    for (uint32_t i = 0; i < count; i++) {
+        const struct scene_shape_override *o = &overrides[i];
+        snprintf(where, sizeof where, "shape %u", o->shape);
+        if (o->shape >= base->shape_count) return err_set(err, ERR_INVALID, where, "no such shape"), NULL;
+        if (o->has_to_world) {
+            struct xform inv;
+            bool finite = true;
+            for (int r = 0; r < 3; r++)
+                for (int c = 0; c < 4; c++) finite = finite && isfinite(o->to_world.m[r][c]);
+            if (!finite || !xform_invert(&o->to_world, &inv))
+                return err_set(err, ERR_INVALID, where, "the transform is singular or not finite"), NULL;
+        }
+        if (o->has_emission && !(vec3_is_finite(o->emission) && vec3_min_comp(o->emission) >= 0.0f))
+            return err_set(err, ERR_INVALID, where, "emission must be finite and >= 0"), NULL;
+    }
+
+    struct scene *s = calloc(1, sizeof *s);
+    if (!s) return err_set(err, ERR_NOMEM, NULL, "out of memory deriving a scene"), NULL;
+    s->refcount = 1;
+    s->camera = base->camera;
+    s->env_radiance = base->env_radiance;
+    s->shape_count = base->shape_count;
+    s->material_count = base->material_count;
+    /* Room for one private material per overridden shape. */
+    uint32_t mat_cap = base->material_count + count;
+    s->materials = malloc(((size_t)mat_cap + 1) * sizeof *s->materials);
+    s->material_names = malloc(((size_t)mat_cap + 1) * sizeof *s->material_names);
+    s->shapes = malloc(((size_t)base->shape_count + 1) * sizeof *s->shapes);
+    if (!s->materials || !s->material_names || !s->shapes) {
+        free(s->materials), free(s->material_names), free(s->shapes), free(s);
+        return err_set(err, ERR_NOMEM, NULL, "out of memory deriving a scene"), NULL;
+    }
+    memcpy(s->materials, base->materials, base->material_count * sizeof *s->materials);
+    memcpy(s->material_names, base->material_names, base->material_count * sizeof *s->material_names);
+    memcpy(s->shapes, base->shapes, base->shape_count * sizeof *s->shapes);
+    scene_retain(base);
+    s->base = base;
+    for (uint32_t i = 0; i < count; i++) {
+        const struct scene_shape_override *o = &overrides[i];
+        struct shape *sh = &s->shapes[o->shape];
+        if (o->has_to_world) sh->to_world = o->to_world;
+        if (o->has_emission) {
+            uint32_t m = s->material_count++;
+            s->materials[m] = s->materials[sh->material];
+            s->materials[m].emission = o->emission;
+            memcpy(s->material_names[m], s->material_names[sh->material], SCENE_NAME_MAX);
+            sh->material = m;
+        }
+    }
+    if (!scene_commit(s, err)) {
+        scene_release(s);
+        return NULL;
+    }
+    if (!vec3_is_finite(s->bounds_min) || !vec3_is_finite(s->bounds_max)) {
+        scene_release(s);
+        return err_set(err, ERR_INVALID, NULL, "a transform sends geometry outside the float range"), NULL;
+    }
+    return s;
 }
 
 void scene_retain(struct scene *scene)

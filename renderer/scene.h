@@ -56,6 +56,9 @@ struct scene {
     struct light_sampler *lights;
     struct vec3 bounds_min, bounds_max;
     int refcount;
+    /* A derived scene (scene_derive) borrows the mesh arrays of the scene it was derived from
+     * and holds a reference to it; NULL for a loaded scene, which owns its arrays. */
+    struct scene *base;
 };
 
 /* Loads and validates a scene file; mesh paths resolve relative to the file's folder.
@@ -69,6 +72,25 @@ bool scene_commit(struct scene *scene, struct err *err);
 /* Reference counting; scene_release frees at zero. A new scene has refcount 1. */
 void scene_retain(struct scene *scene);
 void scene_release(struct scene *scene);
+
+/* A change to one shape of a scene: a new object-to-world transform and/or a new emitted
+ * radiance (given to a private copy of the shape's material, so other shapes sharing the
+ * material keep theirs). */
+struct scene_shape_override {
+    uint32_t shape;
+    bool has_to_world, has_emission;
+    struct xform to_world;
+    struct vec3 emission;
+};
+
+/* A committed copy of the committed scene `base` with `count` shapes overridden; mesh data is
+ * shared (the copy retains base). Used when a session moves or re-lights shapes: the copy has
+ * its own acceleration structure and light sampler, and base is untouched, so other sessions
+ * and the previous frame keep theirs. Errors: ERR_INVALID (shape index out of range, a
+ * transform that is singular or sends geometry out of the float range, negative or non-finite
+ * emission; where = "shape <i>"), ERR_NOMEM, or the accel's errors. */
+struct scene *scene_derive(struct scene *base, const struct scene_shape_override *overrides, uint32_t count,
+                           struct err *err);
 
 /* Index of the material/shape with this name, or -1. */
 int scene_find_material(const struct scene *scene, const char *name);

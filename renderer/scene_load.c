@@ -428,35 +428,9 @@ static bool scene_load_transform(const cJSON *t, const char *ptr, struct xform *
         if (s[i] < 0.0f) return err_set(err, ERR_INVALID, where, "negative scale (mirroring) is not supported, got %g", (double)s[i]);
     }
 
-    double a[3] = {rot.x, rot.y, rot.z}, c[3], sn[3];
-    for (int i = 0; i < 3; i++) {
-        double rad = fmod(a[i], 360.0) * (3.14159265358979323846 / 180.0);
-        c[i] = cos(rad);
-        sn[i] = sin(rad);
-    }
-    const double rx[3][3] = {{1, 0, 0}, {0, c[0], -sn[0]}, {0, sn[0], c[0]}};
-    const double ry[3][3] = {{c[1], 0, sn[1]}, {0, 1, 0}, {-sn[1], 0, c[1]}};
-    const double rz[3][3] = {{c[2], -sn[2], 0}, {sn[2], c[2], 0}, {0, 0, 1}};
-    double yx[3][3], r[3][3];
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) {
-            yx[i][j] = 0;
-            for (int k = 0; k < 3; k++) yx[i][j] += ry[i][k] * rx[k][j];
-        }
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) {
-            r[i][j] = 0;
-            for (int k = 0; k < 3; k++) r[i][j] += rz[i][k] * yx[k][j];
-        }
-    const float trv[3] = {tr.x, tr.y, tr.z};
-    for (int i = 0; i < 3; i++) {
-        for (int j = 0; j < 3; j++) out->m[i][j] = (float)(r[i][j] * s[j]);
-        out->m[i][3] = trv[i];
-    }
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 4; j++)
-            if (!isfinite(out->m[i][j]))
-                return err_set(err, ERR_INVALID, ptr, "the transform overflows the 32-bit float range");
+    const struct trs parts = {tr, rot, vec3_make(s[0], s[1], s[2])};
+    if (!xform_from_trs(&parts, out))
+        return err_set(err, ERR_INVALID, ptr, "the transform overflows the 32-bit float range");
     return true;
 }
 

@@ -139,4 +139,40 @@ static inline struct vec3 xform_normal(const struct xform *inv, struct vec3 n)
         inv->m[0][2] * n.x + inv->m[1][2] * n.y + inv->m[2][2] * n.z};
 }
 
+/* A transform given as its parts, as scenes and animation keys write it: the matrix is
+ * translate * Rz * Ry * Rx * scale (scale first, then rotations about X, Y, Z in degrees,
+ * right-handed, then the translation). Parts interpolate where matrices do not. */
+struct trs { struct vec3 translate, rotate_deg, scale; };
+
+static inline struct trs trs_identity(void)
+{
+    return (struct trs){{0, 0, 0}, {0, 0, 0}, {1, 1, 1}};
+}
+
+/* Composes in double precision; false when an entry leaves the float range. */
+static inline bool xform_from_trs(const struct trs *t, struct xform *out)
+{
+    const double a[3] = {t->rotate_deg.x, t->rotate_deg.y, t->rotate_deg.z};
+    const double sc[3] = {t->scale.x, t->scale.y, t->scale.z};
+    const double tr[3] = {t->translate.x, t->translate.y, t->translate.z};
+    double c[3], sn[3];
+    for (int i = 0; i < 3; i++) {
+        double rad = fmod(a[i], 360.0) * (3.14159265358979323846 / 180.0);
+        c[i] = cos(rad);
+        sn[i] = sin(rad);
+    }
+    /* Rz * Ry * Rx, written out. */
+    const double r[3][3] = {
+        {c[2] * c[1], c[2] * sn[1] * sn[0] - sn[2] * c[0], c[2] * sn[1] * c[0] + sn[2] * sn[0]},
+        {sn[2] * c[1], sn[2] * sn[1] * sn[0] + c[2] * c[0], sn[2] * sn[1] * c[0] - c[2] * sn[0]},
+        {-sn[1], c[1] * sn[0], c[1] * c[0]}};
+    bool finite = true;
+    for (int i = 0; i < 3; i++) {
+        for (int j = 0; j < 3; j++) out->m[i][j] = (float)(r[i][j] * sc[j]);
+        out->m[i][3] = (float)tr[i];
+        for (int j = 0; j < 4; j++) finite = finite && isfinite(out->m[i][j]);
+    }
+    return finite;
+}
+
 #endif

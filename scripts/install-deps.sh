@@ -13,6 +13,7 @@ packages=(
   libassimp-dev          # PLY / OBJ mesh loading
   python3-pytest python3-numpy python3-openimageio openimageio-tools  # tests
   embree-tools           # the benchmark peer (Embree's pathtracer tutorial)
+  wrk                    # HTTP load for the server benchmark (bench/server.sh)
 )
 
 missing=()

@@ -1,0 +1,38 @@
+/* deflate.h — zlib-format (RFC 1950/1951) compression and decompression and CRC-32, for the
+ * EXR ZIP codecs (exrio.c) and PNG (tonemap.c). deflate.c is the only includer of libdeflate,
+ * so a change of compression library touches one file.
+ * Thread-safety: a `struct deflate` is used by one thread at a time (keep one per thread);
+ * every other function here is safe to call from any thread. */
+#ifndef RESTIRD_DEFLATE_H
+#define RESTIRD_DEFLATE_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "err.h"
+
+struct deflate;
+
+/* A compressor at zlib level `level` (1..12; libdeflate's scale, where 1..9 are comparable to
+ * zlib's and 10..12 trade much more time for slightly smaller output). NULL on ERR_INVALID
+ * (level out of range) or ERR_NOMEM. Free with deflate_free (NULL is accepted). */
+struct deflate *deflate_new(int level, struct err *err);
+void deflate_free(struct deflate *d);
+/* Upper bound of the zlib stream size for `n` input bytes: an output buffer of this size
+ * always suffices for deflate_zlib. */
+size_t deflate_zlib_bound(struct deflate *d, size_t n);
+/* Compresses `n` bytes into out (capacity `cap`); returns the stream size, 0 if it did not
+ * fit (out's contents are then unspecified). Deterministic: the same level and input give the
+ * same bytes. */
+size_t deflate_zlib(struct deflate *d, const void *in, size_t n, void *out, size_t cap);
+/* Inflates the zlib stream of exactly `n` bytes into out (capacity `cap`); *out_n (may be
+ * NULL) receives the decompressed size. Errors: ERR_PARSE (corrupt stream, bad Adler-32, or
+ * bytes left after the stream's end), ERR_LIMIT (the data needs more than `cap` bytes),
+ * ERR_NOMEM. Allocates and frees its decompressor per call: meant for tests and cold paths. */
+bool deflate_zlib_decompress(const void *in, size_t n, void *out, size_t cap, size_t *out_n,
+                             struct err *err);
+/* CRC-32 (ISO 3309 / ITU-T V.42, as PNG and gzip use) continuing from `crc` (start with 0). */
+uint32_t deflate_crc32(uint32_t crc, const void *data, size_t n);
+
+#endif

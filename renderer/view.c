@@ -1,0 +1,232 @@
+/* view.c — per-session persistent state and the frame driver (see view.h). */
+#include "view.h"
+
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+struct view_params view_params_defaults(enum render_method method, uint32_t width, uint32_t height)
+{
+    struct view_params p = {.method = method, .width = width, .height = height, .seed = 0};
+    p.pt = (struct view_pt_params){.spp = 1, .max_depth = 64, .rr_depth = 3, .nee = true};
+    return p;
+}
+
+bool view_method_parse(const char *name, enum render_method *out)
+{
+    if (strcmp(name, "pt") == 0) { *out = RENDER_METHOD_PT; return true; }
+    return false;
+}
+
+const char *view_method_name(enum render_method method)
+{
+    switch (method) {
+    case RENDER_METHOD_PT: return "pt";
+    }
+    return NULL;
+}
+
+static void view_drop_history(struct view *v)
+{
+    scene_release(v->prev_scene);
+    v->prev_scene = NULL;
+    v->prev_camera = v->camera;
+    v->frame = 0;
+    v->accum_count = 0;
+    if (v->accum.pixels) memset(v->accum.pixels, 0, (size_t)v->accum.width * v->accum.height * sizeof *v->accum.pixels);
+}
+
+bool view_init(struct view *v, struct scene *scene, const struct view_params *params, unsigned threads,
+               struct err *err)
+{
+    memset(v, 0, sizeof *v);
+    if (params->width == 0 || params->height == 0)
+        return err_set(err, ERR_INVALID, "/width", "image size must be at least 1x1");
+    if (params->method == RENDER_METHOD_PT && params->pt.spp == 0)
+        return err_set(err, ERR_INVALID, "/params/spp", "spp must be at least 1");
+    /* pt needs only the accumulation buffer: no reservoirs, no G-buffer. */
+    if (!image_init(&v->accum, params->width, params->height, err)) return false;
+    v->changes = calloc(scene->shape_count ? scene->shape_count : 1, sizeof *v->changes);
+    if (!v->changes) {
+        image_destroy(&v->accum);
+        return err_set(err, ERR_NOMEM, NULL, "out of memory for a view");
+    }
+    v->params = *params;
+    v->threads = threads;
+    scene_retain(scene);
+    scene_retain(scene);
+    v->base = v->scene = scene;
+    v->camera = v->prev_camera = scene->camera;
+    return true;
+}
+
+void view_destroy(struct view *v)
+{
+    scene_release(v->prev_scene);
+    scene_release(v->scene);
+    scene_release(v->base);
+    image_destroy(&v->accum);
+    free(v->changes);
+    memset(v, 0, sizeof *v);
+}
+
+void view_reset(struct view *v)
+{
+    view_drop_history(v);
+}
+
+/* Merges `in` into the changes in force; false (nothing changed) on a bad shape index. */
+static bool view_merge_changes(struct view *v, const struct view_shape_change *in, uint32_t n, struct err *err)
+{
+    for (uint32_t i = 0; i < n; i++)
+        if (in[i].shape >= v->base->shape_count)
+            return err_set(err, ERR_INVALID, NULL, "shape index %u out of range", in[i].shape);
+    for (uint32_t i = 0; i < n; i++) {
+        struct view_shape_change *c = NULL;
+        for (uint32_t k = 0; k < v->change_count; k++)
+            if (v->changes[k].shape == in[i].shape) c = &v->changes[k];
+        if (!c) {
+            c = &v->changes[v->change_count++];
+            memset(c, 0, sizeof *c);
+            c->shape = in[i].shape;
+        }
+        /* position and transform both address the transform: the newer one wins. */
+        if (in[i].has_transform) {
+            c->has_transform = true, c->has_position = false;
+            c->transform = in[i].transform;
+        }
+        if (in[i].has_position) {
+            c->has_position = true;
+            c->position = in[i].position;
+        }
+        if (in[i].has_emission) {
+            c->has_emission = true;
+            c->emission = in[i].emission;
+        }
+    }
+    return true;
+}
+
+/* The scene with the changes in force, derived from the loaded one. */
+static struct scene *view_build_scene(const struct view *v, struct err *err)
+{
+    struct scene_shape_override ov[v->change_count ? v->change_count : 1];
+    for (uint32_t i = 0; i < v->change_count; i++) {
+        const struct view_shape_change *c = &v->changes[i];
+        struct xform xf = c->has_transform ? c->transform : v->base->shapes[c->shape].to_world;
+        if (c->has_position) {
+            xf.m[0][3] = c->position.x;
+            xf.m[1][3] = c->position.y;
+            xf.m[2][3] = c->position.z;
+        }
+        ov[i] = (struct scene_shape_override){.shape = c->shape, .has_to_world = c->has_position || c->has_transform,
+                                              .to_world = xf, .has_emission = c->has_emission,
+                                              .emission = c->emission};
+    }
+    return scene_derive(v->base, ov, v->change_count, err);
+}
+
+static double view_ms_since(const struct timespec *t0)
+{
+    struct timespec t1;
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+    return (double)(t1.tv_sec - t0->tv_sec) * 1e3 + (double)(t1.tv_nsec - t0->tv_nsec) * 1e-6;
+}
+
+bool view_render(struct view *v, const struct view_frame_change *change, struct image *out,
+                 struct frame_stats *stats, parallel_progress_fn *progress, void *progress_ctx, struct err *err)
+{
+    struct camera_desc camera = v->camera;
+    struct scene *scene = v->scene;
+    bool restart = false;
+    double update_ms = 0.0;
+
+    scene_retain(scene);
+    if (change && change->has_camera) {
+        camera = change->camera;
+        restart = restart || memcmp(&camera, &v->camera, sizeof camera) != 0;
+    }
+    if (change && change->shape_count) {
+        /* Work on a copy so that a failure leaves the view as it was. */
+        struct view_shape_change saved[v->change_count ? v->change_count : 1];
+        uint32_t saved_count = v->change_count;
+        memcpy(saved, v->changes, saved_count * sizeof *saved);
+        struct timespec t0;
+        clock_gettime(CLOCK_MONOTONIC, &t0);
+        struct scene *derived = NULL;
+        if (view_merge_changes(v, change->shapes, change->shape_count, err)) derived = view_build_scene(v, err);
+        if (!derived) {
+            memcpy(v->changes, saved, saved_count * sizeof *saved);
+            v->change_count = saved_count;
+            scene_release(scene);
+            return false;
+        }
+        scene_release(scene);
+        scene = derived;
+        update_ms = view_ms_since(&t0);
+        restart = true;
+    }
+
+    struct pt_params p = reference_pt_defaults(v->params.width, v->params.height);
+    p.spp = v->params.pt.spp;
+    p.max_depth = v->params.pt.max_depth;
+    p.rr_depth = v->params.pt.rr_depth;
+    p.nee = v->params.pt.nee;
+    p.seed = v->params.seed;
+    p.frame = v->frame;
+    p.threads = v->threads;
+    p.camera = &camera;
+    struct render_stats rs;
+    if (!reference_pt_render(scene, &p, out, &rs, progress, progress_ctx, err)) {
+        scene_release(scene);
+        return false;
+    }
+
+    /* Commit: the current frame becomes the previous one. */
+    scene_release(v->prev_scene);
+    v->prev_scene = v->scene;
+    v->scene = scene;
+    v->prev_camera = v->camera;
+    v->camera = camera;
+    if (change && change->has_time) v->time_s = change->time_s;
+    if (restart) {
+        v->accum_count = 0;
+        memset(v->accum.pixels, 0, (size_t)v->accum.width * v->accum.height * sizeof *v->accum.pixels);
+    }
+    size_t n = (size_t)out->width * out->height;
+    for (size_t i = 0; i < n; i++) v->accum.pixels[i] = vec3_add(v->accum.pixels[i], out->pixels[i]);
+    v->accum_count++;
+
+    if (stats) {
+        memset(stats, 0, sizeof *stats);
+        stats->frame = v->frame;
+        stats->time_s = v->time_s;
+        stats->render = rs;
+        stats->scene_update_ms = update_ms;
+        stats->accumulated = v->accum_count;
+    }
+    v->frame++;
+    return true;
+}
+
+bool view_accumulated(const struct view *v, struct image *out, uint32_t *count, struct err *err)
+{
+    if (v->accum_count == 0) return err_set(err, ERR_INVALID, NULL, "no frame accumulated since the last change");
+    if (!image_init(out, v->accum.width, v->accum.height, err)) return false;
+    float inv = 1.0f / (float)v->accum_count;
+    size_t n = (size_t)out->width * out->height;
+    for (size_t i = 0; i < n; i++) out->pixels[i] = vec3_scale(v->accum.pixels[i], inv);
+    *count = v->accum_count;
+    return true;
+}
+
+uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_BUFFERS], size_t *total)
+{
+    uint32_t n = 0;
+    out[n++] = (struct view_buffer_bytes){"accumulation", (size_t)v->accum.width * v->accum.height * sizeof *v->accum.pixels};
+    out[n++] = (struct view_buffer_bytes){"shape_changes", (size_t)(v->base->shape_count ? v->base->shape_count : 1) * sizeof *v->changes};
+    size_t sum = 0;
+    for (uint32_t i = 0; i < n; i++) sum += out[i].bytes;
+    if (total) *total = sum;
+    return n;
+}

@@ -1,0 +1,110 @@
+/* view.h — the persistent state of one rendering session: the method and its parameters, the
+ * image size and seed, the current and previous camera and scene (the previous pair is what
+ * temporal reuse evaluates the previous domain with), the frame counter, and the buffers the
+ * method needs — allocated once when the view is created, never during a frame.
+ * A method allocates only what it uses: `pt` keeps an accumulation buffer and no reservoirs or
+ * G-buffers. view_bytes() reports every buffer by name.
+ * Not thread-safe: one frame at a time per view (the caller serialises). */
+#ifndef RESTIRD_VIEW_H
+#define RESTIRD_VIEW_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "image.h"
+#include "parallel.h"
+#include "reference_pt.h"
+#include "scene.h"
+
+enum render_method { RENDER_METHOD_PT };
+
+/* Parameters of `pt` (reference_pt.h documents them). */
+struct view_pt_params {
+    uint32_t spp, max_depth, rr_depth;
+    bool nee;
+};
+
+struct view_params {
+    enum render_method method;
+    uint32_t width, height;
+    uint64_t seed;
+    struct view_pt_params pt;
+};
+
+/* Defaults of every method's parameters (pt: 1 spp per frame, max_depth 64, rr_depth 3, NEE). */
+struct view_params view_params_defaults(enum render_method method, uint32_t width, uint32_t height);
+/* "pt" <-> RENDER_METHOD_PT; false/NULL when unknown. */
+bool view_method_parse(const char *name, enum render_method *out);
+const char *view_method_name(enum render_method method);
+
+/* A change applied to one named shape before a frame (absent channels keep their value). */
+struct view_shape_change {
+    uint32_t shape;                       /* index into scene->shapes */
+    bool has_position, has_transform, has_emission;
+    struct vec3 position;                 /* replaces the translation of the shape's transform */
+    struct xform transform;               /* replaces the whole transform */
+    struct vec3 emission;                 /* radiance of the shape's own copy of its material */
+};
+
+/* One frame's changes; absent members keep the previous frame's value. */
+struct view_frame_change {
+    bool has_camera;
+    struct camera_desc camera;            /* complete (the caller merged partial changes) */
+    uint32_t shape_count;
+    const struct view_shape_change *shapes;
+    bool has_time;
+    double time_s;
+};
+
+struct view_buffer_bytes {
+    const char *name;                     /* "accumulation", "reservoirs", "gbuffer", ... */
+    size_t bytes;
+};
+#define VIEW_MAX_BUFFERS 8
+
+struct frame_stats {
+    uint32_t frame;                       /* index of this frame in the session's sequence */
+    double time_s;
+    struct render_stats render;           /* rays, samples, nonfinite, threads, render_ms */
+    double scene_update_ms;               /* rebuilding the scene for moved or re-lit shapes */
+    uint32_t accumulated;                 /* frames in the accumulation buffer after this one */
+};
+
+struct view {
+    struct view_params params;
+    unsigned threads;                     /* 0 = all cores */
+    struct scene *base;                   /* the scene as loaded (retained) */
+    struct scene *scene, *prev_scene;     /* current and previous frame's scene (retained;
+                                             == base until a shape changes) */
+    struct camera_desc camera, prev_camera;
+    double time_s;
+    uint32_t frame;                       /* frames rendered since creation or reset */
+    struct image accum;                   /* running sum since the last change */
+    uint32_t accum_count;
+    struct view_shape_change *changes;    /* the shape changes in force, one per changed shape */
+    uint32_t change_count;
+};
+
+/* Validates params against the scene and allocates every buffer. Retains `scene`.
+ * Errors: ERR_INVALID (params), ERR_LIMIT, ERR_NOMEM. */
+bool view_init(struct view *v, struct scene *scene, const struct view_params *params, unsigned threads,
+               struct err *err);
+void view_destroy(struct view *v);
+/* Forgets the history: frame counter, accumulation, previous camera/scene; keeps the current
+ * camera and shape changes. */
+void view_reset(struct view *v);
+
+/* Renders the next frame into `out` (initialised here). Applies `change` first (NULL = none):
+ * a camera change or a shape change restarts the accumulation. Errors: ERR_INVALID (a change
+ * names a shape out of range or gives a non-finite value), ERR_NOMEM; the view is unchanged
+ * on error. */
+bool view_render(struct view *v, const struct view_frame_change *change, struct image *out,
+                 struct frame_stats *stats, parallel_progress_fn *progress, void *progress_ctx, struct err *err);
+
+/* The mean of the accumulated frames into `out` (initialised here); ERR_INVALID when none. */
+bool view_accumulated(const struct view *v, struct image *out, uint32_t *count, struct err *err);
+
+/* Buffers by name; returns the count (<= VIEW_MAX_BUFFERS). *total gets the sum. */
+uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_BUFFERS], size_t *total);
+
+#endif

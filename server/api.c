@@ -1,0 +1,769 @@
+/* api.c — routing, the shared answer helpers, and the service and scene endpoints.
+ * Sessions, frames, jobs and events are in api_sessions.c. See api.h. */
+#include "api.h"
+
+#include <ctype.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+#include <time.h>
+#include <math.h>
+
+#include "exrio.h"
+#include "light_sampler.h"
+#include "tonemap.h"
+
+/* The API description, linked in from protocol/openapi.yaml (see the Makefile). */
+extern const char _binary_protocol_openapi_yaml_start[];
+extern const char _binary_protocol_openapi_yaml_end[];
+
+/* ---- problems ---- */
+
+static const struct { const char *slug, *title; } api_titles[] = {
+    {"malformed-json", "Malformed JSON"},
+    {"bad-query", "Bad query parameter"},
+    {"bad-id", "Bad identifier"},
+    {"bad-header", "Bad header"},
+    {"not-found", "Not found"},
+    {"scene-not-loaded", "Scene not loaded on this daemon"},
+    {"method-not-allowed", "Method not allowed"},
+    {"not-acceptable", "Not acceptable"},
+    {"conflict", "Conflict"},
+    {"frame-evicted", "Frame no longer kept"},
+    {"length-required", "Length required"},
+    {"body-too-large", "Body too large"},
+    {"unsupported-media-type", "Unsupported media type"},
+    {"invalid-field", "Invalid field"},
+    {"limit-exceeded", "Limit exceeded"},
+    {"invalid-scene", "Invalid scene"},
+    {"invalid-asset", "Invalid asset"},
+    {"invalid-reference", "Invalid reference image"},
+    {"reference-mismatch", "Reference does not match"},
+    {"too-many-sessions", "Too many sessions"},
+    {"queue-full", "Queue full"},
+    {"busy", "Busy"},
+    {"draining", "Shutting down"},
+    {"internal", "Internal error"},
+};
+
+static void api_problem_v(struct api_call *c, int status, const char *slug, const char *field, bool has_limit,
+                          double limit, const char *fmt, va_list ap)
+{
+    char detail[768];
+    vsnprintf(detail, sizeof detail, fmt, ap);
+    const char *title = slug;
+    for (size_t i = 0; i < sizeof api_titles / sizeof api_titles[0]; i++)
+        if (strcmp(api_titles[i].slug, slug) == 0) title = api_titles[i].title;
+    struct protocol_problem p = {.status = status, .slug = slug, .title = title, .detail = detail,
+                                 .instance = c->req->path, .field = field ? field : "",
+                                 .has_limit = has_limit, .limit = limit};
+    size_t len = 0;
+    char *body = protocol_problem_json(&p, &len);
+    c->resp->status = body ? status : 500;
+    c->resp->content_type = "application/problem+json";
+    free(c->resp->body);
+    c->resp->body = body;
+    c->resp->body_len = body ? len : 0;
+    if (status == 429 || status == 503) http_response_header(c->resp, "Retry-After", "%d", status == 503 ? 1 : 2);
+}
+
+void api_problem(struct api_call *c, int status, const char *slug, const char *field, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    api_problem_v(c, status, slug, field, false, 0.0, fmt, ap);
+    va_end(ap);
+}
+
+void api_problem_limit(struct api_call *c, int status, const char *slug, const char *field, double limit,
+                       const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    api_problem_v(c, status, slug, field, true, limit, fmt, ap);
+    va_end(ap);
+}
+
+/* The configured limit a protocol error points at, for the problem's "limit" member. */
+static bool api_limit_of(const struct daemon *d, const char *where, double *limit)
+{
+    const struct protocol_limits *l = &d->cfg.limits;
+    if (strcmp(where, "/width") == 0 || strcmp(where, "/height") == 0) *limit = l->max_side;
+    else if (strcmp(where, "") == 0) *limit = (double)l->max_pixels;
+    else if (strstr(where, "spp")) *limit = l->max_spp;
+    else if (strcmp(where, "/lights") == 0 || strcmp(where, "/animation/light_keys") == 0)
+        *limit = PROTOCOL_MAX_SHAPE_CHANGES;
+    else if (strcmp(where, "/animation/frames") == 0) *limit = l->max_frames;
+    else if (strstr(where, "_keys")) *limit = l->max_keys;
+    else return false;
+    return true;
+}
+
+void api_error(struct api_call *c, const struct err *e)
+{
+    const char *f = e->where;
+    double limit;
+    switch (e->code) {
+    case ERR_PARSE: api_problem(c, 400, "malformed-json", f, "%s", e->message); return;
+    case ERR_LIMIT:
+        if (api_limit_of(c->d, f, &limit)) api_problem_limit(c, 422, "limit-exceeded", f, limit, "%s", e->message);
+        else api_problem(c, 422, "limit-exceeded", f, "%s", e->message);
+        return;
+    case ERR_NONE:
+    case ERR_INVALID:
+    case ERR_UNSUPPORTED: api_problem(c, 422, "invalid-field", f, "%s", e->message); return;
+    case ERR_NOT_FOUND: api_problem(c, 404, "not-found", NULL, "%s", e->message); return;
+    case ERR_CONFLICT: api_problem(c, 409, "conflict", NULL, "%s", e->message); return;
+    case ERR_BUSY:
+        if (atomic_load(&c->d->draining)) api_problem(c, 503, "draining", NULL, "%s", e->message);
+        else api_problem(c, 503, "busy", NULL, "%s", e->message);
+        return;
+    case ERR_NOMEM: api_problem(c, 503, "busy", NULL, "out of memory: %s", e->message); return;
+    case ERR_IO:
+    case ERR_INTERNAL: api_problem(c, 500, "internal", NULL, "%s", e->message); return;
+    }
+    api_problem(c, 500, "internal", NULL, "%s", e->message);
+}
+
+void api_json(struct api_call *c, int status, struct jsonw *w)
+{
+    size_t len = 0;
+    char *body = jsonw_finish(w, &len);
+    if (!body) {
+        api_problem(c, 503, "busy", NULL, "out of memory writing the answer");
+        return;
+    }
+    free(c->resp->body);
+    c->resp->status = status;
+    c->resp->content_type = "application/json";
+    c->resp->body = body;
+    c->resp->body_len = len;
+}
+
+static bool api_content_type_is(const char *ct, const char *want)
+{
+    if (!ct) return false;
+    size_t n = strlen(want);
+    return strncasecmp(ct, want, n) == 0 && (ct[n] == '\0' || ct[n] == ';' || ct[n] == ' ');
+}
+
+bool api_require_json(struct api_call *c)
+{
+    if (c->req->body_len == 0) return true;
+    const char *ct = http_header(c->req, "Content-Type");
+    if (api_content_type_is(ct, "application/json")) return true;
+    api_problem(c, 415, "unsupported-media-type", NULL, "the body must be application/json, got %s", ct ? ct : "no Content-Type");
+    return false;
+}
+
+/* ---- negotiation and images ---- */
+
+const char *api_negotiate(struct api_call *c, const char *const *offered)
+{
+    const char *accept = http_header(c->req, "Accept");
+    if (!accept || !*accept) return offered[0];
+    char list[512];
+    snprintf(list, sizeof list, "%s", accept);
+    char *save = NULL;
+    for (char *item = strtok_r(list, ",", &save); item; item = strtok_r(NULL, ",", &save)) {
+        while (*item == ' ' || *item == '\t') item++;
+        char *semi = strchr(item, ';');
+        bool zero_q = false;
+        if (semi) {
+            *semi = '\0';
+            const char *q = strstr(semi + 1, "q=");
+            zero_q = q && strtod(q + 2, NULL) == 0.0;
+        }
+        char *end = item + strlen(item);
+        while (end > item && (end[-1] == ' ' || end[-1] == '\t')) *--end = '\0';
+        if (zero_q) continue;
+        if (strcmp(item, "*/*") == 0) return offered[0];
+        for (int i = 0; offered[i]; i++) {
+            if (strcasecmp(item, offered[i]) == 0) return offered[i];
+            size_t tl = strcspn(offered[i], "/");
+            if (strlen(item) == tl + 2 && strncasecmp(item, offered[i], tl) == 0 && strcmp(item + tl, "/*") == 0)
+                return offered[i];
+        }
+    }
+    char types[256] = "";
+    for (int i = 0; offered[i]; i++) {
+        strncat(types, i ? ", " : "", sizeof types - strlen(types) - 1);
+        strncat(types, offered[i], sizeof types - strlen(types) - 1);
+    }
+    api_problem(c, 406, "not-acceptable", NULL, "Accept '%s' names none of: %s", accept, types);
+    return NULL;
+}
+
+static bool api_parse_double(const char *s, double *out)
+{
+    char *end = NULL;
+    if (!s || !*s) return false;
+    *out = strtod(s, &end);
+    return *end == '\0' && isfinite(*out);
+}
+
+bool api_check_image_query(struct api_call *c)
+{
+    const char *px = http_query(c->req, "pixel");
+    if (px && strcmp(px, "float") != 0 && strcmp(px, "half") != 0) {
+        api_problem(c, 400, "bad-query", "?pixel", "pixel must be 'float' or 'half', got '%s'", px);
+        return false;
+    }
+    const char *ex = http_query(c->req, "exposure");
+    double ev;
+    if (ex && (!api_parse_double(ex, &ev) || fabs(ev) > 64.0)) {
+        api_problem(c, 400, "bad-query", "?exposure", "exposure must be a number of stops in [-64, 64], got '%s'", ex);
+        return false;
+    }
+    const char *tm = http_query(c->req, "tonemap");
+    enum tonemap_curve curve;
+    if (tm && !tonemap_curve_parse(tm, &curve)) {
+        api_problem(c, 400, "bad-query", "?tonemap", "tonemap must be clamp, reinhard or aces, got '%s'", tm);
+        return false;
+    }
+    return true;
+}
+
+void api_send_image(struct api_call *c, const char *type, const struct image *img, const char *etag,
+                    api_json_fn *json_fn, void *json_ctx)
+{
+    struct err e = {0};
+    struct http_response *r = c->resp;
+    if (etag) {
+        const char *inm = http_header(c->req, "If-None-Match");
+        http_response_header(r, "ETag", "%s", etag);
+        http_response_header(r, "Cache-Control", "private, max-age=31536000, immutable");
+        if (inm && strcmp(inm, etag) == 0) {
+            r->status = 304;
+            return;
+        }
+    }
+    if (strcmp(type, "application/json") == 0) {
+        struct jsonw w;
+        jsonw_init(&w);
+        json_fn(c, &w, json_ctx);
+        if (c->resp->status >= 400 && c->resp->body) {  /* json_fn answered with a problem */
+            jsonw_destroy(&w);
+            return;
+        }
+        api_json(c, 200, &w);
+        return;
+    }
+    unsigned char *data = NULL;
+    size_t size = 0;
+    bool ok;
+    if (strcmp(type, "image/png") == 0) {
+        const char *ex = http_query(c->req, "exposure");
+        const char *tm = http_query(c->req, "tonemap");
+        struct tonemap_opts o = {.exposure_ev = ex ? (float)strtod(ex, NULL) : 0.0f, .curve = TONEMAP_CLAMP};
+        if (tm) tonemap_curve_parse(tm, &o.curve);
+        ok = tonemap_png(img, &o, &data, &size, &e);
+    } else {
+        const char *px = http_query(c->req, "pixel");
+        struct exrio_write_opts o = {.pixel = (px && strcmp(px, "half") == 0) ? EXRIO_HALF : EXRIO_FLOAT,
+                                     .compression = EXRIO_ZIP};
+        ok = exrio_write_mem(img, &o, &data, &size, &e);
+    }
+    if (!ok) {
+        api_error(c, &e);
+        return;
+    }
+    r->status = 200;
+    r->content_type = type;
+    r->body = (char *)data;
+    r->body_len = size;
+}
+
+void api_write_metrics(struct jsonw *w, const char *reference, const struct metrics *m)
+{
+    jsonw_object_begin(w);
+    jsonw_key(w, "reference");
+    jsonw_string(w, reference);
+    jsonw_key(w, "mape");
+    jsonw_double(w, m->mape);
+    jsonw_key(w, "rmse");
+    jsonw_double(w, m->rmse);
+    jsonw_key(w, "relmse");
+    jsonw_double(w, m->relmse);
+    jsonw_key(w, "pixels");
+    jsonw_uint(w, m->pixels_used);
+    jsonw_key(w, "nonfinite");
+    jsonw_uint(w, m->nan_image + m->inf_image);
+    jsonw_object_end(w);
+}
+
+bool api_scene_exists(struct api_call *c, const char *scene_id)
+{
+    struct registry_info info;
+    if (registry_info(c->d->registry, scene_id, &info)) return true;
+    api_problem(c, 404, "scene-not-loaded", NULL, "this daemon does not hold scene '%s' (PUT it first)", scene_id);
+    return false;
+}
+
+/* ---- service ---- */
+
+static void api_healthz(struct api_call *c)
+{
+    /* No lock, no allocation beyond the body: this must answer while everything else is busy. */
+    static const char body[] = "{\"status\":\"ok\"}";
+    c->resp->status = 200;
+    c->resp->content_type = "application/json";
+    c->resp->body = strdup(body);
+    c->resp->body_len = c->resp->body ? sizeof body - 1 : 0;
+}
+
+static void api_readyz(struct api_call *c)
+{
+    if (atomic_load(&c->d->draining)) {
+        api_problem(c, 503, "draining", NULL, "the daemon is shutting down");
+        return;
+    }
+    struct jsonw w;
+    jsonw_init(&w);
+    jsonw_object_begin(&w);
+    jsonw_key(&w, "status");
+    jsonw_string(&w, "ready");
+    jsonw_object_end(&w);
+    api_json(c, 200, &w);
+}
+
+static void api_metrics(struct api_call *c)
+{
+    struct daemon *d = c->d;
+    struct prom_gauges g = {0};
+    struct session *list[256];
+    uint32_t n = sessions_list(d->sessions, NULL, list, 256);
+    g.sessions = sessions_count(d->sessions);
+    for (uint32_t i = 0; i < n; i++) {
+        g.session_bytes += session_bytes(list[i]);
+        session_release(list[i]);
+    }
+    g.scenes = (uint32_t)registry_list(d->registry, NULL, 0);
+    g.reference_bytes = refstore_bytes(d->refs);
+    g.render_queue = gate_waiting(&d->gate);
+    g.job_queue = jobs_queued(d->jobs);
+    size_t len = 0;
+    char *text = prom_format(&d->prom, &g, &len);
+    if (!text) {
+        api_problem(c, 503, "busy", NULL, "out of memory");
+        return;
+    }
+    c->resp->status = 200;
+    c->resp->content_type = "text/plain; version=0.0.4; charset=utf-8";
+    c->resp->body = text;
+    c->resp->body_len = len;
+}
+
+static void api_limits(struct api_call *c)
+{
+    const struct daemon_config *cfg = &c->d->cfg;
+    struct jsonw w;
+    jsonw_init(&w);
+    jsonw_object_begin(&w);
+    jsonw_key(&w, "max_side"); jsonw_uint(&w, cfg->limits.max_side);
+    jsonw_key(&w, "max_pixels"); jsonw_uint(&w, cfg->limits.max_pixels);
+    jsonw_key(&w, "max_spp"); jsonw_uint(&w, cfg->limits.max_spp);
+    jsonw_key(&w, "max_frames"); jsonw_uint(&w, cfg->limits.max_frames);
+    jsonw_key(&w, "max_keys"); jsonw_uint(&w, cfg->limits.max_keys);
+    jsonw_key(&w, "max_sessions"); jsonw_uint(&w, cfg->max_sessions);
+    jsonw_key(&w, "frames_kept"); jsonw_uint(&w, cfg->frames_kept);
+    jsonw_key(&w, "max_json_body"); jsonw_uint(&w, cfg->max_json_body);
+    jsonw_key(&w, "max_asset_body"); jsonw_uint(&w, cfg->max_asset_body);
+    jsonw_key(&w, "max_reference_body"); jsonw_uint(&w, cfg->max_reference_body);
+    jsonw_key(&w, "render_slots"); jsonw_uint(&w, cfg->render_slots);
+    jsonw_key(&w, "render_queue"); jsonw_uint(&w, cfg->render_queue);
+    jsonw_key(&w, "job_queue"); jsonw_uint(&w, cfg->job_queue);
+    jsonw_key(&w, "connection_limit"); jsonw_uint(&w, cfg->connection_limit);
+    jsonw_key(&w, "per_ip_connection_limit"); jsonw_uint(&w, cfg->per_ip_limit);
+    jsonw_key(&w, "connection_timeout_s"); jsonw_uint(&w, cfg->timeout_s);
+    jsonw_object_end(&w);
+    api_json(c, 200, &w);
+}
+
+static void api_openapi(struct api_call *c)
+{
+    size_t len = (size_t)(_binary_protocol_openapi_yaml_end - _binary_protocol_openapi_yaml_start);
+    char *body = malloc(len ? len : 1);
+    if (!body) {
+        api_problem(c, 503, "busy", NULL, "out of memory");
+        return;
+    }
+    memcpy(body, _binary_protocol_openapi_yaml_start, len);
+    c->resp->status = 200;
+    c->resp->content_type = "application/yaml";
+    c->resp->body = body;
+    c->resp->body_len = len;
+}
+
+/* ---- scenes ---- */
+
+static void api_write_scene(struct jsonw *w, const struct registry_info *info)
+{
+    char href[128];
+    snprintf(href, sizeof href, "/v1/scenes/%s", info->id);
+    jsonw_object_begin(w);
+    jsonw_key(w, "id"); jsonw_string(w, info->id);
+    jsonw_key(w, "builtin"); jsonw_bool(w, info->builtin);
+    jsonw_key(w, "hash"); jsonw_string(w, info->hash);
+    jsonw_key(w, "materials"); jsonw_uint(w, info->materials);
+    jsonw_key(w, "shapes"); jsonw_uint(w, info->shapes);
+    jsonw_key(w, "triangles"); jsonw_uint(w, info->triangles);
+    jsonw_key(w, "emitters"); jsonw_uint(w, info->emitters);
+    jsonw_key(w, "scene_bytes"); jsonw_uint(w, info->scene_bytes);
+    jsonw_key(w, "sessions"); jsonw_uint(w, info->sessions);
+    jsonw_key(w, "assets"); jsonw_uint(w, info->assets);
+    jsonw_key(w, "href"); jsonw_string(w, href);
+    jsonw_object_end(w);
+}
+
+static void api_scenes_list(struct api_call *c)
+{
+    size_t n = registry_list(c->d->registry, NULL, 0);
+    struct registry_info *infos = calloc(n ? n : 1, sizeof *infos);
+    if (!infos) {
+        api_problem(c, 503, "busy", NULL, "out of memory");
+        return;
+    }
+    size_t got = registry_list(c->d->registry, infos, n);
+    if (got < n) n = got;  /* a scene may come or go between the two calls */
+    struct jsonw w;
+    jsonw_init(&w);
+    jsonw_object_begin(&w);
+    jsonw_key(&w, "scenes");
+    jsonw_array_begin(&w);
+    for (size_t i = 0; i < n; i++) api_write_scene(&w, &infos[i]);
+    jsonw_array_end(&w);
+    jsonw_object_end(&w);
+    free(infos);
+    api_json(c, 200, &w);
+}
+
+static void api_scene_get(struct api_call *c)
+{
+    struct registry_info info;
+    if (!registry_info(c->d->registry, c->seg[2], &info)) {
+        api_scene_exists(c, c->seg[2]);
+        return;
+    }
+    struct jsonw w;
+    jsonw_init(&w);
+    api_write_scene(&w, &info);
+    api_json(c, 200, &w);
+}
+
+static void api_scene_put(struct api_call *c)
+{
+    if (!api_require_json(c)) return;
+    enum registry_put_result result;
+    struct err e = {0};
+    if (!registry_put_scene(c->d->registry, c->seg[2], c->req->body ? c->req->body : "", c->req->body_len, &result, &e)) {
+        if (e.code == ERR_CONFLICT) api_problem(c, 409, "conflict", NULL, "%s", e.message);
+        else if (e.code == ERR_PARSE) api_problem(c, 400, "malformed-json", e.where, "%s", e.message);
+        else if (e.code == ERR_IO || e.code == ERR_INTERNAL) api_error(c, &e);
+        else if (e.code == ERR_BUSY || e.code == ERR_NOMEM) api_error(c, &e);
+        else api_problem(c, 422, "invalid-scene", e.where, "%s", e.message);
+        return;
+    }
+    struct registry_info info;
+    registry_info(c->d->registry, c->seg[2], &info);
+    struct jsonw w;
+    jsonw_init(&w);
+    api_write_scene(&w, &info);
+    http_response_header(c->resp, "Location", "/v1/scenes/%s", c->seg[2]);
+    api_json(c, result == REGISTRY_CREATED ? 201 : 200, &w);
+}
+
+static void api_scene_delete(struct api_call *c)
+{
+    const char *force = http_query(c->req, "force");
+    if (force && strcmp(force, "true") != 0 && strcmp(force, "false") != 0) {
+        api_problem(c, 400, "bad-query", "?force", "force must be true or false, got '%s'", force);
+        return;
+    }
+    struct err e = {0};
+    if (!registry_delete(c->d->registry, c->seg[2], force && strcmp(force, "true") == 0, &e)) {
+        if (e.code == ERR_NOT_FOUND) api_scene_exists(c, c->seg[2]);
+        else api_error(c, &e);
+        return;
+    }
+    refstore_drop_scene(c->d->refs, c->seg[2]);
+    c->resp->status = 204;
+}
+
+static void api_asset_put(struct api_call *c)
+{
+    const char *ct = http_header(c->req, "Content-Type");
+    if (!(api_content_type_is(ct, "application/octet-stream") || api_content_type_is(ct, "model/ply") ||
+          api_content_type_is(ct, "model/obj") || api_content_type_is(ct, "text/plain"))) {
+        api_problem(c, 415, "unsupported-media-type", NULL,
+                    "a mesh asset must be application/octet-stream, model/ply, model/obj or text/plain, got %s",
+                    ct ? ct : "no Content-Type");
+        return;
+    }
+    bool created = false;
+    struct err e = {0};
+    if (!registry_put_asset(c->d->registry, c->seg[2], c->seg[4], c->req->body ? c->req->body : "",
+                            c->req->body_len, &created, &e)) {
+        if (e.code == ERR_INVALID && strcmp(e.where, "name") == 0) api_problem(c, 400, "bad-id", NULL, "%s", e.message);
+        else if (e.code == ERR_CONFLICT) api_problem(c, 409, "conflict", NULL, "%s", e.message);
+        else if (e.code == ERR_IO || e.code == ERR_INTERNAL || e.code == ERR_BUSY || e.code == ERR_NOMEM) api_error(c, &e);
+        else if (e.code == ERR_LIMIT) api_problem(c, 422, "limit-exceeded", NULL, "%s: %s", e.where, e.message);
+        else api_problem(c, 422, e.where[0] == '/' ? "invalid-scene" : "invalid-asset", e.where[0] == '/' ? e.where : NULL,
+                         "%s%s%s", e.where[0] == '/' ? "" : e.where, e.where[0] == '/' || !e.where[0] ? "" : ": ", e.message);
+        return;
+    }
+    struct jsonw w;
+    jsonw_init(&w);
+    jsonw_object_begin(&w);
+    jsonw_key(&w, "scene"); jsonw_string(&w, c->seg[2]);
+    jsonw_key(&w, "name"); jsonw_string(&w, c->seg[4]);
+    jsonw_key(&w, "bytes"); jsonw_uint(&w, c->req->body_len);
+    jsonw_object_end(&w);
+    api_json(c, created ? 201 : 200, &w);
+}
+
+struct api_ref_json { struct ref_image *ref; };
+
+static void api_ref_json(struct api_call *c, struct jsonw *w, void *ctx)
+{
+    (void)c;
+    struct ref_image *r = ((struct api_ref_json *)ctx)->ref;
+    double mean[3];
+    metrics_image_mean(&r->img, mean);
+    jsonw_object_begin(w);
+    jsonw_key(w, "name"); jsonw_string(w, r->name);
+    jsonw_key(w, "scene"); jsonw_string(w, r->scene);
+    jsonw_key(w, "width"); jsonw_uint(w, r->img.width);
+    jsonw_key(w, "height"); jsonw_uint(w, r->img.height);
+    jsonw_key(w, "spp"); jsonw_uint(w, r->spp);
+    jsonw_key(w, "mean");
+    jsonw_array_begin(w);
+    for (int i = 0; i < 3; i++) jsonw_double(w, mean[i]);
+    jsonw_array_end(w);
+    jsonw_object_end(w);
+}
+
+static void api_reference_get(struct api_call *c)
+{
+    static const char *const types[] = {"image/x-exr", "image/png", "application/json", NULL};
+    if (!api_scene_exists(c, c->seg[2])) return;
+    const char *type = api_negotiate(c, types);
+    if (!type || !api_check_image_query(c)) return;
+    struct ref_image *r = refstore_get(c->d->refs, c->seg[2], c->seg[4]);
+    if (!r) {
+        api_problem(c, 404, "not-found", NULL, "scene '%s' has no reference '%s'", c->seg[2], c->seg[4]);
+        return;
+    }
+    struct api_ref_json ctx = {r};
+    api_send_image(c, type, &r->img, NULL, api_ref_json, &ctx);
+    ref_image_release(r);
+}
+
+static void api_reference_put(struct api_call *c)
+{
+    if (!api_scene_exists(c, c->seg[2])) return;
+    const char *ct = http_header(c->req, "Content-Type");
+    if (!(api_content_type_is(ct, "image/x-exr") || api_content_type_is(ct, "image/aces"))) {
+        api_problem(c, 415, "unsupported-media-type", NULL, "a reference must be image/x-exr or image/aces, got %s",
+                    ct ? ct : "no Content-Type");
+        return;
+    }
+    struct image img;
+    struct err e = {0};
+    if (!exrio_read_mem(c->req->body ? c->req->body : "", c->req->body_len, "reference", &img, &e)) {
+        if (e.code == ERR_NOMEM) api_error(c, &e);
+        else api_problem(c, 422, "invalid-reference", NULL, "%s", e.message);
+        return;
+    }
+    uint32_t w_ = img.width, h_ = img.height;
+    bool existed = refstore_put(c->d->refs, c->seg[2], c->seg[4], &img, 0);
+    struct jsonw w;
+    jsonw_init(&w);
+    jsonw_object_begin(&w);
+    jsonw_key(&w, "name"); jsonw_string(&w, c->seg[4]);
+    jsonw_key(&w, "width"); jsonw_uint(&w, w_);
+    jsonw_key(&w, "height"); jsonw_uint(&w, h_);
+    jsonw_object_end(&w);
+    api_json(c, existed ? 200 : 201, &w);
+}
+
+/* ---- routing ---- */
+
+enum api_body { BODY_NONE, BODY_JSON, BODY_ASSET, BODY_REFERENCE };
+
+struct api_route {
+    const char *pattern;              /* segments; "*" = an id, "#" = a frame number */
+    const char *methods[3];
+    void (*fn[3])(struct api_call *c);
+    enum api_body body[3];
+};
+
+static const struct api_route api_routes[] = {
+    {"/healthz", {"GET"}, {api_healthz}, {0}},
+    {"/readyz", {"GET"}, {api_readyz}, {0}},
+    {"/metrics", {"GET"}, {api_metrics}, {0}},
+    {"/v1/limits", {"GET"}, {api_limits}, {0}},
+    {"/v1/openapi.yaml", {"GET"}, {api_openapi}, {0}},
+    {"/v1/scenes", {"GET"}, {api_scenes_list}, {0}},
+    {"/v1/scenes/*", {"GET", "PUT", "DELETE"}, {api_scene_get, api_scene_put, api_scene_delete}, {0, BODY_JSON, 0}},
+    {"/v1/scenes/*/assets/@", {"PUT"}, {api_asset_put}, {BODY_ASSET}},
+    {"/v1/scenes/*/references/*", {"GET", "PUT"}, {api_reference_get, api_reference_put}, {0, BODY_REFERENCE}},
+    {"/v1/scenes/*/sessions", {"GET", "POST"}, {api_sessions_list, api_sessions_post}, {0, BODY_JSON}},
+    {"/v1/scenes/*/sessions/*", {"GET", "DELETE"}, {api_session_get, api_session_delete}, {0}},
+    {"/v1/scenes/*/sessions/*/reset", {"POST"}, {api_session_reset}, {BODY_JSON}},
+    {"/v1/scenes/*/sessions/*/frames", {"POST"}, {api_frames_post}, {BODY_JSON}},
+    {"/v1/scenes/*/sessions/*/frames/#", {"GET"}, {api_frame_get}, {0}},
+    {"/v1/scenes/*/sessions/*/frames/#/metrics", {"GET"}, {api_frame_metrics}, {0}},
+    {"/v1/scenes/*/sessions/*/frames/#/error.png", {"GET"}, {api_frame_error_png}, {0}},
+    {"/v1/scenes/*/sessions/*/accumulation", {"GET"}, {api_accumulation_get}, {0}},
+    {"/v1/scenes/*/sessions/*/renders", {"POST"}, {api_renders_post}, {BODY_JSON}},
+    {"/v1/scenes/*/sessions/*/renders/*", {"GET", "DELETE"}, {api_render_get, api_render_delete}, {0}},
+    {"/v1/scenes/*/sessions/*/renders/*/metrics", {"GET"}, {api_render_metrics}, {0}},
+    {"/v1/scenes/*/sessions/*/references/*", {"POST"}, {api_session_reference_post}, {BODY_JSON}},
+    {"/v1/scenes/*/sessions/*/events", {"GET"}, {api_events_get}, {0}},
+};
+#define API_ROUTE_COUNT (sizeof api_routes / sizeof api_routes[0])
+
+/* Splits the path into segments (in c->buf); false when it has too many or empty ones. */
+static bool api_split(struct api_call *c, const char *path)
+{
+    c->nseg = 0;
+    if (path[0] != '/' || strlen(path) >= sizeof c->buf) return false;
+    snprintf(c->buf, sizeof c->buf, "%s", path + 1);
+    char *p = c->buf;
+    for (;;) {
+        if (c->nseg == API_MAX_SEGMENTS) return false;
+        c->seg[c->nseg++] = p;
+        char *slash = strchr(p, '/');
+        if (!slash) break;
+        *slash = '\0';
+        p = slash + 1;
+    }
+    for (int i = 0; i < c->nseg; i++)
+        if (!c->seg[i][0]) return false;
+    return true;
+}
+
+/* Matches the segment shapes only; ids are validated after the route is known. */
+static bool api_match(const char *pattern, const struct api_call *c)
+{
+    char pat[128];
+    snprintf(pat, sizeof pat, "%s", pattern + 1);
+    int i = 0;
+    char *save = NULL;
+    for (char *tok = strtok_r(pat, "/", &save); tok; tok = strtok_r(NULL, "/", &save), i++) {
+        if (i >= c->nseg) return false;
+        if (strcmp(tok, "*") == 0 || strcmp(tok, "#") == 0 || strcmp(tok, "@") == 0) continue;
+        if (strcmp(tok, c->seg[i]) != 0) return false;
+    }
+    return i == c->nseg;
+}
+
+static const struct api_route *api_find(struct api_call *c, const char *path)
+{
+    if (!api_split(c, path)) return NULL;
+    for (size_t r = 0; r < API_ROUTE_COUNT; r++)
+        if (api_match(api_routes[r].pattern, c)) return &api_routes[r];
+    return NULL;
+}
+
+void api_body_policy(void *ctx, const char *method, const char *path, size_t *max_body, bool *required)
+{
+    struct daemon *d = ctx;
+    struct api_call c = {.d = d};
+    *max_body = 0;
+    *required = false;
+    const struct api_route *r = api_find(&c, path);
+    if (!r) return;
+    for (int i = 0; i < 3 && r->methods[i]; i++) {
+        if (strcmp(r->methods[i], method) != 0) continue;
+        switch (r->body[i]) {
+        case BODY_NONE: break;
+        case BODY_JSON: *max_body = d->cfg.max_json_body; break;
+        case BODY_ASSET: *max_body = d->cfg.max_asset_body; break;
+        case BODY_REFERENCE: *max_body = d->cfg.max_reference_body; break;
+        }
+        *required = strcmp(method, "PUT") == 0;
+    }
+}
+
+void api_reject(void *ctx, const struct http_request *req, struct http_response *resp, int status, size_t limit)
+{
+    struct api_call c = {.d = ctx, .req = req, .resp = resp};
+    resp->route = "refused";
+    if (status == 411)
+        api_problem(&c, 411, "length-required", NULL, "this request needs a Content-Length (chunked bodies are not accepted)");
+    else if (limit == 0)
+        api_problem_limit(&c, 413, "body-too-large", NULL, 0, "%s %s takes no body", req->method, req->path);
+    else
+        api_problem_limit(&c, 413, "body-too-large", NULL, (double)limit, "the body is over the limit of %zu bytes", limit);
+}
+
+static bool api_valid_frame_ref(const char *s)
+{
+    if (strcmp(s, "latest") == 0) return true;
+    size_t n = strlen(s);
+    if (n == 0 || n > 10) return false;
+    for (size_t i = 0; i < n; i++)
+        if (!isdigit((unsigned char)s[i])) return false;
+    return strtoull(s, NULL, 10) <= UINT32_MAX;
+}
+
+void api_handle(void *ctx, const struct http_request *req, struct http_response *resp)
+{
+    struct api_call c = {.d = ctx, .req = req, .resp = resp};
+    const struct api_route *r = api_find(&c, req->path);
+    if (!r) {
+        resp->route = "unmatched";
+        api_problem(&c, 404, "not-found", NULL, "no resource at %s", req->path);
+        return;
+    }
+    resp->route = r->pattern;
+    int m = -1;
+    char allow[64] = "";
+    for (int i = 0; i < 3 && r->methods[i]; i++) {
+        if (strcmp(r->methods[i], req->method) == 0) m = i;
+        strncat(allow, i ? ", " : "", sizeof allow - strlen(allow) - 1);
+        strncat(allow, r->methods[i], sizeof allow - strlen(allow) - 1);
+    }
+    if (m < 0) {
+        http_response_header(resp, "Allow", "%s", allow);
+        api_problem(&c, 405, "method-not-allowed", NULL, "%s is not allowed here (allowed: %s)", req->method, allow);
+        return;
+    }
+    /* Ids in the path. */
+    char pat[128];
+    snprintf(pat, sizeof pat, "%s", r->pattern + 1);
+    int i = 0;
+    char *save = NULL;
+    for (char *tok = strtok_r(pat, "/", &save); tok; tok = strtok_r(NULL, "/", &save), i++) {
+        if (strcmp(tok, "*") == 0 && !protocol_valid_id(c.seg[i], strlen(c.seg[i]))) {
+            api_problem(&c, 400, "bad-id", NULL, "'%s' is not a valid id ([A-Za-z0-9_-]{1,64})", c.seg[i]);
+            return;
+        }
+        if (strcmp(tok, "#") == 0 && !api_valid_frame_ref(c.seg[i])) {
+            api_problem(&c, 400, "bad-id", NULL, "'%s' is not a frame number or 'latest'", c.seg[i]);
+            return;
+        }
+    }
+    if (atomic_load(&c.d->draining) && strcmp(req->method, "GET") != 0) {
+        api_problem(&c, 503, "draining", NULL, "the daemon is shutting down");
+        return;
+    }
+    r->fn[m](&c);
+}
+
+void api_completed(void *ctx, const char *method, const char *path, const char *route, int status, uint64_t bytes,
+                   double ms, const char *request_id)
+{
+    struct daemon *d = ctx;
+    prom_count_request(&d->prom, route, status);
+    char stamp[32];
+    time_t now = time(NULL);
+    struct tm tm;
+    gmtime_r(&now, &tm);
+    strftime(stamp, sizeof stamp, "%Y-%m-%dT%H:%M:%SZ", &tm);
+    fprintf(stderr, "%s %s %s %d %llu %.1f %s\n", stamp, method, path, status, (unsigned long long)bytes, ms, request_id);
+}

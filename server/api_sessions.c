@@ -1,0 +1,1038 @@
+/* api_sessions.c — sessions, frames, animation and reference jobs, and server-sent events.
+ * Path segments: seg[2] scene id, seg[4] session id, seg[6] frame number / job id / name. */
+#include "api.h"
+
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <math.h>
+
+#include "tonemap.h"
+
+static const char *const api_image_types[] = {"image/x-exr", "image/png", "application/json", NULL};
+
+/* The session of the path, retained; answers 404 (not-found or scene-not-loaded) when absent. */
+static struct session *api_session(struct api_call *c)
+{
+    struct session *s = sessions_get(c->d->sessions, c->seg[2], c->seg[4]);
+    if (s) return s;
+    if (api_scene_exists(c, c->seg[2]))
+        api_problem(c, 404, "not-found", NULL, "scene '%s' has no session '%s'", c->seg[2], c->seg[4]);
+    return NULL;
+}
+
+static void api_write_vec3(struct jsonw *w, struct vec3 v)
+{
+    jsonw_array_begin(w);
+    jsonw_double(w, v.x);
+    jsonw_double(w, v.y);
+    jsonw_double(w, v.z);
+    jsonw_array_end(w);
+}
+
+static void api_write_camera(struct jsonw *w, const struct camera_desc *cam)
+{
+    jsonw_object_begin(w);
+    jsonw_key(w, "position"); api_write_vec3(w, cam->position);
+    jsonw_key(w, "look_at"); api_write_vec3(w, cam->look_at);
+    jsonw_key(w, "up"); api_write_vec3(w, cam->up);
+    jsonw_key(w, "fov_deg"); jsonw_double(w, cam->fov_deg);
+    jsonw_object_end(w);
+}
+
+static void api_write_session(struct jsonw *w, struct session *s)
+{
+    struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
+    size_t total = 0;
+    uint32_t nb = view_bytes(&s->view, b, &total);
+    size_t reservoir = 0;
+    for (uint32_t i = 0; i < nb; i++)
+        if (strncmp(b[i].name, "reservoir", 9) == 0) reservoir += b[i].bytes;
+    size_t memory = session_bytes(s);
+    const struct view_params *p = &s->view.params;
+    pthread_mutex_lock(&s->lock);
+    bool busy = s->busy;
+    uint32_t frames = s->view.frame;
+    struct camera_desc cam = s->view.camera;
+    char job[24] = "";
+    for (uint32_t i = 0; i < s->job_count; i++)
+        if (s->jobs[i]->kind == JOB_ANIMATION && s->jobs[i]->status <= JOB_RUNNING) snprintf(job, sizeof job, "%s", s->jobs[i]->id);
+    pthread_mutex_unlock(&s->lock);
+    char href[192];
+    snprintf(href, sizeof href, "/v1/scenes/%s/sessions/%s", s->scene_id, s->id);
+
+    jsonw_object_begin(w);
+    jsonw_key(w, "id"); jsonw_string(w, s->id);
+    jsonw_key(w, "scene"); jsonw_string(w, s->scene_id);
+    jsonw_key(w, "method"); jsonw_string(w, view_method_name(p->method));
+    jsonw_key(w, "width"); jsonw_uint(w, p->width);
+    jsonw_key(w, "height"); jsonw_uint(w, p->height);
+    jsonw_key(w, "seed"); jsonw_uint(w, p->seed);
+    jsonw_key(w, "params");
+    jsonw_object_begin(w);
+    jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);
+    jsonw_key(w, "max_depth"); jsonw_uint(w, p->pt.max_depth);
+    jsonw_key(w, "rr_depth"); jsonw_uint(w, p->pt.rr_depth);
+    jsonw_key(w, "nee"); jsonw_bool(w, p->pt.nee);
+    jsonw_object_end(w);
+    jsonw_key(w, "frames_rendered"); jsonw_uint(w, frames);
+    jsonw_key(w, "busy"); jsonw_bool(w, busy);
+    jsonw_key(w, "job");
+    if (job[0]) jsonw_string(w, job); else jsonw_null(w);
+    jsonw_key(w, "camera"); api_write_camera(w, &cam);
+    jsonw_key(w, "reservoir_bytes"); jsonw_uint(w, reservoir);
+    jsonw_key(w, "buffers");
+    jsonw_object_begin(w);
+    for (uint32_t i = 0; i < nb; i++) {
+        jsonw_key(w, b[i].name);
+        jsonw_uint(w, b[i].bytes);
+    }
+    jsonw_object_end(w);
+    jsonw_key(w, "memory_bytes"); jsonw_uint(w, memory);
+    jsonw_key(w, "frames_kept"); jsonw_uint(w, s->frames_kept);
+    jsonw_key(w, "href"); jsonw_string(w, href);
+    jsonw_object_end(w);
+}
+
+void api_sessions_post(struct api_call *c)
+{
+    if (!api_require_json(c)) return;
+    struct scene *scene = registry_acquire(c->d->registry, c->seg[2]);
+    if (!scene) {
+        api_scene_exists(c, c->seg[2]);
+        return;
+    }
+    struct view_params params;
+    struct err e = {0};
+    if (!protocol_parse_session_create(c->req->body, c->req->body_len, &c->d->cfg.limits, &params, &e)) {
+        scene_release(scene);
+        api_error(c, &e);
+        return;
+    }
+    if (!registry_session_added(c->d->registry, c->seg[2], &e)) {
+        scene_release(scene);
+        api_scene_exists(c, c->seg[2]);
+        return;
+    }
+    struct session *s = sessions_create(c->d->sessions, c->seg[2], NULL, scene, &params, c->d->cfg.frames_kept,
+                                        c->d->cfg.threads, &e);
+    scene_release(scene);
+    if (!s) {
+        registry_session_removed(c->d->registry, c->seg[2]);
+        if (e.code == ERR_BUSY) api_problem_limit(c, 429, "too-many-sessions", NULL, c->d->cfg.max_sessions, "%s", e.message);
+        else api_error(c, &e);
+        return;
+    }
+    struct jsonw w;
+    jsonw_init(&w);
+    api_write_session(&w, s);
+    http_response_header(c->resp, "Location", "/v1/scenes/%s/sessions/%s", s->scene_id, s->id);
+    session_release(s);
+    api_json(c, 201, &w);
+}
+
+void api_sessions_list(struct api_call *c)
+{
+    if (!api_scene_exists(c, c->seg[2])) return;
+    struct session *list[1024];
+    uint32_t n = sessions_list(c->d->sessions, c->seg[2], list, 1024);
+    struct jsonw w;
+    jsonw_init(&w);
+    jsonw_object_begin(&w);
+    jsonw_key(&w, "sessions");
+    jsonw_array_begin(&w);
+    for (uint32_t i = 0; i < n; i++) {
+        api_write_session(&w, list[i]);
+        session_release(list[i]);
+    }
+    jsonw_array_end(&w);
+    jsonw_object_end(&w);
+    api_json(c, 200, &w);
+}
+
+void api_session_get(struct api_call *c)
+{
+    struct session *s = api_session(c);
+    if (!s) return;
+    struct jsonw w;
+    jsonw_init(&w);
+    api_write_session(&w, s);
+    session_release(s);
+    api_json(c, 200, &w);
+}
+
+void api_session_delete(struct api_call *c)
+{
+    if (!sessions_remove(c->d->sessions, c->seg[2], c->seg[4])) {
+        if (api_scene_exists(c, c->seg[2]))
+            api_problem(c, 404, "not-found", NULL, "scene '%s' has no session '%s'", c->seg[2], c->seg[4]);
+        return;
+    }
+    registry_session_removed(c->d->registry, c->seg[2]);
+    c->resp->status = 204;
+}
+
+void api_session_reset(struct api_call *c)
+{
+    if (!api_require_json(c)) return;
+    if (c->req->body_len > 0) {
+        /* reset takes no parameters; accept only an empty object so typos are not ignored */
+        struct protocol_frame_request fr;
+        struct err e = {0};
+        if (!protocol_parse_frame_request(c->req->body, c->req->body_len, &fr, &e)) {
+            api_error(c, &e);
+            return;
+        }
+        if (fr.camera.has_position || fr.camera.has_look_at || fr.camera.has_up || fr.camera.has_fov_deg ||
+            fr.shape_count || fr.has_time) {
+            api_problem(c, 422, "invalid-field", "", "reset takes no members; send an empty body");
+            return;
+        }
+    }
+    struct session *s = api_session(c);
+    if (!s) return;
+    struct err e = {0};
+    if (!session_claim(s, &e)) {
+        session_release(s);
+        api_error(c, &e);
+        return;
+    }
+    session_reset(s);
+    session_unclaim(s);
+    session_release(s);
+    c->resp->status = 204;
+}
+
+/* Completes a partial camera over `base` and checks that it can form an image. */
+static bool api_complete_camera(struct api_call *c, const struct protocol_camera *pc, const struct camera_desc *base,
+                                const char *ptr, struct camera_desc *out)
+{
+    *out = *base;
+    if (pc->has_position) out->position = pc->position;
+    if (pc->has_look_at) out->look_at = pc->look_at;
+    if (pc->has_up) out->up = vec3_normalize(pc->up);
+    if (pc->has_fov_deg) out->fov_deg = pc->fov_deg;
+    struct vec3 fwd = vec3_sub(out->look_at, out->position);
+    if (!(vec3_length(fwd) > 0.0f)) {
+        api_problem(c, 422, "invalid-field", ptr, "the camera position and look_at coincide");
+        return false;
+    }
+    struct vec3 side = vec3_cross(vec3_normalize(fwd), vec3_normalize(out->up));
+    if (!(vec3_length(side) > 1e-4f)) {
+        api_problem(c, 422, "invalid-field", ptr, "the camera's up is parallel to its viewing direction");
+        return false;
+    }
+    return true;
+}
+
+/* Reference named by ?reference= (NULL when absent); answers and returns false on error. */
+static bool api_query_reference(struct api_call *c, const struct view_params *p, struct ref_image **out)
+{
+    *out = NULL;
+    const char *name = http_query(c->req, "reference");
+    if (!name) return true;
+    if (!protocol_valid_id(name, strlen(name))) {
+        api_problem(c, 400, "bad-query", "?reference", "'%s' is not a valid reference name", name);
+        return false;
+    }
+    struct ref_image *r = refstore_get(c->d->refs, c->seg[2], name);
+    if (!r) {
+        api_problem(c, 404, "not-found", "?reference", "scene '%s' has no reference '%s'", c->seg[2], name);
+        return false;
+    }
+    if (r->img.width != p->width || r->img.height != p->height) {
+        api_problem(c, 422, "reference-mismatch", "?reference", "reference '%s' is %ux%u, the session renders %ux%u", name,
+                    r->img.width, r->img.height, p->width, p->height);
+        ref_image_release(r);
+        return false;
+    }
+    *out = r;
+    return true;
+}
+
+struct api_frame_json {
+    struct session *s;
+    uint32_t n;
+    const struct frame_stats *stats;
+    const struct image *img;
+    struct ref_image *ref;
+};
+
+static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
+{
+    (void)c;
+    struct api_frame_json *f = ctx;
+    const struct render_stats *r = &f->stats->render;
+    double rays = (double)(r->rays_intersect + r->rays_occluded);
+    char href[256];
+    snprintf(href, sizeof href, "/v1/scenes/%s/sessions/%s/frames/%u", f->s->scene_id, f->s->id, f->n);
+    jsonw_object_begin(w);
+    jsonw_key(w, "frame"); jsonw_uint(w, f->n);
+    jsonw_key(w, "time_s"); jsonw_double(w, f->stats->time_s);
+    jsonw_key(w, "render_ms"); jsonw_double(w, r->render_ms);
+    jsonw_key(w, "scene_update_ms"); jsonw_double(w, f->stats->scene_update_ms);
+    jsonw_key(w, "rays"); jsonw_uint(w, (uint64_t)rays);
+    jsonw_key(w, "rays_per_s"); jsonw_double(w, r->render_ms > 0 ? rays / (r->render_ms * 1e-3) : 0.0);
+    jsonw_key(w, "samples"); jsonw_uint(w, r->samples);
+    jsonw_key(w, "nonfinite"); jsonw_uint(w, r->nonfinite);
+    jsonw_key(w, "threads"); jsonw_uint(w, r->threads);
+    jsonw_key(w, "accumulated"); jsonw_uint(w, f->stats->accumulated);
+    jsonw_key(w, "href"); jsonw_string(w, href);
+    if (f->ref) {
+        struct metrics m;
+        struct err e;
+        jsonw_key(w, "metrics");
+        if (metrics_compare(f->img, &f->ref->img, &m, &e)) api_write_metrics(w, f->ref->name, &m);
+        else jsonw_null(w);
+    }
+    jsonw_object_end(w);
+}
+
+static void api_frame_etag(char *out, size_t size, struct session *s, uint32_t epoch, uint32_t n, const char *type,
+                           struct api_call *c)
+{
+    const char *px = http_query(c->req, "pixel");
+    const char *ex = http_query(c->req, "exposure");
+    const char *tm = http_query(c->req, "tonemap");
+    const char *ref = http_query(c->req, "reference");
+    char variant[160];
+    if (strcmp(type, "image/x-exr") == 0) snprintf(variant, sizeof variant, "exr-%s", px ? px : "float");
+    else if (strcmp(type, "image/png") == 0) snprintf(variant, sizeof variant, "png-%s-%s", ex ? ex : "0", tm ? tm : "clamp");
+    else snprintf(variant, sizeof variant, "json-%s", ref ? ref : "");
+    snprintf(out, size, "\"%s-%u-%u-%s\"", s->id, epoch, n, variant);
+}
+
+void api_frames_post(struct api_call *c)
+{
+    if (!api_require_json(c)) return;
+    struct protocol_frame_request *fr = malloc(sizeof *fr);
+    if (!fr) {
+        api_problem(c, 503, "busy", NULL, "out of memory");
+        return;
+    }
+    struct err e = {0};
+    if (!protocol_parse_frame_request(c->req->body, c->req->body_len, fr, &e)) {
+        free(fr);
+        api_error(c, &e);
+        return;
+    }
+    struct session *s = api_session(c);
+    if (!s) {
+        free(fr);
+        return;
+    }
+    const char *type = api_negotiate(c, api_image_types);
+    struct ref_image *ref = NULL;
+    if (!type || !api_check_image_query(c) || !api_query_reference(c, &s->view.params, &ref)) {
+        session_release(s);
+        free(fr);
+        return;
+    }
+    if (!session_claim(s, &e)) {
+        api_error(c, &e);
+        goto out;
+    }
+    /* Translate the request against the session's state (stable while claimed). */
+    struct view_frame_change change = {.has_time = fr->has_time, .time_s = fr->time_s};
+    struct view_shape_change shapes[PROTOCOL_MAX_SHAPE_CHANGES];
+    bool ok = true;
+    const struct protocol_camera *pc = &fr->camera;
+    if (pc->has_position || pc->has_look_at || pc->has_up || pc->has_fov_deg) {
+        change.has_camera = true;
+        ok = api_complete_camera(c, pc, &s->view.camera, "/camera", &change.camera);
+    }
+    for (uint32_t i = 0; ok && i < fr->shape_count; i++) {
+        const struct protocol_shape_change *sc = &fr->shapes[i];
+        char ptr[160];
+        protocol_pointer_key(ptr, sizeof ptr, "/lights", sc->name);
+        int idx = scene_find_shape(s->view.base, sc->name);
+        if (idx < 0) {
+            api_problem(c, 422, "invalid-field", ptr, "scene '%s' has no shape named '%s'", s->scene_id, sc->name);
+            ok = false;
+            break;
+        }
+        struct view_shape_change *vc = &shapes[i];
+        memset(vc, 0, sizeof *vc);
+        vc->shape = (uint32_t)idx;
+        vc->has_position = sc->has_position;
+        vc->position = sc->position;
+        vc->has_emission = sc->has_emission;
+        vc->emission = sc->emission;
+        if (sc->has_transform) {
+            vc->has_transform = true;
+            if (!xform_from_trs(&sc->transform, &vc->transform)) {
+                char tp[192];
+                snprintf(tp, sizeof tp, "%s/transform", ptr);
+                api_problem(c, 422, "invalid-field", tp, "the transform overflows the 32-bit float range");
+                ok = false;
+            }
+        }
+    }
+    change.shapes = shapes;
+    change.shape_count = fr->shape_count;
+    uint32_t n = 0;
+    struct frame_stats stats;
+    if (ok) {
+        ok = session_render(s, &c->d->gate, true, &change, NULL, &n, &stats, &e);
+        if (ok) prom_observe_frame(&c->d->prom, stats.render.render_ms * 1e-3);
+        else api_error(c, &e);
+    }
+    uint32_t epoch = s->epoch;
+    session_unclaim(s);
+    if (ok) {
+        struct image img;
+        if (!session_frame_copy(s, n, &img, NULL, &e)) {
+            api_error(c, &e);
+            goto out;
+        }
+        char etag[256];
+        api_frame_etag(etag, sizeof etag, s, epoch, n, type, c);
+        http_response_header(c->resp, "X-Frame", "%u", n);
+        http_response_header(c->resp, "X-Render-Ms", "%.3f", stats.render.render_ms);
+        http_response_header(c->resp, "Content-Location", "/v1/scenes/%s/sessions/%s/frames/%u", s->scene_id, s->id, n);
+        http_response_header(c->resp, "ETag", "%s", etag);
+        struct api_frame_json fj = {s, n, &stats, &img, ref};
+        api_send_image(c, type, &img, NULL, api_frame_json_fn, &fj);
+        image_destroy(&img);
+    }
+out:
+    ref_image_release(ref);
+    session_release(s);
+    free(fr);
+}
+
+/* Resolves the frame segment ("latest" or a number); answers 404 when there is none yet. */
+static bool api_frame_number(struct api_call *c, struct session *s, uint32_t *n)
+{
+    pthread_mutex_lock(&s->lock);
+    uint32_t frames = s->view.frame;
+    pthread_mutex_unlock(&s->lock);
+    if (strcmp(c->seg[6], "latest") == 0) {
+        if (frames == 0) {
+            api_problem(c, 404, "not-found", NULL, "the session has not rendered a frame yet");
+            return false;
+        }
+        *n = frames - 1;
+        return true;
+    }
+    *n = (uint32_t)strtoul(c->seg[6], NULL, 10);
+    return true;
+}
+
+static bool api_frame_fetch(struct api_call *c, struct session *s, uint32_t n, struct image *img, struct frame_stats *st)
+{
+    struct err e = {0};
+    if (session_frame_copy(s, n, img, st, &e)) return true;
+    if (e.code == ERR_LIMIT) api_problem(c, 410, "frame-evicted", NULL, "%s", e.message);
+    else api_error(c, &e);
+    return false;
+}
+
+void api_frame_get(struct api_call *c)
+{
+    struct session *s = api_session(c);
+    if (!s) return;
+    uint32_t n;
+    if (!api_frame_number(c, s, &n)) goto out;
+    if (strcmp(c->seg[6], "latest") == 0) {
+        const char *q = strchr(c->req->path, '?');  /* MHD strips the query; rebuild what matters */
+        (void)q;
+        c->resp->status = 303;
+        http_response_header(c->resp, "Location", "/v1/scenes/%s/sessions/%s/frames/%u", s->scene_id, s->id, n);
+        http_response_header(c->resp, "Cache-Control", "no-store");
+        goto out;
+    }
+    const char *type = api_negotiate(c, api_image_types);
+    struct ref_image *ref = NULL;
+    if (!type || !api_check_image_query(c) || !api_query_reference(c, &s->view.params, &ref)) goto out;
+    struct image img;
+    struct frame_stats st;
+    if (api_frame_fetch(c, s, n, &img, &st)) {
+        char etag[256];
+        api_frame_etag(etag, sizeof etag, s, s->epoch, n, type, c);
+        http_response_header(c->resp, "X-Frame", "%u", n);
+        struct api_frame_json fj = {s, n, &st, &img, ref};
+        api_send_image(c, type, &img, etag, api_frame_json_fn, &fj);
+        image_destroy(&img);
+    }
+    ref_image_release(ref);
+out:
+    session_release(s);
+}
+
+/* ?reference= is required for these two. */
+static bool api_require_reference(struct api_call *c, struct session *s, struct ref_image **ref)
+{
+    if (!http_query(c->req, "reference")) {
+        api_problem(c, 400, "bad-query", "?reference", "name the reference to compare with: ?reference=NAME");
+        return false;
+    }
+    return api_query_reference(c, &s->view.params, ref);
+}
+
+void api_frame_metrics(struct api_call *c)
+{
+    struct session *s = api_session(c);
+    if (!s) return;
+    struct ref_image *ref = NULL;
+    uint32_t n;
+    struct image img;
+    if (api_frame_number(c, s, &n) && api_require_reference(c, s, &ref) && api_frame_fetch(c, s, n, &img, NULL)) {
+        struct metrics m;
+        struct err e = {0};
+        if (metrics_compare(&img, &ref->img, &m, &e)) {
+            struct jsonw w;
+            jsonw_init(&w);
+            api_write_metrics(&w, ref->name, &m);
+            api_json(c, 200, &w);
+        } else {
+            api_error(c, &e);
+        }
+        image_destroy(&img);
+    }
+    ref_image_release(ref);
+    session_release(s);
+}
+
+void api_frame_error_png(struct api_call *c)
+{
+    struct session *s = api_session(c);
+    if (!s) return;
+    struct ref_image *ref = NULL;
+    uint32_t n;
+    struct image img;
+    const char *sc = http_query(c->req, "scale");
+    double scale = 0.0;
+    char *end = NULL;
+    if (sc) {
+        scale = strtod(sc, &end);
+        if (*end || !(scale > 0.0) || !isfinite(scale)) {
+            api_problem(c, 400, "bad-query", "?scale", "scale must be a positive number, got '%s'", sc);
+            session_release(s);
+            return;
+        }
+    }
+    if (api_frame_number(c, s, &n) && api_require_reference(c, s, &ref) && api_frame_fetch(c, s, n, &img, NULL)) {
+        unsigned char *png = NULL;
+        size_t size = 0;
+        float used = 0.0f;
+        struct err e = {0};
+        if (tonemap_error_png(&img, &ref->img, (float)scale, &used, &png, &size, &e)) {
+            c->resp->status = 200;
+            c->resp->content_type = "image/png";
+            c->resp->body = (char *)png;
+            c->resp->body_len = size;
+            http_response_header(c->resp, "X-Error-Scale", "%.9g", (double)used);
+        } else {
+            api_error(c, &e);
+        }
+        image_destroy(&img);
+    }
+    ref_image_release(ref);
+    session_release(s);
+}
+
+struct api_accum_json { uint32_t count; };
+
+static void api_accum_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
+{
+    (void)c;
+    jsonw_object_begin(w);
+    jsonw_key(w, "frames");
+    jsonw_uint(w, ((struct api_accum_json *)ctx)->count);
+    jsonw_object_end(w);
+}
+
+void api_accumulation_get(struct api_call *c)
+{
+    struct session *s = api_session(c);
+    if (!s) return;
+    const char *type = api_negotiate(c, api_image_types);
+    struct err e = {0};
+    if (type && api_check_image_query(c)) {
+        /* The accumulation buffer belongs to the frame in progress: read it between frames. */
+        if (!session_claim(s, &e)) {
+            api_error(c, &e);
+        } else {
+            struct image img;
+            uint32_t count = 0;
+            bool ok = view_accumulated(&s->view, &img, &count, &e);
+            session_unclaim(s);
+            if (!ok) {
+                if (e.code == ERR_INVALID) api_problem(c, 404, "not-found", NULL, "%s", e.message);
+                else api_error(c, &e);
+            } else {
+                struct api_accum_json ctx = {count};
+                http_response_header(c->resp, "X-Accumulated-Frames", "%u", count);
+                api_send_image(c, type, &img, NULL, api_accum_json_fn, &ctx);
+                image_destroy(&img);
+            }
+        }
+    }
+    session_release(s);
+}
+
+/* ---- jobs ---- */
+
+static const char *api_job_status(enum job_status st)
+{
+    static const char *const names[] = {"queued", "running", "done", "cancelled", "failed"};
+    return names[st];
+}
+
+/* Call with s->lock held. */
+static void api_write_job(struct jsonw *w, struct session *s, const struct job *j)
+{
+    char base[192];
+    snprintf(base, sizeof base, "/v1/scenes/%s/sessions/%s", s->scene_id, s->id);
+    jsonw_object_begin(w);
+    jsonw_key(w, "id"); jsonw_string(w, j->id);
+    jsonw_key(w, "kind"); jsonw_string(w, j->kind == JOB_ANIMATION ? "animation" : "reference");
+    jsonw_key(w, "status"); jsonw_string(w, api_job_status(j->status));
+    jsonw_key(w, "progress");
+    jsonw_object_begin(w);
+    jsonw_key(w, "frames_done"); jsonw_uint(w, j->frames_done);
+    jsonw_key(w, "frames_total"); jsonw_uint(w, j->frames_total);
+    jsonw_object_end(w);
+    jsonw_key(w, "frames");
+    jsonw_array_begin(w);
+    if (j->kind == JOB_ANIMATION)
+        for (uint32_t i = 0; i < j->frames_done; i++) {
+            char href[256];
+            snprintf(href, sizeof href, "%s/frames/%u", base, j->frames[i]);
+            jsonw_string(w, href);
+        }
+    jsonw_array_end(w);
+    jsonw_key(w, "reference");
+    if (j->kind == JOB_REFERENCE) jsonw_string(w, j->ref_name);
+    else if (j->reference) jsonw_string(w, j->reference->name);
+    else jsonw_null(w);
+    if (j->kind == JOB_REFERENCE) {
+        char href[256];
+        snprintf(href, sizeof href, "/v1/scenes/%s/references/%s", s->scene_id, j->ref_name);
+        jsonw_key(w, "spp"); jsonw_uint(w, j->ref_spp);
+        jsonw_key(w, "href"); jsonw_string(w, href);
+    }
+    jsonw_key(w, "error");
+    if (j->status == JOB_FAILED) {
+        jsonw_object_begin(w);
+        jsonw_key(w, "type");
+        char type[64];
+        snprintf(type, sizeof type, "urn:restird:problem:%s", j->error_slug);
+        jsonw_string(w, type);
+        jsonw_key(w, "status"); jsonw_int(w, j->error_status);
+        jsonw_key(w, "detail"); jsonw_string(w, j->error.message);
+        jsonw_object_end(w);
+    } else {
+        jsonw_null(w);
+    }
+    jsonw_object_end(w);
+}
+
+static void api_job_answer(struct api_call *c, struct session *s, struct job *j, int status)
+{
+    struct jsonw w;
+    jsonw_init(&w);
+    pthread_mutex_lock(&s->lock);
+    api_write_job(&w, s, j);
+    pthread_mutex_unlock(&s->lock);
+    if (status == 202)
+        http_response_header(c->resp, "Location", "/v1/scenes/%s/sessions/%s/renders/%s", s->scene_id, s->id, j->id);
+    api_json(c, status, &w);
+}
+
+/* Idempotency-Key: NULL when absent; answers 400 and returns false when malformed. */
+static bool api_idempotency_key(struct api_call *c, const char **key)
+{
+    *key = http_header(c->req, "Idempotency-Key");
+    if (*key && !protocol_valid_id(*key, strlen(*key))) {
+        api_problem(c, 400, "bad-header", "Idempotency-Key", "Idempotency-Key must match [A-Za-z0-9_-]{1,64}");
+        return false;
+    }
+    return true;
+}
+
+void api_renders_post(struct api_call *c)
+{
+    if (!api_require_json(c)) return;
+    const char *key;
+    if (!api_idempotency_key(c, &key)) return;
+    struct protocol_render_request rq;
+    struct err e = {0};
+    if (!protocol_parse_render_request(c->req->body, c->req->body_len, &c->d->cfg.limits, &rq, &e)) {
+        protocol_render_request_destroy(&rq);
+        api_error(c, &e);
+        return;
+    }
+    struct session *s = api_session(c);
+    if (!s) {
+        protocol_render_request_destroy(&rq);
+        return;
+    }
+    if (key) {
+        pthread_mutex_lock(&s->lock);
+        struct job *prev = session_job_find_key(s, key);
+        pthread_mutex_unlock(&s->lock);
+        if (prev) {
+            api_job_answer(c, s, prev, 202);
+            goto out;
+        }
+    }
+    struct ref_image *ref = NULL;
+    if (rq.reference[0]) {
+        ref = refstore_get(c->d->refs, s->scene_id, rq.reference);
+        if (!ref) {
+            api_problem(c, 422, "invalid-field", "/reference", "scene '%s' has no reference '%s'", s->scene_id, rq.reference);
+            goto out;
+        }
+        if (ref->img.width != s->view.params.width || ref->img.height != s->view.params.height) {
+            api_problem(c, 422, "reference-mismatch", "/reference", "reference '%s' is %ux%u, the session renders %ux%u",
+                        rq.reference, ref->img.width, ref->img.height, s->view.params.width, s->view.params.height);
+            ref_image_release(ref);
+            goto out;
+        }
+    }
+    if (!session_claim(s, &e)) {
+        ref_image_release(ref);
+        api_error(c, &e);
+        goto out;
+    }
+    struct job *j = session_job_new(s, JOB_ANIMATION, key, &e);
+    if (!j) {
+        session_unclaim(s);
+        ref_image_release(ref);
+        api_error(c, &e);
+        goto out;
+    }
+    j->reference = ref;
+    j->fps = rq.fps;
+    j->interp = rq.interp;
+    j->frames_total = rq.frames;
+    j->frames = calloc(rq.frames, sizeof *j->frames);
+    j->rows = calloc(rq.frames, sizeof *j->rows);
+    j->camera_keys = calloc(rq.camera_key_count ? rq.camera_key_count : 1, sizeof *j->camera_keys);
+    j->tracks = calloc(rq.shape_track_count ? rq.shape_track_count : 1, sizeof *j->tracks);
+    bool ok = j->frames && j->rows && j->camera_keys && j->tracks;
+    if (!ok) api_problem(c, 503, "busy", NULL, "out of memory for the job");
+    /* Camera keys complete each other in order: a member a key leaves out is the previous
+     * key's (the first key's come from the session's camera). */
+    struct camera_desc prev = s->view.camera;
+    for (uint32_t i = 0; ok && i < rq.camera_key_count; i++) {
+        char ptr[64];
+        snprintf(ptr, sizeof ptr, "/animation/camera_keys/%u", i);
+        j->camera_keys[i].t_s = rq.camera_keys[i].t_s;
+        ok = api_complete_camera(c, &rq.camera_keys[i].camera, &prev, ptr, &j->camera_keys[i].camera);
+        prev = j->camera_keys[i].camera;
+    }
+    j->camera_key_count = ok ? rq.camera_key_count : 0;
+    for (uint32_t i = 0; ok && i < rq.shape_track_count; i++) {
+        int idx = scene_find_shape(s->view.base, rq.shape_tracks[i].name);
+        if (idx < 0) {
+            char ptr[160];
+            protocol_pointer_key(ptr, sizeof ptr, "/animation/light_keys", rq.shape_tracks[i].name);
+            api_problem(c, 422, "invalid-field", ptr, "scene '%s' has no shape named '%s'", s->scene_id, rq.shape_tracks[i].name);
+            ok = false;
+            break;
+        }
+        j->tracks[i].shape = (uint32_t)idx;
+        j->tracks[i].key_count = rq.shape_tracks[i].key_count;
+        j->tracks[i].keys = rq.shape_tracks[i].keys;  /* moved */
+        rq.shape_tracks[i].keys = NULL;
+        j->track_count = i + 1;
+    }
+    if (ok && !jobs_submit(c->d->jobs, j, &e)) {
+        api_problem(c, 429, "queue-full", NULL, "%s", e.message);
+        ok = false;
+    }
+    if (!ok) {
+        session_job_forget(s, j);
+        session_unclaim(s);
+        goto out;
+    }
+    api_job_answer(c, s, j, 202);
+out:
+    protocol_render_request_destroy(&rq);
+    session_release(s);
+}
+
+static struct job *api_job(struct api_call *c, struct session *s)
+{
+    pthread_mutex_lock(&s->lock);
+    struct job *j = session_job_find(s, c->seg[6]);
+    pthread_mutex_unlock(&s->lock);
+    if (!j) api_problem(c, 404, "not-found", NULL, "session '%s' has no job '%s'", s->id, c->seg[6]);
+    return j;
+}
+
+/* Jobs are only freed by session_job_new (oldest finished, when a new one is made) and with
+ * the session, so a job found above stays valid while the caller holds the session, except
+ * against a concurrent submission evicting it; requests read jobs under the session lock. */
+void api_render_get(struct api_call *c)
+{
+    struct session *s = api_session(c);
+    if (!s) return;
+    struct job *j = api_job(c, s);
+    if (j) api_job_answer(c, s, j, 200);
+    session_release(s);
+}
+
+void api_render_delete(struct api_call *c)
+{
+    struct session *s = api_session(c);
+    if (!s) return;
+    struct job *j = api_job(c, s);
+    if (j) {
+        atomic_store(&j->cancel, true);
+        api_job_answer(c, s, j, 200);
+        c->resp->status = 202;
+    }
+    session_release(s);
+}
+
+void api_render_metrics(struct api_call *c)
+{
+    static const char *const types[] = {"application/json", "text/csv", NULL};
+    struct session *s = api_session(c);
+    if (!s) return;
+    struct job *j = api_job(c, s);
+    const char *type = j ? api_negotiate(c, types) : NULL;
+    struct ref_image *other = NULL;
+    if (!type || !api_query_reference(c, &s->view.params, &other)) goto out;
+    if (j->kind != JOB_ANIMATION) {
+        api_problem(c, 404, "not-found", NULL, "job '%s' renders a reference and has no frame series", j->id);
+        goto out;
+    }
+    pthread_mutex_lock(&s->lock);
+    uint32_t n = j->frames_done;
+    struct job_row *rows = malloc((n ? n : 1) * sizeof *rows);
+    if (rows) memcpy(rows, j->rows, n * sizeof *rows);
+    const char *ref_name = other ? other->name : (j->reference ? j->reference->name : NULL);
+    pthread_mutex_unlock(&s->lock);
+    if (!rows) {
+        api_problem(c, 503, "busy", NULL, "out of memory");
+        goto out;
+    }
+    if (other) {
+        for (uint32_t i = 0; i < n; i++) {
+            struct image img;
+            struct err e;
+            rows[i].has_metrics = false;
+            if (session_frame_copy(s, rows[i].frame, &img, NULL, &e)) {
+                rows[i].has_metrics = metrics_compare(&img, &other->img, &rows[i].m, &e);
+                image_destroy(&img);
+            }
+        }
+    }
+    if (strcmp(type, "text/csv") == 0) {
+        size_t cap = 64 + (size_t)n * 128, len = 0;
+        char *csv = malloc(cap);
+        if (!csv) {
+            free(rows);
+            api_problem(c, 503, "busy", NULL, "out of memory");
+            goto out;
+        }
+        len += (size_t)snprintf(csv + len, cap - len, "frame,time_s,render_ms,mape,rmse,relmse\n");
+        for (uint32_t i = 0; i < n; i++) {
+            if (rows[i].has_metrics)
+                len += (size_t)snprintf(csv + len, cap - len, "%u,%.9g,%.6g,%.9g,%.9g,%.9g\n", rows[i].frame, rows[i].time_s,
+                                        rows[i].render_ms, rows[i].m.mape, rows[i].m.rmse, rows[i].m.relmse);
+            else
+                len += (size_t)snprintf(csv + len, cap - len, "%u,%.9g,%.6g,,,\n", rows[i].frame, rows[i].time_s,
+                                        rows[i].render_ms);
+        }
+        c->resp->status = 200;
+        c->resp->content_type = "text/csv; charset=utf-8";
+        c->resp->body = csv;
+        c->resp->body_len = len;
+    } else {
+        struct jsonw w;
+        jsonw_init(&w);
+        jsonw_object_begin(&w);
+        jsonw_key(&w, "reference");
+        if (ref_name) jsonw_string(&w, ref_name); else jsonw_null(&w);
+        jsonw_key(&w, "series");
+        jsonw_array_begin(&w);
+        for (uint32_t i = 0; i < n; i++) {
+            jsonw_object_begin(&w);
+            jsonw_key(&w, "frame"); jsonw_uint(&w, rows[i].frame);
+            jsonw_key(&w, "time_s"); jsonw_double(&w, rows[i].time_s);
+            jsonw_key(&w, "render_ms"); jsonw_double(&w, rows[i].render_ms);
+            jsonw_key(&w, "mape"); if (rows[i].has_metrics) jsonw_double(&w, rows[i].m.mape); else jsonw_null(&w);
+            jsonw_key(&w, "rmse"); if (rows[i].has_metrics) jsonw_double(&w, rows[i].m.rmse); else jsonw_null(&w);
+            jsonw_key(&w, "relmse"); if (rows[i].has_metrics) jsonw_double(&w, rows[i].m.relmse); else jsonw_null(&w);
+            jsonw_object_end(&w);
+        }
+        jsonw_array_end(&w);
+        jsonw_object_end(&w);
+        api_json(c, 200, &w);
+    }
+    free(rows);
+out:
+    ref_image_release(other);
+    session_release(s);
+}
+
+void api_session_reference_post(struct api_call *c)
+{
+    if (!api_require_json(c)) return;
+    uint32_t spp = 0;
+    struct err e = {0};
+    if (!protocol_parse_reference_request(c->req->body, c->req->body_len, &c->d->cfg.limits, &spp, &e)) {
+        api_error(c, &e);
+        return;
+    }
+    const char *key;
+    if (!api_idempotency_key(c, &key)) return;
+    struct session *s = api_session(c);
+    if (!s) return;
+    /* Snapshot the session's current scene and camera: the reference shows what the next
+     * frame would show. */
+    if (!session_claim(s, &e)) {
+        api_error(c, &e);
+        session_release(s);
+        return;
+    }
+    struct scene *scene = s->view.scene;
+    scene_retain(scene);
+    struct camera_desc cam = s->view.camera;
+    session_unclaim(s);
+    struct job *j = session_job_new(s, JOB_REFERENCE, key, &e);
+    if (!j) {
+        scene_release(scene);
+        api_error(c, &e);
+        session_release(s);
+        return;
+    }
+    j->ref_scene = scene;
+    j->ref_camera = cam;
+    snprintf(j->ref_name, sizeof j->ref_name, "%s", c->seg[6]);
+    j->frames_total = spp < JOBS_REFERENCE_PASSES ? spp : JOBS_REFERENCE_PASSES;
+    j->ref_spp = spp / j->frames_total * j->frames_total;
+    if (!jobs_submit(c->d->jobs, j, &e)) {
+        api_problem(c, 429, "queue-full", NULL, "%s", e.message);
+        session_job_forget(s, j);
+        session_release(s);
+        return;
+    }
+    api_job_answer(c, s, j, 202);
+    session_release(s);
+}
+
+/* ---- server-sent events ---- */
+
+struct api_sse {
+    struct session *s;
+    struct daemon *d;
+    uint64_t next;                    /* next event sequence number to send */
+    char pending[8192];
+    size_t pending_len, pending_off;
+};
+
+static ssize_t api_sse_read(void *ctx, char *buf, size_t max)
+{
+    struct api_sse *x = ctx;
+    if (x->pending_off == x->pending_len) {
+        x->pending_off = x->pending_len = 0;
+        struct session *s = x->s;
+        pthread_mutex_lock(&s->lock);
+        struct timespec until;
+        clock_gettime(CLOCK_REALTIME, &until);
+        until.tv_sec += 15;
+        int rc = 0;
+        while (x->next == s->event_seq && !s->deleted && !atomic_load(&x->d->draining) && rc != ETIMEDOUT)
+            rc = pthread_cond_timedwait(&s->cond, &s->lock, &until);
+        if (x->next < s->event_seq) {
+            if (s->event_seq - x->next > SESSION_EVENTS) x->next = s->event_seq - SESSION_EVENTS;  /* fell behind */
+            const struct session_event *e = &s->events[x->next % SESSION_EVENTS];
+            if (e->data)
+                x->pending_len = (size_t)snprintf(x->pending, sizeof x->pending, "id: %llu\nevent: %s\ndata: %s\n\n",
+                                                  (unsigned long long)e->seq, e->type, e->data);
+            if (x->pending_len >= sizeof x->pending) x->pending_len = 0;  /* never split a cut event */
+            x->next++;
+        } else if (s->deleted || atomic_load(&x->d->draining)) {
+            pthread_mutex_unlock(&s->lock);
+            return HTTP_STREAM_END;
+        } else {
+            x->pending_len = (size_t)snprintf(x->pending, sizeof x->pending, ": keepalive\n\n");
+        }
+        pthread_mutex_unlock(&s->lock);
+        if (x->pending_len == 0) return api_sse_read(ctx, buf, max);
+    }
+    size_t n = x->pending_len - x->pending_off;
+    if (n > max) n = max;
+    memcpy(buf, x->pending + x->pending_off, n);
+    x->pending_off += n;
+    return (ssize_t)n;
+}
+
+static void api_sse_free(void *ctx)
+{
+    struct api_sse *x = ctx;
+    session_release(x->s);
+    free(x);
+}
+
+void api_events_get(struct api_call *c)
+{
+    static const char *const types[] = {"text/event-stream", NULL};
+    struct session *s = api_session(c);
+    if (!s) return;
+    if (!api_negotiate(c, types)) {
+        session_release(s);
+        return;
+    }
+    struct api_sse *x = calloc(1, sizeof *x);
+    if (!x) {
+        session_release(s);
+        api_problem(c, 503, "busy", NULL, "out of memory");
+        return;
+    }
+    x->s = s;  /* the reference moves to the stream */
+    x->d = c->d;
+    pthread_mutex_lock(&s->lock);
+    x->next = s->event_seq;
+    const char *last = http_header(c->req, "Last-Event-ID");
+    if (last) {
+        char *end = NULL;
+        unsigned long long id = strtoull(last, &end, 10);
+        if (!*end && id < s->event_seq) x->next = id + 1;
+    }
+    pthread_mutex_unlock(&s->lock);
+    /* A first comment so the client sees the stream open at once. */
+    x->pending_len = (size_t)snprintf(x->pending, sizeof x->pending, ": connected to session %s\n\n", s->id);
+    c->resp->status = 200;
+    c->resp->content_type = "text/event-stream";
+    c->resp->stream = api_sse_read;
+    c->resp->stream_ctx = x;
+    c->resp->stream_free = api_sse_free;
+    http_response_header(c->resp, "Cache-Control", "no-store");
+    http_response_header(c->resp, "X-Accel-Buffering", "no");
+}
+
+bool api_default_session(struct daemon *d, const char *scene_id, char *href, size_t size)
+{
+    struct err e = {0};
+    struct scene *scene = registry_acquire(d->registry, scene_id);
+    if (!scene) {
+        fprintf(stderr, "restird: no scene '%s' for the default session\n", scene_id);
+        return false;
+    }
+    struct view_params p = view_params_defaults(RENDER_METHOD_PT, 256, 256);
+    p.pt.spp = 16;
+    if (!registry_session_added(d->registry, scene_id, &e)) {
+        scene_release(scene);
+        return false;
+    }
+    struct session *s = sessions_create(d->sessions, scene_id, "default", scene, &p, d->cfg.frames_kept, d->cfg.threads, &e);
+    scene_release(scene);
+    if (!s) {
+        registry_session_removed(d->registry, scene_id);
+        fprintf(stderr, "restird: default session: %s\n", e.message);
+        return false;
+    }
+    snprintf(href, size, "/v1/scenes/%s/sessions/%s", scene_id, s->id);
+    session_release(s);
+    return true;
+}

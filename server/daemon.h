@@ -1,0 +1,46 @@
+/* daemon.h — the daemon's configuration and the state every request handler shares. Built
+ * and torn down by main.c; the handlers in api*.c read it. */
+#ifndef RESTIRD_DAEMON_H
+#define RESTIRD_DAEMON_H
+
+#include <limits.h>
+#include <stdatomic.h>
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "gate.h"
+#include "jobs.h"
+#include "prom.h"
+#include "protocol.h"
+#include "refstore.h"
+#include "registry.h"
+#include "session.h"
+
+struct daemon_config {
+    char host[64];
+    uint16_t port;
+    char data_dir[PATH_MAX];
+    char library_dir[PATH_MAX];
+    char id[128];                       /* X-Served-By; default host:port */
+    struct protocol_limits limits;
+    uint32_t max_sessions, frames_kept;
+    size_t max_json_body, max_asset_body, max_reference_body;
+    unsigned render_slots, render_queue, job_queue, job_workers;
+    unsigned connection_limit, per_ip_limit, timeout_s;
+    unsigned threads;                   /* render threads, 0 = all cores */
+    char default_scene[65];             /* "" = no default session */
+};
+
+struct daemon {
+    struct daemon_config cfg;
+    struct registry *registry;
+    struct sessions *sessions;
+    struct gate gate;
+    struct jobs *jobs;
+    struct refstore *refs;
+    struct prom prom;
+    atomic_bool draining;
+};
+
+#endif

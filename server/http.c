@@ -1,0 +1,323 @@
+/* http.c — libmicrohttpd behind the small interface of http.h (the only includer of
+ * microhttpd.h). See http.h for the thread model and the body rules.
+ * Refs: libmicrohttpd 0.9.75 manual (thread-per-connection mode, MHD_quiesce_daemon,
+ * MHD_OPTION_NOTIFY_COMPLETED, content-reader callbacks). */
+#include "http.h"
+
+#include <arpa/inet.h>
+#include <microhttpd.h>
+#include <netinet/in.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+#include <sys/socket.h>
+#include <time.h>
+#include <unistd.h>
+
+/* Bodies over the limit up to this size are read and discarded so that the client reads the
+ * 413; larger ones get the answer at once and the connection closes. */
+#define HTTP_DISCARD_MAX ((unsigned long long)64 << 20)
+
+struct http {
+    struct MHD_Daemon *mhd;
+    struct http_app app;
+    atomic_uint_fast64_t next_id;
+    uint32_t boot;             /* start time, so request ids differ across restarts */
+};
+
+/* Per-request state, MHD's con_cls. */
+struct http_conn {
+    struct timespec start;
+    char method[16];
+    char path[512];
+    char request_id[72];
+    const char *route;
+    int status;
+    uint64_t bytes;
+    bool responded;            /* a response was queued (possibly before the body was read) */
+    int reject_status;         /* refused from the headers; the body is being discarded */
+    size_t reject_limit;
+    char *body;
+    size_t body_len, body_cap;
+    struct http *http;
+};
+
+struct http_stream_box {
+    http_stream_fn *fn;
+    void *ctx;
+    void (*free_fn)(void *ctx);
+    uint64_t bytes;
+};
+
+const char *http_query(const struct http_request *r, const char *key)
+{
+    return MHD_lookup_connection_value(r->internal, MHD_GET_ARGUMENT_KIND, key);
+}
+
+const char *http_header(const struct http_request *r, const char *name)
+{
+    return MHD_lookup_connection_value(r->internal, MHD_HEADER_KIND, name);
+}
+
+void http_response_header(struct http_response *r, const char *name, const char *fmt, ...)
+{
+    if (r->header_count >= HTTP_MAX_HEADERS) return;
+    int i = r->header_count++;
+    snprintf(r->headers[i].name, sizeof r->headers[i].name, "%s", name);
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(r->headers[i].value, sizeof r->headers[i].value, fmt, ap);
+    va_end(ap);
+}
+
+static bool http_valid_request_id(const char *s)
+{
+    size_t n = 0;
+    for (; s[n]; n++) {
+        char c = s[n];
+        if (!((c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '-' || c == '_'))
+            return false;
+    }
+    return n >= 1 && n <= 64;
+}
+
+static ssize_t http_stream_reader(void *cls, uint64_t pos, char *buf, size_t max)
+{
+    (void)pos;
+    struct http_stream_box *box = cls;
+    ssize_t n = box->fn(box->ctx, buf, max);
+    if (n < 0) return MHD_CONTENT_READER_END_OF_STREAM;
+    box->bytes += (uint64_t)n;
+    return n;
+}
+
+static void http_stream_done(void *cls)
+{
+    struct http_stream_box *box = cls;
+    if (box->free_fn) box->free_fn(box->ctx);
+    free(box);
+}
+
+/* Queues `resp` on the connection; takes ownership of resp->body. */
+static enum MHD_Result http_send(struct http *h, struct MHD_Connection *c, struct http_conn *hc,
+                                 struct http_response *resp)
+{
+    struct MHD_Response *r;
+    bool no_body = resp->status == 204 || resp->status == 304;
+    if (resp->stream && !no_body) {
+        struct http_stream_box *box = calloc(1, sizeof *box);
+        if (!box) {
+            if (resp->stream_free) resp->stream_free(resp->stream_ctx);
+            return MHD_NO;
+        }
+        box->fn = resp->stream;
+        box->ctx = resp->stream_ctx;
+        box->free_fn = resp->stream_free;
+        r = MHD_create_response_from_callback(MHD_SIZE_UNKNOWN, 4096, http_stream_reader, box, http_stream_done);
+        if (!r) {
+            http_stream_done(box);
+            return MHD_NO;
+        }
+    } else {
+        if (resp->stream && resp->stream_free) resp->stream_free(resp->stream_ctx);
+        if (no_body || !resp->body) {
+            free(resp->body);
+            resp->body = NULL;
+            resp->body_len = 0;
+            r = MHD_create_response_from_buffer(0, (void *)"", MHD_RESPMEM_PERSISTENT);
+        } else {
+            r = MHD_create_response_from_buffer(resp->body_len, resp->body, MHD_RESPMEM_MUST_FREE);
+            if (!r) free(resp->body);
+        }
+        resp->body = NULL;
+        if (!r) return MHD_NO;
+    }
+    if (resp->content_type && !no_body) MHD_add_response_header(r, MHD_HTTP_HEADER_CONTENT_TYPE, resp->content_type);
+    MHD_add_response_header(r, "X-Request-Id", hc->request_id);
+    if (h->app.served_by) MHD_add_response_header(r, "X-Served-By", h->app.served_by);
+    for (int i = 0; i < resp->header_count; i++) MHD_add_response_header(r, resp->headers[i].name, resp->headers[i].value);
+    hc->status = resp->status;
+    hc->bytes = resp->stream ? 0 : resp->body_len;
+    hc->route = resp->route;
+    hc->responded = true;
+    enum MHD_Result ret = MHD_queue_response(c, (unsigned)resp->status, r);
+    MHD_destroy_response(r);
+    return ret;
+}
+
+static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const char *url, const char *method,
+                                   const char *version, const char *upload_data, size_t *upload_data_size,
+                                   void **con_cls)
+{
+    (void)version;
+    struct http *h = cls;
+    struct http_conn *hc = *con_cls;
+    struct http_request req = {.method = method, .path = url, .internal = c};
+    struct http_response resp = {.status = 500};
+
+    if (!hc) {
+        hc = calloc(1, sizeof *hc);
+        if (!hc) return MHD_NO;
+        *con_cls = hc;
+        hc->http = h;
+        clock_gettime(CLOCK_MONOTONIC, &hc->start);
+        snprintf(hc->method, sizeof hc->method, "%s", method);
+        snprintf(hc->path, sizeof hc->path, "%s", url);
+        const char *rid = MHD_lookup_connection_value(c, MHD_HEADER_KIND, "X-Request-Id");
+        if (rid && http_valid_request_id(rid))
+            snprintf(hc->request_id, sizeof hc->request_id, "%s", rid);
+        else
+            snprintf(hc->request_id, sizeof hc->request_id, "%08x-%llu", h->boot,
+                     (unsigned long long)atomic_fetch_add(&h->next_id, 1));
+        req.request_id = hc->request_id;
+
+        size_t max_body = 0;
+        bool required = false;
+        h->app.body_policy(h->app.ctx, method, url, &max_body, &required);
+        const char *te = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_TRANSFER_ENCODING);
+        const char *cl = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_LENGTH);
+        unsigned long long length = 0;
+        if (cl) {
+            char *end = NULL;
+            length = strtoull(cl, &end, 10);
+            if (end == cl || *end) cl = NULL;  /* MHD refuses malformed lengths before we get here */
+        }
+        /* 411: a chunked body (its length is unknown, so no limit can be decided up front), or
+         * no length where a body is required. */
+        if ((te && strcasecmp(te, "identity") != 0) || (!cl && required)) {
+            h->app.reject(h->app.ctx, &req, &resp, 411, max_body);
+            return http_send(h, c, hc, &resp);
+        }
+        if (length > max_body) {
+            /* The verdict is made now, from the header. A client that asked "Expect:
+             * 100-continue" gets it before sending anything; one that sends the body anyway
+             * (most HTTP libraries) would see its connection reset mid-upload and never read
+             * the 413, so a moderately sized body is read and thrown away first. */
+            const char *expect = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_EXPECT);
+            if ((expect && strcasecmp(expect, "100-continue") == 0) || length > HTTP_DISCARD_MAX) {
+                h->app.reject(h->app.ctx, &req, &resp, 413, max_body);
+                return http_send(h, c, hc, &resp);
+            }
+            hc->reject_status = 413;
+            hc->reject_limit = max_body;
+            return MHD_YES;
+        }
+        if (length > 0) {
+            hc->body = malloc(length);
+            if (!hc->body) {
+                h->app.reject(h->app.ctx, &req, &resp, 413, max_body);
+                return http_send(h, c, hc, &resp);
+            }
+            hc->body_cap = length;
+        }
+        return MHD_YES;
+    }
+    req.request_id = hc->request_id;
+    if (hc->responded) {
+        /* The response went out before the body; discard what still arrives. */
+        *upload_data_size = 0;
+        return MHD_YES;
+    }
+    if (hc->reject_status) {
+        if (*upload_data_size > 0) {
+            *upload_data_size = 0;  /* discarded */
+            return MHD_YES;
+        }
+        h->app.reject(h->app.ctx, &req, &resp, hc->reject_status, hc->reject_limit);
+        return http_send(h, c, hc, &resp);
+    }
+    if (*upload_data_size > 0) {
+        size_t n = *upload_data_size;
+        if (n > hc->body_cap - hc->body_len) n = hc->body_cap - hc->body_len;  /* MHD enforces the length */
+        memcpy(hc->body + hc->body_len, upload_data, n);
+        hc->body_len += n;
+        *upload_data_size = 0;
+        return MHD_YES;
+    }
+    req.body = hc->body;
+    req.body_len = hc->body_len;
+    h->app.handle(h->app.ctx, &req, &resp);
+    return http_send(h, c, hc, &resp);
+}
+
+static void http_completed(void *cls, struct MHD_Connection *c, void **con_cls, enum MHD_RequestTerminationCode toe)
+{
+    (void)c;
+    (void)toe;
+    struct http *h = cls;
+    struct http_conn *hc = *con_cls;
+    if (!hc) return;
+    struct timespec now;
+    clock_gettime(CLOCK_MONOTONIC, &now);
+    double ms = (double)(now.tv_sec - hc->start.tv_sec) * 1e3 + (double)(now.tv_nsec - hc->start.tv_nsec) * 1e-6;
+    if (h->app.completed)
+        h->app.completed(h->app.ctx, hc->method, hc->path, hc->route, hc->status, hc->bytes, ms, hc->request_id);
+    free(hc->body);
+    free(hc);
+    *con_cls = NULL;
+}
+
+static void http_mhd_log(void *cls, const char *fmt, va_list ap)
+{
+    (void)cls;
+    fputs("restird: http: ", stderr);
+    vfprintf(stderr, fmt, ap);
+}
+
+struct http *http_start(const struct http_options *opts, const struct http_app *app, uint16_t *bound_port,
+                        struct err *err)
+{
+    struct sockaddr_storage ss;
+    memset(&ss, 0, sizeof ss);
+    unsigned flags = MHD_USE_THREAD_PER_CONNECTION | MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_ITC | MHD_USE_ERROR_LOG;
+    struct sockaddr_in *a4 = (struct sockaddr_in *)&ss;
+    struct sockaddr_in6 *a6 = (struct sockaddr_in6 *)&ss;
+    if (inet_pton(AF_INET, opts->host, &a4->sin_addr) == 1) {
+        a4->sin_family = AF_INET;
+        a4->sin_port = htons(opts->port);
+    } else if (inet_pton(AF_INET6, opts->host, &a6->sin6_addr) == 1) {
+        a6->sin6_family = AF_INET6;
+        a6->sin6_port = htons(opts->port);
+        flags |= MHD_USE_IPv6;
+    } else {
+        return err_set(err, ERR_INVALID, "--listen", "'%s' is not a numeric IPv4 or IPv6 address", opts->host), NULL;
+    }
+    struct http *h = calloc(1, sizeof *h);
+    if (!h) return err_set(err, ERR_NOMEM, NULL, "out of memory"), NULL;
+    h->app = *app;
+    h->boot = (uint32_t)time(NULL);
+    atomic_init(&h->next_id, 1);
+    h->mhd = MHD_start_daemon(flags, opts->port, NULL, NULL, http_access, h,
+                              MHD_OPTION_EXTERNAL_LOGGER, http_mhd_log, NULL,
+                              MHD_OPTION_SOCK_ADDR, (struct sockaddr *)&ss,
+                              MHD_OPTION_CONNECTION_LIMIT, (unsigned)opts->connection_limit,
+                              MHD_OPTION_PER_IP_CONNECTION_LIMIT, (unsigned)opts->per_ip_limit,
+                              MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)opts->timeout_s,
+                              MHD_OPTION_CONNECTION_MEMORY_LIMIT, (size_t)(64 * 1024),
+                              MHD_OPTION_NOTIFY_COMPLETED, http_completed, h,
+                              MHD_OPTION_END);
+    if (!h->mhd) {
+        free(h);
+        return err_set(err, ERR_IO, "--listen", "cannot listen on %s port %u (in use, or not an address of this host)",
+                       opts->host, opts->port), NULL;
+    }
+    const union MHD_DaemonInfo *info = MHD_get_daemon_info(h->mhd, MHD_DAEMON_INFO_BIND_PORT);
+    if (bound_port) *bound_port = info ? info->port : opts->port;
+    return h;
+}
+
+void http_quiesce(struct http *h)
+{
+    if (!h || !h->mhd) return;
+    MHD_socket s = MHD_quiesce_daemon(h->mhd);
+    if (s != MHD_INVALID_SOCKET) close(s);
+}
+
+void http_stop(struct http *h)
+{
+    if (!h) return;
+    if (h->mhd) MHD_stop_daemon(h->mhd);
+    free(h);
+}

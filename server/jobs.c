@@ -1,0 +1,291 @@
+/* jobs.c — the job worker pool (see jobs.h) and what each job kind does. */
+#include "jobs.h"
+
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+struct jobs {
+    pthread_mutex_t lock;
+    pthread_cond_t cond;
+    struct job **fifo;
+    unsigned cap, head, count;
+    bool stopping;
+    unsigned worker_count;
+    pthread_t *workers;
+    struct gate *gate;
+    struct refstore *refs;
+    jobs_frame_fn *on_frame;
+    void *on_frame_ctx;
+};
+
+static const char *jobs_status_name(enum job_status s)
+{
+    static const char *const names[] = {"queued", "running", "done", "cancelled", "failed"};
+    return names[s];
+}
+
+static void jobs_set_status(struct job *j, enum job_status st)
+{
+    pthread_mutex_lock(&j->session->lock);
+    j->status = st;
+    pthread_mutex_unlock(&j->session->lock);
+}
+
+static void jobs_post(struct job *j, const char *type)
+{
+    struct jsonw w;
+    jsonw_init(&w);
+    jsonw_object_begin(&w);
+    jsonw_key(&w, "job");
+    jsonw_string(&w, j->id);
+    if (strcmp(type, "progress") == 0) {
+        jsonw_key(&w, "frames_done");
+        jsonw_uint(&w, j->frames_done);
+        jsonw_key(&w, "frames_total");
+        jsonw_uint(&w, j->frames_total);
+    } else if (strcmp(type, "done") == 0) {
+        jsonw_key(&w, "status");
+        jsonw_string(&w, jobs_status_name(j->status));
+    } else {
+        jsonw_key(&w, "detail");
+        jsonw_string(&w, j->error.message);
+        jsonw_key(&w, "status");
+        jsonw_int(&w, j->error_status);
+    }
+    jsonw_object_end(&w);
+    char *text = jsonw_finish(&w, NULL);
+    if (text) session_post_event(j->session, type, text);
+    free(text);
+}
+
+static void jobs_fail(struct job *j, int status, const char *slug)
+{
+    pthread_mutex_lock(&j->session->lock);
+    j->status = JOB_FAILED;
+    j->error_status = status;
+    snprintf(j->error_slug, sizeof j->error_slug, "%s", slug);
+    pthread_mutex_unlock(&j->session->lock);
+    jobs_post(j, "error");
+}
+
+static void jobs_run_animation(struct jobs *q, struct job *j)
+{
+    struct session *s = j->session;
+    struct view_shape_change changes[j->track_count ? j->track_count : 1];
+    for (uint32_t i = 0; i < j->frames_total; i++) {
+        if (atomic_load(&j->cancel)) {
+            jobs_set_status(j, JOB_CANCELLED);
+            return;
+        }
+        double t = (double)i / j->fps;
+        struct view_frame_change change = {.has_time = true, .time_s = t};
+        if (j->camera_key_count) {
+            animation_camera_at(j->camera_keys, j->camera_key_count, j->interp, t, &change.camera);
+            change.has_camera = true;
+        }
+        for (uint32_t k = 0; k < j->track_count; k++) {
+            struct animation_shape_state st;
+            animation_shape_at(j->tracks[k].keys, j->tracks[k].key_count, j->interp, t, &st);
+            struct view_shape_change *c = &changes[k];
+            memset(c, 0, sizeof *c);
+            c->shape = j->tracks[k].shape;
+            c->has_position = st.has_position;
+            c->position = st.position;
+            c->has_emission = st.has_emission;
+            c->emission = st.emission;
+            if (st.has_transform) {
+                c->has_transform = true;
+                if (!xform_from_trs(&st.transform, &c->transform)) {
+                    err_set(&j->error, ERR_INVALID, NULL, "frame %u: the interpolated transform overflows", i);
+                    jobs_fail(j, 422, "invalid-field");
+                    return;
+                }
+            }
+        }
+        change.shapes = changes;
+        change.shape_count = j->track_count;
+
+        uint32_t n;
+        struct frame_stats stats;
+        if (!session_render(s, q->gate, false, &change, j, &n, &stats, &j->error)) {
+            if (j->error.code == ERR_BUSY) {
+                jobs_set_status(j, JOB_CANCELLED);  /* the gate closed: shutting down */
+                return;
+            }
+            jobs_fail(j, j->error.code == ERR_NOMEM ? 503 : 422, j->error.code == ERR_NOMEM ? "busy" : "invalid-field");
+            return;
+        }
+        if (q->on_frame) q->on_frame(q->on_frame_ctx, stats.render.render_ms);
+        struct job_row row = {.frame = n, .time_s = t, .render_ms = stats.render.render_ms};
+        if (j->reference) {
+            struct image img;
+            struct err e;
+            if (session_frame_copy(s, n, &img, NULL, &e)) {
+                row.has_metrics = metrics_compare(&img, &j->reference->img, &row.m, &e);
+                image_destroy(&img);
+            }
+        }
+        pthread_mutex_lock(&s->lock);
+        j->frames[j->frames_done] = n;
+        j->rows[j->frames_done] = row;
+        j->frames_done++;
+        pthread_mutex_unlock(&s->lock);
+        jobs_post(j, "progress");
+    }
+    jobs_set_status(j, JOB_DONE);
+}
+
+static void jobs_run_reference(struct jobs *q, struct job *j)
+{
+    struct session *s = j->session;
+    const struct view_params *vp = &s->view.params;  /* immutable after creation */
+    struct image sum, pass;
+    if (!image_init(&sum, vp->width, vp->height, &j->error)) {
+        jobs_fail(j, 503, "busy");
+        return;
+    }
+    uint32_t passes = j->frames_total;
+    uint32_t spp_pass = j->ref_spp / passes;
+    for (uint32_t i = 0; i < passes; i++) {
+        if (atomic_load(&j->cancel)) {
+            image_destroy(&sum);
+            jobs_set_status(j, JOB_CANCELLED);
+            return;
+        }
+        struct pt_params p = reference_pt_defaults(vp->width, vp->height);
+        p.spp = spp_pass;
+        p.max_depth = vp->pt.max_depth > 64 ? vp->pt.max_depth : 64;
+        /* A seed stream of its own, so the reference is independent of every frame the
+         * session renders with its seed (frame indices never reach 2^31). */
+        p.seed = vp->seed;
+        p.frame = 0x80000000u + i;
+        p.threads = s->view.threads;
+        p.camera = &j->ref_camera;
+        struct render_stats rs;
+        if (!gate_enter(q->gate, false, &j->error)) {
+            image_destroy(&sum);
+            jobs_set_status(j, JOB_CANCELLED);
+            return;
+        }
+        bool ok = reference_pt_render(j->ref_scene, &p, &pass, &rs, NULL, NULL, &j->error);
+        gate_leave(q->gate);
+        if (!ok) {
+            image_destroy(&sum);
+            jobs_fail(j, 503, "busy");
+            return;
+        }
+        size_t n = (size_t)vp->width * vp->height;
+        for (size_t k = 0; k < n; k++) sum.pixels[k] = vec3_add(sum.pixels[k], pass.pixels[k]);
+        image_destroy(&pass);
+        pthread_mutex_lock(&s->lock);
+        j->frames_done++;
+        pthread_mutex_unlock(&s->lock);
+        jobs_post(j, "progress");
+    }
+    size_t n = (size_t)vp->width * vp->height;
+    for (size_t k = 0; k < n; k++) sum.pixels[k] = vec3_scale(sum.pixels[k], 1.0f / (float)passes);
+    refstore_put(q->refs, s->scene_id, j->ref_name, &sum, spp_pass * passes);
+    jobs_set_status(j, JOB_DONE);
+}
+
+static void *jobs_worker(void *arg)
+{
+    struct jobs *q = arg;
+    for (;;) {
+        pthread_mutex_lock(&q->lock);
+        while (q->count == 0 && !q->stopping) pthread_cond_wait(&q->cond, &q->lock);
+        if (q->count == 0) {
+            pthread_mutex_unlock(&q->lock);
+            return NULL;
+        }
+        struct job *j = q->fifo[q->head];
+        q->head = (q->head + 1) % q->cap;
+        q->count--;
+        pthread_mutex_unlock(&q->lock);
+
+        struct session *s = j->session;
+        if (atomic_load(&j->cancel)) {
+            jobs_set_status(j, JOB_CANCELLED);
+        } else {
+            jobs_set_status(j, JOB_RUNNING);
+            if (j->kind == JOB_ANIMATION)
+                jobs_run_animation(q, j);
+            else
+                jobs_run_reference(q, j);
+        }
+        if (j->status != JOB_FAILED) jobs_post(j, "done");
+        if (j->kind == JOB_ANIMATION) session_unclaim(s);
+        session_release(s);
+    }
+}
+
+struct jobs *jobs_new(unsigned workers, unsigned queue, struct gate *gate, struct refstore *refs,
+                      jobs_frame_fn *on_frame, void *on_frame_ctx, struct err *err)
+{
+    struct jobs *q = calloc(1, sizeof *q);
+    if (!q) return err_set(err, ERR_NOMEM, NULL, "out of memory"), NULL;
+    q->cap = queue ? queue : 1;
+    q->fifo = calloc(q->cap, sizeof *q->fifo);
+    q->workers = calloc(workers ? workers : 1, sizeof *q->workers);
+    if (!q->fifo || !q->workers) {
+        free(q->fifo), free(q->workers), free(q);
+        return err_set(err, ERR_NOMEM, NULL, "out of memory"), NULL;
+    }
+    pthread_mutex_init(&q->lock, NULL);
+    pthread_cond_init(&q->cond, NULL);
+    q->gate = gate;
+    q->refs = refs;
+    q->on_frame = on_frame;
+    q->on_frame_ctx = on_frame_ctx;
+    for (unsigned i = 0; i < (workers ? workers : 1); i++) {
+        if (pthread_create(&q->workers[i], NULL, jobs_worker, q) != 0) {
+            jobs_stop(q);
+            return err_set(err, ERR_INTERNAL, NULL, "cannot start job worker threads"), NULL;
+        }
+        q->worker_count++;
+    }
+    return q;
+}
+
+bool jobs_submit(struct jobs *q, struct job *j, struct err *err)
+{
+    pthread_mutex_lock(&q->lock);
+    if (q->stopping || q->count == q->cap) {
+        bool stopping = q->stopping;
+        pthread_mutex_unlock(&q->lock);
+        return err_set(err, ERR_BUSY, NULL, stopping ? "the daemon is shutting down" : "the job queue is full (%u jobs)",
+                       q->cap);
+    }
+    session_retain(j->session);
+    q->fifo[(q->head + q->count) % q->cap] = j;
+    q->count++;
+    pthread_cond_signal(&q->cond);
+    pthread_mutex_unlock(&q->lock);
+    return true;
+}
+
+void jobs_stop(struct jobs *q)
+{
+    if (!q) return;
+    pthread_mutex_lock(&q->lock);
+    q->stopping = true;
+    for (unsigned i = 0; i < q->count; i++) atomic_store(&q->fifo[(q->head + i) % q->cap]->cancel, true);
+    pthread_cond_broadcast(&q->cond);
+    pthread_mutex_unlock(&q->lock);
+    for (unsigned i = 0; i < q->worker_count; i++) pthread_join(q->workers[i], NULL);
+    pthread_cond_destroy(&q->cond);
+    pthread_mutex_destroy(&q->lock);
+    free(q->fifo);
+    free(q->workers);
+    free(q);
+}
+
+unsigned jobs_queued(struct jobs *q)
+{
+    pthread_mutex_lock(&q->lock);
+    unsigned n = q->count;
+    pthread_mutex_unlock(&q->lock);
+    return n;
+}

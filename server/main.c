@@ -1,0 +1,283 @@
+/* main.c — `build/restird`, the render daemon: parses the command line, builds the shared state
+ * (scene registry, sessions, render gate, job workers), serves HTTP until SIGTERM or SIGINT,
+ * then shuts down in order: stop accepting, refuse new work, cancel jobs between frames, let
+ * frames in flight finish, close connections, free everything. The only file that may exit.
+ * Exit status: 0 after a clean shutdown, 1 when start-up fails, 2 for a wrong command line. */
+#include <errno.h>
+#include <limits.h>
+#include <signal.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "api.h"
+#include "http.h"
+
+#define MAIN_USAGE                                                                                  \
+    "usage: restird [--listen HOST:PORT] [--data-dir DIR] [--scenes DIR] [--id NAME]\n"             \
+    "               [--default-session SCENE] [--threads N] [--max-sessions N] [--frames-kept N]\n" \
+    "               [--max-side N] [--max-pixels N] [--max-spp N] [--max-frames N] [--max-keys N]\n" \
+    "               [--max-json-body BYTES] [--max-asset-body BYTES] [--max-reference-body BYTES]\n" \
+    "               [--render-slots N] [--render-queue N] [--job-queue N] [--job-workers N]\n"    \
+    "               [--connection-limit N] [--per-ip-limit N] [--timeout-s N]\n"                   \
+    "defaults: --listen 127.0.0.1:8080, --data-dir $XDG_STATE_HOME/restird (~/.local/state/restird),\n" \
+    "--scenes: the scenes/ folder next to the build folder; limits as GET /v1/limits lists them.\n" \
+    "Port 0 picks a free port; the first line on stdout names the address.\n"
+
+static int main_usage(const char *fmt, const char *arg)
+{
+    fprintf(stderr, "restird: ");
+    fprintf(stderr, fmt, arg);
+    fprintf(stderr, "\n%s", MAIN_USAGE);
+    return 2;
+}
+
+static bool main_parse_u64(const char *s, uint64_t min, uint64_t max, uint64_t *out)
+{
+    if (!s || !*s || *s == '-' || *s == '+') return false;
+    errno = 0;
+    char *end;
+    unsigned long long v = strtoull(s, &end, 10);
+    if (errno || *end || v < min || v > max) return false;
+    *out = v;
+    return true;
+}
+
+static bool main_parse_listen(const char *s, struct daemon_config *cfg)
+{
+    const char *colon = strrchr(s, ':');
+    if (!colon || colon == s || (size_t)(colon - s) >= sizeof cfg->host) return false;
+    const char *host = s;
+    size_t hl = (size_t)(colon - s);
+    if (host[0] == '[' && host[hl - 1] == ']') host++, hl -= 2;  /* [::1]:8080 */
+    memcpy(cfg->host, host, hl);
+    cfg->host[hl] = '\0';
+    uint64_t port;
+    if (!main_parse_u64(colon + 1, 0, 65535, &port)) return false;
+    cfg->port = (uint16_t)port;
+    return true;
+}
+
+/* The scene library: --scenes, else scenes/ beside the build folder the binary is in
+ * (build/restird and build/san/restird), else ./scenes. */
+static void main_default_library(char *out, size_t size)
+{
+    char exe[PATH_MAX];
+    ssize_t n = readlink("/proc/self/exe", exe, sizeof exe - 1);
+    if (n > 0) {
+        exe[n] = '\0';
+        char *slash = strrchr(exe, '/');
+        if (slash) *slash = '\0';
+        const char *ups[] = {"/../scenes", "/../../scenes"};
+        for (int i = 0; i < 2; i++) {
+            char cand[PATH_MAX + 32];
+            snprintf(cand, sizeof cand, "%s%s", exe, ups[i]);
+            struct stat st;
+            if (stat(cand, &st) == 0 && S_ISDIR(st.st_mode) && realpath(cand, out)) return;
+        }
+    }
+    snprintf(out, size, "scenes");
+}
+
+static void main_default_data_dir(char *out, size_t size)
+{
+    const char *xdg = getenv("XDG_STATE_HOME");
+    const char *home = getenv("HOME");
+    if (xdg && xdg[0] == '/') snprintf(out, size, "%s/restird", xdg);
+    else if (home && home[0] == '/') snprintf(out, size, "%s/.local/state/restird", home);
+    else snprintf(out, size, "restird-data");
+}
+
+static void main_warn(void *ctx, const char *message)
+{
+    (void)ctx;
+    fprintf(stderr, "restird: warning: %s\n", message);
+}
+
+static void main_on_frame(void *ctx, double render_ms)
+{
+    prom_observe_frame(&((struct daemon *)ctx)->prom, render_ms * 1e-3);
+}
+
+/* mkdir -p for the data directory's parents (the registry creates the directory itself). */
+static bool main_mkdirs(const char *path)
+{
+    char buf[PATH_MAX];
+    snprintf(buf, sizeof buf, "%s", path);
+    for (char *p = buf + 1; *p; p++) {
+        if (*p != '/') continue;
+        *p = '\0';
+        if (mkdir(buf, 0755) != 0 && errno != EEXIST) return false;
+        *p = '/';
+    }
+    return mkdir(buf, 0755) == 0 || errno == EEXIST;
+}
+
+int main(int argc, char **argv)
+{
+    static struct daemon d;
+    struct daemon_config *cfg = &d.cfg;
+    snprintf(cfg->host, sizeof cfg->host, "127.0.0.1");
+    cfg->port = 8080;
+    main_default_data_dir(cfg->data_dir, sizeof cfg->data_dir);
+    main_default_library(cfg->library_dir, sizeof cfg->library_dir);
+    cfg->limits = (struct protocol_limits){.max_side = 4096, .max_pixels = 16u << 20, .max_spp = 65536,
+                                           .max_frames = 10000, .max_keys = 4096};
+    cfg->max_sessions = 64;
+    cfg->frames_kept = 16;
+    cfg->max_json_body = 1u << 20;
+    cfg->max_asset_body = 256u << 20;
+    cfg->max_reference_body = 256u << 20;
+    cfg->render_slots = 1;
+    cfg->render_queue = 16;
+    cfg->job_queue = 64;
+    cfg->job_workers = 2;
+    cfg->connection_limit = 256;
+    cfg->per_ip_limit = 64;
+    cfg->timeout_s = 60;
+
+    static const struct { const char *name; size_t offset; uint64_t min, max; int size; } nums[] = {
+#define N(opt, field, lo, hi) {opt, offsetof(struct daemon_config, field), lo, hi, (int)sizeof(((struct daemon_config *)0)->field)}
+        N("--threads", threads, 0, 1024),
+        N("--max-sessions", max_sessions, 1, 100000),
+        N("--frames-kept", frames_kept, 1, 100000),
+        N("--max-side", limits.max_side, 1, 16384),
+        N("--max-pixels", limits.max_pixels, 1, 16384ull * 16384ull),
+        N("--max-spp", limits.max_spp, 1, 1u << 24),
+        N("--max-frames", limits.max_frames, 1, 1000000),
+        N("--max-keys", limits.max_keys, 1, 1000000),
+        N("--max-json-body", max_json_body, 2, 64u << 20),
+        N("--max-asset-body", max_asset_body, 1, 1ull << 32),
+        N("--max-reference-body", max_reference_body, 1, 1ull << 32),
+        N("--render-slots", render_slots, 1, 64),
+        N("--render-queue", render_queue, 0, 10000),
+        N("--job-queue", job_queue, 1, 100000),
+        N("--job-workers", job_workers, 1, 64),
+        N("--connection-limit", connection_limit, 1, 100000),
+        N("--per-ip-limit", per_ip_limit, 1, 100000),
+        N("--timeout-s", timeout_s, 1, 86400),
+#undef N
+    };
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i];
+        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
+            fputs(MAIN_USAGE, stdout);
+            return 0;
+        }
+        const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+        if (!v) return main_usage("option %s needs a value (or is unknown)", a);
+        i++;
+        if (strcmp(a, "--listen") == 0) {
+            if (!main_parse_listen(v, cfg)) return main_usage("--listen: expected HOST:PORT, got '%s'", v);
+        } else if (strcmp(a, "--data-dir") == 0) {
+            if (!*v || strlen(v) >= sizeof cfg->data_dir) return main_usage("--data-dir: bad path '%s'", v);
+            snprintf(cfg->data_dir, sizeof cfg->data_dir, "%s", v);
+        } else if (strcmp(a, "--scenes") == 0) {
+            if (!*v || strlen(v) >= sizeof cfg->library_dir) return main_usage("--scenes: bad path '%s'", v);
+            snprintf(cfg->library_dir, sizeof cfg->library_dir, "%s", v);
+        } else if (strcmp(a, "--id") == 0) {
+            if (!*v || strlen(v) >= sizeof cfg->id || strpbrk(v, "\r\n")) return main_usage("--id: bad name '%s'", v);
+            snprintf(cfg->id, sizeof cfg->id, "%s", v);
+        } else if (strcmp(a, "--default-session") == 0) {
+            if (!protocol_valid_id(v, strlen(v))) return main_usage("--default-session: '%s' is not a scene id", v);
+            snprintf(cfg->default_scene, sizeof cfg->default_scene, "%s", v);
+        } else {
+            size_t k = 0;
+            for (; k < sizeof nums / sizeof nums[0]; k++)
+                if (strcmp(a, nums[k].name) == 0) break;
+            if (k == sizeof nums / sizeof nums[0]) return main_usage("unknown option '%s'", a);
+            uint64_t x;
+            if (!main_parse_u64(v, nums[k].min, nums[k].max, &x)) return main_usage("%s: value out of range", a);
+            char *field = (char *)cfg + nums[k].offset;
+            if (nums[k].size == 2) *(uint16_t *)field = (uint16_t)x;
+            else if (nums[k].size == 4) *(uint32_t *)field = (uint32_t)x;
+            else *(uint64_t *)field = x;
+        }
+    }
+
+    /* Signals are taken by sigwait in this thread; every thread started from here on
+     * inherits the mask, so no render thread is interrupted. */
+    sigset_t sigs;
+    sigemptyset(&sigs);
+    sigaddset(&sigs, SIGTERM);
+    sigaddset(&sigs, SIGINT);
+    pthread_sigmask(SIG_BLOCK, &sigs, NULL);
+    signal(SIGPIPE, SIG_IGN);
+
+    struct err e = {0};
+    char msg[1024];
+    if (!main_mkdirs(cfg->data_dir)) {
+        fprintf(stderr, "restird: cannot create the data directory %s: %s\n", cfg->data_dir, strerror(errno));
+        return 1;
+    }
+    d.registry = registry_new(cfg->library_dir, cfg->data_dir, main_warn, NULL, &e);
+    if (!d.registry) {
+        fprintf(stderr, "restird: %s\n", err_format(&e, msg, sizeof msg));
+        return 1;
+    }
+    d.sessions = sessions_new(cfg->max_sessions);
+    d.refs = refstore_new();
+    gate_init(&d.gate, cfg->render_slots, cfg->render_queue);
+    prom_init(&d.prom);
+    atomic_init(&d.draining, false);
+    d.jobs = d.sessions && d.refs ? jobs_new(cfg->job_workers, cfg->job_queue, &d.gate, d.refs, main_on_frame, &d, &e) : NULL;
+    int status = 1;
+    struct http *http = NULL;
+    if (!d.sessions || !d.refs || !d.jobs) {
+        fprintf(stderr, "restird: cannot start: %s\n", e.message[0] ? e.message : "out of memory");
+        goto done;
+    }
+
+    char served_by[192];
+    uint16_t port = 0;
+    struct http_options ho = {.host = cfg->host, .port = cfg->port, .connection_limit = cfg->connection_limit,
+                              .per_ip_limit = cfg->per_ip_limit, .timeout_s = cfg->timeout_s};
+    struct http_app app = {.ctx = &d, .body_policy = api_body_policy, .handle = api_handle, .reject = api_reject,
+                           .completed = api_completed, .served_by = served_by};
+    snprintf(served_by, sizeof served_by, "%s", cfg->id);
+    http = http_start(&ho, &app, &port, &e);
+    if (!http) {
+        fprintf(stderr, "restird: %s\n", err_format(&e, msg, sizeof msg));
+        goto done;
+    }
+    if (!cfg->id[0]) snprintf(served_by, sizeof served_by, "%s:%u", cfg->host, port);
+    const char *bracket_l = strchr(cfg->host, ':') ? "[" : "", *bracket_r = strchr(cfg->host, ':') ? "]" : "";
+    printf("restird listening on http://%s%s%s:%u (data %s, %zu scenes)\n", bracket_l, cfg->host, bracket_r, port,
+           cfg->data_dir, registry_list(d.registry, NULL, 0));
+    if (cfg->default_scene[0]) {
+        char href[256];
+        if (api_default_session(&d, cfg->default_scene, href, sizeof href)) {
+            printf("default session ready; fetch a frame as EXR with:\n"
+                   "  curl -sf -X POST -o frame.exr http://%s%s%s:%u%s/frames\n",
+                   bracket_l, cfg->host, bracket_r, port, href);
+        }
+    }
+    fflush(stdout);
+
+    int sig = 0;
+    sigwait(&sigs, &sig);
+    fprintf(stderr, "restird: %s: shutting down\n", sig == SIGINT ? "SIGINT" : "SIGTERM");
+    http_quiesce(http);                  /* no new connections */
+    atomic_store(&d.draining, true);     /* new work on open connections gets 503 draining */
+    sessions_remove_all(d.sessions);     /* cancels jobs between frames, ends event streams */
+    jobs_stop(d.jobs);                   /* waits for the frame each worker is rendering */
+    d.jobs = NULL;
+    gate_close(&d.gate);
+    http_stop(http);                     /* waits for requests in flight (a frame finishes) */
+    http = NULL;
+    status = 0;
+done:
+    http_stop(http);
+    jobs_stop(d.jobs);
+    if (d.sessions) sessions_remove_all(d.sessions);
+    sessions_free(d.sessions);
+    refstore_free(d.refs);
+    registry_free(d.registry);
+    gate_destroy(&d.gate);
+    prom_destroy(&d.prom);
+    fprintf(stderr, "restird: stopped\n");
+    return status;
+}

@@ -1,0 +1,112 @@
+/* prom.c — counters and the Prometheus text format (see prom.h). */
+#include "prom.h"
+
+#include <stdarg.h>
+#include <stdbool.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* Frame render time buckets in seconds: from a 16x16 preview to a large reference pass. */
+static const double prom_bounds[PROM_BUCKETS] = {0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 10};
+
+void prom_init(struct prom *p)
+{
+    memset(p, 0, sizeof *p);
+    pthread_mutex_init(&p->lock, NULL);
+}
+
+void prom_destroy(struct prom *p)
+{
+    pthread_mutex_destroy(&p->lock);
+}
+
+void prom_count_request(struct prom *p, const char *route, int code)
+{
+    if (!route) route = "unmatched";
+    pthread_mutex_lock(&p->lock);
+    unsigned i = 0;
+    for (; i < p->request_series; i++)
+        if (p->requests[i].code == code && strcmp(p->requests[i].route, route) == 0) break;
+    if (i == p->request_series && i < PROM_MAX_SERIES) {
+        p->requests[i].route = route;
+        p->requests[i].code = code;
+        p->request_series++;
+    }
+    if (i < PROM_MAX_SERIES) p->requests[i].count++;
+    pthread_mutex_unlock(&p->lock);
+}
+
+void prom_observe_frame(struct prom *p, double seconds)
+{
+    pthread_mutex_lock(&p->lock);
+    int b = 0;
+    while (b < PROM_BUCKETS && seconds > prom_bounds[b]) b++;
+    if (b < PROM_BUCKETS) p->frame_buckets[b]++;
+    p->frame_count++;
+    p->frame_sum_s += seconds;
+    pthread_mutex_unlock(&p->lock);
+}
+
+struct prom_buf { char *s; size_t len, cap; bool failed; };
+
+static void prom_printf(struct prom_buf *b, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void prom_printf(struct prom_buf *b, const char *fmt, ...)
+{
+    if (b->failed) return;
+    for (;;) {
+        va_list ap;
+        va_start(ap, fmt);
+        int n = vsnprintf(b->s + b->len, b->cap - b->len, fmt, ap);
+        va_end(ap);
+        if (n < 0) { b->failed = true; return; }
+        if ((size_t)n < b->cap - b->len) { b->len += (size_t)n; return; }
+        size_t cap = 2 * b->cap + (size_t)n;
+        char *s = realloc(b->s, cap);
+        if (!s) { b->failed = true; return; }
+        b->s = s;
+        b->cap = cap;
+    }
+}
+
+char *prom_format(struct prom *p, const struct prom_gauges *g, size_t *len)
+{
+    struct prom_buf b = {.cap = 4096};
+    b.s = malloc(b.cap);
+    if (!b.s) return NULL;
+    pthread_mutex_lock(&p->lock);
+    prom_printf(&b, "# HELP restird_requests_total HTTP requests answered, by route template and status.\n"
+                    "# TYPE restird_requests_total counter\n");
+    for (unsigned i = 0; i < p->request_series; i++)
+        prom_printf(&b, "restird_requests_total{route=\"%s\",code=\"%d\"} %llu\n", p->requests[i].route,
+                    p->requests[i].code, (unsigned long long)p->requests[i].count);
+    prom_printf(&b, "# HELP restird_frame_render_seconds Render time of each frame (synchronous and jobs).\n"
+                    "# TYPE restird_frame_render_seconds histogram\n");
+    uint64_t cum = 0;
+    for (int i = 0; i < PROM_BUCKETS; i++) {
+        cum += p->frame_buckets[i];
+        prom_printf(&b, "restird_frame_render_seconds_bucket{le=\"%g\"} %llu\n", prom_bounds[i], (unsigned long long)cum);
+    }
+    prom_printf(&b, "restird_frame_render_seconds_bucket{le=\"+Inf\"} %llu\n", (unsigned long long)p->frame_count);
+    prom_printf(&b, "restird_frame_render_seconds_sum %.9g\n", p->frame_sum_s);
+    prom_printf(&b, "restird_frame_render_seconds_count %llu\n", (unsigned long long)p->frame_count);
+    pthread_mutex_unlock(&p->lock);
+    prom_printf(&b, "# HELP restird_sessions Live sessions.\n# TYPE restird_sessions gauge\nrestird_sessions %u\n", g->sessions);
+    prom_printf(&b, "# HELP restird_scenes Scenes held.\n# TYPE restird_scenes gauge\nrestird_scenes %u\n", g->scenes);
+    prom_printf(&b, "# HELP restird_session_bytes Memory of all sessions (buffers and kept frames).\n"
+                    "# TYPE restird_session_bytes gauge\nrestird_session_bytes %llu\n", (unsigned long long)g->session_bytes);
+    prom_printf(&b, "# HELP restird_reservoir_bytes Reservoir memory of all sessions.\n"
+                    "# TYPE restird_reservoir_bytes gauge\nrestird_reservoir_bytes %llu\n", (unsigned long long)g->reservoir_bytes);
+    prom_printf(&b, "# HELP restird_reference_bytes Memory of reference images.\n"
+                    "# TYPE restird_reference_bytes gauge\nrestird_reference_bytes %llu\n", (unsigned long long)g->reference_bytes);
+    prom_printf(&b, "# HELP restird_render_queue_depth Synchronous frames waiting for the render gate.\n"
+                    "# TYPE restird_render_queue_depth gauge\nrestird_render_queue_depth %u\n", g->render_queue);
+    prom_printf(&b, "# HELP restird_job_queue_depth Jobs waiting for a worker.\n"
+                    "# TYPE restird_job_queue_depth gauge\nrestird_job_queue_depth %u\n", g->job_queue);
+    if (b.failed) {
+        free(b.s);
+        return NULL;
+    }
+    *len = b.len;
+    return b.s;
+}

@@ -1,0 +1,117 @@
+/* refstore.c — reference images by (scene, name) (see refstore.h). A flat array: a daemon holds
+ * a handful of references, and a linear scan under a mutex is the simplest correct thing. */
+#include "refstore.h"
+
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+struct refstore {
+    pthread_mutex_t lock;
+    struct ref_image **items;
+    size_t count, cap;
+};
+
+struct refstore *refstore_new(void)
+{
+    struct refstore *rs = calloc(1, sizeof *rs);
+    if (rs) pthread_mutex_init(&rs->lock, NULL);
+    return rs;
+}
+
+void ref_image_release(struct ref_image *r)
+{
+    if (r && __atomic_sub_fetch(&r->refcount, 1, __ATOMIC_ACQ_REL) == 0) {
+        image_destroy(&r->img);
+        free(r);
+    }
+}
+
+void refstore_free(struct refstore *rs)
+{
+    if (!rs) return;
+    for (size_t i = 0; i < rs->count; i++) ref_image_release(rs->items[i]);
+    free(rs->items);
+    pthread_mutex_destroy(&rs->lock);
+    free(rs);
+}
+
+static long refstore_find(struct refstore *rs, const char *scene, const char *name)
+{
+    for (size_t i = 0; i < rs->count; i++)
+        if (strcmp(rs->items[i]->scene, scene) == 0 && strcmp(rs->items[i]->name, name) == 0) return (long)i;
+    return -1;
+}
+
+bool refstore_put(struct refstore *rs, const char *scene, const char *name, struct image *img, uint32_t spp)
+{
+    struct ref_image *r = calloc(1, sizeof *r);
+    if (!r) {
+        image_destroy(img);
+        return false;
+    }
+    r->refcount = 1;
+    snprintf(r->scene, sizeof r->scene, "%s", scene);
+    snprintf(r->name, sizeof r->name, "%s", name);
+    r->spp = spp;
+    r->img = *img;
+    img->pixels = NULL;
+    img->width = img->height = 0;
+
+    pthread_mutex_lock(&rs->lock);
+    long i = refstore_find(rs, scene, name);
+    bool existed = i >= 0;
+    if (existed) {
+        ref_image_release(rs->items[i]);
+        rs->items[i] = r;
+    } else {
+        if (rs->count == rs->cap) {
+            size_t cap = rs->cap ? 2 * rs->cap : 8;
+            struct ref_image **items = realloc(rs->items, cap * sizeof *items);
+            if (!items) {
+                pthread_mutex_unlock(&rs->lock);
+                ref_image_release(r);
+                return false;
+            }
+            rs->items = items;
+            rs->cap = cap;
+        }
+        rs->items[rs->count++] = r;
+    }
+    pthread_mutex_unlock(&rs->lock);
+    return existed;
+}
+
+struct ref_image *refstore_get(struct refstore *rs, const char *scene, const char *name)
+{
+    pthread_mutex_lock(&rs->lock);
+    long i = refstore_find(rs, scene, name);
+    struct ref_image *r = i >= 0 ? rs->items[i] : NULL;
+    if (r) __atomic_add_fetch(&r->refcount, 1, __ATOMIC_RELAXED);
+    pthread_mutex_unlock(&rs->lock);
+    return r;
+}
+
+void refstore_drop_scene(struct refstore *rs, const char *scene)
+{
+    pthread_mutex_lock(&rs->lock);
+    size_t k = 0;
+    for (size_t i = 0; i < rs->count; i++) {
+        if (strcmp(rs->items[i]->scene, scene) == 0)
+            ref_image_release(rs->items[i]);
+        else
+            rs->items[k++] = rs->items[i];
+    }
+    rs->count = k;
+    pthread_mutex_unlock(&rs->lock);
+}
+
+size_t refstore_bytes(struct refstore *rs)
+{
+    size_t b = 0;
+    pthread_mutex_lock(&rs->lock);
+    for (size_t i = 0; i < rs->count; i++) b += (size_t)rs->items[i]->img.width * rs->items[i]->img.height * sizeof(struct vec3);
+    pthread_mutex_unlock(&rs->lock);
+    return b;
+}

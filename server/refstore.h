@@ -1,0 +1,35 @@
+/* refstore.h — reference images by (scene, name): rendered by the server with `pt` or uploaded
+ * as EXR. Immutable once stored and shared by reference count, so a metrics computation keeps
+ * its reference alive while another request replaces it. In memory for the daemon's lifetime.
+ * Thread-safe. */
+#ifndef RESTIRD_REFSTORE_H
+#define RESTIRD_REFSTORE_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "image.h"
+
+struct ref_image {
+    int refcount;
+    char scene[65], name[65];
+    uint32_t spp;                /* 0 = uploaded */
+    struct image img;
+};
+
+struct refstore;
+struct refstore *refstore_new(void);
+void refstore_free(struct refstore *rs);
+/* Stores (or replaces) a reference; takes the image's pixels (img is left empty). Returns
+ * true when a reference of that name existed. */
+bool refstore_put(struct refstore *rs, const char *scene, const char *name, struct image *img, uint32_t spp);
+/* Retained reference or NULL; ref_image_release when done. */
+struct ref_image *refstore_get(struct refstore *rs, const char *scene, const char *name);
+void ref_image_release(struct ref_image *r);
+/* Forgets every reference of a scene (the scene was deleted). */
+void refstore_drop_scene(struct refstore *rs, const char *scene);
+/* Bytes of pixels held. */
+size_t refstore_bytes(struct refstore *rs);
+
+#endif

@@ -1,0 +1,162 @@
+/* session.h — rendering sessions and their background jobs.
+ * A session wraps a renderer `struct view` (persistent per-method state) with what the server
+ * adds: an id, the frames it keeps for fetching, an event log for server-sent events, and the
+ * animation/reference jobs submitted to it. One frame at a time per session: `busy` is set
+ * while a synchronous frame renders and for the whole life of a job, and a second request gets
+ * ERR_CONFLICT (409) instead of interleaving with the ordered frame sequence.
+ * Locking: sessions_lock guards the table; session->lock guards a session's fields except
+ * `view`, which only the holder of `busy` touches (outside the lock, during a render).
+ * Lifetime: sessions are reference counted; the table holds one reference, every request or
+ * job working on a session another. */
+#ifndef RESTIRD_SESSION_H
+#define RESTIRD_SESSION_H
+
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdbool.h>
+#include <stdint.h>
+
+#include "animation.h"
+#include "gate.h"
+#include "metrics.h"
+#include "protocol.h"
+#include "refstore.h"
+#include "view.h"
+
+#define SESSION_EVENTS 64          /* events kept for SSE readers that fall behind */
+#define SESSION_JOBS 16            /* jobs remembered per session (oldest finished dropped) */
+
+enum job_kind { JOB_ANIMATION, JOB_REFERENCE };
+enum job_status { JOB_QUEUED, JOB_RUNNING, JOB_DONE, JOB_CANCELLED, JOB_FAILED };
+
+struct job_row {
+    uint32_t frame;
+    double time_s, render_ms;
+    bool has_metrics;
+    struct metrics m;
+};
+
+struct session;
+
+struct job {
+    char id[24];
+    char idempotency_key[65];
+    enum job_kind kind;
+    enum job_status status;          /* under the session lock */
+    atomic_bool cancel;
+    struct session *session;         /* not retained: the session outlives its jobs' records,
+                                        and a queued job holds a session reference itself */
+    uint32_t epoch;                  /* the session's sequence its frames belong to */
+    uint32_t frames_total, frames_done;
+    uint32_t *frames;                /* session frame numbers, frames_done of them */
+    struct job_row *rows;            /* animation: one per frame */
+    /* animation */
+    double fps;
+    enum animation_interp interp;
+    uint32_t camera_key_count;
+    struct animation_camera_key *camera_keys;
+    uint32_t track_count;
+    struct job_track { uint32_t shape; uint32_t key_count; struct animation_shape_key *keys; } *tracks;
+    struct ref_image *reference;     /* retained, or NULL */
+    /* reference */
+    char ref_name[65];
+    uint32_t ref_spp;
+    struct scene *ref_scene;         /* retained: the session's scene when submitted */
+    struct camera_desc ref_camera;
+    /* failure */
+    int error_status;
+    char error_slug[32];
+    struct err error;
+};
+
+struct session_frame {
+    bool valid;
+    uint32_t n;
+    struct image img;
+    struct frame_stats stats;
+    char job[24];
+};
+
+struct session_event {
+    uint64_t seq;
+    char type[12];
+    char *data;                      /* JSON text, malloc'd */
+};
+
+struct session {
+    char id[24];
+    char scene_id[65];
+    atomic_int refcount;
+    pthread_mutex_t lock;
+    pthread_cond_t cond;             /* signalled on new events and on deletion */
+    bool busy, deleted;
+    struct view view;
+    uint32_t epoch;                  /* bumped by reset: frame numbers restart */
+    uint32_t frames_kept;
+    struct session_frame *ring;      /* frames_kept slots, frame n in slot n % frames_kept */
+    uint64_t event_seq;              /* next event number */
+    struct session_event events[SESSION_EVENTS];
+    struct job *jobs[SESSION_JOBS];
+    uint32_t job_count;
+    uint64_t next_job;
+};
+
+struct sessions;
+
+struct sessions *sessions_new(uint32_t max_sessions);
+/* Frees the table; every session must have been removed (sessions_remove_all). */
+void sessions_free(struct sessions *t);
+
+/* Creates a session on `scene` (retained by its view). Errors: ERR_BUSY (max_sessions),
+ * ERR_INVALID, ERR_NOMEM. The new session is returned retained. */
+/* `id` NULL = a generated id; otherwise that id (ERR_CONFLICT if taken). */
+struct session *sessions_create(struct sessions *t, const char *scene_id, const char *id, struct scene *scene,
+                                const struct view_params *params, uint32_t frames_kept, unsigned threads,
+                                struct err *err);
+/* Clears the history of a claimed session (frame numbers restart, kept frames dropped). */
+void session_reset(struct session *s);
+/* Forgets a job that never ran (its submission failed). */
+void session_job_forget(struct session *s, struct job *j);
+/* The session, retained, or NULL. */
+struct session *sessions_get(struct sessions *t, const char *scene_id, const char *sid);
+/* Removes it from the table, cancels its job, ends its event streams. false when unknown. */
+bool sessions_remove(struct sessions *t, const char *scene_id, const char *sid);
+/* Removes every session (shutdown). */
+void sessions_remove_all(struct sessions *t);
+/* Retained sessions of a scene (NULL scene_id = all) into out[max]; returns the count stored. */
+uint32_t sessions_list(struct sessions *t, const char *scene_id, struct session **out, uint32_t max);
+uint32_t sessions_count(struct sessions *t);
+
+void session_retain(struct session *s);
+void session_release(struct session *s);
+
+/* Memory of the session: its view's buffers plus kept frames. */
+size_t session_bytes(struct session *s);
+
+/* Claims the session for one frame or a job; ERR_CONFLICT when busy or deleted. */
+bool session_claim(struct session *s, struct err *err);
+void session_unclaim(struct session *s);
+
+/* Renders the next frame of a claimed session through the gate (bounded = a synchronous
+ * request, which may be refused with ERR_BUSY when the queue is full), keeps it, and posts a
+ * `frame` event. *n gets the frame number. `job` may be NULL. The image stays in the ring:
+ * use session_frame_copy to read it. */
+bool session_render(struct session *s, struct gate *gate, bool bounded, const struct view_frame_change *change,
+                    struct job *job, uint32_t *n, struct frame_stats *stats, struct err *err);
+
+/* Copies kept frame n (image and stats). ERR_NOT_FOUND when never rendered in this sequence,
+ * ERR_LIMIT when rendered but evicted. `out` is initialised on success. */
+bool session_frame_copy(struct session *s, uint32_t n, struct image *out, struct frame_stats *stats,
+                        struct err *err);
+
+/* Appends an event (type and JSON data, copied) and wakes readers. */
+void session_post_event(struct session *s, const char *type, const char *json);
+
+/* Jobs. A job is created QUEUED with the session claimed for it (animation) and stays claimed
+ * until it ends. Returns the job, or NULL (ERR_CONFLICT/ERR_NOMEM). */
+struct job *session_job_new(struct session *s, enum job_kind kind, const char *idempotency_key, struct err *err);
+struct job *session_job_find(struct session *s, const char *rid);
+struct job *session_job_find_key(struct session *s, const char *key);
+void job_destroy(struct job *j);
+
+#endif
