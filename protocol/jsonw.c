@@ -263,7 +263,7 @@ char *protocol_problem_json(const struct protocol_problem *p, size_t *len)
         jsonw_key(&w, "instance");
         jsonw_string(&w, p->instance);
     }
-    if (p->field && p->field[0]) {
+    if (p->field) {
         jsonw_key(&w, "field");
         jsonw_string(&w, p->field);
     }

@@ -172,7 +172,7 @@ char *jsonw_finish(struct jsonw *w, size_t *len);
 void jsonw_destroy(struct jsonw *w);    /* discards an unfinished text */
 
 /* RFC 9457 problem details: {"type","title","status","detail","instance"} plus "field" (when
- * non-empty) and "limit" (when has_limit). type is the URN "urn:restird:problem:<slug>": an
+ * non-NULL; "" is the pointer to the whole body) and "limit" (when has_limit). type is the URN "urn:restird:problem:<slug>": an
  * identifier a client can switch on that never pretends to be a page to fetch ("about:blank"
  * when slug is NULL or empty). A NULL title, detail or instance leaves that member out.
  * Returns malloc'd text (caller frees), NULL when out of memory. */
@@ -182,7 +182,7 @@ struct protocol_problem {
     const char *title;               /* short, fixed per slug */
     const char *detail;              /* the specific message */
     const char *instance;            /* the request path */
-    const char *field;               /* JSON pointer or "" */
+    const char *field;               /* JSON pointer ("" = the whole body), or NULL: none */
     bool has_limit;
     double limit;
 };

@@ -57,7 +57,7 @@ static void api_problem_v(struct api_call *c, int status, const char *slug, cons
     for (size_t i = 0; i < sizeof api_titles / sizeof api_titles[0]; i++)
         if (strcmp(api_titles[i].slug, slug) == 0) title = api_titles[i].title;
     struct protocol_problem p = {.status = status, .slug = slug, .title = title, .detail = detail,
-                                 .instance = c->req->path, .field = field ? field : "",
+                                 .instance = c->req->path, .field = field,
                                  .has_limit = has_limit, .limit = limit};
     size_t len = 0;
     char *body = protocol_problem_json(&p, &len);
@@ -399,7 +399,8 @@ static void api_openapi(struct api_call *c)
 
 /* ---- scenes ---- */
 
-static void api_write_scene(struct jsonw *w, const struct registry_info *info)
+/* replaced: < 0 leaves the member out (GET); 0/1 for the answer to a PUT. */
+static void api_write_scene(struct jsonw *w, const struct registry_info *info, int replaced)
 {
     char href[128];
     snprintf(href, sizeof href, "/v1/scenes/%s", info->id);
@@ -415,6 +416,10 @@ static void api_write_scene(struct jsonw *w, const struct registry_info *info)
     jsonw_key(w, "sessions"); jsonw_uint(w, info->sessions);
     jsonw_key(w, "assets"); jsonw_uint(w, info->assets);
     jsonw_key(w, "href"); jsonw_string(w, href);
+    if (replaced >= 0) {
+        jsonw_key(w, "replaced");
+        jsonw_bool(w, replaced == 1);
+    }
     jsonw_object_end(w);
 }
 
@@ -433,7 +438,7 @@ static void api_scenes_list(struct api_call *c)
     jsonw_object_begin(&w);
     jsonw_key(&w, "scenes");
     jsonw_array_begin(&w);
-    for (size_t i = 0; i < n; i++) api_write_scene(&w, &infos[i]);
+    for (size_t i = 0; i < n; i++) api_write_scene(&w, &infos[i], -1);
     jsonw_array_end(&w);
     jsonw_object_end(&w);
     free(infos);
@@ -449,7 +454,7 @@ static void api_scene_get(struct api_call *c)
     }
     struct jsonw w;
     jsonw_init(&w);
-    api_write_scene(&w, &info);
+    api_write_scene(&w, &info, -1);
     api_json(c, 200, &w);
 }
 
@@ -470,7 +475,7 @@ static void api_scene_put(struct api_call *c)
     registry_info(c->d->registry, c->seg[2], &info);
     struct jsonw w;
     jsonw_init(&w);
-    api_write_scene(&w, &info);
+    api_write_scene(&w, &info, result == REGISTRY_REPLACED);
     http_response_header(c->resp, "Location", "/v1/scenes/%s", c->seg[2]);
     api_json(c, result == REGISTRY_CREATED ? 201 : 200, &w);
 }
@@ -594,35 +599,44 @@ static void api_reference_put(struct api_call *c)
 enum api_body { BODY_NONE, BODY_JSON, BODY_ASSET, BODY_REFERENCE };
 
 struct api_route {
-    const char *pattern;              /* segments; "*" = an id, "#" = a frame number */
+    const char *pattern;              /* segments; "*" = an id, "#" = a frame number, "@" = an asset name */
     const char *methods[3];
     void (*fn[3])(struct api_call *c);
     enum api_body body[3];
+    /* The media types every answer of the route has (checked against Accept before the
+     * handler runs: 406 without side effects); NULL when the handler negotiates itself. */
+    const char *const *produces;
 };
 
+static const char *const api_json_only[] = {"application/json", NULL};
+static const char *const api_png_only[] = {"image/png", NULL};
+static const char *const api_prometheus[] = {"text/plain", NULL};
+static const char *const api_yaml[] = {"application/yaml", NULL};
+
 static const struct api_route api_routes[] = {
-    {"/healthz", {"GET"}, {api_healthz}, {0}},
-    {"/readyz", {"GET"}, {api_readyz}, {0}},
-    {"/metrics", {"GET"}, {api_metrics}, {0}},
-    {"/v1/limits", {"GET"}, {api_limits}, {0}},
-    {"/v1/openapi.yaml", {"GET"}, {api_openapi}, {0}},
-    {"/v1/scenes", {"GET"}, {api_scenes_list}, {0}},
-    {"/v1/scenes/*", {"GET", "PUT", "DELETE"}, {api_scene_get, api_scene_put, api_scene_delete}, {0, BODY_JSON, 0}},
-    {"/v1/scenes/*/assets/@", {"PUT"}, {api_asset_put}, {BODY_ASSET}},
-    {"/v1/scenes/*/references/*", {"GET", "PUT"}, {api_reference_get, api_reference_put}, {0, BODY_REFERENCE}},
-    {"/v1/scenes/*/sessions", {"GET", "POST"}, {api_sessions_list, api_sessions_post}, {0, BODY_JSON}},
-    {"/v1/scenes/*/sessions/*", {"GET", "DELETE"}, {api_session_get, api_session_delete}, {0}},
-    {"/v1/scenes/*/sessions/*/reset", {"POST"}, {api_session_reset}, {BODY_JSON}},
-    {"/v1/scenes/*/sessions/*/frames", {"POST"}, {api_frames_post}, {BODY_JSON}},
-    {"/v1/scenes/*/sessions/*/frames/#", {"GET"}, {api_frame_get}, {0}},
-    {"/v1/scenes/*/sessions/*/frames/#/metrics", {"GET"}, {api_frame_metrics}, {0}},
-    {"/v1/scenes/*/sessions/*/frames/#/error.png", {"GET"}, {api_frame_error_png}, {0}},
-    {"/v1/scenes/*/sessions/*/accumulation", {"GET"}, {api_accumulation_get}, {0}},
-    {"/v1/scenes/*/sessions/*/renders", {"POST"}, {api_renders_post}, {BODY_JSON}},
-    {"/v1/scenes/*/sessions/*/renders/*", {"GET", "DELETE"}, {api_render_get, api_render_delete}, {0}},
-    {"/v1/scenes/*/sessions/*/renders/*/metrics", {"GET"}, {api_render_metrics}, {0}},
-    {"/v1/scenes/*/sessions/*/references/*", {"POST"}, {api_session_reference_post}, {BODY_JSON}},
-    {"/v1/scenes/*/sessions/*/events", {"GET"}, {api_events_get}, {0}},
+    {"/healthz", {"GET"}, {api_healthz}, {0}, api_json_only},
+    {"/readyz", {"GET"}, {api_readyz}, {0}, api_json_only},
+    {"/metrics", {"GET"}, {api_metrics}, {0}, api_prometheus},
+    {"/v1/limits", {"GET"}, {api_limits}, {0}, api_json_only},
+    {"/v1/openapi.yaml", {"GET"}, {api_openapi}, {0}, api_yaml},
+    {"/v1/scenes", {"GET"}, {api_scenes_list}, {0}, api_json_only},
+    {"/v1/scenes/*", {"GET", "PUT", "DELETE"}, {api_scene_get, api_scene_put, api_scene_delete}, {0, BODY_JSON, 0},
+     api_json_only},
+    {"/v1/scenes/*/assets/@", {"PUT"}, {api_asset_put}, {BODY_ASSET}, api_json_only},
+    {"/v1/scenes/*/references/*", {"GET", "PUT"}, {api_reference_get, api_reference_put}, {0, BODY_REFERENCE}, NULL},
+    {"/v1/scenes/*/sessions", {"GET", "POST"}, {api_sessions_list, api_sessions_post}, {0, BODY_JSON}, api_json_only},
+    {"/v1/scenes/*/sessions/*", {"GET", "DELETE"}, {api_session_get, api_session_delete}, {0}, api_json_only},
+    {"/v1/scenes/*/sessions/*/reset", {"POST"}, {api_session_reset}, {BODY_JSON}, api_json_only},
+    {"/v1/scenes/*/sessions/*/frames", {"POST"}, {api_frames_post}, {BODY_JSON}, NULL},
+    {"/v1/scenes/*/sessions/*/frames/#", {"GET"}, {api_frame_get}, {0}, NULL},
+    {"/v1/scenes/*/sessions/*/frames/#/metrics", {"GET"}, {api_frame_metrics}, {0}, api_json_only},
+    {"/v1/scenes/*/sessions/*/frames/#/error.png", {"GET"}, {api_frame_error_png}, {0}, api_png_only},
+    {"/v1/scenes/*/sessions/*/accumulation", {"GET"}, {api_accumulation_get}, {0}, NULL},
+    {"/v1/scenes/*/sessions/*/renders", {"POST"}, {api_renders_post}, {BODY_JSON}, api_json_only},
+    {"/v1/scenes/*/sessions/*/renders/*", {"GET", "DELETE"}, {api_render_get, api_render_delete}, {0}, api_json_only},
+    {"/v1/scenes/*/sessions/*/renders/*/metrics", {"GET"}, {api_render_metrics}, {0}, NULL},
+    {"/v1/scenes/*/sessions/*/references/*", {"POST"}, {api_session_reference_post}, {BODY_JSON}, api_json_only},
+    {"/v1/scenes/*/sessions/*/events", {"GET"}, {api_events_get}, {0}, NULL},
 };
 #define API_ROUTE_COUNT (sizeof api_routes / sizeof api_routes[0])
 
@@ -748,6 +762,7 @@ void api_handle(void *ctx, const struct http_request *req, struct http_response 
             return;
         }
     }
+    if (r->produces && !api_negotiate(&c, r->produces)) return;
     if (atomic_load(&c.d->draining) && strcmp(req->method, "GET") != 0) {
         api_problem(&c, 503, "draining", NULL, "the daemon is shutting down");
         return;

@@ -38,6 +38,7 @@ struct http_conn {
     uint64_t bytes;
     bool responded;            /* a response was queued (possibly before the body was read) */
     int reject_status;         /* refused from the headers; the body is being discarded */
+    bool discard;              /* a body nobody asked for, being dropped */
     size_t reject_limit;
     char *body;
     size_t body_len, body_cap;
@@ -190,6 +191,12 @@ static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const ch
             h->app.reject(h->app.ctx, &req, &resp, 411, max_body);
             return http_send(h, c, hc, &resp);
         }
+        if (max_body == 0 && length > 0 && length <= HTTP_DISCARD_MAX) {
+            /* No body is expected here (or the path matches no route): read and drop it, and
+             * let the handler answer what it would answer without one (404, 405, ...). */
+            hc->discard = true;
+            return MHD_YES;
+        }
         if (length > max_body) {
             /* The verdict is made now, from the header. A client that asked "Expect:
              * 100-continue" gets it before sending anything; one that sends the body anyway
@@ -228,6 +235,10 @@ static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const ch
         h->app.reject(h->app.ctx, &req, &resp, hc->reject_status, hc->reject_limit);
         return http_send(h, c, hc, &resp);
     }
+    if (hc->discard && *upload_data_size > 0) {
+        *upload_data_size = 0;
+        return MHD_YES;
+    }
     if (*upload_data_size > 0) {
         size_t n = *upload_data_size;
         if (n > hc->body_cap - hc->body_len) n = hc->body_cap - hc->body_len;  /* MHD enforces the length */
@@ -257,6 +268,39 @@ static void http_completed(void *cls, struct MHD_Connection *c, void **con_cls, 
     free(hc->body);
     free(hc);
     *con_cls = NULL;
+}
+
+static int http_hex(char c)
+{
+    if (c >= '0' && c <= '9') return c - '0';
+    if (c >= 'a' && c <= 'f') return c - 'a' + 10;
+    if (c >= 'A' && c <= 'F') return c - 'A' + 10;
+    return -1;
+}
+
+/* Percent-decoding for paths and query arguments that leaves "%2F" (and "%00") encoded: an
+ * encoded slash inside a path segment must not become a segment separator (a scene id or asset
+ * name "a%2F..%2Fb" stays one segment, which then fails the id rules), and NUL must not cut a
+ * string short. MHD's default decoder turns both into raw bytes before we see the path. */
+static size_t http_unescape(void *cls, struct MHD_Connection *c, char *s)
+{
+    (void)cls;
+    (void)c;
+    char *r = s, *w = s;
+    while (*r) {
+        int hi, lo;
+        if (r[0] == '%' && (hi = http_hex(r[1])) >= 0 && (lo = http_hex(r[2])) >= 0) {
+            int v = hi * 16 + lo;
+            if (v != '/' && v != 0) {
+                *w++ = (char)v;
+                r += 3;
+                continue;
+            }
+        }
+        *w++ = *r++;
+    }
+    *w = '\0';
+    return (size_t)(w - s);
 }
 
 static void http_mhd_log(void *cls, const char *fmt, va_list ap)
@@ -297,6 +341,7 @@ struct http *http_start(const struct http_options *opts, const struct http_app *
                               MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)opts->timeout_s,
                               MHD_OPTION_CONNECTION_MEMORY_LIMIT, (size_t)(64 * 1024),
                               MHD_OPTION_NOTIFY_COMPLETED, http_completed, h,
+                              MHD_OPTION_UNESCAPE_CALLBACK, http_unescape, NULL,
                               MHD_OPTION_END);
     if (!h->mhd) {
         free(h);
