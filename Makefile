@@ -117,6 +117,6 @@ bench: $(OUT)/restir $(OUT)/restird $(OBJ)/librenderer.a
 	$(PYTHON) bench/server_bench.py | tee $(BUILD)/bench/server.json
 
 clean:
-	rm -rf $(BUILD) .pytest_cache tests/__pycache__
+	rm -rf $(BUILD) .pytest_cache tests/__pycache__ clients/python/__pycache__ bench/__pycache__
 
 -include $(RENDERER_OBJ:.o=.d) $(PROTOCOL_OBJ:.o=.d) $(SERVER_OBJ:.o=.d) $(OBJ)/server/cli.d $(OBJ)/server/main.d $(UNIT_SRC:tests/unit/%.c=$(OBJ)/tests/unit/%.d)

@@ -226,6 +226,41 @@ char *jsonw_finish(struct jsonw *w, size_t *len)
     return text;
 }
 
+void protocol_problem_members(struct jsonw *w, const struct protocol_problem *p)
+{
+    /* RFC 9457 §4.2.1: "about:blank" is the type of a problem with no more specific one. */
+    jsonw_key(w, "type");
+    if (p->slug && p->slug[0]) {
+        char type[96];
+        snprintf(type, sizeof type, "urn:restird:problem:%s", p->slug);
+        jsonw_string(w, type);
+    } else {
+        jsonw_string(w, "about:blank");
+    }
+    if (p->title) {
+        jsonw_key(w, "title");
+        jsonw_string(w, p->title);
+    }
+    jsonw_key(w, "status");
+    jsonw_int(w, p->status);
+    if (p->detail) {
+        jsonw_key(w, "detail");
+        jsonw_string(w, p->detail);
+    }
+    if (p->instance) {
+        jsonw_key(w, "instance");
+        jsonw_string(w, p->instance);
+    }
+    if (p->field) {
+        jsonw_key(w, "field");
+        jsonw_string(w, p->field);
+    }
+    if (p->has_limit) {
+        jsonw_key(w, "limit");
+        jsonw_double(w, p->limit);
+    }
+}
+
 char *protocol_problem_json(const struct protocol_problem *p, size_t *len)
 {
     if (len) *len = 0;
@@ -233,44 +268,42 @@ char *protocol_problem_json(const struct protocol_problem *p, size_t *len)
     struct jsonw w;
     jsonw_init(&w);
     jsonw_object_begin(&w);
-    /* RFC 9457 §4.2.1: "about:blank" is the type of a problem with no more specific one. */
-    jsonw_key(&w, "type");
-    if (p->slug && p->slug[0]) {
-        static const char prefix[] = "urn:restird:problem:";
-        size_t n = sizeof prefix - 1 + strlen(p->slug) + 1;
-        char *type = malloc(n);
-        if (!type) {
-            jsonw_destroy(&w);
-            return NULL;
-        }
-        snprintf(type, n, "%s%s", prefix, p->slug);
-        jsonw_string(&w, type);
-        free(type);
-    } else {
-        jsonw_string(&w, "about:blank");
-    }
-    if (p->title) {
-        jsonw_key(&w, "title");
-        jsonw_string(&w, p->title);
-    }
-    jsonw_key(&w, "status");
-    jsonw_int(&w, p->status);
-    if (p->detail) {
-        jsonw_key(&w, "detail");
-        jsonw_string(&w, p->detail);
-    }
-    if (p->instance) {
-        jsonw_key(&w, "instance");
-        jsonw_string(&w, p->instance);
-    }
-    if (p->field) {
-        jsonw_key(&w, "field");
-        jsonw_string(&w, p->field);
-    }
-    if (p->has_limit) {
-        jsonw_key(&w, "limit");
-        jsonw_double(&w, p->limit);
-    }
+    protocol_problem_members(&w, p);
     jsonw_object_end(&w);
     return jsonw_finish(&w, len);
+}
+
+/* The fixed title of each problem type (protocol/API.md lists them). */
+static const struct { const char *slug, *title; } protocol_titles[] = {
+    {"malformed-json", "Malformed JSON"},
+    {"bad-query", "Bad query parameter"},
+    {"bad-id", "Bad identifier"},
+    {"bad-header", "Bad header"},
+    {"not-found", "Not found"},
+    {"scene-not-loaded", "Scene not loaded on this daemon"},
+    {"method-not-allowed", "Method not allowed"},
+    {"not-acceptable", "Not acceptable"},
+    {"conflict", "Conflict"},
+    {"frame-evicted", "Frame no longer kept"},
+    {"length-required", "Length required"},
+    {"body-too-large", "Body too large"},
+    {"unsupported-media-type", "Unsupported media type"},
+    {"invalid-field", "Invalid field"},
+    {"limit-exceeded", "Limit exceeded"},
+    {"invalid-scene", "Invalid scene"},
+    {"invalid-asset", "Invalid asset"},
+    {"invalid-reference", "Invalid reference image"},
+    {"reference-mismatch", "Reference does not match"},
+    {"too-many-sessions", "Too many sessions"},
+    {"queue-full", "Queue full"},
+    {"busy", "Busy"},
+    {"draining", "Shutting down"},
+    {"internal", "Internal error"},
+};
+
+const char *protocol_problem_title(const char *slug)
+{
+    for (size_t i = 0; i < sizeof protocol_titles / sizeof protocol_titles[0]; i++)
+        if (strcmp(protocol_titles[i].slug, slug) == 0) return protocol_titles[i].title;
+    return slug;
 }

@@ -187,5 +187,10 @@ struct protocol_problem {
     double limit;
 };
 char *protocol_problem_json(const struct protocol_problem *p, size_t *len);
+/* The title of a problem type ("invalid-field" -> "Invalid field"); the slug when unknown. */
+const char *protocol_problem_title(const char *slug);
+/* Writes the problem's members into an object the caller opened (and closes, after adding
+ * members of its own such as "job"): job errors and error events are problems too. */
+void protocol_problem_members(struct jsonw *w, const struct protocol_problem *p);
 
 #endif

@@ -21,41 +21,13 @@ extern const char _binary_protocol_openapi_yaml_end[];
 
 /* ---- problems ---- */
 
-static const struct { const char *slug, *title; } api_titles[] = {
-    {"malformed-json", "Malformed JSON"},
-    {"bad-query", "Bad query parameter"},
-    {"bad-id", "Bad identifier"},
-    {"bad-header", "Bad header"},
-    {"not-found", "Not found"},
-    {"scene-not-loaded", "Scene not loaded on this daemon"},
-    {"method-not-allowed", "Method not allowed"},
-    {"not-acceptable", "Not acceptable"},
-    {"conflict", "Conflict"},
-    {"frame-evicted", "Frame no longer kept"},
-    {"length-required", "Length required"},
-    {"body-too-large", "Body too large"},
-    {"unsupported-media-type", "Unsupported media type"},
-    {"invalid-field", "Invalid field"},
-    {"limit-exceeded", "Limit exceeded"},
-    {"invalid-scene", "Invalid scene"},
-    {"invalid-asset", "Invalid asset"},
-    {"invalid-reference", "Invalid reference image"},
-    {"reference-mismatch", "Reference does not match"},
-    {"too-many-sessions", "Too many sessions"},
-    {"queue-full", "Queue full"},
-    {"busy", "Busy"},
-    {"draining", "Shutting down"},
-    {"internal", "Internal error"},
-};
 
 static void api_problem_v(struct api_call *c, int status, const char *slug, const char *field, bool has_limit,
                           double limit, const char *fmt, va_list ap)
 {
     char detail[768];
     vsnprintf(detail, sizeof detail, fmt, ap);
-    const char *title = slug;
-    for (size_t i = 0; i < sizeof api_titles / sizeof api_titles[0]; i++)
-        if (strcmp(api_titles[i].slug, slug) == 0) title = api_titles[i].title;
+    const char *title = protocol_problem_title(slug);
     struct protocol_problem p = {.status = status, .slug = slug, .title = title, .detail = detail,
                                  .instance = c->req->path, .field = field,
                                  .has_limit = has_limit, .limit = limit};

@@ -617,13 +617,13 @@ static void api_write_job(struct jsonw *w, struct session *s, const struct job *
     }
     jsonw_key(w, "error");
     if (j->status == JOB_FAILED) {
+        char instance[256];
+        snprintf(instance, sizeof instance, "%s/renders/%s", base, j->id);
+        const struct protocol_problem p = {.status = j->error_status, .slug = j->error_slug,
+                                           .title = protocol_problem_title(j->error_slug),
+                                           .detail = j->error.message, .instance = instance};
         jsonw_object_begin(w);
-        jsonw_key(w, "type");
-        char type[64];
-        snprintf(type, sizeof type, "urn:restird:problem:%s", j->error_slug);
-        jsonw_string(w, type);
-        jsonw_key(w, "status"); jsonw_int(w, j->error_status);
-        jsonw_key(w, "detail"); jsonw_string(w, j->error.message);
+        protocol_problem_members(w, &p);
         jsonw_object_end(w);
     } else {
         jsonw_null(w);

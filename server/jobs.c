@@ -49,10 +49,13 @@ static void jobs_post(struct job *j, const char *type)
         jsonw_key(&w, "status");
         jsonw_string(&w, jobs_status_name(j->status));
     } else {
-        jsonw_key(&w, "detail");
-        jsonw_string(&w, j->error.message);
-        jsonw_key(&w, "status");
-        jsonw_int(&w, j->error_status);
+        char instance[256];
+        snprintf(instance, sizeof instance, "/v1/scenes/%s/sessions/%s/renders/%s", j->session->scene_id,
+                 j->session->id, j->id);
+        const struct protocol_problem p = {.status = j->error_status, .slug = j->error_slug,
+                                           .title = protocol_problem_title(j->error_slug),
+                                           .detail = j->error.message, .instance = instance};
+        protocol_problem_members(&w, &p);
     }
     jsonw_object_end(&w);
     char *text = jsonw_finish(&w, NULL);

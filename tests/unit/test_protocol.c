@@ -738,7 +738,7 @@ static void test_problem_json(void)
     }
     free(text);
 
-    /* No field ("" = the whole body) and no limit: both members are left out. */
+    /* field "" is the pointer to the whole body and is written; no limit, no "limit". */
     const struct protocol_problem q = {
         .status = 400, .slug = "malformed-json", .title = "Malformed JSON",
         .detail = "JSON syntax error at byte 1", .instance = "/v1/x", .field = "",
@@ -747,10 +747,26 @@ static void test_problem_json(void)
     CHECK(text != NULL);
     if (!text) return;
     root = cJSON_ParseWithLength(text, len);
+    CHECK(cJSON_IsObject(root) && cJSON_GetArraySize(root) == 6);
+    const cJSON *fv = cJSON_GetObjectItemCaseSensitive(root, "field");
+    CHECK(cJSON_IsString(fv) && strcmp(fv->valuestring, "") == 0);
+    CHECK(!cJSON_GetObjectItemCaseSensitive(root, "limit"));
+    cJSON_Delete(root);
+    free(text);
+
+    /* field NULL: no "field" member at all (the problem is not about one member). */
+    const struct protocol_problem nf = {
+        .status = 404, .slug = "not-found", .title = "Not found", .detail = "no such session",
+        .instance = "/v1/x", .field = NULL,
+    };
+    text = protocol_problem_json(&nf, &len);
+    CHECK(text != NULL);
+    if (!text) return;
+    root = cJSON_ParseWithLength(text, len);
     CHECK(cJSON_IsObject(root) && cJSON_GetArraySize(root) == 5);
     CHECK(!cJSON_GetObjectItemCaseSensitive(root, "field") && !cJSON_GetObjectItemCaseSensitive(root, "limit"));
     const cJSON *st = cJSON_GetObjectItemCaseSensitive(root, "status");
-    CHECK(cJSON_IsNumber(st) && st->valuedouble == 400.0);
+    CHECK(cJSON_IsNumber(st) && st->valuedouble == 404.0);
     cJSON_Delete(root);
     free(text);
 
