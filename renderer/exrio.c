@@ -15,6 +15,14 @@
 #include <string.h>
 #include <sys/stat.h>
 #include <unistd.h>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+/* F16C code is compiled for that target alone and only called after a run-time check. */
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#include <immintrin.h>
+#define EXRIO_HAVE_F16C 1
+#endif
 
 #include "deflate.h"
 
@@ -254,15 +262,211 @@ static exr_compression_t exrio_to_lib_compression(enum exrio_compression c)
     }
 }
 
-/* zlib level of ZIP/ZIPS chunks: fast enough for interactive frames, files within a few
- * per cent of level 6 on noisy renders. */
-#define EXRIO_ZIP_LEVEL 1
+/* ---- float -> half ------------------------------------------------------------------------
+ * Every HALF value is converted here (our pack step, exrio_pack), bit for bit as
+ * libOpenEXRCore 3.1's own float_to_half (internal_coding.h) does it: round to nearest even,
+ * finite magnitudes from 65520 up become Inf, values below 2^-25 become a signed zero, NaN
+ * keeps the top 10 bits of its payload (at least one bit set, so it stays NaN).
+ * Two implementations, chosen once per encode: F16C's vcvtps2ph (8 values per instruction),
+ * used when the CPU and OS support it, with NaN lanes redone by the portable routine (vcvtps2ph
+ * also sets the quiet bit of a signalling NaN, OpenEXR does not), and a portable branch-free
+ * integer routine. Setting RESTIRD_EXR_HALF=portable in the environment forces the latter
+ * (tests compare both). */
 
-struct exrio_zip {
-    struct deflate *deflate;
-    unsigned char *scratch;                   /* reordered + predicted chunk */
+static inline uint16_t exrio_float_to_half(uint32_t x)
+{
+    uint32_t sign = (x >> 16) & 0x8000u, a = x & 0x7fffffffu;
+    /* normal half: drop 13 mantissa bits, rounding to nearest even */
+    uint32_t nrm = a - 0x38000000u;
+    nrm = (nrm + 0x0fffu + ((nrm >> 13) & 1u)) >> 13;
+    /* subnormal half (2^-25 < a < 2^-14): the 24-bit significand shifted right by 14..24 */
+    uint32_t e = a >> 23, sh = e < 102u ? 24u : e > 112u ? 14u : 126u - e;
+    uint32_t sig = 0x800000u | (a & 0x7fffffu), sub = sig >> sh;
+    uint32_t rem = sig & ((1u << sh) - 1u), halfway = 1u << (sh - 1u);
+    sub += (rem > halfway) | ((rem == halfway) & sub);
+    /* NaN: top payload bits, never all zero */
+    uint32_t pay = (a & 0x7fffffu) >> 13;
+    uint32_t nan = 0x7c00u | pay | (pay == 0u);
+    uint32_t r = a > 0x7f800000u   ? nan
+                 : a > 0x477fefffu ? 0x7c00u
+                 : a >= 0x38800000u ? nrm
+                 : a >= 0x33000001u ? sub
+                                    : 0u;
+    return (uint16_t)(sign | r);
+}
+
+static inline void exrio_put16(unsigned char *p, uint16_t v)
+{
+    p[0] = (unsigned char)v;
+    p[1] = (unsigned char)(v >> 8);
+}
+
+static inline uint32_t exrio_load_bits(const unsigned char *p)
+{
+    uint32_t u;
+    memcpy(&u, p, sizeof u);
+    return u;
+}
+
+static inline float exrio_load_float(const unsigned char *p)
+{
+    float f;
+    memcpy(&f, p, sizeof f);
+    return f;
+}
+
+/* n floats from src (byte stride `stride`, 0 = one repeated value) to little-endian halves. */
+typedef void exrio_halves_fn(const unsigned char *src, int32_t stride, int32_t n,
+                             unsigned char *dst);
+
+static void exrio_halves_portable(const unsigned char *src, int32_t stride, int32_t n,
+                                  unsigned char *dst)
+{
+    for (int32_t x = 0; x < n; x++)
+        exrio_put16(dst + 2 * (size_t)x, exrio_float_to_half(exrio_load_bits(src + (ptrdiff_t)x * stride)));
+}
+
+#ifdef EXRIO_HAVE_F16C
+__attribute__((target("avx,f16c"))) static void exrio_halves_f16c(const unsigned char *src,
+                                                                  int32_t stride, int32_t n,
+                                                                  unsigned char *dst)
+{
+    int32_t x = 0;
+    for (; x + 8 <= n; x += 8) {
+        const unsigned char *p = src + (ptrdiff_t)x * stride;
+        __m256 v;
+        if (stride == 4) {
+            v = _mm256_loadu_ps((const float *)(const void *)p);
+        } else {  /* eight scalar loads into lanes (an array + vector load would stall) */
+            ptrdiff_t s = stride;
+            v = _mm256_setr_ps(exrio_load_float(p), exrio_load_float(p + s), exrio_load_float(p + 2 * s),
+                               exrio_load_float(p + 3 * s), exrio_load_float(p + 4 * s),
+                               exrio_load_float(p + 5 * s), exrio_load_float(p + 6 * s),
+                               exrio_load_float(p + 7 * s));
+        }
+        __m128i h = _mm256_cvtps_ph(v, _MM_FROUND_TO_NEAREST_INT);
+        _mm_storeu_si128((__m128i *)(void *)(dst + 2 * (size_t)x), h);
+        if (_mm256_movemask_ps(_mm256_cmp_ps(v, v, _CMP_UNORD_Q)))
+            exrio_halves_portable(p, stride, 8, dst + 2 * (size_t)x);
+    }
+    if (x < n) exrio_halves_portable(src + (ptrdiff_t)x * stride, stride, n - x, dst + 2 * (size_t)x);
+}
+#endif
+
+static exrio_halves_fn *exrio_pick_halves(void)
+{
+    const char *force = getenv("RESTIRD_EXR_HALF");
+    if (force && strcmp(force, "portable") == 0) return exrio_halves_portable;
+#ifdef EXRIO_HAVE_F16C
+    /* libgcc fills the CPU model in a constructor, so no __builtin_cpu_init (not thread-safe). */
+    if (__builtin_cpu_supports("avx") && __builtin_cpu_supports("f16c")) return exrio_halves_f16c;
+#endif
+    return exrio_halves_portable;
+}
+
+/* What exrio_encode hands the pipeline's hooks (encoding_user_data). */
+struct exrio_hooks {
+    exrio_halves_fn *halves;
+    /* ZIP, ZIPS only (exrio_zip_compress): */
+    struct deflate *rle;       /* run-length compressor, made on first use */
+    struct deflate *level1;    /* libdeflate level 1, made on first use */
+    unsigned char *scratch;    /* the reordered and predicted chunk */
     size_t scratch_size;
+    unsigned char *alt;        /* level 1's output when both are tried */
+    size_t alt_size;
+    bool smooth;               /* level 1 won the last HALF chunk: try it first */
 };
+
+/* Our convert_and_pack_fn, replacing the library's generic packer (4x more instructions for
+ * HALF): per scanline of the chunk, each channel's `width` values in channel-list order,
+ * little-endian. Sources are always FLOAT (exrio_encode sets user_data_type). */
+static exr_result_t exrio_pack(exr_encode_pipeline_t *enc)
+{
+    const struct exrio_hooks *hooks = enc->encoding_user_data;
+    uint64_t want = 0;
+    for (int c = 0; c < enc->channel_count; c++) {
+        const exr_coding_channel_info_t *ch = &enc->channels[c];
+        if (ch->user_data_type != EXR_PIXEL_FLOAT || ch->height != enc->chunk.height ||
+            ch->width < 0 || (ch->data_type != EXR_PIXEL_HALF && ch->data_type != EXR_PIXEL_FLOAT))
+            return EXR_ERR_INVALID_ARGUMENT;
+        want += (uint64_t)ch->height * (uint64_t)ch->width * (uint64_t)ch->bytes_per_element;
+    }
+    if (want > enc->packed_alloc_size) return EXR_ERR_INVALID_ARGUMENT;
+    unsigned char *out = enc->packed_buffer;
+    for (int32_t y = 0; y < enc->chunk.height; y++) {
+        for (int c = 0; c < enc->channel_count; c++) {
+            const exr_coding_channel_info_t *ch = &enc->channels[c];
+            const unsigned char *src = (const unsigned char *)ch->encode_from_ptr +
+                                       (ptrdiff_t)y * ch->user_line_stride;
+            int32_t w = ch->width, stride = ch->user_pixel_stride;
+            if (ch->data_type == EXR_PIXEL_HALF) {
+                if (stride == 0) {  /* a constant channel (A): one value, then doubling copies */
+                    size_t row = 2 * (size_t)w, done = 2;
+                    if (w > 0) exrio_put16(out, exrio_float_to_half(exrio_load_bits(src)));
+                    for (; done < row; done *= 2)
+                        memcpy(out + done, out, done < row - done ? done : row - done);
+                } else {
+                    hooks->halves(src, stride, w, out);
+                }
+                out += 2 * (size_t)w;
+            } else {
+                for (int32_t x = 0; x < w; x++, out += 4) {
+                    uint32_t u = exrio_load_bits(src + (ptrdiff_t)x * stride);
+                    out[0] = (unsigned char)u;
+                    out[1] = (unsigned char)(u >> 8);
+                    out[2] = (unsigned char)(u >> 16);
+                    out[3] = (unsigned char)(u >> 24);
+                }
+            }
+        }
+    }
+    enc->packed_bytes = want;
+    return EXR_ERR_SUCCESS;
+}
+
+/* ---- ZIP / ZIPS ---------------------------------------------------------------------------- */
+
+/* The file format's transform before deflate, in one pass: t[0..half) gets the bytes of `in`
+ * at even offsets, t[half..n) those at odd offsets, and every byte after the first becomes its
+ * difference to the byte before it in t, plus 128 (mod 256). For HALF channels the low bytes
+ * (mantissa noise) and the high bytes (sign, exponent: mostly constant) land in different
+ * halves, which exrio_zip_compress deflates as separate blocks. */
+static void exrio_zip_predict(const unsigned char *in, size_t n, unsigned char *t)
+{
+    if (n == 0) return;
+    size_t half = (n + 1) / 2, pairs = n / 2, i = 0;
+    unsigned char *lo = t, *hi = t + half;
+    unsigned plo = 128u, phi = in[2 * (half - 1)];  /* t[0] stays as it is */
+#if defined(__SSE2__)
+    const __m128i even = _mm_set1_epi16(0x00ff), bias = _mm_set1_epi8((char)0x80);
+    __m128i last_lo = _mm_set1_epi8((char)plo), last_hi = _mm_set1_epi8((char)phi);
+    for (; i + 16 <= pairs; i += 16) {
+        __m128i a = _mm_loadu_si128((const __m128i *)(const void *)(in + 2 * i));
+        __m128i b = _mm_loadu_si128((const __m128i *)(const void *)(in + 2 * i + 16));
+        __m128i l = _mm_packus_epi16(_mm_and_si128(a, even), _mm_and_si128(b, even));
+        __m128i h = _mm_packus_epi16(_mm_srli_epi16(a, 8), _mm_srli_epi16(b, 8));
+        /* each byte's predecessor: this vector moved up one byte, last vector's top byte in */
+        __m128i pl = _mm_or_si128(_mm_slli_si128(l, 1), _mm_srli_si128(last_lo, 15));
+        __m128i ph = _mm_or_si128(_mm_slli_si128(h, 1), _mm_srli_si128(last_hi, 15));
+        _mm_storeu_si128((__m128i *)(void *)(lo + i), _mm_add_epi8(_mm_sub_epi8(l, pl), bias));
+        _mm_storeu_si128((__m128i *)(void *)(hi + i), _mm_add_epi8(_mm_sub_epi8(h, ph), bias));
+        last_lo = l;
+        last_hi = h;
+    }
+    if (i) {
+        plo = in[2 * i - 2];
+        phi = in[2 * i - 1];
+    }
+#endif
+    for (; i < pairs; i++) {
+        unsigned l = in[2 * i], h = in[2 * i + 1];
+        lo[i] = (unsigned char)(l - plo + 128u);
+        hi[i] = (unsigned char)(h - phi + 128u);
+        plo = l;
+        phi = h;
+    }
+    if (n & 1) lo[half - 1] = (unsigned char)(in[n - 1] - plo + 128u);
+}
 
 /* The encode pipeline's buffers come from these, so exrio_zip_compress may replace the
  * compressed buffer with malloc and know the pipeline frees it with free (the context's
@@ -278,20 +482,66 @@ static void exrio_pipeline_free(exr_transcoding_pipeline_buffer_id_t id, void *p
     free(p);
 }
 
-/* ZIP and ZIPS chunks compressed by libdeflate (through deflate.h) instead of the library's
- * zlib: the same zlib stream format (any reader inflates it), about twice as fast at level 1,
- * which is most of a frame's encode time. The transform before deflate is the file format's: bytes split into
- * even- and odd-indexed halves, then each byte replaced by its difference to the previous one
- * plus 128 (modulo 256). A chunk that does not shrink is stored raw, as the format requires.
- * That rule also avoids a bug of libOpenEXRCore 3.1.5's own ZIP encoder (upstream openexr
- * issue 2306): it stored zlib bytes exactly as long as the raw chunk, which every reader then
- * decodes as raw (tests/unit/test_exrio.c: test_zip_output_equal_to_raw_size). */
+/* ZIP and ZIPS chunks: the format's transform (exrio_zip_predict), then deflate by
+ * deflate.c instead of the library's zlib; either way a standard zlib stream that every reader
+ * inflates. Which compressor (measured in docs/benchmarks.md):
+ * - A chunk of HALF channels only goes to our run-length encoder (deflate_new_rle), with a
+ *   block boundary between the low-byte and high-byte halves: on noisy renders 3x faster than
+ *   libdeflate's level 1 and 2-10% smaller.
+ * - If that output is under 1/EXRIO_ZIP_RETRY of the chunk, the chunk is smooth (few noise
+ *   bits), where string matching finds what runs do not (a noise-free gradient: 2.2x smaller
+ *   with level 1); level 1 is then tried too and the smaller stream kept. Noisy chunks
+ *   (renders at any spp we measured: 26-46%) never pay for the second try. Once level 1 has
+ *   won, the next chunks try level 1 first and keep it while it stays under that ratio
+ *   (smooth images are usually smooth throughout), so they pay for one encoder, not two.
+ * - A chunk with a FLOAT channel goes to level 1: there the run-length encoder's output is
+ *   ~15% larger, because the four bytes of a float interleave in each half.
+ * A chunk that does not shrink is stored raw, as the format requires. That rule also avoids a
+ * bug of libOpenEXRCore 3.1.5's own ZIP encoder (upstream openexr issue 2306): it stored zlib
+ * bytes exactly as long as the raw chunk, which every reader then decodes as raw
+ * (tests/unit/test_exrio.c: test_zip_output_equal_to_raw_size). */
+#define EXRIO_ZIP_RETRY 5
+
+/* The hook's compressor of that kind, made on first use; NULL when out of memory. */
+static struct deflate *exrio_deflater(struct exrio_hooks *hooks, bool rle)
+{
+    struct deflate **slot = rle ? &hooks->rle : &hooks->level1;
+    if (!*slot) *slot = rle ? deflate_new_rle(NULL) : deflate_new(1, NULL);
+    return *slot;
+}
+
+/* Makes *buf hold at least `need` bytes (contents not kept). */
+static bool exrio_reserve(unsigned char **buf, size_t *size, size_t need)
+{
+    if (*size >= need) return true;
+    free(*buf);
+    *buf = malloc(need);
+    *size = *buf ? need : 0;
+    return *buf != NULL;
+}
+
+/* Level 1 of the predicted chunk (hooks->scratch, n bytes) into hooks->alt; *size gets the
+ * stream size (0: did not fit). False when out of memory. */
+static bool exrio_level1_alt(struct exrio_hooks *hooks, size_t n, size_t *size)
+{
+    struct deflate *l1 = exrio_deflater(hooks, false);
+    if (!l1 || !exrio_reserve(&hooks->alt, &hooks->alt_size, deflate_zlib_bound(l1, n)))
+        return false;
+    *size = deflate_zlib(l1, hooks->scratch, n, hooks->alt, hooks->alt_size);
+    return true;
+}
+
 static exr_result_t exrio_zip_compress(exr_encode_pipeline_t *enc)
 {
-    struct exrio_zip *hook = enc->encoding_user_data;
+    struct exrio_hooks *hooks = enc->encoding_user_data;
     size_t n = enc->packed_bytes;
     const unsigned char *in = enc->packed_buffer;
-    size_t bound = deflate_zlib_bound(hook->deflate, n);
+    bool all_half = true;
+    for (int c = 0; c < enc->channel_count; c++)
+        all_half &= enc->channels[c].data_type == EXR_PIXEL_HALF;
+    struct deflate *d = exrio_deflater(hooks, all_half);
+    if (!d) return EXR_ERR_OUT_OF_MEMORY;
+    size_t bound = deflate_zlib_bound(d, n);
     size_t need = bound > n ? bound : n;
     if (enc->compressed_alloc_size < need) {
         /* A buffer of size 0 may alias packed_buffer: never ours to free. */
@@ -300,23 +550,33 @@ static exr_result_t exrio_zip_compress(exr_encode_pipeline_t *enc)
         enc->compressed_alloc_size = enc->compressed_buffer ? need : 0;
         if (!enc->compressed_buffer) return EXR_ERR_OUT_OF_MEMORY;
     }
-    if (hook->scratch_size < n) {
-        unsigned char *p = realloc(hook->scratch, n);
-        if (!p) return EXR_ERR_OUT_OF_MEMORY;
-        hook->scratch = p;
-        hook->scratch_size = n;
+    if (!exrio_reserve(&hooks->scratch, &hooks->scratch_size, n)) return EXR_ERR_OUT_OF_MEMORY;
+    exrio_zip_predict(in, n, hooks->scratch);
+    size_t got = 0, alt = 0;  /* alt: level 1's size in hooks->alt once tried */
+    bool tried = false;
+    if (all_half && hooks->smooth) {
+        if (!exrio_level1_alt(hooks, n, &alt)) return EXR_ERR_OUT_OF_MEMORY;
+        tried = true;
+        if (alt > 0 && alt < n / EXRIO_ZIP_RETRY) {
+            memcpy(enc->compressed_buffer, hooks->alt, alt);
+            got = alt;
+        } else {
+            hooks->smooth = false;
+        }
     }
-    unsigned char *t = hook->scratch;
-    size_t half = (n + 1) / 2;
-    for (size_t i = 0; i < half; i++) t[i] = in[2 * i];
-    for (size_t i = 0; i < n / 2; i++) t[half + i] = in[2 * i + 1];
-    unsigned prev = n ? t[0] : 0;
-    for (size_t i = 1; i < n; i++) {
-        unsigned cur = t[i];
-        t[i] = (unsigned char)(cur - prev + 128u);
-        prev = cur;
+    if (got == 0) {
+        size_t cut = (n + 1) / 2;
+        got = deflate_zlib_blocks(d, hooks->scratch, n, &cut, 1, enc->compressed_buffer,
+                                  enc->compressed_alloc_size);
+        if (all_half && got > 0 && got < n / EXRIO_ZIP_RETRY) {
+            if (!tried && !exrio_level1_alt(hooks, n, &alt)) return EXR_ERR_OUT_OF_MEMORY;
+            if (alt > 0 && alt < got) {
+                memcpy(enc->compressed_buffer, hooks->alt, alt);
+                got = alt;
+                hooks->smooth = true;
+            }
+        }
     }
-    size_t got = deflate_zlib(hook->deflate, t, n, enc->compressed_buffer, enc->compressed_alloc_size);
     if (got == 0 || got >= n) {
         memcpy(enc->compressed_buffer, in, n);
         got = n;
@@ -341,9 +601,6 @@ static bool exrio_encode(exr_context_t ctxt, const struct image *img,
     for (int c = 0; rv == EXR_ERR_SUCCESS && c < nsrc; c++)
         rv = exr_add_channel(ctxt, part, srcs[c].name, srcs[c].type, EXR_PERCEPTUALLY_LOGARITHMIC,
                              1, 1);
-    if (rv == EXR_ERR_SUCCESS &&
-        (opts->compression == EXRIO_ZIP || opts->compression == EXRIO_ZIPS))
-        rv = exr_set_zip_compression_level(ctxt, part, EXRIO_ZIP_LEVEL);
     if (rv == EXR_ERR_SUCCESS) rv = exr_write_header(ctxt);
     if (rv != EXR_ERR_SUCCESS) return exrio_lib_fail(err, ERR_INTERNAL, where, rv, "EXR header");
 
@@ -353,10 +610,8 @@ static bool exrio_encode(exr_context_t ctxt, const struct image *img,
         return exrio_lib_fail(err, ERR_INTERNAL, where, rv, "EXR chunk layout");
 
     exr_encode_pipeline_t enc = EXR_ENCODE_PIPELINE_INITIALIZER;
-    struct exrio_zip hook = {NULL, NULL, 0};
+    struct exrio_hooks hooks = {exrio_pick_halves(), NULL, NULL, NULL, 0, NULL, 0, false};
     bool zip = opts->compression == EXRIO_ZIP || opts->compression == EXRIO_ZIPS;
-    if (zip && !(hook.deflate = deflate_new(EXRIO_ZIP_LEVEL, NULL)))
-        return err_set(err, ERR_NOMEM, where, "out of memory for the ZIP compressor");
     bool started = false, ok = true;
     for (int32_t y = 0; ok && y < (int32_t)img->height; y += lines) {
         exr_chunk_info_t ci;
@@ -390,17 +645,18 @@ static bool exrio_encode(exr_context_t ctxt, const struct image *img,
             started = true;
             enc.alloc_fn = exrio_pipeline_alloc;
             enc.free_fn = exrio_pipeline_free;
-            if (rv == EXR_ERR_SUCCESS && zip) {
-                enc.compress_fn = exrio_zip_compress;
-                enc.encoding_user_data = &hook;
-            }
+            enc.encoding_user_data = &hooks;
+            enc.convert_and_pack_fn = exrio_pack;
+            if (zip) enc.compress_fn = exrio_zip_compress;
         }
         if (rv == EXR_ERR_SUCCESS) rv = exr_encoding_run(ctxt, part, &enc);
         if (rv != EXR_ERR_SUCCESS) ok = exrio_lib_fail(err, ERR_INTERNAL, where, rv, "EXR encode");
     }
     if (started) exr_encoding_destroy(ctxt, &enc);
-    deflate_free(hook.deflate);
-    free(hook.scratch);
+    deflate_free(hooks.rle);
+    deflate_free(hooks.level1);
+    free(hooks.scratch);
+    free(hooks.alt);
     return ok;
 }
 
@@ -421,7 +677,6 @@ bool exrio_write_mem(const struct image *img, const struct exrio_write_opts *opt
     init.error_handler_fn = exrio_lib_error;
     init.user_data = &sink;
     init.write_fn = exrio_sink_write;
-    init.zip_level = EXRIO_ZIP_LEVEL;
     exr_context_t ctxt = NULL;
     exr_result_t rv = exr_start_write(&ctxt, where, EXR_WRITE_FILE_DIRECTLY, &init);
     if (rv != EXR_ERR_SUCCESS) {

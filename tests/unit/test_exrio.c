@@ -10,8 +10,12 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "deflate.h"
 #include "exrio.h"
 #include "test.h"
+#if defined(__SSE2__)
+#include <xmmintrin.h>
+#endif
 
 /* ---- helpers ----------------------------------------------------------------------------- */
 
@@ -525,6 +529,250 @@ static void test_zip_output_equal_to_raw_size(void)
     image_destroy(&img);
 }
 
+/* ---- float -> half exactness and the ZIP path ----------------------------------------------
+ * exrio converts HALF itself (F16C when the CPU has it, else a portable routine; the
+ * environment variable RESTIRD_EXR_HALF=portable forces the latter) and must give exactly
+ * libOpenEXRCore's float_to_half: round to nearest even, >= 65520 -> Inf, NaN keeps its top 10
+ * payload bits (at least one set, no quiet bit added). The reference below computes the same
+ * thing a different way, in double arithmetic. */
+
+static uint16_t ref_half(uint32_t bits)
+{
+    uint16_t sign = (uint16_t)((bits >> 16) & 0x8000u);
+    uint32_t a = bits & 0x7fffffffu;
+    if (a > 0x7f800000u) {
+        uint32_t pay = (a & 0x7fffffu) >> 13;
+        return (uint16_t)(sign | 0x7c00u | (pay ? pay : 1u));
+    }
+    float f;
+    memcpy(&f, &a, sizeof f);
+    double v = f;
+    if (v >= 65520.0) return (uint16_t)(sign | 0x7c00u); /* Inf included */
+    if (v < 0x1p-14) return (uint16_t)(sign | (uint16_t)nearbyint(v * 0x1p24)); /* 1024 = 0x400 */
+    int e;
+    double m = nearbyint(frexp(v, &e) * 2048.0); /* 11 significant bits, [1024, 2048] */
+    if (m == 2048.0) {
+        m = 1024.0;
+        e++;
+    }
+    return (uint16_t)(sign | (uint16_t)((e + 14) << 10) | (uint16_t)((unsigned)m - 1024u));
+}
+
+static float float_of_bits(uint32_t u)
+{
+    float f;
+    memcpy(&f, &u, sizeof f);
+    return f;
+}
+
+/* An image whose first values are the edge cases, the rest floats of every exponent with random
+ * mantissas, two sevenths of them exactly halfway between two (normal or subnormal) halves. */
+static struct image edge_image(uint32_t w, uint32_t h)
+{
+    static const uint32_t special[] = {
+        0x477fe000u /* 65504 */, 0x477ff000u /* 65520 -> Inf */, 0x477fefffu, 0x477ff001u,
+        0xc77ff000u, 0x47800000u /* 65536 */, 0x33800000u /* 2^-24 */, 0x33000000u /* 2^-25 -> 0 */,
+        0x33000001u, 0x33c00000u /* 1.5 * 2^-24 -> 2^-23 (even) */, 0x34200000u /* 2.5 * 2^-24 */,
+        0x387fc000u, 0x387fe000u /* largest subnormal half + 1/2 ulp -> 2^-14 */, 0x38800000u,
+        0x80000000u /* -0 */, 0x00000000u, 0x00000001u, 0x807fffffu /* float subnormals */,
+        0x7f800000u, 0xff800000u, 0x7fc00000u, 0xffc00000u, 0x7f800001u /* signalling NaN */,
+        0x7f802000u, 0xffa00000u, 0x7fbfffffu, 0x7f801fffu, 0x3f800000u, 0x3f801000u, 0x3f803000u,
+        0x3f801001u, 0xbf800fffu};
+    struct image img;
+    struct err err;
+    if (!image_init(&img, w, h, &err)) return img;
+    float *f = (float *)img.pixels;
+    size_t n = (size_t)w * h * 3, ns = sizeof special / sizeof special[0];
+    uint64_t saved = rng_state;
+    rng_state = 777;
+    for (size_t i = 0; i < n; i++) {
+        uint32_t bits = (rnd_u32() & 0x807fffffu) | (uint32_t)((i / 7) % 256) << 23;
+        if (i % 7 == 3) bits = (bits & 0xffffe000u) | 0x1000u; /* a tie between normal halves */
+        f[i] = float_of_bits(i < ns ? special[i] : bits);
+        if (i >= ns && i % 7 == 5) /* a tie between subnormal halves: (k + 1/2) * 2^-24 */
+            f[i] = ((float)(rnd_u32() % 1024) + 0.5f) * 0x1p-24f * (rnd_u32() % 2 ? -1.0f : 1.0f);
+    }
+    rng_state = saved;
+    return img;
+}
+
+/* Encodes img as HALF without compression (with flush-to-zero and denormals-are-zero set
+ * during the encode when `ftz`: render threads may set them) and checks every stored half
+ * against ref_half. */
+static void check_halves_exact(const struct image *img, bool ftz, const char *label)
+{
+    size_t size = 0;
+#if defined(__SSE2__)
+    unsigned csr = _mm_getcsr();
+    if (ftz) _mm_setcsr(csr | 0x8040u);
+#else
+    (void)ftz;
+#endif
+    unsigned char *buf = encode(img, (struct exrio_write_opts){.pixel = EXRIO_HALF, .alpha = true}, &size);
+#if defined(__SSE2__)
+    _mm_setcsr(csr);
+#endif
+    if (!buf) return;
+    uint32_t w = img->width;
+    size_t table = header_end(buf, size), bad = 0, checked = 0;
+    bool layout_ok = table + 8 * (size_t)img->height <= size;
+    for (uint32_t y = 0; layout_ok && y < img->height; y++) {
+        uint64_t off;
+        memcpy(&off, buf + table + 8 * (size_t)y, 8);
+        int32_t row, bytes;
+        layout_ok = off + 8 <= size;
+        if (!layout_ok) break;
+        memcpy(&row, buf + off, 4);
+        memcpy(&bytes, buf + off + 4, 4);
+        layout_ok = row == (int32_t)y && bytes == (int32_t)(8 * w) && off + 8 + (uint64_t)bytes <= size;
+        const unsigned char *p = buf + off + 8; /* channels A, B, G, R */
+        for (uint32_t c = 0; layout_ok && c < 4; c++)
+            for (uint32_t x = 0; x < w; x++) {
+                uint16_t got = (uint16_t)(p[2 * (c * w + x)] | p[2 * (c * w + x) + 1] << 8);
+                uint32_t src = 0x3f800000u; /* A = 1 */
+                if (c > 0) memcpy(&src, (const float *)&img->pixels[(size_t)y * w + x] + (3 - c), 4);
+                uint16_t want = ref_half(src);
+                if (got != want && bad++ < 5)
+                    fprintf(stderr, "  %s: float 0x%08x -> half 0x%04x, want 0x%04x\n", label, src, got, want);
+                checked++;
+            }
+    }
+    CHECK_MSG(layout_ok, "%s: unexpected chunk layout", label);
+    CHECK_MSG(bad == 0, "%s: %zu of %zu halves differ from OpenEXR's rounding", label, bad, checked);
+    free(buf);
+}
+
+static void test_half_conversion_exact(void)
+{
+    struct image img = edge_image(509, 200); /* odd width: SIMD tails */
+    if (!img.pixels) { CHECK(0); return; }
+    const char *saved = getenv("RESTIRD_EXR_HALF");
+    unsetenv("RESTIRD_EXR_HALF");
+    check_halves_exact(&img, false, "default (F16C if present)");
+    check_halves_exact(&img, true, "default, FTZ+DAZ");
+    setenv("RESTIRD_EXR_HALF", "portable", 1);
+    check_halves_exact(&img, false, "portable");
+    check_halves_exact(&img, true, "portable, FTZ+DAZ");
+    if (saved) setenv("RESTIRD_EXR_HALF", saved, 1);
+    else unsetenv("RESTIRD_EXR_HALF");
+    image_destroy(&img);
+}
+
+/* ZIP and ZIPS (our transform + run-length or level-1 deflate) decode to exactly the values
+ * the uncompressed file holds, for noisy, smooth (the level-1 retry), constant, smooth-then-
+ * noisy and NaN/Inf-laden images and widths that are not multiples of the SIMD widths. */
+static void test_zip_matches_uncompressed(void)
+{
+    static const uint32_t widths[] = {1, 7, 37, 300};
+    for (int kind = 0; kind < 5; kind++)
+        for (size_t wi = 0; wi < sizeof widths / sizeof widths[0]; wi++) {
+            uint32_t w = widths[wi], h = kind == 4 ? 96 : 37;
+            struct image img;
+            if (kind == 3) {
+                img = edge_image(w, h);
+            } else {
+                struct err err;
+                if (!image_init(&img, w, h, &err)) continue;
+                for (uint32_t y = 0; y < h; y++)
+                    for (uint32_t x = 0; x < w; x++) {
+                        float s = 0.5f + 0.3f * sinf(0.05f * (float)x + 0.1f * (float)y);
+                        bool noisy = kind == 0 || (kind == 4 && y >= h / 2);
+                        float noise = noisy ? (float)rnd_unit() * 0.2f : 0.0f;
+                        if (kind == 2) s = 0.25f;
+                        img.pixels[(size_t)y * w + x] = vec3_make(s + noise, s * 0.5f, s - noise);
+                    }
+            }
+            if (!img.pixels) { CHECK(0); continue; }
+            struct image ref = {0};
+            struct err err = {0};
+            size_t size = 0;
+            unsigned char *raw = encode(&img, (struct exrio_write_opts){.pixel = EXRIO_HALF, .alpha = true}, &size);
+            bool ok = raw && exrio_read_mem(raw, size, NULL, &ref, &err);
+            CHECK_MSG(ok, "NONE: %s", err.message);
+            free(raw);
+            for (int z = 0; ok && z < 2; z++)
+                for (int a = 0; a < 2; a++) {
+                    struct exrio_write_opts o = {.pixel = EXRIO_HALF, .compression = z ? EXRIO_ZIPS : EXRIO_ZIP,
+                                                 .alpha = a == 1};
+                    unsigned char *buf = encode(&img, o, &size);
+                    struct image back;
+                    if (!buf) continue;
+                    bool read = exrio_read_mem(buf, size, NULL, &back, &err);
+                    CHECK_MSG(read, "kind %d width %u %s: %s", kind, w, z ? "ZIPS" : "ZIP", err.message);
+                    if (read) {
+                        CHECK_MSG(same_bits(&ref, &back), "kind %d width %u %s alpha %d: values differ", kind,
+                                  w, z ? "ZIPS" : "ZIP", a);
+                        image_destroy(&back);
+                    }
+                    free(buf);
+                }
+            if (ref.pixels) image_destroy(&ref);
+            image_destroy(&img);
+        }
+}
+
+/* deflate.h's run-length compressor (written for EXR ZIP chunks): round trips through
+ * libdeflate's inflater on inputs that exercise each block type and code-length corner. */
+static void check_rle_round_trip(struct deflate *d, const unsigned char *in, size_t n,
+                                 const size_t *cuts, int ncuts, const char *label)
+{
+    size_t bound = deflate_zlib_bound(d, n);
+    unsigned char *z = malloc(bound), *back = malloc(n + 1);
+    if (!z || !back) { CHECK(0); free(z); free(back); return; }
+    size_t zn = deflate_zlib_blocks(d, in, n, cuts, ncuts, z, bound);
+    CHECK_MSG(zn > 0 && zn <= bound, "%s: %zu bytes for bound %zu", label, zn, bound);
+    if (zn > 0) {
+        CHECK(((z[0] << 8) | z[1]) % 31 == 0 && (z[0] & 0x0f) == 8);
+        size_t got = 0;
+        struct err err = {0};
+        bool ok = deflate_zlib_decompress(z, zn, back, n + 1, &got, &err);
+        CHECK_MSG(ok && got == n && (n == 0 || memcmp(back, in, n) == 0), "%s: %s", label,
+                  ok ? "different bytes" : err.message);
+        /* deterministic, and 0 (not a cut stream) when the output does not fit */
+        unsigned char *z2 = malloc(bound);
+        if (z2) {
+            CHECK(deflate_zlib_blocks(d, in, n, cuts, ncuts, z2, bound) == zn && memcmp(z, z2, zn) == 0);
+            if (zn > 8) CHECK(deflate_zlib_blocks(d, in, n, cuts, ncuts, z2, zn - 1) == 0);
+            free(z2);
+        }
+    }
+    free(z);
+    free(back);
+}
+
+static void test_deflate_rle(void)
+{
+    struct err err = {0};
+    struct deflate *d = deflate_new_rle(&err);
+    CHECK(d != NULL);
+    if (!d) return;
+    size_t n = 600000;
+    unsigned char *buf = calloc(n, 1);
+    if (!buf) { CHECK(0); deflate_free(d); return; }
+    check_rle_round_trip(d, buf, 0, NULL, 0, "empty");
+    buf[0] = 42;
+    check_rle_round_trip(d, buf, 1, NULL, 0, "one byte");
+    memset(buf, 7, n);
+    check_rle_round_trip(d, buf, 5, NULL, 0, "one symbol, no run");
+    /* runs whose match part is 258k + 1 or + 2 bytes long (no 1- or 2-byte leftovers) */
+    for (size_t len = 255; len < 520; len += 1) check_rle_round_trip(d, buf, len, NULL, 0, "one run");
+    check_rle_round_trip(d, buf, n, NULL, 0, "600 KB run (automatic blocks)");
+    for (size_t i = 0; i < n; i++) buf[i] = (unsigned char)rnd_u32();
+    check_rle_round_trip(d, buf, n, NULL, 0, "random: stored blocks");
+    for (size_t i = 0; i < n; i++) /* predictor-like: peaked, with runs and a few wild bytes */
+        buf[i] = (i / 5000) % 3 == 0 ? 128 : (unsigned char)(128 + (int)(rnd_u32() % 7) - 3 + (rnd_u32() % 97 == 0) * 90);
+    size_t cuts[] = {100, 5000, 5100, 300000, 599999};
+    check_rle_round_trip(d, buf, n, cuts, 5, "peaked with cuts");
+    check_rle_round_trip(d, buf, 70000, cuts + 1, 1, "peaked, one cut");
+    for (size_t i = 0; i < n; i++) buf[i] = (unsigned char)(i % 251 < 3 ? i : 200 + i % 2);
+    check_rle_round_trip(d, buf, 4096, NULL, 0, "two symbols");
+    for (size_t i = 0; i < n; i++) /* skewed counts: literal codes at the 14-bit limit */
+        buf[i] = (unsigned char)(__builtin_ctz((unsigned)rnd_u32() | 0x80000000u) * 8 + (i % 3));
+    check_rle_round_trip(d, buf, n, NULL, 0, "geometric");
+    deflate_free(d);
+    free(buf);
+}
+
 /* ---- the header gate ---------------------------------------------------------------------- */
 
 static void test_piz_written_but_rejected(void)
@@ -772,7 +1020,8 @@ static void test_byte_flips(void)
 
 TEST_MAIN(TEST(test_half_nonfinite), TEST(test_float_roundtrip_mem), TEST(test_float_roundtrip_file), TEST(test_half_roundtrip),
           TEST(test_aov_channels), TEST(test_write_rejects_bad_input),
-          TEST(test_zip_output_equal_to_raw_size),
+          TEST(test_zip_output_equal_to_raw_size), TEST(test_half_conversion_exact),
+          TEST(test_zip_matches_uncompressed), TEST(test_deflate_rle),
           TEST(test_piz_written_but_rejected), TEST(test_too_many_channels),
           TEST(test_crafted_valid_and_grey), TEST(test_half_partial_channels),
           TEST(test_gate_rejections), TEST(test_truncated),
