@@ -54,8 +54,8 @@ static void api_write_session(struct jsonw *w, struct session *s)
     const struct view_params *p = &s->view.params;
     pthread_mutex_lock(&s->lock);
     bool busy = s->busy;
-    uint32_t frames = s->view.frame;
-    struct camera_desc cam = s->view.camera;
+    uint32_t frames = s->frames_done;
+    struct camera_desc cam = s->camera;
     char job[24] = "";
     for (uint32_t i = 0; i < s->job_count; i++)
         if (s->jobs[i]->kind == JOB_ANIMATION && s->jobs[i]->status <= JOB_RUNNING) snprintf(job, sizeof job, "%s", s->jobs[i]->id);
@@ -407,7 +407,7 @@ out:
 static bool api_frame_number(struct api_call *c, struct session *s, uint32_t *n)
 {
     pthread_mutex_lock(&s->lock);
-    uint32_t frames = s->view.frame;
+    uint32_t frames = s->frames_done;
     pthread_mutex_unlock(&s->lock);
     if (strcmp(c->seg[6], "latest") == 0) {
         if (frames == 0) {
@@ -451,7 +451,10 @@ void api_frame_get(struct api_call *c)
     struct frame_stats st;
     if (api_frame_fetch(c, s, n, &img, &st)) {
         char etag[256];
-        api_frame_etag(etag, sizeof etag, s, s->epoch, n, type, c);
+        pthread_mutex_lock(&s->lock);
+        uint32_t epoch = s->epoch;
+        pthread_mutex_unlock(&s->lock);
+        api_frame_etag(etag, sizeof etag, s, epoch, n, type, c);
         http_response_header(c->resp, "X-Frame", "%u", n);
         struct api_frame_json fj = {s, n, &st, &img, ref};
         api_send_image(c, type, &img, etag, api_frame_json_fn, &fj);

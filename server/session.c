@@ -95,6 +95,7 @@ struct session *sessions_create(struct sessions *t, const char *scene_id, const 
     }
     pthread_mutex_init(&s->lock, NULL);
     pthread_cond_init(&s->cond, NULL);
+    s->camera = s->view.camera;
     atomic_init(&s->refcount, 2);  /* the table's and the caller's */
     snprintf(s->scene_id, sizeof s->scene_id, "%s", scene_id);
 
@@ -279,6 +280,8 @@ bool session_render(struct session *s, struct gate *gate, bool bounded, const st
     slot->valid = true;
     slot->n = frame;
     slot->stats = *stats;
+    s->frames_done = s->view.frame;
+    s->camera = s->view.camera;
     snprintf(slot->job, sizeof slot->job, "%s", job ? job->id : "");
     char sid[24], scene[65];
     snprintf(sid, sizeof sid, "%s", s->id);
@@ -315,8 +318,7 @@ bool session_frame_copy(struct session *s, uint32_t n, struct image *out, struct
                         struct err *err)
 {
     pthread_mutex_lock(&s->lock);
-    uint32_t rendered = s->view.frame;  /* frames of this sequence; written only by the busy holder,
-                                           and a stale read only makes a fresh frame look absent */
+    uint32_t rendered = s->frames_done;
     struct session_frame *slot = &s->ring[n % s->frames_kept];
     bool ok = false;
     if (n >= rendered || !slot->valid || slot->n > n) {
@@ -388,6 +390,7 @@ void session_reset(struct session *s)
     view_reset(&s->view);
     pthread_mutex_lock(&s->lock);
     s->epoch++;
+    s->frames_done = 0;
     for (uint32_t i = 0; i < s->frames_kept; i++) s->ring[i].valid = false;
     pthread_mutex_unlock(&s->lock);
 }

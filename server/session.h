@@ -92,6 +92,9 @@ struct session {
     bool busy, deleted;
     struct view view;
     uint32_t epoch;                  /* bumped by reset: frame numbers restart */
+    /* Copies of view state published under the lock for readers that do not hold `busy`. */
+    uint32_t frames_done;            /* frames rendered in this sequence (= view.frame) */
+    struct camera_desc camera;       /* the camera of the last frame (= view.camera) */
     uint32_t frames_kept;
     struct session_frame *ring;      /* frames_kept slots, frame n in slot n % frames_kept */
     uint64_t event_seq;              /* next event number */
