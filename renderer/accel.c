@@ -25,7 +25,17 @@ struct accel {
     uint32_t inst_count;
     struct xform *to_world;   /* current object->world per shape */
     struct xform *to_object;  /* inverse of to_world per shape */
+    bool *is_identity;        /* to_world is exactly the identity (hit points skip it) */
 };
+
+static bool accel_xform_is_identity(const struct xform *x)
+{
+    const struct xform id = xform_identity();
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 4; j++)
+            if (x->m[i][j] != id.m[i][j]) return false;
+    return true;
+}
 
 static void accel_error_cb(void *user, enum RTCError code, const char *str)
 {
@@ -112,7 +122,9 @@ static bool accel_alloc(struct accel *a, uint32_t n)
     a->inst_blas = calloc(m, sizeof *a->inst_blas);
     a->to_world = malloc(m * sizeof *a->to_world);
     a->to_object = malloc(m * sizeof *a->to_object);
-    return a->top_shape && a->static_shape && a->shape_to_inst && a->inst_blas && a->to_world && a->to_object;
+    a->is_identity = malloc(m * sizeof *a->is_identity);
+    return a->top_shape && a->static_shape && a->shape_to_inst && a->inst_blas && a->to_world && a->to_object &&
+           a->is_identity;
 }
 
 /* Layouts. With no movable shape, all geometry sits directly in one flat top-level scene (the
@@ -140,17 +152,24 @@ struct accel *accel_new(const struct scene *scene, const bool *movable, struct e
     }
     rtcSetDeviceErrorFunction(a->device, accel_error_cb, NULL);
     a->top = rtcNewScene(a->device);
-    if (two_level) {
-        rtcSetSceneBuildQuality(a->top, RTC_BUILD_QUALITY_LOW);
-        rtcSetSceneFlags(a->top, RTC_SCENE_FLAG_DYNAMIC);
-    } else {
-        rtcSetSceneBuildQuality(a->top, RTC_BUILD_QUALITY_HIGH);
-    }
+    /* Build quality LOW in both layouts. For the flat layout this is a traversal-speed choice,
+     * not a build-time one: at LOW Embree builds one SAH BVH per geometry (each geometry keeps
+     * its default MEDIUM quality) and merges them under a common top, still one BVH4 of
+     * triangle4 leaves, whereas MEDIUM/HIGH build one BVH over all triangles (HIGH with
+     * spatial splits). Scenes are made of separate shapes (the Cornell box: 16 quads), and the
+     * per-shape trees bound them tightly: on the Cornell box Embree needs 18 % fewer
+     * instructions per ray at LOW than at HIGH, with identical hits (bit-identical images;
+     * docs/benchmarks.md), and a large single-mesh scene we tried was faster too. Where
+     * triangles share an edge, which of the two a ray exactly on the edge reports can differ
+     * between the two trees. */
+    rtcSetSceneBuildQuality(a->top, RTC_BUILD_QUALITY_LOW);
+    if (two_level) rtcSetSceneFlags(a->top, RTC_SCENE_FLAG_DYNAMIC);
 
     struct xform identity = xform_identity();
     for (uint32_t i = 0; i < n; i++) {
         const struct shape *s = &scene->shapes[i];
         a->to_world[i] = s->to_world;
+        a->is_identity[i] = accel_xform_is_identity(&s->to_world);
         a->shape_to_inst[i] = -1;
         if (!xform_invert(&s->to_world, &a->to_object[i])) {
             char where[64];
@@ -218,6 +237,7 @@ void accel_free(struct accel *a)
     free(a->inst_blas);
     free(a->to_world);
     free(a->to_object);
+    free(a->is_identity);
     free(a);
 }
 
@@ -301,6 +321,7 @@ bool accel_set_transform(struct accel *a, uint32_t shape, const struct xform *to
     rtcCommitGeometry(inst);
     a->to_world[shape] = *to_world;
     a->to_object[shape] = inv;
+    a->is_identity[shape] = accel_xform_is_identity(to_world);
     return true;
 }
 
@@ -312,4 +333,14 @@ void accel_commit_top(struct accel *a)
 const struct xform *accel_shape_to_world(const struct accel *a, uint32_t shape)
 {
     return &a->to_world[shape];
+}
+
+const struct xform *accel_shape_to_object(const struct accel *a, uint32_t shape)
+{
+    return &a->to_object[shape];
+}
+
+bool accel_shape_is_identity(const struct accel *a, uint32_t shape)
+{
+    return a->is_identity[shape];
 }

@@ -40,5 +40,11 @@ bool accel_set_transform(struct accel *accel, uint32_t shape, const struct xform
 void accel_commit_top(struct accel *accel);
 /* Current object-to-world transform of a shape (baked shapes: their scene transform). */
 const struct xform *accel_shape_to_world(const struct accel *accel, uint32_t shape);
+/* Its inverse, kept beside it (computed once per transform with xform_invert, never singular:
+ * accel_new and accel_set_transform reject singular transforms). */
+const struct xform *accel_shape_to_object(const struct accel *accel, uint32_t shape);
+/* True when that transform is exactly the identity (shapes given in world coordinates, as
+ * most scene files write them), so hit reconstruction can skip applying it. */
+bool accel_shape_is_identity(const struct accel *accel, uint32_t shape);
 
 #endif

@@ -37,11 +37,19 @@ struct pt_params reference_pt_defaults(uint32_t width, uint32_t height)
     return (struct pt_params){.width = width, .height = height, .spp = 16, .max_depth = 64, .rr_depth = 3, .nee = true};
 }
 
-/* Radiance along one camera ray. */
+/* Radiance along one camera ray. The per-vertex work around the two ray queries is most of
+ * what a ray costs besides Embree's traversal (docs/benchmarks.md, instructions per ray), so the
+ * loop keeps it lean: parameters are read into locals once (every Embree call is opaque to the
+ * compiler, so values behind pointers would be reloaded after each ray), and the offset origin
+ * of the shadow ray is reused by the continuation ray when both leave on the same side. */
 static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
                                struct vec3 dir, struct rng *rng, struct ray_counters *rc)
 {
     const struct light_sampler *lights = scene->lights;
+    const struct accel *accel = scene->accel;
+    const bool mis = params->nee;
+    const bool nee = params->nee && light_sampler_count(lights) > 0;
+    const uint32_t max_depth = params->max_depth, rr_depth = params->rr_depth;
     struct vec3 L = vec3_splat(0.0f), beta = vec3_splat(1.0f);
     float prev_pdf_w = 0.0f;   /* solid-angle pdf of the BSDF sample that produced `dir` */
     bool prev_delta = true;    /* camera rays and delta scattering get no MIS on emission */
@@ -49,10 +57,10 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
 
     for (uint32_t depth = 0;; depth++) {
         struct hit hit;
-        if (!accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, &hit, rc)) {
+        if (!accel_intersect(accel, org, dir, 0.0f, INFINITY, &hit, rc)) {
             if (!vec3_is_zero(scene->env_radiance)) {
                 float w = 1.0f;
-                if (!prev_delta && params->nee) w = sampling_power_heuristic(prev_pdf_w, light_sampler_env_pdf_w(lights));
+                if (!prev_delta && mis) w = sampling_power_heuristic(prev_pdf_w, light_sampler_env_pdf_w(lights));
                 L = vec3_add(L, vec3_scale(vec3_mul(beta, scene->env_radiance), w));
             }
             break;
@@ -65,7 +73,7 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
             struct vec3 Le = light_sampler_emitted(m, -vec3_dot(dir, s.ng));
             if (!vec3_is_zero(Le)) {
                 float w = 1.0f;
-                if (!prev_delta && params->nee) {
+                if (!prev_delta && mis) {
                     float d2 = vec3_length2(vec3_sub(s.p, prev_p));
                     float pdf_light_w = sampling_area_to_solid_angle(light_sampler_pdf_a(lights, s.shape, s.prim), d2,
                                                                      vec3_dot(dir, s.ng));
@@ -74,14 +82,17 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
                 L = vec3_add(L, vec3_scale(vec3_mul(beta, Le), w));
             }
         }
-        if (depth >= params->max_depth) break;
+        if (depth >= max_depth) break;
 
         struct vec3 wo_world = vec3_neg(dir);
         struct vec3 wo = frame_to_local(&s.frame, wo_world);
         unsigned flags = material_flags(m);
+        /* Offset origin of the shadow ray, and which side of ng it is on (-1: none traced). */
+        struct vec3 shadow_org = s.p;
+        int shadow_side = -1;
 
         /* Next-event estimation: one light sample, MIS-weighted against BSDF sampling. */
-        if (params->nee && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY)) && light_sampler_count(lights) > 0) {
+        if (nee && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
             float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
             struct light_sample ls;
             if (light_sampler_sample(lights, ul, u1, u2, &ls)) {
@@ -103,20 +114,25 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
                     pdf_light_w = sampling_area_to_solid_angle(ls.pdf_a, d2, cos_l);
                     ok = d2 > 0.0f && pdf_light_w > 0.0f;
                 }
-                struct vec3 wi = frame_to_local(&s.frame, wi_world);
-                /* Reject directions on different sides of the geometric and shading normals:
-                 * they would leak light through the surface. */
-                ok = ok && !vec3_is_zero(Le) && vec3_dot(wi_world, s.ng) * wi.z > 0.0f;
-                if (ok) {
-                    struct vec3 f = material_eval(m, wo, wi, TRANSPORT_RADIANCE);
-                    if (!vec3_is_zero(f)) {
-                        struct vec3 o = surface_offset(s.p, s.ng, wi_world);
-                        float tmax = ls.is_env ? INFINITY : dist * (1.0f - 1e-4f);
-                        if (!accel_occluded(scene->accel, o, wi_world, 0.0f, tmax, rc)) {
-                            float pdf_bsdf_w = material_pdf(m, wo, wi);
-                            float w = sampling_power_heuristic(pdf_light_w, pdf_bsdf_w);
-                            struct vec3 c = vec3_scale(vec3_mul(f, Le), fabsf(wi.z) * w / pdf_light_w);
-                            L = vec3_add(L, vec3_mul(beta, c));
+                /* The cheap rejections first (back of a one-sided emitter, zero pdf), before the
+                 * frame conversion and the BSDF. */
+                if (ok && !vec3_is_zero(Le)) {
+                    struct vec3 wi = frame_to_local(&s.frame, wi_world);
+                    /* Reject directions on different sides of the geometric and shading normals:
+                     * they would leak light through the surface. */
+                    float cos_ng = vec3_dot(wi_world, s.ng);
+                    if (cos_ng * wi.z > 0.0f) {
+                        struct vec3 f = material_eval(m, wo, wi, TRANSPORT_RADIANCE);
+                        if (!vec3_is_zero(f)) {
+                            shadow_side = cos_ng < 0.0f;
+                            shadow_org = surface_offset_along(s.p, shadow_side ? vec3_neg(s.ng) : s.ng);
+                            float tmax = ls.is_env ? INFINITY : dist * (1.0f - 1e-4f);
+                            if (!accel_occluded(accel, shadow_org, wi_world, 0.0f, tmax, rc)) {
+                                float pdf_bsdf_w = material_pdf(m, wo, wi);
+                                float w = sampling_power_heuristic(pdf_light_w, pdf_bsdf_w);
+                                struct vec3 c = vec3_scale(vec3_mul(f, Le), fabsf(wi.z) * w / pdf_light_w);
+                                L = vec3_add(L, vec3_mul(beta, c));
+                            }
                         }
                     }
                 }
@@ -133,19 +149,24 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         struct bsdf_sample bs;
         if (!material_sample(m, wo, u_lobe, u1, u2, TRANSPORT_RADIANCE, &bs)) break;  /* pdf_w > 0 then */
         struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
-        if (vec3_dot(wi_world, s.ng) * bs.wi.z <= 0.0f) break;
+        float cos_ng = vec3_dot(wi_world, s.ng);
+        if (cos_ng * bs.wi.z <= 0.0f) break;
         beta = vec3_mul(beta, vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w));
         prev_delta = (bs.flags & BSDF_DELTA) != 0;
         prev_pdf_w = bs.pdf_w;
         prev_p = s.p;
 
         float u_rr = rng_next_float(rng);
-        if (depth + 1 >= params->rr_depth) {
-            float q = fminf(0.95f, vec3_max_comp(beta));
+        if (depth + 1 >= rr_depth) {
+            /* fminf(0.95f, max) spelled out: fminf is a libm call at -O2 (NaN rules), and a NaN
+             * max gives 0.95 either way. */
+            float mx = vec3_max_comp(beta);
+            float q = mx < 0.95f ? mx : 0.95f;
             if (!(q > 0.0f) || u_rr >= q) break;
             beta = vec3_scale(beta, 1.0f / q);
         }
-        org = surface_offset(s.p, s.ng, wi_world);
+        int side = cos_ng < 0.0f;
+        org = side == shadow_side ? shadow_org : surface_offset_along(s.p, side ? vec3_neg(s.ng) : s.ng);
         dir = wi_world;
     }
     return L;

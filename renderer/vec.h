@@ -6,6 +6,8 @@
 
 #include <math.h>
 #include <stdbool.h>
+#include <stdint.h>
+#include <string.h>
 
 #define PI_F 3.14159265358979323846f
 #define INV_PI_F 0.31830988618379067154f
@@ -39,8 +41,26 @@ static inline struct vec3 vec3_madd(struct vec3 a, struct vec3 b, float s)  /* a
 static inline float vec3_max_comp(struct vec3 a) { return fmaxf(a.x, fmaxf(a.y, a.z)); }
 static inline float vec3_min_comp(struct vec3 a) { return fminf(a.x, fminf(a.y, a.z)); }
 static inline float vec3_sum(struct vec3 a) { return a.x + a.y + a.z; }
-static inline bool vec3_is_zero(struct vec3 a) { return a.x == 0.0f && a.y == 0.0f && a.z == 0.0f; }
-static inline bool vec3_is_finite(struct vec3 a) { return isfinite(a.x) && isfinite(a.y) && isfinite(a.z); }
+static inline uint32_t vec_float_bits(float f)
+{
+    uint32_t u;
+    memcpy(&u, &f, sizeof u);
+    return u;
+}
+/* Both tests run several times per path vertex. Written as three `== 0.0f` / isfinite tests
+ * they compile to a NaN-aware compare-and-branch chain per component; these forms give the
+ * same answers for every input (NaN included) in a few branch-free instructions. */
+static inline bool vec3_is_zero(struct vec3 a)  /* all components +0 or -0 */
+{
+    return ((vec_float_bits(a.x) | vec_float_bits(a.y) | vec_float_bits(a.z)) << 1) == 0;
+}
+static inline bool vec3_is_finite(struct vec3 a)
+{
+    /* x - x is +0 for finite x and NaN for inf or NaN, so s is 0 or NaN. Relies on IEEE
+     * semantics (no -ffinite-math-only / -ffast-math, which would also break isfinite). */
+    float s = (a.x - a.x) + (a.y - a.y) + (a.z - a.z);
+    return s == s;
+}
 static inline float vec3_comp(struct vec3 a, int i) { return i == 0 ? a.x : (i == 1 ? a.y : a.z); }
 /* Rec. 709 luminance of a linear RGB colour. */
 static inline float vec3_luminance(struct vec3 c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
