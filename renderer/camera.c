@@ -19,3 +19,19 @@ struct vec3 camera_ray_dir(const struct camera *cam, float px, float py)
     float sy = (1.0f - 2.0f * py / (float)cam->height) * cam->tan_half_fov_y;
     return vec3_normalize(vec3_add(cam->forward, vec3_add(vec3_scale(cam->right, sx), vec3_scale(cam->up, sy))));
 }
+
+bool camera_project_dir(const struct camera *cam, struct vec3 d, float *px, float *py)
+{
+    float z = vec3_dot(d, cam->forward);
+    if (!(z > 0.0f)) return false;
+    float sx = vec3_dot(d, cam->right) / (z * cam->tan_half_fov_y * cam->aspect);
+    float sy = vec3_dot(d, cam->up) / (z * cam->tan_half_fov_y);
+    *px = 0.5f * (sx + 1.0f) * (float)cam->width;
+    *py = 0.5f * (1.0f - sy) * (float)cam->height;
+    return true;
+}
+
+bool camera_project(const struct camera *cam, struct vec3 p, float *px, float *py)
+{
+    return camera_project_dir(cam, vec3_sub(p, cam->position), px, py);
+}

@@ -18,5 +18,11 @@ struct camera {
 void camera_init(struct camera *cam, const struct camera_desc *desc, uint32_t width, uint32_t height);
 /* Unit direction through image position (px, py) in pixels from the top-left corner. */
 struct vec3 camera_ray_dir(const struct camera *cam, float px, float py);
+/* The inverse of camera_ray_dir: the image position (pixels) at which `p` appears; false when
+ * p is not in front of the camera (then *px, *py are untouched). Positions outside the image
+ * are returned as they are: the caller decides what off-screen means. */
+bool camera_project(const struct camera *cam, struct vec3 p, float *px, float *py);
+/* The same for a direction (a point at infinity, e.g. the environment behind a pixel). */
+bool camera_project_dir(const struct camera *cam, struct vec3 dir, float *px, float *py);
 
 #endif

@@ -1,0 +1,58 @@
+/* gbuffer.h — the primary hit of every pixel for one frame, and where that point was seen in
+ * the previous frame (the motion vector temporal reuse follows). A session keeps two (current
+ * and previous) and swaps them; they are allocated once, never per frame.
+ * The primary ray goes through a uniformly jittered position in the pixel (the box filter the
+ * reference path tracer integrates), drawn from the pixel's own stream for the frame, so a
+ * method that starts its paths at the G-buffer's hits estimates the same pixel integral as `pt`.
+ * The previous position accounts for camera motion and for shapes that moved between the two
+ * frames' scenes (derived scenes keep shape indices). Visibility in the previous frame is not
+ * checked here: a temporal shift validates its own vertices.
+ * Refs: design ARCHITECTURE.md ("gbuffer pass"); METHODS.md §1 (temporal reuse evaluates the
+ * previous domain with the previous camera and scene). */
+#ifndef RESTIRD_GBUFFER_H
+#define RESTIRD_GBUFFER_H
+
+#include <stdint.h>
+
+#include "accel.h"
+#include "err.h"
+#include "scene.h"
+
+struct gbuffer_pixel {
+    float t;                /* distance to the primary hit; INFINITY when the ray escaped */
+    uint32_t shape, prim;   /* the hit (valid when t is finite) */
+    float b1, b2;           /* its barycentrics: surface_from_hit rebuilds the surface */
+    float jx, jy;           /* the primary ray's position inside the pixel, in [0, 1) */
+    float prev_x, prev_y;   /* image position (pixels) of the same point, or of the same
+                               direction for an escaped ray, in the previous frame; NAN when
+                               there is no previous frame or the point was behind its camera */
+};
+
+struct gbuffer {
+    uint32_t width, height;
+    struct gbuffer_pixel *px;   /* width * height, row-major, top row first */
+};
+
+/* Allocates (ERR_LIMIT / ERR_NOMEM). */
+bool gbuffer_init(struct gbuffer *g, uint32_t width, uint32_t height, struct err *err);
+void gbuffer_destroy(struct gbuffer *g);
+size_t gbuffer_bytes(const struct gbuffer *g);
+
+/* Random stream id of the jitter: rng_make(seed, frame, pixel, GBUFFER_STREAM). Methods use
+ * other ids for their own random numbers. */
+#define GBUFFER_STREAM 0x6762ull
+
+struct gbuffer_frame {
+    const struct scene *scene;            /* this frame */
+    const struct camera_desc *camera;
+    const struct scene *prev_scene;       /* the previous frame; NULL = none (first frame) */
+    const struct camera_desc *prev_camera;
+    uint64_t seed;
+    uint32_t frame;
+    unsigned threads;                     /* 0 = all cores */
+};
+
+/* Traces one primary ray per pixel. *rays gets the number of ray queries. */
+bool gbuffer_render(struct gbuffer *g, const struct gbuffer_frame *f, uint64_t *rays, struct err *err);
+
+#endif

@@ -1,0 +1,183 @@
+/* test_gbuffer.c — camera projection and G-buffer motion vectors, as round trips: a position
+ * projected back through the camera gives the same ray; a pixel's previous position, traced
+ * from the previous camera in the previous scene, hits the same surface point (camera motion,
+ * a moved shape, both). */
+#include <math.h>
+#include <stdlib.h>
+
+#include "accel.h"
+#include "camera.h"
+#include "gbuffer.h"
+#include "rng.h"
+#include "scene.h"
+#include "surface.h"
+#include "test.h"
+
+static struct scene *load_cornell(void)
+{
+    struct err err = {0};
+    struct scene *s = scene_load_file("scenes/cornell-box/scene.json", &err);
+    CHECK_MSG(s != NULL, "%s", err.message);
+    if (s && !scene_commit(s, &err)) {
+        CHECK_MSG(false, "%s", err.message);
+        scene_release(s);
+        return NULL;
+    }
+    return s;
+}
+
+static void test_camera_project_round_trip(void)
+{
+    struct camera_desc d = {{278, 273, -800}, {300, 250, 0}, {0.1f, 1, 0}, 39.3f};
+    struct camera cam;
+    camera_init(&cam, &d, 64, 48);
+    struct rng r = rng_make(1, 2, 3, 4);
+    for (int i = 0; i < 1000; i++) {
+        float px = -10.0f + 84.0f * rng_next_float(&r), py = -10.0f + 68.0f * rng_next_float(&r);
+        struct vec3 dir = camera_ray_dir(&cam, px, py);
+        float qx, qy;
+        CHECK(camera_project(&cam, vec3_madd(cam.position, dir, 10.0f + 900.0f * rng_next_float(&r)), &qx, &qy));
+        CHECK_NEAR(qx, px, 1e-3);
+        CHECK_NEAR(qy, py, 1e-3);
+    }
+    float qx = 7.0f, qy = 7.0f;
+    CHECK(!camera_project(&cam, vec3_madd(cam.position, cam.forward, -1.0f), &qx, &qy));
+    CHECK(qx == 7.0f && qy == 7.0f);
+}
+
+/* For every pixel whose point is visible in the previous frame at its previous position, the
+ * previous frame's ray through prev_x/prev_y must hit the same object-space point (same shape).
+ * Returns the fraction of hit pixels that did; *focus_frac gets the same fraction over the
+ * pixels that see shape `focus` (a moved shape: a motion vector that ignored its motion would
+ * send those rays past it, so they would not match). */
+static double check_motion(const struct gbuffer *g, const struct scene *cur, const struct camera_desc *cur_cam,
+                           const struct scene *prev, const struct camera_desc *prev_cam, uint32_t focus,
+                           double *focus_frac)
+{
+    uint32_t focus_hits = 0, focus_matched = 0;
+    struct camera cc, pc;
+    camera_init(&cc, cur_cam, g->width, g->height);
+    camera_init(&pc, prev_cam, g->width, g->height);
+    uint32_t hits = 0, matched = 0;
+    struct ray_counters rc = {0, 0};
+    for (uint32_t y = 0; y < g->height; y++) {
+        for (uint32_t x = 0; x < g->width; x++) {
+            const struct gbuffer_pixel *gp = &g->px[(size_t)y * g->width + x];
+            if (!isfinite(gp->t)) continue;
+            hits++;
+            focus_hits += gp->shape == focus;
+            if (!isfinite(gp->prev_x)) continue;
+            struct vec3 d0 = camera_ray_dir(&cc, (float)x + gp->jx, (float)y + gp->jy);
+            struct hit h0 = {0}, h1 = {0};
+            CHECK(accel_intersect(cur->accel, cc.position, d0, 0, INFINITY, &h0, &rc));
+            struct surface s0, s1;
+            surface_from_hit(cur, &h0, cc.position, d0, &s0);
+            struct vec3 d1 = camera_ray_dir(&pc, gp->prev_x, gp->prev_y);
+            if (!accel_intersect(prev->accel, pc.position, d1, 0, INFINITY, &h1, &rc)) continue;
+            if (h1.shape != h0.shape) continue;  /* occluded in the previous frame */
+            surface_from_hit(prev, &h1, pc.position, d1, &s1);
+            /* Compare in object space: the shape may have moved. */
+            struct xform inv0, inv1;
+            xform_invert(accel_shape_to_world(cur->accel, h0.shape), &inv0);
+            xform_invert(accel_shape_to_world(prev->accel, h1.shape), &inv1);
+            struct vec3 o0 = xform_point(&inv0, s0.p), o1 = xform_point(&inv1, s1.p);
+            float err = vec3_length(vec3_sub(o0, o1));
+            CHECK_MSG(err < 0.05f, "pixel %u,%u: %.4f apart", x, y, (double)err);
+            matched++;
+            focus_matched += h0.shape == focus;
+        }
+    }
+    if (focus_frac) *focus_frac = focus_hits ? (double)focus_matched / focus_hits : 0.0;
+    return hits ? (double)matched / hits : 0.0;
+}
+
+static void test_motion_vectors(void)
+{
+    struct scene *s = load_cornell();
+    if (!s) return;
+    struct gbuffer g;
+    struct err err = {0};
+    CHECK(gbuffer_init(&g, 48, 40, &err));
+
+    /* No previous frame: no motion. Same camera and scene: prev = the jittered position. */
+    struct gbuffer_frame f = {.scene = s, .camera = &s->camera, .seed = 3, .frame = 1, .threads = 2};
+    uint64_t rays = 0;
+    CHECK(gbuffer_render(&g, &f, &rays, &err));
+    CHECK(rays == 48 * 40);
+    CHECK(isnan(g.px[0].prev_x));
+    f.prev_scene = s;
+    f.prev_camera = &s->camera;
+    CHECK(gbuffer_render(&g, &f, NULL, &err));
+    for (uint32_t i = 0; i < 48 * 40; i++) {
+        CHECK_NEAR(g.px[i].prev_x, (float)(i % 48) + g.px[i].jx, 2e-3);
+        CHECK_NEAR(g.px[i].prev_y, (float)(i / 48) + g.px[i].jy, 2e-3);
+    }
+
+    /* The camera moved: the previous ray through prev_x/prev_y finds the same point. */
+    struct camera_desc moved = s->camera;
+    moved.position = vec3_add(moved.position, vec3_make(60, -20, 90));
+    moved.look_at = vec3_add(moved.look_at, vec3_make(30, 0, 0));
+    f.camera = &moved;
+    CHECK(gbuffer_render(&g, &f, NULL, &err));
+    double frac = check_motion(&g, s, &moved, s, &s->camera, UINT32_MAX, NULL);
+    CHECK_MSG(frac > 0.9, "only %.3f of hit pixels found their previous point", frac);
+
+    /* The light moved down and the camera moved: points on the light follow the light. */
+    int light = scene_find_shape(s, "ceiling_light");
+    CHECK(light >= 0);
+    struct scene_shape_override ov = {.shape = (uint32_t)light, .has_to_world = true};
+    ov.to_world = xform_identity();
+    ov.to_world.m[1][3] = -120.0f;
+    ov.to_world.m[0][3] = 40.0f;
+    struct scene *d = scene_derive(s, &ov, 1, &err);
+    CHECK_MSG(d != NULL, "%s", err.message);
+    if (d) {
+        f.scene = d;
+        CHECK(gbuffer_render(&g, &f, NULL, &err));
+        uint32_t on_light = 0;
+        for (uint32_t i = 0; i < 48 * 40; i++) on_light += isfinite(g.px[i].t) && g.px[i].shape == (uint32_t)light;
+        CHECK(on_light > 0);
+        double on = 0.0;
+        frac = check_motion(&g, d, &moved, s, &s->camera, (uint32_t)light, &on);
+        CHECK_MSG(frac > 0.85, "only %.3f of hit pixels found their previous point", frac);
+        CHECK_MSG(on > 0.9, "only %.3f of the moved light's pixels found their previous point", on);
+        /* And the other way round (previous frame = the derived scene). */
+        f.scene = s;
+        f.prev_scene = d;
+        CHECK(gbuffer_render(&g, &f, NULL, &err));
+        frac = check_motion(&g, s, &moved, d, &s->camera, (uint32_t)light, &on);
+        CHECK_MSG(frac > 0.85, "only %.3f of hit pixels found their previous point", frac);
+        CHECK_MSG(on > 0.9, "only %.3f of the moved light's pixels found their previous point", on);
+        scene_release(d);
+    }
+    gbuffer_destroy(&g);
+    scene_release(s);
+}
+
+/* The jitter is the pixel's own stream for the frame: independent of the thread count, and
+ * different from one frame to the next. */
+static void test_jitter_deterministic(void)
+{
+    struct scene *s = load_cornell();
+    if (!s) return;
+    struct gbuffer a, b;
+    struct err err = {0};
+    CHECK(gbuffer_init(&a, 33, 17, &err) && gbuffer_init(&b, 33, 17, &err));
+    struct gbuffer_frame f = {.scene = s, .camera = &s->camera, .seed = 9, .frame = 4, .threads = 1};
+    CHECK(gbuffer_render(&a, &f, NULL, &err));
+    f.threads = 3;
+    CHECK(gbuffer_render(&b, &f, NULL, &err));
+    bool same = true;
+    for (uint32_t i = 0; i < 33 * 17; i++) same = same && a.px[i].jx == b.px[i].jx && a.px[i].t == b.px[i].t;
+    CHECK(same);
+    f.frame = 5;
+    CHECK(gbuffer_render(&b, &f, NULL, &err));
+    uint32_t differ = 0;
+    for (uint32_t i = 0; i < 33 * 17; i++) differ += a.px[i].jx != b.px[i].jx;
+    CHECK(differ > 33 * 17 * 9 / 10);
+    gbuffer_destroy(&a);
+    gbuffer_destroy(&b);
+    scene_release(s);
+}
+
+TEST_MAIN(TEST(test_camera_project_round_trip), TEST(test_motion_vectors), TEST(test_jitter_deterministic))
