@@ -1,6 +1,21 @@
 /* camera.c — pinhole camera (see camera.h). */
 #include "camera.h"
 
+bool camera_desc_valid(const struct camera_desc *desc, const char **why)
+{
+    struct vec3 fwd = vec3_sub(desc->look_at, desc->position);
+    if (!(vec3_length(fwd) > 0.0f)) {
+        if (why) *why = "the camera position and look_at coincide";
+        return false;
+    }
+    struct vec3 side = vec3_cross(vec3_normalize(fwd), vec3_normalize(desc->up));
+    if (!(vec3_length(side) > 1e-4f)) {
+        if (why) *why = "the camera's up is parallel to its viewing direction";
+        return false;
+    }
+    return true;
+}
+
 void camera_init(struct camera *cam, const struct camera_desc *desc, uint32_t width, uint32_t height)
 {
     cam->position = desc->position;

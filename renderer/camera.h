@@ -14,7 +14,11 @@ struct camera {
     uint32_t width, height;
 };
 
-/* `desc` was validated at load (non-degenerate look direction and up). */
+/* Whether `desc` can form an image: position != look_at, and up not parallel to the viewing
+ * direction. On false, *why (when non-NULL) names the problem. */
+bool camera_desc_valid(const struct camera_desc *desc, const char **why);
+
+/* `desc` was validated (camera_desc_valid; the scene loader checks the same at load). */
 void camera_init(struct camera *cam, const struct camera_desc *desc, uint32_t width, uint32_t height);
 /* Unit direction through image position (px, py) in pixels from the top-left corner. */
 struct vec3 camera_ray_dir(const struct camera *cam, float px, float py);

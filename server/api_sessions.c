@@ -9,6 +9,7 @@
 #include <time.h>
 #include <math.h>
 
+#include "camera.h"
 #include "tonemap.h"
 
 static const char *const api_image_types[] = {"image/x-exr", "image/png", "application/json", NULL};
@@ -214,14 +215,9 @@ static bool api_complete_camera(struct api_call *c, const struct protocol_camera
     if (pc->has_look_at) out->look_at = pc->look_at;
     if (pc->has_up) out->up = vec3_normalize(pc->up);
     if (pc->has_fov_deg) out->fov_deg = pc->fov_deg;
-    struct vec3 fwd = vec3_sub(out->look_at, out->position);
-    if (!(vec3_length(fwd) > 0.0f)) {
-        api_problem(c, 422, "invalid-field", ptr, "the camera position and look_at coincide");
-        return false;
-    }
-    struct vec3 side = vec3_cross(vec3_normalize(fwd), vec3_normalize(out->up));
-    if (!(vec3_length(side) > 1e-4f)) {
-        api_problem(c, 422, "invalid-field", ptr, "the camera's up is parallel to its viewing direction");
+    const char *why = NULL;
+    if (!camera_desc_valid(out, &why)) {
+        api_problem(c, 422, "invalid-field", ptr, "%s", why);
         return false;
     }
     return true;

@@ -151,3 +151,14 @@ def test_change_naming_unknown_shape_leaves_session_unchanged(daemon):
     assert st == 422 and p["field"] == "/lights/no_such_light", body
     # The refused request rendered nothing: frame 0 of a equals frame 0 of b.
     assert np.array_equal(frame(daemon, a), frame(daemon, b))
+
+
+def test_camera_merged_with_session_camera_is_validated(daemon):
+    # Each member is valid alone; merged with the session's camera (looking along +z), an up of
+    # +z is parallel to the view direction: refused at /camera, and nothing is rendered.
+    a = session(daemon, "cornell-box")
+    st, _, body = call(daemon, "POST", a + "/frames", {"camera": {"up": [0, 0, 1]}})
+    p = json.loads(body)
+    assert st == 422 and p["field"] == "/camera" and "parallel" in p["detail"], body
+    st, _, body = call(daemon, "GET", a)
+    assert json.loads(body)["frames_rendered"] == 0
