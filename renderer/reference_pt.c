@@ -212,6 +212,16 @@ bool reference_pt_render(const struct scene *scene, const struct pt_params *para
                          struct render_stats *stats, parallel_progress_fn *progress, void *progress_ctx,
                          struct err *err)
 {
+    if (!image_init(out, params->width, params->height, err)) return false;
+    if (reference_pt_render_into(scene, params, out, stats, progress, progress_ctx, err)) return true;
+    image_destroy(out);
+    return false;
+}
+
+bool reference_pt_render_into(const struct scene *scene, const struct pt_params *params, struct image *out,
+                              struct render_stats *stats, parallel_progress_fn *progress, void *progress_ctx,
+                              struct err *err)
+{
     if (!scene->accel || !scene->lights) return err_set(err, ERR_INVALID, NULL, "scene is not committed");
     if (params->spp == 0) return err_set(err, ERR_INVALID, "spp", "spp must be at least 1");
     struct pt_params p = *params;
@@ -223,13 +233,17 @@ bool reference_pt_render(const struct scene *scene, const struct pt_params *para
     if (p.crop_x0 >= p.crop_x1 || p.crop_y0 >= p.crop_y1 || p.crop_x1 > p.width || p.crop_y1 > p.height)
         return err_set(err, ERR_INVALID, "crop", "crop window [%u,%u)x[%u,%u) is empty or outside %ux%u", p.crop_x0,
                        p.crop_x1, p.crop_y0, p.crop_y1, p.width, p.height);
-    if (!image_init(out, p.width, p.height, err)) return false;
+    if (out->width != p.width || out->height != p.height || !out->pixels)
+        return err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the render %ux%u", out->width, out->height,
+                       p.width, p.height);
+    /* Pixels outside a crop keep 0, as in a fresh image. */
+    if (p.crop_x0 != 0 || p.crop_y0 != 0 || p.crop_x1 != p.width || p.crop_y1 != p.height)
+        memset(out->pixels, 0, (size_t)p.width * p.height * sizeof *out->pixels);
 
-    struct pt_job *job = calloc(1, sizeof *job);
-    if (!job) {
-        image_destroy(out);
-        return err_set(err, ERR_NOMEM, NULL, "out of memory");
-    }
+    /* On the stack (per-worker counters, ~57 KiB): a steady-state frame allocates nothing. */
+    struct pt_job job_storage;
+    struct pt_job *job = &job_storage;
+    memset(job, 0, sizeof *job);
     job->scene = scene;
     job->params = &p;
     job->out = out;
@@ -255,7 +269,5 @@ bool reference_pt_render(const struct scene *scene, const struct pt_params *para
         stats->threads = threads;
         stats->render_ms = (double)(t1.tv_sec - t0.tv_sec) * 1e3 + (double)(t1.tv_nsec - t0.tv_nsec) * 1e-6;
     }
-    free(job);
-    if (!ok) image_destroy(out);
     return ok;
 }

@@ -42,4 +42,11 @@ bool reference_pt_render(const struct scene *scene, const struct pt_params *para
                          struct render_stats *stats, parallel_progress_fn *progress, void *progress_ctx,
                          struct err *err);
 
+/* The same into an image the caller allocated at width x height (its pixels are overwritten;
+ * outside a crop they become 0). Allocates nothing: for renderers that keep their frame
+ * buffer across frames. ERR_INVALID when the image has another size. */
+bool reference_pt_render_into(const struct scene *scene, const struct pt_params *params, struct image *out,
+                              struct render_stats *stats, parallel_progress_fn *progress, void *progress_ctx,
+                              struct err *err);
+
 #endif

@@ -44,10 +44,15 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         return err_set(err, ERR_INVALID, "/width", "image size must be at least 1x1");
     if (params->method == RENDER_METHOD_PT && params->pt.spp == 0)
         return err_set(err, ERR_INVALID, "/params/spp", "spp must be at least 1");
-    /* pt needs only the accumulation buffer: no reservoirs, no G-buffer. */
-    if (!image_init(&v->accum, params->width, params->height, err)) return false;
+    /* pt needs its frame and the accumulation buffer: no reservoirs, no G-buffer. */
+    if (!image_init(&v->output, params->width, params->height, err)) return false;
+    if (!image_init(&v->accum, params->width, params->height, err)) {
+        image_destroy(&v->output);
+        return false;
+    }
     v->changes = calloc(scene->shape_count ? scene->shape_count : 1, sizeof *v->changes);
     if (!v->changes) {
+        image_destroy(&v->output);
         image_destroy(&v->accum);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for a view");
     }
@@ -65,6 +70,7 @@ void view_destroy(struct view *v)
     scene_release(v->prev_scene);
     scene_release(v->scene);
     scene_release(v->base);
+    image_destroy(&v->output);
     image_destroy(&v->accum);
     free(v->changes);
     memset(v, 0, sizeof *v);
@@ -133,9 +139,10 @@ static double view_ms_since(const struct timespec *t0)
     return (double)(t1.tv_sec - t0->tv_sec) * 1e3 + (double)(t1.tv_nsec - t0->tv_nsec) * 1e-6;
 }
 
-bool view_render(struct view *v, const struct view_frame_change *change, struct image *out,
-                 struct frame_stats *stats, parallel_progress_fn *progress, void *progress_ctx, struct err *err)
+bool view_render(struct view *v, const struct view_frame_change *change, struct frame_stats *stats,
+                 parallel_progress_fn *progress, void *progress_ctx, struct err *err)
 {
+    struct image *out = &v->output;
     struct camera_desc camera = v->camera;
     struct scene *scene = v->scene;
     bool restart = false;
@@ -177,7 +184,7 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
     p.threads = v->threads;
     p.camera = &camera;
     struct render_stats rs;
-    if (!reference_pt_render(scene, &p, out, &rs, progress, progress_ctx, err)) {
+    if (!reference_pt_render_into(scene, &p, out, &rs, progress, progress_ctx, err)) {
         scene_release(scene);
         return false;
     }
@@ -223,6 +230,7 @@ bool view_accumulated(const struct view *v, struct image *out, uint32_t *count, 
 uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_BUFFERS], size_t *total)
 {
     uint32_t n = 0;
+    out[n++] = (struct view_buffer_bytes){"frame", (size_t)v->output.width * v->output.height * sizeof *v->output.pixels};
     out[n++] = (struct view_buffer_bytes){"accumulation", (size_t)v->accum.width * v->accum.height * sizeof *v->accum.pixels};
     out[n++] = (struct view_buffer_bytes){"shape_changes", (size_t)(v->base->shape_count ? v->base->shape_count : 1) * sizeof *v->changes};
     size_t sum = 0;

@@ -79,6 +79,7 @@ struct view {
     struct camera_desc camera, prev_camera;
     double time_s;
     uint32_t frame;                       /* frames rendered since creation or reset */
+    struct image output;                  /* the frame last rendered (view_render's output) */
     struct image accum;                   /* running sum since the last change */
     uint32_t accum_count;
     struct view_shape_change *changes;    /* the shape changes in force, one per changed shape */
@@ -94,12 +95,13 @@ void view_destroy(struct view *v);
  * camera and shape changes. */
 void view_reset(struct view *v);
 
-/* Renders the next frame into `out` (initialised here). Applies `change` first (NULL = none):
- * a camera change or a shape change restarts the accumulation. Errors: ERR_INVALID (a change
- * names a shape out of range or gives a non-finite value), ERR_NOMEM; the view is unchanged
- * on error. */
-bool view_render(struct view *v, const struct view_frame_change *change, struct image *out,
-                 struct frame_stats *stats, parallel_progress_fn *progress, void *progress_ctx, struct err *err);
+/* Renders the next frame into v->output (allocated with the view: a steady-state frame
+ * allocates nothing unless a shape change derives a new scene). Applies `change` first
+ * (NULL = none): a camera change or a shape change restarts the accumulation. Errors:
+ * ERR_INVALID (a change names a shape out of range or gives a non-finite value), ERR_NOMEM;
+ * on error the view's state (camera, scene, changes, counters) is unchanged. */
+bool view_render(struct view *v, const struct view_frame_change *change, struct frame_stats *stats,
+                 parallel_progress_fn *progress, void *progress_ctx, struct err *err);
 
 /* The mean of the accumulated frames into `out` (initialised here); ERR_INVALID when none. */
 bool view_accumulated(const struct view *v, struct image *out, uint32_t *count, struct err *err);

@@ -266,17 +266,23 @@ void session_post_event(struct session *s, const char *type, const char *json)
 bool session_render(struct session *s, struct gate *gate, bool bounded, const struct view_frame_change *change,
                     struct job *job, uint32_t *n, struct frame_stats *stats, struct err *err)
 {
-    struct image img;
     if (!gate_enter(gate, bounded, err)) return false;
-    bool ok = view_render(&s->view, change, &img, stats, NULL, NULL, err);
+    bool ok = view_render(&s->view, change, stats, NULL, NULL, err);
     gate_leave(gate);
     if (!ok) return false;
 
+    /* Kept frames live in slots allocated on first use and reused: a session in its steady
+     * state allocates nothing per frame. */
+    const struct image *img = &s->view.output;
     pthread_mutex_lock(&s->lock);
     uint32_t frame = stats->frame;
     struct session_frame *slot = &s->ring[frame % s->frames_kept];
-    image_destroy(&slot->img);
-    slot->img = img;
+    if (!slot->img.pixels && !image_init(&slot->img, img->width, img->height, err)) {
+        slot->valid = false;
+        pthread_mutex_unlock(&s->lock);
+        return false;
+    }
+    memcpy(slot->img.pixels, img->pixels, (size_t)img->width * img->height * sizeof *img->pixels);
     slot->valid = true;
     slot->n = frame;
     slot->stats = *stats;
