@@ -238,3 +238,34 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
     if (total) *total = sum;
     return n;
 }
+
+bool view_animation_change(const struct view_animation *a, double t_s, struct view_frame_change *out,
+                           struct view_shape_change *shapes, struct err *err)
+{
+    memset(out, 0, sizeof *out);
+    out->has_time = true;
+    out->time_s = t_s;
+    if (a->camera_key_count) {
+        animation_camera_at(a->camera_keys, a->camera_key_count, a->interp, t_s, &out->camera);
+        out->has_camera = true;
+    }
+    for (uint32_t k = 0; k < a->track_count; k++) {
+        struct animation_shape_state st;
+        animation_shape_at(a->tracks[k].keys, a->tracks[k].key_count, a->interp, t_s, &st);
+        struct view_shape_change *c = &shapes[k];
+        memset(c, 0, sizeof *c);
+        c->shape = a->tracks[k].shape;
+        c->has_position = st.has_position;
+        c->position = st.position;
+        c->has_emission = st.has_emission;
+        c->emission = st.emission;
+        if (st.has_transform) {
+            c->has_transform = true;
+            if (!xform_from_trs(&st.transform, &c->transform))
+                return err_set(err, ERR_INVALID, NULL, "at t = %g s the interpolated transform overflows", t_s);
+        }
+    }
+    out->shapes = shapes;
+    out->shape_count = a->track_count;
+    return true;
+}

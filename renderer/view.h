@@ -11,6 +11,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "animation.h"
 #include "image.h"
 #include "parallel.h"
 #include "reference_pt.h"
@@ -55,6 +56,27 @@ struct view_frame_change {
     bool has_time;
     double time_s;
 };
+
+/* Keyframed camera and shape tracks (an animation job, or the CLI's --animation), resolved
+ * against a scene: cameras complete, shapes by index. The arrays belong to the owner. */
+struct view_track {
+    uint32_t shape;
+    uint32_t key_count;
+    struct animation_shape_key *keys;
+};
+struct view_animation {
+    enum animation_interp interp;
+    uint32_t camera_key_count;             /* 0 = the camera does not move */
+    struct animation_camera_key *camera_keys;
+    uint32_t track_count;
+    struct view_track *tracks;
+};
+
+/* The frame change at time t: the interpolated camera (when keyed) and one shape change per
+ * track, written to `shapes` (room for a->track_count). ERR_INVALID when an interpolated
+ * transform leaves the float range. */
+bool view_animation_change(const struct view_animation *a, double t_s, struct view_frame_change *out,
+                           struct view_shape_change *shapes, struct err *err);
 
 struct view_buffer_bytes {
     const char *name;                     /* "accumulation", "reservoirs", "gbuffer", ... */

@@ -9,7 +9,7 @@
 #include <time.h>
 #include <math.h>
 
-#include "camera.h"
+#include "animate.h"
 #include "tonemap.h"
 
 static const char *const api_image_types[] = {"image/x-exr", "image/png", "application/json", NULL};
@@ -206,21 +206,14 @@ void api_session_reset(struct api_call *c)
     c->resp->status = 204;
 }
 
-/* Completes a partial camera over `base` and checks that it can form an image. */
+/* Completes a partial camera over `base`; answers 422 at `ptr` when it cannot form an image. */
 static bool api_complete_camera(struct api_call *c, const struct protocol_camera *pc, const struct camera_desc *base,
                                 const char *ptr, struct camera_desc *out)
 {
-    *out = *base;
-    if (pc->has_position) out->position = pc->position;
-    if (pc->has_look_at) out->look_at = pc->look_at;
-    if (pc->has_up) out->up = vec3_normalize(pc->up);
-    if (pc->has_fov_deg) out->fov_deg = pc->fov_deg;
     const char *why = NULL;
-    if (!camera_desc_valid(out, &why)) {
-        api_problem(c, 422, "invalid-field", ptr, "%s", why);
-        return false;
-    }
-    return true;
+    if (animate_complete_camera(pc, base, out, &why)) return true;
+    api_problem(c, 422, "invalid-field", ptr, "%s", why);
+    return false;
 }
 
 /* Reference named by ?reference= (NULL when absent); answers and returns false on error. */
@@ -707,39 +700,16 @@ void api_renders_post(struct api_call *c)
     }
     j->reference = ref;
     j->fps = rq.fps;
-    j->interp = rq.interp;
     j->frames_total = rq.frames;
     j->frames = calloc(rq.frames, sizeof *j->frames);
     j->rows = calloc(rq.frames, sizeof *j->rows);
-    j->camera_keys = calloc(rq.camera_key_count ? rq.camera_key_count : 1, sizeof *j->camera_keys);
-    j->tracks = calloc(rq.shape_track_count ? rq.shape_track_count : 1, sizeof *j->tracks);
-    bool ok = j->frames && j->rows && j->camera_keys && j->tracks;
+    bool ok = j->frames && j->rows;
     if (!ok) api_problem(c, 503, "busy", NULL, "out of memory for the job");
-    /* Camera keys complete each other in order: a member a key leaves out is the previous
-     * key's (the first key's come from the session's camera). */
-    struct camera_desc prev = s->view.camera;
-    for (uint32_t i = 0; ok && i < rq.camera_key_count; i++) {
-        char ptr[64];
-        snprintf(ptr, sizeof ptr, "/animation/camera_keys/%u", i);
-        j->camera_keys[i].t_s = rq.camera_keys[i].t_s;
-        ok = api_complete_camera(c, &rq.camera_keys[i].camera, &prev, ptr, &j->camera_keys[i].camera);
-        prev = j->camera_keys[i].camera;
-    }
-    j->camera_key_count = ok ? rq.camera_key_count : 0;
-    for (uint32_t i = 0; ok && i < rq.shape_track_count; i++) {
-        int idx = scene_find_shape(s->view.base, rq.shape_tracks[i].name);
-        if (idx < 0) {
-            char ptr[160];
-            protocol_pointer_key(ptr, sizeof ptr, "/animation/light_keys", rq.shape_tracks[i].name);
-            api_problem(c, 422, "invalid-field", ptr, "scene '%s' has no shape named '%s'", s->scene_id, rq.shape_tracks[i].name);
-            ok = false;
-            break;
-        }
-        j->tracks[i].shape = (uint32_t)idx;
-        j->tracks[i].key_count = rq.shape_tracks[i].key_count;
-        j->tracks[i].keys = rq.shape_tracks[i].keys;  /* moved */
-        rq.shape_tracks[i].keys = NULL;
-        j->track_count = i + 1;
+    /* The session's camera is stable while it is claimed: it is where the animation starts. */
+    if (ok && !animate_resolve(&rq, s->view.base, &s->view.camera, &j->anim, &e)) {
+        if (e.code == ERR_NOMEM) api_error(c, &e);
+        else api_problem(c, 422, "invalid-field", e.where, "%s", e.message);
+        ok = false;
     }
     if (ok && !jobs_submit(c->d->jobs, j, &e)) {
         api_problem(c, 429, "queue-full", NULL, "%s", e.message);

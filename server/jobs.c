@@ -76,39 +76,18 @@ static void jobs_fail(struct job *j, int status, const char *slug)
 static void jobs_run_animation(struct jobs *q, struct job *j)
 {
     struct session *s = j->session;
-    struct view_shape_change changes[j->track_count ? j->track_count : 1];
+    struct view_shape_change changes[j->anim.track_count ? j->anim.track_count : 1];
     for (uint32_t i = 0; i < j->frames_total; i++) {
         if (atomic_load(&j->cancel)) {
             jobs_set_status(j, JOB_CANCELLED);
             return;
         }
         double t = (double)i / j->fps;
-        struct view_frame_change change = {.has_time = true, .time_s = t};
-        if (j->camera_key_count) {
-            animation_camera_at(j->camera_keys, j->camera_key_count, j->interp, t, &change.camera);
-            change.has_camera = true;
+        struct view_frame_change change;
+        if (!view_animation_change(&j->anim, t, &change, changes, &j->error)) {
+            jobs_fail(j, 422, "invalid-field");
+            return;
         }
-        for (uint32_t k = 0; k < j->track_count; k++) {
-            struct animation_shape_state st;
-            animation_shape_at(j->tracks[k].keys, j->tracks[k].key_count, j->interp, t, &st);
-            struct view_shape_change *c = &changes[k];
-            memset(c, 0, sizeof *c);
-            c->shape = j->tracks[k].shape;
-            c->has_position = st.has_position;
-            c->position = st.position;
-            c->has_emission = st.has_emission;
-            c->emission = st.emission;
-            if (st.has_transform) {
-                c->has_transform = true;
-                if (!xform_from_trs(&st.transform, &c->transform)) {
-                    err_set(&j->error, ERR_INVALID, NULL, "frame %u: the interpolated transform overflows", i);
-                    jobs_fail(j, 422, "invalid-field");
-                    return;
-                }
-            }
-        }
-        change.shapes = changes;
-        change.shape_count = j->track_count;
 
         uint32_t n;
         struct frame_stats stats;

@@ -1,6 +1,8 @@
 /* session.c — sessions, their kept frames, events and job records (see session.h). */
 #include "session.h"
 
+#include "animate.h"
+
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -46,9 +48,7 @@ void job_destroy(struct job *j)
     if (!j) return;
     free(j->frames);
     free(j->rows);
-    free(j->camera_keys);
-    for (uint32_t i = 0; i < j->track_count; i++) free(j->tracks[i].keys);
-    free(j->tracks);
+    animate_destroy(&j->anim);
     ref_image_release(j->reference);
     scene_release(j->ref_scene);
     free(j);

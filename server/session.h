@@ -52,11 +52,7 @@ struct job {
     struct job_row *rows;            /* animation: one per frame */
     /* animation */
     double fps;
-    enum animation_interp interp;
-    uint32_t camera_key_count;
-    struct animation_camera_key *camera_keys;
-    uint32_t track_count;
-    struct job_track { uint32_t shape; uint32_t key_count; struct animation_shape_key *keys; } *tracks;
+    struct view_animation anim;      /* arrays owned by the job */
     struct ref_image *reference;     /* retained, or NULL */
     /* reference */
     char ref_name[65];
