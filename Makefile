@@ -84,7 +84,7 @@ $(OBJ)/openapi.o: protocol/openapi.yaml Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
 	ld -r -b binary -z noexecstack -o $@ $<
 
-$(OUT)/restir: $(OBJ)/server/cli.o $(OBJ)/librenderer.a
+$(OUT)/restir: $(OBJ)/server/cli.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
 	$(CC) $(CFLAGS) $^ $(LDLIBS) -o $@
 
 $(OUT)/restird: $(OBJ)/server/main.o $(OBJ)/openapi.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a

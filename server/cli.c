@@ -9,20 +9,27 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "animate.h"
 #include "exrio.h"
+#include "fileio.h"
 #include "metrics.h"
 #include "reference_pt.h"
 #include "scene.h"
+#include "view.h"
 
 #define CLI_USAGE                                                                                  \
     "usage:\n"                                                                                     \
     "  restir render SCENE.json [--method pt] [--spp N] [--size WxH] [--seed S] [--frame F]\n"    \
     "                [--threads T] [--max-depth D] [--rr-depth R] [--no-nee] [--crop X0,Y0,X1,Y1]\n"    \
-    "                [--half] [--json] -o OUT.exr\n" \
+    "                [--frames F] [--animation FILE.json] [--half] [--json] -o OUT.exr\n" \
     "  restir compare A.exr B.exr      (B is the reference; prints one JSON object)\n"             \
     "defaults: --method pt --spp 16 --size 256x256 --seed 0 --max-depth 64 --rr-depth 3 (Russian\n"         \
     "roulette after R bounces; R >= max depth turns it off), next-event estimation with MIS\n"     \
-    "(--no-nee: BSDF sampling only), all cores, float EXR\n"
+    "(--no-nee: BSDF sampling only), all cores, float EXR.\n"                                    \
+    "--frames F renders F consecutive frames in one session (seeds per frame, as the daemon's\n"   \
+    "sessions) and writes the last; --animation FILE.json takes camera and light keys from a file\n" \
+    "holding the body of a daemon animation job ({\"animation\": {...}}, protocol/API.md) and\n"   \
+    "its frame count unless --frames is given\n"
 
 static int cli_usage_error(const char *fmt, const char *arg)
 {
@@ -85,6 +92,74 @@ static void cli_progress(void *ctx, uint32_t done, uint32_t total)
     fflush(stderr);
 }
 
+/* --frames / --animation: F frames of one view (the daemon's session state, without the
+ * server), writing the last. *st sums the frames' ray counts and times. */
+static bool cli_render_sequence(struct scene *scene, const struct pt_params *p, uint32_t frames, const char *anim_path,
+                                bool tty, struct image *img, struct render_stats *st, uint32_t *rendered)
+{
+    struct err err = {0};
+    char msg[1024];
+    struct view_animation anim = {0};
+    double fps = 30.0;
+    bool has_anim = false;
+    if (anim_path) {
+        char *text = NULL;
+        size_t len = 0;
+        if (!fileio_read_all(anim_path, "animation file", NULL, 16u << 20, &text, &len, &err)) {
+            fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
+            return false;
+        }
+        const struct protocol_limits limits = {.max_side = 16384, .max_pixels = 16384ull * 16384ull,
+                                               .max_spp = 1u << 24, .max_frames = 1000000, .max_keys = 100000};
+        struct protocol_render_request rq;
+        bool ok = protocol_parse_render_request(text, len, &limits, &rq, &err) &&
+                  animate_resolve(&rq, scene, &scene->camera, &anim, &err);
+        free(text);
+        if (!ok) {
+            protocol_render_request_destroy(&rq);
+            fprintf(stderr, "restir: %s: %s\n", anim_path, err_format(&err, msg, sizeof msg));
+            return false;
+        }
+        if (!frames) frames = rq.frames;
+        fps = rq.fps;
+        protocol_render_request_destroy(&rq);
+        has_anim = true;
+    }
+    struct view_params vp = view_params_defaults(RENDER_METHOD_PT, p->width, p->height);
+    vp.seed = p->seed;
+    vp.pt = (struct view_pt_params){.spp = p->spp, .max_depth = p->max_depth, .rr_depth = p->rr_depth, .nee = p->nee};
+    struct view v;
+    if (!view_init(&v, scene, &vp, p->threads, &err)) {
+        fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
+        animate_destroy(&anim);
+        return false;
+    }
+    struct view_shape_change shapes[anim.track_count ? anim.track_count : 1];
+    memset(st, 0, sizeof *st);
+    bool ok = true;
+    for (uint32_t i = 0; ok && i < frames; i++) {
+        struct view_frame_change change;
+        struct frame_stats fs;
+        ok = !has_anim || view_animation_change(&anim, (double)i / fps, &change, shapes, &err);
+        ok = ok && view_render(&v, has_anim ? &change : NULL, &fs, NULL, NULL, &err);
+        if (!ok) break;
+        st->rays_intersect += fs.render.rays_intersect;
+        st->rays_occluded += fs.render.rays_occluded;
+        st->samples += fs.render.samples;
+        st->nonfinite += fs.render.nonfinite;
+        st->render_ms += fs.render.render_ms + fs.scene_update_ms;
+        st->threads = fs.render.threads;
+        if (tty) cli_progress(NULL, i + 1, frames);
+    }
+    if (ok) ok = image_init(img, v.output.width, v.output.height, &err);
+    if (ok) memcpy(img->pixels, v.output.pixels, (size_t)img->width * img->height * sizeof *img->pixels);
+    else fprintf(stderr, "restir: render failed: %s\n", err_format(&err, msg, sizeof msg));
+    *rendered = frames;
+    view_destroy(&v);
+    animate_destroy(&anim);
+    return ok;
+}
+
 static int cli_render(int argc, char **argv)
 {
     const char *scene_path = NULL, *out_path = NULL, *method = "pt";
@@ -92,7 +167,9 @@ static int cli_render(int argc, char **argv)
     struct pt_params p = reference_pt_defaults(width, height);
     bool half = false, json = false;
     uint32_t crop[4] = {0, 0, 0, 0};
-    bool has_crop = false;
+    bool has_crop = false, has_frame = false;
+    uint32_t frames = 0;
+    const char *anim_path = NULL;
 
     for (int i = 0; i < argc; i++) {
         const char *a = argv[i];
@@ -119,6 +196,11 @@ static int cli_render(int argc, char **argv)
             p.seed = u64;
         } else if (strcmp(a, "--frame") == 0) {
             if (!cli_parse_u32(v, UINT32_MAX, &p.frame)) return cli_usage_error("--frame: expected a non-negative integer, got '%s'", v);
+            has_frame = true;
+        } else if (strcmp(a, "--frames") == 0) {
+            if (!cli_parse_u32(v, 1000000, &frames) || frames == 0) return cli_usage_error("--frames: expected 1..1000000, got '%s'", v);
+        } else if (strcmp(a, "--animation") == 0) {
+            anim_path = v;
         } else if (strcmp(a, "--threads") == 0) {
             uint32_t t;
             if (!cli_parse_u32(v, 1024, &t)) return cli_usage_error("--threads: expected 0..1024 (0 = all cores), got '%s'", v);
@@ -155,7 +237,17 @@ static int cli_render(int argc, char **argv)
     struct image img;
     struct render_stats st;
     bool tty = isatty(STDERR_FILENO) && !json;
-    if (!reference_pt_render(scene, &p, &img, &st, tty ? cli_progress : NULL, NULL, &err)) {
+    uint32_t rendered = 1;
+    if (frames || anim_path) {
+        if (has_crop || has_frame) {
+            scene_release(scene);
+            return cli_usage_error("%s", "--crop and --frame do not combine with --frames or --animation");
+        }
+        if (!cli_render_sequence(scene, &p, frames, anim_path, tty, &img, &st, &rendered)) {
+            scene_release(scene);
+            return 1;
+        }
+    } else if (!reference_pt_render(scene, &p, &img, &st, tty ? cli_progress : NULL, NULL, &err)) {
         fprintf(stderr, "restir: render failed: %s\n", err_format(&err, msg, sizeof msg));
         scene_release(scene);
         return 1;
@@ -170,14 +262,14 @@ static int cli_render(int argc, char **argv)
     double rays_per_s = st.render_ms > 0 ? rays / (st.render_ms * 1e-3) : 0.0;
     unsigned threads = st.threads;
     if (json) {
-        printf("{\"method\":\"%s\",\"width\":%u,\"height\":%u,\"spp\":%u,\"seed\":%" PRIu64 ",\"threads\":%u,"
+        printf("{\"method\":\"%s\",\"width\":%u,\"height\":%u,\"spp\":%u,\"frames\":%u,\"seed\":%" PRIu64 ",\"threads\":%u,"
                "\"time_ms\":%.3f,\"rays\":%" PRIu64 ",\"rays_intersect\":%" PRIu64 ",\"rays_occluded\":%" PRIu64
                ",\"rays_per_s\":%.6g,\"samples\":%" PRIu64 ",\"nonfinite\":%" PRIu64 ",\"mean\":[%.9g,%.9g,%.9g]}\n",
-               method, width, height, p.spp, p.seed, threads, st.render_ms, rays, st.rays_intersect, st.rays_occluded,
+               method, width, height, p.spp, rendered, p.seed, threads, st.render_ms, rays, st.rays_intersect, st.rays_occluded,
                rays_per_s, st.samples, st.nonfinite, mean[0], mean[1], mean[2]);
     } else {
-        fprintf(stderr, "%s: %ux%u, %u spp, %s: %.3f s, %.2f Mrays/s (%" PRIu64 " rays, %u threads)%s\n", out_path,
-                width, height, p.spp, method, st.render_ms * 1e-3, rays_per_s * 1e-6, rays, threads,
+        fprintf(stderr, "%s: %ux%u, %u spp%s, %s: %.3f s, %.2f Mrays/s (%" PRIu64 " rays, %u threads)%s\n", out_path,
+                width, height, p.spp, rendered > 1 ? " per frame, last of a sequence" : "", method, st.render_ms * 1e-3, rays_per_s * 1e-6, rays, threads,
                 st.nonfinite ? ", non-finite samples dropped" : "");
     }
     image_destroy(&img);

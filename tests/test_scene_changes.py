@@ -10,6 +10,7 @@ import re
 import signal
 import subprocess
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -162,3 +163,59 @@ def test_camera_merged_with_session_camera_is_validated(daemon):
     assert st == 422 and p["field"] == "/camera" and "parallel" in p["detail"], body
     st, _, body = call(daemon, "GET", a)
     assert json.loads(body)["frames_rendered"] == 0
+
+
+CLI = os.environ.get("RESTIR_BIN", str(ROOT / "build" / "restir"))
+
+
+def cli_render(tmp_path, *args):
+    out = tmp_path / "cli.exr"
+    res = subprocess.run([CLI, "render", str(ROOT / "scenes" / "cornell-box" / "scene.json"), "--size", "24x24",
+                          "--spp", "2", "--seed", "7", "--threads", "2", "-o", str(out), *map(str, args)],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    return exr_pixels(out.read_bytes())
+
+
+def test_cli_frames_match_daemon_session(daemon, tmp_path):
+    # `restir render --frames 4` is a session without the server: its last frame is frame 3 of
+    # a daemon session with the same seed and parameters, bit for bit.
+    a = session(daemon, "cornell-box")
+    for _ in range(3):
+        frame(daemon, a)
+    assert np.array_equal(cli_render(tmp_path, "--frames", 4), frame(daemon, a))
+
+
+def test_cli_animation_matches_daemon_job(daemon, tmp_path):
+    body = {"animation": {"fps": 10, "frames": 3, "interpolation": "catmull_rom",
+                          "camera_keys": [{"t": 0, "position": [278, 273, -800]},
+                                          {"t": 0.2, "position": [330, 280, -760], "fov_deg": 35}],
+                          "light_keys": {"ceiling_light": [{"t": 0, "emission": [17, 12, 4]},
+                                                           {"t": 0.2, "emission": [4, 12, 17],
+                                                            "position": [0, -30, 0]}]}}}
+    anim = tmp_path / "anim.json"
+    anim.write_text(json.dumps(body))
+    a = session(daemon, "cornell-box")
+    st, hdr, data = call(daemon, "POST", a + "/renders", body)
+    assert st == 202, data
+    job = hdr["Location"]
+    for _ in range(600):
+        st, _, data = call(daemon, "GET", job)
+        if json.loads(data)["status"] in ("done", "failed", "cancelled"):
+            break
+        time.sleep(0.05)
+    assert json.loads(data)["status"] == "done", data
+    st, _, last = call(daemon, "GET", a + "/frames/2", accept="image/x-exr")
+    assert st == 200
+    assert np.array_equal(cli_render(tmp_path, "--animation", anim), exr_pixels(last))
+
+
+def test_cli_animation_errors_name_the_key(tmp_path):
+    anim = tmp_path / "bad.json"
+    anim.write_text(json.dumps({"animation": {"frames": 2, "light_keys": {"no_such": [{"t": 0, "emission": [1, 1, 1]}]}}}))
+    res = subprocess.run([CLI, "render", str(ROOT / "scenes" / "cornell-box" / "scene.json"), "--size", "8x8",
+                          "--animation", str(anim), "-o", str(tmp_path / "x.exr")], capture_output=True, text=True)
+    assert res.returncode == 1 and "/animation/light_keys/no_such" in res.stderr, res.stderr
+    res = subprocess.run([CLI, "render", str(ROOT / "scenes" / "cornell-box" / "scene.json"), "--frames", "2",
+                          "--crop", "0,0,4,4", "-o", str(tmp_path / "x.exr")], capture_output=True, text=True)
+    assert res.returncode == 2 and "--crop" in res.stderr, res.stderr
