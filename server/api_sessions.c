@@ -426,10 +426,11 @@ void api_frame_get(struct api_call *c)
     uint32_t n;
     if (!api_frame_number(c, s, &n)) goto out;
     if (strcmp(c->seg[6], "latest") == 0) {
-        const char *q = strchr(c->req->path, '?');  /* MHD strips the query; rebuild what matters */
-        (void)q;
+        /* The query (exposure, tonemap, pixel, reference) goes along with the redirect. */
+        char query[256];
+        http_query_string(c->req, query, sizeof query);
         c->resp->status = 303;
-        http_response_header(c->resp, "Location", "/v1/scenes/%s/sessions/%s/frames/%u", s->scene_id, s->id, n);
+        http_response_header(c->resp, "Location", "/v1/scenes/%s/sessions/%s/frames/%u%s", s->scene_id, s->id, n, query);
         http_response_header(c->resp, "Cache-Control", "no-store");
         goto out;
     }

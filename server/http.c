@@ -62,6 +62,65 @@ const char *http_header(const struct http_request *r, const char *name)
     return MHD_lookup_connection_value(r->internal, MHD_HEADER_KIND, name);
 }
 
+struct http_query_buf { char *buf; size_t size, len; bool overflow; };
+
+static void http_query_append(struct http_query_buf *q, const char *s)
+{
+    static const char hex[] = "0123456789ABCDEF";
+    for (; *s; s++) {
+        unsigned char ch = (unsigned char)*s;
+        bool plain = (ch >= 'a' && ch <= 'z') || (ch >= 'A' && ch <= 'Z') || (ch >= '0' && ch <= '9') || ch == '-' ||
+                     ch == '_' || ch == '.' || ch == '~';
+        size_t need = plain ? 1 : 3;
+        if (q->len + need + 1 > q->size) {
+            q->overflow = true;
+            return;
+        }
+        if (plain) {
+            q->buf[q->len++] = (char)ch;
+        } else {
+            q->buf[q->len++] = '%';
+            q->buf[q->len++] = hex[ch >> 4];
+            q->buf[q->len++] = hex[ch & 15];
+        }
+    }
+    q->buf[q->len] = '\0';
+}
+
+static enum MHD_Result http_query_each(void *cls, enum MHD_ValueKind kind, const char *key, const char *value)
+{
+    (void)kind;
+    struct http_query_buf *q = cls;
+    if (q->len + 2 > q->size) {
+        q->overflow = true;
+        return MHD_NO;
+    }
+    char sep = q->len == 0 ? '?' : '&';
+    q->buf[q->len++] = sep;
+    q->buf[q->len] = '\0';
+    http_query_append(q, key);
+    if (value) {
+        if (q->len + 2 > q->size) {
+            q->overflow = true;
+            return MHD_NO;
+        }
+        q->buf[q->len++] = '=';
+        q->buf[q->len] = '\0';
+        http_query_append(q, value);
+    }
+    return q->overflow ? MHD_NO : MHD_YES;
+}
+
+bool http_query_string(const struct http_request *r, char *buf, size_t size)
+{
+    if (size == 0) return false;
+    struct http_query_buf q = {buf, size, 0, false};
+    buf[0] = '\0';
+    MHD_get_connection_values(r->internal, MHD_GET_ARGUMENT_KIND, http_query_each, &q);
+    if (q.overflow) buf[0] = '\0';
+    return !q.overflow;
+}
+
 void http_response_header(struct http_response *r, const char *name, const char *fmt, ...)
 {
     if (r->header_count >= HTTP_MAX_HEADERS) return;

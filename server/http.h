@@ -31,6 +31,9 @@ struct http_request {
 /* Query parameter / request header value, or NULL. */
 const char *http_query(const struct http_request *r, const char *key);
 const char *http_header(const struct http_request *r, const char *name);
+/* The request's query re-encoded ("?a=1&b=x%2Fy", or "" when there is none) into buf; false
+ * when it does not fit (buf then holds ""). For redirects that must keep the query. */
+bool http_query_string(const struct http_request *r, char *buf, size_t size);
 
 /* Streaming body (server-sent events): returns bytes written into buf (> 0), or
  * HTTP_STREAM_END. May block (its own connection thread). */

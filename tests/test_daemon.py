@@ -612,6 +612,9 @@ def test_get_frames_latest_etag(daemon):
     assert daemon.req("GET", f"{s['href']}/frames/0").header("ETag") != daemon.req("GET", f"{s['href']}/frames/1").header("ETag")
     r = daemon.req("GET", f"{s['href']}/frames/latest")
     assert r.status == 303 and r.header("Location") == f"{s['href']}/frames/1", repr(r)
+    # The query goes along with the redirect (a preview page asks for latest?exposure=...).
+    r = daemon.req("GET", f"{s['href']}/frames/latest?exposure=1.5&tonemap=aces")
+    assert r.status == 303 and r.header("Location") == f"{s['href']}/frames/1?exposure=1.5&tonemap=aces", repr(r)
     js = daemon.req("GET", f"{s['href']}/frames/1", headers={"Accept": "application/json"})
     assert js.status == 200 and js.json()["frame"] == 1, repr(js)
     assert_problem(daemon.req("GET", f"{s['href']}/frames/7"), 404, "not-found")
