@@ -312,7 +312,11 @@ int main(int argc, char **argv)
         fputs(CLI_USAGE, argc < 2 ? stderr : stdout);
         return argc < 2 ? 2 : 0;
     }
-    if (strcmp(argv[1], "render") == 0) return cli_render(argc - 2, argv + 2);
+    if (strcmp(argv[1], "render") == 0) {
+        int status = cli_render(argc - 2, argv + 2);
+        parallel_shutdown(); /* joins the worker pool: the process exits with nothing allocated */
+        return status;
+    }
     if (strcmp(argv[1], "compare") == 0) return cli_compare(argc - 2, argv + 2);
     return cli_usage_error("unknown command '%s' (render, compare)", argv[1]);
 }

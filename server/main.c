@@ -278,6 +278,7 @@ done:
     registry_free(d.registry);
     gate_destroy(&d.gate);
     prom_destroy(&d.prom);
+    parallel_shutdown(); /* last: no render can be running any more; joins the worker pool */
     fprintf(stderr, "restird: stopped\n");
     return status;
 }
