@@ -12,6 +12,7 @@
 
 #include "deflate.h"
 #include "exrio.h"
+#include "rng.h"
 #include "test.h"
 #if defined(__SSE2__)
 #include <xmmintrin.h>
@@ -19,13 +20,16 @@
 
 /* ---- helpers ----------------------------------------------------------------------------- */
 
-static uint64_t rng_state = 0x9e3779b97f4a7c15ull;
+/* The project's own generator (rng.h), one stream for the whole file. */
+static struct rng test_rng = {0};
+static bool test_rng_seeded = false;
 static uint32_t rnd_u32(void)
 {
-    rng_state ^= rng_state << 13;
-    rng_state ^= rng_state >> 7;
-    rng_state ^= rng_state << 17;
-    return (uint32_t)(rng_state >> 16);
+    if (!test_rng_seeded) {
+        test_rng = rng_make(0x9e3779b97f4a7c15ull, 0, 0, 0);
+        test_rng_seeded = true;
+    }
+    return rng_next_u32(&test_rng);
 }
 static double rnd_unit(void) { return (rnd_u32() >> 8) * (1.0 / 16777216.0); }
 
@@ -501,8 +505,9 @@ static void test_zip_output_equal_to_raw_size(void)
     struct image img;
     struct err err = {0};
     if (!image_init(&img, w, h, &err)) { CHECK(0); return; }
-    uint64_t saved = rng_state;
-    rng_state = 12345;
+    rnd_u32();  /* seeds the file's stream if needed */
+    struct rng saved = test_rng;
+    test_rng = rng_make(12345, 0, 0, 0);
     for (uint32_t y = 0; y < h; y++)
         for (uint32_t x = 0; x < w; x++) {
             float v[3];
@@ -513,7 +518,7 @@ static void test_zip_output_equal_to_raw_size(void)
             }
             img.pixels[(size_t)y * w + x] = vec3_make(v[0], v[1], v[2]);
         }
-    rng_state = saved;
+    test_rng = saved;
     struct exrio_write_opts o = {.pixel = EXRIO_FLOAT, .compression = EXRIO_ZIPS};
     size_t size = 0;
     unsigned char *buf = encode(&img, o, &size);
@@ -583,8 +588,9 @@ static struct image edge_image(uint32_t w, uint32_t h)
     if (!image_init(&img, w, h, &err)) return img;
     float *f = (float *)img.pixels;
     size_t n = (size_t)w * h * 3, ns = sizeof special / sizeof special[0];
-    uint64_t saved = rng_state;
-    rng_state = 777;
+    rnd_u32();
+    struct rng saved = test_rng;
+    test_rng = rng_make(777, 0, 0, 0);
     for (size_t i = 0; i < n; i++) {
         uint32_t bits = (rnd_u32() & 0x807fffffu) | (uint32_t)((i / 7) % 256) << 23;
         if (i % 7 == 3) bits = (bits & 0xffffe000u) | 0x1000u; /* a tie between normal halves */
@@ -592,7 +598,7 @@ static struct image edge_image(uint32_t w, uint32_t h)
         if (i >= ns && i % 7 == 5) /* a tie between subnormal halves: (k + 1/2) * 2^-24 */
             f[i] = ((float)(rnd_u32() % 1024) + 0.5f) * 0x1p-24f * (rnd_u32() % 2 ? -1.0f : 1.0f);
     }
-    rng_state = saved;
+    test_rng = saved;
     return img;
 }
 

@@ -12,18 +12,22 @@
 
 #include "animation.h"
 #include "deflate.h"
+#include "rng.h"
 #include "test.h"
 #include "tonemap.h"
 
 /* ---- helpers ----------------------------------------------------------------------------- */
 
-static uint64_t rng_state = 0x2545f4914f6cdd1dull;
+/* The project's own generator (rng.h), one stream for the whole file. */
+static struct rng test_rng = {0};
+static bool test_rng_seeded = false;
 static uint32_t rnd_u32(void)
 {
-    rng_state ^= rng_state << 13;
-    rng_state ^= rng_state >> 7;
-    rng_state ^= rng_state << 17;
-    return (uint32_t)(rng_state >> 16);
+    if (!test_rng_seeded) {
+        test_rng = rng_make(0x2545f4914f6cdd1dull, 0, 0, 0);
+        test_rng_seeded = true;
+    }
+    return rng_next_u32(&test_rng);
 }
 static double rnd_unit(void) { return (rnd_u32() >> 8) * (1.0 / 16777216.0); }
 
