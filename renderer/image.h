@@ -34,4 +34,11 @@ static inline void image_destroy(struct image *img)
     img->width = img->height = 0;
 }
 
+/* img *= s, pixel by pixel. */
+static inline void image_scale(struct image *img, float s)
+{
+    size_t n = (size_t)img->width * img->height;
+    for (size_t i = 0; i < n; i++) img->pixels[i] = vec3_scale(img->pixels[i], s);
+}
+
 #endif

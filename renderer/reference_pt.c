@@ -271,3 +271,17 @@ bool reference_pt_render_into(const struct scene *scene, const struct pt_params 
     }
     return ok;
 }
+
+bool reference_pt_add_pass(const struct scene *scene, const struct pt_params *params, uint32_t pass, struct image *sum,
+                           struct image *scratch, struct render_stats *stats, struct err *err)
+{
+    if (sum->width != params->width || sum->height != params->height || !sum->pixels)
+        return err_set(err, ERR_INVALID, NULL, "the sum image is %ux%u, the render %ux%u", sum->width, sum->height,
+                       params->width, params->height);
+    struct pt_params p = *params;
+    p.frame = REFERENCE_PT_PASS_FRAME0 + pass;
+    if (!reference_pt_render_into(scene, &p, scratch, stats, NULL, NULL, err)) return false;
+    size_t n = (size_t)p.width * p.height;
+    for (size_t i = 0; i < n; i++) sum->pixels[i] = vec3_add(sum->pixels[i], scratch->pixels[i]);
+    return true;
+}

@@ -49,4 +49,13 @@ bool reference_pt_render_into(const struct scene *scene, const struct pt_params 
                               struct render_stats *stats, parallel_progress_fn *progress, void *progress_ctx,
                               struct err *err);
 
+/* References rendered in passes (so that a long render reports progress and can stop between
+ * passes): pass i renders `params` with frame REFERENCE_PT_PASS_FRAME0 + i — a seed stream no
+ * frame of a session reaches, so the reference's noise is independent of the frames compared
+ * with it — into `scratch` and adds it into `sum` (both width x height; the caller zeroes sum
+ * first and divides by the pass count at the end, e.g. with image_scale). Allocates nothing. */
+#define REFERENCE_PT_PASS_FRAME0 0x80000000u
+bool reference_pt_add_pass(const struct scene *scene, const struct pt_params *params, uint32_t pass, struct image *sum,
+                           struct image *scratch, struct render_stats *stats, struct err *err);
+
 #endif

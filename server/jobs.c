@@ -123,51 +123,50 @@ static void jobs_run_reference(struct jobs *q, struct job *j)
 {
     struct session *s = j->session;
     const struct view_params *vp = &s->view.params;  /* immutable after creation */
-    struct image sum, pass;
+    struct image sum;
     if (!image_init(&sum, vp->width, vp->height, &j->error)) {
+        jobs_fail(j, 503, "busy");
+        return;
+    }
+    struct image scratch;
+    if (!image_init(&scratch, vp->width, vp->height, &j->error)) {
+        image_destroy(&sum);
         jobs_fail(j, 503, "busy");
         return;
     }
     uint32_t passes = j->frames_total;
     uint32_t spp_pass = j->ref_spp / passes;
-    for (uint32_t i = 0; i < passes; i++) {
-        if (atomic_load(&j->cancel)) {
-            image_destroy(&sum);
-            jobs_set_status(j, JOB_CANCELLED);
-            return;
+    struct pt_params p = reference_pt_defaults(vp->width, vp->height);
+    p.spp = spp_pass;
+    p.max_depth = vp->pt.max_depth > 64 ? vp->pt.max_depth : 64;
+    p.seed = vp->seed;
+    p.threads = s->view.threads;
+    p.camera = &j->ref_camera;
+    bool ok = true;
+    for (uint32_t i = 0; ok && i < passes; i++) {
+        if (atomic_load(&j->cancel) || !gate_enter(q->gate, false, &j->error)) {
+            jobs_set_status(j, JOB_CANCELLED);  /* cancelled, or the gate closed: shutting down */
+            ok = false;
+            break;
         }
-        struct pt_params p = reference_pt_defaults(vp->width, vp->height);
-        p.spp = spp_pass;
-        p.max_depth = vp->pt.max_depth > 64 ? vp->pt.max_depth : 64;
-        /* A seed stream of its own, so the reference is independent of every frame the
-         * session renders with its seed (frame indices never reach 2^31). */
-        p.seed = vp->seed;
-        p.frame = 0x80000000u + i;
-        p.threads = s->view.threads;
-        p.camera = &j->ref_camera;
         struct render_stats rs;
-        if (!gate_enter(q->gate, false, &j->error)) {
-            image_destroy(&sum);
-            jobs_set_status(j, JOB_CANCELLED);
-            return;
-        }
-        bool ok = reference_pt_render(j->ref_scene, &p, &pass, &rs, NULL, NULL, &j->error);
+        ok = reference_pt_add_pass(j->ref_scene, &p, i, &sum, &scratch, &rs, &j->error);
         gate_leave(q->gate);
         if (!ok) {
-            image_destroy(&sum);
             jobs_fail(j, 503, "busy");
-            return;
+            break;
         }
-        size_t n = (size_t)vp->width * vp->height;
-        for (size_t k = 0; k < n; k++) sum.pixels[k] = vec3_add(sum.pixels[k], pass.pixels[k]);
-        image_destroy(&pass);
         pthread_mutex_lock(&s->lock);
         j->frames_done++;
         pthread_mutex_unlock(&s->lock);
         jobs_post(j, "progress");
     }
-    size_t n = (size_t)vp->width * vp->height;
-    for (size_t k = 0; k < n; k++) sum.pixels[k] = vec3_scale(sum.pixels[k], 1.0f / (float)passes);
+    image_destroy(&scratch);
+    if (!ok) {
+        image_destroy(&sum);
+        return;
+    }
+    image_scale(&sum, 1.0f / (float)passes);
     refstore_put(q->refs, s->scene_id, j->ref_name, &sum, spp_pass * passes);
     jobs_set_status(j, JOB_DONE);
 }
