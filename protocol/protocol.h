@@ -63,10 +63,9 @@ struct protocol_camera {
 /* A change to one named shape in a frame request ("lights": {name: {...}}). name is an id. */
 struct protocol_shape_change {
     char name[PROTOCOL_ID_MAX + 1];
-    bool has_position, has_transform, has_emission;
-    struct vec3 position;
-    struct trs transform;           /* {"translate","rotate_deg","scale"} as in the scene format */
-    struct vec3 emission;           /* every component >= 0 */
+    /* position, transform ({"translate","rotate_deg","scale"} as in the scene format) and
+     * emission (every component >= 0): the same channels an animation key has */
+    struct animation_shape_state state;
 };
 
 /* POST …/sessions/{sid}/frames: {"camera": {...}, "lights": {name: {...}}, "time_s": t}, all

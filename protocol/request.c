@@ -764,12 +764,7 @@ bool protocol_parse_frame_request(const char *body, size_t len, struct protocol_
                  request_shape_channels(c, q, &st, err);
             if (!ok) break;
             snprintf(sc->name, sizeof sc->name, "%s", c->string);
-            sc->has_position = st.has_position;
-            sc->has_transform = st.has_transform;
-            sc->has_emission = st.has_emission;
-            sc->position = st.position;
-            sc->transform = st.transform;
-            sc->emission = st.emission;
+            sc->state = st;
             out->shape_count++;
         }
     }

@@ -345,13 +345,13 @@ void api_frames_post(struct api_call *c)
         struct view_shape_change *vc = &shapes[i];
         memset(vc, 0, sizeof *vc);
         vc->shape = (uint32_t)idx;
-        vc->has_position = sc->has_position;
-        vc->position = sc->position;
-        vc->has_emission = sc->has_emission;
-        vc->emission = sc->emission;
-        if (sc->has_transform) {
+        vc->has_position = sc->state.has_position;
+        vc->position = sc->state.position;
+        vc->has_emission = sc->state.has_emission;
+        vc->emission = sc->state.emission;
+        if (sc->state.has_transform) {
             vc->has_transform = true;
-            if (!xform_from_trs(&sc->transform, &vc->transform)) {
+            if (!xform_from_trs(&sc->state.transform, &vc->transform)) {
                 char tp[192];
                 snprintf(tp, sizeof tp, "%s/transform", ptr);
                 api_problem(c, 422, "invalid-field", tp, "the transform overflows the 32-bit float range");

@@ -160,16 +160,16 @@ static void test_frame_valid(void)
     CHECK(f.camera.position.x == 1.5f && f.camera.position.y == -2.0f && f.camera.position.z == 3.25f);
     CHECK(f.camera.up.y == 1.0f && f.camera.fov_deg == 45.0f);
     CHECK(f.shape_count == 3);
-    CHECK(strcmp(f.shapes[0].name, "lamp") == 0 && f.shapes[0].has_position && !f.shapes[0].has_transform &&
-          f.shapes[0].has_emission);
-    CHECK(f.shapes[0].position.y == 1.9f && f.shapes[0].emission.x == 17.0f && f.shapes[0].emission.z == 4.0f);
+    CHECK(strcmp(f.shapes[0].name, "lamp") == 0 && f.shapes[0].state.has_position && !f.shapes[0].state.has_transform &&
+          f.shapes[0].state.has_emission);
+    CHECK(f.shapes[0].state.position.y == 1.9f && f.shapes[0].state.emission.x == 17.0f && f.shapes[0].state.emission.z == 4.0f);
     const struct protocol_shape_change *b = &f.shapes[1];
-    CHECK(strcmp(b->name, "ball-2") == 0 && !b->has_position && b->has_transform && !b->has_emission);
-    CHECK(b->transform.translate.z == 3.0f && b->transform.rotate_deg.y == 90.0f);
-    CHECK(b->transform.scale.x == 2.0f && b->transform.scale.y == 2.0f && b->transform.scale.z == 2.0f);
+    CHECK(strcmp(b->name, "ball-2") == 0 && !b->state.has_position && b->state.has_transform && !b->state.has_emission);
+    CHECK(b->state.transform.translate.z == 3.0f && b->state.transform.rotate_deg.y == 90.0f);
+    CHECK(b->state.transform.scale.x == 2.0f && b->state.transform.scale.y == 2.0f && b->state.transform.scale.z == 2.0f);
     const struct protocol_shape_change *x = &f.shapes[2];
-    CHECK(strcmp(x->name, "box_3") == 0 && x->transform.scale.y == 2.0f && x->transform.scale.z == 0.5f);
-    CHECK(x->transform.translate.x == 0.0f && x->transform.rotate_deg.z == 0.0f);  /* identity parts */
+    CHECK(strcmp(x->name, "box_3") == 0 && x->state.transform.scale.y == 2.0f && x->state.transform.scale.z == 0.5f);
+    CHECK(x->state.transform.translate.x == 0.0f && x->state.transform.rotate_deg.z == 0.0f);  /* identity parts */
     CHECK(f.has_time && f.time_s == 0.25);
 
     /* Everything is optional: the empty body and {} change nothing. */
@@ -185,7 +185,7 @@ static void test_frame_valid(void)
     /* {} is the identity transform. */
     body = "{\"lights\": {\"lamp\": {\"transform\": {}}}}";
     CHECK(protocol_parse_frame_request(body, strlen(body), &f, &err));
-    CHECK(f.shape_count == 1 && f.shapes[0].has_transform && f.shapes[0].transform.scale.x == 1.0f);
+    CHECK(f.shape_count == 1 && f.shapes[0].state.has_transform && f.shapes[0].state.transform.scale.x == 1.0f);
     /* Exactly the limit of shape changes is fine. */
     char big[8192];
     size_t n = (size_t)snprintf(big, sizeof big, "{\"lights\": {");
