@@ -154,6 +154,16 @@ static struct registry *open_registry(const char *data, struct warnings *w)
     return r;
 }
 
+/* A fresh data directory and a registry on it; NULL (and the directory removed) on failure. */
+static struct registry *fresh_registry(char **data, struct warnings *w)
+{
+    *data = make_data_dir();
+    struct registry *r = open_registry(*data, w);
+    CHECK(r != NULL);
+    if (!r) free_data_dir(*data);
+    return r;
+}
+
 static bool put(struct registry *r, const char *id, const char *json, enum registry_put_result *res, struct err *err)
 {
     memset(err, 0, sizeof *err);
@@ -179,14 +189,10 @@ static bool put_asset(struct registry *r, const char *id, const char *name, cons
 
 static void test_builtins_listed_with_ids_and_counts(void)
 {
-    char *data = make_data_dir();
     struct warnings w = {0};
-    struct registry *r = open_registry(data, &w);
-    CHECK(r != NULL);
-    if (!r) {
-        free_data_dir(data);
-        return;
-    }
+    char *data;
+    struct registry *r = fresh_registry(&data, &w);
+    if (!r) return;
     CHECK_MSG(w.count == 0, "unexpected warning: %s", w.last);
 
     static const struct {
@@ -246,13 +252,9 @@ static void test_builtins_listed_with_ids_and_counts(void)
 
 static void test_builtin_is_read_only(void)
 {
-    char *data = make_data_dir();
-    struct registry *r = open_registry(data, NULL);
-    CHECK(r != NULL);
-    if (!r) {
-        free_data_dir(data);
-        return;
-    }
+    char *data;
+    struct registry *r = fresh_registry(&data, NULL);
+    if (!r) return;
     struct err err;
     enum registry_put_result res = REGISTRY_CREATED;
     char *json = read_text("scenes/furnace/albedo-half.json", "", NULL);
@@ -330,13 +332,9 @@ static void test_library_ids_and_skips(void)
 
 static void test_put_created_unchanged_replaced(void)
 {
-    char *data = make_data_dir();
-    struct registry *r = open_registry(data, NULL);
-    CHECK(r != NULL);
-    if (!r) {
-        free_data_dir(data);
-        return;
-    }
+    char *data;
+    struct registry *r = fresh_registry(&data, NULL);
+    if (!r) return;
     struct err err;
     enum registry_put_result res = REGISTRY_UNCHANGED;
     bool ok = put(r, "ball", SPHERE(1), &res, &err);
@@ -391,13 +389,9 @@ static void test_put_created_unchanged_replaced(void)
 
 static void test_put_invalid_leaves_registry_unchanged(void)
 {
-    char *data = make_data_dir();
-    struct registry *r = open_registry(data, NULL);
-    CHECK(r != NULL);
-    if (!r) {
-        free_data_dir(data);
-        return;
-    }
+    char *data;
+    struct registry *r = fresh_registry(&data, NULL);
+    if (!r) return;
     struct err err;
     enum registry_put_result res;
     bool ok = put(r, "ball", SPHERE(1), &res, &err);
@@ -431,13 +425,9 @@ static void test_put_invalid_leaves_registry_unchanged(void)
 
 static void test_assets_then_scene(void)
 {
-    char *data = make_data_dir();
-    struct registry *r = open_registry(data, NULL);
-    CHECK(r != NULL);
-    if (!r) {
-        free_data_dir(data);
-        return;
-    }
+    char *data;
+    struct registry *r = fresh_registry(&data, NULL);
+    if (!r) return;
     struct err err;
     bool created = false;
     bool ok = put_asset(r, "meshy", "tetra.ply", tetra_ply, &created, &err);
@@ -497,13 +487,9 @@ static void test_assets_then_scene(void)
 
 static void test_asset_name_rules(void)
 {
-    char *data = make_data_dir();
-    struct registry *r = open_registry(data, NULL);
-    CHECK(r != NULL);
-    if (!r) {
-        free_data_dir(data);
-        return;
-    }
+    char *data;
+    struct registry *r = fresh_registry(&data, NULL);
+    if (!r) return;
     static const char *const bad[] = {
         "../x.ply", "a/b.ply", ".hidden.ply", "x.txt", "x", "", ".ply", "x.ply/", "x y.ply",
         "aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa.ply",  /* 65 characters */
@@ -535,13 +521,9 @@ static void test_asset_name_rules(void)
 
 static void test_corrupt_asset_not_stored(void)
 {
-    char *data = make_data_dir();
-    struct registry *r = open_registry(data, NULL);
-    CHECK(r != NULL);
-    if (!r) {
-        free_data_dir(data);
-        return;
-    }
+    char *data;
+    struct registry *r = fresh_registry(&data, NULL);
+    if (!r) return;
     struct err err;
     bool created = true;
     bool ok = put_asset(r, "c", "bad.ply", corrupt_ply, &created, &err);
@@ -566,13 +548,9 @@ static void test_corrupt_asset_not_stored(void)
 
 static void test_delete_with_sessions(void)
 {
-    char *data = make_data_dir();
-    struct registry *r = open_registry(data, NULL);
-    CHECK(r != NULL);
-    if (!r) {
-        free_data_dir(data);
-        return;
-    }
+    char *data;
+    struct registry *r = fresh_registry(&data, NULL);
+    if (!r) return;
     struct err err;
     enum registry_put_result res;
     bool ok = put(r, "gone", SPHERE(1), &res, &err);
@@ -622,14 +600,10 @@ static void test_delete_with_sessions(void)
 
 static void test_restart_reloads_uploads(void)
 {
-    char *data = make_data_dir();
     struct warnings w = {0};
-    struct registry *r = open_registry(data, &w);
-    CHECK(r != NULL);
-    if (!r) {
-        free_data_dir(data);
-        return;
-    }
+    char *data;
+    struct registry *r = fresh_registry(&data, &w);
+    if (!r) return;
     struct err err;
     enum registry_put_result res;
     bool ok = put_asset(r, "keep", "tetra.ply", tetra_ply, NULL, &err) &&
@@ -730,13 +704,9 @@ static void *race_reader(void *arg)
 
 static void test_concurrent_writers_one_id(void)
 {
-    char *data = make_data_dir();
-    struct registry *r = open_registry(data, NULL);
-    CHECK(r != NULL);
-    if (!r) {
-        free_data_dir(data);
-        return;
-    }
+    char *data;
+    struct registry *r = fresh_registry(&data, NULL);
+    if (!r) return;
     struct race a = {r, SPHERE(1), 0}, b = {r, SPHERE(3), 0}, c = {r, NULL, 0};
     pthread_t ta, tb, tc;
     pthread_create(&ta, NULL, race_writer, &a);
