@@ -131,18 +131,22 @@ struct session *sessions_create(struct sessions *t, const char *scene_id, const 
     return s;
 }
 
+/* Slot of the session (call with t->lock held), or t->max. */
+static uint32_t sessions_slot(const struct sessions *t, const char *scene_id, const char *sid)
+{
+    for (uint32_t i = 0; i < t->max; i++) {
+        const struct session *s = t->items[i];
+        if (s && strcmp(s->id, sid) == 0 && strcmp(s->scene_id, scene_id) == 0) return i;
+    }
+    return t->max;
+}
+
 struct session *sessions_get(struct sessions *t, const char *scene_id, const char *sid)
 {
-    struct session *found = NULL;
     pthread_mutex_lock(&t->lock);
-    for (uint32_t i = 0; i < t->max; i++) {
-        struct session *s = t->items[i];
-        if (s && strcmp(s->id, sid) == 0 && strcmp(s->scene_id, scene_id) == 0) {
-            found = s;
-            session_retain(s);
-            break;
-        }
-    }
+    uint32_t i = sessions_slot(t, scene_id, sid);
+    struct session *found = i < t->max ? t->items[i] : NULL;
+    if (found) session_retain(found);
     pthread_mutex_unlock(&t->lock);
     return found;
 }
@@ -158,16 +162,12 @@ static void session_mark_deleted(struct session *s)
 
 bool sessions_remove(struct sessions *t, const char *scene_id, const char *sid)
 {
-    struct session *found = NULL;
     pthread_mutex_lock(&t->lock);
-    for (uint32_t i = 0; i < t->max; i++) {
-        struct session *s = t->items[i];
-        if (s && strcmp(s->id, sid) == 0 && strcmp(s->scene_id, scene_id) == 0) {
-            found = s;
-            t->items[i] = NULL;
-            t->count--;
-            break;
-        }
+    uint32_t i = sessions_slot(t, scene_id, sid);
+    struct session *found = i < t->max ? t->items[i] : NULL;
+    if (found) {
+        t->items[i] = NULL;
+        t->count--;
     }
     pthread_mutex_unlock(&t->lock);
     if (!found) return false;
