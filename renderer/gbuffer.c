@@ -84,11 +84,10 @@ static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
             gp->t = hit.t;
             gp->shape = hit.shape;
             gp->prim = hit.prim;
-            gp->b1 = hit.b1;
-            gp->b2 = hit.b2;
+            struct surface s;
+            surface_from_hit(f->scene, &hit, gj->cam.position, dir, &s);
+            surface_point_code(f->scene, &hit, &s, &gp->b1, &gp->b2);
             if (f->prev_scene) {
-                struct surface s;
-                surface_from_hit(f->scene, &hit, gj->cam.position, dir, &s);
                 struct vec3 q = gbuffer_prev_point(f, hit.shape, s.p);
                 camera_project(&gj->prev_cam, q, &gp->prev_x, &gp->prev_y);
             }

@@ -21,7 +21,7 @@
 struct gbuffer_pixel {
     float t;                /* distance to the primary hit; INFINITY when the ray escaped */
     uint32_t shape, prim;   /* the hit (valid when t is finite) */
-    float b1, b2;           /* its barycentrics: surface_from_hit rebuilds the surface */
+    float b1, b2;           /* its point code: surface_at rebuilds the surface */
     float jx, jy;           /* the primary ray's position inside the pixel, in [0, 1) */
     float prev_x, prev_y;   /* image position (pixels) of the same point, or of the same
                                direction for an escaped ray, in the previous frame; NAN when

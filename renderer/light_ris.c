@@ -13,6 +13,7 @@ static bool light_ris_candidate(const struct scene *scene, const struct surface 
     float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
     struct light_sample ls;
     if (!light_sampler_sample(scene->lights, ul, u1, u2, &ls)) return false;
+    c->light = ls;
     if (ls.is_env) {
         c->wi_world = ls.dir;
         c->dist = INFINITY;

@@ -18,6 +18,7 @@
 #include "surface.h"
 
 struct light_ris_sample {
+    struct light_sample light;  /* the kept light sample (point, emitter, barycentrics) */
     struct vec3 wi_world;   /* towards the light */
     float dist;             /* INFINITY for the environment */
     struct vec3 Le;         /* emitted radiance towards the shading point */

@@ -152,9 +152,8 @@ bool light_sampler_sample(const struct light_sampler *ls, float u_pick, float u1
     *out = (struct light_sample){.shape = e->shape, .prim = e->prim};  /* every field defined */
     switch (e->kind) {
     case LIGHT_TRIANGLE: {
-        float b1, b2;
-        sampling_uniform_triangle(u1, u2, &b1, &b2);
-        out->p = vec3_add(e->p0, vec3_add(vec3_scale(e->e1, b1), vec3_scale(e->e2, b2)));
+        sampling_uniform_triangle(u1, u2, &out->b1, &out->b2);
+        out->p = vec3_add(e->p0, vec3_add(vec3_scale(e->e1, out->b1), vec3_scale(e->e2, out->b2)));
         out->n = e->n;
         out->pdf_a = pmf / e->area;
         break;

@@ -2,6 +2,9 @@
  * (ray origin offsets are inline in surface.h). */
 #include "surface.h"
 
+#include <math.h>
+#include <string.h>
+
 #include "scene.h"
 
 /* Interpolated vertex normal, or ng when it degenerates. */
@@ -53,4 +56,92 @@ void surface_from_hit(const struct scene *scene, const struct hit *hit, struct v
         out->ns = out->ng;
     }
     out->frame = frame_from_normal(out->ns);
+}
+
+void surface_oct_encode(struct vec3 d, float *u, float *v)
+{
+    float l1 = fabsf(d.x) + fabsf(d.y) + fabsf(d.z);
+    float x = d.x / l1, y = d.y / l1;
+    if (d.z < 0.0f) {
+        float ox = (1.0f - fabsf(y)) * (x >= 0.0f ? 1.0f : -1.0f);
+        float oy = (1.0f - fabsf(x)) * (y >= 0.0f ? 1.0f : -1.0f);
+        x = ox, y = oy;
+    }
+    *u = x;
+    *v = y;
+}
+
+struct vec3 surface_oct_decode(float u, float v)
+{
+    struct vec3 d = vec3_make(u, v, 1.0f - fabsf(u) - fabsf(v));
+    if (d.z < 0.0f) {
+        float ox = (1.0f - fabsf(v)) * (u >= 0.0f ? 1.0f : -1.0f);
+        float oy = (1.0f - fabsf(u)) * (v >= 0.0f ? 1.0f : -1.0f);
+        d.x = ox, d.y = oy;
+    }
+    return vec3_normalize(d);
+}
+
+void surface_at(const struct scene *scene, uint32_t shape, uint32_t prim, float b1, float b2, struct surface *out)
+{
+    const struct accel *accel = scene->accel;
+    const struct shape *s = &scene->shapes[shape];
+    const struct xform *xf = accel_shape_to_world(accel, shape);
+    bool identity = accel_shape_is_identity(accel, shape);
+    struct hit h = {.t = 0.0f, .shape = shape, .prim = prim, .b1 = b1, .b2 = b2};
+    if (s->kind == SHAPE_MESH) {
+        const uint32_t *tri = &s->indices[3 * prim];
+        struct vec3 p0 = s->positions[tri[0]];
+        /* As accel_intersect: the object-space winding normal, carried by the inverse transpose
+         * (so a mirroring transform does not flip the front side). */
+        struct vec3 ng = vec3_cross(vec3_sub(s->positions[tri[1]], p0), vec3_sub(s->positions[tri[2]], p0));
+        if (!identity) ng = xform_normal(accel_shape_to_object(accel, shape), ng);
+        h.ng = vec3_normalize(ng);
+        surface_from_hit(scene, &h, p0, vec3_make(0.0f, 0.0f, 1.0f), out);
+        return;
+    }
+    /* Sphere: a ray from the centre along the coded direction lands on the surface at t = r in
+     * object space; surface_from_hit re-projects it exactly. */
+    struct vec3 d = surface_oct_decode(b1, b2);
+    struct vec3 pw = xform_point(xf, vec3_madd(s->center, d, s->radius));
+    h.ng = d;
+    surface_from_hit(scene, &h, pw, vec3_make(0.0f, 0.0f, 1.0f), out);
+}
+
+void surface_point_code(const struct scene *scene, const struct hit *h, const struct surface *s, float *b1, float *b2)
+{
+    const struct shape *sh = &scene->shapes[h->shape];
+    if (sh->kind == SHAPE_MESH) {
+        *b1 = h->b1;
+        *b2 = h->b2;
+        return;
+    }
+    struct vec3 d = vec3_normalize(vec3_sub(xform_point(accel_shape_to_object(scene->accel, h->shape), s->p), sh->center));
+    surface_oct_encode(d, b1, b2);
+}
+
+/* Area scale of the affine map `xf` on a surface element with object-space normal n:
+ * |det A| |A^-T n| (Nanson's formula). */
+static float surface_area_scale(const struct xform *xf, const struct xform *inv, struct vec3 n)
+{
+    return fabsf(xform_det3(xf)) * vec3_length(xform_normal(inv, n));
+}
+
+float surface_area_ratio(const struct scene *from, const struct scene *to, uint32_t shape, uint32_t prim, float b1,
+                         float b2)
+{
+    const struct xform *xa = accel_shape_to_world(from->accel, shape), *xb = accel_shape_to_world(to->accel, shape);
+    if (from == to || memcmp(xa, xb, sizeof *xa) == 0) return 1.0f;
+    const struct shape *s = &from->shapes[shape];
+    struct vec3 n;
+    if (s->kind == SHAPE_MESH) {
+        const uint32_t *tri = &s->indices[3 * prim];
+        n = vec3_normalize(vec3_cross(vec3_sub(s->positions[tri[1]], s->positions[tri[0]]),
+                                      vec3_sub(s->positions[tri[2]], s->positions[tri[0]])));
+    } else {
+        n = surface_oct_decode(b1, b2);
+    }
+    float a = surface_area_scale(xa, accel_shape_to_object(from->accel, shape), n);
+    float b = surface_area_scale(xb, accel_shape_to_object(to->accel, shape), n);
+    return a > 0.0f ? b / a : 0.0f;
 }

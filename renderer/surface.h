@@ -25,6 +25,25 @@ struct surface {
 void surface_from_hit(const struct scene *scene, const struct hit *hit, struct vec3 org, struct vec3 dir,
                       struct surface *out);
 
+/* The surface at a stored point, with no ray: meshes from (prim, b1, b2), with the geometric
+ * normal from the triangle's counter-clockwise winding as accel_intersect reports it; spheres
+ * from (b1, b2) = the octahedral code of the object-space direction from the centre. Points
+ * kept across frames (G-buffer hits, reservoir vertices) are stored this way, so the same code
+ * in a scene where the shape moved gives the moved point. */
+void surface_at(const struct scene *scene, uint32_t shape, uint32_t prim, float b1, float b2, struct surface *out);
+/* The (b1, b2) code of the point `s` that the hit `h` produced (see surface_at). */
+void surface_point_code(const struct scene *scene, const struct hit *h, const struct surface *s, float *b1,
+                        float *b2);
+/* dA_to / dA_from: how the area element at the coded point changes between two scenes' transforms
+ * of its shape (1 when the shape did not move or moved rigidly). It is the Jacobian of mapping a
+ * surface point by its code from one frame to the next. */
+float surface_area_ratio(const struct scene *from, const struct scene *to, uint32_t shape, uint32_t prim, float b1,
+                         float b2);
+
+/* Octahedral map of a unit vector to [-1, 1]^2 and back (float precision, not quantised). */
+void surface_oct_encode(struct vec3 d, float *u, float *v);
+struct vec3 surface_oct_decode(float u, float v);
+
 /* Ray origin offsets (Wächter & Binder): far from the origin move a fixed number of ULPs along
  * the normal (scales with |p|); near it, where ULPs are tiny, move a small absolute distance
  * instead. They are inline: they run twice per path vertex (shadow and continuation rays), and
