@@ -11,6 +11,7 @@
 #include <cjson/cJSON.h>
 #include <float.h>
 #include <math.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -653,6 +654,52 @@ static bool request_pt_params(const cJSON *pv, const char *ptr, const struct pro
     return true;
 }
 
+static bool request_restir_pt_params(const cJSON *pv, const char *ptr, struct restir_pt_params *rp, struct err *err)
+{
+    static const char *const keys[] = {"max_depth", "rr_depth", "rr", "nee_candidates", "unify_di", "temporal",
+                                       "temporal_cap", "spatial_neighbors", "spatial_radius", "spatial_rounds",
+                                       "footprint", "footprint_c", "near_distance", "pdf_connect", "roughness_min",
+                                       NULL};
+    static const struct { const char *key; size_t off; } uints[] = {
+        {"max_depth", offsetof(struct restir_pt_params, max_depth)},
+        {"rr_depth", offsetof(struct restir_pt_params, rr_depth)},
+        {"nee_candidates", offsetof(struct restir_pt_params, nee_candidates)},
+        {"temporal_cap", offsetof(struct restir_pt_params, temporal_cap)},
+        {"spatial_neighbors", offsetof(struct restir_pt_params, spatial_neighbors)},
+        {"spatial_rounds", offsetof(struct restir_pt_params, spatial_rounds)},
+    };
+    static const struct { const char *key; size_t off; } bools[] = {
+        {"rr", offsetof(struct restir_pt_params, rr)},
+        {"unify_di", offsetof(struct restir_pt_params, unify_di)},
+        {"temporal", offsetof(struct restir_pt_params, temporal)},
+        {"footprint", offsetof(struct restir_pt_params, footprint)},
+        {"pdf_connect", offsetof(struct restir_pt_params, pdf_connect)},
+    };
+    static const struct { const char *key; size_t off; } floats[] = {
+        {"spatial_radius", offsetof(struct restir_pt_params, spatial_radius)},
+        {"footprint_c", offsetof(struct restir_pt_params, footprint_c)},
+        {"near_distance", offsetof(struct restir_pt_params, near_distance)},
+        {"roughness_min", offsetof(struct restir_pt_params, roughness_min)},
+    };
+    char p[REQUEST_PTR];
+    const cJSON *v;
+    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_pt params", err))
+        return false;
+    char *base = (char *)rp;
+    for (size_t i = 0; i < sizeof uints / sizeof uints[0]; i++)
+        if ((v = request_member(pv, ptr, uints[i].key, p)) &&
+            !request_uint32(v, p, 0, 1000000, NULL, (uint32_t *)(base + uints[i].off), err))
+            return false;
+    for (size_t i = 0; i < sizeof bools / sizeof bools[0]; i++)
+        if ((v = request_member(pv, ptr, bools[i].key, p)) && !request_bool(v, p, (bool *)(base + bools[i].off), err))
+            return false;
+    for (size_t i = 0; i < sizeof floats / sizeof floats[0]; i++)
+        if ((v = request_member(pv, ptr, floats[i].key, p)) && !request_float(v, p, (float *)(base + floats[i].off), err))
+            return false;
+    /* Ranges are the renderer's (its pointers name /params/<key>). */
+    return restir_pt_params_valid(rp, err);
+}
+
 /* Names of every method view_method_name knows, for error messages. Probes enum values rather
  * than listing names, so a method added to view.c shows up here without an edit. */
 static void request_method_list(char *out, size_t size)
@@ -718,6 +765,9 @@ bool protocol_parse_session_create(const char *body, size_t len, const struct pr
         switch (method) {
         case RENDER_METHOD_PT:
             ok = request_pt_params(pv, p, limits, &vp.pt, err);
+            break;
+        case RENDER_METHOD_RESTIR_PT:
+            ok = request_restir_pt_params(pv, p, &vp.restir_pt, err);
             break;
         }
     }

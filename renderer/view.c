@@ -9,12 +9,14 @@ struct view_params view_params_defaults(enum render_method method, uint32_t widt
 {
     struct view_params p = {.method = method, .width = width, .height = height, .seed = 0};
     p.pt = (struct view_pt_params){.spp = 1, .max_depth = 64, .rr_depth = 3, .nee = true};
+    p.restir_pt = restir_pt_defaults();
     return p;
 }
 
 bool view_method_parse(const char *name, enum render_method *out)
 {
     if (strcmp(name, "pt") == 0) { *out = RENDER_METHOD_PT; return true; }
+    if (strcmp(name, "restir_pt") == 0) { *out = RENDER_METHOD_RESTIR_PT; return true; }
     return false;
 }
 
@@ -22,6 +24,7 @@ const char *view_method_name(enum render_method method)
 {
     switch (method) {
     case RENDER_METHOD_PT: return "pt";
+    case RENDER_METHOD_RESTIR_PT: return "restir_pt";
     }
     return NULL;
 }
@@ -33,6 +36,7 @@ static void view_drop_history(struct view *v)
     v->prev_camera = v->camera;
     v->frame = 0;
     v->accum_count = 0;
+    restir_pt_reset(&v->restir);
     if (v->accum.pixels) memset(v->accum.pixels, 0, (size_t)v->accum.width * v->accum.height * sizeof *v->accum.pixels);
 }
 
@@ -44,16 +48,22 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         return err_set(err, ERR_INVALID, "/width", "image size must be at least 1x1");
     if (params->method == RENDER_METHOD_PT && params->pt.spp == 0)
         return err_set(err, ERR_INVALID, "/params/spp", "spp must be at least 1");
+    if (params->method == RENDER_METHOD_RESTIR_PT) {
+        if (!restir_pt_params_valid(&params->restir_pt, err)) return false;
+        if (!restir_pt_init(&v->restir, scene, params->width, params->height, err)) return false;
+    }
     /* pt needs its frame and the accumulation buffer: no reservoirs, no G-buffer. */
-    if (!image_init(&v->output, params->width, params->height, err)) return false;
-    if (!image_init(&v->accum, params->width, params->height, err)) {
+    if (!image_init(&v->output, params->width, params->height, err) ||
+        !image_init(&v->accum, params->width, params->height, err)) {
         image_destroy(&v->output);
+        restir_pt_destroy(&v->restir);
         return false;
     }
     v->changes = calloc(scene->shape_count ? scene->shape_count : 1, sizeof *v->changes);
     if (!v->changes) {
         image_destroy(&v->output);
         image_destroy(&v->accum);
+        restir_pt_destroy(&v->restir);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for a view");
     }
     v->params = *params;
@@ -72,6 +82,7 @@ void view_destroy(struct view *v)
     scene_release(v->base);
     image_destroy(&v->output);
     image_destroy(&v->accum);
+    restir_pt_destroy(&v->restir);
     free(v->changes);
     memset(v, 0, sizeof *v);
 }
@@ -174,17 +185,39 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         restart = true;
     }
 
-    struct pt_params p = reference_pt_defaults(v->params.width, v->params.height);
-    p.spp = v->params.pt.spp;
-    p.max_depth = v->params.pt.max_depth;
-    p.rr_depth = v->params.pt.rr_depth;
-    p.nee = v->params.pt.nee;
-    p.seed = v->params.seed;
-    p.frame = v->frame;
-    p.threads = v->threads;
-    p.camera = &camera;
     struct render_stats rs;
-    if (!reference_pt_render_into(scene, &p, out, &rs, progress, progress_ctx, err)) {
+    struct restir_pt_stats passes;
+    bool ok;
+    if (v->params.method == RENDER_METHOD_RESTIR_PT) {
+        /* The previous frame's scene and camera are the view's current ones until the commit
+         * below: temporal reuse evaluates the previous domain with them. */
+        struct restir_pt_frame f = {.scene = scene, .camera = &camera, .prev_scene = v->frame ? v->scene : NULL,
+                                    .prev_camera = &v->camera, .seed = v->params.seed, .frame = v->frame,
+                                    .threads = v->threads};
+        ok = restir_pt_render(&v->restir, &v->params.restir_pt, &f, out, &passes, err);
+        if (ok) {
+            memset(&rs, 0, sizeof rs);
+            rs.rays_intersect = passes.rays_intersect;
+            rs.rays_occluded = passes.rays_occluded;
+            rs.samples = (uint64_t)out->width * out->height;
+            rs.nonfinite = passes.nonfinite;
+            rs.threads = v->threads ? v->threads : parallel_default_threads();
+            rs.render_ms = passes.gbuffer_ms + passes.initial_ms + passes.temporal_ms + passes.spatial_ms + passes.shade_ms;
+            if (progress) progress(progress_ctx, 1, 1);
+        }
+    } else {
+        struct pt_params p = reference_pt_defaults(v->params.width, v->params.height);
+        p.spp = v->params.pt.spp;
+        p.max_depth = v->params.pt.max_depth;
+        p.rr_depth = v->params.pt.rr_depth;
+        p.nee = v->params.pt.nee;
+        p.seed = v->params.seed;
+        p.frame = v->frame;
+        p.threads = v->threads;
+        p.camera = &camera;
+        ok = reference_pt_render_into(scene, &p, out, &rs, progress, progress_ctx, err);
+    }
+    if (!ok) {
         scene_release(scene);
         return false;
     }
@@ -211,6 +244,8 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         stats->render = rs;
         stats->scene_update_ms = update_ms;
         stats->accumulated = v->accum_count;
+        stats->has_passes = v->params.method == RENDER_METHOD_RESTIR_PT;
+        if (stats->has_passes) stats->passes = passes;
     }
     v->frame++;
     return true;
@@ -233,6 +268,11 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
     out[n++] = (struct view_buffer_bytes){"frame", (size_t)v->output.width * v->output.height * sizeof *v->output.pixels};
     out[n++] = (struct view_buffer_bytes){"accumulation", (size_t)v->accum.width * v->accum.height * sizeof *v->accum.pixels};
     out[n++] = (struct view_buffer_bytes){"shape_changes", (size_t)(v->base->shape_count ? v->base->shape_count : 1) * sizeof *v->changes};
+    if (v->params.method == RENDER_METHOD_RESTIR_PT) {
+        out[n++] = (struct view_buffer_bytes){"reservoirs", restir_pt_reservoir_bytes(&v->restir)};
+        out[n++] = (struct view_buffer_bytes){"gbuffers", restir_pt_gbuffer_bytes(&v->restir)};
+        out[n++] = (struct view_buffer_bytes){"primitive_table", ((size_t)v->restir.shape_count + 1) * sizeof *v->restir.prim_first};
+    }
     size_t sum = 0;
     for (uint32_t i = 0; i < n; i++) sum += out[i].bytes;
     if (total) *total = sum;

@@ -3,7 +3,8 @@
  * temporal reuse evaluates the previous domain with), the frame counter, and the buffers the
  * method needs — allocated once when the view is created, never during a frame.
  * A method allocates only what it uses: `pt` keeps an accumulation buffer and no reservoirs or
- * G-buffers. view_bytes() reports every buffer by name.
+ * G-buffers; `restir_pt` adds its two reservoir buffers and two G-buffers. view_bytes() reports
+ * every buffer by name.
  * Not thread-safe: one frame at a time per view (the caller serialises). */
 #ifndef RESTIRD_VIEW_H
 #define RESTIRD_VIEW_H
@@ -15,9 +16,10 @@
 #include "image.h"
 #include "parallel.h"
 #include "reference_pt.h"
+#include "restir_pt.h"
 #include "scene.h"
 
-enum render_method { RENDER_METHOD_PT };
+enum render_method { RENDER_METHOD_PT, RENDER_METHOD_RESTIR_PT };
 
 /* Parameters of `pt` (reference_pt.h documents them). */
 struct view_pt_params {
@@ -30,11 +32,13 @@ struct view_params {
     uint32_t width, height;
     uint64_t seed;
     struct view_pt_params pt;
+    struct restir_pt_params restir_pt;   /* method restir_pt (restir_pt.h) */
 };
 
-/* Defaults of every method's parameters (pt: 1 spp per frame, max_depth 64, rr_depth 3, NEE). */
+/* Defaults of every method's parameters (pt: 1 spp per frame, max_depth 64, rr_depth 3, NEE;
+ * restir_pt: restir_pt_defaults()). */
 struct view_params view_params_defaults(enum render_method method, uint32_t width, uint32_t height);
-/* "pt" <-> RENDER_METHOD_PT; false/NULL when unknown. */
+/* "pt" <-> RENDER_METHOD_PT, "restir_pt" <-> RENDER_METHOD_RESTIR_PT; false/NULL when unknown. */
 bool view_method_parse(const char *name, enum render_method *out);
 const char *view_method_name(enum render_method method);
 
@@ -90,6 +94,8 @@ struct frame_stats {
     struct render_stats render;           /* rays, samples, nonfinite, threads, render_ms */
     double scene_update_ms;               /* rebuilding the scene for moved or re-lit shapes */
     uint32_t accumulated;                 /* frames in the accumulation buffer after this one */
+    bool has_passes;                      /* restir_pt: the per-pass numbers below are set */
+    struct restir_pt_stats passes;
 };
 
 struct view {
@@ -104,6 +110,7 @@ struct view {
     struct image output;                  /* the frame last rendered (view_render's output) */
     struct image accum;                   /* running sum since the last change */
     uint32_t accum_count;
+    struct restir_pt_state restir;        /* restir_pt only: G-buffers and reservoirs */
     struct view_shape_change *changes;    /* the shape changes in force, one per changed shape */
     uint32_t change_count;
 };

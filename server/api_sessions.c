@@ -43,6 +43,51 @@ static void api_write_camera(struct jsonw *w, const struct camera_desc *cam)
     jsonw_object_end(w);
 }
 
+/* The method's parameters, as a session create request names them. */
+static void api_write_method_params(struct jsonw *w, const struct view_params *p)
+{
+    jsonw_object_begin(w);
+    if (p->method == RENDER_METHOD_RESTIR_PT) {
+        const struct restir_pt_params *r = &p->restir_pt;
+        jsonw_key(w, "max_depth"); jsonw_uint(w, r->max_depth);
+        jsonw_key(w, "rr_depth"); jsonw_uint(w, r->rr_depth);
+        jsonw_key(w, "rr"); jsonw_bool(w, r->rr);
+        jsonw_key(w, "nee_candidates"); jsonw_uint(w, r->nee_candidates);
+        jsonw_key(w, "unify_di"); jsonw_bool(w, r->unify_di);
+        jsonw_key(w, "temporal"); jsonw_bool(w, r->temporal);
+        jsonw_key(w, "temporal_cap"); jsonw_uint(w, r->temporal_cap);
+        jsonw_key(w, "spatial_neighbors"); jsonw_uint(w, r->spatial_neighbors);
+        jsonw_key(w, "spatial_radius"); jsonw_double(w, r->spatial_radius);
+        jsonw_key(w, "spatial_rounds"); jsonw_uint(w, r->spatial_rounds);
+        jsonw_key(w, "footprint"); jsonw_bool(w, r->footprint);
+        jsonw_key(w, "footprint_c"); jsonw_double(w, r->footprint_c);
+        jsonw_key(w, "near_distance"); jsonw_double(w, r->near_distance);
+        jsonw_key(w, "pdf_connect"); jsonw_bool(w, r->pdf_connect);
+        jsonw_key(w, "roughness_min"); jsonw_double(w, r->roughness_min);
+    } else {
+        jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);
+        jsonw_key(w, "max_depth"); jsonw_uint(w, p->pt.max_depth);
+        jsonw_key(w, "rr_depth"); jsonw_uint(w, p->pt.rr_depth);
+        jsonw_key(w, "nee"); jsonw_bool(w, p->pt.nee);
+    }
+    jsonw_object_end(w);
+}
+
+/* Per-pass times and reuse counters of a restir_pt frame (seed 001 Table 1). */
+static void api_write_passes(struct jsonw *w, const struct restir_pt_stats *ps)
+{
+    jsonw_object_begin(w);
+    jsonw_key(w, "gbuffer_ms"); jsonw_double(w, ps->gbuffer_ms);
+    jsonw_key(w, "initial_ms"); jsonw_double(w, ps->initial_ms);
+    jsonw_key(w, "temporal_ms"); jsonw_double(w, ps->temporal_ms);
+    jsonw_key(w, "spatial_ms"); jsonw_double(w, ps->spatial_ms);
+    jsonw_key(w, "shade_ms"); jsonw_double(w, ps->shade_ms);
+    jsonw_key(w, "shifts"); jsonw_uint(w, ps->shifts);
+    jsonw_key(w, "shift_failures"); jsonw_uint(w, ps->shift_failures);
+    jsonw_key(w, "rejected"); jsonw_uint(w, ps->rejected);
+    jsonw_object_end(w);
+}
+
 static void api_write_session(struct jsonw *w, struct session *s)
 {
     struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
@@ -72,18 +117,15 @@ static void api_write_session(struct jsonw *w, struct session *s)
     jsonw_key(w, "height"); jsonw_uint(w, p->height);
     jsonw_key(w, "seed"); jsonw_uint(w, p->seed);
     jsonw_key(w, "params");
-    jsonw_object_begin(w);
-    jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);
-    jsonw_key(w, "max_depth"); jsonw_uint(w, p->pt.max_depth);
-    jsonw_key(w, "rr_depth"); jsonw_uint(w, p->pt.rr_depth);
-    jsonw_key(w, "nee"); jsonw_bool(w, p->pt.nee);
-    jsonw_object_end(w);
+    api_write_method_params(w, p);
     jsonw_key(w, "frames_rendered"); jsonw_uint(w, frames);
     jsonw_key(w, "busy"); jsonw_bool(w, busy);
     jsonw_key(w, "job");
     if (job[0]) jsonw_string(w, job); else jsonw_null(w);
     jsonw_key(w, "camera"); api_write_camera(w, &cam);
     jsonw_key(w, "reservoir_bytes"); jsonw_uint(w, reservoir);
+    jsonw_key(w, "reservoir_bytes_per_pixel");
+    jsonw_uint(w, p->method == RENDER_METHOD_RESTIR_PT ? RESTIR_PT_RESERVOIR_BYTES : 0);
     jsonw_key(w, "buffers");
     jsonw_object_begin(w);
     for (uint32_t i = 0; i < nb; i++) {
@@ -268,6 +310,10 @@ static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
     jsonw_key(w, "nonfinite"); jsonw_uint(w, r->nonfinite);
     jsonw_key(w, "threads"); jsonw_uint(w, r->threads);
     jsonw_key(w, "accumulated"); jsonw_uint(w, f->stats->accumulated);
+    if (f->stats->has_passes) {
+        jsonw_key(w, "passes");
+        api_write_passes(w, &f->stats->passes);
+    }
     jsonw_key(w, "href"); jsonw_string(w, href);
     if (f->ref) {
         struct metrics m;

@@ -19,9 +19,10 @@
 
 #define CLI_USAGE                                                                                  \
     "usage:\n"                                                                                     \
-    "  restir render SCENE.json [--method pt] [--spp N] [--size WxH] [--seed S] [--frame F]\n"    \
+    "  restir render SCENE.json [--method pt|restir_pt] [--spp N] [--size WxH] [--seed S] [--frame F]\n" \
     "                [--threads T] [--max-depth D] [--rr-depth R] [--no-nee] [--crop X0,Y0,X1,Y1]\n"    \
-    "                [--frames F] [--animation FILE.json] [--half] [--json] -o OUT.exr\n" \
+    "                [--frames F] [--average-last N] [--animation FILE.json] [--params JSON]\n"       \
+    "                [--half] [--json] -o OUT.exr\n"                                              \
     "  restir compare A.exr B.exr      (B is the reference; prints one JSON object)\n"             \
     "defaults: --method pt --spp 16 --size 256x256 --seed 0 --max-depth 64 --rr-depth 3 (Russian\n"         \
     "roulette after R bounces; R >= max depth turns it off), next-event estimation with MIS\n"     \
@@ -29,7 +30,12 @@
     "--frames F renders F consecutive frames in one session (seeds per frame, as the daemon's\n"   \
     "sessions) and writes the last; --animation FILE.json takes camera and light keys from a file\n" \
     "holding the body of a daemon animation job ({\"animation\": {...}}, protocol/API.md) and\n"   \
-    "its frame count unless --frames is given\n"
+    "its frame count unless --frames is given.\n"                                                  \
+    "--method restir_pt renders a session of --frames frames (default 1) with temporal and spatial\n" \
+    "reuse; --params sets the method's parameters as the daemon's session \"params\" object\n"    \
+    "(protocol/API.md; keys it leaves out take their defaults, not the other options' values),\n" \
+    "e.g. --params '{\"spatial_neighbors\": 0}'. --average-last N writes the mean of the last N\n"  \
+    "frames instead of the last one\n"
 
 static int cli_usage_error(const char *fmt, const char *arg)
 {
@@ -82,6 +88,25 @@ static bool cli_parse_crop(const char *s, uint32_t v[4])
     return tok == NULL;
 }
 
+/* --params: the method's parameters, parsed and checked as the daemon parses a session's. */
+static bool cli_method_params(const char *params_json, struct view_params *vp, struct err *err)
+{
+    size_t len = strlen(params_json) + 256;
+    char *body = malloc(len);
+    if (!body) return err_set(err, ERR_NOMEM, NULL, "out of memory");
+    snprintf(body, len, "{\"method\":\"%s\",\"width\":%u,\"height\":%u,\"params\":%s}",
+             view_method_name(vp->method), vp->width, vp->height, params_json);
+    const struct protocol_limits limits = {.max_side = 16384, .max_pixels = 16384ull * 16384ull, .max_spp = 1u << 24,
+                                           .max_frames = 1000000, .max_keys = 100000};
+    struct view_params parsed;
+    bool ok = protocol_parse_session_create(body, strlen(body), &limits, &parsed, err);
+    free(body);
+    if (!ok) return false;
+    vp->pt = parsed.pt;
+    vp->restir_pt = parsed.restir_pt;
+    return true;
+}
+
 static void cli_progress(void *ctx, uint32_t done, uint32_t total)
 {
     (void)ctx;
@@ -94,8 +119,10 @@ static void cli_progress(void *ctx, uint32_t done, uint32_t total)
 
 /* --frames / --animation: F frames of one view (the daemon's session state, without the
  * server), writing the last. *st sums the frames' ray counts and times. */
-static bool cli_render_sequence(struct scene *scene, const struct pt_params *p, uint32_t frames, const char *anim_path,
-                                bool tty, struct image *img, struct render_stats *st, uint32_t *rendered)
+static bool cli_render_sequence(struct scene *scene, const struct view_params *vp, unsigned threads, uint32_t frames,
+                                uint32_t average_last, const char *anim_path, bool tty, struct image *img,
+                                struct render_stats *st, uint32_t *rendered, struct frame_stats *last,
+                                size_t *session_bytes)
 {
     struct err err = {0};
     char msg[1024];
@@ -125,18 +152,18 @@ static bool cli_render_sequence(struct scene *scene, const struct pt_params *p, 
         protocol_render_request_destroy(&rq);
         has_anim = true;
     }
-    struct view_params vp = view_params_defaults(RENDER_METHOD_PT, p->width, p->height);
-    vp.seed = p->seed;
-    vp.pt = (struct view_pt_params){.spp = p->spp, .max_depth = p->max_depth, .rr_depth = p->rr_depth, .nee = p->nee};
+    if (!frames) frames = 1;
     struct view v;
-    if (!view_init(&v, scene, &vp, p->threads, &err)) {
+    if (!view_init(&v, scene, vp, threads, &err)) {
         fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
         animate_destroy(&anim);
         return false;
     }
     struct view_shape_change shapes[anim.track_count ? anim.track_count : 1];
     memset(st, 0, sizeof *st);
-    bool ok = true;
+    bool ok = image_init(img, v.output.width, v.output.height, &err);
+    if (average_last > frames) average_last = frames;
+    if (average_last == 0) average_last = 1;
     for (uint32_t i = 0; ok && i < frames; i++) {
         struct view_frame_change change;
         struct frame_stats fs;
@@ -149,11 +176,21 @@ static bool cli_render_sequence(struct scene *scene, const struct pt_params *p, 
         st->nonfinite += fs.render.nonfinite;
         st->render_ms += fs.render.render_ms + fs.scene_update_ms;
         st->threads = fs.render.threads;
+        *last = fs;
+        if (i + average_last >= frames) {
+            size_t n = (size_t)img->width * img->height;
+            for (size_t k = 0; k < n; k++) img->pixels[k] = vec3_add(img->pixels[k], v.output.pixels[k]);
+        }
         if (tty) cli_progress(NULL, i + 1, frames);
     }
-    if (ok) ok = image_init(img, v.output.width, v.output.height, &err);
-    if (ok) memcpy(img->pixels, v.output.pixels, (size_t)img->width * img->height * sizeof *img->pixels);
-    else fprintf(stderr, "restir: render failed: %s\n", err_format(&err, msg, sizeof msg));
+    struct view_buffer_bytes bufs[VIEW_MAX_BUFFERS];
+    view_bytes(&v, bufs, session_bytes);
+    if (ok) {
+        image_scale(img, 1.0f / (float)average_last);
+    } else {
+        image_destroy(img);
+        fprintf(stderr, "restir: render failed: %s\n", err_format(&err, msg, sizeof msg));
+    }
     *rendered = frames;
     view_destroy(&v);
     animate_destroy(&anim);
@@ -169,7 +206,8 @@ static int cli_render(int argc, char **argv)
     uint32_t crop[4] = {0, 0, 0, 0};
     bool has_crop = false, has_frame = false;
     uint32_t frames = 0;
-    const char *anim_path = NULL;
+    const char *anim_path = NULL, *params_json = NULL;
+    uint32_t average_last = 0;
 
     for (int i = 0; i < argc; i++) {
         const char *a = argv[i];
@@ -201,6 +239,11 @@ static int cli_render(int argc, char **argv)
             if (!cli_parse_u32(v, 1000000, &frames) || frames == 0) return cli_usage_error("--frames: expected 1..1000000, got '%s'", v);
         } else if (strcmp(a, "--animation") == 0) {
             anim_path = v;
+        } else if (strcmp(a, "--params") == 0) {
+            params_json = v;
+        } else if (strcmp(a, "--average-last") == 0) {
+            if (!cli_parse_u32(v, 1000000, &average_last) || average_last == 0)
+                return cli_usage_error("--average-last: expected 1..1000000, got '%s'", v);
         } else if (strcmp(a, "--threads") == 0) {
             uint32_t t;
             if (!cli_parse_u32(v, 1024, &t)) return cli_usage_error("--threads: expected 0..1024 (0 = all cores), got '%s'", v);
@@ -216,7 +259,10 @@ static int cli_render(int argc, char **argv)
     }
     if (!scene_path) return cli_usage_error("%s", "render needs a scene file");
     if (!out_path) return cli_usage_error("%s", "render needs -o OUT.exr");
-    if (strcmp(method, "pt") != 0) return cli_usage_error("--method: unknown method '%s' (available: pt)", method);
+    enum render_method rm;
+    if (!view_method_parse(method, &rm)) return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt)", method);
+    if (rm != RENDER_METHOD_PT && (has_crop || has_frame))
+        return cli_usage_error("%s", "--crop and --frame are options of --method pt");
     p.width = width;
     p.height = height;
     if (has_crop) {
@@ -236,17 +282,34 @@ static int cli_render(int argc, char **argv)
     }
     struct image img;
     struct render_stats st;
+    struct frame_stats last = {0};
+    size_t session_bytes = 0;
     bool tty = isatty(STDERR_FILENO) && !json;
     uint32_t rendered = 1;
-    if (frames || anim_path) {
+    if (frames || anim_path || rm != RENDER_METHOD_PT) {
         if (has_crop || has_frame) {
             scene_release(scene);
             return cli_usage_error("%s", "--crop and --frame do not combine with --frames or --animation");
         }
-        if (!cli_render_sequence(scene, &p, frames, anim_path, tty, &img, &st, &rendered)) {
+        struct view_params vp = view_params_defaults(rm, width, height);
+        vp.seed = p.seed;
+        vp.pt = (struct view_pt_params){.spp = p.spp, .max_depth = p.max_depth, .rr_depth = p.rr_depth, .nee = p.nee};
+        vp.restir_pt.max_depth = p.max_depth;
+        vp.restir_pt.rr_depth = p.rr_depth;
+        if (!p.nee) vp.restir_pt.nee_candidates = 0;
+        if (params_json && !cli_method_params(params_json, &vp, &err)) {
+            fprintf(stderr, "restir: --params: %s\n", err_format(&err, msg, sizeof msg));
+            scene_release(scene);
+            return 2;
+        }
+        if (!cli_render_sequence(scene, &vp, p.threads, frames, average_last, anim_path, tty, &img, &st, &rendered,
+                                 &last, &session_bytes)) {
             scene_release(scene);
             return 1;
         }
+    } else if (params_json) {
+        scene_release(scene);
+        return cli_usage_error("%s", "--params needs --frames, --animation or a method other than pt");
     } else if (!reference_pt_render(scene, &p, &img, &st, tty ? cli_progress : NULL, NULL, &err)) {
         fprintf(stderr, "restir: render failed: %s\n", err_format(&err, msg, sizeof msg));
         scene_release(scene);
@@ -264,12 +327,23 @@ static int cli_render(int argc, char **argv)
     if (json) {
         printf("{\"method\":\"%s\",\"width\":%u,\"height\":%u,\"spp\":%u,\"frames\":%u,\"seed\":%" PRIu64 ",\"threads\":%u,"
                "\"time_ms\":%.3f,\"rays\":%" PRIu64 ",\"rays_intersect\":%" PRIu64 ",\"rays_occluded\":%" PRIu64
-               ",\"rays_per_s\":%.6g,\"samples\":%" PRIu64 ",\"nonfinite\":%" PRIu64 ",\"mean\":[%.9g,%.9g,%.9g]}\n",
-               method, width, height, p.spp, rendered, p.seed, threads, st.render_ms, rays, st.rays_intersect, st.rays_occluded,
-               rays_per_s, st.samples, st.nonfinite, mean[0], mean[1], mean[2]);
+               ",\"rays_per_s\":%.6g,\"samples\":%" PRIu64 ",\"nonfinite\":%" PRIu64 ",\"mean\":[%.9g,%.9g,%.9g]",
+               method, width, height, rm == RENDER_METHOD_PT ? p.spp : 1u, rendered, p.seed, threads, st.render_ms, rays,
+               st.rays_intersect, st.rays_occluded, rays_per_s, st.samples, st.nonfinite, mean[0], mean[1], mean[2]);
+        if (last.has_passes) {
+            /* The last frame's passes (seed 001 Table 1) and the session's memory. */
+            const struct restir_pt_stats *ps = &last.passes;
+            printf(",\"last_frame\":{\"gbuffer_ms\":%.3f,\"initial_ms\":%.3f,\"temporal_ms\":%.3f,\"spatial_ms\":%.3f,"
+                   "\"shade_ms\":%.3f,\"shifts\":%" PRIu64 ",\"shift_failures\":%" PRIu64 "},\"session_bytes\":%zu,"
+                   "\"reservoir_bytes_per_pixel\":%u",
+                   ps->gbuffer_ms, ps->initial_ms, ps->temporal_ms, ps->spatial_ms, ps->shade_ms, ps->shifts,
+                   ps->shift_failures, session_bytes, RESTIR_PT_RESERVOIR_BYTES);
+        }
+        printf("}\n");
     } else {
         fprintf(stderr, "%s: %ux%u, %u spp%s, %s: %.3f s, %.2f Mrays/s (%" PRIu64 " rays, %u threads)%s\n", out_path,
-                width, height, p.spp, rendered > 1 ? " per frame, last of a sequence" : "", method, st.render_ms * 1e-3, rays_per_s * 1e-6, rays, threads,
+                width, height, rm == RENDER_METHOD_PT ? p.spp : 1u,
+                rendered <= 1 ? "" : average_last > 1 ? " per frame, mean of a sequence's last frames" : " per frame, last of a sequence", method, st.render_ms * 1e-3, rays_per_s * 1e-6, rays, threads,
                 st.nonfinite ? ", non-finite samples dropped" : "");
     }
     image_destroy(&img);
