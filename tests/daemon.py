@@ -38,14 +38,14 @@ class Resp:
 class Daemon:
     _starts = 0
 
-    def __init__(self, data_dir, *extra):
+    def __init__(self, data_dir, *extra, binary=BIN):
         Daemon._starts += 1
         self.data_dir = Path(data_dir)
         self.data_dir.mkdir(parents=True, exist_ok=True)
         logs = self.data_dir.parent / f"{self.data_dir.name}-log{Daemon._starts}"
         logs.mkdir(exist_ok=True)
         self.out_path, self.err_path = logs / "stdout", logs / "stderr"
-        self.args = [BIN, "--listen", "127.0.0.1:0", "--data-dir", str(self.data_dir), *map(str, extra)]
+        self.args = [str(binary), "--listen", "127.0.0.1:0", "--data-dir", str(self.data_dir), *map(str, extra)]
         with open(self.out_path, "wb") as out, open(self.err_path, "wb") as err:
             self.proc = subprocess.Popen(self.args, stdout=out, stderr=err, stdin=subprocess.DEVNULL)
         deadline = time.monotonic() + 30
