@@ -96,10 +96,10 @@ class Cluster:
             self.proxy = subprocess.Popen([HAPROXY, "-db", "-f", str(ROOT / "docker" / "haproxy.cfg")], env=env,
                                           stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
             log.close()
-            if self.wait(lambda: self.proxy.poll() is not None or self.sock.exists() and self.accepts(), 10):
-                if self.proxy.poll() is None:
-                    break
-        assert self.proxy.poll() is None, self.log()
+            self.wait(lambda: self.proxy.poll() is not None or self.sock.exists() and self.accepts(), 10)
+            if self.proxy.poll() is None:
+                break
+        assert self.proxy.poll() is None and self.accepts(), self.log()
         self.wait_states({name: "UP" for name in self.daemons})
 
     def accepts(self):
