@@ -169,6 +169,14 @@ def cluster(tmp_path):
         c.stop()
 
 
+def test_daemons_started_together_give_different_session_ids(cluster):
+    # After a scene moves, a client's old session id reaches another daemon: that daemon must
+    # not know the id as one of its own sessions (a 404 makes the client re-create it).
+    ids = [d.req("POST", "/v1/scenes/furnace/sessions", json_body=SESSION).json()["id"]
+           for d in cluster.daemons.values()]
+    assert len(set(ids)) == len(ids), ids
+
+
 def upload_scenes(client):
     """Nine uploaded scenes (three with a mesh asset), so that each daemon gets some."""
     scenes = []
