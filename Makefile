@@ -36,13 +36,14 @@ SERVER_OBJ   := $(SERVER_SRC:%.c=$(OBJ)/%.o)
 UNIT_SRC     := $(wildcard tests/unit/test_*.c)
 UNIT_BIN     := $(UNIT_SRC:tests/unit/%.c=$(OUT)/tests/%)
 
-.PHONY: all deps test test-unit test-py run bench clean help
+.PHONY: all deps test test-unit test-py test-cluster run bench clean help
 .SECONDARY:
 all: $(OUT)/restir $(OUT)/restird
 
 help:
 	@echo "make            build build/restir (offline CLI) and build/restird (the daemon)"
-	@echo "make test       unit, statistical and end-to-end tests (SAN=1 for ASan/UBSan)"
+	@echo "make test       unit, statistical, end-to-end and cluster tests (SAN=1 for ASan/UBSan)"
+	@echo "make test-cluster  the image and three daemons behind HAProxy (part of make test)"
 	@echo "make run        start the daemon on 127.0.0.1:8080 with a default session on cornell-box"
 	@echo "make bench      benchmarks (not tests): see docs/benchmarks.md"
 	@echo "make clean      remove everything make made"
@@ -98,13 +99,34 @@ $(OBJ)/tests/unit/%.o: tests/unit/%.c Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) $(OPENEXR_CFLAGS) -Irenderer -Iprotocol -Iserver -Itests -c $< -o $@
 
-test: test-unit test-py
+test: test-unit test-py test-cluster
 
 test-unit: $(UNIT_BIN)
 	@fail=0; for t in $(UNIT_BIN); do echo "== $$t"; ./$$t || fail=1; done; exit $$fail
 
 test-py: $(OUT)/restir $(OUT)/restird
-	RESTIR_BIN=$(abspath $(OUT)/restir) RESTIRD_BIN=$(abspath $(OUT)/restird) $(PYTHON) -m pytest -q -p no:cacheprovider tests
+	RESTIR_BIN=$(abspath $(OUT)/restir) RESTIRD_BIN=$(abspath $(OUT)/restird) $(PYTHON) -m pytest -q -p no:cacheprovider --ignore=tests/cluster tests
+
+# The Dockerfile linter: dockerlinter from npm at the version docker/lint/package-lock.json pins,
+# installed under build/ (never globally). --ignore-scripts: its install script downloads a
+# ShellCheck binary; Debian's shellcheck (install-deps.sh) is used instead. It needs the
+# machine's Node.js and npm (Node 20.11 or later: Debian's Node 18 cannot run it; it declares
+# 22, but runs on 20); test_docker.py proves it judges by linting a faulty copy.
+DOCKERLINT_DIR := $(BUILD)/dockerlint
+DOCKERLINT     := $(DOCKERLINT_DIR)/node_modules/.bin/dockerlinter
+$(DOCKERLINT): docker/lint/package.json docker/lint/package-lock.json | $(DEPS_OK)
+	@command -v npm >/dev/null || { echo "make: the Dockerfile linter needs Node.js (20.11 or later) and npm" >&2; exit 1; }
+	@mkdir -p $(DOCKERLINT_DIR)
+	cp docker/lint/package.json docker/lint/package-lock.json $(DOCKERLINT_DIR)/
+	cd $(DOCKERLINT_DIR) && npm ci --ignore-scripts --no-audit --no-fund --loglevel=error
+	@touch $@
+
+# No Docker engine needed: the Dockerfile is linted and its build commands run here, and three
+# daemons run behind HAProxy (docker/haproxy.cfg) on loopback ports (tests/cluster/). The
+# image's `make` runs inside the test: with everything it builds made first, it has nothing to
+# do (SAN=1 builds in build/san/, so there it builds the plain tree, which no rule here touches).
+test-cluster: $(OUT)/restir $(OUT)/restird $(DOCKERLINT)
+	RESTIRD_BIN=$(abspath $(OUT)/restird) DOCKERLINT=$(abspath $(DOCKERLINT)) $(PYTHON) -m pytest -q -p no:cacheprovider tests/cluster
 
 # The daemon on 127.0.0.1:8080 with a ready session on the Cornell box; it prints the curl line
 # that fetches a frame. Ctrl-C stops it cleanly.
@@ -117,6 +139,6 @@ bench: $(OUT)/restir $(OUT)/restird $(OBJ)/librenderer.a
 	$(PYTHON) bench/server_bench.py | tee $(BUILD)/bench/server.json
 
 clean:
-	rm -rf $(BUILD) .pytest_cache tests/__pycache__ clients/python/__pycache__ bench/__pycache__
+	rm -rf $(BUILD) .pytest_cache tests/__pycache__ tests/cluster/__pycache__ clients/python/__pycache__ bench/__pycache__
 
 -include $(RENDERER_OBJ:.o=.d) $(PROTOCOL_OBJ:.o=.d) $(SERVER_OBJ:.o=.d) $(OBJ)/server/cli.d $(OBJ)/server/main.d $(UNIT_SRC:tests/unit/%.c=$(OBJ)/tests/unit/%.d)

@@ -14,6 +14,8 @@ packages=(
   python3-pytest python3-numpy python3-openimageio openimageio-tools  # tests
   embree-tools           # the benchmark peer (Embree's pathtracer tutorial)
   wrk                    # HTTP load for the server benchmark (bench/server.sh)
+  haproxy                # the consistent-hash router of the cluster test (make test-cluster)
+  shellcheck python3-yaml  # the Dockerfile linter's shell checks; compose.yaml in the cluster test
 )
 
 missing=()

@@ -6,7 +6,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/random.h>
 #include <time.h>
+#include <unistd.h>
 
 struct sessions {
     pthread_mutex_t lock;
@@ -29,9 +31,12 @@ struct sessions *sessions_new(uint32_t max_sessions)
     pthread_mutex_init(&t->lock, NULL);
     t->max = max_sessions;
     t->next_id = 1;
-    /* Session ids are not secrets; the salt only keeps ids of a restarted daemon from
-     * matching the ones a client remembers from before. */
-    t->salt = (uint32_t)time(NULL) * 2654435761u;
+    /* Session ids are not secrets, but one must not name another session where a client may
+     * still hold it: on a restarted daemon, or on another daemon behind the same proxy once a
+     * scene has moved there. Daemons started in the same second must not count alike, so the
+     * salt is random; time and process id stand in if the kernel has no randomness yet. */
+    if (getrandom(&t->salt, sizeof t->salt, GRND_NONBLOCK) != (ssize_t)sizeof t->salt)
+        t->salt = ((uint32_t)time(NULL) ^ (uint32_t)getpid() << 16) * 2654435761u;
     return t;
 }
 
@@ -123,8 +128,8 @@ struct session *sessions_create(struct sessions *t, const char *scene_id, const 
     if (id)
         snprintf(s->id, sizeof s->id, "%s", id);
     else
-        snprintf(s->id, sizeof s->id, "s%llx%04x", (unsigned long long)n,
-                 (unsigned)((t->salt ^ (uint32_t)(n * 40503u)) & 0xffff));
+        snprintf(s->id, sizeof s->id, "s%llx%08x", (unsigned long long)n,
+                 (unsigned)(t->salt ^ (uint32_t)(n * 2654435761u)));
     t->items[slot] = s;
     t->count++;
     pthread_mutex_unlock(&t->lock);
