@@ -35,6 +35,12 @@ SERVER_SRC   := $(filter-out server/main.c server/cli.c,$(wildcard server/*.c))
 SERVER_OBJ   := $(SERVER_SRC:%.c=$(OBJ)/%.o)
 UNIT_SRC     := $(wildcard tests/unit/test_*.c)
 UNIT_BIN     := $(UNIT_SRC:tests/unit/%.c=$(OUT)/tests/%)
+# The preview page (clients/web): its own files, and the npm packages it serves (uPlot),
+# installed from the committed lockfile.
+WEB          := clients/web
+WEB_PAGE     := $(wildcard $(WEB)/page/*)
+WEB_NPM      := $(WEB)/node_modules/.package-lock.json
+WEB_VENDOR   := $(WEB)/node_modules/uplot/dist/uPlot.esm.js $(WEB)/node_modules/uplot/dist/uPlot.min.css
 
 .PHONY: all deps test test-unit test-py run bench clean help
 .SECONDARY:
@@ -43,7 +49,8 @@ all: $(OUT)/restir $(OUT)/restird
 help:
 	@echo "make            build build/restir (offline CLI) and build/restird (the daemon)"
 	@echo "make test       unit, statistical and end-to-end tests (SAN=1 for ASan/UBSan)"
-	@echo "make run        start the daemon on 127.0.0.1:8080 with a default session on cornell-box"
+	@echo "make run        start the daemon on 127.0.0.1:8080 with a default session on cornell-box;"
+	@echo "                the preview page is at http://127.0.0.1:8080/"
 	@echo "make bench      benchmarks (not tests): see docs/benchmarks.md"
 	@echo "make clean      remove everything make made"
 
@@ -84,10 +91,25 @@ $(OBJ)/openapi.o: protocol/openapi.yaml Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
 	ld -r -b binary -z noexecstack -o $@ $<
 
+# npm ci is skipped while the installed tree matches the lockfile (npm writes its own record,
+# node_modules/.package-lock.json; it is touched so it is newer than the lockfile).
+$(WEB_NPM): $(WEB)/package.json $(WEB)/package-lock.json | $(DEPS_OK)
+	cd $(WEB) && npm ci --no-audit --no-fund --loglevel=error
+	@touch $@
+
+# The page's files, uPlot included, are built into the daemon as a table (server/webui.h): the
+# binary serves its own page with no directory to find at run time and nothing to traverse.
+$(OBJ)/webui_files.c: $(WEB_PAGE) $(WEB_NPM) scripts/embed_web.py Makefile
+	@mkdir -p $(dir $@)
+	$(PYTHON) scripts/embed_web.py $@ $(WEB_PAGE) $(WEB_VENDOR)
+
+$(OBJ)/webui_files.o: $(OBJ)/webui_files.c server/webui.h
+	$(CC) $(CFLAGS) -Iserver -c $< -o $@
+
 $(OUT)/restir: $(OBJ)/server/cli.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
 	$(CC) $(CFLAGS) $^ $(LDLIBS) -o $@
 
-$(OUT)/restird: $(OBJ)/server/main.o $(OBJ)/openapi.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
+$(OUT)/restird: $(OBJ)/server/main.o $(OBJ)/openapi.o $(OBJ)/webui_files.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
 	$(CC) $(CFLAGS) $^ $(SERVER_LDLIBS) $(LDLIBS) -o $@
 
 $(OUT)/tests/%: $(OBJ)/tests/unit/%.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
@@ -117,6 +139,6 @@ bench: $(OUT)/restir $(OUT)/restird $(OBJ)/librenderer.a
 	$(PYTHON) bench/server_bench.py | tee $(BUILD)/bench/server.json
 
 clean:
-	rm -rf $(BUILD) .pytest_cache tests/__pycache__ clients/python/__pycache__ bench/__pycache__
+	rm -rf $(BUILD) .pytest_cache tests/__pycache__ clients/python/__pycache__ bench/__pycache__ $(WEB)/node_modules
 
 -include $(RENDERER_OBJ:.o=.d) $(PROTOCOL_OBJ:.o=.d) $(SERVER_OBJ:.o=.d) $(OBJ)/server/cli.d $(OBJ)/server/main.d $(UNIT_SRC:tests/unit/%.c=$(OBJ)/tests/unit/%.d)

@@ -14,7 +14,10 @@ packages=(
   python3-pytest python3-numpy python3-openimageio openimageio-tools  # tests
   embree-tools           # the benchmark peer (Embree's pathtracer tutorial)
   wrk                    # HTTP load for the server benchmark (bench/server.sh)
+  nodejs                 # the preview page: its npm packages are installed at build time
 )
+# npm comes with some builds of nodejs and as Debian's own package with others.
+command -v npm >/dev/null || packages+=(npm)
 
 missing=()
 for p in "${packages[@]}"; do
