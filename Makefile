@@ -35,14 +35,14 @@ SERVER_SRC   := $(filter-out server/main.c server/cli.c,$(wildcard server/*.c))
 SERVER_OBJ   := $(SERVER_SRC:%.c=$(OBJ)/%.o)
 UNIT_SRC     := $(wildcard tests/unit/test_*.c)
 UNIT_BIN     := $(UNIT_SRC:tests/unit/%.c=$(OUT)/tests/%)
-# The preview page (clients/web): its own files, and the npm packages it serves (uPlot),
-# installed from the committed lockfile.
+# The preview page (clients/web): its own files, and the npm packages it serves (uPlot) or is
+# tested with (playwright-core), installed from the committed lockfile.
 WEB          := clients/web
 WEB_PAGE     := $(wildcard $(WEB)/page/*)
 WEB_NPM      := $(WEB)/node_modules/.package-lock.json
 WEB_VENDOR   := $(WEB)/node_modules/uplot/dist/uPlot.esm.js $(WEB)/node_modules/uplot/dist/uPlot.min.css
 
-.PHONY: all deps test test-unit test-py run bench clean help
+.PHONY: all deps test test-unit test-py test-web run bench clean help
 .SECONDARY:
 all: $(OUT)/restir $(OUT)/restird
 
@@ -120,13 +120,19 @@ $(OBJ)/tests/unit/%.o: tests/unit/%.c Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) $(OPENEXR_CFLAGS) -Irenderer -Iprotocol -Iserver -Itests -c $< -o $@
 
-test: test-unit test-py
+test: test-unit test-py test-web
 
 test-unit: $(UNIT_BIN)
 	@fail=0; for t in $(UNIT_BIN); do echo "== $$t"; ./$$t || fail=1; done; exit $$fail
 
 test-py: $(OUT)/restir $(OUT)/restird
 	RESTIR_BIN=$(abspath $(OUT)/restir) RESTIRD_BIN=$(abspath $(OUT)/restird) $(PYTHON) -m pytest -q -p no:cacheprovider tests
+
+# The preview page in Debian's chromium, driven by playwright-core (node's test runner);
+# screenshots and the daemon's log go to $(OUT)/web-test/.
+test-web: $(OUT)/restird $(WEB_NPM)
+	RESTIRD_BIN=$(abspath $(OUT)/restird) WEB_TEST_OUT=$(abspath $(OUT)/web-test) PYTHON=$(PYTHON) \
+		node --test --test-reporter=spec $(WEB)/test/
 
 # The daemon on 127.0.0.1:8080 with a ready session on the Cornell box; it prints the curl line
 # that fetches a frame. Ctrl-C stops it cleanly.

@@ -14,7 +14,7 @@ packages=(
   python3-pytest python3-numpy python3-openimageio openimageio-tools  # tests
   embree-tools           # the benchmark peer (Embree's pathtracer tutorial)
   wrk                    # HTTP load for the server benchmark (bench/server.sh)
-  nodejs                 # the preview page: its npm packages are installed at build time
+  nodejs chromium        # the preview page: npm packages at build time, browser tests (make test-web)
 )
 # npm comes with some builds of nodejs and as Debian's own package with others.
 command -v npm >/dev/null || packages+=(npm)
