@@ -25,6 +25,7 @@ const state = {
   animJob: null, // {session, id}
   refJob: null, // {session, id, name}
   errorMapFor: '',
+  pointer: null, // the image pixel last under the pointer
 };
 const viewer = new HdrViewer($('image'), $('split-line'));
 const chart = new MapeChart($('chart'));
@@ -147,6 +148,7 @@ async function follow(info) {
     loading: false,
     metricsQueue: [],
     metricsBusy: false,
+    endedJobs: new Map(), // job id -> final status
   };
   if (info.frames_rendered > 0) {
     s.lastFrame = info.frames_rendered - 1;
@@ -188,10 +190,14 @@ function addRow(s) {
   del.type = 'button';
   del.textContent = 'delete';
   del.addEventListener('click', async () => {
+    s.closing = true; // the daemon ends the stream: that is no failure to report
     try {
       await sendJson('DELETE', s.href);
     } catch (err) {
-      if (err.status !== 404) return showProblem(`Delete session ${s.id}`, err);
+      if (err.status !== 404) {
+        s.closing = false;
+        return showProblem(`Delete session ${s.id}`, err);
+      }
     }
     forget(s);
   });
@@ -254,6 +260,8 @@ function openEvents(s) {
   events.addEventListener('error', (e) => {
     if (e.data) {
       onJobError(s, JSON.parse(e.data));
+    } else if (s.closing) {
+      events.close();
     } else if (events.readyState === EventSource.CLOSED) {
       showProblem(`Session ${s.id}`, new ApiError({ title: 'The event stream closed', detail: 'the session is gone or the daemon refused the stream' }));
     } else if (!s.streamLost) {
@@ -361,27 +369,30 @@ function onProgress(s, ev) {
   }
 }
 
+// A job's end, from its "done" or "error" event. Recorded per session because a short job can
+// end before the answer to the POST that started it has arrived; settleJobs() then finds it.
 function onDone(s, ev) {
-  if (state.animJob?.session === s && state.animJob.id === ev.job) {
-    state.animJob = null;
-    setAnimStatus(ev.status, ev.job);
-  } else if (state.refJob?.session === s && state.refJob.id === ev.job) {
-    const { name } = state.refJob;
-    state.refJob = null;
-    if (ev.status === 'done') useReference(s.info.scene, name).catch((err) => showProblem('Reference', err));
-    else setRefStatus(ev.status, `'${name}' ${ev.status}`);
-  }
+  s.endedJobs.set(ev.job, ev.status);
+  settleJobs(s);
 }
 
 function onJobError(s, problem) {
   showProblem(`Job ${problem.job ?? ''} of session ${s.id}`, new ApiError(problem));
-  if (state.animJob?.session === s && state.animJob.id === problem.job) {
+  onDone(s, { job: problem.job, status: 'failed' });
+}
+
+function settleJobs(s) {
+  const anim = state.animJob;
+  if (anim?.session === s && s.endedJobs.has(anim.id)) {
     state.animJob = null;
-    setAnimStatus('failed', problem.job);
+    setAnimStatus(s.endedJobs.get(anim.id), anim.id);
   }
-  if (state.refJob?.session === s && state.refJob.id === problem.job) {
+  const ref = state.refJob;
+  if (ref?.session === s && s.endedJobs.has(ref.id)) {
     state.refJob = null;
-    setRefStatus('failed', 'failed');
+    const status = s.endedJobs.get(ref.id);
+    if (status === 'done') useReference(s.info.scene, ref.name).catch((err) => showProblem('Reference', err));
+    else setRefStatus(status, `'${ref.name}' ${status}`);
   }
 }
 
@@ -442,7 +453,7 @@ function refreshView() {
   view.dataset.bFrame = b && b.imageFrame >= 0 ? String(b.imageFrame) : state.b === 'reference' ? 'reference' : '';
   viewer.set({ a: a?.image ?? null, b: currentB() });
   if (viewer.mode === 'error') loadErrorMap(a);
-  showPixel(lastPointer);
+  showPixel(state.pointer);
 }
 
 // The daemon's false-colour map of A's shown frame against the reference (…/error.png), with
@@ -475,8 +486,6 @@ async function loadErrorMap(a) {
     if (err.status !== 410) showProblem('Error map', err);
   }
 }
-
-let lastPointer = null;
 
 function formatRgb(v) {
   return v ? v.map((c) => (Number.isFinite(c) ? c.toPrecision(4) : String(c))).join(' ') : '–';
@@ -595,6 +604,7 @@ action('start-animation', 'Start animation', async () => {
   bar.max = job.progress.frames_total;
   bar.value = 0;
   setAnimStatus(job.status, job.id);
+  settleJobs(s);
 });
 
 action('stop-animation', 'Stop animation', async () => {
@@ -611,6 +621,7 @@ action('render-reference', 'Render reference', async () => {
   const job = await sendJson('POST', `${s.href}/references/${encodeURIComponent(name)}`, withDefined({ spp: typed($('ref-spp')) }));
   state.refJob = { session: s, id: job.id, name };
   setRefStatus('rendering', `'${name}': queued`);
+  settleJobs(s);
 });
 
 action('use-reference', 'Use reference', async () => {
@@ -669,8 +680,8 @@ $('zoom').addEventListener('change', () => viewer.set({ zoom: Number($('zoom').v
 $('split').addEventListener('input', () => viewer.set({ split: Number($('split').value) }));
 
 $('image').addEventListener('mousemove', (e) => {
-  lastPointer = viewer.pixelAt(e);
-  showPixel(lastPointer);
+  state.pointer = viewer.pixelAt(e);
+  showPixel(state.pointer);
 });
 
 // ---- start ----

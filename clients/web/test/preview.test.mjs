@@ -341,6 +341,18 @@ test('a 422 from the daemon is shown as its title, detail and field', async () =
   await page.fill('#width', String(SIDE));
 });
 
+test('deleting a session ends it on the daemon and in the page, with no error shown', async () => {
+  const messages = await page.locator('#messages .problem').count();
+  await page.click(`#sessions tr[data-session="${first.id}"] button`);
+  await page.waitForSelector(`#sessions tr[data-session="${first.id}"]`, { state: 'detached' });
+  assert.equal((await api('GET', first.href)).status, 404);
+  assert.notEqual(await page.$eval('#session-b', (s) => s.value), first.id);
+  // The daemon ends the session's event stream; the page must not report that as a failure.
+  // Only a short wait can show that nothing arrives.
+  await page.waitForTimeout(500);
+  assert.equal(await page.locator('#messages .problem').count(), messages);
+});
+
 test('the page logged no errors of its own', () => {
   assert.deepEqual(consoleErrors, []);
 });
