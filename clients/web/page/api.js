@@ -10,6 +10,7 @@ export class ApiError extends Error {
     this.title = problem.title ?? 'Request failed';
     this.detail = problem.detail ?? '';
     this.field = problem.field;
+    this.limit = problem.limit;
     this.instance = problem.instance;
   }
 }

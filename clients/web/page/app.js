@@ -10,6 +10,8 @@ import { decodeExr } from './exr.js';
 import { METHODS } from './methods.js';
 import { HdrViewer } from './viewer.js';
 
+document.body.dataset.started = 'true'; // boot.js reports a page whose modules never ran
+
 const $ = (id) => document.getElementById(id);
 // Each followed session holds an event stream open, and browsers give a host six HTTP/1.1
 // connections: four streams leave two for everything else.
@@ -58,6 +60,7 @@ function showProblem(context, err) {
     field.textContent = p.field === '' ? '(the whole body)' : p.field;
     box.append(document.createTextNode(' at '), field);
   }
+  if (p.limit !== undefined) box.append(document.createTextNode(` (limit ${p.limit})`));
   const list = $('messages');
   list.prepend(box);
   while (list.children.length > MAX_MESSAGES) list.lastElementChild.remove();

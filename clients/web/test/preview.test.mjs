@@ -353,6 +353,19 @@ test('deleting a session ends it on the daemon and in the page, with no error sh
   assert.equal(await page.locator('#messages .problem').count(), messages);
 });
 
+test('a page whose scripts cannot load says so', async () => {
+  const broken = await browser.newPage();
+  try {
+    await broken.route('**/ui/uPlot.esm.js', (route) => route.abort());
+    await broken.goto(`${base}/`);
+    const message = broken.locator('#messages .problem');
+    await message.waitFor();
+    assert.match(await message.textContent(), /The page did not start/);
+  } finally {
+    await broken.close();
+  }
+});
+
 test('the page logged no errors of its own', () => {
   assert.deepEqual(consoleErrors, []);
 });
