@@ -48,7 +48,8 @@ all: $(OUT)/restir $(OUT)/restird
 
 help:
 	@echo "make            build build/restir (offline CLI) and build/restird (the daemon)"
-	@echo "make test       unit, statistical and end-to-end tests (SAN=1 for ASan/UBSan)"
+	@echo "make test       unit, statistical, end-to-end and browser tests (SAN=1 for ASan/UBSan)"
+	@echo "make test-web   the preview page in headless chromium alone (screenshots: build/web-test/)"
 	@echo "make run        start the daemon on 127.0.0.1:8080 with a default session on cornell-box;"
 	@echo "                the preview page is at http://127.0.0.1:8080/"
 	@echo "make bench      benchmarks (not tests): see docs/benchmarks.md"
