@@ -35,16 +35,24 @@ SERVER_SRC   := $(filter-out server/main.c server/cli.c,$(wildcard server/*.c))
 SERVER_OBJ   := $(SERVER_SRC:%.c=$(OBJ)/%.o)
 UNIT_SRC     := $(wildcard tests/unit/test_*.c)
 UNIT_BIN     := $(UNIT_SRC:tests/unit/%.c=$(OUT)/tests/%)
+# The preview page (clients/web): its own files, and the npm packages it serves (uPlot) or is
+# tested with (playwright-core), installed from the committed lockfile.
+WEB          := clients/web
+WEB_PAGE     := $(wildcard $(WEB)/page/*)
+WEB_NPM      := $(WEB)/node_modules/.package-lock.json
+WEB_VENDOR   := $(WEB)/node_modules/uplot/dist/uPlot.esm.js $(WEB)/node_modules/uplot/dist/uPlot.min.css
 
-.PHONY: all deps test test-unit test-py test-cluster run bench clean help
+.PHONY: all deps test test-unit test-py test-cluster test-web run bench clean help
 .SECONDARY:
 all: $(OUT)/restir $(OUT)/restird
 
 help:
 	@echo "make            build build/restir (offline CLI) and build/restird (the daemon)"
-	@echo "make test       unit, statistical, end-to-end and cluster tests (SAN=1 for ASan/UBSan)"
+	@echo "make test       unit, statistical, end-to-end, cluster and browser tests (SAN=1 for ASan/UBSan)"
 	@echo "make test-cluster  the image and three daemons behind HAProxy (part of make test)"
-	@echo "make run        start the daemon on 127.0.0.1:8080 with a default session on cornell-box"
+	@echo "make test-web   the preview page in headless chromium alone (screenshots: build/web-test/)"
+	@echo "make run        start the daemon on 127.0.0.1:8080 with a default session on cornell-box;"
+	@echo "                the preview page is at http://127.0.0.1:8080/"
 	@echo "make bench      benchmarks (not tests): see docs/benchmarks.md"
 	@echo "make clean      remove everything make made"
 
@@ -85,10 +93,25 @@ $(OBJ)/openapi.o: protocol/openapi.yaml Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
 	ld -r -b binary -z noexecstack -o $@ $<
 
+# npm ci is skipped while the installed tree matches the lockfile (npm writes its own record,
+# node_modules/.package-lock.json; it is touched so it is newer than the lockfile).
+$(WEB_NPM): $(WEB)/package.json $(WEB)/package-lock.json | $(DEPS_OK)
+	cd $(WEB) && npm ci --no-audit --no-fund --loglevel=error
+	@touch $@
+
+# The page's files, uPlot included, are built into the daemon as a table (server/webui.h): the
+# binary serves its own page with no directory to find at run time and nothing to traverse.
+$(OBJ)/webui_files.c: $(WEB_PAGE) $(WEB_NPM) scripts/embed_web.py Makefile
+	@mkdir -p $(dir $@)
+	$(PYTHON) scripts/embed_web.py $@ $(WEB_PAGE) $(WEB_VENDOR)
+
+$(OBJ)/webui_files.o: $(OBJ)/webui_files.c server/webui.h
+	$(CC) $(CFLAGS) -Iserver -c $< -o $@
+
 $(OUT)/restir: $(OBJ)/server/cli.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
 	$(CC) $(CFLAGS) $^ $(LDLIBS) -o $@
 
-$(OUT)/restird: $(OBJ)/server/main.o $(OBJ)/openapi.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
+$(OUT)/restird: $(OBJ)/server/main.o $(OBJ)/openapi.o $(OBJ)/webui_files.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
 	$(CC) $(CFLAGS) $^ $(SERVER_LDLIBS) $(LDLIBS) -o $@
 
 $(OUT)/tests/%: $(OBJ)/tests/unit/%.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
@@ -99,7 +122,7 @@ $(OBJ)/tests/unit/%.o: tests/unit/%.c Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) $(OPENEXR_CFLAGS) -Irenderer -Iprotocol -Iserver -Itests -c $< -o $@
 
-test: test-unit test-py test-cluster
+test: test-unit test-py test-cluster test-web
 
 test-unit: $(UNIT_BIN)
 	@fail=0; for t in $(UNIT_BIN); do echo "== $$t"; ./$$t || fail=1; done; exit $$fail
@@ -128,6 +151,12 @@ $(DOCKERLINT): docker/lint/package.json docker/lint/package-lock.json | $(DEPS_O
 test-cluster: $(OUT)/restir $(OUT)/restird $(DOCKERLINT)
 	RESTIRD_BIN=$(abspath $(OUT)/restird) DOCKERLINT=$(abspath $(DOCKERLINT)) $(PYTHON) -m pytest -q -p no:cacheprovider tests/cluster
 
+# The preview page in Debian's chromium, driven by playwright-core (node's test runner);
+# screenshots and the daemon's log go to $(OUT)/web-test/.
+test-web: $(OUT)/restird $(WEB_NPM)
+	RESTIRD_BIN=$(abspath $(OUT)/restird) WEB_TEST_OUT=$(abspath $(OUT)/web-test) PYTHON=$(PYTHON) \
+		node --test --test-reporter=spec $(WEB)/test/
+
 # The daemon on 127.0.0.1:8080 with a ready session on the Cornell box; it prints the curl line
 # that fetches a frame. Ctrl-C stops it cleanly.
 run: $(OUT)/restird
@@ -139,6 +168,7 @@ bench: $(OUT)/restir $(OUT)/restird $(OBJ)/librenderer.a
 	$(PYTHON) bench/server_bench.py | tee $(BUILD)/bench/server.json
 
 clean:
-	rm -rf $(BUILD) .pytest_cache tests/__pycache__ tests/cluster/__pycache__ clients/python/__pycache__ bench/__pycache__
+	rm -rf $(BUILD) .pytest_cache tests/__pycache__ tests/cluster/__pycache__ clients/python/__pycache__ bench/__pycache__ \
+	       $(WEB)/node_modules
 
 -include $(RENDERER_OBJ:.o=.d) $(PROTOCOL_OBJ:.o=.d) $(SERVER_OBJ:.o=.d) $(OBJ)/server/cli.d $(OBJ)/server/main.d $(UNIT_SRC:tests/unit/%.c=$(OBJ)/tests/unit/%.d)

@@ -16,7 +16,10 @@ packages=(
   wrk                    # HTTP load for the server benchmark (bench/server.sh)
   haproxy                # the consistent-hash router of the cluster test (make test-cluster)
   shellcheck python3-yaml  # the Dockerfile linter's shell checks; compose.yaml in the cluster test
+  nodejs chromium        # the preview page: npm packages at build time, browser tests (make test-web)
 )
+# npm comes with some builds of nodejs and as Debian's own package with others.
+command -v npm >/dev/null || packages+=(npm)
 
 missing=()
 for p in "${packages[@]}"; do

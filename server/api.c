@@ -14,6 +14,7 @@
 #include "exrio.h"
 #include "light_sampler.h"
 #include "tonemap.h"
+#include "webui.h"
 
 /* The API description, linked in from protocol/openapi.yaml (see the Makefile). */
 extern const char _binary_protocol_openapi_yaml_start[];
@@ -369,6 +370,61 @@ static void api_openapi(struct api_call *c)
     c->resp->body_len = len;
 }
 
+/* ---- the preview page ---- */
+
+/* If-None-Match against a strong ETag: a list of entity tags or "*", compared weakly as RFC
+ * 9110 §13.1.2 asks (a W/ prefix is ignored). */
+static bool api_etag_matches(const char *inm, const char *etag)
+{
+    if (!inm) return false;
+    size_t n = strlen(etag);
+    for (const char *p = inm; *p;) {
+        while (*p == ' ' || *p == '\t' || *p == ',') p++;
+        if (*p == '*') return true;
+        if (strncmp(p, "W/", 2) == 0) p += 2;
+        if (strncmp(p, etag, n) == 0 && (p[n] == '\0' || p[n] == ',' || p[n] == ' ' || p[n] == '\t')) return true;
+        while (*p && *p != ',') p++;
+    }
+    return false;
+}
+
+/* The page's files carry stable names, so they are revalidated on every use (no-cache: a
+ * cheap 304 by ETag) rather than cached as immutable. The document gets a content security
+ * policy that allows only this origin: the page loads nothing from elsewhere. */
+static void api_send_web_file(struct api_call *c, const char *name)
+{
+    const struct webui_file *f = webui_find(name);
+    if (!f) {
+        api_problem(c, 404, "not-found", NULL, "the web page has no file '%s'", name);
+        return;
+    }
+    http_response_header(c->resp, "ETag", "%s", f->etag);
+    http_response_header(c->resp, "Cache-Control", "no-cache");
+    http_response_header(c->resp, "X-Content-Type-Options", "nosniff");
+    if (strncmp(f->type, "text/html", 9) == 0)
+        http_response_header(c->resp, "Content-Security-Policy",
+                             "default-src 'self'; img-src 'self' blob: data:; object-src 'none'; base-uri 'none'; "
+                             "form-action 'none'; frame-ancestors 'none'");
+    if (api_etag_matches(http_header(c->req, "If-None-Match"), f->etag)) {
+        c->resp->status = 304;
+        return;
+    }
+    char *body = malloc(f->size ? f->size : 1);
+    if (!body) {
+        api_problem(c, 503, "busy", NULL, "out of memory");
+        return;
+    }
+    memcpy(body, f->data, f->size);
+    c->resp->status = 200;
+    c->resp->content_type = f->type;
+    c->resp->body = body;
+    c->resp->body_len = f->size;
+}
+
+static void api_page(struct api_call *c) { api_send_web_file(c, "index.html"); }
+
+static void api_page_file(struct api_call *c) { api_send_web_file(c, c->seg[1]); }
+
 /* ---- scenes ---- */
 
 /* replaced: < 0 leaves the member out (GET); 0/1 for the answer to a PUT. */
@@ -571,7 +627,7 @@ static void api_reference_put(struct api_call *c)
 enum api_body { BODY_NONE, BODY_JSON, BODY_ASSET, BODY_REFERENCE };
 
 struct api_route {
-    const char *pattern;              /* segments; "*" = an id, "#" = a frame number, "@" = an asset name */
+    const char *pattern;              /* segments; "*" = an id, "#" = a frame number, "@" = a file name (the handler checks it) */
     const char *methods[3];
     void (*fn[3])(struct api_call *c);
     enum api_body body[3];
@@ -586,6 +642,8 @@ static const char *const api_prometheus[] = {"text/plain", NULL};
 static const char *const api_yaml[] = {"application/yaml", NULL};
 
 static const struct api_route api_routes[] = {
+    {"/", {"GET"}, {api_page}, {0}, NULL},
+    {"/ui/@", {"GET"}, {api_page_file}, {0}, NULL},
     {"/healthz", {"GET"}, {api_healthz}, {0}, api_json_only},
     {"/readyz", {"GET"}, {api_readyz}, {0}, api_json_only},
     {"/metrics", {"GET"}, {api_metrics}, {0}, api_prometheus},
@@ -612,11 +670,13 @@ static const struct api_route api_routes[] = {
 };
 #define API_ROUTE_COUNT (sizeof api_routes / sizeof api_routes[0])
 
-/* Splits the path into segments (in c->buf); false when it has too many or empty ones. */
+/* Splits the path into segments (in c->buf); false when it has too many or empty ones. "/" has
+ * none (the page's route). */
 static bool api_split(struct api_call *c, const char *path)
 {
     c->nseg = 0;
     if (path[0] != '/' || strlen(path) >= sizeof c->buf) return false;
+    if (path[1] == '\0') return true;
     snprintf(c->buf, sizeof c->buf, "%s", path + 1);
     char *p = c->buf;
     for (;;) {

@@ -240,6 +240,69 @@ def test_openapi_document(daemon):
     assert "/v1/scenes/{scene}/sessions/{sid}/frames" in doc["paths"]
 
 
+PAGE = ROOT / "clients" / "web" / "page"
+UPLOT = ROOT / "clients" / "web" / "node_modules" / "uplot" / "dist"
+PAGE_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
+              ".css": "text/css; charset=utf-8"}
+
+
+def test_preview_page_is_served_from_the_binary(daemon):
+    """GET / is clients/web/page/index.html as built into the daemon; every file of the page and
+    the uPlot files it imports are served under /ui/ byte for byte, with their media type and a
+    strong ETag that a matching If-None-Match turns into a 304."""
+    r = daemon.req("GET", "/", headers={"Accept": "text/html"})
+    assert r.status == 200, repr(r)
+    assert r.header("Content-Type") == PAGE_TYPES[".html"]
+    index = (PAGE / "index.html").read_bytes()
+    assert r.body == index
+    assert "default-src 'self'" in r.header("Content-Security-Policy", "")
+    assert r.header("X-Content-Type-Options") == "nosniff"
+    assert r.header("Cache-Control") == "no-cache"
+    etag = r.header("ETag")
+    assert re.fullmatch(r'"[0-9a-f]{24}"', etag), etag
+    assert daemon.req("GET", "/", headers={"If-None-Match": etag}).status == 304
+    assert daemon.req("GET", "/", headers={"If-None-Match": f'"other", W/{etag}'}).status == 304
+    assert daemon.req("GET", "/", headers={"If-None-Match": '"other"'}).status == 200
+
+    served = {}
+    for f in sorted(PAGE.iterdir()):
+        r = daemon.req("GET", f"/ui/{f.name}")
+        assert r.status == 200, repr(r)
+        assert r.body == f.read_bytes(), f.name
+        assert r.header("Content-Type") == PAGE_TYPES[f.suffix], f.name
+        served[f.name] = r
+    assert served["app.js"].header("ETag") != served["api.js"].header("ETag")
+    for name in ("uPlot.esm.js", "uPlot.min.css"):
+        r = daemon.req("GET", f"/ui/{name}")
+        assert r.status == 200, repr(r)
+        assert r.body == (UPLOT / name).read_bytes()
+        assert r.header("Content-Type") == PAGE_TYPES[Path(name).suffix]
+    # Every file the page names is there: the document's links and the modules' imports.
+    names = re.findall(r'(?:src|href)="ui/([^"]+)"', index.decode())
+    for f in PAGE.glob("*.js"):
+        names += re.findall(r"from '\./([^']+)'", f.read_text())
+    assert "app.js" in names and "uPlot.esm.js" in names
+    for name in set(names):
+        assert daemon.req("GET", f"/ui/{name}").status == 200, name
+
+
+@pytest.mark.parametrize("path", [
+    "/ui/nope.js", "/ui/", "/ui", "/index.html", "/ui/APP.JS", "/ui/./app.js", "/ui/app.js/x",
+    "/ui/../Makefile", "/ui/..%2FMakefile", "/ui/%2e%2e/Makefile", "/ui/%2e%2e%2fMakefile", "/ui/%2e%2e",
+    "/ui/..", "/ui/app.js%00.png", "//etc/passwd", "/ui/%2Fetc%2Fpasswd",
+])
+def test_preview_page_has_no_other_files(daemon, path):
+    """Only the built-in files exist: no path reaches the file system, whatever it spells."""
+    assert_problem(daemon.raw("GET", path), 404, "not-found", where=path)
+
+
+def test_preview_page_is_read_only(daemon):
+    for method, path in (("POST", "/"), ("PUT", "/ui/app.js"), ("DELETE", "/ui/index.html")):
+        r = daemon.raw(method, path)
+        assert_problem(r, 405, "method-not-allowed", where=path)
+        assert r.header("Allow") == "GET"
+
+
 def test_metrics_prometheus(daemon):
     text = daemon.req("GET", "/metrics").body.decode()
     before = metric_value(text, "restird_requests_total", {"route": "/healthz", "code": "200"}) or 0
