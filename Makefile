@@ -166,6 +166,7 @@ bench: $(OUT)/restir $(OUT)/restird $(OBJ)/librenderer.a
 	bash bench/run.sh
 	bash bench/instr_per_ray.sh | tee $(BUILD)/bench/instr.json
 	$(PYTHON) bench/server_bench.py | tee $(BUILD)/bench/server.json
+	$(PYTHON) bench/restir_pt.py | tee $(BUILD)/bench/restir_pt.md
 
 clean:
 	rm -rf $(BUILD) .pytest_cache tests/__pycache__ tests/cluster/__pycache__ clients/python/__pycache__ bench/__pycache__ \

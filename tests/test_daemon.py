@@ -1221,3 +1221,44 @@ def test_sigterm_during_animation_job(tmp_path):
     assert rc == 0, f"exit code {rc} after {took:.1f} s\n{d.stderr()[-3000:]}"
     assert took < 30
     assert "stopped" in d.stderr(), d.stderr()[-3000:]
+
+
+def test_restir_pt_session(daemon):
+    """A restir_pt session: its parameters with defaults, exactly its own buffers (two 64-byte
+    reservoir buffers and two G-buffers, no BDPT/SMS/SSS state), frames with per-pass times, and
+    the camera moving between frames without losing the history."""
+    s = new_session(daemon, method="restir_pt", width=32, height=24, seed=3, params={"spatial_neighbors": 4})
+    assert s["method"] == "restir_pt"
+    p = s["params"]
+    assert p["spatial_neighbors"] == 4 and p["spatial_radius"] == 20 and p["temporal_cap"] == 20
+    assert p["footprint"] is True and p["footprint_c"] == pytest.approx(0.02) and p["pdf_connect"] is True
+    assert p["nee_candidates"] == 8 and p["unify_di"] is True and p["rr"] is True and p["max_depth"] == 64
+    assert s["reservoir_bytes_per_pixel"] == 64
+    assert s["reservoir_bytes"] == 2 * 64 * 32 * 24 == s["buffers"]["reservoirs"]
+    assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "primitive_table"}
+    first = post_frame(daemon, s, accept="application/json").json()
+    assert first["passes"]["temporal_ms"] >= 0 and first["passes"]["shifts"] > 0
+    moved = {"camera": {"position": [288, 273, -800]}}
+    st = post_frame(daemon, s, moved, accept="application/json").json()
+    passes = st["passes"]
+    for key in ["gbuffer_ms", "initial_ms", "temporal_ms", "spatial_ms", "shade_ms", "shifts", "shift_failures",
+                "rejected"]:
+        assert key in passes, (key, passes)
+    assert passes["shifts"] > first["passes"]["shifts"], "the second frame reuses the first temporally"
+    assert st["nonfinite"] == 0 and st["samples"] == 32 * 24
+    img = frame_rgb(daemon, s)
+    assert img.shape == (24, 32, 3) and np.isfinite(img).all() and img.mean() > 0.01
+    assert daemon.req("DELETE", s["href"]).status == 204
+
+
+@pytest.mark.parametrize("params,field", [
+    ({"spatial_neighbors": 65}, "/params/spatial_neighbors"),
+    ({"footprint_c": 0}, "/params/footprint_c"),
+    ({"max_depth": 0}, "/params/max_depth"),
+    ({"temporal": 1}, "/params/temporal"),
+    ({"spp": 4}, "/params/spp"),
+])
+def test_restir_pt_bad_params(daemon, params, field):
+    r = daemon.req("POST", f"{CORNELL}/sessions", json_body={"method": "restir_pt", "width": 8, "height": 8,
+                                                             "params": params})
+    assert_problem(r, 422, "invalid-field", field)

@@ -13,4 +13,18 @@ export const METHODS = {
       { name: 'nee', kind: 'boolean', value: true, help: 'next-event estimation' },
     ],
   },
+  restir_pt: {
+    label: 'restir_pt: ReSTIR path tracing (reuse across pixels and frames)',
+    params: [
+      { name: 'spatial_neighbors', kind: 'number', value: 3, help: 'neighbours per spatial round (0: none)' },
+      { name: 'spatial_radius', kind: 'number', value: 20, help: 'spatial radius, pixels' },
+      { name: 'temporal', kind: 'boolean', value: true, help: 'temporal reuse' },
+      { name: 'temporal_cap', kind: 'number', value: 20, help: 'previous confidence cap, x current' },
+      { name: 'nee_candidates', kind: 'number', value: 8, help: 'RIS candidates of light sampling' },
+      { name: 'footprint', kind: 'boolean', value: true, help: 'dual ray-footprint reconnection threshold' },
+      { name: 'pdf_connect', kind: 'boolean', value: true, help: 'PDF-based connectability' },
+      { name: 'unify_di', kind: 'boolean', value: true, help: 'direct light in the reservoir' },
+      { name: 'max_depth', kind: 'number', value: 64, help: 'longest path, in bounces' },
+    ],
+  },
 };

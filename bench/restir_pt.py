@@ -1,0 +1,177 @@
+#!/usr/bin/env python3
+"""bench/restir_pt.py — `make bench`: path tracing against ReSTIR PT, error against time.
+
+Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. In one
+run, on cornell-box, cornell-glossy and door-ajar at 256x256 (BENCH_RESTIR_SCENES, _SIZE):
+  1. a reference per scene: `pt` at REF_SPP, cached in build/refs/ under the scene file's hash,
+     the size and the spp (delete the folder to re-render);
+  2. `pt` at 1, 2, 4 ... 64 spp and `restir_pt` (default parameters, and with more spatial
+     reuse), each over SEEDS seeds: frame time and MAPE (seed 000 footnote 3, `restir compare`)
+     against the reference. restir_pt's point is the frame after 32 warm-up frames of one
+     session: single-frame quality, as a session delivers it;
+  3. the equal-time error ratio restir_pt / pt (pt's MAPE interpolated log-log at restir_pt's
+     frame time) and the frame cost ratio restir_pt / pt at 1 spp;
+  4. an ablation on door-ajar as seed 001 Table 1: pass times and MAPE with each Enhanced
+     feature switched off in turn;
+  5. writes build/bench/restir_pt.json, one SVG chart per scene (MAPE vs ms, log-log) in
+     build/bench/, and prints Markdown tables (medians over the seeds).
+Environment: BENCH_RESTIR_SEEDS (3), BENCH_RESTIR_REF_SPP (2048), BENCH_RESTIR_WARMUP (32),
+BENCH_THREADS (all cores), BENCH_RESTIR_ABLATION (door-ajar; empty = skip)."""
+import hashlib
+import json
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from svgplot import loglog  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+BIN = os.environ.get("RESTIR_BIN", str(ROOT / "build" / "restir"))
+OUT = ROOT / "build" / "bench"
+REFS = ROOT / "build" / "refs"
+SCENES = os.environ.get("BENCH_RESTIR_SCENES", "cornell-box cornell-glossy door-ajar").split()
+SIZE = os.environ.get("BENCH_RESTIR_SIZE", "256x256")
+SEEDS = int(os.environ.get("BENCH_RESTIR_SEEDS", "3"))
+REF_SPP = int(os.environ.get("BENCH_RESTIR_REF_SPP", "2048"))
+WARMUP = int(os.environ.get("BENCH_RESTIR_WARMUP", "32"))
+THREADS = os.environ.get("BENCH_THREADS", "0")
+ABLATION_SCENE = os.environ.get("BENCH_RESTIR_ABLATION", "door-ajar")
+PT_SPPS = [1, 2, 4, 8, 16, 32, 64]
+RESTIR_VARIANTS = [("restir_pt", "{}"),
+                   ("restir_pt, 6 neighbours x 2 rounds", '{"spatial_neighbors": 6, "spatial_rounds": 2}')]
+ABLATION = [("Enhanced (defaults)", "{}"),
+            ("no dual footprint (near-field distance)", '{"footprint": false}'),
+            ("no PDF connectability (lobe roughness)", '{"pdf_connect": false}'),
+            ("no Russian roulette", '{"rr": false}'),
+            ("plain NEE (1 candidate)", '{"nee_candidates": 1}'),
+            ("DI outside the reservoir", '{"unify_di": false}'),
+            ("no temporal reuse", '{"temporal": false}'),
+            ("no spatial reuse", '{"spatial_neighbors": 0}')]
+
+
+def run(args):
+    res = subprocess.run([BIN, *args, "--threads", THREADS], capture_output=True, text=True)
+    if res.returncode != 0:
+        raise SystemExit(f"bench: {' '.join(args)}: {res.stderr.strip()}")
+    return json.loads(res.stdout)
+
+
+def compare(img, ref):
+    res = subprocess.run([BIN, "compare", str(img), str(ref)], capture_output=True, text=True)
+    if res.returncode != 0:
+        raise SystemExit(f"bench: compare {img}: {res.stderr.strip()}")
+    return json.loads(res.stdout)["mape"]
+
+
+def reference(scene):
+    path = ROOT / "scenes" / scene / "scene.json"
+    key = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+    REFS.mkdir(parents=True, exist_ok=True)
+    ref = REFS / f"{scene}-{SIZE}-{REF_SPP}spp-{key}.exr"
+    if not ref.exists():
+        print(f"bench: rendering the {scene} reference ({SIZE}, {REF_SPP} spp) ...", file=sys.stderr, flush=True)
+        tmp = ref.with_suffix(".tmp.exr")
+        run(["render", str(path), "--size", SIZE, "--spp", str(REF_SPP), "--seed", "999983", "--json", "-o", str(tmp)])
+        tmp.rename(ref)
+    return path, ref
+
+
+def restir_frame_ms(stats):
+    lf = stats["last_frame"]
+    return lf["gbuffer_ms"] + lf["initial_ms"] + lf["temporal_ms"] + lf["spatial_ms"] + lf["shade_ms"]
+
+
+def measure_pt(scene_path, ref, tmp):
+    rows = []
+    for spp in PT_SPPS:
+        ms, mape = [], []
+        for s in range(SEEDS):
+            img = tmp / f"pt{spp}_{s}.exr"
+            st = run(["render", str(scene_path), "--size", SIZE, "--spp", str(spp), "--seed", str(s), "--json",
+                      "-o", str(img)])
+            ms.append(st["time_ms"])
+            mape.append(compare(img, ref))
+        rows.append({"spp": spp, "ms": statistics.median(ms), "mape": statistics.median(mape)})
+    return rows
+
+
+def measure_restir(scene_path, ref, tmp, params):
+    ms, mape, passes = [], [], []
+    for s in range(SEEDS):
+        img = tmp / f"rp_{s}.exr"
+        st = run(["render", str(scene_path), "--method", "restir_pt", "--size", SIZE, "--seed", str(s),
+                  "--frames", str(WARMUP + 1), "--params", params, "--json", "-o", str(img)])
+        ms.append(restir_frame_ms(st))
+        mape.append(compare(img, ref))
+        passes.append(st["last_frame"])
+    med = {k: statistics.median(p[k] for p in passes) for k in ("gbuffer_ms", "initial_ms", "temporal_ms",
+                                                                  "spatial_ms", "shade_ms")}
+    return {"ms": statistics.median(ms), "mape": statistics.median(mape), "passes": med,
+            "reservoir_bytes_per_pixel": st["reservoir_bytes_per_pixel"], "session_bytes": st["session_bytes"]}
+
+
+def pt_mape_at(pt_rows, ms):
+    """pt's MAPE at a frame time, interpolated on the log-log curve; below 1 spp, extrapolated
+    along the Monte Carlo rate (error ~ time^-1/2) from the 1-spp point."""
+    pts = sorted((r["ms"], r["mape"]) for r in pt_rows)
+    if ms <= pts[0][0]:
+        return pts[0][1] * math.sqrt(pts[0][0] / ms)
+    for (x0, y0), (x1, y1) in zip(pts, pts[1:]):
+        if x0 <= ms <= x1:
+            f = (math.log(ms) - math.log(x0)) / (math.log(x1) - math.log(x0))
+            return math.exp(math.log(y0) + f * (math.log(y1) - math.log(y0)))
+    x1, y1 = pts[-1]
+    return y1 * math.sqrt(x1 / ms)
+
+
+def main():
+    OUT.mkdir(parents=True, exist_ok=True)
+    results = {"size": SIZE, "seeds": SEEDS, "ref_spp": REF_SPP, "warmup": WARMUP, "threads": THREADS, "scenes": {}}
+    with tempfile.TemporaryDirectory() as td:
+        tmp = Path(td)
+        for scene in SCENES:
+            scene_path, ref = reference(scene)
+            print(f"bench: {scene} ...", file=sys.stderr, flush=True)
+            pt_rows = measure_pt(scene_path, ref, tmp)
+            variants = {name: measure_restir(scene_path, ref, tmp, params) for name, params in RESTIR_VARIANTS}
+            main_v = variants["restir_pt"]
+            pt1 = pt_rows[0]["ms"]
+            results["scenes"][scene] = {
+                "pt": pt_rows, "restir_pt": variants,
+                "equal_time_mape_ratio": main_v["mape"] / pt_mape_at(pt_rows, main_v["ms"]),
+                "frame_cost_ratio_1spp": main_v["ms"] / pt1}
+            loglog(OUT / f"restir_pt_{scene}.svg", f"{scene}, {SIZE}: MAPE against frame time", "frame time (ms)",
+                   "MAPE", [("pt, 1-64 spp", [(r["ms"], r["mape"]) for r in pt_rows], "line")] +
+                   [(name, [(v["ms"], v["mape"])], "points") for name, v in variants.items()])
+        if ABLATION_SCENE:
+            scene_path, ref = reference(ABLATION_SCENE)
+            print(f"bench: ablation on {ABLATION_SCENE} ...", file=sys.stderr, flush=True)
+            results["ablation"] = {"scene": ABLATION_SCENE,
+                                   "rows": [{"name": n, **measure_restir(scene_path, ref, tmp, p)} for n, p in ABLATION]}
+    (OUT / "restir_pt.json").write_text(json.dumps(results, indent=1) + "\n")
+
+    print(f"\n### pt vs restir_pt, {SIZE}, medians of {SEEDS} seeds ({WARMUP} warm-up frames)\n")
+    print("| scene | pt 1 spp ms | restir_pt frame ms | cost ratio | restir_pt MAPE | pt MAPE at equal time | equal-time ratio |")
+    print("|---|---|---|---|---|---|---|")
+    for scene, r in results["scenes"].items():
+        v = r["restir_pt"]["restir_pt"]
+        print(f"| {scene} | {r['pt'][0]['ms']:.1f} | {v['ms']:.1f} | {r['frame_cost_ratio_1spp']:.2f} | "
+              f"{v['mape']:.3f} | {pt_mape_at(r['pt'], v['ms']):.3f} | {r['equal_time_mape_ratio']:.2f} |")
+    if "ablation" in results:
+        print(f"\n### Ablation on {results['ablation']['scene']} (seed 001 Table 1), ms per pass, medians\n")
+        print("| setting | G-buffer | initial | temporal | spatial | shade | frame | MAPE |")
+        print("|---|---|---|---|---|---|---|---|")
+        for row in results["ablation"]["rows"]:
+            p = row["passes"]
+            print(f"| {row['name']} | {p['gbuffer_ms']:.1f} | {p['initial_ms']:.1f} | {p['temporal_ms']:.1f} | "
+                  f"{p['spatial_ms']:.1f} | {p['shade_ms']:.1f} | {row['ms']:.1f} | {row['mape']:.3f} |")
+    print(f"\ncharts: {', '.join(str(OUT / f'restir_pt_{s}.svg') for s in results['scenes'])}")
+
+
+if __name__ == "__main__":
+    main()
