@@ -89,7 +89,7 @@ static inline uint16_t pt_bits(uint32_t d, uint32_t k, bool nee, int lobe_prev, 
 struct restir_pt_params restir_pt_defaults(void)
 {
     return (struct restir_pt_params){
-        .max_depth = 64, .rr_depth = 3, .rr = true, .nee_candidates = 8, .unify_di = true,
+        .max_depth = 64, .rr_depth = 3, .rr = true, .nee_candidates = 4, .unify_di = true,
         .temporal = true, .temporal_cap = 20, .spatial_neighbors = 3, .spatial_radius = 20.0f, .spatial_rounds = 1,
         .footprint = true, .footprint_c = 0.02f, .near_distance = 0.03f, .pdf_connect = true, .roughness_min = 0.2f,
     };
@@ -189,6 +189,13 @@ static void pt_prim_decode(const struct restir_pt_state *st, uint32_t id, uint32
 static inline float pt_balance(float a, float b)
 {
     return a / (a + b);
+}
+
+/* The marginal pdf of wi over all lobes, given that of one lobe: the same number for a one-lobe
+ * material (diffuse, conductor), where it saves a BSDF evaluation per vertex. */
+static inline float pt_marginal(const struct material *m, float lobe_pdf, struct vec3 wo, struct vec3 wi)
+{
+    return material_lobe_count(m) == 1 ? lobe_pdf : material_pdf(m, wo, wi);
 }
 
 /* Rough lobe at a vertex: never delta; eq. 26 with pdf_connect, else lobe roughness. */
@@ -304,7 +311,7 @@ static bool pt_bsdf_step(const struct pt_ctx *c, const struct pt_vertex *v, uint
     if (!(vec3_dot(out->dir, v->s.ng) * out->bs.wi.z > 0.0f)) return false;
     out->factor = vec3_scale(out->bs.f, fabsf(out->bs.wi.z) / out->bs.pdf_w);
     bool delta = (out->bs.flags & BSDF_DELTA) != 0;
-    out->pdf_marg = delta ? 0.0f : material_pdf(v->m, v->wo, out->bs.wi);
+    out->pdf_marg = delta ? 0.0f : pt_marginal(v->m, out->bs.pdf_w, v->wo, out->bs.wi);
     out->rough = !delta && pt_rough_lobe(c, v->m, out->bs.lobe, out->pdf_marg);
     return true;
 }
@@ -319,13 +326,13 @@ static void pt_segment_geo(const struct pt_ctx *c, const struct pt_vertex *a, in
     seg->dist2 = vec3_length2(w);
     w = vec3_scale(w, 1.0f / sqrtf(seg->dist2));
     struct vec3 wi = frame_to_local(&a->s.frame, w);
-    seg->pdf_marg = material_pdf(a->m, a->wo, wi);
     seg->lobe = lobe < 0 ? 0 : lobe;
     if (lobe < 0) {
-        seg->pdf_lobe = seg->pdf_marg;
+        seg->pdf_marg = seg->pdf_lobe = material_pdf(a->m, a->wo, wi);
         seg->rough = pt_rough_nee(c, a->m, seg->pdf_marg);
     } else {
         seg->pdf_lobe = material_pdf_lobe(a->m, lobe, a->wo, wi);
+        seg->pdf_marg = pt_marginal(a->m, seg->pdf_lobe, a->wo, wi);
         seg->rough = pt_rough_lobe(c, a->m, lobe, seg->pdf_marg);
     }
     seg->cos_end = fabsf(vec3_dot(w, b_ng));
@@ -739,7 +746,7 @@ static void pt_shift_impl(const struct pt_thread *th, const struct pt_sample *x,
         float p_l1 = material_pdf_lobe(v.m, l1, v.wo, wi);
         struct vec3 f1 = material_eval_lobe(v.m, l1, v.wo, wi, TRANSPORT_RADIANCE);
         if (!(p_l1 > 0.0f) || vec3_is_zero(f1)) return;
-        float marg1 = material_pdf(v.m, v.wo, wi);
+        float marg1 = pt_marginal(v.m, p_l1, v.wo, wi);
         bool rough1 = pt_rough_lobe(c, v.m, l1, marg1);
         if (pt_connectable(&t, k - 1, &seg, false, rough1, marg1)) return;
         struct pt_segment kseg = {.pdf_lobe = p_l1, .pdf_marg = marg1, .rough = rough1, .lobe = l1, .dist2 = d2,
@@ -774,7 +781,7 @@ static void pt_shift_impl(const struct pt_thread *th, const struct pt_sample *x,
                 float p_lk = material_pdf_lobe(xk.m, lk, xk.wo, wk);
                 struct vec3 fk = material_eval_lobe(xk.m, lk, xk.wo, wk, TRANSPORT_RADIANCE);
                 if (!(p_lk > 0.0f) || vec3_is_zero(fk)) return;
-                float marg_k = material_pdf(xk.m, xk.wo, wk);
+                float marg_k = pt_marginal(xk.m, p_lk, xk.wo, wk);
                 if (!pt_connectable(&t, k, &kseg, false, pt_rough_lobe(c, xk.m, lk, marg_k), marg_k)) return;
                 if (retrace && !pt_suffix(&t, scene, &xk, wk_world, seed, k, d, &rad, &light_pdf)) return;
                 struct vec3 fac = vec3_scale(fk, fabsf(wk.z) / p_lk);

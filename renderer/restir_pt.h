@@ -25,7 +25,7 @@ struct restir_pt_params {
     uint32_t max_depth;          /* as `pt`: scattering events before the path stops (64) */
     uint32_t rr_depth;           /* Russian roulette from this vertex on (3) */
     bool rr;                     /* Russian roulette on initial paths (decoupled from PSS) */
-    uint32_t nee_candidates;     /* RIS NEE candidates; 1 = plain NEE, 0 = no NEE (8) */
+    uint32_t nee_candidates;     /* RIS NEE candidates; 1 = plain NEE, 0 = no NEE (4) */
     bool unify_di;               /* direct light resampled with indirect (true) */
     bool temporal;               /* temporal reuse (true) */
     uint32_t temporal_cap;       /* previous M capped at this multiple of the current M (20) */

@@ -1232,7 +1232,7 @@ def test_restir_pt_session(daemon):
     p = s["params"]
     assert p["spatial_neighbors"] == 4 and p["spatial_radius"] == 20 and p["temporal_cap"] == 20
     assert p["footprint"] is True and p["footprint_c"] == pytest.approx(0.02) and p["pdf_connect"] is True
-    assert p["nee_candidates"] == 8 and p["unify_di"] is True and p["rr"] is True and p["max_depth"] == 64
+    assert p["nee_candidates"] == 4 and p["unify_di"] is True and p["rr"] is True and p["max_depth"] == 64
     assert s["reservoir_bytes_per_pixel"] == 64
     assert s["reservoir_bytes"] == 2 * 64 * 32 * 24 == s["buffers"]["reservoirs"]
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "primitive_table"}

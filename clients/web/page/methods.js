@@ -20,7 +20,7 @@ export const METHODS = {
       { name: 'spatial_radius', kind: 'number', value: 20, help: 'spatial radius, pixels' },
       { name: 'temporal', kind: 'boolean', value: true, help: 'temporal reuse' },
       { name: 'temporal_cap', kind: 'number', value: 20, help: 'previous confidence cap, x current' },
-      { name: 'nee_candidates', kind: 'number', value: 8, help: 'RIS candidates of light sampling' },
+      { name: 'nee_candidates', kind: 'number', value: 4, help: 'RIS candidates of light sampling' },
       { name: 'footprint', kind: 'boolean', value: true, help: 'dual ray-footprint reconnection threshold' },
       { name: 'pdf_connect', kind: 'boolean', value: true, help: 'PDF-based connectability' },
       { name: 'unify_di', kind: 'boolean', value: true, help: 'direct light in the reservoir' },
