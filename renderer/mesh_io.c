@@ -274,6 +274,16 @@ static bool mesh_io_ply_value(const struct mesh_io_ply *h, enum mesh_io_ply_role
     return true;
 }
 
+/* A face without vertices: assimp's triangulation aborts the process on one
+ * (tests/fuzz/mesh_ply/crash-empty-face), so it is refused here, in both encodings. */
+static bool mesh_io_ply_list_length(const struct mesh_io_ply_prop *pr, uint64_t row, uint64_t items, const char *where,
+                                    struct err *err)
+{
+    if (pr->role == PLY_INDICES && items == 0)
+        return err_set(err, ERR_INVALID, where, "face %llu has no vertices", (unsigned long long)row);
+    return true;
+}
+
 static bool mesh_io_ply_ascii(const char *data, size_t len, size_t body, uint32_t line0, const char *name,
                               const struct mesh_io_ply *h, struct err *err)
 {
@@ -296,6 +306,7 @@ static bool mesh_io_ply_ascii(const char *data, size_t len, size_t body, uint32_
                 if (pr->is_list) {
                     if (!mesh_io_next_token(&p, e, &tb, &te) || !mesh_io_token_uint(tb, te, 1u << 20, &items))
                         return err_set(err, ERR_PARSE, where, "expected a list length (0 .. 2^20) in element '%s'", el->name);
+                    if (!mesh_io_ply_list_length(pr, row, items, where, err)) return false;
                 }
                 for (uint64_t j = 0; j < items; j++) {
                     double v;
@@ -352,6 +363,7 @@ static bool mesh_io_ply_binary(const char *data, size_t len, size_t body, const 
                     if (c < 0) return err_set(err, ERR_PARSE, name, "negative list length in row %llu of element '%s'",
                                               (unsigned long long)row, el->name);
                     items = (uint64_t)c;
+                    if (!mesh_io_ply_list_length(pr, row, items, name, err)) return false;
                 }
                 if (items > (uint64_t)(end - p) / (uint64_t)pr->type.size) goto short_body;
                 if (pr->role != PLY_OTHER)
@@ -372,6 +384,25 @@ static bool mesh_io_ply_binary(const char *data, size_t len, size_t body, const 
     return true;
 }
 
+/* Text parts of a mesh file may hold no control character but tab, and CR only before LF.
+ * Assimp ends a line at CR, FF and NUL where our walks see a separator or a token byte, so the
+ * two would read different rows from one file: a PLY row that assimp splits in two made its
+ * triangulation abort the process (tests/fuzz/mesh_ply/crash-cr-inside-row). */
+static bool mesh_io_text_check(const char *data, size_t len, const char *name, struct err *err)
+{
+    uint32_t line = 1;
+    for (size_t i = 0; i < len; i++) {
+        unsigned char c = (unsigned char)data[i];
+        if (c == '\n') line++;
+        else if ((c < 0x20 && c != '\t' && !(c == '\r' && i + 1 < len && data[i + 1] == '\n')) || c == 0x7f) {
+            char where[300];
+            snprintf(where, sizeof where, "%s:%u", name, line);
+            return err_set(err, ERR_PARSE, where, "control character 0x%02x in a text line (only tab, LF and CR LF are allowed)", c);
+        }
+    }
+    return true;
+}
+
 static bool mesh_io_ply_check(const char *data, size_t len, const char *name, struct err *err)
 {
     struct mesh_io_ply *h = malloc(sizeof *h);  /* ~10 KiB: keep it off the stack */
@@ -379,6 +410,7 @@ static bool mesh_io_ply_check(const char *data, size_t len, const char *name, st
     size_t body = 0;
     uint32_t lines = 0;
     bool ok = mesh_io_ply_header(data, len, name, h, &body, &lines, err) &&
+              mesh_io_text_check(data, h->format == PLY_ASCII ? len : body, name, err) &&
               (h->format == PLY_ASCII ? mesh_io_ply_ascii(data, len, body, lines, name, h, err)
                                       : mesh_io_ply_binary(data, len, body, name, h, err));
     free(h);
@@ -408,6 +440,7 @@ static bool mesh_io_obj_prescan(const char *data, size_t len, const char *name, 
     const char *b, *e, *p, *tb, *te;
     uint64_t vertices = 0;
 
+    if (!mesh_io_text_check(data, len, name, err)) return false;
     struct mesh_io_lines it = {data, data + len, 0};
     while (mesh_io_next_line(&it, &b, &e)) {
         p = b;
