@@ -36,7 +36,7 @@ SERVER_OBJ   := $(SERVER_SRC:%.c=$(OBJ)/%.o)
 UNIT_SRC     := $(wildcard tests/unit/test_*.c)
 UNIT_BIN     := $(UNIT_SRC:tests/unit/%.c=$(OUT)/tests/%)
 
-.PHONY: all deps test test-unit test-py run bench clean help
+.PHONY: all deps test test-unit test-py test-fuzz fuzz run bench clean help
 .SECONDARY:
 all: $(OUT)/restir $(OUT)/restird
 
@@ -45,6 +45,7 @@ help:
 	@echo "make test       unit, statistical and end-to-end tests (SAN=1 for ASan/UBSan)"
 	@echo "make run        start the daemon on 127.0.0.1:8080 with a default session on cornell-box"
 	@echo "make bench      benchmarks (not tests): see docs/benchmarks.md"
+	@echo "make fuzz       run every libFuzzer target for FUZZ_SECONDS (default 60) each: see docs/reliability.md"
 	@echo "make clean      remove everything make made"
 
 deps: $(DEPS_OK)
@@ -98,7 +99,13 @@ $(OBJ)/tests/unit/%.o: tests/unit/%.c Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) $(OPENEXR_CFLAGS) -Irenderer -Iprotocol -Iserver -Itests -c $< -o $@
 
+# The fuzz smoke runs in the plain build only: its targets are built with their own sanitizers
+# (build/fuzz/), so SAN=1 would repeat the same run.
+ifeq ($(SAN),1)
 test: test-unit test-py
+else
+test: test-unit test-fuzz test-py
+endif
 
 test-unit: $(UNIT_BIN)
 	@fail=0; for t in $(UNIT_BIN); do echo "== $$t"; ./$$t || fail=1; done; exit $$fail
@@ -116,7 +123,77 @@ bench: $(OUT)/restir $(OUT)/restird $(OBJ)/librenderer.a
 	bash bench/instr_per_ray.sh | tee $(BUILD)/bench/instr.json
 	$(PYTHON) bench/server_bench.py | tee $(BUILD)/bench/server.json
 
+# ---- fuzzing: libFuzzer targets, built by clang with ASan + UBSan into build/fuzz/ ----
+# Each target's seeds (and the inputs of every bug found, kept as regressions) are committed in
+# tests/fuzz/<target>/; what a run discovers goes to build/fuzz/corpus/<target>/, first in the
+# corpus list, so a run never writes into the tree. Crashing inputs land in build/fuzz/crashes/.
+FUZZ_CC      := clang
+FUZZ_OUT     := $(BUILD)/fuzz
+FUZZ_OBJ     := $(FUZZ_OUT)/obj
+FUZZ_CFLAGS  := -std=c17 -D_DEFAULT_SOURCE -Wall -Wextra -Wshadow -Wno-missing-field-initializers -O1 -g \
+                -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=undefined -pthread
+FUZZ_SECONDS ?= 60
+FUZZ_SMOKE_SECONDS ?= 3
+FUZZ_REQUESTS := session frame render reference
+FUZZ_TARGETS := scene_json $(FUZZ_REQUESTS:%=request_%) mesh_ply mesh_obj exr
+FUZZ_BIN     := $(FUZZ_TARGETS:%=$(FUZZ_OUT)/fuzz_%)
+FUZZ_PARSER_session := 1
+FUZZ_PARSER_frame := 2
+FUZZ_PARSER_render := 3
+FUZZ_PARSER_reference := 4
+FUZZ_LIBS    := $(FUZZ_OBJ)/libprotocol.a $(FUZZ_OBJ)/librenderer.a
+# The libraries get coverage instrumentation (fuzzer-no-link); only the targets link libFuzzer.
+FUZZ_LIB_CFLAGS := $(FUZZ_CFLAGS) -fsanitize=fuzzer-no-link -MMD -MP
+
+$(FUZZ_OBJ)/renderer/%.o: renderer/%.c Makefile | $(DEPS_OK)
+	@mkdir -p $(dir $@)
+	$(FUZZ_CC) $(FUZZ_LIB_CFLAGS) $(OPENEXR_CFLAGS) -Irenderer -c $< -o $@
+
+$(FUZZ_OBJ)/protocol/%.o: protocol/%.c Makefile | $(DEPS_OK)
+	@mkdir -p $(dir $@)
+	$(FUZZ_CC) $(FUZZ_LIB_CFLAGS) -Irenderer -Iprotocol -c $< -o $@
+
+$(FUZZ_OBJ)/librenderer.a: $(RENDERER_SRC:%.c=$(FUZZ_OBJ)/%.o)
+	@rm -f $@
+	ar rcs $@ $^
+
+$(FUZZ_OBJ)/libprotocol.a: $(PROTOCOL_SRC:%.c=$(FUZZ_OBJ)/%.o)
+	@rm -f $@
+	ar rcs $@ $^
+
+FUZZ_LINK = $(FUZZ_CC) $(FUZZ_CFLAGS) -fsanitize=fuzzer -Irenderer -Iprotocol
+
+$(FUZZ_OUT)/fuzz_scene_json: tests/fuzz/fuzz_scene_json.c $(FUZZ_LIBS)
+	$(FUZZ_LINK) $^ $(LDLIBS) -o $@
+
+$(FUZZ_OUT)/fuzz_request_%: tests/fuzz/fuzz_request.c $(FUZZ_LIBS)
+	$(FUZZ_LINK) -DFUZZ_PARSER=$(FUZZ_PARSER_$*) $^ $(LDLIBS) -o $@
+
+$(FUZZ_OUT)/fuzz_mesh_%: tests/fuzz/fuzz_mesh.c $(FUZZ_LIBS)
+	$(FUZZ_LINK) '-DFUZZ_MESH_EXT="$*"' $^ $(LDLIBS) -o $@
+
+$(FUZZ_OUT)/fuzz_exr: tests/fuzz/fuzz_exr.c $(FUZZ_LIBS)
+	$(FUZZ_LINK) $(OPENEXR_CFLAGS) $^ $(LDLIBS) -o $@
+
+# One target's run: replays its whole corpus, then mutates for $(1) seconds.
+fuzz_run = mkdir -p $(FUZZ_OUT)/corpus/$(2) $(FUZZ_OUT)/crashes && \
+	./$(FUZZ_OUT)/fuzz_$(2) -max_total_time=$(1) -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 \
+	  -artifact_prefix=$(FUZZ_OUT)/crashes/$(2)- $(FUZZ_OUT)/corpus/$(2) tests/fuzz/$(2)
+
+test-fuzz: $(FUZZ_BIN)
+	@fail=0; for t in $(FUZZ_TARGETS); do echo "== fuzz smoke $$t ($(FUZZ_SMOKE_SECONDS) s)"; \
+	  ( $(call fuzz_run,$(FUZZ_SMOKE_SECONDS),$$t) ) >$(FUZZ_OUT)/smoke-$$t.log 2>&1 \
+	  && grep -h 'stat::number_of_executed_units' $(FUZZ_OUT)/smoke-$$t.log \
+	  || { fail=1; tail -40 $(FUZZ_OUT)/smoke-$$t.log; }; done; exit $$fail
+
+fuzz: $(FUZZ_BIN)
+	@for t in $(FUZZ_TARGETS); do echo "== fuzz $$t ($(FUZZ_SECONDS) s, log $(FUZZ_OUT)/fuzz-$$t.log)"; \
+	  ( $(call fuzz_run,$(FUZZ_SECONDS),$$t) ) >$(FUZZ_OUT)/fuzz-$$t.log 2>&1; rc=$$?; \
+	  grep -hE '^(stat::number_of_executed_units|stat::new_units_added|SUMMARY|artifact_prefix|==[0-9]+==ERROR)' \
+	    $(FUZZ_OUT)/fuzz-$$t.log; [ $$rc -eq 0 ] || exit 1; done
+
 clean:
 	rm -rf $(BUILD) .pytest_cache tests/__pycache__ clients/python/__pycache__ bench/__pycache__
 
+-include $(wildcard $(FUZZ_OBJ)/*/*.d)
 -include $(RENDERER_OBJ:.o=.d) $(PROTOCOL_OBJ:.o=.d) $(SERVER_OBJ:.o=.d) $(OBJ)/server/cli.d $(OBJ)/server/main.d $(UNIT_SRC:tests/unit/%.c=$(OBJ)/tests/unit/%.d)
