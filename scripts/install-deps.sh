@@ -13,7 +13,8 @@ packages=(
   libassimp-dev          # PLY / OBJ mesh loading
   python3-pytest python3-numpy python3-openimageio openimageio-tools  # tests
   embree-tools           # the benchmark peer (Embree's pathtracer tutorial)
-  wrk                    # HTTP load for the server benchmark (bench/server.sh)
+  wrk                    # HTTP load for the server benchmark (bench/server.sh) and make load
+  clang libclang-rt-14-dev  # libFuzzer targets (make fuzz, the smoke in make test)
 )
 
 missing=()
