@@ -5,9 +5,14 @@ CC      ?= cc
 SAN     ?= 0
 BUILD   := build
 # Sanitizer builds live in their own tree (build/san/) so the two kinds never mix.
+TSAN    ?= 0
 ifeq ($(SAN),1)
   OPT   := -O1 -g -fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=undefined
   OUT   := $(BUILD)/san
+else ifeq ($(TSAN),1)
+  # ThreadSanitizer (build/tsan/): the daemon and the threaded unit tests, run by test-tsan.
+  OPT   := -O1 -g -fsanitize=thread -fno-omit-frame-pointer
+  OUT   := $(BUILD)/tsan
 else
   # Link-time optimisation inlines the small per-file kernels (material, surface, lights) into
   # the path loop: 7 % fewer instructions per ray on the Cornell box (callgrind).
@@ -36,13 +41,14 @@ SERVER_OBJ   := $(SERVER_SRC:%.c=$(OBJ)/%.o)
 UNIT_SRC     := $(wildcard tests/unit/test_*.c)
 UNIT_BIN     := $(UNIT_SRC:tests/unit/%.c=$(OUT)/tests/%)
 
-.PHONY: all deps test test-unit test-py test-fuzz fuzz run bench clean help
+.PHONY: all deps test test-unit test-py test-fuzz test-tsan fuzz run bench clean help
 .SECONDARY:
 all: $(OUT)/restir $(OUT)/restird
 
 help:
 	@echo "make            build build/restir (offline CLI) and build/restird (the daemon)"
 	@echo "make test       unit, statistical and end-to-end tests (SAN=1 for ASan/UBSan)"
+	@echo "make test-tsan  the threaded unit tests and the daemon's concurrency tests under ThreadSanitizer"
 	@echo "make run        start the daemon on 127.0.0.1:8080 with a default session on cornell-box"
 	@echo "make bench      benchmarks (not tests): see docs/benchmarks.md"
 	@echo "make fuzz       run every libFuzzer target for FUZZ_SECONDS (default 60) each: see docs/reliability.md"
@@ -112,6 +118,20 @@ test-unit: $(UNIT_BIN)
 
 test-py: $(OUT)/restir $(OUT)/restird
 	RESTIR_BIN=$(abspath $(OUT)/restir) RESTIRD_BIN=$(abspath $(OUT)/restird) $(PYTHON) -m pytest -q -p no:cacheprovider tests
+
+# ThreadSanitizer: the unit tests that start threads, then the pytest tests marked
+# `concurrency` against a TSan daemon. Any report fails the run: the daemon exits with 66 on its
+# first report (halt_on_error), which the tests see as a failed stop or a dead daemon.
+TSAN_UNIT := test_parallel test_registry
+TSAN_ENV  := TSAN_OPTIONS="halt_on_error=1 exitcode=66 second_deadlock_stack=1 suppressions=$(abspath tests/tsan.supp)"
+ifeq ($(TSAN),1)
+test-tsan: $(TSAN_UNIT:%=$(OUT)/tests/%) $(OUT)/restird
+	@fail=0; for t in $(TSAN_UNIT); do echo "== tsan $$t"; $(TSAN_ENV) ./$(OUT)/tests/$$t || fail=1; done; exit $$fail
+	$(TSAN_ENV) RESTIRD_BIN=$(abspath $(OUT)/restird) $(PYTHON) -m pytest -q -p no:cacheprovider -m concurrency tests
+else
+test-tsan:
+	$(MAKE) TSAN=1 test-tsan
+endif
 
 # The daemon on 127.0.0.1:8080 with a ready session on the Cornell box; it prints the curl line
 # that fetches a frame. Ctrl-C stops it cleanly.

@@ -658,6 +658,7 @@ def test_frame_eviction(tmp_path_factory):
     assert rc == 0
 
 
+@pytest.mark.concurrency
 def test_too_many_sessions(tmp_path_factory):
     d = start_daemon(tmp_path_factory, "maxs", "--threads", "1", "--max-sessions", "2")
     try:
@@ -758,6 +759,7 @@ def test_references_render_upload_metrics_error_map(daemon, tmp_path):
     assert daemon.req("DELETE", s["href"]).status == 204
 
 
+@pytest.mark.concurrency
 def test_animation_job_idempotency_metrics(daemon, tmp_path):
     s = new_session(daemon, width=16, height=16, seed=8, params={"spp": 1})
     const = np.full((16, 16, 3), 0.2, np.float32)
@@ -826,6 +828,7 @@ def test_animation_job_idempotency_metrics(daemon, tmp_path):
     assert daemon.req("DELETE", s["href"]).status == 204
 
 
+@pytest.mark.concurrency
 def test_cancel_running_job(daemon):
     s = new_session(daemon, width=32, height=32, params={"spp": 1})
     r = daemon.req("POST", s["href"] + "/renders", json_body={"animation": {"fps": 30, "frames": 5000}})
@@ -855,6 +858,7 @@ def test_cancel_running_job(daemon):
     assert_problem(daemon.req("GET", s["href"]), 404, "not-found")
 
 
+@pytest.mark.concurrency
 def test_events_stream(daemon):
     s = new_session(daemon, width=16, height=16, params={"spp": 1})
     conn = http.client.HTTPConnection("127.0.0.1", daemon.port, timeout=20)
@@ -1120,6 +1124,7 @@ def test_table_left_daemon_healthy(daemon, table_ctx, tmp_path):
     assert r.status == 200, repr(r)
 
 
+@pytest.mark.concurrency
 def test_truncated_bodies_do_not_hurt(daemon):
     before = len(daemon.req("GET", f"{CORNELL}/sessions").json()["sessions"])
     head = (f"POST {CORNELL}/sessions HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
@@ -1148,6 +1153,7 @@ def test_truncated_bodies_do_not_hurt(daemon):
     assert len(daemon.req("GET", f"{CORNELL}/sessions").json()["sessions"]) == before
 
 
+@pytest.mark.concurrency
 def test_second_frame_while_rendering_conflicts(daemon):
     s = new_session(daemon, width=128, height=128, params={"spp": 64})
     slow = {}
@@ -1171,6 +1177,7 @@ def test_second_frame_while_rendering_conflicts(daemon):
 HEALTH_SPP = 64  # 256x256x64: seconds on two cores, long enough to span 50 health requests
 
 
+@pytest.mark.concurrency
 def test_healthz_fast_during_render(daemon, record_property):
     s = new_session(daemon, width=256, height=256, params={"spp": HEALTH_SPP})
     slow = {}
@@ -1245,6 +1252,7 @@ def test_scenes_survive_restart_and_corrupt_scene_is_skipped(tmp_path):
 
 # ---- 6. SIGTERM during a job ----
 
+@pytest.mark.concurrency
 def test_sigterm_during_animation_job(tmp_path):
     d = Daemon(tmp_path / "data", "--threads", "2")
     try:
