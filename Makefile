@@ -41,7 +41,7 @@ SERVER_OBJ   := $(SERVER_SRC:%.c=$(OBJ)/%.o)
 UNIT_SRC     := $(wildcard tests/unit/test_*.c)
 UNIT_BIN     := $(UNIT_SRC:tests/unit/%.c=$(OUT)/tests/%)
 
-.PHONY: all deps test test-unit test-py test-fuzz test-tsan fuzz run bench clean help
+.PHONY: all deps test test-unit test-py test-fuzz test-tsan fuzz load run bench clean help
 .SECONDARY:
 all: $(OUT)/restir $(OUT)/restird
 
@@ -51,6 +51,7 @@ help:
 	@echo "make test-tsan  the threaded unit tests and the daemon's concurrency tests under ThreadSanitizer"
 	@echo "make run        start the daemon on 127.0.0.1:8080 with a default session on cornell-box"
 	@echo "make bench      benchmarks (not tests): see docs/benchmarks.md"
+	@echo "make load       wrk and 10000-frame memory run against the daemon on loopback: see docs/reliability.md"
 	@echo "make fuzz       run every libFuzzer target for FUZZ_SECONDS (default 60) each: see docs/reliability.md"
 	@echo "make clean      remove everything make made"
 
@@ -211,6 +212,11 @@ fuzz: $(FUZZ_BIN)
 	  ( $(call fuzz_run,$(FUZZ_SECONDS),$$t) ) >$(FUZZ_OUT)/fuzz-$$t.log 2>&1; rc=$$?; \
 	  grep -hE '^(stat::number_of_executed_units|stat::new_units_added|SUMMARY|artifact_prefix|==[0-9]+==ERROR)' \
 	    $(FUZZ_OUT)/fuzz-$$t.log; [ $$rc -eq 0 ] || exit 1; done
+
+# The long load run (the short one is tests/test_load.py): loopback only, about a minute.
+load: $(OUT)/restird
+	mkdir -p $(BUILD)/load
+	RESTIRD_BIN=$(abspath $(OUT)/restird) $(PYTHON) bench/load.py | tee $(BUILD)/load/load.json
 
 clean:
 	rm -rf $(BUILD) .pytest_cache tests/__pycache__ clients/python/__pycache__ bench/__pycache__
