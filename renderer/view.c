@@ -227,6 +227,13 @@ bool view_accumulated(const struct view *v, struct image *out, uint32_t *count, 
     return true;
 }
 
+uint64_t view_bytes_planned(const struct view_params *params, uint32_t shape_count)
+{
+    /* The same buffers view_init allocates for the method (pt: frame and accumulation). */
+    uint64_t pixels = (uint64_t)params->width * params->height;
+    return 2 * pixels * sizeof(struct vec3) + (uint64_t)(shape_count ? shape_count : 1) * sizeof(struct view_shape_change);
+}
+
 uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_BUFFERS], size_t *total)
 {
     uint32_t n = 0;

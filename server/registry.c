@@ -59,6 +59,7 @@ struct registry {
     char *scenes_dir;             /* <data>/scenes */
     registry_warn_fn *warn;
     void *warn_ctx;
+    struct budget *budget;        /* uploaded scenes' bytes are reserved from it; NULL = none */
 };
 
 struct registry_names {
@@ -442,8 +443,9 @@ static struct scene *registry_load(const char *json, size_t len, const char *bas
     return scene;
 }
 
-/* Fills everything in e->info that depends on the scene (sessions, id and builtin stay). */
-static void registry_entry_set(struct registry_entry *e, struct scene *scene, uint64_t hash, uint32_t assets)
+/* The scene_bytes estimate (geometry plus REGISTRY_BVH_BYTES_PER_PRIM per primitive) and the
+ * triangle count. */
+static size_t registry_scene_bytes(const struct scene *scene, uint64_t *triangles_out)
 {
     uint64_t prims = 0, triangles = 0;
     size_t bytes = scene->shape_count * sizeof *scene->shapes +
@@ -459,6 +461,27 @@ static void registry_entry_set(struct registry_entry *e, struct scene *scene, ui
         bytes += (size_t)s->vertex_count * sizeof *s->positions * (s->normals ? 2 : 1) +
                  (size_t)s->triangle_count * 3 * sizeof *s->indices;
     }
+    if (triangles_out) *triangles_out = triangles;
+    return bytes + (size_t)prims * REGISTRY_BVH_BYTES_PER_PRIM;
+}
+
+/* An uploaded scene about to enter the table reserves its bytes (ERR_BUSY when the budget is
+ * full); the scene it replaces or that leaves gives them back. Called with write_lock held. */
+static bool registry_budget_reserve(struct registry *r, const struct scene *scene, struct err *err)
+{
+    return !r->budget || budget_reserve(r->budget, BUDGET_SCENES, registry_scene_bytes(scene, NULL), err);
+}
+
+static void registry_budget_release(struct registry *r, const struct scene *scene)
+{
+    if (r->budget && scene) budget_release(r->budget, BUDGET_SCENES, registry_scene_bytes(scene, NULL));
+}
+
+/* Fills everything in e->info that depends on the scene (sessions, id and builtin stay). */
+static void registry_entry_set(struct registry_entry *e, struct scene *scene, uint64_t hash, uint32_t assets)
+{
+    uint64_t triangles = 0;
+    size_t bytes = registry_scene_bytes(scene, &triangles);
     e->scene = scene;
     e->hash = hash;
     snprintf(e->info.hash, sizeof e->info.hash, "%016llx", (unsigned long long)hash);
@@ -466,7 +489,7 @@ static void registry_entry_set(struct registry_entry *e, struct scene *scene, ui
     e->info.shapes = scene->shape_count;
     e->info.triangles = triangles > UINT32_MAX ? UINT32_MAX : (uint32_t)triangles;
     e->info.emitters = scene->lights ? light_sampler_count(scene->lights) : 0;
-    e->info.scene_bytes = bytes + (size_t)prims * REGISTRY_BVH_BYTES_PER_PRIM;
+    e->info.scene_bytes = bytes;
     e->info.assets = assets;
 }
 
@@ -727,6 +750,17 @@ struct registry *registry_new(const char *library_dir, const char *data_dir, reg
     return r;
 }
 
+void registry_set_budget(struct registry *r, struct budget *budget)
+{
+    pthread_mutex_lock(&r->write_lock);
+    pthread_mutex_lock(&r->lock);
+    r->budget = budget;
+    for (size_t i = 0; budget && i < r->count; i++)
+        if (!r->entries[i]->info.builtin) budget_charge(budget, BUDGET_SCENES, r->entries[i]->info.scene_bytes);
+    pthread_mutex_unlock(&r->lock);
+    pthread_mutex_unlock(&r->write_lock);
+}
+
 void registry_free(struct registry *r)
 {
     if (!r) return;
@@ -773,16 +807,24 @@ static bool registry_put_scene_locked(struct registry *r, const char *id, const 
      * does not load never reaches the disk, and the one on disk stays the one in the table. */
     struct scene *scene = registry_load(json, len, assets_dir, id, err);
     if (!scene) return false;
+    if (!registry_budget_reserve(r, scene, err)) {
+        scene_release(scene);
+        return false;
+    }
     if (!registry_mkdir(scene_dir, err) || !registry_write_atomic(scene_dir, "scene.json", json, len, err)) {
+        registry_budget_release(r, scene);
         scene_release(scene);
         return false;
     }
     if (exists) {
-        scene_release(registry_replace(r, id, scene, hash, assets));
+        struct scene *old = registry_replace(r, id, scene, hash, assets);
+        registry_budget_release(r, old);
+        scene_release(old);
         *result = REGISTRY_REPLACED;
         return true;
     }
     if (!registry_insert(r, id, false, scene, hash, assets, err)) {
+        registry_budget_release(r, scene);
         scene_release(scene);
         return false;  /* only out of memory: the file is on disk and loads at the next start */
     }
@@ -886,6 +928,10 @@ static bool registry_put_asset_locked(struct registry *r, const char *id, const 
                   (scene = registry_load(json, jlen, stage, id, err)) != NULL;
         free(json);
         if (staged) registry_remove_tree(stage, 1);
+        if (ok && !registry_budget_reserve(r, scene, err)) {
+            scene_release(scene);
+            ok = false;
+        }
         if (!ok) {
             unlink(tmp);
             return false;
@@ -893,10 +939,15 @@ static bool registry_put_asset_locked(struct registry *r, const char *id, const 
     }
     if (!registry_rename_into(tmp, assets_dir, name, err)) {
         unlink(tmp);
+        registry_budget_release(r, scene);
         scene_release(scene);
         return false;
     }
-    if (scene) scene_release(registry_replace(r, id, scene, hash, assets));
+    if (scene) {
+        struct scene *old = registry_replace(r, id, scene, hash, assets);
+        registry_budget_release(r, old);
+        scene_release(old);
+    }
     return true;
 }
 
@@ -1006,6 +1057,7 @@ bool registry_delete(struct registry *r, const char *id, bool force, struct err 
         registry_fsync_dir(scene_dir, &ignored);
         if (!registry_remove_tree(scene_dir, 2))
             registry_warn(r, "registry: scene '%s' deleted, but some of its files in '%s' remain", id, scene_dir);
+        registry_budget_release(r, e->scene);
         scene_release(e->scene);  /* sessions keep their own references */
         free(e);
     }
