@@ -238,19 +238,16 @@ int main(int argc, char **argv)
         goto done;
     }
 
-    char served_by[192];
     uint16_t port = 0;
     struct http_options ho = {.host = cfg->host, .port = cfg->port, .connection_limit = cfg->connection_limit,
                               .per_ip_limit = cfg->per_ip_limit, .timeout_s = cfg->timeout_s};
     struct http_app app = {.ctx = &d, .body_policy = api_body_policy, .handle = api_handle, .reject = api_reject,
-                           .completed = api_completed, .served_by = served_by};
-    snprintf(served_by, sizeof served_by, "%s", cfg->id);
+                           .completed = api_completed, .served_by = cfg->id};
     http = http_start(&ho, &app, &port, &e);
     if (!http) {
         fprintf(stderr, "restird: %s\n", err_format(&e, msg, sizeof msg));
         goto done;
     }
-    if (!cfg->id[0]) snprintf(served_by, sizeof served_by, "%s:%u", cfg->host, port);
     const char *bracket_l = strchr(cfg->host, ':') ? "[" : "", *bracket_r = strchr(cfg->host, ':') ? "]" : "";
     printf("restird listening on http://%s%s%s:%u (data %s, %zu scenes)\n", bracket_l, cfg->host, bracket_r, port,
            cfg->data_dir, registry_list(d.registry, NULL, 0));
