@@ -93,6 +93,7 @@ void api_error(struct api_call *c, const struct err *e)
         else api_problem(c, 503, "busy", NULL, "%s", e->message);
         return;
     case ERR_NOMEM: api_problem(c, 503, "busy", NULL, "out of memory: %s", e->message); return;
+    case ERR_STORAGE: api_problem(c, 507, "insufficient-storage", NULL, "%s", e->message); return;
     case ERR_IO:
     case ERR_INTERNAL: api_problem(c, 500, "internal", NULL, "%s", e->message); return;
     }
@@ -456,7 +457,7 @@ static void api_scene_put(struct api_call *c)
         if (e.code == ERR_CONFLICT) api_problem(c, 409, "conflict", NULL, "%s", e.message);
         else if (e.code == ERR_PARSE) api_problem(c, 400, "malformed-json", e.where, "%s", e.message);
         else if (e.code == ERR_BUSY) api_budget_error(c, &e);
-        else if (e.code == ERR_IO || e.code == ERR_INTERNAL || e.code == ERR_NOMEM) api_error(c, &e);
+        else if (e.code == ERR_IO || e.code == ERR_STORAGE || e.code == ERR_INTERNAL || e.code == ERR_NOMEM) api_error(c, &e);
         else api_problem(c, 422, "invalid-scene", e.where, "%s", e.message);
         return;
     }
@@ -503,7 +504,7 @@ static void api_asset_put(struct api_call *c)
         if (e.code == ERR_INVALID && strcmp(e.where, "name") == 0) api_problem(c, 400, "bad-id", NULL, "%s", e.message);
         else if (e.code == ERR_CONFLICT) api_problem(c, 409, "conflict", NULL, "%s", e.message);
         else if (e.code == ERR_BUSY) api_budget_error(c, &e);
-        else if (e.code == ERR_IO || e.code == ERR_INTERNAL || e.code == ERR_NOMEM) api_error(c, &e);
+        else if (e.code == ERR_IO || e.code == ERR_STORAGE || e.code == ERR_INTERNAL || e.code == ERR_NOMEM) api_error(c, &e);
         else if (e.code == ERR_LIMIT) api_problem(c, 422, "limit-exceeded", NULL, "%s: %s", e.where, e.message);
         else api_problem(c, 422, e.where[0] == '/' ? "invalid-scene" : "invalid-asset", e.where[0] == '/' ? e.where : NULL,
                          "%s%s%s", e.where[0] == '/' ? "" : e.where, e.where[0] == '/' || !e.where[0] ? "" : ": ", e.message);

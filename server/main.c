@@ -211,6 +211,9 @@ int main(int argc, char **argv)
     sigaddset(&sigs, SIGINT);
     pthread_sigmask(SIG_BLOCK, &sigs, NULL);
     signal(SIGPIPE, SIG_IGN);
+    /* A write past a file-size limit (RLIMIT_FSIZE) then fails with EFBIG, which the registry
+     * reports as a full disk (507), instead of the signal ending the daemon. */
+    signal(SIGXFSZ, SIG_IGN);
 
     struct err e = {0};
     char msg[1024];

@@ -223,12 +223,20 @@ static bool registry_fsync_dir(const char *dir, struct err *err)
 
 /* Creates one folder level; when it is new, the parent is synced so the entry survives a
  * crash together with whatever is later renamed into it. */
+/* A full disk, a quota or a file-size limit is the operator's to fix, not a bug: it gets its
+ * own code (507 insufficient-storage) so the client is told what happened. */
+static enum err_code registry_io_code(int e)
+{
+    return e == ENOSPC || e == EDQUOT || e == EFBIG ? ERR_STORAGE : ERR_IO;
+}
+
 static bool registry_mkdir(const char *path, struct err *err)
 {
     if (mkdir(path, 0755) != 0) {
+        int e = errno;
         struct stat st;
-        if (errno == EEXIST && stat(path, &st) == 0 && S_ISDIR(st.st_mode)) return true;
-        return err_set(err, ERR_IO, NULL, "cannot create folder '%s': %s", path, strerror(errno));
+        if (e == EEXIST && stat(path, &st) == 0 && S_ISDIR(st.st_mode)) return true;
+        return err_set(err, registry_io_code(e), NULL, "cannot create folder '%s': %s", path, strerror(e));
     }
     char parent[PATH_MAX];
     if (!registry_path(parent, sizeof parent, err, "%s", path)) return false;
@@ -260,7 +268,7 @@ static bool registry_write_tmp(const char *dir, const void *data, size_t len, ch
 {
     if (!registry_path(tmp, tmp_size, err, "%s/" REGISTRY_TMP_PREFIX "XXXXXX", dir)) return false;
     int fd = mkstemp(tmp);  /* mkostemp would need _GNU_SOURCE; FD_CLOEXEC is set just after */
-    if (fd < 0) return err_set(err, ERR_IO, NULL, "cannot create a file in '%s': %s", dir, strerror(errno));
+    if (fd < 0) return err_set(err, registry_io_code(errno), NULL, "cannot create a file in '%s': %s", dir, strerror(errno));
     (void)fcntl(fd, F_SETFD, FD_CLOEXEC);
     const char *p = data;
     size_t done = 0;
@@ -280,7 +288,7 @@ static bool registry_write_tmp(const char *dir, const void *data, size_t len, ch
     }
     if (!ok) {
         unlink(tmp);
-        return err_set(err, ERR_IO, NULL, "cannot write a file in '%s': %s", dir, strerror(e));
+        return err_set(err, registry_io_code(e), NULL, "cannot write a file in '%s': %s", dir, strerror(e));
     }
     return true;
 }

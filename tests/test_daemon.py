@@ -63,7 +63,7 @@ class Resp:
 class Daemon:
     _starts = 0
 
-    def __init__(self, data_dir, *extra, env_extra=None):
+    def __init__(self, data_dir, *extra, env_extra=None, preexec_fn=None):
         Daemon._starts += 1
         self.data_dir = Path(data_dir)
         self.data_dir.mkdir(parents=True, exist_ok=True)
@@ -73,7 +73,7 @@ class Daemon:
         self.args = [BIN, "--listen", "127.0.0.1:0", "--data-dir", str(self.data_dir), *map(str, extra)]
         with open(self.out_path, "wb") as out, open(self.err_path, "wb") as err:
             self.proc = subprocess.Popen(self.args, stdout=out, stderr=err, stdin=subprocess.DEVNULL,
-                                         env={**os.environ, **(env_extra or {})})
+                                         env={**os.environ, **(env_extra or {})}, preexec_fn=preexec_fn)
         deadline = time.monotonic() + 30
         self.port = None
         while time.monotonic() < deadline:
@@ -283,6 +283,13 @@ def mesh_scene(file="tetra.ply", radiance=1.0):
             "materials": {"w": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
             "shapes": [{"type": "mesh", "material": "w", "file": file}],
             "environment": {"radiance": [radiance] * 3}}
+
+
+def put_mesh_scene(d, sid):
+    """Uploads tests/meshes/tetra.ply and then mesh_scene() under `sid`; returns the scene answer."""
+    r = d.req("PUT", f"/v1/scenes/{sid}/assets/tetra.ply", body=TETRA_PLY, headers={"Content-Type": "model/ply"})
+    assert r.status == 201, repr(r)
+    return d.req("PUT", f"/v1/scenes/{sid}", json_body=mesh_scene())
 
 
 def metric_value(text, name, labels=None):
@@ -1215,9 +1222,7 @@ def test_scenes_survive_restart_and_corrupt_scene_is_skipped(tmp_path):
     data = tmp_path / "data"
     d = Daemon(data, "--threads", "2")
     try:
-        assert d.req("PUT", "/v1/scenes/keep-mesh/assets/tetra.ply", body=TETRA_PLY,
-                     headers={"Content-Type": "model/ply"}).status == 201
-        r1 = d.req("PUT", "/v1/scenes/keep-mesh", json_body=mesh_scene())
+        r1 = put_mesh_scene(d, "keep-mesh")
         r2 = d.req("PUT", "/v1/scenes/keep-box", json_body=cornell_scene(emission=[8, 8, 8]))
         assert r1.status == 201 and r2.status == 201, (r1, r2)
         hashes = {"keep-mesh": r1.json()["hash"], "keep-box": r2.json()["hash"]}

@@ -5,7 +5,7 @@ bytes back when the holder goes."""
 import numpy as np
 import pytest
 
-from test_daemon import (CORNELL, J, TETRA_PLY, Daemon, assert_problem, cornell_scene, mesh_scene, new_session,
+from test_daemon import (CORNELL, J, TETRA_PLY, Daemon, assert_problem, cornell_scene, new_session, put_mesh_scene,
                          write_exr)
 
 SIDE, PIXELS, SPP, FRAMES, KEYS, SESSIONS = 64, 2048, 8, 5, 3, 4
@@ -181,9 +181,7 @@ def test_uploaded_scenes_charged_after_restart(tmp_path):
     data = tmp_path / "data"
     d = Daemon(data, *limits_args())
     try:
-        assert d.req("PUT", "/v1/scenes/keep/assets/tetra.ply", body=TETRA_PLY,
-                     headers={"Content-Type": "model/ply"}).status == 201
-        assert d.req("PUT", "/v1/scenes/keep", json_body=mesh_scene()).status == 201
+        assert put_mesh_scene(d, "keep").status == 201
         scene_bytes = d.req("GET", "/v1/scenes/keep").json()["scene_bytes"]
     finally:
         d.stop()
