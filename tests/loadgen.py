@@ -8,6 +8,7 @@ import json
 import os
 import re
 import shutil
+import statistics
 import subprocess
 import tempfile
 import threading
@@ -162,7 +163,11 @@ def frame_storm(port, pid, hrefs, total, samples=20, accept="image/x-exr"):
 
 
 def rss_growth_kib(trace, warmup_fraction=0.2):
-    """RSS growth from the first sample after the warm-up to the largest later sample."""
+    """RSS growth over the run after the warm-up: the median of the last quarter of the samples
+    minus the median of the first quarter (medians, because an allocator's RSS wobbles by a
+    few hundred KiB from sample to sample without growing; ASan's more than glibc's). Returns
+    (growth, the first sample after the warm-up)."""
     total = trace[-1][0]
     after = [kib for n, kib in trace if n >= warmup_fraction * total]
-    return max(after) - after[0], after[0]
+    quarter = max(1, len(after) // 4)
+    return statistics.median(after[-quarter:]) - statistics.median(after[:quarter]), after[0]

@@ -6,6 +6,7 @@ import concurrent.futures
 import contextlib
 import http.client
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,8 +15,12 @@ import loadgen
 from test_daemon import CORNELL, Daemon, assert_problem, new_session, write_exr
 
 WRK_SECONDS = 2
-MEMORY_FRAMES = 2000        # 8x8 1-spp frames over 4 sessions
-MEMORY_GROWTH_KIB = 512     # a leak of 1 KiB per frame would add ~1.6 MiB after the warm-up
+MEMORY_FRAMES = 5000        # 8x8 1-spp frames over 4 sessions
+MEMORY_GROWTH_KIB = 1024    # a leak of 1 KiB per frame would add ~3 MiB between the quarters
+# ASan's allocator keeps growing its caches slowly with no leak (measured: +1.3 MiB over 40000
+# frames, flat without ASan). There LeakSanitizer, run when the daemon stops, is the leak check,
+# and this bound only catches gross growth.
+ASAN_GROWTH_KIB = 4096
 
 
 @contextlib.contextmanager
@@ -63,12 +68,13 @@ def test_memory_flat_over_small_frames(tmp_path):
     # option is ignored by a build without ASan).
     with running_daemon(tmp_path, env_extra={"ASAN_OPTIONS": "quarantine_size_mb=0"}) as d:
         hrefs = loadgen.new_sessions(d.port, 4)
-        statuses, trace, secs, bad = loadgen.frame_storm(d.port, d.proc.pid, hrefs, MEMORY_FRAMES)
+        statuses, trace, secs, bad = loadgen.frame_storm(d.port, d.proc.pid, hrefs, MEMORY_FRAMES, samples=40)
         growth, base = loadgen.rss_growth_kib(trace)
         print(f"\n{MEMORY_FRAMES} frames in {secs:.1f} s; RSS after warm-up {base} KiB, growth {growth} KiB; "
               f"trace {trace}")
         assert bad is None and statuses == {200: MEMORY_FRAMES}, (statuses, bad)
-        assert growth < MEMORY_GROWTH_KIB, trace
+        asan = b"libasan.so" in Path(d.args[0]).read_bytes()
+        assert growth < (ASAN_GROWTH_KIB if asan else MEMORY_GROWTH_KIB), trace
 
 
 @pytest.mark.concurrency
