@@ -81,6 +81,13 @@ static bool mesh_io_next_token(const char **p, const char *e, const char **tb, c
     return true;
 }
 
+/* True when [p, e) holds no more tokens. */
+static bool mesh_io_line_done(const char *p, const char *e)
+{
+    const char *tb, *te;
+    return !mesh_io_next_token(&p, e, &tb, &te);
+}
+
 static bool mesh_io_token_is(const char *tb, const char *te, const char *word)
 {
     size_t n = strlen(word);
@@ -188,12 +195,19 @@ static bool mesh_io_ply_header(const char *data, size_t len, const char *name, s
         if (!mesh_io_next_token(&p, e, &tb, &te)) continue;
         if (mesh_io_token_is(tb, te, "comment") || mesh_io_token_is(tb, te, "obj_info")) continue;
         if (mesh_io_token_is(tb, te, "end_header")) break;
+        /* Header lines are read exactly: assimp takes the first format line and skips words it
+         * does not expect, so a second format line or trailing words would make it read another
+         * file than the one walked here (a second "format ascii" after a binary one made it
+         * allocate 6.6 GB from a 451-byte file: tests/fuzz/mesh_ply/oom-second-format-line). */
         if (mesh_io_token_is(tb, te, "format")) {
+            if (have_format) return err_set(err, ERR_PARSE, where, "a second PLY format line");
             if (!mesh_io_next_token(&p, e, &tb, &te)) return err_set(err, ERR_PARSE, where, "PLY format line without a format");
             if (mesh_io_token_is(tb, te, "ascii")) h->format = PLY_ASCII;
             else if (mesh_io_token_is(tb, te, "binary_little_endian")) h->format = PLY_LE;
             else if (mesh_io_token_is(tb, te, "binary_big_endian")) h->format = PLY_BE;
             else return err_set(err, ERR_PARSE, where, "unknown PLY format '%.*s'", (int)(te - tb), tb);
+            if (!mesh_io_next_token(&p, e, &tb, &te) || !mesh_io_token_is(tb, te, "1.0") || !mesh_io_line_done(p, e))
+                return err_set(err, ERR_PARSE, where, "PLY format line must end in version 1.0");
             have_format = true;
             continue;
         }
@@ -201,8 +215,8 @@ static bool mesh_io_ply_header(const char *data, size_t len, const char *name, s
             const char *nb, *ne, *cb, *ce;
             uint64_t count;
             if (!mesh_io_next_token(&p, e, &nb, &ne) || !mesh_io_next_token(&p, e, &cb, &ce) ||
-                !mesh_io_token_uint(cb, ce, UINT32_MAX, &count))
-                return err_set(err, ERR_PARSE, where, "PLY element line needs a name and a count below 2^32");
+                !mesh_io_token_uint(cb, ce, UINT32_MAX, &count) || !mesh_io_line_done(p, e))
+                return err_set(err, ERR_PARSE, where, "PLY element line needs a name and a count below 2^32, and nothing after");
             if (h->element_count == MESH_IO_PLY_MAX_ELEMENTS)
                 return err_set(err, ERR_LIMIT, where, "more than %d PLY elements", MESH_IO_PLY_MAX_ELEMENTS);
             el = &h->elements[h->element_count++];
@@ -235,6 +249,7 @@ static bool mesh_io_ply_header(const char *data, size_t len, const char *name, s
             if (!mesh_io_ply_type_of(tb, te, &pr->type))
                 return err_set(err, ERR_PARSE, where, "unknown PLY property type '%.*s'", (int)(te - tb), tb);
             if (!mesh_io_next_token(&p, e, &tb, &te)) return err_set(err, ERR_PARSE, where, "PLY property without a name");
+            if (!mesh_io_line_done(p, e)) return err_set(err, ERR_PARSE, where, "words after the PLY property's name");
             if (el->is_vertex && !pr->is_list) {
                 if (mesh_io_token_is(tb, te, "x")) pr->role = PLY_X;
                 if (mesh_io_token_is(tb, te, "y")) pr->role = PLY_Y;

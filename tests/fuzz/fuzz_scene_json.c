@@ -1,7 +1,7 @@
 /* fuzz_scene_json.c — libFuzzer target for the scene JSON loader (renderer/scene_load.c).
  * Mesh paths resolve under tests/meshes (make runs from the tree's root), so the path checks
  * and the mesh decoders behind them are reached too. A rejected scene must come back as an
- * error with a `where`; an accepted one must have a camera and at least one shape. */
+ * error code; an accepted one must be within the shape limit (an empty scene is valid). */
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -21,8 +21,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         }
         return 0;
     }
-    if (scene->shape_count == 0) {
-        fprintf(stderr, "scene_load_json accepted a scene without shapes\n");
+    if (scene->shape_count > 100000) {  /* docs/scene-format.md: the shape limit */
+        fprintf(stderr, "scene_load_json accepted %u shapes\n", scene->shape_count);
         abort();
     }
     scene_release(scene);

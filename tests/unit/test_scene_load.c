@@ -535,6 +535,40 @@ static void test_mesh_io_empty_face(void)
     CHECK(strcmp(err.where, "e.ply") == 0 && strstr(err.message, "face 0 has no vertices") != NULL);
 }
 
+/* Assimp takes the first format line and skips unexpected words, so header lines must be
+ * exact: a second format line made it read a "binary" file as ASCII rows and allocate 6.6 GB
+ * from 451 bytes (found by fuzz_mesh_ply). */
+static void test_mesh_io_header_lines_exact(void)
+{
+    const char *body = "element vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\n"
+                       "property list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+    const char *heads[] = {"ply\nformat ascii 1.0\n", "ply\nformat binary_little_endian 1.0\nformat ascii 1.0\n",
+                           "ply\nformat ascii 1.0 extra\n", "ply\nformat ascii\n", "ply\nformat ascii 2.0\n"};
+    const char *line[] = {NULL, "b.ply:3", "b.ply:2", "b.ply:2", "b.ply:2"};
+    for (int i = 0; i < 5; i++) {
+        char ply[512];
+        int n = snprintf(ply, sizeof ply, "%s%s", heads[i], body);
+        struct mesh m;
+        struct err err = {0};
+        bool ok = mesh_io_load_memory(ply, (size_t)n, "b.ply", "ply", &m, &err);
+        CHECK_MSG(ok == (line[i] == NULL), "case %d: %s: %s", i, err.where, err.message);
+        if (ok) mesh_io_destroy(&m);
+        else CHECK_MSG(err.code == ERR_PARSE && strcmp(err.where, line[i]) == 0, "case %d: %s", i, err.where);
+    }
+    const char *trailing[] = {"element vertex 3 9\n", "property float x y\n"};
+    for (int i = 0; i < 2; i++) {
+        char ply[512];
+        const char *cut = i == 0 ? "element vertex 3\n" : "property float x\n";
+        const char *at = strstr(body, cut);
+        int n = snprintf(ply, sizeof ply, "ply\nformat ascii 1.0\n%.*s%s%s", (int)(at - body), body, trailing[i],
+                         at + strlen(cut));
+        struct mesh m;
+        struct err err = {0};
+        CHECK(!mesh_io_load_memory(ply, (size_t)n, "t.ply", "ply", &m, &err) && err.code == ERR_PARSE);
+        CHECK_MSG(strcmp(err.where, i == 0 ? "t.ply:3" : "t.ply:4") == 0, "%s: %s", err.where, err.message);
+    }
+}
+
 static void test_mesh_in_scene(void)
 {
     struct scene *s = load_shape("{\"type\": \"mesh\", \"material\": \"white\", \"file\": \"tetra.ply\", \"name\": \"t\", "
@@ -795,6 +829,7 @@ TEST_MAIN(TEST(test_mesh_shared_by_shapes), TEST(test_fifo_refused), TEST(test_c
           TEST(test_cornell_box_exact), TEST(test_quad_geometry), TEST(test_box_geometry), TEST(test_disk_geometry),
           TEST(test_sphere_and_defaults), TEST(test_transform_order), TEST(test_materials_mapping),
           TEST(test_mesh_io_files), TEST(test_mesh_io_memory_errors), TEST(test_mesh_io_control_characters),
-          TEST(test_mesh_io_empty_face), TEST(test_mesh_in_scene),
+          TEST(test_mesh_io_empty_face), TEST(test_mesh_io_header_lines_exact),
+          TEST(test_mesh_in_scene),
           TEST(test_mesh_symlink_escape), TEST(test_every_truncation_fails), TEST(test_mutations_never_crash),
           TEST(test_limits_and_text_errors), TEST(test_many_named_shapes))
