@@ -194,7 +194,14 @@ static bool mesh_io_ply_header(const char *data, size_t len, const char *name, s
         p = b;
         if (!mesh_io_next_token(&p, e, &tb, &te)) continue;
         if (mesh_io_token_is(tb, te, "comment") || mesh_io_token_is(tb, te, "obj_info")) continue;
-        if (mesh_io_token_is(tb, te, "end_header")) break;
+        if (mesh_io_token_is(tb, te, "end_header")) {
+            /* A file ending right after "end_header" (no newline) with an obj_info line in the
+             * header sent assimp into an endless loop (tests/fuzz/mesh_ply/timeout-no-newline-
+             * after-header); the format wants the newline anyway. */
+            if (e == data + len || !mesh_io_line_done(p, e))
+                return err_set(err, ERR_PARSE, where, "PLY end_header must be alone on a line that ends in a newline");
+            break;
+        }
         /* Header lines are read exactly: assimp takes the first format line and skips words it
          * does not expect, so a second format line or trailing words would make it read another
          * file than the one walked here (a second "format ascii" after a binary one made it
