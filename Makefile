@@ -198,7 +198,7 @@ $(FUZZ_OUT)/fuzz_exr: tests/fuzz/fuzz_exr.c $(FUZZ_LIBS)
 
 # One target's run: replays its whole corpus, then mutates for $(1) seconds.
 fuzz_run = mkdir -p $(FUZZ_OUT)/corpus/$(2) $(FUZZ_OUT)/crashes && \
-	./$(FUZZ_OUT)/fuzz_$(2) -max_total_time=$(1) -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 \
+	LSAN_OPTIONS=suppressions=$(abspath tests/fuzz/lsan.supp) ./$(FUZZ_OUT)/fuzz_$(2) -max_total_time=$(1) -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 \
 	  -artifact_prefix=$(FUZZ_OUT)/crashes/$(2)- $(FUZZ_OUT)/corpus/$(2) tests/fuzz/$(2)
 
 test-fuzz: $(FUZZ_BIN)

@@ -81,6 +81,20 @@ static bool mesh_io_next_token(const char **p, const char *e, const char **tb, c
     return true;
 }
 
+/* PLY element and property names: a letter or '_', then letters, digits, '_' or '-', at most 63
+ * bytes. Every real-world name fits; assimp misreads others (an element named by a 60-digit
+ * number made it ask for 57 GB: tests/fuzz/mesh_ply/oom-numeric-element-name). */
+static bool mesh_io_ply_name_ok(const char *tb, const char *te)
+{
+    if (te - tb < 1 || te - tb > 63) return false;
+    for (const char *c = tb; c < te; c++) {
+        bool alpha = (*c >= 'a' && *c <= 'z') || (*c >= 'A' && *c <= 'Z') || *c == '_';
+        bool digit = (*c >= '0' && *c <= '9') || *c == '-';
+        if (!alpha && !(digit && c > tb)) return false;
+    }
+    return true;
+}
+
 /* True when [p, e) holds no more tokens. */
 static bool mesh_io_line_done(const char *p, const char *e)
 {
@@ -224,6 +238,9 @@ static bool mesh_io_ply_header(const char *data, size_t len, const char *name, s
             if (!mesh_io_next_token(&p, e, &nb, &ne) || !mesh_io_next_token(&p, e, &cb, &ce) ||
                 !mesh_io_token_uint(cb, ce, UINT32_MAX, &count) || !mesh_io_line_done(p, e))
                 return err_set(err, ERR_PARSE, where, "PLY element line needs a name and a count below 2^32, and nothing after");
+            if (!mesh_io_ply_name_ok(nb, ne))
+                return err_set(err, ERR_PARSE, where, "PLY element name '%.*s' is not [A-Za-z_][A-Za-z0-9_-]{0,62}",
+                               (int)(ne - nb > 64 ? 64 : ne - nb), nb);
             if (h->element_count == MESH_IO_PLY_MAX_ELEMENTS)
                 return err_set(err, ERR_LIMIT, where, "more than %d PLY elements", MESH_IO_PLY_MAX_ELEMENTS);
             el = &h->elements[h->element_count++];
@@ -257,6 +274,9 @@ static bool mesh_io_ply_header(const char *data, size_t len, const char *name, s
                 return err_set(err, ERR_PARSE, where, "unknown PLY property type '%.*s'", (int)(te - tb), tb);
             if (!mesh_io_next_token(&p, e, &tb, &te)) return err_set(err, ERR_PARSE, where, "PLY property without a name");
             if (!mesh_io_line_done(p, e)) return err_set(err, ERR_PARSE, where, "words after the PLY property's name");
+            if (!mesh_io_ply_name_ok(tb, te))
+                return err_set(err, ERR_PARSE, where, "PLY property name '%.*s' is not [A-Za-z_][A-Za-z0-9_-]{0,62}",
+                               (int)(te - tb > 64 ? 64 : te - tb), tb);
             if (el->is_vertex && !pr->is_list) {
                 if (mesh_io_token_is(tb, te, "x")) pr->role = PLY_X;
                 if (mesh_io_token_is(tb, te, "y")) pr->role = PLY_Y;
