@@ -79,6 +79,7 @@ def test_full_disk_refused_with_507_and_accepted_scenes_kept(tmp_path):
         stop_ok(d)
 
 
+@pytest.mark.concurrency
 def test_client_gone_mid_upload(tmp_path):
     d = Daemon(tmp_path / "data", "--threads", "1")
     try:
@@ -109,6 +110,7 @@ def test_client_gone_mid_upload(tmp_path):
         stop_ok(d)
 
 
+@pytest.mark.concurrency
 def test_client_gone_mid_response(tmp_path):
     d = Daemon(tmp_path / "data", "--threads", "1")
     try:
@@ -136,6 +138,7 @@ def test_client_gone_mid_response(tmp_path):
         stop_ok(d)
 
 
+@pytest.mark.concurrency
 def test_sigterm_during_job_keeps_scenes(tmp_path):
     data = tmp_path / "data"
     d = Daemon(data, "--threads", "1")
