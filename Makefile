@@ -5,9 +5,14 @@ CC      ?= cc
 SAN     ?= 0
 BUILD   := build
 # Sanitizer builds live in their own tree (build/san/) so the two kinds never mix.
+TSAN    ?= 0
 ifeq ($(SAN),1)
   OPT   := -O1 -g -fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=undefined
   OUT   := $(BUILD)/san
+else ifeq ($(TSAN),1)
+  # ThreadSanitizer (build/tsan/): the daemon and the threaded unit tests, run by test-tsan.
+  OPT   := -O1 -g -fsanitize=thread -fno-omit-frame-pointer
+  OUT   := $(BUILD)/tsan
 else
   # Link-time optimisation inlines the small per-file kernels (material, surface, lights) into
   # the path loop: 7 % fewer instructions per ray on the Cornell box (callgrind).
@@ -42,18 +47,21 @@ WEB_PAGE     := $(wildcard $(WEB)/page/*)
 WEB_NPM      := $(WEB)/node_modules/.package-lock.json
 WEB_VENDOR   := $(WEB)/node_modules/uplot/dist/uPlot.esm.js $(WEB)/node_modules/uplot/dist/uPlot.min.css
 
-.PHONY: all deps test test-unit test-py test-cluster test-web run bench clean help
+.PHONY: all deps test test-unit test-py test-cluster test-web test-fuzz test-tsan fuzz load run bench clean help
 .SECONDARY:
 all: $(OUT)/restir $(OUT)/restird
 
 help:
 	@echo "make            build build/restir (offline CLI) and build/restird (the daemon)"
-	@echo "make test       unit, statistical, end-to-end, cluster and browser tests (SAN=1 for ASan/UBSan)"
+	@echo "make test       unit, fuzz smoke, statistical, end-to-end, cluster and browser tests (SAN=1 for ASan/UBSan)"
 	@echo "make test-cluster  the image and three daemons behind HAProxy (part of make test)"
 	@echo "make test-web   the preview page in headless chromium alone (screenshots: build/web-test/)"
+	@echo "make test-tsan  the threaded unit tests and the daemon's concurrency tests under ThreadSanitizer"
 	@echo "make run        start the daemon on 127.0.0.1:8080 with a default session on cornell-box;"
 	@echo "                the preview page is at http://127.0.0.1:8080/"
 	@echo "make bench      benchmarks (not tests): see docs/benchmarks.md"
+	@echo "make load       wrk and 10000-frame memory run against the daemon on loopback: see docs/reliability.md"
+	@echo "make fuzz       run every libFuzzer target for FUZZ_SECONDS (default 60) each: see docs/reliability.md"
 	@echo "make clean      remove everything make made"
 
 deps: $(DEPS_OK)
@@ -122,7 +130,13 @@ $(OBJ)/tests/unit/%.o: tests/unit/%.c Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) $(OPENEXR_CFLAGS) -Irenderer -Iprotocol -Iserver -Itests -c $< -o $@
 
+# The fuzz smoke runs in the plain build only: its targets are built with their own sanitizers
+# (build/fuzz/), so SAN=1 would repeat the same run.
+ifeq ($(SAN),1)
 test: test-unit test-py test-cluster test-web
+else
+test: test-unit test-fuzz test-py test-cluster test-web
+endif
 
 test-unit: $(UNIT_BIN)
 	@fail=0; for t in $(UNIT_BIN); do echo "== $$t"; ./$$t || fail=1; done; exit $$fail
@@ -157,6 +171,20 @@ test-web: $(OUT)/restird $(WEB_NPM)
 	RESTIRD_BIN=$(abspath $(OUT)/restird) WEB_TEST_OUT=$(abspath $(OUT)/web-test) PYTHON=$(PYTHON) \
 		node --test --test-reporter=spec $(WEB)/test/
 
+# ThreadSanitizer: the unit tests that start threads, then the pytest tests marked
+# `concurrency` against a TSan daemon. Any report fails the run: the daemon exits with 66 on its
+# first report (halt_on_error), which the tests see as a failed stop or a dead daemon.
+TSAN_UNIT := test_parallel test_registry
+TSAN_ENV  := TSAN_OPTIONS="halt_on_error=1 exitcode=66 second_deadlock_stack=1 suppressions=$(abspath tests/tsan.supp)"
+ifeq ($(TSAN),1)
+test-tsan: $(TSAN_UNIT:%=$(OUT)/tests/%) $(OUT)/restird
+	@fail=0; for t in $(TSAN_UNIT); do echo "== tsan $$t"; $(TSAN_ENV) ./$(OUT)/tests/$$t || fail=1; done; exit $$fail
+	$(TSAN_ENV) RESTIRD_BIN=$(abspath $(OUT)/restird) $(PYTHON) -m pytest -q -p no:cacheprovider -m concurrency tests
+else
+test-tsan:
+	$(MAKE) TSAN=1 test-tsan
+endif
+
 # The daemon on 127.0.0.1:8080 with a ready session on the Cornell box; it prints the curl line
 # that fetches a frame. Ctrl-C stops it cleanly.
 run: $(OUT)/restird
@@ -168,8 +196,83 @@ bench: $(OUT)/restir $(OUT)/restird $(OBJ)/librenderer.a
 	$(PYTHON) bench/server_bench.py | tee $(BUILD)/bench/server.json
 	$(PYTHON) bench/restir_pt.py | tee $(BUILD)/bench/restir_pt.md
 
+# ---- fuzzing: libFuzzer targets, built by clang with ASan + UBSan into build/fuzz/ ----
+# Each target's seeds (and the inputs of every bug found, kept as regressions) are committed in
+# tests/fuzz/<target>/; what a run discovers goes to build/fuzz/corpus/<target>/, first in the
+# corpus list, so a run never writes into the tree. Crashing inputs land in build/fuzz/crashes/.
+FUZZ_CC      := clang
+FUZZ_OUT     := $(BUILD)/fuzz
+FUZZ_OBJ     := $(FUZZ_OUT)/obj
+FUZZ_CFLAGS  := -std=c17 -D_DEFAULT_SOURCE -Wall -Wextra -Wshadow -Wno-missing-field-initializers -O1 -g \
+                -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=undefined -pthread
+FUZZ_SECONDS ?= 60
+FUZZ_SMOKE_SECONDS ?= 3
+FUZZ_REQUESTS := session frame render reference
+FUZZ_TARGETS := scene_json $(FUZZ_REQUESTS:%=request_%) mesh_ply mesh_obj exr
+FUZZ_BIN     := $(FUZZ_TARGETS:%=$(FUZZ_OUT)/fuzz_%)
+FUZZ_PARSER_session := 1
+FUZZ_PARSER_frame := 2
+FUZZ_PARSER_render := 3
+FUZZ_PARSER_reference := 4
+FUZZ_LIBS    := $(FUZZ_OBJ)/libprotocol.a $(FUZZ_OBJ)/librenderer.a
+# The libraries get coverage instrumentation (fuzzer-no-link); only the targets link libFuzzer.
+FUZZ_LIB_CFLAGS := $(FUZZ_CFLAGS) -fsanitize=fuzzer-no-link -MMD -MP
+
+$(FUZZ_OBJ)/renderer/%.o: renderer/%.c Makefile | $(DEPS_OK)
+	@mkdir -p $(dir $@)
+	$(FUZZ_CC) $(FUZZ_LIB_CFLAGS) $(OPENEXR_CFLAGS) -Irenderer -c $< -o $@
+
+$(FUZZ_OBJ)/protocol/%.o: protocol/%.c Makefile | $(DEPS_OK)
+	@mkdir -p $(dir $@)
+	$(FUZZ_CC) $(FUZZ_LIB_CFLAGS) -Irenderer -Iprotocol -c $< -o $@
+
+$(FUZZ_OBJ)/librenderer.a: $(RENDERER_SRC:%.c=$(FUZZ_OBJ)/%.o)
+	@rm -f $@
+	ar rcs $@ $^
+
+$(FUZZ_OBJ)/libprotocol.a: $(PROTOCOL_SRC:%.c=$(FUZZ_OBJ)/%.o)
+	@rm -f $@
+	ar rcs $@ $^
+
+FUZZ_LINK = $(FUZZ_CC) $(FUZZ_CFLAGS) -fsanitize=fuzzer -Irenderer -Iprotocol
+
+$(FUZZ_OUT)/fuzz_scene_json: tests/fuzz/fuzz_scene_json.c $(FUZZ_LIBS)
+	$(FUZZ_LINK) $^ $(LDLIBS) -o $@
+
+$(FUZZ_OUT)/fuzz_request_%: tests/fuzz/fuzz_request.c $(FUZZ_LIBS)
+	$(FUZZ_LINK) -DFUZZ_PARSER=$(FUZZ_PARSER_$*) $^ $(LDLIBS) -o $@
+
+$(FUZZ_OUT)/fuzz_mesh_%: tests/fuzz/fuzz_mesh.c $(FUZZ_LIBS)
+	$(FUZZ_LINK) '-DFUZZ_MESH_EXT="$*"' $^ $(LDLIBS) -o $@
+
+$(FUZZ_OUT)/fuzz_exr: tests/fuzz/fuzz_exr.c $(FUZZ_LIBS)
+	$(FUZZ_LINK) $(OPENEXR_CFLAGS) $^ $(LDLIBS) -o $@
+
+# One target's run: replays its whole corpus, then mutates for $(1) seconds.
+fuzz_run = mkdir -p $(FUZZ_OUT)/corpus/$(2) $(FUZZ_OUT)/crashes && \
+	LSAN_OPTIONS=suppressions=$(abspath tests/fuzz/lsan.supp) ./$(FUZZ_OUT)/fuzz_$(2) -max_total_time=$(1) -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 \
+	  -artifact_prefix=$(FUZZ_OUT)/crashes/$(2)- $(FUZZ_OUT)/corpus/$(2) tests/fuzz/$(2)
+
+test-fuzz: $(FUZZ_BIN)
+	@fail=0; for t in $(FUZZ_TARGETS); do echo "== fuzz smoke $$t ($(FUZZ_SMOKE_SECONDS) s)"; \
+	  ( $(call fuzz_run,$(FUZZ_SMOKE_SECONDS),$$t) ) >$(FUZZ_OUT)/smoke-$$t.log 2>&1 \
+	  && grep -h 'stat::number_of_executed_units' $(FUZZ_OUT)/smoke-$$t.log \
+	  || { fail=1; tail -40 $(FUZZ_OUT)/smoke-$$t.log; }; done; exit $$fail
+
+fuzz: $(FUZZ_BIN)
+	@for t in $(FUZZ_TARGETS); do echo "== fuzz $$t ($(FUZZ_SECONDS) s, log $(FUZZ_OUT)/fuzz-$$t.log)"; \
+	  ( $(call fuzz_run,$(FUZZ_SECONDS),$$t) ) >$(FUZZ_OUT)/fuzz-$$t.log 2>&1; rc=$$?; \
+	  grep -hE '^(stat::number_of_executed_units|stat::new_units_added|SUMMARY|artifact_prefix|==[0-9]+==ERROR)' \
+	    $(FUZZ_OUT)/fuzz-$$t.log; [ $$rc -eq 0 ] || exit 1; done
+
+# The long load run (the short one is tests/test_load.py): loopback only, about a minute.
+load: $(OUT)/restird
+	mkdir -p $(BUILD)/load
+	RESTIRD_BIN=$(abspath $(OUT)/restird) $(PYTHON) bench/load.py | tee $(BUILD)/load/load.json
+
 clean:
 	rm -rf $(BUILD) .pytest_cache tests/__pycache__ tests/cluster/__pycache__ clients/python/__pycache__ bench/__pycache__ \
 	       $(WEB)/node_modules
 
+-include $(wildcard $(FUZZ_OBJ)/*/*.d)
 -include $(RENDERER_OBJ:.o=.d) $(PROTOCOL_OBJ:.o=.d) $(SERVER_OBJ:.o=.d) $(OBJ)/server/cli.d $(OBJ)/server/main.d $(UNIT_SRC:tests/unit/%.c=$(OBJ)/tests/unit/%.d)

@@ -24,6 +24,9 @@ import threading
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, "tests"))
+from loadgen import request  # noqa: E402  (the request helper shared with the load tests)
+
 BIN = os.environ.get("RESTIRD_BIN", os.path.join(ROOT, "build", "restird"))
 N = int(os.environ.get("BENCH_N", "300"))
 
@@ -32,17 +35,6 @@ def pct(xs, p):
     xs = sorted(xs)
     k = min(len(xs) - 1, max(0, int(round(p / 100.0 * (len(xs) - 1)))))
     return xs[k]
-
-
-def request(conn, method, path, body=None, headers=None):
-    hdrs = dict(headers or {})
-    data = None
-    if body is not None:
-        data = json.dumps(body).encode()
-        hdrs["Content-Type"] = "application/json"
-    conn.request(method, path, body=data, headers=hdrs)
-    r = conn.getresponse()
-    return r.status, dict(r.getheaders()), r.read()
 
 
 def main():

@@ -296,6 +296,8 @@ static const struct { const char *slug, *title; } protocol_titles[] = {
     {"reference-mismatch", "Reference does not match"},
     {"too-many-sessions", "Too many sessions"},
     {"queue-full", "Queue full"},
+    {"memory-budget", "Memory budget full"},
+    {"insufficient-storage", "Insufficient storage"},
     {"busy", "Busy"},
     {"draining", "Shutting down"},
     {"internal", "Internal error"},

@@ -31,6 +31,7 @@ const char *err_code_name(enum err_code code)
     case ERR_INTERNAL: return "internal";
     case ERR_CONFLICT: return "conflict";
     case ERR_BUSY: return "busy";
+    case ERR_STORAGE: return "storage";
     }
     return "unknown";
 }

@@ -18,6 +18,7 @@ enum err_code {
     ERR_INTERNAL,    /* a library we call failed in a way the caller cannot fix */
     ERR_CONFLICT,    /* the request contradicts the current state (a session is busy, live) */
     ERR_BUSY,        /* a queue or memory budget is full; retrying later can succeed */
+    ERR_STORAGE,     /* the disk refused to hold more (ENOSPC, EDQUOT, EFBIG): nothing was stored */
 };
 
 struct err {

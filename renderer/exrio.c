@@ -20,6 +20,7 @@
 #endif
 /* F16C code is compiled for that target alone and only called after a run-time check. */
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#include <cpuid.h>
 #include <immintrin.h>
 #define EXRIO_HAVE_F16C 1
 #endif
@@ -358,8 +359,11 @@ static exrio_halves_fn *exrio_pick_halves(void)
     const char *force = getenv("RESTIRD_EXR_HALF");
     if (force && strcmp(force, "portable") == 0) return exrio_halves_portable;
 #ifdef EXRIO_HAVE_F16C
-    /* libgcc fills the CPU model in a constructor, so no __builtin_cpu_init (not thread-safe). */
-    if (__builtin_cpu_supports("avx") && __builtin_cpu_supports("f16c")) return exrio_halves_f16c;
+    /* libgcc fills the CPU model in a constructor, so no __builtin_cpu_init (not thread-safe).
+     * F16C is read from CPUID leaf 1 because clang's __builtin_cpu_supports does not know it
+     * (the fuzz targets are built with clang); "avx" also checks that the OS saves YMM state. */
+    unsigned a, b, c, d;
+    if (__builtin_cpu_supports("avx") && __get_cpuid(1, &a, &b, &c, &d) && (c & bit_F16C)) return exrio_halves_f16c;
 #endif
     return exrio_halves_portable;
 }

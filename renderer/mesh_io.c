@@ -81,6 +81,27 @@ static bool mesh_io_next_token(const char **p, const char *e, const char **tb, c
     return true;
 }
 
+/* PLY element and property names: a letter or '_', then letters, digits, '_' or '-', at most 63
+ * bytes. Every real-world name fits; assimp misreads others (an element named by a 60-digit
+ * number made it ask for 57 GB: tests/fuzz/mesh_ply/oom-numeric-element-name). */
+static bool mesh_io_ply_name_ok(const char *tb, const char *te)
+{
+    if (te - tb < 1 || te - tb > 63) return false;
+    for (const char *c = tb; c < te; c++) {
+        bool alpha = (*c >= 'a' && *c <= 'z') || (*c >= 'A' && *c <= 'Z') || *c == '_';
+        bool digit = (*c >= '0' && *c <= '9') || *c == '-';
+        if (!alpha && !(digit && c > tb)) return false;
+    }
+    return true;
+}
+
+/* True when [p, e) holds no more tokens. */
+static bool mesh_io_line_done(const char *p, const char *e)
+{
+    const char *tb, *te;
+    return !mesh_io_next_token(&p, e, &tb, &te);
+}
+
 static bool mesh_io_token_is(const char *tb, const char *te, const char *word)
 {
     size_t n = strlen(word);
@@ -187,13 +208,27 @@ static bool mesh_io_ply_header(const char *data, size_t len, const char *name, s
         p = b;
         if (!mesh_io_next_token(&p, e, &tb, &te)) continue;
         if (mesh_io_token_is(tb, te, "comment") || mesh_io_token_is(tb, te, "obj_info")) continue;
-        if (mesh_io_token_is(tb, te, "end_header")) break;
+        if (mesh_io_token_is(tb, te, "end_header")) {
+            /* A file ending right after "end_header" (no newline) with an obj_info line in the
+             * header sent assimp into an endless loop (tests/fuzz/mesh_ply/timeout-no-newline-
+             * after-header); the format wants the newline anyway. */
+            if (e == data + len || !mesh_io_line_done(p, e))
+                return err_set(err, ERR_PARSE, where, "PLY end_header must be alone on a line that ends in a newline");
+            break;
+        }
+        /* Header lines are read exactly: assimp takes the first format line and skips words it
+         * does not expect, so a second format line or trailing words would make it read another
+         * file than the one walked here (a second "format ascii" after a binary one made it
+         * allocate 6.6 GB from a 451-byte file: tests/fuzz/mesh_ply/oom-second-format-line). */
         if (mesh_io_token_is(tb, te, "format")) {
+            if (have_format) return err_set(err, ERR_PARSE, where, "a second PLY format line");
             if (!mesh_io_next_token(&p, e, &tb, &te)) return err_set(err, ERR_PARSE, where, "PLY format line without a format");
             if (mesh_io_token_is(tb, te, "ascii")) h->format = PLY_ASCII;
             else if (mesh_io_token_is(tb, te, "binary_little_endian")) h->format = PLY_LE;
             else if (mesh_io_token_is(tb, te, "binary_big_endian")) h->format = PLY_BE;
             else return err_set(err, ERR_PARSE, where, "unknown PLY format '%.*s'", (int)(te - tb), tb);
+            if (!mesh_io_next_token(&p, e, &tb, &te) || !mesh_io_token_is(tb, te, "1.0") || !mesh_io_line_done(p, e))
+                return err_set(err, ERR_PARSE, where, "PLY format line must end in version 1.0");
             have_format = true;
             continue;
         }
@@ -201,8 +236,11 @@ static bool mesh_io_ply_header(const char *data, size_t len, const char *name, s
             const char *nb, *ne, *cb, *ce;
             uint64_t count;
             if (!mesh_io_next_token(&p, e, &nb, &ne) || !mesh_io_next_token(&p, e, &cb, &ce) ||
-                !mesh_io_token_uint(cb, ce, UINT32_MAX, &count))
-                return err_set(err, ERR_PARSE, where, "PLY element line needs a name and a count below 2^32");
+                !mesh_io_token_uint(cb, ce, UINT32_MAX, &count) || !mesh_io_line_done(p, e))
+                return err_set(err, ERR_PARSE, where, "PLY element line needs a name and a count below 2^32, and nothing after");
+            if (!mesh_io_ply_name_ok(nb, ne))
+                return err_set(err, ERR_PARSE, where, "PLY element name '%.*s' is not [A-Za-z_][A-Za-z0-9_-]{0,62}",
+                               (int)(ne - nb > 64 ? 64 : ne - nb), nb);
             if (h->element_count == MESH_IO_PLY_MAX_ELEMENTS)
                 return err_set(err, ERR_LIMIT, where, "more than %d PLY elements", MESH_IO_PLY_MAX_ELEMENTS);
             el = &h->elements[h->element_count++];
@@ -235,6 +273,10 @@ static bool mesh_io_ply_header(const char *data, size_t len, const char *name, s
             if (!mesh_io_ply_type_of(tb, te, &pr->type))
                 return err_set(err, ERR_PARSE, where, "unknown PLY property type '%.*s'", (int)(te - tb), tb);
             if (!mesh_io_next_token(&p, e, &tb, &te)) return err_set(err, ERR_PARSE, where, "PLY property without a name");
+            if (!mesh_io_line_done(p, e)) return err_set(err, ERR_PARSE, where, "words after the PLY property's name");
+            if (!mesh_io_ply_name_ok(tb, te))
+                return err_set(err, ERR_PARSE, where, "PLY property name '%.*s' is not [A-Za-z_][A-Za-z0-9_-]{0,62}",
+                               (int)(te - tb > 64 ? 64 : te - tb), tb);
             if (el->is_vertex && !pr->is_list) {
                 if (mesh_io_token_is(tb, te, "x")) pr->role = PLY_X;
                 if (mesh_io_token_is(tb, te, "y")) pr->role = PLY_Y;
@@ -274,6 +316,16 @@ static bool mesh_io_ply_value(const struct mesh_io_ply *h, enum mesh_io_ply_role
     return true;
 }
 
+/* A face without vertices: assimp's triangulation aborts the process on one
+ * (tests/fuzz/mesh_ply/crash-empty-face), so it is refused here, in both encodings. */
+static bool mesh_io_ply_list_length(const struct mesh_io_ply_prop *pr, uint64_t row, uint64_t items, const char *where,
+                                    struct err *err)
+{
+    if (pr->role == PLY_INDICES && items == 0)
+        return err_set(err, ERR_INVALID, where, "face %llu has no vertices", (unsigned long long)row);
+    return true;
+}
+
 static bool mesh_io_ply_ascii(const char *data, size_t len, size_t body, uint32_t line0, const char *name,
                               const struct mesh_io_ply *h, struct err *err)
 {
@@ -296,6 +348,7 @@ static bool mesh_io_ply_ascii(const char *data, size_t len, size_t body, uint32_
                 if (pr->is_list) {
                     if (!mesh_io_next_token(&p, e, &tb, &te) || !mesh_io_token_uint(tb, te, 1u << 20, &items))
                         return err_set(err, ERR_PARSE, where, "expected a list length (0 .. 2^20) in element '%s'", el->name);
+                    if (!mesh_io_ply_list_length(pr, row, items, where, err)) return false;
                 }
                 for (uint64_t j = 0; j < items; j++) {
                     double v;
@@ -352,6 +405,7 @@ static bool mesh_io_ply_binary(const char *data, size_t len, size_t body, const 
                     if (c < 0) return err_set(err, ERR_PARSE, name, "negative list length in row %llu of element '%s'",
                                               (unsigned long long)row, el->name);
                     items = (uint64_t)c;
+                    if (!mesh_io_ply_list_length(pr, row, items, name, err)) return false;
                 }
                 if (items > (uint64_t)(end - p) / (uint64_t)pr->type.size) goto short_body;
                 if (pr->role != PLY_OTHER)
@@ -372,6 +426,25 @@ static bool mesh_io_ply_binary(const char *data, size_t len, size_t body, const 
     return true;
 }
 
+/* Text parts of a mesh file may hold no control character but tab, and CR only before LF.
+ * Assimp ends a line at CR, FF and NUL where our walks see a separator or a token byte, so the
+ * two would read different rows from one file: a PLY row that assimp splits in two made its
+ * triangulation abort the process (tests/fuzz/mesh_ply/crash-cr-inside-row). */
+static bool mesh_io_text_check(const char *data, size_t len, const char *name, struct err *err)
+{
+    uint32_t line = 1;
+    for (size_t i = 0; i < len; i++) {
+        unsigned char c = (unsigned char)data[i];
+        if (c == '\n') line++;
+        else if ((c < 0x20 && c != '\t' && !(c == '\r' && i + 1 < len && data[i + 1] == '\n')) || c == 0x7f) {
+            char where[300];
+            snprintf(where, sizeof where, "%s:%u", name, line);
+            return err_set(err, ERR_PARSE, where, "control character 0x%02x in a text line (only tab, LF and CR LF are allowed)", c);
+        }
+    }
+    return true;
+}
+
 static bool mesh_io_ply_check(const char *data, size_t len, const char *name, struct err *err)
 {
     struct mesh_io_ply *h = malloc(sizeof *h);  /* ~10 KiB: keep it off the stack */
@@ -379,6 +452,7 @@ static bool mesh_io_ply_check(const char *data, size_t len, const char *name, st
     size_t body = 0;
     uint32_t lines = 0;
     bool ok = mesh_io_ply_header(data, len, name, h, &body, &lines, err) &&
+              mesh_io_text_check(data, h->format == PLY_ASCII ? len : body, name, err) &&
               (h->format == PLY_ASCII ? mesh_io_ply_ascii(data, len, body, lines, name, h, err)
                                       : mesh_io_ply_binary(data, len, body, name, h, err));
     free(h);
@@ -408,6 +482,7 @@ static bool mesh_io_obj_prescan(const char *data, size_t len, const char *name, 
     const char *b, *e, *p, *tb, *te;
     uint64_t vertices = 0;
 
+    if (!mesh_io_text_check(data, len, name, err)) return false;
     struct mesh_io_lines it = {data, data + len, 0};
     while (mesh_io_next_line(&it, &b, &e)) {
         p = b;

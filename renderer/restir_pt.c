@@ -904,6 +904,13 @@ size_t restir_pt_gbuffer_bytes(const struct restir_pt_state *st)
     return gbuffer_bytes(&st->gbuf[0]) + gbuffer_bytes(&st->gbuf[1]);
 }
 
+uint64_t restir_pt_bytes_planned(uint32_t width, uint32_t height, uint32_t shape_count)
+{
+    uint64_t pixels = (uint64_t)width * height;
+    return 2 * pixels * (sizeof(struct pt_sample) + sizeof(struct gbuffer_pixel)) +
+           ((uint64_t)shape_count + 1) * sizeof(uint32_t);
+}
+
 struct pt_pass {
     const struct pt_ctx *c;
     struct restir_pt_state *st;

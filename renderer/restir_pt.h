@@ -74,6 +74,8 @@ void restir_pt_destroy(struct restir_pt_state *st);
 void restir_pt_reset(struct restir_pt_state *st);
 size_t restir_pt_reservoir_bytes(const struct restir_pt_state *st);
 size_t restir_pt_gbuffer_bytes(const struct restir_pt_state *st);
+/* What restir_pt_init allocates for this size and shape count (before allocating it). */
+uint64_t restir_pt_bytes_planned(uint32_t width, uint32_t height, uint32_t shape_count);
 
 struct restir_pt_frame {
     const struct scene *scene;           /* this frame */

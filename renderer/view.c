@@ -262,6 +262,16 @@ bool view_accumulated(const struct view *v, struct image *out, uint32_t *count, 
     return true;
 }
 
+uint64_t view_bytes_planned(const struct view_params *params, uint32_t shape_count)
+{
+    /* The same buffers view_init allocates for the method (every method: frame and accumulation;
+     * restir_pt: its reservoirs, G-buffers and primitive table too). */
+    uint64_t pixels = (uint64_t)params->width * params->height;
+    uint64_t bytes = 2 * pixels * sizeof(struct vec3) + (uint64_t)(shape_count ? shape_count : 1) * sizeof(struct view_shape_change);
+    if (params->method == RENDER_METHOD_RESTIR_PT) bytes += restir_pt_bytes_planned(params->width, params->height, shape_count);
+    return bytes;
+}
+
 uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_BUFFERS], size_t *total)
 {
     uint32_t n = 0;

@@ -13,10 +13,11 @@ packages=(
   libassimp-dev          # PLY / OBJ mesh loading
   python3-pytest python3-numpy python3-openimageio openimageio-tools  # tests
   embree-tools           # the benchmark peer (Embree's pathtracer tutorial)
-  wrk                    # HTTP load for the server benchmark (bench/server.sh)
+  wrk                    # HTTP load for the server benchmark (bench/server.sh) and make load
   haproxy                # the consistent-hash router of the cluster test (make test-cluster)
   shellcheck python3-yaml  # the Dockerfile linter's shell checks; compose.yaml in the cluster test
   nodejs chromium        # the preview page: npm packages at build time, browser tests (make test-web)
+  clang libclang-rt-14-dev  # libFuzzer targets (make fuzz, the smoke in make test)
 )
 # npm comes with some builds of nodejs and as Debian's own package with others.
 command -v npm >/dev/null || packages+=(npm)

@@ -94,10 +94,19 @@ void api_error(struct api_call *c, const struct err *e)
         else api_problem(c, 503, "busy", NULL, "%s", e->message);
         return;
     case ERR_NOMEM: api_problem(c, 503, "busy", NULL, "out of memory: %s", e->message); return;
+    case ERR_STORAGE: api_problem(c, 507, "insufficient-storage", NULL, "%s", e->message); return;
     case ERR_IO:
     case ERR_INTERNAL: api_problem(c, 500, "internal", NULL, "%s", e->message); return;
     }
     api_problem(c, 500, "internal", NULL, "%s", e->message);
+}
+
+void api_budget_error(struct api_call *c, const struct err *e)
+{
+    if (e->code == ERR_BUSY && !atomic_load(&c->d->draining))
+        api_problem_limit(c, 503, "memory-budget", NULL, (double)c->d->cfg.memory_budget, "%s", e->message);
+    else
+        api_error(c, e);
 }
 
 void api_json(struct api_call *c, int status, struct jsonw *w)
@@ -351,6 +360,15 @@ static void api_limits(struct api_call *c)
     jsonw_key(&w, "connection_limit"); jsonw_uint(&w, cfg->connection_limit);
     jsonw_key(&w, "per_ip_connection_limit"); jsonw_uint(&w, cfg->per_ip_limit);
     jsonw_key(&w, "connection_timeout_s"); jsonw_uint(&w, cfg->timeout_s);
+    jsonw_key(&w, "memory_budget"); jsonw_uint(&w, cfg->memory_budget);
+    jsonw_key(&w, "max_session_bytes"); jsonw_uint(&w, cfg->max_session_bytes);
+    /* What the budget holds now, so a client can tell how far it is from a refusal. */
+    jsonw_key(&w, "memory_used");
+    jsonw_object_begin(&w);
+    jsonw_key(&w, "sessions"); jsonw_uint(&w, budget_used(&c->d->budget, BUDGET_SESSIONS));
+    jsonw_key(&w, "scenes"); jsonw_uint(&w, budget_used(&c->d->budget, BUDGET_SCENES));
+    jsonw_key(&w, "references"); jsonw_uint(&w, budget_used(&c->d->budget, BUDGET_REFERENCES));
+    jsonw_object_end(&w);
     jsonw_object_end(&w);
     api_json(c, 200, &w);
 }
@@ -494,8 +512,8 @@ static void api_scene_put(struct api_call *c)
     if (!registry_put_scene(c->d->registry, c->seg[2], c->req->body ? c->req->body : "", c->req->body_len, &result, &e)) {
         if (e.code == ERR_CONFLICT) api_problem(c, 409, "conflict", NULL, "%s", e.message);
         else if (e.code == ERR_PARSE) api_problem(c, 400, "malformed-json", e.where, "%s", e.message);
-        else if (e.code == ERR_IO || e.code == ERR_INTERNAL) api_error(c, &e);
-        else if (e.code == ERR_BUSY || e.code == ERR_NOMEM) api_error(c, &e);
+        else if (e.code == ERR_BUSY) api_budget_error(c, &e);
+        else if (e.code == ERR_IO || e.code == ERR_STORAGE || e.code == ERR_INTERNAL || e.code == ERR_NOMEM) api_error(c, &e);
         else api_problem(c, 422, "invalid-scene", e.where, "%s", e.message);
         return;
     }
@@ -541,7 +559,8 @@ static void api_asset_put(struct api_call *c)
                             c->req->body_len, &created, &e)) {
         if (e.code == ERR_INVALID && strcmp(e.where, "name") == 0) api_problem(c, 400, "bad-id", NULL, "%s", e.message);
         else if (e.code == ERR_CONFLICT) api_problem(c, 409, "conflict", NULL, "%s", e.message);
-        else if (e.code == ERR_IO || e.code == ERR_INTERNAL || e.code == ERR_BUSY || e.code == ERR_NOMEM) api_error(c, &e);
+        else if (e.code == ERR_BUSY) api_budget_error(c, &e);
+        else if (e.code == ERR_IO || e.code == ERR_STORAGE || e.code == ERR_INTERNAL || e.code == ERR_NOMEM) api_error(c, &e);
         else if (e.code == ERR_LIMIT) api_problem(c, 422, "limit-exceeded", NULL, "%s: %s", e.where, e.message);
         else api_problem(c, 422, e.where[0] == '/' ? "invalid-scene" : "invalid-asset", e.where[0] == '/' ? e.where : NULL,
                          "%s%s%s", e.where[0] == '/' ? "" : e.where, e.where[0] == '/' || !e.where[0] ? "" : ": ", e.message);
@@ -611,7 +630,11 @@ static void api_reference_put(struct api_call *c)
         return;
     }
     uint32_t w_ = img.width, h_ = img.height;
-    bool existed = refstore_put(c->d->refs, c->seg[2], c->seg[4], &img, 0);
+    bool existed;
+    if (!refstore_put(c->d->refs, c->seg[2], c->seg[4], &img, 0, &existed, &e)) {
+        api_budget_error(c, &e);
+        return;
+    }
     struct jsonw w;
     jsonw_init(&w);
     jsonw_object_begin(&w);

@@ -32,6 +32,9 @@ struct api_call {
 void api_problem(struct api_call *c, int status, const char *slug, const char *field, const char *fmt, ...)
     __attribute__((format(printf, 5, 6)));
 /* Same with a "limit" member. */
+/* A refusal by the memory budget (ERR_BUSY): 503 "memory-budget" with the budget as "limit" and
+ * Retry-After; any other error as api_error. */
+void api_budget_error(struct api_call *c, const struct err *e);
 void api_problem_limit(struct api_call *c, int status, const char *slug, const char *field, double limit,
                        const char *fmt, ...) __attribute__((format(printf, 6, 7)));
 /* Maps an error to its problem: ERR_PARSE 400, ERR_INVALID/UNSUPPORTED 422, ERR_LIMIT 422

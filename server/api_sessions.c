@@ -134,9 +134,32 @@ static void api_write_session(struct jsonw *w, struct session *s)
     }
     jsonw_object_end(w);
     jsonw_key(w, "memory_bytes"); jsonw_uint(w, memory);
+    jsonw_key(w, "reserved_bytes"); jsonw_uint(w, s->budget_bytes);
     jsonw_key(w, "frames_kept"); jsonw_uint(w, s->frames_kept);
     jsonw_key(w, "href"); jsonw_string(w, href);
     jsonw_object_end(w);
+}
+
+/* Admits a session: refuses one larger than max_session_bytes (ERR_LIMIT at "", the size
+ * depends on width and height together) and reserves its planned bytes from the memory budget
+ * (ERR_BUSY, *budget_full set) before anything is allocated; then creates it. */
+static struct session *api_session_admit(struct daemon *d, const char *scene_id, const char *id, struct scene *scene,
+                                         const struct view_params *params, bool *budget_full, struct err *e)
+{
+    *budget_full = false;
+    uint64_t planned = session_bytes_planned(params, scene->shape_count, d->cfg.frames_kept);
+    if (planned > d->cfg.max_session_bytes) {
+        err_set(e, ERR_LIMIT, "", "a %ux%u session holds up to %llu bytes (its buffers and %u kept frames), more than "
+                "max_session_bytes (%llu)", params->width, params->height, (unsigned long long)planned,
+                d->cfg.frames_kept, (unsigned long long)d->cfg.max_session_bytes);
+        return NULL;
+    }
+    if (!budget_reserve(&d->budget, BUDGET_SESSIONS, planned, e)) {
+        *budget_full = true;
+        return NULL;
+    }
+    return sessions_create(d->sessions, scene_id, id, scene, params, d->cfg.frames_kept, d->cfg.threads, &d->budget,
+                           planned, e);
 }
 
 void api_sessions_post(struct api_call *c)
@@ -159,12 +182,14 @@ void api_sessions_post(struct api_call *c)
         api_scene_exists(c, c->seg[2]);
         return;
     }
-    struct session *s = sessions_create(c->d->sessions, c->seg[2], NULL, scene, &params, c->d->cfg.frames_kept,
-                                        c->d->cfg.threads, &e);
+    bool budget_full;
+    struct session *s = api_session_admit(c->d, c->seg[2], NULL, scene, &params, &budget_full, &e);
     scene_release(scene);
     if (!s) {
         registry_session_removed(c->d->registry, c->seg[2]);
-        if (e.code == ERR_BUSY) api_problem_limit(c, 429, "too-many-sessions", NULL, c->d->cfg.max_sessions, "%s", e.message);
+        if (budget_full) api_budget_error(c, &e);
+        else if (e.code == ERR_BUSY) api_problem_limit(c, 429, "too-many-sessions", NULL, c->d->cfg.max_sessions, "%s", e.message);
+        else if (e.code == ERR_LIMIT) api_problem_limit(c, 422, "limit-exceeded", "", (double)c->d->cfg.max_session_bytes, "%s", e.message);
         else api_error(c, &e);
         return;
     }
@@ -1041,7 +1066,8 @@ bool api_default_session(struct daemon *d, const char *scene_id, char *href, siz
         scene_release(scene);
         return false;
     }
-    struct session *s = sessions_create(d->sessions, scene_id, "default", scene, &p, d->cfg.frames_kept, d->cfg.threads, &e);
+    bool budget_full;
+    struct session *s = api_session_admit(d, scene_id, "default", scene, &p, &budget_full, &e);
     scene_release(scene);
     if (!s) {
         registry_session_removed(d->registry, scene_id);

@@ -9,6 +9,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "budget.h"
 #include "gate.h"
 #include "jobs.h"
 #include "prom.h"
@@ -25,6 +26,8 @@ struct daemon_config {
     char id[128];                       /* X-Served-By; default host:port */
     struct protocol_limits limits;
     uint32_t max_sessions, frames_kept;
+    uint64_t memory_budget;             /* sessions + uploaded scenes + references, bytes */
+    uint64_t max_session_bytes;         /* one session's buffers and kept frames, bytes */
     size_t max_json_body, max_asset_body, max_reference_body;
     unsigned render_slots, render_queue, job_queue, job_workers;
     unsigned connection_limit, per_ip_limit, timeout_s;
@@ -39,6 +42,7 @@ struct daemon {
     struct gate gate;
     struct jobs *jobs;
     struct refstore *refs;
+    struct budget budget;
     struct prom prom;
     atomic_bool draining;
 };

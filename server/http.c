@@ -23,6 +23,7 @@
 struct http {
     struct MHD_Daemon *mhd;
     struct http_app app;
+    char served_by[192];       /* app.served_by points here; written before the first request */
     atomic_uint_fast64_t next_id;
     uint32_t boot;             /* start time, so request ids differ across restarts */
 };
@@ -387,14 +388,37 @@ struct http *http_start(const struct http_options *opts, const struct http_app *
     } else {
         return err_set(err, ERR_INVALID, "--listen", "'%s' is not a numeric IPv4 or IPv6 address", opts->host), NULL;
     }
+    /* The socket is bound here rather than by MHD so the port (0 = any) is known before the
+     * first connection is served: X-Served-By defaults to host:port, and writing it after
+     * MHD_start_daemon raced with the first requests (ThreadSanitizer, make test-tsan). */
+    int fd = socket(ss.ss_family, SOCK_STREAM | SOCK_CLOEXEC, 0);
+    int one = 1;
+    socklen_t slen = ss.ss_family == AF_INET ? (socklen_t)sizeof *a4 : (socklen_t)sizeof *a6;
+    if (fd < 0 || setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one) != 0 ||
+        bind(fd, (struct sockaddr *)&ss, slen) != 0 || listen(fd, 128) != 0 ||
+        getsockname(fd, (struct sockaddr *)&ss, &slen) != 0) {
+        if (fd >= 0) close(fd);
+        return err_set(err, ERR_IO, "--listen", "cannot listen on %s port %u (in use, or not an address of this host)",
+                       opts->host, opts->port), NULL;
+    }
+    uint16_t port = ntohs(ss.ss_family == AF_INET ? a4->sin_port : a6->sin6_port);
     struct http *h = calloc(1, sizeof *h);
-    if (!h) return err_set(err, ERR_NOMEM, NULL, "out of memory"), NULL;
+    if (!h) {
+        close(fd);
+        return err_set(err, ERR_NOMEM, NULL, "out of memory"), NULL;
+    }
     h->app = *app;
+    bool v6 = ss.ss_family == AF_INET6;
+    if (app->served_by && app->served_by[0])
+        snprintf(h->served_by, sizeof h->served_by, "%s", app->served_by);
+    else
+        snprintf(h->served_by, sizeof h->served_by, "%s%s%s:%u", v6 ? "[" : "", opts->host, v6 ? "]" : "", port);
+    h->app.served_by = h->served_by;
     h->boot = (uint32_t)time(NULL);
     atomic_init(&h->next_id, 1);
-    h->mhd = MHD_start_daemon(flags, opts->port, NULL, NULL, http_access, h,
+    h->mhd = MHD_start_daemon(flags, port, NULL, NULL, http_access, h,
                               MHD_OPTION_EXTERNAL_LOGGER, http_mhd_log, NULL,
-                              MHD_OPTION_SOCK_ADDR, (struct sockaddr *)&ss,
+                              MHD_OPTION_LISTEN_SOCKET, (MHD_socket)fd,
                               MHD_OPTION_CONNECTION_LIMIT, (unsigned)opts->connection_limit,
                               MHD_OPTION_PER_IP_CONNECTION_LIMIT, (unsigned)opts->per_ip_limit,
                               MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)opts->timeout_s,
@@ -403,12 +427,11 @@ struct http *http_start(const struct http_options *opts, const struct http_app *
                               MHD_OPTION_UNESCAPE_CALLBACK, http_unescape, NULL,
                               MHD_OPTION_END);
     if (!h->mhd) {
+        close(fd);
         free(h);
-        return err_set(err, ERR_IO, "--listen", "cannot listen on %s port %u (in use, or not an address of this host)",
-                       opts->host, opts->port), NULL;
+        return err_set(err, ERR_IO, "--listen", "cannot serve on %s port %u", opts->host, port), NULL;
     }
-    const union MHD_DaemonInfo *info = MHD_get_daemon_info(h->mhd, MHD_DAEMON_INFO_BIND_PORT);
-    if (bound_port) *bound_port = info ? info->port : opts->port;
+    if (bound_port) *bound_port = port;
     return h;
 }
 

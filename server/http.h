@@ -68,7 +68,7 @@ struct http_app {
     /* After every response: one access-log line and the request counters. */
     void (*completed)(void *ctx, const char *method, const char *path, const char *route, int status,
                       uint64_t bytes, double ms, const char *request_id);
-    /* Headers added to every response (X-Served-By). */
+    /* X-Served-By, added to every response; NULL or "" = "host:port" of the bound socket. */
     const char *served_by;
 };
 

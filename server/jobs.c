@@ -167,7 +167,11 @@ static void jobs_run_reference(struct jobs *q, struct job *j)
         return;
     }
     image_scale(&sum, 1.0f / (float)passes);
-    refstore_put(q->refs, s->scene_id, j->ref_name, &sum, spp_pass * passes);
+    bool replaced;
+    if (!refstore_put(q->refs, s->scene_id, j->ref_name, &sum, spp_pass * passes, &replaced, &j->error)) {
+        jobs_fail(j, 503, j->error.code == ERR_BUSY ? "memory-budget" : "busy");
+        return;
+    }
     jobs_set_status(j, JOB_DONE);
 }
 

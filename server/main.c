@@ -23,6 +23,7 @@
     "               [--max-json-body BYTES] [--max-asset-body BYTES] [--max-reference-body BYTES]\n" \
     "               [--render-slots N] [--render-queue N] [--job-queue N] [--job-workers N]\n"    \
     "               [--connection-limit N] [--per-ip-limit N] [--timeout-s N]\n"                   \
+    "               [--memory-budget BYTES] [--max-session-bytes BYTES]\n"                          \
     "defaults: --listen 127.0.0.1:8080, --data-dir $XDG_STATE_HOME/restird (~/.local/state/restird),\n" \
     "--scenes: the scenes/ folder next to the build folder; limits as GET /v1/limits lists them.\n" \
     "Port 0 picks a free port; the first line on stdout names the address.\n"
@@ -128,6 +129,8 @@ int main(int argc, char **argv)
                                            .max_frames = 10000, .max_keys = 4096};
     cfg->max_sessions = 64;
     cfg->frames_kept = 16;
+    cfg->memory_budget = 8ull << 30;
+    cfg->max_session_bytes = 2ull << 30;
     cfg->max_json_body = 1u << 20;
     cfg->max_asset_body = 256u << 20;
     cfg->max_reference_body = 256u << 20;
@@ -144,6 +147,8 @@ int main(int argc, char **argv)
         N("--threads", threads, 0, 1024),
         N("--max-sessions", max_sessions, 1, 100000),
         N("--frames-kept", frames_kept, 1, 100000),
+        N("--memory-budget", memory_budget, 1, 1ull << 50),
+        N("--max-session-bytes", max_session_bytes, 1, 1ull << 50),
         N("--max-side", limits.max_side, 1, 16384),
         N("--max-pixels", limits.max_pixels, 1, 16384ull * 16384ull),
         N("--max-spp", limits.max_spp, 1, 1u << 24),
@@ -206,6 +211,9 @@ int main(int argc, char **argv)
     sigaddset(&sigs, SIGINT);
     pthread_sigmask(SIG_BLOCK, &sigs, NULL);
     signal(SIGPIPE, SIG_IGN);
+    /* A write past a file-size limit (RLIMIT_FSIZE) then fails with EFBIG, which the registry
+     * reports as a full disk (507), instead of the signal ending the daemon. */
+    signal(SIGXFSZ, SIG_IGN);
 
     struct err e = {0};
     char msg[1024];
@@ -218,8 +226,10 @@ int main(int argc, char **argv)
         fprintf(stderr, "restird: %s\n", err_format(&e, msg, sizeof msg));
         return 1;
     }
+    budget_init(&d.budget, cfg->memory_budget);
+    registry_set_budget(d.registry, &d.budget);  /* charges the uploads reloaded above */
     d.sessions = sessions_new(cfg->max_sessions);
-    d.refs = refstore_new();
+    d.refs = refstore_new(&d.budget);
     gate_init(&d.gate, cfg->render_slots, cfg->render_queue);
     prom_init(&d.prom);
     atomic_init(&d.draining, false);
@@ -231,19 +241,16 @@ int main(int argc, char **argv)
         goto done;
     }
 
-    char served_by[192];
     uint16_t port = 0;
     struct http_options ho = {.host = cfg->host, .port = cfg->port, .connection_limit = cfg->connection_limit,
                               .per_ip_limit = cfg->per_ip_limit, .timeout_s = cfg->timeout_s};
     struct http_app app = {.ctx = &d, .body_policy = api_body_policy, .handle = api_handle, .reject = api_reject,
-                           .completed = api_completed, .served_by = served_by};
-    snprintf(served_by, sizeof served_by, "%s", cfg->id);
+                           .completed = api_completed, .served_by = cfg->id};
     http = http_start(&ho, &app, &port, &e);
     if (!http) {
         fprintf(stderr, "restird: %s\n", err_format(&e, msg, sizeof msg));
         goto done;
     }
-    if (!cfg->id[0]) snprintf(served_by, sizeof served_by, "%s:%u", cfg->host, port);
     const char *bracket_l = strchr(cfg->host, ':') ? "[" : "", *bracket_r = strchr(cfg->host, ':') ? "]" : "";
     printf("restird listening on http://%s%s%s:%u (data %s, %zu scenes)\n", bracket_l, cfg->host, bracket_r, port,
            cfg->data_dir, registry_list(d.registry, NULL, 0));
@@ -276,6 +283,7 @@ done:
     sessions_free(d.sessions);
     refstore_free(d.refs);
     registry_free(d.registry);
+    budget_destroy(&d.budget);
     gate_destroy(&d.gate);
     prom_destroy(&d.prom);
     parallel_shutdown(); /* last: no render can be running any more; joins the worker pool */

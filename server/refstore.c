@@ -9,15 +9,31 @@
 
 struct refstore {
     pthread_mutex_t lock;
+    struct budget *budget;       /* or NULL */
     struct ref_image **items;
     size_t count, cap;
 };
 
-struct refstore *refstore_new(void)
+struct refstore *refstore_new(struct budget *budget)
 {
     struct refstore *rs = calloc(1, sizeof *rs);
-    if (rs) pthread_mutex_init(&rs->lock, NULL);
+    if (!rs) return NULL;
+    pthread_mutex_init(&rs->lock, NULL);
+    rs->budget = budget;
     return rs;
+}
+
+static uint64_t refstore_image_bytes(const struct image *img)
+{
+    return (uint64_t)img->width * img->height * sizeof(struct vec3);
+}
+
+/* A reference leaving the store gives its bytes back, though a metrics computation may still
+ * hold it for a moment. */
+static void refstore_drop(struct refstore *rs, struct ref_image *r)
+{
+    if (rs->budget) budget_release(rs->budget, BUDGET_REFERENCES, refstore_image_bytes(&r->img));
+    ref_image_release(r);
 }
 
 void ref_image_release(struct ref_image *r)
@@ -44,12 +60,20 @@ static long refstore_find(struct refstore *rs, const char *scene, const char *na
     return -1;
 }
 
-bool refstore_put(struct refstore *rs, const char *scene, const char *name, struct image *img, uint32_t spp)
+bool refstore_put(struct refstore *rs, const char *scene, const char *name, struct image *img, uint32_t spp,
+                  bool *replaced, struct err *err)
 {
-    struct ref_image *r = calloc(1, sizeof *r);
-    if (!r) {
+    *replaced = false;
+    uint64_t bytes = refstore_image_bytes(img);
+    if (rs->budget && !budget_reserve(rs->budget, BUDGET_REFERENCES, bytes, err)) {
         image_destroy(img);
         return false;
+    }
+    struct ref_image *r = calloc(1, sizeof *r);
+    if (!r) {
+        if (rs->budget) budget_release(rs->budget, BUDGET_REFERENCES, bytes);
+        image_destroy(img);
+        return err_set(err, ERR_NOMEM, NULL, "out of memory for a reference");
     }
     r->refcount = 1;
     snprintf(r->scene, sizeof r->scene, "%s", scene);
@@ -61,18 +85,18 @@ bool refstore_put(struct refstore *rs, const char *scene, const char *name, stru
 
     pthread_mutex_lock(&rs->lock);
     long i = refstore_find(rs, scene, name);
-    bool existed = i >= 0;
-    if (existed) {
-        ref_image_release(rs->items[i]);
+    if (i >= 0) {
+        refstore_drop(rs, rs->items[i]);
         rs->items[i] = r;
+        *replaced = true;
     } else {
         if (rs->count == rs->cap) {
             size_t cap = rs->cap ? 2 * rs->cap : 8;
             struct ref_image **items = realloc(rs->items, cap * sizeof *items);
             if (!items) {
                 pthread_mutex_unlock(&rs->lock);
-                ref_image_release(r);
-                return false;
+                refstore_drop(rs, r);
+                return err_set(err, ERR_NOMEM, NULL, "out of memory for a reference");
             }
             rs->items = items;
             rs->cap = cap;
@@ -80,7 +104,7 @@ bool refstore_put(struct refstore *rs, const char *scene, const char *name, stru
         rs->items[rs->count++] = r;
     }
     pthread_mutex_unlock(&rs->lock);
-    return existed;
+    return true;
 }
 
 struct ref_image *refstore_get(struct refstore *rs, const char *scene, const char *name)
@@ -99,7 +123,7 @@ void refstore_drop_scene(struct refstore *rs, const char *scene)
     size_t k = 0;
     for (size_t i = 0; i < rs->count; i++) {
         if (strcmp(rs->items[i]->scene, scene) == 0)
-            ref_image_release(rs->items[i]);
+            refstore_drop(rs, rs->items[i]);
         else
             rs->items[k++] = rs->items[i];
     }
@@ -111,7 +135,7 @@ size_t refstore_bytes(struct refstore *rs)
 {
     size_t b = 0;
     pthread_mutex_lock(&rs->lock);
-    for (size_t i = 0; i < rs->count; i++) b += (size_t)rs->items[i]->img.width * rs->items[i]->img.height * sizeof(struct vec3);
+    for (size_t i = 0; i < rs->count; i++) b += refstore_image_bytes(&rs->items[i]->img);
     pthread_mutex_unlock(&rs->lock);
     return b;
 }

@@ -9,6 +9,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "budget.h"
+#include "err.h"
 #include "image.h"
 
 struct ref_image {
@@ -19,11 +21,14 @@ struct ref_image {
 };
 
 struct refstore;
-struct refstore *refstore_new(void);
+/* budget: references' pixels are reserved from it (BUDGET_REFERENCES) while stored; NULL = none. */
+struct refstore *refstore_new(struct budget *budget);
 void refstore_free(struct refstore *rs);
-/* Stores (or replaces) a reference; takes the image's pixels (img is left empty). Returns
- * true when a reference of that name existed. */
-bool refstore_put(struct refstore *rs, const char *scene, const char *name, struct image *img, uint32_t spp);
+/* Stores (or replaces) a reference; takes the image's pixels (img is left empty, also on
+ * failure). *replaced tells whether a reference of that name existed. Errors: ERR_BUSY (the
+ * memory budget cannot hold the pixels), ERR_NOMEM. */
+bool refstore_put(struct refstore *rs, const char *scene, const char *name, struct image *img, uint32_t spp,
+                  bool *replaced, struct err *err);
 /* Retained reference or NULL; ref_image_release when done. */
 struct ref_image *refstore_get(struct refstore *rs, const char *scene, const char *name);
 void ref_image_release(struct ref_image *r);

@@ -59,6 +59,7 @@ struct registry {
     char *scenes_dir;             /* <data>/scenes */
     registry_warn_fn *warn;
     void *warn_ctx;
+    struct budget *budget;        /* uploaded scenes' bytes are reserved from it; NULL = none */
 };
 
 struct registry_names {
@@ -222,12 +223,20 @@ static bool registry_fsync_dir(const char *dir, struct err *err)
 
 /* Creates one folder level; when it is new, the parent is synced so the entry survives a
  * crash together with whatever is later renamed into it. */
+/* A full disk, a quota or a file-size limit is the operator's to fix, not a bug: it gets its
+ * own code (507 insufficient-storage) so the client is told what happened. */
+static enum err_code registry_io_code(int e)
+{
+    return e == ENOSPC || e == EDQUOT || e == EFBIG ? ERR_STORAGE : ERR_IO;
+}
+
 static bool registry_mkdir(const char *path, struct err *err)
 {
     if (mkdir(path, 0755) != 0) {
+        int e = errno;
         struct stat st;
-        if (errno == EEXIST && stat(path, &st) == 0 && S_ISDIR(st.st_mode)) return true;
-        return err_set(err, ERR_IO, NULL, "cannot create folder '%s': %s", path, strerror(errno));
+        if (e == EEXIST && stat(path, &st) == 0 && S_ISDIR(st.st_mode)) return true;
+        return err_set(err, registry_io_code(e), NULL, "cannot create folder '%s': %s", path, strerror(e));
     }
     char parent[PATH_MAX];
     if (!registry_path(parent, sizeof parent, err, "%s", path)) return false;
@@ -259,7 +268,7 @@ static bool registry_write_tmp(const char *dir, const void *data, size_t len, ch
 {
     if (!registry_path(tmp, tmp_size, err, "%s/" REGISTRY_TMP_PREFIX "XXXXXX", dir)) return false;
     int fd = mkstemp(tmp);  /* mkostemp would need _GNU_SOURCE; FD_CLOEXEC is set just after */
-    if (fd < 0) return err_set(err, ERR_IO, NULL, "cannot create a file in '%s': %s", dir, strerror(errno));
+    if (fd < 0) return err_set(err, registry_io_code(errno), NULL, "cannot create a file in '%s': %s", dir, strerror(errno));
     (void)fcntl(fd, F_SETFD, FD_CLOEXEC);
     const char *p = data;
     size_t done = 0;
@@ -279,7 +288,7 @@ static bool registry_write_tmp(const char *dir, const void *data, size_t len, ch
     }
     if (!ok) {
         unlink(tmp);
-        return err_set(err, ERR_IO, NULL, "cannot write a file in '%s': %s", dir, strerror(e));
+        return err_set(err, registry_io_code(e), NULL, "cannot write a file in '%s': %s", dir, strerror(e));
     }
     return true;
 }
@@ -442,8 +451,9 @@ static struct scene *registry_load(const char *json, size_t len, const char *bas
     return scene;
 }
 
-/* Fills everything in e->info that depends on the scene (sessions, id and builtin stay). */
-static void registry_entry_set(struct registry_entry *e, struct scene *scene, uint64_t hash, uint32_t assets)
+/* The scene_bytes estimate (geometry plus REGISTRY_BVH_BYTES_PER_PRIM per primitive) and the
+ * triangle count. */
+static size_t registry_scene_bytes(const struct scene *scene, uint64_t *triangles_out)
 {
     uint64_t prims = 0, triangles = 0;
     size_t bytes = scene->shape_count * sizeof *scene->shapes +
@@ -459,6 +469,27 @@ static void registry_entry_set(struct registry_entry *e, struct scene *scene, ui
         bytes += (size_t)s->vertex_count * sizeof *s->positions * (s->normals ? 2 : 1) +
                  (size_t)s->triangle_count * 3 * sizeof *s->indices;
     }
+    if (triangles_out) *triangles_out = triangles;
+    return bytes + (size_t)prims * REGISTRY_BVH_BYTES_PER_PRIM;
+}
+
+/* An uploaded scene about to enter the table reserves its bytes (ERR_BUSY when the budget is
+ * full); the scene it replaces or that leaves gives them back. Called with write_lock held. */
+static bool registry_budget_reserve(struct registry *r, const struct scene *scene, struct err *err)
+{
+    return !r->budget || budget_reserve(r->budget, BUDGET_SCENES, registry_scene_bytes(scene, NULL), err);
+}
+
+static void registry_budget_release(struct registry *r, const struct scene *scene)
+{
+    if (r->budget && scene) budget_release(r->budget, BUDGET_SCENES, registry_scene_bytes(scene, NULL));
+}
+
+/* Fills everything in e->info that depends on the scene (sessions, id and builtin stay). */
+static void registry_entry_set(struct registry_entry *e, struct scene *scene, uint64_t hash, uint32_t assets)
+{
+    uint64_t triangles = 0;
+    size_t bytes = registry_scene_bytes(scene, &triangles);
     e->scene = scene;
     e->hash = hash;
     snprintf(e->info.hash, sizeof e->info.hash, "%016llx", (unsigned long long)hash);
@@ -466,7 +497,7 @@ static void registry_entry_set(struct registry_entry *e, struct scene *scene, ui
     e->info.shapes = scene->shape_count;
     e->info.triangles = triangles > UINT32_MAX ? UINT32_MAX : (uint32_t)triangles;
     e->info.emitters = scene->lights ? light_sampler_count(scene->lights) : 0;
-    e->info.scene_bytes = bytes + (size_t)prims * REGISTRY_BVH_BYTES_PER_PRIM;
+    e->info.scene_bytes = bytes;
     e->info.assets = assets;
 }
 
@@ -727,6 +758,17 @@ struct registry *registry_new(const char *library_dir, const char *data_dir, reg
     return r;
 }
 
+void registry_set_budget(struct registry *r, struct budget *budget)
+{
+    pthread_mutex_lock(&r->write_lock);
+    pthread_mutex_lock(&r->lock);
+    r->budget = budget;
+    for (size_t i = 0; budget && i < r->count; i++)
+        if (!r->entries[i]->info.builtin) budget_charge(budget, BUDGET_SCENES, r->entries[i]->info.scene_bytes);
+    pthread_mutex_unlock(&r->lock);
+    pthread_mutex_unlock(&r->write_lock);
+}
+
 void registry_free(struct registry *r)
 {
     if (!r) return;
@@ -773,16 +815,24 @@ static bool registry_put_scene_locked(struct registry *r, const char *id, const 
      * does not load never reaches the disk, and the one on disk stays the one in the table. */
     struct scene *scene = registry_load(json, len, assets_dir, id, err);
     if (!scene) return false;
+    if (!registry_budget_reserve(r, scene, err)) {
+        scene_release(scene);
+        return false;
+    }
     if (!registry_mkdir(scene_dir, err) || !registry_write_atomic(scene_dir, "scene.json", json, len, err)) {
+        registry_budget_release(r, scene);
         scene_release(scene);
         return false;
     }
     if (exists) {
-        scene_release(registry_replace(r, id, scene, hash, assets));
+        struct scene *old = registry_replace(r, id, scene, hash, assets);
+        registry_budget_release(r, old);
+        scene_release(old);
         *result = REGISTRY_REPLACED;
         return true;
     }
     if (!registry_insert(r, id, false, scene, hash, assets, err)) {
+        registry_budget_release(r, scene);
         scene_release(scene);
         return false;  /* only out of memory: the file is on disk and loads at the next start */
     }
@@ -886,6 +936,10 @@ static bool registry_put_asset_locked(struct registry *r, const char *id, const 
                   (scene = registry_load(json, jlen, stage, id, err)) != NULL;
         free(json);
         if (staged) registry_remove_tree(stage, 1);
+        if (ok && !registry_budget_reserve(r, scene, err)) {
+            scene_release(scene);
+            ok = false;
+        }
         if (!ok) {
             unlink(tmp);
             return false;
@@ -893,10 +947,15 @@ static bool registry_put_asset_locked(struct registry *r, const char *id, const 
     }
     if (!registry_rename_into(tmp, assets_dir, name, err)) {
         unlink(tmp);
+        registry_budget_release(r, scene);
         scene_release(scene);
         return false;
     }
-    if (scene) scene_release(registry_replace(r, id, scene, hash, assets));
+    if (scene) {
+        struct scene *old = registry_replace(r, id, scene, hash, assets);
+        registry_budget_release(r, old);
+        scene_release(old);
+    }
     return true;
 }
 
@@ -1006,6 +1065,7 @@ bool registry_delete(struct registry *r, const char *id, bool force, struct err 
         registry_fsync_dir(scene_dir, &ignored);
         if (!registry_remove_tree(scene_dir, 2))
             registry_warn(r, "registry: scene '%s' deleted, but some of its files in '%s' remain", id, scene_dir);
+        registry_budget_release(r, e->scene);
         scene_release(e->scene);  /* sessions keep their own references */
         free(e);
     }

@@ -19,6 +19,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "budget.h"
 #include "err.h"
 #include "scene.h"
 
@@ -45,6 +46,11 @@ struct registry_info {
 typedef void registry_warn_fn(void *ctx, const char *message);
 struct registry *registry_new(const char *library_dir, const char *data_dir, registry_warn_fn *warn, void *warn_ctx,
                               struct err *err);
+/* From now on an uploaded scene reserves its scene_bytes from `budget` (BUDGET_SCENES) before it
+ * enters the table, and a put that does not fit fails with ERR_BUSY (nothing written); the
+ * uploads already loaded are charged without a check, so none is dropped. Built-ins are not
+ * counted. */
+void registry_set_budget(struct registry *r, struct budget *budget);
 void registry_free(struct registry *r);
 
 enum registry_put_result { REGISTRY_CREATED, REGISTRY_UNCHANGED, REGISTRY_REPLACED };

@@ -61,6 +61,7 @@ void job_destroy(struct job *j)
 
 static void session_free(struct session *s)
 {
+    if (s->budget) budget_release(s->budget, BUDGET_SESSIONS, s->budget_bytes);
     view_destroy(&s->view);
     for (uint32_t i = 0; i < s->frames_kept; i++) image_destroy(&s->ring[i].img);
     free(s->ring);
@@ -83,21 +84,24 @@ void session_release(struct session *s)
 
 struct session *sessions_create(struct sessions *t, const char *scene_id, const char *id, struct scene *scene,
                                 const struct view_params *params, uint32_t frames_kept, unsigned threads,
-                                struct err *err)
+                                struct budget *budget, uint64_t budget_bytes, struct err *err)
 {
     struct session *s = calloc(1, sizeof *s);
-    if (!s) return err_set(err, ERR_NOMEM, NULL, "out of memory for a session"), NULL;
-    s->frames_kept = frames_kept ? frames_kept : 1;
-    s->ring = calloc(s->frames_kept, sizeof *s->ring);
-    if (!s->ring) {
-        free(s);
+    if (!s) {
+        if (budget) budget_release(budget, BUDGET_SESSIONS, budget_bytes);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for a session"), NULL;
     }
-    if (!view_init(&s->view, scene, params, threads, err)) {
+    s->frames_kept = frames_kept ? frames_kept : 1;
+    s->ring = calloc(s->frames_kept, sizeof *s->ring);
+    if (!s->ring || !view_init(&s->view, scene, params, threads, err)) {
+        if (budget) budget_release(budget, BUDGET_SESSIONS, budget_bytes);
+        if (!s->ring) err_set(err, ERR_NOMEM, NULL, "out of memory for a session");
         free(s->ring);
         free(s);
         return NULL;
     }
+    s->budget = budget;  /* from here on session_free gives the bytes back */
+    s->budget_bytes = budget_bytes;
     pthread_mutex_init(&s->lock, NULL);
     pthread_cond_init(&s->cond, NULL);
     s->camera = s->view.camera;
@@ -220,6 +224,12 @@ uint32_t sessions_count(struct sessions *t)
     uint32_t n = t->count;
     pthread_mutex_unlock(&t->lock);
     return n;
+}
+
+uint64_t session_bytes_planned(const struct view_params *params, uint32_t shape_count, uint32_t frames_kept)
+{
+    uint64_t frame = (uint64_t)params->width * params->height * sizeof(struct vec3);
+    return view_bytes_planned(params, shape_count) + (uint64_t)(frames_kept ? frames_kept : 1) * frame;
 }
 
 size_t session_bytes(struct session *s)

@@ -17,6 +17,7 @@
 #include <stdint.h>
 
 #include "animation.h"
+#include "budget.h"
 #include "gate.h"
 #include "metrics.h"
 #include "protocol.h"
@@ -98,6 +99,8 @@ struct session {
     struct job *jobs[SESSION_JOBS];
     uint32_t job_count;
     uint64_t next_job;
+    struct budget *budget;           /* reserved from at creation; NULL = none */
+    uint64_t budget_bytes;
 };
 
 struct sessions;
@@ -108,10 +111,12 @@ void sessions_free(struct sessions *t);
 
 /* Creates a session on `scene` (retained by its view). Errors: ERR_BUSY (max_sessions),
  * ERR_INVALID, ERR_NOMEM. The new session is returned retained. */
-/* `id` NULL = a generated id; otherwise that id (ERR_CONFLICT if taken). */
+/* `id` NULL = a generated id; otherwise that id (ERR_CONFLICT if taken). `budget_bytes`, already
+ * reserved by the caller from `budget` (BUDGET_SESSIONS; NULL = none), become the session's:
+ * given back when it is freed, or at once when the creation fails. */
 struct session *sessions_create(struct sessions *t, const char *scene_id, const char *id, struct scene *scene,
                                 const struct view_params *params, uint32_t frames_kept, unsigned threads,
-                                struct err *err);
+                                struct budget *budget, uint64_t budget_bytes, struct err *err);
 /* Clears the history of a claimed session (frame numbers restart, kept frames dropped). */
 void session_reset(struct session *s);
 /* Forgets a job that never ran (its submission failed). */
@@ -129,6 +134,9 @@ uint32_t sessions_count(struct sessions *t);
 void session_retain(struct session *s);
 void session_release(struct session *s);
 
+/* The most a session of these parameters holds: its view's buffers and `frames_kept` frames
+ * (what the budget reserves for it, before anything is allocated). */
+uint64_t session_bytes_planned(const struct view_params *params, uint32_t shape_count, uint32_t frames_kept);
 /* Memory of the session: its view's buffers plus kept frames. */
 size_t session_bytes(struct session *s);
 

@@ -15,6 +15,11 @@ ROOT = Path(__file__).resolve().parent.parent
 BIN = os.environ.get("RESTIR_BIN", str(ROOT / "build" / "restir"))
 
 
+def pytest_configure(config):
+    # `make test-tsan` runs the tests carrying this mark against a ThreadSanitizer daemon.
+    config.addinivalue_line("markers", "concurrency: requests that overlap in the daemon (run under TSan too)")
+
+
 def read_exr(path):
     """Reads an EXR with OpenImageIO (independent of our reader): float32 array H x W x C."""
     inp = oiio.ImageInput.open(str(path))

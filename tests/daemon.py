@@ -38,7 +38,7 @@ class Resp:
 class Daemon:
     _starts = 0
 
-    def __init__(self, data_dir, *extra, binary=BIN):
+    def __init__(self, data_dir, *extra, binary=BIN, env_extra=None, preexec_fn=None):
         Daemon._starts += 1
         self.data_dir = Path(data_dir)
         self.data_dir.mkdir(parents=True, exist_ok=True)
@@ -47,7 +47,8 @@ class Daemon:
         self.out_path, self.err_path = logs / "stdout", logs / "stderr"
         self.args = [str(binary), "--listen", "127.0.0.1:0", "--data-dir", str(self.data_dir), *map(str, extra)]
         with open(self.out_path, "wb") as out, open(self.err_path, "wb") as err:
-            self.proc = subprocess.Popen(self.args, stdout=out, stderr=err, stdin=subprocess.DEVNULL)
+            self.proc = subprocess.Popen(self.args, stdout=out, stderr=err, stdin=subprocess.DEVNULL,
+                                         env={**os.environ, **(env_extra or {})}, preexec_fn=preexec_fn)
         deadline = time.monotonic() + 30
         self.port = None
         while time.monotonic() < deadline:

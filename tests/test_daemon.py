@@ -33,7 +33,8 @@ TETRA_PLY = (ROOT / "tests" / "meshes" / "tetra.ply").read_bytes()
 J = {"Content-Type": "application/json"}
 LIMIT_KEYS = ["max_side", "max_pixels", "max_spp", "max_frames", "max_keys", "max_sessions", "frames_kept",
               "max_json_body", "max_asset_body", "max_reference_body", "render_slots", "render_queue",
-              "job_queue", "connection_limit", "per_ip_connection_limit", "connection_timeout_s"]
+              "job_queue", "connection_limit", "per_ip_connection_limit", "connection_timeout_s", "memory_budget",
+              "max_session_bytes"]
 
 # Limits of the shared daemon (small where a test needs to cross them cheaply).
 MAX_JSON_BODY = 16384
@@ -178,6 +179,13 @@ def mesh_scene(file="tetra.ply", radiance=1.0):
             "environment": {"radiance": [radiance] * 3}}
 
 
+def put_mesh_scene(d, sid):
+    """Uploads tests/meshes/tetra.ply and then mesh_scene() under `sid`; returns the scene answer."""
+    r = d.req("PUT", f"/v1/scenes/{sid}/assets/tetra.ply", body=TETRA_PLY, headers={"Content-Type": "model/ply"})
+    assert r.status == 201, repr(r)
+    return d.req("PUT", f"/v1/scenes/{sid}", json_body=mesh_scene())
+
+
 def metric_value(text, name, labels=None):
     """The value of one Prometheus sample (None when absent)."""
     for line in text.splitlines():
@@ -224,6 +232,8 @@ def test_limits_reflect_options(daemon):
     assert lim["max_asset_body"] == MAX_ASSET_BODY
     assert lim["max_side"] == 4096 and lim["max_pixels"] == 16777216 and lim["max_spp"] == 65536
     assert lim["max_frames"] == 10000 and lim["max_sessions"] == 64 and lim["frames_kept"] == 16
+    assert lim["memory_budget"] == 8 << 30 and lim["max_session_bytes"] == 2 << 30
+    assert set(lim["memory_used"]) == {"sessions", "scenes", "references"}, lim
 
 
 def test_openapi_document(daemon):
@@ -616,6 +626,7 @@ def test_frame_eviction(tmp_path_factory):
     assert rc == 0
 
 
+@pytest.mark.concurrency
 def test_too_many_sessions(tmp_path_factory):
     d = start_daemon(tmp_path_factory, "maxs", "--threads", "1", "--max-sessions", "2")
     try:
@@ -716,6 +727,7 @@ def test_references_render_upload_metrics_error_map(daemon, tmp_path):
     assert daemon.req("DELETE", s["href"]).status == 204
 
 
+@pytest.mark.concurrency
 def test_animation_job_idempotency_metrics(daemon, tmp_path):
     s = new_session(daemon, width=16, height=16, seed=8, params={"spp": 1})
     const = np.full((16, 16, 3), 0.2, np.float32)
@@ -784,6 +796,7 @@ def test_animation_job_idempotency_metrics(daemon, tmp_path):
     assert daemon.req("DELETE", s["href"]).status == 204
 
 
+@pytest.mark.concurrency
 def test_cancel_running_job(daemon):
     s = new_session(daemon, width=32, height=32, params={"spp": 1})
     r = daemon.req("POST", s["href"] + "/renders", json_body={"animation": {"fps": 30, "frames": 5000}})
@@ -813,6 +826,7 @@ def test_cancel_running_job(daemon):
     assert_problem(daemon.req("GET", s["href"]), 404, "not-found")
 
 
+@pytest.mark.concurrency
 def test_events_stream(daemon):
     s = new_session(daemon, width=16, height=16, params={"spp": 1})
     conn = http.client.HTTPConnection("127.0.0.1", daemon.port, timeout=20)
@@ -1078,6 +1092,7 @@ def test_table_left_daemon_healthy(daemon, table_ctx, tmp_path):
     assert r.status == 200, repr(r)
 
 
+@pytest.mark.concurrency
 def test_truncated_bodies_do_not_hurt(daemon):
     before = len(daemon.req("GET", f"{CORNELL}/sessions").json()["sessions"])
     head = (f"POST {CORNELL}/sessions HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
@@ -1106,6 +1121,7 @@ def test_truncated_bodies_do_not_hurt(daemon):
     assert len(daemon.req("GET", f"{CORNELL}/sessions").json()["sessions"]) == before
 
 
+@pytest.mark.concurrency
 def test_second_frame_while_rendering_conflicts(daemon):
     s = new_session(daemon, width=128, height=128, params={"spp": 64})
     slow = {}
@@ -1129,6 +1145,7 @@ def test_second_frame_while_rendering_conflicts(daemon):
 HEALTH_SPP = 64  # 256x256x64: seconds on two cores, long enough to span 50 health requests
 
 
+@pytest.mark.concurrency
 def test_healthz_fast_during_render(daemon, record_property):
     s = new_session(daemon, width=256, height=256, params={"spp": HEALTH_SPP})
     slow = {}
@@ -1162,9 +1179,7 @@ def test_scenes_survive_restart_and_corrupt_scene_is_skipped(tmp_path):
     data = tmp_path / "data"
     d = Daemon(data, "--threads", "2")
     try:
-        assert d.req("PUT", "/v1/scenes/keep-mesh/assets/tetra.ply", body=TETRA_PLY,
-                     headers={"Content-Type": "model/ply"}).status == 201
-        r1 = d.req("PUT", "/v1/scenes/keep-mesh", json_body=mesh_scene())
+        r1 = put_mesh_scene(d, "keep-mesh")
         r2 = d.req("PUT", "/v1/scenes/keep-box", json_body=cornell_scene(emission=[8, 8, 8]))
         assert r1.status == 201 and r2.status == 201, (r1, r2)
         hashes = {"keep-mesh": r1.json()["hash"], "keep-box": r2.json()["hash"]}
@@ -1203,6 +1218,7 @@ def test_scenes_survive_restart_and_corrupt_scene_is_skipped(tmp_path):
 
 # ---- 6. SIGTERM during a job ----
 
+@pytest.mark.concurrency
 def test_sigterm_during_animation_job(tmp_path):
     d = Daemon(tmp_path / "data", "--threads", "2")
     try:

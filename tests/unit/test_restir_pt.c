@@ -14,6 +14,7 @@
 #include "rng.h"
 #include "scene.h"
 #include "test.h"
+#include "view.h"
 
 static struct scene *load(const char *path)
 {
@@ -272,6 +273,24 @@ static void test_reservoir_is_compact(void)
     CHECK(RESTIR_PT_RESERVOIR_BYTES <= 64);
 }
 
-TEST_MAIN(TEST(test_reservoir_is_compact), TEST(test_identity_shift_reproduces_initial_contribution),
+/* The memory budget reserves what a session will allocate: planned bytes = allocated bytes. */
+static void test_session_bytes_planned_match_allocated(void)
+{
+    struct scene *sc = load("scenes/cornell-glossy/scene.json");
+    if (!sc) return;
+    struct err err = {0};
+    struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_PT, 40, 24);
+    struct view v;
+    CHECK(view_init(&v, sc, &vp, 1, &err));
+    struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
+    size_t total = 0;
+    view_bytes(&v, b, &total);
+    CHECK_MSG(total == view_bytes_planned(&vp, sc->shape_count), "allocated %zu, planned %llu", total,
+              (unsigned long long)view_bytes_planned(&vp, sc->shape_count));
+    view_destroy(&v);
+    scene_release(sc);
+}
+
+TEST_MAIN(TEST(test_reservoir_is_compact), TEST(test_session_bytes_planned_match_allocated), TEST(test_identity_shift_reproduces_initial_contribution),
           TEST(test_spatial_round_trips_enhanced), TEST(test_spatial_round_trips_classic),
           TEST(test_temporal_round_trips_camera), TEST(test_temporal_round_trips_moving_shape))
