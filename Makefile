@@ -141,8 +141,12 @@ endif
 test-unit: $(UNIT_BIN)
 	@fail=0; for t in $(UNIT_BIN); do echo "== $$t"; ./$$t || fail=1; done; exit $$fail
 
+# The sanitizer run leaves out the long statistical comparisons (tests/conftest.py, `statistical`):
+# they test statistics, which the plain run does; the code they run is exercised under the
+# sanitizers by smaller tests.
+PYTEST_SELECT := $(if $(filter 1,$(SAN)),-m "not statistical")
 test-py: $(OUT)/restir $(OUT)/restird
-	RESTIR_BIN=$(abspath $(OUT)/restir) RESTIRD_BIN=$(abspath $(OUT)/restird) $(PYTHON) -m pytest -q -p no:cacheprovider --ignore=tests/cluster tests
+	RESTIR_BIN=$(abspath $(OUT)/restir) RESTIRD_BIN=$(abspath $(OUT)/restird) $(PYTHON) -m pytest -q -p no:cacheprovider --ignore=tests/cluster $(PYTEST_SELECT) tests
 
 # The Dockerfile linter: dockerlinter from npm at the version docker/lint/package-lock.json pins,
 # installed under build/ (never globally). --ignore-scripts: its install script downloads a

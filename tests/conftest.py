@@ -18,6 +18,10 @@ BIN = os.environ.get("RESTIR_BIN", str(ROOT / "build" / "restir"))
 def pytest_configure(config):
     # `make test-tsan` runs the tests carrying this mark against a ThreadSanitizer daemon.
     config.addinivalue_line("markers", "concurrency: requests that overlap in the daemon (run under TSan too)")
+    # `make SAN=1 test` leaves these out: hundreds of renders that test statistics, not memory;
+    # the code they run is exercised under the sanitizers by smaller tests (unit/test_restir_pt.c,
+    # test_daemon.py's restir_pt session).
+    config.addinivalue_line("markers", "statistical: long statistical comparisons (left out of the sanitizer run)")
 
 
 def read_exr(path):

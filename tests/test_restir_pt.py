@@ -18,6 +18,8 @@ import pytest
 from conftest import render
 from stats import ztest_runs
 
+pytestmark = pytest.mark.statistical
+
 FPS = 30.0
 K_REF = 16       # reference renders
 
