@@ -16,7 +16,8 @@ run, on cornell-box, cornell-glossy and door-ajar at 256x256 (BENCH_RESTIR_SCENE
   5. writes build/bench/restir_pt.json, one SVG chart per scene (MAPE vs ms, log-log) in
      build/bench/, and prints Markdown tables (medians over the seeds).
 Environment: BENCH_RESTIR_SEEDS (3), BENCH_RESTIR_REF_SPP (2048), BENCH_RESTIR_WARMUP (32),
-BENCH_THREADS (all cores), BENCH_RESTIR_ABLATION (door-ajar; empty = skip)."""
+BENCH_THREADS (all cores), BENCH_RESTIR_ABLATION (door-ajar; empty = skip).
+`bench/restir_pt.py --charts` redraws the charts from the last run's JSON."""
 import hashlib
 import json
 import math
@@ -129,7 +130,18 @@ def pt_mape_at(pt_rows, ms):
     return y1 * math.sqrt(x1 / ms)
 
 
+def charts(results):
+    for scene, r in results["scenes"].items():
+        loglog(OUT / f"restir_pt_{scene}.svg", f"{scene}, {results['size']}: MAPE against frame time",
+               "frame time (ms)", "MAPE", [("pt, 1-64 spp", [(x["ms"], x["mape"]) for x in r["pt"]], "line")] +
+               [(name, [(v["ms"], v["mape"])], "points") for name, v in r["restir_pt"].items()])
+
+
 def main():
+    if sys.argv[1:] == ["--charts"]:
+        # Redraw the charts from the last run's numbers (build/bench/restir_pt.json).
+        charts(json.loads((OUT / "restir_pt.json").read_text()))
+        return
     OUT.mkdir(parents=True, exist_ok=True)
     results = {"size": SIZE, "seeds": SEEDS, "ref_spp": REF_SPP, "warmup": WARMUP, "threads": THREADS, "scenes": {}}
     with tempfile.TemporaryDirectory() as td:
@@ -145,15 +157,13 @@ def main():
                 "pt": pt_rows, "restir_pt": variants,
                 "equal_time_mape_ratio": main_v["mape"] / pt_mape_at(pt_rows, main_v["ms"]),
                 "frame_cost_ratio_1spp": main_v["ms"] / pt1}
-            loglog(OUT / f"restir_pt_{scene}.svg", f"{scene}, {SIZE}: MAPE against frame time", "frame time (ms)",
-                   "MAPE", [("pt, 1-64 spp", [(r["ms"], r["mape"]) for r in pt_rows], "line")] +
-                   [(name, [(v["ms"], v["mape"])], "points") for name, v in variants.items()])
         if ABLATION_SCENE:
             scene_path, ref = reference(ABLATION_SCENE)
             print(f"bench: ablation on {ABLATION_SCENE} ...", file=sys.stderr, flush=True)
             results["ablation"] = {"scene": ABLATION_SCENE,
                                    "rows": [{"name": n, **measure_restir(scene_path, ref, tmp, p)} for n, p in ABLATION]}
     (OUT / "restir_pt.json").write_text(json.dumps(results, indent=1) + "\n")
+    charts(results)
 
     print(f"\n### pt vs restir_pt, {SIZE}, medians of {SEEDS} seeds ({WARMUP} warm-up frames)\n")
     print("| scene | pt 1 spp ms | restir_pt frame ms | cost ratio | restir_pt MAPE | pt MAPE at equal time | equal-time ratio |")

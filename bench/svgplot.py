@@ -4,8 +4,8 @@ list of (label, [(x, y), ...], style) and style is "line" or "points"."""
 import math
 
 COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf"]
-W, H = 640, 420
-LEFT, RIGHT, TOP, BOTTOM = 70, 170, 40, 55
+W, H = 760, 420
+LEFT, RIGHT, TOP, BOTTOM = 70, 290, 40, 55
 
 
 def _decades(lo, hi):
