@@ -198,6 +198,16 @@ static inline float pt_marginal(const struct material *m, float lobe_pdf, struct
     return material_lobe_count(m) == 1 ? lobe_pdf : material_pdf(m, wo, wi);
 }
 
+/* A stored lobe seen again at a reconnection: its value and pdf for (wo, wi); false when the
+ * material there has no such lobe, it is delta (never reconnected) or it gives nothing. */
+static bool pt_lobe_at(const struct material *m, int lobe, struct vec3 wo, struct vec3 wi, struct vec3 *f, float *pdf)
+{
+    if (lobe >= material_lobe_count(m) || (material_lobe_flags(m, lobe) & BSDF_DELTA)) return false;
+    *pdf = material_pdf_lobe(m, lobe, wo, wi);
+    *f = material_eval_lobe(m, lobe, wo, wi, TRANSPORT_RADIANCE);
+    return *pdf > 0.0f && !vec3_is_zero(*f);
+}
+
 /* Rough lobe at a vertex: never delta; eq. 26 with pdf_connect, else lobe roughness. */
 static bool pt_rough_lobe(const struct pt_ctx *c, const struct material *m, int lobe, float pdf_marg)
 {
@@ -405,7 +415,8 @@ static struct pt_rc_record pt_rc_at(const struct pt_ctx *c, const struct pt_vert
 }
 
 /* Samples one path from the pixel's primary hit and resamples its candidates into `out`; light
- * that reaches the pixel outside the reservoir (direct light when not unified) goes to *direct. */
+ * that reaches the pixel outside the reservoir — emission seen directly (the environment for an
+ * escaped primary ray), and direct light when it is not unified — goes to *direct. */
 static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct pt_sample *out, struct vec3 *direct)
 {
     const struct pt_ctx *c = t->c;
@@ -413,10 +424,11 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
     const struct scene *scene = c->scene[RESTIR_CURRENT];
     struct ray_counters *rays = &t->cnt->rays;
     memset(out, 0, sizeof *out);
-    *direct = vec3_splat(0.0f);
+    *direct = scene->env_radiance;
     struct pt_thread th = *t;
     struct pt_vertex v;
     if (!pt_primary(c, (struct restir_domain){pixel, RESTIR_CURRENT}, &v, &th.footprint)) return;
+    *direct = light_sampler_emitted(v.m, vec3_dot(vec3_sub(c->eye[RESTIR_CURRENT], v.s.p), v.s.ng));
 
     const uint32_t seed = pt_path_seed(c->seed, c->frame, pixel);
     struct rng sel = rng_make(c->seed, c->frame, pixel, PT_SELECT_STREAM);
@@ -742,10 +754,9 @@ static void pt_shift_impl(const struct pt_thread *th, const struct pt_sample *x,
         struct vec3 wi = frame_to_local(&v.s.frame, w1);
         if (!(vec3_dot(w1, v.s.ng) * wi.z > 0.0f)) return;
         const int l1 = pt_lobe_prev(x);
-        if (l1 >= material_lobe_count(v.m) || (material_lobe_flags(v.m, l1) & BSDF_DELTA)) return;
-        float p_l1 = material_pdf_lobe(v.m, l1, v.wo, wi);
-        struct vec3 f1 = material_eval_lobe(v.m, l1, v.wo, wi, TRANSPORT_RADIANCE);
-        if (!(p_l1 > 0.0f) || vec3_is_zero(f1)) return;
+        struct vec3 f1;
+        float p_l1;
+        if (!pt_lobe_at(v.m, l1, v.wo, wi, &f1, &p_l1)) return;
         float marg1 = pt_marginal(v.m, p_l1, v.wo, wi);
         bool rough1 = pt_rough_lobe(c, v.m, l1, marg1);
         if (pt_connectable(&t, k - 1, &seg, false, rough1, marg1)) return;
@@ -777,10 +788,9 @@ static void pt_shift_impl(const struct pt_thread *th, const struct pt_sample *x,
                 end = vec3_scale(vec3_mul(f, rad), fabsf(wk.z) * pt_balance((float)c->nee_m * light_pdf, p2) / light_pdf);
             } else {
                 const int lk = pt_lobe_rc(x);
-                if (lk >= material_lobe_count(xk.m) || (material_lobe_flags(xk.m, lk) & BSDF_DELTA)) return;
-                float p_lk = material_pdf_lobe(xk.m, lk, xk.wo, wk);
-                struct vec3 fk = material_eval_lobe(xk.m, lk, xk.wo, wk, TRANSPORT_RADIANCE);
-                if (!(p_lk > 0.0f) || vec3_is_zero(fk)) return;
+                struct vec3 fk;
+                float p_lk;
+                if (!pt_lobe_at(xk.m, lk, xk.wo, wk, &fk, &p_lk)) return;
                 float marg_k = pt_marginal(xk.m, p_lk, xk.wo, wk);
                 if (!pt_connectable(&t, k, &kseg, false, pt_rough_lobe(c, xk.m, lk, marg_k), marg_k)) return;
                 if (retrace && !pt_suffix(&t, scene, &xk, wk_world, seed, k, d, &rad, &light_pdf)) return;
@@ -920,31 +930,21 @@ struct pt_pass {
 };
 
 /* Initial pass: one path per pixel into the working buffer; the image gets what the reservoir
- * does not carry (emission seen directly, and direct light when it is not unified). */
+ * does not carry. */
 static void pt_initial_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct pt_pass *pp = ctx;
     const struct pt_ctx *c = pp->c;
     struct pt_thread t = {.c = c, .cnt = &pp->counters[worker]};
-    const struct scene *scene = c->scene[RESTIR_CURRENT];
     uint32_t w = pp->st->width, h = pp->st->height;
     uint32_t y1 = (job + 1) * PT_ROWS_PER_JOB < h ? (job + 1) * PT_ROWS_PER_JOB : h;
     struct pt_sample *res = (struct pt_sample *)pp->st->res[0];
-    const struct gbuffer *g = c->gbuf[RESTIR_CURRENT];
     for (uint32_t y = job * PT_ROWS_PER_JOB; y < y1; y++) {
         for (uint32_t x = 0; x < w; x++) {
             uint32_t pixel = y * w + x;
             struct vec3 direct;
             pt_initial_pixel(&t, pixel, &res[pixel], &direct);
-            const struct gbuffer_pixel *gp = &g->px[pixel];
-            struct vec3 Le = scene->env_radiance;
-            if (isfinite(gp->t)) {
-                struct pt_vertex v;
-                float fp;
-                pt_primary(c, (struct restir_domain){pixel, RESTIR_CURRENT}, &v, &fp);
-                Le = light_sampler_emitted(v.m, vec3_dot(vec3_sub(c->eye[RESTIR_CURRENT], v.s.p), v.s.ng));
-            }
-            if (pp->out) pp->out->pixels[pixel] = vec3_add(Le, direct);
+            if (pp->out) pp->out->pixels[pixel] = direct;
         }
     }
 }
