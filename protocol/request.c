@@ -658,7 +658,7 @@ static bool request_restir_pt_params(const cJSON *pv, const char *ptr, struct re
 {
     static const char *const keys[] = {"max_depth", "rr_depth", "rr", "nee_candidates", "unify_di", "temporal",
                                        "temporal_cap", "spatial_neighbors", "spatial_radius", "spatial_rounds",
-                                       "footprint", "footprint_c", "near_distance", "pdf_connect", "roughness_min",
+                                       "paired_spatial", "footprint", "footprint_c", "near_distance", "pdf_connect", "roughness_min",
                                        NULL};
     static const struct { const char *key; size_t off; } uints[] = {
         {"max_depth", offsetof(struct restir_pt_params, max_depth)},
@@ -672,6 +672,7 @@ static bool request_restir_pt_params(const cJSON *pv, const char *ptr, struct re
         {"rr", offsetof(struct restir_pt_params, rr)},
         {"unify_di", offsetof(struct restir_pt_params, unify_di)},
         {"temporal", offsetof(struct restir_pt_params, temporal)},
+        {"paired_spatial", offsetof(struct restir_pt_params, paired_spatial)},
         {"footprint", offsetof(struct restir_pt_params, footprint)},
         {"pdf_connect", offsetof(struct restir_pt_params, pdf_connect)},
     };

@@ -14,14 +14,17 @@
 #define RESTIR_ROWS_PER_JOB 2u
 
 /* One pixel of a pass: reads `in` (NULL for the in-place temporal pass), writes `out`. */
-typedef void restir_pixel_fn(const struct restir_reuse *r, const uint8_t *in, uint8_t *out, uint32_t pixel,
-                             struct restir_counters *c);
+struct restir_pass;
+typedef void restir_pixel_fn(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c);
 
 struct restir_pass {
     const struct restir_reuse *r;
     restir_pixel_fn *pixel;
     const uint8_t *in;
     uint8_t *out;
+    uint32_t matching;  /* paired spatial reuse: which pairing of the round */
+    uint64_t pair_key[65];  /* paired spatial reuse: each pairing's hash key (restir_pair_keys) */
+    uint32_t pair_log2;     /* and log2 of its block size */
     struct restir_counters counters[RESTIR_MAX_WORKERS];
 };
 
@@ -54,10 +57,10 @@ static inline uint16_t restir_clamp_m(float m)
  *   m_c = M_c p̂_c(Y_c) / (M_c p̂_c(Y_c) + M_q p̂_q(T_cq(Y_c)) |J_cq|)
  *   m_q = M_q p̂_q(Y_q) / (M_q p̂_q(Y_q) + M_c p̂_c(T_qc(Y_q)) |J_qc|)
  * with resampling weights w = m p̂_c(shifted) W |J|. */
-static void restir_temporal_pixel(const struct restir_reuse *r, const uint8_t *in, uint8_t *cur, uint32_t pixel,
-                                  struct restir_counters *c)
+static void restir_temporal_pixel(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c)
 {
-    (void)in;
+    const struct restir_reuse *r = p->r;
+    uint8_t *cur = p->out;
     const struct restir_ops *ops = r->ops;
     const size_t stride = ops->stride;
     struct restir_head *hc = (struct restir_head *)(cur + (size_t)pixel * stride);
@@ -119,9 +122,11 @@ static void restir_temporal_pixel(const struct restir_reuse *r, const uint8_t *i
  * canonical sample keeps weight (1 + sum_n (1 - t_n)) / (k + 1), neighbour n's sample
  * M_n p̂_n / (M_n p̂_n + (M_c / k) p̂_c(T(X_n)) |J|) / (k + 1); k counts the neighbours that
  * can produce samples, chosen before any sample is looked at. */
-static void restir_spatial_pixel(const struct restir_reuse *r, const uint8_t *in, uint8_t *out, uint32_t pixel,
-                                 struct restir_counters *c)
+static void restir_spatial_pixel(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c)
 {
+    const struct restir_reuse *r = p->r;
+    const uint8_t *in = p->in;
+    uint8_t *out = p->out;
     const struct restir_ops *ops = r->ops;
     const size_t stride = ops->stride;
     const struct restir_head *hc = restir_elem(in, stride, pixel);
@@ -189,17 +194,198 @@ static void restir_spatial_pixel(const struct restir_reuse *r, const uint8_t *in
     ho->M = restir_clamp_m(res.M);
 }
 
+/* ---- paired spatial reuse --------------------------------------------------------------------
+ * Pairwise MIS needs, for a canonical pixel c and a neighbour n, two shifts: n's sample into c
+ * (the candidate) and c's sample into n (c's canonical weight). When n also takes c as a
+ * neighbour it needs the very same two shifts, so a symmetric neighbour relation halves the
+ * shifts of a round (seed 001, Table 1, "paired spatial reuse"). Each of the round's `neighbors`
+ * pairings is an involution on the pixels: the image is cut into B x B blocks (B the largest
+ * power of two <= radius, the block grid shifted at random per pairing) and inside a block pixel
+ * (x, y) pairs with (x ^ a, y ^ b) for a random non-zero mask (a, b) per block. Partners are
+ * therefore within B - 1 pixels on each axis, drawn independently of any sample; the pairing's
+ * owner (the smaller pixel index) computes both shifts and updates both reservoirs, which no
+ * other pair of the same pairing touches. */
+
+#define RESTIR_PAIR_STREAM 0x7270ull
+
+/* A pixel's reservoir while a paired round streams into it (the selected payload goes straight
+ * into the output buffer). */
+struct restir_pair_acc {
+    struct reservoir_stream s;
+    float canonical_terms;  /* sum over partners of the canonical weight's terms 1 - t_n */
+    uint32_t k;             /* partners that can produce samples (pairings whose partner is valid) */
+};
+
+size_t restir_pair_scratch_bytes(uint32_t width, uint32_t height)
+{
+    return (size_t)width * height * sizeof(struct restir_pair_acc);
+}
+
+/* log2 of the block size B: the largest power of two <= radius (at least 2, at most 256). */
+static uint32_t restir_pair_log2(float radius)
+{
+    uint32_t l = 1;
+    while ((float)(2u << l) <= radius && l < 8) l++;
+    return l;
+}
+
+/* 32-bit integer hash (the "lowbias32" constants): per-block masks and per-pixel decisions are
+ * hashed from a per-pairing key, which costs a handful of instructions instead of a stream. */
+static inline uint32_t restir_hash32(uint32_t x)
+{
+    x ^= x >> 16;
+    x *= 0x7feb352du;
+    x ^= x >> 15;
+    x *= 0x846ca68bu;
+    x ^= x >> 16;
+    return x;
+}
+
+/* One key per pairing of the round (and one more for the canonical candidate's decision). */
+static void restir_pair_keys(const struct restir_reuse *r, uint64_t keys[65])
+{
+    for (uint32_t m = 0; m <= 64; m++)
+        keys[m] = rng_mix64(r->seed ^ rng_mix64(((uint64_t)r->frame << 8 | m) ^ RESTIR_PAIR_STREAM));
+}
+
+/* The partner of `pixel` under the pairing with key h and blocks of 2^L pixels (false: off the
+ * image). */
+static bool restir_partner_of(const struct restir_reuse *r, uint64_t h, uint32_t L, uint32_t pixel, uint32_t *partner)
+{
+    const uint32_t mask = (1u << L) - 1;
+    const uint32_t ox = (uint32_t)h & mask, oy = (uint32_t)(h >> 20) & mask;
+    const uint32_t gx = pixel % r->width + ox, gy = pixel / r->width + oy;
+    const uint32_t t = restir_hash32((uint32_t)(h >> 32) ^ restir_hash32((gx >> L) << 16 ^ (gy >> L)));
+    uint32_t a = t & mask, b = (t >> 16) & mask;
+    if (a == 0 && b == 0) a = 1;
+    const int64_t qx = (int64_t)((gx & ~mask) | ((gx & mask) ^ a)) - ox;
+    const int64_t qy = (int64_t)((gy & ~mask) | ((gy & mask) ^ b)) - oy;
+    if (qx < 0 || qy < 0 || qx >= r->width || qy >= r->height) return false;
+    *partner = (uint32_t)qy * r->width + (uint32_t)qx;
+    return true;
+}
+
+static inline bool restir_partner(const struct restir_pass *p, uint32_t m, uint32_t pixel, uint32_t *partner)
+{
+    return restir_partner_of(p->r, p->pair_key[m], p->pair_log2, pixel, partner);
+}
+
+bool restir_pair_partner(const struct restir_reuse *r, uint32_t m, uint32_t pixel, uint32_t *partner)
+{
+    uint64_t keys[65];
+    restir_pair_keys(r, keys);
+    return m < 64 && restir_partner_of(r, keys[m], restir_pair_log2(r->radius), pixel, partner);
+}
+
+static bool restir_pair_valid(const struct restir_pass *p, uint32_t m, uint32_t pixel, uint32_t *partner)
+{
+    return restir_partner(p, m, pixel, partner) &&
+           p->r->ops->domain_valid(p->r->ctx, (struct restir_domain){*partner, RESTIR_CURRENT});
+}
+
+/* The uniform number of pixel's candidate from pairing m (m = neighbors: the canonical one). */
+static float restir_pair_u(const struct restir_pass *p, uint32_t pixel, uint32_t m)
+{
+    const uint64_t h = p->pair_key[m];
+    return (float)(restir_hash32((uint32_t)h ^ restir_hash32(pixel ^ (uint32_t)(h >> 32))) >> 8) * 0x1p-24f;
+}
+
+/* Starts the round: the output holds the canonical sample, k counts the valid partners. */
+static void restir_pair_begin_pixel(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c)
+{
+    (void)c;
+    const struct restir_reuse *r = p->r;
+    const size_t stride = r->ops->stride;
+    memcpy(p->out + (size_t)pixel * stride, p->in + (size_t)pixel * stride, stride);
+    struct restir_pair_acc *a = (struct restir_pair_acc *)r->pair_scratch + pixel;
+    memset(a, 0, sizeof *a);
+    reservoir_stream_begin(&a->s);
+    if (!r->ops->domain_valid(r->ctx, (struct restir_domain){pixel, RESTIR_CURRENT})) return;
+    uint32_t q;
+    for (uint32_t m = 0; m < r->neighbors; m++) a->k += restir_pair_valid(p, m, pixel, &q);
+}
+
+/* The half of a pair's work that lands in pixel c: its canonical term from the shift of its own
+ * sample into n, and n's sample shifted into c as a candidate. */
+static void restir_pair_side(const struct restir_pass *p, struct restir_domain dc, struct restir_domain dn,
+                             float p_c, float t_cn_j, float p_n, float t_nc, float j_nc, const void *shifted,
+                             struct restir_counters *c)
+{
+    const struct restir_reuse *r = p->r;
+    const size_t stride = r->ops->stride;
+    const struct restir_head *hc = restir_elem(p->in, stride, dc.pixel), *hn = restir_elem(p->in, stride, dn.pixel);
+    struct restir_pair_acc *a = (struct restir_pair_acc *)r->pair_scratch + dc.pixel;
+    const float M_c = (float)hc->M, M_n = (float)hn->M;
+    if (p_c > 0.0f) a->canonical_terms += reuse_mis_pairwise_canonical_term(M_c, M_n, p_c, t_cn_j, a->k);
+    const float u = restir_pair_u(p, dc.pixel, p->matching);
+    const unsigned before = a->s.rejected;
+    if (p_n > 0.0f && t_nc > 0.0f) {
+        float m_n = reuse_mis_pairwise_neighbor(M_c, M_n, p_n, t_nc * j_nc, a->k);
+        if (reservoir_stream_offer(&a->s, (double)m_n * t_nc * hn->W * j_nc, t_nc, M_n, u))
+            memcpy(p->out + (size_t)dc.pixel * stride, shifted, stride);
+    } else {
+        reservoir_stream_offer(&a->s, 0.0, 0.0f, M_n, u);
+    }
+    c->rejected += a->s.rejected - before;
+}
+
+/* One pair of pairing p->matching, done by its owner. */
+static void restir_pair_pixel(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c)
+{
+    const struct restir_reuse *r = p->r;
+    const struct restir_ops *ops = r->ops;
+    const size_t stride = ops->stride;
+    uint32_t q;
+    if (!restir_pair_valid(p, p->matching, pixel, &q) || q <= pixel) return;
+    const struct restir_domain dp = {pixel, RESTIR_CURRENT}, dq = {q, RESTIR_CURRENT};
+    if (!ops->domain_valid(r->ctx, dp)) return;
+    const struct restir_head *hp = restir_elem(p->in, stride, pixel), *hq = restir_elem(p->in, stride, q);
+    const float p_p = hp->W > 0.0f ? ops->target(r->ctx, hp) : 0.0f;
+    const float p_q = hq->W > 0.0f ? ops->target(r->ctx, hq) : 0.0f;
+    _Alignas(16) uint8_t to_q[RESTIR_MAX_STRIDE], to_p[RESTIR_MAX_STRIDE];
+    float t_pq = 0.0f, j_pq = 0.0f, t_qp = 0.0f, j_qp = 0.0f;
+    if (p_p > 0.0f) t_pq = restir_shift(r, hp, dp, dq, to_q, &j_pq, c);
+    if (p_q > 0.0f) t_qp = restir_shift(r, hq, dq, dp, to_p, &j_qp, c);
+    restir_pair_side(p, dp, dq, p_p, t_pq * j_pq, p_q, t_qp, j_qp, to_p, c);
+    restir_pair_side(p, dq, dp, p_q, t_qp * j_qp, p_p, t_pq, j_pq, to_q, c);
+}
+
+/* Ends the round: the canonical sample is the last candidate. */
+static void restir_pair_end_pixel(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c)
+{
+    const struct restir_reuse *r = p->r;
+    const size_t stride = r->ops->stride;
+    struct restir_pair_acc *a = (struct restir_pair_acc *)r->pair_scratch + pixel;
+    if (a->k == 0) return;  /* the output keeps the canonical reservoir as it was */
+    const struct restir_head *hc = restir_elem(p->in, stride, pixel);
+    struct restir_head *ho = (struct restir_head *)(p->out + (size_t)pixel * stride);
+    const float M_c = (float)hc->M;
+    const float p_c = hc->W > 0.0f ? r->ops->target(r->ctx, hc) : 0.0f;
+    const float u = restir_pair_u(p, pixel, r->neighbors);
+    const unsigned before = a->s.rejected;
+    if (p_c > 0.0f) {
+        float m_c = reuse_mis_pairwise_canonical(a->canonical_terms, a->k);
+        if (reservoir_stream_offer(&a->s, (double)m_c * p_c * hc->W, p_c, M_c, u)) memcpy(ho, hc, stride);
+    } else {
+        reservoir_stream_offer(&a->s, 0.0, 0.0f, M_c, u);
+    }
+    c->rejected += a->s.rejected - before;
+    struct reservoir res = reservoir_stream_finish(&a->s);
+    ho->W = res.W;
+    ho->M = restir_clamp_m(res.M);
+}
+
 static void restir_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct restir_pass *p = ctx;
     const struct restir_reuse *r = p->r;
     uint32_t y1 = (job + 1) * RESTIR_ROWS_PER_JOB < r->height ? (job + 1) * RESTIR_ROWS_PER_JOB : r->height;
     for (uint32_t y = job * RESTIR_ROWS_PER_JOB; y < y1; y++)
-        for (uint32_t x = 0; x < r->width; x++) p->pixel(r, p->in, p->out, y * r->width + x, &p->counters[worker]);
+        for (uint32_t x = 0; x < r->width; x++) p->pixel(p, y * r->width + x, &p->counters[worker]);
 }
 
 static bool restir_run(const struct restir_reuse *r, restir_pixel_fn *fn, const uint8_t *in, uint8_t *out,
-                       struct restir_counters *c, struct err *err)
+                       uint32_t matching, struct restir_counters *c, struct err *err)
 {
     /* On the stack (40 KiB of counters): a frame allocates nothing. */
     struct restir_pass pass;
@@ -208,6 +394,11 @@ static bool restir_run(const struct restir_reuse *r, restir_pixel_fn *fn, const 
     pass.pixel = fn;
     pass.in = in;
     pass.out = out;
+    pass.matching = matching;
+    if (r->paired) {
+        restir_pair_keys(r, pass.pair_key);  /* 65 hashes: nothing beside a pass */
+        pass.pair_log2 = restir_pair_log2(r->radius);
+    }
     unsigned threads = r->threads ? r->threads : parallel_default_threads();
     if (threads > RESTIR_MAX_WORKERS) threads = RESTIR_MAX_WORKERS;
     uint32_t jobs = (r->height + RESTIR_ROWS_PER_JOB - 1) / RESTIR_ROWS_PER_JOB;
@@ -225,11 +416,16 @@ static bool restir_run(const struct restir_reuse *r, restir_pixel_fn *fn, const 
 bool restir_temporal_pass(const struct restir_reuse *r, uint8_t *cur, struct restir_counters *c, struct err *err)
 {
     if (!r->history) return true;
-    return restir_run(r, restir_temporal_pixel, NULL, cur, c, err);
+    return restir_run(r, restir_temporal_pixel, NULL, cur, 0, c, err);
 }
 
 bool restir_spatial_pass(const struct restir_reuse *r, const uint8_t *in, uint8_t *out, struct restir_counters *c,
                          struct err *err)
 {
-    return restir_run(r, restir_spatial_pixel, in, out, c, err);
+    if (!r->paired || r->neighbors == 0) return restir_run(r, restir_spatial_pixel, in, out, 0, c, err);
+    if (!r->pair_scratch) return err_set(err, ERR_INTERNAL, NULL, "paired spatial reuse without its scratch buffer");
+    if (!restir_run(r, restir_pair_begin_pixel, in, out, 0, c, err)) return false;
+    for (uint32_t m = 0; m < r->neighbors; m++)
+        if (!restir_run(r, restir_pair_pixel, in, out, m, c, err)) return false;
+    return restir_run(r, restir_pair_end_pixel, in, out, 0, c, err);
 }

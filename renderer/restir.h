@@ -76,7 +76,17 @@ struct restir_reuse {
     /* Spatial: neighbours per round, and the radius in pixels of the disk they are drawn from. */
     uint32_t neighbors;
     float radius;
+    /* Paired spatial reuse (restir.c): the neighbour relation is made symmetric so each pair's
+     * two shifts serve both pixels, and neighbours come from B x B blocks, B the largest power of
+     * two <= radius. Needs restir_pair_scratch_bytes() of scratch, owned by the technique. */
+    bool paired;
+    void *pair_scratch;
 };
+
+size_t restir_pair_scratch_bytes(uint32_t width, uint32_t height);
+/* The partner of `pixel` in pairing m (< 64) of the round r->frame names (false: off the image);
+ * for tests: the pairing is an involution. */
+bool restir_pair_partner(const struct restir_reuse *r, uint32_t m, uint32_t pixel, uint32_t *partner);
 
 #define RESTIR_MAX_WORKERS 1024u
 

@@ -91,6 +91,7 @@ struct restir_pt_params restir_pt_defaults(void)
     return (struct restir_pt_params){
         .max_depth = 64, .rr_depth = 3, .rr = true, .nee_candidates = 4, .unify_di = true,
         .temporal = true, .temporal_cap = 20, .spatial_neighbors = 3, .spatial_radius = 20.0f, .spatial_rounds = 1,
+        .paired_spatial = true,
         .footprint = true, .footprint_c = 0.02f, .near_distance = 0.03f, .pdf_connect = true, .roughness_min = 0.2f,
     };
 }
@@ -126,6 +127,8 @@ struct pt_ctx {
     const struct scene *scene[2];        /* [RESTIR_CURRENT], [RESTIR_PREVIOUS] */
     struct vec3 eye[2];
     const struct gbuffer *gbuf[2];
+    struct restir_pt_hit *hits[2];       /* primary surfaces; the initial pass writes [CURRENT] */
+    bool hits_write;                     /* during the initial pass */
     uint64_t seed;
     uint32_t frame;
     uint32_t nee_m;                      /* RIS candidates; 0 = no NEE */
@@ -248,7 +251,16 @@ static bool pt_primary(const struct pt_ctx *c, struct restir_domain d, struct pt
     const struct gbuffer_pixel *g = &c->gbuf[d.frame]->px[d.pixel];
     if (!isfinite(g->t)) return false;
     const struct scene *scene = c->scene[d.frame];
-    surface_at(scene, g->shape, g->prim, g->b1, g->b2, &v->s);
+    struct restir_pt_hit *h = &c->hits[d.frame][d.pixel];
+    if (c->hits_write) {
+        surface_at(scene, g->shape, g->prim, g->b1, g->b2, &v->s);
+        *h = (struct restir_pt_hit){v->s.p, v->s.ng, v->s.ns};
+    } else {
+        /* As surface_at built it in this frame's initial pass, bit for bit. */
+        v->s.p = h->p, v->s.ng = h->ng, v->s.ns = h->ns;
+        v->s.frame = frame_from_normal(h->ns);
+        v->s.shape = g->shape, v->s.prim = g->prim, v->s.material = scene->shapes[g->shape].material;
+    }
     v->b1 = g->b1, v->b2 = g->b2;
     v->m = &scene->materials[v->s.material];
     struct vec3 to_eye = vec3_sub(c->eye[d.frame], v->s.p);
@@ -881,10 +893,16 @@ bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, uint3
             return false;
         }
         st->res[i] = calloc(n, sizeof(struct pt_sample));
-        if (!st->res[i]) {
+        st->hits[i] = calloc(n, sizeof(struct restir_pt_hit));
+        if (!st->res[i] || !st->hits[i]) {
             restir_pt_destroy(st);
             return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
         }
+    }
+    st->pair_scratch = malloc(restir_pair_scratch_bytes(width, height));
+    if (!st->pair_scratch) {
+        restir_pt_destroy(st);
+        return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u spatial pairs", width, height);
     }
     return true;
 }
@@ -894,8 +912,10 @@ void restir_pt_destroy(struct restir_pt_state *st)
     for (int i = 0; i < 2; i++) {
         gbuffer_destroy(&st->gbuf[i]);
         free(st->res[i]);
+        free(st->hits[i]);
     }
     free(st->prim_first);
+    free(st->pair_scratch);
     memset(st, 0, sizeof *st);
 }
 
@@ -914,11 +934,21 @@ size_t restir_pt_gbuffer_bytes(const struct restir_pt_state *st)
     return gbuffer_bytes(&st->gbuf[0]) + gbuffer_bytes(&st->gbuf[1]);
 }
 
+size_t restir_pt_hit_bytes(const struct restir_pt_state *st)
+{
+    return 2 * (size_t)st->width * st->height * sizeof(struct restir_pt_hit);
+}
+
+size_t restir_pt_pair_bytes(const struct restir_pt_state *st)
+{
+    return restir_pair_scratch_bytes(st->width, st->height);
+}
+
 uint64_t restir_pt_bytes_planned(uint32_t width, uint32_t height, uint32_t shape_count)
 {
     uint64_t pixels = (uint64_t)width * height;
-    return 2 * pixels * (sizeof(struct pt_sample) + sizeof(struct gbuffer_pixel)) +
-           ((uint64_t)shape_count + 1) * sizeof(uint32_t);
+    return 2 * pixels * (sizeof(struct pt_sample) + sizeof(struct gbuffer_pixel) + sizeof(struct restir_pt_hit)) +
+           ((uint64_t)shape_count + 1) * sizeof(uint32_t) + restir_pair_scratch_bytes(width, height);
 }
 
 struct pt_pass {
@@ -993,6 +1023,8 @@ void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *p
     c->eye[RESTIR_PREVIOUS] = f->prev_camera ? f->prev_camera->position : f->camera->position;
     c->gbuf[RESTIR_CURRENT] = &st->gbuf[st->cur];
     c->gbuf[RESTIR_PREVIOUS] = &st->gbuf[st->cur ^ 1u];
+    c->hits[RESTIR_CURRENT] = st->hits[st->cur];
+    c->hits[RESTIR_PREVIOUS] = st->hits[st->cur ^ 1u];
     c->seed = f->seed;
     c->frame = f->frame;
     c->nee_m = params->nee_candidates;
@@ -1034,7 +1066,10 @@ static bool pt_begin(struct restir_pt_state *st, const struct restir_pt_params *
     pp->c = c;
     pp->st = st;
     pp->out = out;
-    if (!pt_run(pp, threads, pt_initial_rows, err)) return false;
+    c->hits_write = true;
+    bool ok = pt_run(pp, threads, pt_initial_rows, err);
+    c->hits_write = false;
+    if (!ok) return false;
     stats->initial_ms = pt_ms_since(&t0);
     return true;
 }
@@ -1087,7 +1122,8 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
                              .seed = f->seed, .frame = f->frame, .threads = threads,
                              .gbuf = &st->gbuf[st->cur], .history = history ? st->res[1] : NULL,
                              .temporal_cap = params->temporal_cap, .neighbors = params->spatial_neighbors,
-                             .radius = params->spatial_radius};
+                             .radius = params->spatial_radius, .paired = params->paired_spatial,
+                             .pair_scratch = st->pair_scratch};
     struct restir_counters rc = {0};
     if (!restir_temporal_pass(&r, st->res[0], &rc, err)) return false;
     stats->temporal_ms = pt_ms_since(&t0);

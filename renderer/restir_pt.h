@@ -32,6 +32,7 @@ struct restir_pt_params {
     uint32_t spatial_neighbors;  /* per round (3); 0 = no spatial reuse */
     float spatial_radius;        /* pixels (20) */
     uint32_t spatial_rounds;     /* (1) */
+    bool paired_spatial;         /* neighbours paired so a pair's shifts serve both (true; restir.h) */
     bool footprint;              /* dual footprint threshold (eq. 5) vs near-field distance */
     float footprint_c;           /* c of eq. 5 (0.02) */
     float near_distance;         /* without footprint: minimum segment length, fraction of the
@@ -54,6 +55,12 @@ struct restir_pt_stats {
 
 /* Per-session state: two G-buffers (current, previous) and two reservoir buffers (the frame's
  * working buffer and the history the next frame reuses). */
+/* A primary hit's surface, rebuilt once per frame by the initial pass: every shift into a pixel
+ * needs it, and rebuilding it from the G-buffer's point code costs more than reading it. */
+struct restir_pt_hit {
+    struct vec3 p, ng, ns;
+};
+
 struct restir_pt_state {
     uint32_t width, height;
     struct gbuffer gbuf[2];
@@ -62,6 +69,8 @@ struct restir_pt_state {
     bool has_history;
     uint32_t shape_count;
     uint32_t *prim_first;      /* shape -> first scene-wide primitive id (shape_count + 1) */
+    void *pair_scratch;        /* paired spatial reuse: restir_pair_scratch_bytes() */
+    struct restir_pt_hit *hits[2]; /* each G-buffer's primary surfaces (with gbuf[i]) */
 };
 
 /* Bytes of one reservoir (the payload included). */
@@ -74,6 +83,8 @@ void restir_pt_destroy(struct restir_pt_state *st);
 void restir_pt_reset(struct restir_pt_state *st);
 size_t restir_pt_reservoir_bytes(const struct restir_pt_state *st);
 size_t restir_pt_gbuffer_bytes(const struct restir_pt_state *st);
+size_t restir_pt_pair_bytes(const struct restir_pt_state *st);
+size_t restir_pt_hit_bytes(const struct restir_pt_state *st);
 /* What restir_pt_init allocates for this size and shape count (before allocating it). */
 uint64_t restir_pt_bytes_planned(uint32_t width, uint32_t height, uint32_t shape_count);
 

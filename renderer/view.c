@@ -282,6 +282,8 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
         out[n++] = (struct view_buffer_bytes){"reservoirs", restir_pt_reservoir_bytes(&v->restir)};
         out[n++] = (struct view_buffer_bytes){"gbuffers", restir_pt_gbuffer_bytes(&v->restir)};
         out[n++] = (struct view_buffer_bytes){"primitive_table", ((size_t)v->restir.shape_count + 1) * sizeof *v->restir.prim_first};
+        out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_pt_pair_bytes(&v->restir)};
+        out[n++] = (struct view_buffer_bytes){"primary_hits", restir_pt_hit_bytes(&v->restir)};
     }
     size_t sum = 0;
     for (uint32_t i = 0; i < n; i++) sum += out[i].bytes;

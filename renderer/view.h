@@ -86,7 +86,7 @@ struct view_buffer_bytes {
     const char *name;                     /* "accumulation", "reservoirs", "gbuffer", ... */
     size_t bytes;
 };
-#define VIEW_MAX_BUFFERS 8
+#define VIEW_MAX_BUFFERS 12
 
 struct frame_stats {
     uint32_t frame;                       /* index of this frame in the session's sequence */

@@ -59,6 +59,7 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
         jsonw_key(w, "spatial_neighbors"); jsonw_uint(w, r->spatial_neighbors);
         jsonw_key(w, "spatial_radius"); jsonw_double(w, r->spatial_radius);
         jsonw_key(w, "spatial_rounds"); jsonw_uint(w, r->spatial_rounds);
+        jsonw_key(w, "paired_spatial"); jsonw_bool(w, r->paired_spatial);
         jsonw_key(w, "footprint"); jsonw_bool(w, r->footprint);
         jsonw_key(w, "footprint_c"); jsonw_double(w, r->footprint_c);
         jsonw_key(w, "near_distance"); jsonw_double(w, r->near_distance);

@@ -1251,7 +1251,8 @@ def test_restir_pt_session(daemon):
     assert p["nee_candidates"] == 4 and p["unify_di"] is True and p["rr"] is True and p["max_depth"] == 64
     assert s["reservoir_bytes_per_pixel"] == 64
     assert s["reservoir_bytes"] == 2 * 64 * 32 * 24 == s["buffers"]["reservoirs"]
-    assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "primitive_table"}
+    assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "primitive_table",
+                                 "spatial_pairs", "primary_hits"}
     first = post_frame(daemon, s, accept="application/json").json()
     assert first["passes"]["temporal_ms"] >= 0 and first["passes"]["shifts"] > 0
     moved = {"camera": {"position": [288, 273, -800]}}

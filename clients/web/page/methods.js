@@ -18,6 +18,7 @@ export const METHODS = {
     params: [
       { name: 'spatial_neighbors', kind: 'number', value: 3, help: 'neighbours per spatial round (0: none)' },
       { name: 'spatial_radius', kind: 'number', value: 20, help: 'spatial radius, pixels' },
+      { name: 'paired_spatial', kind: 'boolean', value: true, help: 'paired neighbours (half the shifts)' },
       { name: 'temporal', kind: 'boolean', value: true, help: 'temporal reuse' },
       { name: 'temporal_cap', kind: 'number', value: 20, help: 'previous confidence cap, x current' },
       { name: 'nee_candidates', kind: 'number', value: 4, help: 'RIS candidates of light sampling' },

@@ -1,0 +1,217 @@
+/* test_restir.c — the reuse passes of restir.c on a toy technique whose answer is known.
+ * Each pixel p integrates f_p(x) = a_p max(0, sin 2π(x + φ_p)) over x in [0, 1) (exact: a_p / π);
+ * the pixels' supports differ, so a neighbour's sample is often worth nothing here and the MIS
+ * weights decide the result. The shift is the identity (|J| = 1). Over many independent trials
+ * (two frames: initial + temporal + spatial reuse) the per-pixel estimates F(Y) W must be
+ * unbiased, paired and unpaired; a shift that lies about its Jacobian must be caught. */
+#include <math.h>
+#include <stdlib.h>
+
+#include "restir.h"
+#include "rng.h"
+#include "test.h"
+
+#define W_PX 16u
+#define H_PX 12u
+#define N_PX (W_PX * H_PX)
+
+struct toy_elem {
+    struct restir_head head;
+    float x;  /* the sample */
+    float f;  /* f_p(x) in the element's own pixel */
+    float pad;
+};
+
+struct toy_ctx {
+    bool wrong_jacobian;  /* the control: x -> x^2 reported with |J| = 1 */
+};
+
+static bool toy_valid_pixel(uint32_t p) { return p % 7u != 3u; }
+
+static double toy_f(uint32_t p, double x)
+{
+    double a = 1.0 + (double)(p % 5u), phase = fmod(0.37 * (double)p, 1.0);
+    double s = sin(2.0 * M_PI * (x + phase));
+    return s > 0.0 ? a * s : 0.0;
+}
+
+static double toy_exact(uint32_t p) { return (1.0 + (double)(p % 5u)) / M_PI; }
+
+static float toy_target(const void *ctx, const void *elem)
+{
+    (void)ctx;
+    return ((const struct toy_elem *)elem)->f;
+}
+
+static void toy_shift(const void *ctx, const void *src, struct restir_domain from, struct restir_domain to, void *dst,
+                      float *target, float *jacobian, struct restir_counters *c)
+{
+    (void)from;
+    (void)c;
+    const struct toy_ctx *t = ctx;
+    const struct toy_elem *s = src;
+    float y = t->wrong_jacobian ? s->x * s->x : s->x;
+    float f = (float)toy_f(to.pixel, y);
+    if (dst) {
+        struct toy_elem *d = dst;
+        *d = *s;
+        d->x = y;
+        d->f = f;
+    }
+    *target = f;
+    *jacobian = 1.0f;
+}
+
+static bool toy_domain_valid(const void *ctx, struct restir_domain d)
+{
+    (void)ctx;
+    return toy_valid_pixel(d.pixel);
+}
+
+static const struct restir_ops toy_ops = {
+    .stride = sizeof(struct toy_elem), .target = toy_target, .shift = toy_shift, .domain_valid = toy_domain_valid};
+
+/* One candidate per pixel, x uniform: W = 1 when f > 0. */
+static void toy_initial(struct toy_elem *e, uint64_t seed, uint32_t frame)
+{
+    for (uint32_t p = 0; p < N_PX; p++) {
+        struct rng r = rng_make(seed, frame, p, 0x746f79u);
+        float x = rng_next_float(&r);
+        float f = toy_valid_pixel(p) ? (float)toy_f(p, x) : 0.0f;
+        e[p] = (struct toy_elem){.head = {.W = f > 0.0f ? 1.0f : 0.0f, .M = 1}, .x = x, .f = f};
+    }
+}
+
+struct toy_stats {
+    double sum[N_PX], sum2[N_PX];
+    double total_sum, total_sum2;
+    uint32_t trials;
+};
+
+/* Runs `trials` independent two-frame sessions and gathers the second frame's estimates. */
+static void toy_run(bool paired, bool wrong_jacobian, uint32_t trials, struct toy_stats *st)
+{
+    memset(st, 0, sizeof *st);
+    st->trials = trials;
+    struct toy_ctx ctx = {.wrong_jacobian = wrong_jacobian};
+    static struct toy_elem a[N_PX], b[N_PX], hist[N_PX];
+    static struct gbuffer_pixel px[N_PX];
+    for (uint32_t p = 0; p < N_PX; p++)  /* a static camera: each pixel's predecessor is itself */
+        px[p] = (struct gbuffer_pixel){.t = 1.0f, .prev_x = (float)(p % W_PX) + 0.5f, .prev_y = (float)(p / W_PX) + 0.5f};
+    struct gbuffer g = {.width = W_PX, .height = H_PX, .px = px};
+    void *scratch = malloc(restir_pair_scratch_bytes(W_PX, H_PX));
+    CHECK(scratch != NULL);
+    if (!scratch) return;
+    for (uint32_t t = 0; t < trials; t++) {
+        struct restir_reuse r = {.ops = &toy_ops, .ctx = &ctx, .width = W_PX, .height = H_PX, .seed = 1000u + t,
+                                 .threads = 1, .gbuf = &g, .temporal_cap = 20, .neighbors = 3, .radius = 8.0f,
+                                 .paired = paired, .pair_scratch = scratch};
+        struct restir_counters c = {0};
+        struct err err = {0};
+        for (uint32_t frame = 0; frame < 2; frame++) {
+            r.frame = frame;
+            r.history = frame ? (const uint8_t *)hist : NULL;
+            toy_initial(a, r.seed, frame);
+            CHECK(restir_temporal_pass(&r, (uint8_t *)a, &c, &err));
+            CHECK(restir_spatial_pass(&r, (const uint8_t *)a, (uint8_t *)b, &c, &err));
+            memcpy(hist, b, sizeof hist);
+        }
+        double total = 0.0;
+        for (uint32_t p = 0; p < N_PX; p++) {
+            if (!toy_valid_pixel(p)) continue;
+            double est = b[p].head.W > 0.0f ? (double)b[p].f * b[p].head.W : 0.0;
+            st->sum[p] += est;
+            st->sum2[p] += est * est;
+            total += est;
+        }
+        st->total_sum += total;
+        st->total_sum2 += total * total;
+    }
+    free(scratch);
+}
+
+/* Per-pixel z-scores against the exact integrals: the count passing at Šidák-corrected 1 %, and
+ * the z of the image total (pixels share samples, so the total's variance is taken across
+ * trials, where trials are independent). */
+static void toy_z(const struct toy_stats *st, uint32_t *pass, uint32_t *valid, double *z_total)
+{
+    const double n = st->trials;
+    *pass = *valid = 0;
+    double exact_total = 0.0;
+    for (uint32_t p = 0; p < N_PX; p++) {
+        if (!toy_valid_pixel(p)) continue;
+        (*valid)++;
+        exact_total += toy_exact(p);
+    }
+    /* Šidák: per-pixel alpha = 1 - 0.99^(1/valid); two-sided normal quantile by bisection. */
+    double alpha = 1.0 - pow(0.99, 1.0 / (double)*valid), lo = 0.0, hi = 10.0;
+    for (int i = 0; i < 60; i++) {
+        double mid = 0.5 * (lo + hi);
+        if (erfc(mid / M_SQRT2) > alpha) lo = mid;
+        else hi = mid;
+    }
+    for (uint32_t p = 0; p < N_PX; p++) {
+        if (!toy_valid_pixel(p)) continue;
+        double mean = st->sum[p] / n, var = (st->sum2[p] / n - mean * mean) * n / (n - 1.0);
+        double z = (mean - toy_exact(p)) / sqrt(var / n + 1e-30);
+        if (fabs(z) <= lo) (*pass)++;
+    }
+    double mean = st->total_sum / n, var = (st->total_sum2 / n - mean * mean) * n / (n - 1.0);
+    *z_total = (mean - exact_total) / sqrt(var / n);
+}
+
+static void check_unbiased(bool paired)
+{
+    static struct toy_stats st;
+    toy_run(paired, false, 4000, &st);
+    uint32_t pass, valid;
+    double z;
+    toy_z(&st, &pass, &valid, &z);
+    printf("  %s: %u of %u pixels pass, total z = %.2f\n", paired ? "paired" : "unpaired", pass, valid, z);
+    CHECK_MSG(pass * 1000u >= valid * 995u, "%u of %u pixels", pass, valid);
+    CHECK_MSG(fabs(z) < 3.0, "total z %.2f", z);
+}
+
+static void test_reuse_unbiased_unpaired(void) { check_unbiased(false); }
+static void test_reuse_unbiased_paired(void) { check_unbiased(true); }
+
+/* The control: a shift that squares x but claims |J| = 1 must fail the same test. */
+static void test_wrong_jacobian_is_caught(void)
+{
+    static struct toy_stats st;
+    toy_run(true, true, 4000, &st);
+    uint32_t pass, valid;
+    double z;
+    toy_z(&st, &pass, &valid, &z);
+    printf("  wrong |J|: %u of %u pixels pass, total z = %.2f\n", pass, valid, z);
+    CHECK_MSG(fabs(z) > 5.0, "total z %.2f: the test cannot see a wrong Jacobian", z);
+}
+
+/* Each pairing is an involution, partners stay inside the block (B - 1 pixels per axis), never
+ * the pixel itself, and every pixel not at an image edge has a partner most of the time. */
+static void test_pairing_is_an_involution(void)
+{
+    const uint32_t w = 53, h = 41;
+    struct restir_reuse r = {.width = w, .height = h, .seed = 7, .radius = 20.0f};
+    uint32_t found = 0, total = 0;
+    for (uint32_t frame = 0; frame < 4; frame++) {
+        r.frame = frame;
+        for (uint32_t m = 0; m < 3; m++)
+            for (uint32_t p = 0; p < w * h; p++) {
+                uint32_t q, back;
+                total++;
+                if (!restir_pair_partner(&r, m, p, &q)) continue;
+                found++;
+                CHECK(q != p);
+                CHECK(q < w * h);
+                CHECK(restir_pair_partner(&r, m, q, &back) && back == p);
+                int dx = abs((int)(q % w) - (int)(p % w)), dy = abs((int)(q / w) - (int)(p / w));
+                CHECK_MSG(dx <= 15 && dy <= 15, "offset (%d, %d) for radius 20 (blocks of 16)", dx, dy);
+            }
+    }
+    printf("  %u of %u pixels had a partner\n", found, total);
+    CHECK(found * 10u >= total * 6u);
+}
+
+TEST_MAIN(TEST(test_pairing_is_an_involution), TEST(test_reuse_unbiased_unpaired), TEST(test_reuse_unbiased_paired),
+          TEST(test_wrong_jacobian_is_caught))
