@@ -47,7 +47,7 @@ WEB_PAGE     := $(wildcard $(WEB)/page/*)
 WEB_NPM      := $(WEB)/node_modules/.package-lock.json
 WEB_VENDOR   := $(WEB)/node_modules/uplot/dist/uPlot.esm.js $(WEB)/node_modules/uplot/dist/uPlot.min.css
 
-.PHONY: all deps test test-unit test-py test-cluster test-web test-fuzz test-tsan fuzz load run bench clean help
+.PHONY: all deps test test-unit test-py test-cluster test-web test-fuzz test-tsan fuzz load run bench bench-report clean help
 .SECONDARY:
 all: $(OUT)/restir $(OUT)/restird
 
@@ -60,6 +60,7 @@ help:
 	@echo "make run        start the daemon on 127.0.0.1:8080 with a default session on cornell-box;"
 	@echo "                the preview page is at http://127.0.0.1:8080/"
 	@echo "make bench      benchmarks (not tests): see docs/benchmarks.md"
+	@echo "make bench-report  speed against accuracy, stability, Cycles: docs/report/ (QUICK=1: minutes)"
 	@echo "make load       wrk and 10000-frame memory run against the daemon on loopback: see docs/reliability.md"
 	@echo "make fuzz       run every libFuzzer target for FUZZ_SECONDS (default 60) each: see docs/reliability.md"
 	@echo "make clean      remove everything make made"
@@ -199,6 +200,11 @@ bench: $(OUT)/restir $(OUT)/restird $(OBJ)/librenderer.a
 	bash bench/instr_per_ray.sh | tee $(BUILD)/bench/instr.json
 	$(PYTHON) bench/server_bench.py | tee $(BUILD)/bench/server.json
 	$(PYTHON) bench/restir_pt.py | tee $(BUILD)/bench/restir_pt.md
+
+# The speed-against-accuracy report (docs/report/): every scene x method, stability, Cycles as a
+# peer. QUICK=1 for a few minutes at 64x64.
+bench-report: $(OUT)/restir $(OUT)/restird
+	QUICK=$(QUICK) $(PYTHON) bench/report.py
 
 # ---- fuzzing: libFuzzer targets, built by clang with ASan + UBSan into build/fuzz/ ----
 # Each target's seeds (and the inputs of every bug found, kept as regressions) are committed in

@@ -31,6 +31,7 @@ import json
 import math
 import os
 import sys
+import time
 
 import bpy
 
@@ -407,10 +408,16 @@ def main():
     bpy.context.scene.render.filepath = out
     if a.save_blend:
         bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(a.save_blend))
-    bpy.ops.render.render(write_still=True)
+    # Timed: Cycles' scene sync, BVH build and sampling (not Blender's start-up, not the EXR
+    # write), as restird's time_ms covers its frame's rendering.
+    t0 = time.monotonic()
+    bpy.ops.render.render(write_still=False)
+    render_ms = (time.monotonic() - t0) * 1e3
+    bpy.data.images["Render Result"].save_render(out)
     if not os.path.exists(out):
         fail("Blender did not write " + out)
     print("crosscheck_cycles: wrote %s (%dx%d, %d spp, seed %d)" % (out, a.width, a.height, a.spp, a.seed))
+    print("crosscheck_cycles: render_ms %.3f" % render_ms)
 
 
 main()

@@ -64,11 +64,16 @@ def run(args):
     return json.loads(res.stdout)
 
 
-def compare(img, ref):
+def compare_all(img, ref):
+    """`restir compare`'s metrics of img against ref (mape, rmse, relmse, ...)."""
     res = subprocess.run([BIN, "compare", str(img), str(ref)], capture_output=True, text=True)
     if res.returncode != 0:
         raise SystemExit(f"bench: compare {img}: {res.stderr.strip()}")
-    return json.loads(res.stdout)["mape"]
+    return json.loads(res.stdout)
+
+
+def compare(img, ref):
+    return compare_all(img, ref)["mape"]
 
 
 def reference(scene):
