@@ -7,6 +7,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "animate.h"
@@ -19,7 +20,7 @@
 
 #define CLI_USAGE                                                                                  \
     "usage:\n"                                                                                     \
-    "  restir render SCENE.json [--method pt|restir_pt] [--spp N] [--size WxH] [--seed S] [--frame F]\n" \
+    "  restir render SCENE.json|SCENE_FOLDER [--method pt|restir_pt] [--spp N] [--size WxH] [--seed S] [--frame F]\n" \
     "                [--threads T] [--max-depth D] [--rr-depth R] [--no-nee] [--crop X0,Y0,X1,Y1]\n"    \
     "                [--frames F] [--average-last N] [--animation FILE.json] [--params JSON]\n"       \
     "                [--half] [--json] -o OUT.exr\n"                                              \
@@ -274,9 +275,19 @@ static int cli_render(int argc, char **argv)
 
     struct err err = {0};
     char msg[1024];
+    /* A scene folder of the library (scenes/NAME/) stands for its scene.json. */
+    char folder_scene[4096];
+    struct stat sb;
+    if (stat(scene_path, &sb) == 0 && S_ISDIR(sb.st_mode)) {
+        int n = snprintf(folder_scene, sizeof folder_scene, "%s/scene.json", scene_path);
+        if (n < 0 || (size_t)n >= sizeof folder_scene) return cli_usage_error("scene path too long: '%s'", scene_path);
+        scene_path = folder_scene;
+    }
     struct scene *scene = scene_load_file(scene_path, &err);
     if (!scene || !scene_commit(scene, &err)) {
-        fprintf(stderr, "restir: %s: %s\n", scene_path, err_format(&err, msg, sizeof msg));
+        /* The file's name once: errors about the file itself already start with it. */
+        if (strcmp(err.where, scene_path) == 0) fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
+        else fprintf(stderr, "restir: %s: %s\n", scene_path, err_format(&err, msg, sizeof msg));
         if (scene) scene_release(scene);
         return 1;
     }

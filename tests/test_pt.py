@@ -184,12 +184,20 @@ def test_cli_usage_errors(tmp_path, scenes):
         (("render", sc, "--method", "bogus", "-o", tmp_path / "x.exr"), 2, "unknown method 'bogus'"),
         (("render", sc, "--frobnicate", "1", "-o", tmp_path / "x.exr"), 2, "unknown option '--frobnicate'"),
         (("render", tmp_path / "missing.json", "-o", tmp_path / "x.exr"), 1, "missing.json"),
+        (("render", tmp_path, "-o", tmp_path / "x.exr"), 1, f"'{tmp_path}/scene.json' not found"),
         (("compare", tmp_path / "nope.exr", tmp_path / "nope2.exr"), 1, "nope.exr"),
     ]
     for args, code, text in cases:
         res = run_cli(*args)
         assert res.returncode == code, (args, res.stderr)
         assert text in res.stderr, (args, res.stderr)
+
+
+def test_cli_renders_a_scene_folder(tmp_path, scenes):
+    """A folder of the scene library stands for its scene.json: the same image, bit for bit."""
+    a, _ = render(scenes / "cornell-box", tmp_path / "a.exr", spp=1, size="16x16", seed=3)
+    b, _ = render(scenes / "cornell-box" / "scene.json", tmp_path / "b.exr", spp=1, size="16x16", seed=3)
+    assert np.array_equal(a, b)
 
 
 def test_compare_metrics(tmp_path, scenes):

@@ -15,7 +15,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import ROOT, read_exr, render, run_cli
+from conftest import ROOT, read_exr, render
 from daemon import Daemon
 
 SIZE = 32
