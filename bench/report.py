@@ -290,7 +290,6 @@ def cycles(ref, our_rows):
             log(f"cycles {ls} {spp} spp: {row['ms']:.1f} ms, MAPE {row['mape']:.3f}")
     # Radiometric agreement: Cycles at the reference's spp (light sampling off: unbiased here,
     # docs/crosscheck.md) against our reference, channel by channel.
-    import numpy as np
     img = WORK / "cycles-converged.exr"
     res = subprocess.run(["blender", "-b", "--factory-startup", "-P", str(ROOT / "bench" / "crosscheck_cycles.py"),
                           "--", "--scene", str(CORNELL), "--size", SIZE, "--spp", str(REF_SPP), "--seed", "7",
