@@ -36,6 +36,9 @@
 /* Stream tag of the light subpaths (the camera subpaths use the pixel index, < 2^28). */
 #define BDPT_LIGHT_STREAM 0x4c49474854000000ull
 
+/* 68 bytes a cached vertex (protocol/API.md quotes it). */
+_Static_assert(sizeof(struct bdpt_light_vertex) == 68, "bdpt_light_vertex changed size");
+
 struct bdpt_params bdpt_defaults(void)
 {
     return (struct bdpt_params){.max_depth = 64, .rr_depth = 3, .light_paths = 0, .lvc_capacity = 8,

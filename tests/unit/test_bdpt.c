@@ -17,7 +17,9 @@
 #include "bdpt_mis.h"
 #include "material.h"
 #include "rng.h"
+#include "scene.h"
 #include "test.h"
+#include "view.h"
 
 #define MAXV 10
 
@@ -251,4 +253,73 @@ static void test_params(void)
     CHECK(strcmp(bdpt_heuristic_name(BDPT_HEURISTIC_BALANCE), "balance") == 0);
 }
 
-TEST_MAIN(TEST(test_mis_power), TEST(test_mis_balance), TEST(test_params))
+static struct scene *load(const char *path)
+{
+    struct err err = {0};
+    struct scene *s = scene_load_file(path, &err);
+    CHECK_MSG(s != NULL, "%s: %s", path, err.message);
+    if (s && !scene_commit(s, &err)) {
+        CHECK_MSG(false, "%s", err.message);
+        scene_release(s);
+        return NULL;
+    }
+    return s;
+}
+
+/* The memory budget reserves what a session will allocate: planned bytes = allocated bytes,
+ * for the default and for a given N_L and cache size. */
+static void test_session_bytes_planned_match_allocated(void)
+{
+    struct scene *sc = load("scenes/lamp-in-glass/scene.json");
+    if (!sc) return;
+    for (int k = 0; k < 2; k++) {
+        struct err err = {0};
+        struct view_params vp = view_params_defaults(RENDER_METHOD_BDPT, 40, 24);
+        if (k) {
+            vp.bdpt.light_paths = 1000;
+            vp.bdpt.lvc_capacity = 3;
+        }
+        struct view v;
+        CHECK(view_init(&v, sc, &vp, 1, &err));
+        struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
+        size_t total = 0;
+        uint32_t n = view_bytes(&v, b, &total);
+        CHECK_MSG(total == view_bytes_planned(&vp, sc->shape_count), "allocated %zu, planned %llu", total,
+                  (unsigned long long)view_bytes_planned(&vp, sc->shape_count));
+        bool has_lvc = false;
+        for (uint32_t i = 0; i < n; i++) has_lvc = has_lvc || strcmp(b[i].name, "light_vertex_cache") == 0;
+        CHECK(has_lvc);
+        view_destroy(&v);
+    }
+    scene_release(sc);
+}
+
+/* Frames of a view: every technique contributes, nothing is dropped or non-finite, and a
+ * scene with environment light is refused at creation. */
+static void test_frames_and_stats(void)
+{
+    struct scene *sc = load("scenes/caustic-sphere/scene.json");
+    if (!sc) return;
+    struct err err = {0};
+    struct view_params vp = view_params_defaults(RENDER_METHOD_BDPT, 24, 16);
+    struct view v;
+    CHECK(view_init(&v, sc, &vp, 2, &err));
+    struct frame_stats fs;
+    for (int f = 0; f < 2; f++) CHECK_MSG(view_render(&v, NULL, &fs, NULL, NULL, &err), "%s", err.message);
+    CHECK(fs.has_bdpt && !fs.has_passes);
+    CHECK(fs.bdpt.light_subpaths == 24 * 16 && fs.bdpt.lvc_vertices > 0 && fs.bdpt.lvc_dropped == 0);
+    CHECK(fs.bdpt.light_traced > 0 && fs.bdpt.connections > 0 && fs.render.nonfinite == 0);
+    double sum = 0.0;
+    for (uint32_t i = 0; i < 24 * 16; i++) sum += v.output.pixels[i].x;
+    CHECK(sum > 0.0 && isfinite(sum));
+    view_destroy(&v);
+    scene_release(sc);
+
+    struct scene *env = load("scenes/furnace/scene.json");
+    if (!env) return;
+    CHECK(!view_init(&v, env, &vp, 1, &err) && err.code == ERR_INVALID && strstr(err.message, "environment"));
+    scene_release(env);
+}
+
+TEST_MAIN(TEST(test_mis_power), TEST(test_mis_balance), TEST(test_params), TEST(test_session_bytes_planned_match_allocated),
+          TEST(test_frames_and_stats))
