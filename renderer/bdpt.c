@@ -192,6 +192,24 @@ static struct vec3 bdpt_origin(const struct surface *s, struct vec3 dir)
     return surface_offset_along(s->p, vec3_dot(dir, s->ng) < 0.0f ? vec3_neg(s->ng) : s->ng);
 }
 
+/* Whether nothing blocks the segment from surface point a (geometric normal na) to b (normal
+ * nb, or the camera's eye when nb is NULL). Both ends are offset towards each other and the
+ * ray spans exactly the offset segment: measuring its length from the unoffset point instead
+ * lets the ray reach the far surface itself whenever the origin offset (256 ulps, 0.016 at
+ * coordinates near 500) exceeds a relative margin of the distance — short shadow rays from
+ * large coordinates would then always be occluded by their own target. */
+static bool bdpt_visible(const struct accel *accel, struct vec3 a, struct vec3 na, struct vec3 b, const struct vec3 *nb,
+                         struct ray_counters *rc)
+{
+    struct vec3 d = vec3_sub(b, a);
+    struct vec3 oa = surface_offset_along(a, vec3_dot(d, na) < 0.0f ? vec3_neg(na) : na);
+    struct vec3 ob = nb ? surface_offset_along(b, vec3_dot(d, *nb) > 0.0f ? vec3_neg(*nb) : *nb) : b;
+    struct vec3 e = vec3_sub(ob, oa);
+    float len = vec3_length(e);
+    if (!(len > 0.0f)) return false;
+    return !accel_occluded(accel, oa, vec3_scale(e, 1.0f / len), 0.0f, nb ? len : len * (1.0f - 1e-4f), rc);
+}
+
 /* Light tracing (t = 1): the light vertex at `s` (material m, incoming direction wo, throughput
  * beta, MIS state mis) seen by the camera. Fills *pixel and *value, or returns false. */
 static bool bdpt_connect_camera(const struct bdpt_ctx *c, const struct surface *s, const struct material *m,
@@ -216,7 +234,7 @@ static bool bdpt_connect_camera(const struct bdpt_ctx *c, const struct surface *
     if (!(cos_c_ng * wc_local.z > 0.0f) || cos_o_ng == 0.0f) return false;
     struct vec3 f = material_eval(m, wc_local, wo_local, TRANSPORT_RADIANCE);
     if (vec3_is_zero(f)) return false;
-    if (accel_occluded(c->scene->accel, bdpt_origin(s, wc), wc, 0.0f, dist * (1.0f - 1e-4f), rc)) return false;
+    if (!bdpt_visible(c->scene->accel, s->p, s->ng, cam->position, NULL, rc)) return false;
     float camera_pdf_w = c->plane_dist2 / (cos0 * cos0 * cos0);
     float camera_pdf_a = camera_pdf_w * fabsf(cos_c_ng) / dist2;
     float rev_w = material_pdf(m, wc_local, wo_local);
@@ -372,7 +390,7 @@ static struct vec3 bdpt_connect_vertex(const struct bdpt_ctx *c, const struct su
     if (vec3_is_zero(fc)) return zero;
     struct vec3 fl = material_eval(ml, wl, wol, TRANSPORT_RADIANCE);
     if (vec3_is_zero(fl)) return zero;
-    if (accel_occluded(scene->accel, bdpt_origin(s, dc), dc, 0.0f, dist * (1.0f - 1e-4f), rc)) return zero;
+    if (!bdpt_visible(scene->accel, s->p, s->ng, sl.p, &sl.ng, rc)) return zero;
     float cam_fwd_a = material_pdf(m, wo, wi) * fabsf(cos_l_ng) / dist2;
     float cam_rev_w = material_pdf(m, wi, wo);
     float light_fwd_a = material_pdf(ml, wol, wl) * fabsf(cos_c_ng) / dist2;
@@ -444,8 +462,7 @@ static struct vec3 bdpt_camera_path(struct bdpt_ctx *c, struct vec3 dir, struct 
                 float cos_ng = vec3_dot(wi_world, s.ng);
                 if (d2 > 0.0f && direct_pdf_w > 0.0f && !vec3_is_zero(Le) && cos_ng * wi.z > 0.0f) {
                     struct vec3 f = material_eval(m, wo, wi, TRANSPORT_RADIANCE);
-                    if (!vec3_is_zero(f) &&
-                        !accel_occluded(scene->accel, bdpt_origin(&s, wi_world), wi_world, 0.0f, dist * (1.0f - 1e-4f), rc)) {
+                    if (!vec3_is_zero(f) && bdpt_visible(scene->accel, s.p, s.ng, ls.p, &ls.n, rc)) {
                         float emission_pdf_w = ls.pdf_a * bdpt_emit_dir_pdf_w(lm, cos_l);
                         float w = bdpt_mis_weight_nee(&mis, material_pdf(m, wo, wi), material_pdf(m, wi, wo),
                                                       direct_pdf_w, emission_pdf_w, cos_ng, cos_l, c->power);
