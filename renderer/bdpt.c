@@ -194,7 +194,7 @@ static struct vec3 bdpt_origin(const struct surface *s, struct vec3 dir)
 
 /* Whether nothing blocks the segment from surface point a (geometric normal na) to b (normal
  * nb, or the camera's eye when nb is NULL). Both ends are offset towards each other and the
- * ray spans exactly the offset segment: measuring its length from the unoffset point instead
+ * ray spans the offset segment: measuring its length from the unoffset point instead
  * lets the ray reach the far surface itself whenever the origin offset (256 ulps, 0.016 at
  * coordinates near 500) exceeds a relative margin of the distance — short shadow rays from
  * large coordinates would then always be occluded by their own target. */
@@ -207,7 +207,9 @@ static bool bdpt_visible(const struct accel *accel, struct vec3 a, struct vec3 n
     struct vec3 e = vec3_sub(ob, oa);
     float len = vec3_length(e);
     if (!(len > 0.0f)) return false;
-    return !accel_occluded(accel, oa, vec3_scale(e, 1.0f / len), 0.0f, nb ? len : len * (1.0f - 1e-4f), rc);
+    /* The relative margin on top of the end's offset: near the origin that offset is absolute
+     * (1/65536), below the intersection error of a long ray arriving there. */
+    return !accel_occluded(accel, oa, vec3_scale(e, 1.0f / len), 0.0f, len * (1.0f - 1e-4f), rc);
 }
 
 /* Light tracing (t = 1): the light vertex at `s` (material m, incoming direction wo, throughput

@@ -132,7 +132,7 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
                         if (!vec3_is_zero(f)) {
                             shadow_side = cos_ng < 0.0f;
                             shadow_org = surface_offset_along(s.p, shadow_side ? vec3_neg(s.ng) : s.ng);
-                            /* To an emitter, the ray spans exactly from the offset origin to
+                            /* To an emitter, the ray spans from the offset origin to
                              * the light point offset towards it: a length measured from s.p
                              * lets a short ray from large coordinates (offset 256 ulps, 0.016
                              * near 500) reach the emitter itself and count it as occluder. */
@@ -141,8 +141,11 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
                             if (!ls.is_env) {
                                 struct vec3 end = surface_offset_along(ls.p, pt_emitter_side(ls.n, wi_world));
                                 struct vec3 seg = vec3_sub(end, shadow_org);
-                                tmax = vec3_length(seg);
-                                sdir = vec3_scale(seg, 1.0f / tmax);
+                                float len = vec3_length(seg);
+                                sdir = vec3_scale(seg, 1.0f / len);
+                                /* Also a relative margin: near the origin the end's offset is an
+                                 * absolute 1/65536, below a long ray's intersection error. */
+                                tmax = len * (1.0f - 1e-4f);
                             }
                             if (tmax > 0.0f && !accel_occluded(accel, shadow_org, sdir, 0.0f, tmax, rc)) {
                                 float pdf_bsdf_w = material_pdf(m, wo, wi);

@@ -35,7 +35,9 @@
     "reuse; --params sets the method's parameters as the daemon's session \"params\" object\n"    \
     "(protocol/API.md; keys it leaves out take their defaults, not the other options' values),\n" \
     "e.g. --params '{\"spatial_neighbors\": 0}'. --average-last N writes the mean of the last N\n"  \
-    "frames instead of the last one\n"
+    "frames instead of the last one\n"                                                         \
+    "--method bdpt renders frames of bidirectional path tracing (one camera path per pixel and\n" \
+    "N_L light subpaths per frame; --params '{\"heuristic\": \"balance\"}', see protocol/API.md)\n"
 
 static int cli_usage_error(const char *fmt, const char *arg)
 {

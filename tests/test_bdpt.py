@@ -70,6 +70,7 @@ def test_bdpt_matches_pt(tmp_path, scenes, scene, heuristic):
     res = ztest_runs(runs, ref)
     assert res.passed, f"{scene}, {heuristic}: {res}"
     bad = ztest_runs(runs * 1.03, ref)
+    print(f"{scene}, {heuristic}: {res}; x1.03: {bad}")
     assert not bad.passed, f"{scene}, {heuristic}: a bias of x1.03 went unseen: {bad}"
 
 
