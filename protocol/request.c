@@ -701,6 +701,34 @@ static bool request_restir_pt_params(const cJSON *pv, const char *ptr, struct re
     return restir_pt_params_valid(rp, err);
 }
 
+static bool request_bdpt_params(const cJSON *pv, const char *ptr, struct bdpt_params *bp, struct err *err)
+{
+    static const char *const keys[] = {"max_depth", "rr_depth", "light_paths", "lvc_capacity", "heuristic", NULL};
+    static const struct { const char *key; size_t off; } uints[] = {
+        {"max_depth", offsetof(struct bdpt_params, max_depth)},
+        {"rr_depth", offsetof(struct bdpt_params, rr_depth)},
+        {"light_paths", offsetof(struct bdpt_params, light_paths)},
+        {"lvc_capacity", offsetof(struct bdpt_params, lvc_capacity)},
+    };
+    char p[REQUEST_PTR];
+    const cJSON *v;
+    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in bdpt params", err))
+        return false;
+    char *base = (char *)bp;
+    for (size_t i = 0; i < sizeof uints / sizeof uints[0]; i++)
+        if ((v = request_member(pv, ptr, uints[i].key, p)) &&
+            !request_uint32(v, p, 0, 1u << 26, NULL, (uint32_t *)(base + uints[i].off), err))
+            return false;
+    if ((v = request_member(pv, ptr, "heuristic", p))) {
+        const char *name = request_string(v, p, err);
+        if (!name) return false;
+        if (!bdpt_heuristic_parse(name, &bp->heuristic))
+            return err_set(err, ERR_INVALID, p, "unknown heuristic \"%.32s\" (power or balance)", name);
+    }
+    /* Ranges are the renderer's (its pointers name /params/<key>). */
+    return bdpt_params_valid(bp, err);
+}
+
 /* Names of every method view_method_name knows, for error messages. Probes enum values rather
  * than listing names, so a method added to view.c shows up here without an edit. */
 static void request_method_list(char *out, size_t size)
@@ -769,6 +797,9 @@ bool protocol_parse_session_create(const char *body, size_t len, const struct pr
             break;
         case RENDER_METHOD_RESTIR_PT:
             ok = request_restir_pt_params(pv, p, &vp.restir_pt, err);
+            break;
+        case RENDER_METHOD_BDPT:
+            ok = request_bdpt_params(pv, p, &vp.bdpt, err);
             break;
         }
     }

@@ -37,6 +37,12 @@ struct pt_params reference_pt_defaults(uint32_t width, uint32_t height)
     return (struct pt_params){.width = width, .height = height, .spp = 16, .max_depth = 64, .rr_depth = 3, .nee = true};
 }
 
+/* The emitter normal on the side that direction `wi` (towards the emitter) arrives from. */
+static inline struct vec3 pt_emitter_side(struct vec3 n, struct vec3 wi)
+{
+    return vec3_dot(wi, n) < 0.0f ? n : vec3_neg(n);
+}
+
 /* Radiance along one camera ray. The per-vertex work around the two ray queries is most of
  * what a ray costs besides Embree's traversal (docs/benchmarks.md, instructions per ray), so the
  * loop keeps it lean: parameters are read into locals once (every Embree call is opaque to the
@@ -126,8 +132,22 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
                         if (!vec3_is_zero(f)) {
                             shadow_side = cos_ng < 0.0f;
                             shadow_org = surface_offset_along(s.p, shadow_side ? vec3_neg(s.ng) : s.ng);
-                            float tmax = ls.is_env ? INFINITY : dist * (1.0f - 1e-4f);
-                            if (!accel_occluded(accel, shadow_org, wi_world, 0.0f, tmax, rc)) {
+                            /* To an emitter, the ray spans from the offset origin to
+                             * the light point offset towards it: a length measured from s.p
+                             * lets a short ray from large coordinates (offset 256 ulps, 0.016
+                             * near 500) reach the emitter itself and count it as occluder. */
+                            struct vec3 sdir = wi_world;
+                            float tmax = INFINITY;
+                            if (!ls.is_env) {
+                                struct vec3 end = surface_offset_along(ls.p, pt_emitter_side(ls.n, wi_world));
+                                struct vec3 seg = vec3_sub(end, shadow_org);
+                                float len = vec3_length(seg);
+                                sdir = vec3_scale(seg, 1.0f / len);
+                                /* Also a relative margin: near the origin the end's offset is an
+                                 * absolute 1/65536, below a long ray's intersection error. */
+                                tmax = len * (1.0f - 1e-4f);
+                            }
+                            if (tmax > 0.0f && !accel_occluded(accel, shadow_org, sdir, 0.0f, tmax, rc)) {
                                 float pdf_bsdf_w = material_pdf(m, wo, wi);
                                 float w = sampling_power_heuristic(pdf_light_w, pdf_bsdf_w);
                                 struct vec3 c = vec3_scale(vec3_mul(f, Le), fabsf(wi.z) * w / pdf_light_w);

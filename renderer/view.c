@@ -10,6 +10,7 @@ struct view_params view_params_defaults(enum render_method method, uint32_t widt
     struct view_params p = {.method = method, .width = width, .height = height, .seed = 0};
     p.pt = (struct view_pt_params){.spp = 1, .max_depth = 64, .rr_depth = 3, .nee = true};
     p.restir_pt = restir_pt_defaults();
+    p.bdpt = bdpt_defaults();
     return p;
 }
 
@@ -17,6 +18,7 @@ bool view_method_parse(const char *name, enum render_method *out)
 {
     if (strcmp(name, "pt") == 0) { *out = RENDER_METHOD_PT; return true; }
     if (strcmp(name, "restir_pt") == 0) { *out = RENDER_METHOD_RESTIR_PT; return true; }
+    if (strcmp(name, "bdpt") == 0) { *out = RENDER_METHOD_BDPT; return true; }
     return false;
 }
 
@@ -25,6 +27,7 @@ const char *view_method_name(enum render_method method)
     switch (method) {
     case RENDER_METHOD_PT: return "pt";
     case RENDER_METHOD_RESTIR_PT: return "restir_pt";
+    case RENDER_METHOD_BDPT: return "bdpt";
     }
     return NULL;
 }
@@ -52,11 +55,15 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         if (!restir_pt_params_valid(&params->restir_pt, err)) return false;
         if (!restir_pt_init(&v->restir, scene, params->width, params->height, err)) return false;
     }
+    if (params->method == RENDER_METHOD_BDPT &&
+        !bdpt_init(&v->bdpt, scene, &params->bdpt, params->width, params->height, err))
+        return false;
     /* pt needs its frame and the accumulation buffer: no reservoirs, no G-buffer. */
     if (!image_init(&v->output, params->width, params->height, err) ||
         !image_init(&v->accum, params->width, params->height, err)) {
         image_destroy(&v->output);
         restir_pt_destroy(&v->restir);
+        bdpt_destroy(&v->bdpt);
         return false;
     }
     v->changes = calloc(scene->shape_count ? scene->shape_count : 1, sizeof *v->changes);
@@ -64,6 +71,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         image_destroy(&v->output);
         image_destroy(&v->accum);
         restir_pt_destroy(&v->restir);
+        bdpt_destroy(&v->bdpt);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for a view");
     }
     v->params = *params;
@@ -83,6 +91,7 @@ void view_destroy(struct view *v)
     image_destroy(&v->output);
     image_destroy(&v->accum);
     restir_pt_destroy(&v->restir);
+    bdpt_destroy(&v->bdpt);
     free(v->changes);
     memset(v, 0, sizeof *v);
 }
@@ -187,6 +196,7 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
 
     struct render_stats rs;
     struct restir_pt_stats passes;
+    struct bdpt_stats bstats;
     bool ok;
     if (v->params.method == RENDER_METHOD_RESTIR_PT) {
         /* The previous frame's scene and camera are the view's current ones until the commit
@@ -203,6 +213,20 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
             rs.nonfinite = passes.nonfinite;
             rs.threads = v->threads ? v->threads : parallel_default_threads();
             rs.render_ms = passes.gbuffer_ms + passes.initial_ms + passes.temporal_ms + passes.spatial_ms + passes.shade_ms;
+            if (progress) progress(progress_ctx, 1, 1);
+        }
+    } else if (v->params.method == RENDER_METHOD_BDPT) {
+        struct bdpt_frame f = {.scene = scene, .camera = &camera, .seed = v->params.seed, .frame = v->frame,
+                               .threads = v->threads};
+        ok = bdpt_render(&v->bdpt, &v->params.bdpt, &f, out, &bstats, err);
+        if (ok) {
+            memset(&rs, 0, sizeof rs);
+            rs.rays_intersect = bstats.rays_intersect;
+            rs.rays_occluded = bstats.rays_occluded;
+            rs.samples = (uint64_t)out->width * out->height;
+            rs.nonfinite = bstats.nonfinite;
+            rs.threads = v->threads ? v->threads : parallel_default_threads();
+            rs.render_ms = bstats.light_ms + bstats.splat_ms + bstats.camera_ms;
             if (progress) progress(progress_ctx, 1, 1);
         }
     } else {
@@ -246,6 +270,8 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         stats->accumulated = v->accum_count;
         stats->has_passes = v->params.method == RENDER_METHOD_RESTIR_PT;
         if (stats->has_passes) stats->passes = passes;
+        stats->has_bdpt = v->params.method == RENDER_METHOD_BDPT;
+        if (stats->has_bdpt) stats->bdpt = bstats;
     }
     v->frame++;
     return true;
@@ -269,6 +295,7 @@ uint64_t view_bytes_planned(const struct view_params *params, uint32_t shape_cou
     uint64_t pixels = (uint64_t)params->width * params->height;
     uint64_t bytes = 2 * pixels * sizeof(struct vec3) + (uint64_t)(shape_count ? shape_count : 1) * sizeof(struct view_shape_change);
     if (params->method == RENDER_METHOD_RESTIR_PT) bytes += restir_pt_bytes_planned(params->width, params->height, shape_count);
+    if (params->method == RENDER_METHOD_BDPT) bytes += bdpt_bytes_planned(&params->bdpt, params->width, params->height);
     return bytes;
 }
 
@@ -284,6 +311,10 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
         out[n++] = (struct view_buffer_bytes){"primitive_table", ((size_t)v->restir.shape_count + 1) * sizeof *v->restir.prim_first};
         out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_pt_pair_bytes(&v->restir)};
         out[n++] = (struct view_buffer_bytes){"primary_hits", restir_pt_hit_bytes(&v->restir)};
+    }
+    if (v->params.method == RENDER_METHOD_BDPT) {
+        out[n++] = (struct view_buffer_bytes){"light_vertex_cache", bdpt_lvc_bytes(&v->bdpt)};
+        out[n++] = (struct view_buffer_bytes){"lvc_blocks", bdpt_block_bytes(&v->bdpt)};
     }
     size_t sum = 0;
     for (uint32_t i = 0; i < n; i++) sum += out[i].bytes;

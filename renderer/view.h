@@ -13,13 +13,14 @@
 #include <stdint.h>
 
 #include "animation.h"
+#include "bdpt.h"
 #include "image.h"
 #include "parallel.h"
 #include "reference_pt.h"
 #include "restir_pt.h"
 #include "scene.h"
 
-enum render_method { RENDER_METHOD_PT, RENDER_METHOD_RESTIR_PT };
+enum render_method { RENDER_METHOD_PT, RENDER_METHOD_RESTIR_PT, RENDER_METHOD_BDPT };
 
 /* Parameters of `pt` (reference_pt.h documents them). */
 struct view_pt_params {
@@ -33,6 +34,7 @@ struct view_params {
     uint64_t seed;
     struct view_pt_params pt;
     struct restir_pt_params restir_pt;   /* method restir_pt (restir_pt.h) */
+    struct bdpt_params bdpt;             /* method bdpt (bdpt.h) */
 };
 
 /* Defaults of every method's parameters (pt: 1 spp per frame, max_depth 64, rr_depth 3, NEE;
@@ -96,6 +98,8 @@ struct frame_stats {
     uint32_t accumulated;                 /* frames in the accumulation buffer after this one */
     bool has_passes;                      /* restir_pt: the per-pass numbers below are set */
     struct restir_pt_stats passes;
+    bool has_bdpt;                        /* bdpt: the numbers below are set */
+    struct bdpt_stats bdpt;
 };
 
 struct view {
@@ -111,6 +115,7 @@ struct view {
     struct image accum;                   /* running sum since the last change */
     uint32_t accum_count;
     struct restir_pt_state restir;        /* restir_pt only: G-buffers and reservoirs */
+    struct bdpt_state bdpt;               /* bdpt only: the light vertex cache */
     struct view_shape_change *changes;    /* the shape changes in force, one per changed shape */
     uint32_t change_count;
 };

@@ -65,6 +65,13 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
         jsonw_key(w, "near_distance"); jsonw_double(w, r->near_distance);
         jsonw_key(w, "pdf_connect"); jsonw_bool(w, r->pdf_connect);
         jsonw_key(w, "roughness_min"); jsonw_double(w, r->roughness_min);
+    } else if (p->method == RENDER_METHOD_BDPT) {
+        const struct bdpt_params *b = &p->bdpt;
+        jsonw_key(w, "max_depth"); jsonw_uint(w, b->max_depth);
+        jsonw_key(w, "rr_depth"); jsonw_uint(w, b->rr_depth);
+        jsonw_key(w, "light_paths"); jsonw_uint(w, b->light_paths);
+        jsonw_key(w, "lvc_capacity"); jsonw_uint(w, b->lvc_capacity);
+        jsonw_key(w, "heuristic"); jsonw_string(w, bdpt_heuristic_name(b->heuristic));
     } else {
         jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);
         jsonw_key(w, "max_depth"); jsonw_uint(w, p->pt.max_depth);
@@ -86,6 +93,21 @@ static void api_write_passes(struct jsonw *w, const struct restir_pt_stats *ps)
     jsonw_key(w, "shifts"); jsonw_uint(w, ps->shifts);
     jsonw_key(w, "shift_failures"); jsonw_uint(w, ps->shift_failures);
     jsonw_key(w, "rejected"); jsonw_uint(w, ps->rejected);
+    jsonw_object_end(w);
+}
+
+/* Light subpaths, the light vertex cache and the light-tracing samples of a bdpt frame. */
+static void api_write_bdpt(struct jsonw *w, const struct bdpt_stats *b)
+{
+    jsonw_object_begin(w);
+    jsonw_key(w, "light_ms"); jsonw_double(w, b->light_ms);
+    jsonw_key(w, "splat_ms"); jsonw_double(w, b->splat_ms);
+    jsonw_key(w, "camera_ms"); jsonw_double(w, b->camera_ms);
+    jsonw_key(w, "light_subpaths"); jsonw_uint(w, b->light_subpaths);
+    jsonw_key(w, "lvc_vertices"); jsonw_uint(w, b->lvc_vertices);
+    jsonw_key(w, "lvc_dropped"); jsonw_uint(w, b->lvc_dropped);
+    jsonw_key(w, "light_traced"); jsonw_uint(w, b->light_traced);
+    jsonw_key(w, "connections"); jsonw_uint(w, b->connections);
     jsonw_object_end(w);
 }
 
@@ -339,6 +361,10 @@ static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
     if (f->stats->has_passes) {
         jsonw_key(w, "passes");
         api_write_passes(w, &f->stats->passes);
+    }
+    if (f->stats->has_bdpt) {
+        jsonw_key(w, "bdpt");
+        api_write_bdpt(w, &f->stats->bdpt);
     }
     jsonw_key(w, "href"); jsonw_string(w, href);
     if (f->ref) {

@@ -20,7 +20,7 @@
 
 #define CLI_USAGE                                                                                  \
     "usage:\n"                                                                                     \
-    "  restir render SCENE.json|SCENE_FOLDER [--method pt|restir_pt] [--spp N] [--size WxH] [--seed S] [--frame F]\n" \
+    "  restir render SCENE.json|SCENE_FOLDER [--method pt|restir_pt|bdpt] [--spp N] [--size WxH] [--seed S] [--frame F]\n" \
     "                [--threads T] [--max-depth D] [--rr-depth R] [--no-nee] [--crop X0,Y0,X1,Y1]\n"    \
     "                [--frames F] [--average-last N] [--animation FILE.json] [--params JSON]\n"       \
     "                [--half] [--json] -o OUT.exr\n"                                              \
@@ -36,7 +36,9 @@
     "reuse; --params sets the method's parameters as the daemon's session \"params\" object\n"    \
     "(protocol/API.md; keys it leaves out take their defaults, not the other options' values),\n" \
     "e.g. --params '{\"spatial_neighbors\": 0}'. --average-last N writes the mean of the last N\n"  \
-    "frames instead of the last one\n"
+    "frames instead of the last one\n"                                                         \
+    "--method bdpt renders frames of bidirectional path tracing (one camera path per pixel and\n" \
+    "N_L light subpaths per frame; --params '{\"heuristic\": \"balance\"}', see protocol/API.md)\n"
 
 static int cli_usage_error(const char *fmt, const char *arg)
 {
@@ -105,6 +107,7 @@ static bool cli_method_params(const char *params_json, struct view_params *vp, s
     if (!ok) return false;
     vp->pt = parsed.pt;
     vp->restir_pt = parsed.restir_pt;
+    vp->bdpt = parsed.bdpt;
     return true;
 }
 
@@ -261,7 +264,7 @@ static int cli_render(int argc, char **argv)
     if (!scene_path) return cli_usage_error("%s", "render needs a scene file");
     if (!out_path) return cli_usage_error("%s", "render needs -o OUT.exr");
     enum render_method rm;
-    if (!view_method_parse(method, &rm)) return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt)", method);
+    if (!view_method_parse(method, &rm)) return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt, bdpt)", method);
     if (rm != RENDER_METHOD_PT && (has_crop || has_frame))
         return cli_usage_error("%s", "--crop and --frame are options of --method pt");
     p.width = width;
@@ -308,6 +311,8 @@ static int cli_render(int argc, char **argv)
         vp.restir_pt.max_depth = p.max_depth;
         vp.restir_pt.rr_depth = p.rr_depth;
         if (!p.nee) vp.restir_pt.nee_candidates = 0;
+        vp.bdpt.max_depth = p.max_depth;
+        vp.bdpt.rr_depth = p.rr_depth;
         if (params_json && !cli_method_params(params_json, &vp, &err)) {
             fprintf(stderr, "restir: --params: %s\n", err_format(&err, msg, sizeof msg));
             scene_release(scene);
@@ -349,6 +354,14 @@ static int cli_render(int argc, char **argv)
                    "\"reservoir_bytes_per_pixel\":%u",
                    ps->gbuffer_ms, ps->initial_ms, ps->temporal_ms, ps->spatial_ms, ps->shade_ms, ps->shifts,
                    ps->shift_failures, session_bytes, RESTIR_PT_RESERVOIR_BYTES);
+        }
+        if (last.has_bdpt) {
+            const struct bdpt_stats *bs = &last.bdpt;
+            printf(",\"last_frame\":{\"light_ms\":%.3f,\"splat_ms\":%.3f,\"camera_ms\":%.3f,\"light_subpaths\":%" PRIu64
+                   ",\"lvc_vertices\":%" PRIu64 ",\"lvc_dropped\":%" PRIu64 ",\"light_traced\":%" PRIu64
+                   ",\"connections\":%" PRIu64 "},\"session_bytes\":%zu",
+                   bs->light_ms, bs->splat_ms, bs->camera_ms, bs->light_subpaths, bs->lvc_vertices, bs->lvc_dropped,
+                   bs->light_traced, bs->connections, session_bytes);
         }
         printf("}\n");
     } else {

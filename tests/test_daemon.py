@@ -1268,6 +1268,40 @@ def test_restir_pt_session(daemon):
     assert daemon.req("DELETE", s["href"]).status == 204
 
 
+def test_bdpt_session(daemon):
+    """A bdpt session: its parameters with defaults, exactly its own buffers (the light vertex
+    cache and its block table, no reservoirs), and frames reporting light subpaths, cache size
+    and light-traced samples."""
+    s = new_session(daemon, method="bdpt", width=32, height=24, seed=3, params={"heuristic": "balance"})
+    assert s["method"] == "bdpt"
+    p = s["params"]
+    assert p == {"max_depth": 64, "rr_depth": 3, "light_paths": 0, "lvc_capacity": 8, "heuristic": "balance"}
+    assert s["reservoir_bytes"] == 0 and s["reservoir_bytes_per_pixel"] == 0
+    assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "light_vertex_cache", "lvc_blocks"}
+    # 32 x 24 = 768 light subpaths: 3 blocks of 256, 8 vertices each of 68 bytes.
+    assert s["buffers"]["light_vertex_cache"] == 3 * 256 * 8 * 68
+    st = post_frame(daemon, s, accept="application/json").json()
+    b = st["bdpt"]
+    assert b["light_subpaths"] == 32 * 24 and b["lvc_vertices"] > 0 and b["lvc_dropped"] == 0
+    assert b["light_traced"] > 0 and b["connections"] > 0 and "passes" not in st
+    assert st["nonfinite"] == 0 and st["samples"] == 32 * 24
+    img = frame_rgb(daemon, s)
+    assert img.shape == (24, 32, 3) and np.isfinite(img).all() and img.mean() > 0.01
+    assert daemon.req("DELETE", s["href"]).status == 204
+
+
+@pytest.mark.parametrize("params,field", [
+    ({"lvc_capacity": 0}, "/params/lvc_capacity"),
+    ({"heuristic": "max"}, "/params/heuristic"),
+    ({"max_depth": 0}, "/params/max_depth"),
+    ({"spp": 4}, "/params/spp"),
+])
+def test_bdpt_bad_params(daemon, params, field):
+    r = daemon.req("POST", f"{CORNELL}/sessions", json_body={"method": "bdpt", "width": 8, "height": 8,
+                                                             "params": params})
+    assert_problem(r, 422, "invalid-field", field)
+
+
 @pytest.mark.parametrize("params,field", [
     ({"spatial_neighbors": 65}, "/params/spatial_neighbors"),
     ({"footprint_c": 0}, "/params/footprint_c"),

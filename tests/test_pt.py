@@ -156,6 +156,33 @@ def test_nee_mis_agrees_with_bsdf_sampling(tmp_path):
     assert not ztest_runs(nee * 1.03, bsdf).passed
 
 
+def test_nee_short_shadow_rays_at_large_coordinates(tmp_path):
+    """Next-event estimation from a ceiling at y = 550 to an upward-facing light 100 units below
+    it: the shadow ray's origin offset (256 ulps, 0.016 there) is larger than a relative margin
+    of the ray, so a ray measured from the unoffset point reaches the light and counts it as its
+    own occluder (found by bdpt's tests: NEE then lit the ceiling with 11 % of the light BSDF
+    sampling finds). Direct light only; NEE with MIS must agree with BSDF sampling alone."""
+    scene = {
+        "camera": {"position": [0, 300, -700], "look_at": [0, 620, 0], "up": [0, 1, 0], "fov_deg": 30},
+        "materials": {"white": {"type": "diffuse", "albedo": [0.7, 0.7, 0.7]},
+                      "lamp": {"type": "diffuse", "albedo": [0, 0, 0], "emission": [1, 1, 1]}},
+        "shapes": [
+            {"type": "quad", "material": "white",
+             "vertices": [[-500, 550, -500], [500, 550, -500], [500, 550, 500], [-500, 550, 500]]},
+            {"type": "quad", "material": "lamp",
+             "vertices": [[-250, 450, -250], [-250, 450, 250], [250, 450, 250], [250, 450, -250]]},
+        ],
+    }
+    path = tmp_path / "ceiling.json"
+    path.write_text(json.dumps(scene))
+    extra = ["--max-depth", "1"]
+    nee = _runs(path, tmp_path, range(16), spp=16, size="16x16", extra=extra)
+    bsdf = _runs(path, tmp_path, range(500, 516), spp=256, size="16x16", extra=[*extra, "--no-nee"])
+    res = ztest_runs(nee, bsdf)
+    assert res.passed, str(res)
+    assert not ztest_runs(nee * 1.03, bsdf).passed
+
+
 def test_furnace_closed_emissive_sphere(tmp_path):
     """Camera inside a closed diffuse sphere of albedo a emitting Le on its inside: radiance is
     Le / (1 - a) everywhere (geometric series of bounces). Exercises Russian roulette, deep

@@ -28,4 +28,13 @@ export const METHODS = {
       { name: 'max_depth', kind: 'number', value: 64, help: 'longest path, in bounces' },
     ],
   },
+  bdpt: {
+    label: 'bdpt: bidirectional path tracing (light vertex cache, recursive MIS)',
+    params: [
+      { name: 'light_paths', kind: 'number', value: 0, help: 'light subpaths per frame (0: the pixel count)' },
+      { name: 'heuristic', kind: 'text', value: 'power', help: 'MIS heuristic: power or balance' },
+      { name: 'lvc_capacity', kind: 'number', value: 8, help: 'cached light vertices per light subpath' },
+      { name: 'max_depth', kind: 'number', value: 64, help: 'longest path, in bounces' },
+    ],
+  },
 };
