@@ -340,5 +340,33 @@ static void test_shift_inverts(void)
     scene_release(s);
 }
 
-TEST_MAIN(TEST(test_flat_mirror), TEST(test_flat_interface), TEST(test_flat_slab), TEST(test_curved),
+/* The scene key that sets a caster's chain: defaults by material, explicit 1 on a dielectric. */
+static void test_caustic_interfaces_key(void)
+{
+    struct err err = {0};
+    struct scene *s = scene_load_file("scenes/refractive-slab/scene.json", &err);
+    CHECK_MSG(s != NULL, "%s", err.message);
+    if (s) {
+        CHECK(s->shapes[scene_find_shape(s, "slab")].caustic_interfaces == 2);
+        CHECK(s->shapes[scene_find_shape(s, "floor")].caustic_interfaces == 0);
+        scene_release(s);
+    }
+    s = scene_load_file("scenes/reflective-plane/scene.json", &err);
+    CHECK_MSG(s != NULL, "%s", err.message);
+    if (s) {
+        CHECK(s->shapes[scene_find_shape(s, "plane")].caustic_interfaces == 1);
+        scene_release(s);
+    }
+    static const char *json = SCENE_HEAD "\"materials\": {\"g\": {\"type\": \"dielectric\", \"ior\": 1.33}},"
+        "\"shapes\": [{\"type\": \"quad\", \"material\": \"g\", \"caustic_caster\": true, \"caustic_interfaces\": 1,"
+        " \"vertices\": [[-3, 0, -3], [-3, 0, 3], [3, 0, 3], [3, 0, -3]]}]}";
+    s = scene_load_json(json, strlen(json), NULL, &err);
+    CHECK_MSG(s != NULL, "%s", err.message);
+    if (s) {
+        CHECK(s->shapes[0].caustic_interfaces == 1);
+        scene_release(s);
+    }
+}
+
+TEST_MAIN(TEST(test_caustic_interfaces_key), TEST(test_flat_mirror), TEST(test_flat_interface), TEST(test_flat_slab), TEST(test_curved),
           TEST(test_shift_inverts))
