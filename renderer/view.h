@@ -19,12 +19,13 @@
 #include "restir_pt.h"
 #include "scene.h"
 
-enum render_method { RENDER_METHOD_PT, RENDER_METHOD_RESTIR_PT };
+enum render_method { RENDER_METHOD_PT, RENDER_METHOD_RESTIR_PT, RENDER_METHOD_SMS };
 
 /* Parameters of `pt` (reference_pt.h documents them). */
 struct view_pt_params {
     uint32_t spp, max_depth, rr_depth;
     bool nee;
+    enum pt_subset subset;   /* pt: which light transport (sms.h); sms: ignored */
 };
 
 struct view_params {
@@ -33,6 +34,7 @@ struct view_params {
     uint64_t seed;
     struct view_pt_params pt;
     struct restir_pt_params restir_pt;   /* method restir_pt (restir_pt.h) */
+    struct sms_params sms;               /* method sms (sms.h; spp, depths and nee from `pt`) */
 };
 
 /* Defaults of every method's parameters (pt: 1 spp per frame, max_depth 64, rr_depth 3, NEE;

@@ -64,11 +64,20 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
         jsonw_key(w, "near_distance"); jsonw_double(w, r->near_distance);
         jsonw_key(w, "pdf_connect"); jsonw_bool(w, r->pdf_connect);
         jsonw_key(w, "roughness_min"); jsonw_double(w, r->roughness_min);
+    } else if (p->method == RENDER_METHOD_SMS) {
+        jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);
+        jsonw_key(w, "max_depth"); jsonw_uint(w, p->pt.max_depth);
+        jsonw_key(w, "rr_depth"); jsonw_uint(w, p->pt.rr_depth);
+        jsonw_key(w, "bernoulli_cap"); jsonw_uint(w, p->sms.bernoulli_cap);
+        jsonw_key(w, "max_iterations"); jsonw_uint(w, p->sms.max_iterations);
+        jsonw_key(w, "caustics_only"); jsonw_bool(w, p->sms.caustics_only);
     } else {
+        static const char *const subsets[] = {"all", "caustic", "rest"};
         jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);
         jsonw_key(w, "max_depth"); jsonw_uint(w, p->pt.max_depth);
         jsonw_key(w, "rr_depth"); jsonw_uint(w, p->pt.rr_depth);
         jsonw_key(w, "nee"); jsonw_bool(w, p->pt.nee);
+        jsonw_key(w, "subset"); jsonw_string(w, subsets[p->pt.subset]);
     }
     jsonw_object_end(w);
 }

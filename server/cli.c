@@ -104,6 +104,7 @@ static bool cli_method_params(const char *params_json, struct view_params *vp, s
     if (!ok) return false;
     vp->pt = parsed.pt;
     vp->restir_pt = parsed.restir_pt;
+    vp->sms = parsed.sms;
     return true;
 }
 
@@ -176,6 +177,13 @@ static bool cli_render_sequence(struct scene *scene, const struct view_params *v
         st->nonfinite += fs.render.nonfinite;
         st->render_ms += fs.render.render_ms + fs.scene_update_ms;
         st->threads = fs.render.threads;
+        st->sms.samples += fs.render.sms.samples;
+        st->sms.solutions += fs.render.sms.solutions;
+        st->sms.newton_sample += fs.render.sms.newton_sample;
+        st->sms.trials += fs.render.sms.trials;
+        st->sms.newton_trials += fs.render.sms.newton_trials;
+        st->sms.capped += fs.render.sms.capped;
+        st->sms.sample_ms += fs.render.sms.sample_ms;
         *last = fs;
         if (i + average_last >= frames) {
             size_t n = (size_t)img->width * img->height;
@@ -260,7 +268,7 @@ static int cli_render(int argc, char **argv)
     if (!scene_path) return cli_usage_error("%s", "render needs a scene file");
     if (!out_path) return cli_usage_error("%s", "render needs -o OUT.exr");
     enum render_method rm;
-    if (!view_method_parse(method, &rm)) return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt)", method);
+    if (!view_method_parse(method, &rm)) return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt, sms)", method);
     if (rm != RENDER_METHOD_PT && (has_crop || has_frame))
         return cli_usage_error("%s", "--crop and --frame are options of --method pt");
     p.width = width;
@@ -338,6 +346,13 @@ static int cli_render(int argc, char **argv)
                    "\"reservoir_bytes_per_pixel\":%u",
                    ps->gbuffer_ms, ps->initial_ms, ps->temporal_ms, ps->spatial_ms, ps->shade_ms, ps->shifts,
                    ps->shift_failures, session_bytes, RESTIR_PT_RESERVOIR_BYTES);
+        }
+        if (rm == RENDER_METHOD_SMS) {
+            /* Seed 002 Table 1 (manifold sampling) over all frames rendered. */
+            const struct sms_counters *c = &st.sms;
+            printf(",\"sms\":{\"samples\":%" PRIu64 ",\"solutions\":%" PRIu64 ",\"newton_sample\":%" PRIu64
+                   ",\"trials\":%" PRIu64 ",\"newton_trials\":%" PRIu64 ",\"capped\":%" PRIu64 ",\"sample_ms\":%.3f}",
+                   c->samples, c->solutions, c->newton_sample, c->trials, c->newton_trials, c->capped, c->sample_ms);
         }
         printf("}\n");
     } else {

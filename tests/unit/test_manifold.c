@@ -175,6 +175,22 @@ static void test_flat_interface(void)
     scene_release(s);
 }
 
+/* The two points of the straight-through path x1 -> slab [0, 0.3] -> xe (outside angle a,
+ * inside b with sin a = 1.5 sin b; horizontal reach (h1 + h2) tan a + 0.3 tan b). */
+static void slab_points(struct vec3 x1, struct vec3 xe, struct vec3 out[2])
+{
+    double dx = xe.x - x1.x, dz = xe.z - x1.z, D = sqrt(dx * dx + dz * dz), H = (double)-x1.y + (xe.y - 0.3);
+    double lo = 0.0, hi = M_PI / 2 - 1e-9;
+    for (int i = 0; i < 200; i++) {
+        double a = 0.5 * (lo + hi), b = asin(sin(a) / 1.5);
+        if (H * tan(a) + 0.3 * tan(b) > D) hi = a; else lo = a;
+    }
+    double a = 0.5 * (lo + hi), b = asin(sin(a) / 1.5);
+    double r1 = -x1.y * tan(a) / D, r2 = (-x1.y * tan(a) + 0.3 * tan(b)) / D;
+    out[0] = vec3_make((float)(x1.x + r1 * dx), 0.0f, (float)(x1.z + r1 * dz));
+    out[1] = vec3_make((float)(x1.x + r2 * dx), 0.3f, (float)(x1.z + r2 * dz));
+}
+
 static void test_flat_slab(void)
 {
     struct scene *s = load(slab_json);
@@ -182,20 +198,35 @@ static void test_flat_slab(void)
     struct manifold_chain ch = {.shape = 0, .length = 2, .events = {MANIFOLD_REFRACT, MANIFOLD_REFRACT}, .ior = 1.5f};
     struct manifold_ends e = {.x1 = vec3_make(-0.3f, -1.0f, 0.2f), .ng1 = vec3_make(0, 1, 0),
                               .xe = vec3_make(0.6f, 1.5f, -0.4f), .nge = vec3_make(0, -1, 0)};
-    /* Outside angle a, inside b with sin a = 1.5 sin b; horizontal reach (1 + 1.2) tan a + 0.3 tan b. */
-    double dx = e.xe.x - e.x1.x, dz = e.xe.z - e.x1.z, D = sqrt(dx * dx + dz * dz);
-    double lo = 0.0, hi = M_PI / 2 - 1e-9;
-    for (int i = 0; i < 200; i++) {
-        double a = 0.5 * (lo + hi), b = asin(sin(a) / 1.5);
-        if (2.2 * tan(a) + 0.3 * tan(b) > D) hi = a; else lo = a;
-    }
-    double a = 0.5 * (lo + hi), b = asin(sin(a) / 1.5);
-    double r1 = tan(a) / D, r2 = (tan(a) + 0.3 * tan(b)) / D;
-    struct vec3 expect[2] = {vec3_make((float)(e.x1.x + r1 * dx), 0.0f, (float)(e.x1.z + r1 * dz)),
-                             vec3_make((float)(e.x1.x + r2 * dx), 0.3f, (float)(e.x1.z + r2 * dz))};
+    struct vec3 expect[2];
+    slab_points(e.x1, e.xe, expect);
     uint32_t max_it;
     int n = walk_from_perturbed(s, &ch, &e, expect, 0.8f, 64, &max_it);
     CHECK_MSG(n == 64, "%d of 64 converged", n);
+    /* Generalized geometry of the two-vertex chain against finite differences of the analytic
+     * path's direction at x1 as the light point moves. */
+    struct manifold_vertex v[2];
+    struct ray_counters rc = {0, 0};
+    CHECK(manifold_seed_path(s, &ch, &e, expect[0], v, &rc) && manifold_walk(s, &ch, &e, v, 20, NULL, &rc));
+    double G = manifold_geometry(s, &ch, &e, v);
+    const double h = 1e-3;
+    double dw[2][3];
+    struct vec3 tan[2] = {vec3_make(1, 0, 0), vec3_make(0, 0, 1)};
+    for (int a = 0; a < 2; a++) {
+        double w[2][3];
+        for (int sg = 0; sg < 2; sg++) {
+            struct vec3 q[2];
+            slab_points(e.x1, vec3_madd(e.xe, tan[a], (float)(sg ? -h : h)), q);
+            struct vec3 wv = vec3_normalize(vec3_sub(q[0], e.x1));
+            w[sg][0] = wv.x, w[sg][1] = wv.y, w[sg][2] = wv.z;
+        }
+        for (int c = 0; c < 3; c++) dw[a][c] = (w[0][c] - w[1][c]) / (2.0 * h);
+    }
+    struct vec3 w0 = vec3_normalize(vec3_sub(expect[0], e.x1));
+    double cx = dw[0][1] * dw[1][2] - dw[0][2] * dw[1][1], cy = dw[0][2] * dw[1][0] - dw[0][0] * dw[1][2],
+           cz = dw[0][0] * dw[1][1] - dw[0][1] * dw[1][0];
+    double Gx = fabs(cx * w0.x + cy * w0.y + cz * w0.z);
+    CHECK_MSG(fabs(G / Gx - 1.0) < 2e-3, "G %g, finite differences %g", G, Gx);
     scene_release(s);
 }
 
