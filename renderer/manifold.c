@@ -351,12 +351,19 @@ bool manifold_walk(const struct scene *scene, const struct manifold_chain *chain
         if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) goto done;
     if (!mf_eval_at(chain, x1, xe, g, C)) goto done;
     double norm = mf_norm(C, n2);
+    uint32_t polish = 0;
     for (;;) {
         if (norm < MANIFOLD_TOLERANCE) {
+            /* Converged. A few more full steps (quadratic convergence: usually one) take C to
+             * the double-precision floor, so that two walks that reach the same solution agree
+             * on it to far better than the 1e-4 same-solution threshold of the Bernoulli trials,
+             * even near a caustic fold where ‖C‖ < 1e-5 alone leaves the position loose. */
             ok = true;
+            if (norm < MANIFOLD_POLISH_TOLERANCE || polish >= MANIFOLD_POLISH_STEPS) break;
+            polish++;
+        } else if (it >= max_iterations) {
             break;
         }
-        if (it >= max_iterations) break;
         if (!have_step) {
             double J[MF_N][MF_N];
             if (!mf_jacobian(chain, x1, xe, g, J)) break;
@@ -394,6 +401,7 @@ bool manifold_walk(const struct scene *scene, const struct manifold_chain *chain
             beta = fmin(1.0, 2.0 * beta);
             have_step = false;
         } else {
+            if (ok) break;  /* polishing stalled at the rounding floor */
             beta *= 0.5;
         }
     }

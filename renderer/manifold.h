@@ -36,6 +36,8 @@ struct scene;
 #define MANIFOLD_MAX_CHAIN 2
 #define MANIFOLD_MAX_ITERATIONS 20     /* Zeltner et al. 2020: 20 Newton steps */
 #define MANIFOLD_TOLERANCE 1e-5        /* ‖C‖ (radians) at convergence */
+#define MANIFOLD_POLISH_TOLERANCE 1e-11 /* after convergence, steps continue towards this... */
+#define MANIFOLD_POLISH_STEPS 3         /* ...for at most this many more steps */
 
 enum manifold_event { MANIFOLD_REFLECT, MANIFOLD_REFRACT };
 
@@ -77,7 +79,8 @@ bool manifold_seed_path(const struct scene *scene, const struct manifold_chain *
 /* Walks `v` (chain->length vertices, a path on the caster) to a solution: at most
  * `max_iterations` Newton steps, halving the step when a step fails to re-project onto the
  * caster or does not reduce ‖C‖, doubling it back after a success. True when ‖C‖ <
- * MANIFOLD_TOLERANCE; `v` is then the solution (on failure it holds the last iterate). */
+ * MANIFOLD_TOLERANCE; `v` is then the solution, polished by up to MANIFOLD_POLISH_STEPS more
+ * steps (counted in stats, not against max_iterations); on failure it holds the last iterate. */
 bool manifold_walk(const struct scene *scene, const struct manifold_chain *chain, const struct manifold_ends *ends,
                    struct manifold_vertex *v, uint32_t max_iterations, struct manifold_stats *stats,
                    struct ray_counters *rc);
