@@ -255,6 +255,7 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         stats->accumulated = v->accum_count;
         stats->has_passes = v->params.method == RENDER_METHOD_RESTIR_PT;
         if (stats->has_passes) stats->passes = passes;
+        stats->has_sms = v->params.method == RENDER_METHOD_SMS;
     }
     v->frame++;
     return true;

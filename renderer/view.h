@@ -97,6 +97,7 @@ struct frame_stats {
     double scene_update_ms;               /* rebuilding the scene for moved or re-lit shapes */
     uint32_t accumulated;                 /* frames in the accumulation buffer after this one */
     bool has_passes;                      /* restir_pt: the per-pass numbers below are set */
+    bool has_sms;                         /* sms: render.sms holds seed 002 Table 1's counters */
     struct restir_pt_stats passes;
 };
 

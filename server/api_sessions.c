@@ -348,6 +348,26 @@ static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
         jsonw_key(w, "passes");
         api_write_passes(w, &f->stats->passes);
     }
+    if (f->stats->has_sms) {
+        /* Seed 002 Table 1, manifold sampling columns, for this frame. */
+        const struct sms_counters *sc = &r->sms;
+        double n = (double)sc->samples, sol = (double)sc->solutions;
+        jsonw_key(w, "sms");
+        jsonw_object_begin(w);
+        jsonw_key(w, "samples"); jsonw_uint(w, sc->samples);
+        jsonw_key(w, "solutions"); jsonw_uint(w, sc->solutions);
+        jsonw_key(w, "newton_sample"); jsonw_uint(w, sc->newton_sample);
+        jsonw_key(w, "trials"); jsonw_uint(w, sc->trials);
+        jsonw_key(w, "newton_trials"); jsonw_uint(w, sc->newton_trials);
+        jsonw_key(w, "capped"); jsonw_uint(w, sc->capped);
+        jsonw_key(w, "sample_ms"); jsonw_double(w, sc->sample_ms);
+        jsonw_key(w, "success_rate"); jsonw_double(w, n > 0 ? sol / n : 0.0);
+        jsonw_key(w, "newtons_per_sample"); jsonw_double(w, n > 0 ? (double)sc->newton_sample / n : 0.0);
+        jsonw_key(w, "bernoulli_per_solution"); jsonw_double(w, sol > 0 ? (double)sc->trials / sol : 0.0);
+        jsonw_key(w, "newtons_per_solution");
+        jsonw_double(w, sol > 0 ? (double)(sc->newton_sample + sc->newton_trials) / sol : 0.0);
+        jsonw_object_end(w);
+    }
     jsonw_key(w, "href"); jsonw_string(w, href);
     if (f->ref) {
         struct metrics m;

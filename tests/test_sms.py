@@ -104,3 +104,33 @@ def test_sms_unbiased_against_filtered_reference(tmp_path, scenes):
     print(f"sms vs filtered reference: {res}; x1.03: {bad}; counters of the last run: {stats['sms']}")
     assert res.passed, f"sms vs pt subset caustic: {res}"
     assert not bad.passed, f"a bias of x1.03 went unseen: {bad}"
+
+
+def test_sms_session_in_the_daemon(tmp_path):
+    """An sms session: its parameters with defaults, no buffers beyond pt's, and frames that report
+    seed 002 Table 1's counters; a bad parameter is a 422 naming it."""
+    from daemon import Daemon
+    d = Daemon(tmp_path / "data", "--threads", "2")
+    try:
+        r = d.req("POST", f"/v1/scenes/{SCENE}/sessions",
+                  json_body={"method": "sms", "width": 16, "height": 16, "params": {"bernoulli_cap": 0}})
+        assert r.status == 201, repr(r)
+        s = r.json()
+        assert s["method"] == "sms" and s["params"]["bernoulli_cap"] == 0 and s["params"]["max_iterations"] == 20
+        assert s["params"]["caustics_only"] is False and s["reservoir_bytes"] == 0
+        assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes"}
+        f = d.req("POST", s["href"] + "/frames", headers={"Accept": "application/json"})
+        assert f.status == 200, repr(f)
+        st = f.json()["sms"]
+        assert st["samples"] > 0 and 0 < st["success_rate"] <= 1 and st["capped"] == 0
+        assert st["newtons_per_solution"] >= st["newtons_per_sample"] > 0 and st["bernoulli_per_solution"] >= 1
+        for params, field in [({"bernoulli_cap": -1}, "/params/bernoulli_cap"),
+                              ({"max_iterations": 0}, "/params/max_iterations"),
+                              ({"subset": "caustic"}, "/params/subset")]:
+            r = d.req("POST", f"/v1/scenes/{SCENE}/sessions", json_body={"method": "sms", "params": params})
+            assert r.status == 422 and r.json().get("field") == field, (params, repr(r))
+        r = d.req("POST", f"/v1/scenes/{SCENE}/sessions", json_body={"method": "pt", "params": {"subset": "some"}})
+        assert r.status == 422 and r.json().get("field") == "/params/subset", repr(r)
+    finally:
+        rc, _ = d.stop()
+        assert rc == 0, d.stderr()[-3000:]
