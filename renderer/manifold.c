@@ -339,6 +339,14 @@ bool manifold_walk(const struct scene *scene, const struct manifold_chain *chain
                    struct manifold_vertex *v, uint32_t max_iterations, struct manifold_stats *stats,
                    struct ray_counters *rc)
 {
+    return manifold_walk_within(scene, chain, ends, v, max_iterations, NULL, NULL, stats, rc);
+}
+
+bool manifold_walk_within(const struct scene *scene, const struct manifold_chain *chain,
+                          const struct manifold_ends *ends, struct manifold_vertex *v, uint32_t max_iterations,
+                          manifold_region_fn *inside, const void *region, struct manifold_stats *stats,
+                          struct ray_counters *rc)
+{
     const uint32_t k = chain->length, n2 = 2 * k;
     const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
     struct mf_geom g[MANIFOLD_MAX_CHAIN] = {0};
@@ -392,6 +400,11 @@ bool manifold_walk(const struct scene *scene, const struct manifold_chain *chain
         double nn = INFINITY;
         if (moved && mf_eval_at(chain, x1, xe, ng_, Cn)) nn = mf_norm(Cn, n2);
         if (nn < norm) {
+            /* A trust region ends the walk as soon as an accepted step leaves it (seed 002 §3.3). */
+            if (inside && !inside(region, nv[0].p)) {
+                ok = false;
+                break;
+            }
             for (uint32_t j = 0; j < k; j++) {
                 v[j] = nv[j];
                 g[j] = ng_[j];

@@ -85,6 +85,15 @@ bool manifold_walk(const struct scene *scene, const struct manifold_chain *chain
                    struct manifold_vertex *v, uint32_t max_iterations, struct manifold_stats *stats,
                    struct ray_counters *rc);
 
+/* The same walk confined to a trust region: `inside(region, x2)` says whether the first vertex
+ * is still inside; the walk fails as soon as an accepted step leaves the region (so it fails
+ * rather than converge outside). */
+typedef bool manifold_region_fn(const void *region, struct vec3 x2);
+bool manifold_walk_within(const struct scene *scene, const struct manifold_chain *chain,
+                          const struct manifold_ends *ends, struct manifold_vertex *v, uint32_t max_iterations,
+                          manifold_region_fn *inside, const void *region, struct manifold_stats *stats,
+                          struct ray_counters *rc);
+
 /* ‖C‖ of a path (INFINITY when a constraint is undefined, e.g. total internal reflection). */
 double manifold_constraint_norm(const struct scene *scene, const struct manifold_chain *chain,
                                 const struct manifold_ends *ends, const struct manifold_vertex *v);

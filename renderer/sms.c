@@ -147,7 +147,26 @@ static bool sms_walk_seed(const struct scene *scene, const struct sms_caster *c,
     return ok;
 }
 
-static double sms_now_ms(void)
+struct vec3 sms_solution_value(const struct scene *scene, const struct manifold_chain *chain,
+                               const struct manifold_ends *e, const struct manifold_vertex *v, const struct surface *s,
+                               const struct material *m, struct vec3 wo, const struct material *light)
+{
+    const struct vec3 zero = vec3_splat(0.0f);
+    /* x1's side of the path, with path tracing's rules (NEE's): same side of both normals. */
+    struct vec3 w1 = vec3_normalize(vec3_sub(v[0].p, s->p));
+    struct vec3 wi = frame_to_local(&s->frame, w1);
+    if (!(vec3_dot(w1, s->ng) * wi.z > 0.0f)) return zero;
+    struct vec3 f = material_eval(m, wo, wi, TRANSPORT_RADIANCE);
+    const struct manifold_vertex *last = &v[chain->length - 1];
+    struct vec3 Le = light_sampler_emitted(light, vec3_dot(vec3_normalize(vec3_sub(last->p, e->xe)), e->nge));
+    if (vec3_is_zero(f) || vec3_is_zero(Le)) return zero;
+    struct vec3 T = manifold_throughput(scene, chain, e, v);
+    double G = manifold_geometry(scene, chain, e, v);
+    if (vec3_is_zero(T) || !(G > 0.0)) return zero;
+    return vec3_scale(vec3_mul(vec3_mul(f, T), Le), fabsf(wi.z) * (float)G);
+}
+
+double sms_now_ms(void)
 {
     struct timespec t;
     clock_gettime(CLOCK_MONOTONIC, &t);
@@ -177,17 +196,8 @@ struct vec3 sms_estimate(const struct scene *scene, const struct sms_scene *ss, 
     struct manifold_vertex v[MANIFOLD_MAX_CHAIN], w[MANIFOLD_MAX_CHAIN];
     if (!sms_walk_seed(scene, cs, &e, p, s1, s2, v, &c->newton_sample, rc) || !manifold_check(scene, &cs->chain, &e, v, rc))
         goto out;
-    /* x1's side of the path, with path tracing's rules (NEE's): same side of both normals. */
-    struct vec3 w1 = vec3_normalize(vec3_sub(v[0].p, s->p));
-    struct vec3 wi = frame_to_local(&s->frame, w1);
-    if (!(vec3_dot(w1, s->ng) * wi.z > 0.0f)) goto out;
-    struct vec3 f = material_eval(m, wo, wi, TRANSPORT_RADIANCE);
-    const struct manifold_vertex *last = &v[cs->chain.length - 1];
-    struct vec3 Le = light_sampler_emitted(lm, vec3_dot(vec3_normalize(vec3_sub(last->p, ls.p)), ls.n));
-    if (vec3_is_zero(f) || vec3_is_zero(Le)) goto out;
-    struct vec3 T = manifold_throughput(scene, &cs->chain, &e, v);
-    double G = manifold_geometry(scene, &cs->chain, &e, v);
-    if (vec3_is_zero(T) || !(G > 0.0)) goto out;
+    struct vec3 value = sms_solution_value(scene, &cs->chain, &e, v, s, m, wo, lm);
+    if (vec3_is_zero(value)) goto out;
     /* Bernoulli trials: the number of fresh seeds until one walks to this solution again has
      * expectation 1 / P(x̄*) (seed 002 §3.1). Same-solution threshold: 1e-4 of |x1 - x2|. */
     float tol = 1e-4f * vec3_length(vec3_sub(v[0].p, s->p));
@@ -209,8 +219,7 @@ struct vec3 sms_estimate(const struct scene *scene, const struct sms_scene *ss, 
         goto out;
     }
     c->solutions++;
-    float scale = fabsf(wi.z) * (float)G * (float)trials * (float)ss->count / ls.pdf_a;
-    result = vec3_scale(vec3_mul(vec3_mul(f, T), Le), scale);
+    result = vec3_scale(value, (float)trials * (float)ss->count / ls.pdf_a);
 out:
     c->sample_ms += sms_now_ms() - t0;
     return result;

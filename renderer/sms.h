@@ -105,6 +105,13 @@ void sms_track_scatter(const struct scene *scene, struct sms_track *t, const str
 /* At an emitter hit: does the emission belong to SMS? */
 bool sms_track_owned(const struct scene *scene, const struct sms_track *t);
 
+/* f(x1) |cos θ1| T G L_e of a checked solution (eq. 13 with the generalized geometry term);
+ * zero when x1's side rules (those of next-event estimation) or any factor rule it out. */
+struct vec3 sms_solution_value(const struct scene *scene, const struct manifold_chain *chain,
+                               const struct manifold_ends *e, const struct manifold_vertex *v, const struct surface *s,
+                               const struct material *m, struct vec3 wo, const struct material *light);
+double sms_now_ms(void);
+
 /* The SMS estimate at x1 (surface s, material m, wo in s's local frame), for chains that end
  * within `max_chain` vertices (path tracing's depth limit); radiance towards wo, without the
  * path throughput up to x1. */

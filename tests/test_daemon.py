@@ -415,7 +415,7 @@ def test_delete_scene_conflict_force_and_not_loaded(daemon):
 
 def test_session_create_get_list_reset_delete(daemon):
     body = {"method": "pt", "width": 24, "height": 16, "seed": 5,
-            "params": {"spp": 2, "max_depth": 8, "rr_depth": 2, "nee": False}}
+            "params": {"spp": 2, "max_depth": 8, "rr_depth": 2, "nee": False, "subset": "rest"}}
     s = new_session(daemon, **body)
     assert re.fullmatch(r"[A-Za-z0-9_-]{1,64}", s["id"])
     assert s["href"] == f"{CORNELL}/sessions/{s['id']}"
