@@ -640,10 +640,18 @@ static bool request_key_time(const cJSON *key, const char *ptr, double prev, dou
 static bool request_pt_params(const cJSON *pv, const char *ptr, const struct protocol_limits *limits,
                               struct view_pt_params *pt, struct err *err)
 {
-    static const char *const keys[] = {"spp", "max_depth", "rr_depth", "nee", NULL};
+    static const char *const keys[] = {"spp", "max_depth", "rr_depth", "nee", "subset", NULL};
     char p[REQUEST_PTR];
     const cJSON *v;
     if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in pt params", err)) return false;
+    if ((v = request_member(pv, ptr, "subset", p))) {
+        const char *s = request_string(v, p, err);
+        if (!s) return false;
+        if (strcmp(s, "all") == 0) pt->subset = PT_SUBSET_ALL;
+        else if (strcmp(s, "caustic") == 0) pt->subset = PT_SUBSET_CAUSTIC;
+        else if (strcmp(s, "rest") == 0) pt->subset = PT_SUBSET_REST;
+        else return err_set(err, ERR_INVALID, p, "unknown subset '%.64s' (expected all, caustic or rest)", s);
+    }
     if ((v = request_member(pv, ptr, "spp", p)) && !request_uint32(v, p, 1, limits->max_spp, "max_spp", &pt->spp, err))
         return false;
     if ((v = request_member(pv, ptr, "max_depth", p)) && !request_uint32(v, p, 0, REQUEST_MAX_PT_DEPTH, NULL, &pt->max_depth, err))
@@ -651,6 +659,30 @@ static bool request_pt_params(const cJSON *pv, const char *ptr, const struct pro
     if ((v = request_member(pv, ptr, "rr_depth", p)) && !request_uint32(v, p, 0, REQUEST_MAX_PT_DEPTH, NULL, &pt->rr_depth, err))
         return false;
     if ((v = request_member(pv, ptr, "nee", p)) && !request_bool(v, p, &pt->nee, err)) return false;
+    return true;
+}
+
+/* sms: pt's spp and depths, plus the manifold sampling parameters (sms.h). */
+static bool request_sms_params(const cJSON *pv, const char *ptr, const struct protocol_limits *limits,
+                               struct view_pt_params *pt, struct sms_params *sp, struct err *err)
+{
+    static const char *const keys[] = {"spp", "max_depth", "rr_depth", "bernoulli_cap", "max_iterations",
+                                       "caustics_only", NULL};
+    char p[REQUEST_PTR];
+    const cJSON *v;
+    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in sms params", err)) return false;
+    if ((v = request_member(pv, ptr, "spp", p)) && !request_uint32(v, p, 1, limits->max_spp, "max_spp", &pt->spp, err))
+        return false;
+    if ((v = request_member(pv, ptr, "max_depth", p)) && !request_uint32(v, p, 0, REQUEST_MAX_PT_DEPTH, NULL, &pt->max_depth, err))
+        return false;
+    if ((v = request_member(pv, ptr, "rr_depth", p)) && !request_uint32(v, p, 0, REQUEST_MAX_PT_DEPTH, NULL, &pt->rr_depth, err))
+        return false;
+    if ((v = request_member(pv, ptr, "bernoulli_cap", p)) &&
+        !request_uint32(v, p, 0, SMS_HARD_TRIAL_LIMIT, NULL, &sp->bernoulli_cap, err))
+        return false;
+    if ((v = request_member(pv, ptr, "max_iterations", p)) && !request_uint32(v, p, 1, 100, NULL, &sp->max_iterations, err))
+        return false;
+    if ((v = request_member(pv, ptr, "caustics_only", p)) && !request_bool(v, p, &sp->caustics_only, err)) return false;
     return true;
 }
 
@@ -800,6 +832,9 @@ bool protocol_parse_session_create(const char *body, size_t len, const struct pr
             break;
         case RENDER_METHOD_BDPT:
             ok = request_bdpt_params(pv, p, &vp.bdpt, err);
+            break;
+        case RENDER_METHOD_SMS:
+            ok = request_sms_params(pv, p, limits, &vp.pt, &vp.sms, err);
             break;
         }
     }

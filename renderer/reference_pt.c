@@ -25,6 +25,7 @@
 
 struct pt_job {
     const struct scene *scene;
+    const struct sms_scene *sms_scene;   /* method sms: the casters */
     const struct pt_params *params;
     struct camera camera;
     struct image *out;
@@ -48,8 +49,17 @@ static inline struct vec3 pt_emitter_side(struct vec3 n, struct vec3 wi)
  * loop keeps it lean: parameters are read into locals once (every Embree call is opaque to the
  * compiler, so values behind pointers would be reloaded after each ray), and the offset origin
  * of the shadow ray is reused by the continuation ray when both leave on the same side. */
+/* What pt_radiance adds (sms.h explains the split): emission of SMS-owned paths, everything
+ * else path tracing does, and SMS estimates. */
+struct pt_split {
+    bool owned, rest, tracked;
+    const struct sms_scene *ss;
+    struct sms_counters *sc;
+    struct rng *sms_rng;
+};
+
 static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
-                               struct vec3 dir, struct rng *rng, struct ray_counters *rc)
+                               struct vec3 dir, struct rng *rng, struct ray_counters *rc, const struct pt_split *split)
 {
     const struct light_sampler *lights = scene->lights;
     const struct accel *accel = scene->accel;
@@ -60,11 +70,12 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
     float prev_pdf_w = 0.0f;   /* solid-angle pdf of the BSDF sample that produced `dir` */
     bool prev_delta = true;    /* camera rays and delta scattering get no MIS on emission */
     struct vec3 prev_p = org;
+    struct sms_track track = sms_track_start();
 
     for (uint32_t depth = 0;; depth++) {
         struct hit hit;
         if (!accel_intersect(accel, org, dir, 0.0f, INFINITY, &hit, rc)) {
-            if (!vec3_is_zero(scene->env_radiance)) {
+            if (split->rest && !vec3_is_zero(scene->env_radiance)) {
                 float w = 1.0f;
                 if (!prev_delta && mis) w = sampling_power_heuristic(prev_pdf_w, light_sampler_env_pdf_w(lights));
                 L = vec3_add(L, vec3_scale(vec3_mul(beta, scene->env_radiance), w));
@@ -75,7 +86,8 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         surface_from_hit(scene, &hit, org, dir, &s);
         const struct material *m = &scene->materials[s.material];
 
-        if (material_is_emissive(m)) {
+        bool owned = split->tracked && sms_track_owned(scene, &track);
+        if (material_is_emissive(m) && (owned ? split->owned : split->rest)) {
             struct vec3 Le = light_sampler_emitted(m, -vec3_dot(dir, s.ng));
             if (!vec3_is_zero(Le)) {
                 float w = 1.0f;
@@ -97,8 +109,14 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         struct vec3 shadow_org = s.p;
         int shadow_side = -1;
 
+        /* Specular manifold sampling owns the caustic chains that start here (sms.h). */
+        if (split->ss && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
+            uint32_t room = max_depth > depth + 1 ? max_depth - depth - 1 : 0;
+            struct vec3 c = sms_estimate(scene, split->ss, params->sms, &s, m, wo, room, split->sms_rng, split->sc, rc);
+            L = vec3_add(L, vec3_mul(beta, c));
+        }
         /* Next-event estimation: one light sample, MIS-weighted against BSDF sampling. */
-        if (nee && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
+        if (nee && split->rest && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
             float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
             struct light_sample ls;
             if (light_sampler_sample(lights, ul, u1, u2, &ls)) {
@@ -172,6 +190,7 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         float cos_ng = vec3_dot(wi_world, s.ng);
         if (cos_ng * bs.wi.z <= 0.0f) break;
         beta = vec3_mul(beta, vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w));
+        if (split->tracked) sms_track_scatter(scene, &track, &s, bs.flags);
         prev_delta = (bs.flags & BSDF_DELTA) != 0;
         prev_pdf_w = bs.pdf_w;
         prev_p = s.p;
@@ -198,6 +217,10 @@ static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
     const struct pt_params *p = job->params;
     struct render_stats *st = &job->worker_stats[worker];
     struct ray_counters rc = {0, 0};
+    struct pt_split split = {.owned = p->subset != PT_SUBSET_REST && !p->sms, .rest = p->subset != PT_SUBSET_CAUSTIC,
+                             .ss = job->sms_scene, .sc = &st->sms};
+    if (p->sms) split.rest = !p->sms->caustics_only;
+    split.tracked = p->subset != PT_SUBSET_ALL || p->sms;
     uint32_t tx = tile % job->tiles_x, ty = tile / job->tiles_x;
     uint32_t x0 = p->crop_x0 + tx * PT_TILE, y0 = p->crop_y0 + ty * PT_TILE;
     uint32_t x1 = x0 + PT_TILE < p->crop_x1 ? x0 + PT_TILE : p->crop_x1;
@@ -210,7 +233,11 @@ static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
                 struct rng rng = rng_make(p->seed, p->frame, pixel, s);
                 float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
                 struct vec3 dir = camera_ray_dir(&job->camera, (float)x + jx, (float)y + jy);
-                struct vec3 L = pt_radiance(job->scene, p, job->camera.position, dir, &rng, &rc);
+                /* SMS draws from its own stream, so the path-traced part of `sms` is the same
+                 * sample as pt's PT_SUBSET_REST image. */
+                struct rng sms_rng = rng_make(p->seed, p->frame, pixel, ((uint64_t)1 << 40) | s);
+                split.sms_rng = &sms_rng;
+                struct vec3 L = pt_radiance(job->scene, p, job->camera.position, dir, &rng, &rc, &split);
                 if (!vec3_is_finite(L)) {
                     st->nonfinite++;
                     continue;
@@ -267,6 +294,11 @@ bool reference_pt_render_into(const struct scene *scene, const struct pt_params 
     job->scene = scene;
     job->params = &p;
     job->out = out;
+    struct sms_scene sms_scene;   /* ~6 KiB on the stack, like the job */
+    if (p.sms) {
+        if (!sms_params_valid(p.sms, err) || !sms_scene_init(scene, &sms_scene, err)) return false;
+        job->sms_scene = &sms_scene;
+    }
     camera_init(&job->camera, p.camera ? p.camera : &scene->camera, p.width, p.height);
     job->tiles_x = (p.crop_x1 - p.crop_x0 + PT_TILE - 1) / PT_TILE;
     uint32_t tiles_y = (p.crop_y1 - p.crop_y0 + PT_TILE - 1) / PT_TILE;
@@ -285,6 +317,14 @@ bool reference_pt_render_into(const struct scene *scene, const struct pt_params 
             stats->rays_occluded += job->worker_stats[i].rays_occluded;
             stats->samples += job->worker_stats[i].samples;
             stats->nonfinite += job->worker_stats[i].nonfinite;
+            const struct sms_counters *c = &job->worker_stats[i].sms;
+            stats->sms.samples += c->samples;
+            stats->sms.solutions += c->solutions;
+            stats->sms.newton_sample += c->newton_sample;
+            stats->sms.trials += c->trials;
+            stats->sms.newton_trials += c->newton_trials;
+            stats->sms.capped += c->capped;
+            stats->sms.sample_ms += c->sample_ms;
         }
         stats->threads = threads;
         stats->render_ms = (double)(t1.tv_sec - t0.tv_sec) * 1e3 + (double)(t1.tv_nsec - t0.tv_nsec) * 1e-6;

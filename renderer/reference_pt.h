@@ -10,6 +10,7 @@
 #include "image.h"
 #include "parallel.h"
 #include "scene.h"
+#include "sms.h"
 
 struct pt_params {
     uint32_t width, height;
@@ -24,6 +25,13 @@ struct pt_params {
     const struct camera_desc *camera;  /* NULL = the scene's camera */
     /* Optional crop (inclusive-exclusive pixel window); all zero = the whole image. */
     uint32_t crop_x0, crop_y0, crop_x1, crop_y1;
+    /* Which light transport the image holds (sms.h: PT_SUBSET_CAUSTIC = exactly the paths
+     * specular manifold sampling owns, the filtered reference of `sms`; PT_SUBSET_REST = the
+     * others). Default PT_SUBSET_ALL. */
+    enum pt_subset subset;
+    /* Non-NULL: method `sms` — the PT_SUBSET_REST paths plus an SMS estimate at every non-delta
+     * vertex (only the SMS estimates when sms->caustics_only). */
+    const struct sms_params *sms;
 };
 
 struct render_stats {
@@ -32,6 +40,7 @@ struct render_stats {
     uint64_t nonfinite;    /* samples dropped because their value was NaN or Inf */
     unsigned threads;      /* worker threads used */
     double render_ms;
+    struct sms_counters sms;   /* method sms: seed 002 Table 1 counters */
 };
 
 /* Defaults: 16 spp, max_depth 64, rr_depth 3, NEE on, seed 0, all cores, whole image. */

@@ -24,6 +24,8 @@ struct shape {
     uint32_t material;          /* index into scene->materials */
     struct xform to_world;      /* object -> world */
     bool caustic_caster;        /* flagged for specular manifold sampling */
+    uint8_t caustic_interfaces; /* casters: specular vertices on a caustic path through it (1, 2);
+                                   0 when not a caster */
     /* SHAPE_MESH, object space. Front face = counter-clockwise winding (right-hand rule). */
     uint32_t vertex_count, triangle_count;
     struct vec3 *positions;     /* vertex_count */

@@ -682,10 +682,31 @@ static bool scene_load_check_world(const struct shape *s, const char *ptr, bool 
     return true;
 }
 
+/* How many specular interfaces a caster's light crosses on its way to a receiver (the chain
+ * length of specular manifold sampling): a conductor reflects once; a dielectric is crossed
+ * twice by default (a closed object: in and out) or once (an open surface such as water). */
+static bool scene_load_caustic_interfaces(const cJSON *sh, const char *ptr, struct shape *s, const struct material *m,
+                                          struct err *err)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(sh, "caustic_interfaces");
+    s->caustic_interfaces = s->caustic_caster ? (m->kind == MATERIAL_DIELECTRIC ? 2 : 1) : 0;
+    if (!v) return true;
+    char p[SCENE_LOAD_PTR];
+    scene_load_ptr_key(p, ptr, "caustic_interfaces");
+    if (!cJSON_IsNumber(v)) return err_set(err, ERR_INVALID, p, "expected 1 or 2, got %s", scene_load_type_name(v));
+    if (!s->caustic_caster) return err_set(err, ERR_INVALID, p, "caustic_interfaces needs \"caustic_caster\": true");
+    if (v->valuedouble != 1.0 && v->valuedouble != 2.0)
+        return err_set(err, ERR_INVALID, p, "caustic_interfaces must be 1 or 2, got %g", v->valuedouble);
+    if (m->kind != MATERIAL_DIELECTRIC && v->valuedouble != 1.0)
+        return err_set(err, ERR_INVALID, p, "only a dielectric caster can have 2 interfaces (a reflection is one)");
+    s->caustic_interfaces = (uint8_t)v->valuedouble;
+    return true;
+}
+
 static bool scene_load_shape(struct scene_load *L, const cJSON *sh, const char *ptr, struct shape *s,
                              struct scene_load_names *names, uint32_t index)
 {
-#define SCENE_LOAD_COMMON "type", "material", "name", "transform", "caustic_caster"
+#define SCENE_LOAD_COMMON "type", "material", "name", "transform", "caustic_caster", "caustic_interfaces"
     static const char *const mesh_keys[] = {SCENE_LOAD_COMMON, "file", NULL};
     static const char *const quad_keys[] = {SCENE_LOAD_COMMON, "vertices", NULL};
     static const char *const sphere_keys[] = {SCENE_LOAD_COMMON, "center", "radius", NULL};
@@ -743,6 +764,7 @@ static bool scene_load_shape(struct scene_load *L, const cJSON *sh, const char *
     s->material = (uint32_t)mi;
 
     if (!scene_load_key_bool(sh, ptr, "caustic_caster", &s->caustic_caster, err)) return false;
+    if (!scene_load_caustic_interfaces(sh, ptr, s, &L->scene->materials[mi], err)) return false;
 
     const cJSON *tf = cJSON_GetObjectItemCaseSensitive(sh, "transform");
     bool uniform = true;

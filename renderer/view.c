@@ -11,6 +11,7 @@ struct view_params view_params_defaults(enum render_method method, uint32_t widt
     p.pt = (struct view_pt_params){.spp = 1, .max_depth = 64, .rr_depth = 3, .nee = true};
     p.restir_pt = restir_pt_defaults();
     p.bdpt = bdpt_defaults();
+    p.sms = sms_defaults();
     return p;
 }
 
@@ -19,6 +20,7 @@ bool view_method_parse(const char *name, enum render_method *out)
     if (strcmp(name, "pt") == 0) { *out = RENDER_METHOD_PT; return true; }
     if (strcmp(name, "restir_pt") == 0) { *out = RENDER_METHOD_RESTIR_PT; return true; }
     if (strcmp(name, "bdpt") == 0) { *out = RENDER_METHOD_BDPT; return true; }
+    if (strcmp(name, "sms") == 0) { *out = RENDER_METHOD_SMS; return true; }
     return false;
 }
 
@@ -28,6 +30,7 @@ const char *view_method_name(enum render_method method)
     case RENDER_METHOD_PT: return "pt";
     case RENDER_METHOD_RESTIR_PT: return "restir_pt";
     case RENDER_METHOD_BDPT: return "bdpt";
+    case RENDER_METHOD_SMS: return "sms";
     }
     return NULL;
 }
@@ -49,8 +52,12 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
     memset(v, 0, sizeof *v);
     if (params->width == 0 || params->height == 0)
         return err_set(err, ERR_INVALID, "/width", "image size must be at least 1x1");
-    if (params->method == RENDER_METHOD_PT && params->pt.spp == 0)
+    if ((params->method == RENDER_METHOD_PT || params->method == RENDER_METHOD_SMS) && params->pt.spp == 0)
         return err_set(err, ERR_INVALID, "/params/spp", "spp must be at least 1");
+    if (params->method == RENDER_METHOD_SMS) {
+        struct sms_scene ss;
+        if (!sms_params_valid(&params->sms, err) || !sms_scene_init(scene, &ss, err)) return false;
+    }
     if (params->method == RENDER_METHOD_RESTIR_PT) {
         if (!restir_pt_params_valid(&params->restir_pt, err)) return false;
         if (!restir_pt_init(&v->restir, scene, params->width, params->height, err)) return false;
@@ -235,6 +242,8 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         p.max_depth = v->params.pt.max_depth;
         p.rr_depth = v->params.pt.rr_depth;
         p.nee = v->params.pt.nee;
+        if (v->params.method == RENDER_METHOD_SMS) p.sms = &v->params.sms;
+        else p.subset = v->params.pt.subset;
         p.seed = v->params.seed;
         p.frame = v->frame;
         p.threads = v->threads;
@@ -272,6 +281,7 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         if (stats->has_passes) stats->passes = passes;
         stats->has_bdpt = v->params.method == RENDER_METHOD_BDPT;
         if (stats->has_bdpt) stats->bdpt = bstats;
+        stats->has_sms = v->params.method == RENDER_METHOD_SMS;
     }
     v->frame++;
     return true;

@@ -20,12 +20,13 @@
 #include "restir_pt.h"
 #include "scene.h"
 
-enum render_method { RENDER_METHOD_PT, RENDER_METHOD_RESTIR_PT, RENDER_METHOD_BDPT };
+enum render_method { RENDER_METHOD_PT, RENDER_METHOD_RESTIR_PT, RENDER_METHOD_BDPT, RENDER_METHOD_SMS };
 
 /* Parameters of `pt` (reference_pt.h documents them). */
 struct view_pt_params {
     uint32_t spp, max_depth, rr_depth;
     bool nee;
+    enum pt_subset subset;   /* pt: which light transport (sms.h); sms: ignored */
 };
 
 struct view_params {
@@ -35,6 +36,7 @@ struct view_params {
     struct view_pt_params pt;
     struct restir_pt_params restir_pt;   /* method restir_pt (restir_pt.h) */
     struct bdpt_params bdpt;             /* method bdpt (bdpt.h) */
+    struct sms_params sms;               /* method sms (sms.h; spp, depths and nee from `pt`) */
 };
 
 /* Defaults of every method's parameters (pt: 1 spp per frame, max_depth 64, rr_depth 3, NEE;
@@ -97,6 +99,7 @@ struct frame_stats {
     double scene_update_ms;               /* rebuilding the scene for moved or re-lit shapes */
     uint32_t accumulated;                 /* frames in the accumulation buffer after this one */
     bool has_passes;                      /* restir_pt: the per-pass numbers below are set */
+    bool has_sms;                         /* sms: render.sms holds seed 002 Table 1's counters */
     struct restir_pt_stats passes;
     bool has_bdpt;                        /* bdpt: the numbers below are set */
     struct bdpt_stats bdpt;

@@ -72,11 +72,20 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
         jsonw_key(w, "light_paths"); jsonw_uint(w, b->light_paths);
         jsonw_key(w, "lvc_capacity"); jsonw_uint(w, b->lvc_capacity);
         jsonw_key(w, "heuristic"); jsonw_string(w, bdpt_heuristic_name(b->heuristic));
+    } else if (p->method == RENDER_METHOD_SMS) {
+        jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);
+        jsonw_key(w, "max_depth"); jsonw_uint(w, p->pt.max_depth);
+        jsonw_key(w, "rr_depth"); jsonw_uint(w, p->pt.rr_depth);
+        jsonw_key(w, "bernoulli_cap"); jsonw_uint(w, p->sms.bernoulli_cap);
+        jsonw_key(w, "max_iterations"); jsonw_uint(w, p->sms.max_iterations);
+        jsonw_key(w, "caustics_only"); jsonw_bool(w, p->sms.caustics_only);
     } else {
+        static const char *const subsets[] = {"all", "caustic", "rest"};
         jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);
         jsonw_key(w, "max_depth"); jsonw_uint(w, p->pt.max_depth);
         jsonw_key(w, "rr_depth"); jsonw_uint(w, p->pt.rr_depth);
         jsonw_key(w, "nee"); jsonw_bool(w, p->pt.nee);
+        jsonw_key(w, "subset"); jsonw_string(w, subsets[p->pt.subset]);
     }
     jsonw_object_end(w);
 }
@@ -365,6 +374,26 @@ static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
     if (f->stats->has_bdpt) {
         jsonw_key(w, "bdpt");
         api_write_bdpt(w, &f->stats->bdpt);
+    }
+    if (f->stats->has_sms) {
+        /* Seed 002 Table 1, manifold sampling columns, for this frame. */
+        const struct sms_counters *sc = &r->sms;
+        double n = (double)sc->samples, sol = (double)sc->solutions;
+        jsonw_key(w, "sms");
+        jsonw_object_begin(w);
+        jsonw_key(w, "samples"); jsonw_uint(w, sc->samples);
+        jsonw_key(w, "solutions"); jsonw_uint(w, sc->solutions);
+        jsonw_key(w, "newton_sample"); jsonw_uint(w, sc->newton_sample);
+        jsonw_key(w, "trials"); jsonw_uint(w, sc->trials);
+        jsonw_key(w, "newton_trials"); jsonw_uint(w, sc->newton_trials);
+        jsonw_key(w, "capped"); jsonw_uint(w, sc->capped);
+        jsonw_key(w, "sample_ms"); jsonw_double(w, sc->sample_ms);
+        jsonw_key(w, "success_rate"); jsonw_double(w, n > 0 ? sol / n : 0.0);
+        jsonw_key(w, "newtons_per_sample"); jsonw_double(w, n > 0 ? (double)sc->newton_sample / n : 0.0);
+        jsonw_key(w, "bernoulli_per_solution"); jsonw_double(w, sol > 0 ? (double)sc->trials / sol : 0.0);
+        jsonw_key(w, "newtons_per_solution");
+        jsonw_double(w, sol > 0 ? (double)(sc->newton_sample + sc->newton_trials) / sol : 0.0);
+        jsonw_object_end(w);
     }
     jsonw_key(w, "href"); jsonw_string(w, href);
     if (f->ref) {

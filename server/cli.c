@@ -20,7 +20,7 @@
 
 #define CLI_USAGE                                                                                  \
     "usage:\n"                                                                                     \
-    "  restir render SCENE.json|SCENE_FOLDER [--method pt|restir_pt|bdpt] [--spp N] [--size WxH] [--seed S] [--frame F]\n" \
+    "  restir render SCENE.json|SCENE_FOLDER [--method pt|restir_pt|bdpt|sms] [--spp N] [--size WxH] [--seed S] [--frame F]\n" \
     "                [--threads T] [--max-depth D] [--rr-depth R] [--no-nee] [--crop X0,Y0,X1,Y1]\n"    \
     "                [--frames F] [--average-last N] [--animation FILE.json] [--params JSON]\n"       \
     "                [--half] [--json] -o OUT.exr\n"                                              \
@@ -108,6 +108,7 @@ static bool cli_method_params(const char *params_json, struct view_params *vp, s
     vp->pt = parsed.pt;
     vp->restir_pt = parsed.restir_pt;
     vp->bdpt = parsed.bdpt;
+    vp->sms = parsed.sms;
     return true;
 }
 
@@ -180,6 +181,13 @@ static bool cli_render_sequence(struct scene *scene, const struct view_params *v
         st->nonfinite += fs.render.nonfinite;
         st->render_ms += fs.render.render_ms + fs.scene_update_ms;
         st->threads = fs.render.threads;
+        st->sms.samples += fs.render.sms.samples;
+        st->sms.solutions += fs.render.sms.solutions;
+        st->sms.newton_sample += fs.render.sms.newton_sample;
+        st->sms.trials += fs.render.sms.trials;
+        st->sms.newton_trials += fs.render.sms.newton_trials;
+        st->sms.capped += fs.render.sms.capped;
+        st->sms.sample_ms += fs.render.sms.sample_ms;
         *last = fs;
         if (i + average_last >= frames) {
             size_t n = (size_t)img->width * img->height;
@@ -264,7 +272,7 @@ static int cli_render(int argc, char **argv)
     if (!scene_path) return cli_usage_error("%s", "render needs a scene file");
     if (!out_path) return cli_usage_error("%s", "render needs -o OUT.exr");
     enum render_method rm;
-    if (!view_method_parse(method, &rm)) return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt, bdpt)", method);
+    if (!view_method_parse(method, &rm)) return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt, bdpt, sms)", method);
     if (rm != RENDER_METHOD_PT && (has_crop || has_frame))
         return cli_usage_error("%s", "--crop and --frame are options of --method pt");
     p.width = width;
@@ -362,6 +370,13 @@ static int cli_render(int argc, char **argv)
                    ",\"connections\":%" PRIu64 "},\"session_bytes\":%zu",
                    bs->light_ms, bs->splat_ms, bs->camera_ms, bs->light_subpaths, bs->lvc_vertices, bs->lvc_dropped,
                    bs->light_traced, bs->connections, session_bytes);
+        }
+        if (rm == RENDER_METHOD_SMS) {
+            /* Seed 002 Table 1 (manifold sampling) over all frames rendered. */
+            const struct sms_counters *c = &st.sms;
+            printf(",\"sms\":{\"samples\":%" PRIu64 ",\"solutions\":%" PRIu64 ",\"newton_sample\":%" PRIu64
+                   ",\"trials\":%" PRIu64 ",\"newton_trials\":%" PRIu64 ",\"capped\":%" PRIu64 ",\"sample_ms\":%.3f}",
+                   c->samples, c->solutions, c->newton_sample, c->trials, c->newton_trials, c->capped, c->sample_ms);
         }
         printf("}\n");
     } else {

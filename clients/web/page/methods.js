@@ -13,6 +13,16 @@ export const METHODS = {
       { name: 'nee', kind: 'boolean', value: true, help: 'next-event estimation' },
     ],
   },
+  sms: {
+    label: 'sms: path tracing with specular manifold sampling of caustics',
+    params: [
+      { name: 'spp', kind: 'number', value: 1, help: 'samples per pixel per frame' },
+      { name: 'bernoulli_cap', kind: 'number', value: 128, help: 'Bernoulli trials per solution (0: uncapped)' },
+      { name: 'max_iterations', kind: 'number', value: 20, help: 'Newton steps per manifold walk' },
+      { name: 'caustics_only', kind: 'boolean', value: false, help: 'only the caustics SMS owns' },
+      { name: 'max_depth', kind: 'number', value: 64, help: 'longest path, in bounces' },
+    ],
+  },
   restir_pt: {
     label: 'restir_pt: ReSTIR path tracing (reuse across pixels and frames)',
     params: [

@@ -1,0 +1,144 @@
+#!/usr/bin/env python3
+"""bench/sms.py — `make bench`: path tracing against specular manifold sampling (method `sms`),
+error against time, and seed 002 Table 1's manifold-sampling statistics.
+
+Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. On
+refractive-slab and reflective-plane at 64x64 (BENCH_SMS_SCENES, BENCH_SMS_SIZE):
+  1. a reference per scene: `pt` subset rest at REF_SPP plus `sms` caustics only, uncapped, at
+     REF_SMS_SPP (path tracing alone does not converge on these caustics in any reasonable time;
+     tests/test_sms.py shows the SMS part unbiased against path tracing restricted to the same
+     paths), cached in build/refs/ under the scene files' hash and the spps;
+  2. `pt` and `sms` (Bernoulli cap 128, as seed 002 §6) at 1, 2, 4 ... spp, over SEEDS seeds:
+     render time and RMSE against the reference (seed 002 reports RMSE);
+  3. Table 1 (manifold sampling columns) of `sms` at 1 spp: sample success rate, Newton steps
+     per sample, Bernoulli trials per solution, Newton steps per solution, time in SMS;
+  4. writes build/bench/sms.json, one SVG chart per scene (RMSE vs ms, log-log) and prints
+     Markdown tables (medians over the seeds).
+Environment: BENCH_SMS_SEEDS (3), BENCH_SMS_REF_SPP (1024), BENCH_SMS_REF_SMS_SPP (256),
+BENCH_THREADS (all cores)."""
+import hashlib
+import json
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import OpenImageIO as oiio
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from svgplot import loglog  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+BIN = os.environ.get("RESTIR_BIN", str(ROOT / "build" / "restir"))
+OUT = ROOT / "build" / "bench"
+REFS = ROOT / "build" / "refs"
+SCENES = os.environ.get("BENCH_SMS_SCENES", "refractive-slab reflective-plane").split()
+SIZE = os.environ.get("BENCH_SMS_SIZE", "64x64")
+SEEDS = int(os.environ.get("BENCH_SMS_SEEDS", "3"))
+REF_SPP = int(os.environ.get("BENCH_SMS_REF_SPP", "1024"))
+REF_SMS_SPP = int(os.environ.get("BENCH_SMS_REF_SMS_SPP", "256"))
+THREADS = os.environ.get("BENCH_THREADS", "0")
+PT_SPPS = [1, 4, 16, 64, 256]
+SMS_SPPS = [1, 2, 4, 8, 16]
+
+
+def render(scene, out, method, params, seed):
+    cmd = [BIN, "render", str(scene), "--method", method, "--size", SIZE, "--seed", str(seed), "--threads", THREADS,
+           "--params", json.dumps(params), "--json", "-o", str(out)]
+    if method == "pt":
+        cmd += ["--frames", "1"]
+    res = subprocess.run(cmd, capture_output=True, text=True)
+    if res.returncode != 0:
+        raise SystemExit(f"bench: {' '.join(cmd)}: {res.stderr.strip()}")
+    img = oiio.ImageBuf(str(out)).get_pixels(oiio.FLOAT)[:, :, :3].astype(np.float64)
+    return img, json.loads(res.stdout)
+
+
+def reference(scene, tmp):
+    h = hashlib.sha256()
+    for f in sorted(scene.parent.iterdir()):
+        if f.suffix in (".json", ".obj"):
+            h.update(f.read_bytes())
+    h.update(f"{SIZE} {REF_SPP} {REF_SMS_SPP}".encode())
+    path = REFS / f"sms-bench-{scene.parent.name}-{h.hexdigest()[:16]}.npy"
+    if path.exists():
+        return np.load(path)
+    rest, _ = render(scene, tmp / "ref_rest.exr", "pt", {"spp": REF_SPP, "subset": "rest"}, 900001)
+    caus, _ = render(scene, tmp / "ref_caus.exr", "sms", {"spp": REF_SMS_SPP, "caustics_only": True, "bernoulli_cap": 0},
+                     900002)
+    ref = rest + caus
+    REFS.mkdir(parents=True, exist_ok=True)
+    np.save(path, ref)
+    return ref
+
+
+def rmse(img, ref):
+    return float(np.sqrt(np.mean((img - ref) ** 2)))
+
+
+def table1(st):
+    n, sol = st["samples"], st["solutions"]
+    return {"success_rate": sol / n if n else 0.0, "newtons_per_sample": st["newton_sample"] / n if n else 0.0,
+            "bernoulli_per_solution": st["trials"] / sol if sol else 0.0,
+            "newtons_per_solution": (st["newton_sample"] + st["newton_trials"]) / sol if sol else 0.0,
+            "sms_ms": st["sample_ms"], "capped": st["capped"]}
+
+
+def main():
+    OUT.mkdir(parents=True, exist_ok=True)
+    results = {}
+    with tempfile.TemporaryDirectory() as td:
+        tmp = Path(td)
+        for name in SCENES:
+            scene = ROOT / "scenes" / name / "scene.json"
+            ref = reference(scene, tmp)
+            curves = {"pt": [], "sms": []}
+            t1 = []
+            for method, spps, extra in (("pt", PT_SPPS, {}), ("sms", SMS_SPPS, {"bernoulli_cap": 128})):
+                for spp in spps:
+                    ms, err = [], []
+                    for seed in range(SEEDS):
+                        img, st = render(scene, tmp / "x.exr", method, {"spp": spp, **extra}, seed)
+                        ms.append(st["time_ms"])
+                        err.append(rmse(img, ref))
+                        if method == "sms" and spp == 1:
+                            t1.append(table1(st["sms"]))
+                    curves[method].append((statistics.median(ms), statistics.median(err), spp))
+            results[name] = {"curves": curves,
+                             "table1": {k: statistics.median(r[k] for r in t1) for k in t1[0]}}
+    (OUT / "sms.json").write_text(json.dumps(results, indent=1))
+    print(f"# pt vs sms ({SIZE}, medians over {SEEDS} seeds; reference: pt rest {REF_SPP} spp + sms caustics "
+          f"{REF_SMS_SPP} spp uncapped)\n")
+    print("| scene | success rate | Newtons / sample | Bernoulli / solution | Newtons / solution | ms in SMS (1 spp) |")
+    print("|---|---|---|---|---|---|")
+    for name, r in results.items():
+        t = r["table1"]
+        print(f"| {name} | {100 * t['success_rate']:.1f} % | {t['newtons_per_sample']:.2f} | "
+              f"{t['bernoulli_per_solution']:.2f} | {t['newtons_per_solution']:.2f} | {t['sms_ms']:.1f} |")
+    print("\n| scene | method | spp | time (ms) | RMSE |")
+    print("|---|---|---|---|---|")
+    for name, r in results.items():
+        for method, pts in r["curves"].items():
+            for ms, err, spp in pts:
+                print(f"| {name} | {method} | {spp} | {ms:.1f} | {err:.4g} |")
+        # Equal time: pt's RMSE interpolated log-log at sms's times.
+        pt = sorted(r["curves"]["pt"])
+        ratios = []
+        for ms, err, _ in r["curves"]["sms"]:
+            for (a, ea, _), (b, eb, _) in zip(pt, pt[1:]):
+                if a <= ms <= b:
+                    f = (math.log(ms) - math.log(a)) / (math.log(b) - math.log(a))
+                    ratios.append(err / math.exp(math.log(ea) + f * (math.log(eb) - math.log(ea))))
+        if ratios:
+            print(f"\n{name}: RMSE of sms / pt at equal time: median {statistics.median(ratios):.3f} "
+                  f"over {len(ratios)} sms points")
+        loglog(OUT / f"sms-{name}.svg", f"{name}: RMSE vs time", "render time (ms)", "RMSE",
+               [(m, [(a, b) for a, b, _ in pts], "line") for m, pts in r["curves"].items()])
+
+
+if __name__ == "__main__":
+    main()
