@@ -47,11 +47,13 @@ struct pt_params reference_pt_defaults(uint32_t width, uint32_t height)
  * (params->nee false) that emission is counted instead, with weight 1 — a second unbiased
  * estimator of the same integral. The path continues from one entry point picked uniformly
  * (weight N, the number of hits) with a cosine-sampled direction. Returns false when the path
- * ends; otherwise updates beta, the next ray and the vertex it leaves from. */
+ * ends; otherwise updates beta, the next ray and the vertex it leaves from. With sss_direct false
+ * the NEE at the entry points is left out (restir_sss resamples that part) and so is the
+ * continuation's emission that would duplicate it. */
 static bool pt_sss_primary(const struct scene *scene, const struct pt_params *params, const struct material *m,
                            const struct surface *s, struct vec3 wo_world, struct vec3 *beta, struct vec3 *L,
                            struct rng *rng, struct ray_counters *rc, struct vec3 *org, struct vec3 *dir,
-                           struct vec3 *prev_p, bool *skip_emission)
+                           struct vec3 *prev_p, bool *skip_emission, bool sss_direct)
 {
     const struct light_sampler *lights = scene->lights;
     const bool nee = params->nee && light_sampler_count(lights) > 0;
@@ -82,7 +84,7 @@ static bool pt_sss_primary(const struct scene *scene, const struct pt_params *pa
             beta_pick = w;
             s_pick = s2;
         }
-        if (!nee) continue;
+        if (!nee || !sss_direct) continue;
         float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
         struct light_sample ls;
         if (!light_sampler_sample(lights, ul, u1, u2, &ls)) continue;
@@ -133,7 +135,7 @@ static bool pt_sss_primary(const struct scene *scene, const struct pt_params *pa
  * compiler, so values behind pointers would be reloaded after each ray), and the offset origin
  * of the shadow ray is reused by the continuation ray when both leave on the same side. */
 static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
-                               struct vec3 dir, struct rng *rng, struct ray_counters *rc)
+                               struct vec3 dir, struct rng *rng, struct ray_counters *rc, bool sss_direct)
 {
     const struct light_sampler *lights = scene->lights;
     const struct accel *accel = scene->accel;
@@ -178,7 +180,7 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
 
         if (depth == 0 && m->kind == MATERIAL_TRANSLUCENT) {
             if (!pt_sss_primary(scene, params, m, &s, vec3_neg(dir), &beta, &L, rng, rc, &org, &dir, &prev_p,
-                                &skip_emission))
+                                &skip_emission, sss_direct))
                 break;
             /* A cosine-sampled direction: emission it reaches is MIS-weighted like a diffuse
              * bounce's when NEE is off (weight 1 then) — it is skipped when NEE is on. */
@@ -282,6 +284,12 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
     return L;
 }
 
+struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
+                                  struct vec3 dir, struct rng *rng, bool sss_direct, struct ray_counters *rc)
+{
+    return pt_radiance(scene, params, org, dir, rng, rc, sss_direct);
+}
+
 static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
 {
     struct pt_job *job = ctx;
@@ -300,7 +308,7 @@ static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
                 struct rng rng = rng_make(p->seed, p->frame, pixel, s);
                 float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
                 struct vec3 dir = camera_ray_dir(&job->camera, (float)x + jx, (float)y + jy);
-                struct vec3 L = pt_radiance(job->scene, p, job->camera.position, dir, &rng, &rc);
+                struct vec3 L = pt_radiance(job->scene, p, job->camera.position, dir, &rng, &rc, true);
                 if (!vec3_is_finite(L)) {
                     st->nonfinite++;
                     continue;

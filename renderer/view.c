@@ -10,6 +10,7 @@ struct view_params view_params_defaults(enum render_method method, uint32_t widt
     struct view_params p = {.method = method, .width = width, .height = height, .seed = 0};
     p.pt = (struct view_pt_params){.spp = 1, .max_depth = 64, .rr_depth = 3, .nee = true};
     p.restir_pt = restir_pt_defaults();
+    p.restir_sss = restir_sss_defaults();
     return p;
 }
 
@@ -17,6 +18,7 @@ bool view_method_parse(const char *name, enum render_method *out)
 {
     if (strcmp(name, "pt") == 0) { *out = RENDER_METHOD_PT; return true; }
     if (strcmp(name, "restir_pt") == 0) { *out = RENDER_METHOD_RESTIR_PT; return true; }
+    if (strcmp(name, "restir_sss") == 0) { *out = RENDER_METHOD_RESTIR_SSS; return true; }
     return false;
 }
 
@@ -25,6 +27,7 @@ const char *view_method_name(enum render_method method)
     switch (method) {
     case RENDER_METHOD_PT: return "pt";
     case RENDER_METHOD_RESTIR_PT: return "restir_pt";
+    case RENDER_METHOD_RESTIR_SSS: return "restir_sss";
     }
     return NULL;
 }
@@ -37,6 +40,7 @@ static void view_drop_history(struct view *v)
     v->frame = 0;
     v->accum_count = 0;
     restir_pt_reset(&v->restir);
+    restir_sss_reset(&v->sss);
     if (v->accum.pixels) memset(v->accum.pixels, 0, (size_t)v->accum.width * v->accum.height * sizeof *v->accum.pixels);
 }
 
@@ -52,11 +56,16 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         if (!restir_pt_params_valid(&params->restir_pt, err)) return false;
         if (!restir_pt_init(&v->restir, scene, params->width, params->height, err)) return false;
     }
+    if (params->method == RENDER_METHOD_RESTIR_SSS) {
+        if (!restir_sss_params_valid(&params->restir_sss, err)) return false;
+        if (!restir_sss_init(&v->sss, params->width, params->height, err)) return false;
+    }
     /* pt needs its frame and the accumulation buffer: no reservoirs, no G-buffer. */
     if (!image_init(&v->output, params->width, params->height, err) ||
         !image_init(&v->accum, params->width, params->height, err)) {
         image_destroy(&v->output);
         restir_pt_destroy(&v->restir);
+        restir_sss_destroy(&v->sss);
         return false;
     }
     v->changes = calloc(scene->shape_count ? scene->shape_count : 1, sizeof *v->changes);
@@ -64,6 +73,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         image_destroy(&v->output);
         image_destroy(&v->accum);
         restir_pt_destroy(&v->restir);
+        restir_sss_destroy(&v->sss);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for a view");
     }
     v->params = *params;
@@ -83,6 +93,7 @@ void view_destroy(struct view *v)
     image_destroy(&v->output);
     image_destroy(&v->accum);
     restir_pt_destroy(&v->restir);
+    restir_sss_destroy(&v->sss);
     free(v->changes);
     memset(v, 0, sizeof *v);
 }
@@ -205,6 +216,28 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
             rs.render_ms = passes.gbuffer_ms + passes.initial_ms + passes.temporal_ms + passes.spatial_ms + passes.shade_ms;
             if (progress) progress(progress_ctx, 1, 1);
         }
+    } else if (v->params.method == RENDER_METHOD_RESTIR_SSS) {
+        struct restir_sss_frame f = {.scene = scene, .camera = &camera, .prev_scene = v->frame ? v->scene : NULL,
+                                     .prev_camera = &v->camera, .seed = v->params.seed, .frame = v->frame,
+                                     .threads = v->threads};
+        struct restir_sss_stats ss;
+        ok = restir_sss_render(&v->sss, &v->params.restir_sss, &f, out, &ss, err);
+        if (ok) {
+            memset(&passes, 0, sizeof passes);
+            passes.gbuffer_ms = ss.gbuffer_ms, passes.initial_ms = ss.initial_ms, passes.temporal_ms = ss.temporal_ms;
+            passes.spatial_ms = ss.spatial_ms, passes.shade_ms = ss.shade_ms;
+            passes.rays_intersect = ss.rays_intersect, passes.rays_occluded = ss.rays_occluded;
+            passes.shifts = ss.shifts, passes.shift_failures = ss.shift_failures, passes.rejected = ss.rejected;
+            passes.nonfinite = ss.nonfinite;
+            memset(&rs, 0, sizeof rs);
+            rs.rays_intersect = ss.rays_intersect;
+            rs.rays_occluded = ss.rays_occluded;
+            rs.samples = (uint64_t)out->width * out->height;
+            rs.nonfinite = ss.nonfinite;
+            rs.threads = v->threads ? v->threads : parallel_default_threads();
+            rs.render_ms = ss.gbuffer_ms + ss.initial_ms + ss.temporal_ms + ss.spatial_ms + ss.shade_ms;
+            if (progress) progress(progress_ctx, 1, 1);
+        }
     } else {
         struct pt_params p = reference_pt_defaults(v->params.width, v->params.height);
         p.spp = v->params.pt.spp;
@@ -244,7 +277,7 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         stats->render = rs;
         stats->scene_update_ms = update_ms;
         stats->accumulated = v->accum_count;
-        stats->has_passes = v->params.method == RENDER_METHOD_RESTIR_PT;
+        stats->has_passes = v->params.method == RENDER_METHOD_RESTIR_PT || v->params.method == RENDER_METHOD_RESTIR_SSS;
         if (stats->has_passes) stats->passes = passes;
     }
     v->frame++;
@@ -269,6 +302,7 @@ uint64_t view_bytes_planned(const struct view_params *params, uint32_t shape_cou
     uint64_t pixels = (uint64_t)params->width * params->height;
     uint64_t bytes = 2 * pixels * sizeof(struct vec3) + (uint64_t)(shape_count ? shape_count : 1) * sizeof(struct view_shape_change);
     if (params->method == RENDER_METHOD_RESTIR_PT) bytes += restir_pt_bytes_planned(params->width, params->height, shape_count);
+    if (params->method == RENDER_METHOD_RESTIR_SSS) bytes += restir_sss_bytes_planned(params->width, params->height);
     return bytes;
 }
 
@@ -282,6 +316,10 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
         out[n++] = (struct view_buffer_bytes){"reservoirs", restir_pt_reservoir_bytes(&v->restir)};
         out[n++] = (struct view_buffer_bytes){"gbuffers", restir_pt_gbuffer_bytes(&v->restir)};
         out[n++] = (struct view_buffer_bytes){"primitive_table", ((size_t)v->restir.shape_count + 1) * sizeof *v->restir.prim_first};
+    }
+    if (v->params.method == RENDER_METHOD_RESTIR_SSS) {
+        out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sss_reservoir_bytes(&v->sss)};
+        out[n++] = (struct view_buffer_bytes){"gbuffers", restir_sss_gbuffer_bytes(&v->sss)};
     }
     size_t sum = 0;
     for (uint32_t i = 0; i < n; i++) sum += out[i].bytes;
