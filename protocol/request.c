@@ -761,6 +761,44 @@ static bool request_bdpt_params(const cJSON *pv, const char *ptr, struct bdpt_pa
     return bdpt_params_valid(bp, err);
 }
 
+static bool request_restir_sss_params(const cJSON *pv, const char *ptr, struct restir_sss_params *rp, struct err *err)
+{
+    static const char *const keys[] = {"shift", "candidates", "temporal", "temporal_cap", "spatial_neighbors",
+                                       "spatial_radius", "kappa_orientation", "max_depth", "rr_depth", NULL};
+    static const struct { const char *key; size_t off; } uints[] = {
+        {"candidates", offsetof(struct restir_sss_params, candidates)},
+        {"temporal_cap", offsetof(struct restir_sss_params, temporal_cap)},
+        {"spatial_neighbors", offsetof(struct restir_sss_params, spatial_neighbors)},
+        {"max_depth", offsetof(struct restir_sss_params, max_depth)},
+        {"rr_depth", offsetof(struct restir_sss_params, rr_depth)},
+    };
+    static const struct { const char *key; size_t off; } floats[] = {
+        {"spatial_radius", offsetof(struct restir_sss_params, spatial_radius)},
+        {"kappa_orientation", offsetof(struct restir_sss_params, kappa_orientation)},
+    };
+    char p[REQUEST_PTR];
+    const cJSON *v;
+    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_sss params", err))
+        return false;
+    if ((v = request_member(pv, ptr, "shift", p))) {
+        const char *name = request_string(v, p, err);
+        if (!name) return false;
+        if (!restir_sss_shift_parse(name, &rp->shift))
+            return err_set(err, ERR_INVALID, p, "unknown shift \"%.64s\" (reconnection, delayed, hybrid or sequential)",
+                           name);
+    }
+    char *base = (char *)rp;
+    for (size_t i = 0; i < sizeof uints / sizeof uints[0]; i++)
+        if ((v = request_member(pv, ptr, uints[i].key, p)) &&
+            !request_uint32(v, p, 0, 1000000, NULL, (uint32_t *)(base + uints[i].off), err))
+            return false;
+    if ((v = request_member(pv, ptr, "temporal", p)) && !request_bool(v, p, &rp->temporal, err)) return false;
+    for (size_t i = 0; i < sizeof floats / sizeof floats[0]; i++)
+        if ((v = request_member(pv, ptr, floats[i].key, p)) && !request_float(v, p, (float *)(base + floats[i].off), err))
+            return false;
+    return restir_sss_params_valid(rp, err);
+}
+
 /* Names of every method view_method_name knows, for error messages. Probes enum values rather
  * than listing names, so a method added to view.c shows up here without an edit. */
 static void request_method_list(char *out, size_t size)
@@ -835,6 +873,9 @@ bool protocol_parse_session_create(const char *body, size_t len, const struct pr
             break;
         case RENDER_METHOD_SMS:
             ok = request_sms_params(pv, p, limits, &vp.pt, &vp.sms, err);
+            break;
+        case RENDER_METHOD_RESTIR_SSS:
+            ok = request_restir_sss_params(pv, p, &vp.restir_sss, err);
             break;
         }
     }

@@ -288,6 +288,28 @@ bool accel_intersect(const struct accel *a, struct vec3 org, struct vec3 dir, fl
     return true;
 }
 
+uint32_t accel_intersect_shape_all(const struct accel *a, uint32_t shape, struct vec3 org, struct vec3 dir,
+                                   float tmin, float tmax, struct hit *hits, uint32_t max_hits,
+                                   struct ray_counters *counters)
+{
+    /* Repeated closest-hit queries, each starting just past the previous hit: the ray itself never
+     * changes, so Embree recomputes the same t for a surface already reported, and starting at the
+     * next float above it excludes exactly that surface (a ray through a shared edge reports one of
+     * the two triangles, as a single query would). The order is by t by construction. The number
+     * of queries is bounded, so a pathological stack of coincident surfaces cannot loop. */
+    uint32_t n = 0;
+    float t0 = tmin;
+    for (uint32_t queries = 0; n < max_hits && queries < 4 * max_hits + 16; queries++) {
+        struct hit h;
+        if (!accel_intersect(a, org, dir, t0, tmax, &h, counters)) break;
+        if (h.shape == shape) hits[n++] = h;
+        float next = nextafterf(h.t, INFINITY);
+        if (!(next > t0)) break;
+        t0 = next;
+    }
+    return n;
+}
+
 bool accel_occluded(const struct accel *a, struct vec3 org, struct vec3 dir, float tmin, float tmax,
                     struct ray_counters *counters)
 {

@@ -1,5 +1,6 @@
 /* material.c — the material interface of material.h: lobe structure (count, flags, roughness)
- * and dispatch of eval / pdf / sample to bsdf_diffuse.c, bsdf_conductor.c, bsdf_dielectric.c.
+ * and dispatch of eval / pdf / sample to bsdf_diffuse.c, bsdf_conductor.c, bsdf_dielectric.c,
+ * bsdf_translucent.c.
  * This is the only switch on material kind in the renderer; the BSDF mathematics lives in the
  * bsdf_*.c files, microfacet.c and fresnel.h, never here.
  * Refs: seed 001 §1 (lobe-indexed paths: sampling reports the lobe; eval/pdf per lobe). */
@@ -14,6 +15,7 @@ int material_lobe_count(const struct material *m)
     case MATERIAL_DIFFUSE: return 1;
     case MATERIAL_CONDUCTOR: return 1;
     case MATERIAL_DIELECTRIC: return 2;
+    case MATERIAL_TRANSLUCENT: return 1;
     }
     return 0;
 }
@@ -31,6 +33,7 @@ unsigned material_lobe_flags(const struct material *m, int lobe)
     case MATERIAL_DIFFUSE: return BSDF_REFLECTION | BSDF_DIFFUSE;
     case MATERIAL_CONDUCTOR: return BSDF_REFLECTION | spread;
     case MATERIAL_DIELECTRIC: return (lobe == 0 ? BSDF_REFLECTION : BSDF_TRANSMISSION) | spread;
+    case MATERIAL_TRANSLUCENT: return BSDF_REFLECTION | BSDF_DIFFUSE;
     }
     return 0;
 }
@@ -52,6 +55,7 @@ unsigned material_flags(const struct material *m)
     case MATERIAL_DIFFUSE: return BSDF_REFLECTION | BSDF_DIFFUSE;
     case MATERIAL_CONDUCTOR: return BSDF_REFLECTION | spread;
     case MATERIAL_DIELECTRIC: return BSDF_REFLECTION | BSDF_TRANSMISSION | spread;
+    case MATERIAL_TRANSLUCENT: return BSDF_REFLECTION | BSDF_DIFFUSE;
     }
     return 0;
 }
@@ -64,6 +68,7 @@ struct vec3 material_eval_lobe(const struct material *m, int lobe, struct vec3 w
     case MATERIAL_DIFFUSE: return bsdf_diffuse_eval(m, wo, wi);
     case MATERIAL_CONDUCTOR: return bsdf_conductor_eval(m, wo, wi);
     case MATERIAL_DIELECTRIC: return bsdf_dielectric_eval_lobe(m, lobe, wo, wi, mode);
+    case MATERIAL_TRANSLUCENT: return bsdf_translucent_eval(m, wo, wi);
     }
     return vec3_splat(0.0f);
 }
@@ -75,6 +80,7 @@ float material_pdf_lobe(const struct material *m, int lobe, struct vec3 wo, stru
     case MATERIAL_DIFFUSE: return bsdf_diffuse_pdf(wo, wi);
     case MATERIAL_CONDUCTOR: return bsdf_conductor_pdf(m, wo, wi);
     case MATERIAL_DIELECTRIC: return bsdf_dielectric_pdf_lobe(m, lobe, wo, wi);
+    case MATERIAL_TRANSLUCENT: return bsdf_diffuse_pdf(wo, wi);
     }
     return 0.0f;
 }
@@ -90,6 +96,7 @@ struct vec3 material_eval(const struct material *m, struct vec3 wo, struct vec3 
     case MATERIAL_CONDUCTOR: return bsdf_conductor_eval(m, wo, wi);
     case MATERIAL_DIELECTRIC:
         return bsdf_dielectric_eval_lobe(m, material_dielectric_lobe_of(wo, wi), wo, wi, mode);
+    case MATERIAL_TRANSLUCENT: return bsdf_translucent_eval(m, wo, wi);
     }
     return vec3_splat(0.0f);
 }
@@ -100,6 +107,7 @@ float material_pdf(const struct material *m, struct vec3 wo, struct vec3 wi)
     case MATERIAL_DIFFUSE: return bsdf_diffuse_pdf(wo, wi);
     case MATERIAL_CONDUCTOR: return bsdf_conductor_pdf(m, wo, wi);
     case MATERIAL_DIELECTRIC: return bsdf_dielectric_pdf_lobe(m, material_dielectric_lobe_of(wo, wi), wo, wi);
+    case MATERIAL_TRANSLUCENT: return bsdf_diffuse_pdf(wo, wi);
     }
     return 0.0f;
 }
@@ -112,6 +120,7 @@ bool material_sample(const struct material *m, struct vec3 wo, float u_lobe, flo
     case MATERIAL_DIFFUSE: ok = bsdf_diffuse_sample(m, wo, u1, u2, out); break;
     case MATERIAL_CONDUCTOR: ok = bsdf_conductor_sample(m, wo, u1, u2, out); break;
     case MATERIAL_DIELECTRIC: ok = bsdf_dielectric_sample(m, wo, u_lobe, u1, u2, mode, out); break;
+    case MATERIAL_TRANSLUCENT: ok = bsdf_translucent_sample(m, wo, u1, u2, out); break;
     }
     if (!ok) return false;
     out->flags = material_lobe_flags(m, out->lobe);

@@ -16,6 +16,9 @@ enum material_kind {
     MATERIAL_DIFFUSE,     /* Lambertian, albedo */
     MATERIAL_CONDUCTOR,   /* GGX microfacet conductor, complex IOR (eta, k); roughness 0 = mirror */
     MATERIAL_DIELECTRIC,  /* smooth or GGX-rough dielectric interface, ior */
+    MATERIAL_TRANSLUCENT, /* subsurface scattering (bssrdf.h): Burley diffusion behind a smooth
+                             dielectric boundary (ior) with albedo and per-channel mean free path;
+                             as a BSDF (material_eval etc.) it is the local stand-in of bssrdf.h */
 };
 
 /* Lobe flags. A lobe is exactly one of DIFFUSE, GLOSSY, DELTA, and REFLECTION or TRANSMISSION. */
@@ -37,7 +40,12 @@ struct material {
     enum material_kind kind;
     struct vec3 albedo;       /* DIFFUSE: reflectance in [0, 1] */
     struct vec3 eta, k;       /* CONDUCTOR: complex index of refraction per channel */
-    float ior;                /* DIELECTRIC: interior / exterior index, > 0, != 1 */
+    float ior;                /* DIELECTRIC, TRANSLUCENT: interior / exterior index, > 0, != 1 */
+    struct vec3 mfp;          /* TRANSLUCENT: mean free path l per channel (scene units), > 0 */
+    struct vec3 sss_d;        /* TRANSLUCENT: Burley's d = l / s(albedo) per channel (bssrdf_prepare) */
+    struct vec3 sss_r_max;    /* TRANSLUCENT: the profile's cut-off radius per channel (bssrdf_prepare) */
+    float sss_c;              /* TRANSLUCENT: 1 - 2 (first Fresnel moment), normalises the boundary
+                                 transmission term (bssrdf_prepare) */
     float roughness;          /* CONDUCTOR, DIELECTRIC: GGX alpha; 0 = perfectly smooth (delta).
                                  Below MICROFACET_DELTA_ALPHA (1e-4) it is treated as 0. */
     struct vec3 emission;     /* radiance leaving the front face (any kind); zero = not emissive */
@@ -60,7 +68,7 @@ struct bsdf_sample {
 
 /* Number of lobes and each lobe's flags and GGX roughness (0 for diffuse and delta lobes count
  * as: diffuse -> 1, delta -> 0). Diffuse: 1 lobe; conductor: 1; dielectric: 2 (0 reflection,
- * 1 transmission). */
+ * 1 transmission); translucent: 1 (its diffuse stand-in). */
 int material_lobe_count(const struct material *m);
 unsigned material_lobe_flags(const struct material *m, int lobe);
 float material_lobe_roughness(const struct material *m, int lobe);

@@ -13,6 +13,7 @@
 #include <time.h>
 
 #include "accel.h"
+#include "bssrdf.h"
 #include "camera.h"
 #include "light_sampler.h"
 #include "material.h"
@@ -44,6 +45,106 @@ static inline struct vec3 pt_emitter_side(struct vec3 n, struct vec3 wi)
     return vec3_dot(wi, n) < 0.0f ? n : vec3_neg(n);
 }
 
+/* Subsurface scattering at the primary hit x1 on a translucent material (seed 004 §2.1, §3.1):
+ * one probe of BSSRDF importance sampling; every hit x2_j on the same shape is an entry point,
+ * each weighted by S / bssrdf_pdf_a (eq. 10: all intersections, not one picked at random), and
+ * each gets next-event estimation towards one light sample through the entry lobe
+ * (1 - F(wi)) / (c pi). Direct light at the entry points is counted by NEE alone (no MIS): the
+ * continuation below skips emission at its first hit (*skip_emission). Without NEE
+ * (params->nee false) that emission is counted instead, with weight 1 — a second unbiased
+ * estimator of the same integral. The path continues from one entry point picked uniformly
+ * (weight N, the number of hits) with a cosine-sampled direction. Returns false when the path
+ * ends; otherwise updates beta, the next ray and the vertex it leaves from. With sss_direct false
+ * the NEE at the entry points is left out (restir_sss resamples that part) and so is the
+ * continuation's emission that would duplicate it. */
+static bool pt_sss_primary(const struct scene *scene, const struct pt_params *params, const struct material *m,
+                           const struct surface *s, struct vec3 wo_world, struct vec3 *beta, struct vec3 *L,
+                           struct rng *rng, struct ray_counters *rc, struct vec3 *org, struct vec3 *dir,
+                           struct vec3 *prev_p, bool *skip_emission, bool sss_direct)
+{
+    const struct light_sampler *lights = scene->lights;
+    const bool nee = params->nee && light_sampler_count(lights) > 0;
+    float cos_o = vec3_dot(wo_world, s->ns);
+    /* Light leaves through the front (outside) only. */
+    float ut = rng_next_float(rng), ur = rng_next_float(rng), ua = rng_next_float(rng), upick = rng_next_float(rng);
+    if (!(cos_o > 0.0f) || !(vec3_dot(wo_world, s->ng) > 0.0f)) return false;
+    int axis, channel;
+    bssrdf_pick_technique(ut, &axis, &channel);
+    struct bssrdf_probe probe;
+    if (!bssrdf_probe_make(m, s->p, &s->frame, axis, channel, ur, ua, &probe)) return false;
+    struct hit hits[BSSRDF_MAX_HITS];
+    uint32_t n = accel_intersect_shape_all(scene->accel, s->shape, probe.org, probe.dir, 0.0f, probe.tmax, hits,
+                                           BSSRDF_MAX_HITS, rc);
+    if (n == 0) return false;
+    uint32_t pick = (uint32_t)(upick * (float)n);
+    if (pick >= n) pick = n - 1;
+    struct vec3 beta_o = vec3_scale(*beta, bssrdf_transmittance(m, cos_o));
+    struct vec3 beta_pick = vec3_splat(0.0f);
+    struct surface s_pick = *s;  /* overwritten by the picked hit; read only when one was picked */
+    for (uint32_t j = 0; j < n; j++) {
+        struct surface s2;
+        surface_from_hit(scene, &hits[j], probe.org, probe.dir, &s2);
+        float pdf = bssrdf_pdf_a(m, s->p, &s->frame, s2.p, s2.ng);
+        if (!(pdf > 0.0f)) continue;
+        struct vec3 w = vec3_scale(vec3_mul(beta_o, bssrdf_profile(m, vec3_length(vec3_sub(s2.p, s->p)))), 1.0f / pdf);
+        if (j == pick) {
+            beta_pick = w;
+            s_pick = s2;
+        }
+        if (!nee || !sss_direct) continue;
+        float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
+        struct light_sample ls;
+        if (!light_sampler_sample(lights, ul, u1, u2, &ls)) continue;
+        struct vec3 wi_world, Le;
+        float dist, pdf_light_w;
+        if (ls.is_env) {
+            wi_world = ls.dir;
+            dist = INFINITY;
+            pdf_light_w = ls.pdf_w;
+            Le = scene->env_radiance;
+        } else {
+            struct vec3 d = vec3_sub(ls.p, s2.p);
+            float d2 = vec3_length2(d);
+            dist = sqrtf(d2);
+            wi_world = vec3_scale(d, 1.0f / dist);
+            float cos_l = -vec3_dot(wi_world, ls.n);
+            Le = light_sampler_emitted(&scene->materials[scene->shapes[ls.shape].material], cos_l);
+            pdf_light_w = sampling_area_to_solid_angle(ls.pdf_a, d2, cos_l);
+            if (!(d2 > 0.0f)) continue;
+        }
+        float cos_i = vec3_dot(wi_world, s2.ns);
+        if (!(pdf_light_w > 0.0f) || vec3_is_zero(Le) || !(cos_i > 0.0f) || !(vec3_dot(wi_world, s2.ng) > 0.0f))
+            continue;
+        /* Offset end to offset end, as next-event estimation in pt_radiance. */
+        struct vec3 sorg = surface_offset_along(s2.p, s2.ng), sdir = wi_world;
+        float tmax = INFINITY;
+        if (!ls.is_env) {
+            struct vec3 seg = vec3_sub(surface_offset_along(ls.p, pt_emitter_side(ls.n, wi_world)), sorg);
+            float len = vec3_length(seg);
+            if (!(len > 0.0f)) continue;
+            sdir = vec3_scale(seg, 1.0f / len);
+            tmax = len * (1.0f - 1e-4f);
+        }
+        if (accel_occluded(scene->accel, sorg, sdir, 0.0f, tmax, rc)) continue;
+        float f = bssrdf_entry_eval(m, cos_i);
+        *L = vec3_add(*L, vec3_mul(w, vec3_scale(Le, f * cos_i / pdf_light_w)));
+    }
+    if (vec3_is_zero(beta_pick)) return false;
+    /* Continue from the picked entry point: cosine sampling of the entry lobe, whose weight
+     * f cos / pdf is (1 - F(wi)) / c. */
+    float u1 = rng_next_float(rng), u2 = rng_next_float(rng);
+    struct vec3 wi = sampling_cosine_hemisphere(u1, u2);
+    if (!(wi.z > 0.0f)) return false;
+    struct vec3 wi_world = frame_to_world(&s_pick.frame, wi);
+    if (!(vec3_dot(wi_world, s_pick.ng) > 0.0f)) return false;
+    *beta = vec3_scale(beta_pick, (float)n * bssrdf_entry_eval(m, wi.z) * PI_F);
+    *org = surface_offset_along(s_pick.p, s_pick.ng);
+    *dir = wi_world;
+    *prev_p = s_pick.p;
+    *skip_emission = nee;
+    return true;
+}
+
 /* Radiance along one camera ray. The per-vertex work around the two ray queries is most of
  * what a ray costs besides Embree's traversal (docs/benchmarks.md, instructions per ray), so the
  * loop keeps it lean: parameters are read into locals once (every Embree call is opaque to the
@@ -59,7 +160,8 @@ struct pt_split {
 };
 
 static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
-                               struct vec3 dir, struct rng *rng, struct ray_counters *rc, const struct pt_split *split)
+                               struct vec3 dir, struct rng *rng, struct ray_counters *rc, const struct pt_split *split,
+                               bool sss_direct)
 {
     const struct light_sampler *lights = scene->lights;
     const struct accel *accel = scene->accel;
@@ -71,11 +173,12 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
     bool prev_delta = true;    /* camera rays and delta scattering get no MIS on emission */
     struct vec3 prev_p = org;
     struct sms_track track = sms_track_start();
+    bool skip_emission = false;  /* after subsurface scattering with NEE (pt_sss_primary) */
 
     for (uint32_t depth = 0;; depth++) {
         struct hit hit;
         if (!accel_intersect(accel, org, dir, 0.0f, INFINITY, &hit, rc)) {
-            if (split->rest && !vec3_is_zero(scene->env_radiance)) {
+            if (split->rest && !vec3_is_zero(scene->env_radiance) && !skip_emission) {
                 float w = 1.0f;
                 if (!prev_delta && mis) w = sampling_power_heuristic(prev_pdf_w, light_sampler_env_pdf_w(lights));
                 L = vec3_add(L, vec3_scale(vec3_mul(beta, scene->env_radiance), w));
@@ -87,7 +190,7 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         const struct material *m = &scene->materials[s.material];
 
         bool owned = split->tracked && sms_track_owned(scene, &track);
-        if (material_is_emissive(m) && (owned ? split->owned : split->rest)) {
+        if (material_is_emissive(m) && (owned ? split->owned : split->rest) && !skip_emission) {
             struct vec3 Le = light_sampler_emitted(m, -vec3_dot(dir, s.ng));
             if (!vec3_is_zero(Le)) {
                 float w = 1.0f;
@@ -101,6 +204,28 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
             }
         }
         if (depth >= max_depth) break;
+        skip_emission = false;
+
+        if (depth == 0 && m->kind == MATERIAL_TRANSLUCENT) {
+            /* Direct light at the entry points belongs to the rest of the light transport; the
+             * track stays where it was, so no path through subsurface scattering counts as owned
+             * by specular manifold sampling (which does not sample from entry points). */
+            if (!pt_sss_primary(scene, params, m, &s, vec3_neg(dir), &beta, &L, rng, rc, &org, &dir, &prev_p,
+                                &skip_emission, sss_direct && split->rest))
+                break;
+            /* A cosine-sampled direction: emission it reaches is MIS-weighted like a diffuse
+             * bounce's when NEE is off (weight 1 then) — it is skipped when NEE is on. */
+            prev_delta = true;
+            prev_pdf_w = 0.0f;
+            float u_rr = rng_next_float(rng);
+            if (depth + 1 >= rr_depth) {
+                float mx = vec3_max_comp(beta);
+                float q = mx < 0.95f ? mx : 0.95f;
+                if (!(q > 0.0f) || u_rr >= q) break;
+                beta = vec3_scale(beta, 1.0f / q);
+            }
+            continue;
+        }
 
         struct vec3 wo_world = vec3_neg(dir);
         struct vec3 wo = frame_to_local(&s.frame, wo_world);
@@ -211,6 +336,13 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
     return L;
 }
 
+struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
+                                  struct vec3 dir, struct rng *rng, bool sss_direct, struct ray_counters *rc)
+{
+    const struct pt_split all = {.owned = true, .rest = true};
+    return pt_radiance(scene, params, org, dir, rng, rc, &all, sss_direct);
+}
+
 static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
 {
     struct pt_job *job = ctx;
@@ -237,7 +369,7 @@ static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
                  * sample as pt's PT_SUBSET_REST image. */
                 struct rng sms_rng = rng_make(p->seed, p->frame, pixel, ((uint64_t)1 << 40) | s);
                 split.sms_rng = &sms_rng;
-                struct vec3 L = pt_radiance(job->scene, p, job->camera.position, dir, &rng, &rc, &split);
+                struct vec3 L = pt_radiance(job->scene, p, job->camera.position, dir, &rng, &rc, &split, true);
                 if (!vec3_is_finite(L)) {
                     st->nonfinite++;
                     continue;

@@ -58,6 +58,16 @@ bool reference_pt_render_into(const struct scene *scene, const struct pt_params 
                               struct render_stats *stats, parallel_progress_fn *progress, void *progress_ctx,
                               struct err *err);
 
+struct rng;
+struct ray_counters;
+/* Radiance along one camera ray (org, unit dir) as `pt` estimates it, from the caller's random
+ * stream. sss_direct false leaves out the direct light at subsurface entry points (the NEE at
+ * the probe hits of a translucent primary hit, and the emission the path would reach with its
+ * first step from there when params->nee is on): restir_sss adds that part from its reservoirs.
+ * Thread-safe, allocation-free. */
+struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
+                                  struct vec3 dir, struct rng *rng, bool sss_direct, struct ray_counters *rc);
+
 /* References rendered in passes (so that a long render reports progress and can stop between
  * passes): pass i renders `params` with frame REFERENCE_PT_PASS_FRAME0 + i — a seed stream no
  * frame of a session reaches, so the reference's noise is independent of the frames compared

@@ -16,6 +16,7 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include "bssrdf.h"
 #include "fileio.h"
 #include "mesh_io.h"
 
@@ -321,6 +322,7 @@ static bool scene_load_material(const cJSON *m, const char *ptr, struct material
     static const char *const diffuse_keys[] = {"type", "albedo", "emission", "two_sided", NULL};
     static const char *const conductor_keys[] = {"type", "eta", "k", "roughness", "emission", "two_sided", NULL};
     static const char *const dielectric_keys[] = {"type", "ior", "roughness", "emission", "two_sided", NULL};
+    static const char *const translucent_keys[] = {"type", "albedo", "mfp", "ior", "emission", "two_sided", NULL};
     char p[SCENE_LOAD_PTR];
 
     memset(out, 0, sizeof *out);
@@ -352,8 +354,22 @@ static bool scene_load_material(const cJSON *m, const char *ptr, struct material
             scene_load_ptr_key(p, ptr, "ior");
             return err_set(err, ERR_INVALID, p, "ior must not be 1 (an index-matched interface is invisible)");
         }
+    } else if (strcmp(type, "translucent") == 0) {
+        out->kind = MATERIAL_TRANSLUCENT;
+        out->ior = 1.4f;
+        if (!scene_load_check_keys(m, ptr, translucent_keys, " for a translucent material", err) ||
+            !scene_load_key_vec3(m, ptr, "albedo", true, RANGE_UNIT, &out->albedo, err) ||
+            !scene_load_key_vec3(m, ptr, "mfp", true, RANGE_POS, &out->mfp, err) ||
+            !scene_load_key_number(m, ptr, "ior", false, RANGE_POS, &out->ior, err))
+            return false;
+        if (out->ior == 1.0f) {
+            scene_load_ptr_key(p, ptr, "ior");
+            return err_set(err, ERR_INVALID, p, "ior must not be 1 (the boundary's Fresnel terms need an interface)");
+        }
+        bssrdf_prepare(out);
     } else {
-        return err_set(err, ERR_INVALID, p, "unknown material type '%.64s' (expected diffuse, conductor or dielectric)", type);
+        return err_set(err, ERR_INVALID, p,
+                       "unknown material type '%.64s' (expected diffuse, conductor, dielectric or translucent)", type);
     }
     return scene_load_key_vec3(m, ptr, "emission", false, RANGE_NONNEG, &out->emission, err) &&
            scene_load_key_bool(m, ptr, "two_sided", &out->two_sided_emission, err);

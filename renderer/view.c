@@ -12,6 +12,7 @@ struct view_params view_params_defaults(enum render_method method, uint32_t widt
     p.restir_pt = restir_pt_defaults();
     p.bdpt = bdpt_defaults();
     p.sms = sms_defaults();
+    p.restir_sss = restir_sss_defaults();
     return p;
 }
 
@@ -21,6 +22,7 @@ bool view_method_parse(const char *name, enum render_method *out)
     if (strcmp(name, "restir_pt") == 0) { *out = RENDER_METHOD_RESTIR_PT; return true; }
     if (strcmp(name, "bdpt") == 0) { *out = RENDER_METHOD_BDPT; return true; }
     if (strcmp(name, "sms") == 0) { *out = RENDER_METHOD_SMS; return true; }
+    if (strcmp(name, "restir_sss") == 0) { *out = RENDER_METHOD_RESTIR_SSS; return true; }
     return false;
 }
 
@@ -31,6 +33,7 @@ const char *view_method_name(enum render_method method)
     case RENDER_METHOD_RESTIR_PT: return "restir_pt";
     case RENDER_METHOD_BDPT: return "bdpt";
     case RENDER_METHOD_SMS: return "sms";
+    case RENDER_METHOD_RESTIR_SSS: return "restir_sss";
     }
     return NULL;
 }
@@ -43,6 +46,7 @@ static void view_drop_history(struct view *v)
     v->frame = 0;
     v->accum_count = 0;
     restir_pt_reset(&v->restir);
+    restir_sss_reset(&v->sss);
     if (v->accum.pixels) memset(v->accum.pixels, 0, (size_t)v->accum.width * v->accum.height * sizeof *v->accum.pixels);
 }
 
@@ -65,12 +69,17 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
     if (params->method == RENDER_METHOD_BDPT &&
         !bdpt_init(&v->bdpt, scene, &params->bdpt, params->width, params->height, err))
         return false;
+    if (params->method == RENDER_METHOD_RESTIR_SSS) {
+        if (!restir_sss_params_valid(&params->restir_sss, err)) return false;
+        if (!restir_sss_init(&v->sss, params->width, params->height, err)) return false;
+    }
     /* pt needs its frame and the accumulation buffer: no reservoirs, no G-buffer. */
     if (!image_init(&v->output, params->width, params->height, err) ||
         !image_init(&v->accum, params->width, params->height, err)) {
         image_destroy(&v->output);
         restir_pt_destroy(&v->restir);
         bdpt_destroy(&v->bdpt);
+        restir_sss_destroy(&v->sss);
         return false;
     }
     v->changes = calloc(scene->shape_count ? scene->shape_count : 1, sizeof *v->changes);
@@ -79,6 +88,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         image_destroy(&v->accum);
         restir_pt_destroy(&v->restir);
         bdpt_destroy(&v->bdpt);
+        restir_sss_destroy(&v->sss);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for a view");
     }
     v->params = *params;
@@ -99,6 +109,7 @@ void view_destroy(struct view *v)
     image_destroy(&v->accum);
     restir_pt_destroy(&v->restir);
     bdpt_destroy(&v->bdpt);
+    restir_sss_destroy(&v->sss);
     free(v->changes);
     memset(v, 0, sizeof *v);
 }
@@ -236,6 +247,28 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
             rs.render_ms = bstats.light_ms + bstats.splat_ms + bstats.camera_ms;
             if (progress) progress(progress_ctx, 1, 1);
         }
+    } else if (v->params.method == RENDER_METHOD_RESTIR_SSS) {
+        struct restir_sss_frame f = {.scene = scene, .camera = &camera, .prev_scene = v->frame ? v->scene : NULL,
+                                     .prev_camera = &v->camera, .seed = v->params.seed, .frame = v->frame,
+                                     .threads = v->threads};
+        struct restir_sss_stats ss;
+        ok = restir_sss_render(&v->sss, &v->params.restir_sss, &f, out, &ss, err);
+        if (ok) {
+            memset(&passes, 0, sizeof passes);
+            passes.gbuffer_ms = ss.gbuffer_ms, passes.initial_ms = ss.initial_ms, passes.temporal_ms = ss.temporal_ms;
+            passes.spatial_ms = ss.spatial_ms, passes.shade_ms = ss.shade_ms;
+            passes.rays_intersect = ss.rays_intersect, passes.rays_occluded = ss.rays_occluded;
+            passes.shifts = ss.shifts, passes.shift_failures = ss.shift_failures, passes.rejected = ss.rejected;
+            passes.nonfinite = ss.nonfinite;
+            memset(&rs, 0, sizeof rs);
+            rs.rays_intersect = ss.rays_intersect;
+            rs.rays_occluded = ss.rays_occluded;
+            rs.samples = (uint64_t)out->width * out->height;
+            rs.nonfinite = ss.nonfinite;
+            rs.threads = v->threads ? v->threads : parallel_default_threads();
+            rs.render_ms = ss.gbuffer_ms + ss.initial_ms + ss.temporal_ms + ss.spatial_ms + ss.shade_ms;
+            if (progress) progress(progress_ctx, 1, 1);
+        }
     } else {
         struct pt_params p = reference_pt_defaults(v->params.width, v->params.height);
         p.spp = v->params.pt.spp;
@@ -277,7 +310,7 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         stats->render = rs;
         stats->scene_update_ms = update_ms;
         stats->accumulated = v->accum_count;
-        stats->has_passes = v->params.method == RENDER_METHOD_RESTIR_PT;
+        stats->has_passes = v->params.method == RENDER_METHOD_RESTIR_PT || v->params.method == RENDER_METHOD_RESTIR_SSS;
         if (stats->has_passes) stats->passes = passes;
         stats->has_bdpt = v->params.method == RENDER_METHOD_BDPT;
         if (stats->has_bdpt) stats->bdpt = bstats;
@@ -306,6 +339,7 @@ uint64_t view_bytes_planned(const struct view_params *params, uint32_t shape_cou
     uint64_t bytes = 2 * pixels * sizeof(struct vec3) + (uint64_t)(shape_count ? shape_count : 1) * sizeof(struct view_shape_change);
     if (params->method == RENDER_METHOD_RESTIR_PT) bytes += restir_pt_bytes_planned(params->width, params->height, shape_count);
     if (params->method == RENDER_METHOD_BDPT) bytes += bdpt_bytes_planned(&params->bdpt, params->width, params->height);
+    if (params->method == RENDER_METHOD_RESTIR_SSS) bytes += restir_sss_bytes_planned(params->width, params->height);
     return bytes;
 }
 
@@ -325,6 +359,10 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
     if (v->params.method == RENDER_METHOD_BDPT) {
         out[n++] = (struct view_buffer_bytes){"light_vertex_cache", bdpt_lvc_bytes(&v->bdpt)};
         out[n++] = (struct view_buffer_bytes){"lvc_blocks", bdpt_block_bytes(&v->bdpt)};
+    }
+    if (v->params.method == RENDER_METHOD_RESTIR_SSS) {
+        out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sss_reservoir_bytes(&v->sss)};
+        out[n++] = (struct view_buffer_bytes){"gbuffers", restir_sss_gbuffer_bytes(&v->sss)};
     }
     size_t sum = 0;
     for (uint32_t i = 0; i < n; i++) sum += out[i].bytes;

@@ -18,9 +18,11 @@
 #include "parallel.h"
 #include "reference_pt.h"
 #include "restir_pt.h"
+#include "restir_sss.h"
 #include "scene.h"
 
-enum render_method { RENDER_METHOD_PT, RENDER_METHOD_RESTIR_PT, RENDER_METHOD_BDPT, RENDER_METHOD_SMS };
+enum render_method { RENDER_METHOD_PT, RENDER_METHOD_RESTIR_PT, RENDER_METHOD_BDPT, RENDER_METHOD_SMS,
+                     RENDER_METHOD_RESTIR_SSS };
 
 /* Parameters of `pt` (reference_pt.h documents them). */
 struct view_pt_params {
@@ -37,12 +39,14 @@ struct view_params {
     struct restir_pt_params restir_pt;   /* method restir_pt (restir_pt.h) */
     struct bdpt_params bdpt;             /* method bdpt (bdpt.h) */
     struct sms_params sms;               /* method sms (sms.h; spp, depths and nee from `pt`) */
+    struct restir_sss_params restir_sss; /* method restir_sss (restir_sss.h) */
 };
 
 /* Defaults of every method's parameters (pt: 1 spp per frame, max_depth 64, rr_depth 3, NEE;
  * restir_pt: restir_pt_defaults()). */
 struct view_params view_params_defaults(enum render_method method, uint32_t width, uint32_t height);
-/* "pt" <-> RENDER_METHOD_PT, "restir_pt" <-> RENDER_METHOD_RESTIR_PT; false/NULL when unknown. */
+/* "pt" <-> RENDER_METHOD_PT, "restir_pt" <-> RENDER_METHOD_RESTIR_PT, "restir_sss" <->
+ * RENDER_METHOD_RESTIR_SSS; false/NULL when unknown. */
 bool view_method_parse(const char *name, enum render_method *out);
 const char *view_method_name(enum render_method method);
 
@@ -98,8 +102,9 @@ struct frame_stats {
     struct render_stats render;           /* rays, samples, nonfinite, threads, render_ms */
     double scene_update_ms;               /* rebuilding the scene for moved or re-lit shapes */
     uint32_t accumulated;                 /* frames in the accumulation buffer after this one */
-    bool has_passes;                      /* restir_pt: the per-pass numbers below are set */
     bool has_sms;                         /* sms: render.sms holds seed 002 Table 1's counters */
+    bool has_passes;                      /* restir_pt, restir_sss: the per-pass numbers below are set
+                                             (restir_sss fills the fields the two share) */
     struct restir_pt_stats passes;
     bool has_bdpt;                        /* bdpt: the numbers below are set */
     struct bdpt_stats bdpt;
@@ -119,6 +124,7 @@ struct view {
     uint32_t accum_count;
     struct restir_pt_state restir;        /* restir_pt only: G-buffers and reservoirs */
     struct bdpt_state bdpt;               /* bdpt only: the light vertex cache */
+    struct restir_sss_state sss;          /* restir_sss only: G-buffers and reservoirs */
     struct view_shape_change *changes;    /* the shape changes in force, one per changed shape */
     uint32_t change_count;
 };

@@ -79,6 +79,17 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
         jsonw_key(w, "bernoulli_cap"); jsonw_uint(w, p->sms.bernoulli_cap);
         jsonw_key(w, "max_iterations"); jsonw_uint(w, p->sms.max_iterations);
         jsonw_key(w, "caustics_only"); jsonw_bool(w, p->sms.caustics_only);
+    } else if (p->method == RENDER_METHOD_RESTIR_SSS) {
+        const struct restir_sss_params *r = &p->restir_sss;
+        jsonw_key(w, "shift"); jsonw_string(w, restir_sss_shift_name(r->shift));
+        jsonw_key(w, "candidates"); jsonw_uint(w, r->candidates);
+        jsonw_key(w, "temporal"); jsonw_bool(w, r->temporal);
+        jsonw_key(w, "temporal_cap"); jsonw_uint(w, r->temporal_cap);
+        jsonw_key(w, "spatial_neighbors"); jsonw_uint(w, r->spatial_neighbors);
+        jsonw_key(w, "spatial_radius"); jsonw_double(w, r->spatial_radius);
+        jsonw_key(w, "kappa_orientation"); jsonw_double(w, r->kappa_orientation);
+        jsonw_key(w, "max_depth"); jsonw_uint(w, r->max_depth);
+        jsonw_key(w, "rr_depth"); jsonw_uint(w, r->rr_depth);
     } else {
         static const char *const subsets[] = {"all", "caustic", "rest"};
         jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);
@@ -157,7 +168,9 @@ static void api_write_session(struct jsonw *w, struct session *s)
     jsonw_key(w, "camera"); api_write_camera(w, &cam);
     jsonw_key(w, "reservoir_bytes"); jsonw_uint(w, reservoir);
     jsonw_key(w, "reservoir_bytes_per_pixel");
-    jsonw_uint(w, p->method == RENDER_METHOD_RESTIR_PT ? RESTIR_PT_RESERVOIR_BYTES : 0);
+    jsonw_uint(w, p->method == RENDER_METHOD_RESTIR_PT    ? RESTIR_PT_RESERVOIR_BYTES
+                  : p->method == RENDER_METHOD_RESTIR_SSS ? RESTIR_SSS_RESERVOIR_BYTES
+                                                          : 0);
     jsonw_key(w, "buffers");
     jsonw_object_begin(w);
     for (uint32_t i = 0; i < nb; i++) {

@@ -20,7 +20,8 @@
 
 #define CLI_USAGE                                                                                  \
     "usage:\n"                                                                                     \
-    "  restir render SCENE.json|SCENE_FOLDER [--method pt|restir_pt|bdpt|sms] [--spp N] [--size WxH] [--seed S] [--frame F]\n" \
+    "  restir render SCENE.json|SCENE_FOLDER [--method pt|restir_pt|bdpt|sms|restir_sss] [--spp N] [--size WxH]\n" \
+    "                [--seed S] [--frame F]\n" \
     "                [--threads T] [--max-depth D] [--rr-depth R] [--no-nee] [--crop X0,Y0,X1,Y1]\n"    \
     "                [--frames F] [--average-last N] [--animation FILE.json] [--params JSON]\n"       \
     "                [--half] [--json] -o OUT.exr\n"                                              \
@@ -32,7 +33,7 @@
     "sessions) and writes the last; --animation FILE.json takes camera and light keys from a file\n" \
     "holding the body of a daemon animation job ({\"animation\": {...}}, protocol/API.md) and\n"   \
     "its frame count unless --frames is given.\n"                                                  \
-    "--method restir_pt renders a session of --frames frames (default 1) with temporal and spatial\n" \
+    "--method restir_pt (or restir_sss) renders a session of --frames frames (default 1) with temporal and spatial\n" \
     "reuse; --params sets the method's parameters as the daemon's session \"params\" object\n"    \
     "(protocol/API.md; keys it leaves out take their defaults, not the other options' values),\n" \
     "e.g. --params '{\"spatial_neighbors\": 0}'. --average-last N writes the mean of the last N\n"  \
@@ -109,6 +110,7 @@ static bool cli_method_params(const char *params_json, struct view_params *vp, s
     vp->restir_pt = parsed.restir_pt;
     vp->bdpt = parsed.bdpt;
     vp->sms = parsed.sms;
+    vp->restir_sss = parsed.restir_sss;
     return true;
 }
 
@@ -272,7 +274,8 @@ static int cli_render(int argc, char **argv)
     if (!scene_path) return cli_usage_error("%s", "render needs a scene file");
     if (!out_path) return cli_usage_error("%s", "render needs -o OUT.exr");
     enum render_method rm;
-    if (!view_method_parse(method, &rm)) return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt, bdpt, sms)", method);
+    if (!view_method_parse(method, &rm))
+        return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt, bdpt, sms, restir_sss)", method);
     if (rm != RENDER_METHOD_PT && (has_crop || has_frame))
         return cli_usage_error("%s", "--crop and --frame are options of --method pt");
     p.width = width;
@@ -321,6 +324,8 @@ static int cli_render(int argc, char **argv)
         if (!p.nee) vp.restir_pt.nee_candidates = 0;
         vp.bdpt.max_depth = p.max_depth;
         vp.bdpt.rr_depth = p.rr_depth;
+        vp.restir_sss.max_depth = p.max_depth;
+        vp.restir_sss.rr_depth = p.rr_depth;
         if (params_json && !cli_method_params(params_json, &vp, &err)) {
             fprintf(stderr, "restir: --params: %s\n", err_format(&err, msg, sizeof msg));
             scene_release(scene);
@@ -361,7 +366,8 @@ static int cli_render(int argc, char **argv)
                    "\"shade_ms\":%.3f,\"shifts\":%" PRIu64 ",\"shift_failures\":%" PRIu64 "},\"session_bytes\":%zu,"
                    "\"reservoir_bytes_per_pixel\":%u",
                    ps->gbuffer_ms, ps->initial_ms, ps->temporal_ms, ps->spatial_ms, ps->shade_ms, ps->shifts,
-                   ps->shift_failures, session_bytes, RESTIR_PT_RESERVOIR_BYTES);
+                   ps->shift_failures, session_bytes,
+                   rm == RENDER_METHOD_RESTIR_SSS ? RESTIR_SSS_RESERVOIR_BYTES : RESTIR_PT_RESERVOIR_BYTES);
         }
         if (last.has_bdpt) {
             const struct bdpt_stats *bs = &last.bdpt;

@@ -1313,3 +1313,28 @@ def test_restir_pt_bad_params(daemon, params, field):
     r = daemon.req("POST", f"{CORNELL}/sessions", json_body={"method": "restir_pt", "width": 8, "height": 8,
                                                              "params": params})
     assert_problem(r, 422, "invalid-field", field)
+
+
+def test_restir_sss_session(daemon):
+    """A restir_sss session on the translucent scene: its parameters with defaults, exactly its
+    own buffers (two 60-byte reservoir buffers and two G-buffers), frames with per-pass times and
+    reuse; the sequential shift and unknown keys are refused naming the field."""
+    s = new_session(daemon, scene="translucent", method="restir_sss", width=24, height=24, seed=2,
+                    params={"shift": "delayed"})
+    p = s["params"]
+    assert p["shift"] == "delayed" and p["candidates"] == 1 and p["spatial_neighbors"] == 4
+    assert p["temporal_cap"] == 20 and p["kappa_orientation"] == pytest.approx(0.5) and p["spatial_radius"] == 0
+    assert s["reservoir_bytes_per_pixel"] == 60
+    assert s["reservoir_bytes"] == 2 * 60 * 24 * 24 == s["buffers"]["reservoirs"]
+    assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers"}
+    post_frame(daemon, s, accept="application/json")
+    st = post_frame(daemon, s, accept="application/json").json()
+    assert st["passes"]["shifts"] > 0 and st["nonfinite"] == 0
+    img = frame_rgb(daemon, s)
+    assert img.shape == (24, 24, 3) and np.isfinite(img).all() and img.mean() > 0.01
+    assert daemon.req("DELETE", s["href"]).status == 204
+    for params, field in [({"shift": "sequential"}, "/params/shift"), ({"shift": 3}, "/params/shift"),
+                          ({"candidates": 0}, "/params/candidates"), ({"spp": 2}, "/params/spp")]:
+        r = daemon.req("POST", "/v1/scenes/translucent/sessions",
+                       json_body={"method": "restir_sss", "width": 8, "height": 8, "params": params})
+        assert_problem(r, 422, "invalid-field", field)

@@ -392,13 +392,22 @@ static void test_materials_mapping(void)
                        "\"au\": {\"type\": \"conductor\", \"eta\": [0.1, 0.2, 0.3], \"k\": [3, 2, 1], \"roughness\": 0.25},"
                        "\"glass\": {\"type\": \"dielectric\", \"ior\": 1.5},"
                        "\"rough\": {\"type\": \"dielectric\", \"ior\": 1.33, \"roughness\": 0.1},"
+                       "\"wax\": {\"type\": \"translucent\", \"albedo\": [0.8, 0.5, 0.2], \"mfp\": [1, 0.5, 0.25]},"
+                       "\"jade\": {\"type\": \"translucent\", \"albedo\": [0.3, 0.7, 0.4], \"mfp\": [0.1, 0.2, 0.1], \"ior\": 1.6},"
                        "\"lamp\": {\"type\": \"diffuse\", \"albedo\": [1, 1, 1], \"emission\": [1, 2, 3], \"two_sided\": true}},"
                        "\"shapes\": [], \"environment\": {\"radiance\": [0.1, 0.2, 0.3]}}";
     struct err err;
     struct scene *s = load_str(json, &err);
     CHECK_MSG(s != NULL, "%s: %s", err.where, err.message);
     if (!s) return;
-    CHECK(s->shape_count == 0 && s->material_count == 4);
+    CHECK(s->shape_count == 0 && s->material_count == 6);
+    /* Translucent: ior defaults to 1.4; d = mfp / (1.9 - A + 3.5 (A - 0.8)^2) per channel. */
+    const struct material *w = material_named(s, "wax");
+    CHECK(w->kind == MATERIAL_TRANSLUCENT && w->ior == 1.4f && w->mfp.y == 0.5f);
+    CHECK_NEAR(w->sss_d.x, 1.0 / 1.1, 1e-6);
+    CHECK_NEAR(w->sss_d.z, 0.25 / (1.9 - 0.2 + 3.5 * 0.36), 1e-6);
+    CHECK(w->sss_c > 0.8f && w->sss_c < 1.0f && w->sss_r_max.x > w->sss_r_max.y);
+    CHECK(material_named(s, "jade")->ior == 1.6f);
     const struct material *au = material_named(s, "au");
     CHECK(au->kind == MATERIAL_CONDUCTOR && au->eta.y == 0.2f && au->k.x == 3.0f && au->roughness == 0.25f);
     const struct material *g = material_named(s, "glass");

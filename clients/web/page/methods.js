@@ -47,4 +47,15 @@ export const METHODS = {
       { name: 'max_depth', kind: 'number', value: 64, help: 'longest path, in bounces' },
     ],
   },
+  restir_sss: {
+    label: 'restir_sss: ReSTIR subsurface scattering (translucent materials)',
+    params: [
+      { name: 'shift', kind: 'text', value: 'hybrid', help: 'reconnection, delayed or hybrid' },
+      { name: 'candidates', kind: 'number', value: 1, help: 'BSSRDF probes per pixel and frame' },
+      { name: 'spatial_neighbors', kind: 'number', value: 4, help: 'spatial neighbours (0: none)' },
+      { name: 'spatial_radius', kind: 'number', value: 0, help: 'spatial radius, pixels (0: from 2 max d)' },
+      { name: 'temporal', kind: 'boolean', value: true, help: 'temporal reuse' },
+      { name: 'temporal_cap', kind: 'number', value: 20, help: 'previous confidence cap, x current' },
+    ],
+  },
 };

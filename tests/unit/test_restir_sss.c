@@ -1,0 +1,222 @@
+/* test_restir_sss.c — the shifts of restir_sss as round trips (design TESTING.md tier 3): for
+ * samples drawn by the initial pass on the scene `translucent`, a shift to a neighbouring pixel
+ * and back returns the same entry point x2 and contribution (T^-1(T(x)) = x) and the Jacobians
+ * multiply to 1 (J * J^-1 = 1 to 1e-4), for the reconnection, delayed reconnection and hybrid
+ * shifts (on a turned translucent box and a sphere); the previous frame's pixel with the camera
+ * moved likewise. A shift to the sample's own pixel reproduces the stored contribution. Delayed
+ * reconnection must show non-trivial Jacobians between pixels a few apart (on the box's faces);
+ * reconnection's are exactly 1. Parameters: the
+ * sequential shift is refused at /params/shift; the session's bytes planned == allocated. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "restir_sss.h"
+#include "scene.h"
+#include "test.h"
+#include "view.h"
+
+static struct scene *load(const char *path)
+{
+    struct err err = {0};
+    struct scene *s = scene_load_file(path, &err);
+    CHECK_MSG(s != NULL, "%s: %s", path, err.message);
+    if (s && !scene_commit(s, &err)) {
+        CHECK_MSG(false, "%s", err.message);
+        scene_release(s);
+        return NULL;
+    }
+    return s;
+}
+
+struct tally {
+    int tried, forward_ok, round_trips, nontrivial_jacobians, failures;
+};
+
+static bool close_rel(struct vec3 a, struct vec3 b, double tol)
+{
+    double scale = fmax(fmax(fabs(a.x), fabs(a.y)), fabs(a.z));
+    return fabs(a.x - b.x) <= tol * scale && fabs(a.y - b.y) <= tol * scale && fabs(a.z - b.z) <= tol * scale;
+}
+
+static void round_trip(const void *ctx, const uint8_t *elem, struct restir_domain from, struct restir_domain to,
+                       struct tally *t)
+{
+    const struct restir_ops *ops = &restir_sss_ops;
+    _Alignas(16) uint8_t x[RESTIR_MAX_STRIDE], y[RESTIR_MAX_STRIDE], x2[RESTIR_MAX_STRIDE];
+    struct restir_counters c = {0};
+    float t0, j0, t1, j1, t2, j2;
+    t->tried++;
+    ops->shift(ctx, elem, from, from, x, &t0, &j0, &c);
+    ops->shift(ctx, elem, from, to, y, &t1, &j1, &c);
+    if (!(t1 > 0.0f)) return;
+    t->forward_ok++;
+    ops->shift(ctx, y, to, from, x2, &t2, &j2, &c);
+    struct restir_sss_info a, b;
+    restir_sss_info(ctx, x, from.pixel, &a);
+    restir_sss_info(ctx, x2, from.pixel, &b);
+    /* The entry point is compared by its code: equal primitive and barycentrics (or sphere
+     * direction code) within 1e-4. */
+    bool same_x2 = a.x2_shape == b.x2_shape && a.x2_prim == b.x2_prim && fabsf(a.x2_b1 - b.x2_b1) <= 1e-4f &&
+                   fabsf(a.x2_b2 - b.x2_b2) <= 1e-4f;
+    bool ok = t0 > 0.0f && t2 > 0.0f && same_x2 && a.axis == b.axis && a.channel == b.channel && a.hit == b.hit &&
+              close_rel(a.F, b.F, 1e-4) && fabs((double)j1 * j2 - 1.0) <= 1e-4;
+    if (!ok) {
+        if (t->failures++ < 5)
+            fprintf(stderr, "  round trip %u -> %u: same x2 %d, F %g -> %g, J %g * %g = %g, back target %g\n",
+                    from.pixel, to.pixel, same_x2, (double)a.F.x, (double)b.F.x, (double)j1, (double)j2,
+                    (double)j1 * j2, (double)t2);
+        return;
+    }
+    t->round_trips++;
+    if (fabs((double)j1 - 1.0) > 1e-4) t->nontrivial_jacobians++;
+}
+
+static const struct camera_desc *scene_camera(const struct scene *s) { return &s->camera; }
+
+/* A translucent box turned on two axes beside a translucent sphere, lit from the side: on the
+ * box the replayed probe meets faces at other angles than the base path's (a non-trivial
+ * delayed-reconnection Jacobian) and crosses edges (shifts that fail); on the sphere it is a
+ * rotated copy of the base path (Jacobian 1). */
+static const char box_json[] =
+    "{\"format\": 1, \"camera\": {\"position\": [0.3, 0.9, 3.2], \"look_at\": [0.3, 0.4, 0], \"up\": [0, 1, 0], "
+    "\"fov_deg\": 30},"
+    "\"materials\": {\"wax\": {\"type\": \"translucent\", \"albedo\": [0.9, 0.7, 0.5], \"mfp\": [0.08, 0.04, 0.02]},"
+    "\"floor\": {\"type\": \"diffuse\", \"albedo\": [0.5, 0.5, 0.5]},"
+    "\"lamp\": {\"type\": \"diffuse\", \"albedo\": [0, 0, 0], \"emission\": [20, 20, 20]}},"
+    "\"shapes\": [{\"type\": \"quad\", \"material\": \"floor\", \"vertices\": [[-4, 0, -4], [-4, 0, 4], [4, 0, 4], [4, 0, -4]]},"
+    "{\"type\": \"box\", \"material\": \"wax\", \"min\": [-0.3, -0.3, -0.3], \"max\": [0.3, 0.3, 0.3],"
+    " \"transform\": {\"translate\": [-0.2, 0.5, 0], \"rotate_deg\": [25, 35, 10]}},"
+    "{\"type\": \"sphere\", \"material\": \"wax\", \"center\": [0.75, 0.35, 0], \"radius\": 0.35},"
+    "{\"type\": \"quad\", \"material\": \"lamp\", \"vertices\": [[2, 0.3, 0.5], [2, 1.3, 0.5], [2, 1.3, -0.5], [2, 0.3, -0.5]]}]}";
+
+static void shift_case(enum restir_sss_shift shift, bool temporal)
+{
+    struct err lerr = {0};
+    struct scene *sc = scene_load_json(box_json, strlen(box_json), ".", &lerr);
+    CHECK_MSG(sc != NULL, "%s: %s", lerr.where, lerr.message);
+    if (!sc) return;
+    if (!scene_commit(sc, &lerr)) {
+        CHECK_MSG(false, "%s", lerr.message);
+        scene_release(sc);
+        return;
+    }
+    const uint32_t W = 64, H = 48;
+    struct restir_sss_params p = restir_sss_defaults();
+    p.shift = shift;
+    p.candidates = 4;  /* more pixels with a sample */
+    struct restir_sss_state st;
+    struct err err = {0};
+    CHECK(restir_sss_init(&st, W, H, &err));
+    /* Temporal: frame 0 with the scene's camera, frame 1 with the camera moved a little; the
+     * previous frame's pixels are the domains shifted to. */
+    struct camera_desc cam0 = *scene_camera(sc), cam1 = cam0;
+    cam1.position.x += 0.02f;
+    cam1.look_at.x += 0.02f;
+    struct restir_sss_frame f0 = {.scene = sc, .camera = &cam0, .seed = 5, .frame = 0, .threads = 2};
+    CHECK(restir_sss_initial_only(&st, &p, &f0, &err));
+    struct restir_sss_frame f = f0;
+    if (temporal) {
+        /* The history must exist for the previous G-buffer to be kept. */
+        st.has_history = true;
+        f = (struct restir_sss_frame){.scene = sc, .camera = &cam1, .prev_scene = sc, .prev_camera = &cam0,
+                                      .seed = 5, .frame = 1, .threads = 2};
+        CHECK(restir_sss_initial_only(&st, &p, &f, &err));
+    }
+    _Alignas(16) uint8_t ctx[RESTIR_SSS_CTX_BYTES];
+    restir_sss_bind(&st, &p, &f, ctx);
+    struct tally t = {0};
+    int identity_ok = 0, identity_tried = 0;
+    const size_t stride = restir_sss_ops.stride;
+    for (uint32_t y = 0; y < H; y++) {
+        for (uint32_t x = 0; x < W; x++) {
+            uint32_t pixel = y * W + x;
+            const uint8_t *elem = st.res[0] + (size_t)pixel * stride;
+            if (!(((const struct restir_head *)elem)->W > 0.0f)) continue;
+            struct restir_domain from = {pixel, RESTIR_CURRENT};
+            /* Identity: the stored contribution comes back. */
+            _Alignas(16) uint8_t same[RESTIR_MAX_STRIDE];
+            float ts, js;
+            struct restir_counters c = {0};
+            restir_sss_ops.shift(ctx, elem, from, from, same, &ts, &js, &c);
+            struct restir_sss_info a, b;
+            restir_sss_info(ctx, elem, pixel, &a);
+            restir_sss_info(ctx, same, pixel, &b);
+            identity_tried++;
+            if (ts > 0.0f && close_rel(a.F, b.F, 1e-4) && fabsf(js - 1.0f) < 1e-4f) identity_ok++;
+            else if (getenv("SSS_DEBUG"))
+                fprintf(stderr, "  identity %u: t %g F %g %g %g -> %g %g %g J %g hit %d axis %d ch %d\n", pixel, (double)ts,
+                        (double)a.F.x, (double)a.F.y, (double)a.F.z, (double)b.F.x, (double)b.F.y, (double)b.F.z,
+                        (double)js, a.hit, a.axis, a.channel);
+            if (temporal) {
+                round_trip(ctx, elem, from, (struct restir_domain){pixel, RESTIR_PREVIOUS}, &t);
+            } else {
+                /* A few pixels away, so the replayed entry point moves measurably. */
+                round_trip(ctx, elem, from, (struct restir_domain){y * W + (x + 4) % W, RESTIR_CURRENT}, &t);
+                round_trip(ctx, elem, from, (struct restir_domain){((y + 3) % H) * W + x, RESTIR_CURRENT}, &t);
+            }
+        }
+    }
+    printf("     %s%s: %d samples (identity %d), %d shifts tried, %d succeeded, %d round trips, %d non-trivial J\n",
+           restir_sss_shift_name(shift), temporal ? " temporal" : "", identity_tried, identity_ok, t.tried,
+           t.forward_ok, t.round_trips, t.nontrivial_jacobians);
+    CHECK(identity_tried > 200);
+    CHECK(identity_ok >= identity_tried * 99 / 100);
+    CHECK(t.forward_ok > 100);
+    CHECK_MSG(t.round_trips >= t.forward_ok * 99 / 100, "%d of %d", t.round_trips, t.forward_ok);
+    if (shift == RESTIR_SSS_RECONNECTION) CHECK(t.nontrivial_jacobians == 0);
+    if (shift == RESTIR_SSS_DELAYED && !temporal) CHECK(t.nontrivial_jacobians > t.round_trips / 20);
+    restir_sss_destroy(&st);
+    scene_release(sc);
+}
+
+static void test_reconnection_round_trips(void) { shift_case(RESTIR_SSS_RECONNECTION, false); }
+static void test_delayed_round_trips(void) { shift_case(RESTIR_SSS_DELAYED, false); }
+static void test_hybrid_round_trips(void) { shift_case(RESTIR_SSS_HYBRID, false); }
+static void test_temporal_round_trips(void)
+{
+    shift_case(RESTIR_SSS_RECONNECTION, true);
+    shift_case(RESTIR_SSS_DELAYED, true);
+    shift_case(RESTIR_SSS_HYBRID, true);
+}
+
+static void test_params(void)
+{
+    struct restir_sss_params p = restir_sss_defaults();
+    struct err err = {0};
+    CHECK(restir_sss_params_valid(&p, &err));
+    CHECK(p.shift == RESTIR_SSS_HYBRID && p.candidates == 1 && p.spatial_neighbors == 4 && p.temporal_cap == 20 &&
+          p.kappa_orientation == 0.5f && p.spatial_radius == 0.0f);
+    p.shift = RESTIR_SSS_SEQUENTIAL;
+    CHECK(!restir_sss_params_valid(&p, &err) && strcmp(err.where, "/params/shift") == 0 &&
+          strstr(err.message, "not implemented"));
+    p = restir_sss_defaults();
+    p.candidates = 0;
+    CHECK(!restir_sss_params_valid(&p, &err) && strcmp(err.where, "/params/candidates") == 0);
+    enum restir_sss_shift s;
+    CHECK(restir_sss_shift_parse("delayed", &s) && s == RESTIR_SSS_DELAYED);
+    CHECK(!restir_sss_shift_parse("teleport", &s));
+}
+
+static void test_session_bytes_planned_match_allocated(void)
+{
+    struct scene *sc = load("scenes/translucent/scene.json");
+    if (!sc) return;
+    struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_SSS, 37, 23);
+    struct view v;
+    struct err err = {0};
+    CHECK(view_init(&v, sc, &vp, 1, &err));
+    struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
+    size_t total = 0;
+    uint32_t n = view_bytes(&v, b, &total);
+    CHECK(total == view_bytes_planned(&vp, sc->shape_count));
+    bool has_res = false;
+    for (uint32_t i = 0; i < n; i++)
+        if (strcmp(b[i].name, "reservoirs") == 0) has_res = b[i].bytes == 2u * 37 * 23 * RESTIR_SSS_RESERVOIR_BYTES;
+    CHECK(has_res);
+    view_destroy(&v);
+    scene_release(sc);
+}
+
+TEST_MAIN(TEST(test_reconnection_round_trips), TEST(test_delayed_round_trips), TEST(test_hybrid_round_trips),
+          TEST(test_temporal_round_trips), TEST(test_params), TEST(test_session_bytes_planned_match_allocated))
