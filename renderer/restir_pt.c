@@ -280,12 +280,12 @@ static bool pt_trace(const struct scene *scene, const struct pt_vertex *v, struc
     return accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, hit, rc);
 }
 
-static bool pt_visible(const struct scene *scene, const struct pt_vertex *v, struct vec3 dir, float dist,
-                       struct ray_counters *rc)
+/* Whether the environment is seen from v along `dir` (points use pt_visible_points: a segment
+ * between two offset ends). */
+static bool pt_sees_env(const struct scene *scene, const struct pt_vertex *v, struct vec3 dir, struct ray_counters *rc)
 {
     struct vec3 org = surface_offset(v->s.p, v->s.ng, dir);
-    float tmax = isfinite(dist) ? dist * (1.0f - 1e-4f) : INFINITY;
-    return !accel_occluded(scene->accel, org, dir, 0.0f, tmax, rc);
+    return !accel_occluded(scene->accel, org, dir, 0.0f, INFINITY, rc);
 }
 
 /* Visibility between two surface points, both ends moved off their surfaces: a reconnection
@@ -463,7 +463,7 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
             struct light_ris_sample ls = {0};
             unsigned rejected = 0;
             if (light_ris_sample(scene, &v.s, v.m, v.wo, c->nee_m, &nr, &ls, &rejected) &&
-                (ls.light.is_env ? pt_visible(scene, &v, ls.wi_world, INFINITY, rays)
+                (ls.light.is_env ? pt_sees_env(scene, &v, ls.wi_world, rays)
                                  : pt_visible_points(scene, v.s.p, v.s.ng, ls.light.p, ls.light.n, rays))) {
                 struct vec3 wi = frame_to_local(&v.s.frame, ls.wi_world);
                 float p1 = ls.pdf_light_w, p2 = material_pdf(v.m, v.wo, wi);
@@ -745,7 +745,7 @@ static void pt_shift_impl(const struct pt_thread *th, const struct pt_sample *x,
         lseg.rough = rough;
         bool end_connectable = x->rc_prim != PT_ENV_PRIM && pt_connectable(&t, d, &lseg, true, false, 0.0f);
         if (end_connectable != (k == d)) return;
-        if (x->rc_prim == PT_ENV_PRIM ? !pt_visible(scene, &v, wi_world, INFINITY, rays)
+        if (x->rc_prim == PT_ENV_PRIM ? !pt_sees_env(scene, &v, wi_world, rays)
                                       : !pt_visible_points(scene, v.s.p, v.s.ng, light_p, light_ng, rays))
             return;
         struct vec3 f_cos = vec3_scale(material_eval(v.m, v.wo, wi, TRANSPORT_RADIANCE), fabsf(wi.z));
