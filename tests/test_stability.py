@@ -11,6 +11,7 @@ session's; history that stops changing makes consecutive frames as correlated as
 control test shows the correlation check failing on exact copies). The numbers each check saw
 are printed (`pytest -s`); `make bench-report` charts the same quantities at larger sizes."""
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -19,15 +20,27 @@ from conftest import ROOT, read_exr, render
 from daemon import Daemon
 
 SIZE = 32
-CORNELL_CAMERA = {"position": [278, 273, -800], "look_at": [278, 273, 0], "up": [0, 1, 0], "fov_deg": 39.3077}
-# Far from the first view: looking down at the tall block from the left front corner.
-TELEPORT_CAMERA = {"position": [60, 480, 60], "look_at": [380, 100, 380], "up": [0, 1, 0], "fov_deg": 50.0}
 REF_SPP = 2048
 
 # Each method's session parameters (1 spp for pt: the cost unit everything is compared with), and
 # the methods whose frames reuse earlier frames (the others' frames are independent).
-METHODS = {"pt": {"spp": 1}, "restir_pt": {}, "bdpt": {}}
-REUSING = {"restir_pt"}
+METHODS = {"pt": {"spp": 1}, "restir_pt": {}, "bdpt": {}, "sms": {"bernoulli_cap": 0}, "restir_sss": {}}
+REUSING = {"restir_pt", "restir_sss"}
+
+# Where each method is tested over frames: the scene its technique is for, a second camera far
+# from the scene's own (the teleport), and its lights with their emission (switched off and on).
+HOMES = {
+    "cornell-box": {"teleport": {"position": [60, 480, 60], "look_at": [380, 100, 380], "up": [0, 1, 0], "fov_deg": 50.0},
+                    "lights": {"ceiling_light": [17, 12, 4]}},
+    "refractive-slab": {"teleport": {"position": [-2.2, 1.6, -1.2], "look_at": [0, 0.4, 0], "up": [0, 1, 0], "fov_deg": 40.0},
+                        "lights": {"warm_light": [400, 160, 60], "cool_light": [60, 160, 400]},
+                        # Its caustics through the slab are sms's to find: pt at 2048 spp is noise.
+                        "ref": ("--method", "sms", "--params", '{"bernoulli_cap": 0, "spp": 256}')},
+    "translucent": {"teleport": {"position": [-2.5, 1.4, -1.5], "look_at": [0, 0.45, 0], "up": [0, 1, 0], "fov_deg": 30.0},
+                    "lights": {"lamp": [120, 112, 100]}},
+}
+HOME = {"pt": "cornell-box", "restir_pt": "cornell-box", "bdpt": "cornell-box", "sms": "refractive-slab",
+        "restir_sss": "translucent"}
 
 
 def mape(img, ref):
@@ -47,29 +60,47 @@ def daemon(tmp_path_factory):
     assert rc == 0, d.stderr()[-3000:]
 
 
+class Refs:
+    """References at 32x32 of a home scene from its own camera ("start") and the teleport camera
+    (pt at 2048 spp, or the home's "ref" rendering), rendered once per module."""
+
+    def __init__(self, tmp):
+        self.tmp, self.cache = tmp, {}
+
+    def __call__(self, scene, which):
+        if (scene, which) not in self.cache:
+            sj = json.loads((ROOT / "scenes" / scene / "scene.json").read_text())
+            if which == "teleport":
+                sj["camera"] = HOMES[scene]["teleport"]
+            # Mesh files are named relative to the scene file: they go beside the copy.
+            folder = self.tmp / f"{scene}-{which}"
+            folder.mkdir()
+            for shape in sj["shapes"]:
+                if "file" in shape:
+                    shutil.copy(ROOT / "scenes" / scene / shape["file"], folder / shape["file"])
+            path = folder / "scene.json"
+            path.write_text(json.dumps(sj))
+            self.cache[scene, which], _ = render(path, self.tmp / f"{scene}-{which}.exr", spp=REF_SPP,
+                                                 size=f"{SIZE}x{SIZE}", seed=99991,
+                                                 extra=HOMES[scene].get("ref", ()))
+        return self.cache[scene, which]
+
+
 @pytest.fixture(scope="module")
 def refs(tmp_path_factory):
-    """pt references of cornell-box at 32x32 from the scene's camera and the teleport camera."""
-    tmp = tmp_path_factory.mktemp("refs")
-    scene = json.loads((ROOT / "scenes" / "cornell-box" / "scene.json").read_text())
-    out = {}
-    for name, cam in (("start", CORNELL_CAMERA), ("teleport", TELEPORT_CAMERA)):
-        scene["camera"] = cam
-        path = tmp / f"{name}.json"
-        path.write_text(json.dumps(scene))
-        out[name], _ = render(path, tmp / f"{name}.exr", spp=REF_SPP, size=f"{SIZE}x{SIZE}", seed=99991)
-    return out
+    return Refs(tmp_path_factory.mktemp("refs"))
 
 
 class Session:
-    def __init__(self, d, tmp, method, seed, camera=CORNELL_CAMERA, scene="cornell-box"):
+    def __init__(self, d, tmp, method, seed, camera=None, scene=None):
         self.d, self.tmp, self.n = d, tmp, 0
+        scene = scene or HOME[method]
         r = d.req("POST", f"/v1/scenes/{scene}/sessions",
                   json_body={"method": method, "width": SIZE, "height": SIZE, "seed": seed,
                              "params": METHODS[method]})
         assert r.status == 201, repr(r)
         self.href = r.json()["href"]
-        self.first = None if camera is CORNELL_CAMERA else {"camera": camera}
+        self.first = {"camera": camera} if camera else None
 
     def frame(self, body=None):
         if self.n == 0 and self.first:
@@ -90,30 +121,33 @@ class Session:
         self.d.req("DELETE", self.href)
 
 
-@pytest.mark.parametrize("method", METHODS)
-def test_flicker_does_not_grow(daemon, refs, tmp_path, method):
-    """Frame-to-frame change on a still scene, per pixel relative to the reference (as MAPE):
-    over two sessions, frames 25-32 flicker no more than frames 5-12 (reuse that diverges or
-    accumulates a bias shows as growing change); restir_pt flickers less than independent 1-spp
-    pt frames."""
-    ref = refs["start"]
+def _flicker(daemon, tmp_path, ref, method, scene):
+    """Mean frame-to-frame change (per pixel relative to the reference, as MAPE) over frames
+    5-12 and 25-32 of two sessions."""
     early, late = [], []
     for seed in (11, 12):
-        s = Session(daemon, tmp_path, method, seed=seed)
+        s = Session(daemon, tmp_path, method, seed=seed, scene=scene)
         imgs = s.frames(32)
         s.close()
         change = [float(np.mean(np.abs(b - a) / (ref + 0.01 * ref.mean()))) for a, b in zip(imgs, imgs[1:])]
         early += change[3:11]
         late += change[23:31]
-    early, late = float(np.mean(early)), float(np.mean(late))
-    print(f"{method}: flicker early {early:.3f}, late {late:.3f}")
+    return float(np.mean(early)), float(np.mean(late))
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_flicker_does_not_grow(daemon, refs, tmp_path, method):
+    """Frame-to-frame change on a still scene: late frames flicker no more than early ones
+    (reuse that diverges or accumulates a bias shows as growing change), and a reusing method
+    flickers less than independent 1-spp pt frames of the same scene."""
+    home = HOME[method]
+    early, late = _flicker(daemon, tmp_path, refs(home, "start"), method, home)
+    print(f"{method} on {home}: flicker early {early:.3f}, late {late:.3f}")
     assert late <= 1.3 * early
-    test_flicker_does_not_grow.seen[method] = late
-    if method in REUSING and "pt" in test_flicker_does_not_grow.seen:
-        assert late < test_flicker_does_not_grow.seen["pt"], test_flicker_does_not_grow.seen
-
-
-test_flicker_does_not_grow.seen = {}
+    if method in REUSING:
+        _, pt_late = _flicker(daemon, tmp_path, refs(home, "start"), "pt", home)
+        print(f"  pt on {home}: late {pt_late:.3f}")
+        assert late < pt_late
 
 
 def _correlation(daemon, tmp_path, ref, method, n=8, warmup=8, same_seed=False):
@@ -136,7 +170,7 @@ def _correlation(daemon, tmp_path, ref, method, n=8, warmup=8, same_seed=False):
 def test_consecutive_frames_are_not_copies(daemon, refs, tmp_path, method):
     """pt's (and every method's without reuse) frames are independent (ratio near 1); a reusing
     method's are correlated, but clearly less than copies would be (sqrt(8) = 2.83)."""
-    ratio = _correlation(daemon, tmp_path, refs["start"], method)
+    ratio = _correlation(daemon, tmp_path, refs(HOME[method], "start"), method)
     print(f"{method}: error of 8 consecutive frames / 8 independent = {ratio:.2f}")
     if method not in REUSING:
         assert 0.8 < ratio < 1.25, ratio
@@ -148,13 +182,13 @@ def test_correlation_check_sees_copies(daemon, refs, tmp_path):
     """The control: 'independent' sessions that share one seed render identical frames, and the
     ratio falls to 1/sqrt(8) (the consecutive frames now look far better than the copies): the
     pt bound above rejects it."""
-    ratio = _correlation(daemon, tmp_path, refs["start"], "pt", same_seed=True)
+    ratio = _correlation(daemon, tmp_path, refs("cornell-box", "start"), "pt", same_seed=True)
     print(f"pt with copies: {ratio:.2f}")
     assert not (0.8 < ratio < 1.25), ratio
 
 
 def _fresh_error(daemon, tmp_path, ref, method, camera, frames, seeds=(31, 32)):
-    """Mean MAPE of a fresh session's `frames`-th frame at `camera`."""
+    """Mean MAPE of a fresh session's `frames`-th frame at `camera` (None: the scene's)."""
     errs = []
     for seed in seeds:
         s = Session(daemon, tmp_path, method, seed=seed, camera=camera)
@@ -175,34 +209,43 @@ def _check_recovery(daemon, tmp_path, ref, method, camera, frames, what):
 
 @pytest.mark.parametrize("method", METHODS)
 def test_camera_teleport(daemon, refs, tmp_path, method):
-    """After 12 frames at one camera the camera jumps across the room: the first frame there is
+    """After 12 frames at one camera the camera jumps across the scene: the first frame there is
     no worse than a fresh session's first frame (history that does not belong to the new view
     is rejected, not smeared in), and 8 frames later the error is that of a fresh session's
     8th frame."""
+    home = HOMES[HOME[method]]
     s = Session(daemon, tmp_path, method, seed=41)
     s.frames(12)
-    after = s.frames(8, {"camera": TELEPORT_CAMERA})
+    after = s.frames(8, {"camera": home["teleport"]})
     s.close()
-    _check_recovery(daemon, tmp_path, refs["teleport"], method, TELEPORT_CAMERA, after, "teleport")
+    _check_recovery(daemon, tmp_path, refs(HOME[method], "teleport"), method, home["teleport"], after, "teleport")
 
 
 @pytest.mark.parametrize("method", METHODS)
 def test_light_off_and_on(daemon, refs, tmp_path, method):
-    """The only light goes off after 12 frames: that frame is black at once (no stale light
-    from history); back on 4 frames later, the first lit frame is no worse than a fresh
-    session's first frame and 8 frames later no worse than a fresh session's 8th."""
+    """Every light goes off after 12 frames: that frame is black at once (no stale light from
+    history); back on 4 frames later, the first lit frame is no worse than a fresh session's
+    first frame and 8 frames later no worse than a fresh session's 8th."""
+    lights = HOMES[HOME[method]]["lights"]
     s = Session(daemon, tmp_path, method, seed=51)
     s.frames(12)
-    off = s.frames(4, {"lights": {"ceiling_light": {"emission": [0, 0, 0]}}})
-    on = s.frames(8, {"lights": {"ceiling_light": {"emission": [17, 12, 4]}}})
+    off = s.frames(4, {"lights": {name: {"emission": [0, 0, 0]} for name in lights}})
+    on = s.frames(8, {"lights": {name: {"emission": e} for name, e in lights.items()}})
     s.close()
     assert max(float(img.max()) for img in off) == 0.0
-    _check_recovery(daemon, tmp_path, refs["start"], method, CORNELL_CAMERA, on, "light back on")
+    _check_recovery(daemon, tmp_path, refs(HOME[method], "start"), method, None, on, "light back on")
 
 
-# Every scene a method renders (bdpt answers an error for an environment light, as furnace has).
-SCENE_METHODS = [(s, m) for s in ("cornell-box", "cornell-glossy", "door-ajar", "furnace") for m in METHODS
-                 if not (m == "bdpt" and s == "furnace")]
+# The scenes each method is run on for 100 frames: every scene for the path tracers (bdpt answers
+# an error for furnace's environment light), the scenes with caustic casters for sms (its
+# Bernoulli trials make the others slow without adding anything), and restir_sss's own scene and
+# one without translucent materials.
+ALL_SCENES = ["cornell-box", "cornell-glossy", "door-ajar", "furnace", "lamp-in-glass", "caustic-sphere",
+              "refractive-slab", "reflective-plane", "translucent"]
+SCENE_METHODS = ([(s, "pt") for s in ALL_SCENES] + [(s, "restir_pt") for s in ALL_SCENES] +
+                 [(s, "bdpt") for s in ALL_SCENES if s != "furnace"] +
+                 [(s, "sms") for s in ("refractive-slab", "reflective-plane", "caustic-sphere")] +
+                 [(s, "restir_sss") for s in ("translucent", "cornell-box")])
 
 
 @pytest.mark.parametrize("scene,method", SCENE_METHODS)
