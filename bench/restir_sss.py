@@ -10,15 +10,15 @@ run, on scenes/translucent at 128x128 (BENCH_SSS_SIZE):
      build/bench/sss_hybrid_map (bench/sss_hybrid_map.c, built here against librenderer.a),
      which also writes the hybrid criterion's choice per pixel to build/bench/restir_sss_hybrid.exr
      (blue = reconnection, yellow = delayed, grey = translucent without a sample);
-  3. `pt` at 1, 2, 4 ... 32 spp and `restir_sss` with each shift (reconnection, delayed, hybrid)
-     at 1, 2 and 4 candidates, each over SEEDS seeds: frame time and RMSE on the region against
+  3. `pt` at 1, 2, 4 ... 32 spp and `restir_sss` with each shift (reconnection, delayed, hybrid,
+     sequential in its exact mode) at 1, 2 and 4 candidates, each over SEEDS seeds: frame time and RMSE on the region against
      the reference. restir_sss's point is the frame after WARMUP frames of one session;
   4. the equal-time ratio RMSE(restir_sss) / RMSE(pt), pt's RMSE interpolated log-log at the
      restir_sss frame time (the issue's target: the best shift at <= 0.5);
   5. writes build/bench/restir_sss.json and build/bench/restir_sss.svg, prints Markdown tables
-     (medians over the seeds). The sequential shift is not implemented and not measured.
+     (medians over the seeds).
 Environment: BENCH_SSS_SEEDS (3), BENCH_SSS_REF_SPP (2048), BENCH_SSS_WARMUP (16),
-BENCH_THREADS (all cores)."""
+BENCH_SSS_SHIFTS ("reconnection delayed hybrid sequential"), BENCH_THREADS (all cores)."""
 import hashlib
 import json
 import math
@@ -46,7 +46,7 @@ REF_SPP = int(os.environ.get("BENCH_SSS_REF_SPP", "2048"))
 WARMUP = int(os.environ.get("BENCH_SSS_WARMUP", "16"))
 THREADS = os.environ.get("BENCH_THREADS", "0")
 PT_SPPS = [1, 2, 4, 8, 16, 32]
-SHIFTS = ["reconnection", "delayed", "hybrid"]
+SHIFTS = [x for x in os.environ.get("BENCH_SSS_SHIFTS", "reconnection delayed hybrid sequential").split()]
 CANDIDATES = [1, 2, 4]
 
 

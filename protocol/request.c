@@ -764,7 +764,8 @@ static bool request_bdpt_params(const cJSON *pv, const char *ptr, struct bdpt_pa
 static bool request_restir_sss_params(const cJSON *pv, const char *ptr, struct restir_sss_params *rp, struct err *err)
 {
     static const char *const keys[] = {"shift", "candidates", "temporal", "temporal_cap", "spatial_neighbors",
-                                       "spatial_radius", "kappa_orientation", "max_depth", "rr_depth", NULL};
+                                       "spatial_radius", "kappa_orientation", "max_depth", "rr_depth",
+                                       "index_shortcut", NULL};
     static const struct { const char *key; size_t off; } uints[] = {
         {"candidates", offsetof(struct restir_sss_params, candidates)},
         {"temporal_cap", offsetof(struct restir_sss_params, temporal_cap)},
@@ -793,6 +794,8 @@ static bool request_restir_sss_params(const cJSON *pv, const char *ptr, struct r
             !request_uint32(v, p, 0, 1000000, NULL, (uint32_t *)(base + uints[i].off), err))
             return false;
     if ((v = request_member(pv, ptr, "temporal", p)) && !request_bool(v, p, &rp->temporal, err)) return false;
+    if ((v = request_member(pv, ptr, "index_shortcut", p)) && !request_bool(v, p, &rp->index_shortcut, err))
+        return false;
     for (size_t i = 0; i < sizeof floats / sizeof floats[0]; i++)
         if ((v = request_member(pv, ptr, floats[i].key, p)) && !request_float(v, p, (float *)(base + floats[i].off), err))
             return false;

@@ -23,6 +23,8 @@
 #define SSS_PT_STREAM 0x737370ull     /* the pt path of the rest of the image */
 #define SSS_ENV_SHAPE UINT32_MAX      /* x3 is a direction to the environment */
 #define SSS_ROWS_PER_JOB 2u
+#define SSS_HIT_UNKNOWN 15u           /* sequential shortcut: the index was not found (§4.3) */
+#define SSS_PICK_STREAM 0x737369ull   /* the shortcut's random pick of an unknown index */
 
 /* The reservoir element (Algorithm 3): x2 and x3 as point codes, the technique, the random
  * numbers of the disk point and the intersection index, and the path's contribution F in its own
@@ -72,9 +74,6 @@ const char *restir_sss_shift_name(enum restir_sss_shift s)
 
 bool restir_sss_params_valid(const struct restir_sss_params *p, struct err *err)
 {
-    if (p->shift == RESTIR_SSS_SEQUENTIAL)
-        return err_set(err, ERR_INVALID, "/params/shift",
-                       "the sequential shift is not implemented (available: reconnection, delayed, hybrid)");
     if ((unsigned)p->shift > RESTIR_SSS_SEQUENTIAL)
         return err_set(err, ERR_INVALID, "/params/shift", "unknown shift");
     if (p->candidates < 1 || p->candidates > 32)
@@ -85,6 +84,12 @@ bool restir_sss_params_valid(const struct restir_sss_params *p, struct err *err)
         return err_set(err, ERR_INVALID, "/params/spatial_neighbors", "must be in [0, 32], got %u", p->spatial_neighbors);
     if (!(p->spatial_radius >= 0.0f && p->spatial_radius <= 256.0f))
         return err_set(err, ERR_INVALID, "/params/spatial_radius", "must be in [0, 256] pixels (0 = automatic)");
+    if (p->shift == RESTIR_SSS_SEQUENTIAL && p->spatial_neighbors % 2 != 0)
+        return err_set(err, ERR_INVALID, "/params/spatial_neighbors",
+                       "the sequential shift splits the neighbours over two passes: must be even, got %u",
+                       p->spatial_neighbors);
+    if (p->index_shortcut && p->shift != RESTIR_SSS_SEQUENTIAL)
+        return err_set(err, ERR_INVALID, "/params/index_shortcut", "only the sequential shift has an index shortcut");
     if (!(p->kappa_orientation >= -1.0f && p->kappa_orientation <= 1.0f))
         return err_set(err, ERR_INVALID, "/params/kappa_orientation", "must be in [-1, 1]");
     if (p->max_depth > 1024) return err_set(err, ERR_INVALID, "/params/max_depth", "must be at most 1024");
@@ -100,6 +105,7 @@ struct sss_ctx {
     const struct gbuffer *gbuf[2];
     uint64_t seed;
     uint32_t frame;
+    enum restir_sss_shift pass_shift;   /* the shift of the pass running (sequential: per pass) */
 };
 _Static_assert(sizeof(struct sss_ctx) <= RESTIR_SSS_CTX_BYTES, "context fits the test buffer");
 
@@ -208,7 +214,7 @@ static struct vec3 sss_eval(const struct scene *scene, const struct sss_x1 *x1, 
 /* Hybrid criterion (§4.1): reconnect iff |x2 - x1| >= 2 max(d) or n1 . n2 <= kappa. */
 static bool sss_reconnects(const struct sss_ctx *c, const struct sss_x1 *x1, const struct surface *x2)
 {
-    switch (c->p->shift) {
+    switch (c->pass_shift) {
     case RESTIR_SSS_RECONNECTION: return true;
     case RESTIR_SSS_DELAYED: return false;
     default: break;
@@ -305,9 +311,46 @@ static void sss_initial_pixel(const struct sss_ctx *c, uint32_t pixel, struct ss
 
 /* ---- shifts --------------------------------------------------------------------------------- */
 
+/* After a reconnection to y1 (sequential shift, §4.2–4.3): the disk numbers that make the kept
+ * technique's probe from y1 pass through y2 (Algorithm 4 lines 2–9; the technique is part of the
+ * sample, so line 1's choice is the sample's own) and y2's index among that probe's hits. Exact
+ * mode: the probe is traced for every evaluation and the shift fails when y2 is not among its
+ * hits, so the mapping is the same whether or not the shifted sample is kept. Shortcut: traced
+ * only for a sample that is kept (`dst_wanted`); a miss leaves the index unknown. */
+static bool sss_invert(const struct sss_ctx *c, const struct scene *scene, const struct sss_x1 *y1,
+                       const struct surface *y2, int axis, int channel, struct sss_sample *y, bool dst_wanted,
+                       struct ray_counters *rc)
+{
+    float ur, ua;
+    if (!bssrdf_invert(y1->m, y1->s.p, &y1->s.frame, axis, channel, y2->p, &ur, &ua)) return false;
+    y->u_radius = ur;
+    y->u_angle = ua;
+    if (c->p->index_shortcut && !dst_wanted) return true;
+    struct bssrdf_probe probe;
+    uint32_t found = SSS_HIT_UNKNOWN;
+    if (bssrdf_probe_make(y1->m, y1->s.p, &y1->s.frame, axis, channel, ur, ua, &probe)) {
+        struct hit hits[BSSRDF_MAX_HITS];
+        uint32_t n = accel_intersect_shape_all(scene->accel, y1->s.shape, probe.org, probe.dir, 0.0f, probe.tmax, hits,
+                                               BSSRDF_MAX_HITS, rc);
+        /* The hit on y2's primitive nearest to y2, within a small fraction of the reach. */
+        float best = 1e-3f * vec3_comp(y1->m->sss_r_max, channel);
+        best *= best;
+        for (uint32_t j = 0; j < n && j < SSS_HIT_UNKNOWN; j++) {
+            if (hits[j].shape != y->x2_shape || hits[j].prim != y->x2_prim) continue;
+            struct surface h;
+            surface_from_hit(scene, &hits[j], probe.org, probe.dir, &h);
+            float d2 = vec3_length2(vec3_sub(h.p, y2->p));
+            if (d2 < best) best = d2, found = j;
+        }
+    }
+    if (found == SSS_HIT_UNKNOWN && !c->p->index_shortcut) return false;
+    y->head.bits = sss_bits(axis, channel, found);
+    return true;
+}
+
 static void sss_shift_impl(const struct sss_ctx *c, const struct sss_sample *x, struct restir_domain from,
-                           struct restir_domain to, struct sss_sample *y, float *target, float *jacobian,
-                           struct restir_counters *cnt)
+                           struct restir_domain to, struct sss_sample *y, bool dst_wanted, float *target,
+                           float *jacobian, struct restir_counters *cnt)
 {
     *target = 0.0f;
     *jacobian = 0.0f;
@@ -333,6 +376,9 @@ static void sss_shift_impl(const struct sss_ctx *c, const struct sss_sample *x, 
         jac *= surface_area_ratio(sf, st, x->x2_shape, x->x2_prim, x->x2_b1, x->x2_b2);
         /* x2 -> x3 is unchanged within a frame (and was visible: the sample's target is > 0). */
         visibility = from.frame != to.frame;
+        if (c->p->shift == RESTIR_SSS_SEQUENTIAL &&
+            !sss_invert(c, st, &y1, &y2, axis, channel, y, dst_wanted, &cnt->rays))
+            return;
     } else {
         /* Delayed reconnection (§3.2.2): replay the probe from y1, take the same hit index. */
         struct bssrdf_probe probe;
@@ -341,6 +387,14 @@ static void sss_shift_impl(const struct sss_ctx *c, const struct sss_sample *x, 
         uint32_t n = accel_intersect_shape_all(st->accel, y1.s.shape, probe.org, probe.dir, 0.0f, probe.tmax, hits,
                                                BSSRDF_MAX_HITS, &cnt->rays);
         uint32_t j = sss_hit(x);
+        if (j == SSS_HIT_UNKNOWN && n > 0) {
+            /* The shortcut's unknown index: a random hit, from a stream of the two domains
+             * (deterministic, but not invertible: the slight bias §4.3 accepts). */
+            struct rng pick = rng_make(c->seed, c->frame, (uint64_t)from.pixel << 32 | to.pixel, SSS_PICK_STREAM);
+            j = (uint32_t)(rng_next_float(&pick) * (float)n);
+            if (j >= n) j = n - 1;
+            y->head.bits = sss_bits(axis, channel, j);
+        }
         if (j >= n) return;
         surface_from_hit(st, &hits[j], probe.org, probe.dir, &y2);
         surface_point_code(st, &hits[j], &y2, &y->x2_b1, &y->x2_b2);
@@ -356,7 +410,7 @@ static void sss_shift_impl(const struct sss_ctx *c, const struct sss_sample *x, 
         visibility = true;
     }
     /* The offset path must make the same choice (§4.1), so the shift stays invertible. */
-    if (c->p->shift == RESTIR_SSS_HYBRID && sss_reconnects(c, &y1, &y2) != reconnect) return;
+    if (c->pass_shift == RESTIR_SSS_HYBRID && sss_reconnects(c, &y1, &y2) != reconnect) return;
     struct vec3 F = sss_eval(st, &y1, &y2, &x3, axis, channel, visibility, NULL, &cnt->rays);
     float t = vec3_luminance(F);
     if (!(t > 0.0f) || !(jac > 0.0f) || !isfinite(jac)) return;
@@ -376,7 +430,7 @@ static void sss_shift(const void *ctx, const void *src, struct restir_domain fro
                       float *target, float *jacobian, struct restir_counters *cnt)
 {
     struct sss_sample y;
-    sss_shift_impl(ctx, src, from, to, &y, target, jacobian, cnt);
+    sss_shift_impl(ctx, src, from, to, &y, dst != NULL, target, jacobian, cnt);
     if (dst) memcpy(dst, &y, sizeof y);
 }
 
@@ -400,15 +454,14 @@ void restir_sss_info(const void *ctx, const void *elem, uint32_t pixel, struct r
     memset(out, 0, sizeof *out);
     out->x2_shape = s->x2_shape, out->x2_prim = s->x2_prim, out->x2_b1 = s->x2_b1, out->x2_b2 = s->x2_b2;
     out->axis = sss_axis(s), out->channel = sss_channel(s), out->hit = (int)sss_hit(s);
+    out->u_radius = s->u_radius, out->u_angle = s->u_angle;
     out->F = vec3_make(s->F[0], s->F[1], s->F[2]);
     struct sss_x1 x1;
     if (s->head.W > 0.0f && sss_primary(c, (struct restir_domain){pixel, RESTIR_CURRENT}, &x1)) {
         struct surface x2;
         surface_at(c->scene[RESTIR_CURRENT], s->x2_shape, s->x2_prim, s->x2_b1, s->x2_b2, &x2);
-        struct restir_sss_params hybrid = *c->p;
-        hybrid.shift = RESTIR_SSS_HYBRID;
         struct sss_ctx ch = *c;
-        ch.p = &hybrid;
+        ch.pass_shift = RESTIR_SSS_HYBRID;
         out->reconnect = sss_reconnects(&ch, &x1, &x2);
     }
 }
@@ -539,6 +592,8 @@ void restir_sss_bind(struct restir_sss_state *st, const struct restir_sss_params
     c->gbuf[RESTIR_PREVIOUS] = &st->gbuf[st->cur ^ 1u];
     c->seed = f->seed;
     c->frame = f->frame;
+    /* The sequential shift starts with reconnection (temporal and first spatial pass). */
+    c->pass_shift = params->shift == RESTIR_SSS_SEQUENTIAL ? RESTIR_SSS_RECONNECTION : params->shift;
 }
 
 static bool sss_run(struct sss_pass *pp, unsigned threads, parallel_job_fn *fn, struct err *err)
@@ -656,7 +711,18 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
     struct restir_counters rc = {0};
     if (!restir_temporal_pass(&r, st->res[0], &rc, err)) return false;
     stats->temporal_ms = sss_ms_since(&t0);
-    if (params->spatial_neighbors > 0) {
+    if (params->spatial_neighbors > 0 && params->shift == RESTIR_SSS_SEQUENTIAL) {
+        /* §4.3, §5.1: half the neighbours with reconnection, then half with delayed
+         * reconnection (its own neighbour stream), ending in res[1]. */
+        r.neighbors = params->spatial_neighbors / 2;
+        if (!restir_spatial_pass(&r, st->res[0], st->res[1], &rc, err)) return false;
+        c.pass_shift = RESTIR_SSS_DELAYED;
+        r.frame = f->frame * 8u + 1u;
+        if (!restir_spatial_pass(&r, st->res[1], st->res[0], &rc, err)) return false;
+        uint8_t *tmp = st->res[0];
+        st->res[0] = st->res[1];
+        st->res[1] = tmp;
+    } else if (params->spatial_neighbors > 0) {
         if (!restir_spatial_pass(&r, st->res[0], st->res[1], &rc, err)) return false;
     } else {
         uint8_t *tmp = st->res[0];

@@ -6,7 +6,12 @@
  * visibility test through the object; §3.2.1), `delayed` (replay the probe from the offset x1,
  * take the same intersection index, reconnect to x3; §3.2.2) or `hybrid` (reconnection when
  * |x2 - x1| >= 2 max d or n1 . n2 <= kappa_orientation, else delayed; the offset path must make
- * the same choice; §4.1). `sequential` (§4.2–4.3) is not implemented.
+ * the same choice; §4.1) or `sequential` (§4.2–4.3: temporal and a first spatial pass with
+ * reconnection, then a second spatial pass with delayed reconnection; each reconnection inverts
+ * the sample's disk numbers for its new primary hit and finds the entry point's intersection
+ * index by tracing that probe, failing when it is not found — the exact mode; `index_shortcut`
+ * traces only for the selected sample and lets a later replay pick a random hit when the index is
+ * unknown, which is slightly biased).
  * The technique (axis, channel) is part of the path: the sample lives in the extended space
  * (x2, x3, technique), its integrand is f times the technique's balance-heuristic weight
  * P_t p_t(x2) / sum_t' P_t' p_t'(x2), so a replay's Jacobian is that technique's own pdf ratio
@@ -31,7 +36,7 @@ enum restir_sss_shift {
     RESTIR_SSS_RECONNECTION,
     RESTIR_SSS_DELAYED,
     RESTIR_SSS_HYBRID,
-    RESTIR_SSS_SEQUENTIAL,  /* not implemented: parameters naming it are refused */
+    RESTIR_SSS_SEQUENTIAL,
 };
 
 struct restir_sss_params {
@@ -40,16 +45,18 @@ struct restir_sss_params {
                                      shared by all its hits (1) */
     bool temporal;                /* (true) */
     uint32_t temporal_cap;        /* previous M capped at this multiple of the current M (20) */
-    uint32_t spatial_neighbors;   /* (4); 0 = no spatial reuse */
+    uint32_t spatial_neighbors;   /* (4); 0 = no spatial reuse; sequential: half in each of its
+                                     two spatial passes (4 = 2 + 2, §5.1), so it must be even */
     float spatial_radius;         /* pixels; 0 = from 2 max(d) projected at the translucent
                                      pixels' mean distance, clamped to [5, 30] (0) */
     float kappa_orientation;      /* hybrid: reconnect when n1 . n2 <= this (0.5) */
     uint32_t max_depth, rr_depth; /* of the pt path that supplies the rest of the image (64, 3) */
+    bool index_shortcut;          /* sequential only: the slightly biased intersection-index
+                                     shortcut of §4.3 instead of the exact mode (false) */
 };
 
 struct restir_sss_params restir_sss_defaults(void);
-/* ERR_INVALID naming the parameter (where = "/params/<name>"); the sequential shift gives
- * ERR_INVALID at /params/shift ("not implemented"). */
+/* ERR_INVALID naming the parameter (where = "/params/<name>"). */
 bool restir_sss_params_valid(const struct restir_sss_params *p, struct err *err);
 bool restir_sss_shift_parse(const char *name, enum restir_sss_shift *out);
 const char *restir_sss_shift_name(enum restir_sss_shift s);
@@ -104,7 +111,8 @@ extern const struct restir_ops restir_sss_ops;
 struct restir_sss_info {
     uint32_t x2_shape, x2_prim;
     float x2_b1, x2_b2;
-    int axis, channel, hit;
+    int axis, channel, hit;   /* hit 15 = unknown (sequential shortcut) */
+    float u_radius, u_angle;
     bool reconnect;   /* the hybrid criterion on the sample's own path */
     struct vec3 F;
 };

@@ -90,6 +90,7 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
         jsonw_key(w, "kappa_orientation"); jsonw_double(w, r->kappa_orientation);
         jsonw_key(w, "max_depth"); jsonw_uint(w, r->max_depth);
         jsonw_key(w, "rr_depth"); jsonw_uint(w, r->rr_depth);
+        jsonw_key(w, "index_shortcut"); jsonw_bool(w, r->index_shortcut);
     } else {
         static const char *const subsets[] = {"all", "caustic", "rest"};
         jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);

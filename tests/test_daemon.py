@@ -1318,7 +1318,7 @@ def test_restir_pt_bad_params(daemon, params, field):
 def test_restir_sss_session(daemon):
     """A restir_sss session on the translucent scene: its parameters with defaults, exactly its
     own buffers (two 60-byte reservoir buffers and two G-buffers), frames with per-pass times and
-    reuse; the sequential shift and unknown keys are refused naming the field."""
+    reuse; bad values and unknown keys are refused naming the field."""
     s = new_session(daemon, scene="translucent", method="restir_sss", width=24, height=24, seed=2,
                     params={"shift": "delayed"})
     p = s["params"]
@@ -1333,7 +1333,8 @@ def test_restir_sss_session(daemon):
     img = frame_rgb(daemon, s)
     assert img.shape == (24, 24, 3) and np.isfinite(img).all() and img.mean() > 0.01
     assert daemon.req("DELETE", s["href"]).status == 204
-    for params, field in [({"shift": "sequential"}, "/params/shift"), ({"shift": 3}, "/params/shift"),
+    for params, field in [({"shift": "sequential", "spatial_neighbors": 5}, "/params/spatial_neighbors"),
+                          ({"shift": 3}, "/params/shift"), ({"index_shortcut": True}, "/params/index_shortcut"),
                           ({"candidates": 0}, "/params/candidates"), ({"spp": 2}, "/params/spp")]:
         r = daemon.req("POST", "/v1/scenes/translucent/sessions",
                        json_body={"method": "restir_sss", "width": 8, "height": 8, "params": params})

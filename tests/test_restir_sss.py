@@ -5,8 +5,8 @@ occluder's shadow edge and the glow below it), compared per pixel with `pt` over
 cameras, camera still and sliding. Each session contributes the mean of its last frames, each
 after at least 8 frames of reuse. Šidák-corrected per-pixel z-test at 0.01, >= 99.75 % of pixels
 passing, global mean within 3 sigma (tests/stats.py); each comparison also rejects the same
-renders scaled by 1.03, so the test can see a bias of that size. The sequential shift is not
-implemented and must be refused, naming /params/shift."""
+renders scaled by 1.03, so the test can see a bias of that size. The sequential shift is tested
+in its exact mode (its index shortcut is labelled slightly biased and not z-tested)."""
 import json
 
 import numpy as np
@@ -69,7 +69,7 @@ def _reference(sc, tmp_path, moving):
 
 
 @pytest.mark.statistical
-@pytest.mark.parametrize("shift", ["reconnection", "delayed", "hybrid"])
+@pytest.mark.parametrize("shift", ["reconnection", "delayed", "hybrid", "sequential"])
 @pytest.mark.parametrize("motion", ["static", "moving camera"])
 def test_restir_sss_unbiased(tmp_path, scenes, shift, motion):
     sc = scenes / "translucent" / "scene.json"
@@ -91,21 +91,21 @@ def test_restir_sss_unbiased(tmp_path, scenes, shift, motion):
     assert not bad.passed, f"{shift}, {motion}: a bias of x1.03 went unseen: {bad}"
 
 
-def test_restir_sss_sequential_not_implemented(tmp_path, scenes):
+def test_restir_sss_bad_params(tmp_path, scenes):
     sc = scenes / "translucent" / "scene.json"
-    res = run_cli("render", sc, "--method", "restir_sss", "--size", "8x8", "--params", '{"shift": "sequential"}',
-                  "-o", tmp_path / "x.exr")
-    assert res.returncode == 2
-    assert "/params/shift" in res.stderr and "not implemented" in res.stderr
-    res = run_cli("render", sc, "--method", "restir_sss", "--size", "8x8", "--params", '{"shift": "teleport"}',
-                  "-o", tmp_path / "x.exr")
-    assert res.returncode == 2 and "/params/shift" in res.stderr and "unknown shift" in res.stderr
+    for params, field, text in [({"shift": "teleport"}, "/params/shift", "unknown shift"),
+                                ({"shift": "sequential", "spatial_neighbors": 3}, "/params/spatial_neighbors", "even"),
+                                ({"index_shortcut": True}, "/params/index_shortcut", "only the sequential")]:
+        res = run_cli("render", sc, "--method", "restir_sss", "--size", "8x8", "--params", json.dumps(params),
+                      "-o", tmp_path / "x.exr")
+        assert res.returncode == 2 and field in res.stderr and text in res.stderr, res.stderr
 
 
 def test_restir_sss_renders_and_reuses(tmp_path, scenes):
-    """A short session on the full view: finite, reusing, and on the translucent region close to
-    pt's mean (a loose sanity check; the z-tests above are the real one)."""
+    """Short sessions on the full view (the default hybrid shift, and the sequential shift with its
+    index shortcut): finite and reusing."""
     sc = scenes / "translucent" / "scene.json"
-    img, st = render(sc, tmp_path / "a.exr", spp=1, size="32x32", seed=3,
-                     extra=["--method", "restir_sss", "--frames", "4"])
-    assert np.isfinite(img).all() and st["nonfinite"] == 0 and st["last_frame"]["shifts"] > 0
+    for params in [{}, {"shift": "sequential", "index_shortcut": True}]:
+        img, st = render(sc, tmp_path / "a.exr", spp=1, size="32x32", seed=3,
+                         extra=["--method", "restir_sss", "--frames", "4", "--params", json.dumps(params)])
+        assert np.isfinite(img).all() and st["nonfinite"] == 0 and st["last_frame"]["shifts"] > 0

@@ -52,6 +52,7 @@ def _furnace_scene(tmp_path):
     return path
 
 
+@pytest.mark.statistical
 @pytest.mark.parametrize("extra", [(), ("--no-nee",)], ids=["nee", "no-nee"])
 def test_translucent_furnace_plane(tmp_path, extra):
     path = _furnace_scene(tmp_path)

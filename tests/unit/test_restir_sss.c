@@ -5,8 +5,9 @@
  * shifts (on a turned translucent box and a sphere); the previous frame's pixel with the camera
  * moved likewise. A shift to the sample's own pixel reproduces the stored contribution. Delayed
  * reconnection must show non-trivial Jacobians between pixels a few apart (on the box's faces);
- * reconnection's are exactly 1. Parameters: the
- * sequential shift is refused at /params/shift; the session's bytes planned == allocated. */
+ * reconnection's are exactly 1. The sequential shift's reconnection pass also round-trips the
+ * inverted disk numbers and the intersection index (Algorithm 4). Parameters are checked with
+ * the expected pointers; the session's bytes planned == allocated. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -30,7 +31,7 @@ static struct scene *load(const char *path)
 }
 
 struct tally {
-    int tried, forward_ok, round_trips, nontrivial_jacobians, failures;
+    int tried, forward_ok, round_trips, nontrivial_jacobians, failures, moved_u;
 };
 
 static bool close_rel(struct vec3 a, struct vec3 b, double tol)
@@ -52,19 +53,27 @@ static void round_trip(const void *ctx, const uint8_t *elem, struct restir_domai
     if (!(t1 > 0.0f)) return;
     t->forward_ok++;
     ops->shift(ctx, y, to, from, x2, &t2, &j2, &c);
-    struct restir_sss_info a, b;
+    struct restir_sss_info a, b, m;
     restir_sss_info(ctx, x, from.pixel, &a);
     restir_sss_info(ctx, x2, from.pixel, &b);
+    restir_sss_info(ctx, y, to.pixel, &m);
+    if (fabsf(m.u_radius - a.u_radius) > 1e-3f || fabsf(m.u_angle - a.u_angle) > 1e-3f) t->moved_u++;
     /* The entry point is compared by its code: equal primitive and barycentrics (or sphere
      * direction code) within 1e-4. */
     bool same_x2 = a.x2_shape == b.x2_shape && a.x2_prim == b.x2_prim && fabsf(a.x2_b1 - b.x2_b1) <= 1e-4f &&
                    fabsf(a.x2_b2 - b.x2_b2) <= 1e-4f;
-    bool ok = t0 > 0.0f && t2 > 0.0f && same_x2 && a.axis == b.axis && a.channel == b.channel && a.hit == b.hit &&
-              close_rel(a.F, b.F, 1e-4) && fabs((double)j1 * j2 - 1.0) <= 1e-4;
+    /* The disk numbers come back too: the sequential shift re-inverts them at every
+     * reconnection (Algorithm 4), the others carry them unchanged. */
+    bool same_u = fabsf(a.u_radius - b.u_radius) <= 1e-4f &&
+                  fminf(fabsf(a.u_angle - b.u_angle), 1.0f - fabsf(a.u_angle - b.u_angle)) <= 1e-4f;
+    bool ok = t0 > 0.0f && t2 > 0.0f && same_x2 && same_u && a.axis == b.axis && a.channel == b.channel &&
+              a.hit == b.hit && close_rel(a.F, b.F, 1e-4) && fabs((double)j1 * j2 - 1.0) <= 1e-4;
     if (!ok) {
         if (t->failures++ < 5)
-            fprintf(stderr, "  round trip %u -> %u: same x2 %d, F %g -> %g, J %g * %g = %g, back target %g\n",
-                    from.pixel, to.pixel, same_x2, (double)a.F.x, (double)b.F.x, (double)j1, (double)j2,
+            fprintf(stderr, "  round trip %u -> %u: same x2 %d same u %d (%g %g -> %g %g) hit %d -> %d, F %g -> %g, "
+                    "J %g * %g = %g, back target %g\n",
+                    from.pixel, to.pixel, same_x2, same_u, (double)a.u_radius, (double)a.u_angle, (double)b.u_radius,
+                    (double)b.u_angle, a.hit, b.hit, (double)a.F.x, (double)b.F.x, (double)j1, (double)j2,
                     (double)j1 * j2, (double)t2);
         return;
     }
@@ -164,7 +173,10 @@ static void shift_case(enum restir_sss_shift shift, bool temporal)
     CHECK(identity_ok >= identity_tried * 99 / 100);
     CHECK(t.forward_ok > 100);
     CHECK_MSG(t.round_trips >= t.forward_ok * 99 / 100, "%d of %d", t.round_trips, t.forward_ok);
-    if (shift == RESTIR_SSS_RECONNECTION) CHECK(t.nontrivial_jacobians == 0);
+    if (shift == RESTIR_SSS_RECONNECTION || shift == RESTIR_SSS_SEQUENTIAL) CHECK(t.nontrivial_jacobians == 0);
+    /* Only the sequential shift re-inverts the numbers: they must really change. */
+    if (shift == RESTIR_SSS_SEQUENTIAL) CHECK(t.moved_u > t.forward_ok / 2);
+    if (shift == RESTIR_SSS_RECONNECTION) CHECK(t.moved_u == 0);
     if (shift == RESTIR_SSS_DELAYED && !temporal) CHECK(t.nontrivial_jacobians > t.round_trips / 20);
     restir_sss_destroy(&st);
     scene_release(sc);
@@ -173,11 +185,16 @@ static void shift_case(enum restir_sss_shift shift, bool temporal)
 static void test_reconnection_round_trips(void) { shift_case(RESTIR_SSS_RECONNECTION, false); }
 static void test_delayed_round_trips(void) { shift_case(RESTIR_SSS_DELAYED, false); }
 static void test_hybrid_round_trips(void) { shift_case(RESTIR_SSS_HYBRID, false); }
+/* The sequential shift's reconnection passes (the context starts in that pass): the shifted
+ * sample carries the inverted disk numbers and the intersection index found for the offset
+ * primary hit, and shifting back restores the original ones. */
+static void test_sequential_round_trips(void) { shift_case(RESTIR_SSS_SEQUENTIAL, false); }
 static void test_temporal_round_trips(void)
 {
     shift_case(RESTIR_SSS_RECONNECTION, true);
     shift_case(RESTIR_SSS_DELAYED, true);
     shift_case(RESTIR_SSS_HYBRID, true);
+    shift_case(RESTIR_SSS_SEQUENTIAL, true);
 }
 
 static void test_params(void)
@@ -188,8 +205,12 @@ static void test_params(void)
     CHECK(p.shift == RESTIR_SSS_HYBRID && p.candidates == 1 && p.spatial_neighbors == 4 && p.temporal_cap == 20 &&
           p.kappa_orientation == 0.5f && p.spatial_radius == 0.0f);
     p.shift = RESTIR_SSS_SEQUENTIAL;
-    CHECK(!restir_sss_params_valid(&p, &err) && strcmp(err.where, "/params/shift") == 0 &&
-          strstr(err.message, "not implemented"));
+    CHECK(restir_sss_params_valid(&p, &err));
+    p.spatial_neighbors = 3;
+    CHECK(!restir_sss_params_valid(&p, &err) && strcmp(err.where, "/params/spatial_neighbors") == 0);
+    p = restir_sss_defaults();
+    p.index_shortcut = true;
+    CHECK(!restir_sss_params_valid(&p, &err) && strcmp(err.where, "/params/index_shortcut") == 0);
     p = restir_sss_defaults();
     p.candidates = 0;
     CHECK(!restir_sss_params_valid(&p, &err) && strcmp(err.where, "/params/candidates") == 0);
@@ -219,4 +240,5 @@ static void test_session_bytes_planned_match_allocated(void)
 }
 
 TEST_MAIN(TEST(test_reconnection_round_trips), TEST(test_delayed_round_trips), TEST(test_hybrid_round_trips),
+          TEST(test_sequential_round_trips),
           TEST(test_temporal_round_trips), TEST(test_params), TEST(test_session_bytes_planned_match_allocated))

@@ -50,7 +50,7 @@ export const METHODS = {
   restir_sss: {
     label: 'restir_sss: ReSTIR subsurface scattering (translucent materials)',
     params: [
-      { name: 'shift', kind: 'text', value: 'hybrid', help: 'reconnection, delayed or hybrid' },
+      { name: 'shift', kind: 'text', value: 'hybrid', help: 'reconnection, delayed, hybrid or sequential' },
       { name: 'candidates', kind: 'number', value: 1, help: 'BSSRDF probes per pixel and frame' },
       { name: 'spatial_neighbors', kind: 'number', value: 4, help: 'spatial neighbours (0: none)' },
       { name: 'spatial_radius', kind: 'number', value: 0, help: 'spatial radius, pixels (0: from 2 max d)' },
