@@ -69,7 +69,7 @@ METHODS = {
 ALL_SCENES = {"cornell-box": ["pt", "restir_pt", "bdpt"], "cornell-glossy": ["pt", "restir_pt", "bdpt"],
               "door-ajar": ["pt", "restir_pt", "bdpt"], "lamp-in-glass": ["pt", "restir_pt", "bdpt"],
               "caustic-sphere": ["pt", "restir_pt", "bdpt", "sms"], "refractive-slab": ["pt", "restir_pt", "sms"],
-              "reflective-plane": ["pt", "restir_pt", "sms"], "translucent": ["pt", "restir_pt", "restir_sss"]}
+              "reflective-plane": ["pt", "restir_pt", "sms"], "translucent": ["pt", "restir_sss"]}
 SCENES = {s: ALL_SCENES[s] for s in os.environ.get("REPORT_SCENES", ",".join(ALL_SCENES)).split(",")}
 # Scenes whose light pt practically never finds are referenced by the method that finds it:
 # bdpt (mean of independent frames) through glass and for point-like caustics, sms (spp, no

@@ -125,6 +125,10 @@ bool bdpt_init(struct bdpt_state *st, const struct scene *scene, const struct bd
     if (!vec3_is_zero(scene->env_radiance))
         return err_set(err, ERR_INVALID, "/method",
                        "bdpt does not support environment light (the scene has env_radiance); use pt or restir_pt");
+    if (scene_has_translucent(scene))
+        return err_set(err, ERR_INVALID, "/method",
+                       "bdpt does not sample subsurface scattering (the scene has translucent materials); use pt or "
+                       "restir_sss");
     struct bdpt_sizes z = bdpt_sizes_of(p, width, height);
     if (z.light_paths == 0) return err_set(err, ERR_INVALID, "/params/light_paths", "no light subpaths");
     st->width = width;

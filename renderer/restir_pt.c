@@ -870,6 +870,10 @@ bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, uint3
                     struct err *err)
 {
     memset(st, 0, sizeof *st);
+    if (scene_has_translucent(scene))
+        return err_set(err, ERR_INVALID, "/method",
+                       "restir_pt does not sample subsurface scattering (the scene has translucent materials); use pt "
+                       "or restir_sss");
     st->width = width;
     st->height = height;
     st->shape_count = scene->shape_count;

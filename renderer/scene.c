@@ -149,3 +149,10 @@ int scene_find_shape(const struct scene *scene, const char *name)
         if (strcmp(scene->shapes[i].name, name) == 0) return (int)i;
     return -1;
 }
+
+bool scene_has_translucent(const struct scene *scene)
+{
+    for (uint32_t i = 0; i < scene->material_count; i++)
+        if (scene->materials[i].kind == MATERIAL_TRANSLUCENT) return true;
+    return false;
+}

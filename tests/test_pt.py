@@ -212,6 +212,12 @@ def test_cli_usage_errors(tmp_path, scenes):
         (("render", sc, "--frobnicate", "1", "-o", tmp_path / "x.exr"), 2, "unknown option '--frobnicate'"),
         (("render", tmp_path / "missing.json", "-o", tmp_path / "x.exr"), 1, "missing.json"),
         (("render", tmp_path, "-o", tmp_path / "x.exr"), 1, f"'{tmp_path}/scene.json' not found"),
+        # Methods that do not sample the BSSRDF refuse translucent materials instead of rendering
+        # their BSDF stand-in.
+        (("render", scenes / "translucent", "--method", "restir_pt", "-o", tmp_path / "x.exr"), 1,
+         "/method: restir_pt does not sample subsurface scattering"),
+        (("render", scenes / "translucent", "--method", "bdpt", "-o", tmp_path / "x.exr"), 1,
+         "/method: bdpt does not sample subsurface scattering"),
         (("compare", tmp_path / "nope.exr", tmp_path / "nope2.exr"), 1, "nope.exr"),
     ]
     for args, code, text in cases:
