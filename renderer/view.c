@@ -11,6 +11,7 @@ struct view_params view_params_defaults(enum render_method method, uint32_t widt
     p.pt = (struct view_pt_params){.spp = 1, .max_depth = 64, .rr_depth = 3, .nee = true};
     p.restir_pt = restir_pt_defaults();
     p.sms = sms_defaults();
+    p.ssp = ssp_defaults();
     return p;
 }
 
@@ -19,6 +20,7 @@ bool view_method_parse(const char *name, enum render_method *out)
     if (strcmp(name, "pt") == 0) { *out = RENDER_METHOD_PT; return true; }
     if (strcmp(name, "restir_pt") == 0) { *out = RENDER_METHOD_RESTIR_PT; return true; }
     if (strcmp(name, "sms") == 0) { *out = RENDER_METHOD_SMS; return true; }
+    if (strcmp(name, "sms_ssp") == 0) { *out = RENDER_METHOD_SMS_SSP; return true; }
     return false;
 }
 
@@ -28,6 +30,7 @@ const char *view_method_name(enum render_method method)
     case RENDER_METHOD_PT: return "pt";
     case RENDER_METHOD_RESTIR_PT: return "restir_pt";
     case RENDER_METHOD_SMS: return "sms";
+    case RENDER_METHOD_SMS_SSP: return "sms_ssp";
     }
     return NULL;
 }
@@ -49,12 +52,16 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
     memset(v, 0, sizeof *v);
     if (params->width == 0 || params->height == 0)
         return err_set(err, ERR_INVALID, "/width", "image size must be at least 1x1");
-    if ((params->method == RENDER_METHOD_PT || params->method == RENDER_METHOD_SMS) && params->pt.spp == 0)
+    if (params->method != RENDER_METHOD_RESTIR_PT && params->pt.spp == 0)
         return err_set(err, ERR_INVALID, "/params/spp", "spp must be at least 1");
-    if (params->method == RENDER_METHOD_SMS) {
+    if (params->method == RENDER_METHOD_SMS || params->method == RENDER_METHOD_SMS_SSP) {
         struct sms_scene ss;
-        if (!sms_params_valid(&params->sms, err) || !sms_scene_init(scene, &ss, err)) return false;
+        if (!sms_params_valid(&params->sms, err) || !ssp_params_valid(&params->ssp, err) ||
+            !sms_scene_init(scene, &ss, err))
+            return false;
     }
+    if (params->method == RENDER_METHOD_SMS_SSP && !ssp_prior_init(&v->prior, params->width, params->height, err))
+        return false;
     if (params->method == RENDER_METHOD_RESTIR_PT) {
         if (!restir_pt_params_valid(&params->restir_pt, err)) return false;
         if (!restir_pt_init(&v->restir, scene, params->width, params->height, err)) return false;
@@ -64,6 +71,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         !image_init(&v->accum, params->width, params->height, err)) {
         image_destroy(&v->output);
         restir_pt_destroy(&v->restir);
+        ssp_prior_destroy(&v->prior);
         return false;
     }
     v->changes = calloc(scene->shape_count ? scene->shape_count : 1, sizeof *v->changes);
@@ -71,6 +79,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         image_destroy(&v->output);
         image_destroy(&v->accum);
         restir_pt_destroy(&v->restir);
+        ssp_prior_destroy(&v->prior);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for a view");
     }
     v->params = *params;
@@ -90,6 +99,7 @@ void view_destroy(struct view *v)
     image_destroy(&v->output);
     image_destroy(&v->accum);
     restir_pt_destroy(&v->restir);
+    ssp_prior_destroy(&v->prior);
     free(v->changes);
     memset(v, 0, sizeof *v);
 }
@@ -194,6 +204,7 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
 
     struct render_stats rs;
     struct restir_pt_stats passes;
+    struct ssp_prior_counters prior = {0};
     bool ok;
     if (v->params.method == RENDER_METHOD_RESTIR_PT) {
         /* The previous frame's scene and camera are the view's current ones until the commit
@@ -218,13 +229,32 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         p.max_depth = v->params.pt.max_depth;
         p.rr_depth = v->params.pt.rr_depth;
         p.nee = v->params.pt.nee;
-        if (v->params.method == RENDER_METHOD_SMS) p.sms = &v->params.sms;
-        else p.subset = v->params.pt.subset;
+        struct sms_scene ss;
+        if (v->params.method == RENDER_METHOD_SMS) {
+            p.sms = &v->params.sms;
+        } else if (v->params.method == RENDER_METHOD_SMS_SSP) {
+            /* The prior pass (seed 002 §4.1) before the frame, under this frame's scene and camera. */
+            struct camera cam;
+            struct ray_counters prc = {0, 0};
+            camera_init(&cam, &camera, v->params.width, v->params.height);
+            memset(&prior, 0, sizeof prior);
+            if (!sms_scene_init(scene, &ss, err)) {
+                scene_release(scene);
+                return false;
+            }
+            ssp_prior_build(&v->prior, scene, &ss, &v->params.ssp, &cam, v->params.seed, v->frame, &prior, &prc);
+            p.sms = &v->params.ssp.sms;
+            p.ssp = &v->params.ssp;
+            p.ssp_prior = &v->prior;
+        } else {
+            p.subset = v->params.pt.subset;
+        }
         p.seed = v->params.seed;
         p.frame = v->frame;
         p.threads = v->threads;
         p.camera = &camera;
         ok = reference_pt_render_into(scene, &p, out, &rs, progress, progress_ctx, err);
+        if (ok && p.ssp) rs.render_ms += prior.ms;
     }
     if (!ok) {
         scene_release(scene);
@@ -255,7 +285,9 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         stats->accumulated = v->accum_count;
         stats->has_passes = v->params.method == RENDER_METHOD_RESTIR_PT;
         if (stats->has_passes) stats->passes = passes;
-        stats->has_sms = v->params.method == RENDER_METHOD_SMS;
+        stats->has_sms = v->params.method == RENDER_METHOD_SMS || v->params.method == RENDER_METHOD_SMS_SSP;
+        stats->has_prior = v->params.method == RENDER_METHOD_SMS_SSP;
+        stats->prior = prior;
     }
     v->frame++;
     return true;
@@ -279,6 +311,7 @@ uint64_t view_bytes_planned(const struct view_params *params, uint32_t shape_cou
     uint64_t pixels = (uint64_t)params->width * params->height;
     uint64_t bytes = 2 * pixels * sizeof(struct vec3) + (uint64_t)(shape_count ? shape_count : 1) * sizeof(struct view_shape_change);
     if (params->method == RENDER_METHOD_RESTIR_PT) bytes += restir_pt_bytes_planned(params->width, params->height, shape_count);
+    if (params->method == RENDER_METHOD_SMS_SSP) bytes += ssp_prior_bytes(params->width, params->height);
     return bytes;
 }
 
@@ -293,6 +326,7 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
         out[n++] = (struct view_buffer_bytes){"gbuffers", restir_pt_gbuffer_bytes(&v->restir)};
         out[n++] = (struct view_buffer_bytes){"primitive_table", ((size_t)v->restir.shape_count + 1) * sizeof *v->restir.prim_first};
     }
+    if (v->params.method == RENDER_METHOD_SMS_SSP) out[n++] = (struct view_buffer_bytes){"prior", ssp_prior_bytes(v->output.width, v->output.height)};
     size_t sum = 0;
     for (uint32_t i = 0; i < n; i++) sum += out[i].bytes;
     if (total) *total = sum;

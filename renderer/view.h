@@ -19,7 +19,7 @@
 #include "restir_pt.h"
 #include "scene.h"
 
-enum render_method { RENDER_METHOD_PT, RENDER_METHOD_RESTIR_PT, RENDER_METHOD_SMS };
+enum render_method { RENDER_METHOD_PT, RENDER_METHOD_RESTIR_PT, RENDER_METHOD_SMS, RENDER_METHOD_SMS_SSP };
 
 /* Parameters of `pt` (reference_pt.h documents them). */
 struct view_pt_params {
@@ -35,6 +35,7 @@ struct view_params {
     struct view_pt_params pt;
     struct restir_pt_params restir_pt;   /* method restir_pt (restir_pt.h) */
     struct sms_params sms;               /* method sms (sms.h; spp, depths and nee from `pt`) */
+    struct ssp_params ssp;               /* method sms_ssp (sms_ssp.h; spp and depths from `pt`) */
 };
 
 /* Defaults of every method's parameters (pt: 1 spp per frame, max_depth 64, rr_depth 3, NEE;
@@ -97,7 +98,9 @@ struct frame_stats {
     double scene_update_ms;               /* rebuilding the scene for moved or re-lit shapes */
     uint32_t accumulated;                 /* frames in the accumulation buffer after this one */
     bool has_passes;                      /* restir_pt: the per-pass numbers below are set */
-    bool has_sms;                         /* sms: render.sms holds seed 002 Table 1's counters */
+    bool has_sms;                         /* sms, sms_ssp: render.sms holds seed 002 Table 1's counters */
+    bool has_prior;                       /* sms_ssp: the prior pass's counters */
+    struct ssp_prior_counters prior;
     struct restir_pt_stats passes;
 };
 
@@ -114,6 +117,7 @@ struct view {
     struct image accum;                   /* running sum since the last change */
     uint32_t accum_count;
     struct restir_pt_state restir;        /* restir_pt only: G-buffers and reservoirs */
+    struct ssp_prior prior;               /* sms_ssp only: the per-frame prior */
     struct view_shape_change *changes;    /* the shape changes in force, one per changed shape */
     uint32_t change_count;
 };

@@ -64,13 +64,20 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
         jsonw_key(w, "near_distance"); jsonw_double(w, r->near_distance);
         jsonw_key(w, "pdf_connect"); jsonw_bool(w, r->pdf_connect);
         jsonw_key(w, "roughness_min"); jsonw_double(w, r->roughness_min);
-    } else if (p->method == RENDER_METHOD_SMS) {
+    } else if (p->method == RENDER_METHOD_SMS || p->method == RENDER_METHOD_SMS_SSP) {
+        const struct sms_params *sp = p->method == RENDER_METHOD_SMS ? &p->sms : &p->ssp.sms;
         jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);
         jsonw_key(w, "max_depth"); jsonw_uint(w, p->pt.max_depth);
         jsonw_key(w, "rr_depth"); jsonw_uint(w, p->pt.rr_depth);
-        jsonw_key(w, "bernoulli_cap"); jsonw_uint(w, p->sms.bernoulli_cap);
-        jsonw_key(w, "max_iterations"); jsonw_uint(w, p->sms.max_iterations);
-        jsonw_key(w, "caustics_only"); jsonw_bool(w, p->sms.caustics_only);
+        jsonw_key(w, "bernoulli_cap"); jsonw_uint(w, sp->bernoulli_cap);
+        jsonw_key(w, "max_iterations"); jsonw_uint(w, sp->max_iterations);
+        jsonw_key(w, "caustics_only"); jsonw_bool(w, sp->caustics_only);
+        if (p->method == RENDER_METHOD_SMS_SSP) {
+            jsonw_key(w, "tiles"); jsonw_uint(w, p->ssp.tiles);
+            jsonw_key(w, "prior"); jsonw_bool(w, p->ssp.prior);
+            jsonw_key(w, "prior_samples"); jsonw_uint(w, p->ssp.prior_samples);
+            jsonw_key(w, "alpha"); jsonw_double(w, p->ssp.alpha);
+        }
     } else {
         static const char *const subsets[] = {"all", "caustic", "rest"};
         jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);
@@ -347,6 +354,18 @@ static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
     if (f->stats->has_passes) {
         jsonw_key(w, "passes");
         api_write_passes(w, &f->stats->passes);
+    }
+    if (f->stats->has_prior) {
+        /* Seed 002 Table 1, prior construction, for this frame. */
+        const struct ssp_prior_counters *pc = &f->stats->prior;
+        jsonw_key(w, "prior");
+        jsonw_object_begin(w);
+        jsonw_key(w, "samples"); jsonw_uint(w, pc->samples);
+        jsonw_key(w, "solutions"); jsonw_uint(w, pc->solutions);
+        jsonw_key(w, "newton"); jsonw_uint(w, pc->newton);
+        jsonw_key(w, "dropped_pairs"); jsonw_uint(w, pc->dropped_pairs);
+        jsonw_key(w, "ms"); jsonw_double(w, pc->ms);
+        jsonw_object_end(w);
     }
     if (f->stats->has_sms) {
         /* Seed 002 Table 1, manifold sampling columns, for this frame. */

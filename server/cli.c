@@ -105,6 +105,7 @@ static bool cli_method_params(const char *params_json, struct view_params *vp, s
     vp->pt = parsed.pt;
     vp->restir_pt = parsed.restir_pt;
     vp->sms = parsed.sms;
+    vp->ssp = parsed.ssp;
     return true;
 }
 
@@ -268,7 +269,7 @@ static int cli_render(int argc, char **argv)
     if (!scene_path) return cli_usage_error("%s", "render needs a scene file");
     if (!out_path) return cli_usage_error("%s", "render needs -o OUT.exr");
     enum render_method rm;
-    if (!view_method_parse(method, &rm)) return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt, sms)", method);
+    if (!view_method_parse(method, &rm)) return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt, sms, sms_ssp)", method);
     if (rm != RENDER_METHOD_PT && (has_crop || has_frame))
         return cli_usage_error("%s", "--crop and --frame are options of --method pt");
     p.width = width;
@@ -347,7 +348,14 @@ static int cli_render(int argc, char **argv)
                    ps->gbuffer_ms, ps->initial_ms, ps->temporal_ms, ps->spatial_ms, ps->shade_ms, ps->shifts,
                    ps->shift_failures, session_bytes, RESTIR_PT_RESERVOIR_BYTES);
         }
-        if (rm == RENDER_METHOD_SMS) {
+        if (last.has_prior) {
+            /* Seed 002 Table 1, prior construction, of the last frame. */
+            const struct ssp_prior_counters *pc = &last.prior;
+            printf(",\"prior\":{\"samples\":%" PRIu64 ",\"solutions\":%" PRIu64 ",\"newton\":%" PRIu64
+                   ",\"dropped_pairs\":%" PRIu64 ",\"ms\":%.3f}",
+                   pc->samples, pc->solutions, pc->newton, pc->dropped_pairs, pc->ms);
+        }
+        if (rm == RENDER_METHOD_SMS || rm == RENDER_METHOD_SMS_SSP) {
             /* Seed 002 Table 1 (manifold sampling) over all frames rendered. */
             const struct sms_counters *c = &st.sms;
             printf(",\"sms\":{\"samples\":%" PRIu64 ",\"solutions\":%" PRIu64 ",\"newton_sample\":%" PRIu64
