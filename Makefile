@@ -199,6 +199,7 @@ bench: $(OUT)/restir $(OUT)/restird $(OBJ)/librenderer.a
 	bash bench/instr_per_ray.sh | tee $(BUILD)/bench/instr.json
 	$(PYTHON) bench/server_bench.py | tee $(BUILD)/bench/server.json
 	$(PYTHON) bench/restir_pt.py | tee $(BUILD)/bench/restir_pt.md
+	$(PYTHON) bench/sms.py | tee $(BUILD)/bench/sms.md
 
 # ---- fuzzing: libFuzzer targets, built by clang with ASan + UBSan into build/fuzz/ ----
 # Each target's seeds (and the inputs of every bug found, kept as regressions) are committed in

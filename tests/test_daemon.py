@@ -437,7 +437,7 @@ def test_session_create_get_list_reset_delete(daemon):
     assert d.status == 201, repr(d)
     dflt = d.json()
     assert (dflt["method"], dflt["width"], dflt["height"], dflt["seed"]) == ("pt", 256, 256, 0)
-    assert dflt["params"] == {"spp": 1, "max_depth": 64, "rr_depth": 3, "nee": True}
+    assert dflt["params"] == {"spp": 1, "max_depth": 64, "rr_depth": 3, "nee": True, "subset": "all"}
     assert dflt["buffers"]["accumulation"] == 256 * 256 * 12
     assert daemon.req("DELETE", dflt["href"]).status == 204
 
