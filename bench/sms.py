@@ -58,7 +58,9 @@ def render(scene, out, method, params, seed):
     res = subprocess.run(cmd, capture_output=True, text=True)
     if res.returncode != 0:
         raise SystemExit(f"bench: {' '.join(cmd)}: {res.stderr.strip()}")
-    img = oiio.ImageBuf(str(out)).get_pixels(oiio.FLOAT)[:, :, :3].astype(np.float64)
+    inp = oiio.ImageInput.open(str(out))
+    img = np.asarray(inp.read_image(oiio.FLOAT), dtype=np.float64)[:, :, :3]
+    inp.close()
     return img, json.loads(res.stdout)
 
 
@@ -115,7 +117,9 @@ def main():
                 for spp in spps:
                     ms, err = [], []
                     for seed in range(SEEDS):
-                        img, st = render(scene, tmp / "x.exr", method, {"spp": spp, **extra}, seed)
+                        # A new file per render: OpenImageIO caches images by file name.
+                        out = tmp / f"{name}-{len(curves[label])}-{label[:12].replace(' ', '_')}-{spp}-{seed}.exr"
+                        img, st = render(scene, out, method, {"spp": spp, **extra}, seed)
                         ms.append(st["time_ms"])
                         err.append(rmse(img, ref))
                         if label in t1 and spp == 1:
