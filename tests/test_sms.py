@@ -187,3 +187,14 @@ def test_sms_session_in_the_daemon(tmp_path):
     finally:
         rc, _ = d.stop()
         assert rc == 0, d.stderr()[-3000:]
+
+
+@pytest.mark.parametrize("method", ["sms", "sms_ssp"])
+def test_independent_of_thread_count(tmp_path, scenes, method):
+    """Every random decision (seeds, light points, Bernoulli trials, the prior's walks) comes from
+    per-pixel or per-block streams: 1 and 3 threads give the same image."""
+    sc = scenes / SCENE / "scene.json"
+    extra = ["--method", method, *_params({"spp": 2})]
+    a, _ = render(sc, tmp_path / "a.exr", size="40x32", seed=4, extra=[*extra, "--threads", "1"])
+    b, _ = render(sc, tmp_path / "b.exr", size="40x32", seed=4, extra=[*extra, "--threads", "3"])
+    assert a.mean() > 0 and np.array_equal(a, b)
