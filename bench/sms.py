@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
-"""bench/sms.py — `make bench`: path tracing against specular manifold sampling (method `sms`),
-error against time, and seed 002 Table 1's manifold-sampling statistics.
+"""bench/sms.py — `make bench`: path tracing against specular manifold sampling (`sms`) and its
+sample-space partitioning with per-frame priors (`sms_ssp`): error against time, and seed 002
+Table 1's statistics (prior construction and manifold sampling, sms / sms_ssp).
 
 Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. On
 refractive-slab and reflective-plane at 64x64 (BENCH_SMS_SCENES, BENCH_SMS_SIZE):
@@ -8,11 +9,14 @@ refractive-slab and reflective-plane at 64x64 (BENCH_SMS_SCENES, BENCH_SMS_SIZE)
      REF_SMS_SPP (path tracing alone does not converge on these caustics in any reasonable time;
      tests/test_sms.py shows the SMS part unbiased against path tracing restricted to the same
      paths), cached in build/refs/ under the scene files' hash and the spps;
-  2. `pt` and `sms` (Bernoulli cap 128, as seed 002 §6) at 1, 2, 4 ... spp, over SEEDS seeds:
-     render time and RMSE against the reference (seed 002 reports RMSE);
-  3. Table 1 (manifold sampling columns) of `sms` at 1 spp: sample success rate, Newton steps
-     per sample, Bernoulli trials per solution, Newton steps per solution, time in SMS;
-  4. writes build/bench/sms.json, one SVG chart per scene (RMSE vs ms, log-log) and prints
+  2. `pt`, `sms` and `sms_ssp` (Bernoulli cap 128 and N = 16, as seed 002 §6) at 1, 2, 4 ...
+     spp, over SEEDS seeds: render time and RMSE against the reference (seed 002 reports RMSE);
+  3. Table 1 of `sms` and `sms_ssp` at 1 spp: prior construction (success rate, Newton steps
+     per sample, ms) and manifold sampling (sample success rate, Newton steps per sample,
+     Bernoulli trials per solution, Newton steps per solution, time in the estimates);
+  4. the failure case of seed 002 Fig. 10: a prior that misses pairs (2 walks per block instead
+     of 128; `prior: false` is the fallback everywhere) — RMSE at equal spp;
+  5. writes build/bench/sms.json, one SVG chart per scene (RMSE vs ms, log-log) and prints
      Markdown tables (medians over the seeds).
 Environment: BENCH_SMS_SEEDS (3), BENCH_SMS_REF_SPP (1024), BENCH_SMS_REF_SMS_SPP (256),
 BENCH_THREADS (all cores)."""
@@ -54,7 +58,9 @@ def render(scene, out, method, params, seed):
     res = subprocess.run(cmd, capture_output=True, text=True)
     if res.returncode != 0:
         raise SystemExit(f"bench: {' '.join(cmd)}: {res.stderr.strip()}")
-    img = oiio.ImageBuf(str(out)).get_pixels(oiio.FLOAT)[:, :, :3].astype(np.float64)
+    inp = oiio.ImageInput.open(str(out))
+    img = np.asarray(inp.read_image(oiio.FLOAT), dtype=np.float64)[:, :, :3]
+    inp.close()
     return img, json.loads(res.stdout)
 
 
@@ -80,12 +86,17 @@ def rmse(img, ref):
     return float(np.sqrt(np.mean((img - ref) ** 2)))
 
 
-def table1(st):
+def table1(st, prior=None):
     n, sol = st["samples"], st["solutions"]
-    return {"success_rate": sol / n if n else 0.0, "newtons_per_sample": st["newton_sample"] / n if n else 0.0,
-            "bernoulli_per_solution": st["trials"] / sol if sol else 0.0,
-            "newtons_per_solution": (st["newton_sample"] + st["newton_trials"]) / sol if sol else 0.0,
-            "sms_ms": st["sample_ms"], "capped": st["capped"]}
+    row = {"success_rate": sol / n if n else 0.0, "newtons_per_sample": st["newton_sample"] / n if n else 0.0,
+           "bernoulli_per_solution": st["trials"] / sol if sol else 0.0,
+           "newtons_per_solution": (st["newton_sample"] + st["newton_trials"]) / sol if sol else 0.0,
+           "sms_ms": st["sample_ms"], "capped": st["capped"],
+           "prior_success": 0.0, "prior_newtons": 0.0, "prior_ms": 0.0}
+    if prior and prior["samples"]:
+        row.update(prior_success=prior["solutions"] / prior["samples"], prior_newtons=prior["newton"] / prior["samples"],
+                   prior_ms=prior["ms"])
+    return row
 
 
 def main():
@@ -96,46 +107,59 @@ def main():
         for name in SCENES:
             scene = ROOT / "scenes" / name / "scene.json"
             ref = reference(scene, tmp)
-            curves = {"pt": [], "sms": []}
-            t1 = []
-            for method, spps, extra in (("pt", PT_SPPS, {}), ("sms", SMS_SPPS, {"bernoulli_cap": 128})):
+            runs = [("pt", "pt", PT_SPPS, {}), ("sms", "sms", SMS_SPPS, {"bernoulli_cap": 128}),
+                    ("sms_ssp", "sms_ssp", SMS_SPPS, {"bernoulli_cap": 128}),
+                    ("sms_ssp, prior of 2 walks per block", "sms_ssp", [4], {"prior_samples": 2}),
+                    ("sms_ssp, no prior (fallback)", "sms_ssp", [4], {"prior": False})]
+            curves = {label: [] for label, *_ in runs}
+            t1 = {"sms": [], "sms_ssp": []}
+            for label, method, spps, extra in runs:
                 for spp in spps:
                     ms, err = [], []
                     for seed in range(SEEDS):
-                        img, st = render(scene, tmp / "x.exr", method, {"spp": spp, **extra}, seed)
+                        # A new file per render: OpenImageIO caches images by file name.
+                        out = tmp / f"{name}-{len(curves[label])}-{label[:12].replace(' ', '_')}-{spp}-{seed}.exr"
+                        img, st = render(scene, out, method, {"spp": spp, **extra}, seed)
                         ms.append(st["time_ms"])
                         err.append(rmse(img, ref))
-                        if method == "sms" and spp == 1:
-                            t1.append(table1(st["sms"]))
-                    curves[method].append((statistics.median(ms), statistics.median(err), spp))
+                        if label in t1 and spp == 1:
+                            t1[label].append(table1(st["sms"], st.get("prior")))
+                    curves[label].append((statistics.median(ms), statistics.median(err), spp))
             results[name] = {"curves": curves,
-                             "table1": {k: statistics.median(r[k] for r in t1) for k in t1[0]}}
+                             "table1": {m: {k: statistics.median(r[k] for r in rows) for k in rows[0]}
+                                        for m, rows in t1.items()}}
     (OUT / "sms.json").write_text(json.dumps(results, indent=1))
     print(f"# pt vs sms ({SIZE}, medians over {SEEDS} seeds; reference: pt rest {REF_SPP} spp + sms caustics "
           f"{REF_SMS_SPP} spp uncapped)\n")
-    print("| scene | success rate | Newtons / sample | Bernoulli / solution | Newtons / solution | ms in SMS (1 spp) |")
-    print("|---|---|---|---|---|---|")
+    print("| scene | prior success | prior Newtons / sample | prior ms | success rate (sms / sms_ssp) | "
+          "Newtons / sample | Bernoulli / solution | Newtons / solution | ms in the estimates (1 spp) |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for name, r in results.items():
-        t = r["table1"]
-        print(f"| {name} | {100 * t['success_rate']:.1f} % | {t['newtons_per_sample']:.2f} | "
-              f"{t['bernoulli_per_solution']:.2f} | {t['newtons_per_solution']:.2f} | {t['sms_ms']:.1f} |")
+        a, b = r["table1"]["sms"], r["table1"]["sms_ssp"]
+        print(f"| {name} | {100 * b['prior_success']:.1f} % | {b['prior_newtons']:.2f} | {b['prior_ms']:.1f} | "
+              f"{100 * a['success_rate']:.1f} % / {100 * b['success_rate']:.1f} % | "
+              f"{a['newtons_per_sample']:.2f} / {b['newtons_per_sample']:.2f} | "
+              f"{a['bernoulli_per_solution']:.2f} / {b['bernoulli_per_solution']:.2f} | "
+              f"{a['newtons_per_solution']:.2f} / {b['newtons_per_solution']:.2f} | "
+              f"{a['sms_ms']:.1f} / {b['sms_ms']:.1f} |")
     print("\n| scene | method | spp | time (ms) | RMSE |")
     print("|---|---|---|---|---|")
     for name, r in results.items():
         for method, pts in r["curves"].items():
             for ms, err, spp in pts:
                 print(f"| {name} | {method} | {spp} | {ms:.1f} | {err:.4g} |")
-        # Equal time: pt's RMSE interpolated log-log at sms's times.
-        pt = sorted(r["curves"]["pt"])
-        ratios = []
-        for ms, err, _ in r["curves"]["sms"]:
-            for (a, ea, _), (b, eb, _) in zip(pt, pt[1:]):
-                if a <= ms <= b:
-                    f = (math.log(ms) - math.log(a)) / (math.log(b) - math.log(a))
-                    ratios.append(err / math.exp(math.log(ea) + f * (math.log(eb) - math.log(ea))))
-        if ratios:
-            print(f"\n{name}: RMSE of sms / pt at equal time: median {statistics.median(ratios):.3f} "
-                  f"over {len(ratios)} sms points")
+        # Equal time: the other curve's RMSE interpolated log-log at each point's time.
+        for m, base in (("sms", "pt"), ("sms_ssp", "pt"), ("sms_ssp", "sms")):
+            ref_curve = sorted(r["curves"][base])
+            ratios = []
+            for ms, err, _ in r["curves"][m]:
+                for (a, ea, _), (b, eb, _) in zip(ref_curve, ref_curve[1:]):
+                    if a <= ms <= b:
+                        f = (math.log(ms) - math.log(a)) / (math.log(b) - math.log(a))
+                        ratios.append(err / math.exp(math.log(ea) + f * (math.log(eb) - math.log(ea))))
+            if ratios:
+                print(f"\n{name}: RMSE of {m} / {base} at equal time: median {statistics.median(ratios):.3f} "
+                      f"over {len(ratios)} points")
         loglog(OUT / f"sms-{name}.svg", f"{name}: RMSE vs time", "render time (ms)", "RMSE",
                [(m, [(a, b) for a, b, _ in pts], "line") for m, pts in r["curves"].items()])
 

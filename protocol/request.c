@@ -662,15 +662,35 @@ static bool request_pt_params(const cJSON *pv, const char *ptr, const struct pro
     return true;
 }
 
-/* sms: pt's spp and depths, plus the manifold sampling parameters (sms.h). */
+/* sms: pt's spp and depths, plus the manifold sampling parameters (sms.h); sms_ssp (ssp != NULL)
+ * adds the sample-space partitioning and prior parameters (sms_ssp.h). */
 static bool request_sms_params(const cJSON *pv, const char *ptr, const struct protocol_limits *limits,
-                               struct view_pt_params *pt, struct sms_params *sp, struct err *err)
+                               struct view_pt_params *pt, struct sms_params *sp, struct ssp_params *ssp,
+                               struct err *err)
 {
     static const char *const keys[] = {"spp", "max_depth", "rr_depth", "bernoulli_cap", "max_iterations",
                                        "caustics_only", NULL};
+    static const char *const ssp_keys[] = {"spp", "max_depth", "rr_depth", "bernoulli_cap", "max_iterations",
+                                           "caustics_only", "tiles", "prior", "prior_samples", "alpha", NULL};
     char p[REQUEST_PTR];
     const cJSON *v;
-    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in sms params", err)) return false;
+    if (!request_object(pv, ptr, "a params", err) ||
+        !request_check_keys(pv, ptr, ssp ? ssp_keys : keys, ssp ? " in sms_ssp params" : " in sms params", err))
+        return false;
+    if (ssp) {
+        if ((v = request_member(pv, ptr, "tiles", p)) && !request_uint32(v, p, 3, SSP_MAX_TILES, NULL, &ssp->tiles, err))
+            return false;
+        if ((v = request_member(pv, ptr, "prior", p)) && !request_bool(v, p, &ssp->prior, err)) return false;
+        if ((v = request_member(pv, ptr, "prior_samples", p)) &&
+            !request_uint32(v, p, 0, 4096, NULL, &ssp->prior_samples, err))
+            return false;
+        if ((v = request_member(pv, ptr, "alpha", p))) {
+            if (!request_float(v, p, &ssp->alpha, err)) return false;
+            if (!(ssp->alpha >= 0.0f && ssp->alpha < 1.0f))
+                return err_set(err, ERR_INVALID, p, "alpha must be in [0, 1), got %g", (double)ssp->alpha);
+        }
+        sp = &ssp->sms;
+    }
     if ((v = request_member(pv, ptr, "spp", p)) && !request_uint32(v, p, 1, limits->max_spp, "max_spp", &pt->spp, err))
         return false;
     if ((v = request_member(pv, ptr, "max_depth", p)) && !request_uint32(v, p, 0, REQUEST_MAX_PT_DEPTH, NULL, &pt->max_depth, err))
@@ -875,7 +895,10 @@ bool protocol_parse_session_create(const char *body, size_t len, const struct pr
             ok = request_bdpt_params(pv, p, &vp.bdpt, err);
             break;
         case RENDER_METHOD_SMS:
-            ok = request_sms_params(pv, p, limits, &vp.pt, &vp.sms, err);
+            ok = request_sms_params(pv, p, limits, &vp.pt, &vp.sms, NULL, err);
+            break;
+        case RENDER_METHOD_SMS_SSP:
+            ok = request_sms_params(pv, p, limits, &vp.pt, &vp.sms, &vp.ssp, err);
             break;
         case RENDER_METHOD_RESTIR_SSS:
             ok = request_restir_sss_params(pv, p, &vp.restir_sss, err);

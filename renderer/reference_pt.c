@@ -157,6 +157,7 @@ struct pt_split {
     const struct sms_scene *ss;
     struct sms_counters *sc;
     struct rng *sms_rng;
+    uint32_t px, py;     /* the pixel (sms_ssp's prior block) */
 };
 
 static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
@@ -237,7 +238,10 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         /* Specular manifold sampling owns the caustic chains that start here (sms.h). */
         if (split->ss && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
             uint32_t room = max_depth > depth + 1 ? max_depth - depth - 1 : 0;
-            struct vec3 c = sms_estimate(scene, split->ss, params->sms, &s, m, wo, room, split->sms_rng, split->sc, rc);
+            struct vec3 c = params->ssp ? ssp_estimate(scene, split->ss, params->ssp, params->ssp_prior, split->px, split->py,
+                                                       &s, m, wo, room, split->sms_rng, split->sc, rc)
+                                        : sms_estimate(scene, split->ss, params->sms, &s, m, wo, room, split->sms_rng,
+                                                       split->sc, rc);
             L = vec3_add(L, vec3_mul(beta, c));
         }
         /* Next-event estimation: one light sample, MIS-weighted against BSDF sampling. */
@@ -369,6 +373,8 @@ static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
                  * sample as pt's PT_SUBSET_REST image. */
                 struct rng sms_rng = rng_make(p->seed, p->frame, pixel, ((uint64_t)1 << 40) | s);
                 split.sms_rng = &sms_rng;
+                split.px = x;
+                split.py = y;
                 struct vec3 L = pt_radiance(job->scene, p, job->camera.position, dir, &rng, &rc, &split, true);
                 if (!vec3_is_finite(L)) {
                     st->nonfinite++;

@@ -11,6 +11,7 @@
 #include "parallel.h"
 #include "scene.h"
 #include "sms.h"
+#include "sms_ssp.h"
 
 struct pt_params {
     uint32_t width, height;
@@ -32,6 +33,10 @@ struct pt_params {
     /* Non-NULL: method `sms` — the PT_SUBSET_REST paths plus an SMS estimate at every non-delta
      * vertex (only the SMS estimates when sms->caustics_only). */
     const struct sms_params *sms;
+    /* Non-NULL (with sms = &ssp->sms): method `sms_ssp` — the SMS estimates use sample-space
+     * partitioning and this frame's prior (built by the caller). */
+    const struct ssp_params *ssp;
+    const struct ssp_prior *ssp_prior;
 };
 
 struct render_stats {

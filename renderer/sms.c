@@ -76,7 +76,7 @@ bool sms_scene_init(const struct scene *scene, struct sms_scene *out, struct err
         float a[3] = {ext.y * ext.z, ext.x * ext.z, ext.x * ext.y}, sum = 2.0f * (a[0] + a[1] + a[2]), acc = 0.0f;
         for (int f = 0; f < 6; f++) {
             acc += a[f / 2];
-            c->face_cdf[f] = acc / (0.5f * sum);
+            c->face_cdf[f] = acc / sum;
         }
         c->face_cdf[5] = 1.0f;
     }

@@ -13,6 +13,7 @@ struct view_params view_params_defaults(enum render_method method, uint32_t widt
     p.bdpt = bdpt_defaults();
     p.sms = sms_defaults();
     p.restir_sss = restir_sss_defaults();
+    p.ssp = ssp_defaults();
     return p;
 }
 
@@ -23,6 +24,7 @@ bool view_method_parse(const char *name, enum render_method *out)
     if (strcmp(name, "bdpt") == 0) { *out = RENDER_METHOD_BDPT; return true; }
     if (strcmp(name, "sms") == 0) { *out = RENDER_METHOD_SMS; return true; }
     if (strcmp(name, "restir_sss") == 0) { *out = RENDER_METHOD_RESTIR_SSS; return true; }
+    if (strcmp(name, "sms_ssp") == 0) { *out = RENDER_METHOD_SMS_SSP; return true; }
     return false;
 }
 
@@ -34,6 +36,7 @@ const char *view_method_name(enum render_method method)
     case RENDER_METHOD_BDPT: return "bdpt";
     case RENDER_METHOD_SMS: return "sms";
     case RENDER_METHOD_RESTIR_SSS: return "restir_sss";
+    case RENDER_METHOD_SMS_SSP: return "sms_ssp";
     }
     return NULL;
 }
@@ -56,12 +59,16 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
     memset(v, 0, sizeof *v);
     if (params->width == 0 || params->height == 0)
         return err_set(err, ERR_INVALID, "/width", "image size must be at least 1x1");
-    if ((params->method == RENDER_METHOD_PT || params->method == RENDER_METHOD_SMS) && params->pt.spp == 0)
+    if (params->method != RENDER_METHOD_RESTIR_PT && params->pt.spp == 0)
         return err_set(err, ERR_INVALID, "/params/spp", "spp must be at least 1");
-    if (params->method == RENDER_METHOD_SMS) {
+    if (params->method == RENDER_METHOD_SMS || params->method == RENDER_METHOD_SMS_SSP) {
         struct sms_scene ss;
-        if (!sms_params_valid(&params->sms, err) || !sms_scene_init(scene, &ss, err)) return false;
+        if (!sms_params_valid(&params->sms, err) || !ssp_params_valid(&params->ssp, err) ||
+            !sms_scene_init(scene, &ss, err))
+            return false;
     }
+    if (params->method == RENDER_METHOD_SMS_SSP && !ssp_prior_init(&v->prior, params->width, params->height, err))
+        return false;
     if (params->method == RENDER_METHOD_RESTIR_PT) {
         if (!restir_pt_params_valid(&params->restir_pt, err)) return false;
         if (!restir_pt_init(&v->restir, scene, params->width, params->height, err)) return false;
@@ -80,6 +87,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         restir_pt_destroy(&v->restir);
         bdpt_destroy(&v->bdpt);
         restir_sss_destroy(&v->sss);
+        ssp_prior_destroy(&v->prior);
         return false;
     }
     v->changes = calloc(scene->shape_count ? scene->shape_count : 1, sizeof *v->changes);
@@ -89,6 +97,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         restir_pt_destroy(&v->restir);
         bdpt_destroy(&v->bdpt);
         restir_sss_destroy(&v->sss);
+        ssp_prior_destroy(&v->prior);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for a view");
     }
     v->params = *params;
@@ -110,6 +119,7 @@ void view_destroy(struct view *v)
     restir_pt_destroy(&v->restir);
     bdpt_destroy(&v->bdpt);
     restir_sss_destroy(&v->sss);
+    ssp_prior_destroy(&v->prior);
     free(v->changes);
     memset(v, 0, sizeof *v);
 }
@@ -215,6 +225,7 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
     struct render_stats rs;
     struct restir_pt_stats passes;
     struct bdpt_stats bstats;
+    struct ssp_prior_counters prior = {0};
     bool ok;
     if (v->params.method == RENDER_METHOD_RESTIR_PT) {
         /* The previous frame's scene and camera are the view's current ones until the commit
@@ -275,13 +286,32 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         p.max_depth = v->params.pt.max_depth;
         p.rr_depth = v->params.pt.rr_depth;
         p.nee = v->params.pt.nee;
-        if (v->params.method == RENDER_METHOD_SMS) p.sms = &v->params.sms;
-        else p.subset = v->params.pt.subset;
+        struct sms_scene ss;
+        if (v->params.method == RENDER_METHOD_SMS) {
+            p.sms = &v->params.sms;
+        } else if (v->params.method == RENDER_METHOD_SMS_SSP) {
+            /* The prior pass (seed 002 §4.1) before the frame, under this frame's scene and camera. */
+            struct camera cam;
+            struct ray_counters prc = {0, 0};
+            camera_init(&cam, &camera, v->params.width, v->params.height);
+            memset(&prior, 0, sizeof prior);
+            if (!sms_scene_init(scene, &ss, err)) {
+                scene_release(scene);
+                return false;
+            }
+            ssp_prior_build(&v->prior, scene, &ss, &v->params.ssp, &cam, v->params.seed, v->frame, &prior, &prc);
+            p.sms = &v->params.ssp.sms;
+            p.ssp = &v->params.ssp;
+            p.ssp_prior = &v->prior;
+        } else {
+            p.subset = v->params.pt.subset;
+        }
         p.seed = v->params.seed;
         p.frame = v->frame;
         p.threads = v->threads;
         p.camera = &camera;
         ok = reference_pt_render_into(scene, &p, out, &rs, progress, progress_ctx, err);
+        if (ok && p.ssp) rs.render_ms += prior.ms;
     }
     if (!ok) {
         scene_release(scene);
@@ -314,7 +344,9 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         if (stats->has_passes) stats->passes = passes;
         stats->has_bdpt = v->params.method == RENDER_METHOD_BDPT;
         if (stats->has_bdpt) stats->bdpt = bstats;
-        stats->has_sms = v->params.method == RENDER_METHOD_SMS;
+        stats->has_sms = v->params.method == RENDER_METHOD_SMS || v->params.method == RENDER_METHOD_SMS_SSP;
+        stats->has_prior = v->params.method == RENDER_METHOD_SMS_SSP;
+        stats->prior = prior;
     }
     v->frame++;
     return true;
@@ -340,6 +372,7 @@ uint64_t view_bytes_planned(const struct view_params *params, uint32_t shape_cou
     if (params->method == RENDER_METHOD_RESTIR_PT) bytes += restir_pt_bytes_planned(params->width, params->height, shape_count);
     if (params->method == RENDER_METHOD_BDPT) bytes += bdpt_bytes_planned(&params->bdpt, params->width, params->height);
     if (params->method == RENDER_METHOD_RESTIR_SSS) bytes += restir_sss_bytes_planned(params->width, params->height);
+    if (params->method == RENDER_METHOD_SMS_SSP) bytes += ssp_prior_bytes(params->width, params->height);
     return bytes;
 }
 
@@ -364,6 +397,7 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
         out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sss_reservoir_bytes(&v->sss)};
         out[n++] = (struct view_buffer_bytes){"gbuffers", restir_sss_gbuffer_bytes(&v->sss)};
     }
+    if (v->params.method == RENDER_METHOD_SMS_SSP) out[n++] = (struct view_buffer_bytes){"prior", ssp_prior_bytes(v->output.width, v->output.height)};
     size_t sum = 0;
     for (uint32_t i = 0; i < n; i++) sum += out[i].bytes;
     if (total) *total = sum;

@@ -22,7 +22,7 @@
 #include "scene.h"
 
 enum render_method { RENDER_METHOD_PT, RENDER_METHOD_RESTIR_PT, RENDER_METHOD_BDPT, RENDER_METHOD_SMS,
-                     RENDER_METHOD_RESTIR_SSS };
+                     RENDER_METHOD_RESTIR_SSS, RENDER_METHOD_SMS_SSP };
 
 /* Parameters of `pt` (reference_pt.h documents them). */
 struct view_pt_params {
@@ -40,6 +40,7 @@ struct view_params {
     struct bdpt_params bdpt;             /* method bdpt (bdpt.h) */
     struct sms_params sms;               /* method sms (sms.h; spp, depths and nee from `pt`) */
     struct restir_sss_params restir_sss; /* method restir_sss (restir_sss.h) */
+    struct ssp_params ssp;               /* method sms_ssp (sms_ssp.h; spp and depths from `pt`) */
 };
 
 /* Defaults of every method's parameters (pt: 1 spp per frame, max_depth 64, rr_depth 3, NEE;
@@ -102,7 +103,9 @@ struct frame_stats {
     struct render_stats render;           /* rays, samples, nonfinite, threads, render_ms */
     double scene_update_ms;               /* rebuilding the scene for moved or re-lit shapes */
     uint32_t accumulated;                 /* frames in the accumulation buffer after this one */
-    bool has_sms;                         /* sms: render.sms holds seed 002 Table 1's counters */
+    bool has_sms;                         /* sms, sms_ssp: render.sms holds seed 002 Table 1's counters */
+    bool has_prior;                       /* sms_ssp: the prior pass's counters */
+    struct ssp_prior_counters prior;
     bool has_passes;                      /* restir_pt, restir_sss: the per-pass numbers below are set
                                              (restir_sss fills the fields the two share) */
     struct restir_pt_stats passes;
@@ -125,6 +128,7 @@ struct view {
     struct restir_pt_state restir;        /* restir_pt only: G-buffers and reservoirs */
     struct bdpt_state bdpt;               /* bdpt only: the light vertex cache */
     struct restir_sss_state sss;          /* restir_sss only: G-buffers and reservoirs */
+    struct ssp_prior prior;               /* sms_ssp only: the per-frame prior */
     struct view_shape_change *changes;    /* the shape changes in force, one per changed shape */
     uint32_t change_count;
 };

@@ -72,13 +72,20 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
         jsonw_key(w, "light_paths"); jsonw_uint(w, b->light_paths);
         jsonw_key(w, "lvc_capacity"); jsonw_uint(w, b->lvc_capacity);
         jsonw_key(w, "heuristic"); jsonw_string(w, bdpt_heuristic_name(b->heuristic));
-    } else if (p->method == RENDER_METHOD_SMS) {
+    } else if (p->method == RENDER_METHOD_SMS || p->method == RENDER_METHOD_SMS_SSP) {
+        const struct sms_params *sp = p->method == RENDER_METHOD_SMS ? &p->sms : &p->ssp.sms;
         jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);
         jsonw_key(w, "max_depth"); jsonw_uint(w, p->pt.max_depth);
         jsonw_key(w, "rr_depth"); jsonw_uint(w, p->pt.rr_depth);
-        jsonw_key(w, "bernoulli_cap"); jsonw_uint(w, p->sms.bernoulli_cap);
-        jsonw_key(w, "max_iterations"); jsonw_uint(w, p->sms.max_iterations);
-        jsonw_key(w, "caustics_only"); jsonw_bool(w, p->sms.caustics_only);
+        jsonw_key(w, "bernoulli_cap"); jsonw_uint(w, sp->bernoulli_cap);
+        jsonw_key(w, "max_iterations"); jsonw_uint(w, sp->max_iterations);
+        jsonw_key(w, "caustics_only"); jsonw_bool(w, sp->caustics_only);
+        if (p->method == RENDER_METHOD_SMS_SSP) {
+            jsonw_key(w, "tiles"); jsonw_uint(w, p->ssp.tiles);
+            jsonw_key(w, "prior"); jsonw_bool(w, p->ssp.prior);
+            jsonw_key(w, "prior_samples"); jsonw_uint(w, p->ssp.prior_samples);
+            jsonw_key(w, "alpha"); jsonw_double(w, p->ssp.alpha);
+        }
     } else if (p->method == RENDER_METHOD_RESTIR_SSS) {
         const struct restir_sss_params *r = &p->restir_sss;
         jsonw_key(w, "shift"); jsonw_string(w, restir_sss_shift_name(r->shift));
@@ -388,6 +395,18 @@ static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
     if (f->stats->has_bdpt) {
         jsonw_key(w, "bdpt");
         api_write_bdpt(w, &f->stats->bdpt);
+    }
+    if (f->stats->has_prior) {
+        /* Seed 002 Table 1, prior construction, for this frame. */
+        const struct ssp_prior_counters *pc = &f->stats->prior;
+        jsonw_key(w, "prior");
+        jsonw_object_begin(w);
+        jsonw_key(w, "samples"); jsonw_uint(w, pc->samples);
+        jsonw_key(w, "solutions"); jsonw_uint(w, pc->solutions);
+        jsonw_key(w, "newton"); jsonw_uint(w, pc->newton);
+        jsonw_key(w, "dropped_pairs"); jsonw_uint(w, pc->dropped_pairs);
+        jsonw_key(w, "ms"); jsonw_double(w, pc->ms);
+        jsonw_object_end(w);
     }
     if (f->stats->has_sms) {
         /* Seed 002 Table 1, manifold sampling columns, for this frame. */

@@ -111,6 +111,7 @@ static bool cli_method_params(const char *params_json, struct view_params *vp, s
     vp->bdpt = parsed.bdpt;
     vp->sms = parsed.sms;
     vp->restir_sss = parsed.restir_sss;
+    vp->ssp = parsed.ssp;
     return true;
 }
 
@@ -275,7 +276,8 @@ static int cli_render(int argc, char **argv)
     if (!out_path) return cli_usage_error("%s", "render needs -o OUT.exr");
     enum render_method rm;
     if (!view_method_parse(method, &rm))
-        return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt, bdpt, sms, restir_sss)", method);
+        return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt, bdpt, sms, sms_ssp, restir_sss)",
+                               method);
     if (rm != RENDER_METHOD_PT && (has_crop || has_frame))
         return cli_usage_error("%s", "--crop and --frame are options of --method pt");
     p.width = width;
@@ -377,7 +379,14 @@ static int cli_render(int argc, char **argv)
                    bs->light_ms, bs->splat_ms, bs->camera_ms, bs->light_subpaths, bs->lvc_vertices, bs->lvc_dropped,
                    bs->light_traced, bs->connections, session_bytes);
         }
-        if (rm == RENDER_METHOD_SMS) {
+        if (last.has_prior) {
+            /* Seed 002 Table 1, prior construction, of the last frame. */
+            const struct ssp_prior_counters *pc = &last.prior;
+            printf(",\"prior\":{\"samples\":%" PRIu64 ",\"solutions\":%" PRIu64 ",\"newton\":%" PRIu64
+                   ",\"dropped_pairs\":%" PRIu64 ",\"ms\":%.3f}",
+                   pc->samples, pc->solutions, pc->newton, pc->dropped_pairs, pc->ms);
+        }
+        if (rm == RENDER_METHOD_SMS || rm == RENDER_METHOD_SMS_SSP) {
             /* Seed 002 Table 1 (manifold sampling) over all frames rendered. */
             const struct sms_counters *c = &st.sms;
             printf(",\"sms\":{\"samples\":%" PRIu64 ",\"solutions\":%" PRIu64 ",\"newton_sample\":%" PRIu64

@@ -106,6 +106,45 @@ def test_sms_unbiased_against_filtered_reference(tmp_path, scenes):
     assert not bad.passed, f"a bias of x1.03 went unseen: {bad}"
 
 
+@pytest.mark.statistical
+def test_sms_ssp_unbiased_against_filtered_reference(tmp_path, scenes):
+    """sms_ssp (tiles, 3x3 trust regions, Bernoulli trials in the conditional space with eqs. 8-9,
+    the per-frame prior) renders the same subset without bias. N = 8 tiles: at 32x32 a 16-pixel
+    prior block covers a quarter of the image, so the prior is coarse and solutions outside it
+    carry weights up to 1/P(C) = N^2 / (9 (1 - alpha)); N = 8 keeps the variance, and the test's
+    time, affordable. The control is x1.05 (its t is ~6 here; x1.03 sits at the threshold)."""
+    sc = scenes / SCENE / "scene.json"
+    ref = _cached_reference(tmp_path, sc)
+    runs, stats = [], None
+    for s in range(24):
+        img, stats = render(sc, tmp_path / f"ssp{s}.exr", seed=s,
+                            extra=["--method", "sms_ssp", *_params({"spp": 64, "caustics_only": True,
+                                                                    "bernoulli_cap": 0, "tiles": 8})])
+        runs.append(img)
+    runs = np.stack(runs)
+    assert np.isfinite(runs).all() and stats["nonfinite"] == 0 and stats["sms"]["capped"] == 0
+    assert stats["prior"]["solutions"] > 0
+    res = ztest_runs(runs, ref)
+    bad = ztest_runs(runs * 1.05, ref)
+    print(f"sms_ssp vs filtered reference: {res}; x1.05: {bad}; last run: {stats['sms']}, prior {stats['prior']}")
+    assert res.passed, f"sms_ssp vs pt subset caustic: {res}"
+    assert not bad.passed, f"a bias of x1.05 went unseen: {bad}"
+
+
+def test_sms_ssp_prior_and_fallback(tmp_path, scenes):
+    """The prior raises the rate of solutions found over partitioning alone (the fallback, which a
+    pair missing from the prior gets), and both stay unbiased estimates of the same mean (checked
+    loosely here; the z-test above is the real check)."""
+    sc = scenes / SCENE / "scene.json"
+    out = {}
+    for prior in (True, False):
+        img, st = render(sc, tmp_path / f"p{prior}.exr", size="64x64", seed=2,
+                         extra=["--method", "sms_ssp", *_params({"spp": 4, "caustics_only": True, "prior": prior})])
+        out[prior] = (img.mean(), st["sms"]["solutions"] / st["sms"]["samples"], st["prior"])
+    assert out[True][2]["samples"] > 0 and out[False][2]["samples"] == 0
+    assert out[True][1] > 3 * out[False][1], out
+
+
 def test_sms_session_in_the_daemon(tmp_path):
     """An sms session: its parameters with defaults, no buffers beyond pt's, and frames that report
     seed 002 Table 1's counters; a bad parameter is a 422 naming it."""
@@ -129,8 +168,33 @@ def test_sms_session_in_the_daemon(tmp_path):
                               ({"subset": "caustic"}, "/params/subset")]:
             r = d.req("POST", f"/v1/scenes/{SCENE}/sessions", json_body={"method": "sms", "params": params})
             assert r.status == 422 and r.json().get("field") == field, (params, repr(r))
+        # sms_ssp: its prior is its only buffer beyond pt's (8 pair entries of 144 bytes per 16x16 block).
+        r = d.req("POST", f"/v1/scenes/{SCENE}/sessions",
+                  json_body={"method": "sms_ssp", "width": 40, "height": 20, "params": {"tiles": 8, "alpha": 0.5}})
+        assert r.status == 201, repr(r)
+        s = r.json()
+        assert s["params"]["tiles"] == 8 and s["params"]["alpha"] == 0.5 and s["params"]["prior_samples"] == 128
+        assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "prior"}
+        assert s["buffers"]["prior"] == 3 * 2 * 8 * 144
+        f = d.req("POST", s["href"] + "/frames", headers={"Accept": "application/json"}).json()
+        assert f["prior"]["samples"] > 0 and f["sms"]["samples"] > 0
+        for params, field in [({"alpha": 1}, "/params/alpha"), ({"tiles": 33}, "/params/tiles"),
+                              ({"prior": 1}, "/params/prior")]:
+            r = d.req("POST", f"/v1/scenes/{SCENE}/sessions", json_body={"method": "sms_ssp", "params": params})
+            assert r.status == 422 and r.json().get("field") == field, (params, repr(r))
         r = d.req("POST", f"/v1/scenes/{SCENE}/sessions", json_body={"method": "pt", "params": {"subset": "some"}})
         assert r.status == 422 and r.json().get("field") == "/params/subset", repr(r)
     finally:
         rc, _ = d.stop()
         assert rc == 0, d.stderr()[-3000:]
+
+
+@pytest.mark.parametrize("method", ["sms", "sms_ssp"])
+def test_independent_of_thread_count(tmp_path, scenes, method):
+    """Every random decision (seeds, light points, Bernoulli trials, the prior's walks) comes from
+    per-pixel or per-block streams: 1 and 3 threads give the same image."""
+    sc = scenes / SCENE / "scene.json"
+    extra = ["--method", method, *_params({"spp": 2})]
+    a, _ = render(sc, tmp_path / "a.exr", size="40x32", seed=4, extra=[*extra, "--threads", "1"])
+    b, _ = render(sc, tmp_path / "b.exr", size="40x32", seed=4, extra=[*extra, "--threads", "3"])
+    assert a.mean() > 0 and np.array_equal(a, b)

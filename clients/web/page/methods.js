@@ -23,6 +23,18 @@ export const METHODS = {
       { name: 'max_depth', kind: 'number', value: 64, help: 'longest path, in bounces' },
     ],
   },
+  sms_ssp: {
+    label: 'sms_ssp: SMS with sample-space partitioning and a per-frame prior',
+    params: [
+      { name: 'spp', kind: 'number', value: 1, help: 'samples per pixel per frame' },
+      { name: 'tiles', kind: 'number', value: 16, help: 'N x N tiles of the seed space' },
+      { name: 'prior', kind: 'boolean', value: true, help: 'per-frame prior from 16x16 pixel blocks' },
+      { name: 'prior_samples', kind: 'number', value: 128, help: 'prior walks per block' },
+      { name: 'alpha', kind: 'number', value: 0.8, help: 'mixing weight of the prior' },
+      { name: 'bernoulli_cap', kind: 'number', value: 128, help: 'Bernoulli trials per solution (0: uncapped)' },
+      { name: 'caustics_only', kind: 'boolean', value: false, help: 'only the caustics SMS owns' },
+    ],
+  },
   restir_pt: {
     label: 'restir_pt: ReSTIR path tracing (reuse across pixels and frames)',
     params: [

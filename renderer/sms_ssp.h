@@ -1,0 +1,83 @@
+/* sms_ssp.h — specular manifold sampling with sample-space partitioning and per-frame priors
+ * (method `sms_ssp`, seed 002 §3-4). It owns the same caustic paths as `sms` (sms.h) and only
+ * changes how the estimate at a vertex x1 is made:
+ *
+ * Seed space (§3.1). u in [0,1)^2 is a direction from x1 inside a cone that holds the caster
+ * (spheres: the cone of the sphere; meshes: the narrowest cone about the direction to the world
+ * bounding box's centre that holds its 8 corners): cos θ = 1 − u1 (1 − cos θmax), φ = 2π u2 (the
+ * whole sphere when x1 is inside the box or the cone would be wider than a hemisphere). The map
+ * is continuous and invertible, so every walk iterate has a u: the direction from x1 to its
+ * first vertex.
+ *
+ * Trust regions (§3.3). U is cut into N × N tiles; the trust region R(u) is the 3 × 3 tiles
+ * around u's tile (periodic in both coordinates) and a walk that leaves it stops. A solution u*
+ * is then reached only from its conditional space C(u*) = R(u*), so
+ *     P'(x*) = P(C(u*)) · E_{u ~ p|C}[u reaches u* inside R(u)],
+ * and W = (Bernoulli trials drawn from p restricted to C(u*)) / P(C(u*)) has E[W] = 1/P'.
+ *
+ * Prior (§4). Before a frame, for every B × B pixel block (B = 16), `prior_samples` unrestricted
+ * walks from the primary hits of random pixels of the block, each towards a random caster and
+ * light point, mark the tiles of the solutions they find per (light shape, caster) pair. Seeds
+ * are then drawn from p(u) = α p_I(u) + (1 − α) p_U(u) (eq. 7), with the closed-form marginal
+ * P(C(u*)) = α #(I ∩ C)/#I + (1 − α) 9/N² (eq. 8) and trials drawn inside I ∩ C with probability
+ * α' = α #(I ∩ C)/#I / P(C) (eq. 9), else uniformly in C. A pair the prior has nothing for falls
+ * back to α = 0 (plain partitioning). The block is the pixel's, for every vertex of its path.
+ * Casters and light points are picked as in `sms` (the prior's pair importance sampling of §4.2
+ * is not used). Deterministic per seed, frame and pixel; the prior pass is serial. */
+#ifndef RESTIRD_SMS_SSP_H
+#define RESTIRD_SMS_SSP_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "camera.h"
+#include "sms.h"
+
+#define SSP_MAX_TILES 32          /* N <= 32: a tile set is 1024 bits */
+#define SSP_BLOCK 16              /* B: prior pixel blocks */
+#define SSP_PRIOR_ENTRIES 8       /* (light shape, caster) pairs kept per block */
+
+struct ssp_params {
+    struct sms_params sms;        /* bernoulli_cap, max_iterations, caustics_only */
+    uint32_t tiles;               /* N (default 16) */
+    bool prior;                   /* build and use the per-frame prior (default true) */
+    uint32_t prior_samples;       /* walks per block (default 128) */
+    float alpha;                  /* mixing weight of the prior (default 0.8) */
+};
+
+struct ssp_entry {
+    int32_t light_shape, caster;  /* -1: unused */
+    uint32_t count;               /* tiles in the set */
+    uint64_t bits[SSP_MAX_TILES * SSP_MAX_TILES / 64];
+};
+
+/* Prior construction counters (seed 002 Table 1, first columns). */
+struct ssp_prior_counters {
+    uint64_t samples, solutions, newton, dropped_pairs;
+    double ms;
+};
+
+/* The per-session prior: one entry table per pixel block. */
+struct ssp_prior {
+    uint32_t blocks_x, blocks_y;
+    struct ssp_entry *entries;    /* blocks_x * blocks_y * SSP_PRIOR_ENTRIES */
+};
+
+struct ssp_params ssp_defaults(void);
+bool ssp_params_valid(const struct ssp_params *p, struct err *err);
+size_t ssp_prior_bytes(uint32_t width, uint32_t height);
+bool ssp_prior_init(struct ssp_prior *pr, uint32_t width, uint32_t height, struct err *err);
+void ssp_prior_destroy(struct ssp_prior *pr);
+
+/* Builds this frame's prior (all entries are rewritten). */
+void ssp_prior_build(struct ssp_prior *pr, const struct scene *scene, const struct sms_scene *ss,
+                     const struct ssp_params *p, const struct camera *cam, uint64_t seed, uint32_t frame,
+                     struct ssp_prior_counters *c, struct ray_counters *rc);
+
+/* The estimate at x1 (as sms_estimate) for a path of pixel (px, py). */
+struct vec3 ssp_estimate(const struct scene *scene, const struct sms_scene *ss, const struct ssp_params *p,
+                         const struct ssp_prior *pr, uint32_t px, uint32_t py, const struct surface *s,
+                         const struct material *m, struct vec3 wo, uint32_t max_chain, struct rng *rng,
+                         struct sms_counters *c, struct ray_counters *rc);
+
+#endif

@@ -1,0 +1,129 @@
+/* test_sms.c — the pieces of specular manifold sampling that need no statistics: the sessions'
+ * planned bytes equal what they allocate (sms: nothing beyond pt; sms_ssp: its prior), the path
+ * tracer's chain tracking (which emission SMS owns), the seed maps' reach, and the parameter
+ * checks. */
+#include <math.h>
+#include <string.h>
+
+#include "../../renderer/scene.h"
+#include "../../renderer/sms.h"
+#include "../../renderer/sms_ssp.h"
+#include "../../renderer/view.h"
+#include "../test.h"
+
+static struct scene *slab(void)
+{
+    struct err err = {0};
+    struct scene *s = scene_load_file("scenes/refractive-slab/scene.json", &err);
+    CHECK_MSG(s && scene_commit(s, &err), "%s", err.message);
+    return s;
+}
+
+static void test_planned_bytes_match(void)
+{
+    struct scene *s = slab();
+    if (!s) return;
+    static const uint32_t sizes[][2] = {{1, 1}, {16, 16}, {17, 33}, {64, 48}};
+    for (int m = 0; m < 2; m++) {
+        enum render_method method = m ? RENDER_METHOD_SMS_SSP : RENDER_METHOD_SMS;
+        for (size_t i = 0; i < sizeof sizes / sizeof sizes[0]; i++) {
+            struct view_params p = view_params_defaults(method, sizes[i][0], sizes[i][1]);
+            struct view v;
+            struct err err = {0};
+            CHECK_MSG(view_init(&v, s, &p, 1, &err), "%s", err.message);
+            struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
+            size_t total = 0;
+            uint32_t n = view_bytes(&v, b, &total);
+            CHECK(total == view_bytes_planned(&p, s->shape_count));
+            bool has_prior = false;
+            for (uint32_t k = 0; k < n; k++) has_prior |= strcmp(b[k].name, "prior") == 0;
+            CHECK(has_prior == (method == RENDER_METHOD_SMS_SSP));
+            view_destroy(&v);
+        }
+    }
+    scene_release(s);
+}
+
+static void test_track_owns_exactly_the_chain(void)
+{
+    struct scene *s = slab();
+    if (!s) return;
+    uint32_t slab_i = (uint32_t)scene_find_shape(s, "slab"), floor_i = (uint32_t)scene_find_shape(s, "floor");
+    struct surface on_slab = {.shape = slab_i}, on_floor = {.shape = floor_i};
+    const unsigned T = BSDF_DELTA | BSDF_TRANSMISSION, R = BSDF_DELTA | BSDF_REFLECTION, D = BSDF_DIFFUSE | BSDF_REFLECTION;
+    /* x1 (diffuse) -> T -> T -> emitter: owned. */
+    struct sms_track t = sms_track_start();
+    sms_track_scatter(s, &t, &on_floor, D);
+    CHECK(!sms_track_owned(s, &t));
+    sms_track_scatter(s, &t, &on_slab, T);
+    CHECK(!sms_track_owned(s, &t));
+    sms_track_scatter(s, &t, &on_slab, T);
+    CHECK(sms_track_owned(s, &t));
+    /* A third crossing, a reflection, or no diffuse vertex first: not owned. */
+    struct sms_track u = t;
+    sms_track_scatter(s, &u, &on_slab, T);
+    CHECK(!sms_track_owned(s, &u));
+    u = sms_track_start();
+    sms_track_scatter(s, &u, &on_floor, D);
+    sms_track_scatter(s, &u, &on_slab, R);
+    sms_track_scatter(s, &u, &on_slab, T);
+    CHECK(!sms_track_owned(s, &u));
+    u = sms_track_start();
+    sms_track_scatter(s, &u, &on_slab, T);
+    sms_track_scatter(s, &u, &on_slab, T);
+    CHECK(!sms_track_owned(s, &u));
+    /* A new diffuse vertex restarts the chain. */
+    sms_track_scatter(s, &u, &on_floor, D);
+    sms_track_scatter(s, &u, &on_slab, T);
+    sms_track_scatter(s, &u, &on_slab, T);
+    CHECK(sms_track_owned(s, &u));
+    scene_release(s);
+}
+
+/* Every seed of the bounding-box map lies on the box's surface, and every face gets seeds. */
+static void test_seed_map_covers_the_box(void)
+{
+    struct scene *s = slab();
+    if (!s) return;
+    struct sms_scene ss;
+    struct err err = {0};
+    CHECK(sms_scene_init(s, &ss, &err) && ss.count == 1);
+    const struct sms_caster *c = &ss.casters[0];
+    int faces[6] = {0};
+    for (int i = 0; i < 64; i++)
+        for (int j = 0; j < 64; j++) {
+            struct vec3 p = sms_seed_point(c, (i + 0.5f) / 64.0f, (j + 0.5f) / 64.0f);
+            const float e = 1e-5f;
+            bool on = false;
+            for (int a = 0; a < 3; a++) {
+                float lo = vec3_comp(c->lo, a), hi = vec3_comp(c->hi, a), x = vec3_comp(p, a);
+                CHECK(x >= lo - e && x <= hi + e);
+                if (fabsf(x - lo) <= e) { faces[2 * a]++; on = true; }
+                if (fabsf(x - hi) <= e) { faces[2 * a + 1]++; on = true; }
+            }
+            CHECK(on);
+        }
+    for (int f = 0; f < 6; f++) CHECK_MSG(faces[f] > 0, "face %d", f);
+    scene_release(s);
+}
+
+static void test_params_checked(void)
+{
+    struct err err = {0};
+    struct ssp_params p = ssp_defaults();
+    CHECK(ssp_params_valid(&p, &err));
+    p.tiles = 2;
+    CHECK(!ssp_params_valid(&p, &err) && strcmp(err.where, "tiles") == 0);
+    p = ssp_defaults();
+    p.alpha = 1.0f;
+    CHECK(!ssp_params_valid(&p, &err) && strcmp(err.where, "alpha") == 0);
+    struct sms_params q = sms_defaults();
+    CHECK(q.bernoulli_cap == 128 && q.max_iterations == MANIFOLD_MAX_ITERATIONS);
+    q.max_iterations = 0;
+    CHECK(!sms_params_valid(&q, &err) && strcmp(err.where, "max_iterations") == 0);
+    /* 16 x 16 blocks of 8 pair entries. */
+    CHECK(ssp_prior_bytes(17, 16) == 2 * SSP_PRIOR_ENTRIES * sizeof(struct ssp_entry));
+}
+
+TEST_MAIN(TEST(test_planned_bytes_match), TEST(test_track_owns_exactly_the_chain), TEST(test_seed_map_covers_the_box),
+          TEST(test_params_checked))
