@@ -63,13 +63,15 @@ METHODS = {
     "bdpt": {"kind": "frames", "params": {}, "warmup": 0, "ladder": [1, 4, 16] if QUICK else [1, 2, 4, 8, 16, 32]},
     # Path tracing with specular manifold sampling, spp per frame (default Bernoulli cap).
     "sms": {"kind": "spp", "params": {}, "ladder": [1, 4] if QUICK else [1, 2, 4, 8, 16]},
+    "sms_ssp": {"kind": "spp", "params": {}, "ladder": [1, 4] if QUICK else [1, 2, 4, 8, 16]},
     "restir_sss": {"kind": "frames", "params": {}, "warmup": 8 if QUICK else 32,
                    "ladder": [1, 4] if QUICK else [1, 2, 4, 8, 16]},
 }
 ALL_SCENES = {"cornell-box": ["pt", "restir_pt", "bdpt"], "cornell-glossy": ["pt", "restir_pt", "bdpt"],
               "door-ajar": ["pt", "restir_pt", "bdpt"], "lamp-in-glass": ["pt", "restir_pt", "bdpt"],
-              "caustic-sphere": ["pt", "restir_pt", "bdpt", "sms"], "refractive-slab": ["pt", "restir_pt", "sms"],
-              "reflective-plane": ["pt", "restir_pt", "sms"], "translucent": ["pt", "restir_sss"]}
+              "caustic-sphere": ["pt", "restir_pt", "bdpt", "sms", "sms_ssp"],
+              "refractive-slab": ["pt", "restir_pt", "sms", "sms_ssp"],
+              "reflective-plane": ["pt", "restir_pt", "sms", "sms_ssp"], "translucent": ["pt", "restir_sss"]}
 SCENES = {s: ALL_SCENES[s] for s in os.environ.get("REPORT_SCENES", ",".join(ALL_SCENES)).split(",")}
 # Scenes whose light pt practically never finds are referenced by the method that finds it:
 # bdpt (mean of independent frames) through glass and for point-like caustics, sms (spp, no
