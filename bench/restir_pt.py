@@ -17,7 +17,11 @@ run, on cornell-box, cornell-glossy and door-ajar at 256x256 (BENCH_RESTIR_SCENE
      build/bench/, and prints Markdown tables (medians over the seeds).
 Environment: BENCH_RESTIR_SEEDS (3), BENCH_RESTIR_REF_SPP (2048), BENCH_RESTIR_WARMUP (32),
 BENCH_THREADS (all cores), BENCH_RESTIR_ABLATION (door-ajar; empty = skip).
-`bench/restir_pt.py --charts` redraws the charts from the last run's JSON."""
+`bench/restir_pt.py --charts` redraws the charts from the last run's JSON.
+`bench/restir_pt.py --frame-cost` measures only the frame cost ratio restir_pt / pt at 1 spp
+(no references, a few minutes): pt's 1-spp frame and the 33rd restir_pt frame, alternating,
+BENCH_RESTIR_COST_RUNS (7) runs each, medians; restir_pt with its defaults, with unpaired spatial
+reuse and with one NEE candidate."""
 import hashlib
 import json
 import math
@@ -137,6 +141,32 @@ def pt_mape_at(pt_rows, ms):
     return y1 * math.sqrt(x1 / ms)
 
 
+COST_VARIANTS = [("defaults", "{}"), ("unpaired spatial reuse", '{"paired_spatial": false}'),
+                 ("1 NEE candidate", '{"nee_candidates": 1}')]
+
+
+def frame_cost():
+    runs = int(os.environ.get("BENCH_RESTIR_COST_RUNS", "7"))
+    print(f"\n### Frame cost restir_pt / pt at 1 spp, {SIZE}, medians of {runs} alternating runs ({THREADS} threads, 0 = all)\n")
+    print("| scene | pt 1 spp ms | " + " | ".join(f"restir_pt {n} ms (ratio)" for n, _ in COST_VARIANTS) + " |")
+    print("|---|---|" + "---|" * len(COST_VARIANTS))
+    with tempfile.TemporaryDirectory() as td:
+        img = Path(td) / "f.exr"
+        for scene in SCENES:
+            path = ROOT / "scenes" / scene / "scene.json"
+            pt, rs = [], {n: [] for n, _ in COST_VARIANTS}
+            for seed in range(runs):
+                pt.append(run(["render", str(path), "--size", SIZE, "--spp", "1", "--seed", str(seed), "--json",
+                               "-o", str(img)])["time_ms"])
+                for name, params in COST_VARIANTS:
+                    st = run(["render", str(path), "--method", "restir_pt", "--size", SIZE, "--seed", str(seed),
+                              "--frames", str(WARMUP + 1), "--params", params, "--json", "-o", str(img)])
+                    rs[name].append(restir_frame_ms(st))
+            p = statistics.median(pt)
+            cells = [f"{statistics.median(v):.1f} ({statistics.median(v) / p:.2f}×)" for v in rs.values()]
+            print(f"| {scene} | {p:.1f} | " + " | ".join(cells) + " |", flush=True)
+
+
 def charts(results):
     for scene, r in results["scenes"].items():
         loglog(OUT / f"restir_pt_{scene}.svg", f"{scene}, {results['size']}: MAPE against frame time",
@@ -148,6 +178,9 @@ def main():
     if sys.argv[1:] == ["--charts"]:
         # Redraw the charts from the last run's numbers (build/bench/restir_pt.json).
         charts(json.loads((OUT / "restir_pt.json").read_text()))
+        return
+    if "--frame-cost" in sys.argv[1:]:
+        frame_cost()
         return
     OUT.mkdir(parents=True, exist_ok=True)
     results = {"size": SIZE, "seeds": SEEDS, "ref_spp": REF_SPP, "warmup": WARMUP, "threads": THREADS, "scenes": {}}
