@@ -12,10 +12,16 @@
  * not rough (its light-side scattering lobe was delta) is caustic and goes to the pixel's
  * separate caustic reservoir (§5.1); the image is the sum of both reservoirs' estimates.
  *
- * State of this module: initial resampling only. The temporal and spatial reuse of seed 000
- * (bidirectional hybrid shift, caustic random replay with eq. 27 confidence) is not
- * implemented here, so the module is not a session method; it is tested directly against
- * `bdpt` (tests/unit/test_restir_bdpt.c). */
+ * Caustic reservoirs are reused temporally (Appendix A): each previous caustic sample is
+ * replayed with its light subpath's random numbers in the current frame and lands in the pixel
+ * its x_1 projects to (a counting sort again), with the generalized balance heuristic of
+ * eqs. 51–52 over {previous reservoir, current initial sample}; a reservoir's confidence is 1
+ * plus that of the previous caustic reservoir its primary hit maps to (eq. 27), capped.
+ *
+ * State of this module: initial resampling and caustic temporal reuse. Temporal and spatial
+ * reuse of the non-caustic reservoir (the bidirectional hybrid shift) is not implemented, so the
+ * module is not a session method; it is tested directly against `bdpt`
+ * (tests/unit/test_restir_bdpt.c). */
 #ifndef RESTIRD_RESTIR_BDPT_H
 #define RESTIRD_RESTIR_BDPT_H
 
@@ -38,6 +44,8 @@ struct restir_bdpt_params {
     uint32_t light_paths;      /* N_L per frame; 0 = the pixel count (default) */
     uint32_t lt_capacity;      /* light-traced samples kept per light subpath on average, 1..64 (8) */
     enum bdpt_heuristic heuristic;  /* power (default) or balance */
+    bool caustic_temporal;     /* temporal reuse of the caustic reservoirs (true) */
+    uint32_t temporal_cap;     /* caustic confidence capped at this absolute value, 1..65535 (20) */
 };
 
 struct restir_bdpt_params restir_bdpt_defaults(void);
@@ -59,6 +67,17 @@ struct restir_bdpt_reservoir {
     struct restir_head head;
     struct vec3 F;
     uint32_t light_path;       /* t = 1: its light subpath; else UINT32_MAX */
+    uint32_t origin_frame;     /* t = 1: the frame whose random numbers trace that subpath */
+};
+
+/* A previous frame's caustic reservoir shifted into the current frame by random replay: the
+ * pixel it lands in, its contribution there and its resampling weight (seed 000 eq. 51). */
+struct restir_bdpt_shifted {
+    struct vec3 F;
+    float w;
+    uint32_t pixel;
+    uint32_t light_path, origin_frame;
+    uint16_t depth, valid;
 };
 
 /* head.bits: technique s in the low byte (0, 1, or 0xff for t = 1), path vertices above. */
@@ -73,7 +92,12 @@ struct restir_bdpt_state {
     uint32_t *block_count, *block_dropped;
     uint64_t *block_rays;                    /* 2 per block */
     struct restir_bdpt_reservoir *res;       /* width * height, non-caustic */
-    struct restir_bdpt_reservoir *caustic;   /* width * height, caustic */
+    struct restir_bdpt_reservoir *caustic;   /* width * height, caustic (this frame's) */
+    struct restir_bdpt_reservoir *caustic_prev; /* width * height, the previous frame's */
+    bool has_history;
+    struct restir_bdpt_shifted *shifted;        /* width * height, by source pixel */
+    struct restir_bdpt_shifted *shifted_sorted; /* width * height, by landing pixel */
+    uint32_t *shift_first;                      /* width * height + 1 */
 };
 
 struct restir_bdpt_stats {
@@ -84,6 +108,10 @@ struct restir_bdpt_stats {
     uint64_t lt_dropped;        /* samples that found their block's region full (a bias; see bdpt.h) */
     uint64_t camera_candidates; /* s = 0 and s = 1 candidates with a non-zero contribution */
     uint64_t rejected;          /* candidates refused for a non-finite weight */
+    uint64_t caustic_shifts;            /* previous caustic samples replayed into this frame */
+    uint64_t caustic_replay_failed;     /* ... whose replay ended, missed the eye or lost its vertex */
+    uint64_t caustic_not_caustic;       /* ... whose replayed x_2 turned rough */
+    uint64_t caustic_inverse_failed;    /* new caustic samples with no predecessor in the previous frame */
     uint64_t reservoir_bytes;
     uint64_t rays_intersect, rays_occluded;
 };
@@ -91,6 +119,8 @@ struct restir_bdpt_stats {
 struct restir_bdpt_frame {
     const struct scene *scene;
     const struct camera_desc *camera;
+    const struct scene *prev_scene;      /* the previous frame's (NULL = no previous frame) */
+    const struct camera_desc *prev_camera;
     uint64_t seed;
     uint32_t frame;
     unsigned threads;          /* 0 = all cores */
@@ -100,11 +130,20 @@ uint64_t restir_bdpt_bytes_planned(const struct restir_bdpt_params *p, uint32_t 
 bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, const struct restir_bdpt_params *p,
                       uint32_t width, uint32_t height, struct err *err);
 void restir_bdpt_destroy(struct restir_bdpt_state *st);
+/* Forgets the history. */
+void restir_bdpt_reset(struct restir_bdpt_state *st);
 size_t restir_bdpt_bytes(const struct restir_bdpt_state *st);
 
 bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
                         const struct restir_bdpt_frame *f, struct image *out, struct restir_bdpt_stats *stats,
                         struct err *err);
+
+/* For tests: the random-replay shift of a caustic sample (light subpath `light_path` traced with
+ * the random numbers of frame `origin_frame`, its vertex `depth`) into the view of f->scene and
+ * f->camera: the pixel it lands in and its contribution there; false when the shift fails. */
+bool restir_bdpt_caustic_replay(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
+                                const struct restir_bdpt_frame *f, uint32_t origin_frame, uint32_t light_path,
+                                uint32_t depth, uint32_t *pixel, struct vec3 *F);
 
 /* The lightweight MIS state a subpath carries (SmallVCM's dVCM / dVC restricted to the
  * techniques s = 0, s = 1, t = 1; see restir_bdpt.c). Exposed for the unit test. */
