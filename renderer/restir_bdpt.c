@@ -569,7 +569,7 @@ static void rbdpt_camera_candidates(struct rbdpt_ctx *c, struct vec3 dir, struct
 static uint16_t rbdpt_caustic_confidence(const struct rbdpt_ctx *c, struct vec3 primary, bool has_primary)
 {
     uint32_t M = 1;
-    if (c->has_prev && c->st->has_history && has_primary) {
+    if (c->p->caustic_temporal && c->has_prev && c->st->has_history && has_primary) {
         float px, py;
         const struct camera *pc = &c->view[1].cam;
         if (camera_project(pc, primary, &px, &py) && px >= 0.0f && py >= 0.0f && px < (float)pc->width &&

@@ -108,10 +108,12 @@ struct restir_bdpt_stats {
     uint64_t lt_dropped;        /* samples that found their block's region full (a bias; see bdpt.h) */
     uint64_t camera_candidates; /* s = 0 and s = 1 candidates with a non-zero contribution */
     uint64_t rejected;          /* candidates refused for a non-finite weight */
-    uint64_t caustic_shifts;            /* previous caustic samples replayed into this frame */
-    uint64_t caustic_replay_failed;     /* ... whose replay ended, missed the eye or lost its vertex */
-    uint64_t caustic_not_caustic;       /* ... whose replayed x_2 turned rough */
-    uint64_t caustic_inverse_failed;    /* new caustic samples with no predecessor in the previous frame */
+    uint64_t caustic_shifts;            /* random-replay shifts: previous caustic samples into this
+                                           frame, and this frame's selected ones back (eq. 52) */
+    uint64_t caustic_replay_failed;     /* forward shifts whose replay ended, missed the eye or lost
+                                           its vertex */
+    uint64_t caustic_not_caustic;       /* forward shifts whose replayed x_2 turned rough */
+    uint64_t caustic_inverse_failed;    /* backward shifts that failed (no predecessor) */
     uint64_t reservoir_bytes;
     uint64_t rays_intersect, rays_occluded;
 };
