@@ -374,7 +374,7 @@ static bool ztest(const struct series *a, const struct series *b, uint32_t npix,
     bool ok = frac >= 0.9975 && fabs(gz) <= 3.0;
     printf("    %s: %.2f %% of pixels pass, image mean %.5g +- %.2g vs %.5g +- %.2g (z = %.2f): %s\n", label,
            100.0 * frac, ga, sqrt((ga2 / a->n - ga * ga) / (a->n - 1)), gb, sqrt((gb2 / b->n - gb * gb) / (b->n - 1)),
-           gz, ok ? "pass" : "FAIL");
+           gz, ok ? "accepted" : "rejected");
     return ok;
 }
 
