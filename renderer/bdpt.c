@@ -184,14 +184,14 @@ struct bdpt_ctx {
 
 /* Solid-angle pdf of an emitted direction at cosine `cos` with the emitting side's normal:
  * cosine-weighted, and a two-sided emitter first picks its side with probability 1/2. */
-static float bdpt_emit_dir_pdf_w(const struct material *m, float cos)
+float bdpt_emit_dir_pdf_w(const struct material *m, float cos)
 {
     float pdf = fabsf(cos) * INV_PI_F;
     return m->two_sided_emission ? 0.5f * pdf : pdf;
 }
 
 /* Offset origin on the side of ng that `dir` leaves through. */
-static struct vec3 bdpt_origin(const struct surface *s, struct vec3 dir)
+struct vec3 bdpt_origin(const struct surface *s, struct vec3 dir)
 {
     return surface_offset_along(s->p, vec3_dot(dir, s->ng) < 0.0f ? vec3_neg(s->ng) : s->ng);
 }
@@ -202,7 +202,7 @@ static struct vec3 bdpt_origin(const struct surface *s, struct vec3 dir)
  * lets the ray reach the far surface itself whenever the origin offset (256 ulps, 0.016 at
  * coordinates near 500) exceeds a relative margin of the distance — short shadow rays from
  * large coordinates would then always be occluded by their own target. */
-static bool bdpt_visible(const struct accel *accel, struct vec3 a, struct vec3 na, struct vec3 b, const struct vec3 *nb,
+bool bdpt_visible(const struct accel *accel, struct vec3 a, struct vec3 na, struct vec3 b, const struct vec3 *nb,
                          struct ray_counters *rc)
 {
     struct vec3 d = vec3_sub(b, a);

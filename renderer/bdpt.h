@@ -105,4 +105,17 @@ size_t bdpt_block_bytes(const struct bdpt_state *st);
 bool bdpt_render(struct bdpt_state *st, const struct bdpt_params *p, const struct bdpt_frame *f, struct image *out,
                  struct bdpt_stats *stats, struct err *err);
 
+/* Geometry helpers shared with restir_bdpt.c (the same conventions on both). */
+struct accel;
+struct material;
+struct ray_counters;
+struct surface;
+/* Solid-angle pdf of an emitted direction at cosine `cos` with the emitting side's normal. */
+float bdpt_emit_dir_pdf_w(const struct material *m, float cos);
+/* Ray origin on the side of the geometric normal that `dir` leaves through. */
+struct vec3 bdpt_origin(const struct surface *s, struct vec3 dir);
+/* Whether nothing blocks the segment from a (normal na) to b (normal nb, NULL for the eye). */
+bool bdpt_visible(const struct accel *accel, struct vec3 a, struct vec3 na, struct vec3 b, const struct vec3 *nb,
+                  struct ray_counters *rc);
+
 #endif

@@ -1,0 +1,837 @@
+/* restir_bdpt.c — ReSTIR BDPT, lightweight variant: initial resampling (see restir_bdpt.h).
+ *
+ * Conventions as bdpt.c (radiance-side BSDF values on both subpaths, Veach's adjoint
+ * shading-normal correction on the light side, pinhole camera sampled with density 1 per pixel).
+ *
+ * Lightweight MIS. A path x_0 .. x_k (x_0 the camera, x_k on an emitter) is produced here by at
+ * most three techniques: s = 0 (the camera subpath hits x_k), s = 1 (NEE from x_{k-1}) and
+ * t = 1 (a light subpath reaches x_1 and connects to the eye), with the power or balance
+ * heuristic over exactly these three. The quantities are SmallVCM's dVCM / dVC (bdpt_mis.h)
+ * with every term of a vertex-connection technique left out: on either subpath, dVCM before
+ * the first scattering names the far end's nearest technique that we keep (t = 1 on the
+ * camera side; s = 1 on the light side, whose dVC at the start is s = 0), and after it dVCM
+ * names a connection technique (dropped from dVC's accumulation and from every weight), while
+ * dVC carries only the kept far-end techniques. The emitter-hit weight's dVCM term is s = 1
+ * itself and stays.
+ *
+ * Resampling. In primary sample space every candidate X_i has source pdf 1 and target
+ * p̂(X_i) = lum(C_i), C_i = w_i f / p the MIS-weighted contribution: its resampling weight is
+ * lum(C_i), W = sum / p̂(Y) and the pixel estimate C_Y W. Candidates from distinct techniques
+ * (and path lengths) live in disjoint parts of the extended path space, each with one candidate
+ * per pixel from the camera side; the t = 1 part gets N_L candidates per pixel — one per light
+ * subpath, most of them null for this pixel — each with the MIS weight 1/N_L (seed 000 eq. 26),
+ * which C already carries. So the merge is unbiased whatever lands where. */
+#include "restir_bdpt.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "accel.h"
+#include "light_sampler.h"
+#include "material.h"
+#include "parallel.h"
+#include "rng.h"
+#include "sampling.h"
+#include "surface.h"
+
+#define RBDPT_BLOCK_PATHS 256u
+#define RBDPT_TILE 16u
+#define RBDPT_MAX_WORKERS 1024u
+/* Stream tags: light subpaths, camera subpaths (pixel index below 2^28), reservoir choices. */
+#define RBDPT_LIGHT_STREAM 0x52424c0000000000ull
+#define RBDPT_CAMERA_STREAM 0x5242430000000000ull
+#define RBDPT_PICK_STREAM 0x5242500000000000ull
+
+_Static_assert(sizeof(struct restir_bdpt_reservoir) == 28, "restir_bdpt_reservoir changed size");
+_Static_assert(sizeof(struct restir_bdpt_shifted) == 32, "restir_bdpt_shifted changed size");
+
+/* ---- lightweight MIS ---------------------------------------------------------------------- */
+
+static inline float rbdpt_mis_f(float x, bool power) { return power ? x * x : x; }
+
+struct restir_bdpt_mis restir_bdpt_mis_camera_start(float light_paths, float camera_pdf_w, bool power)
+{
+    return (struct restir_bdpt_mis){rbdpt_mis_f(light_paths / camera_pdf_w, power), 0.0f, true};
+}
+
+struct restir_bdpt_mis restir_bdpt_mis_light_start(float direct_pdf_a, float emission_pdf_w, float cos_light,
+                                                   bool power)
+{
+    return (struct restir_bdpt_mis){rbdpt_mis_f(direct_pdf_a / emission_pdf_w, power),
+                                    rbdpt_mis_f(cos_light / emission_pdf_w, power), true};
+}
+
+void restir_bdpt_mis_hit(struct restir_bdpt_mis *m, float dist2, float cos_hit, bool power)
+{
+    float c = rbdpt_mis_f(fabsf(cos_hit), power);
+    m->dvcm *= rbdpt_mis_f(dist2, power) / c;
+    m->dvc /= c;
+}
+
+void restir_bdpt_mis_scatter(struct restir_bdpt_mis *m, float cos_out, float pdf_fwd_w, float pdf_rev_w, bool delta,
+                             bool power)
+{
+    float c = fabsf(cos_out);
+    if (delta) {
+        m->dvcm = 0.0f;
+        m->dvc *= rbdpt_mis_f(c * pdf_rev_w / pdf_fwd_w, power);
+    } else {
+        m->dvc = rbdpt_mis_f(c / pdf_fwd_w, power) * (m->dvc * rbdpt_mis_f(pdf_rev_w, power) + (m->near ? m->dvcm : 0.0f));
+        m->dvcm = rbdpt_mis_f(1.0f / pdf_fwd_w, power);
+    }
+    m->near = false;
+}
+
+float restir_bdpt_mis_emission(const struct restir_bdpt_mis *cam, float direct_pdf_a, float emission_pdf_w, bool power)
+{
+    return 1.0f / (1.0f + rbdpt_mis_f(direct_pdf_a, power) * cam->dvcm + rbdpt_mis_f(emission_pdf_w, power) * cam->dvc);
+}
+
+float restir_bdpt_mis_nee(const struct restir_bdpt_mis *cam, float bsdf_fwd_w, float bsdf_rev_w, float direct_pdf_w,
+                          float emission_pdf_w, float cos_camera, float cos_light, bool power)
+{
+    float w_light = rbdpt_mis_f(bsdf_fwd_w / direct_pdf_w, power);
+    float w_camera = rbdpt_mis_f(emission_pdf_w * fabsf(cos_camera) / (direct_pdf_w * fabsf(cos_light)), power) *
+                     ((cam->near ? cam->dvcm : 0.0f) + cam->dvc * rbdpt_mis_f(bsdf_rev_w, power));
+    return 1.0f / (w_light + 1.0f + w_camera);
+}
+
+float restir_bdpt_mis_camera(const struct restir_bdpt_mis *light, float camera_pdf_a, float light_paths,
+                             float light_rev_w, bool power)
+{
+    float w_light = rbdpt_mis_f(camera_pdf_a / light_paths, power) *
+                    ((light->near ? light->dvcm : 0.0f) + light->dvc * rbdpt_mis_f(light_rev_w, power));
+    return 1.0f / (w_light + 1.0f);
+}
+
+/* ---- parameters and sizes ----------------------------------------------------------------- */
+
+struct restir_bdpt_params restir_bdpt_defaults(void)
+{
+    return (struct restir_bdpt_params){.variant = RESTIR_BDPT_LIGHTWEIGHT, .max_depth = 64, .rr_depth = 3,
+                                       .light_paths = 0, .lt_capacity = 8, .heuristic = BDPT_HEURISTIC_POWER,
+                                       .caustic_temporal = true, .temporal_cap = 20};
+}
+
+bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *err)
+{
+    if (p->variant == RESTIR_BDPT_FULL)
+        return err_set(err, ERR_INVALID, "/params/variant", "variant \"full\" is not implemented; use \"lightweight\"");
+    if (p->variant != RESTIR_BDPT_LIGHTWEIGHT)
+        return err_set(err, ERR_INVALID, "/params/variant", "variant must be \"lightweight\" or \"full\"");
+    if (p->max_depth < 1 || p->max_depth > 1024)
+        return err_set(err, ERR_INVALID, "/params/max_depth", "max_depth must be in 1..1024");
+    if (p->rr_depth > 1024) return err_set(err, ERR_INVALID, "/params/rr_depth", "rr_depth must be in 0..1024");
+    if (p->light_paths > (1u << 26))
+        return err_set(err, ERR_INVALID, "/params/light_paths", "light_paths must be in 0..%u (0 = the pixel count)",
+                       1u << 26);
+    if (p->lt_capacity < 1 || p->lt_capacity > 64)
+        return err_set(err, ERR_INVALID, "/params/lt_capacity", "lt_capacity must be in 1..64");
+    if (p->heuristic != BDPT_HEURISTIC_POWER && p->heuristic != BDPT_HEURISTIC_BALANCE)
+        return err_set(err, ERR_INVALID, "/params/heuristic", "heuristic must be \"power\" or \"balance\"");
+    if (p->temporal_cap < 1 || p->temporal_cap > 65535)
+        return err_set(err, ERR_INVALID, "/params/temporal_cap", "temporal_cap must be in 1..65535");
+    return true;
+}
+
+struct rbdpt_sizes {
+    uint32_t light_paths, blocks, region;
+    uint64_t lt, pixels, blocks_b, res;
+};
+
+static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
+{
+    struct rbdpt_sizes z;
+    uint64_t n = (uint64_t)width * height;
+    z.light_paths = p->light_paths ? p->light_paths : (uint32_t)n;
+    z.blocks = (z.light_paths + RBDPT_BLOCK_PATHS - 1) / RBDPT_BLOCK_PATHS;
+    z.region = RBDPT_BLOCK_PATHS * p->lt_capacity;
+    z.lt = 2 * (uint64_t)z.blocks * z.region * sizeof(struct restir_bdpt_lt_sample);
+    z.pixels = (n + 1) * sizeof(uint32_t);
+    z.blocks_b = (uint64_t)z.blocks * (2 * sizeof(uint32_t) + 2 * sizeof(uint64_t));
+    z.res = 3 * n * sizeof(struct restir_bdpt_reservoir) + 2 * n * sizeof(struct restir_bdpt_shifted) +
+            (n + 1) * sizeof(uint32_t);
+    return z;
+}
+
+uint64_t restir_bdpt_bytes_planned(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
+{
+    struct rbdpt_sizes z = rbdpt_sizes_of(p, width, height);
+    return z.lt + z.pixels + z.blocks_b + z.res;
+}
+
+size_t restir_bdpt_bytes(const struct restir_bdpt_state *st)
+{
+    size_t n = (size_t)st->width * st->height;
+    return 2 * (size_t)st->blocks * st->region * sizeof *st->lt + (n + 1) * sizeof *st->pixel_first +
+           (size_t)st->blocks * (sizeof *st->block_count + sizeof *st->block_dropped + 2 * sizeof *st->block_rays) +
+           3 * n * sizeof *st->res + 2 * n * sizeof *st->shifted + (n + 1) * sizeof *st->shift_first;
+}
+
+bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, const struct restir_bdpt_params *p,
+                      uint32_t width, uint32_t height, struct err *err)
+{
+    memset(st, 0, sizeof *st);
+    if (!restir_bdpt_params_valid(p, err)) return false;
+    if (!vec3_is_zero(scene->env_radiance))
+        return err_set(err, ERR_INVALID, "/method", "restir_bdpt does not support environment light");
+    struct rbdpt_sizes z = rbdpt_sizes_of(p, width, height);
+    if (z.light_paths == 0) return err_set(err, ERR_INVALID, "/params/light_paths", "no light subpaths");
+    size_t n = (size_t)width * height;
+    st->width = width;
+    st->height = height;
+    st->light_paths = z.light_paths;
+    st->blocks = z.blocks;
+    st->region = z.region;
+    size_t lt_n = (size_t)z.blocks * z.region;
+    st->lt = malloc(lt_n * sizeof *st->lt);
+    st->lt_sorted = malloc(lt_n * sizeof *st->lt_sorted);
+    st->pixel_first = calloc(n + 1, sizeof *st->pixel_first);
+    st->block_count = calloc(z.blocks, sizeof *st->block_count);
+    st->block_dropped = calloc(z.blocks, sizeof *st->block_dropped);
+    st->block_rays = calloc(2 * (size_t)z.blocks, sizeof *st->block_rays);
+    st->res = calloc(n, sizeof *st->res);
+    st->caustic = calloc(n, sizeof *st->caustic);
+    st->caustic_prev = calloc(n, sizeof *st->caustic_prev);
+    st->shifted = calloc(n, sizeof *st->shifted);
+    st->shifted_sorted = calloc(n, sizeof *st->shifted_sorted);
+    st->shift_first = calloc(n + 1, sizeof *st->shift_first);
+    if (!st->lt || !st->lt_sorted || !st->pixel_first || !st->block_count || !st->block_dropped || !st->block_rays ||
+        !st->res || !st->caustic || !st->caustic_prev || !st->shifted || !st->shifted_sorted || !st->shift_first) {
+        restir_bdpt_destroy(st);
+        return err_set(err, ERR_NOMEM, NULL, "out of memory for restir_bdpt (%llu bytes)",
+                       (unsigned long long)restir_bdpt_bytes_planned(p, width, height));
+    }
+    return true;
+}
+
+void restir_bdpt_destroy(struct restir_bdpt_state *st)
+{
+    free(st->lt);
+    free(st->lt_sorted);
+    free(st->pixel_first);
+    free(st->block_count);
+    free(st->block_dropped);
+    free(st->block_rays);
+    free(st->res);
+    free(st->caustic);
+    free(st->caustic_prev);
+    free(st->shifted);
+    free(st->shifted_sorted);
+    free(st->shift_first);
+    memset(st, 0, sizeof *st);
+}
+
+void restir_bdpt_reset(struct restir_bdpt_state *st)
+{
+    st->has_history = false;
+}
+
+/* ---- per-frame context -------------------------------------------------------------------- */
+
+struct rbdpt_worker {
+    uint64_t rays_intersect, rays_occluded, candidates, rejected;
+    uint64_t shifts, replay_failed, not_caustic, inverse_failed;
+};
+
+/* What a frame sees: its scene and camera (the current frame's, or the previous one's for the
+ * caustic shift's inverse). */
+struct rbdpt_view {
+    const struct scene *scene;
+    struct camera cam;
+    float plane_dist2;     /* squared image-plane distance in pixel units */
+};
+
+struct rbdpt_ctx {
+    const struct restir_bdpt_params *p;
+    struct restir_bdpt_state *st;
+    struct rbdpt_view view[2];   /* [0] current, [1] previous (valid when has_prev) */
+    bool has_prev;
+    float n_light;
+    uint64_t seed;
+    uint32_t frame;
+    bool power;
+    struct image *out;
+    uint32_t tiles_x;
+    struct rbdpt_worker worker[RBDPT_MAX_WORKERS];
+};
+
+/* Streaming RIS over candidates in primary sample space (weight = p̂ = lum(C)). */
+struct rbdpt_ris {
+    double wsum;
+    float target;
+    struct vec3 F;
+    uint16_t bits;
+    uint32_t light_path, origin_frame;
+};
+
+/* Adds a candidate of contribution C (p̂ = lum(C)) with resampling weight w. */
+static void rbdpt_ris_add_w(struct rbdpt_ris *r, struct vec3 C, double w, uint16_t bits, uint32_t light_path,
+                            uint32_t origin_frame, struct rng *pick, struct rbdpt_worker *wk)
+{
+    if (!(w > 0.0)) return;
+    if (!isfinite(w) || !vec3_is_finite(C)) {
+        wk->rejected++;
+        return;
+    }
+    r->wsum += w;
+    if ((double)rng_next_float(pick) * r->wsum < w) {
+        r->target = vec3_luminance(C);
+        r->F = C;
+        r->bits = bits;
+        r->light_path = light_path;
+        r->origin_frame = origin_frame;
+    }
+}
+
+/* An initial candidate: source pdf 1 in primary sample space, weight p̂ = lum(C). */
+static void rbdpt_ris_add(struct rbdpt_ris *r, struct vec3 C, uint16_t bits, uint32_t light_path,
+                          uint32_t origin_frame, struct rng *pick, struct rbdpt_worker *wk)
+{
+    rbdpt_ris_add_w(r, C, vec3_luminance(C), bits, light_path, origin_frame, pick, wk);
+}
+
+static void rbdpt_ris_finish(const struct rbdpt_ris *r, uint16_t M, struct restir_bdpt_reservoir *out)
+{
+    out->head.M = M;
+    out->head.bits = r->bits;
+    out->head.W = r->target > 0.0f ? (float)(r->wsum / r->target) : 0.0f;
+    out->F = r->target > 0.0f ? r->F : vec3_splat(0.0f);
+    out->light_path = r->light_path;
+    out->origin_frame = r->origin_frame;
+}
+
+/* t = 1: the light vertex at `s` seen by the eye of view `v`; lightweight MIS. */
+static bool rbdpt_connect_camera(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct surface *s,
+                                 const struct material *m, struct vec3 wo_world, struct vec3 beta,
+                                 const struct restir_bdpt_mis *mis, struct ray_counters *rc, uint32_t *pixel,
+                                 struct vec3 *value)
+{
+    const struct camera *cam = &v->cam;
+    struct vec3 d = vec3_sub(cam->position, s->p);
+    float dist2 = vec3_length2(d);
+    if (!(dist2 > 0.0f)) return false;
+    struct vec3 wc = vec3_scale(d, 1.0f / sqrtf(dist2));
+    float cos0 = -vec3_dot(wc, cam->forward);
+    if (!(cos0 > 0.0f)) return false;
+    float px, py;
+    if (!camera_project(cam, s->p, &px, &py)) return false;
+    if (!(px >= 0.0f && py >= 0.0f && px < (float)cam->width && py < (float)cam->height)) return false;
+    uint32_t ix = (uint32_t)px, iy = (uint32_t)py;
+    if (ix >= cam->width || iy >= cam->height) return false;
+    struct vec3 wc_local = frame_to_local(&s->frame, wc), wo_local = frame_to_local(&s->frame, wo_world);
+    float cos_c_ng = vec3_dot(wc, s->ng), cos_o_ng = vec3_dot(wo_world, s->ng);
+    if (!(cos_c_ng * wc_local.z > 0.0f) || cos_o_ng == 0.0f) return false;
+    struct vec3 f = material_eval(m, wc_local, wo_local, TRANSPORT_RADIANCE);
+    if (vec3_is_zero(f)) return false;
+    if (!bdpt_visible(v->scene->accel, s->p, s->ng, cam->position, NULL, rc)) return false;
+    float camera_pdf_w = v->plane_dist2 / (cos0 * cos0 * cos0);
+    float camera_pdf_a = camera_pdf_w * fabsf(cos_c_ng) / dist2;
+    float w = restir_bdpt_mis_camera(mis, camera_pdf_a, c->n_light, material_pdf(m, wc_local, wo_local), c->power);
+    float corr = fabsf(wo_local.z) * fabsf(cos_c_ng) / fabsf(cos_o_ng);
+    *value = vec3_scale(vec3_mul(beta, f), w * corr * camera_pdf_w / (dist2 * c->n_light));
+    *pixel = iy * cam->width + ix;
+    return true;
+}
+
+/* ---- light subpaths ------------------------------------------------------------------------ */
+
+/* Traces light subpath i with the random numbers of frame `origin_frame` in view `v` and writes
+ * its t = 1 samples to out[0 .. cap) (*stored, the excess counted in *dropped). With
+ * only_depth > 0 it is the random-replay shift of seed 000 Appendix A: the subpath is replayed
+ * up to that vertex and only the sample there is written (nothing when the replayed path ends
+ * earlier, the vertex is not connectable or the eye does not see it). */
+static void rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view *v, uint32_t origin_frame,
+                              uint32_t i, uint32_t only_depth, struct restir_bdpt_lt_sample *out, uint32_t cap,
+                              uint32_t *stored, uint32_t *dropped, struct ray_counters *rc)
+{
+    const struct scene *scene = v->scene;
+    const struct restir_bdpt_params *p = c->p;
+    struct rng rng = rng_make(c->seed, origin_frame, RBDPT_LIGHT_STREAM + i, 1);
+    float ul = rng_next_float(&rng), u1 = rng_next_float(&rng), u2 = rng_next_float(&rng);
+    float us = rng_next_float(&rng), ud1 = rng_next_float(&rng), ud2 = rng_next_float(&rng);
+    struct light_sample ls;
+    if (!light_sampler_sample(scene->lights, ul, u1, u2, &ls) || ls.is_env) return;
+    const struct material *lm = &scene->materials[scene->shapes[ls.shape].material];
+    struct vec3 n = ls.n;
+    if (lm->two_sided_emission && us < 0.5f) n = vec3_neg(n);
+    struct vec3 local = sampling_cosine_hemisphere(ud1, ud2);
+    if (!(local.z > 0.0f)) return;
+    struct frame lf = frame_from_normal(n);
+    struct vec3 dir = vec3_normalize(frame_to_world(&lf, local));
+    float cos_l = vec3_dot(dir, n);
+    if (!(cos_l > 0.0f)) return;
+    struct vec3 Le = light_sampler_emitted(lm, vec3_dot(dir, ls.n));
+    if (vec3_is_zero(Le)) return;
+    float emission_pdf_w = ls.pdf_a * bdpt_emit_dir_pdf_w(lm, cos_l);
+    if (!(emission_pdf_w > 0.0f)) return;
+    struct vec3 beta = vec3_scale(Le, cos_l / emission_pdf_w);
+    struct vec3 rr_beta = vec3_splat(1.0f);
+    struct restir_bdpt_mis mis = restir_bdpt_mis_light_start(ls.pdf_a, emission_pdf_w, cos_l, c->power);
+    struct vec3 org = surface_offset_along(ls.p, n), prev_p = ls.p;
+    bool prev_rough = true;   /* the emitter itself is rough: x_2 of a depth-1 sample */
+    uint32_t last = only_depth ? only_depth : p->max_depth;
+    if (last > p->max_depth) return;
+
+    for (uint32_t depth = 1; depth <= last; depth++) {
+        struct hit hit;
+        if (!accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, &hit, rc)) return;
+        struct surface s;
+        surface_from_hit(scene, &hit, org, dir, &s);
+        restir_bdpt_mis_hit(&mis, vec3_length2(vec3_sub(s.p, prev_p)), vec3_dot(dir, s.ng), c->power);
+        const struct material *m = &scene->materials[s.material];
+        struct vec3 wo_world = vec3_neg(dir);
+        if ((!only_depth || depth == only_depth) && (material_flags(m) & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
+            uint32_t px;
+            struct vec3 val;
+            if (rbdpt_connect_camera(c, v, &s, m, wo_world, beta, &mis, rc, &px, &val) && vec3_is_finite(val) &&
+                !vec3_is_zero(val)) {
+                if (*stored < cap) {
+                    out[(*stored)++] = (struct restir_bdpt_lt_sample){
+                        .F = val, .pixel = px, .light_path = i, .depth = (uint16_t)depth,
+                        .caustic = (uint16_t)(prev_rough ? 0 : 1)};
+                } else {
+                    (*dropped)++;
+                }
+            }
+        }
+        if (depth >= last) return;
+        struct vec3 wo = frame_to_local(&s.frame, wo_world);
+        float ulobe = rng_next_float(&rng), v1 = rng_next_float(&rng), v2 = rng_next_float(&rng);
+        struct bsdf_sample bs;
+        if (!material_sample(m, wo, ulobe, v1, v2, TRANSPORT_IMPORTANCE, &bs)) return;
+        struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
+        float cos_i_ng = vec3_dot(wi_world, s.ng), cos_o_ng = vec3_dot(wo_world, s.ng);
+        if (cos_i_ng * bs.wi.z <= 0.0f || cos_o_ng == 0.0f) return;
+        struct vec3 weight = vec3_scale(bs.f, fabsf(wo.z) * fabsf(cos_i_ng) / (fabsf(cos_o_ng) * bs.pdf_w));
+        beta = vec3_mul(beta, weight);
+        rr_beta = vec3_mul(rr_beta, weight);
+        bool delta = (bs.flags & BSDF_DELTA) != 0;
+        restir_bdpt_mis_scatter(&mis, cos_i_ng, bs.pdf_w, bs.pdf_rev_w, delta, c->power);
+        /* Roughness of x_2 for the next vertex's sample: the lobe this vertex scattered by. */
+        prev_rough = !delta;
+        float u_rr = rng_next_float(&rng);
+        if (depth >= p->rr_depth) {
+            /* Russian roulette is part of the primary-sample-space integrand, so a replay that
+             * the roulette ends fails the shift (C = 0 there). */
+            float mx = vec3_max_comp(rr_beta);
+            float q = mx < 0.95f ? mx : 0.95f;
+            if (!(q > 0.0f) || u_rr >= q) return;
+            beta = vec3_scale(beta, 1.0f / q);
+            rr_beta = vec3_scale(rr_beta, 1.0f / q);
+        }
+        org = bdpt_origin(&s, wi_world);
+        prev_p = s.p;
+        dir = wi_world;
+    }
+}
+
+/* The light pass: one job per block of light subpaths, each block into its own region. */
+static void rbdpt_light_block(void *ctx, uint32_t block, unsigned worker)
+{
+    (void)worker;
+    struct rbdpt_ctx *c = ctx;
+    struct restir_bdpt_state *st = c->st;
+    struct ray_counters rc = {0, 0};
+    struct restir_bdpt_lt_sample *region = &st->lt[(size_t)block * st->region];
+    uint32_t stored = 0, dropped = 0;
+    uint32_t first = block * RBDPT_BLOCK_PATHS;
+    uint32_t last = first + RBDPT_BLOCK_PATHS < st->light_paths ? first + RBDPT_BLOCK_PATHS : st->light_paths;
+    for (uint32_t i = first; i < last; i++)
+        rbdpt_trace_light(c, &c->view[0], c->frame, i, 0, region, st->region, &stored, &dropped, &rc);
+    st->block_count[block] = stored;
+    st->block_dropped[block] = dropped;
+    st->block_rays[2 * block] = rc.intersect;
+    st->block_rays[2 * block + 1] = rc.occluded;
+}
+
+enum rbdpt_replay { RBDPT_REPLAY_OK, RBDPT_REPLAY_FAILED, RBDPT_REPLAY_NOT_CAUSTIC };
+
+/* The random-replay shift of a caustic sample (light subpath i of frame origin_frame, vertex
+ * `depth`) into view v: its pixel and contribution there. It fails when the replayed subpath
+ * ends before that vertex or the eye does not see it there, and when x_2 turned rough (the
+ * sample left the caustic domain). Its Jacobian in primary sample space is 1. */
+static enum rbdpt_replay rbdpt_replay_caustic(const struct rbdpt_ctx *c, const struct rbdpt_view *v,
+                                              uint32_t origin_frame, uint32_t i, uint32_t depth, uint32_t *pixel,
+                                              struct vec3 *F, struct ray_counters *rc)
+{
+    struct restir_bdpt_lt_sample out;
+    uint32_t stored = 0, dropped = 0;
+    rbdpt_trace_light(c, v, origin_frame, i, depth, &out, 1, &stored, &dropped, rc);
+    if (stored == 0) return RBDPT_REPLAY_FAILED;
+    if (!out.caustic) return RBDPT_REPLAY_NOT_CAUSTIC;
+    *pixel = out.pixel;
+    *F = out.F;
+    return RBDPT_REPLAY_OK;
+}
+
+/* ---- camera pass: each pixel's candidates (s = 0, s = 1) and its light-traced bucket -------- */
+
+static void rbdpt_camera_candidates(struct rbdpt_ctx *c, struct vec3 dir, struct rng *rng, struct rng *pick,
+                                    struct rbdpt_ris *r, struct ray_counters *rc, struct rbdpt_worker *wk,
+                                    struct vec3 *primary, bool *has_primary)
+{
+    *has_primary = false;
+    const struct scene *scene = c->view[0].scene;
+    const struct restir_bdpt_params *p = c->p;
+    const struct light_sampler *lights = scene->lights;
+    const struct camera *cam = &c->view[0].cam;
+    struct vec3 beta = vec3_splat(1.0f);
+    float cos0 = vec3_dot(dir, cam->forward);
+    if (!(cos0 > 0.0f)) return;
+    struct restir_bdpt_mis mis = restir_bdpt_mis_camera_start(c->n_light, c->view[0].plane_dist2 / (cos0 * cos0 * cos0),
+                                                                  c->power);
+    struct vec3 org = cam->position, prev_p = org;
+
+    for (uint32_t depth = 0;; depth++) {
+        struct hit hit;
+        if (!accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, &hit, rc)) break;
+        struct surface s;
+        surface_from_hit(scene, &hit, org, dir, &s);
+        if (depth == 0) {
+            *primary = s.p;
+            *has_primary = true;
+        }
+        float cos_hit = vec3_dot(dir, s.ng);
+        restir_bdpt_mis_hit(&mis, vec3_length2(vec3_sub(s.p, prev_p)), cos_hit, c->power);
+        const struct material *m = &scene->materials[s.material];
+        /* Path vertices after the camera of an emitter hit here: depth + 1. */
+        if (material_is_emissive(m)) {
+            struct vec3 Le = light_sampler_emitted(m, -cos_hit);
+            if (!vec3_is_zero(Le)) {
+                float w = 1.0f;
+                if (depth > 0) {
+                    float direct_pdf_a = light_sampler_pdf_a(lights, s.shape, s.prim);
+                    float emission_pdf_w = direct_pdf_a * bdpt_emit_dir_pdf_w(m, cos_hit);
+                    w = restir_bdpt_mis_emission(&mis, direct_pdf_a, emission_pdf_w, c->power);
+                }
+                struct vec3 C = vec3_scale(vec3_mul(beta, Le), w);
+                wk->candidates++;
+                rbdpt_ris_add(r, C, (uint16_t)(((depth + 1) << 8) | 0u), UINT32_MAX, 0, pick, wk);
+            }
+        }
+        if (depth >= p->max_depth) break;
+        struct vec3 wo_world = vec3_neg(dir);
+        struct vec3 wo = frame_to_local(&s.frame, wo_world);
+        bool connectable = (material_flags(m) & (BSDF_DIFFUSE | BSDF_GLOSSY)) != 0;
+        float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
+        if (connectable) {
+            struct light_sample ls;
+            if (light_sampler_sample(lights, ul, u1, u2, &ls) && !ls.is_env) {
+                struct vec3 d = vec3_sub(ls.p, s.p);
+                float d2 = vec3_length2(d);
+                struct vec3 wi_world = vec3_scale(d, 1.0f / sqrtf(d2));
+                float cos_l = -vec3_dot(wi_world, ls.n);
+                const struct material *lm = &scene->materials[scene->shapes[ls.shape].material];
+                struct vec3 Le = light_sampler_emitted(lm, cos_l);
+                float direct_pdf_w = sampling_area_to_solid_angle(ls.pdf_a, d2, cos_l);
+                struct vec3 wi = frame_to_local(&s.frame, wi_world);
+                float cos_ng = vec3_dot(wi_world, s.ng);
+                if (d2 > 0.0f && direct_pdf_w > 0.0f && !vec3_is_zero(Le) && cos_ng * wi.z > 0.0f) {
+                    struct vec3 f = material_eval(m, wo, wi, TRANSPORT_RADIANCE);
+                    if (!vec3_is_zero(f) && bdpt_visible(scene->accel, s.p, s.ng, ls.p, &ls.n, rc)) {
+                        float emission_pdf_w = ls.pdf_a * bdpt_emit_dir_pdf_w(lm, cos_l);
+                        float w = restir_bdpt_mis_nee(&mis, material_pdf(m, wo, wi), material_pdf(m, wi, wo),
+                                                      direct_pdf_w, emission_pdf_w, cos_ng, cos_l, c->power);
+                        struct vec3 C = vec3_mul(beta, vec3_scale(vec3_mul(f, Le), fabsf(wi.z) * w / direct_pdf_w));
+                        wk->candidates++;
+                        rbdpt_ris_add(r, C, (uint16_t)(((depth + 2) << 8) | 1u), UINT32_MAX, 0, pick, wk);
+                    }
+                }
+            }
+        }
+        float ulobe = rng_next_float(rng), v1 = rng_next_float(rng), v2 = rng_next_float(rng);
+        struct bsdf_sample bs;
+        if (!material_sample(m, wo, ulobe, v1, v2, TRANSPORT_RADIANCE, &bs)) break;
+        struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
+        float cos_i_ng = vec3_dot(wi_world, s.ng);
+        if (cos_i_ng * bs.wi.z <= 0.0f) break;
+        beta = vec3_mul(beta, vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w));
+        restir_bdpt_mis_scatter(&mis, cos_i_ng, bs.pdf_w, bs.pdf_rev_w, (bs.flags & BSDF_DELTA) != 0, c->power);
+        float u_rr = rng_next_float(rng);
+        if (depth + 1 >= p->rr_depth) {
+            float mx = vec3_max_comp(beta);
+            float q = mx < 0.95f ? mx : 0.95f;
+            if (!(q > 0.0f) || u_rr >= q) break;
+            beta = vec3_scale(beta, 1.0f / q);
+        }
+        org = bdpt_origin(&s, wi_world);
+        prev_p = s.p;
+        dir = wi_world;
+    }
+}
+
+/* The caustic reservoir's confidence (eq. 27): 1 for this frame's initial samples plus the
+ * confidence of the previous caustic reservoir that the primary hit maps to with the previous
+ * camera — independent of where caustic samples happen to land. */
+static uint16_t rbdpt_caustic_confidence(const struct rbdpt_ctx *c, struct vec3 primary, bool has_primary)
+{
+    uint32_t M = 1;
+    if (c->p->caustic_temporal && c->has_prev && c->st->has_history && has_primary) {
+        float px, py;
+        const struct camera *pc = &c->view[1].cam;
+        if (camera_project(pc, primary, &px, &py) && px >= 0.0f && py >= 0.0f && px < (float)pc->width &&
+            py < (float)pc->height) {
+            uint32_t v = (uint32_t)py * pc->width + (uint32_t)px;
+            if (v < pc->width * pc->height) M += c->st->caustic_prev[v].head.M;
+        }
+    }
+    if (M > c->p->temporal_cap) M = c->p->temporal_cap;
+    return (uint16_t)M;
+}
+
+static void rbdpt_camera_tile(void *ctx, uint32_t tile, unsigned worker)
+{
+    struct rbdpt_ctx *c = ctx;
+    struct restir_bdpt_state *st = c->st;
+    struct rbdpt_worker *wk = &c->worker[worker];
+    struct ray_counters rc = {0, 0};
+    uint32_t w = st->width, h = st->height;
+    uint32_t x0 = (tile % c->tiles_x) * RBDPT_TILE, y0 = (tile / c->tiles_x) * RBDPT_TILE;
+    uint32_t x1 = x0 + RBDPT_TILE < w ? x0 + RBDPT_TILE : w, y1 = y0 + RBDPT_TILE < h ? y0 + RBDPT_TILE : h;
+    bool temporal = c->p->caustic_temporal && c->has_prev && st->has_history;
+    for (uint32_t y = y0; y < y1; y++) {
+        for (uint32_t x = x0; x < x1; x++) {
+            uint32_t pixel = y * w + x;
+            struct rng rng = rng_make(c->seed, c->frame, RBDPT_CAMERA_STREAM + pixel, 0);
+            struct rng pick = rng_make(c->seed, c->frame, RBDPT_PICK_STREAM + pixel, 0);
+            float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
+            struct vec3 dir = camera_ray_dir(&c->view[0].cam, (float)x + jx, (float)y + jy);
+            struct rbdpt_ris r = {0.0, 0.0f, {0, 0, 0}, 0, UINT32_MAX, 0};
+            struct rbdpt_ris rcau = r;
+            struct vec3 primary = {0, 0, 0};
+            bool has_primary;
+            rbdpt_camera_candidates(c, dir, &rng, &pick, &r, &rc, wk, &primary, &has_primary);
+            /* The pixel's bucket of light-traced samples (eq. 26: C carries 1/N_L). */
+            for (uint32_t k = st->pixel_first[pixel]; k < st->pixel_first[pixel + 1]; k++) {
+                const struct restir_bdpt_lt_sample *ls = &st->lt_sorted[k];
+                uint16_t bits = (uint16_t)(((uint32_t)(ls->depth + 1) << 8) | RESTIR_BDPT_TECH_LT);
+                rbdpt_ris_add(ls->caustic ? &rcau : &r, ls->F, bits, ls->light_path, c->frame, &pick, wk);
+            }
+            rbdpt_ris_finish(&r, 1, &st->res[pixel]);
+            uint16_t M = rbdpt_caustic_confidence(c, primary, has_primary);
+            if (temporal) {
+                /* Appendix A: the initial caustic reservoir (confidence 1) against the previous
+                 * frame's reservoirs whose replayed samples landed here. */
+                struct rbdpt_ris merged = {0.0, 0.0f, {0, 0, 0}, 0, UINT32_MAX, 0};
+                if (rcau.target > 0.0f) {
+                    /* eq. 52: the inverse shift of the initial sample into the previous frame. */
+                    uint32_t v;
+                    struct vec3 Fp;
+                    double denom = rcau.target;
+                    wk->shifts++;
+                    if (rbdpt_replay_caustic(c, &c->view[1], rcau.origin_frame, rcau.light_path,
+                                             (uint32_t)(rcau.bits >> 8) - 1u, &v, &Fp, &rc) == RBDPT_REPLAY_OK) {
+                        denom += (double)st->caustic_prev[v].head.M * vec3_luminance(Fp);
+                    } else {
+                        wk->inverse_failed++;
+                    }
+                    double m = rcau.target / denom;
+                    rbdpt_ris_add_w(&merged, rcau.F, m * rcau.wsum, rcau.bits, rcau.light_path, rcau.origin_frame,
+                                    &pick, wk);
+                }
+                for (uint32_t k = st->shift_first[pixel]; k < st->shift_first[pixel + 1]; k++) {
+                    const struct restir_bdpt_shifted *sh = &st->shifted_sorted[k];
+                    uint16_t bits = (uint16_t)(((uint32_t)(sh->depth + 1) << 8) | RESTIR_BDPT_TECH_LT);
+                    rbdpt_ris_add_w(&merged, sh->F, sh->w, bits, sh->light_path, sh->origin_frame, &pick, wk);
+                }
+                rbdpt_ris_finish(&merged, M, &st->caustic[pixel]);
+            } else {
+                rbdpt_ris_finish(&rcau, M, &st->caustic[pixel]);
+            }
+            struct vec3 L = vec3_add(vec3_scale(st->res[pixel].F, st->res[pixel].head.W),
+                                     vec3_scale(st->caustic[pixel].F, st->caustic[pixel].head.W));
+            c->out->pixels[pixel] = L;
+        }
+    }
+    wk->rays_intersect += rc.intersect;
+    wk->rays_occluded += rc.occluded;
+}
+
+/* The previous frame's caustic reservoirs, each replayed into the current frame (eq. 51): one
+ * job per row of source pixels, each writing only its own slots. */
+static void rbdpt_history_row(void *ctx, uint32_t row, unsigned worker)
+{
+    struct rbdpt_ctx *c = ctx;
+    struct restir_bdpt_state *st = c->st;
+    struct rbdpt_worker *wk = &c->worker[worker];
+    struct ray_counters rc = {0, 0};
+    for (uint32_t x = 0; x < st->width; x++) {
+        uint32_t v = row * st->width + x;
+        const struct restir_bdpt_reservoir *prev = &st->caustic_prev[v];
+        struct restir_bdpt_shifted *sh = &st->shifted[v];
+        sh->valid = 0;
+        float p_prev = vec3_luminance(prev->F);
+        if (!(prev->head.W > 0.0f) || !(p_prev > 0.0f)) continue;
+        wk->shifts++;
+        uint32_t depth = (uint32_t)(prev->head.bits >> 8) - 1u;
+        uint32_t q;
+        struct vec3 F;
+        enum rbdpt_replay res = rbdpt_replay_caustic(c, &c->view[0], prev->origin_frame, prev->light_path, depth, &q,
+                                                     &F, &rc);
+        if (res != RBDPT_REPLAY_OK) {
+            if (res == RBDPT_REPLAY_FAILED) wk->replay_failed++; else wk->not_caustic++;
+            continue;
+        }
+        float p_cur = vec3_luminance(F);
+        if (!(p_cur > 0.0f)) {
+            wk->replay_failed++;
+            continue;
+        }
+        /* eq. 51 with |dT/dX| = 1 (random replay) and the initial sample's confidence 1. */
+        double mp = (double)prev->head.M * p_prev;
+        double m = mp / (mp + p_cur);
+        *sh = (struct restir_bdpt_shifted){.F = F, .w = (float)(m * p_cur * prev->head.W), .pixel = q,
+                                           .light_path = prev->light_path, .origin_frame = prev->origin_frame,
+                                           .depth = (uint16_t)depth, .valid = 1};
+    }
+    wk->rays_intersect += rc.intersect;
+    wk->rays_occluded += rc.occluded;
+}
+
+static double rbdpt_ms_since(const struct timespec *t0)
+{
+    struct timespec t1;
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+    return (double)(t1.tv_sec - t0->tv_sec) * 1e3 + (double)(t1.tv_nsec - t0->tv_nsec) * 1e-6;
+}
+
+bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
+                        const struct restir_bdpt_frame *f, struct image *out, struct restir_bdpt_stats *stats,
+                        struct err *err)
+{
+    if (!restir_bdpt_params_valid(p, err)) return false;
+    if (!f->scene->accel || !f->scene->lights) return err_set(err, ERR_INVALID, NULL, "scene is not committed");
+    if (!vec3_is_zero(f->scene->env_radiance))
+        return err_set(err, ERR_INVALID, NULL, "restir_bdpt does not support environment light");
+    if (out->width != st->width || out->height != st->height || !out->pixels)
+        return err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the state %ux%u", out->width, out->height,
+                       st->width, st->height);
+    struct rbdpt_sizes z = rbdpt_sizes_of(p, st->width, st->height);
+    if (z.light_paths != st->light_paths || z.region != st->region)
+        return err_set(err, ERR_INVALID, NULL, "the parameters changed the buffers' sizes since init");
+    unsigned threads = f->threads ? f->threads : parallel_default_threads();
+    if (threads > RBDPT_MAX_WORKERS) threads = RBDPT_MAX_WORKERS;
+
+    struct rbdpt_ctx ctx_storage;
+    struct rbdpt_ctx *c = &ctx_storage;
+    memset(c, 0, sizeof *c);
+    c->p = p;
+    c->st = st;
+    for (int k = 0; k < 2; k++) {
+        const struct scene *sc = k ? f->prev_scene : f->scene;
+        const struct camera_desc *cd = k ? f->prev_camera : f->camera;
+        if (!sc || !cd) continue;
+        c->view[k].scene = sc;
+        camera_init(&c->view[k].cam, cd, st->width, st->height);
+        float plane = (float)st->height / (2.0f * c->view[k].cam.tan_half_fov_y);
+        c->view[k].plane_dist2 = plane * plane;
+    }
+    c->has_prev = f->prev_scene && f->prev_camera && f->prev_scene->accel && f->prev_scene->lights;
+    if (!c->has_prev) st->has_history = false;
+    c->n_light = (float)st->light_paths;
+    c->seed = f->seed;
+    c->frame = f->frame;
+    c->power = p->heuristic == BDPT_HEURISTIC_POWER;
+    c->out = out;
+
+    struct restir_bdpt_stats s = {0};
+    struct timespec t0;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    if (!parallel_run(threads, st->blocks, rbdpt_light_block, c, NULL, NULL, err)) return false;
+    s.light_ms = rbdpt_ms_since(&t0);
+
+    /* Counting sort of the light-traced samples by pixel: counts, exclusive prefix sum, then a
+     * stable scatter in block order — the buckets' contents and order depend only on the seed. */
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    uint32_t npix = st->width * st->height;
+    memset(st->pixel_first, 0, ((size_t)npix + 1) * sizeof *st->pixel_first);
+    for (uint32_t b = 0; b < st->blocks; b++) {
+        const struct restir_bdpt_lt_sample *v = &st->lt[(size_t)b * st->region];
+        for (uint32_t j = 0; j < st->block_count[b]; j++) st->pixel_first[v[j].pixel + 1]++;
+        s.lt_dropped += st->block_dropped[b];
+        s.rays_intersect += st->block_rays[2 * b];
+        s.rays_occluded += st->block_rays[2 * b + 1];
+    }
+    for (uint32_t i = 0; i < npix; i++) st->pixel_first[i + 1] += st->pixel_first[i];
+    for (uint32_t b = 0; b < st->blocks; b++) {
+        const struct restir_bdpt_lt_sample *v = &st->lt[(size_t)b * st->region];
+        for (uint32_t j = 0; j < st->block_count[b]; j++) {
+            /* pixel_first[pixel] is advanced as a cursor and restored below. */
+            st->lt_sorted[st->pixel_first[v[j].pixel]++] = v[j];
+            s.light_traced++;
+            s.caustic_samples += v[j].caustic;
+        }
+    }
+    for (uint32_t i = npix; i > 0; i--) st->pixel_first[i] = st->pixel_first[i - 1];
+    st->pixel_first[0] = 0;
+    s.sort_ms = rbdpt_ms_since(&t0);
+
+    /* Caustic temporal reuse: replay the previous caustic samples, then sort them by the pixel
+     * they land in (the same counting sort, in source-pixel order). */
+    uint32_t *sf = st->shift_first;
+    memset(sf, 0, ((size_t)npix + 1) * sizeof *sf);
+    if (p->caustic_temporal && c->has_prev && st->has_history) {
+        clock_gettime(CLOCK_MONOTONIC, &t0);
+        if (!parallel_run(threads, st->height, rbdpt_history_row, c, NULL, NULL, err)) return false;
+        for (uint32_t v = 0; v < npix; v++)
+            if (st->shifted[v].valid) sf[st->shifted[v].pixel + 1]++;
+        for (uint32_t i = 0; i < npix; i++) sf[i + 1] += sf[i];
+        for (uint32_t v = 0; v < npix; v++)
+            if (st->shifted[v].valid) st->shifted_sorted[sf[st->shifted[v].pixel]++] = st->shifted[v];
+        for (uint32_t i = npix; i > 0; i--) sf[i] = sf[i - 1];
+        sf[0] = 0;
+        s.sort_ms += rbdpt_ms_since(&t0);
+    }
+
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    c->tiles_x = (st->width + RBDPT_TILE - 1) / RBDPT_TILE;
+    uint32_t tiles_y = (st->height + RBDPT_TILE - 1) / RBDPT_TILE;
+    if (!parallel_run(threads, c->tiles_x * tiles_y, rbdpt_camera_tile, c, NULL, NULL, err)) return false;
+    s.camera_ms = rbdpt_ms_since(&t0);
+
+    for (unsigned i = 0; i < threads; i++) {
+        s.rays_intersect += c->worker[i].rays_intersect;
+        s.rays_occluded += c->worker[i].rays_occluded;
+        s.camera_candidates += c->worker[i].candidates;
+        s.rejected += c->worker[i].rejected;
+        s.caustic_shifts += c->worker[i].shifts;
+        s.caustic_replay_failed += c->worker[i].replay_failed;
+        s.caustic_not_caustic += c->worker[i].not_caustic;
+        s.caustic_inverse_failed += c->worker[i].inverse_failed;
+    }
+    /* This frame's caustic reservoirs become the history of the next. */
+    struct restir_bdpt_reservoir *tmp = st->caustic_prev;
+    st->caustic_prev = st->caustic;
+    st->caustic = tmp;
+    st->has_history = true;
+    s.light_subpaths = st->light_paths;
+    s.reservoir_bytes = 3 * (uint64_t)npix * sizeof *st->res;
+    if (stats) *stats = s;
+    return true;
+}
+
+bool restir_bdpt_caustic_replay(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
+                                const struct restir_bdpt_frame *f, uint32_t origin_frame, uint32_t light_path,
+                                uint32_t depth, uint32_t *pixel, struct vec3 *F)
+{
+    /* Tests only: the context (its worker array) on the heap rather than the stack. */
+    struct rbdpt_ctx *c = calloc(1, sizeof *c);
+    if (!c) return false;
+    c->p = p;
+    c->st = st;
+    c->view[0].scene = f->scene;
+    camera_init(&c->view[0].cam, f->camera, st->width, st->height);
+    float plane = (float)st->height / (2.0f * c->view[0].cam.tan_half_fov_y);
+    c->view[0].plane_dist2 = plane * plane;
+    c->n_light = (float)st->light_paths;
+    c->seed = f->seed;
+    c->frame = f->frame;
+    c->power = p->heuristic == BDPT_HEURISTIC_POWER;
+    struct ray_counters rc = {0, 0};
+    bool ok = rbdpt_replay_caustic(c, &c->view[0], origin_frame, light_path, depth, pixel, F, &rc) == RBDPT_REPLAY_OK;
+    free(c);
+    return ok;
+}

@@ -1,0 +1,169 @@
+/* restir_bdpt.h — ReSTIR BDPT, lightweight variant (seed 000 §4–5, "Lightweight BDPT"): the
+ * techniques s = 0 (emitter hits), s = 1 (next-event estimation) and t = 1 (light tracing), no
+ * vertex connections, resampled in the extended path space (path, technique) with the target
+ * p̂ = lum(w_{s,t} f / p), w the MIS weight among these three techniques only.
+ *
+ * Per frame: N_L light subpaths start on emitters in proportion to power; every connectable
+ * light vertex is connected to the camera (t = 1). The samples that land in a pixel are
+ * bucketed per pixel by a counting sort over pixel ids (prefix sum, in light-subpath order,
+ * independent of the thread count) and merged into that pixel's reservoir next to its own
+ * camera-path candidates, each with resampling weight lum(C) where C already carries the
+ * light-tracing estimator's 1/N_L (seed 000 eq. 26). A t = 1 sample whose secondary hit x_2 is
+ * not rough (its light-side scattering lobe was delta) is caustic and goes to the pixel's
+ * separate caustic reservoir (§5.1); the image is the sum of both reservoirs' estimates.
+ *
+ * Caustic reservoirs are reused temporally (Appendix A): each previous caustic sample is
+ * replayed with its light subpath's random numbers in the current frame and lands in the pixel
+ * its x_1 projects to (a counting sort again), with the generalized balance heuristic of
+ * eqs. 51–52 over {previous reservoir, current initial sample}; a reservoir's confidence is 1
+ * plus that of the previous caustic reservoir its primary hit maps to (eq. 27), capped.
+ *
+ * State of this module: initial resampling and caustic temporal reuse. Temporal and spatial
+ * reuse of the non-caustic reservoir (the bidirectional hybrid shift) is not implemented, so the
+ * module is not a session method; it is tested directly against `bdpt`
+ * (tests/unit/test_restir_bdpt.c). */
+#ifndef RESTIRD_RESTIR_BDPT_H
+#define RESTIRD_RESTIR_BDPT_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "bdpt.h"
+#include "camera.h"
+#include "err.h"
+#include "image.h"
+#include "restir.h"
+#include "scene.h"
+
+enum restir_bdpt_variant { RESTIR_BDPT_LIGHTWEIGHT, RESTIR_BDPT_FULL };
+
+struct restir_bdpt_params {
+    enum restir_bdpt_variant variant;  /* only the lightweight variant is implemented */
+    uint32_t max_depth;        /* scattering events of a full path, 1..1024 (64, as bdpt) */
+    uint32_t rr_depth;         /* Russian roulette after this many bounces of a subpath (3) */
+    uint32_t light_paths;      /* N_L per frame; 0 = the pixel count (default) */
+    uint32_t lt_capacity;      /* light-traced samples kept per light subpath on average, 1..64 (8) */
+    enum bdpt_heuristic heuristic;  /* power (default) or balance */
+    bool caustic_temporal;     /* temporal reuse of the caustic reservoirs (true) */
+    uint32_t temporal_cap;     /* caustic confidence capped at this absolute value, 1..65535 (20) */
+};
+
+struct restir_bdpt_params restir_bdpt_defaults(void);
+/* Ranges; errors name /params/<key>; the full variant is refused as not implemented. */
+bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *err);
+
+/* A light-traced (t = 1) sample: its pixel, its contribution C (MIS weight and 1/N_L included). */
+struct restir_bdpt_lt_sample {
+    struct vec3 F;
+    uint32_t pixel;
+    uint32_t light_path;       /* index of its light subpath in the frame */
+    uint16_t depth;            /* light vertices up to x_1 */
+    uint16_t caustic;          /* 1 when x_2 is not rough */
+};
+
+/* A reservoir: the shared head (W, M, technique in `bits`), the selected sample's contribution
+ * C in its own pixel (primary sample space, so p̂ = lum(C)). */
+struct restir_bdpt_reservoir {
+    struct restir_head head;
+    struct vec3 F;
+    uint32_t light_path;       /* t = 1: its light subpath; else UINT32_MAX */
+    uint32_t origin_frame;     /* t = 1: the frame whose random numbers trace that subpath */
+};
+
+/* A previous frame's caustic reservoir shifted into the current frame by random replay: the
+ * pixel it lands in, its contribution there and its resampling weight (seed 000 eq. 51). */
+struct restir_bdpt_shifted {
+    struct vec3 F;
+    float w;
+    uint32_t pixel;
+    uint32_t light_path, origin_frame;
+    uint16_t depth, valid;
+};
+
+/* head.bits: technique s in the low byte (0, 1, or 0xff for t = 1), path vertices above. */
+#define RESTIR_BDPT_TECH_LT 0xffu
+
+struct restir_bdpt_state {
+    uint32_t width, height;
+    uint32_t light_paths, blocks, region;
+    struct restir_bdpt_lt_sample *lt;        /* blocks * region, per-block regions */
+    struct restir_bdpt_lt_sample *lt_sorted; /* blocks * region, by pixel */
+    uint32_t *pixel_first;                   /* width * height + 1 (prefix sums) */
+    uint32_t *block_count, *block_dropped;
+    uint64_t *block_rays;                    /* 2 per block */
+    struct restir_bdpt_reservoir *res;       /* width * height, non-caustic */
+    struct restir_bdpt_reservoir *caustic;   /* width * height, caustic (this frame's) */
+    struct restir_bdpt_reservoir *caustic_prev; /* width * height, the previous frame's */
+    bool has_history;
+    struct restir_bdpt_shifted *shifted;        /* width * height, by source pixel */
+    struct restir_bdpt_shifted *shifted_sorted; /* width * height, by landing pixel */
+    uint32_t *shift_first;                      /* width * height + 1 */
+};
+
+struct restir_bdpt_stats {
+    double light_ms, sort_ms, camera_ms;
+    uint64_t light_subpaths;    /* N_L */
+    uint64_t light_traced;      /* t = 1 samples that reached a pixel */
+    uint64_t caustic_samples;   /* of which caustic */
+    uint64_t lt_dropped;        /* samples that found their block's region full (a bias; see bdpt.h) */
+    uint64_t camera_candidates; /* s = 0 and s = 1 candidates with a non-zero contribution */
+    uint64_t rejected;          /* candidates refused for a non-finite weight */
+    uint64_t caustic_shifts;            /* random-replay shifts: previous caustic samples into this
+                                           frame, and this frame's selected ones back (eq. 52) */
+    uint64_t caustic_replay_failed;     /* forward shifts whose replay ended, missed the eye or lost
+                                           its vertex */
+    uint64_t caustic_not_caustic;       /* forward shifts whose replayed x_2 turned rough */
+    uint64_t caustic_inverse_failed;    /* backward shifts that failed (no predecessor) */
+    uint64_t reservoir_bytes;
+    uint64_t rays_intersect, rays_occluded;
+};
+
+struct restir_bdpt_frame {
+    const struct scene *scene;
+    const struct camera_desc *camera;
+    const struct scene *prev_scene;      /* the previous frame's (NULL = no previous frame) */
+    const struct camera_desc *prev_camera;
+    uint64_t seed;
+    uint32_t frame;
+    unsigned threads;          /* 0 = all cores */
+};
+
+uint64_t restir_bdpt_bytes_planned(const struct restir_bdpt_params *p, uint32_t width, uint32_t height);
+bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, const struct restir_bdpt_params *p,
+                      uint32_t width, uint32_t height, struct err *err);
+void restir_bdpt_destroy(struct restir_bdpt_state *st);
+/* Forgets the history. */
+void restir_bdpt_reset(struct restir_bdpt_state *st);
+size_t restir_bdpt_bytes(const struct restir_bdpt_state *st);
+
+bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
+                        const struct restir_bdpt_frame *f, struct image *out, struct restir_bdpt_stats *stats,
+                        struct err *err);
+
+/* For tests: the random-replay shift of a caustic sample (light subpath `light_path` traced with
+ * the random numbers of frame `origin_frame`, its vertex `depth`) into the view of f->scene and
+ * f->camera: the pixel it lands in and its contribution there; false when the shift fails. */
+bool restir_bdpt_caustic_replay(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
+                                const struct restir_bdpt_frame *f, uint32_t origin_frame, uint32_t light_path,
+                                uint32_t depth, uint32_t *pixel, struct vec3 *F);
+
+/* The lightweight MIS state a subpath carries (SmallVCM's dVCM / dVC restricted to the
+ * techniques s = 0, s = 1, t = 1; see restir_bdpt.c). Exposed for the unit test. */
+struct restir_bdpt_mis {
+    float dvcm, dvc;
+    bool near;                 /* no scattering yet: dvcm still names a wanted technique */
+};
+struct restir_bdpt_mis restir_bdpt_mis_camera_start(float light_paths, float camera_pdf_w, bool power);
+struct restir_bdpt_mis restir_bdpt_mis_light_start(float direct_pdf_a, float emission_pdf_w, float cos_light,
+                                                   bool power);
+void restir_bdpt_mis_hit(struct restir_bdpt_mis *m, float dist2, float cos_hit, bool power);
+void restir_bdpt_mis_scatter(struct restir_bdpt_mis *m, float cos_out, float pdf_fwd_w, float pdf_rev_w, bool delta,
+                             bool power);
+float restir_bdpt_mis_emission(const struct restir_bdpt_mis *cam, float direct_pdf_a, float emission_pdf_w,
+                               bool power);
+float restir_bdpt_mis_nee(const struct restir_bdpt_mis *cam, float bsdf_fwd_w, float bsdf_rev_w, float direct_pdf_w,
+                          float emission_pdf_w, float cos_camera, float cos_light, bool power);
+float restir_bdpt_mis_camera(const struct restir_bdpt_mis *light, float camera_pdf_a, float light_paths,
+                             float light_rev_w, bool power);
+
+#endif
