@@ -19,8 +19,8 @@ Environment: BENCH_RESTIR_SEEDS (3), BENCH_RESTIR_REF_SPP (2048), BENCH_RESTIR_W
 BENCH_THREADS (all cores), BENCH_RESTIR_ABLATION (door-ajar; empty = skip).
 `bench/restir_pt.py --charts` redraws the charts from the last run's JSON.
 `bench/restir_pt.py --frame-cost` measures only the frame cost ratio restir_pt / pt at 1 spp
-(no references, a few minutes): pt's 1-spp frame and the 33rd restir_pt frame, alternating,
-BENCH_RESTIR_COST_RUNS (7) runs each, medians; restir_pt with its defaults, with unpaired spatial
+(no references, a few minutes): the mean frame time of a 33-frame session of each, alternating,
+BENCH_RESTIR_COST_RUNS (5) runs each, medians; restir_pt with its defaults, with unpaired spatial
 reuse and with one NEE candidate."""
 import hashlib
 import json
@@ -146,8 +146,12 @@ COST_VARIANTS = [("defaults", "{}"), ("unpaired spatial reuse", '{"paired_spatia
 
 
 def frame_cost():
-    runs = int(os.environ.get("BENCH_RESTIR_COST_RUNS", "7"))
-    print(f"\n### Frame cost restir_pt / pt at 1 spp, {SIZE}, medians of {runs} alternating runs ({THREADS} threads, 0 = all)\n")
+    """Mean frame time over a whole session of WARMUP + 1 frames, for pt at 1 spp and for
+    restir_pt: averages over frames are far steadier than one frame's time on a shared machine."""
+    runs = int(os.environ.get("BENCH_RESTIR_COST_RUNS", "5"))
+    frames = WARMUP + 1
+    print(f"\n### Frame cost restir_pt / pt at 1 spp, {SIZE}: mean frame time of a {frames}-frame session, "
+          f"medians of {runs} alternating runs\n")
     print("| scene | pt 1 spp ms | " + " | ".join(f"restir_pt {n} ms (ratio)" for n, _ in COST_VARIANTS) + " |")
     print("|---|---|" + "---|" * len(COST_VARIANTS))
     with tempfile.TemporaryDirectory() as td:
@@ -156,12 +160,12 @@ def frame_cost():
             path = ROOT / "scenes" / scene / "scene.json"
             pt, rs = [], {n: [] for n, _ in COST_VARIANTS}
             for seed in range(runs):
-                pt.append(run(["render", str(path), "--size", SIZE, "--spp", "1", "--seed", str(seed), "--json",
-                               "-o", str(img)])["time_ms"])
+                pt.append(run(["render", str(path), "--size", SIZE, "--spp", "1", "--frames", str(frames), "--seed",
+                               str(seed), "--json", "-o", str(img)])["time_ms"] / frames)
                 for name, params in COST_VARIANTS:
                     st = run(["render", str(path), "--method", "restir_pt", "--size", SIZE, "--seed", str(seed),
-                              "--frames", str(WARMUP + 1), "--params", params, "--json", "-o", str(img)])
-                    rs[name].append(restir_frame_ms(st))
+                              "--frames", str(frames), "--params", params, "--json", "-o", str(img)])
+                    rs[name].append(st["time_ms"] / frames)
             p = statistics.median(pt)
             cells = [f"{statistics.median(v):.1f} ({statistics.median(v) / p:.2f}×)" for v in rs.values()]
             print(f"| {scene} | {p:.1f} | " + " | ".join(cells) + " |", flush=True)
