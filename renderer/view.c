@@ -180,6 +180,16 @@ static struct scene *view_build_scene(const struct view *v, struct err *err)
     return scene_derive(v->base, ov, v->change_count, err);
 }
 
+/* The render stats of a frame a reusing or bidirectional method rendered in one go: one sample
+ * per pixel, the method's own ray and non-finite counts and pass times. */
+static struct render_stats view_frame_stats(const struct view *v, const struct image *out, uint64_t intersect,
+                                            uint64_t occluded, uint64_t nonfinite, double ms)
+{
+    return (struct render_stats){.rays_intersect = intersect, .rays_occluded = occluded,
+                                 .samples = (uint64_t)out->width * out->height, .nonfinite = nonfinite,
+                                 .threads = v->threads ? v->threads : parallel_default_threads(), .render_ms = ms};
+}
+
 static double view_ms_since(const struct timespec *t0)
 {
     struct timespec t1;
@@ -235,13 +245,9 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
                                     .threads = v->threads};
         ok = restir_pt_render(&v->restir, &v->params.restir_pt, &f, out, &passes, err);
         if (ok) {
-            memset(&rs, 0, sizeof rs);
-            rs.rays_intersect = passes.rays_intersect;
-            rs.rays_occluded = passes.rays_occluded;
-            rs.samples = (uint64_t)out->width * out->height;
-            rs.nonfinite = passes.nonfinite;
-            rs.threads = v->threads ? v->threads : parallel_default_threads();
-            rs.render_ms = passes.gbuffer_ms + passes.initial_ms + passes.temporal_ms + passes.spatial_ms + passes.shade_ms;
+            rs = view_frame_stats(v, out, passes.rays_intersect, passes.rays_occluded, passes.nonfinite,
+                                  passes.gbuffer_ms + passes.initial_ms + passes.temporal_ms + passes.spatial_ms +
+                                      passes.shade_ms);
             if (progress) progress(progress_ctx, 1, 1);
         }
     } else if (v->params.method == RENDER_METHOD_BDPT) {
@@ -249,13 +255,8 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
                                .threads = v->threads};
         ok = bdpt_render(&v->bdpt, &v->params.bdpt, &f, out, &bstats, err);
         if (ok) {
-            memset(&rs, 0, sizeof rs);
-            rs.rays_intersect = bstats.rays_intersect;
-            rs.rays_occluded = bstats.rays_occluded;
-            rs.samples = (uint64_t)out->width * out->height;
-            rs.nonfinite = bstats.nonfinite;
-            rs.threads = v->threads ? v->threads : parallel_default_threads();
-            rs.render_ms = bstats.light_ms + bstats.splat_ms + bstats.camera_ms;
+            rs = view_frame_stats(v, out, bstats.rays_intersect, bstats.rays_occluded, bstats.nonfinite,
+                                  bstats.light_ms + bstats.splat_ms + bstats.camera_ms);
             if (progress) progress(progress_ctx, 1, 1);
         }
     } else if (v->params.method == RENDER_METHOD_RESTIR_SSS) {
@@ -271,13 +272,8 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
             passes.rays_intersect = ss.rays_intersect, passes.rays_occluded = ss.rays_occluded;
             passes.shifts = ss.shifts, passes.shift_failures = ss.shift_failures, passes.rejected = ss.rejected;
             passes.nonfinite = ss.nonfinite;
-            memset(&rs, 0, sizeof rs);
-            rs.rays_intersect = ss.rays_intersect;
-            rs.rays_occluded = ss.rays_occluded;
-            rs.samples = (uint64_t)out->width * out->height;
-            rs.nonfinite = ss.nonfinite;
-            rs.threads = v->threads ? v->threads : parallel_default_threads();
-            rs.render_ms = ss.gbuffer_ms + ss.initial_ms + ss.temporal_ms + ss.spatial_ms + ss.shade_ms;
+            rs = view_frame_stats(v, out, ss.rays_intersect, ss.rays_occluded, ss.nonfinite,
+                                  ss.gbuffer_ms + ss.initial_ms + ss.temporal_ms + ss.spatial_ms + ss.shade_ms);
             if (progress) progress(progress_ctx, 1, 1);
         }
     } else {
