@@ -45,6 +45,27 @@ static inline struct vec3 pt_emitter_side(struct vec3 n, struct vec3 wi)
     return vec3_dot(wi, n) < 0.0f ? n : vec3_neg(n);
 }
 
+/* A light sample as seen from p: the direction towards it, the radiance it sends to p and the
+ * solid-angle pdf of having sampled it. False when it cannot contribute (zero distance or pdf). */
+static bool pt_light_toward(const struct scene *scene, const struct light_sample *ls, struct vec3 p, struct vec3 *wi_world,
+                            struct vec3 *Le, float *pdf_light_w)
+{
+    if (ls->is_env) {
+        *wi_world = ls->dir;
+        *pdf_light_w = ls->pdf_w;
+        *Le = scene->env_radiance;
+        return *pdf_light_w > 0.0f;
+    }
+    struct vec3 d = vec3_sub(ls->p, p);
+    float d2 = vec3_length2(d);
+    if (!(d2 > 0.0f)) return false;
+    *wi_world = vec3_scale(d, 1.0f / sqrtf(d2));
+    float cos_l = -vec3_dot(*wi_world, ls->n);
+    *Le = light_sampler_emitted(&scene->materials[scene->shapes[ls->shape].material], cos_l);
+    *pdf_light_w = sampling_area_to_solid_angle(ls->pdf_a, d2, cos_l);
+    return *pdf_light_w > 0.0f;
+}
+
 /* Subsurface scattering at the primary hit x1 on a translucent material (seed 004 §2.1, §3.1):
  * one probe of BSSRDF importance sampling; every hit x2_j on the same shape is an entry point,
  * each weighted by S / bssrdf_pdf_a (eq. 10: all intersections, not one picked at random), and
@@ -96,25 +117,10 @@ static bool pt_sss_primary(const struct scene *scene, const struct pt_params *pa
         struct light_sample ls;
         if (!light_sampler_sample(lights, ul, u1, u2, &ls)) continue;
         struct vec3 wi_world, Le;
-        float dist, pdf_light_w;
-        if (ls.is_env) {
-            wi_world = ls.dir;
-            dist = INFINITY;
-            pdf_light_w = ls.pdf_w;
-            Le = scene->env_radiance;
-        } else {
-            struct vec3 d = vec3_sub(ls.p, s2.p);
-            float d2 = vec3_length2(d);
-            dist = sqrtf(d2);
-            wi_world = vec3_scale(d, 1.0f / dist);
-            float cos_l = -vec3_dot(wi_world, ls.n);
-            Le = light_sampler_emitted(&scene->materials[scene->shapes[ls.shape].material], cos_l);
-            pdf_light_w = sampling_area_to_solid_angle(ls.pdf_a, d2, cos_l);
-            if (!(d2 > 0.0f)) continue;
-        }
+        float pdf_light_w;
+        if (!pt_light_toward(scene, &ls, s2.p, &wi_world, &Le, &pdf_light_w)) continue;
         float cos_i = vec3_dot(wi_world, s2.ns);
-        if (!(pdf_light_w > 0.0f) || vec3_is_zero(Le) || !(cos_i > 0.0f) || !(vec3_dot(wi_world, s2.ng) > 0.0f))
-            continue;
+        if (vec3_is_zero(Le) || !(cos_i > 0.0f) || !(vec3_dot(wi_world, s2.ng) > 0.0f)) continue;
         /* Offset end to offset end, as next-event estimation in pt_radiance. */
         struct vec3 sorg = surface_offset_along(s2.p, s2.ng), sdir = wi_world;
         float tmax = INFINITY;
@@ -250,23 +256,8 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
             struct light_sample ls;
             if (light_sampler_sample(lights, ul, u1, u2, &ls)) {
                 struct vec3 wi_world, Le;
-                float dist, pdf_light_w;
-                bool ok = true;
-                if (ls.is_env) {
-                    wi_world = ls.dir;
-                    dist = INFINITY;
-                    pdf_light_w = ls.pdf_w;
-                    Le = scene->env_radiance;
-                } else {
-                    struct vec3 d = vec3_sub(ls.p, s.p);
-                    float d2 = vec3_length2(d);
-                    dist = sqrtf(d2);
-                    wi_world = vec3_scale(d, 1.0f / dist);
-                    float cos_l = -vec3_dot(wi_world, ls.n);
-                    Le = light_sampler_emitted(&scene->materials[scene->shapes[ls.shape].material], cos_l);
-                    pdf_light_w = sampling_area_to_solid_angle(ls.pdf_a, d2, cos_l);
-                    ok = d2 > 0.0f && pdf_light_w > 0.0f;
-                }
+                float pdf_light_w;
+                bool ok = pt_light_toward(scene, &ls, s.p, &wi_world, &Le, &pdf_light_w);
                 /* The cheap rejections first (back of a one-sided emitter, zero pdf), before the
                  * frame conversion and the BSDF. */
                 if (ok && !vec3_is_zero(Le)) {
