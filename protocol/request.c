@@ -706,49 +706,52 @@ static bool request_sms_params(const cJSON *pv, const char *ptr, const struct pr
     return true;
 }
 
+/* A number or flag of a method's params struct, read by request_fields. */
+enum request_field_kind { REQUEST_UINT, REQUEST_BOOL, REQUEST_FLOAT };
+struct request_field {
+    const char *key;
+    enum request_field_kind kind;
+    size_t off;  /* offset in the params struct */
+};
+
+/* Reads every field present in the object at ptr into base; unsigned fields take 0..umax (the
+ * method's own validation checks the real ranges and names /params/<key>). */
+static bool request_fields(const cJSON *pv, const char *ptr, const struct request_field *f, size_t n, uint32_t umax,
+                           void *base, struct err *err)
+{
+    char p[REQUEST_PTR];
+    for (size_t i = 0; i < n; i++) {
+        const cJSON *v = request_member(pv, ptr, f[i].key, p);
+        if (!v) continue;
+        char *at = (char *)base + f[i].off;
+        bool ok = f[i].kind == REQUEST_UINT   ? request_uint32(v, p, 0, umax, NULL, (uint32_t *)at, err)
+                  : f[i].kind == REQUEST_BOOL ? request_bool(v, p, (bool *)at, err)
+                                              : request_float(v, p, (float *)at, err);
+        if (!ok) return false;
+    }
+    return true;
+}
+
+#define REQUEST_FIELD(type, key, kind) {#key, kind, offsetof(type, key)}
+
 static bool request_restir_pt_params(const cJSON *pv, const char *ptr, struct restir_pt_params *rp, struct err *err)
 {
     static const char *const keys[] = {"max_depth", "rr_depth", "rr", "nee_candidates", "unify_di", "temporal",
                                        "temporal_cap", "spatial_neighbors", "spatial_radius", "spatial_rounds",
                                        "paired_spatial", "footprint", "footprint_c", "near_distance", "pdf_connect", "roughness_min",
                                        NULL};
-    static const struct { const char *key; size_t off; } uints[] = {
-        {"max_depth", offsetof(struct restir_pt_params, max_depth)},
-        {"rr_depth", offsetof(struct restir_pt_params, rr_depth)},
-        {"nee_candidates", offsetof(struct restir_pt_params, nee_candidates)},
-        {"temporal_cap", offsetof(struct restir_pt_params, temporal_cap)},
-        {"spatial_neighbors", offsetof(struct restir_pt_params, spatial_neighbors)},
-        {"spatial_rounds", offsetof(struct restir_pt_params, spatial_rounds)},
+#define F(key, kind) REQUEST_FIELD(struct restir_pt_params, key, kind)
+    static const struct request_field fields[] = {
+        F(max_depth, REQUEST_UINT), F(rr_depth, REQUEST_UINT), F(nee_candidates, REQUEST_UINT),
+        F(temporal_cap, REQUEST_UINT), F(spatial_neighbors, REQUEST_UINT), F(spatial_rounds, REQUEST_UINT),
+        F(rr, REQUEST_BOOL), F(unify_di, REQUEST_BOOL), F(temporal, REQUEST_BOOL), F(paired_spatial, REQUEST_BOOL),
+        F(footprint, REQUEST_BOOL), F(pdf_connect, REQUEST_BOOL), F(spatial_radius, REQUEST_FLOAT),
+        F(footprint_c, REQUEST_FLOAT), F(near_distance, REQUEST_FLOAT), F(roughness_min, REQUEST_FLOAT),
     };
-    static const struct { const char *key; size_t off; } bools[] = {
-        {"rr", offsetof(struct restir_pt_params, rr)},
-        {"unify_di", offsetof(struct restir_pt_params, unify_di)},
-        {"temporal", offsetof(struct restir_pt_params, temporal)},
-        {"paired_spatial", offsetof(struct restir_pt_params, paired_spatial)},
-        {"footprint", offsetof(struct restir_pt_params, footprint)},
-        {"pdf_connect", offsetof(struct restir_pt_params, pdf_connect)},
-    };
-    static const struct { const char *key; size_t off; } floats[] = {
-        {"spatial_radius", offsetof(struct restir_pt_params, spatial_radius)},
-        {"footprint_c", offsetof(struct restir_pt_params, footprint_c)},
-        {"near_distance", offsetof(struct restir_pt_params, near_distance)},
-        {"roughness_min", offsetof(struct restir_pt_params, roughness_min)},
-    };
-    char p[REQUEST_PTR];
-    const cJSON *v;
-    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_pt params", err))
+#undef F
+    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_pt params", err) ||
+        !request_fields(pv, ptr, fields, sizeof fields / sizeof fields[0], 1000000, rp, err))
         return false;
-    char *base = (char *)rp;
-    for (size_t i = 0; i < sizeof uints / sizeof uints[0]; i++)
-        if ((v = request_member(pv, ptr, uints[i].key, p)) &&
-            !request_uint32(v, p, 0, 1000000, NULL, (uint32_t *)(base + uints[i].off), err))
-            return false;
-    for (size_t i = 0; i < sizeof bools / sizeof bools[0]; i++)
-        if ((v = request_member(pv, ptr, bools[i].key, p)) && !request_bool(v, p, (bool *)(base + bools[i].off), err))
-            return false;
-    for (size_t i = 0; i < sizeof floats / sizeof floats[0]; i++)
-        if ((v = request_member(pv, ptr, floats[i].key, p)) && !request_float(v, p, (float *)(base + floats[i].off), err))
-            return false;
     /* Ranges are the renderer's (its pointers name /params/<key>). */
     return restir_pt_params_valid(rp, err);
 }
@@ -756,21 +759,14 @@ static bool request_restir_pt_params(const cJSON *pv, const char *ptr, struct re
 static bool request_bdpt_params(const cJSON *pv, const char *ptr, struct bdpt_params *bp, struct err *err)
 {
     static const char *const keys[] = {"max_depth", "rr_depth", "light_paths", "lvc_capacity", "heuristic", NULL};
-    static const struct { const char *key; size_t off; } uints[] = {
-        {"max_depth", offsetof(struct bdpt_params, max_depth)},
-        {"rr_depth", offsetof(struct bdpt_params, rr_depth)},
-        {"light_paths", offsetof(struct bdpt_params, light_paths)},
-        {"lvc_capacity", offsetof(struct bdpt_params, lvc_capacity)},
-    };
+#define F(key) REQUEST_FIELD(struct bdpt_params, key, REQUEST_UINT)
+    static const struct request_field fields[] = {F(max_depth), F(rr_depth), F(light_paths), F(lvc_capacity)};
+#undef F
     char p[REQUEST_PTR];
     const cJSON *v;
-    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in bdpt params", err))
+    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in bdpt params", err) ||
+        !request_fields(pv, ptr, fields, sizeof fields / sizeof fields[0], 1u << 26, bp, err))
         return false;
-    char *base = (char *)bp;
-    for (size_t i = 0; i < sizeof uints / sizeof uints[0]; i++)
-        if ((v = request_member(pv, ptr, uints[i].key, p)) &&
-            !request_uint32(v, p, 0, 1u << 26, NULL, (uint32_t *)(base + uints[i].off), err))
-            return false;
     if ((v = request_member(pv, ptr, "heuristic", p))) {
         const char *name = request_string(v, p, err);
         if (!name) return false;
@@ -786,17 +782,13 @@ static bool request_restir_sss_params(const cJSON *pv, const char *ptr, struct r
     static const char *const keys[] = {"shift", "candidates", "temporal", "temporal_cap", "spatial_neighbors",
                                        "spatial_radius", "kappa_orientation", "max_depth", "rr_depth",
                                        "index_shortcut", NULL};
-    static const struct { const char *key; size_t off; } uints[] = {
-        {"candidates", offsetof(struct restir_sss_params, candidates)},
-        {"temporal_cap", offsetof(struct restir_sss_params, temporal_cap)},
-        {"spatial_neighbors", offsetof(struct restir_sss_params, spatial_neighbors)},
-        {"max_depth", offsetof(struct restir_sss_params, max_depth)},
-        {"rr_depth", offsetof(struct restir_sss_params, rr_depth)},
+#define F(key, kind) REQUEST_FIELD(struct restir_sss_params, key, kind)
+    static const struct request_field fields[] = {
+        F(candidates, REQUEST_UINT), F(temporal_cap, REQUEST_UINT), F(spatial_neighbors, REQUEST_UINT),
+        F(max_depth, REQUEST_UINT), F(rr_depth, REQUEST_UINT), F(temporal, REQUEST_BOOL),
+        F(index_shortcut, REQUEST_BOOL), F(spatial_radius, REQUEST_FLOAT), F(kappa_orientation, REQUEST_FLOAT),
     };
-    static const struct { const char *key; size_t off; } floats[] = {
-        {"spatial_radius", offsetof(struct restir_sss_params, spatial_radius)},
-        {"kappa_orientation", offsetof(struct restir_sss_params, kappa_orientation)},
-    };
+#undef F
     char p[REQUEST_PTR];
     const cJSON *v;
     if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_sss params", err))
@@ -808,17 +800,7 @@ static bool request_restir_sss_params(const cJSON *pv, const char *ptr, struct r
             return err_set(err, ERR_INVALID, p, "unknown shift \"%.64s\" (reconnection, delayed, hybrid or sequential)",
                            name);
     }
-    char *base = (char *)rp;
-    for (size_t i = 0; i < sizeof uints / sizeof uints[0]; i++)
-        if ((v = request_member(pv, ptr, uints[i].key, p)) &&
-            !request_uint32(v, p, 0, 1000000, NULL, (uint32_t *)(base + uints[i].off), err))
-            return false;
-    if ((v = request_member(pv, ptr, "temporal", p)) && !request_bool(v, p, &rp->temporal, err)) return false;
-    if ((v = request_member(pv, ptr, "index_shortcut", p)) && !request_bool(v, p, &rp->index_shortcut, err))
-        return false;
-    for (size_t i = 0; i < sizeof floats / sizeof floats[0]; i++)
-        if ((v = request_member(pv, ptr, floats[i].key, p)) && !request_float(v, p, (float *)(base + floats[i].off), err))
-            return false;
+    if (!request_fields(pv, ptr, fields, sizeof fields / sizeof fields[0], 1000000, rp, err)) return false;
     return restir_sss_params_valid(rp, err);
 }
 
