@@ -48,6 +48,19 @@ bool protocol_valid_id(const char *s, size_t len);
  * max_pixels is reported at "" (the product belongs to neither member alone).
  * seed: integer 0..2^53 (checked as a double: 2^53 + 1 reads as 2^53). *out is written only
  * on success. */
+/* A number or flag of a method's params struct: how a session create request names it and where
+ * it lives. The parser reads params through these tables and the session object writes them
+ * back through the same tables, so a param cannot be accepted and not echoed. */
+enum protocol_field_kind { PROTOCOL_UINT, PROTOCOL_BOOL, PROTOCOL_FLOAT };
+struct protocol_field {
+    const char *key;
+    enum protocol_field_kind kind;
+    size_t off;  /* offset in the method's params struct */
+};
+/* The numeric and boolean params of restir_pt, bdpt and restir_sss (NULL, *count = 0 for the
+ * others, whose params are written out by hand). */
+const struct protocol_field *protocol_method_fields(enum render_method method, size_t *count);
+
 bool protocol_parse_session_create(const char *body, size_t len, const struct protocol_limits *limits,
                                    struct view_params *out, struct err *err);
 

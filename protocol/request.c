@@ -706,17 +706,9 @@ static bool request_sms_params(const cJSON *pv, const char *ptr, const struct pr
     return true;
 }
 
-/* A number or flag of a method's params struct, read by request_fields. */
-enum request_field_kind { REQUEST_UINT, REQUEST_BOOL, REQUEST_FLOAT };
-struct request_field {
-    const char *key;
-    enum request_field_kind kind;
-    size_t off;  /* offset in the params struct */
-};
-
 /* Reads every field present in the object at ptr into base; unsigned fields take 0..umax (the
  * method's own validation checks the real ranges and names /params/<key>). */
-static bool request_fields(const cJSON *pv, const char *ptr, const struct request_field *f, size_t n, uint32_t umax,
+static bool request_fields(const cJSON *pv, const char *ptr, const struct protocol_field *f, size_t n, uint32_t umax,
                            void *base, struct err *err)
 {
     char p[REQUEST_PTR];
@@ -724,8 +716,8 @@ static bool request_fields(const cJSON *pv, const char *ptr, const struct reques
         const cJSON *v = request_member(pv, ptr, f[i].key, p);
         if (!v) continue;
         char *at = (char *)base + f[i].off;
-        bool ok = f[i].kind == REQUEST_UINT   ? request_uint32(v, p, 0, umax, NULL, (uint32_t *)at, err)
-                  : f[i].kind == REQUEST_BOOL ? request_bool(v, p, (bool *)at, err)
+        bool ok = f[i].kind == PROTOCOL_UINT   ? request_uint32(v, p, 0, umax, NULL, (uint32_t *)at, err)
+                  : f[i].kind == PROTOCOL_BOOL ? request_bool(v, p, (bool *)at, err)
                                               : request_float(v, p, (float *)at, err);
         if (!ok) return false;
     }
@@ -734,23 +726,46 @@ static bool request_fields(const cJSON *pv, const char *ptr, const struct reques
 
 #define REQUEST_FIELD(type, key, kind) {#key, kind, offsetof(type, key)}
 
+#define F(key, kind) REQUEST_FIELD(struct restir_pt_params, key, kind)
+static const struct protocol_field restir_pt_fields[] = {
+        F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(nee_candidates, PROTOCOL_UINT),
+        F(temporal_cap, PROTOCOL_UINT), F(spatial_neighbors, PROTOCOL_UINT), F(spatial_rounds, PROTOCOL_UINT),
+        F(rr, PROTOCOL_BOOL), F(unify_di, PROTOCOL_BOOL), F(temporal, PROTOCOL_BOOL), F(paired_spatial, PROTOCOL_BOOL),
+        F(footprint, PROTOCOL_BOOL), F(pdf_connect, PROTOCOL_BOOL), F(spatial_radius, PROTOCOL_FLOAT),
+        F(footprint_c, PROTOCOL_FLOAT), F(near_distance, PROTOCOL_FLOAT), F(roughness_min, PROTOCOL_FLOAT),
+    };
+#undef F
+#define F(key, kind) REQUEST_FIELD(struct bdpt_params, key, kind)
+static const struct protocol_field bdpt_fields[] = {
+    F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(light_paths, PROTOCOL_UINT), F(lvc_capacity, PROTOCOL_UINT),
+};
+#undef F
+#define F(key, kind) REQUEST_FIELD(struct restir_sss_params, key, kind)
+static const struct protocol_field restir_sss_fields[] = {
+        F(candidates, PROTOCOL_UINT), F(temporal_cap, PROTOCOL_UINT), F(spatial_neighbors, PROTOCOL_UINT),
+        F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(temporal, PROTOCOL_BOOL),
+        F(index_shortcut, PROTOCOL_BOOL), F(spatial_radius, PROTOCOL_FLOAT), F(kappa_orientation, PROTOCOL_FLOAT),
+    };
+#undef F
+
+const struct protocol_field *protocol_method_fields(enum render_method method, size_t *count)
+{
+    switch (method) {
+    case RENDER_METHOD_RESTIR_PT: *count = sizeof restir_pt_fields / sizeof restir_pt_fields[0]; return restir_pt_fields;
+    case RENDER_METHOD_BDPT: *count = sizeof bdpt_fields / sizeof bdpt_fields[0]; return bdpt_fields;
+    case RENDER_METHOD_RESTIR_SSS: *count = sizeof restir_sss_fields / sizeof restir_sss_fields[0]; return restir_sss_fields;
+    default: *count = 0; return NULL;
+    }
+}
+
 static bool request_restir_pt_params(const cJSON *pv, const char *ptr, struct restir_pt_params *rp, struct err *err)
 {
     static const char *const keys[] = {"max_depth", "rr_depth", "rr", "nee_candidates", "unify_di", "temporal",
                                        "temporal_cap", "spatial_neighbors", "spatial_radius", "spatial_rounds",
                                        "paired_spatial", "footprint", "footprint_c", "near_distance", "pdf_connect", "roughness_min",
                                        NULL};
-#define F(key, kind) REQUEST_FIELD(struct restir_pt_params, key, kind)
-    static const struct request_field fields[] = {
-        F(max_depth, REQUEST_UINT), F(rr_depth, REQUEST_UINT), F(nee_candidates, REQUEST_UINT),
-        F(temporal_cap, REQUEST_UINT), F(spatial_neighbors, REQUEST_UINT), F(spatial_rounds, REQUEST_UINT),
-        F(rr, REQUEST_BOOL), F(unify_di, REQUEST_BOOL), F(temporal, REQUEST_BOOL), F(paired_spatial, REQUEST_BOOL),
-        F(footprint, REQUEST_BOOL), F(pdf_connect, REQUEST_BOOL), F(spatial_radius, REQUEST_FLOAT),
-        F(footprint_c, REQUEST_FLOAT), F(near_distance, REQUEST_FLOAT), F(roughness_min, REQUEST_FLOAT),
-    };
-#undef F
     if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_pt params", err) ||
-        !request_fields(pv, ptr, fields, sizeof fields / sizeof fields[0], 1000000, rp, err))
+        !request_fields(pv, ptr, restir_pt_fields, sizeof restir_pt_fields / sizeof restir_pt_fields[0], 1000000, rp, err))
         return false;
     /* Ranges are the renderer's (its pointers name /params/<key>). */
     return restir_pt_params_valid(rp, err);
@@ -759,13 +774,10 @@ static bool request_restir_pt_params(const cJSON *pv, const char *ptr, struct re
 static bool request_bdpt_params(const cJSON *pv, const char *ptr, struct bdpt_params *bp, struct err *err)
 {
     static const char *const keys[] = {"max_depth", "rr_depth", "light_paths", "lvc_capacity", "heuristic", NULL};
-#define F(key) REQUEST_FIELD(struct bdpt_params, key, REQUEST_UINT)
-    static const struct request_field fields[] = {F(max_depth), F(rr_depth), F(light_paths), F(lvc_capacity)};
-#undef F
     char p[REQUEST_PTR];
     const cJSON *v;
     if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in bdpt params", err) ||
-        !request_fields(pv, ptr, fields, sizeof fields / sizeof fields[0], 1u << 26, bp, err))
+        !request_fields(pv, ptr, bdpt_fields, sizeof bdpt_fields / sizeof bdpt_fields[0], 1u << 26, bp, err))
         return false;
     if ((v = request_member(pv, ptr, "heuristic", p))) {
         const char *name = request_string(v, p, err);
@@ -782,13 +794,6 @@ static bool request_restir_sss_params(const cJSON *pv, const char *ptr, struct r
     static const char *const keys[] = {"shift", "candidates", "temporal", "temporal_cap", "spatial_neighbors",
                                        "spatial_radius", "kappa_orientation", "max_depth", "rr_depth",
                                        "index_shortcut", NULL};
-#define F(key, kind) REQUEST_FIELD(struct restir_sss_params, key, kind)
-    static const struct request_field fields[] = {
-        F(candidates, REQUEST_UINT), F(temporal_cap, REQUEST_UINT), F(spatial_neighbors, REQUEST_UINT),
-        F(max_depth, REQUEST_UINT), F(rr_depth, REQUEST_UINT), F(temporal, REQUEST_BOOL),
-        F(index_shortcut, REQUEST_BOOL), F(spatial_radius, REQUEST_FLOAT), F(kappa_orientation, REQUEST_FLOAT),
-    };
-#undef F
     char p[REQUEST_PTR];
     const cJSON *v;
     if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_sss params", err))
@@ -800,7 +805,7 @@ static bool request_restir_sss_params(const cJSON *pv, const char *ptr, struct r
             return err_set(err, ERR_INVALID, p, "unknown shift \"%.64s\" (reconnection, delayed, hybrid or sequential)",
                            name);
     }
-    if (!request_fields(pv, ptr, fields, sizeof fields / sizeof fields[0], 1000000, rp, err)) return false;
+    if (!request_fields(pv, ptr, restir_sss_fields, sizeof restir_sss_fields / sizeof restir_sss_fields[0], 1000000, rp, err)) return false;
     return restir_sss_params_valid(rp, err);
 }
 

@@ -43,35 +43,34 @@ static void api_write_camera(struct jsonw *w, const struct camera_desc *cam)
     jsonw_object_end(w);
 }
 
+/* Params read through a protocol field table, written back through it. */
+static void api_write_fields(struct jsonw *w, const struct protocol_field *f, size_t n, const char *base)
+{
+    for (size_t i = 0; i < n; i++) {
+        jsonw_key(w, f[i].key);
+        const char *at = base + f[i].off;
+        if (f[i].kind == PROTOCOL_UINT) jsonw_uint(w, *(const uint32_t *)at);
+        else if (f[i].kind == PROTOCOL_BOOL) jsonw_bool(w, *(const bool *)at);
+        else jsonw_double(w, *(const float *)at);
+    }
+}
+
 /* The method's parameters, as a session create request names them. */
 static void api_write_method_params(struct jsonw *w, const struct view_params *p)
 {
     jsonw_object_begin(w);
-    if (p->method == RENDER_METHOD_RESTIR_PT) {
-        const struct restir_pt_params *r = &p->restir_pt;
-        jsonw_key(w, "max_depth"); jsonw_uint(w, r->max_depth);
-        jsonw_key(w, "rr_depth"); jsonw_uint(w, r->rr_depth);
-        jsonw_key(w, "rr"); jsonw_bool(w, r->rr);
-        jsonw_key(w, "nee_candidates"); jsonw_uint(w, r->nee_candidates);
-        jsonw_key(w, "unify_di"); jsonw_bool(w, r->unify_di);
-        jsonw_key(w, "temporal"); jsonw_bool(w, r->temporal);
-        jsonw_key(w, "temporal_cap"); jsonw_uint(w, r->temporal_cap);
-        jsonw_key(w, "spatial_neighbors"); jsonw_uint(w, r->spatial_neighbors);
-        jsonw_key(w, "spatial_radius"); jsonw_double(w, r->spatial_radius);
-        jsonw_key(w, "spatial_rounds"); jsonw_uint(w, r->spatial_rounds);
-        jsonw_key(w, "paired_spatial"); jsonw_bool(w, r->paired_spatial);
-        jsonw_key(w, "footprint"); jsonw_bool(w, r->footprint);
-        jsonw_key(w, "footprint_c"); jsonw_double(w, r->footprint_c);
-        jsonw_key(w, "near_distance"); jsonw_double(w, r->near_distance);
-        jsonw_key(w, "pdf_connect"); jsonw_bool(w, r->pdf_connect);
-        jsonw_key(w, "roughness_min"); jsonw_double(w, r->roughness_min);
-    } else if (p->method == RENDER_METHOD_BDPT) {
-        const struct bdpt_params *b = &p->bdpt;
-        jsonw_key(w, "max_depth"); jsonw_uint(w, b->max_depth);
-        jsonw_key(w, "rr_depth"); jsonw_uint(w, b->rr_depth);
-        jsonw_key(w, "light_paths"); jsonw_uint(w, b->light_paths);
-        jsonw_key(w, "lvc_capacity"); jsonw_uint(w, b->lvc_capacity);
-        jsonw_key(w, "heuristic"); jsonw_string(w, bdpt_heuristic_name(b->heuristic));
+    size_t nf;
+    const struct protocol_field *fields = protocol_method_fields(p->method, &nf);
+    if (fields) {
+        const char *base = p->method == RENDER_METHOD_RESTIR_PT ? (const char *)&p->restir_pt
+                         : p->method == RENDER_METHOD_BDPT      ? (const char *)&p->bdpt
+                                                                : (const char *)&p->restir_sss;
+        api_write_fields(w, fields, nf, base);
+        if (p->method == RENDER_METHOD_BDPT) {
+            jsonw_key(w, "heuristic"); jsonw_string(w, bdpt_heuristic_name(p->bdpt.heuristic));
+        } else if (p->method == RENDER_METHOD_RESTIR_SSS) {
+            jsonw_key(w, "shift"); jsonw_string(w, restir_sss_shift_name(p->restir_sss.shift));
+        }
     } else if (p->method == RENDER_METHOD_SMS || p->method == RENDER_METHOD_SMS_SSP) {
         const struct sms_params *sp = p->method == RENDER_METHOD_SMS ? &p->sms : &p->ssp.sms;
         jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);
@@ -86,18 +85,6 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
             jsonw_key(w, "prior_samples"); jsonw_uint(w, p->ssp.prior_samples);
             jsonw_key(w, "alpha"); jsonw_double(w, p->ssp.alpha);
         }
-    } else if (p->method == RENDER_METHOD_RESTIR_SSS) {
-        const struct restir_sss_params *r = &p->restir_sss;
-        jsonw_key(w, "shift"); jsonw_string(w, restir_sss_shift_name(r->shift));
-        jsonw_key(w, "candidates"); jsonw_uint(w, r->candidates);
-        jsonw_key(w, "temporal"); jsonw_bool(w, r->temporal);
-        jsonw_key(w, "temporal_cap"); jsonw_uint(w, r->temporal_cap);
-        jsonw_key(w, "spatial_neighbors"); jsonw_uint(w, r->spatial_neighbors);
-        jsonw_key(w, "spatial_radius"); jsonw_double(w, r->spatial_radius);
-        jsonw_key(w, "kappa_orientation"); jsonw_double(w, r->kappa_orientation);
-        jsonw_key(w, "max_depth"); jsonw_uint(w, r->max_depth);
-        jsonw_key(w, "rr_depth"); jsonw_uint(w, r->rr_depth);
-        jsonw_key(w, "index_shortcut"); jsonw_bool(w, r->index_shortcut);
     } else {
         static const char *const subsets[] = {"all", "caustic", "rest"};
         jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);
