@@ -169,7 +169,8 @@ static uint32_t pt_path_seed(uint64_t seed, uint32_t frame, uint32_t pixel)
 
 static inline struct rng pt_stream(uint32_t path_seed, uint32_t vertex, uint32_t purpose)
 {
-    return rng_make(path_seed, vertex, purpose, PT_STREAM);
+    /* Distinct (path seed, vertex, purpose) give distinct keys: vertex < 2^24, purpose < 2^8. */
+    return rng_keyed((uint64_t)path_seed << 32 | (uint64_t)vertex << 8 | purpose);
 }
 
 static uint32_t pt_prim_id(const struct restir_pt_state *st, uint32_t shape, uint32_t prim)

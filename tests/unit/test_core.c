@@ -4,6 +4,7 @@
  * on the JSON loader. */
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "accel.h"
 #include "camera.h"
@@ -50,6 +51,35 @@ static void test_rng_streams_differ(void)
     CHECK(same == 0);
     struct rng c = rng_make(0, 0, 1, 0);
     CHECK(rng_next_u32(&c) == xb[0]);  /* deterministic */
+}
+
+/* Keyed streams are made one per path vertex and purpose and read for a few numbers only: the
+ * first numbers of streams with neighbouring keys, and the first two numbers of one stream, must
+ * be jointly uniform (16 x 16 bins, chi2). */
+static void test_rng_keyed_first_numbers_chi2(void)
+{
+    enum { B = 16, N = 256000 };
+    static int across[B][B], within[B][B];
+    memset(across, 0, sizeof across);
+    memset(within, 0, sizeof within);
+    for (uint64_t i = 0; i < N; i++) {
+        /* keys as the path tracer forms them: seed << 32 | vertex << 8 | purpose */
+        uint64_t key = (i / 64) << 32 | (i % 64) << 8 | 1u;
+        struct rng a = rng_keyed(key), b = rng_keyed(key + 1);
+        float a0 = rng_next_float(&a), a1 = rng_next_float(&a), b0 = rng_next_float(&b);
+        across[(int)(a0 * B)][(int)(b0 * B)]++;
+        within[(int)(a0 * B)][(int)(a1 * B)]++;
+    }
+    double e = (double)N / (B * B), chi_a = 0, chi_w = 0;
+    for (int i = 0; i < B; i++)
+        for (int j = 0; j < B; j++) {
+            chi_a += (across[i][j] - e) * (across[i][j] - e) / e;
+            chi_w += (within[i][j] - e) * (within[i][j] - e) / e;
+        }
+    CHECK_MSG(chi_a < chi2_critical(B * B - 1), "across keys: chi2 %.2f", chi_a);
+    CHECK_MSG(chi_w < chi2_critical(B * B - 1), "within a stream: chi2 %.2f", chi_w);
+    struct rng c = rng_keyed(42), d = rng_keyed(42);
+    CHECK(rng_next_u32(&c) == rng_next_u32(&d));  /* deterministic */
 }
 
 static void test_distrib_chi2(void)
@@ -271,6 +301,7 @@ static void test_camera_rays(void)
     CHECK(right.x < 0.0f);
 }
 
-TEST_MAIN(TEST(test_rng_uniform_chi2), TEST(test_rng_streams_differ), TEST(test_distrib_chi2),
+TEST_MAIN(TEST(test_rng_uniform_chi2), TEST(test_rng_streams_differ), TEST(test_rng_keyed_first_numbers_chi2),
+          TEST(test_distrib_chi2),
           TEST(test_accel_flat_and_two_level), TEST(test_accel_move_instance), TEST(test_offset_avoids_self_hit),
           TEST(test_light_sampler_pdfs), TEST(test_camera_rays))
