@@ -427,6 +427,24 @@ static struct pt_rc_record pt_rc_at(const struct pt_ctx *c, const struct pt_vert
                                  .wk = wk, .lobe_prev = lobe_prev, .lobe_rc = lobe_rc, .rc_pdf = rc_pdf};
 }
 
+/* The path throughput up to a reconnection vertex x_k as a shift evaluates it: x_{k-1}'s factor
+ * f |cos| / p of lobe `lobe` taken along the segment between the two positions rather than along
+ * the sampled ray, whose origin was moved off the surface. At grazing angles the two differ by
+ * several per cent; with this the initial sample and its shift to its own pixel compute one
+ * integrand (seed 001 eq. 4 is written on vertex positions). `beta_before` is the throughput up to
+ * x_{k-2}; false (beta untouched) when the lobe gives nothing along the segment. */
+static bool pt_rc_beta(const struct pt_vertex *prev, int lobe, struct vec3 xk_p, struct vec3 beta_before,
+                       struct vec3 *beta)
+{
+    struct vec3 w = vec3_normalize(vec3_sub(xk_p, prev->s.p));
+    struct vec3 wi = frame_to_local(&prev->s.frame, w);
+    struct vec3 f;
+    float pdf;
+    if (!(vec3_dot(w, prev->s.ng) * wi.z > 0.0f) || !pt_lobe_at(prev->m, lobe, prev->wo, wi, &f, &pdf)) return false;
+    *beta = vec3_mul(beta_before, vec3_scale(f, fabsf(wi.z) / pdf));
+    return true;
+}
+
 /* Samples one path from the pixel's primary hit and resamples its candidates into `out`; light
  * that reaches the pixel outside the reservoir — emission seen directly (the environment for an
  * escaped primary ray), and direct light when it is not unified — goes to *direct. */
@@ -449,6 +467,9 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
     reservoir_stream_begin(&rs);
     struct vec3 beta = vec3_splat(1.0f);      /* prod f |cos| / p over x_1 .. x_{j-1} */
     struct vec3 beta_suf = vec3_splat(1.0f);  /* the same over the vertices after x_k */
+    struct pt_vertex prev = v;                /* x_{j-1} (j >= 2) */
+    struct vec3 beta_prev = beta;             /* prod over x_1 .. x_{j-2} */
+    int prev_lobe = 0;                        /* the lobe sampled at x_{j-1} */
     double src = 1.0;                         /* prod of Russian roulette survival probabilities */
     struct pt_segment seg = {0};              /* enters x_j (j >= 2) */
     struct pt_rc_record rc = {0};             /* the first connectable pair of the continuation */
@@ -469,7 +490,12 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
                 struct vec3 wi = frame_to_local(&v.s.frame, ls.wi_world);
                 float p1 = ls.pdf_light_w, p2 = material_pdf(v.m, v.wo, wi);
                 struct vec3 end = vec3_scale(vec3_mul(ls.f_cos, ls.Le), pt_balance((float)c->nee_m * p1, p2) / p1);
-                struct vec3 F = vec3_mul(beta, end);
+                bool rough = pt_rough_nee(c, v.m, p2);
+                /* x_j reconnects when no earlier pair did and (x_{j-1}, x_j) is connectable. */
+                const bool rc_here = offer && rc.k == 0 && pt_connectable(&th, j, &seg, false, rough, p2);
+                struct vec3 beta_nee = beta;
+                if (rc_here) pt_rc_beta(&prev, prev_lobe, v.s.p, beta_prev, &beta_nee);
+                struct vec3 F = vec3_mul(beta_nee, end);
                 double W_u = (double)ls.W * p1 / src;  /* seed 001 §5: W_ris p_light */
                 float target = vec3_luminance(F);
                 if (!offer) {
@@ -478,8 +504,7 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
                     struct pt_rc_record r = rc;
                     struct vec3 rad = vec3_mul(beta_suf, end);
                     float light_pdf = 0.0f;
-                    bool rough = pt_rough_nee(c, v.m, p2);
-                    if (rc.k == 0 && pt_connectable(&th, j, &seg, false, rough, p2)) {
+                    if (rc_here) {
                         /* x_j reconnects; the NEE direction leaves it (its pdf ignores w_o: B = 1). */
                         r = pt_rc_at(c, &v, ls.wi_world, seg.lobe, 0, seg.pdf_lobe * seg.cos_end / seg.dist2, j);
                         rad = ls.Le;
@@ -516,7 +541,9 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
         if (rc.k == 0 && pt_connectable(&th, j, &seg, false, stp.rough, stp.pdf_marg)) {
             rc = pt_rc_at(c, &v, stp.dir, seg.lobe, stp.bs.lobe, seg.pdf_lobe * seg.cos_end / seg.dist2 * stp.bs.pdf_w, j);
             found_here = true;
+            pt_rc_beta(&prev, prev_lobe, v.s.p, beta_prev, &beta);
         }
+        const struct vec3 beta_in = beta;  /* prod over x_1 .. x_{j-1} */
         beta = vec3_mul(beta, stp.factor);
         if (rc.k && !found_here) beta_suf = vec3_mul(beta_suf, stp.factor);
         if (p->rr && j >= p->rr_depth) {
@@ -560,7 +587,13 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
             if (!vec3_is_zero(Le)) {
                 float lp = pt_light_pdf_w(scene, nv.s.shape, nv.s.prim, dist2, vec3_dot(stp.dir, nv.s.ng));
                 struct vec3 end = vec3_scale(Le, pt_mis_bsdf(c, delta, stp.pdf_marg, lp));
-                struct vec3 F = vec3_mul(beta, end);
+                struct vec3 beta_end = beta;
+                /* The emitter x_d itself reconnects: its segment's numbers come from the positions. */
+                const bool rc_end = offer && !found_here && rc.k == 0 && pt_connectable(&th, d, &nseg, true, false, 0.0f);
+                if (rc_end && pt_rc_beta(&v, stp.bs.lobe, nv.s.p, beta_in, &beta_end))
+                    end = vec3_scale(Le, pt_mis_bsdf(c, false, nseg.pdf_marg,
+                                                     pt_light_pdf_w(scene, nv.s.shape, nv.s.prim, nseg.dist2, nseg.cos_end)));
+                struct vec3 F = vec3_mul(beta_end, end);
                 float target = vec3_luminance(F);
                 if (!offer) {
                     *direct = vec3_add(*direct, vec3_scale(F, (float)(1.0 / src)));
@@ -571,13 +604,16 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
                     if (found_here) {
                         rad = Le;
                         light_pdf = lp;
-                    } else if (rc.k == 0 && pt_connectable(&th, d, &nseg, true, false, 0.0f)) {
+                    } else if (rc_end) {
                         r = pt_rc_at(c, &nv, stp.dir, stp.bs.lobe, 0, nseg.pdf_lobe * nseg.cos_end / nseg.dist2, d);
                     }
                     pt_store(out, seed, d, false, F, &r, rad, light_pdf);
                 }
             }
         }
+        prev = v;
+        prev_lobe = stp.bs.lobe;
+        beta_prev = beta_in;
         v = nv;
         seg = nseg;
     }

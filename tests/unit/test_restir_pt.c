@@ -221,10 +221,10 @@ static void test_temporal_round_trips_camera(void) { temporal_case(false); }
 static void test_temporal_round_trips_moving_shape(void) { temporal_case(true); }
 
 /* The shift to a sample's own domain re-evaluates the path: it must give the contribution the
- * initial pass stored, with |J| = 1 — the initial pass and the shift compute one integrand. The
- * initial pass evaluates the segment into x_k along the sampled ray, whose origin was moved off
- * the surface; the shift along the segment between the two positions: on glossy lobes at grazing
- * angles the two differ in the 4th digit, never more than 1 %. */
+ * initial pass stored, with |J| = 1 — the initial pass and the shift compute one integrand. Both
+ * evaluate the segment into the reconnection vertex between the two positions (pt_rc_beta), not
+ * along the sampled ray, whose origin was moved off the surface: at grazing angles those differ
+ * by several per cent (7 % on one sample here before). What remains is float rounding. */
 static void test_identity_shift_reproduces_initial_contribution(void)
 {
     struct scene *sc = load("scenes/cornell-glossy/scene.json");
@@ -253,13 +253,13 @@ static void test_identity_shift_reproduces_initial_contribution(void)
         checked++;
         double rel = fabs((double)vec3_luminance(a.F) - vec3_luminance(b.F)) / vec3_luminance(a.F);
         if (rel > worst) worst = rel;
-        if (!(tgt > 0.0f) || !close_rel(a.F, b.F, 1e-2) || fabs((double)jac - 1.0) > 1e-4) {
+        if (!(tgt > 0.0f) || !close_rel(a.F, b.F, 1e-3) || fabs((double)jac - 1.0) > 1e-4) {
             if (bad++ < 5)
                 fprintf(stderr, "  pixel %u: d %u k %u nee %d stored F %g, re-evaluated %g (target %g), J %g\n", px,
                         a.length, a.rc, a.nee, (double)a.F.y, (double)b.F.y, (double)tgt, (double)jac);
         }
     }
-    printf("  %d samples re-evaluated in their own pixel, %d differ by more than 1 %%, largest difference %.2g\n",
+    printf("  %d samples re-evaluated in their own pixel, %d differ by more than 0.1 %%, largest difference %.2g\n",
            checked, bad, worst);
     CHECK(checked > 500);
     CHECK(bad == 0);
