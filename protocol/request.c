@@ -744,7 +744,8 @@ static const struct protocol_field bdpt_fields[] = {
 static const struct protocol_field restir_sss_fields[] = {
         F(candidates, PROTOCOL_UINT), F(temporal_cap, PROTOCOL_UINT), F(spatial_neighbors, PROTOCOL_UINT),
         F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(temporal, PROTOCOL_BOOL),
-        F(index_shortcut, PROTOCOL_BOOL), F(spatial_radius, PROTOCOL_FLOAT), F(kappa_orientation, PROTOCOL_FLOAT),
+        F(index_shortcut, PROTOCOL_BOOL), F(paired_spatial, PROTOCOL_BOOL), F(spatial_radius, PROTOCOL_FLOAT),
+        F(kappa_orientation, PROTOCOL_FLOAT),
     };
 #undef F
 
@@ -793,7 +794,7 @@ static bool request_restir_sss_params(const cJSON *pv, const char *ptr, struct r
 {
     static const char *const keys[] = {"shift", "candidates", "temporal", "temporal_cap", "spatial_neighbors",
                                        "spatial_radius", "kappa_orientation", "max_depth", "rr_depth",
-                                       "index_shortcut", NULL};
+                                       "index_shortcut", "paired_spatial", NULL};
     char p[REQUEST_PTR];
     const cJSON *v;
     if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_sss params", err))

@@ -53,6 +53,8 @@ struct restir_sss_params {
     uint32_t max_depth, rr_depth; /* of the pt path that supplies the rest of the image (64, 3) */
     bool index_shortcut;          /* sequential only: the slightly biased intersection-index
                                      shortcut of §4.3 instead of the exact mode (false) */
+    bool paired_spatial;          /* symmetric neighbour pairs whose two shifts serve both pixels
+                                     (restir.h, seed 001 Table 1), half the shifts (true) */
 };
 
 struct restir_sss_params restir_sss_defaults(void);
@@ -69,11 +71,21 @@ struct restir_sss_stats {
     float spatial_radius;          /* the radius used (pixels) */
 };
 
+/* A pixel's primary surface as the frame's initial pass built it (cos_o <= 0: no translucent
+ * surface seen from its front): every shift and validity test of the frame reads it back instead
+ * of rebuilding it from the G-buffer. */
+struct restir_sss_hit {
+    struct vec3 p, ng, ns;
+    float cos_o;
+};
+
 struct restir_sss_state {
     uint32_t width, height;
     struct gbuffer gbuf[2];
+    struct restir_sss_hit *hits[2];   /* indexed like gbuf */
     uint32_t cur;
     uint8_t *res[2];   /* [0] working, [1] history (final) */
+    void *pair_scratch;               /* paired spatial reuse (restir_pair_scratch_bytes) */
     bool has_history;
 };
 
@@ -84,6 +96,8 @@ void restir_sss_destroy(struct restir_sss_state *st);
 void restir_sss_reset(struct restir_sss_state *st);
 size_t restir_sss_reservoir_bytes(const struct restir_sss_state *st);
 size_t restir_sss_gbuffer_bytes(const struct restir_sss_state *st);
+size_t restir_sss_hit_bytes(const struct restir_sss_state *st);
+size_t restir_sss_pair_bytes(const struct restir_sss_state *st);
 uint64_t restir_sss_bytes_planned(uint32_t width, uint32_t height);
 
 struct restir_sss_frame {

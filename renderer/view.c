@@ -392,6 +392,8 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
     if (v->params.method == RENDER_METHOD_RESTIR_SSS) {
         out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sss_reservoir_bytes(&v->sss)};
         out[n++] = (struct view_buffer_bytes){"gbuffers", restir_sss_gbuffer_bytes(&v->sss)};
+        out[n++] = (struct view_buffer_bytes){"primary_hits", restir_sss_hit_bytes(&v->sss)};
+        out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_sss_pair_bytes(&v->sss)};
     }
     if (v->params.method == RENDER_METHOD_SMS_SSP) out[n++] = (struct view_buffer_bytes){"prior", ssp_prior_bytes(v->output.width, v->output.height)};
     size_t sum = 0;
