@@ -1326,7 +1326,8 @@ def test_restir_sss_session(daemon):
     assert p["temporal_cap"] == 20 and p["kappa_orientation"] == pytest.approx(0.5) and p["spatial_radius"] == 0
     assert s["reservoir_bytes_per_pixel"] == 60
     assert s["reservoir_bytes"] == 2 * 60 * 24 * 24 == s["buffers"]["reservoirs"]
-    assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers"}
+    assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers",
+                                 "primary_hits", "spatial_pairs"}
     post_frame(daemon, s, accept="application/json")
     st = post_frame(daemon, s, accept="application/json").json()
     assert st["passes"]["shifts"] > 0 and st["nonfinite"] == 0
