@@ -87,6 +87,9 @@ bool bssrdf_probe_make(const struct material *m, struct vec3 p1, const struct fr
 float bssrdf_pdf_technique(const struct material *m, struct vec3 p1, const struct frame *f1, int axis, int channel,
                            struct vec3 p2, struct vec3 n2);
 float bssrdf_pdf_a(const struct material *m, struct vec3 p1, const struct frame *f1, struct vec3 p2, struct vec3 n2);
+/* The same sum, and in *pdf_t its term of technique (axis, channel): probability times pdf. */
+float bssrdf_pdf_a_and(const struct material *m, struct vec3 p1, const struct frame *f1, struct vec3 p2, struct vec3 n2,
+                       int axis, int channel, float *pdf_t);
 
 /* Probabilistic inversion of the disk sampling for a fixed technique (seed 004 Algorithm 4,
  * lines 2–9): the radius and angle numbers that put the disk point of (axis, channel) under

@@ -193,9 +193,8 @@ static struct vec3 sss_eval(const struct scene *scene, const struct sss_x1 *x1, 
     const struct material *m = x1->m;
     struct vec3 zero = vec3_splat(0.0f);
     float r = vec3_length(vec3_sub(x2->p, x1->s.p));
-    float p_mis = bssrdf_pdf_a(m, x1->s.p, &x1->s.frame, x2->p, x2->ng);
-    float p_t = bssrdf_technique_prob(axis, channel) *
-                bssrdf_pdf_technique(m, x1->s.p, &x1->s.frame, axis, channel, x2->p, x2->ng);
+    float p_t = 0.0f;
+    float p_mis = bssrdf_pdf_a_and(m, x1->s.p, &x1->s.frame, x2->p, x2->ng, axis, channel, &p_t);
     if (pdf_mis) *pdf_mis = p_mis;
     if (!(p_mis > 0.0f) || !(p_t > 0.0f)) return zero;
     struct vec3 wi, Le;
