@@ -72,6 +72,21 @@ unsigned parallel_default_threads(void)
     return n > (long)PARALLEL_MAX_THREADS ? PARALLEL_MAX_THREADS : (unsigned)n;
 }
 
+unsigned parallel_threads(unsigned requested, unsigned cap)
+{
+    unsigned n = requested ? requested : parallel_default_threads();
+    return n > cap ? cap : n;
+}
+
+double parallel_lap_ms(struct timespec *t0)
+{
+    struct timespec t1;
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+    double ms = (double)(t1.tv_sec - t0->tv_sec) * 1e3 + (double)(t1.tv_nsec - t0->tv_nsec) * 1e-6;
+    *t0 = t1;
+    return ms;
+}
+
 /* ---- the fallback: threads created and joined per call ------------------------------------ */
 
 struct spawned_worker {

@@ -6,6 +6,7 @@
 #define RESTIRD_PARALLEL_H
 
 #include <stdint.h>
+#include <time.h>
 
 #include "err.h"
 
@@ -14,6 +15,12 @@ typedef void parallel_progress_fn(void *ctx, uint32_t done, uint32_t total);
 
 /* Number of worker threads to use by default: the online CPU count. */
 unsigned parallel_default_threads(void);
+/* `requested` threads (0 = parallel_default_threads()), at most `cap`. */
+unsigned parallel_threads(unsigned requested, unsigned cap);
+
+/* Milliseconds on CLOCK_MONOTONIC since *t0, and *t0 moved to now: one clock times consecutive
+ * passes of a frame. */
+double parallel_lap_ms(struct timespec *t0);
 /* Runs all jobs with `threads` workers (0 = default, at most 1024) and returns when every job
  * has run exactly once. `worker` is < threads and unique among the threads running jobs of this
  * call at the same moment (per-worker scratch indexed by it needs no locking). `progress` (may

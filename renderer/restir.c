@@ -429,3 +429,14 @@ bool restir_spatial_pass(const struct restir_reuse *r, const uint8_t *in, uint8_
         if (!restir_run(r, restir_pair_pixel, in, out, m, c, err)) return false;
     return restir_run(r, restir_pair_end_pixel, in, out, 0, c, err);
 }
+
+bool restir_gbuffer_next(struct gbuffer gbuf[2], uint32_t *cur, bool *has_history, struct gbuffer_frame gf,
+                         uint64_t *rays, struct err *err)
+{
+    const bool history = *has_history && gf.prev_scene;
+    if (history) *cur ^= 1u;
+    else gf.prev_scene = NULL;
+    if (!gbuffer_render(&gbuf[*cur], &gf, rays, err)) return false;
+    if (!history) *has_history = false;
+    return true;
+}

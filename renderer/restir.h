@@ -98,4 +98,10 @@ bool restir_temporal_pass(const struct restir_reuse *r, uint8_t *cur, struct res
 bool restir_spatial_pass(const struct restir_reuse *r, const uint8_t *in, uint8_t *out, struct restir_counters *c,
                          struct err *err);
 
+/* The G-buffer pass of a frame for a method that keeps two (gbuf[*cur] current, the other the
+ * previous frame's): when the previous frame is history (*has_history and gf.prev_scene) they
+ * swap and the motion vectors point into it; otherwise the history is dropped. */
+bool restir_gbuffer_next(struct gbuffer gbuf[2], uint32_t *cur, bool *has_history, struct gbuffer_frame gf,
+                         uint64_t *rays, struct err *err);
+
 #endif

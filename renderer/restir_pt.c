@@ -1042,15 +1042,6 @@ static void pt_shade_rows(void *ctx, uint32_t job, unsigned worker)
     }
 }
 
-static double pt_ms_since(struct timespec *t0)
-{
-    struct timespec t1;
-    clock_gettime(CLOCK_MONOTONIC, &t1);
-    double ms = (double)(t1.tv_sec - t0->tv_sec) * 1e3 + (double)(t1.tv_nsec - t0->tv_nsec) * 1e-6;
-    *t0 = t1;
-    return ms;
-}
-
 void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *params, const struct restir_pt_frame *f,
                     void *ctx)
 {
@@ -1092,15 +1083,12 @@ static bool pt_begin(struct restir_pt_state *st, const struct restir_pt_params *
                        st->shape_count);
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
-    const bool history = st->has_history && f->prev_scene;
-    if (history) st->cur ^= 1u;
-    struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = history ? f->prev_scene : NULL,
+    struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,
                                .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame, .threads = threads};
     uint64_t grays = 0;
-    if (!gbuffer_render(&st->gbuf[st->cur], &gf, &grays, err)) return false;
-    stats->gbuffer_ms = pt_ms_since(&t0);
+    if (!restir_gbuffer_next(st->gbuf, &st->cur, &st->has_history, gf, &grays, err)) return false;
+    stats->gbuffer_ms = parallel_lap_ms(&t0);
     stats->rays_intersect += grays;
-    if (!history) st->has_history = false;
 
     restir_pt_bind(st, params, f, c);
     memset(pp, 0, sizeof *pp);
@@ -1111,7 +1099,7 @@ static bool pt_begin(struct restir_pt_state *st, const struct restir_pt_params *
     bool ok = pt_run(pp, threads, pt_initial_rows, err);
     c->hits_write = false;
     if (!ok) return false;
-    stats->initial_ms = pt_ms_since(&t0);
+    stats->initial_ms = parallel_lap_ms(&t0);
     return true;
 }
 
@@ -1131,8 +1119,7 @@ bool restir_pt_initial_only(struct restir_pt_state *st, const struct restir_pt_p
     struct pt_pass *pp = malloc(sizeof *pp);
     if (!pp) return err_set(err, ERR_NOMEM, NULL, "out of memory");
     struct restir_pt_stats stats = {0};
-    unsigned threads = f->threads ? f->threads : parallel_default_threads();
-    if (threads > RESTIR_MAX_WORKERS) threads = RESTIR_MAX_WORKERS;
+    const unsigned threads = parallel_threads(f->threads, RESTIR_MAX_WORKERS);
     bool ok = pt_begin(st, params, f, &c, pp, NULL, threads, &stats, err);
     free(pp);
     return ok;
@@ -1148,8 +1135,7 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
     struct restir_pt_stats local;
     if (!stats) stats = &local;
     memset(stats, 0, sizeof *stats);
-    unsigned threads = f->threads ? f->threads : parallel_default_threads();
-    if (threads > RESTIR_MAX_WORKERS) threads = RESTIR_MAX_WORKERS;
+    const unsigned threads = parallel_threads(f->threads, RESTIR_MAX_WORKERS);
     /* On the stack (~50 KiB of per-worker counters): a frame allocates nothing. */
     struct pt_ctx c;
     struct pt_pass pp;
@@ -1167,7 +1153,7 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
                              .pair_scratch = st->pair_scratch};
     struct restir_counters rc = {0};
     if (!restir_temporal_pass(&r, st->res[0], &rc, err)) return false;
-    stats->temporal_ms = pt_ms_since(&t0);
+    stats->temporal_ms = parallel_lap_ms(&t0);
 
     /* Spatial rounds ping-pong between the two buffers and end in res[1], the history. */
     if (params->spatial_neighbors > 0) {
@@ -1185,13 +1171,13 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
         st->res[0] = st->res[1];
         st->res[1] = tmp;
     }
-    stats->spatial_ms = pt_ms_since(&t0);
+    stats->spatial_ms = parallel_lap_ms(&t0);
     pt_add_counters(stats, &rc);
 
     memset(pp.nonfinite, 0, sizeof pp.nonfinite);
     if (!pt_run(&pp, threads, pt_shade_rows, err)) return false;
     for (unsigned i = 0; i < threads; i++) stats->nonfinite += pp.nonfinite[i];
-    stats->shade_ms = pt_ms_since(&t0);
+    stats->shade_ms = parallel_lap_ms(&t0);
     st->has_history = true;
     return true;
 }

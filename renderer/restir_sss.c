@@ -611,15 +611,6 @@ static void sss_shade_rows(void *ctx, uint32_t job, unsigned worker)
     }
 }
 
-static double sss_ms_since(struct timespec *t0)
-{
-    struct timespec t1;
-    clock_gettime(CLOCK_MONOTONIC, &t1);
-    double ms = (double)(t1.tv_sec - t0->tv_sec) * 1e3 + (double)(t1.tv_nsec - t0->tv_nsec) * 1e-6;
-    *t0 = t1;
-    return ms;
-}
-
 void restir_sss_bind(struct restir_sss_state *st, const struct restir_sss_params *params,
                      const struct restir_sss_frame *f, void *ctx)
 {
@@ -653,15 +644,12 @@ static bool sss_begin(struct restir_sss_state *st, const struct restir_sss_param
     if (!restir_sss_params_valid(params, err)) return false;
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
-    const bool history = st->has_history && f->prev_scene;
-    if (history) st->cur ^= 1u;
-    struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = history ? f->prev_scene : NULL,
+    struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,
                                .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame, .threads = threads};
     uint64_t grays = 0;
-    if (!gbuffer_render(&st->gbuf[st->cur], &gf, &grays, err)) return false;
-    stats->gbuffer_ms = sss_ms_since(&t0);
+    if (!restir_gbuffer_next(st->gbuf, &st->cur, &st->has_history, gf, &grays, err)) return false;
+    stats->gbuffer_ms = parallel_lap_ms(&t0);
     stats->rays_intersect += grays;
-    if (!history) st->has_history = false;
 
     restir_sss_bind(st, params, f, c);
     memset(pp, 0, sizeof *pp);
@@ -674,7 +662,7 @@ static bool sss_begin(struct restir_sss_state *st, const struct restir_sss_param
     pp->pt.rr_depth = params->rr_depth;
     pp->pt.nee = true;
     if (!sss_run(pp, threads, sss_initial_rows, err)) return false;
-    stats->initial_ms = sss_ms_since(&t0);
+    stats->initial_ms = parallel_lap_ms(&t0);
     return true;
 }
 
@@ -716,8 +704,7 @@ bool restir_sss_initial_only(struct restir_sss_state *st, const struct restir_ss
     struct sss_pass *pp = malloc(sizeof *pp);
     if (!pp) return err_set(err, ERR_NOMEM, NULL, "out of memory");
     struct restir_sss_stats stats = {0};
-    unsigned threads = f->threads ? f->threads : parallel_default_threads();
-    if (threads > RESTIR_MAX_WORKERS) threads = RESTIR_MAX_WORKERS;
+    const unsigned threads = parallel_threads(f->threads, RESTIR_MAX_WORKERS);
     bool ok = sss_begin(st, params, f, &c, pp, NULL, threads, &stats, err);
     free(pp);
     return ok;
@@ -733,8 +720,7 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
     struct restir_sss_stats local;
     if (!stats) stats = &local;
     memset(stats, 0, sizeof *stats);
-    unsigned threads = f->threads ? f->threads : parallel_default_threads();
-    if (threads > RESTIR_MAX_WORKERS) threads = RESTIR_MAX_WORKERS;
+    const unsigned threads = parallel_threads(f->threads, RESTIR_MAX_WORKERS);
     struct sss_ctx c;
     /* ~50 KiB of per-worker counters: on the heap would be a per-frame malloc; the stack is fine. */
     struct sss_pass pp;
@@ -754,7 +740,7 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
                              .radius = radius, .paired = params->paired_spatial, .pair_scratch = st->pair_scratch};
     struct restir_counters rc = {0};
     if (!restir_temporal_pass(&r, st->res[0], &rc, err)) return false;
-    stats->temporal_ms = sss_ms_since(&t0);
+    stats->temporal_ms = parallel_lap_ms(&t0);
     if (params->spatial_neighbors > 0 && params->shift == RESTIR_SSS_SEQUENTIAL) {
         /* §4.3, §5.1: half the neighbours with reconnection, then half with delayed
          * reconnection (its own neighbour stream), ending in res[1]. */
@@ -773,13 +759,13 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
         st->res[0] = st->res[1];
         st->res[1] = tmp;
     }
-    stats->spatial_ms = sss_ms_since(&t0);
+    stats->spatial_ms = parallel_lap_ms(&t0);
     sss_add_counters(stats, &rc);
 
     memset(pp.nonfinite, 0, sizeof pp.nonfinite);
     if (!sss_run(&pp, threads, sss_shade_rows, err)) return false;
     for (unsigned i = 0; i < threads; i++) stats->nonfinite += pp.nonfinite[i];
-    stats->shade_ms = sss_ms_since(&t0);
+    stats->shade_ms = parallel_lap_ms(&t0);
     st->has_history = true;
     return true;
 }
