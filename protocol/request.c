@@ -731,6 +731,7 @@ static const struct protocol_field restir_pt_fields[] = {
         F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(nee_candidates, PROTOCOL_UINT),
         F(temporal_cap, PROTOCOL_UINT), F(spatial_neighbors, PROTOCOL_UINT), F(spatial_rounds, PROTOCOL_UINT),
         F(rr, PROTOCOL_BOOL), F(unify_di, PROTOCOL_BOOL), F(temporal, PROTOCOL_BOOL), F(paired_spatial, PROTOCOL_BOOL),
+        F(expected_shading, PROTOCOL_BOOL),
         F(footprint, PROTOCOL_BOOL), F(pdf_connect, PROTOCOL_BOOL), F(spatial_radius, PROTOCOL_FLOAT),
         F(footprint_c, PROTOCOL_FLOAT), F(near_distance, PROTOCOL_FLOAT), F(roughness_min, PROTOCOL_FLOAT),
     };
@@ -744,7 +745,8 @@ static const struct protocol_field bdpt_fields[] = {
 static const struct protocol_field restir_sss_fields[] = {
         F(candidates, PROTOCOL_UINT), F(temporal_cap, PROTOCOL_UINT), F(spatial_neighbors, PROTOCOL_UINT),
         F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(temporal, PROTOCOL_BOOL),
-        F(index_shortcut, PROTOCOL_BOOL), F(paired_spatial, PROTOCOL_BOOL), F(spatial_radius, PROTOCOL_FLOAT),
+        F(index_shortcut, PROTOCOL_BOOL), F(paired_spatial, PROTOCOL_BOOL), F(expected_shading, PROTOCOL_BOOL),
+        F(spatial_radius, PROTOCOL_FLOAT),
         F(kappa_orientation, PROTOCOL_FLOAT),
     };
 #undef F
@@ -763,7 +765,7 @@ static bool request_restir_pt_params(const cJSON *pv, const char *ptr, struct re
 {
     static const char *const keys[] = {"max_depth", "rr_depth", "rr", "nee_candidates", "unify_di", "temporal",
                                        "temporal_cap", "spatial_neighbors", "spatial_radius", "spatial_rounds",
-                                       "paired_spatial", "footprint", "footprint_c", "near_distance", "pdf_connect", "roughness_min",
+                                       "paired_spatial", "expected_shading", "footprint", "footprint_c", "near_distance", "pdf_connect", "roughness_min",
                                        NULL};
     if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_pt params", err) ||
         !request_fields(pv, ptr, restir_pt_fields, sizeof restir_pt_fields / sizeof restir_pt_fields[0], 1000000, rp, err))
@@ -794,7 +796,7 @@ static bool request_restir_sss_params(const cJSON *pv, const char *ptr, struct r
 {
     static const char *const keys[] = {"shift", "candidates", "temporal", "temporal_cap", "spatial_neighbors",
                                        "spatial_radius", "kappa_orientation", "max_depth", "rr_depth",
-                                       "index_shortcut", "paired_spatial", NULL};
+                                       "index_shortcut", "paired_spatial", "expected_shading", NULL};
     char p[REQUEST_PTR];
     const cJSON *v;
     if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_sss params", err))

@@ -33,6 +33,26 @@ static inline const struct restir_head *restir_elem(const uint8_t *buf, size_t s
     return (const struct restir_head *)(buf + (size_t)pixel * stride);
 }
 
+/* Adds weight * F(elem) to *acc when the term is finite (a weight the reservoir refuses is
+ * refused here too). */
+static inline void restir_estimate_add(const struct restir_reuse *r, struct vec3 *acc, const void *elem, double weight)
+{
+    if (!(weight > 0.0) || !isfinite(weight)) return;
+    struct vec3 t = vec3_scale(r->ops->value(r->ctx, elem), (float)weight);
+    if (vec3_is_finite(t)) *acc = vec3_add(*acc, t);
+}
+
+static inline bool restir_estimating(const struct restir_reuse *r) { return r->estimate && r->ops->value; }
+
+/* A pixel the pass leaves as it was: its sample's own F(Y) W. */
+static void restir_estimate_unchanged(const struct restir_reuse *r, uint32_t pixel, const struct restir_head *h)
+{
+    if (!restir_estimating(r) || !(h->W > 0.0f)) return;
+    struct vec3 acc = vec3_splat(0.0f);
+    restir_estimate_add(r, &acc, h, h->W);
+    r->estimate[pixel] = vec3_add(r->estimate[pixel], acc);
+}
+
 /* A shift, counted: returns the target in `to` (0 when it fails) and sets *jacobian. */
 static float restir_shift(const struct restir_reuse *r, const void *src, struct restir_domain from,
                           struct restir_domain to, void *dst, float *jacobian, struct restir_counters *c)
@@ -133,7 +153,10 @@ static void restir_spatial_pixel(const struct restir_pass *p, uint32_t pixel, st
     struct restir_head *ho = (struct restir_head *)(out + (size_t)pixel * stride);
     memcpy(ho, hc, stride);
     const struct restir_domain dc = {pixel, RESTIR_CURRENT};
-    if (!ops->domain_valid(r->ctx, dc) || r->neighbors == 0) return;
+    if (!ops->domain_valid(r->ctx, dc) || r->neighbors == 0) {
+        restir_estimate_unchanged(r, pixel, ho);
+        return;
+    }
 
     struct rng rng = rng_make(r->seed, r->frame, pixel, RESTIR_SPATIAL_STREAM);
     uint32_t nb[64];
@@ -148,7 +171,10 @@ static void restir_spatial_pixel(const struct restir_pass *p, uint32_t pixel, st
         if (!ops->domain_valid(r->ctx, (struct restir_domain){q, RESTIR_CURRENT})) continue;
         nb[k++] = q;
     }
-    if (k == 0) return;
+    if (k == 0) {
+        restir_estimate_unchanged(r, pixel, ho);
+        return;
+    }
 
     const float M_c = (float)hc->M;
     const float p_c = hc->W > 0.0f ? ops->target(r->ctx, hc) : 0.0f;
@@ -156,6 +182,8 @@ static void restir_spatial_pixel(const struct restir_pass *p, uint32_t pixel, st
     reservoir_stream_begin(&s);
     _Alignas(16) uint8_t shifted[RESTIR_MAX_STRIDE];
     float canonical_terms = 0.0f;
+    struct vec3 est = vec3_splat(0.0f);
+    const bool estimating = restir_estimating(r);
     for (uint32_t i = 0; i < k; i++) {
         const struct restir_domain dn = {nb[i], RESTIR_CURRENT};
         const struct restir_head *hn = restir_elem(in, stride, dn.pixel);
@@ -174,6 +202,7 @@ static void restir_spatial_pixel(const struct restir_pass *p, uint32_t pixel, st
             float t_nc = restir_shift(r, hn, dn, dc, shifted, &j_nc, c);
             if (t_nc > 0.0f) {
                 float m_n = reuse_mis_pairwise_neighbor(M_c, M_n, p_n, t_nc * j_nc, k);
+                if (estimating) restir_estimate_add(r, &est, shifted, (double)m_n * hn->W * j_nc);
                 if (reservoir_stream_offer(&s, (double)m_n * t_nc * hn->W * j_nc, t_nc, M_n, u))
                     memcpy(ho, shifted, stride);
                 continue;
@@ -184,6 +213,7 @@ static void restir_spatial_pixel(const struct restir_pass *p, uint32_t pixel, st
     float u = rng_next_float(&rng);
     if (p_c > 0.0f) {
         float m_c = reuse_mis_pairwise_canonical(canonical_terms, k);
+        if (estimating) restir_estimate_add(r, &est, hc, (double)m_c * hc->W);
         if (reservoir_stream_offer(&s, (double)m_c * p_c * hc->W, p_c, M_c, u)) memcpy(ho, hc, stride);
     } else {
         reservoir_stream_offer(&s, 0.0, 0.0f, M_c, u);
@@ -192,6 +222,7 @@ static void restir_spatial_pixel(const struct restir_pass *p, uint32_t pixel, st
     struct reservoir res = reservoir_stream_finish(&s);
     ho->W = res.W;
     ho->M = restir_clamp_m(res.M);
+    if (estimating) r->estimate[pixel] = vec3_add(r->estimate[pixel], est);
 }
 
 /* ---- paired spatial reuse --------------------------------------------------------------------
@@ -214,6 +245,7 @@ struct restir_pair_acc {
     struct reservoir_stream s;
     float canonical_terms;  /* sum over partners of the canonical weight's terms 1 - t_n */
     uint32_t k;             /* partners that can produce samples (pairings whose partner is valid) */
+    struct vec3 est;        /* restir_reuse.estimate: sum of m_i W_i |J_i| F(Y_i) so far */
 };
 
 size_t restir_pair_scratch_bytes(uint32_t width, uint32_t height)
@@ -321,6 +353,7 @@ static void restir_pair_side(const struct restir_pass *p, struct restir_domain d
     const unsigned before = a->s.rejected;
     if (p_n > 0.0f && t_nc > 0.0f) {
         float m_n = reuse_mis_pairwise_neighbor(M_c, M_n, p_n, t_nc * j_nc, a->k);
+        if (restir_estimating(r)) restir_estimate_add(r, &a->est, shifted, (double)m_n * hn->W * j_nc);
         if (reservoir_stream_offer(&a->s, (double)m_n * t_nc * hn->W * j_nc, t_nc, M_n, u))
             memcpy(p->out + (size_t)dc.pixel * stride, shifted, stride);
     } else {
@@ -356,7 +389,10 @@ static void restir_pair_end_pixel(const struct restir_pass *p, uint32_t pixel, s
     const struct restir_reuse *r = p->r;
     const size_t stride = r->ops->stride;
     struct restir_pair_acc *a = (struct restir_pair_acc *)r->pair_scratch + pixel;
-    if (a->k == 0) return;  /* the output keeps the canonical reservoir as it was */
+    if (a->k == 0) {  /* the output keeps the canonical reservoir as it was */
+        restir_estimate_unchanged(r, pixel, restir_elem(p->out, stride, pixel));
+        return;
+    }
     const struct restir_head *hc = restir_elem(p->in, stride, pixel);
     struct restir_head *ho = (struct restir_head *)(p->out + (size_t)pixel * stride);
     const float M_c = (float)hc->M;
@@ -365,6 +401,7 @@ static void restir_pair_end_pixel(const struct restir_pass *p, uint32_t pixel, s
     const unsigned before = a->s.rejected;
     if (p_c > 0.0f) {
         float m_c = reuse_mis_pairwise_canonical(a->canonical_terms, a->k);
+        if (restir_estimating(r)) restir_estimate_add(r, &a->est, hc, (double)m_c * hc->W);
         if (reservoir_stream_offer(&a->s, (double)m_c * p_c * hc->W, p_c, M_c, u)) memcpy(ho, hc, stride);
     } else {
         reservoir_stream_offer(&a->s, 0.0, 0.0f, M_c, u);
@@ -373,6 +410,7 @@ static void restir_pair_end_pixel(const struct restir_pass *p, uint32_t pixel, s
     struct reservoir res = reservoir_stream_finish(&a->s);
     ho->W = res.W;
     ho->M = restir_clamp_m(res.M);
+    if (restir_estimating(r)) r->estimate[pixel] = vec3_add(r->estimate[pixel], a->est);
 }
 
 static void restir_rows(void *ctx, uint32_t job, unsigned worker)

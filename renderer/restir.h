@@ -59,6 +59,9 @@ struct restir_ops {
      * is neither a neighbour nor a temporal predecessor, so it counts in neither M nor any MIS
      * denominator. */
     bool (*domain_valid)(const void *ctx, struct restir_domain d);
+    /* Optional: the element's contribution vector F in its own domain (the target is a scalar
+     * function of it, e.g. its luminance); needed for restir_reuse.estimate. */
+    struct vec3 (*value)(const void *ctx, const void *elem);
 };
 
 struct restir_reuse {
@@ -81,6 +84,13 @@ struct restir_reuse {
      * two <= radius. Needs restir_pair_scratch_bytes() of scratch, owned by the technique. */
     bool paired;
     void *pair_scratch;
+    /* Spatial: when set (and ops->value is), the pass adds to estimate[pixel] the expectation of
+     * F(Y) W over its own final selection, sum_i w_i F(Y_i) / p̂(Y_i) = sum_i m_i W_i |J_i| F(Y_i)
+     * over every candidate it resampled: the same unbiased estimate without the selection's noise,
+     * which for a luminance target is mostly colour noise (seed 001 Fig. 5: "the vectorized form
+     * of the resampling weight"). For a frame's last spatial pass; the selected sample still goes
+     * on as the next frame's history. Pixels the pass leaves as they were add F(Y) W. */
+    struct vec3 *estimate;
 };
 
 size_t restir_pair_scratch_bytes(uint32_t width, uint32_t height);

@@ -92,6 +92,7 @@ struct restir_pt_params restir_pt_defaults(void)
         .max_depth = 64, .rr_depth = 3, .rr = true, .nee_candidates = 4, .unify_di = true,
         .temporal = true, .temporal_cap = 20, .spatial_neighbors = 3, .spatial_radius = 20.0f, .spatial_rounds = 1,
         .paired_spatial = true,
+        .expected_shading = true,
         .footprint = true, .footprint_c = 0.02f, .near_distance = 0.03f, .pdf_connect = true, .roughness_min = 0.2f,
     };
 }
@@ -863,6 +864,13 @@ static void pt_shift_impl(const struct pt_thread *th, const struct pt_sample *x,
     *jacobian = J;
 }
 
+static struct vec3 pt_value(const void *ctx, const void *elem)
+{
+    (void)ctx;
+    const struct pt_sample *s = elem;
+    return vec3_make(s->F[0], s->F[1], s->F[2]);
+}
+
 static float pt_target(const void *ctx, const void *elem)
 {
     (void)ctx;
@@ -890,6 +898,7 @@ const struct restir_ops restir_pt_ops = {
     .target = pt_target,
     .shift = pt_shift,
     .domain_valid = pt_domain_valid,
+    .value = pt_value,
 };
 
 void restir_pt_info(const void *elem, struct restir_pt_info *out)
@@ -996,6 +1005,7 @@ struct pt_pass {
     const struct pt_ctx *c;
     struct restir_pt_state *st;
     struct image *out;
+    bool estimated;    /* the last spatial pass added its expected contribution to out */
     struct restir_counters counters[RESTIR_MAX_WORKERS];
     uint64_t nonfinite[RESTIR_MAX_WORKERS];
 };
@@ -1032,7 +1042,9 @@ static void pt_shade_rows(void *ctx, uint32_t job, unsigned worker)
             uint32_t pixel = y * w + x;
             const struct pt_sample *s = &res[pixel];
             struct vec3 L = pp->out->pixels[pixel];
-            if (s->head.W > 0.0f) L = vec3_add(L, vec3_scale(vec3_make(s->F[0], s->F[1], s->F[2]), s->head.W));
+            /* Unless the last spatial pass already added its expected contribution. */
+            if (!pp->estimated && s->head.W > 0.0f)
+                L = vec3_add(L, vec3_scale(vec3_make(s->F[0], s->F[1], s->F[2]), s->head.W));
             if (!vec3_is_finite(L)) {
                 pp->nonfinite[worker]++;
                 L = vec3_splat(0.0f);
@@ -1159,6 +1171,8 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
     if (params->spatial_neighbors > 0) {
         for (uint32_t round = 0; round < params->spatial_rounds; round++) {
             r.frame = f->frame * 8u + round;  /* a distinct neighbour stream per round */
+            pp.estimated = params->expected_shading && round + 1 == params->spatial_rounds;
+            r.estimate = pp.estimated ? out->pixels : NULL;  /* adds to the light outside the reservoir */
             if (!restir_spatial_pass(&r, st->res[0], st->res[1], &rc, err)) return false;
             if (round + 1 < params->spatial_rounds) {
                 uint8_t *tmp = st->res[0];

@@ -33,6 +33,9 @@ struct restir_pt_params {
     float spatial_radius;        /* pixels (20) */
     uint32_t spatial_rounds;     /* (1) */
     bool paired_spatial;         /* neighbours paired so a pair's shifts serve both (true; restir.h) */
+    bool expected_shading;       /* shade with the last spatial pass's expected contribution over
+                                    its selection instead of the selected sample's F W: colour
+                                    noise reduction, seed 001 Fig. 5 (true; restir.h) */
     bool footprint;              /* dual footprint threshold (eq. 5) vs near-field distance */
     float footprint_c;           /* c of eq. 5 (0.02) */
     float near_distance;         /* without footprint: minimum segment length, fraction of the

@@ -53,7 +53,7 @@ struct restir_sss_params restir_sss_defaults(void)
     return (struct restir_sss_params){.shift = RESTIR_SSS_HYBRID, .candidates = 1, .temporal = true,
                                       .temporal_cap = 20, .spatial_neighbors = 4, .spatial_radius = 0.0f,
                                       .kappa_orientation = 0.5f, .max_depth = 64, .rr_depth = 3,
-                                      .paired_spatial = true};
+                                      .paired_spatial = true, .expected_shading = true};
 }
 
 static const char *const sss_shift_names[] = {"reconnection", "delayed", "hybrid", "sequential"};
@@ -441,6 +441,13 @@ static void sss_shift_impl(const struct sss_ctx *c, const struct sss_sample *x, 
     *jacobian = jac;
 }
 
+static struct vec3 sss_value(const void *ctx, const void *elem)
+{
+    (void)ctx;
+    const struct sss_sample *s = elem;
+    return vec3_make(s->F[0], s->F[1], s->F[2]);
+}
+
 static float sss_target(const void *ctx, const void *elem)
 {
     (void)ctx;
@@ -467,6 +474,7 @@ const struct restir_ops restir_sss_ops = {
     .target = sss_target,
     .shift = sss_shift,
     .domain_valid = sss_domain_valid,
+    .value = sss_value,
 };
 
 void restir_sss_info(const void *ctx, const void *elem, uint32_t pixel, struct restir_sss_info *out)
@@ -562,6 +570,7 @@ struct sss_pass {
     struct image *out;
     struct camera camera;
     struct pt_params pt;
+    bool estimated;    /* the last spatial pass added its expected contribution to out */
     struct restir_counters counters[RESTIR_MAX_WORKERS];
     uint64_t nonfinite[RESTIR_MAX_WORKERS];
 };
@@ -601,7 +610,9 @@ static void sss_shade_rows(void *ctx, uint32_t job, unsigned worker)
             uint32_t pixel = y * w + x;
             const struct sss_sample *s = &res[pixel];
             struct vec3 L = pp->out->pixels[pixel];
-            if (s->head.W > 0.0f) L = vec3_add(L, vec3_scale(vec3_make(s->F[0], s->F[1], s->F[2]), s->head.W));
+            /* Unless the last spatial pass already added its expected contribution. */
+            if (!pp->estimated && s->head.W > 0.0f)
+                L = vec3_add(L, vec3_scale(vec3_make(s->F[0], s->F[1], s->F[2]), s->head.W));
             if (!vec3_is_finite(L)) {
                 pp->nonfinite[worker]++;
                 L = vec3_splat(0.0f);
@@ -748,11 +759,15 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
         if (!restir_spatial_pass(&r, st->res[0], st->res[1], &rc, err)) return false;
         c.pass_shift = RESTIR_SSS_DELAYED;
         r.frame = f->frame * 8u + 1u;
+        pp.estimated = params->expected_shading;
+        r.estimate = pp.estimated ? out->pixels : NULL;  /* adds to the path-traced rest */
         if (!restir_spatial_pass(&r, st->res[1], st->res[0], &rc, err)) return false;
         uint8_t *tmp = st->res[0];
         st->res[0] = st->res[1];
         st->res[1] = tmp;
     } else if (params->spatial_neighbors > 0) {
+        pp.estimated = params->expected_shading;
+        r.estimate = pp.estimated ? out->pixels : NULL;  /* adds to the path-traced rest */
         if (!restir_spatial_pass(&r, st->res[0], st->res[1], &rc, err)) return false;
     } else {
         uint8_t *tmp = st->res[0];

@@ -55,6 +55,8 @@ struct restir_sss_params {
                                      shortcut of §4.3 instead of the exact mode (false) */
     bool paired_spatial;          /* symmetric neighbour pairs whose two shifts serve both pixels
                                      (restir.h, seed 001 Table 1), half the shifts (true) */
+    bool expected_shading;        /* shade with the last spatial pass's expected contribution over
+                                     its selection (restir.h; seed 001 Fig. 5) (true) */
 };
 
 struct restir_sss_params restir_sss_defaults(void);

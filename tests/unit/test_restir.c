@@ -62,6 +62,27 @@ static void toy_shift(const void *ctx, const void *src, struct restir_domain fro
     *jacobian = 1.0f;
 }
 
+/* A contribution vector whose first component is not proportional to the target f:
+ * F = (2 f x, f, f), so selecting one sample adds noise there that its expectation over the
+ * selection does not. */
+static struct vec3 toy_value(const void *ctx, const void *elem)
+{
+    (void)ctx;
+    const struct toy_elem *e = elem;
+    return vec3_make(e->f * 2.0f * e->x, e->f, e->f);
+}
+
+/* The integral over x of F's first component (midpoint rule, 20000 steps). */
+static double toy_exact_x(uint32_t p)
+{
+    double sum = 0.0;
+    for (int i = 0; i < 20000; i++) {
+        double x = (i + 0.5) / 20000.0;
+        sum += toy_f(p, x) * 2.0 * x;
+    }
+    return sum / 20000.0;
+}
+
 static bool toy_domain_valid(const void *ctx, struct restir_domain d)
 {
     (void)ctx;
@@ -69,7 +90,8 @@ static bool toy_domain_valid(const void *ctx, struct restir_domain d)
 }
 
 static const struct restir_ops toy_ops = {
-    .stride = sizeof(struct toy_elem), .target = toy_target, .shift = toy_shift, .domain_valid = toy_domain_valid};
+    .stride = sizeof(struct toy_elem), .target = toy_target, .shift = toy_shift, .domain_valid = toy_domain_valid,
+    .value = toy_value};
 
 /* One candidate per pixel, x uniform: W = 1 when f > 0. */
 static void toy_initial(struct toy_elem *e, uint64_t seed, uint32_t frame)
@@ -86,15 +108,26 @@ struct toy_stats {
     double sum[N_PX], sum2[N_PX];
     double total_sum, total_sum2;
     uint32_t trials;
+    bool first_component;  /* the estimates are of F's first component (toy_exact_x) */
 };
 
-/* Runs `trials` independent two-frame sessions and gathers the second frame's estimates. */
-static void toy_run(bool paired, bool wrong_jacobian, uint32_t trials, struct toy_stats *st)
+/* Runs `trials` independent two-frame sessions and gathers the second frame's estimates: the
+ * selected sample's F W, or with `expected` the spatial pass's expected contribution over its
+ * selection (restir_reuse.estimate). */
+static void toy_run(bool paired, bool wrong_jacobian, bool expected, uint32_t trials, struct toy_stats *st,
+                    struct toy_stats *selected_x)
 {
     memset(st, 0, sizeof *st);
     st->trials = trials;
+    st->first_component = expected;
+    if (selected_x) {  /* with `expected`: the selected sample's F.x W beside it */
+        memset(selected_x, 0, sizeof *selected_x);
+        selected_x->trials = trials;
+        selected_x->first_component = true;
+    }
     struct toy_ctx ctx = {.wrong_jacobian = wrong_jacobian};
     static struct toy_elem a[N_PX], b[N_PX], hist[N_PX];
+    static struct vec3 estimate[N_PX];
     static struct gbuffer_pixel px[N_PX];
     for (uint32_t p = 0; p < N_PX; p++)  /* a static camera: each pixel's predecessor is itself */
         px[p] = (struct gbuffer_pixel){.t = 1.0f, .prev_x = (float)(p % W_PX) + 0.5f, .prev_y = (float)(p / W_PX) + 0.5f};
@@ -112,20 +145,33 @@ static void toy_run(bool paired, bool wrong_jacobian, uint32_t trials, struct to
             r.frame = frame;
             r.history = frame ? (const uint8_t *)hist : NULL;
             toy_initial(a, r.seed, frame);
+            memset(estimate, 0, sizeof estimate);
+            r.estimate = expected ? estimate : NULL;
             CHECK(restir_temporal_pass(&r, (uint8_t *)a, &c, &err));
             CHECK(restir_spatial_pass(&r, (const uint8_t *)a, (uint8_t *)b, &c, &err));
             memcpy(hist, b, sizeof hist);
         }
-        double total = 0.0;
+        double total = 0.0, total_x = 0.0;
         for (uint32_t p = 0; p < N_PX; p++) {
             if (!toy_valid_pixel(p)) continue;
             double est = b[p].head.W > 0.0f ? (double)b[p].f * b[p].head.W : 0.0;
+            if (selected_x) {
+                double ex = b[p].head.W > 0.0f ? (double)toy_value(NULL, &b[p]).x * b[p].head.W : 0.0;
+                selected_x->sum[p] += ex;
+                selected_x->sum2[p] += ex * ex;
+                total_x += ex;
+            }
+            if (expected) est = (double)estimate[p].x;
             st->sum[p] += est;
             st->sum2[p] += est * est;
             total += est;
         }
         st->total_sum += total;
         st->total_sum2 += total * total;
+        if (selected_x) {
+            selected_x->total_sum += total_x;
+            selected_x->total_sum2 += total_x * total_x;
+        }
     }
     free(scratch);
 }
@@ -141,7 +187,7 @@ static void toy_z(const struct toy_stats *st, uint32_t *pass, uint32_t *valid, d
     for (uint32_t p = 0; p < N_PX; p++) {
         if (!toy_valid_pixel(p)) continue;
         (*valid)++;
-        exact_total += toy_exact(p);
+        exact_total += st->first_component ? toy_exact_x(p) : toy_exact(p);
     }
     /* Šidák: per-pixel alpha = 1 - 0.99^(1/valid); two-sided normal quantile by bisection. */
     double alpha = 1.0 - pow(0.99, 1.0 / (double)*valid), lo = 0.0, hi = 10.0;
@@ -153,7 +199,7 @@ static void toy_z(const struct toy_stats *st, uint32_t *pass, uint32_t *valid, d
     for (uint32_t p = 0; p < N_PX; p++) {
         if (!toy_valid_pixel(p)) continue;
         double mean = st->sum[p] / n, var = (st->sum2[p] / n - mean * mean) * n / (n - 1.0);
-        double z = (mean - toy_exact(p)) / sqrt(var / n + 1e-30);
+        double z = (mean - (st->first_component ? toy_exact_x(p) : toy_exact(p))) / sqrt(var / n + 1e-30);
         if (fabs(z) <= lo) (*pass)++;
     }
     double mean = st->total_sum / n, var = (st->total_sum2 / n - mean * mean) * n / (n - 1.0);
@@ -162,14 +208,33 @@ static void toy_z(const struct toy_stats *st, uint32_t *pass, uint32_t *valid, d
 
 static void check_unbiased(bool paired)
 {
-    static struct toy_stats st;
-    toy_run(paired, false, 4000, &st);
+    static struct toy_stats st, ex, sx;
+    toy_run(paired, false, false, 4000, &st, NULL);
     uint32_t pass, valid;
     double z;
     toy_z(&st, &pass, &valid, &z);
     printf("  %s: %u of %u pixels pass, total z = %.2f\n", paired ? "paired" : "unpaired", pass, valid, z);
     CHECK_MSG(pass * 1000u >= valid * 995u, "%u of %u pixels", pass, valid);
     CHECK_MSG(fabs(z) < 3.0, "total z %.2f", z);
+    /* The expected contribution over the last selection: unbiased too, and less noisy. */
+    toy_run(paired, false, true, 4000, &ex, &sx);
+    toy_z(&ex, &pass, &valid, &z);
+    uint32_t pass_x, valid_x;
+    double z_x;
+    toy_z(&sx, &pass_x, &valid_x, &z_x);
+    double v_ex = 0.0, v_sx = 0.0;  /* summed per-pixel variances */
+    for (uint32_t p = 0; p < N_PX; p++) {
+        if (!toy_valid_pixel(p)) continue;
+        v_ex += ex.sum2[p] / ex.trials - (ex.sum[p] / ex.trials) * (ex.sum[p] / ex.trials);
+        v_sx += sx.sum2[p] / sx.trials - (sx.sum[p] / sx.trials) * (sx.sum[p] / sx.trials);
+    }
+    printf("  %s, F = (2 f x, f, f): expected contribution %u of %u pixels pass, total z = %.2f; selected "
+           "sample %u pass, z = %.2f; summed pixel variance %.4g against %.4g\n", paired ? "paired" : "unpaired", pass,
+           valid, z, pass_x, z_x, v_ex, v_sx);
+    CHECK_MSG(pass * 1000u >= valid * 995u, "%u of %u pixels", pass, valid);
+    CHECK_MSG(fabs(z) < 3.0, "total z %.2f", z);
+    CHECK_MSG(pass_x * 1000u >= valid_x * 995u && fabs(z_x) < 3.0, "selected sample: %u pixels, z %.2f", pass_x, z_x);
+    CHECK(v_ex < v_sx);  /* the same runs: the expectation over a selection never adds variance */
 }
 
 static void test_reuse_unbiased_unpaired(void) { check_unbiased(false); }
@@ -179,7 +244,7 @@ static void test_reuse_unbiased_paired(void) { check_unbiased(true); }
 static void test_wrong_jacobian_is_caught(void)
 {
     static struct toy_stats st;
-    toy_run(true, true, 4000, &st);
+    toy_run(true, true, false, 4000, &st, NULL);
     uint32_t pass, valid;
     double z;
     toy_z(&st, &pass, &valid, &z);
