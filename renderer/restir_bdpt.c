@@ -44,7 +44,7 @@
 #define RBDPT_CAMERA_STREAM 0x5242430000000000ull
 #define RBDPT_PICK_STREAM 0x5242500000000000ull
 
-_Static_assert(sizeof(struct restir_bdpt_reservoir) == 28, "restir_bdpt_reservoir changed size");
+_Static_assert(sizeof(struct restir_bdpt_reservoir) == RESTIR_BDPT_RESERVOIR_BYTES, "restir_bdpt_reservoir changed size");
 _Static_assert(sizeof(struct restir_bdpt_shifted) == 32, "restir_bdpt_shifted changed size");
 
 /* ---- lightweight MIS ---------------------------------------------------------------------- */
@@ -136,6 +136,19 @@ bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *er
     return true;
 }
 
+const char *restir_bdpt_variant_name(enum restir_bdpt_variant v)
+{
+    return v == RESTIR_BDPT_FULL ? "full" : "lightweight";
+}
+
+bool restir_bdpt_variant_parse(const char *name, enum restir_bdpt_variant *out)
+{
+    if (strcmp(name, "lightweight") == 0) *out = RESTIR_BDPT_LIGHTWEIGHT;
+    else if (strcmp(name, "full") == 0) *out = RESTIR_BDPT_FULL;
+    else return false;
+    return true;
+}
+
 struct rbdpt_sizes {
     uint32_t light_paths, blocks, region;
     uint64_t lt, pixels, blocks_b, res;
@@ -150,7 +163,7 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
     z.region = RBDPT_BLOCK_PATHS * p->lt_capacity;
     z.lt = 2 * (uint64_t)z.blocks * z.region * sizeof(struct restir_bdpt_lt_sample);
     z.pixels = (n + 1) * sizeof(uint32_t);
-    z.blocks_b = (uint64_t)z.blocks * (2 * sizeof(uint32_t) + 2 * sizeof(uint64_t));
+    z.blocks_b = (uint64_t)z.blocks * (2 * sizeof(uint32_t) + 3 * sizeof(uint64_t));
     z.res = 3 * n * sizeof(struct restir_bdpt_reservoir) + 2 * n * sizeof(struct restir_bdpt_shifted) +
             (n + 1) * sizeof(uint32_t);
     return z;
@@ -162,12 +175,36 @@ uint64_t restir_bdpt_bytes_planned(const struct restir_bdpt_params *p, uint32_t 
     return z.lt + z.pixels + z.blocks_b + z.res;
 }
 
-size_t restir_bdpt_bytes(const struct restir_bdpt_state *st)
+size_t restir_bdpt_reservoir_bytes(const struct restir_bdpt_state *st)
+{
+    return 3 * (size_t)st->width * st->height * sizeof *st->res;
+}
+
+size_t restir_bdpt_lt_bytes(const struct restir_bdpt_state *st)
+{
+    return 2 * (size_t)st->blocks * st->region * sizeof *st->lt;
+}
+
+size_t restir_bdpt_shift_bytes(const struct restir_bdpt_state *st)
+{
+    return 2 * (size_t)st->width * st->height * sizeof *st->shifted;
+}
+
+size_t restir_bdpt_bucket_bytes(const struct restir_bdpt_state *st)
 {
     size_t n = (size_t)st->width * st->height;
-    return 2 * (size_t)st->blocks * st->region * sizeof *st->lt + (n + 1) * sizeof *st->pixel_first +
-           (size_t)st->blocks * (sizeof *st->block_count + sizeof *st->block_dropped + 2 * sizeof *st->block_rays) +
-           3 * n * sizeof *st->res + 2 * n * sizeof *st->shifted + (n + 1) * sizeof *st->shift_first;
+    return (n + 1) * sizeof *st->pixel_first + (n + 1) * sizeof *st->shift_first;
+}
+
+size_t restir_bdpt_block_bytes(const struct restir_bdpt_state *st)
+{
+    return (size_t)st->blocks * (sizeof *st->block_count + sizeof *st->block_dropped + 3 * sizeof *st->block_rays);
+}
+
+size_t restir_bdpt_bytes(const struct restir_bdpt_state *st)
+{
+    return restir_bdpt_reservoir_bytes(st) + restir_bdpt_lt_bytes(st) + restir_bdpt_shift_bytes(st) +
+           restir_bdpt_bucket_bytes(st) + restir_bdpt_block_bytes(st);
 }
 
 bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, const struct restir_bdpt_params *p,
@@ -176,7 +213,13 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
     memset(st, 0, sizeof *st);
     if (!restir_bdpt_params_valid(p, err)) return false;
     if (!vec3_is_zero(scene->env_radiance))
-        return err_set(err, ERR_INVALID, "/method", "restir_bdpt does not support environment light");
+        return err_set(err, ERR_INVALID, "/method",
+                       "restir_bdpt does not support environment light (the scene has env_radiance); use pt or "
+                       "restir_pt");
+    if (scene_has_translucent(scene))
+        return err_set(err, ERR_INVALID, "/method",
+                       "restir_bdpt does not sample subsurface scattering (the scene has translucent materials); use "
+                       "pt or restir_sss");
     struct rbdpt_sizes z = rbdpt_sizes_of(p, width, height);
     if (z.light_paths == 0) return err_set(err, ERR_INVALID, "/params/light_paths", "no light subpaths");
     size_t n = (size_t)width * height;
@@ -191,7 +234,7 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
     st->pixel_first = calloc(n + 1, sizeof *st->pixel_first);
     st->block_count = calloc(z.blocks, sizeof *st->block_count);
     st->block_dropped = calloc(z.blocks, sizeof *st->block_dropped);
-    st->block_rays = calloc(2 * (size_t)z.blocks, sizeof *st->block_rays);
+    st->block_rays = calloc(3 * (size_t)z.blocks, sizeof *st->block_rays);
     st->res = calloc(n, sizeof *st->res);
     st->caustic = calloc(n, sizeof *st->caustic);
     st->caustic_prev = calloc(n, sizeof *st->caustic_prev);
@@ -345,7 +388,7 @@ static bool rbdpt_connect_camera(const struct rbdpt_ctx *c, const struct rbdpt_v
  * earlier, the vertex is not connectable or the eye does not see it). */
 static void rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view *v, uint32_t origin_frame,
                               uint32_t i, uint32_t only_depth, struct restir_bdpt_lt_sample *out, uint32_t cap,
-                              uint32_t *stored, uint32_t *dropped, struct ray_counters *rc)
+                              uint32_t *stored, uint32_t *dropped, uint64_t *vertices, struct ray_counters *rc)
 {
     const struct scene *scene = v->scene;
     const struct restir_bdpt_params *p = c->p;
@@ -384,6 +427,7 @@ static void rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view
         const struct material *m = &scene->materials[s.material];
         struct vec3 wo_world = vec3_neg(dir);
         if ((!only_depth || depth == only_depth) && (material_flags(m) & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
+            if (vertices) (*vertices)++;
             uint32_t px;
             struct vec3 val;
             if (rbdpt_connect_camera(c, v, &s, m, wo_world, beta, &mis, rc, &px, &val) && vec3_is_finite(val) &&
@@ -437,14 +481,16 @@ static void rbdpt_light_block(void *ctx, uint32_t block, unsigned worker)
     struct ray_counters rc = {0, 0};
     struct restir_bdpt_lt_sample *region = &st->lt[(size_t)block * st->region];
     uint32_t stored = 0, dropped = 0;
+    uint64_t vertices = 0;
     uint32_t first = block * RBDPT_BLOCK_PATHS;
     uint32_t last = first + RBDPT_BLOCK_PATHS < st->light_paths ? first + RBDPT_BLOCK_PATHS : st->light_paths;
     for (uint32_t i = first; i < last; i++)
-        rbdpt_trace_light(c, &c->view[0], c->frame, i, 0, region, st->region, &stored, &dropped, &rc);
+        rbdpt_trace_light(c, &c->view[0], c->frame, i, 0, region, st->region, &stored, &dropped, &vertices, &rc);
     st->block_count[block] = stored;
     st->block_dropped[block] = dropped;
-    st->block_rays[2 * block] = rc.intersect;
-    st->block_rays[2 * block + 1] = rc.occluded;
+    st->block_rays[3 * block] = rc.intersect;
+    st->block_rays[3 * block + 1] = rc.occluded;
+    st->block_rays[3 * block + 2] = vertices;
 }
 
 enum rbdpt_replay { RBDPT_REPLAY_OK, RBDPT_REPLAY_FAILED, RBDPT_REPLAY_NOT_CAUSTIC };
@@ -459,7 +505,7 @@ static enum rbdpt_replay rbdpt_replay_caustic(const struct rbdpt_ctx *c, const s
 {
     struct restir_bdpt_lt_sample out;
     uint32_t stored = 0, dropped = 0;
-    rbdpt_trace_light(c, v, origin_frame, i, depth, &out, 1, &stored, &dropped, rc);
+    rbdpt_trace_light(c, v, origin_frame, i, depth, &out, 1, &stored, &dropped, NULL, rc);
     if (stored == 0) return RBDPT_REPLAY_FAILED;
     if (!out.caustic) return RBDPT_REPLAY_NOT_CAUSTIC;
     *pixel = out.pixel;
@@ -752,8 +798,9 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
         const struct restir_bdpt_lt_sample *v = &st->lt[(size_t)b * st->region];
         for (uint32_t j = 0; j < st->block_count[b]; j++) st->pixel_first[v[j].pixel + 1]++;
         s.lt_dropped += st->block_dropped[b];
-        s.rays_intersect += st->block_rays[2 * b];
-        s.rays_occluded += st->block_rays[2 * b + 1];
+        s.rays_intersect += st->block_rays[3 * b];
+        s.rays_occluded += st->block_rays[3 * b + 1];
+        s.light_vertices += st->block_rays[3 * b + 2];
     }
     for (uint32_t i = 0; i < npix; i++) st->pixel_first[i + 1] += st->pixel_first[i];
     for (uint32_t b = 0; b < st->blocks; b++) {

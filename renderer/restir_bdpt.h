@@ -18,10 +18,15 @@
  * eqs. 51–52 over {previous reservoir, current initial sample}; a reservoir's confidence is 1
  * plus that of the previous caustic reservoir its primary hit maps to (eq. 27), capped.
  *
- * State of this module: initial resampling and caustic temporal reuse. Temporal and spatial
- * reuse of the non-caustic reservoir (the bidirectional hybrid shift) is not implemented, so the
- * module is not a session method; it is tested directly against `bdpt`
- * (tests/unit/test_restir_bdpt.c). */
+ * Method `restir_bdpt` (renderer/view.c) renders frames with exactly this: the lightweight
+ * variant's initial resampling and the caustic reservoirs' temporal reuse. What it does NOT do
+ * yet: the full variant (the vertex connections, s >= 2 and t >= 2, the light vertex cache, recursive
+ * reconnection MIS of eqs. 42-47 and the "copy MIS weight" variant) is refused by
+ * restir_bdpt_params_valid naming /params/variant; the non-caustic reservoir is not reused
+ * (no temporal or spatial reuse, no bidirectional hybrid shift, so the rejection of non-caustic
+ * t <= 1 samples that cannot shift to the pixel's primary hit does not arise). Each frame's
+ * non-caustic estimate is therefore independent of the previous frames'. Scenes with
+ * environment light or translucent materials are refused, as by `bdpt`. */
 #ifndef RESTIRD_RESTIR_BDPT_H
 #define RESTIRD_RESTIR_BDPT_H
 
@@ -36,6 +41,8 @@
 #include "scene.h"
 
 enum restir_bdpt_variant { RESTIR_BDPT_LIGHTWEIGHT, RESTIR_BDPT_FULL };
+const char *restir_bdpt_variant_name(enum restir_bdpt_variant v);
+bool restir_bdpt_variant_parse(const char *name, enum restir_bdpt_variant *out);
 
 struct restir_bdpt_params {
     enum restir_bdpt_variant variant;  /* only the lightweight variant is implemented */
@@ -80,6 +87,9 @@ struct restir_bdpt_shifted {
     uint16_t depth, valid;
 };
 
+/* Bytes of one reservoir; a pixel has three (non-caustic, caustic, previous caustic). */
+#define RESTIR_BDPT_RESERVOIR_BYTES 28u
+
 /* head.bits: technique s in the low byte (0, 1, or 0xff for t = 1), path vertices above. */
 #define RESTIR_BDPT_TECH_LT 0xffu
 
@@ -90,7 +100,7 @@ struct restir_bdpt_state {
     struct restir_bdpt_lt_sample *lt_sorted; /* blocks * region, by pixel */
     uint32_t *pixel_first;                   /* width * height + 1 (prefix sums) */
     uint32_t *block_count, *block_dropped;
-    uint64_t *block_rays;                    /* 2 per block */
+    uint64_t *block_rays;                    /* 3 per block: intersect, occluded rays, light vertices */
     struct restir_bdpt_reservoir *res;       /* width * height, non-caustic */
     struct restir_bdpt_reservoir *caustic;   /* width * height, caustic (this frame's) */
     struct restir_bdpt_reservoir *caustic_prev; /* width * height, the previous frame's */
@@ -103,6 +113,8 @@ struct restir_bdpt_state {
 struct restir_bdpt_stats {
     double light_ms, sort_ms, camera_ms;
     uint64_t light_subpaths;    /* N_L */
+    uint64_t light_vertices;    /* connectable light vertices reached, each connected to the eye (t = 1):
+                                   what a light vertex cache would hold; this variant stores none */
     uint64_t light_traced;      /* t = 1 samples that reached a pixel */
     uint64_t caustic_samples;   /* of which caustic */
     uint64_t lt_dropped;        /* samples that found their block's region full (a bias; see bdpt.h) */
@@ -135,6 +147,15 @@ void restir_bdpt_destroy(struct restir_bdpt_state *st);
 /* Forgets the history. */
 void restir_bdpt_reset(struct restir_bdpt_state *st);
 size_t restir_bdpt_bytes(const struct restir_bdpt_state *st);
+/* The buffers by name (their sum is restir_bdpt_bytes): the three reservoir buffers (non-caustic,
+ * caustic, previous caustic), the light-traced samples (per block, and sorted by pixel), the
+ * caustic shifts (by source and by landing pixel), the two per-pixel bucket tables, the
+ * per-block counters. */
+size_t restir_bdpt_reservoir_bytes(const struct restir_bdpt_state *st);
+size_t restir_bdpt_lt_bytes(const struct restir_bdpt_state *st);
+size_t restir_bdpt_shift_bytes(const struct restir_bdpt_state *st);
+size_t restir_bdpt_bucket_bytes(const struct restir_bdpt_state *st);
+size_t restir_bdpt_block_bytes(const struct restir_bdpt_state *st);
 
 bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
                         const struct restir_bdpt_frame *f, struct image *out, struct restir_bdpt_stats *stats,
