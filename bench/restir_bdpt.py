@@ -5,13 +5,15 @@ and a moving light frame by frame.
 
 Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. In one
 run, on lamp-in-glass and caustic-sphere (BENCH_RBDPT_SCENES) at 256x256 (BENCH_RBDPT_SIZE):
+  0. restir_bdpt runs with its defaults (caustic reuse only), without caustic reuse, and with
+     the non-caustic reuse (`"reuse": true`);
   1. a `bdpt` reference per scene of REF_FRAMES frames (bench/bdpt.py's, shared cache in
      build/refs/; `pt` cannot converge on these scenes: their light arrives through glass);
   2. MAPE against time (seed 000 footnote 3, `restir compare`), each over SEEDS seeds: `pt` at
      1, 2, 4 ... spp, and for `bdpt`, `restir_pt`, `restir_bdpt` and `restir_bdpt` without its
      caustic temporal reuse the mean of a session's first 1, 2, 4 ... frames (time: the sum of
      those frames' render times, as the CLI reports it);
-  3. equal time: restir_bdpt's MAPE over restir_pt's interpolated (log-log) at the same time,
+  3. equal time: each compared restir_bdpt variant's MAPE over restir_pt's interpolated (log-log) at the same time,
      at restir_bdpt's longest point; the single frame after WARMUP frames of each reusing method
      (its MAPE) and the frame cost, the mean frame time of that session, as the ratio
      restir_bdpt / restir_pt;
@@ -58,7 +60,10 @@ ANIMATION = ROOT / "scenes" / "caustic-sphere" / "animations" / "light-path.json
 # (label, CLI arguments) of the session methods; frames are averaged over a session's first n.
 SESSIONS = [("bdpt", ["--method", "bdpt"]), ("restir_pt", ["--method", "restir_pt"]),
             ("restir_bdpt", ["--method", "restir_bdpt"]),
-            ("restir_bdpt, no caustic reuse", ["--method", "restir_bdpt", "--params", '{"caustic_temporal": false}'])]
+            ("restir_bdpt, no caustic reuse", ["--method", "restir_bdpt", "--params", '{"caustic_temporal": false}']),
+            ("restir_bdpt, reuse", ["--method", "restir_bdpt", "--params", '{"reuse": true}'])]
+# The variants of restir_bdpt whose equal-time error and frame cost are compared with restir_pt's.
+COMPARED = ["restir_bdpt", "restir_bdpt, reuse"]
 
 
 def read_rgb(path):
@@ -190,10 +195,12 @@ def main():
                              lambda n, a=args: [*a, "--frames", str(n), "--average-last", str(n)])
             r["after_warmup"] = {m: after_warmup(scene_path, ref, tmp, f"w{k}", args)
                                  for k, (m, args) in enumerate(SESSIONS) if m != "bdpt"}
-            last = r["restir_bdpt"][-1]
-            r["restir_bdpt_vs_restir_pt_equal_time"] = last["mape"] / pt_mape_at(r["restir_pt"], last["ms"])
-            r["restir_bdpt_vs_restir_pt_frame_cost"] = (r["after_warmup"]["restir_bdpt"]["frame_ms"] /
-                                                        r["after_warmup"]["restir_pt"]["frame_ms"])
+            r["vs_restir_pt"] = {}
+            for m in COMPARED:
+                last = r[m][-1]
+                r["vs_restir_pt"][m] = {
+                    "equal_time_mape_ratio": last["mape"] / pt_mape_at(r["restir_pt"], last["ms"]),
+                    "frame_cost_ratio": r["after_warmup"][m]["frame_ms"] / r["after_warmup"]["restir_pt"]["frame_ms"]}
             results["scenes"][scene] = r
         if os.environ.get("BENCH_RBDPT_MOVING", "1") != "0":
             results["moving"] = moving(tmp)
@@ -208,16 +215,21 @@ def main():
     for scene, r in results["scenes"].items():
         for m in ["pt"] + [m for m, _ in SESSIONS]:
             print(f"| {scene} | {m} | " + " | ".join(f"{x['ms']:.0f} / {x['mape']:.3f}" for x in r[m]) + " |")
-    print(f"\n| scene | restir_bdpt / restir_pt MAPE, equal time (at restir_bdpt's {COUNTS[-1]} frames) | "
-          f"frame after {WARMUP}: restir_pt ms / MAPE / caustic MAPE | restir_bdpt | restir_bdpt no caustic reuse "
-          f"| frame cost restir_bdpt / restir_pt |")
-    print("|---|---|---|---|---|---|")
+    reusing = [m for m, _ in SESSIONS if m != "bdpt"]
+    print(f"\nThe frame after {WARMUP} warm-up frames: mean frame ms / MAPE / caustic MAPE\n")
+    print("| scene | " + " | ".join(reusing) + " |")
+    print("|---|" + "---|" * len(reusing))
     for scene, r in results["scenes"].items():
         w = r["after_warmup"]
-        cells = " | ".join(f"{w[m]['frame_ms']:.1f} / {w[m]['mape']:.3f} / {w[m]['caustic_mape']:.3f}"
-                           for m in ("restir_pt", "restir_bdpt", "restir_bdpt, no caustic reuse"))
-        print(f"| {scene} | {r['restir_bdpt_vs_restir_pt_equal_time']:.2f} | {cells} | "
-              f"{r['restir_bdpt_vs_restir_pt_frame_cost']:.2f} |")
+        print(f"| {scene} | " + " | ".join(f"{w[m]['frame_ms']:.1f} / {w[m]['mape']:.3f} / {w[m]['caustic_mape']:.3f}"
+                                           for m in reusing) + " |")
+    print(f"\nAgainst restir_pt: MAPE ratio at equal time (at the variant's {COUNTS[-1]} frames) and frame cost ratio\n")
+    print("| scene | " + " | ".join(f"{m}: equal-time MAPE / frame cost" for m in COMPARED) + " |")
+    print("|---|" + "---|" * len(COMPARED))
+    for scene, r in results["scenes"].items():
+        v = r["vs_restir_pt"]
+        print(f"| {scene} | " + " | ".join(f"{v[m]['equal_time_mape_ratio']:.2f} / {v[m]['frame_cost_ratio']:.2f}"
+                                           for m in COMPARED) + " |")
     mv = results.get("moving")
     if mv:
         print(f"\nLight moving on caustic-sphere ({mv['frames']} frames, references of {mv['ref_frames']} bdpt "

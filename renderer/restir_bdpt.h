@@ -18,15 +18,22 @@
  * eqs. 51–52 over {previous reservoir, current initial sample}; a reservoir's confidence is 1
  * plus that of the previous caustic reservoir its primary hit maps to (eq. 27), capped.
  *
- * Method `restir_bdpt` (renderer/view.c) renders frames with exactly this: the lightweight
- * variant's initial resampling and the caustic reservoirs' temporal reuse. What it does NOT do
- * yet: the full variant (the vertex connections, s >= 2 and t >= 2, the light vertex cache, recursive
- * reconnection MIS of eqs. 42-47 and the "copy MIS weight" variant) is refused by
- * restir_bdpt_params_valid naming /params/variant; the non-caustic reservoir is not reused
- * (no temporal or spatial reuse, no bidirectional hybrid shift, so the rejection of non-caustic
- * t <= 1 samples that cannot shift to the pixel's primary hit does not arise). Each frame's
- * non-caustic estimate is therefore independent of the previous frames'. Scenes with
- * environment light or translucent materials are refused, as by `bdpt`. */
+ * Non-caustic reuse (`reuse`, off by default): temporal reuse along a G-buffer's motion
+ * vectors and spatial reuse through restir.c's passes, with a random-replay shift (Jacobian 1 in
+ * primary sample space): an s = 0 / s = 1 sample's camera subpath is traced again from its own
+ * random stream through the target pixel and frame, the candidate of the same technique and
+ * length being the shifted sample (its lightweight MIS weight recomputed on the new path); a
+ * t = 1 sample's light subpath is replayed and the shift succeeds only when it lands in the
+ * target pixel again and is still non-caustic.
+ *
+ * Method `restir_bdpt` (renderer/view.c) renders frames with exactly this. What it does NOT do
+ * yet: the full variant (the vertex connections, s >= 2 and t >= 2, the light vertex cache,
+ * recursive reconnection MIS of eqs. 42-47 and the "copy MIS weight" variant) is refused by
+ * restir_bdpt_params_valid naming /params/variant; the non-caustic reuse does not use the
+ * bidirectional hybrid shift (no reconnection of the camera subpath to the light subpath), so a
+ * light-traced sample never moves to a neighbouring pixel, and the switchable rejection of
+ * non-caustic t <= 1 samples that cannot shift to the pixel's primary hit is not implemented.
+ * Scenes with environment light or translucent materials are refused, as by `bdpt`. */
 #ifndef RESTIRD_RESTIR_BDPT_H
 #define RESTIRD_RESTIR_BDPT_H
 
@@ -36,6 +43,7 @@
 #include "bdpt.h"
 #include "camera.h"
 #include "err.h"
+#include "gbuffer.h"
 #include "image.h"
 #include "restir.h"
 #include "scene.h"
@@ -52,7 +60,11 @@ struct restir_bdpt_params {
     uint32_t lt_capacity;      /* light-traced samples kept per light subpath on average, 1..64 (8) */
     enum bdpt_heuristic heuristic;  /* power (default) or balance */
     bool caustic_temporal;     /* temporal reuse of the caustic reservoirs (true) */
-    uint32_t temporal_cap;     /* caustic confidence capped at this absolute value, 1..65535 (20) */
+    uint32_t temporal_cap;     /* caustic confidence capped at this absolute value, 1..65535 (20); with
+                                  `reuse`, the non-caustic history's at this multiple of the current */
+    bool reuse;                /* temporal and spatial reuse of the non-caustic reservoir (false) */
+    uint32_t spatial_neighbors; /* with reuse: neighbours per pixel, 0..32 (2) */
+    float spatial_radius;      /* with reuse: pixels, (0, 256] (30) */
 };
 
 struct restir_bdpt_params restir_bdpt_defaults(void);
@@ -108,6 +120,10 @@ struct restir_bdpt_state {
     struct restir_bdpt_shifted *shifted;        /* width * height, by source pixel */
     struct restir_bdpt_shifted *shifted_sorted; /* width * height, by landing pixel */
     uint32_t *shift_first;                      /* width * height + 1 */
+    /* With reuse: the previous frame's final non-caustic reservoirs, the spatial pass's output,
+     * and the G-buffer whose motion vectors temporal reuse follows. */
+    struct restir_bdpt_reservoir *res_prev, *res_spatial;
+    struct gbuffer gbuf;
 };
 
 struct restir_bdpt_stats {
@@ -126,6 +142,9 @@ struct restir_bdpt_stats {
                                            its vertex */
     uint64_t caustic_not_caustic;       /* forward shifts whose replayed x_2 turned rough */
     uint64_t caustic_inverse_failed;    /* backward shifts that failed (no predecessor) */
+    double reuse_ms;            /* with reuse: G-buffer, temporal and spatial passes */
+    uint64_t reuse_shifts;      /* with reuse: shifts of non-caustic samples, and those that failed */
+    uint64_t reuse_shift_failures;
     uint64_t reservoir_bytes;
     uint64_t rays_intersect, rays_occluded;
 };

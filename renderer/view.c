@@ -278,7 +278,7 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         ok = restir_bdpt_render(&v->rbdpt, &v->params.restir_bdpt, &f, out, &rbstats, err);
         if (ok) {
             rs = view_frame_stats(v, out, rbstats.rays_intersect, rbstats.rays_occluded, rbstats.rejected,
-                                  rbstats.light_ms + rbstats.sort_ms + rbstats.camera_ms);
+                                  rbstats.light_ms + rbstats.sort_ms + rbstats.camera_ms + rbstats.reuse_ms);
             if (progress) progress(progress_ctx, 1, 1);
         }
     } else if (v->params.method == RENDER_METHOD_RESTIR_SSS) {
@@ -421,6 +421,7 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
         out[n++] = (struct view_buffer_bytes){"caustic_shifts", restir_bdpt_shift_bytes(&v->rbdpt)};
         out[n++] = (struct view_buffer_bytes){"pixel_buckets", restir_bdpt_bucket_bytes(&v->rbdpt)};
         out[n++] = (struct view_buffer_bytes){"light_blocks", restir_bdpt_block_bytes(&v->rbdpt)};
+        if (v->rbdpt.gbuf.px) out[n++] = (struct view_buffer_bytes){"gbuffer", gbuffer_bytes(&v->rbdpt.gbuf)};
     }
     if (v->params.method == RENDER_METHOD_RESTIR_SSS) {
         out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sss_reservoir_bytes(&v->sss)};

@@ -1311,7 +1311,8 @@ def test_restir_bdpt_session(daemon):
                     params={"heuristic": "balance"})
     assert s["method"] == "restir_bdpt"
     assert s["params"] == {"variant": "lightweight", "max_depth": 64, "rr_depth": 3, "light_paths": 0,
-                           "lt_capacity": 8, "heuristic": "balance", "caustic_temporal": True, "temporal_cap": 20}
+                           "lt_capacity": 8, "heuristic": "balance", "caustic_temporal": True, "temporal_cap": 20,
+                           "reuse": False, "spatial_neighbors": 2, "spatial_radius": 30}
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
                                  "caustic_shifts", "pixel_buckets", "light_blocks"}
     n = 32 * 24
@@ -1340,6 +1341,8 @@ def test_restir_bdpt_session(daemon):
     ({"caustic_temporal": 1}, "/params/caustic_temporal"),
     ({"heuristic": "max"}, "/params/heuristic"),
     ({"lvc_capacity": 8}, "/params/lvc_capacity"),
+    ({"spatial_neighbors": 33}, "/params/spatial_neighbors"),
+    ({"spatial_radius": 0}, "/params/spatial_radius"),
 ])
 def test_restir_bdpt_bad_params(daemon, params, field):
     r = daemon.req("POST", f"{CORNELL}/sessions", json_body={"method": "restir_bdpt", "width": 8, "height": 8,

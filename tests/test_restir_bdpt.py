@@ -1,11 +1,12 @@
-"""restir_bdpt (the session method, lightweight variant with caustic temporal reuse) is unbiased
-against `bdpt` (design TESTING.md tier 4): K independent sessions of each method (fresh seeds),
-each the mean of its N frames, compared per pixel at 32x32 (Šidák-corrected z-test at 0.01,
->= 99.75 % of pixels passing, global mean within 3 sigma; tests/stats.py). Frames of one
-restir_bdpt session are correlated through its caustic reservoirs, but sessions are
-independent, and every frame's estimate has the expectation of the same `bdpt` frame, so the
-means of the same frames of both methods must agree. Each comparison also rejects the
-restir_bdpt renders scaled by 1.03, so the test can see a bias of that size.
+"""restir_bdpt (the session method, lightweight variant with caustic temporal reuse, and with the
+non-caustic reuse of `"reuse": true`) is unbiased against `bdpt` (design TESTING.md tier 4): K
+independent sessions of each method (fresh seeds), each the mean of its N frames, compared per
+pixel at 32x32 (Šidák-corrected z-test at 0.01, >= 99.75 % of pixels passing, global mean
+within 3 sigma; tests/stats.py). Frames of one restir_bdpt session are correlated through its
+reservoirs (and with `reuse` its pixels too), but sessions are independent, and every frame's
+estimate has the expectation of the same `bdpt` frame, so the means of the same frames of both
+methods must agree. Each comparison also rejects the restir_bdpt renders scaled by 1.03, so the
+test can see a bias of that size.
 
 The crops are those of tests/unit/test_restir_bdpt.c: on caustic-sphere the floor beside the
 glass sphere with part of its caustic (the sphere itself out of view: seen through it, the
@@ -61,14 +62,21 @@ def _sessions(scene_path, tmp_path, method, params, anim, seed0):
     return np.stack(runs), stats
 
 
+# The defaults (caustic reuse only) on every case; the non-caustic reuse (`reuse`) on one static
+# and one moving case (all four pass with it; two keep the test's time down).
+MATCH_CASES = [(scene, moving, False) for scene in CASES for moving in (False, True)] + \
+              [("caustic-sphere", True, True), ("lamp-in-glass", False, True)]
+
+
 @pytest.mark.statistical
-@pytest.mark.parametrize("moving", [False, True], ids=["static", "moving"])
-@pytest.mark.parametrize("scene", ["caustic-sphere", "lamp-in-glass"])
-def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving):
+@pytest.mark.parametrize("scene,moving,reuse", MATCH_CASES,
+                         ids=[f"{s}-{'moving' if m else 'static'}-{'reuse' if r else 'default'}"
+                              for s, m, r in MATCH_CASES])
+def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse):
     case = CASES[scene]
     anim = _animation(tmp_path, case, moving)
     path = scenes / scene / "scene.json"
-    runs, stats = _sessions(path, tmp_path, "restir_bdpt", case["params"], anim, 1000)
+    runs, stats = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": reuse}, anim, 1000)
     ref, _ = _sessions(path, tmp_path, "bdpt", case["params"], anim, 5000)
     last = [st["last_frame"] for st in stats]
     # Every part ran: light tracing reached the crop, caustic samples were found and shifted
@@ -76,11 +84,12 @@ def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving):
     assert all(lf["lt_dropped"] == 0 for lf in last) and all(st["nonfinite"] == 0 for st in stats)
     assert sum(lf["light_traced"] for lf in last) > 0 and sum(lf["caustic_samples"] for lf in last) > 0
     assert sum(lf["caustic_shifts"] for lf in last) > 0
+    assert (sum(lf["reuse_shifts"] for lf in last) > 0) == reuse
     fails = {k: sum(lf["shift_failures"][k] for lf in last) for k in ("replay", "not_caustic", "inverse")}
     assert np.isfinite(runs).all()
     res = ztest_runs(runs, ref)
     bad = ztest_runs(runs * 1.03, ref)
-    label = f"{scene}, {'moving' if moving else 'static'}"
+    label = f"{scene}, {'moving' if moving else 'static'}, {'all reuse' if reuse else 'caustic reuse'}"
     print(f"{label}: {res}; x1.03: {bad}; last frames' caustic shifts "
           f"{sum(lf['caustic_shifts'] for lf in last)}, failures {fails}")
     assert res.passed, f"{label}: {res}"

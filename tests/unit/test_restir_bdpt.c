@@ -4,8 +4,9 @@
  *    bdpt normalisation must disagree (the test can fail).
  *  - The caustic random-replay shift: round trips give back pixel and contribution exactly.
  *  - Parameters: the full variant is refused naming /params/variant; planned bytes = allocated.
- *  - The session method: a view's planned bytes equal its named buffers' sum; frames report
- *    their counters; scenes with environment light or translucent materials are refused.
+ *  - The session method: a view's planned bytes equal its named buffers' sum (with and without
+ *    the non-caustic reuse); frames report their counters; scenes with environment light or
+ *    translucent materials are refused.
  *  - Determinism: frames are bit-identical with 1 and 2 threads (the light-traced samples are
  *    bucketed by a counting sort in light-subpath order).
  *  - Unbiasedness: per-pixel z-test (Šidák at 0.01 over the pixels, >= 99.75 % passing, image
@@ -500,12 +501,13 @@ static void test_view_method(void)
     struct scene *sc = load("scenes/caustic-sphere/scene.json");
     if (!sc) return;
     struct err err = {0};
-    for (int k = 0; k < 2; k++) {
+    for (int k = 0; k < 3; k++) {
         struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_BDPT, 40, 24);
-        if (k) {
+        if (k == 1) {
             vp.restir_bdpt.light_paths = 1000;
             vp.restir_bdpt.lt_capacity = 3;
         }
+        vp.restir_bdpt.reuse = k == 2;
         struct view v;
         CHECK_MSG(view_init(&v, sc, &vp, 2, &err), "%s", err.message);
         struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
@@ -516,12 +518,13 @@ static void test_view_method(void)
         size_t reservoirs = 0;
         for (uint32_t i = 0; i < n; i++)
             if (strcmp(b[i].name, "reservoirs") == 0) reservoirs = b[i].bytes;
-        CHECK(reservoirs == 3u * 40 * 24 * RESTIR_BDPT_RESERVOIR_BYTES);
+        CHECK(reservoirs == (k == 2 ? 5u : 3u) * 40 * 24 * RESTIR_BDPT_RESERVOIR_BYTES);
         struct frame_stats fs;
         for (int f = 0; f < 3; f++) CHECK_MSG(view_render(&v, NULL, &fs, NULL, NULL, &err), "%s", err.message);
         CHECK(fs.has_restir_bdpt && !fs.has_bdpt && !fs.has_passes);
         const struct restir_bdpt_stats *rs = &fs.restir_bdpt;
-        CHECK(rs->light_subpaths == (k ? 1000u : 40u * 24) && rs->light_vertices >= rs->light_traced);
+        CHECK(rs->light_subpaths == (k == 1 ? 1000u : 40u * 24) && rs->light_vertices >= rs->light_traced);
+        CHECK((rs->reuse_shifts > rs->reuse_shift_failures) == (k == 2));
         CHECK(rs->light_traced > 0 && rs->caustic_samples > 0 && rs->caustic_shifts > 0 && rs->lt_dropped == 0);
         CHECK(rs->reservoir_bytes == reservoirs && fs.render.nonfinite == 0 && fs.render.samples == 40 * 24);
         view_destroy(&v);
