@@ -683,7 +683,7 @@ static void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain
         rbdpt_trace_light(c, v, src->origin_frame, src->light_path, (uint32_t)(src->head.bits >> 8) - 1u, &out, 1,
                           &stored, &dropped, NULL, &cnt->rays);
         ok = stored == 1 && !out.caustic && out.pixel == to.pixel;
-        C = out.F;
+        if (ok) C = out.F;
     } else {
         struct rng rng = rng_make(c->seed, src->origin_frame, RBDPT_CAMERA_STREAM + src->light_path, 0);
         float jx = rng_next_float(&rng), jy = rng_next_float(&rng);

@@ -96,16 +96,19 @@ def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse):
     assert not bad.passed, f"{label}: a bias of x1.03 went unseen: {bad}"
 
 
-def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes):
+@pytest.mark.parametrize("reuse", [False, True], ids=["default", "reuse"])
+def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes, reuse):
     """Light-traced samples and replayed caustic samples are bucketed by counting sorts in
-    light-subpath and source-pixel order: 1 and 3 threads give the same frames, here with the
-    light of caustic-sphere moving along its keys (so caustic shifts run and some fail)."""
-    extra = ["--method", "restir_bdpt", "--frames", "4", "--animation",
+    light-subpath and source-pixel order, and the reuse passes draw from per-pixel streams: 1 and
+    3 threads give the same frames, here with the light of caustic-sphere moving along its keys
+    (so caustic shifts run and some fail)."""
+    extra = ["--method", "restir_bdpt", "--frames", "4", "--params", json.dumps({"reuse": reuse}), "--animation",
              str(scenes / "caustic-sphere" / "animations" / "light-path.json")]
     sc = scenes / "caustic-sphere" / "scene.json"
     a, sa = render(sc, tmp_path / "a.exr", spp=1, size="40x32", seed=4, extra=[*extra, "--threads", "1"])
     b, _ = render(sc, tmp_path / "b.exr", spp=1, size="40x32", seed=4, extra=[*extra, "--threads", "3"])
     assert sa["last_frame"]["light_traced"] > 0 and sa["last_frame"]["caustic_shifts"] > 0
+    assert (sa["last_frame"]["reuse_shifts"] > 0) == reuse
     assert np.array_equal(a, b)
 
 
