@@ -202,6 +202,7 @@ bench: $(OUT)/restir $(OUT)/restird $(OBJ)/librenderer.a
 	$(PYTHON) bench/restir_pt.py | tee $(BUILD)/bench/restir_pt.md
 	$(PYTHON) bench/restir_sss.py | tee $(BUILD)/bench/restir_sss.md
 	$(PYTHON) bench/bdpt.py | tee $(BUILD)/bench/bdpt.md
+	QUICK=$(QUICK) $(PYTHON) bench/restir_bdpt.py | tee $(BUILD)/bench/restir_bdpt.md
 	$(PYTHON) bench/sms.py | tee $(BUILD)/bench/sms.md
 
 # The speed-against-accuracy report (docs/report/): every scene x method, stability, Cycles as a

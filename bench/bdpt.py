@@ -58,17 +58,25 @@ def compare(img, ref):
     return json.loads(res.stdout)["mape"]
 
 
-def reference(scene):
+def reference(scene, size=None, frames=None, animation=None):
+    """A bdpt reference of `frames` frames at `size` (the module's settings by default), cached
+    under the scene file's hash; `animation`: a file whose keys hold the scene still in a changed
+    state (a light moved), part of the cache key."""
+    size, frames = size or SIZE, frames or REF_FRAMES
     path = ROOT / "scenes" / scene / "scene.json"
-    key = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+    h = hashlib.sha256(path.read_bytes())
+    if animation:
+        h.update(Path(animation).read_bytes())
+    key = h.hexdigest()[:16]
     REFS.mkdir(parents=True, exist_ok=True)
-    ref = REFS / f"{scene}-{SIZE}-bdpt{REF_FRAMES}-{key}.exr"
+    ref = REFS / f"{scene}-{size}-bdpt{frames}-{key}.exr"
     if not ref.exists():
-        print(f"bench: rendering the {scene} reference ({SIZE}, bdpt, {REF_FRAMES} frames) ...", file=sys.stderr,
+        print(f"bench: rendering the {scene} reference ({size}, bdpt, {frames} frames) ...", file=sys.stderr,
               flush=True)
         tmp = ref.with_suffix(".tmp.exr")
-        run(["render", str(path), "--method", "bdpt", "--size", SIZE, "--frames", str(REF_FRAMES), "--average-last",
-             str(REF_FRAMES), "--seed", "999983", "--json", "-o", str(tmp)])
+        anim = ["--animation", str(animation)] if animation else []
+        run(["render", str(path), "--method", "bdpt", "--size", size, "--frames", str(frames), "--average-last",
+             str(frames), "--seed", "999983", "--json", "-o", str(tmp), *anim])
         tmp.rename(ref)
     return path, ref
 

@@ -741,6 +741,13 @@ static const struct protocol_field bdpt_fields[] = {
     F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(light_paths, PROTOCOL_UINT), F(lvc_capacity, PROTOCOL_UINT),
 };
 #undef F
+#define F(key, kind) REQUEST_FIELD(struct restir_bdpt_params, key, kind)
+static const struct protocol_field restir_bdpt_fields[] = {
+    F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(light_paths, PROTOCOL_UINT),
+    F(lt_capacity, PROTOCOL_UINT), F(caustic_temporal, PROTOCOL_BOOL), F(temporal_cap, PROTOCOL_UINT),
+    F(reuse, PROTOCOL_BOOL), F(spatial_neighbors, PROTOCOL_UINT), F(spatial_radius, PROTOCOL_FLOAT),
+};
+#undef F
 #define F(key, kind) REQUEST_FIELD(struct restir_sss_params, key, kind)
 static const struct protocol_field restir_sss_fields[] = {
         F(candidates, PROTOCOL_UINT), F(temporal_cap, PROTOCOL_UINT), F(spatial_neighbors, PROTOCOL_UINT),
@@ -757,6 +764,9 @@ const struct protocol_field *protocol_method_fields(enum render_method method, s
     case RENDER_METHOD_RESTIR_PT: *count = sizeof restir_pt_fields / sizeof restir_pt_fields[0]; return restir_pt_fields;
     case RENDER_METHOD_BDPT: *count = sizeof bdpt_fields / sizeof bdpt_fields[0]; return bdpt_fields;
     case RENDER_METHOD_RESTIR_SSS: *count = sizeof restir_sss_fields / sizeof restir_sss_fields[0]; return restir_sss_fields;
+    case RENDER_METHOD_RESTIR_BDPT:
+        *count = sizeof restir_bdpt_fields / sizeof restir_bdpt_fields[0];
+        return restir_bdpt_fields;
     default: *count = 0; return NULL;
     }
 }
@@ -774,22 +784,50 @@ static bool request_restir_pt_params(const cJSON *pv, const char *ptr, struct re
     return restir_pt_params_valid(rp, err);
 }
 
+/* "heuristic" of bdpt and restir_bdpt, when present. */
+static bool request_heuristic(const cJSON *pv, const char *ptr, enum bdpt_heuristic *out, struct err *err)
+{
+    char p[REQUEST_PTR];
+    const cJSON *v = request_member(pv, ptr, "heuristic", p);
+    if (!v) return true;
+    const char *name = request_string(v, p, err);
+    if (!name) return false;
+    if (!bdpt_heuristic_parse(name, out))
+        return err_set(err, ERR_INVALID, p, "unknown heuristic \"%.32s\" (power or balance)", name);
+    return true;
+}
+
 static bool request_bdpt_params(const cJSON *pv, const char *ptr, struct bdpt_params *bp, struct err *err)
 {
     static const char *const keys[] = {"max_depth", "rr_depth", "light_paths", "lvc_capacity", "heuristic", NULL};
-    char p[REQUEST_PTR];
-    const cJSON *v;
     if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in bdpt params", err) ||
-        !request_fields(pv, ptr, bdpt_fields, sizeof bdpt_fields / sizeof bdpt_fields[0], 1u << 26, bp, err))
+        !request_fields(pv, ptr, bdpt_fields, sizeof bdpt_fields / sizeof bdpt_fields[0], 1u << 26, bp, err) ||
+        !request_heuristic(pv, ptr, &bp->heuristic, err))
         return false;
-    if ((v = request_member(pv, ptr, "heuristic", p))) {
-        const char *name = request_string(v, p, err);
-        if (!name) return false;
-        if (!bdpt_heuristic_parse(name, &bp->heuristic))
-            return err_set(err, ERR_INVALID, p, "unknown heuristic \"%.32s\" (power or balance)", name);
-    }
     /* Ranges are the renderer's (its pointers name /params/<key>). */
     return bdpt_params_valid(bp, err);
+}
+
+static bool request_restir_bdpt_params(const cJSON *pv, const char *ptr, struct restir_bdpt_params *rp,
+                                       struct err *err)
+{
+    static const char *const keys[] = {"variant", "max_depth", "rr_depth", "light_paths", "lt_capacity", "heuristic",
+                                       "caustic_temporal", "temporal_cap", "reuse", "spatial_neighbors",
+                                       "spatial_radius", NULL};
+    char p[REQUEST_PTR];
+    const cJSON *v;
+    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_bdpt params", err) ||
+        !request_fields(pv, ptr, restir_bdpt_fields, sizeof restir_bdpt_fields / sizeof restir_bdpt_fields[0], 1u << 26,
+                        rp, err))
+        return false;
+    if ((v = request_member(pv, ptr, "variant", p))) {
+        const char *name = request_string(v, p, err);
+        if (!name) return false;
+        if (!restir_bdpt_variant_parse(name, &rp->variant))
+            return err_set(err, ERR_INVALID, p, "unknown variant \"%.32s\" (lightweight or full)", name);
+    }
+    /* Ranges are the renderer's (its pointers name /params/<key>; "full" is not implemented). */
+    return request_heuristic(pv, ptr, &rp->heuristic, err) && restir_bdpt_params_valid(rp, err);
 }
 
 static bool request_restir_sss_params(const cJSON *pv, const char *ptr, struct restir_sss_params *rp, struct err *err)
@@ -892,6 +930,9 @@ bool protocol_parse_session_create(const char *body, size_t len, const struct pr
             break;
         case RENDER_METHOD_RESTIR_SSS:
             ok = request_restir_sss_params(pv, p, &vp.restir_sss, err);
+            break;
+        case RENDER_METHOD_RESTIR_BDPT:
+            ok = request_restir_bdpt_params(pv, p, &vp.restir_bdpt, err);
             break;
         }
     }

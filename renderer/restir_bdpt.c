@@ -44,7 +44,7 @@
 #define RBDPT_CAMERA_STREAM 0x5242430000000000ull
 #define RBDPT_PICK_STREAM 0x5242500000000000ull
 
-_Static_assert(sizeof(struct restir_bdpt_reservoir) == 28, "restir_bdpt_reservoir changed size");
+_Static_assert(sizeof(struct restir_bdpt_reservoir) == RESTIR_BDPT_RESERVOIR_BYTES, "restir_bdpt_reservoir changed size");
 _Static_assert(sizeof(struct restir_bdpt_shifted) == 32, "restir_bdpt_shifted changed size");
 
 /* ---- lightweight MIS ---------------------------------------------------------------------- */
@@ -112,7 +112,8 @@ struct restir_bdpt_params restir_bdpt_defaults(void)
 {
     return (struct restir_bdpt_params){.variant = RESTIR_BDPT_LIGHTWEIGHT, .max_depth = 64, .rr_depth = 3,
                                        .light_paths = 0, .lt_capacity = 8, .heuristic = BDPT_HEURISTIC_POWER,
-                                       .caustic_temporal = true, .temporal_cap = 20};
+                                       .caustic_temporal = true, .temporal_cap = 20, .reuse = false,
+                                       .spatial_neighbors = 2, .spatial_radius = 30.0f};
 }
 
 bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *err)
@@ -133,6 +134,23 @@ bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *er
         return err_set(err, ERR_INVALID, "/params/heuristic", "heuristic must be \"power\" or \"balance\"");
     if (p->temporal_cap < 1 || p->temporal_cap > 65535)
         return err_set(err, ERR_INVALID, "/params/temporal_cap", "temporal_cap must be in 1..65535");
+    if (p->spatial_neighbors > 32)
+        return err_set(err, ERR_INVALID, "/params/spatial_neighbors", "spatial_neighbors must be in 0..32");
+    if (!(p->spatial_radius > 0.0f && p->spatial_radius <= 256.0f))
+        return err_set(err, ERR_INVALID, "/params/spatial_radius", "spatial_radius must be in (0, 256]");
+    return true;
+}
+
+const char *restir_bdpt_variant_name(enum restir_bdpt_variant v)
+{
+    return v == RESTIR_BDPT_FULL ? "full" : "lightweight";
+}
+
+bool restir_bdpt_variant_parse(const char *name, enum restir_bdpt_variant *out)
+{
+    if (strcmp(name, "lightweight") == 0) *out = RESTIR_BDPT_LIGHTWEIGHT;
+    else if (strcmp(name, "full") == 0) *out = RESTIR_BDPT_FULL;
+    else return false;
     return true;
 }
 
@@ -150,9 +168,9 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
     z.region = RBDPT_BLOCK_PATHS * p->lt_capacity;
     z.lt = 2 * (uint64_t)z.blocks * z.region * sizeof(struct restir_bdpt_lt_sample);
     z.pixels = (n + 1) * sizeof(uint32_t);
-    z.blocks_b = (uint64_t)z.blocks * (2 * sizeof(uint32_t) + 2 * sizeof(uint64_t));
-    z.res = 3 * n * sizeof(struct restir_bdpt_reservoir) + 2 * n * sizeof(struct restir_bdpt_shifted) +
-            (n + 1) * sizeof(uint32_t);
+    z.blocks_b = (uint64_t)z.blocks * (2 * sizeof(uint32_t) + 3 * sizeof(uint64_t));
+    z.res = (p->reuse ? 5 : 3) * n * sizeof(struct restir_bdpt_reservoir) + 2 * n * sizeof(struct restir_bdpt_shifted) +
+            (n + 1) * sizeof(uint32_t) + (p->reuse ? n * sizeof(struct gbuffer_pixel) : 0);
     return z;
 }
 
@@ -162,12 +180,36 @@ uint64_t restir_bdpt_bytes_planned(const struct restir_bdpt_params *p, uint32_t 
     return z.lt + z.pixels + z.blocks_b + z.res;
 }
 
-size_t restir_bdpt_bytes(const struct restir_bdpt_state *st)
+size_t restir_bdpt_reservoir_bytes(const struct restir_bdpt_state *st)
+{
+    return (st->res_prev ? 5 : 3) * (size_t)st->width * st->height * sizeof *st->res;
+}
+
+size_t restir_bdpt_lt_bytes(const struct restir_bdpt_state *st)
+{
+    return 2 * (size_t)st->blocks * st->region * sizeof *st->lt;
+}
+
+size_t restir_bdpt_shift_bytes(const struct restir_bdpt_state *st)
+{
+    return 2 * (size_t)st->width * st->height * sizeof *st->shifted;
+}
+
+size_t restir_bdpt_bucket_bytes(const struct restir_bdpt_state *st)
 {
     size_t n = (size_t)st->width * st->height;
-    return 2 * (size_t)st->blocks * st->region * sizeof *st->lt + (n + 1) * sizeof *st->pixel_first +
-           (size_t)st->blocks * (sizeof *st->block_count + sizeof *st->block_dropped + 2 * sizeof *st->block_rays) +
-           3 * n * sizeof *st->res + 2 * n * sizeof *st->shifted + (n + 1) * sizeof *st->shift_first;
+    return (n + 1) * sizeof *st->pixel_first + (n + 1) * sizeof *st->shift_first;
+}
+
+size_t restir_bdpt_block_bytes(const struct restir_bdpt_state *st)
+{
+    return (size_t)st->blocks * (sizeof *st->block_count + sizeof *st->block_dropped + 3 * sizeof *st->block_rays);
+}
+
+size_t restir_bdpt_bytes(const struct restir_bdpt_state *st)
+{
+    return restir_bdpt_reservoir_bytes(st) + restir_bdpt_lt_bytes(st) + restir_bdpt_shift_bytes(st) +
+           restir_bdpt_bucket_bytes(st) + restir_bdpt_block_bytes(st) + gbuffer_bytes(&st->gbuf);
 }
 
 bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, const struct restir_bdpt_params *p,
@@ -176,7 +218,13 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
     memset(st, 0, sizeof *st);
     if (!restir_bdpt_params_valid(p, err)) return false;
     if (!vec3_is_zero(scene->env_radiance))
-        return err_set(err, ERR_INVALID, "/method", "restir_bdpt does not support environment light");
+        return err_set(err, ERR_INVALID, "/method",
+                       "restir_bdpt does not support environment light (the scene has env_radiance); use pt or "
+                       "restir_pt");
+    if (scene_has_translucent(scene))
+        return err_set(err, ERR_INVALID, "/method",
+                       "restir_bdpt does not sample subsurface scattering (the scene has translucent materials); use "
+                       "pt or restir_sss");
     struct rbdpt_sizes z = rbdpt_sizes_of(p, width, height);
     if (z.light_paths == 0) return err_set(err, ERR_INVALID, "/params/light_paths", "no light subpaths");
     size_t n = (size_t)width * height;
@@ -191,15 +239,24 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
     st->pixel_first = calloc(n + 1, sizeof *st->pixel_first);
     st->block_count = calloc(z.blocks, sizeof *st->block_count);
     st->block_dropped = calloc(z.blocks, sizeof *st->block_dropped);
-    st->block_rays = calloc(2 * (size_t)z.blocks, sizeof *st->block_rays);
+    st->block_rays = calloc(3 * (size_t)z.blocks, sizeof *st->block_rays);
     st->res = calloc(n, sizeof *st->res);
     st->caustic = calloc(n, sizeof *st->caustic);
     st->caustic_prev = calloc(n, sizeof *st->caustic_prev);
     st->shifted = calloc(n, sizeof *st->shifted);
     st->shifted_sorted = calloc(n, sizeof *st->shifted_sorted);
     st->shift_first = calloc(n + 1, sizeof *st->shift_first);
+    if (p->reuse) {
+        st->res_prev = calloc(n, sizeof *st->res_prev);
+        st->res_spatial = calloc(n, sizeof *st->res_spatial);
+        if (st->res_prev && st->res_spatial && !gbuffer_init(&st->gbuf, width, height, err)) {
+            restir_bdpt_destroy(st);
+            return false;
+        }
+    }
     if (!st->lt || !st->lt_sorted || !st->pixel_first || !st->block_count || !st->block_dropped || !st->block_rays ||
-        !st->res || !st->caustic || !st->caustic_prev || !st->shifted || !st->shifted_sorted || !st->shift_first) {
+        !st->res || !st->caustic || !st->caustic_prev || !st->shifted || !st->shifted_sorted || !st->shift_first ||
+        (p->reuse && (!st->res_prev || !st->res_spatial))) {
         restir_bdpt_destroy(st);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for restir_bdpt (%llu bytes)",
                        (unsigned long long)restir_bdpt_bytes_planned(p, width, height));
@@ -221,6 +278,9 @@ void restir_bdpt_destroy(struct restir_bdpt_state *st)
     free(st->shifted);
     free(st->shifted_sorted);
     free(st->shift_first);
+    free(st->res_prev);
+    free(st->res_spatial);
+    gbuffer_destroy(&st->gbuf);
     memset(st, 0, sizeof *st);
 }
 
@@ -345,7 +405,7 @@ static bool rbdpt_connect_camera(const struct rbdpt_ctx *c, const struct rbdpt_v
  * earlier, the vertex is not connectable or the eye does not see it). */
 static void rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view *v, uint32_t origin_frame,
                               uint32_t i, uint32_t only_depth, struct restir_bdpt_lt_sample *out, uint32_t cap,
-                              uint32_t *stored, uint32_t *dropped, struct ray_counters *rc)
+                              uint32_t *stored, uint32_t *dropped, uint64_t *vertices, struct ray_counters *rc)
 {
     const struct scene *scene = v->scene;
     const struct restir_bdpt_params *p = c->p;
@@ -384,6 +444,7 @@ static void rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view
         const struct material *m = &scene->materials[s.material];
         struct vec3 wo_world = vec3_neg(dir);
         if ((!only_depth || depth == only_depth) && (material_flags(m) & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
+            if (vertices) (*vertices)++;
             uint32_t px;
             struct vec3 val;
             if (rbdpt_connect_camera(c, v, &s, m, wo_world, beta, &mis, rc, &px, &val) && vec3_is_finite(val) &&
@@ -437,14 +498,16 @@ static void rbdpt_light_block(void *ctx, uint32_t block, unsigned worker)
     struct ray_counters rc = {0, 0};
     struct restir_bdpt_lt_sample *region = &st->lt[(size_t)block * st->region];
     uint32_t stored = 0, dropped = 0;
+    uint64_t vertices = 0;
     uint32_t first = block * RBDPT_BLOCK_PATHS;
     uint32_t last = first + RBDPT_BLOCK_PATHS < st->light_paths ? first + RBDPT_BLOCK_PATHS : st->light_paths;
     for (uint32_t i = first; i < last; i++)
-        rbdpt_trace_light(c, &c->view[0], c->frame, i, 0, region, st->region, &stored, &dropped, &rc);
+        rbdpt_trace_light(c, &c->view[0], c->frame, i, 0, region, st->region, &stored, &dropped, &vertices, &rc);
     st->block_count[block] = stored;
     st->block_dropped[block] = dropped;
-    st->block_rays[2 * block] = rc.intersect;
-    st->block_rays[2 * block + 1] = rc.occluded;
+    st->block_rays[3 * block] = rc.intersect;
+    st->block_rays[3 * block + 1] = rc.occluded;
+    st->block_rays[3 * block + 2] = vertices;
 }
 
 enum rbdpt_replay { RBDPT_REPLAY_OK, RBDPT_REPLAY_FAILED, RBDPT_REPLAY_NOT_CAUSTIC };
@@ -459,7 +522,7 @@ static enum rbdpt_replay rbdpt_replay_caustic(const struct rbdpt_ctx *c, const s
 {
     struct restir_bdpt_lt_sample out;
     uint32_t stored = 0, dropped = 0;
-    rbdpt_trace_light(c, v, origin_frame, i, depth, &out, 1, &stored, &dropped, rc);
+    rbdpt_trace_light(c, v, origin_frame, i, depth, &out, 1, &stored, &dropped, NULL, rc);
     if (stored == 0) return RBDPT_REPLAY_FAILED;
     if (!out.caustic) return RBDPT_REPLAY_NOT_CAUSTIC;
     *pixel = out.pixel;
@@ -469,19 +532,47 @@ static enum rbdpt_replay rbdpt_replay_caustic(const struct rbdpt_ctx *c, const s
 
 /* ---- camera pass: each pixel's candidates (s = 0, s = 1) and its light-traced bucket -------- */
 
-static void rbdpt_camera_candidates(struct rbdpt_ctx *c, struct vec3 dir, struct rng *rng, struct rng *pick,
+/* With `want` set, the camera subpath is a random replay (the shift of a camera-path sample):
+ * no candidate is resampled, and the contribution of the one whose technique and length are
+ * want->bits is returned in want->C (want->found). */
+struct rbdpt_want {
+    uint16_t bits;
+    bool found;
+    struct vec3 C;
+};
+
+/* Offers a camera-side candidate to the reservoir, or hands it to the replay that wants it;
+ * true when the replay has what it wanted (the path need not be traced further). */
+static bool rbdpt_offer(struct rbdpt_ris *r, struct rbdpt_want *want, struct vec3 C, uint16_t bits, uint32_t pixel,
+                        uint32_t frame, struct rng *pick, struct rbdpt_worker *wk)
+{
+    if (want) {
+        if (want->bits != bits) return false;
+        want->found = true;
+        want->C = C;
+        return true;
+    }
+    wk->candidates++;
+    rbdpt_ris_add(r, C, bits, pixel, frame, pick, wk);
+    return false;
+}
+
+/* The camera subpath of `pixel`'s stream (its ids: the pixel and frame whose random numbers
+ * drive it) traced along `dir` in view v: its s = 0 and s = 1 candidates. */
+static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdpt_view *v, struct vec3 dir,
+                                    uint32_t pixel, uint32_t frame, struct rng *rng, struct rng *pick,
                                     struct rbdpt_ris *r, struct ray_counters *rc, struct rbdpt_worker *wk,
-                                    struct vec3 *primary, bool *has_primary)
+                                    struct vec3 *primary, bool *has_primary, struct rbdpt_want *want)
 {
     *has_primary = false;
-    const struct scene *scene = c->view[0].scene;
+    const struct scene *scene = v->scene;
     const struct restir_bdpt_params *p = c->p;
     const struct light_sampler *lights = scene->lights;
-    const struct camera *cam = &c->view[0].cam;
+    const struct camera *cam = &v->cam;
     struct vec3 beta = vec3_splat(1.0f);
     float cos0 = vec3_dot(dir, cam->forward);
     if (!(cos0 > 0.0f)) return;
-    struct restir_bdpt_mis mis = restir_bdpt_mis_camera_start(c->n_light, c->view[0].plane_dist2 / (cos0 * cos0 * cos0),
+    struct restir_bdpt_mis mis = restir_bdpt_mis_camera_start(c->n_light, v->plane_dist2 / (cos0 * cos0 * cos0),
                                                                   c->power);
     struct vec3 org = cam->position, prev_p = org;
 
@@ -508,8 +599,7 @@ static void rbdpt_camera_candidates(struct rbdpt_ctx *c, struct vec3 dir, struct
                     w = restir_bdpt_mis_emission(&mis, direct_pdf_a, emission_pdf_w, c->power);
                 }
                 struct vec3 C = vec3_scale(vec3_mul(beta, Le), w);
-                wk->candidates++;
-                rbdpt_ris_add(r, C, (uint16_t)(((depth + 1) << 8) | 0u), UINT32_MAX, 0, pick, wk);
+                if (rbdpt_offer(r, want, C, (uint16_t)(((depth + 1) << 8) | 0u), pixel, frame, pick, wk)) return;
             }
         }
         if (depth >= p->max_depth) break;
@@ -536,8 +626,8 @@ static void rbdpt_camera_candidates(struct rbdpt_ctx *c, struct vec3 dir, struct
                         float w = restir_bdpt_mis_nee(&mis, material_pdf(m, wo, wi), material_pdf(m, wi, wo),
                                                       direct_pdf_w, emission_pdf_w, cos_ng, cos_l, c->power);
                         struct vec3 C = vec3_mul(beta, vec3_scale(vec3_mul(f, Le), fabsf(wi.z) * w / direct_pdf_w));
-                        wk->candidates++;
-                        rbdpt_ris_add(r, C, (uint16_t)(((depth + 2) << 8) | 1u), UINT32_MAX, 0, pick, wk);
+                        if (rbdpt_offer(r, want, C, (uint16_t)(((depth + 2) << 8) | 1u), pixel, frame, pick, wk))
+                            return;
                     }
                 }
             }
@@ -562,6 +652,76 @@ static void rbdpt_camera_candidates(struct rbdpt_ctx *c, struct vec3 dir, struct
         dir = wi_world;
     }
 }
+
+/* ---- reuse of the non-caustic reservoir (restir.c's passes) ------------------------------- */
+
+/* The shift of a non-caustic sample into domain `to` by random replay, whose Jacobian in
+ * primary sample space is 1 (the identity on the random numbers):
+ *  - s = 0 and s = 1: the camera subpath of the sample's own random stream (the pixel and frame
+ *    it was drawn in) is traced again through the target pixel (its jitter from that stream) in
+ *    the target frame's scene and camera, and the candidate of the same technique and length is
+ *    the shifted sample; the lightweight MIS weight is recomputed on the new path;
+ *  - t = 1: the light subpath is replayed in the target frame; the shift succeeds only when the
+ *    replayed sample lands in the target pixel and is still non-caustic (a light-traced sample
+ *    belongs to the pixel it lands in: it cannot move to a neighbour).
+ * A replay that ends early, misses the technique or changes class fails (target 0). */
+static void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain from, struct restir_domain to,
+                        void *dst_v, float *target, float *jacobian, struct restir_counters *cnt)
+{
+    (void)from;
+    const struct rbdpt_ctx *c = ctx;
+    const struct restir_bdpt_reservoir *src = src_v;
+    const struct rbdpt_view *v = &c->view[to.frame == RESTIR_PREVIOUS ? 1 : 0];
+    const uint32_t w = c->st->width;
+    *target = 0.0f;
+    *jacobian = 1.0f;
+    struct vec3 C = {0, 0, 0};
+    bool ok = false;
+    if ((src->head.bits & 0xffu) == RESTIR_BDPT_TECH_LT) {
+        struct restir_bdpt_lt_sample out;
+        uint32_t stored = 0, dropped = 0;
+        rbdpt_trace_light(c, v, src->origin_frame, src->light_path, (uint32_t)(src->head.bits >> 8) - 1u, &out, 1,
+                          &stored, &dropped, NULL, &cnt->rays);
+        ok = stored == 1 && !out.caustic && out.pixel == to.pixel;
+        if (ok) C = out.F;
+    } else {
+        struct rng rng = rng_make(c->seed, src->origin_frame, RBDPT_CAMERA_STREAM + src->light_path, 0);
+        float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
+        struct vec3 dir = camera_ray_dir(&v->cam, (float)(to.pixel % w) + jx, (float)(to.pixel / w) + jy);
+        struct rbdpt_want want = {.bits = src->head.bits, .found = false};
+        struct vec3 primary;
+        bool has_primary;
+        rbdpt_camera_candidates(c, v, dir, src->light_path, src->origin_frame, &rng, NULL, NULL, &cnt->rays, NULL,
+                                &primary, &has_primary, &want);
+        ok = want.found;
+        C = want.C;
+    }
+    if (!ok || !vec3_is_finite(C)) return;
+    *target = vec3_luminance(C);
+    if (dst_v && *target > 0.0f) {
+        struct restir_bdpt_reservoir *dst = dst_v;
+        *dst = *src;
+        dst->F = C;
+    }
+}
+
+static float rbdpt_target(const void *ctx, const void *elem)
+{
+    (void)ctx;
+    return vec3_luminance(((const struct restir_bdpt_reservoir *)elem)->F);
+}
+
+/* Every pixel can produce samples: its camera subpaths are jittered over the whole pixel, and
+ * light-traced samples land anywhere (a G-buffer ray that escaped says nothing about them). */
+static bool rbdpt_domain_valid(const void *ctx, struct restir_domain d)
+{
+    (void)ctx;
+    (void)d;
+    return true;
+}
+
+static const struct restir_ops rbdpt_ops = {.stride = sizeof(struct restir_bdpt_reservoir), .target = rbdpt_target,
+                                            .shift = rbdpt_shift, .domain_valid = rbdpt_domain_valid};
 
 /* The caustic reservoir's confidence (eq. 27): 1 for this frame's initial samples plus the
  * confidence of the previous caustic reservoir that the primary hit maps to with the previous
@@ -603,7 +763,8 @@ static void rbdpt_camera_tile(void *ctx, uint32_t tile, unsigned worker)
             struct rbdpt_ris rcau = r;
             struct vec3 primary = {0, 0, 0};
             bool has_primary;
-            rbdpt_camera_candidates(c, dir, &rng, &pick, &r, &rc, wk, &primary, &has_primary);
+            rbdpt_camera_candidates(c, &c->view[0], dir, pixel, c->frame, &rng, &pick, &r, &rc, wk, &primary,
+                                    &has_primary, NULL);
             /* The pixel's bucket of light-traced samples (eq. 26: C carries 1/N_L). */
             for (uint32_t k = st->pixel_first[pixel]; k < st->pixel_first[pixel + 1]; k++) {
                 const struct restir_bdpt_lt_sample *ls = &st->lt_sorted[k];
@@ -641,8 +802,9 @@ static void rbdpt_camera_tile(void *ctx, uint32_t tile, unsigned worker)
             } else {
                 rbdpt_ris_finish(&rcau, M, &st->caustic[pixel]);
             }
-            struct vec3 L = vec3_add(vec3_scale(st->res[pixel].F, st->res[pixel].head.W),
-                                     vec3_scale(st->caustic[pixel].F, st->caustic[pixel].head.W));
+            /* With reuse the non-caustic estimate is added after the reuse passes. */
+            struct vec3 L = vec3_scale(st->caustic[pixel].F, st->caustic[pixel].head.W);
+            if (!c->p->reuse) L = vec3_add(L, vec3_scale(st->res[pixel].F, st->res[pixel].head.W));
             c->out->pixels[pixel] = L;
         }
     }
@@ -752,8 +914,9 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
         const struct restir_bdpt_lt_sample *v = &st->lt[(size_t)b * st->region];
         for (uint32_t j = 0; j < st->block_count[b]; j++) st->pixel_first[v[j].pixel + 1]++;
         s.lt_dropped += st->block_dropped[b];
-        s.rays_intersect += st->block_rays[2 * b];
-        s.rays_occluded += st->block_rays[2 * b + 1];
+        s.rays_intersect += st->block_rays[3 * b];
+        s.rays_occluded += st->block_rays[3 * b + 1];
+        s.light_vertices += st->block_rays[3 * b + 2];
     }
     for (uint32_t i = 0; i < npix; i++) st->pixel_first[i + 1] += st->pixel_first[i];
     for (uint32_t b = 0; b < st->blocks; b++) {
@@ -792,6 +955,42 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     if (!parallel_run(threads, c->tiles_x * tiles_y, rbdpt_camera_tile, c, NULL, NULL, err)) return false;
     s.camera_ms = rbdpt_ms_since(&t0);
 
+    if (p->reuse) {
+        /* Temporal reuse of the non-caustic reservoirs along the G-buffer's motion vectors, then
+         * spatial reuse (restir.c: generalized balance heuristic, defensive pairwise MIS), with
+         * the random-replay shift above; the final reservoirs become the next frame's history. */
+        clock_gettime(CLOCK_MONOTONIC, &t0);
+        uint64_t grays = 0;
+        struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = c->has_prev ? f->prev_scene : NULL,
+                                   .prev_camera = c->has_prev ? f->prev_camera : NULL, .seed = f->seed,
+                                   .frame = f->frame, .threads = f->threads};
+        if (!gbuffer_render(&st->gbuf, &gf, &grays, err)) return false;
+        s.rays_intersect += grays;
+        struct restir_reuse rr = {.ops = &rbdpt_ops, .ctx = c, .width = st->width, .height = st->height,
+                                  .seed = f->seed, .frame = f->frame, .threads = f->threads, .gbuf = &st->gbuf,
+                                  .history = c->has_prev && st->has_history ? (const uint8_t *)st->res_prev : NULL,
+                                  .temporal_cap = p->temporal_cap, .neighbors = p->spatial_neighbors,
+                                  .radius = p->spatial_radius, .paired = false, .pair_scratch = NULL};
+        struct restir_counters rc = {{0, 0}, 0, 0, 0};
+        if (rr.history && !restir_temporal_pass(&rr, (uint8_t *)st->res, &rc, err)) return false;
+        struct restir_bdpt_reservoir *final = st->res;
+        if (p->spatial_neighbors) {
+            if (!restir_spatial_pass(&rr, (const uint8_t *)st->res, (uint8_t *)st->res_spatial, &rc, err)) return false;
+            final = st->res_spatial;
+        }
+        for (uint32_t i = 0; i < npix; i++) out->pixels[i] = vec3_add(out->pixels[i], vec3_scale(final[i].F, final[i].head.W));
+        /* The final buffer becomes the history; the old history is the next frame's scratch. */
+        struct restir_bdpt_reservoir *old = st->res_prev;
+        st->res_prev = final;
+        if (final == st->res) st->res = old; else st->res_spatial = old;
+        s.rays_intersect += rc.rays.intersect;
+        s.rays_occluded += rc.rays.occluded;
+        s.reuse_shifts = rc.shifts;
+        s.reuse_shift_failures = rc.shift_failures;
+        s.rejected += rc.rejected;
+        s.reuse_ms = rbdpt_ms_since(&t0);
+    }
+
     for (unsigned i = 0; i < threads; i++) {
         s.rays_intersect += c->worker[i].rays_intersect;
         s.rays_occluded += c->worker[i].rays_occluded;
@@ -808,7 +1007,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     st->caustic = tmp;
     st->has_history = true;
     s.light_subpaths = st->light_paths;
-    s.reservoir_bytes = 3 * (uint64_t)npix * sizeof *st->res;
+    s.reservoir_bytes = restir_bdpt_reservoir_bytes(st);
     if (stats) *stats = s;
     return true;
 }

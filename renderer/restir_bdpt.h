@@ -18,10 +18,22 @@
  * eqs. 51–52 over {previous reservoir, current initial sample}; a reservoir's confidence is 1
  * plus that of the previous caustic reservoir its primary hit maps to (eq. 27), capped.
  *
- * State of this module: initial resampling and caustic temporal reuse. Temporal and spatial
- * reuse of the non-caustic reservoir (the bidirectional hybrid shift) is not implemented, so the
- * module is not a session method; it is tested directly against `bdpt`
- * (tests/unit/test_restir_bdpt.c). */
+ * Non-caustic reuse (`reuse`, off by default): temporal reuse along a G-buffer's motion
+ * vectors and spatial reuse through restir.c's passes, with a random-replay shift (Jacobian 1 in
+ * primary sample space): an s = 0 / s = 1 sample's camera subpath is traced again from its own
+ * random stream through the target pixel and frame, the candidate of the same technique and
+ * length being the shifted sample (its lightweight MIS weight recomputed on the new path); a
+ * t = 1 sample's light subpath is replayed and the shift succeeds only when it lands in the
+ * target pixel again and is still non-caustic.
+ *
+ * Method `restir_bdpt` (renderer/view.c) renders frames with exactly this. What it does NOT do
+ * yet: the full variant (the vertex connections, s >= 2 and t >= 2, the light vertex cache,
+ * recursive reconnection MIS of eqs. 42-47 and the "copy MIS weight" variant) is refused by
+ * restir_bdpt_params_valid naming /params/variant; the non-caustic reuse does not use the
+ * bidirectional hybrid shift (no reconnection of the camera subpath to the light subpath), so a
+ * light-traced sample never moves to a neighbouring pixel, and the switchable rejection of
+ * non-caustic t <= 1 samples that cannot shift to the pixel's primary hit is not implemented.
+ * Scenes with environment light or translucent materials are refused, as by `bdpt`. */
 #ifndef RESTIRD_RESTIR_BDPT_H
 #define RESTIRD_RESTIR_BDPT_H
 
@@ -31,11 +43,14 @@
 #include "bdpt.h"
 #include "camera.h"
 #include "err.h"
+#include "gbuffer.h"
 #include "image.h"
 #include "restir.h"
 #include "scene.h"
 
 enum restir_bdpt_variant { RESTIR_BDPT_LIGHTWEIGHT, RESTIR_BDPT_FULL };
+const char *restir_bdpt_variant_name(enum restir_bdpt_variant v);
+bool restir_bdpt_variant_parse(const char *name, enum restir_bdpt_variant *out);
 
 struct restir_bdpt_params {
     enum restir_bdpt_variant variant;  /* only the lightweight variant is implemented */
@@ -45,7 +60,11 @@ struct restir_bdpt_params {
     uint32_t lt_capacity;      /* light-traced samples kept per light subpath on average, 1..64 (8) */
     enum bdpt_heuristic heuristic;  /* power (default) or balance */
     bool caustic_temporal;     /* temporal reuse of the caustic reservoirs (true) */
-    uint32_t temporal_cap;     /* caustic confidence capped at this absolute value, 1..65535 (20) */
+    uint32_t temporal_cap;     /* caustic confidence capped at this absolute value, 1..65535 (20); with
+                                  `reuse`, the non-caustic history's at this multiple of the current */
+    bool reuse;                /* temporal and spatial reuse of the non-caustic reservoir (false) */
+    uint32_t spatial_neighbors; /* with reuse: neighbours per pixel, 0..32 (2) */
+    float spatial_radius;      /* with reuse: pixels, (0, 256] (30) */
 };
 
 struct restir_bdpt_params restir_bdpt_defaults(void);
@@ -80,6 +99,9 @@ struct restir_bdpt_shifted {
     uint16_t depth, valid;
 };
 
+/* Bytes of one reservoir; a pixel has three (non-caustic, caustic, previous caustic). */
+#define RESTIR_BDPT_RESERVOIR_BYTES 28u
+
 /* head.bits: technique s in the low byte (0, 1, or 0xff for t = 1), path vertices above. */
 #define RESTIR_BDPT_TECH_LT 0xffu
 
@@ -90,7 +112,7 @@ struct restir_bdpt_state {
     struct restir_bdpt_lt_sample *lt_sorted; /* blocks * region, by pixel */
     uint32_t *pixel_first;                   /* width * height + 1 (prefix sums) */
     uint32_t *block_count, *block_dropped;
-    uint64_t *block_rays;                    /* 2 per block */
+    uint64_t *block_rays;                    /* 3 per block: intersect, occluded rays, light vertices */
     struct restir_bdpt_reservoir *res;       /* width * height, non-caustic */
     struct restir_bdpt_reservoir *caustic;   /* width * height, caustic (this frame's) */
     struct restir_bdpt_reservoir *caustic_prev; /* width * height, the previous frame's */
@@ -98,11 +120,17 @@ struct restir_bdpt_state {
     struct restir_bdpt_shifted *shifted;        /* width * height, by source pixel */
     struct restir_bdpt_shifted *shifted_sorted; /* width * height, by landing pixel */
     uint32_t *shift_first;                      /* width * height + 1 */
+    /* With reuse: the previous frame's final non-caustic reservoirs, the spatial pass's output,
+     * and the G-buffer whose motion vectors temporal reuse follows. */
+    struct restir_bdpt_reservoir *res_prev, *res_spatial;
+    struct gbuffer gbuf;
 };
 
 struct restir_bdpt_stats {
     double light_ms, sort_ms, camera_ms;
     uint64_t light_subpaths;    /* N_L */
+    uint64_t light_vertices;    /* connectable light vertices reached, each connected to the eye (t = 1):
+                                   what a light vertex cache would hold; this variant stores none */
     uint64_t light_traced;      /* t = 1 samples that reached a pixel */
     uint64_t caustic_samples;   /* of which caustic */
     uint64_t lt_dropped;        /* samples that found their block's region full (a bias; see bdpt.h) */
@@ -114,6 +142,9 @@ struct restir_bdpt_stats {
                                            its vertex */
     uint64_t caustic_not_caustic;       /* forward shifts whose replayed x_2 turned rough */
     uint64_t caustic_inverse_failed;    /* backward shifts that failed (no predecessor) */
+    double reuse_ms;            /* with reuse: G-buffer, temporal and spatial passes */
+    uint64_t reuse_shifts;      /* with reuse: shifts of non-caustic samples, and those that failed */
+    uint64_t reuse_shift_failures;
     uint64_t reservoir_bytes;
     uint64_t rays_intersect, rays_occluded;
 };
@@ -135,6 +166,15 @@ void restir_bdpt_destroy(struct restir_bdpt_state *st);
 /* Forgets the history. */
 void restir_bdpt_reset(struct restir_bdpt_state *st);
 size_t restir_bdpt_bytes(const struct restir_bdpt_state *st);
+/* The buffers by name (their sum is restir_bdpt_bytes): the three reservoir buffers (non-caustic,
+ * caustic, previous caustic), the light-traced samples (per block, and sorted by pixel), the
+ * caustic shifts (by source and by landing pixel), the two per-pixel bucket tables, the
+ * per-block counters. */
+size_t restir_bdpt_reservoir_bytes(const struct restir_bdpt_state *st);
+size_t restir_bdpt_lt_bytes(const struct restir_bdpt_state *st);
+size_t restir_bdpt_shift_bytes(const struct restir_bdpt_state *st);
+size_t restir_bdpt_bucket_bytes(const struct restir_bdpt_state *st);
+size_t restir_bdpt_block_bytes(const struct restir_bdpt_state *st);
 
 bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
                         const struct restir_bdpt_frame *f, struct image *out, struct restir_bdpt_stats *stats,

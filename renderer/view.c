@@ -14,6 +14,7 @@ struct view_params view_params_defaults(enum render_method method, uint32_t widt
     p.sms = sms_defaults();
     p.restir_sss = restir_sss_defaults();
     p.ssp = ssp_defaults();
+    p.restir_bdpt = restir_bdpt_defaults();
     return p;
 }
 
@@ -25,6 +26,7 @@ bool view_method_parse(const char *name, enum render_method *out)
     if (strcmp(name, "sms") == 0) { *out = RENDER_METHOD_SMS; return true; }
     if (strcmp(name, "restir_sss") == 0) { *out = RENDER_METHOD_RESTIR_SSS; return true; }
     if (strcmp(name, "sms_ssp") == 0) { *out = RENDER_METHOD_SMS_SSP; return true; }
+    if (strcmp(name, "restir_bdpt") == 0) { *out = RENDER_METHOD_RESTIR_BDPT; return true; }
     return false;
 }
 
@@ -37,6 +39,7 @@ const char *view_method_name(enum render_method method)
     case RENDER_METHOD_SMS: return "sms";
     case RENDER_METHOD_RESTIR_SSS: return "restir_sss";
     case RENDER_METHOD_SMS_SSP: return "sms_ssp";
+    case RENDER_METHOD_RESTIR_BDPT: return "restir_bdpt";
     }
     return NULL;
 }
@@ -50,6 +53,7 @@ static void view_drop_history(struct view *v)
     v->accum_count = 0;
     restir_pt_reset(&v->restir);
     restir_sss_reset(&v->sss);
+    restir_bdpt_reset(&v->rbdpt);
     if (v->accum.pixels) memset(v->accum.pixels, 0, (size_t)v->accum.width * v->accum.height * sizeof *v->accum.pixels);
 }
 
@@ -76,6 +80,9 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
     if (params->method == RENDER_METHOD_BDPT &&
         !bdpt_init(&v->bdpt, scene, &params->bdpt, params->width, params->height, err))
         return false;
+    if (params->method == RENDER_METHOD_RESTIR_BDPT &&
+        !restir_bdpt_init(&v->rbdpt, scene, &params->restir_bdpt, params->width, params->height, err))
+        return false;
     if (params->method == RENDER_METHOD_RESTIR_SSS) {
         if (!restir_sss_params_valid(&params->restir_sss, err)) return false;
         if (!restir_sss_init(&v->sss, params->width, params->height, err)) return false;
@@ -86,6 +93,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         image_destroy(&v->output);
         restir_pt_destroy(&v->restir);
         bdpt_destroy(&v->bdpt);
+        restir_bdpt_destroy(&v->rbdpt);
         restir_sss_destroy(&v->sss);
         ssp_prior_destroy(&v->prior);
         return false;
@@ -96,6 +104,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         image_destroy(&v->accum);
         restir_pt_destroy(&v->restir);
         bdpt_destroy(&v->bdpt);
+        restir_bdpt_destroy(&v->rbdpt);
         restir_sss_destroy(&v->sss);
         ssp_prior_destroy(&v->prior);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for a view");
@@ -118,6 +127,7 @@ void view_destroy(struct view *v)
     image_destroy(&v->accum);
     restir_pt_destroy(&v->restir);
     bdpt_destroy(&v->bdpt);
+    restir_bdpt_destroy(&v->rbdpt);
     restir_sss_destroy(&v->sss);
     ssp_prior_destroy(&v->prior);
     free(v->changes);
@@ -235,6 +245,7 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
     struct render_stats rs;
     struct restir_pt_stats passes;
     struct bdpt_stats bstats;
+    struct restir_bdpt_stats rbstats;
     struct ssp_prior_counters prior = {0};
     bool ok;
     if (v->params.method == RENDER_METHOD_RESTIR_PT) {
@@ -257,6 +268,17 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         if (ok) {
             rs = view_frame_stats(v, out, bstats.rays_intersect, bstats.rays_occluded, bstats.nonfinite,
                                   bstats.light_ms + bstats.splat_ms + bstats.camera_ms);
+            if (progress) progress(progress_ctx, 1, 1);
+        }
+    } else if (v->params.method == RENDER_METHOD_RESTIR_BDPT) {
+        /* The previous scene and camera: where the caustic reservoirs' history was rendered. */
+        struct restir_bdpt_frame f = {.scene = scene, .camera = &camera, .prev_scene = v->frame ? v->scene : NULL,
+                                      .prev_camera = &v->camera, .seed = v->params.seed, .frame = v->frame,
+                                      .threads = v->threads};
+        ok = restir_bdpt_render(&v->rbdpt, &v->params.restir_bdpt, &f, out, &rbstats, err);
+        if (ok) {
+            rs = view_frame_stats(v, out, rbstats.rays_intersect, rbstats.rays_occluded, rbstats.rejected,
+                                  rbstats.light_ms + rbstats.sort_ms + rbstats.camera_ms + rbstats.reuse_ms);
             if (progress) progress(progress_ctx, 1, 1);
         }
     } else if (v->params.method == RENDER_METHOD_RESTIR_SSS) {
@@ -340,6 +362,8 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         if (stats->has_passes) stats->passes = passes;
         stats->has_bdpt = v->params.method == RENDER_METHOD_BDPT;
         if (stats->has_bdpt) stats->bdpt = bstats;
+        stats->has_restir_bdpt = v->params.method == RENDER_METHOD_RESTIR_BDPT;
+        if (stats->has_restir_bdpt) stats->restir_bdpt = rbstats;
         stats->has_sms = v->params.method == RENDER_METHOD_SMS || v->params.method == RENDER_METHOD_SMS_SSP;
         stats->has_prior = v->params.method == RENDER_METHOD_SMS_SSP;
         stats->prior = prior;
@@ -367,6 +391,8 @@ uint64_t view_bytes_planned(const struct view_params *params, uint32_t shape_cou
     uint64_t bytes = 2 * pixels * sizeof(struct vec3) + (uint64_t)(shape_count ? shape_count : 1) * sizeof(struct view_shape_change);
     if (params->method == RENDER_METHOD_RESTIR_PT) bytes += restir_pt_bytes_planned(params->width, params->height, shape_count);
     if (params->method == RENDER_METHOD_BDPT) bytes += bdpt_bytes_planned(&params->bdpt, params->width, params->height);
+    if (params->method == RENDER_METHOD_RESTIR_BDPT)
+        bytes += restir_bdpt_bytes_planned(&params->restir_bdpt, params->width, params->height);
     if (params->method == RENDER_METHOD_RESTIR_SSS) bytes += restir_sss_bytes_planned(params->width, params->height);
     if (params->method == RENDER_METHOD_SMS_SSP) bytes += ssp_prior_bytes(params->width, params->height);
     return bytes;
@@ -388,6 +414,14 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
     if (v->params.method == RENDER_METHOD_BDPT) {
         out[n++] = (struct view_buffer_bytes){"light_vertex_cache", bdpt_lvc_bytes(&v->bdpt)};
         out[n++] = (struct view_buffer_bytes){"lvc_blocks", bdpt_block_bytes(&v->bdpt)};
+    }
+    if (v->params.method == RENDER_METHOD_RESTIR_BDPT) {
+        out[n++] = (struct view_buffer_bytes){"reservoirs", restir_bdpt_reservoir_bytes(&v->rbdpt)};
+        out[n++] = (struct view_buffer_bytes){"light_traced_samples", restir_bdpt_lt_bytes(&v->rbdpt)};
+        out[n++] = (struct view_buffer_bytes){"caustic_shifts", restir_bdpt_shift_bytes(&v->rbdpt)};
+        out[n++] = (struct view_buffer_bytes){"pixel_buckets", restir_bdpt_bucket_bytes(&v->rbdpt)};
+        out[n++] = (struct view_buffer_bytes){"light_blocks", restir_bdpt_block_bytes(&v->rbdpt)};
+        if (v->rbdpt.gbuf.px) out[n++] = (struct view_buffer_bytes){"gbuffer", gbuffer_bytes(&v->rbdpt.gbuf)};
     }
     if (v->params.method == RENDER_METHOD_RESTIR_SSS) {
         out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sss_reservoir_bytes(&v->sss)};

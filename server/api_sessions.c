@@ -62,12 +62,16 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
     size_t nf;
     const struct protocol_field *fields = protocol_method_fields(p->method, &nf);
     if (fields) {
-        const char *base = p->method == RENDER_METHOD_RESTIR_PT ? (const char *)&p->restir_pt
-                         : p->method == RENDER_METHOD_BDPT      ? (const char *)&p->bdpt
-                                                                : (const char *)&p->restir_sss;
+        const char *base = p->method == RENDER_METHOD_RESTIR_PT   ? (const char *)&p->restir_pt
+                         : p->method == RENDER_METHOD_BDPT        ? (const char *)&p->bdpt
+                         : p->method == RENDER_METHOD_RESTIR_BDPT ? (const char *)&p->restir_bdpt
+                                                                  : (const char *)&p->restir_sss;
         api_write_fields(w, fields, nf, base);
         if (p->method == RENDER_METHOD_BDPT) {
             jsonw_key(w, "heuristic"); jsonw_string(w, bdpt_heuristic_name(p->bdpt.heuristic));
+        } else if (p->method == RENDER_METHOD_RESTIR_BDPT) {
+            jsonw_key(w, "variant"); jsonw_string(w, restir_bdpt_variant_name(p->restir_bdpt.variant));
+            jsonw_key(w, "heuristic"); jsonw_string(w, bdpt_heuristic_name(p->restir_bdpt.heuristic));
         } else if (p->method == RENDER_METHOD_RESTIR_SSS) {
             jsonw_key(w, "shift"); jsonw_string(w, restir_sss_shift_name(p->restir_sss.shift));
         }
@@ -126,6 +130,34 @@ static void api_write_bdpt(struct jsonw *w, const struct bdpt_stats *b)
     jsonw_object_end(w);
 }
 
+/* A restir_bdpt frame: light subpaths and their vertices, light-traced and caustic samples, the
+ * caustic shifts and their failures by kind, reservoir bytes (restir_bdpt.h). */
+static void api_write_restir_bdpt(struct jsonw *w, const struct restir_bdpt_stats *b)
+{
+    jsonw_object_begin(w);
+    jsonw_key(w, "light_ms"); jsonw_double(w, b->light_ms);
+    jsonw_key(w, "sort_ms"); jsonw_double(w, b->sort_ms);
+    jsonw_key(w, "camera_ms"); jsonw_double(w, b->camera_ms);
+    jsonw_key(w, "light_subpaths"); jsonw_uint(w, b->light_subpaths);
+    jsonw_key(w, "light_vertices"); jsonw_uint(w, b->light_vertices);
+    jsonw_key(w, "light_traced"); jsonw_uint(w, b->light_traced);
+    jsonw_key(w, "lt_dropped"); jsonw_uint(w, b->lt_dropped);
+    jsonw_key(w, "caustic_samples"); jsonw_uint(w, b->caustic_samples);
+    jsonw_key(w, "camera_candidates"); jsonw_uint(w, b->camera_candidates);
+    jsonw_key(w, "caustic_shifts"); jsonw_uint(w, b->caustic_shifts);
+    jsonw_key(w, "shift_failures");
+    jsonw_object_begin(w);
+    jsonw_key(w, "replay"); jsonw_uint(w, b->caustic_replay_failed);
+    jsonw_key(w, "not_caustic"); jsonw_uint(w, b->caustic_not_caustic);
+    jsonw_key(w, "inverse"); jsonw_uint(w, b->caustic_inverse_failed);
+    jsonw_object_end(w);
+    jsonw_key(w, "reuse_ms"); jsonw_double(w, b->reuse_ms);
+    jsonw_key(w, "reuse_shifts"); jsonw_uint(w, b->reuse_shifts);
+    jsonw_key(w, "reuse_shift_failures"); jsonw_uint(w, b->reuse_shift_failures);
+    jsonw_key(w, "reservoir_bytes"); jsonw_uint(w, b->reservoir_bytes);
+    jsonw_object_end(w);
+}
+
 static void api_write_session(struct jsonw *w, struct session *s)
 {
     struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
@@ -165,6 +197,7 @@ static void api_write_session(struct jsonw *w, struct session *s)
     jsonw_key(w, "reservoir_bytes_per_pixel");
     jsonw_uint(w, p->method == RENDER_METHOD_RESTIR_PT    ? RESTIR_PT_RESERVOIR_BYTES
                   : p->method == RENDER_METHOD_RESTIR_SSS ? RESTIR_SSS_RESERVOIR_BYTES
+                  : p->method == RENDER_METHOD_RESTIR_BDPT ? RESTIR_BDPT_RESERVOIR_BYTES
                                                           : 0);
     jsonw_key(w, "buffers");
     jsonw_object_begin(w);
@@ -382,6 +415,10 @@ static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
     if (f->stats->has_bdpt) {
         jsonw_key(w, "bdpt");
         api_write_bdpt(w, &f->stats->bdpt);
+    }
+    if (f->stats->has_restir_bdpt) {
+        jsonw_key(w, "restir_bdpt");
+        api_write_restir_bdpt(w, &f->stats->restir_bdpt);
     }
     if (f->stats->has_prior) {
         /* Seed 002 Table 1, prior construction, for this frame. */

@@ -20,7 +20,7 @@
 
 #define CLI_USAGE                                                                                  \
     "usage:\n"                                                                                     \
-    "  restir render SCENE.json|SCENE_FOLDER [--method pt|restir_pt|bdpt|sms|restir_sss] [--spp N] [--size WxH]\n" \
+    "  restir render SCENE.json|SCENE_FOLDER [--method pt|restir_pt|bdpt|restir_bdpt|sms|sms_ssp|restir_sss] [--spp N] [--size WxH]\n" \
     "                [--seed S] [--frame F]\n" \
     "                [--threads T] [--max-depth D] [--rr-depth R] [--no-nee] [--crop X0,Y0,X1,Y1]\n"    \
     "                [--frames F] [--average-last N] [--animation FILE.json] [--params JSON]\n"       \
@@ -39,7 +39,9 @@
     "e.g. --params '{\"spatial_neighbors\": 0}'. --average-last N writes the mean of the last N\n"  \
     "frames instead of the last one\n"                                                         \
     "--method bdpt renders frames of bidirectional path tracing (one camera path per pixel and\n" \
-    "N_L light subpaths per frame; --params '{\"heuristic\": \"balance\"}', see protocol/API.md)\n"
+    "N_L light subpaths per frame; --params '{\"heuristic\": \"balance\"}', see protocol/API.md)\n" \
+    "--method restir_bdpt renders a session of ReSTIR BDPT frames (lightweight variant: s = 0, s = 1,\n" \
+    "t = 1 resampled per pixel, caustic reservoirs reused temporally; see protocol/API.md)\n"
 
 static int cli_usage_error(const char *fmt, const char *arg)
 {
@@ -109,6 +111,7 @@ static bool cli_method_params(const char *params_json, struct view_params *vp, s
     vp->pt = parsed.pt;
     vp->restir_pt = parsed.restir_pt;
     vp->bdpt = parsed.bdpt;
+    vp->restir_bdpt = parsed.restir_bdpt;
     vp->sms = parsed.sms;
     vp->restir_sss = parsed.restir_sss;
     vp->ssp = parsed.ssp;
@@ -276,7 +279,7 @@ static int cli_render(int argc, char **argv)
     if (!out_path) return cli_usage_error("%s", "render needs -o OUT.exr");
     enum render_method rm;
     if (!view_method_parse(method, &rm))
-        return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt, bdpt, sms, sms_ssp, restir_sss)",
+        return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt, bdpt, restir_bdpt, sms, sms_ssp, restir_sss)",
                                method);
     if (rm != RENDER_METHOD_PT && (has_crop || has_frame))
         return cli_usage_error("%s", "--crop and --frame are options of --method pt");
@@ -326,6 +329,8 @@ static int cli_render(int argc, char **argv)
         if (!p.nee) vp.restir_pt.nee_candidates = 0;
         vp.bdpt.max_depth = p.max_depth;
         vp.bdpt.rr_depth = p.rr_depth;
+        vp.restir_bdpt.max_depth = p.max_depth;
+        vp.restir_bdpt.rr_depth = p.rr_depth;
         vp.restir_sss.max_depth = p.max_depth;
         vp.restir_sss.rr_depth = p.rr_depth;
         if (params_json && !cli_method_params(params_json, &vp, &err)) {
@@ -378,6 +383,18 @@ static int cli_render(int argc, char **argv)
                    ",\"connections\":%" PRIu64 "},\"session_bytes\":%zu",
                    bs->light_ms, bs->splat_ms, bs->camera_ms, bs->light_subpaths, bs->lvc_vertices, bs->lvc_dropped,
                    bs->light_traced, bs->connections, session_bytes);
+        }
+        if (last.has_restir_bdpt) {
+            const struct restir_bdpt_stats *rb = &last.restir_bdpt;
+            printf(",\"last_frame\":{\"light_ms\":%.3f,\"sort_ms\":%.3f,\"camera_ms\":%.3f,\"light_subpaths\":%" PRIu64
+                   ",\"light_vertices\":%" PRIu64 ",\"light_traced\":%" PRIu64 ",\"lt_dropped\":%" PRIu64
+                   ",\"caustic_samples\":%" PRIu64 ",\"caustic_shifts\":%" PRIu64 ",\"shift_failures\":{\"replay\":%" PRIu64
+                   ",\"not_caustic\":%" PRIu64 ",\"inverse\":%" PRIu64 "},\"reuse_ms\":%.3f,\"reuse_shifts\":%" PRIu64
+                   ",\"reuse_shift_failures\":%" PRIu64 ",\"reservoir_bytes\":%" PRIu64 "},\"session_bytes\":%zu",
+                   rb->light_ms, rb->sort_ms, rb->camera_ms, rb->light_subpaths, rb->light_vertices, rb->light_traced,
+                   rb->lt_dropped, rb->caustic_samples, rb->caustic_shifts, rb->caustic_replay_failed,
+                   rb->caustic_not_caustic, rb->caustic_inverse_failed, rb->reuse_ms, rb->reuse_shifts,
+                   rb->reuse_shift_failures, rb->reservoir_bytes, session_bytes);
         }
         if (last.has_prior) {
             /* Seed 002 Table 1, prior construction, of the last frame. */

@@ -1302,6 +1302,61 @@ def test_bdpt_bad_params(daemon, params, field):
     assert_problem(r, 422, "invalid-field", field)
 
 
+def test_restir_bdpt_session(daemon):
+    """A restir_bdpt session: its parameters with defaults, exactly its own buffers (three
+    reservoirs per pixel, the light-traced samples, the caustic shifts, the buckets), planned
+    bytes equal to allocated ones, and frames reporting light subpaths, light-traced and caustic
+    samples, shift failures by kind and reservoir bytes."""
+    s = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24, seed=3,
+                    params={"heuristic": "balance"})
+    assert s["method"] == "restir_bdpt"
+    assert s["params"] == {"variant": "lightweight", "max_depth": 64, "rr_depth": 3, "light_paths": 0,
+                           "lt_capacity": 8, "heuristic": "balance", "caustic_temporal": True, "temporal_cap": 20,
+                           "reuse": False, "spatial_neighbors": 2, "spatial_radius": 30}
+    assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
+                                 "caustic_shifts", "pixel_buckets", "light_blocks"}
+    n = 32 * 24
+    assert s["reservoir_bytes_per_pixel"] == 28 and s["reservoir_bytes"] == 3 * 28 * n
+    # 768 light subpaths: 3 blocks of 256, 8 samples of 24 bytes each, per-block and sorted.
+    assert s["buffers"]["light_traced_samples"] == 2 * 3 * 256 * 8 * 24
+    assert s["memory_bytes"] == sum(s["buffers"].values())
+    for i in range(3):
+        st = post_frame(daemon, s, accept="application/json").json()
+        b = st["restir_bdpt"]
+        assert b["light_subpaths"] == n and b["light_vertices"] >= b["light_traced"] > 0 and b["lt_dropped"] == 0
+        assert b["caustic_samples"] > 0 and b["camera_candidates"] > 0 and b["reservoir_bytes"] == 3 * 28 * n
+        assert set(b["shift_failures"]) == {"replay", "not_caustic", "inverse"}
+        assert (b["caustic_shifts"] > 0) == (i > 0), (i, b)
+        assert st["nonfinite"] == 0 and st["samples"] == n and "passes" not in st and "bdpt" not in st
+    img = frame_rgb(daemon, s)
+    assert img.shape == (24, 32, 3) and np.isfinite(img).all() and img.mean() > 0.01
+    assert daemon.req("DELETE", s["href"]).status == 204
+
+
+@pytest.mark.parametrize("params,field", [
+    ({"variant": "full"}, "/params/variant"),
+    ({"variant": "heavy"}, "/params/variant"),
+    ({"lt_capacity": 0}, "/params/lt_capacity"),
+    ({"temporal_cap": 0}, "/params/temporal_cap"),
+    ({"caustic_temporal": 1}, "/params/caustic_temporal"),
+    ({"heuristic": "max"}, "/params/heuristic"),
+    ({"lvc_capacity": 8}, "/params/lvc_capacity"),
+    ({"spatial_neighbors": 33}, "/params/spatial_neighbors"),
+    ({"spatial_radius": 0}, "/params/spatial_radius"),
+])
+def test_restir_bdpt_bad_params(daemon, params, field):
+    r = daemon.req("POST", f"{CORNELL}/sessions", json_body={"method": "restir_bdpt", "width": 8, "height": 8,
+                                                             "params": params})
+    assert_problem(r, 422, "invalid-field", field)
+
+
+def test_restir_bdpt_refuses_translucent(daemon):
+    """restir_bdpt does not sample subsurface scattering: refused naming /method, as bdpt."""
+    r = daemon.req("POST", "/v1/scenes/translucent/sessions", json_body={"method": "restir_bdpt", "width": 8,
+                                                                        "height": 8})
+    assert_problem(r, 422, "invalid-field", "/method")
+
+
 @pytest.mark.parametrize("params,field", [
     ({"spatial_neighbors": 65}, "/params/spatial_neighbors"),
     ({"footprint_c": 0}, "/params/footprint_c"),
@@ -1343,6 +1398,7 @@ def test_restir_sss_session(daemon):
 
 
 @pytest.mark.parametrize("method,schema", [("pt", "PtParams"), ("restir_pt", "RestirPtParams"), ("bdpt", "BdptParams"),
+                                           ("restir_bdpt", "RestirBdptParams"),
                                            ("sms", "SmsParams"), ("sms_ssp", "SmsSspParams"),
                                            ("restir_sss", "RestirSssParams")])
 def test_session_echoes_every_method_param(daemon, method, schema):

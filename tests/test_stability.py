@@ -25,7 +25,9 @@ REF_SPP = 2048
 # Each method's session parameters (1 spp for pt: the cost unit everything is compared with), and
 # the methods whose frames reuse earlier frames (the others' frames are independent).
 METHODS = {"pt": {"spp": 1}, "restir_pt": {}, "bdpt": {}, "sms": {"bernoulli_cap": 0}, "sms_ssp": {"bernoulli_cap": 0},
-           "restir_sss": {}}
+           "restir_sss": {}, "restir_bdpt": {}}
+# restir_bdpt reuses only its caustic reservoirs over frames: on its home, cornell-box, which has
+# no specular surface, its frames are independent and it is checked as the methods without reuse.
 REUSING = {"restir_pt", "restir_sss"}
 # The frame-sequence checks (flicker, correlation, teleport, light off/on) run on every method
 # but sms_ssp: it keeps nothing between frames (its prior is rebuilt from each frame's own scene
@@ -46,7 +48,7 @@ HOMES = {
                     "lights": {"lamp": [120, 112, 100]}},
 }
 HOME = {"pt": "cornell-box", "restir_pt": "cornell-box", "bdpt": "cornell-box", "sms": "refractive-slab",
-        "sms_ssp": "refractive-slab", "restir_sss": "translucent"}
+        "sms_ssp": "refractive-slab", "restir_sss": "translucent", "restir_bdpt": "cornell-box"}
 
 
 def mape(img, ref):
@@ -242,14 +244,15 @@ def test_light_off_and_on(daemon, refs, tmp_path, method):
     _check_recovery(daemon, tmp_path, refs(HOME[method], "start"), method, None, on, "light back on")
 
 
-# The scenes each method is run on for 100 frames: every scene for the path tracers (bdpt answers
-# an error for furnace's environment light, restir_pt and bdpt for translucent materials), the scenes with caustic casters for sms (its
+# The scenes each method is run on for 100 frames: every scene for the path tracers (bdpt and
+# restir_bdpt answer an error for furnace's environment light; restir_pt, bdpt and restir_bdpt for
+# translucent materials), the scenes with caustic casters for sms (its
 # Bernoulli trials make the others slow without adding anything), and restir_sss's own scene and
 # one without translucent materials.
 ALL_SCENES = ["cornell-box", "cornell-glossy", "door-ajar", "furnace", "lamp-in-glass", "caustic-sphere",
               "refractive-slab", "reflective-plane", "translucent"]
 SCENE_METHODS = ([(s, "pt") for s in ALL_SCENES] + [(s, "restir_pt") for s in ALL_SCENES if s != "translucent"] +
-                 [(s, "bdpt") for s in ALL_SCENES if s not in ("furnace", "translucent")] +
+                 [(s, m) for s in ALL_SCENES if s not in ("furnace", "translucent") for m in ("bdpt", "restir_bdpt")] +
                  [(s, m) for s in ("refractive-slab", "reflective-plane", "caustic-sphere") for m in ("sms", "sms_ssp")] +
                  [(s, "restir_sss") for s in ("translucent", "cornell-box")])
 

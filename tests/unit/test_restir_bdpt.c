@@ -4,6 +4,9 @@
  *    bdpt normalisation must disagree (the test can fail).
  *  - The caustic random-replay shift: round trips give back pixel and contribution exactly.
  *  - Parameters: the full variant is refused naming /params/variant; planned bytes = allocated.
+ *  - The session method: a view's planned bytes equal its named buffers' sum (with and without
+ *    the non-caustic reuse); frames report their counters; scenes with environment light or
+ *    translucent materials are refused.
  *  - Determinism: frames are bit-identical with 1 and 2 threads (the light-traced samples are
  *    bucketed by a counting sort in light-subpath order).
  *  - Unbiasedness: per-pixel z-test (Šidák at 0.01 over the pixels, >= 99.75 % passing, image
@@ -23,6 +26,7 @@
 #include "material.h"
 #include "rng.h"
 #include "test.h"
+#include "view.h"
 
 /* The statistical tests render thousands of frames: skipped in the sanitizer build, where
  * they would take minutes (as the pytest `statistical` marker is). */
@@ -490,7 +494,57 @@ static void test_thread_determinism(void)
     scene_release(sc);
 }
 
-TEST_MAIN(TEST(test_mis_lightweight), TEST(test_params), TEST(test_thread_determinism),
+/* restir_bdpt as a view's method: planned = allocated (default and a given N_L and capacity),
+ * the buffers by name, the frame counters; environment light and translucent scenes refused. */
+static void test_view_method(void)
+{
+    struct scene *sc = load("scenes/caustic-sphere/scene.json");
+    if (!sc) return;
+    struct err err = {0};
+    for (int k = 0; k < 3; k++) {
+        struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_BDPT, 40, 24);
+        if (k == 1) {
+            vp.restir_bdpt.light_paths = 1000;
+            vp.restir_bdpt.lt_capacity = 3;
+        }
+        vp.restir_bdpt.reuse = k == 2;
+        struct view v;
+        CHECK_MSG(view_init(&v, sc, &vp, 2, &err), "%s", err.message);
+        struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
+        size_t total = 0;
+        uint32_t n = view_bytes(&v, b, &total);
+        CHECK_MSG(total == view_bytes_planned(&vp, sc->shape_count), "allocated %zu, planned %llu", total,
+                  (unsigned long long)view_bytes_planned(&vp, sc->shape_count));
+        size_t reservoirs = 0;
+        for (uint32_t i = 0; i < n; i++)
+            if (strcmp(b[i].name, "reservoirs") == 0) reservoirs = b[i].bytes;
+        CHECK(reservoirs == (k == 2 ? 5u : 3u) * 40 * 24 * RESTIR_BDPT_RESERVOIR_BYTES);
+        struct frame_stats fs;
+        for (int f = 0; f < 3; f++) CHECK_MSG(view_render(&v, NULL, &fs, NULL, NULL, &err), "%s", err.message);
+        CHECK(fs.has_restir_bdpt && !fs.has_bdpt && !fs.has_passes);
+        const struct restir_bdpt_stats *rs = &fs.restir_bdpt;
+        CHECK(rs->light_subpaths == (k == 1 ? 1000u : 40u * 24) && rs->light_vertices >= rs->light_traced);
+        CHECK((rs->reuse_shifts > rs->reuse_shift_failures) == (k == 2));
+        CHECK(rs->light_traced > 0 && rs->caustic_samples > 0 && rs->caustic_shifts > 0 && rs->lt_dropped == 0);
+        CHECK(rs->reservoir_bytes == reservoirs && fs.render.nonfinite == 0 && fs.render.samples == 40 * 24);
+        view_destroy(&v);
+    }
+    scene_release(sc);
+    struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_BDPT, 8, 8);
+    struct view v;
+    const char *refused[] = {"scenes/furnace/scene.json", "scenes/translucent/scene.json"};
+    const char *why[] = {"environment", "subsurface"};
+    for (int k = 0; k < 2; k++) {
+        struct scene *bad = load(refused[k]);
+        if (!bad) continue;
+        CHECK_MSG(!view_init(&v, bad, &vp, 1, &err) && err.code == ERR_INVALID && strcmp(err.where, "/method") == 0 &&
+                      strstr(err.message, why[k]),
+                  "%s: %s", refused[k], err.message);
+        scene_release(bad);
+    }
+}
+
+TEST_MAIN(TEST(test_mis_lightweight), TEST(test_params), TEST(test_view_method), TEST(test_thread_determinism),
           TEST(test_caustic_replay_round_trip), TEST(test_matches_bdpt_caustic_sphere),
           TEST(test_matches_bdpt_lamp_in_glass), TEST(test_caustic_temporal_paired),
           TEST(test_caustic_temporal_paired_moving))

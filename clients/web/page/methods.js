@@ -59,6 +59,19 @@ export const METHODS = {
       { name: 'max_depth', kind: 'number', value: 64, help: 'longest path, in bounces' },
     ],
   },
+  restir_bdpt: {
+    label: 'restir_bdpt: ReSTIR BDPT, lightweight (s=0, s=1, t=1; caustics reused over frames)',
+    params: [
+      { name: 'light_paths', kind: 'number', value: 0, help: 'light subpaths per frame (0: the pixel count)' },
+      { name: 'heuristic', kind: 'text', value: 'power', help: 'MIS heuristic: power or balance' },
+      { name: 'caustic_temporal', kind: 'boolean', value: true, help: 'temporal reuse of caustic reservoirs' },
+      { name: 'reuse', kind: 'boolean', value: false, help: 'temporal and spatial reuse of the rest (random replay)' },
+      { name: 'spatial_neighbors', kind: 'number', value: 2, help: 'with reuse: spatial neighbours' },
+      { name: 'temporal_cap', kind: 'number', value: 20, help: 'caustic confidence cap' },
+      { name: 'lt_capacity', kind: 'number', value: 8, help: 'light-traced samples kept per light subpath' },
+      { name: 'max_depth', kind: 'number', value: 64, help: 'longest path, in bounces' },
+    ],
+  },
   restir_sss: {
     label: 'restir_sss: ReSTIR subsurface scattering (translucent materials)',
     params: [
