@@ -63,15 +63,20 @@ METHODS = {
                   "ladder": [1, 4] if QUICK else [1, 2, 4, 8, 16]},
     # One bidirectional sample per pixel per frame, frames independent: the mean of k frames.
     "bdpt": {"kind": "frames", "params": {}, "warmup": 0, "ladder": [1, 4, 16] if QUICK else [1, 2, 4, 8, 16, 32]},
+    # Its caustic reservoirs carry over frames: warm-up first, as the other reusing methods.
+    "restir_bdpt": {"kind": "frames", "params": {}, "warmup": 8 if QUICK else 32,
+                    "ladder": [1, 4] if QUICK else [1, 2, 4, 8, 16]},
     # Path tracing with specular manifold sampling, spp per frame (default Bernoulli cap).
     "sms": {"kind": "spp", "params": {}, "ladder": [1, 4] if QUICK else [1, 2, 4, 8, 16]},
     "sms_ssp": {"kind": "spp", "params": {}, "ladder": [1, 4] if QUICK else [1, 2, 4, 8, 16]},
     "restir_sss": {"kind": "frames", "params": {}, "warmup": 8 if QUICK else 32,
                    "ladder": [1, 4] if QUICK else [1, 2, 4, 8, 16]},
 }
-ALL_SCENES = {"cornell-box": ["pt", "restir_pt", "bdpt"], "cornell-glossy": ["pt", "restir_pt", "bdpt"],
-              "door-ajar": ["pt", "restir_pt", "bdpt"], "lamp-in-glass": ["pt", "restir_pt", "bdpt"],
-              "caustic-sphere": ["pt", "restir_pt", "bdpt", "sms", "sms_ssp"],
+ALL_SCENES = {"cornell-box": ["pt", "restir_pt", "bdpt", "restir_bdpt"],
+              "cornell-glossy": ["pt", "restir_pt", "bdpt", "restir_bdpt"],
+              "door-ajar": ["pt", "restir_pt", "bdpt", "restir_bdpt"],
+              "lamp-in-glass": ["pt", "restir_pt", "bdpt", "restir_bdpt"],
+              "caustic-sphere": ["pt", "restir_pt", "bdpt", "restir_bdpt", "sms", "sms_ssp"],
               "refractive-slab": ["pt", "restir_pt", "sms", "sms_ssp"],
               "reflective-plane": ["pt", "restir_pt", "sms", "sms_ssp"], "translucent": ["pt", "restir_sss"]}
 SCENES = {s: ALL_SCENES[s] for s in os.environ.get("REPORT_SCENES", ",".join(ALL_SCENES)).split(",")}
@@ -80,7 +85,8 @@ SCENES = {s: ALL_SCENES[s] for s in os.environ.get("REPORT_SCENES", ",".join(ALL
 # Bernoulli cap: unbiased) for the caustics of the slab and the bumpy mirror.
 REF_BY = {"lamp-in-glass": ("bdpt", 128 if QUICK else 512), "caustic-sphere": ("bdpt", 128 if QUICK else 512),
           "refractive-slab": ("sms", 64 if QUICK else 128), "reflective-plane": ("sms", 64 if QUICK else 128)}
-PASSES = ["gbuffer_ms", "initial_ms", "temporal_ms", "spatial_ms", "shade_ms", "light_ms", "splat_ms", "camera_ms"]
+PASSES = ["gbuffer_ms", "initial_ms", "temporal_ms", "spatial_ms", "shade_ms", "light_ms", "splat_ms", "sort_ms",
+          "camera_ms", "reuse_ms"]
 
 
 def log(msg):
@@ -235,7 +241,7 @@ def stability():
     frames = 24 if QUICK else 40
     # The methods cornell-box is a scene for (sms and restir_sss would render it as pt does:
     # tests/test_stability.py checks them on refractive-slab and translucent).
-    methods = [m for m in ("pt", "restir_pt", "bdpt") if m in METHODS]
+    methods = [m for m in ("pt", "restir_pt", "bdpt", "restir_bdpt") if m in METHODS]
     d = Daemon(Path(tempfile.mkdtemp(dir=WORK)) / "data", "--threads", THREADS, "--frames-kept", "2")
     out = {"side": side, "frames": frames, "series": {}, "correlation": {}, "nonfinite": {}}
     try:
