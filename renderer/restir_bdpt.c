@@ -122,8 +122,9 @@ bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *er
         return err_set(err, ERR_INVALID, "/params/variant", "variant \"full\" is not implemented; use \"lightweight\"");
     if (p->variant != RESTIR_BDPT_LIGHTWEIGHT)
         return err_set(err, ERR_INVALID, "/params/variant", "variant must be \"lightweight\" or \"full\"");
-    if (p->max_depth < 1 || p->max_depth > 1024)
-        return err_set(err, ERR_INVALID, "/params/max_depth", "max_depth must be in 1..1024");
+    /* A sample keeps its vertex count (depth + 2) in 8 bits of head.bits. */
+    if (p->max_depth < 1 || p->max_depth > RESTIR_BDPT_MAX_DEPTH)
+        return err_set(err, ERR_INVALID, "/params/max_depth", "max_depth must be in 1..%u", RESTIR_BDPT_MAX_DEPTH);
     if (p->rr_depth > 1024) return err_set(err, ERR_INVALID, "/params/rr_depth", "rr_depth must be in 0..1024");
     if (p->light_paths > (1u << 26))
         return err_set(err, ERR_INVALID, "/params/light_paths", "light_paths must be in 0..%u (0 = the pixel count)",

@@ -48,13 +48,15 @@
 #include "restir.h"
 #include "scene.h"
 
+#define RESTIR_BDPT_MAX_DEPTH 250u  /* a sample's vertex count is kept in 8 bits */
+
 enum restir_bdpt_variant { RESTIR_BDPT_LIGHTWEIGHT, RESTIR_BDPT_FULL };
 const char *restir_bdpt_variant_name(enum restir_bdpt_variant v);
 bool restir_bdpt_variant_parse(const char *name, enum restir_bdpt_variant *out);
 
 struct restir_bdpt_params {
     enum restir_bdpt_variant variant;  /* only the lightweight variant is implemented */
-    uint32_t max_depth;        /* scattering events of a full path, 1..1024 (64, as bdpt) */
+    uint32_t max_depth;        /* scattering events of a full path, 1..RESTIR_BDPT_MAX_DEPTH (64, as bdpt) */
     uint32_t rr_depth;         /* Russian roulette after this many bounces of a subpath (3) */
     uint32_t light_paths;      /* N_L per frame; 0 = the pixel count (default) */
     uint32_t lt_capacity;      /* light-traced samples kept per light subpath on average, 1..64 (8) */

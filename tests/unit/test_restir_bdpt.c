@@ -194,6 +194,10 @@ static void test_params(void)
     p = restir_bdpt_defaults();
     p.max_depth = 0;
     CHECK(!restir_bdpt_params_valid(&p, &err) && strcmp(err.where, "/params/max_depth") == 0);
+    p.max_depth = RESTIR_BDPT_MAX_DEPTH;  /* the deepest a sample's 8-bit vertex count holds */
+    CHECK(restir_bdpt_params_valid(&p, &err));
+    p.max_depth = RESTIR_BDPT_MAX_DEPTH + 1;
+    CHECK(!restir_bdpt_params_valid(&p, &err) && strcmp(err.where, "/params/max_depth") == 0);
 
     struct scene *sc = load("scenes/caustic-sphere/scene.json");
     if (!sc) return;
