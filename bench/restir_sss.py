@@ -18,7 +18,8 @@ run, on scenes/translucent at 128x128 (BENCH_SSS_SIZE):
   5. writes build/bench/restir_sss.json and build/bench/restir_sss.svg, prints Markdown tables
      (medians over the seeds).
 Environment: BENCH_SSS_SEEDS (3), BENCH_SSS_REF_SPP (2048), BENCH_SSS_WARMUP (16),
-BENCH_SSS_SHIFTS ("reconnection delayed hybrid sequential"), BENCH_THREADS (all cores)."""
+BENCH_SSS_SHIFTS ("reconnection delayed hybrid sequential"), BENCH_SSS_CANDIDATES ("1 2 4"),
+BENCH_SSS_PARAMS (a JSON object of more session params, "{}"), BENCH_THREADS (all cores)."""
 import hashlib
 import json
 import math
@@ -47,7 +48,9 @@ WARMUP = int(os.environ.get("BENCH_SSS_WARMUP", "16"))
 THREADS = os.environ.get("BENCH_THREADS", "0")
 PT_SPPS = [1, 2, 4, 8, 16, 32]
 SHIFTS = [x for x in os.environ.get("BENCH_SSS_SHIFTS", "reconnection delayed hybrid sequential").split()]
-CANDIDATES = [1, 2, 4]
+CANDIDATES = [int(c) for c in os.environ.get("BENCH_SSS_CANDIDATES", "1 2 4").split()]
+# More session params for every restir_sss run, e.g. '{"expected_shading": false}'.
+EXTRA = json.loads(os.environ.get("BENCH_SSS_PARAMS", "{}"))
 
 
 def read_exr(path):
@@ -134,7 +137,7 @@ def main():
                 ms, err, fails = [], [], []
                 for s in range(SEEDS):
                     st = run(["render", str(SCENE), "--method", "restir_sss", "--frames", str(WARMUP), "--size", SIZE,
-                              "--seed", str(s), "--params", json.dumps({"shift": shift, "candidates": cand}), "--json",
+                              "--seed", str(s), "--params", json.dumps({"shift": shift, "candidates": cand, **EXTRA}), "--json",
                               "-o", str(img_path)])
                     ms.append(frame_ms(st))
                     err.append(rmse(read_exr(img_path), ref, mask))
