@@ -164,6 +164,7 @@ struct pt_split {
     struct sms_counters *sc;
     struct rng *sms_rng;
     uint32_t px, py;     /* the pixel (sms_ssp's prior block) */
+    bool sms_after_primary;  /* restir_sms: no SMS estimate at the primary vertex (its reservoirs') */
 };
 
 static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
@@ -242,7 +243,7 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         int shadow_side = -1;
 
         /* Specular manifold sampling owns the caustic chains that start here (sms.h). */
-        if (split->ss && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
+        if (split->ss && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY)) && !(depth == 0 && split->sms_after_primary)) {
             uint32_t room = max_depth > depth + 1 ? max_depth - depth - 1 : 0;
             struct vec3 c = params->ssp ? ssp_estimate(scene, split->ss, params->ssp, params->ssp_prior, split->px, split->py,
                                                        &s, m, wo, room, split->sms_rng, split->sc, rc)
@@ -336,6 +337,16 @@ struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_par
 {
     const struct pt_split all = {.owned = true, .rest = true};
     return pt_radiance(scene, params, org, dir, rng, rc, &all, sss_direct);
+}
+
+struct vec3 reference_pt_radiance_sms(const struct scene *scene, const struct pt_params *params,
+                                      const struct sms_scene *ss, uint32_t px, uint32_t py, struct vec3 org,
+                                      struct vec3 dir, struct rng *rng, struct rng *sms_rng, struct sms_counters *sc,
+                                      struct ray_counters *rc)
+{
+    const struct pt_split split = {.owned = false, .rest = !params->sms->caustics_only, .tracked = true, .ss = ss,
+                                   .sc = sc, .sms_rng = sms_rng, .px = px, .py = py, .sms_after_primary = true};
+    return pt_radiance(scene, params, org, dir, rng, rc, &split, true);
 }
 
 static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
