@@ -64,6 +64,7 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
     if (fields) {
         const char *base = p->method == RENDER_METHOD_RESTIR_PT ? (const char *)&p->restir_pt
                          : p->method == RENDER_METHOD_BDPT      ? (const char *)&p->bdpt
+                         : p->method == RENDER_METHOD_RESTIR_SMS ? (const char *)&p->restir_sms
                                                                 : (const char *)&p->restir_sss;
         api_write_fields(w, fields, nf, base);
         if (p->method == RENDER_METHOD_BDPT) {
@@ -165,6 +166,7 @@ static void api_write_session(struct jsonw *w, struct session *s)
     jsonw_key(w, "reservoir_bytes_per_pixel");
     jsonw_uint(w, p->method == RENDER_METHOD_RESTIR_PT    ? RESTIR_PT_RESERVOIR_BYTES
                   : p->method == RENDER_METHOD_RESTIR_SSS ? RESTIR_SSS_RESERVOIR_BYTES
+                  : p->method == RENDER_METHOD_RESTIR_SMS ? RESTIR_SMS_RESERVOIR_BYTES
                                                           : 0);
     jsonw_key(w, "buffers");
     jsonw_object_begin(w);
@@ -393,6 +395,18 @@ static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
         jsonw_key(w, "newton"); jsonw_uint(w, pc->newton);
         jsonw_key(w, "dropped_pairs"); jsonw_uint(w, pc->dropped_pairs);
         jsonw_key(w, "ms"); jsonw_double(w, pc->ms);
+        jsonw_object_end(w);
+    }
+    if (f->stats->has_manifold_shift) {
+        /* restir_sms: the resampling column of seed 002 Table 1 beside the passes. */
+        uint64_t shifts = f->stats->passes.shifts;
+        jsonw_key(w, "manifold_shift");
+        jsonw_object_begin(w);
+        jsonw_key(w, "newton"); jsonw_uint(w, f->stats->shift_newton);
+        jsonw_key(w, "newtons_per_shift"); jsonw_double(w, shifts ? (double)f->stats->shift_newton / (double)shifts : 0.0);
+        jsonw_key(w, "not_invertible"); jsonw_uint(w, f->stats->shift_not_invertible);
+        jsonw_key(w, "success_rate");
+        jsonw_double(w, shifts ? 1.0 - (double)f->stats->passes.shift_failures / (double)shifts : 0.0);
         jsonw_object_end(w);
     }
     if (f->stats->has_sms) {

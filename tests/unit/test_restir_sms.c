@@ -205,5 +205,30 @@ static void test_params(void)
     CHECK(!restir_sms_params_valid(&p, &err) && strcmp(err.where, "/params/spatial_radius") == 0);
 }
 
+static void test_session_bytes_planned_match_allocated(void)
+{
+    struct scene *sc = load("scenes/refractive-slab/scene.json");
+    if (!sc) return;
+    struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_SMS, 37, 23);
+    struct view v;
+    struct err err = {0};
+    CHECK(view_init(&v, sc, &vp, 1, &err));
+    struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
+    size_t total = 0;
+    uint32_t n = view_bytes(&v, b, &total);
+    CHECK(total == view_bytes_planned(&vp, sc->shape_count));
+    bool has_res = false;
+    for (uint32_t i = 0; i < n; i++)
+        if (strcmp(b[i].name, "reservoirs") == 0) has_res = b[i].bytes == 2u * 37 * 23 * RESTIR_SMS_RESERVOIR_BYTES;
+    CHECK(has_res);
+    struct frame_stats fs;
+    CHECK(view_render(&v, NULL, &fs, NULL, NULL, &err));
+    CHECK(view_render(&v, NULL, &fs, NULL, NULL, &err));
+    CHECK(fs.has_passes && fs.has_manifold_shift && fs.passes.shifts > 0 && fs.render.sms.samples > 0);
+    view_destroy(&v);
+    scene_release(sc);
+}
+
 TEST_MAIN(TEST(test_slab_round_trips), TEST(test_plane_round_trips), TEST(test_temporal_round_trips), TEST(test_scaled_light_jacobians),
-          TEST(test_far_shifts_fail_cleanly), TEST(test_params))
+          TEST(test_far_shifts_fail_cleanly), TEST(test_params),
+          TEST(test_session_bytes_planned_match_allocated))
