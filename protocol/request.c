@@ -828,12 +828,21 @@ static bool request_restir_sss_params(const cJSON *pv, const char *ptr, struct r
 static bool request_restir_sms_params(const cJSON *pv, const char *ptr, struct restir_sms_params *rp, struct err *err)
 {
     const size_t n = sizeof restir_sms_fields / sizeof restir_sms_fields[0];
-    const char *keys[sizeof restir_sms_fields / sizeof restir_sms_fields[0] + 1];
+    const char *keys[sizeof restir_sms_fields / sizeof restir_sms_fields[0] + 2];
     for (size_t i = 0; i < n; i++) keys[i] = restir_sms_fields[i].key;
-    keys[n] = NULL;
+    keys[n] = "sampler";
+    keys[n + 1] = NULL;
+    char p[REQUEST_PTR];
+    const cJSON *v;
     if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_sms params", err) ||
         !request_fields(pv, ptr, restir_sms_fields, n, SMS_HARD_TRIAL_LIMIT, rp, err))
         return false;
+    if ((v = request_member(pv, ptr, "sampler", p))) {
+        const char *name = request_string(v, p, err);
+        if (!name) return false;
+        if (!restir_sms_sampler_parse(name, &rp->sampler))
+            return err_set(err, ERR_INVALID, p, "unknown sampler \"%.64s\" (ssp or sms)", name);
+    }
     /* Ranges are the renderer's (its pointers name /params/<key>). */
     return restir_sms_params_valid(rp, err);
 }

@@ -45,8 +45,23 @@ struct restir_sms_params restir_sms_defaults(void)
     return p;
 }
 
+bool restir_sms_sampler_parse(const char *name, enum restir_sms_sampler *out)
+{
+    if (strcmp(name, "ssp") == 0) *out = RESTIR_SMS_SAMPLER_SSP;
+    else if (strcmp(name, "sms") == 0) *out = RESTIR_SMS_SAMPLER_SMS;
+    else return false;
+    return true;
+}
+
+const char *restir_sms_sampler_name(enum restir_sms_sampler s)
+{
+    return s == RESTIR_SMS_SAMPLER_SMS ? "sms" : s == RESTIR_SMS_SAMPLER_SSP ? "ssp" : "?";
+}
+
 bool restir_sms_params_valid(const struct restir_sms_params *p, struct err *err)
 {
+    if ((unsigned)p->sampler > RESTIR_SMS_SAMPLER_SMS)
+        return err_set(err, ERR_INVALID, "/params/sampler", "unknown sampler");
     if (!ssp_params_valid(&p->ssp, err)) {
         /* ssp names its parameters bare; the session's are under /params. */
         size_t n = strnlen(err->where, sizeof err->where - 9);
@@ -174,10 +189,12 @@ static void sms_initial_pixel(const struct sms_ctx *c, uint32_t pixel, struct sm
     out->head.M = 1;
     const struct scene *scene = c->scene[RESTIR_CURRENT];
     struct rng rng = rng_make(c->seed, c->frame, pixel, SMS_STREAM);
-    struct ssp_solution sol;
-    if (!ssp_sample(scene, &c->ss, &c->p->ssp, c->prior, pixel % c->width, pixel / c->width, &x1.s, x1.m, x1.wo,
-                    c->room, &rng, &sol, sc, rc))
-        return;
+    struct sms_solution sol;
+    bool found = c->p->sampler == RESTIR_SMS_SAMPLER_SMS
+                     ? sms_sample(scene, &c->ss, &c->p->ssp.sms, &x1.s, x1.m, x1.wo, c->room, &rng, &sol, sc, rc)
+                     : ssp_sample(scene, &c->ss, &c->p->ssp, c->prior, pixel % c->width, pixel / c->width, &x1.s, x1.m,
+                                  x1.wo, c->room, &rng, &sol, sc, rc);
+    if (!found) return;
     float target = vec3_luminance(sol.value);
     if (!(target > 0.0f) || !isfinite(target) || !(sol.W > 0.0) || !isfinite(sol.W)) return;
     const struct sms_caster *cs = &c->ss.casters[sol.caster];
@@ -477,7 +494,8 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     camera_init(&pp->camera, f->camera, st->width, st->height);
     /* The prior pass (seed 002 §4.1) under this frame's scene and camera. */
     struct ray_counters prc = {0, 0};
-    ssp_prior_build(&st->prior, f->scene, &c->ss, &params->ssp, &pp->camera, f->seed, f->frame, &stats->prior, &prc);
+    const bool ssp = params->sampler == RESTIR_SMS_SAMPLER_SSP;
+    if (ssp) ssp_prior_build(&st->prior, f->scene, &c->ss, &params->ssp, &pp->camera, f->seed, f->frame, &stats->prior, &prc);
     stats->rays_intersect += prc.intersect;
     stats->rays_occluded += prc.occluded;
     stats->prior_ms = sms_ms_since(&t0);
@@ -486,8 +504,8 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     pp->pt.rr_depth = params->rr_depth;
     pp->pt.nee = true;
     pp->pt.sms = &params->ssp.sms;
-    pp->pt.ssp = &params->ssp;
-    pp->pt.ssp_prior = &st->prior;
+    pp->pt.ssp = ssp ? &params->ssp : NULL;
+    pp->pt.ssp_prior = ssp ? &st->prior : NULL;
     if (!sms_run(pp, threads, sms_initial_rows, err)) return false;
     for (unsigned i = 0; i < threads; i++) {
         stats->rays_intersect += pp->rays[i].intersect;

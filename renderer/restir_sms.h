@@ -47,7 +47,14 @@
 #include "scene.h"
 #include "sms_ssp.h"
 
+/* The candidates' sampler: seed 002's sample-space partitioning with the per-frame prior (`ssp`,
+ * the paper's), or plain SMS (`sms`, Zeltner et al. 2020: seeds over the caster's bounding box,
+ * no prior), whose estimates have a lighter tail on our scenes (docs/benchmarks.md). The SMS
+ * estimates at the pt path's later vertices use the same sampler. */
+enum restir_sms_sampler { RESTIR_SMS_SAMPLER_SSP, RESTIR_SMS_SAMPLER_SMS };
+
 struct restir_sms_params {
+    enum restir_sms_sampler sampler; /* (ssp) */
     struct ssp_params ssp;        /* the candidate sampler and the SMS at later vertices (sms_ssp's
                                      params: bernoulli_cap, max_iterations, caustics_only, tiles,
                                      prior, prior_samples, alpha) */
@@ -62,6 +69,8 @@ struct restir_sms_params {
 struct restir_sms_params restir_sms_defaults(void);
 /* ERR_INVALID naming the parameter (where = "/params/<name>"). */
 bool restir_sms_params_valid(const struct restir_sms_params *p, struct err *err);
+bool restir_sms_sampler_parse(const char *name, enum restir_sms_sampler *out);
+const char *restir_sms_sampler_name(enum restir_sms_sampler s);
 
 struct restir_sms_stats {
     double gbuffer_ms, prior_ms, initial_ms, temporal_ms, spatial_ms, shade_ms;

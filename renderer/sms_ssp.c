@@ -226,7 +226,7 @@ void ssp_prior_build(struct ssp_prior *pr, const struct scene *scene, const stru
 
 bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const struct ssp_params *p,
                 const struct ssp_prior *pr, uint32_t px, uint32_t py, const struct surface *s, const struct material *m,
-                struct vec3 wo, uint32_t max_chain, struct rng *rng, struct ssp_solution *out, struct sms_counters *c,
+                struct vec3 wo, uint32_t max_chain, struct rng *rng, struct sms_solution *out, struct sms_counters *c,
                 struct ray_counters *rc)
 {
     out->W = 0.0;
@@ -314,7 +314,7 @@ struct vec3 ssp_estimate(const struct scene *scene, const struct sms_scene *ss, 
                          const struct material *m, struct vec3 wo, uint32_t max_chain, struct rng *rng,
                          struct sms_counters *c, struct ray_counters *rc)
 {
-    struct ssp_solution sol;
+    struct sms_solution sol;
     if (!ssp_sample(scene, ss, p, pr, px, py, s, m, wo, max_chain, rng, &sol, c, rc)) return vec3_splat(0.0f);
     return vec3_scale(sol.value, (float)sol.W);
 }

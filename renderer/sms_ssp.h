@@ -31,7 +31,6 @@
 #include <stdint.h>
 
 #include "camera.h"
-#include "light_sampler.h"
 #include "sms.h"
 
 #define SSP_MAX_TILES 32          /* N <= 32: a tile set is 1024 bits */
@@ -76,21 +75,12 @@ void ssp_prior_build(struct ssp_prior *pr, const struct scene *scene, const stru
                      struct ssp_prior_counters *c, struct ray_counters *rc);
 
 /* One sample at x1 (the sampling half of ssp_estimate, consuming the random stream exactly as
- * it does): the caster (index into the sms_scene), the light point, the checked solution, its
- * value (sms_solution_value) and its unbiased contribution weight
+ * it does; sms.h's struct sms_solution) with
  *     W = trials / P(C(u*)) · C / p(x_n),   E[W | x̄*, x_n] = 1 / p(caster, x_n, x̄*)
- * (eqs. 2 and 8 with the caster and light choices). False (W = 0) when no solution was found or
- * the Bernoulli cap was reached. */
-struct ssp_solution {
-    uint32_t caster;
-    struct light_sample light;
-    struct manifold_vertex v[MANIFOLD_MAX_CHAIN];
-    struct vec3 value;
-    double W;
-};
+ * (eqs. 2 and 8 with the caster and light choices). */
 bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const struct ssp_params *p,
                 const struct ssp_prior *pr, uint32_t px, uint32_t py, const struct surface *s, const struct material *m,
-                struct vec3 wo, uint32_t max_chain, struct rng *rng, struct ssp_solution *out, struct sms_counters *c,
+                struct vec3 wo, uint32_t max_chain, struct rng *rng, struct sms_solution *out, struct sms_counters *c,
                 struct ray_counters *rc);
 
 /* The estimate at x1 (as sms_estimate) for a path of pixel (px, py): value · W of ssp_sample. */

@@ -71,6 +71,8 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
             jsonw_key(w, "heuristic"); jsonw_string(w, bdpt_heuristic_name(p->bdpt.heuristic));
         } else if (p->method == RENDER_METHOD_RESTIR_SSS) {
             jsonw_key(w, "shift"); jsonw_string(w, restir_sss_shift_name(p->restir_sss.shift));
+        } else if (p->method == RENDER_METHOD_RESTIR_SMS) {
+            jsonw_key(w, "sampler"); jsonw_string(w, restir_sms_sampler_name(p->restir_sms.sampler));
         }
     } else if (p->method == RENDER_METHOD_SMS || p->method == RENDER_METHOD_SMS_SSP) {
         const struct sms_params *sp = p->method == RENDER_METHOD_SMS ? &p->sms : &p->ssp.sms;

@@ -1349,7 +1349,7 @@ def test_restir_sms_session(daemon):
                     params={"bernoulli_cap": 0})
     p = s["params"]
     assert p["shift_iterations"] == 5 and p["spatial_neighbors"] == 1 and p["spatial_radius"] == 30
-    assert p["temporal_cap"] == 20 and p["bernoulli_cap"] == 0 and p["tiles"] == 16
+    assert p["temporal_cap"] == 20 and p["bernoulli_cap"] == 0 and p["tiles"] == 16 and p["sampler"] == "ssp"
     assert s["reservoir_bytes_per_pixel"] == 64
     assert s["reservoir_bytes"] == 2 * 64 * 24 * 24 == s["buffers"]["reservoirs"]
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "prior"}
@@ -1362,7 +1362,8 @@ def test_restir_sms_session(daemon):
     assert img.shape == (24, 24, 3) and np.isfinite(img).all() and img.mean() > 0.01
     assert daemon.req("DELETE", s["href"]).status == 204
     for params, field in [({"shift_iterations": 0}, "/params/shift_iterations"), ({"tiles": 2}, "/params/tiles"),
-                          ({"spatial_radius": 0}, "/params/spatial_radius"), ({"spp": 2}, "/params/spp")]:
+                          ({"spatial_radius": 0}, "/params/spatial_radius"), ({"spp": 2}, "/params/spp"),
+                          ({"sampler": "bdpt"}, "/params/sampler")]:
         r = daemon.req("POST", "/v1/scenes/refractive-slab/sessions",
                        json_body={"method": "restir_sms", "width": 8, "height": 8, "params": params})
         assert_problem(r, 422, "invalid-field", field)

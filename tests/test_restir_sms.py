@@ -66,15 +66,17 @@ def _moving_camera(tmp_path, sc, frames, avg):
 
 
 @pytest.mark.statistical
-def test_restir_sms_unbiased_still_camera(tmp_path, scenes):
+@pytest.mark.parametrize("sampler", ["ssp", "sms"])
+def test_restir_sms_unbiased_still_camera(tmp_path, scenes, sampler):
+    """Both candidate samplers: seed 002's partitioning with the prior, and plain SMS."""
     sc = scenes / SCENE / "scene.json"
     ref = _cached_reference(tmp_path, sc)
-    runs, st = _runs(tmp_path, sc, PARAMS)
+    runs, st = _runs(tmp_path, sc, {**PARAMS, "sampler": sampler})
     assert np.isfinite(runs).all() and st["nonfinite"] == 0 and st["sms"]["capped"] == 0
     assert st["last_frame"]["shifts"] > 0
     res = ztest_runs(runs, ref)
     bad = ztest_runs(runs * 1.05, ref)
-    print(f"restir_sms (still) vs filtered reference: {res}; x1.05: {bad}; last run: {st['last_frame']}, "
+    print(f"restir_sms ({sampler}, still) vs filtered reference: {res}; x1.05: {bad}; last run: {st['last_frame']}, "
           f"{st['manifold_shift']}")
     assert res.passed, f"restir_sms vs pt subset caustic: {res}"
     assert not bad.passed, f"a bias of x1.05 went unseen: {bad}"

@@ -73,6 +73,7 @@ export const METHODS = {
   restir_sms: {
     label: 'restir_sms: ReSTIR over specular manifold samples (caustics)',
     params: [
+      { name: 'sampler', kind: 'text', value: 'ssp', help: 'candidates: ssp (partitioning + prior) or sms' },
       { name: 'shift_iterations', kind: 'number', value: 5, help: 'Newton steps per manifold shift walk' },
       { name: 'spatial_neighbors', kind: 'number', value: 1, help: 'spatial neighbours (0: none)' },
       { name: 'spatial_radius', kind: 'number', value: 30, help: 'spatial radius, pixels' },
