@@ -56,9 +56,10 @@ THREADS = os.environ.get("BENCH_THREADS", "0")
 PT_SPPS = [1, 4, 16, 64] if QUICK else [1, 4, 16, 64, 256]
 SMS_SPPS = [1, 2, 4, 8] if QUICK else [1, 2, 4, 8, 16]
 RESTIR_FRAMES = [1, 2, 4, 8, 16] if QUICK else [1, 2, 4, 8, 16, 32]
+WARMUP = 16
 
 
-def render(scene, out, method, params, seed, frames=None):
+def render(scene, out, method, params, seed, frames=None, extra=()):
     cmd = [BIN, "render", str(scene), "--method", method, "--size", SIZE, "--seed", str(seed), "--threads", THREADS,
            "--params", json.dumps(params), "--json", "-o", str(out)]
     if method == "pt":
@@ -66,6 +67,7 @@ def render(scene, out, method, params, seed, frames=None):
     if frames:
         # A session of `frames` frames: the image is their mean, the time their sum.
         cmd += ["--frames", str(frames), "--average-last", str(frames)]
+    cmd += list(extra)
     res = subprocess.run(cmd, capture_output=True, text=True)
     if res.returncode != 0:
         raise SystemExit(f"bench: {' '.join(cmd)}: {res.stderr.strip()}")
@@ -123,7 +125,10 @@ def main():
                     ("sms_ssp, prior of 2 walks per block", "sms_ssp", [4], {"prior_samples": 2}),
                     ("sms_ssp, no prior (fallback)", "sms_ssp", [4], {"prior": False}),
                     ("restir_sms", "restir_sms", RESTIR_FRAMES, {"bernoulli_cap": 128}),
-                    ("restir_sms, prior of 2 walks per block", "restir_sms", [8], {"prior_samples": 2}),
+                    ("restir_sms, sms sampler", "restir_sms", RESTIR_FRAMES, {"bernoulli_cap": 128, "sampler": "sms"}),
+                    # The prior misses a light: one walk per block finds at most one of the two
+                    # (light, caster) pairs, so every block falls back to alpha = 0 for the other.
+                    ("restir_sms, prior misses a light (1 walk per block)", "restir_sms", [8], {"prior_samples": 1}),
                     ("restir_sms, no prior (fallback)", "restir_sms", [8], {"prior": False})]
             curves = {label: [] for label, *_ in runs}
             t1 = {"sms": [], "sms_ssp": []}
@@ -142,7 +147,23 @@ def main():
                         if label in t1 and spp == 1:
                             t1[label].append(table1(st["sms"], st.get("prior")))
                     curves[label].append((statistics.median(ms), statistics.median(err), spp))
-            results[name] = {"curves": curves,
+            # Real-time use (seed 002 §6: 1 spp per frame): the error of one frame after WARMUP
+            # frames of reuse against sms at 1 spp, with each one's time per frame.
+            steady = {}
+            for label, method, params in (("sms 1 spp", "sms", {"spp": 1, "bernoulli_cap": 128}),
+                                          ("sms_ssp 1 spp", "sms_ssp", {"spp": 1, "bernoulli_cap": 128}),
+                                          ("restir_sms", "restir_sms", {"bernoulli_cap": 128}),
+                                          ("restir_sms, sms sampler", "restir_sms", {"bernoulli_cap": 128, "sampler": "sms"})):
+                ms, err = [], []
+                for seed in range(SEEDS):
+                    out = tmp / f"{name}-steady-{label[:14].replace(' ', '_')}-{seed}.exr"
+                    n = WARMUP + 1 if method == "restir_sms" else 1
+                    cmd_extra = ["--frames", str(n), "--average-last", "1"]
+                    img, st = render(scene, out, method, params, seed, extra=cmd_extra)
+                    ms.append(st["time_ms"] / n)
+                    err.append(rmse(img, ref))
+                steady[label] = (statistics.median(ms), statistics.median(err))
+            results[name] = {"curves": curves, "steady": steady,
                              "table1": {m: {k: statistics.median(r[k] for r in rows) for k in rows[0]}
                                         for m, rows in t1.items()}}
     (OUT / "sms.json").write_text(json.dumps(results, indent=1))
@@ -167,7 +188,7 @@ def main():
                 print(f"| {name} | {method} | {spp} | {ms:.1f} | {err:.4g} |")
         # Equal time: the other curve's RMSE interpolated log-log at each point's time.
         for m, base in (("sms", "pt"), ("sms_ssp", "pt"), ("sms_ssp", "sms"), ("restir_sms", "sms"),
-                        ("restir_sms", "sms_ssp")):
+                        ("restir_sms", "sms_ssp"), ("restir_sms, sms sampler", "sms")):
             ref_curve = sorted(r["curves"][base])
             ratios = []
             for ms, err, _ in r["curves"][m]:
@@ -180,6 +201,12 @@ def main():
                       f"over {len(ratios)} points")
             else:
                 print(f"\n{name}: RMSE of {m} / {base} at equal time: the curves do not overlap in time")
+        st = r["steady"]
+        print(f"\n{name}, one frame after {WARMUP} frames of reuse (time per frame, RMSE): " +
+              ", ".join(f"{k} {v[0]:.1f} ms {v[1]:.4g}" for k, v in st.items()))
+        for k in ("restir_sms", "restir_sms, sms sampler"):
+            print(f"{name}: RMSE of one {k} frame / sms 1 spp: {st[k][1] / st['sms 1 spp'][1]:.3f} "
+                  f"at {st[k][0] / st['sms 1 spp'][0]:.2f}x its time per frame")
         loglog(OUT / f"sms-{name}.svg", f"{name}: RMSE vs time", "render time (ms)", "RMSE",
                [(m, [(a, b) for a, b, _ in pts], "line") for m, pts in r["curves"].items()])
 
