@@ -25,7 +25,7 @@ refractive-slab and reflective-plane at 64x64 (BENCH_SMS_SCENES, BENCH_SMS_SIZE)
      Markdown tables (medians over the seeds).
 Environment: BENCH_SMS_SEEDS (3), BENCH_SMS_REF_SPP (1024), BENCH_SMS_REF_SMS_SPP (256),
 BENCH_THREADS (all cores); BENCH_SMS_QUICK=1 is a small run for a shared machine (refractive-slab
-only, 32x32, 1 seed, shorter curves, reference 256 + 64 spp) unless those are set too."""
+only, 32x32, 1 seed, shorter curves, reference 1024 + 1024 spp) unless those are set too."""
 import hashlib
 import json
 import math
@@ -50,8 +50,10 @@ QUICK = os.environ.get("BENCH_SMS_QUICK") == "1"
 SCENES = os.environ.get("BENCH_SMS_SCENES", "refractive-slab" if QUICK else "refractive-slab reflective-plane").split()
 SIZE = os.environ.get("BENCH_SMS_SIZE", "32x32" if QUICK else "64x64")
 SEEDS = int(os.environ.get("BENCH_SMS_SEEDS", "1" if QUICK else "3"))
-REF_SPP = int(os.environ.get("BENCH_SMS_REF_SPP", "256" if QUICK else "1024"))
-REF_SMS_SPP = int(os.environ.get("BENCH_SMS_REF_SMS_SPP", "64" if QUICK else "256"))
+REF_SPP = int(os.environ.get("BENCH_SMS_REF_SPP", "1024"))
+# The quick run's 32x32 reference can afford 4x the samples of the full run's 64x64 one (the
+# ratios below need a reference well under the compared errors).
+REF_SMS_SPP = int(os.environ.get("BENCH_SMS_REF_SMS_SPP", "1024" if QUICK else "256"))
 THREADS = os.environ.get("BENCH_THREADS", "0")
 PT_SPPS = [1, 4, 16, 64] if QUICK else [1, 4, 16, 64, 256]
 SMS_SPPS = [1, 2, 4, 8] if QUICK else [1, 2, 4, 8, 16]
