@@ -75,8 +75,10 @@ struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_par
 
 /* Radiance along one camera ray as `sms` / `sms_ssp` estimate it (params->sms set; params->ssp
  * and ssp_prior for sample-space partitioning), except that no SMS estimate is made at the
- * primary vertex: restir_sms adds the caustic paths that start there from its reservoirs. The SMS
- * estimates at later vertices draw from sms_rng; (px, py) picks the prior block. */
+ * restir_sms receiver (sms.h: the first diffuse or glossy vertex after delta vertices that all
+ * took their canonical lobe): restir_sms adds the caustic paths that start there from its
+ * reservoirs, weighted by the delta prefix's expected throughput. The other SMS estimates draw
+ * from sms_rng; (px, py) picks the prior block. */
 struct vec3 reference_pt_radiance_sms(const struct scene *scene, const struct pt_params *params,
                                       const struct sms_scene *ss, uint32_t px, uint32_t py, struct vec3 org,
                                       struct vec3 dir, struct rng *rng, struct rng *sms_rng, struct sms_counters *sc,

@@ -94,37 +94,79 @@ struct sms_shared {
 struct sms_ctx {
     const struct restir_sms_params *p;
     const struct scene *scene[2];   /* [RESTIR_CURRENT], [RESTIR_PREVIOUS] */
-    struct vec3 eye[2];
     const struct gbuffer *gbuf[2];
+    const struct restir_sms_receiver *recv[2];
     const struct ssp_prior *prior;
     uint64_t seed;
     uint32_t frame, width;
-    uint32_t room;                  /* the longest chain the path's depth limit leaves after x1 */
+    uint32_t max_depth;             /* of the path: a chain from x1 at depth d has max_depth - d - 1 */
     struct sms_shared *shared;
     struct sms_shared shared_storage;
     struct sms_scene ss;            /* the current frame's casters (candidates) */
 };
 _Static_assert(sizeof(struct sms_ctx) <= RESTIR_SMS_CTX_BYTES, "context fits the test buffer");
 
-/* The receiver x1 of a domain: the primary hit, where path tracing would make the SMS estimate
- * (a diffuse or glossy lobe; subsurface entry points never make one). */
+/* The receiver x1 of a domain (restir_sms.h), where path tracing would make the SMS estimate
+ * the reservoirs take over. */
 struct sms_x1 {
     struct surface s;
     const struct material *m;
-    struct vec3 wo;   /* towards the eye, in s's local frame */
+    struct vec3 wo;   /* back along the path, in s's local frame */
+    struct vec3 T;    /* the delta prefix's expected throughput */
+    uint32_t room;    /* the longest chain the path's depth limit leaves after x1 */
 };
 
 static bool sms_receiver(const struct sms_ctx *c, struct restir_domain d, struct sms_x1 *x)
 {
-    const struct gbuffer_pixel *g = &c->gbuf[d.frame]->px[d.pixel];
-    if (!isfinite(g->t)) return false;
+    const struct restir_sms_receiver *r = &c->recv[d.frame][d.pixel];
+    if (!r->valid) return false;
     const struct scene *scene = c->scene[d.frame];
-    const struct material *m = &scene->materials[scene->shapes[g->shape].material];
-    if (m->kind == MATERIAL_TRANSLUCENT || !(material_flags(m) & (BSDF_DIFFUSE | BSDF_GLOSSY))) return false;
-    surface_at(scene, g->shape, g->prim, g->b1, g->b2, &x->s);
+    surface_at(scene, r->shape, r->prim, r->b1, r->b2, &x->s);
     x->m = &scene->materials[x->s.material];
-    x->wo = frame_to_local(&x->s.frame, vec3_normalize(vec3_sub(c->eye[d.frame], x->s.p)));
+    x->wo = frame_to_local(&x->s.frame, vec3_make(r->wo[0], r->wo[1], r->wo[2]));
+    x->T = vec3_make(r->T[0], r->T[1], r->T[2]);
+    x->room = c->max_depth > r->depth + 1u ? c->max_depth - r->depth - 1u : 0;
     return true;
+}
+
+/* Follows a camera ray through canonical delta lobes to the receiver, exactly as path tracing
+ * steps (the same hits, scattering and ray offsets as reference_pt.c), so that both agree on
+ * which vertex is the receiver. */
+static void sms_find_receiver(const struct scene *scene, uint32_t max_depth, struct vec3 org, struct vec3 dir,
+                              struct restir_sms_receiver *out, struct ray_counters *rc)
+{
+    memset(out, 0, sizeof *out);
+    struct vec3 T = vec3_splat(1.0f);
+    for (uint32_t depth = 0; depth < max_depth && depth <= SMS_RECEIVER_MAX_PREFIX; depth++) {
+        struct hit hit;
+        if (!accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, &hit, rc)) return;
+        struct surface s;
+        surface_from_hit(scene, &hit, org, dir, &s);
+        const struct material *m = &scene->materials[s.material];
+        struct vec3 wo_world = vec3_neg(dir);
+        unsigned flags = material_flags(m);
+        if (flags & (BSDF_DIFFUSE | BSDF_GLOSSY)) {
+            if (m->kind == MATERIAL_TRANSLUCENT) return;
+            out->shape = hit.shape;
+            out->prim = hit.prim;
+            surface_point_code(scene, &hit, &s, &out->b1, &out->b2);
+            out->wo[0] = wo_world.x, out->wo[1] = wo_world.y, out->wo[2] = wo_world.z;
+            out->T[0] = T.x, out->T[1] = T.y, out->T[2] = T.z;
+            out->depth = (uint16_t)depth;
+            out->valid = 1;
+            return;
+        }
+        struct bsdf_sample bs;
+        struct vec3 wo = frame_to_local(&s.frame, wo_world);
+        if (!sms_canonical_lobe(m, wo, &bs)) return;
+        struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
+        float cos_ng = vec3_dot(wi_world, s.ng);
+        if (cos_ng * bs.wi.z <= 0.0f) return;
+        /* Path tracing's weight f |cos| / pdf times the probability pdf of taking this lobe. */
+        T = vec3_scale(vec3_mul(T, bs.f), fabsf(bs.wi.z));
+        org = surface_offset_along(s.p, cos_ng < 0.0f ? vec3_neg(s.ng) : s.ng);
+        dir = wi_world;
+    }
 }
 
 static inline uint32_t sms_length(const struct sms_sample *x) { return x->head.bits; }
@@ -191,10 +233,11 @@ static void sms_initial_pixel(const struct sms_ctx *c, uint32_t pixel, struct sm
     struct rng rng = rng_make(c->seed, c->frame, pixel, SMS_STREAM);
     struct sms_solution sol;
     bool found = c->p->sampler == RESTIR_SMS_SAMPLER_SMS
-                     ? sms_sample(scene, &c->ss, &c->p->ssp.sms, &x1.s, x1.m, x1.wo, c->room, &rng, &sol, sc, rc)
+                     ? sms_sample(scene, &c->ss, &c->p->ssp.sms, &x1.s, x1.m, x1.wo, x1.room, &rng, &sol, sc, rc)
                      : ssp_sample(scene, &c->ss, &c->p->ssp, c->prior, pixel % c->width, pixel / c->width, &x1.s, x1.m,
-                                  x1.wo, c->room, &rng, &sol, sc, rc);
+                                  x1.wo, x1.room, &rng, &sol, sc, rc);
     if (!found) return;
+    sol.value = vec3_mul(sol.value, x1.T);
     float target = vec3_luminance(sol.value);
     if (!(target > 0.0f) || !isfinite(target) || !(sol.W > 0.0) || !isfinite(sol.W)) return;
     const struct sms_caster *cs = &c->ss.casters[sol.caster];
@@ -232,7 +275,7 @@ static void sms_shift_impl(const struct sms_ctx *c, const struct sms_sample *x, 
     if (!sms_receiver(c, from, &a) || !sms_receiver(c, to, &b)) return;
     const struct scene *sa = c->scene[from.frame], *sb = c->scene[to.frame];
     struct manifold_chain chain;
-    if (!sms_chain_of(sb, x->caster, &chain) || chain.length != k || k > c->room) return;
+    if (!sms_chain_of(sb, x->caster, &chain) || chain.length != k || k > b.room) return;
     struct manifold_ends ea, eb;
     const struct material *la, *lb;
     if (!sms_ends_at(sa, x, &a, &ea, &la) || !sms_ends_at(sb, x, &b, &eb, &lb)) return;
@@ -243,7 +286,7 @@ static void sms_shift_impl(const struct sms_ctx *c, const struct sms_sample *x, 
     sms_chain_at(sb, x, v);
     bool ok = manifold_walk(sb, &chain, &eb, v, c->p->shift_iterations, &st, rc) && manifold_check(sb, &chain, &eb, v, rc);
     struct vec3 F = vec3_splat(0.0f);
-    if (ok) F = sms_solution_value(sb, &chain, &eb, v, &b.s, b.m, b.wo, lb);
+    if (ok) F = vec3_mul(sms_solution_value(sb, &chain, &eb, v, &b.s, b.m, b.wo, lb), b.T);
     ok = ok && !vec3_is_zero(F) && vec3_is_finite(F);
     if (ok) {
         for (uint32_t i = 0; i < k; i++) sms_code_of(sb, x->caster, &v[i], &y->prim[i], y->b[i]);
@@ -336,7 +379,8 @@ bool restir_sms_init(struct restir_sms_state *st, uint32_t width, uint32_t heigh
             return false;
         }
         st->res[i] = calloc(n, sizeof(struct sms_sample));
-        if (!st->res[i]) {
+        st->recv[i] = calloc(n, sizeof(struct restir_sms_receiver));
+        if (!st->res[i] || !st->recv[i]) {
             restir_sms_destroy(st);
             return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
         }
@@ -353,6 +397,7 @@ void restir_sms_destroy(struct restir_sms_state *st)
     for (int i = 0; i < 2; i++) {
         gbuffer_destroy(&st->gbuf[i]);
         free(st->res[i]);
+        free(st->recv[i]);
     }
     ssp_prior_destroy(&st->prior);
     memset(st, 0, sizeof *st);
@@ -370,9 +415,15 @@ size_t restir_sms_gbuffer_bytes(const struct restir_sms_state *st)
     return gbuffer_bytes(&st->gbuf[0]) + gbuffer_bytes(&st->gbuf[1]);
 }
 
+size_t restir_sms_receiver_bytes(const struct restir_sms_state *st)
+{
+    return 2 * (size_t)st->width * st->height * sizeof(struct restir_sms_receiver);
+}
+
 uint64_t restir_sms_bytes_planned(uint32_t width, uint32_t height)
 {
-    return 2 * (uint64_t)width * height * (sizeof(struct sms_sample) + sizeof(struct gbuffer_pixel)) +
+    return 2 * (uint64_t)width * height *
+               (sizeof(struct sms_sample) + sizeof(struct gbuffer_pixel) + sizeof(struct restir_sms_receiver)) +
            ssp_prior_bytes(width, height);
 }
 
@@ -398,13 +449,15 @@ static void sms_initial_rows(void *ctx, uint32_t job, unsigned worker)
     struct sms_sample *res = (struct sms_sample *)pp->st->res[0];
     struct ray_counters *rc = &pp->rays[worker];
     struct sms_counters *sc = &pp->sms[worker];
+    struct restir_sms_receiver *recv = pp->st->recv[pp->st->cur];
     for (uint32_t y = job * SMS_ROWS_PER_JOB; y < y1; y++) {
         for (uint32_t x = 0; x < w; x++) {
             uint32_t pixel = y * w + x;
-            sms_initial_pixel(c, pixel, &res[pixel], sc, rc);
-            if (!pp->out) continue;
             const struct gbuffer_pixel *g = &c->gbuf[RESTIR_CURRENT]->px[pixel];
             struct vec3 dir = camera_ray_dir(&pp->camera, (float)x + g->jx, (float)y + g->jy);
+            sms_find_receiver(c->scene[RESTIR_CURRENT], c->max_depth, pp->camera.position, dir, &recv[pixel], rc);
+            sms_initial_pixel(c, pixel, &res[pixel], sc, rc);
+            if (!pp->out) continue;
             struct rng rng = rng_make(c->seed, c->frame, pixel, SMS_PT_STREAM);
             struct rng srng = rng_make(c->seed, c->frame, pixel, SMS_PT_SMS_STREAM);
             pp->out->pixels[pixel] = reference_pt_radiance_sms(c->scene[RESTIR_CURRENT], &pp->pt, &c->ss, x, y,
@@ -450,15 +503,15 @@ static bool sms_bind(struct restir_sms_state *st, const struct restir_sms_params
     c->p = params;
     c->scene[RESTIR_CURRENT] = f->scene;
     c->scene[RESTIR_PREVIOUS] = f->prev_scene ? f->prev_scene : f->scene;
-    c->eye[RESTIR_CURRENT] = f->camera->position;
-    c->eye[RESTIR_PREVIOUS] = f->prev_camera ? f->prev_camera->position : f->camera->position;
     c->gbuf[RESTIR_CURRENT] = &st->gbuf[st->cur];
     c->gbuf[RESTIR_PREVIOUS] = &st->gbuf[st->cur ^ 1u];
+    c->recv[RESTIR_CURRENT] = st->recv[st->cur];
+    c->recv[RESTIR_PREVIOUS] = st->recv[st->cur ^ 1u];
     c->prior = &st->prior;
     c->seed = f->seed;
     c->frame = f->frame;
     c->width = st->width;
-    c->room = params->max_depth > 1 ? params->max_depth - 1 : 0;
+    c->max_depth = params->max_depth;
     c->shared = &c->shared_storage;
     return sms_scene_init(f->scene, &c->ss, err);
 }

@@ -1,12 +1,16 @@
 /* restir_sms.h — method `restir_sms`: spatiotemporal resampling (ReSTIR) of specular manifold
  * samples (seed 002 §5).
  *
- * Domain and integrand (§5.2, eqs. 12-13). At a pixel whose primary hit x1 is diffuse or glossy,
- * a sample is x̂ = (caster, x_n, x̄*): a caster, a point x_n on an emitter and one admissible
+ * Domain and integrand (§5.2, eqs. 12-13). A pixel's receiver x1 is the first diffuse or glossy
+ * vertex of its camera path when the delta vertices before it all take their canonical lobe
+ * (sms.h; the primary hit itself when that is diffuse or glossy, else e.g. the floor seen through
+ * a glass slab — §5.2: the prefix before x1 is kept fixed, the shift acts in x1's conditional
+ * space). A sample is x̂ = (caster, x_n, x̄*): a caster, a point x_n on an emitter and one admissible
  * specular chain x̄* from x1 through the caster to x_n. The measure is the emitter's area times
  * counting measure over casters and solutions, and the integrand
- *     f(x̂) = ρ(x1) |cos θ1| T(x̄*) G(x1 ↔ x̄* ↔ x_n) L_e(x_n)
- * (G the generalized geometry term |dω1/dA(x_n)|) is sms_solution_value. Target p̂ = luminance f.
+ *     f(x̂) = T_prefix ρ(x1) |cos θ1| T(x̄*) G(x1 ↔ x̄* ↔ x_n) L_e(x_n)
+ * (G the generalized geometry term |dω1/dA(x_n)|, sms_solution_value; T_prefix the prefix's
+ * expected throughput). Target p̂ = luminance f.
  *
  * Candidates. One per pixel and frame from the sms_ssp sampler (tiles, trust regions, prior,
  * Bernoulli trials in the conditional space): its unbiased contribution weight is the Bernoulli
@@ -32,8 +36,10 @@
  *
  * Everything else a pixel receives comes from one `sms_ssp` path per pixel and frame from the
  * same primary ray (the G-buffer's jitter): the path-traced rest of the light transport and the
- * SMS estimates at later non-delta vertices (reference_pt_radiance_sms), so the image estimates
- * exactly what `pt` does (or, with caustics_only, pt's caustic subset).
+ * SMS estimates at every other non-delta vertex (reference_pt_radiance_sms, which leaves out
+ * exactly the receiver when its path took the canonical prefix, whose expectation T_prefix · SMS
+ * the reservoirs carry), so the image estimates exactly what `pt` does (or, with caustics_only,
+ * pt's caustic subset).
  * The state is allocated once per session; a steady-state frame allocates nothing.
  * Refs: seed 002 §5, eqs. 10-13; design METHODS.md §0, §3. */
 #ifndef RESTIRD_RESTIR_SMS_H
@@ -83,10 +89,23 @@ struct restir_sms_stats {
     struct ssp_prior_counters prior;
 };
 
+/* A pixel's receiver x1 in one frame (sms.h): the camera ray (the G-buffer's jitter) followed
+ * through canonical delta lobes to the first diffuse or glossy vertex. */
+struct restir_sms_receiver {
+    uint32_t shape, prim;
+    float b1, b2;        /* x1's point code */
+    float wo[3];         /* world direction from x1 back along the path */
+    float T[3];          /* the delta prefix's expected throughput: the product of f |cos| over its
+                            canonical lobes (what path tracing carries there, averaged over its
+                            lobe choices) */
+    uint16_t valid, depth;   /* depth: delta vertices before x1 */
+};
+
 struct restir_sms_state {
     uint32_t width, height;
     struct gbuffer gbuf[2];
     uint32_t cur;
+    struct restir_sms_receiver *recv[2];   /* with gbuf[cur] and gbuf[cur ^ 1] */
     uint8_t *res[2];   /* [0] working, [1] history (final) */
     bool has_history;
     struct ssp_prior prior;
@@ -99,6 +118,7 @@ void restir_sms_destroy(struct restir_sms_state *st);
 void restir_sms_reset(struct restir_sms_state *st);
 size_t restir_sms_reservoir_bytes(const struct restir_sms_state *st);
 size_t restir_sms_gbuffer_bytes(const struct restir_sms_state *st);
+size_t restir_sms_receiver_bytes(const struct restir_sms_state *st);
 uint64_t restir_sms_bytes_planned(uint32_t width, uint32_t height);
 
 struct restir_sms_frame {

@@ -166,6 +166,13 @@ struct vec3 sms_solution_value(const struct scene *scene, const struct manifold_
     return vec3_scale(vec3_mul(vec3_mul(f, T), Le), fabsf(wi.z) * (float)G);
 }
 
+bool sms_canonical_lobe(const struct material *m, struct vec3 wo, struct bsdf_sample *out)
+{
+    if (!(material_flags(m) & BSDF_DELTA) || (material_flags(m) & (BSDF_DIFFUSE | BSDF_GLOSSY))) return false;
+    /* The largest float below 1: the last lobe in material_sample's order that has any weight. */
+    return material_sample(m, wo, 0x1.fffffep-1f, 0.5f, 0.5f, TRANSPORT_RADIANCE, out) && (out->flags & BSDF_DELTA);
+}
+
 double sms_now_ms(void)
 {
     struct timespec t;

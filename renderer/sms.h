@@ -113,6 +113,16 @@ struct vec3 sms_solution_value(const struct scene *scene, const struct manifold_
                                const struct material *m, struct vec3 wo, const struct material *light);
 double sms_now_ms(void);
 
+/* restir_sms's receivers (restir_sms.h): the first diffuse or glossy vertex of a camera path
+ * whose delta vertices before it (at most SMS_RECEIVER_MAX_PREFIX) all took their material's
+ * canonical lobe — the one material_sample picks for u_lobe -> 1: refraction through a smooth
+ * dielectric (reflection under total internal reflection), a smooth conductor's reflection. The
+ * path tracer leaves the SMS estimate at exactly such a vertex to restir_sms. */
+#define SMS_RECEIVER_MAX_PREFIX 4
+/* The canonical lobe at a delta vertex (false when the material has none: not delta, or no lobe
+ * can be sampled). */
+bool sms_canonical_lobe(const struct material *m, struct vec3 wo, struct bsdf_sample *out);
+
 /* One SMS sample at x1, as an estimator's sample rather than its estimate: the caster (index into
  * the sms_scene), the light point, the checked solution, its value (sms_solution_value) and its
  * unbiased contribution weight W (an estimate of 1 / p(caster, x_n, x̄*) with the Bernoulli

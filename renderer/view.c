@@ -438,6 +438,7 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
     if (v->params.method == RENDER_METHOD_RESTIR_SMS) {
         out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sms_reservoir_bytes(&v->rsms)};
         out[n++] = (struct view_buffer_bytes){"gbuffers", restir_sms_gbuffer_bytes(&v->rsms)};
+        out[n++] = (struct view_buffer_bytes){"receivers", restir_sms_receiver_bytes(&v->rsms)};
         out[n++] = (struct view_buffer_bytes){"prior", ssp_prior_bytes(v->output.width, v->output.height)};
     }
     size_t sum = 0;

@@ -1343,7 +1343,7 @@ def test_restir_sss_session(daemon):
 
 def test_restir_sms_session(daemon):
     """A restir_sms session on refractive-slab: its parameters with defaults, exactly its own
-    buffers (two 64-byte reservoir buffers, two G-buffers, the prior), frames with per-pass times,
+    buffers (two 64-byte reservoir buffers, two G-buffers, two receiver buffers, the prior), frames with per-pass times,
     the manifold shifts' counters and seed 002 Table 1's; bad values are refused naming the field."""
     s = new_session(daemon, scene="refractive-slab", method="restir_sms", width=24, height=24, seed=2,
                     params={"bernoulli_cap": 0})
@@ -1352,7 +1352,8 @@ def test_restir_sms_session(daemon):
     assert p["temporal_cap"] == 20 and p["bernoulli_cap"] == 0 and p["tiles"] == 16 and p["sampler"] == "ssp"
     assert s["reservoir_bytes_per_pixel"] == 64
     assert s["reservoir_bytes"] == 2 * 64 * 24 * 24 == s["buffers"]["reservoirs"]
-    assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "prior"}
+    assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "receivers",
+                                 "prior"}
     post_frame(daemon, s, accept="application/json")
     st = post_frame(daemon, s, accept="application/json").json()
     assert st["passes"]["shifts"] > 0 and st["nonfinite"] == 0

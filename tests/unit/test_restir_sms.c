@@ -118,7 +118,8 @@ static void shift_case(const char *scene_path, bool temporal, int offset, bool e
                                       .frame = 1, .threads = 2};
         CHECK(restir_sms_initial_only(&st, &p, &f, ctx, &err));
     }
-    const struct gbuffer *g = &st.gbuf[st.cur];
+    const struct restir_sms_receiver *recv = st.recv[st.cur];
+    int through_glass = 0;
     struct tally t = {0};
     int identity_ok = 0, identity_tried = 0;
     const size_t stride = restir_sms_ops.stride;
@@ -129,7 +130,8 @@ static void shift_case(const char *scene_path, bool temporal, int offset, bool e
             if (!(((const struct restir_head *)elem)->W > 0.0f)) continue;
             struct restir_domain from = {pixel, RESTIR_CURRENT};
             struct surface s1;
-            surface_at(sc, g->px[pixel].shape, g->px[pixel].prim, g->px[pixel].b1, g->px[pixel].b2, &s1);
+            surface_at(sc, recv[pixel].shape, recv[pixel].prim, recv[pixel].b1, recv[pixel].b2, &s1);
+            if (recv[pixel].depth > 0) through_glass++;
             /* Identity: the stored chain and contribution come back. */
             _Alignas(16) uint8_t same[RESTIR_MAX_STRIDE];
             float ts, js;
@@ -151,9 +153,9 @@ static void shift_case(const char *scene_path, bool temporal, int offset, bool e
             }
         }
     }
-    printf("     %s%s offset %d: %d samples (identity %d), %d shifts tried, %d succeeded, %d round trips "
+    printf("     %s%s offset %d: %d samples (%d at receivers behind delta vertices, identity %d), %d shifts tried, %d succeeded, %d round trips "
            "(worst gap %.2g, worst |J J' - 1| %.2g, %d with J != 1), %llu Newton steps\n",
-           scene_path, temporal ? " temporal" : "", offset, identity_tried, identity_ok, t.tried, t.forward_ok,
+           scene_path, temporal ? " temporal" : "", offset, identity_tried, through_glass, identity_ok, t.tried, t.forward_ok,
            t.round_trips, t.worst_pos, t.worst_j, t.nontrivial_j, (unsigned long long)restir_sms_shift_newton(ctx));
     CHECK(identity_tried > 30);
     CHECK(identity_ok >= identity_tried * 98 / 100);
