@@ -50,7 +50,8 @@ def _runs(tmp_path, sc, params, anim=None, tag="r", frames=FRAMES, avg=AVG, k=K)
     return np.stack(runs), stats
 
 
-# The moving-camera runs: 16 frames of motion (away and back), then the averaged frames.
+# The moving-camera runs: 16 frames of motion (away and back), then the averaged frames; 16
+# sessions (the x1.07 control's t is ~5 with 24, ~4.5 with 16, against a threshold of ~3.3).
 MOVING_FRAMES, MOVING_AVG = 40, 24
 
 
@@ -72,9 +73,9 @@ def _moving_camera(tmp_path, sc, frames, avg):
 
 
 @pytest.mark.statistical
-@pytest.mark.parametrize("sampler", ["ssp", "sms"])
-def test_restir_sms_unbiased_still_camera(tmp_path, scenes, sampler):
-    """Both candidate samplers: seed 002's partitioning with the prior, and plain SMS."""
+def test_restir_sms_unbiased_still_camera(tmp_path, scenes, sampler="ssp"):
+    """The paper's sampler (partitioning with the prior); plain SMS candidates are z-tested on
+    reflective-plane below (against sms) and were checked here too (global t -0.17, x1.05 t 7.2)."""
     sc = scenes / SCENE / "scene.json"
     ref = _cached_reference(tmp_path, sc)
     runs, st = _runs(tmp_path, sc, {**PARAMS, "sampler": sampler})
@@ -93,7 +94,7 @@ def test_restir_sms_unbiased_moving_camera(tmp_path, scenes):
     sc = scenes / SCENE / "scene.json"
     ref = _cached_reference(tmp_path, sc)
     anim = _moving_camera(tmp_path, sc, MOVING_FRAMES, MOVING_AVG)
-    runs, st = _runs(tmp_path, sc, PARAMS, anim=anim, tag="m", frames=MOVING_FRAMES, avg=MOVING_AVG)
+    runs, st = _runs(tmp_path, sc, PARAMS, anim=anim, tag="m", frames=MOVING_FRAMES, avg=MOVING_AVG, k=16)
     assert np.isfinite(runs).all() and st["nonfinite"] == 0 and st["sms"]["capped"] == 0
     res = ztest_runs(runs, ref)
     # x1.07: the runs' spread is as large as the still camera's but the control's t there is only
@@ -142,7 +143,7 @@ PLANE_SIZE = "24x24"
 def test_restir_sms_receivers_behind_a_mirror(tmp_path, scenes):
     """reflective-plane: part of the caustic is seen in the mirror, so those pixels' receivers lie
     behind a delta vertex (the prefix's throughput is in the target, and the path tracer leaves
-    exactly that vertex to the reservoirs). Compared with `sms` (caustics only, 64 spp per run),
+    exactly that vertex to the reservoirs). Compared with `sms` (caustics only, 32 spp per run),
     which makes its estimate at every vertex itself: path tracing cannot be the reference here, it
     never finds some of the dim mirror paths in 32 x 4096 samples (zero-variance pixels that fail
     `sms` itself), while the global means agree. x1.05 fails."""
@@ -150,13 +151,15 @@ def test_restir_sms_receivers_behind_a_mirror(tmp_path, scenes):
     params = {**PARAMS, "sampler": "sms"}
     runs, base = [], []
     st = None
-    for s in range(K):
+    # Fewer and shorter runs than on the slab: the mirror scene's estimates are far less
+    # heavy-tailed, and the x1.05 control still sits at t ~ 30.
+    for s in range(16):
         img, st = render(sc, tmp_path / f"pl{s}.exr", size=PLANE_SIZE, seed=s,
                          extra=["--method", "restir_sms", "--params", json.dumps(params),
-                                "--frames", str(FRAMES), "--average-last", str(AVG)])
+                                "--frames", "24", "--average-last", "16"])
         runs.append(img)
         ref, _ = render(sc, tmp_path / f"sms{s}.exr", size=PLANE_SIZE, seed=1000 + s,
-                        extra=["--method", "sms", "--params", json.dumps({"spp": 64, "caustics_only": True,
+                        extra=["--method", "sms", "--params", json.dumps({"spp": 32, "caustics_only": True,
                                                                           "bernoulli_cap": 0})])
         base.append(ref)
     runs, base = np.stack(runs), np.stack(base)
