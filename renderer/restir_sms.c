@@ -1,5 +1,5 @@
-/* restir_sms.c — method `restir_sms` (see restir_sms.h): candidates from the sms_ssp sampler at
- * the primary hits, the manifold shift, and the frame. The reuse passes are restir.c's; the rest
+/* restir_sms.c — method `restir_sms` (see restir_sms.h): the receivers, candidates from the
+ * sms_ssp (or sms) sampler at them, the manifold shift, and the frame. The reuse passes are restir.c's; the rest
  * of the image is reference_pt_radiance_sms's.
  * Refs: seed 002 §5.2 (eqs. 10-13, the manifold shift), §5.3 (5 Newton steps per shift walk);
  * METHODS.md §0, §3. */

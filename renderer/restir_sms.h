@@ -13,8 +13,9 @@
  * expected throughput). Target p̂ = luminance f.
  *
  * Candidates. One per pixel and frame from the sms_ssp sampler (tiles, trust regions, prior,
- * Bernoulli trials in the conditional space): its unbiased contribution weight is the Bernoulli
- * estimate W = trials / P(C(u*)) · C / p(x_n), a random variable with E[W | x̂] = 1 / p(x̂). GRIS
+ * Bernoulli trials in the conditional space; or plain SMS, `sampler`): its unbiased contribution
+ * weight is the Bernoulli estimate W = trials / P(C(u*)) · C / p(x_n) (plain SMS: trials · C /
+ * p(x_n)), a random variable with E[W | x̂] = 1 / p(x̂). GRIS
  * (Lin et al. 2022) only needs each input's W to be an unbiased contribution weight
  * (E[f(X) W_X] = ∫ f), so resampling with the estimated inverse pdf stays unbiased — as long as
  * the trials are uncapped (bernoulli_cap 0); with a cap, solutions past it are lost exactly as in
