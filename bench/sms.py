@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
-"""bench/sms.py — `make bench`: path tracing against specular manifold sampling (`sms`) and its
-sample-space partitioning with per-frame priors (`sms_ssp`): error against time, and seed 002
-Table 1's statistics (prior construction and manifold sampling, sms / sms_ssp).
+"""bench/sms.py — `make bench`: path tracing against specular manifold sampling (`sms`), its
+sample-space partitioning with per-frame priors (`sms_ssp`) and ReSTIR over its samples
+(`restir_sms`): error against time, and seed 002 Table 1's statistics (prior construction and
+manifold sampling, sms / sms_ssp).
 
 Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. On
 refractive-slab and reflective-plane at 64x64 (BENCH_SMS_SCENES, BENCH_SMS_SIZE):
@@ -11,15 +12,20 @@ refractive-slab and reflective-plane at 64x64 (BENCH_SMS_SCENES, BENCH_SMS_SIZE)
      paths), cached in build/refs/ under the scene files' hash and the spps;
   2. `pt`, `sms` and `sms_ssp` (Bernoulli cap 128 and N = 16, as seed 002 §6) at 1, 2, 4 ...
      spp, over SEEDS seeds: render time and RMSE against the reference (seed 002 reports RMSE);
+     `restir_sms` (same sampler, 1 candidate per pixel and frame, reuse on) as sessions of 1, 2,
+     4 ... frames whose mean is the image and whose summed frame times are its time (the
+     warm-up of the reservoirs is paid for, as an accumulating viewer would);
   3. Table 1 of `sms` and `sms_ssp` at 1 spp: prior construction (success rate, Newton steps
      per sample, ms) and manifold sampling (sample success rate, Newton steps per sample,
      Bernoulli trials per solution, Newton steps per solution, time in the estimates);
   4. the failure case of seed 002 Fig. 10: a prior that misses pairs (2 walks per block instead
-     of 128; `prior: false` is the fallback everywhere) — RMSE at equal spp;
+     of 128; `prior: false` is the fallback everywhere) — RMSE at equal spp (sms_ssp) and equal
+     frames (restir_sms);
   5. writes build/bench/sms.json, one SVG chart per scene (RMSE vs ms, log-log) and prints
      Markdown tables (medians over the seeds).
 Environment: BENCH_SMS_SEEDS (3), BENCH_SMS_REF_SPP (1024), BENCH_SMS_REF_SMS_SPP (256),
-BENCH_THREADS (all cores)."""
+BENCH_THREADS (all cores); BENCH_SMS_QUICK=1 is a small run for a shared machine (refractive-slab
+only, 32x32, 1 seed, shorter curves, reference 1024 + 1024 spp) unless those are set too."""
 import hashlib
 import json
 import math
@@ -40,21 +46,30 @@ ROOT = Path(__file__).resolve().parent.parent
 BIN = os.environ.get("RESTIR_BIN", str(ROOT / "build" / "restir"))
 OUT = ROOT / "build" / "bench"
 REFS = ROOT / "build" / "refs"
-SCENES = os.environ.get("BENCH_SMS_SCENES", "refractive-slab reflective-plane").split()
-SIZE = os.environ.get("BENCH_SMS_SIZE", "64x64")
-SEEDS = int(os.environ.get("BENCH_SMS_SEEDS", "3"))
+QUICK = os.environ.get("BENCH_SMS_QUICK") == "1"
+SCENES = os.environ.get("BENCH_SMS_SCENES", "refractive-slab" if QUICK else "refractive-slab reflective-plane").split()
+SIZE = os.environ.get("BENCH_SMS_SIZE", "32x32" if QUICK else "64x64")
+SEEDS = int(os.environ.get("BENCH_SMS_SEEDS", "1" if QUICK else "3"))
 REF_SPP = int(os.environ.get("BENCH_SMS_REF_SPP", "1024"))
-REF_SMS_SPP = int(os.environ.get("BENCH_SMS_REF_SMS_SPP", "256"))
+# The quick run's 32x32 reference can afford 4x the samples of the full run's 64x64 one (the
+# ratios below need a reference well under the compared errors).
+REF_SMS_SPP = int(os.environ.get("BENCH_SMS_REF_SMS_SPP", "1024" if QUICK else "256"))
 THREADS = os.environ.get("BENCH_THREADS", "0")
-PT_SPPS = [1, 4, 16, 64, 256]
-SMS_SPPS = [1, 2, 4, 8, 16]
+PT_SPPS = [1, 4, 16, 64] if QUICK else [1, 4, 16, 64, 256]
+SMS_SPPS = [1, 2, 4, 8] if QUICK else [1, 2, 4, 8, 16]
+RESTIR_FRAMES = [1, 2, 4, 8, 16] if QUICK else [1, 2, 4, 8, 16, 32]
+WARMUP = 16
 
 
-def render(scene, out, method, params, seed):
+def render(scene, out, method, params, seed, frames=None, extra=()):
     cmd = [BIN, "render", str(scene), "--method", method, "--size", SIZE, "--seed", str(seed), "--threads", THREADS,
            "--params", json.dumps(params), "--json", "-o", str(out)]
     if method == "pt":
         cmd += ["--frames", "1"]
+    if frames:
+        # A session of `frames` frames: the image is their mean, the time their sum.
+        cmd += ["--frames", str(frames), "--average-last", str(frames)]
+    cmd += list(extra)
     res = subprocess.run(cmd, capture_output=True, text=True)
     if res.returncode != 0:
         raise SystemExit(f"bench: {' '.join(cmd)}: {res.stderr.strip()}")
@@ -110,7 +125,13 @@ def main():
             runs = [("pt", "pt", PT_SPPS, {}), ("sms", "sms", SMS_SPPS, {"bernoulli_cap": 128}),
                     ("sms_ssp", "sms_ssp", SMS_SPPS, {"bernoulli_cap": 128}),
                     ("sms_ssp, prior of 2 walks per block", "sms_ssp", [4], {"prior_samples": 2}),
-                    ("sms_ssp, no prior (fallback)", "sms_ssp", [4], {"prior": False})]
+                    ("sms_ssp, no prior (fallback)", "sms_ssp", [4], {"prior": False}),
+                    ("restir_sms", "restir_sms", RESTIR_FRAMES, {"bernoulli_cap": 128}),
+                    ("restir_sms, sms sampler", "restir_sms", RESTIR_FRAMES, {"bernoulli_cap": 128, "sampler": "sms"}),
+                    # The prior misses a light: one walk per block finds at most one of the two
+                    # (light, caster) pairs, so every block falls back to alpha = 0 for the other.
+                    ("restir_sms, prior misses a light (1 walk per block)", "restir_sms", [8], {"prior_samples": 1}),
+                    ("restir_sms, no prior (fallback)", "restir_sms", [8], {"prior": False})]
             curves = {label: [] for label, *_ in runs}
             t1 = {"sms": [], "sms_ssp": []}
             for label, method, spps, extra in runs:
@@ -119,17 +140,36 @@ def main():
                     for seed in range(SEEDS):
                         # A new file per render: OpenImageIO caches images by file name.
                         out = tmp / f"{name}-{len(curves[label])}-{label[:12].replace(' ', '_')}-{spp}-{seed}.exr"
-                        img, st = render(scene, out, method, {"spp": spp, **extra}, seed)
+                        if method == "restir_sms":
+                            img, st = render(scene, out, method, extra, seed, frames=spp)
+                        else:
+                            img, st = render(scene, out, method, {"spp": spp, **extra}, seed)
                         ms.append(st["time_ms"])
                         err.append(rmse(img, ref))
                         if label in t1 and spp == 1:
                             t1[label].append(table1(st["sms"], st.get("prior")))
                     curves[label].append((statistics.median(ms), statistics.median(err), spp))
-            results[name] = {"curves": curves,
+            # Real-time use (seed 002 §6: 1 spp per frame): the error of one frame after WARMUP
+            # frames of reuse against sms at 1 spp, with each one's time per frame.
+            steady = {}
+            for label, method, params in (("sms 1 spp", "sms", {"spp": 1, "bernoulli_cap": 128}),
+                                          ("sms_ssp 1 spp", "sms_ssp", {"spp": 1, "bernoulli_cap": 128}),
+                                          ("restir_sms", "restir_sms", {"bernoulli_cap": 128}),
+                                          ("restir_sms, sms sampler", "restir_sms", {"bernoulli_cap": 128, "sampler": "sms"})):
+                ms, err = [], []
+                for seed in range(SEEDS):
+                    out = tmp / f"{name}-steady-{label[:14].replace(' ', '_')}-{seed}.exr"
+                    n = WARMUP + 1 if method == "restir_sms" else 1
+                    cmd_extra = ["--frames", str(n), "--average-last", "1"]
+                    img, st = render(scene, out, method, params, seed, extra=cmd_extra)
+                    ms.append(st["time_ms"] / n)
+                    err.append(rmse(img, ref))
+                steady[label] = (statistics.median(ms), statistics.median(err))
+            results[name] = {"curves": curves, "steady": steady,
                              "table1": {m: {k: statistics.median(r[k] for r in rows) for k in rows[0]}
                                         for m, rows in t1.items()}}
     (OUT / "sms.json").write_text(json.dumps(results, indent=1))
-    print(f"# pt vs sms ({SIZE}, medians over {SEEDS} seeds; reference: pt rest {REF_SPP} spp + sms caustics "
+    print(f"# pt vs sms vs restir_sms ({SIZE}, medians over {SEEDS} seeds; reference: pt rest {REF_SPP} spp + sms caustics "
           f"{REF_SMS_SPP} spp uncapped)\n")
     print("| scene | prior success | prior Newtons / sample | prior ms | success rate (sms / sms_ssp) | "
           "Newtons / sample | Bernoulli / solution | Newtons / solution | ms in the estimates (1 spp) |")
@@ -142,14 +182,15 @@ def main():
               f"{a['bernoulli_per_solution']:.2f} / {b['bernoulli_per_solution']:.2f} | "
               f"{a['newtons_per_solution']:.2f} / {b['newtons_per_solution']:.2f} | "
               f"{a['sms_ms']:.1f} / {b['sms_ms']:.1f} |")
-    print("\n| scene | method | spp | time (ms) | RMSE |")
+    print("\n| scene | method | spp (restir_sms: frames) | time (ms) | RMSE |")
     print("|---|---|---|---|---|")
     for name, r in results.items():
         for method, pts in r["curves"].items():
             for ms, err, spp in pts:
                 print(f"| {name} | {method} | {spp} | {ms:.1f} | {err:.4g} |")
         # Equal time: the other curve's RMSE interpolated log-log at each point's time.
-        for m, base in (("sms", "pt"), ("sms_ssp", "pt"), ("sms_ssp", "sms")):
+        for m, base in (("sms", "pt"), ("sms_ssp", "pt"), ("sms_ssp", "sms"), ("restir_sms", "sms"),
+                        ("restir_sms", "sms_ssp"), ("restir_sms, sms sampler", "sms")):
             ref_curve = sorted(r["curves"][base])
             ratios = []
             for ms, err, _ in r["curves"][m]:
@@ -160,6 +201,14 @@ def main():
             if ratios:
                 print(f"\n{name}: RMSE of {m} / {base} at equal time: median {statistics.median(ratios):.3f} "
                       f"over {len(ratios)} points")
+            else:
+                print(f"\n{name}: RMSE of {m} / {base} at equal time: the curves do not overlap in time")
+        st = r["steady"]
+        print(f"\n{name}, one frame after {WARMUP} frames of reuse (time per frame, RMSE): " +
+              ", ".join(f"{k} {v[0]:.1f} ms {v[1]:.4g}" for k, v in st.items()))
+        for k in ("restir_sms", "restir_sms, sms sampler"):
+            print(f"{name}: RMSE of one {k} frame / sms 1 spp: {st[k][1] / st['sms 1 spp'][1]:.3f} "
+                  f"at {st[k][0] / st['sms 1 spp'][0]:.2f}x its time per frame")
         loglog(OUT / f"sms-{name}.svg", f"{name}: RMSE vs time", "render time (ms)", "RMSE",
                [(m, [(a, b) for a, b, _ in pts], "line") for m, pts in r["curves"].items()])
 

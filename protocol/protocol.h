@@ -57,7 +57,7 @@ struct protocol_field {
     enum protocol_field_kind kind;
     size_t off;  /* offset in the method's params struct */
 };
-/* The numeric and boolean params of restir_pt, bdpt and restir_sss (NULL, *count = 0 for the
+/* The numeric and boolean params of restir_pt, bdpt, restir_sss, restir_sms (NULL, *count = 0 for the
  * others, whose params are written out by hand). */
 const struct protocol_field *protocol_method_fields(enum render_method method, size_t *count);
 

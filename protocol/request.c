@@ -758,6 +758,21 @@ static const struct protocol_field restir_sss_fields[] = {
     };
 #undef F
 
+/* restir_sms: its own fields and the sms_ssp sampler's, named as sms_ssp names them. */
+#define F(key, kind) REQUEST_FIELD(struct restir_sms_params, key, kind)
+#define FS(key, member, kind) {key, kind, offsetof(struct restir_sms_params, member)}
+static const struct protocol_field restir_sms_fields[] = {
+        F(shift_iterations, PROTOCOL_UINT), F(temporal_cap, PROTOCOL_UINT), F(spatial_neighbors, PROTOCOL_UINT),
+        F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(temporal, PROTOCOL_BOOL),
+        F(spatial_radius, PROTOCOL_FLOAT), FS("bernoulli_cap", ssp.sms.bernoulli_cap, PROTOCOL_UINT),
+        FS("max_iterations", ssp.sms.max_iterations, PROTOCOL_UINT),
+        FS("caustics_only", ssp.sms.caustics_only, PROTOCOL_BOOL), FS("tiles", ssp.tiles, PROTOCOL_UINT),
+        FS("prior", ssp.prior, PROTOCOL_BOOL), FS("prior_samples", ssp.prior_samples, PROTOCOL_UINT),
+        FS("alpha", ssp.alpha, PROTOCOL_FLOAT),
+    };
+#undef FS
+#undef F
+
 const struct protocol_field *protocol_method_fields(enum render_method method, size_t *count)
 {
     switch (method) {
@@ -767,6 +782,7 @@ const struct protocol_field *protocol_method_fields(enum render_method method, s
     case RENDER_METHOD_RESTIR_BDPT:
         *count = sizeof restir_bdpt_fields / sizeof restir_bdpt_fields[0];
         return restir_bdpt_fields;
+    case RENDER_METHOD_RESTIR_SMS: *count = sizeof restir_sms_fields / sizeof restir_sms_fields[0]; return restir_sms_fields;
     default: *count = 0; return NULL;
     }
 }
@@ -848,6 +864,28 @@ static bool request_restir_sss_params(const cJSON *pv, const char *ptr, struct r
     }
     if (!request_fields(pv, ptr, restir_sss_fields, sizeof restir_sss_fields / sizeof restir_sss_fields[0], 1000000, rp, err)) return false;
     return restir_sss_params_valid(rp, err);
+}
+
+static bool request_restir_sms_params(const cJSON *pv, const char *ptr, struct restir_sms_params *rp, struct err *err)
+{
+    const size_t n = sizeof restir_sms_fields / sizeof restir_sms_fields[0];
+    const char *keys[sizeof restir_sms_fields / sizeof restir_sms_fields[0] + 2];
+    for (size_t i = 0; i < n; i++) keys[i] = restir_sms_fields[i].key;
+    keys[n] = "sampler";
+    keys[n + 1] = NULL;
+    char p[REQUEST_PTR];
+    const cJSON *v;
+    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_sms params", err) ||
+        !request_fields(pv, ptr, restir_sms_fields, n, SMS_HARD_TRIAL_LIMIT, rp, err))
+        return false;
+    if ((v = request_member(pv, ptr, "sampler", p))) {
+        const char *name = request_string(v, p, err);
+        if (!name) return false;
+        if (!restir_sms_sampler_parse(name, &rp->sampler))
+            return err_set(err, ERR_INVALID, p, "unknown sampler \"%.64s\" (ssp or sms)", name);
+    }
+    /* Ranges are the renderer's (its pointers name /params/<key>). */
+    return restir_sms_params_valid(rp, err);
 }
 
 /* Names of every method view_method_name knows, for error messages. Probes enum values rather
@@ -933,6 +971,9 @@ bool protocol_parse_session_create(const char *body, size_t len, const struct pr
             break;
         case RENDER_METHOD_RESTIR_BDPT:
             ok = request_restir_bdpt_params(pv, p, &vp.restir_bdpt, err);
+            break;
+        case RENDER_METHOD_RESTIR_SMS:
+            ok = request_restir_sms_params(pv, p, &vp.restir_sms, err);
             break;
         }
     }

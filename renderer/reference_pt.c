@@ -164,6 +164,7 @@ struct pt_split {
     struct sms_counters *sc;
     struct rng *sms_rng;
     uint32_t px, py;     /* the pixel (sms_ssp's prior block) */
+    bool sms_after_primary;  /* restir_sms: no SMS estimate at its receiver (sms.h), the reservoirs' */
 };
 
 static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
@@ -181,6 +182,8 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
     struct vec3 prev_p = org;
     struct sms_track track = sms_track_start();
     bool skip_emission = false;  /* after subsurface scattering with NEE (pt_sss_primary) */
+    /* restir_sms: every vertex so far delta and through its canonical lobe (sms.h). */
+    bool canonical = split->sms_after_primary;
 
     for (uint32_t depth = 0;; depth++) {
         struct hit hit;
@@ -220,6 +223,7 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
             if (!pt_sss_primary(scene, params, m, &s, vec3_neg(dir), &beta, &L, rng, rc, &org, &dir, &prev_p,
                                 &skip_emission, sss_direct && split->rest))
                 break;
+            canonical = false;
             /* A cosine-sampled direction: emission it reaches is MIS-weighted like a diffuse
              * bounce's when NEE is off (weight 1 then) — it is skipped when NEE is on. */
             prev_delta = true;
@@ -242,7 +246,8 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         int shadow_side = -1;
 
         /* Specular manifold sampling owns the caustic chains that start here (sms.h). */
-        if (split->ss && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
+        const bool at_receiver = canonical && depth <= SMS_RECEIVER_MAX_PREFIX && m->kind != MATERIAL_TRANSLUCENT;
+        if (split->ss && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY)) && !at_receiver) {
             uint32_t room = max_depth > depth + 1 ? max_depth - depth - 1 : 0;
             struct vec3 c = params->ssp ? ssp_estimate(scene, split->ss, params->ssp, params->ssp_prior, split->px, split->py,
                                                        &s, m, wo, room, split->sms_rng, split->sc, rc)
@@ -311,6 +316,10 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         if (cos_ng * bs.wi.z <= 0.0f) break;
         beta = vec3_mul(beta, vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w));
         if (split->tracked) sms_track_scatter(scene, &track, &s, bs.flags);
+        if (canonical) {
+            struct bsdf_sample cb;
+            canonical = (bs.flags & BSDF_DELTA) && sms_canonical_lobe(m, wo, &cb) && cb.lobe == bs.lobe;
+        }
         prev_delta = (bs.flags & BSDF_DELTA) != 0;
         prev_pdf_w = bs.pdf_w;
         prev_p = s.p;
@@ -336,6 +345,16 @@ struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_par
 {
     const struct pt_split all = {.owned = true, .rest = true};
     return pt_radiance(scene, params, org, dir, rng, rc, &all, sss_direct);
+}
+
+struct vec3 reference_pt_radiance_sms(const struct scene *scene, const struct pt_params *params,
+                                      const struct sms_scene *ss, uint32_t px, uint32_t py, struct vec3 org,
+                                      struct vec3 dir, struct rng *rng, struct rng *sms_rng, struct sms_counters *sc,
+                                      struct ray_counters *rc)
+{
+    const struct pt_split split = {.owned = false, .rest = !params->sms->caustics_only, .tracked = true, .ss = ss,
+                                   .sc = sc, .sms_rng = sms_rng, .px = px, .py = py, .sms_after_primary = true};
+    return pt_radiance(scene, params, org, dir, rng, rc, &split, true);
 }
 
 static void pt_tile(void *ctx, uint32_t tile, unsigned worker)

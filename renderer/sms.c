@@ -166,6 +166,13 @@ struct vec3 sms_solution_value(const struct scene *scene, const struct manifold_
     return vec3_scale(vec3_mul(vec3_mul(f, T), Le), fabsf(wi.z) * (float)G);
 }
 
+bool sms_canonical_lobe(const struct material *m, struct vec3 wo, struct bsdf_sample *out)
+{
+    if (!(material_flags(m) & BSDF_DELTA) || (material_flags(m) & (BSDF_DIFFUSE | BSDF_GLOSSY))) return false;
+    /* The largest float below 1: the last lobe in material_sample's order that has any weight. */
+    return material_sample(m, wo, 0x1.fffffep-1f, 0.5f, 0.5f, TRANSPORT_RADIANCE, out) && (out->flags & BSDF_DELTA);
+}
+
 double sms_now_ms(void)
 {
     struct timespec t;
@@ -173,17 +180,16 @@ double sms_now_ms(void)
     return (double)t.tv_sec * 1e3 + (double)t.tv_nsec * 1e-6;
 }
 
-struct vec3 sms_estimate(const struct scene *scene, const struct sms_scene *ss, const struct sms_params *p,
-                         const struct surface *s, const struct material *m, struct vec3 wo, uint32_t max_chain,
-                         struct rng *rng, struct sms_counters *c, struct ray_counters *rc)
+bool sms_sample(const struct scene *scene, const struct sms_scene *ss, const struct sms_params *p,
+                const struct surface *s, const struct material *m, struct vec3 wo, uint32_t max_chain,
+                struct rng *rng, struct sms_solution *out, struct sms_counters *c, struct ray_counters *rc)
 {
-    const struct vec3 zero = vec3_splat(0.0f);
+    out->W = 0.0;
     float uc = rng_next_float(rng), ul = rng_next_float(rng), l1 = rng_next_float(rng), l2 = rng_next_float(rng);
     float s1 = rng_next_float(rng), s2 = rng_next_float(rng);
-    if (ss->count == 0) return zero;
+    if (ss->count == 0) return false;
     double t0 = sms_now_ms();
     c->samples++;
-    struct vec3 result = zero;
     uint32_t ci = (uint32_t)(uc * (float)ss->count);
     if (ci >= ss->count) ci = ss->count - 1;
     const struct sms_caster *cs = &ss->casters[ci];
@@ -193,7 +199,7 @@ struct vec3 sms_estimate(const struct scene *scene, const struct sms_scene *ss, 
         goto out;
     const struct material *lm = &scene->materials[scene->shapes[ls.shape].material];
     struct manifold_ends e = {.x1 = s->p, .ng1 = s->ng, .xe = ls.p, .nge = ls.n};
-    struct manifold_vertex v[MANIFOLD_MAX_CHAIN], w[MANIFOLD_MAX_CHAIN];
+    struct manifold_vertex *v = out->v, w[MANIFOLD_MAX_CHAIN];
     if (!sms_walk_seed(scene, cs, &e, p, s1, s2, v, &c->newton_sample, rc) || !manifold_check(scene, &cs->chain, &e, v, rc))
         goto out;
     struct vec3 value = sms_solution_value(scene, &cs->chain, &e, v, s, m, wo, lm);
@@ -219,8 +225,21 @@ struct vec3 sms_estimate(const struct scene *scene, const struct sms_scene *ss, 
         goto out;
     }
     c->solutions++;
-    result = vec3_scale(value, (float)trials * (float)ss->count / ls.pdf_a);
+    out->caster = ci;
+    out->light = ls;
+    out->value = value;
+    /* The float product the estimate has always used (its images stay bit-identical). */
+    out->W = (double)((float)trials * (float)ss->count / ls.pdf_a);
 out:
     c->sample_ms += sms_now_ms() - t0;
-    return result;
+    return out->W > 0.0;
+}
+
+struct vec3 sms_estimate(const struct scene *scene, const struct sms_scene *ss, const struct sms_params *p,
+                         const struct surface *s, const struct material *m, struct vec3 wo, uint32_t max_chain,
+                         struct rng *rng, struct sms_counters *c, struct ray_counters *rc)
+{
+    struct sms_solution sol;
+    if (!sms_sample(scene, ss, p, s, m, wo, max_chain, rng, &sol, c, rc)) return vec3_splat(0.0f);
+    return vec3_scale(sol.value, (float)sol.W);
 }

@@ -35,6 +35,7 @@
 
 #include <stdint.h>
 
+#include "light_sampler.h"
 #include "manifold.h"
 #include "material.h"
 #include "rng.h"
@@ -111,6 +112,33 @@ struct vec3 sms_solution_value(const struct scene *scene, const struct manifold_
                                const struct manifold_ends *e, const struct manifold_vertex *v, const struct surface *s,
                                const struct material *m, struct vec3 wo, const struct material *light);
 double sms_now_ms(void);
+
+/* restir_sms's receivers (restir_sms.h): the first diffuse or glossy vertex of a camera path
+ * whose delta vertices before it (at most SMS_RECEIVER_MAX_PREFIX) all took their material's
+ * canonical lobe — the one material_sample picks for u_lobe -> 1: refraction through a smooth
+ * dielectric (reflection under total internal reflection), a smooth conductor's reflection. The
+ * path tracer leaves the SMS estimate at exactly such a vertex to restir_sms. */
+#define SMS_RECEIVER_MAX_PREFIX 4
+/* The canonical lobe at a delta vertex (false when the material has none: not delta, or no lobe
+ * can be sampled). */
+bool sms_canonical_lobe(const struct material *m, struct vec3 wo, struct bsdf_sample *out);
+
+/* One SMS sample at x1, as an estimator's sample rather than its estimate: the caster (index into
+ * the sms_scene), the light point, the checked solution, its value (sms_solution_value) and its
+ * unbiased contribution weight W (an estimate of 1 / p(caster, x_n, x̄*) with the Bernoulli
+ * trials; the estimate is value · W). False (W = 0) when no solution was found or the Bernoulli
+ * cap was reached. */
+struct sms_solution {
+    uint32_t caster;
+    struct light_sample light;
+    struct manifold_vertex v[MANIFOLD_MAX_CHAIN];
+    struct vec3 value;
+    double W;
+};
+/* sms_estimate's sampling half (same random numbers): W = trials · C / p(x_n). */
+bool sms_sample(const struct scene *scene, const struct sms_scene *ss, const struct sms_params *p,
+                const struct surface *s, const struct material *m, struct vec3 wo, uint32_t max_chain,
+                struct rng *rng, struct sms_solution *out, struct sms_counters *c, struct ray_counters *rc);
 
 /* The SMS estimate at x1 (surface s, material m, wo in s's local frame), for chains that end
  * within `max_chain` vertices (path tracing's depth limit); radiance towards wo, without the

@@ -224,18 +224,17 @@ void ssp_prior_build(struct ssp_prior *pr, const struct scene *scene, const stru
     c->ms += sms_now_ms() - t0;
 }
 
-struct vec3 ssp_estimate(const struct scene *scene, const struct sms_scene *ss, const struct ssp_params *p,
-                         const struct ssp_prior *pr, uint32_t px, uint32_t py, const struct surface *s,
-                         const struct material *m, struct vec3 wo, uint32_t max_chain, struct rng *rng,
-                         struct sms_counters *c, struct ray_counters *rc)
+bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const struct ssp_params *p,
+                const struct ssp_prior *pr, uint32_t px, uint32_t py, const struct surface *s, const struct material *m,
+                struct vec3 wo, uint32_t max_chain, struct rng *rng, struct sms_solution *out, struct sms_counters *c,
+                struct ray_counters *rc)
 {
-    const struct vec3 zero = vec3_splat(0.0f);
+    out->W = 0.0;
     float uc = rng_next_float(rng), ul = rng_next_float(rng), l1 = rng_next_float(rng), l2 = rng_next_float(rng);
     float us = rng_next_float(rng), s1 = rng_next_float(rng), s2 = rng_next_float(rng);
-    if (ss->count == 0) return zero;
+    if (ss->count == 0) return false;
     double t0 = sms_now_ms();
     c->samples++;
-    struct vec3 result = zero;
     const uint32_t n = p->tiles, n2 = n * n;
     uint32_t ci = (uint32_t)(uc * (float)ss->count);
     if (ci >= ss->count) ci = ss->count - 1;
@@ -259,7 +258,7 @@ struct vec3 ssp_estimate(const struct scene *scene, const struct sms_scene *ss, 
         u1 = ((float)(t / n) + s1) / (float)n;
         u2 = ((float)(t % n) + s2) / (float)n;
     }
-    struct manifold_vertex v[MANIFOLD_MAX_CHAIN], w[MANIFOLD_MAX_CHAIN];
+    struct manifold_vertex *v = out->v, w[MANIFOLD_MAX_CHAIN];
     if (!ssp_walk(scene, cs, &e, &k, n, u1, u2, p->sms.max_iterations, v, &c->newton_sample, rc) ||
         !manifold_check(scene, &cs->chain, &e, v, rc))
         goto out;
@@ -300,8 +299,22 @@ struct vec3 ssp_estimate(const struct scene *scene, const struct sms_scene *ss, 
         goto out;
     }
     c->solutions++;
-    result = vec3_scale(value, (float)((double)trials / pc) * (float)ss->count / ls.pdf_a);
+    out->caster = ci;
+    out->light = ls;
+    out->value = value;
+    /* The same float product sms_ssp's estimate has always used (its images stay bit-identical). */
+    out->W = (double)((float)((double)trials / pc) * (float)ss->count / ls.pdf_a);
 out:
     c->sample_ms += sms_now_ms() - t0;
-    return result;
+    return out->W > 0.0;
+}
+
+struct vec3 ssp_estimate(const struct scene *scene, const struct sms_scene *ss, const struct ssp_params *p,
+                         const struct ssp_prior *pr, uint32_t px, uint32_t py, const struct surface *s,
+                         const struct material *m, struct vec3 wo, uint32_t max_chain, struct rng *rng,
+                         struct sms_counters *c, struct ray_counters *rc)
+{
+    struct sms_solution sol;
+    if (!ssp_sample(scene, ss, p, pr, px, py, s, m, wo, max_chain, rng, &sol, c, rc)) return vec3_splat(0.0f);
+    return vec3_scale(sol.value, (float)sol.W);
 }

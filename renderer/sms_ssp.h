@@ -74,7 +74,16 @@ void ssp_prior_build(struct ssp_prior *pr, const struct scene *scene, const stru
                      const struct ssp_params *p, const struct camera *cam, uint64_t seed, uint32_t frame,
                      struct ssp_prior_counters *c, struct ray_counters *rc);
 
-/* The estimate at x1 (as sms_estimate) for a path of pixel (px, py). */
+/* One sample at x1 (the sampling half of ssp_estimate, consuming the random stream exactly as
+ * it does; sms.h's struct sms_solution) with
+ *     W = trials / P(C(u*)) · C / p(x_n),   E[W | x̄*, x_n] = 1 / p(caster, x_n, x̄*)
+ * (eqs. 2 and 8 with the caster and light choices). */
+bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const struct ssp_params *p,
+                const struct ssp_prior *pr, uint32_t px, uint32_t py, const struct surface *s, const struct material *m,
+                struct vec3 wo, uint32_t max_chain, struct rng *rng, struct sms_solution *out, struct sms_counters *c,
+                struct ray_counters *rc);
+
+/* The estimate at x1 (as sms_estimate) for a path of pixel (px, py): value · W of ssp_sample. */
 struct vec3 ssp_estimate(const struct scene *scene, const struct sms_scene *ss, const struct ssp_params *p,
                          const struct ssp_prior *pr, uint32_t px, uint32_t py, const struct surface *s,
                          const struct material *m, struct vec3 wo, uint32_t max_chain, struct rng *rng,

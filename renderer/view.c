@@ -15,6 +15,7 @@ struct view_params view_params_defaults(enum render_method method, uint32_t widt
     p.restir_sss = restir_sss_defaults();
     p.ssp = ssp_defaults();
     p.restir_bdpt = restir_bdpt_defaults();
+    p.restir_sms = restir_sms_defaults();
     return p;
 }
 
@@ -27,6 +28,7 @@ bool view_method_parse(const char *name, enum render_method *out)
     if (strcmp(name, "restir_sss") == 0) { *out = RENDER_METHOD_RESTIR_SSS; return true; }
     if (strcmp(name, "sms_ssp") == 0) { *out = RENDER_METHOD_SMS_SSP; return true; }
     if (strcmp(name, "restir_bdpt") == 0) { *out = RENDER_METHOD_RESTIR_BDPT; return true; }
+    if (strcmp(name, "restir_sms") == 0) { *out = RENDER_METHOD_RESTIR_SMS; return true; }
     return false;
 }
 
@@ -40,6 +42,7 @@ const char *view_method_name(enum render_method method)
     case RENDER_METHOD_RESTIR_SSS: return "restir_sss";
     case RENDER_METHOD_SMS_SSP: return "sms_ssp";
     case RENDER_METHOD_RESTIR_BDPT: return "restir_bdpt";
+    case RENDER_METHOD_RESTIR_SMS: return "restir_sms";
     }
     return NULL;
 }
@@ -54,6 +57,7 @@ static void view_drop_history(struct view *v)
     restir_pt_reset(&v->restir);
     restir_sss_reset(&v->sss);
     restir_bdpt_reset(&v->rbdpt);
+    restir_sms_reset(&v->rsms);
     if (v->accum.pixels) memset(v->accum.pixels, 0, (size_t)v->accum.width * v->accum.height * sizeof *v->accum.pixels);
 }
 
@@ -87,6 +91,11 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         if (!restir_sss_params_valid(&params->restir_sss, err)) return false;
         if (!restir_sss_init(&v->sss, params->width, params->height, err)) return false;
     }
+    if (params->method == RENDER_METHOD_RESTIR_SMS) {
+        struct sms_scene ss;
+        if (!restir_sms_params_valid(&params->restir_sms, err) || !sms_scene_init(scene, &ss, err)) return false;
+        if (!restir_sms_init(&v->rsms, params->width, params->height, err)) return false;
+    }
     /* pt needs its frame and the accumulation buffer: no reservoirs, no G-buffer. */
     if (!image_init(&v->output, params->width, params->height, err) ||
         !image_init(&v->accum, params->width, params->height, err)) {
@@ -95,6 +104,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         bdpt_destroy(&v->bdpt);
         restir_bdpt_destroy(&v->rbdpt);
         restir_sss_destroy(&v->sss);
+        restir_sms_destroy(&v->rsms);
         ssp_prior_destroy(&v->prior);
         return false;
     }
@@ -106,6 +116,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         bdpt_destroy(&v->bdpt);
         restir_bdpt_destroy(&v->rbdpt);
         restir_sss_destroy(&v->sss);
+        restir_sms_destroy(&v->rsms);
         ssp_prior_destroy(&v->prior);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for a view");
     }
@@ -129,6 +140,7 @@ void view_destroy(struct view *v)
     bdpt_destroy(&v->bdpt);
     restir_bdpt_destroy(&v->rbdpt);
     restir_sss_destroy(&v->sss);
+    restir_sms_destroy(&v->rsms);
     ssp_prior_destroy(&v->prior);
     free(v->changes);
     memset(v, 0, sizeof *v);
@@ -247,6 +259,8 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
     struct bdpt_stats bstats;
     struct restir_bdpt_stats rbstats;
     struct ssp_prior_counters prior = {0};
+    struct restir_sms_stats ms;
+    memset(&ms, 0, sizeof ms);
     bool ok;
     if (v->params.method == RENDER_METHOD_RESTIR_PT) {
         /* The previous frame's scene and camera are the view's current ones until the commit
@@ -296,6 +310,27 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
             passes.nonfinite = ss.nonfinite;
             rs = view_frame_stats(v, out, ss.rays_intersect, ss.rays_occluded, ss.nonfinite,
                                   ss.gbuffer_ms + ss.initial_ms + ss.temporal_ms + ss.spatial_ms + ss.shade_ms);
+            if (progress) progress(progress_ctx, 1, 1);
+        }
+    } else if (v->params.method == RENDER_METHOD_RESTIR_SMS) {
+        struct restir_sms_frame f = {.scene = scene, .camera = &camera, .prev_scene = v->frame ? v->scene : NULL,
+                                     .prev_camera = &v->camera, .seed = v->params.seed, .frame = v->frame,
+                                     .threads = v->threads};
+        ok = restir_sms_render(&v->rsms, &v->params.restir_sms, &f, out, &ms, err);
+        if (ok) {
+            memset(&passes, 0, sizeof passes);
+            passes.gbuffer_ms = ms.gbuffer_ms, passes.temporal_ms = ms.temporal_ms;
+            /* The prior pass counts as part of the initial pass (it only serves the candidates). */
+            passes.initial_ms = ms.prior_ms + ms.initial_ms;
+            passes.spatial_ms = ms.spatial_ms, passes.shade_ms = ms.shade_ms;
+            passes.rays_intersect = ms.rays_intersect, passes.rays_occluded = ms.rays_occluded;
+            passes.shifts = ms.shifts, passes.shift_failures = ms.shift_failures, passes.rejected = ms.rejected;
+            passes.nonfinite = ms.nonfinite;
+            rs = view_frame_stats(v, out, ms.rays_intersect, ms.rays_occluded, ms.nonfinite,
+                                  ms.gbuffer_ms + ms.prior_ms + ms.initial_ms + ms.temporal_ms + ms.spatial_ms +
+                                      ms.shade_ms);
+            rs.sms = ms.sms;
+            prior = ms.prior;
             if (progress) progress(progress_ctx, 1, 1);
         }
     } else {
@@ -358,15 +393,20 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         stats->render = rs;
         stats->scene_update_ms = update_ms;
         stats->accumulated = v->accum_count;
-        stats->has_passes = v->params.method == RENDER_METHOD_RESTIR_PT || v->params.method == RENDER_METHOD_RESTIR_SSS;
+        stats->has_passes = v->params.method == RENDER_METHOD_RESTIR_PT || v->params.method == RENDER_METHOD_RESTIR_SSS ||
+                            v->params.method == RENDER_METHOD_RESTIR_SMS;
         if (stats->has_passes) stats->passes = passes;
         stats->has_bdpt = v->params.method == RENDER_METHOD_BDPT;
         if (stats->has_bdpt) stats->bdpt = bstats;
         stats->has_restir_bdpt = v->params.method == RENDER_METHOD_RESTIR_BDPT;
         if (stats->has_restir_bdpt) stats->restir_bdpt = rbstats;
-        stats->has_sms = v->params.method == RENDER_METHOD_SMS || v->params.method == RENDER_METHOD_SMS_SSP;
-        stats->has_prior = v->params.method == RENDER_METHOD_SMS_SSP;
+        stats->has_sms = v->params.method == RENDER_METHOD_SMS || v->params.method == RENDER_METHOD_SMS_SSP ||
+                         v->params.method == RENDER_METHOD_RESTIR_SMS;
+        stats->has_prior = v->params.method == RENDER_METHOD_SMS_SSP || v->params.method == RENDER_METHOD_RESTIR_SMS;
         stats->prior = prior;
+        stats->has_manifold_shift = v->params.method == RENDER_METHOD_RESTIR_SMS;
+        stats->shift_newton = ms.shift_newton;
+        stats->shift_not_invertible = ms.shift_not_invertible;
     }
     v->frame++;
     return true;
@@ -395,6 +435,7 @@ uint64_t view_bytes_planned(const struct view_params *params, uint32_t shape_cou
         bytes += restir_bdpt_bytes_planned(&params->restir_bdpt, params->width, params->height);
     if (params->method == RENDER_METHOD_RESTIR_SSS) bytes += restir_sss_bytes_planned(params->width, params->height);
     if (params->method == RENDER_METHOD_SMS_SSP) bytes += ssp_prior_bytes(params->width, params->height);
+    if (params->method == RENDER_METHOD_RESTIR_SMS) bytes += restir_sms_bytes_planned(params->width, params->height);
     return bytes;
 }
 
@@ -430,6 +471,12 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
         out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_sss_pair_bytes(&v->sss)};
     }
     if (v->params.method == RENDER_METHOD_SMS_SSP) out[n++] = (struct view_buffer_bytes){"prior", ssp_prior_bytes(v->output.width, v->output.height)};
+    if (v->params.method == RENDER_METHOD_RESTIR_SMS) {
+        out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sms_reservoir_bytes(&v->rsms)};
+        out[n++] = (struct view_buffer_bytes){"gbuffers", restir_sms_gbuffer_bytes(&v->rsms)};
+        out[n++] = (struct view_buffer_bytes){"receivers", restir_sms_receiver_bytes(&v->rsms)};
+        out[n++] = (struct view_buffer_bytes){"prior", ssp_prior_bytes(v->output.width, v->output.height)};
+    }
     size_t sum = 0;
     for (uint32_t i = 0; i < n; i++) sum += out[i].bytes;
     if (total) *total = sum;

@@ -19,11 +19,13 @@
 #include "reference_pt.h"
 #include "restir_bdpt.h"
 #include "restir_pt.h"
+#include "restir_sms.h"
 #include "restir_sss.h"
 #include "scene.h"
 
 enum render_method { RENDER_METHOD_PT, RENDER_METHOD_RESTIR_PT, RENDER_METHOD_BDPT, RENDER_METHOD_SMS,
-                     RENDER_METHOD_RESTIR_SSS, RENDER_METHOD_SMS_SSP, RENDER_METHOD_RESTIR_BDPT };
+                     RENDER_METHOD_RESTIR_SSS, RENDER_METHOD_SMS_SSP, RENDER_METHOD_RESTIR_BDPT,
+                     RENDER_METHOD_RESTIR_SMS };
 
 /* Parameters of `pt` (reference_pt.h documents them). */
 struct view_pt_params {
@@ -43,6 +45,7 @@ struct view_params {
     struct restir_sss_params restir_sss; /* method restir_sss (restir_sss.h) */
     struct ssp_params ssp;               /* method sms_ssp (sms_ssp.h; spp and depths from `pt`) */
     struct restir_bdpt_params restir_bdpt; /* method restir_bdpt (restir_bdpt.h) */
+    struct restir_sms_params restir_sms; /* method restir_sms (restir_sms.h) */
 };
 
 /* Defaults of every method's parameters (pt: 1 spp per frame, max_depth 64, rr_depth 3, NEE;
@@ -115,6 +118,8 @@ struct frame_stats {
     struct bdpt_stats bdpt;
     bool has_restir_bdpt;                 /* restir_bdpt: the numbers below are set */
     struct restir_bdpt_stats restir_bdpt;
+    bool has_manifold_shift;              /* restir_sms: its shifts' Newton steps and failed walks back */
+    uint64_t shift_newton, shift_not_invertible;
 };
 
 struct view {
@@ -134,6 +139,7 @@ struct view {
     struct restir_sss_state sss;          /* restir_sss only: G-buffers and reservoirs */
     struct ssp_prior prior;               /* sms_ssp only: the per-frame prior */
     struct restir_bdpt_state rbdpt;       /* restir_bdpt only: light-traced samples and reservoirs */
+    struct restir_sms_state rsms;         /* restir_sms only: G-buffers, reservoirs, prior */
     struct view_shape_change *changes;    /* the shape changes in force, one per changed shape */
     uint32_t change_count;
 };

@@ -65,6 +65,7 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
         const char *base = p->method == RENDER_METHOD_RESTIR_PT   ? (const char *)&p->restir_pt
                          : p->method == RENDER_METHOD_BDPT        ? (const char *)&p->bdpt
                          : p->method == RENDER_METHOD_RESTIR_BDPT ? (const char *)&p->restir_bdpt
+                         : p->method == RENDER_METHOD_RESTIR_SMS  ? (const char *)&p->restir_sms
                                                                   : (const char *)&p->restir_sss;
         api_write_fields(w, fields, nf, base);
         if (p->method == RENDER_METHOD_BDPT) {
@@ -74,6 +75,8 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
             jsonw_key(w, "heuristic"); jsonw_string(w, bdpt_heuristic_name(p->restir_bdpt.heuristic));
         } else if (p->method == RENDER_METHOD_RESTIR_SSS) {
             jsonw_key(w, "shift"); jsonw_string(w, restir_sss_shift_name(p->restir_sss.shift));
+        } else if (p->method == RENDER_METHOD_RESTIR_SMS) {
+            jsonw_key(w, "sampler"); jsonw_string(w, restir_sms_sampler_name(p->restir_sms.sampler));
         }
     } else if (p->method == RENDER_METHOD_SMS || p->method == RENDER_METHOD_SMS_SSP) {
         const struct sms_params *sp = p->method == RENDER_METHOD_SMS ? &p->sms : &p->ssp.sms;
@@ -198,6 +201,7 @@ static void api_write_session(struct jsonw *w, struct session *s)
     jsonw_uint(w, p->method == RENDER_METHOD_RESTIR_PT    ? RESTIR_PT_RESERVOIR_BYTES
                   : p->method == RENDER_METHOD_RESTIR_SSS ? RESTIR_SSS_RESERVOIR_BYTES
                   : p->method == RENDER_METHOD_RESTIR_BDPT ? RESTIR_BDPT_RESERVOIR_BYTES
+                  : p->method == RENDER_METHOD_RESTIR_SMS ? RESTIR_SMS_RESERVOIR_BYTES
                                                           : 0);
     jsonw_key(w, "buffers");
     jsonw_object_begin(w);
@@ -430,6 +434,18 @@ static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
         jsonw_key(w, "newton"); jsonw_uint(w, pc->newton);
         jsonw_key(w, "dropped_pairs"); jsonw_uint(w, pc->dropped_pairs);
         jsonw_key(w, "ms"); jsonw_double(w, pc->ms);
+        jsonw_object_end(w);
+    }
+    if (f->stats->has_manifold_shift) {
+        /* restir_sms: the resampling column of seed 002 Table 1 beside the passes. */
+        uint64_t shifts = f->stats->passes.shifts;
+        jsonw_key(w, "manifold_shift");
+        jsonw_object_begin(w);
+        jsonw_key(w, "newton"); jsonw_uint(w, f->stats->shift_newton);
+        jsonw_key(w, "newtons_per_shift"); jsonw_double(w, shifts ? (double)f->stats->shift_newton / (double)shifts : 0.0);
+        jsonw_key(w, "not_invertible"); jsonw_uint(w, f->stats->shift_not_invertible);
+        jsonw_key(w, "success_rate");
+        jsonw_double(w, shifts ? 1.0 - (double)f->stats->passes.shift_failures / (double)shifts : 0.0);
         jsonw_object_end(w);
     }
     if (f->stats->has_sms) {

@@ -20,7 +20,8 @@
 
 #define CLI_USAGE                                                                                  \
     "usage:\n"                                                                                     \
-    "  restir render SCENE.json|SCENE_FOLDER [--method pt|restir_pt|bdpt|restir_bdpt|sms|sms_ssp|restir_sss] [--spp N] [--size WxH]\n" \
+    "  restir render SCENE.json|SCENE_FOLDER [--method pt|restir_pt|bdpt|restir_bdpt|sms|sms_ssp|restir_sss|restir_sms]\n" \
+    "                [--spp N] [--size WxH]\n" \
     "                [--seed S] [--frame F]\n" \
     "                [--threads T] [--max-depth D] [--rr-depth R] [--no-nee] [--crop X0,Y0,X1,Y1]\n"    \
     "                [--frames F] [--average-last N] [--animation FILE.json] [--params JSON]\n"       \
@@ -33,7 +34,7 @@
     "sessions) and writes the last; --animation FILE.json takes camera and light keys from a file\n" \
     "holding the body of a daemon animation job ({\"animation\": {...}}, protocol/API.md) and\n"   \
     "its frame count unless --frames is given.\n"                                                  \
-    "--method restir_pt (or restir_sss) renders a session of --frames frames (default 1) with temporal and spatial\n" \
+    "--method restir_pt (or restir_sss, restir_sms) renders a session of --frames frames (default 1) with temporal and spatial\n" \
     "reuse; --params sets the method's parameters as the daemon's session \"params\" object\n"    \
     "(protocol/API.md; keys it leaves out take their defaults, not the other options' values),\n" \
     "e.g. --params '{\"spatial_neighbors\": 0}'. --average-last N writes the mean of the last N\n"  \
@@ -115,6 +116,7 @@ static bool cli_method_params(const char *params_json, struct view_params *vp, s
     vp->sms = parsed.sms;
     vp->restir_sss = parsed.restir_sss;
     vp->ssp = parsed.ssp;
+    vp->restir_sms = parsed.restir_sms;
     return true;
 }
 
@@ -279,7 +281,8 @@ static int cli_render(int argc, char **argv)
     if (!out_path) return cli_usage_error("%s", "render needs -o OUT.exr");
     enum render_method rm;
     if (!view_method_parse(method, &rm))
-        return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt, bdpt, restir_bdpt, sms, sms_ssp, restir_sss)",
+        return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt, bdpt, restir_bdpt, sms, sms_ssp, "
+                               "restir_sss, restir_sms)",
                                method);
     if (rm != RENDER_METHOD_PT && (has_crop || has_frame))
         return cli_usage_error("%s", "--crop and --frame are options of --method pt");
@@ -333,6 +336,8 @@ static int cli_render(int argc, char **argv)
         vp.restir_bdpt.rr_depth = p.rr_depth;
         vp.restir_sss.max_depth = p.max_depth;
         vp.restir_sss.rr_depth = p.rr_depth;
+        vp.restir_sms.max_depth = p.max_depth;
+        vp.restir_sms.rr_depth = p.rr_depth;
         if (params_json && !cli_method_params(params_json, &vp, &err)) {
             fprintf(stderr, "restir: --params: %s\n", err_format(&err, msg, sizeof msg));
             scene_release(scene);
@@ -374,7 +379,9 @@ static int cli_render(int argc, char **argv)
                    "\"reservoir_bytes_per_pixel\":%u",
                    ps->gbuffer_ms, ps->initial_ms, ps->temporal_ms, ps->spatial_ms, ps->shade_ms, ps->shifts,
                    ps->shift_failures, session_bytes,
-                   rm == RENDER_METHOD_RESTIR_SSS ? RESTIR_SSS_RESERVOIR_BYTES : RESTIR_PT_RESERVOIR_BYTES);
+                   rm == RENDER_METHOD_RESTIR_SSS   ? RESTIR_SSS_RESERVOIR_BYTES
+                   : rm == RENDER_METHOD_RESTIR_SMS ? RESTIR_SMS_RESERVOIR_BYTES
+                                                    : RESTIR_PT_RESERVOIR_BYTES);
         }
         if (last.has_bdpt) {
             const struct bdpt_stats *bs = &last.bdpt;
@@ -403,7 +410,12 @@ static int cli_render(int argc, char **argv)
                    ",\"dropped_pairs\":%" PRIu64 ",\"ms\":%.3f}",
                    pc->samples, pc->solutions, pc->newton, pc->dropped_pairs, pc->ms);
         }
-        if (rm == RENDER_METHOD_SMS || rm == RENDER_METHOD_SMS_SSP) {
+        if (last.has_manifold_shift) {
+            /* restir_sms: the last frame's shifts (Newton steps of both walks, failed walks back). */
+            printf(",\"manifold_shift\":{\"newton\":%" PRIu64 ",\"not_invertible\":%" PRIu64 "}", last.shift_newton,
+                   last.shift_not_invertible);
+        }
+        if (rm == RENDER_METHOD_SMS || rm == RENDER_METHOD_SMS_SSP || rm == RENDER_METHOD_RESTIR_SMS) {
             /* Seed 002 Table 1 (manifold sampling) over all frames rendered. */
             const struct sms_counters *c = &st.sms;
             printf(",\"sms\":{\"samples\":%" PRIu64 ",\"solutions\":%" PRIu64 ",\"newton_sample\":%" PRIu64

@@ -1397,10 +1397,39 @@ def test_restir_sss_session(daemon):
         assert_problem(r, 422, "invalid-field", field)
 
 
+def test_restir_sms_session(daemon):
+    """A restir_sms session on refractive-slab: its parameters with defaults, exactly its own
+    buffers (two 64-byte reservoir buffers, two G-buffers, two receiver buffers, the prior), frames with per-pass times,
+    the manifold shifts' counters and seed 002 Table 1's; bad values are refused naming the field."""
+    s = new_session(daemon, scene="refractive-slab", method="restir_sms", width=24, height=24, seed=2,
+                    params={"bernoulli_cap": 0})
+    p = s["params"]
+    assert p["shift_iterations"] == 5 and p["spatial_neighbors"] == 1 and p["spatial_radius"] == 30
+    assert p["temporal_cap"] == 20 and p["bernoulli_cap"] == 0 and p["tiles"] == 16 and p["sampler"] == "ssp"
+    assert s["reservoir_bytes_per_pixel"] == 64
+    assert s["reservoir_bytes"] == 2 * 64 * 24 * 24 == s["buffers"]["reservoirs"]
+    assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "receivers",
+                                 "prior"}
+    post_frame(daemon, s, accept="application/json")
+    st = post_frame(daemon, s, accept="application/json").json()
+    assert st["passes"]["shifts"] > 0 and st["nonfinite"] == 0
+    assert st["manifold_shift"]["newton"] > 0 and 0 < st["manifold_shift"]["success_rate"] <= 1
+    assert st["sms"]["solutions"] > 0 and st["prior"]["samples"] > 0
+    img = frame_rgb(daemon, s)
+    assert img.shape == (24, 24, 3) and np.isfinite(img).all() and img.mean() > 0.01
+    assert daemon.req("DELETE", s["href"]).status == 204
+    for params, field in [({"shift_iterations": 0}, "/params/shift_iterations"), ({"tiles": 2}, "/params/tiles"),
+                          ({"spatial_radius": 0}, "/params/spatial_radius"), ({"spp": 2}, "/params/spp"),
+                          ({"sampler": "bdpt"}, "/params/sampler")]:
+        r = daemon.req("POST", "/v1/scenes/refractive-slab/sessions",
+                       json_body={"method": "restir_sms", "width": 8, "height": 8, "params": params})
+        assert_problem(r, 422, "invalid-field", field)
+
+
 @pytest.mark.parametrize("method,schema", [("pt", "PtParams"), ("restir_pt", "RestirPtParams"), ("bdpt", "BdptParams"),
                                            ("restir_bdpt", "RestirBdptParams"),
                                            ("sms", "SmsParams"), ("sms_ssp", "SmsSspParams"),
-                                           ("restir_sss", "RestirSssParams")])
+                                           ("restir_sss", "RestirSssParams"), ("restir_sms", "RestirSmsParams")])
 def test_session_echoes_every_method_param(daemon, method, schema):
     """A session object names every param its method takes (the ones openapi.yaml documents),
     and sending them back creates a session with the same params: no param is accepted and then

@@ -83,4 +83,17 @@ export const METHODS = {
       { name: 'temporal_cap', kind: 'number', value: 20, help: 'previous confidence cap, x current' },
     ],
   },
+  restir_sms: {
+    label: 'restir_sms: ReSTIR over specular manifold samples (caustics)',
+    params: [
+      { name: 'sampler', kind: 'text', value: 'ssp', help: 'candidates: ssp (partitioning + prior) or sms' },
+      { name: 'shift_iterations', kind: 'number', value: 5, help: 'Newton steps per manifold shift walk' },
+      { name: 'spatial_neighbors', kind: 'number', value: 1, help: 'spatial neighbours (0: none)' },
+      { name: 'spatial_radius', kind: 'number', value: 30, help: 'spatial radius, pixels' },
+      { name: 'temporal', kind: 'boolean', value: true, help: 'temporal reuse' },
+      { name: 'temporal_cap', kind: 'number', value: 20, help: 'previous confidence cap, x current' },
+      { name: 'bernoulli_cap', kind: 'number', value: 128, help: 'Bernoulli trials per solution (0: uncapped)' },
+      { name: 'caustics_only', kind: 'boolean', value: false, help: 'only the caustics SMS owns' },
+    ],
+  },
 };

@@ -1,0 +1,236 @@
+/* test_restir_sms.c — the manifold shift of restir_sms as round trips (design TESTING.md tier 3,
+ * METHODS.md §0): for samples drawn by the initial pass (the sms_ssp sampler) on
+ * refractive-slab (a two-interface chain through a glass slab) and reflective-plane (one
+ * reflection), a shift to a pixel a few pixels away (and to the previous frame's pixel with the
+ * camera moved) that succeeds is undone by the shift back: the same chain vertices (within 1e-4
+ * of |x1 − x2|), the same light point, the same contribution, and Jacobians whose product is 1
+ * within 1e-4. A shift to the sample's own pixel reproduces the stored chain and contribution.
+ * Far shifts (beyond what 5 Newton steps reach) must fail rather than land on another chain.
+ * Parameters are checked with their expected pointers; the session's bytes planned == allocated. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "restir_sms.h"
+#include "scene.h"
+#include "test.h"
+#include "view.h"
+
+static struct scene *load(const char *path)
+{
+    struct err err = {0};
+    struct scene *s = scene_load_file(path, &err);
+    CHECK_MSG(s != NULL, "%s: %s", path, err.message);
+    if (s && !scene_commit(s, &err)) {
+        CHECK_MSG(false, "%s", err.message);
+        scene_release(s);
+        return NULL;
+    }
+    return s;
+}
+
+struct tally {
+    int tried, forward_ok, round_trips, failures, nontrivial_j;
+    double worst_j, worst_pos;
+};
+
+static bool close_rel(struct vec3 a, struct vec3 b, double tol)
+{
+    double scale = fmax(fmax(fabs(a.x), fabs(a.y)), fabs(a.z));
+    return fabs(a.x - b.x) <= tol * scale && fabs(a.y - b.y) <= tol * scale && fabs(a.z - b.z) <= tol * scale;
+}
+
+/* The largest distance between corresponding chain vertices and light points of a and b,
+ * relative to the first segment's length of a. */
+static double chain_gap(const struct restir_sms_info *a, const struct restir_sms_info *b, struct vec3 x1)
+{
+    if (a->length != b->length || a->caster != b->caster || a->light_shape != b->light_shape) return INFINITY;
+    double d = vec3_length(vec3_sub(a->light_p, b->light_p));
+    for (uint32_t i = 0; i < a->length; i++) d = fmax(d, vec3_length(vec3_sub(a->chain[i], b->chain[i])));
+    return d / vec3_length(vec3_sub(a->chain[0], x1));
+}
+
+static void round_trip(const void *ctx, const uint8_t *elem, struct restir_domain from, struct restir_domain to,
+                       struct vec3 x1, struct tally *t)
+{
+    const struct restir_ops *ops = &restir_sms_ops;
+    _Alignas(16) uint8_t y[RESTIR_MAX_STRIDE], x2[RESTIR_MAX_STRIDE];
+    struct restir_counters c = {0};
+    float t1, j1, t2, j2;
+    t->tried++;
+    ops->shift(ctx, elem, from, to, y, &t1, &j1, &c);
+    if (!(t1 > 0.0f)) return;
+    t->forward_ok++;
+    ops->shift(ctx, y, to, from, x2, &t2, &j2, &c);
+    struct restir_sms_info a, b;
+    restir_sms_info(ctx, elem, &a);
+    restir_sms_info(ctx, x2, &b);
+    double gap = chain_gap(&a, &b, x1);
+    double jp = fabs((double)j1 * j2 - 1.0);
+    if (t2 > 0.0f && gap > t->worst_pos) t->worst_pos = gap;
+    if (t2 > 0.0f && jp > t->worst_j) t->worst_j = jp;
+    bool ok = t2 > 0.0f && gap <= 1e-4 && close_rel(a.F, b.F, 1e-3) && jp <= 1e-4;
+    if (!ok) {
+        if (t->failures++ < 5)
+            fprintf(stderr, "  round trip %u -> %u: back target %g, gap %g, F %g -> %g, J %g * %g\n", from.pixel, to.pixel,
+                    (double)t2, gap, (double)a.F.x, (double)b.F.x, (double)j1, (double)j2);
+        return;
+    }
+    t->round_trips++;
+    if (fabs((double)j1 - 1.0) > 1e-3) t->nontrivial_j++;
+}
+
+static void shift_case(const char *scene_path, bool temporal, int offset, bool expect_success, bool scale_light)
+{
+    struct scene *base = load(scene_path);
+    if (!base) return;
+    struct scene *sc = base;
+    if (scale_light) {
+        /* The current frame's warm light 1.3x wider about its centre (x = -0.3): the emitter's area
+         * element changes between the frames, so the light point's Jacobian is 1.3 / 1 / 1.3. */
+        int li = scene_find_shape(base, "warm_light");
+        CHECK(li >= 0);
+        struct scene_shape_override ov = {.shape = (uint32_t)li, .has_to_world = true,
+                                          .to_world = base->shapes[li].to_world};
+        ov.to_world.m[0][0] *= 1.3f;
+        ov.to_world.m[0][3] = ov.to_world.m[0][3] * 1.3f + 0.09f;
+        struct err derr = {0};
+        sc = scene_derive(base, &ov, 1, &derr);
+        CHECK_MSG(sc != NULL, "%s", derr.message);
+        if (!sc) {
+            scene_release(base);
+            return;
+        }
+    }
+    const uint32_t W = 48, H = 36;
+    struct restir_sms_params p = restir_sms_defaults();
+    struct restir_sms_state st;
+    struct err err = {0};
+    CHECK(restir_sms_init(&st, W, H, &err));
+    struct camera_desc cam0 = sc->camera, cam1 = cam0;
+    cam1.position.x += 0.03f;
+    cam1.look_at.x += 0.02f;
+    _Alignas(16) static uint8_t ctx[RESTIR_SMS_CTX_BYTES];
+    struct restir_sms_frame f = {.scene = base, .camera = &cam0, .seed = 7, .frame = 0, .threads = 2};
+    CHECK(restir_sms_initial_only(&st, &p, &f, ctx, &err));
+    if (temporal) {
+        f = (struct restir_sms_frame){.scene = sc, .camera = &cam1, .prev_scene = base, .prev_camera = &cam0, .seed = 7,
+                                      .frame = 1, .threads = 2};
+        CHECK(restir_sms_initial_only(&st, &p, &f, ctx, &err));
+    }
+    const struct restir_sms_receiver *recv = st.recv[st.cur];
+    int through_glass = 0;
+    struct tally t = {0};
+    int identity_ok = 0, identity_tried = 0;
+    const size_t stride = restir_sms_ops.stride;
+    for (uint32_t y = 0; y < H; y++) {
+        for (uint32_t x = 0; x < W; x++) {
+            uint32_t pixel = y * W + x;
+            const uint8_t *elem = st.res[0] + (size_t)pixel * stride;
+            if (!(((const struct restir_head *)elem)->W > 0.0f)) continue;
+            struct restir_domain from = {pixel, RESTIR_CURRENT};
+            struct surface s1;
+            surface_at(sc, recv[pixel].shape, recv[pixel].prim, recv[pixel].b1, recv[pixel].b2, &s1);
+            if (recv[pixel].depth > 0) through_glass++;
+            /* Identity: the stored chain and contribution come back. */
+            _Alignas(16) uint8_t same[RESTIR_MAX_STRIDE];
+            float ts, js;
+            struct restir_counters c = {0};
+            restir_sms_ops.shift(ctx, elem, from, from, same, &ts, &js, &c);
+            struct restir_sms_info a, b;
+            restir_sms_info(ctx, elem, &a);
+            restir_sms_info(ctx, same, &b);
+            identity_tried++;
+            if (ts > 0.0f && chain_gap(&a, &b, s1.p) <= 1e-4 && close_rel(a.F, b.F, 1e-3) && fabsf(js - 1.0f) < 1e-4f)
+                identity_ok++;
+            if (temporal) {
+                round_trip(ctx, elem, from, (struct restir_domain){pixel, RESTIR_PREVIOUS}, s1.p, &t);
+            } else {
+                round_trip(ctx, elem, from, (struct restir_domain){y * W + (x + (uint32_t)offset) % W, RESTIR_CURRENT},
+                           s1.p, &t);
+                round_trip(ctx, elem, from, (struct restir_domain){((y + (uint32_t)offset) % H) * W + x, RESTIR_CURRENT},
+                           s1.p, &t);
+            }
+        }
+    }
+    printf("     %s%s offset %d: %d samples (%d at receivers behind delta vertices, identity %d), %d shifts tried, %d succeeded, %d round trips "
+           "(worst gap %.2g, worst |J J' - 1| %.2g, %d with J != 1), %llu Newton steps\n",
+           scene_path, temporal ? " temporal" : "", offset, identity_tried, through_glass, identity_ok, t.tried, t.forward_ok,
+           t.round_trips, t.worst_pos, t.worst_j, t.nontrivial_j, (unsigned long long)restir_sms_shift_newton(ctx));
+    CHECK(identity_tried > 30);
+    CHECK(identity_ok >= identity_tried * 98 / 100);
+    if (expect_success) CHECK(t.forward_ok > t.tried / 4);
+    /* Every shift that succeeds is undone by the shift back. */
+    CHECK_MSG(t.round_trips >= t.forward_ok * 99 / 100, "%d of %d", t.round_trips, t.forward_ok);
+    if (scale_light) CHECK(t.nontrivial_j > 10);
+    else CHECK(t.nontrivial_j == 0);
+    restir_sms_destroy(&st);
+    if (sc != base) scene_release(sc);
+    scene_release(base);
+}
+
+static void test_slab_round_trips(void)
+{
+    shift_case("scenes/refractive-slab/scene.json", false, 1, true, false);
+    shift_case("scenes/refractive-slab/scene.json", false, 3, true, false);
+}
+static void test_plane_round_trips(void) { shift_case("scenes/reflective-plane/scene.json", false, 2, true, false); }
+static void test_temporal_round_trips(void)
+{
+    shift_case("scenes/refractive-slab/scene.json", true, 0, true, false);
+    shift_case("scenes/reflective-plane/scene.json", true, 0, true, false);
+}
+/* Temporal with the light scaled between the frames: non-trivial Jacobians that still multiply
+ * to 1 over a round trip. */
+static void test_scaled_light_jacobians(void) { shift_case("scenes/refractive-slab/scene.json", true, 0, true, true); }
+/* 17 pixels apart many walks need more than 5 Newton steps or land on another solution: those
+ * shifts must fail, never return a chain that does not walk back. */
+static void test_far_shifts_fail_cleanly(void)
+{
+    shift_case("scenes/refractive-slab/scene.json", false, 17, false, false);
+}
+
+static void test_params(void)
+{
+    struct restir_sms_params p = restir_sms_defaults();
+    struct err err = {0};
+    CHECK(restir_sms_params_valid(&p, &err));
+    CHECK(p.shift_iterations == 5 && p.spatial_neighbors == 1 && p.spatial_radius == 30.0f && p.temporal_cap == 20 &&
+          p.temporal && p.ssp.tiles == 16 && p.ssp.alpha == 0.8f);
+    p.shift_iterations = 0;
+    CHECK(!restir_sms_params_valid(&p, &err) && strcmp(err.where, "/params/shift_iterations") == 0);
+    p = restir_sms_defaults();
+    p.ssp.tiles = 2;
+    CHECK(!restir_sms_params_valid(&p, &err) && strcmp(err.where, "/params/tiles") == 0);
+    p = restir_sms_defaults();
+    p.spatial_radius = 0.0f;
+    CHECK(!restir_sms_params_valid(&p, &err) && strcmp(err.where, "/params/spatial_radius") == 0);
+}
+
+static void test_session_bytes_planned_match_allocated(void)
+{
+    struct scene *sc = load("scenes/refractive-slab/scene.json");
+    if (!sc) return;
+    struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_SMS, 37, 23);
+    struct view v;
+    struct err err = {0};
+    CHECK(view_init(&v, sc, &vp, 1, &err));
+    struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
+    size_t total = 0;
+    uint32_t n = view_bytes(&v, b, &total);
+    CHECK(total == view_bytes_planned(&vp, sc->shape_count));
+    bool has_res = false;
+    for (uint32_t i = 0; i < n; i++)
+        if (strcmp(b[i].name, "reservoirs") == 0) has_res = b[i].bytes == 2u * 37 * 23 * RESTIR_SMS_RESERVOIR_BYTES;
+    CHECK(has_res);
+    struct frame_stats fs;
+    CHECK(view_render(&v, NULL, &fs, NULL, NULL, &err));
+    CHECK(view_render(&v, NULL, &fs, NULL, NULL, &err));
+    CHECK(fs.has_passes && fs.has_manifold_shift && fs.passes.shifts > 0 && fs.render.sms.samples > 0);
+    view_destroy(&v);
+    scene_release(sc);
+}
+
+TEST_MAIN(TEST(test_slab_round_trips), TEST(test_plane_round_trips), TEST(test_temporal_round_trips), TEST(test_scaled_light_jacobians),
+          TEST(test_far_shifts_fail_cleanly), TEST(test_params),
+          TEST(test_session_bytes_planned_match_allocated))
