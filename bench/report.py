@@ -71,14 +71,16 @@ METHODS = {
     "sms_ssp": {"kind": "spp", "params": {}, "ladder": [1, 4] if QUICK else [1, 2, 4, 8, 16]},
     "restir_sss": {"kind": "frames", "params": {}, "warmup": 8 if QUICK else 32,
                    "ladder": [1, 4] if QUICK else [1, 2, 4, 8, 16]},
+    "restir_sms": {"kind": "frames", "params": {}, "warmup": 8 if QUICK else 32,
+                   "ladder": [1, 4] if QUICK else [1, 2, 4, 8, 16]},
 }
 ALL_SCENES = {"cornell-box": ["pt", "restir_pt", "bdpt", "restir_bdpt"],
               "cornell-glossy": ["pt", "restir_pt", "bdpt", "restir_bdpt"],
               "door-ajar": ["pt", "restir_pt", "bdpt", "restir_bdpt"],
               "lamp-in-glass": ["pt", "restir_pt", "bdpt", "restir_bdpt"],
-              "caustic-sphere": ["pt", "restir_pt", "bdpt", "restir_bdpt", "sms", "sms_ssp"],
-              "refractive-slab": ["pt", "restir_pt", "sms", "sms_ssp"],
-              "reflective-plane": ["pt", "restir_pt", "sms", "sms_ssp"], "translucent": ["pt", "restir_sss"]}
+              "caustic-sphere": ["pt", "restir_pt", "bdpt", "restir_bdpt", "sms", "sms_ssp", "restir_sms"],
+              "refractive-slab": ["pt", "restir_pt", "sms", "sms_ssp", "restir_sms"],
+              "reflective-plane": ["pt", "restir_pt", "sms", "sms_ssp", "restir_sms"], "translucent": ["pt", "restir_sss"]}
 SCENES = {s: ALL_SCENES[s] for s in os.environ.get("REPORT_SCENES", ",".join(ALL_SCENES)).split(",")}
 # Scenes whose light pt practically never finds are referenced by the method that finds it:
 # bdpt (mean of independent frames) through glass and for point-like caustics, sms (spp, no
