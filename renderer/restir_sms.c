@@ -487,15 +487,6 @@ static void sms_shade_rows(void *ctx, uint32_t job, unsigned worker)
     }
 }
 
-static double sms_ms_since(struct timespec *t0)
-{
-    struct timespec t1;
-    clock_gettime(CLOCK_MONOTONIC, &t1);
-    double ms = (double)(t1.tv_sec - t0->tv_sec) * 1e3 + (double)(t1.tv_nsec - t0->tv_nsec) * 1e-6;
-    *t0 = t1;
-    return ms;
-}
-
 static bool sms_bind(struct restir_sms_state *st, const struct restir_sms_params *params,
                      const struct restir_sms_frame *f, struct sms_ctx *c, struct err *err)
 {
@@ -529,15 +520,12 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     if (!restir_sms_params_valid(params, err)) return false;
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
-    const bool history = st->has_history && f->prev_scene;
-    if (history) st->cur ^= 1u;
-    struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = history ? f->prev_scene : NULL,
+    struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,
                                .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame, .threads = threads};
     uint64_t grays = 0;
-    if (!gbuffer_render(&st->gbuf[st->cur], &gf, &grays, err)) return false;
-    stats->gbuffer_ms = sms_ms_since(&t0);
+    if (!restir_gbuffer_next(st->gbuf, &st->cur, &st->has_history, gf, &grays, err)) return false;
+    stats->gbuffer_ms = parallel_lap_ms(&t0);
     stats->rays_intersect += grays;
-    if (!history) st->has_history = false;
 
     if (!sms_bind(st, params, f, c, err)) return false;
     memset(pp, 0, sizeof *pp);
@@ -551,7 +539,7 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     if (ssp) ssp_prior_build(&st->prior, f->scene, &c->ss, &params->ssp, &pp->camera, f->seed, f->frame, &stats->prior, &prc);
     stats->rays_intersect += prc.intersect;
     stats->rays_occluded += prc.occluded;
-    stats->prior_ms = sms_ms_since(&t0);
+    stats->prior_ms = parallel_lap_ms(&t0);
     pp->pt = reference_pt_defaults(st->width, st->height);
     pp->pt.max_depth = params->max_depth;
     pp->pt.rr_depth = params->rr_depth;
@@ -569,14 +557,13 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
         stats->sms.newton_trials += s->newton_trials, stats->sms.capped += s->capped;
         stats->sms.sample_ms += s->sample_ms;
     }
-    stats->initial_ms = sms_ms_since(&t0);
+    stats->initial_ms = parallel_lap_ms(&t0);
     return true;
 }
 
 static unsigned sms_threads(const struct restir_sms_frame *f)
 {
-    unsigned threads = f->threads ? f->threads : parallel_default_threads();
-    return threads > RESTIR_MAX_WORKERS ? RESTIR_MAX_WORKERS : threads;
+    return parallel_threads(f->threads, RESTIR_MAX_WORKERS);
 }
 
 bool restir_sms_initial_only(struct restir_sms_state *st, const struct restir_sms_params *params,
@@ -619,7 +606,7 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
                              .radius = params->spatial_radius};
     struct restir_counters rc = {0};
     if (!restir_temporal_pass(&r, st->res[0], &rc, err)) return false;
-    stats->temporal_ms = sms_ms_since(&t0);
+    stats->temporal_ms = parallel_lap_ms(&t0);
     if (params->spatial_neighbors > 0) {
         if (!restir_spatial_pass(&r, st->res[0], st->res[1], &rc, err)) return false;
     } else {
@@ -627,7 +614,7 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
         st->res[0] = st->res[1];
         st->res[1] = tmp;
     }
-    stats->spatial_ms = sms_ms_since(&t0);
+    stats->spatial_ms = parallel_lap_ms(&t0);
     stats->rays_intersect += rc.rays.intersect;
     stats->rays_occluded += rc.rays.occluded;
     stats->shifts += rc.shifts;
@@ -639,7 +626,7 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
     memset(pp.nonfinite, 0, sizeof pp.nonfinite);
     if (!sms_run(&pp, threads, sms_shade_rows, err)) return false;
     for (unsigned i = 0; i < threads; i++) stats->nonfinite += pp.nonfinite[i];
-    stats->shade_ms = sms_ms_since(&t0);
+    stats->shade_ms = parallel_lap_ms(&t0);
     st->has_history = true;
     return true;
 }
