@@ -190,6 +190,28 @@ float bdpt_emit_dir_pdf_w(const struct material *m, float cos)
     return m->two_sided_emission ? 0.5f * pdf : pdf;
 }
 
+bool bdpt_light_start(const struct scene *scene, const float u[6], struct bdpt_light_start *out)
+{
+    struct light_sample *ls = &out->ls;
+    if (!light_sampler_sample(scene->lights, u[0], u[1], u[2], ls) || ls->is_env) return false;
+    const struct material *lm = &scene->materials[scene->shapes[ls->shape].material];
+    out->n = ls->n;
+    if (lm->two_sided_emission && u[3] < 0.5f) out->n = vec3_neg(out->n);
+    struct vec3 local = sampling_cosine_hemisphere(u[4], u[5]);
+    if (!(local.z > 0.0f)) return false;
+    struct frame lf = frame_from_normal(out->n);
+    out->dir = vec3_normalize(frame_to_world(&lf, local));
+    out->cos_l = vec3_dot(out->dir, out->n);
+    if (!(out->cos_l > 0.0f)) return false;
+    struct vec3 Le = light_sampler_emitted(lm, vec3_dot(out->dir, ls->n));
+    if (vec3_is_zero(Le)) return false;
+    out->emission_pdf_w = ls->pdf_a * bdpt_emit_dir_pdf_w(lm, out->cos_l);
+    if (!(out->emission_pdf_w > 0.0f)) return false;
+    out->beta = vec3_scale(Le, out->cos_l / out->emission_pdf_w);
+    out->org = surface_offset_along(ls->p, out->n);
+    return true;
+}
+
 /* Offset origin on the side of ng that `dir` leaves through. */
 struct vec3 bdpt_origin(const struct surface *s, struct vec3 dir)
 {
@@ -268,27 +290,15 @@ static void bdpt_light_block(void *ctx, uint32_t block, unsigned worker)
 
     for (uint32_t i = first; i < last; i++) {
         struct rng rng = rng_make(c->seed, c->frame, BDPT_LIGHT_STREAM + i, 1);
-        float ul = rng_next_float(&rng), u1 = rng_next_float(&rng), u2 = rng_next_float(&rng);
-        float us = rng_next_float(&rng), ud1 = rng_next_float(&rng), ud2 = rng_next_float(&rng);
-        struct light_sample ls;
-        if (!light_sampler_sample(scene->lights, ul, u1, u2, &ls) || ls.is_env) continue;
-        const struct material *lm = &scene->materials[scene->shapes[ls.shape].material];
-        struct vec3 n = ls.n;
-        if (lm->two_sided_emission && us < 0.5f) n = vec3_neg(n);
-        struct vec3 local = sampling_cosine_hemisphere(ud1, ud2);
-        if (!(local.z > 0.0f)) continue;
-        struct frame lf = frame_from_normal(n);
-        struct vec3 dir = vec3_normalize(frame_to_world(&lf, local));
-        float cos_l = vec3_dot(dir, n);
-        if (!(cos_l > 0.0f)) continue;
-        struct vec3 Le = light_sampler_emitted(lm, vec3_dot(dir, ls.n));
-        if (vec3_is_zero(Le)) continue;
-        float emission_pdf_w = ls.pdf_a * bdpt_emit_dir_pdf_w(lm, cos_l);
-        if (!(emission_pdf_w > 0.0f)) continue;
-        struct vec3 beta = vec3_scale(Le, cos_l / emission_pdf_w);
+        float u[6];
+        for (int k = 0; k < 6; k++) u[k] = rng_next_float(&rng);
+        struct bdpt_light_start start;
+        if (!bdpt_light_start(scene, u, &start)) continue;
+        const struct light_sample ls = start.ls;
+        struct vec3 dir = start.dir, beta = start.beta;
         struct vec3 rr_beta = vec3_splat(1.0f);   /* beta relative to its start, for Russian roulette */
-        struct bdpt_mis mis = bdpt_mis_light_start(ls.pdf_a, emission_pdf_w, cos_l, c->power);
-        struct vec3 org = surface_offset_along(ls.p, n), prev_p = ls.p;
+        struct bdpt_mis mis = bdpt_mis_light_start(ls.pdf_a, start.emission_pdf_w, start.cos_l, c->power);
+        struct vec3 org = start.org, prev_p = ls.p;
 
         for (uint32_t depth = 1; depth <= p->max_depth; depth++) {
             struct hit hit;

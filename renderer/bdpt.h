@@ -26,6 +26,7 @@
 #include "camera.h"
 #include "err.h"
 #include "image.h"
+#include "light_sampler.h"
 #include "scene.h"
 
 enum bdpt_heuristic { BDPT_HEURISTIC_POWER, BDPT_HEURISTIC_BALANCE };
@@ -112,6 +113,18 @@ struct ray_counters;
 struct surface;
 /* Solid-angle pdf of an emitted direction at cosine `cos` with the emitting side's normal. */
 float bdpt_emit_dir_pdf_w(const struct material *m, float cos);
+/* The start of a light subpath: an emitter point by power (numbers ul, u1, u2), its side for a
+ * two-sided emitter (us), a cosine-distributed direction (ud1, ud2), the throughput Le cos / p
+ * and the pdfs MIS needs. False when the sample carries nothing (environment light, zero pdf or
+ * emission). */
+struct bdpt_light_start {
+    struct light_sample ls;
+    struct vec3 n;              /* the emitting side's normal */
+    struct vec3 dir, org;       /* the first direction and its ray origin */
+    struct vec3 beta;           /* Le cos / (pdf_a pdf_w) */
+    float cos_l, emission_pdf_w;
+};
+bool bdpt_light_start(const struct scene *scene, const float u[6], struct bdpt_light_start *out);
 /* Ray origin on the side of the geometric normal that `dir` leaves through. */
 struct vec3 bdpt_origin(const struct surface *s, struct vec3 dir);
 /* Whether nothing blocks the segment from a (normal na) to b (normal nb, NULL for the eye). */
