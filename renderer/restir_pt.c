@@ -89,7 +89,7 @@ static inline uint16_t pt_bits(uint32_t d, uint32_t k, bool nee, int lobe_prev, 
 struct restir_pt_params restir_pt_defaults(void)
 {
     return (struct restir_pt_params){
-        .max_depth = 64, .rr_depth = 3, .rr = true, .nee_candidates = 4, .unify_di = true,
+        .max_depth = 64, .rr_depth = 3, .rr = true, .nee_candidates = RESTIR_PT_NEE_BY_SCENE, .unify_di = true,
         .temporal = true, .temporal_cap = 20, .spatial_neighbors = 3, .spatial_radius = 20.0f, .spatial_rounds = 1,
         .paired_spatial = true,
         .expected_shading = true,
@@ -97,11 +97,24 @@ struct restir_pt_params restir_pt_defaults(void)
     };
 }
 
+/* RIS among light candidates (seed 001 §5) pays where choosing a light by its power alone is
+ * poor: several emitters at different distances and orientations from the shading point. With
+ * one emitter the candidates differ only in the cosines and distances over it; on cornell-box,
+ * cornell-glossy and door-ajar four candidates measured the same error as one at a fifth of the
+ * frame's cost (docs/benchmarks.md), so a single-emitter scene gets plain NEE. */
+uint32_t restir_pt_nee_by_scene(const struct scene *scene)
+{
+    uint32_t emitters = !vec3_is_zero(scene->env_radiance);
+    for (uint32_t i = 0; i < scene->shape_count && emitters < 2; i++)
+        emitters += material_is_emissive(&scene->materials[scene->shapes[i].material]);
+    return emitters >= 2 ? 4u : 1u;
+}
+
 bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err)
 {
     if (p->max_depth < 1 || p->max_depth > PT_MAX_LENGTH - 1)
         return err_set(err, ERR_INVALID, "/params/max_depth", "max_depth must be in 1..%u", PT_MAX_LENGTH - 1);
-    if (p->nee_candidates > 64)
+    if (p->nee_candidates > 64 && p->nee_candidates != RESTIR_PT_NEE_BY_SCENE)
         return err_set(err, ERR_INVALID, "/params/nee_candidates", "nee_candidates must be in 0..64");
     if (p->temporal_cap < 1 || p->temporal_cap > 1000)
         return err_set(err, ERR_INVALID, "/params/temporal_cap", "temporal_cap must be in 1..1000");
@@ -922,6 +935,7 @@ bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, uint3
                        "or restir_sss");
     st->width = width;
     st->height = height;
+    st->nee_by_scene = restir_pt_nee_by_scene(scene);
     st->shape_count = scene->shape_count;
     st->prim_first = malloc(((size_t)scene->shape_count + 1) * sizeof *st->prim_first);
     if (!st->prim_first) return err_set(err, ERR_NOMEM, NULL, "out of memory for a restir_pt session");
@@ -1071,7 +1085,7 @@ void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *p
     c->hits[RESTIR_PREVIOUS] = st->hits[st->cur ^ 1u];
     c->seed = f->seed;
     c->frame = f->frame;
-    c->nee_m = params->nee_candidates;
+    c->nee_m = params->nee_candidates == RESTIR_PT_NEE_BY_SCENE ? st->nee_by_scene : params->nee_candidates;
     struct vec3 ext = vec3_sub(f->scene->bounds_max, f->scene->bounds_min);
     float radius = 0.5f * vec3_length(ext);
     c->near_dist2 = (params->near_distance * radius) * (params->near_distance * radius);

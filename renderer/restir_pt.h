@@ -25,7 +25,8 @@ struct restir_pt_params {
     uint32_t max_depth;          /* as `pt`: scattering events before the path stops (64) */
     uint32_t rr_depth;           /* Russian roulette from this vertex on (3) */
     bool rr;                     /* Russian roulette on initial paths (decoupled from PSS) */
-    uint32_t nee_candidates;     /* RIS NEE candidates; 1 = plain NEE, 0 = no NEE (4) */
+    uint32_t nee_candidates;     /* RIS NEE candidates; 1 = plain NEE, 0 = no NEE
+                                    (RESTIR_PT_NEE_BY_SCENE: restir_pt_nee_by_scene) */
     bool unify_di;               /* direct light resampled with indirect (true) */
     bool temporal;               /* temporal reuse (true) */
     uint32_t temporal_cap;       /* previous M capped at this multiple of the current M (20) */
@@ -44,7 +45,13 @@ struct restir_pt_params {
     float roughness_min;         /* alpha_min of both tests (0.2) */
 };
 
+/* nee_candidates of the defaults: chosen from the session's scene at restir_pt_init. */
+#define RESTIR_PT_NEE_BY_SCENE UINT32_MAX
+
 struct restir_pt_params restir_pt_defaults(void);
+/* The RIS NEE candidates a scene gets by default: 4 with two or more emitters (emissive
+ * shapes; a lit environment counts as one), 1 (plain NEE) with a single one. */
+uint32_t restir_pt_nee_by_scene(const struct scene *scene);
 /* ERR_INVALID naming the parameter (where = "/params/<name>") when out of range. */
 bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err);
 
@@ -74,6 +81,8 @@ struct restir_pt_state {
     uint32_t *prim_first;      /* shape -> first scene-wide primitive id (shape_count + 1) */
     void *pair_scratch;        /* paired spatial reuse: restir_pair_scratch_bytes() */
     struct restir_pt_hit *hits[2]; /* each G-buffer's primary surfaces (with gbuf[i]) */
+    uint32_t nee_by_scene;     /* restir_pt_nee_by_scene of the scene at init: fixed for the session,
+                                  as the integrand's MIS weights must not change between frames */
 };
 
 /* Bytes of one reservoir (the payload included). */

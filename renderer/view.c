@@ -121,6 +121,8 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         return err_set(err, ERR_NOMEM, NULL, "out of memory for a view");
     }
     v->params = *params;
+    if (params->method == RENDER_METHOD_RESTIR_PT && params->restir_pt.nee_candidates == RESTIR_PT_NEE_BY_SCENE)
+        v->params.restir_pt.nee_candidates = v->restir.nee_by_scene;  /* the session reports what it uses */
     v->threads = threads;
     scene_retain(scene);
     scene_retain(scene);

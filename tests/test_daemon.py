@@ -1248,7 +1248,15 @@ def test_restir_pt_session(daemon):
     p = s["params"]
     assert p["spatial_neighbors"] == 4 and p["spatial_radius"] == 20 and p["temporal_cap"] == 20
     assert p["footprint"] is True and p["footprint_c"] == pytest.approx(0.02) and p["pdf_connect"] is True
-    assert p["nee_candidates"] == 4 and p["unify_di"] is True and p["rr"] is True and p["max_depth"] == 64
+    assert p["unify_di"] is True and p["rr"] is True and p["max_depth"] == 64
+    # RIS NEE candidates follow the scene: plain NEE under cornell-box's one light, 4 under
+    # refractive-slab's two; a value given is kept.
+    assert p["nee_candidates"] == 1
+    two = new_session(daemon, scene="refractive-slab", method="restir_pt", width=8, height=8)
+    given = new_session(daemon, method="restir_pt", width=8, height=8, params={"nee_candidates": 3})
+    assert two["params"]["nee_candidates"] == 4 and given["params"]["nee_candidates"] == 3
+    for x in (two, given):
+        assert daemon.req("DELETE", x["href"]).status == 204
     assert s["reservoir_bytes_per_pixel"] == 64
     assert s["reservoir_bytes"] == 2 * 64 * 32 * 24 == s["buffers"]["reservoirs"]
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "primitive_table",

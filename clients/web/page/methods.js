@@ -43,7 +43,7 @@ export const METHODS = {
       { name: 'paired_spatial', kind: 'boolean', value: true, help: 'paired neighbours (half the shifts)' },
       { name: 'temporal', kind: 'boolean', value: true, help: 'temporal reuse' },
       { name: 'temporal_cap', kind: 'number', value: 20, help: 'previous confidence cap, x current' },
-      { name: 'nee_candidates', kind: 'number', value: 4, help: 'RIS candidates of light sampling' },
+      { name: 'nee_candidates', kind: 'number', value: '', help: 'RIS candidates of light sampling (empty: 4 with several lights, 1 with one)' },
       { name: 'footprint', kind: 'boolean', value: true, help: 'dual ray-footprint reconnection threshold' },
       { name: 'pdf_connect', kind: 'boolean', value: true, help: 'PDF-based connectability' },
       { name: 'unify_di', kind: 'boolean', value: true, help: 'direct light in the reservoir' },
