@@ -55,7 +55,7 @@ ABLATION = [("Enhanced (defaults)", "{}"),
             ("no Russian roulette", '{"rr": false}'),
             ("unpaired spatial reuse", '{"paired_spatial": false}'),
             ("2 NEE candidates", '{"nee_candidates": 2}'),
-            ("plain NEE (1 candidate)", '{"nee_candidates": 1}'),
+            ("4 NEE candidates", '{"nee_candidates": 4}'),
             ("DI outside the reservoir", '{"unify_di": false}'),
             ("no temporal reuse", '{"temporal": false}'),
             ("no spatial reuse", '{"spatial_neighbors": 0}')]
@@ -142,7 +142,7 @@ def pt_mape_at(pt_rows, ms):
 
 
 COST_VARIANTS = [("defaults", "{}"), ("unpaired spatial reuse", '{"paired_spatial": false}'),
-                 ("1 NEE candidate", '{"nee_candidates": 1}')]
+                 ("4 NEE candidates", '{"nee_candidates": 4}')]
 
 
 def frame_cost():
