@@ -14,11 +14,13 @@ What it measures, per scene (SCENES) and method (METHODS):
     budgets (pt's time at 1, 4 and 16 spp), and by what factor over the next best; a method
     is compared only inside the time range it was measured over;
   * per-pass times of one frame (the reusing methods' passes) and memory per session;
-  * stability on cornell-box: flicker, correlation of consecutive frames, a camera teleport,
+  * stability on cornell-box: flicker, correlation of consecutive frames, fast camera motion, a
+    camera teleport,
     the light switched off and on (per-frame series through the daemon), non-finite pixels over
     100 frames of every scene, and restir_pt's known weak case (a light behind glass);
   * the papers' failure cases: bdpt's light tracing wasted on a light the camera cannot see
-    (seed 000 Fig. 10) and ReSTIR SSS's shifts on a shadow boundary (seed 004 Fig. 5);
+    (seed 000 Fig. 10), ReSTIR SSS's shifts on a shadow boundary (seed 004 Fig. 5) and the
+    sample-space prior missing a light (seed 002 Fig. 10);
   * the peer: Blender Cycles (Debian's `blender`, CPU, bench/crosscheck_cycles.py) on
     cornell-box at several spp, on the same error axes against the same reference, with and
     without its light sampling, and the radiometric agreement of its converged image with ours.
@@ -239,16 +241,22 @@ def glass_lamp_scene():
 def stability():
     import numpy as np
     from daemon import Daemon
+    from test_stability import SWEEP, SWEEP_FRAMES, swept_camera
     side = STAB_SIDE
     frames = 24 if QUICK else 40
     # The methods cornell-box is a scene for (sms and restir_sss would render it as pt does:
     # tests/test_stability.py checks them on refractive-slab and translucent).
     methods = [m for m in ("pt", "restir_pt", "bdpt", "restir_bdpt") if m in METHODS]
     d = Daemon(Path(tempfile.mkdtemp(dir=WORK)) / "data", "--threads", THREADS, "--frames-kept", "2")
-    out = {"side": side, "frames": frames, "series": {}, "correlation": {}, "nonfinite": {}}
+    out = {"side": side, "frames": frames, "series": {}, "correlation": {}, "nonfinite": {},
+           "sweep_fraction": SWEEP, "sweep_frames": SWEEP_FRAMES}
     try:
         ref_a = read_rgb(reference(CORNELL, side, REF_SPP))
         ref_b = read_rgb(reference(CORNELL, side, REF_SPP, TELEPORT_CAMERA))
+        # Fast camera motion (tests/test_stability.py): SWEEP_FRAMES frames sliding sideways,
+        # each against a reference from its own camera.
+        sweep_cams = [swept_camera("cornell-box", SWEEP * i / SWEEP_FRAMES) for i in range(1, SWEEP_FRAMES + 1)]
+        sweep_refs = [read_rgb(reference(CORNELL, side, REF_SPP, c)) for c in sweep_cams]
         lamp = glass_lamp_scene()
         r = d.req("PUT", "/v1/scenes/glass-lamp", body=lamp.read_bytes(), headers={"Content-Type": "application/json"})
         if r.status not in (200, 201):
@@ -264,6 +272,11 @@ def stability():
             s = Frames(d, "cornell-box", m, 2, side)
             tele = [np_mape(s.next(), ref_a) for _ in range(half)]
             tele += [np_mape(s.next({"camera": TELEPORT_CAMERA} if i == 0 else None), ref_b) for i in range(frames - half)]
+            s.close()
+            s = Frames(d, "cornell-box", m, 6, side)
+            sweep = [np_mape(s.next(), ref_a) for _ in range(half)]
+            sweep += [np_mape(s.next({"camera": c}), r) for c, r in zip(sweep_cams, sweep_refs)]
+            sweep += [np_mape(s.next(), sweep_refs[-1]) for _ in range(frames - half - SWEEP_FRAMES)]
             s.close()
             s = Frames(d, "cornell-box", m, 3, side)
             light, off_max = [], 0.0
@@ -290,7 +303,7 @@ def stability():
                 ind.append([s.next() for _ in range(9)][-1])
                 s.close()
             ratio = np_mape(np.mean(seq[8:], axis=0), ref_a) / np_mape(np.mean(ind, axis=0), ref_a)
-            out["series"][m] = {"flicker": flicker, "teleport": tele, "light": light, "light_off_max": off_max,
+            out["series"][m] = {"flicker": flicker, "teleport": tele, "sweep": sweep, "light": light, "light_off_max": off_max,
                                 "glass_lamp": glass}
             out["correlation"][m] = ratio
         for scene, ms in ALL_SCENES.items():
@@ -520,6 +533,9 @@ def write(results, stab, peer, fail, started, elapsed):
                       [(m, list(enumerate(v["flicker"], 1)), "line") for m, v in ser.items()], xlog=False, ylog=False)
         svgplot.chart(OUT / "teleport.svg", f"MAPE per frame; camera teleported at frame {n // 2}", "frame", "MAPE",
                       [(m, list(enumerate(v["teleport"])), "line") for m, v in ser.items()], xlog=False, ylog=True)
+        svgplot.chart(OUT / "sweep.svg", f"MAPE per frame; camera sliding sideways over frames {n // 2}–"
+                      f"{n // 2 + stab['sweep_frames'] - 1}", "frame", "MAPE",
+                      [(m, list(enumerate(v["sweep"])), "line") for m, v in ser.items()], xlog=False, ylog=True)
         svgplot.chart(OUT / "light.svg", f"MAPE per frame; light off at {n // 2 - 4}, on at {n // 2}", "frame", "MAPE",
                       [(m, [(i, e) for i, e in enumerate(v["light"]) if e is not None], "points") for m, v in ser.items()],
                       xlog=False, ylog=True)
@@ -528,7 +544,11 @@ def write(results, stab, peer, fail, started, elapsed):
         md += ["## Stability over frames", "",
                f"cornell-box at {stab['side']}×{stab['side']} through the daemon, {n} frames per run "
                "(`tests/test_stability.py` asserts the same properties at 32×32).", "",
-               "![flicker](flicker.svg)", "", "![teleport](teleport.svg)", "", "![light](light.svg)", "",
+               "![flicker](flicker.svg)", "", "![teleport](teleport.svg)", "",
+               f"Fast camera motion: the camera slides sideways by {100 * stab['sweep_fraction'] / stab['sweep_frames']:g} % "
+               f"of its viewing distance per frame for {stab['sweep_frames']} frames, each frame against a reference from its own camera; "
+               "parallax uncovers surfaces behind the boxes every frame.", "", "![fast camera motion](sweep.svg)", "",
+               "![light](light.svg)", "",
                "![glass lamp](glass_lamp.svg)", "",
                "| method | mean flicker | MAPE of the mean of 8 consecutive ÷ 8 independent frames | largest pixel while the light is off |",
                "|---|---|---|---|"]

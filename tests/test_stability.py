@@ -1,13 +1,14 @@
 """Stability of every method over frames (the failure modes of reuse that an unbiasedness test
-averages away): flicker on a still scene, correlation between consecutive frames, a camera
-teleport and a light switched off and on, no NaN or Inf over 100 frames, and ReSTIR PT's known
-weak case, a light behind glass that next-event estimation cannot reach.
+averages away): flicker on a still scene, correlation between consecutive frames, disocclusion
+under fast camera motion, a camera teleport and a light switched off and on, no NaN or Inf over
+100 frames, and ReSTIR PT's known weak case, a light behind glass that next-event estimation
+cannot reach.
 
 Images are 32x32 (16x16 for the 100-frame runs) against `pt` references rendered here. Each
 check compares a method with itself under another condition (a fresh session, independent
 sessions), so the bounds are ratios, and each ratio has a direction that a defect would push:
-stale history after a teleport or a light change makes the first frame worse than a fresh
-session's; history that stops changing makes consecutive frames as correlated as copies (the
+stale history after fast motion, a teleport or a light change makes the first frame worse than
+a fresh session's; history that stops changing makes consecutive frames as correlated as copies (the
 control test shows the correlation check failing on exact copies). The numbers each check saw
 are printed (`pytest -s`); `make bench-report` charts the same quantities at larger sizes."""
 import json
@@ -75,9 +76,27 @@ def daemon(tmp_path_factory):
     assert rc == 0, d.stderr()[-3000:]
 
 
+# Fast camera motion: the camera slides sideways by SWEEP of its viewing distance over
+# SWEEP_FRAMES frames, looking the same way, so that every frame parallax uncovers surfaces the
+# objects hid in the frame before (disocclusion).
+SWEEP, SWEEP_FRAMES = 0.4, 8
+
+
+def swept_camera(scene, frac):
+    """The scene's camera moved sideways (perpendicular to its view and its up) by `frac` of its
+    distance to the look-at point, its look-at point with it."""
+    cam = json.loads((ROOT / "scenes" / scene / "scene.json").read_text())["camera"]
+    pos, at = np.array(cam["position"], float), np.array(cam["look_at"], float)
+    fwd = at - pos
+    side = np.cross(fwd, np.array(cam.get("up", [0, 1, 0]), float))
+    off = side / np.linalg.norm(side) * frac * np.linalg.norm(fwd)
+    return {**cam, "position": (pos + off).tolist(), "look_at": (at + off).tolist()}
+
+
 class Refs:
-    """References at 32x32 of a home scene from its own camera ("start") and the teleport camera
-    (pt at 2048 spp, or the home's "ref" rendering), rendered once per module."""
+    """References at 32x32 of a home scene from its own camera ("start"), the teleport camera
+    and the end of the fast camera motion ("swept") (pt at 2048 spp, or the home's "ref"
+    rendering), rendered once per module."""
 
     def __init__(self, tmp):
         self.tmp, self.cache = tmp, {}
@@ -87,6 +106,8 @@ class Refs:
             sj = json.loads((ROOT / "scenes" / scene / "scene.json").read_text())
             if which == "teleport":
                 sj["camera"] = HOMES[scene]["teleport"]
+            elif which == "swept":
+                sj["camera"] = swept_camera(scene, SWEEP)
             # Mesh files are named relative to the scene file: they go beside the copy.
             folder = self.tmp / f"{scene}-{which}"
             folder.mkdir()
@@ -234,6 +255,24 @@ def test_camera_teleport(daemon, refs, tmp_path, method):
     after = s.frames(8, {"camera": home["teleport"]})
     s.close()
     _check_recovery(daemon, tmp_path, refs(HOME[method], "teleport"), method, home["teleport"], after, "teleport")
+
+
+@pytest.mark.parametrize("method", SEQUENCE)
+def test_fast_camera_motion(daemon, refs, tmp_path, method):
+    """Disocclusion under fast camera motion: after 12 still frames the camera slides sideways by
+    5 % of its viewing distance per frame for 8 frames, each frame uncovering surfaces the last
+    one did not see. Where it stops, the first frame is no worse than a fresh session's first frame
+    there (history is reprojected or rejected, not smeared over what it does not belong to) and
+    the 8th no worse than a fresh session's 8th."""
+    home = HOME[method]
+    s = Session(daemon, tmp_path, method, seed=61)
+    s.frames(12)
+    for i in range(1, SWEEP_FRAMES):
+        s.frame({"camera": swept_camera(home, SWEEP * i / SWEEP_FRAMES)})
+    end = swept_camera(home, SWEEP)
+    after = s.frames(8, {"camera": end})
+    s.close()
+    _check_recovery(daemon, tmp_path, refs(home, "swept"), method, end, after, "fast camera motion")
 
 
 @pytest.mark.parametrize("method", SEQUENCE)
