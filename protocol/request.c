@@ -745,7 +745,7 @@ static const struct protocol_field bdpt_fields[] = {
 static const struct protocol_field restir_bdpt_fields[] = {
     F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(light_paths, PROTOCOL_UINT),
     F(lt_capacity, PROTOCOL_UINT), F(caustic_temporal, PROTOCOL_BOOL), F(temporal_cap, PROTOCOL_UINT),
-    F(reuse, PROTOCOL_BOOL), F(spatial_neighbors, PROTOCOL_UINT), F(spatial_radius, PROTOCOL_FLOAT),
+    F(moving_cap, PROTOCOL_UINT), F(reuse, PROTOCOL_BOOL), F(spatial_neighbors, PROTOCOL_UINT), F(spatial_radius, PROTOCOL_FLOAT),
 };
 #undef F
 #define F(key, kind) REQUEST_FIELD(struct restir_sss_params, key, kind)
@@ -828,7 +828,7 @@ static bool request_restir_bdpt_params(const cJSON *pv, const char *ptr, struct 
                                        struct err *err)
 {
     static const char *const keys[] = {"variant", "max_depth", "rr_depth", "light_paths", "lt_capacity", "heuristic",
-                                       "caustic_temporal", "temporal_cap", "reuse", "spatial_neighbors",
+                                       "caustic_temporal", "temporal_cap", "moving_cap", "reuse", "spatial_neighbors",
                                        "spatial_radius", NULL};
     char p[REQUEST_PTR];
     const cJSON *v;

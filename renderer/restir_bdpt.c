@@ -112,7 +112,7 @@ struct restir_bdpt_params restir_bdpt_defaults(void)
 {
     return (struct restir_bdpt_params){.variant = RESTIR_BDPT_LIGHTWEIGHT, .max_depth = 64, .rr_depth = 3,
                                        .light_paths = 0, .lt_capacity = 8, .heuristic = BDPT_HEURISTIC_POWER,
-                                       .caustic_temporal = true, .temporal_cap = 20, .reuse = false,
+                                       .caustic_temporal = true, .temporal_cap = 20, .moving_cap = 4, .reuse = false,
                                        .spatial_neighbors = 2, .spatial_radius = 30.0f};
 }
 
@@ -135,6 +135,8 @@ bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *er
         return err_set(err, ERR_INVALID, "/params/heuristic", "heuristic must be \"power\" or \"balance\"");
     if (p->temporal_cap < 1 || p->temporal_cap > 65535)
         return err_set(err, ERR_INVALID, "/params/temporal_cap", "temporal_cap must be in 1..65535");
+    if (p->moving_cap < 1 || p->moving_cap > 65535)
+        return err_set(err, ERR_INVALID, "/params/moving_cap", "moving_cap must be in 1..65535");
     if (p->spatial_neighbors > 32)
         return err_set(err, ERR_INVALID, "/params/spatial_neighbors", "spatial_neighbors must be in 0..32");
     if (!(p->spatial_radius > 0.0f && p->spatial_radius <= 256.0f))
@@ -310,6 +312,7 @@ struct rbdpt_ctx {
     struct restir_bdpt_state *st;
     struct rbdpt_view view[2];   /* [0] current, [1] previous (valid when has_prev) */
     bool has_prev;
+    uint32_t caustic_cap;        /* temporal_cap, or moving_cap when the scene moved (rbdpt_scene_moved) */
     float n_light;
     uint64_t seed;
     uint32_t frame;
@@ -727,8 +730,28 @@ static uint16_t rbdpt_caustic_confidence(const struct rbdpt_ctx *c, struct vec3 
             if (v < pc->width * pc->height) M += c->st->caustic_prev[v].head.M;
         }
     }
-    if (M > c->p->temporal_cap) M = c->p->temporal_cap;
+    if (M > c->caustic_cap) M = c->caustic_cap;
     return (uint16_t)M;
+}
+
+/* Whether a shape's transform or any emission differs between two frames' scenes. Eq. 27 takes a
+ * caustic reservoir's confidence from the pixel the camera's motion maps it to, but caustics move
+ * with their lights and casters, not with the camera (seed 000 §9.1): in such a frame the
+ * reservoirs under the caustic hold history that no longer lies where they are, and with the cap
+ * of a still scene (20) a moving caustic's error grows over the frames. A lower cap there bounds
+ * that history. The test reads only the scenes, never the samples, so the weights stay a valid
+ * MIS whatever it decides. */
+static bool rbdpt_scene_moved(const struct scene *a, const struct scene *b)
+{
+    if (a == b) return false;
+    if (a->shape_count != b->shape_count || !vec3_equal(a->env_radiance, b->env_radiance)) return true;
+    for (uint32_t i = 0; i < a->shape_count; i++) {
+        const struct shape *sa = &a->shapes[i], *sb = &b->shapes[i];
+        if (memcmp(&sa->to_world, &sb->to_world, sizeof sa->to_world) != 0 ||
+            !vec3_equal(a->materials[sa->material].emission, b->materials[sb->material].emission))
+            return true;
+    }
+    return false;
 }
 
 static void rbdpt_camera_tile(void *ctx, uint32_t tile, unsigned worker)
@@ -882,6 +905,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     }
     c->has_prev = f->prev_scene && f->prev_camera && f->prev_scene->accel && f->prev_scene->lights;
     if (!c->has_prev) st->has_history = false;
+    c->caustic_cap = c->has_prev && rbdpt_scene_moved(f->prev_scene, f->scene) ? p->moving_cap : p->temporal_cap;
     c->n_light = (float)st->light_paths;
     c->seed = f->seed;
     c->frame = f->frame;

@@ -16,7 +16,8 @@
  * replayed with its light subpath's random numbers in the current frame and lands in the pixel
  * its x_1 projects to (a counting sort again), with the generalized balance heuristic of
  * eqs. 51–52 over {previous reservoir, current initial sample}; a reservoir's confidence is 1
- * plus that of the previous caustic reservoir its primary hit maps to (eq. 27), capped.
+ * plus that of the previous caustic reservoir its primary hit maps to (eq. 27), capped at
+ * temporal_cap, or at moving_cap in a frame whose shapes or lights moved (restir_bdpt.c).
  *
  * Non-caustic reuse (`reuse`, off by default): temporal reuse along a G-buffer's motion
  * vectors and spatial reuse through restir.c's passes, with a random-replay shift (Jacobian 1 in
@@ -64,6 +65,8 @@ struct restir_bdpt_params {
     bool caustic_temporal;     /* temporal reuse of the caustic reservoirs (true) */
     uint32_t temporal_cap;     /* caustic confidence capped at this absolute value, 1..65535 (20); with
                                   `reuse`, the non-caustic history's at this multiple of the current */
+    uint32_t moving_cap;       /* the caustic confidence cap instead in a frame whose shapes or lights
+                                  moved or changed since the previous frame, 1..65535 (4) */
     bool reuse;                /* temporal and spatial reuse of the non-caustic reservoir (false) */
     uint32_t spatial_neighbors; /* with reuse: neighbours per pixel, 0..32 (2) */
     float spatial_radius;      /* with reuse: pixels, (0, 256] (30) */

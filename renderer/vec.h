@@ -54,6 +54,10 @@ static inline bool vec3_is_zero(struct vec3 a)  /* all components +0 or -0 */
 {
     return ((vec_float_bits(a.x) | vec_float_bits(a.y) | vec_float_bits(a.z)) << 1) == 0;
 }
+static inline bool vec3_equal(struct vec3 a, struct vec3 b)
+{
+    return a.x == b.x && a.y == b.y && a.z == b.z;
+}
 static inline bool vec3_is_finite(struct vec3 a)
 {
     /* x - x is +0 for finite x and NaN for inf or NaN, so s is 0 or NaN. Relies on IEEE

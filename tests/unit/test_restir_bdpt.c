@@ -470,6 +470,58 @@ static void caustic_temporal_paired(bool moving)
 static void test_caustic_temporal_paired(void) { caustic_temporal_paired(false); }
 static void test_caustic_temporal_paired_moving(void) { caustic_temporal_paired(true); }
 
+/* The largest confidence of the frame just rendered (whose caustic reservoirs the frame's end
+ * swapped into caustic_prev, the next frame's history). */
+static uint32_t max_caustic_m(const struct restir_bdpt_state *st)
+{
+    uint32_t m = 0;
+    for (uint32_t i = 0; i < st->width * st->height; i++)
+        if (st->caustic_prev[i].head.M > m) m = st->caustic_prev[i].head.M;
+    return m;
+}
+
+/* The caustic confidence grows up to temporal_cap over still frames, is capped at moving_cap in
+ * a frame whose light moved, and grows again from there once the scene is still. */
+static void test_moving_cap(void)
+{
+    struct scene *base = load("scenes/caustic-sphere/scene.json");
+    if (!base) return;
+    struct err err = {0};
+    int light = scene_find_shape(base, "light");
+    CHECK(light >= 0);
+    struct scene_shape_override o = {.shape = (uint32_t)light, .has_to_world = true};
+    o.to_world = base->shapes[light].to_world;
+    o.to_world.m[0][3] += 0.03f;
+    struct scene *moved = scene_derive(base, &o, 1, &err);
+    CHECK_MSG(moved != NULL, "%s", err.message);
+    if (!moved) return;
+    struct restir_bdpt_params p = restir_bdpt_defaults();
+    p.temporal_cap = 7;
+    CHECK(p.moving_cap == 4);
+    struct image img;
+    CHECK(image_init(&img, 24, 20, &err));
+    struct restir_bdpt_state st;
+    CHECK(restir_bdpt_init(&st, base, &p, 24, 20, &err));
+    const struct scene *seq[12] = {base, base, base, base, base, base, base, base, base, moved, moved, moved};
+    uint32_t m[12];
+    for (uint32_t f = 0; f < 12; f++) {
+        struct restir_bdpt_frame fr = {.scene = seq[f], .camera = &base->camera, .prev_scene = f ? seq[f - 1] : NULL,
+                                       .prev_camera = f ? &base->camera : NULL, .seed = 9, .frame = f, .threads = 2};
+        CHECK_MSG(restir_bdpt_render(&st, &p, &fr, &img, NULL, &err), "%s", err.message);
+        m[f] = max_caustic_m(&st);
+    }
+    printf("    largest caustic confidence per frame:");
+    for (uint32_t f = 0; f < 12; f++) printf(" %u", m[f]);
+    printf("\n");
+    CHECK(m[0] == 1 && m[8] == 7);       /* still: 1, 2, ... up to temporal_cap */
+    CHECK(m[9] == 4);                    /* the light moved: moving_cap */
+    CHECK(m[10] == 5 && m[11] == 6);     /* still again: growing from there */
+    restir_bdpt_destroy(&st);
+    image_destroy(&img);
+    scene_release(moved);
+    scene_release(base);
+}
+
 static void test_thread_determinism(void)
 {
     struct scene *sc = load("scenes/caustic-sphere/scene.json");
@@ -549,6 +601,7 @@ static void test_view_method(void)
 }
 
 TEST_MAIN(TEST(test_mis_lightweight), TEST(test_params), TEST(test_view_method), TEST(test_thread_determinism),
+          TEST(test_moving_cap),
           TEST(test_caustic_replay_round_trip), TEST(test_matches_bdpt_caustic_sphere),
           TEST(test_matches_bdpt_lamp_in_glass), TEST(test_caustic_temporal_paired),
           TEST(test_caustic_temporal_paired_moving))

@@ -68,6 +68,7 @@ export const METHODS = {
       { name: 'reuse', kind: 'boolean', value: false, help: 'temporal and spatial reuse of the rest (random replay)' },
       { name: 'spatial_neighbors', kind: 'number', value: 2, help: 'with reuse: spatial neighbours' },
       { name: 'temporal_cap', kind: 'number', value: 20, help: 'caustic confidence cap' },
+      { name: 'moving_cap', kind: 'number', value: 4, help: 'caustic confidence cap while shapes or lights move' },
       { name: 'lt_capacity', kind: 'number', value: 8, help: 'light-traced samples kept per light subpath' },
       { name: 'max_depth', kind: 'number', value: 64, help: 'longest path, in bounces' },
     ],
