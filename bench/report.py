@@ -8,16 +8,16 @@ build/report/, references are cached in build/refs/.
 
 What it measures, per scene (SCENES) and method (METHODS):
   * error against time: each method's own ladder of settings — `pt` at 1, 2, 4 ... spp; a
-    reusing method as the mean of the last k frames of one session after its warm-up frames
-    (k = 1, 2, 4 ...; time = k frame times) — with MAPE and RMSE against a `pt` reference
-    (medians over seeds), charted log-log; which method has the lowest MAPE at three time
+    method of sessions as the mean of the first k frames after its warm-up frames in one daemon
+    session per seed (k = 1, 2, 4 ...; time = their render times) — with MAPE and RMSE against a
+    reference (medians over seeds), charted log-log; which method has the lowest MAPE at three time
     budgets (pt's time at 1, 4 and 16 spp), and by what factor over the next best; a method
     is compared only inside the time range it was measured over;
   * per-pass times of one frame (the reusing methods' passes) and memory per session;
   * stability on cornell-box: flicker, correlation of consecutive frames, fast camera motion, a
-    camera teleport,
-    the light switched off and on (per-frame series through the daemon), non-finite pixels over
-    100 frames of every scene, and restir_pt's known weak case (a light behind glass);
+    camera teleport, the light switched off and on (per-frame series through the daemon),
+    non-finite pixels over 100 frames of every scene, and restir_pt's known weak case (a light
+    behind glass);
   * the papers' failure cases: bdpt's light tracing wasted on a light the camera cannot see
     (seed 000 Fig. 10), ReSTIR SSS's shifts on a shadow boundary (seed 004 Fig. 5) and the
     sample-space prior missing a light (seed 002 Fig. 10);
@@ -58,7 +58,7 @@ REF_SPP = 256 if QUICK else 2048
 STAB_SIDE = 32 if QUICK else 64
 
 # How each method is run. "spp": one frame at each spp of the ladder. "frames": one session,
-# `warmup` frames, then the mean of the last k frames for each k of the ladder.
+# `warmup` frames, then the mean of the next k frames for each k of the ladder.
 METHODS = {
     "pt": {"kind": "spp", "params": {}, "ladder": [1, 4, 16] if QUICK else [1, 2, 4, 8, 16, 32, 64]},
     "restir_pt": {"kind": "frames", "params": {}, "warmup": 8 if QUICK else 32,
@@ -133,46 +133,94 @@ def reference(scene_path, side=SIDE, spp=REF_SPP, camera=None, method="pt"):
     return ref
 
 
-def pass_times(stats):
-    """The last frame's per-pass times (every `*_ms` member of `last_frame`), {} for none."""
-    return {k: v for k, v in (stats.get("last_frame") or {}).items() if k.endswith("_ms")}
-
-
 # ---- error against time ------------------------------------------------------------------------
 
-def measure(scene, method, ref):
+def measure(scene, method, ref, d):
+    """A method's rows: for "spp", one CLI render per setting and seed; for "frames", one daemon
+    session per seed whose frames after the warm-up are fetched one by one, the mean of the
+    first k of them being the image of setting k and the sum of their render times its time.
+    (A session's frames depend only on its seed and frame numbers, so this is the image a
+    session of warm-up + k frames averaging its last k would give, without rendering the
+    warm-up once per setting.)"""
     m = METHODS[method]
     path = ROOT / "scenes" / scene / "scene.json"
-    params = json.dumps(m["params"])
+    if m["kind"] == "frames":
+        per = {k: {"ms": [], "mape": [], "rmse": [], "passes": []} for k in m["ladder"]}
+        mem = None
+        for seed in range(SEEDS):
+            r = d.req("POST", f"/v1/scenes/{scene}/sessions",
+                      json_body={"method": method, "width": SIDE, "height": SIDE, "seed": seed, "params": m["params"]})
+            if r.status != 201:
+                raise SystemExit(f"report: {scene} {method} session: {r!r}")
+            sess = r.json()
+            mem = sess["memory_bytes"]
+            acc, ms = None, 0.0
+            for i in range(m["warmup"] + max(m["ladder"])):
+                r = d.req("POST", sess["href"] + "/frames", headers={"Accept": "application/json"})
+                if r.status != 200:
+                    raise SystemExit(f"report: {scene} {method} frame: {r!r}")
+                st = r.json()
+                if i < m["warmup"]:
+                    continue
+                r = d.req("GET", st["href"], headers={"Accept": "image/x-exr"})
+                if r.status != 200:
+                    raise SystemExit(f"report: {scene} {method} frame image: {r!r}")
+                frame = WORK / "frame.exr"
+                frame.write_bytes(r.body)
+                img = read_rgb(frame)
+                acc = img if acc is None else acc + img
+                ms += st["render_ms"]
+                k = i - m["warmup"] + 1
+                if k in per:
+                    out = WORK / f"{scene}-{method}-{k}-{seed}.exr"
+                    write_rgb(out, acc / k)
+                    c = compare(out, ref)
+                    for key, v in (("ms", ms), ("mape", c["mape"]), ("rmse", c["rmse"]), ("passes", frame_passes(st))):
+                        per[k][key].append(v)
+            d.req("DELETE", sess["href"])
+        rows = []
+        for k, v in per.items():
+            row = {"scene": scene, "method": method, "setting": k, "unit": "frames averaged after the warm-up",
+                   "ms": statistics.median(v["ms"]), "mape": statistics.median(v["mape"]),
+                   "rmse": statistics.median(v["rmse"]), "session_bytes": mem}
+            if v["passes"] and v["passes"][0]:
+                row["passes"] = {x: statistics.median(p[x] for p in v["passes"]) for x in v["passes"][0]}
+            rows.append(row)
+            log(f"{scene} {method} {k}: {row['ms']:.1f} ms, MAPE {row['mape']:.3f}")
+        return rows
     rows = []
     for setting in m["ladder"]:
-        ms, mape, rmse, passes, mem = [], [], [], [], None
+        ms, mape, rmse, mem = [], [], [], None
         for seed in range(SEEDS):
             img = WORK / f"{scene}-{method}-{setting}-{seed}.exr"
-            if m["kind"] == "spp":
-                st = run(["render", path, "--method", method, "--size", SIZE, "--spp", setting, "--seed", seed,
-                          "--json", "-o", img])
-                ms.append(st["time_ms"])
-            else:
-                st = run(["render", path, "--method", method, "--params", params, "--size", SIZE, "--seed", seed,
-                          "--frames", m["warmup"] + setting, "--average-last", setting, "--json", "-o", img])
-                p = pass_times(st)
-                ms.append(setting * sum(p.values()) if p else st["time_ms"] * setting / (m["warmup"] + setting))
-                if p:
-                    passes.append(p)
+            st = run(["render", path, "--method", method, "--size", SIZE, "--spp", setting, "--seed", seed,
+                      "--json", "-o", img])
+            ms.append(st["time_ms"])
             mem = st.get("session_bytes")
             c = compare(img, ref)
             mape.append(c["mape"])
             rmse.append(c["rmse"])
-        row = {"scene": scene, "method": method, "setting": setting,
-               "unit": "spp" if m["kind"] == "spp" else "last frames averaged",
+        row = {"scene": scene, "method": method, "setting": setting, "unit": "spp",
                "ms": statistics.median(ms), "mape": statistics.median(mape), "rmse": statistics.median(rmse),
                "session_bytes": mem}
-        if passes:
-            row["passes"] = {k: statistics.median(p[k] for p in passes) for k in passes[0]}
         rows.append(row)
         log(f"{scene} {method} {setting}: {row['ms']:.1f} ms, MAPE {row['mape']:.3f}")
     return rows
+
+
+def frame_passes(st):
+    """A daemon frame's per-pass times: every `*_ms` member of its method's statistics object."""
+    return {k: v for obj in st.values() if isinstance(obj, dict) for k, v in obj.items() if k.endswith("_ms")}
+
+
+def write_rgb(path, img):
+    import numpy as np
+    import OpenImageIO as oiio
+    out = oiio.ImageOutput.create(str(path))
+    if out is None or not out.open(str(path), oiio.ImageSpec(img.shape[1], img.shape[0], 3, oiio.FLOAT)):
+        raise SystemExit(f"report: cannot write {path}: {oiio.geterror()}")
+    out.write_image(np.ascontiguousarray(img, dtype=np.float32))
+    out.close()
 
 
 def at_time(rows, ms, key="mape"):
@@ -475,8 +523,8 @@ def write(results, stab, peer, fail, started, elapsed):
           + ", ".join(f"{sc}: `{m}` ({n} {'frames' if m == 'bdpt' else 'spp, no Bernoulli cap'})" for sc, (m, n) in REF_BY.items())
           + f"; cached in build/refs/; medians over {SEEDS} seed(s). "
           "Errors: MAPE as seed 000 (footnote 3) and RMSE, against the reference. Time: a frame's render time "
-          "(`pt`: the frame at that spp; a reusing method: k frame times for the mean of its last k frames "
-          "after its warm-up frames).", "", "## Which method wins each scene", "",
+          "(`pt`, `sms`, `sms_ssp`: the frame at that spp; a method of sessions: the summed render times of the k "
+          "frames after its warm-up frames whose mean is the image, one daemon session per seed).", "", "## Which method wins each scene", "",
           "Lowest MAPE at three time budgets (pt's frame time at 1, 4 and 16 spp); a method counts only inside "
           "the time range it was measured over; the factor is the next best's MAPE over the winner's.", "",
           "| scene | budget | winner | MAPE | next best | factor |", "|---|---|---|---|---|---|"]
@@ -626,10 +674,15 @@ def main():
     t0 = time.monotonic()
     started = time.strftime("%Y-%m-%d %H:%M", time.gmtime())
     results = {}
-    for scene, methods in SCENES.items():
-        path = ROOT / "scenes" / scene / "scene.json"
-        ref = reference(path, spp=REF_BY[scene][1], method=REF_BY[scene][0]) if scene in REF_BY else reference(path)
-        results[scene] = {m: measure(scene, m, ref) for m in methods}
+    from daemon import Daemon
+    d = Daemon(Path(tempfile.mkdtemp(dir=WORK)) / "data", "--threads", THREADS, "--frames-kept", "2")
+    try:
+        for scene, methods in SCENES.items():
+            path = ROOT / "scenes" / scene / "scene.json"
+            ref = reference(path, spp=REF_BY[scene][1], method=REF_BY[scene][0]) if scene in REF_BY else reference(path)
+            results[scene] = {m: measure(scene, m, ref, d) for m in methods}
+    finally:
+        d.stop()
     peer = cycles(reference(CORNELL), results.get("cornell-box", {})) if "cornell-box" in SCENES else None
     stab = stability()
     fail = failure_cases()
