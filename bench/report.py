@@ -423,6 +423,10 @@ PRIOR_CASES = [("sms", "sms", {}), ("sms_ssp", "sms_ssp", {}),
                ("restir_sms", "restir_sms", {}),
                ("restir_sms, prior of 2 walks per block", "restir_sms", {"prior_samples": 2}),
                ("restir_sms, no prior (fallback)", "restir_sms", {"prior": False})]
+# The chart's bar labels (the table names them in full).
+PRIOR_TAGS = {"sms": "sms", "sms_ssp": "ssp", "sms_ssp, prior of 2 walks per block": "ssp·2",
+              "sms_ssp, no prior (fallback)": "ssp·0", "restir_sms": "rsms",
+              "restir_sms, prior of 2 walks per block": "rsms·2", "restir_sms, no prior (fallback)": "rsms·0"}
 PRIOR_SPP, PRIOR_FRAMES = 4, 9
 
 
@@ -558,7 +562,8 @@ def write(results, stab, peer, fail, started, elapsed):
         md.append("")
     md += ["## Where a frame's time goes, and memory", "",
            "One frame of each reusing method (the 1-frame setting), per pass, and each session's memory "
-           "(`session_bytes` of the CLI: the buffers a daemon session of that method and size holds).", ""]
+           "(`memory_bytes` of its daemon session, or `session_bytes` of the CLI for the methods rendered by spp: "
+           "the buffers a session of that method and size holds).", ""]
     bars = [(f"{s}/{m}", rs[0]["passes"]) for s, per in results.items() for m, rs in per.items()
             if rs and "passes" in rs[0]]
     if bars:
@@ -618,6 +623,10 @@ def write(results, stab, peer, fail, started, elapsed):
         for scene, v in fail["light_tracing"].items():
             md.append(f"| {scene} | {v['light_subpaths']} | {v['light_traced']} | "
                       f"{v['light_traced'] / v['light_subpaths']:.3f} | {v['light_ms']:.1f} | {v['camera_ms']:.1f} |")
+        svgplot.stacked_bars(OUT / "light_tracing.svg", "bdpt: light-traced samples per light subpath", "samples",
+                             [(sc, {"per subpath": v["light_traced"] / v["light_subpaths"]})
+                              for sc, v in fail["light_tracing"].items()], ["per subpath"])
+        md += ["", "![light-traced samples per light subpath](light_tracing.svg)"]
         sss = fail["sss"]
         ser = sss["series"]
         svgplot.chart(OUT / "sss_boundary.svg", f"translucent: RMSE per frame on the shadow-boundary band "
@@ -648,7 +657,10 @@ def write(results, stab, peer, fail, started, elapsed):
         for name, v in pr["rows"].items():
             md.append(f"| {name} | {v['ms']:.1f} | {v['rmse']:.4f} | {100 * v['success']:.1f} % | "
                       f"{v['prior_solutions']:g} |")
-        md.append("")
+        svgplot.stacked_bars(OUT / "prior.svg", "refractive-slab: RMSE with the prior, a sparse prior and none", "RMSE",
+                             [(PRIOR_TAGS[name], {"RMSE": v["rmse"]}) for name, v in pr["rows"].items()], ["RMSE"])
+        md += ["", "![RMSE by prior](prior.svg)", "",
+               "Bars: ssp = `sms_ssp`, rsms = `restir_sms`; ·2 = a prior of 2 walks per block, ·0 = no prior.", ""]
     if peer:
         c = peer["converged"]
         md += ["## The peer: Blender Cycles", "",
