@@ -100,8 +100,9 @@ struct restir_pt_params restir_pt_defaults(void)
 /* RIS among light candidates (seed 001 §5) pays where choosing a light by its power alone is
  * poor: several emitters at different distances and orientations from the shading point. With
  * one emitter the candidates differ only in the cosines and distances over it; on cornell-box,
- * cornell-glossy and door-ajar four candidates measured the same error as one at a fifth of the
- * frame's cost (docs/benchmarks.md), so a single-emitter scene gets plain NEE. */
+ * cornell-glossy and door-ajar the three extra candidates cost about a fifth of the frame and
+ * bought no measurable error reduction (docs/benchmarks.md), so a single-emitter scene gets
+ * plain NEE. */
 uint32_t restir_pt_nee_by_scene(const struct scene *scene)
 {
     uint32_t emitters = !vec3_is_zero(scene->env_radiance);
