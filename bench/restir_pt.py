@@ -58,6 +58,8 @@ ABLATION = [("Enhanced (defaults)", "{}"),
             ("4 NEE candidates", '{"nee_candidates": 4}'),
             ("DI outside the reservoir", '{"unify_di": false}'),
             ("no temporal reuse", '{"temporal": false}'),
+            ("2 spatial neighbours", '{"spatial_neighbors": 2}'),
+            ("1 spatial neighbour", '{"spatial_neighbors": 1}'),
             ("no spatial reuse", '{"spatial_neighbors": 0}')]
 
 
