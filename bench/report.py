@@ -3,7 +3,7 @@ that apply to it, stability over frames, and a peer renderer on the same axes. W
 docs/report/ (README.md, the CSV every chart is drawn from, SVG charts); work files go to
 build/report/, references are cached in build/refs/.
 
-  /usr/bin/python3 bench/report.py            # 256x256, 3 seeds (57 minutes on 2 cores, references included)
+  /usr/bin/python3 bench/report.py            # 256x256, 3 seeds (under an hour on 2 cores, references included)
   QUICK=1 /usr/bin/python3 bench/report.py    # 64x64, 1 seed, short ladders (a few minutes)
 
 What it measures, per scene (SCENES) and method (METHODS):
