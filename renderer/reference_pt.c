@@ -361,7 +361,9 @@ static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
 {
     struct pt_job *job = ctx;
     const struct pt_params *p = job->params;
-    struct render_stats *st = &job->worker_stats[worker];
+    /* Counted job-locally and added to the worker's slot at the end (see sms_counters_add). */
+    struct render_stats local = {0};
+    struct render_stats *st = &local;
     struct ray_counters rc = {0, 0};
     struct pt_split split = {.owned = p->subset != PT_SUBSET_REST && !p->sms, .rest = p->subset != PT_SUBSET_CAUSTIC,
                              .ss = job->sms_scene, .sc = &st->sms};
@@ -399,8 +401,12 @@ static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
             st->samples += p->spp;
         }
     }
-    st->rays_intersect += rc.intersect;
-    st->rays_occluded += rc.occluded;
+    struct render_stats *sum = &job->worker_stats[worker];
+    sum->rays_intersect += rc.intersect;
+    sum->rays_occluded += rc.occluded;
+    sum->samples += local.samples;
+    sum->nonfinite += local.nonfinite;
+    sms_counters_add(&sum->sms, &local.sms);
 }
 
 bool reference_pt_render(const struct scene *scene, const struct pt_params *params, struct image *out,
@@ -465,14 +471,7 @@ bool reference_pt_render_into(const struct scene *scene, const struct pt_params 
             stats->rays_occluded += job->worker_stats[i].rays_occluded;
             stats->samples += job->worker_stats[i].samples;
             stats->nonfinite += job->worker_stats[i].nonfinite;
-            const struct sms_counters *c = &job->worker_stats[i].sms;
-            stats->sms.samples += c->samples;
-            stats->sms.solutions += c->solutions;
-            stats->sms.newton_sample += c->newton_sample;
-            stats->sms.trials += c->trials;
-            stats->sms.newton_trials += c->newton_trials;
-            stats->sms.capped += c->capped;
-            stats->sms.sample_ms += c->sample_ms;
+            sms_counters_add(&stats->sms, &job->worker_stats[i].sms);
         }
         stats->threads = threads;
         stats->render_ms = (double)(t1.tv_sec - t0.tv_sec) * 1e3 + (double)(t1.tv_nsec - t0.tv_nsec) * 1e-6;

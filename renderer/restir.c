@@ -2,6 +2,8 @@
 #include "restir.h"
 
 #include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "parallel.h"
@@ -239,6 +241,9 @@ static void restir_spatial_pixel(const struct restir_pass *p, uint32_t pixel, st
 
 #define RESTIR_PAIR_STREAM 0x7270ull
 
+#define RESTIR_PAIR_CACHED 4u
+#define RESTIR_NO_PARTNER UINT32_MAX
+
 /* A pixel's reservoir while a paired round streams into it (the selected payload goes straight
  * into the output buffer). */
 struct restir_pair_acc {
@@ -246,11 +251,26 @@ struct restir_pair_acc {
     float canonical_terms;  /* sum over partners of the canonical weight's terms 1 - t_n */
     uint32_t k;             /* partners that can produce samples (pairings whose partner is valid) */
     struct vec3 est;        /* restir_reuse.estimate: sum of m_i W_i |J_i| F(Y_i) so far */
+    /* The valid partner of each of the first RESTIR_PAIR_CACHED pairings (RESTIR_NO_PARTNER: off
+     * the image or unable to produce samples), found once by the opening pass: the pairings' own
+     * passes read it instead of hashing the partner's coordinates again. */
+    uint32_t partner[RESTIR_PAIR_CACHED];
 };
 
 size_t restir_pair_scratch_bytes(uint32_t width, uint32_t height)
 {
     return (size_t)width * height * sizeof(struct restir_pair_acc);
+}
+
+#define RESTIR_CACHE_LINE 64u
+
+void *restir_buffer_alloc(size_t count, size_t stride)
+{
+    if (stride && count > (SIZE_MAX - RESTIR_CACHE_LINE) / stride) return NULL;
+    size_t bytes = (count * stride + RESTIR_CACHE_LINE - 1) / RESTIR_CACHE_LINE * RESTIR_CACHE_LINE;
+    void *buf = aligned_alloc(RESTIR_CACHE_LINE, bytes ? bytes : RESTIR_CACHE_LINE);
+    if (buf) memset(buf, 0, bytes);
+    return buf;
 }
 
 /* log2 of the block size B: the largest power of two <= radius (at least 2, at most 256). */
@@ -332,9 +352,14 @@ static void restir_pair_begin_pixel(const struct restir_pass *p, uint32_t pixel,
     struct restir_pair_acc *a = (struct restir_pair_acc *)r->pair_scratch + pixel;
     memset(a, 0, sizeof *a);
     reservoir_stream_begin(&a->s);
+    for (uint32_t m = 0; m < RESTIR_PAIR_CACHED; m++) a->partner[m] = RESTIR_NO_PARTNER;
     if (!r->ops->domain_valid(r->ctx, (struct restir_domain){pixel, RESTIR_CURRENT})) return;
-    uint32_t q;
-    for (uint32_t m = 0; m < r->neighbors; m++) a->k += restir_pair_valid(p, m, pixel, &q);
+    for (uint32_t m = 0; m < r->neighbors; m++) {
+        uint32_t q;
+        if (!restir_pair_valid(p, m, pixel, &q)) continue;
+        a->k++;
+        if (m < RESTIR_PAIR_CACHED) a->partner[m] = q;
+    }
 }
 
 /* The half of a pair's work that lands in pixel c: its canonical term from the shift of its own
@@ -362,6 +387,19 @@ static void restir_pair_side(const struct restir_pass *p, struct restir_domain d
     c->rejected += a->s.rejected - before;
 }
 
+/* The valid partner of a pixel that can produce samples, under pairing p->matching: as the opening
+ * pass stored it, or found again past the stored ones. */
+static bool restir_pair_of_round(const struct restir_pass *p, uint32_t pixel, uint32_t *q)
+{
+    const struct restir_reuse *r = p->r;
+    if (p->matching < RESTIR_PAIR_CACHED) {
+        *q = ((const struct restir_pair_acc *)r->pair_scratch)[pixel].partner[p->matching];
+        return *q != RESTIR_NO_PARTNER;
+    }
+    return r->ops->domain_valid(r->ctx, (struct restir_domain){pixel, RESTIR_CURRENT}) &&
+           restir_pair_valid(p, p->matching, pixel, q);
+}
+
 /* One pair of pairing p->matching, done by its owner. */
 static void restir_pair_pixel(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c)
 {
@@ -369,9 +407,8 @@ static void restir_pair_pixel(const struct restir_pass *p, uint32_t pixel, struc
     const struct restir_ops *ops = r->ops;
     const size_t stride = ops->stride;
     uint32_t q;
-    if (!restir_pair_valid(p, p->matching, pixel, &q) || q <= pixel) return;
+    if (!restir_pair_of_round(p, pixel, &q) || q <= pixel) return;
     const struct restir_domain dp = {pixel, RESTIR_CURRENT}, dq = {q, RESTIR_CURRENT};
-    if (!ops->domain_valid(r->ctx, dp)) return;
     const struct restir_head *hp = restir_elem(p->in, stride, pixel), *hq = restir_elem(p->in, stride, q);
     const float p_p = hp->W > 0.0f ? ops->target(r->ctx, hp) : 0.0f;
     const float p_q = hq->W > 0.0f ? ops->target(r->ctx, hq) : 0.0f;
@@ -418,8 +455,10 @@ static void restir_rows(void *ctx, uint32_t job, unsigned worker)
     struct restir_pass *p = ctx;
     const struct restir_reuse *r = p->r;
     uint32_t y1 = (job + 1) * RESTIR_ROWS_PER_JOB < r->height ? (job + 1) * RESTIR_ROWS_PER_JOB : r->height;
+    struct restir_counters c = {0};
     for (uint32_t y = job * RESTIR_ROWS_PER_JOB; y < y1; y++)
-        for (uint32_t x = 0; x < r->width; x++) p->pixel(p, y * r->width + x, &p->counters[worker]);
+        for (uint32_t x = 0; x < r->width; x++) p->pixel(p, y * r->width + x, &c);
+    restir_counters_add(&p->counters[worker], &c);
 }
 
 static bool restir_run(const struct restir_reuse *r, restir_pixel_fn *fn, const uint8_t *in, uint8_t *out,
@@ -441,13 +480,7 @@ static bool restir_run(const struct restir_reuse *r, restir_pixel_fn *fn, const 
     if (threads > RESTIR_MAX_WORKERS) threads = RESTIR_MAX_WORKERS;
     uint32_t jobs = (r->height + RESTIR_ROWS_PER_JOB - 1) / RESTIR_ROWS_PER_JOB;
     if (!parallel_run(threads, jobs, restir_rows, &pass, NULL, NULL, err)) return false;
-    for (unsigned i = 0; i < threads; i++) {
-        c->rays.intersect += pass.counters[i].rays.intersect;
-        c->rays.occluded += pass.counters[i].rays.occluded;
-        c->shifts += pass.counters[i].shifts;
-        c->shift_failures += pass.counters[i].shift_failures;
-        c->rejected += pass.counters[i].rejected;
-    }
+    for (unsigned i = 0; i < threads; i++) restir_counters_add(c, &pass.counters[i]);
     return true;
 }
 

@@ -45,6 +45,18 @@ struct restir_counters {
     uint64_t rejected;        /* candidates refused for a non-finite weight */
 };
 
+/* *sum += c. A pass counts into a job-local copy and adds it here once per job: the workers'
+ * slots of a per-worker array share cache lines, and counting every ray straight into them makes
+ * the cores fight over those lines (two threads ran the initial pass only 1.3x faster than one). */
+static inline void restir_counters_add(struct restir_counters *sum, const struct restir_counters *c)
+{
+    sum->rays.intersect += c->rays.intersect;
+    sum->rays.occluded += c->rays.occluded;
+    sum->shifts += c->shifts;
+    sum->shift_failures += c->shift_failures;
+    sum->rejected += c->rejected;
+}
+
 struct restir_ops {
     size_t stride;  /* bytes per element, a multiple of 4, <= RESTIR_MAX_STRIDE */
     /* p̂ of the element's sample in the element's own domain. */
@@ -94,6 +106,12 @@ struct restir_reuse {
 };
 
 size_t restir_pair_scratch_bytes(uint32_t width, uint32_t height);
+
+/* A zeroed array of `count` elements of `stride` bytes that starts on a cache line (NULL when out
+ * of memory; free() it). The reuse passes reach their neighbours' elements in no order a
+ * prefetcher follows: a 64-byte element of an aligned array is one cache line, of an unaligned
+ * one it straddles two. */
+void *restir_buffer_alloc(size_t count, size_t stride);
 /* The partner of `pixel` in pairing m (< 64) of the round r->frame names (false: off the image);
  * for tests: the pairing is an involution. */
 bool restir_pair_partner(const struct restir_reuse *r, uint32_t m, uint32_t pixel, uint32_t *partner);

@@ -294,8 +294,10 @@ void restir_bdpt_reset(struct restir_bdpt_state *st)
 
 /* ---- per-frame context -------------------------------------------------------------------- */
 
+/* On a cache line of its own, as bdpt.c's: these change with every ray. */
 struct rbdpt_worker {
-    uint64_t rays_intersect, rays_occluded, candidates, rejected;
+    _Alignas(64) uint64_t rays_intersect;
+    uint64_t rays_occluded, candidates, rejected;
     uint64_t shifts, replay_failed, not_caustic, inverse_failed;
 };
 

@@ -957,14 +957,14 @@ bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, uint3
             restir_pt_destroy(st);
             return false;
         }
-        st->res[i] = calloc(n, sizeof(struct pt_sample));
+        st->res[i] = restir_buffer_alloc(n, sizeof(struct pt_sample));
         st->hits[i] = calloc(n, sizeof(struct restir_pt_hit));
         if (!st->res[i] || !st->hits[i]) {
             restir_pt_destroy(st);
             return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
         }
     }
-    st->pair_scratch = malloc(restir_pair_scratch_bytes(width, height));
+    st->pair_scratch = restir_buffer_alloc(1, restir_pair_scratch_bytes(width, height));
     if (!st->pair_scratch) {
         restir_pt_destroy(st);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u spatial pairs", width, height);
@@ -1031,7 +1031,8 @@ static void pt_initial_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct pt_pass *pp = ctx;
     const struct pt_ctx *c = pp->c;
-    struct pt_thread t = {.c = c, .cnt = &pp->counters[worker]};
+    struct restir_counters cnt = {0};  /* job-local: see restir_counters_add */
+    struct pt_thread t = {.c = c, .cnt = &cnt};
     uint32_t w = pp->st->width, h = pp->st->height;
     uint32_t y1 = (job + 1) * PT_ROWS_PER_JOB < h ? (job + 1) * PT_ROWS_PER_JOB : h;
     struct pt_sample *res = (struct pt_sample *)pp->st->res[0];
@@ -1043,6 +1044,7 @@ static void pt_initial_rows(void *ctx, uint32_t job, unsigned worker)
             if (pp->out) pp->out->pixels[pixel] = direct;
         }
     }
+    restir_counters_add(&pp->counters[worker], &cnt);
 }
 
 /* Shade pass: F(Y) W of the final reservoir added to the image. */

@@ -447,8 +447,10 @@ static void sms_initial_rows(void *ctx, uint32_t job, unsigned worker)
     uint32_t w = pp->st->width, h = pp->st->height;
     uint32_t y1 = (job + 1) * SMS_ROWS_PER_JOB < h ? (job + 1) * SMS_ROWS_PER_JOB : h;
     struct sms_sample *res = (struct sms_sample *)pp->st->res[0];
-    struct ray_counters *rc = &pp->rays[worker];
-    struct sms_counters *sc = &pp->sms[worker];
+    struct ray_counters rays = {0, 0};  /* job-local (see sms_counters_add) */
+    struct sms_counters sms = {0};
+    struct ray_counters *rc = &rays;
+    struct sms_counters *sc = &sms;
     struct restir_sms_receiver *recv = pp->st->recv[pp->st->cur];
     for (uint32_t y = job * SMS_ROWS_PER_JOB; y < y1; y++) {
         for (uint32_t x = 0; x < w; x++) {
@@ -464,6 +466,9 @@ static void sms_initial_rows(void *ctx, uint32_t job, unsigned worker)
                                                                pp->camera.position, dir, &rng, &srng, sc, rc);
         }
     }
+    pp->rays[worker].intersect += rays.intersect;
+    pp->rays[worker].occluded += rays.occluded;
+    sms_counters_add(&pp->sms[worker], &sms);
 }
 
 static void sms_shade_rows(void *ctx, uint32_t job, unsigned worker)
@@ -551,11 +556,7 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     for (unsigned i = 0; i < threads; i++) {
         stats->rays_intersect += pp->rays[i].intersect;
         stats->rays_occluded += pp->rays[i].occluded;
-        const struct sms_counters *s = &pp->sms[i];
-        stats->sms.samples += s->samples, stats->sms.solutions += s->solutions;
-        stats->sms.newton_sample += s->newton_sample, stats->sms.trials += s->trials;
-        stats->sms.newton_trials += s->newton_trials, stats->sms.capped += s->capped;
-        stats->sms.sample_ms += s->sample_ms;
+        sms_counters_add(&stats->sms, &pp->sms[i]);
     }
     stats->initial_ms = parallel_lap_ms(&t0);
     return true;

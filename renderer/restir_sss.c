@@ -584,7 +584,8 @@ static void sss_initial_rows(void *ctx, uint32_t job, unsigned worker)
     uint32_t w = pp->st->width, h = pp->st->height;
     uint32_t y1 = (job + 1) * SSS_ROWS_PER_JOB < h ? (job + 1) * SSS_ROWS_PER_JOB : h;
     struct sss_sample *res = (struct sss_sample *)pp->st->res[0];
-    struct ray_counters *rc = &pp->counters[worker].rays;
+    struct ray_counters rays = {0, 0};  /* job-local (see restir_counters_add) */
+    struct ray_counters *rc = &rays;
     for (uint32_t y = job * SSS_ROWS_PER_JOB; y < y1; y++) {
         for (uint32_t x = 0; x < w; x++) {
             uint32_t pixel = y * w + x;
@@ -597,6 +598,8 @@ static void sss_initial_rows(void *ctx, uint32_t job, unsigned worker)
                 reference_pt_radiance(c->scene[RESTIR_CURRENT], &pp->pt, pp->camera.position, dir, &rng, false, rc);
         }
     }
+    pp->counters[worker].rays.intersect += rays.intersect;
+    pp->counters[worker].rays.occluded += rays.occluded;
 }
 
 static void sss_shade_rows(void *ctx, uint32_t job, unsigned worker)

@@ -69,6 +69,19 @@ struct sms_counters {
     double sample_ms;          /* time in sms_estimate (summed over threads) */
 };
 
+/* *sum += c: a pass counts into a job-local copy and adds it once per job, since per-worker slots
+ * side by side share cache lines (see restir_counters_add). */
+static inline void sms_counters_add(struct sms_counters *sum, const struct sms_counters *c)
+{
+    sum->samples += c->samples;
+    sum->solutions += c->solutions;
+    sum->newton_sample += c->newton_sample;
+    sum->trials += c->trials;
+    sum->newton_trials += c->newton_trials;
+    sum->capped += c->capped;
+    sum->sample_ms += c->sample_ms;
+}
+
 struct sms_caster {
     struct manifold_chain chain;
     bool sphere;
