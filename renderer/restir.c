@@ -342,13 +342,12 @@ static float restir_pair_u(const struct restir_pass *p, uint32_t pixel, uint32_t
     return (float)(restir_hash32((uint32_t)h ^ restir_hash32(pixel ^ (uint32_t)(h >> 32))) >> 8) * 0x1p-24f;
 }
 
-/* Starts the round: the output holds the canonical sample, k counts the valid partners. */
+/* Starts the round: k counts the valid partners. The output is written only when a candidate is
+ * selected, and by the closing pass when the canonical sample stays. */
 static void restir_pair_begin_pixel(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c)
 {
     (void)c;
     const struct restir_reuse *r = p->r;
-    const size_t stride = r->ops->stride;
-    memcpy(p->out + (size_t)pixel * stride, p->in + (size_t)pixel * stride, stride);
     struct restir_pair_acc *a = (struct restir_pair_acc *)r->pair_scratch + pixel;
     memset(a, 0, sizeof *a);
     reservoir_stream_begin(&a->s);
@@ -426,23 +425,28 @@ static void restir_pair_end_pixel(const struct restir_pass *p, uint32_t pixel, s
     const struct restir_reuse *r = p->r;
     const size_t stride = r->ops->stride;
     struct restir_pair_acc *a = (struct restir_pair_acc *)r->pair_scratch + pixel;
-    if (a->k == 0) {  /* the output keeps the canonical reservoir as it was */
-        restir_estimate_unchanged(r, pixel, restir_elem(p->out, stride, pixel));
-        return;
-    }
     const struct restir_head *hc = restir_elem(p->in, stride, pixel);
     struct restir_head *ho = (struct restir_head *)(p->out + (size_t)pixel * stride);
+    if (a->k == 0) {  /* the canonical reservoir goes on as it was */
+        memcpy(ho, hc, stride);
+        restir_estimate_unchanged(r, pixel, hc);
+        return;
+    }
     const float M_c = (float)hc->M;
     const float p_c = hc->W > 0.0f ? r->ops->target(r->ctx, hc) : 0.0f;
     const float u = restir_pair_u(p, pixel, r->neighbors);
     const unsigned before = a->s.rejected;
+    /* The output holds the selected partner's sample, if any was; else the canonical one stays
+     * (with W = 0 when it is worth nothing either). */
+    bool canonical = !a->s.selected;
     if (p_c > 0.0f) {
         float m_c = reuse_mis_pairwise_canonical(a->canonical_terms, a->k);
         if (restir_estimating(r)) restir_estimate_add(r, &a->est, hc, (double)m_c * hc->W);
-        if (reservoir_stream_offer(&a->s, (double)m_c * p_c * hc->W, p_c, M_c, u)) memcpy(ho, hc, stride);
+        if (reservoir_stream_offer(&a->s, (double)m_c * p_c * hc->W, p_c, M_c, u)) canonical = true;
     } else {
         reservoir_stream_offer(&a->s, 0.0, 0.0f, M_c, u);
     }
+    if (canonical) memcpy(ho, hc, stride);
     c->rejected += a->s.rejected - before;
     struct reservoir res = reservoir_stream_finish(&a->s);
     ho->W = res.W;

@@ -261,23 +261,29 @@ static bool pt_connectable(const struct pt_thread *t, uint32_t j, const struct p
     return a * t->footprint <= 1.0f;
 }
 
-/* The primary vertex of a domain and its eq. 5 threshold (c/100) |x0 - x1|^2 / (cos / 4 pi). */
+/* The primary vertex of a domain and its eq. 5 threshold (c/100) |x0 - x1|^2 / (cos / 4 pi).
+ * x_1 never reconnects (k >= 2), so its primitive and point code are not loaded. */
 static bool pt_primary(const struct pt_ctx *c, struct restir_domain d, struct pt_vertex *v, float *footprint)
 {
-    const struct gbuffer_pixel *g = &c->gbuf[d.frame]->px[d.pixel];
-    if (!isfinite(g->t)) return false;
     const struct scene *scene = c->scene[d.frame];
     struct restir_pt_hit *h = &c->hits[d.frame][d.pixel];
     if (c->hits_write) {
+        const struct gbuffer_pixel *g = &c->gbuf[d.frame]->px[d.pixel];
+        if (!isfinite(g->t)) {
+            h->material = RESTIR_PT_NO_HIT;
+            return false;
+        }
         surface_at(scene, g->shape, g->prim, g->b1, g->b2, &v->s);
-        *h = (struct restir_pt_hit){v->s.p, v->s.ng, v->s.ns};
+        *h = (struct restir_pt_hit){v->s.p, v->s.ng, v->s.ns, v->s.material};
     } else {
+        if (h->material == RESTIR_PT_NO_HIT) return false;
         /* As surface_at built it in this frame's initial pass, bit for bit. */
         v->s.p = h->p, v->s.ng = h->ng, v->s.ns = h->ns;
         v->s.frame = frame_from_normal(h->ns);
-        v->s.shape = g->shape, v->s.prim = g->prim, v->s.material = scene->shapes[g->shape].material;
+        v->s.material = h->material;
     }
-    v->b1 = g->b1, v->b2 = g->b2;
+    v->s.shape = v->s.prim = UINT32_MAX;
+    v->b1 = v->b2 = 0.0f;
     v->m = &scene->materials[v->s.material];
     struct vec3 to_eye = vec3_sub(c->eye[d.frame], v->s.p);
     float d2 = vec3_length2(to_eye);
@@ -901,10 +907,11 @@ static void pt_shift(const void *ctx, const void *src, struct restir_domain from
     if (dst) memcpy(dst, &y, sizeof y);
 }
 
+/* From the hit record the initial pass wrote, which a shift into the domain reads next. */
 static bool pt_domain_valid(const void *ctx, struct restir_domain d)
 {
     const struct pt_ctx *c = ctx;
-    return isfinite(c->gbuf[d.frame]->px[d.pixel].t);
+    return c->hits[d.frame][d.pixel].material != RESTIR_PT_NO_HIT;
 }
 
 const struct restir_ops restir_pt_ops = {

@@ -66,10 +66,14 @@ struct restir_pt_stats {
 /* Per-session state: two G-buffers (current, previous) and two reservoir buffers (the frame's
  * working buffer and the history the next frame reuses). */
 /* A primary hit's surface, rebuilt once per frame by the initial pass: every shift into a pixel
- * needs it, and rebuilding it from the G-buffer's point code costs more than reading it. */
+ * needs it, and rebuilding it from the G-buffer's point code costs more than reading it. It
+ * carries all a shift reads of the pixel, so a shift touches one record rather than this and
+ * the G-buffer's pixel too. */
 struct restir_pt_hit {
     struct vec3 p, ng, ns;
+    uint32_t material;   /* RESTIR_PT_NO_HIT: the primary ray escaped */
 };
+#define RESTIR_PT_NO_HIT UINT32_MAX
 
 struct restir_pt_state {
     uint32_t width, height;
