@@ -10,7 +10,8 @@ run, on cornell-box, cornell-glossy and door-ajar at 256x256 (BENCH_RESTIR_SCENE
      against the reference. restir_pt's point is the frame after 32 warm-up frames of one
      session: single-frame quality, as a session delivers it;
   3. the equal-time error ratio restir_pt / pt (pt's MAPE interpolated log-log at restir_pt's
-     frame time) and the frame cost ratio restir_pt / pt at 1 spp;
+     frame time) and the frame cost ratio restir_pt / pt at 1 spp, from whole sessions of each
+     run back to back (measure_frame_cost);
   4. an ablation on door-ajar as seed 001 Table 1: pass times and MAPE with each Enhanced
      feature switched off in turn;
   5. writes build/bench/restir_pt.json, one SVG chart per scene (MAPE vs ms, log-log) in
@@ -19,9 +20,9 @@ Environment: BENCH_RESTIR_SEEDS (3), BENCH_RESTIR_REF_SPP (2048), BENCH_RESTIR_W
 BENCH_THREADS (all cores), BENCH_RESTIR_ABLATION (door-ajar; empty = skip).
 `bench/restir_pt.py --charts` redraws the charts from the last run's JSON.
 `bench/restir_pt.py --frame-cost` measures only the frame cost ratio restir_pt / pt at 1 spp
-(no references, a few minutes): the mean frame time of a 33-frame session of each, alternating,
-BENCH_RESTIR_COST_RUNS (5) runs each, medians; restir_pt with its defaults, with unpaired spatial
-reuse and with one NEE candidate."""
+(no references, a few minutes): the mean frame time of a 33-frame session of each, back to back,
+BENCH_RESTIR_COST_RUNS (7) runs, the median of the runs' ratios and their range; restir_pt with
+its defaults, with unpaired spatial reuse and with four NEE candidates."""
 import hashlib
 import json
 import math
@@ -145,32 +146,55 @@ def pt_mape_at(pt_rows, ms):
 
 COST_VARIANTS = [("defaults", "{}"), ("unpaired spatial reuse", '{"paired_spatial": false}'),
                  ("4 NEE candidates", '{"nee_candidates": 4}')]
+COST_RUNS = int(os.environ.get("BENCH_RESTIR_COST_RUNS", "7"))
+
+
+def measure_frame_cost(scene_path, variants, runs):
+    """restir_pt's frame cost over pt's at 1 spp, as a session pays it: the mean frame time of a
+    WARMUP + 1 frame session of each (averages over frames are far steadier than one frame's time
+    on a shared machine). Each run renders pt and then every variant back to back, in alternating
+    order, and its ratios divide times taken within seconds of each other; a burst of load from
+    elsewhere then moves one run's ratios, not the median's. Returns per variant the median ms,
+    the median of the runs' ratios and their range."""
+    frames = WARMUP + 1
+    pt, rs = [], {n: [] for n, _ in variants}
+    with tempfile.TemporaryDirectory() as td:
+        img = Path(td) / "f.exr"
+
+        def pt_run(seed):
+            return run(["render", str(scene_path), "--size", SIZE, "--spp", "1", "--frames", str(frames),
+                        "--seed", str(seed), "--json", "-o", str(img)])["time_ms"] / frames
+
+        def restir_run(seed, params):
+            return run(["render", str(scene_path), "--method", "restir_pt", "--size", SIZE, "--seed", str(seed),
+                        "--frames", str(frames), "--params", params, "--json", "-o", str(img)])["time_ms"] / frames
+
+        for seed in range(runs):
+            if seed % 2 == 0:
+                pt.append(pt_run(seed))
+            for name, params in variants:
+                rs[name].append(restir_run(seed, params))
+            if seed % 2 == 1:
+                pt.append(pt_run(seed))
+    out = {"pt_ms": statistics.median(pt), "runs": runs, "variants": {}}
+    for name, times in rs.items():
+        ratios = [t / p for t, p in zip(times, pt)]
+        out["variants"][name] = {"ms": statistics.median(times), "ratio": statistics.median(ratios),
+                                 "ratio_min": min(ratios), "ratio_max": max(ratios)}
+    return out
 
 
 def frame_cost():
-    """Mean frame time over a whole session of WARMUP + 1 frames, for pt at 1 spp and for
-    restir_pt: averages over frames are far steadier than one frame's time on a shared machine."""
-    runs = int(os.environ.get("BENCH_RESTIR_COST_RUNS", "5"))
     frames = WARMUP + 1
     print(f"\n### Frame cost restir_pt / pt at 1 spp, {SIZE}: mean frame time of a {frames}-frame session, "
-          f"medians of {runs} alternating runs\n")
-    print("| scene | pt 1 spp ms | " + " | ".join(f"restir_pt {n} ms (ratio)" for n, _ in COST_VARIANTS) + " |")
+          f"{COST_RUNS} runs, medians (ratio: median of the runs' ratios, their range in brackets)\n")
+    print("| scene | pt 1 spp ms | " + " | ".join(f"restir_pt {n} ms, ratio" for n, _ in COST_VARIANTS) + " |")
     print("|---|---|" + "---|" * len(COST_VARIANTS))
-    with tempfile.TemporaryDirectory() as td:
-        img = Path(td) / "f.exr"
-        for scene in SCENES:
-            path = ROOT / "scenes" / scene / "scene.json"
-            pt, rs = [], {n: [] for n, _ in COST_VARIANTS}
-            for seed in range(runs):
-                pt.append(run(["render", str(path), "--size", SIZE, "--spp", "1", "--frames", str(frames), "--seed",
-                               str(seed), "--json", "-o", str(img)])["time_ms"] / frames)
-                for name, params in COST_VARIANTS:
-                    st = run(["render", str(path), "--method", "restir_pt", "--size", SIZE, "--seed", str(seed),
-                              "--frames", str(frames), "--params", params, "--json", "-o", str(img)])
-                    rs[name].append(st["time_ms"] / frames)
-            p = statistics.median(pt)
-            cells = [f"{statistics.median(v):.1f} ({statistics.median(v) / p:.2f}×)" for v in rs.values()]
-            print(f"| {scene} | {p:.1f} | " + " | ".join(cells) + " |", flush=True)
+    for scene in SCENES:
+        fc = measure_frame_cost(ROOT / "scenes" / scene / "scene.json", COST_VARIANTS, COST_RUNS)
+        cells = [f"{v['ms']:.1f}, {v['ratio']:.2f}× [{v['ratio_min']:.2f}–{v['ratio_max']:.2f}]"
+                 for v in fc["variants"].values()]
+        print(f"| {scene} | {fc['pt_ms']:.1f} | " + " | ".join(cells) + " |", flush=True)
 
 
 def charts(results):
@@ -198,11 +222,11 @@ def main():
             pt_rows = measure_pt(scene_path, ref, tmp)
             variants = {name: measure_restir(scene_path, ref, tmp, params) for name, params in RESTIR_VARIANTS}
             main_v = variants["restir_pt"]
-            pt1 = pt_rows[0]["ms"]
+            cost = measure_frame_cost(scene_path, [("defaults", "{}")], COST_RUNS)
             results["scenes"][scene] = {
                 "pt": pt_rows, "restir_pt": variants,
                 "equal_time_mape_ratio": main_v["mape"] / pt_mape_at(pt_rows, main_v["ms"]),
-                "frame_cost_ratio_1spp": main_v["ms"] / pt1}
+                "frame_cost": cost}
         if ABLATION_SCENE:
             scene_path, ref = reference(ABLATION_SCENE)
             print(f"bench: ablation on {ABLATION_SCENE} ...", file=sys.stderr, flush=True)
@@ -212,12 +236,20 @@ def main():
     charts(results)
 
     print(f"\n### pt vs restir_pt, {SIZE}, medians of {SEEDS} seeds ({WARMUP} warm-up frames)\n")
-    print("| scene | pt 1 spp ms | restir_pt frame ms | cost ratio | restir_pt MAPE | pt MAPE at equal time | equal-time ratio |")
-    print("|---|---|---|---|---|---|---|")
+    print("| scene | pt 1 spp ms | restir_pt frame ms | restir_pt MAPE | pt MAPE at equal time | equal-time ratio |")
+    print("|---|---|---|---|---|---|")
     for scene, r in results["scenes"].items():
         v = r["restir_pt"]["restir_pt"]
-        print(f"| {scene} | {r['pt'][0]['ms']:.1f} | {v['ms']:.1f} | {r['frame_cost_ratio_1spp']:.2f} | "
+        print(f"| {scene} | {r['pt'][0]['ms']:.1f} | {v['ms']:.1f} | "
               f"{v['mape']:.3f} | {pt_mape_at(r['pt'], v['ms']):.3f} | {r['equal_time_mape_ratio']:.2f} |")
+    print(f"\n### Frame cost restir_pt / pt at 1 spp: mean frame time of {WARMUP + 1}-frame sessions, "
+          f"{COST_RUNS} runs (ratio: median of the runs' ratios, their range in brackets)\n")
+    print("| scene | pt 1 spp ms | restir_pt ms | frame cost ratio |")
+    print("|---|---|---|---|")
+    for scene, r in results["scenes"].items():
+        fc = r["frame_cost"]
+        v = fc["variants"]["defaults"]
+        print(f"| {scene} | {fc['pt_ms']:.1f} | {v['ms']:.1f} | {v['ratio']:.2f}× [{v['ratio_min']:.2f}–{v['ratio_max']:.2f}] |")
     if "ablation" in results:
         print(f"\n### Ablation on {results['ablation']['scene']} (seed 001 Table 1), ms per pass, medians\n")
         print("| setting | G-buffer | initial | temporal | spatial | shade | frame | MAPE |")

@@ -14,6 +14,7 @@ bool gbuffer_init(struct gbuffer *g, uint32_t width, uint32_t height, struct err
 {
     g->width = g->height = 0;
     g->px = NULL;
+    g->surf = NULL;
     if (width == 0 || height == 0 || width > 16384 || height > 16384)
         return err_set(err, ERR_LIMIT, NULL, "G-buffer size %ux%u outside 1..16384", width, height);
     g->px = calloc((size_t)width * height, sizeof *g->px);
@@ -23,16 +24,32 @@ bool gbuffer_init(struct gbuffer *g, uint32_t width, uint32_t height, struct err
     return true;
 }
 
+bool gbuffer_keep_surfaces(struct gbuffer *g, struct err *err)
+{
+    if (g->surf) return true;
+    g->surf = calloc((size_t)g->width * g->height, sizeof *g->surf);
+    if (!g->surf)
+        return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u primary surfaces", g->width, g->height);
+    return true;
+}
+
 void gbuffer_destroy(struct gbuffer *g)
 {
     free(g->px);
+    free(g->surf);
     g->px = NULL;
+    g->surf = NULL;
     g->width = g->height = 0;
 }
 
 size_t gbuffer_bytes(const struct gbuffer *g)
 {
     return (size_t)g->width * g->height * sizeof *g->px;
+}
+
+size_t gbuffer_surface_bytes(const struct gbuffer *g)
+{
+    return g->surf ? (size_t)g->width * g->height * sizeof *g->surf : 0;
 }
 
 #define GBUFFER_ROWS_PER_JOB 4u
@@ -78,6 +95,7 @@ static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
                 gp->t = INFINITY;
                 gp->shape = gp->prim = 0;
                 gp->b1 = gp->b2 = 0.0f;
+                if (g->surf) g->surf[pixel] = (struct gbuffer_surface){.material = GBUFFER_NO_HIT};
                 if (f->prev_scene) camera_project_dir(&gj->prev_cam, dir, &gp->prev_x, &gp->prev_y);
                 continue;
             }
@@ -87,6 +105,7 @@ static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
             struct surface s;
             surface_from_hit(f->scene, &hit, gj->cam.position, dir, &s);
             surface_point_code(f->scene, &hit, &s, &gp->b1, &gp->b2);
+            if (g->surf) g->surf[pixel] = (struct gbuffer_surface){s.p, s.ng, s.ns, s.material};
             if (f->prev_scene) {
                 struct vec3 q = gbuffer_prev_point(f, hit.shape, s.p);
                 camera_project(&gj->prev_cam, q, &gp->prev_x, &gp->prev_y);

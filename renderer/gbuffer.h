@@ -28,15 +28,29 @@ struct gbuffer_pixel {
                                there is no previous frame or the point was behind its camera */
 };
 
+/* A primary hit's surface as the G-buffer pass built it, for a method whose shifts come back to
+ * the primary hits of the current and the previous frame several times a frame: reading it costs
+ * less than rebuilding the surface from the point code, and every reader sees the same numbers.
+ * (The shading frame is frame_from_normal(ns).) */
+struct gbuffer_surface {
+    struct vec3 p, ng, ns;
+    uint32_t material;   /* GBUFFER_NO_HIT: the primary ray escaped */
+};
+#define GBUFFER_NO_HIT UINT32_MAX
+
 struct gbuffer {
     uint32_t width, height;
-    struct gbuffer_pixel *px;   /* width * height, row-major, top row first */
+    struct gbuffer_pixel *px;      /* width * height, row-major, top row first */
+    struct gbuffer_surface *surf;  /* the same pixels' surfaces; NULL unless gbuffer_keep_surfaces */
 };
 
 /* Allocates (ERR_LIMIT / ERR_NOMEM). */
 bool gbuffer_init(struct gbuffer *g, uint32_t width, uint32_t height, struct err *err);
+/* From now on gbuffer_render also writes g->surf (ERR_NOMEM). */
+bool gbuffer_keep_surfaces(struct gbuffer *g, struct err *err);
 void gbuffer_destroy(struct gbuffer *g);
-size_t gbuffer_bytes(const struct gbuffer *g);
+size_t gbuffer_bytes(const struct gbuffer *g);          /* the pixels, surfaces not included */
+size_t gbuffer_surface_bytes(const struct gbuffer *g);  /* 0 without surfaces */
 
 /* Random stream id of the jitter: rng_make(seed, frame, pixel, GBUFFER_STREAM). Methods use
  * other ids for their own random numbers. */

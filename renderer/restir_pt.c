@@ -142,8 +142,6 @@ struct pt_ctx {
     const struct scene *scene[2];        /* [RESTIR_CURRENT], [RESTIR_PREVIOUS] */
     struct vec3 eye[2];
     const struct gbuffer *gbuf[2];
-    struct restir_pt_hit *hits[2];       /* primary surfaces; the initial pass writes [CURRENT] */
-    bool hits_write;                     /* during the initial pass */
     uint64_t seed;
     uint32_t frame;
     uint32_t nee_m;                      /* RIS candidates; 0 = no NEE */
@@ -261,27 +259,17 @@ static bool pt_connectable(const struct pt_thread *t, uint32_t j, const struct p
     return a * t->footprint <= 1.0f;
 }
 
-/* The primary vertex of a domain and its eq. 5 threshold (c/100) |x0 - x1|^2 / (cos / 4 pi).
+/* The primary vertex of a domain and its eq. 5 threshold (c/100) |x0 - x1|^2 / (cos / 4 pi):
+ * the G-buffer's surface, the same numbers for the initial pass and every shift into the pixel.
  * x_1 never reconnects (k >= 2), so its primitive and point code are not loaded. */
 static bool pt_primary(const struct pt_ctx *c, struct restir_domain d, struct pt_vertex *v, float *footprint)
 {
+    const struct gbuffer_surface *h = &c->gbuf[d.frame]->surf[d.pixel];
+    if (h->material == GBUFFER_NO_HIT) return false;
     const struct scene *scene = c->scene[d.frame];
-    struct restir_pt_hit *h = &c->hits[d.frame][d.pixel];
-    if (c->hits_write) {
-        const struct gbuffer_pixel *g = &c->gbuf[d.frame]->px[d.pixel];
-        if (!isfinite(g->t)) {
-            h->material = RESTIR_PT_NO_HIT;
-            return false;
-        }
-        surface_at(scene, g->shape, g->prim, g->b1, g->b2, &v->s);
-        *h = (struct restir_pt_hit){v->s.p, v->s.ng, v->s.ns, v->s.material};
-    } else {
-        if (h->material == RESTIR_PT_NO_HIT) return false;
-        /* As surface_at built it in this frame's initial pass, bit for bit. */
-        v->s.p = h->p, v->s.ng = h->ng, v->s.ns = h->ns;
-        v->s.frame = frame_from_normal(h->ns);
-        v->s.material = h->material;
-    }
+    v->s.p = h->p, v->s.ng = h->ng, v->s.ns = h->ns;
+    v->s.frame = frame_from_normal(h->ns);
+    v->s.material = h->material;
     v->s.shape = v->s.prim = UINT32_MAX;
     v->b1 = v->b2 = 0.0f;
     v->m = &scene->materials[v->s.material];
@@ -907,11 +895,11 @@ static void pt_shift(const void *ctx, const void *src, struct restir_domain from
     if (dst) memcpy(dst, &y, sizeof y);
 }
 
-/* From the hit record the initial pass wrote, which a shift into the domain reads next. */
+/* From the G-buffer surface, which a shift into the domain reads next. */
 static bool pt_domain_valid(const void *ctx, struct restir_domain d)
 {
     const struct pt_ctx *c = ctx;
-    return c->hits[d.frame][d.pixel].material != RESTIR_PT_NO_HIT;
+    return c->gbuf[d.frame]->surf[d.pixel].material != GBUFFER_NO_HIT;
 }
 
 const struct restir_ops restir_pt_ops = {
@@ -960,13 +948,12 @@ bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, uint3
     }
     size_t n = (size_t)width * height;
     for (int i = 0; i < 2; i++) {
-        if (!gbuffer_init(&st->gbuf[i], width, height, err)) {
+        if (!gbuffer_init(&st->gbuf[i], width, height, err) || !gbuffer_keep_surfaces(&st->gbuf[i], err)) {
             restir_pt_destroy(st);
             return false;
         }
         st->res[i] = restir_buffer_alloc(n, sizeof(struct pt_sample));
-        st->hits[i] = calloc(n, sizeof(struct restir_pt_hit));
-        if (!st->res[i] || !st->hits[i]) {
+        if (!st->res[i]) {
             restir_pt_destroy(st);
             return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
         }
@@ -984,7 +971,6 @@ void restir_pt_destroy(struct restir_pt_state *st)
     for (int i = 0; i < 2; i++) {
         gbuffer_destroy(&st->gbuf[i]);
         free(st->res[i]);
-        free(st->hits[i]);
     }
     free(st->prim_first);
     free(st->pair_scratch);
@@ -1008,7 +994,7 @@ size_t restir_pt_gbuffer_bytes(const struct restir_pt_state *st)
 
 size_t restir_pt_hit_bytes(const struct restir_pt_state *st)
 {
-    return 2 * (size_t)st->width * st->height * sizeof(struct restir_pt_hit);
+    return gbuffer_surface_bytes(&st->gbuf[0]) + gbuffer_surface_bytes(&st->gbuf[1]);
 }
 
 size_t restir_pt_pair_bytes(const struct restir_pt_state *st)
@@ -1019,7 +1005,7 @@ size_t restir_pt_pair_bytes(const struct restir_pt_state *st)
 uint64_t restir_pt_bytes_planned(uint32_t width, uint32_t height, uint32_t shape_count)
 {
     uint64_t pixels = (uint64_t)width * height;
-    return 2 * pixels * (sizeof(struct pt_sample) + sizeof(struct gbuffer_pixel) + sizeof(struct restir_pt_hit)) +
+    return 2 * pixels * (sizeof(struct pt_sample) + sizeof(struct gbuffer_pixel) + sizeof(struct gbuffer_surface)) +
            ((uint64_t)shape_count + 1) * sizeof(uint32_t) + restir_pair_scratch_bytes(width, height);
 }
 
@@ -1091,8 +1077,6 @@ void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *p
     c->eye[RESTIR_PREVIOUS] = f->prev_camera ? f->prev_camera->position : f->camera->position;
     c->gbuf[RESTIR_CURRENT] = &st->gbuf[st->cur];
     c->gbuf[RESTIR_PREVIOUS] = &st->gbuf[st->cur ^ 1u];
-    c->hits[RESTIR_CURRENT] = st->hits[st->cur];
-    c->hits[RESTIR_PREVIOUS] = st->hits[st->cur ^ 1u];
     c->seed = f->seed;
     c->frame = f->frame;
     c->nee_m = params->nee_candidates == RESTIR_PT_NEE_BY_SCENE ? st->nee_by_scene : params->nee_candidates;
@@ -1131,10 +1115,7 @@ static bool pt_begin(struct restir_pt_state *st, const struct restir_pt_params *
     pp->c = c;
     pp->st = st;
     pp->out = out;
-    c->hits_write = true;
-    bool ok = pt_run(pp, threads, pt_initial_rows, err);
-    c->hits_write = false;
-    if (!ok) return false;
+    if (!pt_run(pp, threads, pt_initial_rows, err)) return false;
     stats->initial_ms = parallel_lap_ms(&t0);
     return true;
 }

@@ -63,18 +63,9 @@ struct restir_pt_stats {
     uint64_t nonfinite;   /* pixels whose shaded value was not finite (written as 0) */
 };
 
-/* Per-session state: two G-buffers (current, previous) and two reservoir buffers (the frame's
- * working buffer and the history the next frame reuses). */
-/* A primary hit's surface, rebuilt once per frame by the initial pass: every shift into a pixel
- * needs it, and rebuilding it from the G-buffer's point code costs more than reading it. It
- * carries all a shift reads of the pixel, so a shift touches one record rather than this and
- * the G-buffer's pixel too. */
-struct restir_pt_hit {
-    struct vec3 p, ng, ns;
-    uint32_t material;   /* RESTIR_PT_NO_HIT: the primary ray escaped */
-};
-#define RESTIR_PT_NO_HIT UINT32_MAX
-
+/* Per-session state: two G-buffers (current, previous), each keeping its primary surfaces
+ * (gbuffer_keep_surfaces: the initial pass and every shift read x_1 from there), and two
+ * reservoir buffers (the frame's working buffer and the history the next frame reuses). */
 struct restir_pt_state {
     uint32_t width, height;
     struct gbuffer gbuf[2];
@@ -84,7 +75,6 @@ struct restir_pt_state {
     uint32_t shape_count;
     uint32_t *prim_first;      /* shape -> first scene-wide primitive id (shape_count + 1) */
     void *pair_scratch;        /* paired spatial reuse: restir_pair_scratch_bytes() */
-    struct restir_pt_hit *hits[2]; /* each G-buffer's primary surfaces (with gbuf[i]) */
     uint32_t nee_by_scene;     /* restir_pt_nee_by_scene of the scene at init: fixed for the session,
                                   as the integrand's MIS weights must not change between frames */
 };
