@@ -342,11 +342,11 @@ static float restir_pair_u(const struct restir_pass *p, uint32_t pixel, uint32_t
     return (float)(restir_hash32((uint32_t)h ^ restir_hash32(pixel ^ (uint32_t)(h >> 32))) >> 8) * 0x1p-24f;
 }
 
-/* Starts the round: k counts the valid partners. The output is written only when a candidate is
- * selected, and by the closing pass when the canonical sample stays. */
-static void restir_pair_begin_pixel(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c)
+/* Opens the round for a pixel: k counts the valid partners, the first ones are kept. The output
+ * is written only when a candidate is selected, and when the round closes if the canonical sample
+ * stays. */
+static void restir_pair_open(const struct restir_pass *p, uint32_t pixel)
 {
-    (void)c;
     const struct restir_reuse *r = p->r;
     struct restir_pair_acc *a = (struct restir_pair_acc *)r->pair_scratch + pixel;
     memset(a, 0, sizeof *a);
@@ -386,12 +386,13 @@ static void restir_pair_side(const struct restir_pass *p, struct restir_domain d
     c->rejected += a->s.rejected - before;
 }
 
-/* The valid partner of a pixel that can produce samples, under pairing p->matching: as the opening
- * pass stored it, or found again past the stored ones. */
+/* The valid partner of a pixel that can produce samples, under pairing p->matching: as the round's
+ * opening stored it, or found afresh (in the first pairing, which opens the round, and past the
+ * stored ones). */
 static bool restir_pair_of_round(const struct restir_pass *p, uint32_t pixel, uint32_t *q)
 {
     const struct restir_reuse *r = p->r;
-    if (p->matching < RESTIR_PAIR_CACHED) {
+    if (p->matching > 0 && p->matching < RESTIR_PAIR_CACHED) {
         *q = ((const struct restir_pair_acc *)r->pair_scratch)[pixel].partner[p->matching];
         return *q != RESTIR_NO_PARTNER;
     }
@@ -399,14 +400,12 @@ static bool restir_pair_of_round(const struct restir_pass *p, uint32_t pixel, ui
            restir_pair_valid(p, p->matching, pixel, q);
 }
 
-/* One pair of pairing p->matching, done by its owner. */
-static void restir_pair_pixel(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c)
+/* The pair (pixel, q) of pairing p->matching: both shifts, and each side's candidate. */
+static void restir_pair_work(const struct restir_pass *p, uint32_t pixel, uint32_t q, struct restir_counters *c)
 {
     const struct restir_reuse *r = p->r;
     const struct restir_ops *ops = r->ops;
     const size_t stride = ops->stride;
-    uint32_t q;
-    if (!restir_pair_of_round(p, pixel, &q) || q <= pixel) return;
     const struct restir_domain dp = {pixel, RESTIR_CURRENT}, dq = {q, RESTIR_CURRENT};
     const struct restir_head *hp = restir_elem(p->in, stride, pixel), *hq = restir_elem(p->in, stride, q);
     const float p_p = hp->W > 0.0f ? ops->target(r->ctx, hp) : 0.0f;
@@ -419,8 +418,8 @@ static void restir_pair_pixel(const struct restir_pass *p, uint32_t pixel, struc
     restir_pair_side(p, dq, dp, p_q, t_qp * j_qp, p_p, t_pq, j_pq, to_q, c);
 }
 
-/* Ends the round: the canonical sample is the last candidate. */
-static void restir_pair_end_pixel(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c)
+/* Closes the round for a pixel: the canonical sample is the last candidate. */
+static void restir_pair_close(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c)
 {
     const struct restir_reuse *r = p->r;
     const size_t stride = r->ops->stride;
@@ -452,6 +451,28 @@ static void restir_pair_end_pixel(const struct restir_pass *p, uint32_t pixel, s
     ho->W = res.W;
     ho->M = restir_clamp_m(res.M);
     if (restir_estimating(r)) r->estimate[pixel] = vec3_add(r->estimate[pixel], a->est);
+}
+
+/* One pixel's part in pairing p->matching. The owner of a pair (its smaller pixel) does the pair;
+ * a pixel without a valid partner does only its own bookkeeping. The first pairing also opens the
+ * round and the last one closes it, for both pixels of each pair, while their elements are in
+ * cache: the partner relation is symmetric, so every pixel is opened once before any candidate
+ * reaches it and closed once after all of them, without passes of their own. */
+static void restir_pair_pixel(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c)
+{
+    const bool opens = p->matching == 0, closes = p->matching + 1 == p->r->neighbors;
+    uint32_t q;
+    const bool paired = restir_pair_of_round(p, pixel, &q);
+    if (paired && q < pixel) return;  /* q owns the pair */
+    if (opens) {
+        restir_pair_open(p, pixel);
+        if (paired) restir_pair_open(p, q);
+    }
+    if (paired) restir_pair_work(p, pixel, q, c);
+    if (closes) {
+        restir_pair_close(p, pixel, c);
+        if (paired) restir_pair_close(p, q, c);
+    }
 }
 
 static void restir_rows(void *ctx, uint32_t job, unsigned worker)
@@ -499,10 +520,9 @@ bool restir_spatial_pass(const struct restir_reuse *r, const uint8_t *in, uint8_
 {
     if (!r->paired || r->neighbors == 0) return restir_run(r, restir_spatial_pixel, in, out, 0, c, err);
     if (!r->pair_scratch) return err_set(err, ERR_INTERNAL, NULL, "paired spatial reuse without its scratch buffer");
-    if (!restir_run(r, restir_pair_begin_pixel, in, out, 0, c, err)) return false;
     for (uint32_t m = 0; m < r->neighbors; m++)
         if (!restir_run(r, restir_pair_pixel, in, out, m, c, err)) return false;
-    return restir_run(r, restir_pair_end_pixel, in, out, 0, c, err);
+    return true;
 }
 
 bool restir_gbuffer_next(struct gbuffer gbuf[2], uint32_t *cur, bool *has_history, struct gbuffer_frame gf,
