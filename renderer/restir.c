@@ -252,8 +252,8 @@ struct restir_pair_acc {
     uint32_t k;             /* partners that can produce samples (pairings whose partner is valid) */
     struct vec3 est;        /* restir_reuse.estimate: sum of m_i W_i |J_i| F(Y_i) so far */
     /* The valid partner of each of the first RESTIR_PAIR_CACHED pairings (RESTIR_NO_PARTNER: off
-     * the image or unable to produce samples), found once by the opening pass: the pairings' own
-     * passes read it instead of hashing the partner's coordinates again. */
+     * the image or unable to produce samples), found once when the round opens: the later
+     * pairings read it instead of hashing the partner's coordinates again. */
     uint32_t partner[RESTIR_PAIR_CACHED];
 };
 
