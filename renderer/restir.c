@@ -300,13 +300,14 @@ static void restir_pair_keys(const struct restir_reuse *r, uint64_t keys[65])
         keys[m] = rng_mix64(r->seed ^ rng_mix64(((uint64_t)r->frame << 8 | m) ^ RESTIR_PAIR_STREAM));
 }
 
-/* The partner of `pixel` under the pairing with key h and blocks of 2^L pixels (false: off the
- * image). */
-static bool restir_partner_of(const struct restir_reuse *r, uint64_t h, uint32_t L, uint32_t pixel, uint32_t *partner)
+/* The partner of pixel (x, y) under the pairing with key h and blocks of 2^L pixels (false: off
+ * the image). */
+static bool restir_partner_of(const struct restir_reuse *r, uint64_t h, uint32_t L, uint32_t x, uint32_t y,
+                              uint32_t *partner)
 {
     const uint32_t mask = (1u << L) - 1;
     const uint32_t ox = (uint32_t)h & mask, oy = (uint32_t)(h >> 20) & mask;
-    const uint32_t gx = pixel % r->width + ox, gy = pixel / r->width + oy;
+    const uint32_t gx = x + ox, gy = y + oy;
     const uint32_t t = restir_hash32((uint32_t)(h >> 32) ^ restir_hash32((gx >> L) << 16 ^ (gy >> L)));
     uint32_t a = t & mask, b = (t >> 16) & mask;
     if (a == 0 && b == 0) a = 1;
@@ -317,21 +318,23 @@ static bool restir_partner_of(const struct restir_reuse *r, uint64_t h, uint32_t
     return true;
 }
 
-static inline bool restir_partner(const struct restir_pass *p, uint32_t m, uint32_t pixel, uint32_t *partner)
+static inline bool restir_partner(const struct restir_pass *p, uint32_t m, uint32_t x, uint32_t y, uint32_t *partner)
 {
-    return restir_partner_of(p->r, p->pair_key[m], p->pair_log2, pixel, partner);
+    return restir_partner_of(p->r, p->pair_key[m], p->pair_log2, x, y, partner);
 }
 
 bool restir_pair_partner(const struct restir_reuse *r, uint32_t m, uint32_t pixel, uint32_t *partner)
 {
     uint64_t keys[65];
     restir_pair_keys(r, keys);
-    return m < 64 && restir_partner_of(r, keys[m], restir_pair_log2(r->radius), pixel, partner);
+    return m < 64 &&
+           restir_partner_of(r, keys[m], restir_pair_log2(r->radius), pixel % r->width, pixel / r->width, partner);
 }
 
-static bool restir_pair_valid(const struct restir_pass *p, uint32_t m, uint32_t pixel, uint32_t *partner)
+/* The partner of pixel (x, y) in pairing m, when it is on the image and can produce samples. */
+static bool restir_pair_valid(const struct restir_pass *p, uint32_t m, uint32_t x, uint32_t y, uint32_t *partner)
 {
-    return restir_partner(p, m, pixel, partner) &&
+    return restir_partner(p, m, x, y, partner) &&
            p->r->ops->domain_valid(p->r->ctx, (struct restir_domain){*partner, RESTIR_CURRENT});
 }
 
@@ -353,9 +356,10 @@ static void restir_pair_open(const struct restir_pass *p, uint32_t pixel)
     reservoir_stream_begin(&a->s);
     for (uint32_t m = 0; m < RESTIR_PAIR_CACHED; m++) a->partner[m] = RESTIR_NO_PARTNER;
     if (!r->ops->domain_valid(r->ctx, (struct restir_domain){pixel, RESTIR_CURRENT})) return;
+    const uint32_t x = pixel % r->width, y = pixel / r->width;
     for (uint32_t m = 0; m < r->neighbors; m++) {
         uint32_t q;
-        if (!restir_pair_valid(p, m, pixel, &q)) continue;
+        if (!restir_pair_valid(p, m, x, y, &q)) continue;
         a->k++;
         if (m < RESTIR_PAIR_CACHED) a->partner[m] = q;
     }
@@ -397,7 +401,7 @@ static bool restir_pair_of_round(const struct restir_pass *p, uint32_t pixel, ui
         return *q != RESTIR_NO_PARTNER;
     }
     return r->ops->domain_valid(r->ctx, (struct restir_domain){pixel, RESTIR_CURRENT}) &&
-           restir_pair_valid(p, p->matching, pixel, q);
+           restir_pair_valid(p, p->matching, pixel % r->width, pixel / r->width, q);
 }
 
 /* The pair (pixel, q) of pairing p->matching: both shifts, and each side's candidate. */

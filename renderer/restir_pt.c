@@ -530,10 +530,10 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
                             r.prim = pt_prim_id(c->st, ls.light.shape, ls.light.prim);
                             pt_light_code(scene, &ls.light, &r.b1, &r.b2);
                             r.rc_pdf = ls.light.pdf_a;
-                            struct surface lsurf;
-                            surface_at(scene, ls.light.shape, ls.light.prim, r.b1, r.b2, &lsurf);
+                            struct vec3 lp, lng;
+                            surface_point_at(scene, ls.light.shape, ls.light.prim, r.b1, r.b2, &lp, &lng);
                             struct pt_segment lseg;
-                            pt_segment_geo(c, &v, -1, lsurf.p, lsurf.ng, &lseg);
+                            pt_segment_geo(c, &v, -1, lp, lng, &lseg);
                             if (pt_connectable(&th, d, &lseg, true, false, 0.0f)) r.k = d;
                         }
                     }
@@ -763,17 +763,14 @@ static void pt_shift_impl(const struct pt_thread *th, const struct pt_sample *x,
         } else {
             uint32_t shape, prim;
             pt_prim_decode(c->st, x->rc_prim, &shape, &prim);
-            struct surface ls;
-            surface_at(scene, shape, prim, x->rc_b1, x->rc_b2, &ls);
-            light_p = ls.p;
-            light_ng = ls.ng;
-            struct vec3 dv = vec3_sub(ls.p, v.s.p);
+            surface_point_at(scene, shape, prim, x->rc_b1, x->rc_b2, &light_p, &light_ng);
+            struct vec3 dv = vec3_sub(light_p, v.s.p);
             float d2 = vec3_length2(dv);
             if (!(d2 > 0.0f)) return;
             dist = sqrtf(d2);
             wi_world = vec3_scale(dv, 1.0f / dist);
-            float cosl = vec3_dot(wi_world, ls.ng);
-            Le = light_sampler_emitted(&scene->materials[ls.material], -cosl);
+            float cosl = vec3_dot(wi_world, light_ng);
+            Le = light_sampler_emitted(&scene->materials[scene->shapes[shape].material], -cosl);
             pdf_a = light_sampler_pdf_a(scene->lights, shape, prim);
             p1 = sampling_area_to_solid_angle(pdf_a, d2, cosl);
             lseg.dist2 = d2;

@@ -108,6 +108,31 @@ void surface_at(const struct scene *scene, uint32_t shape, uint32_t prim, float 
     surface_from_hit(scene, &h, pw, vec3_make(0.0f, 0.0f, 1.0f), out);
 }
 
+void surface_point_at(const struct scene *scene, uint32_t shape, uint32_t prim, float b1, float b2, struct vec3 *p,
+                      struct vec3 *ng)
+{
+    const struct accel *accel = scene->accel;
+    const struct shape *s = &scene->shapes[shape];
+    if (s->kind != SHAPE_MESH) {
+        struct surface full;
+        surface_at(scene, shape, prim, b1, b2, &full);
+        *p = full.p;
+        *ng = full.ng;
+        return;
+    }
+    /* surface_at's and surface_from_hit's arithmetic for a mesh, in the same order. */
+    const bool identity = accel_shape_is_identity(accel, shape);
+    const uint32_t *tri = &s->indices[3 * prim];
+    struct vec3 p0 = s->positions[tri[0]];
+    struct vec3 n = vec3_cross(vec3_sub(s->positions[tri[1]], p0), vec3_sub(s->positions[tri[2]], p0));
+    if (!identity) n = xform_normal(accel_shape_to_object(accel, shape), n);
+    *ng = vec3_normalize(n);
+    float b0 = 1.0f - b1 - b2;
+    struct vec3 q = vec3_add(vec3_add(vec3_scale(p0, b0), vec3_scale(s->positions[tri[1]], b1)),
+                             vec3_scale(s->positions[tri[2]], b2));
+    *p = identity ? q : xform_point(accel_shape_to_world(accel, shape), q);
+}
+
 void surface_point_code(const struct scene *scene, const struct hit *h, const struct surface *s, float *b1, float *b2)
 {
     const struct shape *sh = &scene->shapes[h->shape];

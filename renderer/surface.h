@@ -31,6 +31,10 @@ void surface_from_hit(const struct scene *scene, const struct hit *hit, struct v
  * kept across frames (G-buffer hits, reservoir vertices) are stored this way, so the same code
  * in a scene where the shape moved gives the moved point. */
 void surface_at(const struct scene *scene, uint32_t shape, uint32_t prim, float b1, float b2, struct surface *out);
+/* Only the position and the geometric normal of surface_at's surface, bit for bit, without the
+ * shading normal and frame (a light point: its emission needs no more). */
+void surface_point_at(const struct scene *scene, uint32_t shape, uint32_t prim, float b1, float b2, struct vec3 *p,
+                      struct vec3 *ng);
 /* The (b1, b2) code of the point `s` that the hit `h` produced (see surface_at). */
 void surface_point_code(const struct scene *scene, const struct hit *h, const struct surface *s, float *b1,
                         float *b2);
