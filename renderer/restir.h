@@ -47,7 +47,7 @@ struct restir_counters {
 
 /* *sum += c. A pass counts into a job-local copy and adds it here once per job: the workers'
  * slots of a per-worker array share cache lines, and counting every ray straight into them makes
- * the cores fight over those lines (two threads ran the initial pass only 1.3x faster than one). */
+ * the cores fight over those lines (docs/benchmarks.md, "Two threads that shared a cache line"). */
 static inline void restir_counters_add(struct restir_counters *sum, const struct restir_counters *c)
 {
     sum->rays.intersect += c->rays.intersect;

@@ -21,6 +21,26 @@ static struct vec3 surface_shading_normal(const struct accel *accel, const struc
     return vec3_dot(n, ng) < 0.0f ? vec3_neg(n) : n;
 }
 
+/* A mesh point's world position from its barycentrics (b0 = 1 - b1 - b2). */
+static struct vec3 surface_mesh_point(const struct accel *accel, const struct shape *s, uint32_t shape,
+                                      const uint32_t *tri, float b0, float b1, float b2)
+{
+    struct vec3 p = vec3_add(vec3_add(vec3_scale(s->positions[tri[0]], b0), vec3_scale(s->positions[tri[1]], b1)),
+                             vec3_scale(s->positions[tri[2]], b2));
+    return accel_shape_is_identity(accel, shape) ? p : xform_point(accel_shape_to_world(accel, shape), p);
+}
+
+/* A triangle's unit geometric normal as accel_intersect reports it: the object-space winding
+ * normal, carried by the inverse transpose (so a mirroring transform does not flip the front). */
+static struct vec3 surface_mesh_ng(const struct accel *accel, const struct shape *s, uint32_t shape,
+                                   const uint32_t *tri)
+{
+    struct vec3 p0 = s->positions[tri[0]];
+    struct vec3 ng = vec3_cross(vec3_sub(s->positions[tri[1]], p0), vec3_sub(s->positions[tri[2]], p0));
+    if (!accel_shape_is_identity(accel, shape)) ng = xform_normal(accel_shape_to_object(accel, shape), ng);
+    return vec3_normalize(ng);
+}
+
 /* Runs once per path vertex. The shape's inverse transform comes from the accel, which keeps
  * it per shape, instead of being recomputed here per hit; identity transforms (shapes written in
  * world coordinates) are skipped: x * 1 + y * 0 + z * 0 + 0 == x, so no bit of the result
@@ -30,7 +50,6 @@ void surface_from_hit(const struct scene *scene, const struct hit *hit, struct v
 {
     const struct accel *accel = scene->accel;
     const struct shape *s = &scene->shapes[hit->shape];
-    bool identity = accel_shape_is_identity(accel, hit->shape);
     out->shape = hit->shape;
     out->prim = hit->prim;
     out->material = s->material;
@@ -38,9 +57,7 @@ void surface_from_hit(const struct scene *scene, const struct hit *hit, struct v
     if (s->kind == SHAPE_MESH) {
         const uint32_t *tri = &s->indices[3 * hit->prim];
         float b0 = 1.0f - hit->b1 - hit->b2;
-        struct vec3 p = vec3_add(vec3_add(vec3_scale(s->positions[tri[0]], b0), vec3_scale(s->positions[tri[1]], hit->b1)),
-                                 vec3_scale(s->positions[tri[2]], hit->b2));
-        out->p = identity ? p : xform_point(accel_shape_to_world(accel, hit->shape), p);
+        out->p = surface_mesh_point(accel, s, hit->shape, tri, b0, hit->b1, hit->b2);
         out->ns = s->normals ? surface_shading_normal(accel, s, tri, hit->shape, b0, hit->b1, hit->b2, out->ng) : out->ng;
     } else {
         /* Sphere: the hit point is re-projected onto the exact surface in object space, which
@@ -87,17 +104,10 @@ void surface_at(const struct scene *scene, uint32_t shape, uint32_t prim, float 
     const struct accel *accel = scene->accel;
     const struct shape *s = &scene->shapes[shape];
     const struct xform *xf = accel_shape_to_world(accel, shape);
-    bool identity = accel_shape_is_identity(accel, shape);
     struct hit h = {.t = 0.0f, .shape = shape, .prim = prim, .b1 = b1, .b2 = b2};
     if (s->kind == SHAPE_MESH) {
-        const uint32_t *tri = &s->indices[3 * prim];
-        struct vec3 p0 = s->positions[tri[0]];
-        /* As accel_intersect: the object-space winding normal, carried by the inverse transpose
-         * (so a mirroring transform does not flip the front side). */
-        struct vec3 ng = vec3_cross(vec3_sub(s->positions[tri[1]], p0), vec3_sub(s->positions[tri[2]], p0));
-        if (!identity) ng = xform_normal(accel_shape_to_object(accel, shape), ng);
-        h.ng = vec3_normalize(ng);
-        surface_from_hit(scene, &h, p0, vec3_make(0.0f, 0.0f, 1.0f), out);
+        h.ng = surface_mesh_ng(accel, s, shape, &s->indices[3 * prim]);
+        surface_from_hit(scene, &h, s->positions[s->indices[3 * prim]], vec3_make(0.0f, 0.0f, 1.0f), out);
         return;
     }
     /* Sphere: a ray from the centre along the coded direction lands on the surface at t = r in
@@ -111,26 +121,17 @@ void surface_at(const struct scene *scene, uint32_t shape, uint32_t prim, float 
 void surface_point_at(const struct scene *scene, uint32_t shape, uint32_t prim, float b1, float b2, struct vec3 *p,
                       struct vec3 *ng)
 {
-    const struct accel *accel = scene->accel;
     const struct shape *s = &scene->shapes[shape];
-    if (s->kind != SHAPE_MESH) {
+    if (s->kind != SHAPE_MESH) {  /* a sphere's point needs the whole reconstruction anyway */
         struct surface full;
         surface_at(scene, shape, prim, b1, b2, &full);
         *p = full.p;
         *ng = full.ng;
         return;
     }
-    /* surface_at's and surface_from_hit's arithmetic for a mesh, in the same order. */
-    const bool identity = accel_shape_is_identity(accel, shape);
     const uint32_t *tri = &s->indices[3 * prim];
-    struct vec3 p0 = s->positions[tri[0]];
-    struct vec3 n = vec3_cross(vec3_sub(s->positions[tri[1]], p0), vec3_sub(s->positions[tri[2]], p0));
-    if (!identity) n = xform_normal(accel_shape_to_object(accel, shape), n);
-    *ng = vec3_normalize(n);
-    float b0 = 1.0f - b1 - b2;
-    struct vec3 q = vec3_add(vec3_add(vec3_scale(p0, b0), vec3_scale(s->positions[tri[1]], b1)),
-                             vec3_scale(s->positions[tri[2]], b2));
-    *p = identity ? q : xform_point(accel_shape_to_world(accel, shape), q);
+    *ng = surface_mesh_ng(scene->accel, s, shape, tri);
+    *p = surface_mesh_point(scene->accel, s, shape, tri, 1.0f - b1 - b2, b1, b2);
 }
 
 void surface_point_code(const struct scene *scene, const struct hit *h, const struct surface *s, float *b1, float *b2)

@@ -1,9 +1,10 @@
 /* test_gbuffer.c — camera projection and G-buffer motion vectors, as round trips: a position
  * projected back through the camera gives the same ray; a pixel's previous position, traced
  * from the previous camera in the previous scene, hits the same surface point (camera motion,
- * a moved shape, both). */
+ * a moved shape, both). And the primary surfaces a G-buffer keeps. */
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "accel.h"
 #include "camera.h"
@@ -180,4 +181,79 @@ static void test_jitter_deterministic(void)
     scene_release(s);
 }
 
-TEST_MAIN(TEST(test_camera_project_round_trip), TEST(test_motion_vectors), TEST(test_jitter_deterministic))
+/* Checks the kept surfaces of one rendered G-buffer; returns the pixels whose ray escaped. */
+static uint32_t check_kept_surfaces(const struct gbuffer *g, const struct scene *s)
+{
+    uint32_t escaped = 0, bad_hit = 0, bad_point = 0, bad_light_point = 0;
+    for (uint32_t i = 0; i < g->width * g->height; i++) {
+        const struct gbuffer_pixel *px = &g->px[i];
+        const struct gbuffer_surface *k = &g->surf[i];
+        if (!isfinite(px->t)) {
+            escaped++;
+            bad_hit += k->material != GBUFFER_NO_HIT;
+            continue;
+        }
+        bad_hit += k->material != s->shapes[px->shape].material;
+        struct surface at;
+        surface_at(s, px->shape, px->prim, px->b1, px->b2, &at);
+        bad_point += vec3_length(vec3_sub(at.p, k->p)) > 1e-2f || vec3_dot(at.ng, k->ng) < 0.9999f ||
+                     vec3_dot(at.ns, k->ns) < 0.9999f;
+        struct vec3 p, ng;
+        surface_point_at(s, px->shape, px->prim, px->b1, px->b2, &p, &ng);
+        bad_light_point += memcmp(&p, &at.p, sizeof p) != 0 || memcmp(&ng, &at.ng, sizeof ng) != 0;
+    }
+    CHECK_MSG(bad_hit == 0, "%u pixels keep the wrong material or hit mark", bad_hit);
+    CHECK_MSG(bad_point == 0, "%u kept surfaces differ from the point their code rebuilds", bad_point);
+    CHECK_MSG(bad_light_point == 0, "surface_point_at differs from surface_at at %u points", bad_light_point);
+    return escaped;
+}
+
+/* The surfaces a G-buffer keeps (gbuffer_keep_surfaces): the no-hit mark exactly where the ray
+ * escaped, else the shape's material and the point the pixel's code rebuilds; and
+ * surface_point_at gives surface_at's position and normal bit for bit, on shapes in world
+ * coordinates and on a moved one. */
+static void test_kept_surfaces(void)
+{
+    struct scene *s = load_cornell();
+    if (!s) return;
+    struct gbuffer g;
+    struct err err = {0};
+    CHECK(gbuffer_init(&g, 40, 32, &err));
+    CHECK(g.surf == NULL && gbuffer_surface_bytes(&g) == 0);
+    CHECK(gbuffer_keep_surfaces(&g, &err));
+    CHECK(gbuffer_surface_bytes(&g) == 40 * 32 * sizeof(struct gbuffer_surface));
+    struct gbuffer_frame f = {.scene = s, .camera = &s->camera, .seed = 5, .frame = 2, .threads = 2};
+    CHECK(gbuffer_render(&g, &f, NULL, &err));
+    CHECK(check_kept_surfaces(&g, s) < 40 * 32);
+
+    int light = scene_find_shape(s, "ceiling_light");
+    CHECK(light >= 0);
+    struct scene_shape_override ov = {.shape = (uint32_t)light, .has_to_world = true};
+    ov.to_world = xform_identity();
+    ov.to_world.m[1][3] = -120.0f;
+    ov.to_world.m[0][2] = 0.3f;  /* sheared, so the normal goes through the inverse transpose */
+    struct scene *d = light >= 0 ? scene_derive(s, &ov, 1, &err) : NULL;
+    CHECK_MSG(d != NULL, "%s", err.message);
+    if (d) {
+        f.scene = d;
+        CHECK(gbuffer_render(&g, &f, NULL, &err));
+        uint32_t on_light = 0;
+        for (uint32_t i = 0; i < 40 * 32; i++) on_light += isfinite(g.px[i].t) && g.px[i].shape == (uint32_t)light;
+        CHECK(on_light > 0);
+        check_kept_surfaces(&g, d);
+        scene_release(d);
+    }
+
+    /* Looking away from the box: every ray escapes, every pixel is marked. */
+    struct camera_desc away = s->camera;
+    away.look_at = vec3_sub(away.position, vec3_sub(away.look_at, away.position));
+    f.scene = s;
+    f.camera = &away;
+    CHECK(gbuffer_render(&g, &f, NULL, &err));
+    CHECK(check_kept_surfaces(&g, s) == 40 * 32);
+    gbuffer_destroy(&g);
+    scene_release(s);
+}
+
+TEST_MAIN(TEST(test_camera_project_round_trip), TEST(test_motion_vectors), TEST(test_jitter_deterministic),
+          TEST(test_kept_surfaces))
