@@ -16,7 +16,7 @@ else ifeq ($(TSAN),1)
 else
   # Link-time optimisation inlines the small per-file kernels (material, surface, lights) into
   # the path loop: 7 % fewer instructions per ray on the Cornell box (callgrind).
-  OPT   := -O2 -g -fno-math-errno -flto=auto
+  OPT   := -O3 -g -fno-math-errno -flto=auto
   OUT   := $(BUILD)
 endif
 AR      := gcc-ar

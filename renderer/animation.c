@@ -118,7 +118,7 @@ static void animation_eval(const struct animation_channel *ch, const struct anim
     double u = (t - t0) / h;  /* in [0, 1): t0 <= t < t1 by construction */
 
     bool cubic = interp == ANIMATION_CATMULL_ROM;
-    double pp[ANIMATION_MAX_DIM], pn[ANIMATION_MAX_DIM];
+    double pp[ANIMATION_MAX_DIM] = {0}, pn[ANIMATION_MAX_DIM] = {0};  /* read only where set; -O3 cannot see it */
     double tp = 0.0, tn = 0.0;
     if (cubic && s->prev >= 0) {
         animation_key_value(ch, s->prev, pp);

@@ -347,17 +347,20 @@ static float restir_pair_u(const struct restir_pass *p, uint32_t pixel, uint32_t
 
 /* Opens the round for a pixel: k counts the valid partners, the first ones are kept. The output
  * is written only when a candidate is selected, and when the round closes if the canonical sample
- * stays. */
-static void restir_pair_open(const struct restir_pass *p, uint32_t pixel)
+ * stays. The first pairing, which opens the round, has already found the pixel's partner there
+ * (`first`, RESTIR_NO_PARTNER when none) and whether the pixel can produce samples (`valid`). */
+static void restir_pair_open(const struct restir_pass *p, uint32_t pixel, bool valid, uint32_t first)
 {
     const struct restir_reuse *r = p->r;
     struct restir_pair_acc *a = (struct restir_pair_acc *)r->pair_scratch + pixel;
     memset(a, 0, sizeof *a);
     reservoir_stream_begin(&a->s);
     for (uint32_t m = 0; m < RESTIR_PAIR_CACHED; m++) a->partner[m] = RESTIR_NO_PARTNER;
-    if (!r->ops->domain_valid(r->ctx, (struct restir_domain){pixel, RESTIR_CURRENT})) return;
+    if (!valid) return;
+    a->partner[0] = first;
+    a->k = first != RESTIR_NO_PARTNER;
     const uint32_t x = pixel % r->width, y = pixel / r->width;
-    for (uint32_t m = 0; m < r->neighbors; m++) {
+    for (uint32_t m = 1; m < r->neighbors; m++) {
         uint32_t q;
         if (!restir_pair_valid(p, m, x, y, &q)) continue;
         a->k++;
@@ -392,16 +395,16 @@ static void restir_pair_side(const struct restir_pass *p, struct restir_domain d
 
 /* The valid partner of a pixel that can produce samples, under pairing p->matching: as the round's
  * opening stored it, or found afresh (in the first pairing, which opens the round, and past the
- * stored ones). */
-static bool restir_pair_of_round(const struct restir_pass *p, uint32_t pixel, uint32_t *q)
+ * stored ones). *valid: whether the pixel itself can produce samples (set when found afresh). */
+static bool restir_pair_of_round(const struct restir_pass *p, uint32_t pixel, bool *valid, uint32_t *q)
 {
     const struct restir_reuse *r = p->r;
     if (p->matching > 0 && p->matching < RESTIR_PAIR_CACHED) {
         *q = ((const struct restir_pair_acc *)r->pair_scratch)[pixel].partner[p->matching];
         return *q != RESTIR_NO_PARTNER;
     }
-    return r->ops->domain_valid(r->ctx, (struct restir_domain){pixel, RESTIR_CURRENT}) &&
-           restir_pair_valid(p, p->matching, pixel % r->width, pixel / r->width, q);
+    *valid = r->ops->domain_valid(r->ctx, (struct restir_domain){pixel, RESTIR_CURRENT});
+    return *valid && restir_pair_valid(p, p->matching, pixel % r->width, pixel / r->width, q);
 }
 
 /* The pair (pixel, q) of pairing p->matching: both shifts, and each side's candidate. */
@@ -466,11 +469,13 @@ static void restir_pair_pixel(const struct restir_pass *p, uint32_t pixel, struc
 {
     const bool opens = p->matching == 0, closes = p->matching + 1 == p->r->neighbors;
     uint32_t q;
-    const bool paired = restir_pair_of_round(p, pixel, &q);
+    bool valid = true;
+    const bool paired = restir_pair_of_round(p, pixel, &valid, &q);
     if (paired && q < pixel) return;  /* q owns the pair */
     if (opens) {
-        restir_pair_open(p, pixel);
-        if (paired) restir_pair_open(p, q);
+        /* Pairing 0 is an involution: q's partner there is this pixel, and both can produce samples. */
+        restir_pair_open(p, pixel, valid, paired ? q : RESTIR_NO_PARTNER);
+        if (paired) restir_pair_open(p, q, true, pixel);
     }
     if (paired) restir_pair_work(p, pixel, q, c);
     if (closes) {

@@ -487,6 +487,10 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
     for (uint32_t j = 1; j <= p->max_depth; j++) {
         const uint32_t d = j + 1;  /* length of the paths that end after x_j */
         const bool offer = p->unify_di || j >= 2;
+        /* The throughput up to x_j when x_j reconnects (pt_rc_beta; beta itself when the lobe gives
+         * nothing along the segment): NEE and the BSDF step may both want it, it is computed once. */
+        struct vec3 beta_rc = beta;
+        bool beta_rc_done = false;
 
         /* NEE candidate: x_1 .. x_j -> light. */
         if (nee_on && (material_flags(v.m) & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
@@ -502,9 +506,11 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
                 bool rough = pt_rough_nee(c, v.m, p2);
                 /* x_j reconnects when no earlier pair did and (x_{j-1}, x_j) is connectable. */
                 const bool rc_here = offer && rc.k == 0 && pt_connectable(&th, j, &seg, false, rough, p2);
-                struct vec3 beta_nee = beta;
-                if (rc_here) pt_rc_beta(&prev, prev_lobe, v.s.p, beta_prev, &beta_nee);
-                struct vec3 F = vec3_mul(beta_nee, end);
+                if (rc_here && !beta_rc_done) {
+                    pt_rc_beta(&prev, prev_lobe, v.s.p, beta_prev, &beta_rc);
+                    beta_rc_done = true;
+                }
+                struct vec3 F = vec3_mul(rc_here ? beta_rc : beta, end);
                 double W_u = (double)ls.W * p1 / src;  /* seed 001 §5: W_ris p_light */
                 float target = vec3_luminance(F);
                 if (!offer) {
@@ -550,7 +556,11 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
         if (rc.k == 0 && pt_connectable(&th, j, &seg, false, stp.rough, stp.pdf_marg)) {
             rc = pt_rc_at(c, &v, stp.dir, seg.lobe, stp.bs.lobe, seg.pdf_lobe * seg.cos_end / seg.dist2 * stp.bs.pdf_w, j);
             found_here = true;
-            pt_rc_beta(&prev, prev_lobe, v.s.p, beta_prev, &beta);
+            if (!beta_rc_done) {
+                pt_rc_beta(&prev, prev_lobe, v.s.p, beta_prev, &beta_rc);
+                beta_rc_done = true;
+            }
+            beta = beta_rc;
         }
         const struct vec3 beta_in = beta;  /* prod over x_1 .. x_{j-1} */
         beta = vec3_mul(beta, stp.factor);

@@ -507,7 +507,7 @@ static void api_scene_get(struct api_call *c)
 static void api_scene_put(struct api_call *c)
 {
     if (!api_require_json(c)) return;
-    enum registry_put_result result;
+    enum registry_put_result result = REGISTRY_CREATED;  /* set by registry_put_scene; -O3 cannot see it */
     struct err e = {0};
     if (!registry_put_scene(c->d->registry, c->seg[2], c->req->body ? c->req->body : "", c->req->body_len, &result, &e)) {
         if (e.code == ERR_CONFLICT) api_problem(c, 409, "conflict", NULL, "%s", e.message);

@@ -36,7 +36,7 @@ static void test_camera_project_round_trip(void)
     for (int i = 0; i < 1000; i++) {
         float px = -10.0f + 84.0f * rng_next_float(&r), py = -10.0f + 68.0f * rng_next_float(&r);
         struct vec3 dir = camera_ray_dir(&cam, px, py);
-        float qx, qy;
+        float qx = NAN, qy = NAN;  /* a failed projection fails the comparisons below too */
         CHECK(camera_project(&cam, vec3_madd(cam.position, dir, 10.0f + 900.0f * rng_next_float(&r)), &qx, &qy));
         CHECK_NEAR(qx, px, 1e-3);
         CHECK_NEAR(qy, py, 1e-3);
@@ -79,8 +79,11 @@ static double check_motion(const struct gbuffer *g, const struct scene *cur, con
             surface_from_hit(prev, &h1, pc.position, d1, &s1);
             /* Compare in object space: the shape may have moved. */
             struct xform inv0, inv1;
-            xform_invert(accel_shape_to_world(cur->accel, h0.shape), &inv0);
-            xform_invert(accel_shape_to_world(prev->accel, h1.shape), &inv1);
+            if (!xform_invert(accel_shape_to_world(cur->accel, h0.shape), &inv0) ||
+                !xform_invert(accel_shape_to_world(prev->accel, h1.shape), &inv1)) {
+                CHECK_MSG(false, "pixel %u,%u: a shape transform is singular", x, y);
+                continue;
+            }
             struct vec3 o0 = xform_point(&inv0, s0.p), o1 = xform_point(&inv1, s1.p);
             float err = vec3_length(vec3_sub(o0, o1));
             CHECK_MSG(err < 0.05f, "pixel %u,%u: %.4f apart", x, y, (double)err);
