@@ -10,19 +10,20 @@ run, on cornell-box, cornell-glossy and door-ajar at 256x256 (BENCH_RESTIR_SCENE
      against the reference. restir_pt's point is the frame after 32 warm-up frames of one
      session: single-frame quality, as a session delivers it;
   3. the equal-time error ratio restir_pt / pt (pt's MAPE interpolated log-log at restir_pt's
-     frame time) and the frame cost ratio restir_pt / pt at 1 spp, from whole sessions of each
-     run back to back (measure_frame_cost);
+     frame time) and the frame cost ratio restir_pt / pt at 1 spp, from frames of the two
+     rendered in turn by one daemon (measure_frame_cost);
   4. an ablation on door-ajar as seed 001 Table 1: pass times and MAPE with each Enhanced
      feature switched off in turn;
   5. writes build/bench/restir_pt.json, one SVG chart per scene (MAPE vs ms, log-log) in
      build/bench/, and prints Markdown tables (medians over the seeds).
 Environment: BENCH_RESTIR_SEEDS (3), BENCH_RESTIR_REF_SPP (2048), BENCH_RESTIR_WARMUP (32),
-BENCH_THREADS (all cores), BENCH_RESTIR_ABLATION (door-ajar; empty = skip).
+BENCH_THREADS (all cores), BENCH_RESTIR_ABLATION (door-ajar; empty = skip), BENCH_RESTIR_COST_ROUNDS
+(48), RESTIR_BIN and RESTIRD_BIN (build/restir, build/restird).
 `bench/restir_pt.py --charts` redraws the charts from the last run's JSON.
 `bench/restir_pt.py --frame-cost` measures only the frame cost ratio restir_pt / pt at 1 spp
-(no references, a few minutes): the mean frame time of a 33-frame session of each, back to back,
-BENCH_RESTIR_COST_RUNS (7) runs, the median of the runs' ratios and their range; restir_pt with
-its defaults, with unpaired spatial reuse and with four NEE candidates."""
+(no references, a few minutes): one daemon, a pt session at 1 spp and restir_pt sessions with its
+defaults, with unpaired spatial reuse and with four NEE candidates, warmed up, then rounds of one
+frame of each in turn; the median of the rounds' ratios and their quartiles."""
 import hashlib
 import json
 import math
@@ -34,6 +35,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from daemon import Daemon  # noqa: E402
 from svgplot import loglog  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -146,54 +148,60 @@ def pt_mape_at(pt_rows, ms):
 
 COST_VARIANTS = [("defaults", "{}"), ("unpaired spatial reuse", '{"paired_spatial": false}'),
                  ("4 NEE candidates", '{"nee_candidates": 4}')]
-COST_RUNS = int(os.environ.get("BENCH_RESTIR_COST_RUNS", "7"))
+COST_ROUNDS = int(os.environ.get("BENCH_RESTIR_COST_ROUNDS", "48"))
+RESTIRD = os.environ.get("RESTIRD_BIN", str(ROOT / "build" / "restird"))
 
 
-def measure_frame_cost(scene_path, variants, runs):
-    """restir_pt's frame cost over pt's at 1 spp, as a session pays it: the mean frame time of a
-    WARMUP + 1 frame session of each (averages over frames are far steadier than one frame's time
-    on a shared machine). Each run renders pt and then every variant back to back, in alternating
-    order, and its ratios divide times taken within seconds of each other; a burst of load from
-    elsewhere then moves one run's ratios, not the median's. Returns per variant the median ms,
-    the median of the runs' ratios and their range."""
-    frames = WARMUP + 1
-    pt, rs = [], {n: [] for n, _ in variants}
-    with tempfile.TemporaryDirectory() as td:
-        img = Path(td) / "f.exr"
-
-        def pt_run(seed):
-            return run(["render", str(scene_path), "--size", SIZE, "--spp", "1", "--frames", str(frames),
-                        "--seed", str(seed), "--json", "-o", str(img)])["time_ms"] / frames
-
-        def restir_run(seed, params):
-            return run(["render", str(scene_path), "--method", "restir_pt", "--size", SIZE, "--seed", str(seed),
-                        "--frames", str(frames), "--params", params, "--json", "-o", str(img)])["time_ms"] / frames
-
-        for seed in range(runs):
-            if seed % 2 == 0:
-                pt.append(pt_run(seed))
-            for name, params in variants:
-                rs[name].append(restir_run(seed, params))
-            if seed % 2 == 1:
-                pt.append(pt_run(seed))
-    out = {"pt_ms": statistics.median(pt), "runs": runs, "variants": {}}
-    for name, times in rs.items():
-        ratios = [t / p for t, p in zip(times, pt)]
-        out["variants"][name] = {"ms": statistics.median(times), "ratio": statistics.median(ratios),
-                                 "ratio_min": min(ratios), "ratio_max": max(ratios)}
+def measure_frame_cost(scene, variants, rounds):
+    """restir_pt's frame cost over pt's at 1 spp, frame by frame: one daemon holds a pt session and,
+    one variant after the other, a restir_pt session warmed up with WARMUP frames; then each round
+    renders one frame of pt and one of the variant, and a last pt frame closes the rounds. A
+    round's ratio divides the variant's frame time by the mean of the two pt frames around it,
+    rendered within a fraction of a second of it: on a shared machine whose speed drifts by tens
+    of per cent within seconds, ratios of whole sessions rendered one after the other moved by as
+    much between runs. Only one restir_pt session lives at a time, as in use: several would evict
+    each other's reservoirs from the caches between their frames. Returns the median ms of each,
+    and per variant the median of the rounds' ratios and their quartiles."""
+    d = Daemon(RESTIRD, THREADS)
+    w, h = (int(v) for v in SIZE.split("x"))
+    pt_all, out = [], {"rounds": rounds, "variants": {}}
+    try:
+        pt = d.session(scene, "pt", w, h, {"spp": 1})
+        for name, params in variants:
+            s = d.session(scene, "restir_pt", w, h, json.loads(params))
+            for _ in range(WARMUP):
+                d.frame_ms(s)
+            pt_ms, ms = [d.frame_ms(pt)], []
+            for _ in range(rounds):
+                ms.append(d.frame_ms(s))
+                pt_ms.append(d.frame_ms(pt))
+            d.delete(s)
+            ratios = [t / ((pt_ms[i] + pt_ms[i + 1]) / 2) for i, t in enumerate(ms)]
+            q1, _, q3 = statistics.quantiles(ratios, n=4)
+            out["variants"][name] = {"ms": statistics.median(ms), "ratio": statistics.median(ratios),
+                                     "ratio_q1": q1, "ratio_q3": q3}
+            pt_all += pt_ms
+    finally:
+        d.close()
+    out["pt_ms"] = statistics.median(pt_all)
     return out
 
 
+def frame_cost_cell(v):
+    return f"{v['ms']:.1f}, {v['ratio']:.2f}× [{v['ratio_q1']:.2f}–{v['ratio_q3']:.2f}]"
+
+
+COST_TITLE = (f"restir_pt / pt at 1 spp, {SIZE}: frame times after {WARMUP} warm-up frames, {COST_ROUNDS} rounds "
+              "of one frame each in one daemon, medians (ratio: median of the rounds' ratios, quartiles in brackets)")
+
+
 def frame_cost():
-    frames = WARMUP + 1
-    print(f"\n### Frame cost restir_pt / pt at 1 spp, {SIZE}: mean frame time of a {frames}-frame session, "
-          f"{COST_RUNS} runs, medians (ratio: median of the runs' ratios, their range in brackets)\n")
+    print(f"\n### Frame cost {COST_TITLE}\n")
     print("| scene | pt 1 spp ms | " + " | ".join(f"restir_pt {n} ms, ratio" for n, _ in COST_VARIANTS) + " |")
     print("|---|---|" + "---|" * len(COST_VARIANTS))
     for scene in SCENES:
-        fc = measure_frame_cost(ROOT / "scenes" / scene / "scene.json", COST_VARIANTS, COST_RUNS)
-        cells = [f"{v['ms']:.1f}, {v['ratio']:.2f}× [{v['ratio_min']:.2f}–{v['ratio_max']:.2f}]"
-                 for v in fc["variants"].values()]
+        fc = measure_frame_cost(scene, COST_VARIANTS, COST_ROUNDS)
+        cells = [frame_cost_cell(v) for v in fc["variants"].values()]
         print(f"| {scene} | {fc['pt_ms']:.1f} | " + " | ".join(cells) + " |", flush=True)
 
 
@@ -222,7 +230,7 @@ def main():
             pt_rows = measure_pt(scene_path, ref, tmp)
             variants = {name: measure_restir(scene_path, ref, tmp, params) for name, params in RESTIR_VARIANTS}
             main_v = variants["restir_pt"]
-            cost = measure_frame_cost(scene_path, [("defaults", "{}")], COST_RUNS)
+            cost = measure_frame_cost(scene, [("defaults", "{}")], COST_ROUNDS)
             results["scenes"][scene] = {
                 "pt": pt_rows, "restir_pt": variants,
                 "equal_time_mape_ratio": main_v["mape"] / pt_mape_at(pt_rows, main_v["ms"]),
@@ -242,14 +250,12 @@ def main():
         v = r["restir_pt"]["restir_pt"]
         print(f"| {scene} | {r['pt'][0]['ms']:.1f} | {v['ms']:.1f} | "
               f"{v['mape']:.3f} | {pt_mape_at(r['pt'], v['ms']):.3f} | {r['equal_time_mape_ratio']:.2f} |")
-    print(f"\n### Frame cost restir_pt / pt at 1 spp: mean frame time of {WARMUP + 1}-frame sessions, "
-          f"{COST_RUNS} runs (ratio: median of the runs' ratios, their range in brackets)\n")
-    print("| scene | pt 1 spp ms | restir_pt ms | frame cost ratio |")
-    print("|---|---|---|---|")
+    print(f"\n### Frame cost {COST_TITLE}\n")
+    print("| scene | pt 1 spp ms | restir_pt ms, frame cost ratio |")
+    print("|---|---|---|")
     for scene, r in results["scenes"].items():
         fc = r["frame_cost"]
-        v = fc["variants"]["defaults"]
-        print(f"| {scene} | {fc['pt_ms']:.1f} | {v['ms']:.1f} | {v['ratio']:.2f}× [{v['ratio_min']:.2f}–{v['ratio_max']:.2f}] |")
+        print(f"| {scene} | {fc['pt_ms']:.1f} | {frame_cost_cell(fc['variants']['defaults'])} |")
     if "ablation" in results:
         print(f"\n### Ablation on {results['ablation']['scene']} (seed 001 Table 1), ms per pass, medians\n")
         print("| setting | G-buffer | initial | temporal | spatial | shade | frame | MAPE |")
