@@ -35,6 +35,15 @@ class Daemon:
             raise SystemExit(f"bench: {method} {path}: {r.status} {payload[:300]!r}")
         return r, payload
 
+    def put_scene(self, name, scene_json):
+        """Uploads a scene (its JSON text) under `name`; it must name no mesh files."""
+        self.conn.request("PUT", f"/v1/scenes/{name}", body=scene_json.encode(),
+                          headers={"Content-Type": "application/json", "Accept": "application/json"})
+        r = self.conn.getresponse()
+        payload = r.read()
+        if r.status not in (200, 201):
+            raise SystemExit(f"bench: PUT /v1/scenes/{name}: {r.status} {payload[:300]!r}")
+
     def session(self, scene, method, width, height, params, seed=0):
         """Creates a session; returns its path."""
         r, _ = self._call("POST", f"/v1/scenes/{scene}/sessions",
