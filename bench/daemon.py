@@ -1,33 +1,34 @@
-"""bench/daemon.py — a build/restird for a benchmark: started on a free loopback port with a
-scratch data folder, sessions created and frames rendered over one keep-alive connection, each
-frame's time as the daemon measured it (render_ms: no HTTP in it). Stdlib only."""
+"""bench/daemon.py — a build/restird for a benchmark: tests/daemon.py's daemon (an ephemeral
+loopback port, a scratch data folder, logs beside it), plus one keep-alive connection over which
+sessions are created and frames rendered, each frame's time as the daemon measured it
+(render_ms: no HTTP in it). Stdlib only."""
 import http.client
+import importlib.util
 import json
-import re
-import subprocess
 import tempfile
+from pathlib import Path
+
+# tests/daemon.py under another name: this module is `daemon` too.
+_spec = importlib.util.spec_from_file_location("restird_test_daemon",
+                                               Path(__file__).resolve().parent.parent / "tests" / "daemon.py")
+test_daemon = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(test_daemon)
 
 
 class Daemon:
-    def __init__(self, binary, threads="0"):
-        self.data = tempfile.TemporaryDirectory()
-        args = [binary, "--listen", "127.0.0.1:0", "--data-dir", self.data.name]
-        if threads != "0":
-            args += ["--threads", threads]
-        self.proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-        line = self.proc.stdout.readline()
-        m = re.search(r":(\d+) ", line)
-        if not m:
-            self.close()
-            raise SystemExit(f"bench: {binary} did not start: {line.strip()!r}")
-        self.conn = http.client.HTTPConnection("127.0.0.1", int(m.group(1)), timeout=600)
+    def __init__(self, binary, threads="0", *extra):
+        self.data = tempfile.TemporaryDirectory(prefix="restird-bench-")
+        args = (["--threads", threads] if threads != "0" else []) + list(extra)
+        self.d = test_daemon.Daemon(Path(self.data.name) / "data", *args, binary=binary)
+        self.port, self.pid = self.d.port, self.d.proc.pid
+        self.conn = http.client.HTTPConnection("127.0.0.1", self.port, timeout=600)
 
-    def _call(self, method, path, body=None, ok=(200,)):
+    def _call(self, method, path, body=None, ok=(200,), content_type="application/json"):
         headers = {"Accept": "application/json"}
         data = None
         if body is not None:
-            data = json.dumps(body).encode()
-            headers["Content-Type"] = "application/json"
+            data = body if isinstance(body, bytes) else json.dumps(body).encode()
+            headers["Content-Type"] = content_type
         self.conn.request(method, path, body=data, headers=headers)
         r = self.conn.getresponse()
         payload = r.read()
@@ -37,12 +38,7 @@ class Daemon:
 
     def put_scene(self, name, scene_json):
         """Uploads a scene (its JSON text) under `name`; it must name no mesh files."""
-        self.conn.request("PUT", f"/v1/scenes/{name}", body=scene_json.encode(),
-                          headers={"Content-Type": "application/json", "Accept": "application/json"})
-        r = self.conn.getresponse()
-        payload = r.read()
-        if r.status not in (200, 201):
-            raise SystemExit(f"bench: PUT /v1/scenes/{name}: {r.status} {payload[:300]!r}")
+        self._call("PUT", f"/v1/scenes/{name}", scene_json.encode(), ok=(200, 201))
 
     def session(self, scene, method, width, height, params, seed=0):
         """Creates a session; returns its path."""
@@ -62,6 +58,8 @@ class Daemon:
         self._call("DELETE", session, ok=(204,))
 
     def close(self):
-        self.proc.terminate()
-        self.proc.wait()
+        """Stops the daemon (SIGTERM) and removes its folder; returns its exit code (None: killed)."""
+        self.conn.close()
+        rc, _ = self.d.stop(timeout=60)
         self.data.cleanup()
+        return rc

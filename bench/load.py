@@ -12,13 +12,12 @@ Prints one JSON object on stdout and a summary on stderr; exits 1 when a propert
 """
 import json
 import os
-import re
-import subprocess
 import sys
-import tempfile
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tests"))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import loadgen  # noqa: E402
+from daemon import Daemon  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BIN = os.environ.get("RESTIRD_BIN", os.path.join(ROOT, "build", "restird"))
@@ -28,22 +27,10 @@ THREADS = os.environ.get("LOAD_THREADS", "1")
 MAX_GROWTH_KIB = int(os.environ.get("LOAD_MAX_GROWTH_KIB", "1024"))
 
 
-def start(*extra):
-    data_dir = tempfile.mkdtemp(prefix="restird-load-")
-    proc = subprocess.Popen([BIN, "--listen", "127.0.0.1:0", "--data-dir", data_dir, "--threads", THREADS, *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-    port = int(re.search(r":(\d+) ", proc.stdout.readline()).group(1))
-    return proc, port
-
-
-def stop(proc):
-    proc.terminate()
-    return proc.wait(timeout=60)
-
-
 def main():
     out, failures = {}, []
-    proc, port = start()
+    d = Daemon(BIN, THREADS)
+    port = d.port
     try:
         r = loadgen.wrk(port, "/healthz", WRK_SECONDS, connections=32)
         out["healthz_wrk"] = {k: r[k] for k in ("cmd", "requests", "rps", "p50_ms", "p99_ms", "non_2xx", "socket_errors")}
@@ -58,7 +45,7 @@ def main():
         if set(r["statuses"]) != {200} or r["socket_errors"]:
             failures.append(f"frames under wrk: {r['statuses']}, socket errors {r['socket_errors']}")
 
-        statuses, trace, secs, bad = loadgen.frame_storm(port, proc.pid, hrefs, FRAMES)
+        statuses, trace, secs, bad = loadgen.frame_storm(port, d.pid, hrefs, FRAMES)
         growth, base = loadgen.rss_growth_kib(trace)
         out["memory"] = {"frames": FRAMES, "seconds": round(secs, 2), "statuses": statuses,
                          "rss_kib_after_warmup": base, "rss_growth_kib": growth, "trace": trace}
@@ -67,21 +54,22 @@ def main():
         if growth > MAX_GROWTH_KIB:
             failures.append(f"RSS grew {growth} KiB after warm-up (limit {MAX_GROWTH_KIB})")
     finally:
-        rc = stop(proc)
+        rc = d.close()
         if rc != 0:
             failures.append(f"daemon exit code {rc}")
 
-    proc, port = start("--render-slots", "1", "--render-queue", "1")
+    d = Daemon(BIN, THREADS, "--render-slots", "1", "--render-queue", "1")
+    port = d.port
     try:
         hrefs = loadgen.new_sessions(port, 8, width=48, height=48, spp=2)
-        before = loadgen.rss_kib(proc.pid)
-        statuses, trace, secs, bad = loadgen.frame_storm(port, proc.pid, hrefs, 2000, accept="application/json")
+        before = loadgen.rss_kib(d.pid)
+        statuses, trace, secs, bad = loadgen.frame_storm(port, d.pid, hrefs, 2000, accept="application/json")
         out["overload"] = {"sessions": 8, "requests": 2000, "seconds": round(secs, 2), "statuses": statuses,
                            "rss_kib_before": before, "rss_kib_max": max(k for _, k in trace)}
         if bad or not set(statuses) <= {200, 503} or not statuses.get(503):
             failures.append(f"overload: {statuses}, first bad answer {bad}")
     finally:
-        rc = stop(proc)
+        rc = d.close()
         if rc != 0:
             failures.append(f"overload daemon exit code {rc}")
 

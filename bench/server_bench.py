@@ -15,16 +15,16 @@ import json
 import os
 import re
 import shutil
-import signal
 import statistics
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "tests"))
+sys.path.insert(0, os.path.join(ROOT, "bench"))
+from daemon import Daemon  # noqa: E402
 from loadgen import request  # noqa: E402  (the request helper shared with the load tests)
 
 BIN = os.environ.get("RESTIRD_BIN", os.path.join(ROOT, "build", "restird"))
@@ -38,12 +38,9 @@ def pct(xs, p):
 
 
 def main():
-    data_dir = tempfile.mkdtemp(prefix="restird-bench-")
-    proc = subprocess.Popen([BIN, "--listen", "127.0.0.1:0", "--data-dir", data_dir],
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    d = Daemon(BIN)
     try:
-        line = proc.stdout.readline()
-        port = int(re.search(r":(\d+) ", line).group(1))
+        port = d.port
         conn = http.client.HTTPConnection("127.0.0.1", port, timeout=120)
         st, hdr, body = request(conn, "POST", "/v1/scenes/cornell-box/sessions",
                                 {"width": 16, "height": 16, "params": {"spp": 1}})
@@ -106,12 +103,7 @@ def main():
             print(out, file=sys.stderr)
         print(json.dumps(results, indent=1))
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-        shutil.rmtree(data_dir, ignore_errors=True)
+        d.close()
 
 
 if __name__ == "__main__":
