@@ -165,6 +165,8 @@ struct pt_split {
     struct rng *sms_rng;
     uint32_t px, py;     /* the pixel (sms_ssp's prior block) */
     bool sms_after_primary;  /* restir_sms: no SMS estimate at its receiver (sms.h), the reservoirs' */
+    bool primary_given;      /* the camera ray's first hit is `primary` (NULL: it escaped), found by */
+    const struct hit *primary; /* the caller's G-buffer pass: the ray is not traced twice */
 };
 
 static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
@@ -187,7 +189,14 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
 
     for (uint32_t depth = 0;; depth++) {
         struct hit hit;
-        if (!accel_intersect(accel, org, dir, 0.0f, INFINITY, &hit, rc)) {
+        bool found;
+        if (depth == 0 && split->primary_given) {
+            found = split->primary != NULL;
+            if (found) hit = *split->primary;
+        } else {
+            found = accel_intersect(accel, org, dir, 0.0f, INFINITY, &hit, rc);
+        }
+        if (!found) {
             if (split->rest && !vec3_is_zero(scene->env_radiance) && !skip_emission) {
                 float w = 1.0f;
                 if (!prev_delta && mis) w = sampling_power_heuristic(prev_pdf_w, light_sampler_env_pdf_w(lights));
@@ -341,9 +350,10 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
 }
 
 struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
-                                  struct vec3 dir, struct rng *rng, bool sss_direct, struct ray_counters *rc)
+                                  struct vec3 dir, const struct hit *primary, struct rng *rng, bool sss_direct,
+                                  struct ray_counters *rc)
 {
-    const struct pt_split all = {.owned = true, .rest = true};
+    const struct pt_split all = {.owned = true, .rest = true, .primary_given = true, .primary = primary};
     return pt_radiance(scene, params, org, dir, rng, rc, &all, sss_direct);
 }
 

@@ -65,13 +65,16 @@ bool reference_pt_render_into(const struct scene *scene, const struct pt_params 
 
 struct rng;
 struct ray_counters;
-/* Radiance along one camera ray (org, unit dir) as `pt` estimates it, from the caller's random
- * stream. sss_direct false leaves out the direct light at subsurface entry points (the NEE at
- * the probe hits of a translucent primary hit, and the emission the path would reach with its
- * first step from there when params->nee is on): restir_sss adds that part from its reservoirs.
- * Thread-safe, allocation-free. */
+/* Radiance along one camera ray (org, unit dir) whose first hit the caller already has
+ * (`primary`, as accel_intersect reports it; NULL when the ray escaped), as `pt` estimates it,
+ * from the caller's random stream. sss_direct false leaves out the direct light at subsurface
+ * entry points (the NEE at the probe hits of a translucent primary hit, and the emission the
+ * path would reach with its first step from there when params->nee is on): restir_sss adds that
+ * part from its reservoirs. Thread-safe, allocation-free. */
+struct hit;
 struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
-                                  struct vec3 dir, struct rng *rng, bool sss_direct, struct ray_counters *rc);
+                                  struct vec3 dir, const struct hit *primary, struct rng *rng, bool sss_direct,
+                                  struct ray_counters *rc);
 
 /* Radiance along one camera ray as `sms` / `sms_ssp` estimate it (params->sms set; params->ssp
  * and ssp_prior for sample-space partitioning), except that no SMS estimate is made at the

@@ -40,16 +40,16 @@ struct sss_sample {
 };
 _Static_assert(sizeof(struct sss_sample) == RESTIR_SSS_RESERVOIR_BYTES, "reservoir element size");
 
-/* The target p̂ of an RGB contribution F. Seed 004 §3 sets p̂ = f; an RGB f needs a scalar, and
- * the pixel is shaded with F W, so each channel carries F_c / p̂ times the reservoir's weight.
- * The diffusion profile makes F strongly coloured (far entry points carry red only, near ones
- * more blue), and luminance weighs blue by 0.0722 and red by 0.2126: a blue- or red-dominated
- * sample is amplified up to 13.9x or 4.7x in that channel. The largest channel bounds every
- * F_c / p̂ by 1 and has the same support as f (p̂ > 0 iff some channel is). Measured: RMSE on
- * the translucent region after 16 frames (bench/restir_sss.py's region and reference, 128x128,
- * seeds 0-2, medians) hybrid 0.0695 -> 0.0642, delayed 0.0594 -> 0.0566 on scenes/translucent;
- * unchanged (0.027-0.028) with its mean free paths x16. */
-static inline float sss_target_of(struct vec3 F) { return vec3_max_comp(F); }
+/* The target p̂ of an RGB contribution F (seed 004 §3: p̂ = f; an RGB f needs a scalar). Each
+ * channel of the shaded pixel carries F_c / p̂, so a strongly coloured sample is amplified in its
+ * channel: luminance weighs blue by 0.0722. The largest channel bounds every F_c / p̂ by 1 and
+ * lowered the RMSE on the translucent region (hybrid 0.0695 -> 0.0642 after 16 frames), but the
+ * first frame after a camera teleport got worse (MAPE 0.335 against a fresh session's 0.222,
+ * tests/test_stability.py::test_camera_teleport; 0.189 with luminance). A likely cause, not
+ * measured: the largest channel weighs far entry points, whose F is red only, up to 4.7x more
+ * than luminance does, and the old view's history reaches the new one by reconnection from far
+ * away. Luminance it stays. */
+static inline float sss_target_of(struct vec3 F) { return vec3_luminance(F); }
 
 static inline int sss_axis(const struct sss_sample *s) { return s->head.bits & 3u; }
 static inline int sss_channel(const struct sss_sample *s) { return (s->head.bits >> 2) & 3u; }
@@ -605,8 +605,11 @@ static void sss_initial_rows(void *ctx, uint32_t job, unsigned worker)
             const struct gbuffer_pixel *g = &c->gbuf[RESTIR_CURRENT]->px[pixel];
             struct vec3 dir = camera_ray_dir(&pp->camera, (float)x + g->jx, (float)y + g->jy);
             struct rng rng = rng_make(c->seed, c->frame, pixel, SSS_PT_STREAM);
-            pp->out->pixels[pixel] =
-                reference_pt_radiance(c->scene[RESTIR_CURRENT], &pp->pt, pp->camera.position, dir, &rng, false, rc);
+            /* The G-buffer pass traced this ray already: its hit starts the path. */
+            struct hit first;
+            if (isfinite(g->t)) first = surface_hit_at(c->scene[RESTIR_CURRENT], g->shape, g->prim, g->t, g->b1, g->b2);
+            pp->out->pixels[pixel] = reference_pt_radiance(c->scene[RESTIR_CURRENT], &pp->pt, pp->camera.position, dir,
+                                                           isfinite(g->t) ? &first : NULL, &rng, false, rc);
         }
     }
     pp->counters[worker].rays.intersect += rays.intersect;

@@ -118,6 +118,14 @@ void surface_at(const struct scene *scene, uint32_t shape, uint32_t prim, float 
     surface_from_hit(scene, &h, pw, vec3_make(0.0f, 0.0f, 1.0f), out);
 }
 
+struct hit surface_hit_at(const struct scene *scene, uint32_t shape, uint32_t prim, float t, float b1, float b2)
+{
+    const struct shape *s = &scene->shapes[shape];
+    struct hit h = {.t = t, .shape = shape, .prim = prim, .b1 = b1, .b2 = b2, .ng = vec3_make(0.0f, 0.0f, 1.0f)};
+    if (s->kind == SHAPE_MESH) h.ng = surface_mesh_ng(scene->accel, s, shape, &s->indices[3 * prim]);
+    return h;
+}
+
 void surface_point_at(const struct scene *scene, uint32_t shape, uint32_t prim, float b1, float b2, struct vec3 *p,
                       struct vec3 *ng)
 {

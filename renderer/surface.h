@@ -31,6 +31,10 @@ void surface_from_hit(const struct scene *scene, const struct hit *hit, struct v
  * kept across frames (G-buffer hits, reservoir vertices) are stored this way, so the same code
  * in a scene where the shape moved gives the moved point. */
 void surface_at(const struct scene *scene, uint32_t shape, uint32_t prim, float b1, float b2, struct surface *out);
+/* The hit a ray found at distance t on the point with that code (a G-buffer entry), for
+ * surface_from_hit with the same ray: a mesh's barycentrics are its code and its normal the
+ * triangle's; a sphere's point comes from the ray and t (the normal is recomputed there). */
+struct hit surface_hit_at(const struct scene *scene, uint32_t shape, uint32_t prim, float t, float b1, float b2);
 /* Only the position and the geometric normal of surface_at's surface, bit for bit, without the
  * shading normal and frame (a light point: its emission needs no more). */
 void surface_point_at(const struct scene *scene, uint32_t shape, uint32_t prim, float b1, float b2, struct vec3 *p,
