@@ -359,11 +359,12 @@ struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_par
 
 struct vec3 reference_pt_radiance_sms(const struct scene *scene, const struct pt_params *params,
                                       const struct sms_scene *ss, uint32_t px, uint32_t py, struct vec3 org,
-                                      struct vec3 dir, struct rng *rng, struct rng *sms_rng, struct sms_counters *sc,
-                                      struct ray_counters *rc)
+                                      struct vec3 dir, const struct hit *primary, struct rng *rng,
+                                      struct rng *sms_rng, struct sms_counters *sc, struct ray_counters *rc)
 {
     const struct pt_split split = {.owned = false, .rest = !params->sms->caustics_only, .tracked = true, .ss = ss,
-                                   .sc = sc, .sms_rng = sms_rng, .px = px, .py = py, .sms_after_primary = true};
+                                   .sc = sc, .sms_rng = sms_rng, .px = px, .py = py, .sms_after_primary = true,
+                                   .primary_given = true, .primary = primary};
     return pt_radiance(scene, params, org, dir, rng, rc, &split, true);
 }
 

@@ -76,16 +76,17 @@ struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_par
                                   struct vec3 dir, const struct hit *primary, struct rng *rng, bool sss_direct,
                                   struct ray_counters *rc);
 
-/* Radiance along one camera ray as `sms` / `sms_ssp` estimate it (params->sms set; params->ssp
- * and ssp_prior for sample-space partitioning), except that no SMS estimate is made at the
- * restir_sms receiver (sms.h: the first diffuse or glossy vertex after delta vertices that all
- * took their canonical lobe): restir_sms adds the caustic paths that start there from its
- * reservoirs, weighted by the delta prefix's expected throughput. The other SMS estimates draw
- * from sms_rng; (px, py) picks the prior block. */
+/* Radiance along one camera ray whose first hit the caller already has (`primary`, as above) as
+ * `sms` / `sms_ssp` estimate it (params->sms set; params->ssp and ssp_prior for sample-space
+ * partitioning), except that no SMS estimate is made at the restir_sms receiver (sms.h: the
+ * first diffuse or glossy vertex after delta vertices that all took their canonical lobe):
+ * restir_sms adds the caustic paths that start there from its reservoirs, weighted by the delta
+ * prefix's expected throughput. The other SMS estimates draw from sms_rng; (px, py) picks the
+ * prior block. */
 struct vec3 reference_pt_radiance_sms(const struct scene *scene, const struct pt_params *params,
                                       const struct sms_scene *ss, uint32_t px, uint32_t py, struct vec3 org,
-                                      struct vec3 dir, struct rng *rng, struct rng *sms_rng, struct sms_counters *sc,
-                                      struct ray_counters *rc);
+                                      struct vec3 dir, const struct hit *primary, struct rng *rng,
+                                      struct rng *sms_rng, struct sms_counters *sc, struct ray_counters *rc);
 
 /* References rendered in passes (so that a long render reports progress and can stop between
  * passes): pass i renders `params` with frame REFERENCE_PT_PASS_FRAME0 + i — a seed stream no

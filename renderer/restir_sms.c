@@ -129,17 +129,23 @@ static bool sms_receiver(const struct sms_ctx *c, struct restir_domain d, struct
     return true;
 }
 
-/* Follows a camera ray through canonical delta lobes to the receiver, exactly as path tracing
- * steps (the same hits, scattering and ray offsets as reference_pt.c), so that both agree on
+/* Follows a camera ray, whose first hit the caller has (`primary`; NULL: it escaped), through
+ * canonical delta lobes to the receiver, exactly as path tracing steps (the same hits,
+ * scattering and ray offsets as reference_pt.c, and the same first hit), so that both agree on
  * which vertex is the receiver. */
 static void sms_find_receiver(const struct scene *scene, uint32_t max_depth, struct vec3 org, struct vec3 dir,
-                              struct restir_sms_receiver *out, struct ray_counters *rc)
+                              const struct hit *primary, struct restir_sms_receiver *out, struct ray_counters *rc)
 {
     memset(out, 0, sizeof *out);
     struct vec3 T = vec3_splat(1.0f);
     for (uint32_t depth = 0; depth < max_depth && depth <= SMS_RECEIVER_MAX_PREFIX; depth++) {
         struct hit hit;
-        if (!accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, &hit, rc)) return;
+        if (depth == 0) {
+            if (!primary) return;
+            hit = *primary;
+        } else if (!accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, &hit, rc)) {
+            return;
+        }
         struct surface s;
         surface_from_hit(scene, &hit, org, dir, &s);
         const struct material *m = &scene->materials[s.material];
@@ -457,13 +463,18 @@ static void sms_initial_rows(void *ctx, uint32_t job, unsigned worker)
             uint32_t pixel = y * w + x;
             const struct gbuffer_pixel *g = &c->gbuf[RESTIR_CURRENT]->px[pixel];
             struct vec3 dir = camera_ray_dir(&pp->camera, (float)x + g->jx, (float)y + g->jy);
-            sms_find_receiver(c->scene[RESTIR_CURRENT], c->max_depth, pp->camera.position, dir, &recv[pixel], rc);
+            /* The G-buffer pass traced this ray already: its hit starts both walks along it. */
+            struct hit first;
+            if (isfinite(g->t)) first = surface_hit_at(c->scene[RESTIR_CURRENT], g->shape, g->prim, g->t, g->b1, g->b2);
+            const struct hit *primary = isfinite(g->t) ? &first : NULL;
+            sms_find_receiver(c->scene[RESTIR_CURRENT], c->max_depth, pp->camera.position, dir, primary, &recv[pixel],
+                              rc);
             sms_initial_pixel(c, pixel, &res[pixel], sc, rc);
             if (!pp->out) continue;
             struct rng rng = rng_make(c->seed, c->frame, pixel, SMS_PT_STREAM);
             struct rng srng = rng_make(c->seed, c->frame, pixel, SMS_PT_SMS_STREAM);
             pp->out->pixels[pixel] = reference_pt_radiance_sms(c->scene[RESTIR_CURRENT], &pp->pt, &c->ss, x, y,
-                                                               pp->camera.position, dir, &rng, &srng, sc, rc);
+                                                               pp->camera.position, dir, primary, &rng, &srng, sc, rc);
         }
     }
     pp->rays[worker].intersect += rays.intersect;
