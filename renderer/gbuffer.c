@@ -24,6 +24,13 @@ bool gbuffer_init(struct gbuffer *g, uint32_t width, uint32_t height, struct err
     return true;
 }
 
+const struct hit *gbuffer_hit(const struct scene *scene, const struct gbuffer_pixel *px, struct hit *out)
+{
+    if (!isfinite(px->t)) return NULL;
+    *out = surface_hit_at(scene, px->shape, px->prim, px->t, px->b1, px->b2);
+    return out;
+}
+
 bool gbuffer_keep_surfaces(struct gbuffer *g, struct err *err)
 {
     if (g->surf) return true;

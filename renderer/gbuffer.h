@@ -69,4 +69,8 @@ struct gbuffer_frame {
 /* Traces one primary ray per pixel. *rays gets the number of ray queries. */
 bool gbuffer_render(struct gbuffer *g, const struct gbuffer_frame *f, uint64_t *rays, struct err *err);
 
+/* The pixel's primary hit for a path that follows the same camera ray (surface_hit_at), written
+ * to *out; NULL when the ray escaped. A method that continues the ray need not trace it again. */
+const struct hit *gbuffer_hit(const struct scene *scene, const struct gbuffer_pixel *px, struct hit *out);
+
 #endif

@@ -165,8 +165,10 @@ struct pt_split {
     struct rng *sms_rng;
     uint32_t px, py;     /* the pixel (sms_ssp's prior block) */
     bool sms_after_primary;  /* restir_sms: no SMS estimate at its receiver (sms.h), the reservoirs' */
-    bool primary_given;      /* the camera ray's first hit is `primary` (NULL: it escaped), found by */
-    const struct hit *primary; /* the caller's G-buffer pass: the ray is not traced twice */
+    /* The caller's G-buffer pass found the camera ray's first hit already: `primary` (NULL: the
+     * ray escaped) stands for the first query, so the ray is not traced twice. */
+    bool primary_given;
+    const struct hit *primary;
 };
 
 static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,

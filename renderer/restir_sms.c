@@ -465,8 +465,7 @@ static void sms_initial_rows(void *ctx, uint32_t job, unsigned worker)
             struct vec3 dir = camera_ray_dir(&pp->camera, (float)x + g->jx, (float)y + g->jy);
             /* The G-buffer pass traced this ray already: its hit starts both walks along it. */
             struct hit first;
-            if (isfinite(g->t)) first = surface_hit_at(c->scene[RESTIR_CURRENT], g->shape, g->prim, g->t, g->b1, g->b2);
-            const struct hit *primary = isfinite(g->t) ? &first : NULL;
+            const struct hit *primary = gbuffer_hit(c->scene[RESTIR_CURRENT], g, &first);
             sms_find_receiver(c->scene[RESTIR_CURRENT], c->max_depth, pp->camera.position, dir, primary, &recv[pixel],
                               rc);
             sms_initial_pixel(c, pixel, &res[pixel], sc, rc);

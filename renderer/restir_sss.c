@@ -607,9 +607,9 @@ static void sss_initial_rows(void *ctx, uint32_t job, unsigned worker)
             struct rng rng = rng_make(c->seed, c->frame, pixel, SSS_PT_STREAM);
             /* The G-buffer pass traced this ray already: its hit starts the path. */
             struct hit first;
-            if (isfinite(g->t)) first = surface_hit_at(c->scene[RESTIR_CURRENT], g->shape, g->prim, g->t, g->b1, g->b2);
-            pp->out->pixels[pixel] = reference_pt_radiance(c->scene[RESTIR_CURRENT], &pp->pt, pp->camera.position, dir,
-                                                           isfinite(g->t) ? &first : NULL, &rng, false, rc);
+            const struct hit *primary = gbuffer_hit(c->scene[RESTIR_CURRENT], g, &first);
+            pp->out->pixels[pixel] =
+                reference_pt_radiance(c->scene[RESTIR_CURRENT], &pp->pt, pp->camera.position, dir, primary, &rng, false, rc);
         }
     }
     pp->counters[worker].rays.intersect += rays.intersect;

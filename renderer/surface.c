@@ -104,9 +104,8 @@ void surface_at(const struct scene *scene, uint32_t shape, uint32_t prim, float 
     const struct accel *accel = scene->accel;
     const struct shape *s = &scene->shapes[shape];
     const struct xform *xf = accel_shape_to_world(accel, shape);
-    struct hit h = {.t = 0.0f, .shape = shape, .prim = prim, .b1 = b1, .b2 = b2};
+    struct hit h = surface_hit_at(scene, shape, prim, 0.0f, b1, b2);
     if (s->kind == SHAPE_MESH) {
-        h.ng = surface_mesh_ng(accel, s, shape, &s->indices[3 * prim]);
         surface_from_hit(scene, &h, s->positions[s->indices[3 * prim]], vec3_make(0.0f, 0.0f, 1.0f), out);
         return;
     }
