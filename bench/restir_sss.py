@@ -115,12 +115,17 @@ def reference(scene):
     return read_exr(ref)
 
 
-def region_map(scene, out):
+def build_region_tool():
+    """build/bench/sss_hybrid_map, against this build's librenderer.a (once per run)."""
     tool = OUT / "sss_hybrid_map"
     cflags = subprocess.run(["pkg-config", "--cflags", "OpenEXR"], capture_output=True, text=True).stdout.split()
     subprocess.run(["cc", "-O2", "-std=c17", "-D_DEFAULT_SOURCE", "-Irenderer", "bench/sss_hybrid_map.c",
                     "build/obj/librenderer.a", "-lOpenEXRCore", "-ldeflate", "-lembree3", "-lassimp", "-lcjson", "-lm",
                     "-pthread", *cflags, "-o", str(tool)], cwd=ROOT, check=True)
+
+
+def region_map(scene, out):
+    tool = OUT / "sss_hybrid_map"
     counts = json.loads(subprocess.run([str(tool), str(scene), SIZE, str(out), "16"], capture_output=True, text=True,
                                        check=True).stdout)
     img = read_exr(out)
@@ -225,6 +230,7 @@ def measure(d, scene, label, title, img_path):
 
 def main():
     OUT.mkdir(parents=True, exist_ok=True)
+    build_region_tool()
     results = {"size": SIZE, "ref_spp": REF_SPP, "warmup": WARMUP, "seeds": SEEDS, "rounds": ROUNDS, "scales": {}}
     d = Daemon(RESTIRD, THREADS)
     try:
