@@ -201,6 +201,7 @@ bench: $(OUT)/restir $(OUT)/restird $(OBJ)/librenderer.a
 	$(PYTHON) bench/server_bench.py | tee $(BUILD)/bench/server.json
 	$(PYTHON) bench/restir_pt.py | tee $(BUILD)/bench/restir_pt.md
 	$(PYTHON) bench/restir_sss.py | tee $(BUILD)/bench/restir_sss.md
+	BENCH_SSS_MAX_DEPTH=1 $(PYTHON) bench/restir_sss.py | tee $(BUILD)/bench/restir_sss_depth1.md
 	$(PYTHON) bench/bdpt.py | tee $(BUILD)/bench/bdpt.md
 	QUICK=$(QUICK) $(PYTHON) bench/restir_bdpt.py | tee $(BUILD)/bench/restir_bdpt.md
 	$(PYTHON) bench/sms.py | tee $(BUILD)/bench/sms.md

@@ -34,7 +34,11 @@ mean free paths and one dominant light (Fig. 8) and more as they grow (Fig. 9); 
 Environment: BENCH_SSS_SEEDS (3), BENCH_SSS_REF_SPP (2048), BENCH_SSS_WARMUP (16),
 BENCH_SSS_SHIFTS ("reconnection delayed hybrid sequential"), BENCH_SSS_CANDIDATES ("1 2 4"),
 BENCH_SSS_MFP_SCALES ("1 4 16"), BENCH_SSS_ROUNDS (16), BENCH_SSS_PARAMS (a JSON object of more session params, "{}"),
-BENCH_THREADS (all cores)."""
+BENCH_SSS_MAX_DEPTH (unset: every method's default of 64; 1 is the direct-lighting case of seed 004 §3,
+paths camera - entry - exit - light, which its evaluation and Fig. 6 use: pt, its reference and
+restir_sss all get this max_depth, so on the translucent region both estimate exactly the paths
+restir_sss's reservoirs hold and restir_sss has no path-traced rest there; outputs get a
+"_depth<N>" suffix), BENCH_THREADS (all cores)."""
 import hashlib
 import json
 import math
@@ -71,6 +75,10 @@ CANDIDATES = [int(c) for c in os.environ.get("BENCH_SSS_CANDIDATES", "1 2 4").sp
 # More session params for every restir_sss run, e.g. '{"expected_shading": false}'.
 EXTRA = json.loads(os.environ.get("BENCH_SSS_PARAMS", "{}"))
 MFP_SCALES = [float(k) for k in os.environ.get("BENCH_SSS_MFP_SCALES", "1 4 16").split()]
+MAX_DEPTH = int(os.environ["BENCH_SSS_MAX_DEPTH"]) if os.environ.get("BENCH_SSS_MAX_DEPTH") else None
+DEPTH_ARGS = ["--max-depth", str(MAX_DEPTH)] if MAX_DEPTH is not None else []
+DEPTH_PARAMS = {"max_depth": MAX_DEPTH} if MAX_DEPTH is not None else {}
+SUFFIX = f"_depth{MAX_DEPTH}" if MAX_DEPTH is not None else ""
 
 
 def read_exr(path):
@@ -108,10 +116,11 @@ def scaled_scene(k):
 def reference(scene):
     key = hashlib.sha256(scene.read_bytes()).hexdigest()[:16]
     REFS.mkdir(parents=True, exist_ok=True)
-    ref = REFS / f"translucent-{SIZE}-{REF_SPP}spp-{key}.exr"
+    ref = REFS / f"translucent-{SIZE}-{REF_SPP}spp{SUFFIX}-{key}.exr"
     if not ref.exists():
         print(f"bench: rendering the reference {ref.name} ...", file=sys.stderr, flush=True)
-        run(["render", str(scene), "--spp", str(REF_SPP), "--size", SIZE, "--seed", "999", "--json", "-o", str(ref)])
+        run(["render", str(scene), "--spp", str(REF_SPP), "--size", SIZE, "--seed", "999", *DEPTH_ARGS, "--json",
+             "-o", str(ref)])
     return read_exr(ref)
 
 
@@ -152,7 +161,7 @@ def timed(d, scene_id, params):
     """One restir_sss setting against pt, frame by frame in daemon `d` (see the module doc): its
     median frame ms, pt's median ms per timed spp, and the equal-time spp with its quartiles."""
     w, h = (int(v) for v in SIZE.split("x"))
-    pts = [d.session(scene_id, "pt", w, h, {"spp": n}) for n in PT_TIMED_SPPS]
+    pts = [d.session(scene_id, "pt", w, h, {"spp": n, **DEPTH_PARAMS}) for n in PT_TIMED_SPPS]
     s = d.session(scene_id, "restir_sss", w, h, params)
     try:
         for _ in range(WARMUP):
@@ -192,7 +201,7 @@ def measure(d, scene, label, title, img_path):
     for spp in PT_SPPS:
         err = []
         for s in range(SEEDS):
-            run(["render", str(scene), "--spp", str(spp), "--size", SIZE, "--seed", str(s), "--json",
+            run(["render", str(scene), "--spp", str(spp), "--size", SIZE, "--seed", str(s), *DEPTH_ARGS, "--json",
                  "-o", str(img_path)])
             err.append(rmse(read_exr(img_path), ref, mask))
         res["pt"].append({"spp": spp, "rmse": statistics.median(err)})
@@ -200,7 +209,7 @@ def measure(d, scene, label, title, img_path):
     pt_ms = []
     for shift in SHIFTS:
         for cand in CANDIDATES:
-            params = {"shift": shift, "candidates": cand, **EXTRA}
+            params = {"shift": shift, "candidates": cand, **DEPTH_PARAMS, **EXTRA}
             err, fails = [], []
             for s in range(SEEDS):
                 st = run(["render", str(scene), "--method", "restir_sss", "--frames", str(WARMUP), "--size", SIZE,
@@ -231,21 +240,23 @@ def measure(d, scene, label, title, img_path):
 def main():
     OUT.mkdir(parents=True, exist_ok=True)
     build_region_tool()
-    results = {"size": SIZE, "ref_spp": REF_SPP, "warmup": WARMUP, "seeds": SEEDS, "rounds": ROUNDS, "scales": {}}
+    results = {"size": SIZE, "max_depth": MAX_DEPTH, "ref_spp": REF_SPP, "warmup": WARMUP, "seeds": SEEDS, "rounds": ROUNDS, "scales": {}}
     d = Daemon(RESTIRD, THREADS)
     try:
         with tempfile.TemporaryDirectory() as tmp:
             img_path = Path(tmp) / "img.exr"
             for k in MFP_SCALES:
-                label = "restir_sss" if k == 1 else f"restir_sss_mfp{k:g}"
+                label = ("restir_sss" if k == 1 else f"restir_sss_mfp{k:g}") + SUFFIX
                 print(f"bench: translucent, mean free path x{k:g} ...", file=sys.stderr, flush=True)
-                title = "translucent" if k == 1 else f"translucent, mean free path x{k:g}"
+                title = ("translucent" if k == 1 else f"translucent, mean free path x{k:g}") + \
+                    (f", max depth {MAX_DEPTH}" if MAX_DEPTH is not None else "")
                 results["scales"][f"{k:g}"] = measure(d, scaled_scene(k), label, title, img_path)
     finally:
         d.close()
-    (OUT / "restir_sss.json").write_text(json.dumps(results, indent=1))
+    (OUT / f"restir_sss{SUFFIX}.json").write_text(json.dumps(results, indent=1))
     for k, res in results["scales"].items():
-        print(f"## translucent, mean free path x{k}, {SIZE}, RMSE on the translucent region "
+        depth = f", max depth {MAX_DEPTH}" if MAX_DEPTH is not None else ""
+        print(f"## translucent, mean free path x{k}{depth}, {SIZE}, RMSE on the translucent region "
               f"({res['region_pixels']} pixels), median of {SEEDS} seeds, reference pt {REF_SPP} spp\n")
         print("pt's RMSE per spp: " + ", ".join(f"{x['spp']} spp {x['rmse']:.4f}" for x in res["pt"]) +
               "; pt's frame ms in the rounds: " + ", ".join(f"{n} spp {m:.1f}" for n, m in res["pt_ms"].items()) + "\n")
@@ -269,7 +280,7 @@ def main():
                               for sh in SHIFTS)
         print(f"| x{k} | {name} | {v['cost']:.2f} | {v['rmse']:.4f} | {v['ratio']:.2f} "
               f"[{min(v['ratio_range']):.2f}–{max(v['ratio_range']):.2f}] | {per_shift} |")
-    print("\ncharts: " + ", ".join(str(OUT / (("restir_sss" if k == "1" else f"restir_sss_mfp{k}") + ".svg"))
+    print("\ncharts: " + ", ".join(str(OUT / (("restir_sss" if k == "1" else f"restir_sss_mfp{k}") + SUFFIX + ".svg"))
                                    for k in results["scales"]))
 
 

@@ -228,12 +228,20 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         skip_emission = false;
 
         if (depth == 0 && m->kind == MATERIAL_TRANSLUCENT) {
+            /* With next-event estimation the path through the entry points adds light only by NEE
+             * there (the emission its next vertex finds is skipped) or after a further bounce: at
+             * max_depth 1 (the direct-lighting case of seed 004 §3, which its evaluation uses)
+             * nothing is left to add once NEE at the entry points is someone else's, and no
+             * continuation ray needs tracing. */
+            const bool direct_here = sss_direct && split->rest;
+            if (nee && !direct_here && depth + 1 >= max_depth) break;
             /* Direct light at the entry points belongs to the rest of the light transport; the
              * track stays where it was, so no path through subsurface scattering counts as owned
              * by specular manifold sampling (which does not sample from entry points). */
             if (!pt_sss_primary(scene, params, m, &s, vec3_neg(dir), &beta, &L, rng, rc, &org, &dir, &prev_p,
-                                &skip_emission, sss_direct && split->rest))
+                                &skip_emission, direct_here))
                 break;
+            if (skip_emission && depth + 1 >= max_depth) break;
             canonical = false;
             /* A cosine-sampled direction: emission it reaches is MIS-weighted like a diffuse
              * bounce's when NEE is off (weight 1 then) — it is skipped when NEE is on. */
