@@ -45,6 +45,15 @@ def render(scene, out, *, spp=4, size="32x32", seed=0, extra=()):
     return read_exr(out)[:, :, :3], json.loads(res.stdout)
 
 
+def sky_all_round(sky):
+    """The pixels of boolean image `sky` whose 3x3 neighbourhood is sky too (outside the image
+    counts as sky). A pixel that holds a sliver of an object a reference render never hit borders
+    one that holds more of it, so these pixels are surely all environment."""
+    pad = np.pad(sky, 1, constant_values=True)
+    h, w = sky.shape
+    return np.all([pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)
+
+
 def run_cli(*args, timeout=120):
     return subprocess.run([BIN, *map(str, args)], capture_output=True, text=True, timeout=timeout)
 

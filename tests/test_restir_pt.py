@@ -127,3 +127,31 @@ def test_restir_pt_independent_of_thread_count(tmp_path, scenes):
     assert sa["last_frame"]["shifts"] > 0
     assert np.array_equal(a, b)
 
+
+
+@pytest.mark.statistical
+def test_restir_pt_furnace(tmp_path, scenes):
+    """The environment light: scenes/furnace's sphere of albedo 0.5 in a uniform environment of
+    radiance 1 shows 0.5 on the sphere and 1 on the background (test_pt.py's analytic furnace).
+    Every light path ends on the environment, so next-event estimation and the reconnection shift
+    both work with environment directions, and the G-buffer's rays that escape must show it.
+    K sessions of 12 frames, each the mean of its last 4; only pixels wholly on or off the
+    sphere have a known expectation."""
+    from test_pt import _sphere_coverage
+    size = 24
+    path = scenes / "furnace" / "albedo-half.json"
+    cam = json.loads(path.read_text())["camera"]
+    runs = np.stack([render(path, tmp_path / f"f{s}.exr", spp=1, size=f"{size}x{size}", seed=s,
+                            extra=["--method", "restir_pt", "--frames", "12", "--average-last", "4"])[0]
+                     for s in range(32)])
+    cov = _sphere_coverage(size, cam["position"], cam["look_at"], cam["fov_deg"], [0, 0, 0], 1.0)
+    known = (cov == 0) | (cov == 1)
+    assert (cov == 1).sum() > 50 and (cov == 0).sum() > 50
+    # Pixels clear of a slightly larger sphere cannot hold a sliver of the real one.
+    clear = _sphere_coverage(size, cam["position"], cam["look_at"], cam["fov_deg"], [0, 0, 0], 1.05) == 0
+    assert clear.sum() > 50 and np.all(runs[:, clear] == 1.0), "an escaped camera ray must show the environment"
+    expected = np.where(cov == 1, 0.5, 1.0)[..., None].repeat(3, axis=2)
+    res = ztest_runs(runs[:, known], expected=expected[known])
+    assert res.passed, str(res)
+    bad = ztest_runs(runs[:, known] * 1.03, expected=expected[known])
+    assert not bad.passed, str(bad)

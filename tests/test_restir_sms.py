@@ -26,7 +26,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import render
+from conftest import render, sky_all_round
 from stats import ztest_runs
 from test_sms import SCENE, _cached_reference
 
@@ -169,3 +169,27 @@ def test_restir_sms_receivers_behind_a_mirror(tmp_path, scenes):
     print(f"restir_sms on {PLANE} vs sms: {res}; x1.05: {bad}")
     assert res.passed, f"restir_sms on {PLANE} vs sms: {res}"
     assert not bad.passed, f"a bias of x1.05 went unseen: {bad}"
+
+
+def test_restir_sms_environment_shows_through(tmp_path, scenes):
+    """With an environment light, a pixel whose camera ray escapes (the G-buffer's entry without a
+    hit) shows the environment exactly, as in pt, and the rest of the image stays finite: the
+    scene's own views have no sky. refractive-slab copied with an environment and a camera that
+    looks over the slab at the horizon."""
+    import shutil
+    folder = tmp_path / "slab-sky"
+    shutil.copytree(scenes / SCENE, folder)
+    doc = json.loads((folder / "scene.json").read_text())
+    env = [0.2, 0.3, 0.5]
+    doc["environment"] = {"radiance": env}
+    doc["camera"] = {"position": [0, 0.6, 2.6], "look_at": [0, 0.7, 0], "up": [0, 1, 0], "fov_deg": 38}
+    (folder / "scene.json").write_text(json.dumps(doc))
+    ref, _ = render(folder, tmp_path / "pt.exr", spp=16, size="24x24", seed=1)
+    sky = np.all(np.abs(ref - np.array(env)) < 1e-6, axis=2)
+    assert 0.1 < sky.mean() < 0.7, f"{sky.mean():.2f} of the pixels are sky"
+    clear = sky_all_round(sky)
+    img, st = render(folder, tmp_path / "r.exr", spp=1, size="24x24", seed=2,
+                     extra=["--method", "restir_sms", "--frames", "3"])
+    assert st["nonfinite"] == 0 and np.isfinite(img).all()
+    assert clear.sum() > 20 and np.all(np.abs(img[clear] - np.array(env)) < 1e-6)
+    assert img[~sky].mean() > 0.0

@@ -12,7 +12,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import render, run_cli
+from conftest import render, run_cli, sky_all_round
 from stats import ztest_runs
 
 FPS = 30.0
@@ -118,3 +118,35 @@ def test_restir_sss_renders_and_reuses(tmp_path, scenes):
         img, st = render(sc, tmp_path / "a.exr", spp=1, size="32x32", seed=3,
                          extra=["--method", "restir_sss", "--frames", "4", "--params", json.dumps(params)])
         assert np.isfinite(img).all() and st["nonfinite"] == 0 and st["last_frame"]["shifts"] > 0
+
+
+@pytest.mark.statistical
+def test_restir_sss_environment_unbiased(tmp_path, scenes):
+    """The same z-test with an environment light and a view whose upper rows see the sky: x3 can
+    then be a direction (the environment's sample), and the path-traced rest starts from a
+    G-buffer entry whose ray escaped. Still camera, the default hybrid shift."""
+    doc = json.loads((scenes / "translucent" / "scene.json").read_text())
+    env = [0.5, 0.55, 0.6]
+    doc["environment"] = {"radiance": env}
+    sc = tmp_path / "scene.json"
+    sc.write_text(json.dumps(doc))
+    camera = {"position": [2.0, 0.8, 3.0], "look_at": [0.0, 0.85, 0.0], "fov_deg": 14}
+    anim = _animation(tmp_path, "still.json", FRAMES, [{"t": 0, **camera}])
+    ref_anim = _animation(tmp_path, "still_ref.json", AVERAGED, [{"t": 0, **camera}])
+    ref = np.stack([render(sc, tmp_path / f"ref{s}.exr", spp=REF_SPP // AVERAGED, size=SIZE, seed=100000 + s,
+                           extra=["--frames", str(AVERAGED), "--average-last", str(AVERAGED), "--animation",
+                                  str(ref_anim)])[0]
+                    for s in range(K_REF)])
+    sky = np.all(np.abs(ref - np.array(env)) < 1e-6, axis=(0, 3))
+    assert 0.1 < sky.mean() < 0.6, f"the view should hold sky and object: {sky.mean():.2f} of the pixels are sky"
+    clear = sky_all_round(sky)
+    extra = ["--method", "restir_sss", "--frames", str(FRAMES), "--average-last", str(AVERAGED),
+             "--animation", str(anim), "--params", json.dumps({"temporal_cap": TEMPORAL_CAP})]
+    runs = np.stack([render(sc, tmp_path / f"s{s}.exr", spp=1, size=SIZE, seed=s, extra=extra)[0] for s in range(K)])
+    assert np.isfinite(runs).all()
+    assert clear.sum() > 20 and np.all(np.abs(runs[:, clear] - np.array(env)) < 1e-6), \
+        "an escaped camera ray must show the environment"
+    res = ztest_runs(runs, ref)
+    assert res.passed, f"environment: {res}"
+    bad = ztest_runs(runs * 1.03, ref)
+    assert not bad.passed, f"environment: a bias of x1.03 went unseen: {bad}"
