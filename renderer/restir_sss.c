@@ -115,7 +115,6 @@ struct sss_ctx {
     const struct scene *scene[2];   /* [RESTIR_CURRENT], [RESTIR_PREVIOUS] */
     struct vec3 eye[2];
     const struct gbuffer *gbuf[2];
-    struct restir_sss_hit *hits[2];     /* primary surfaces; the initial pass writes [CURRENT] */
     uint64_t seed;
     uint32_t frame;
     enum restir_sss_shift pass_shift;   /* the shift of the pass running (sequential: per pass) */
@@ -129,39 +128,25 @@ struct sss_x1 {
     float cos_o;   /* shading cosine towards the eye */
 };
 
-/* Builds the primary vertex of a current-frame pixel from its G-buffer entry and keeps it in the
- * frame's cache (the initial pass, once per pixel). */
-static bool sss_primary_build(const struct sss_ctx *c, uint32_t pixel, struct sss_x1 *x)
-{
-    struct restir_sss_hit *h = &c->hits[RESTIR_CURRENT][pixel];
-    *h = (struct restir_sss_hit){.cos_o = 0.0f};
-    const struct gbuffer_pixel *g = &c->gbuf[RESTIR_CURRENT]->px[pixel];
-    if (!isfinite(g->t)) return false;
-    const struct scene *scene = c->scene[RESTIR_CURRENT];
-    const struct material *m = &scene->materials[scene->shapes[g->shape].material];
-    if (m->kind != MATERIAL_TRANSLUCENT) return false;
-    surface_at(scene, g->shape, g->prim, g->b1, g->b2, &x->s);
-    x->m = m;
-    struct vec3 wo = vec3_normalize(vec3_sub(c->eye[RESTIR_CURRENT], x->s.p));
-    x->cos_o = vec3_dot(wo, x->s.ns);
-    if (!(x->cos_o > 0.0f && vec3_dot(wo, x->s.ng) > 0.0f)) return false;
-    *h = (struct restir_sss_hit){x->s.p, x->s.ng, x->s.ns, x->cos_o};
-    return true;
-}
-
-/* The primary vertex of a domain, from the cache its frame's initial pass filled: bit for bit what
- * sss_primary_build made. */
+/* The primary vertex x1 of a domain: the surface its frame's G-buffer pass built (read, not
+ * rebuilt from the point code, by every shift and validity test of the frame), when it is
+ * translucent and seen from its front. */
 static bool sss_primary(const struct sss_ctx *c, struct restir_domain d, struct sss_x1 *x)
 {
-    const struct restir_sss_hit *h = &c->hits[d.frame][d.pixel];
-    if (!(h->cos_o > 0.0f)) return false;
-    const struct gbuffer_pixel *g = &c->gbuf[d.frame]->px[d.pixel];
+    const struct gbuffer_surface *h = &c->gbuf[d.frame]->surf[d.pixel];
+    if (h->material == GBUFFER_NO_HIT) return false;
     const struct scene *scene = c->scene[d.frame];
+    const struct material *m = &scene->materials[h->material];
+    if (m->kind != MATERIAL_TRANSLUCENT) return false;
+    struct vec3 wo = vec3_normalize(vec3_sub(c->eye[d.frame], h->p));
+    float cos_o = vec3_dot(wo, h->ns);
+    if (!(cos_o > 0.0f && vec3_dot(wo, h->ng) > 0.0f)) return false;
+    const struct gbuffer_pixel *g = &c->gbuf[d.frame]->px[d.pixel];
     x->s.p = h->p, x->s.ng = h->ng, x->s.ns = h->ns;
     x->s.frame = frame_from_normal(h->ns);
-    x->s.shape = g->shape, x->s.prim = g->prim, x->s.material = scene->shapes[g->shape].material;
-    x->m = &scene->materials[x->s.material];
-    x->cos_o = h->cos_o;
+    x->s.shape = g->shape, x->s.prim = g->prim, x->s.material = h->material;
+    x->m = m;
+    x->cos_o = cos_o;
     return true;
 }
 
@@ -263,7 +248,7 @@ static void sss_initial_pixel(const struct sss_ctx *c, uint32_t pixel, struct ss
 {
     memset(out, 0, sizeof *out);
     struct sss_x1 x1;
-    if (!sss_primary_build(c, pixel, &x1)) return;
+    if (!sss_primary(c, (struct restir_domain){pixel, RESTIR_CURRENT}, &x1)) return;
     const struct scene *scene = c->scene[RESTIR_CURRENT];
     struct rng rng = rng_make(c->seed, c->frame, pixel, SSS_STREAM);
     struct reservoir_stream rs;
@@ -516,13 +501,12 @@ bool restir_sss_init(struct restir_sss_state *st, uint32_t width, uint32_t heigh
     st->height = height;
     size_t n = (size_t)width * height;
     for (int i = 0; i < 2; i++) {
-        if (!gbuffer_init(&st->gbuf[i], width, height, err)) {
+        if (!gbuffer_init(&st->gbuf[i], width, height, err) || !gbuffer_keep_surfaces(&st->gbuf[i], err)) {
             restir_sss_destroy(st);
             return false;
         }
         st->res[i] = calloc(n, sizeof(struct sss_sample));
-        st->hits[i] = calloc(n, sizeof(struct restir_sss_hit));
-        if (!st->res[i] || !st->hits[i]) {
+        if (!st->res[i]) {
             restir_sss_destroy(st);
             return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
         }
@@ -540,7 +524,6 @@ void restir_sss_destroy(struct restir_sss_state *st)
     for (int i = 0; i < 2; i++) {
         gbuffer_destroy(&st->gbuf[i]);
         free(st->res[i]);
-        free(st->hits[i]);
     }
     free(st->pair_scratch);
     memset(st, 0, sizeof *st);
@@ -560,7 +543,7 @@ size_t restir_sss_gbuffer_bytes(const struct restir_sss_state *st)
 
 size_t restir_sss_hit_bytes(const struct restir_sss_state *st)
 {
-    return 2 * (size_t)st->width * st->height * sizeof(struct restir_sss_hit);
+    return gbuffer_surface_bytes(&st->gbuf[0]) + gbuffer_surface_bytes(&st->gbuf[1]);
 }
 
 size_t restir_sss_pair_bytes(const struct restir_sss_state *st)
@@ -571,7 +554,7 @@ size_t restir_sss_pair_bytes(const struct restir_sss_state *st)
 uint64_t restir_sss_bytes_planned(uint32_t width, uint32_t height)
 {
     return 2 * (uint64_t)width * height *
-               (sizeof(struct sss_sample) + sizeof(struct gbuffer_pixel) + sizeof(struct restir_sss_hit)) +
+               (sizeof(struct sss_sample) + sizeof(struct gbuffer_pixel) + sizeof(struct gbuffer_surface)) +
            restir_pair_scratch_bytes(width, height);
 }
 
@@ -651,8 +634,6 @@ void restir_sss_bind(struct restir_sss_state *st, const struct restir_sss_params
     c->eye[RESTIR_PREVIOUS] = f->prev_camera ? f->prev_camera->position : f->camera->position;
     c->gbuf[RESTIR_CURRENT] = &st->gbuf[st->cur];
     c->gbuf[RESTIR_PREVIOUS] = &st->gbuf[st->cur ^ 1u];
-    c->hits[RESTIR_CURRENT] = st->hits[st->cur];
-    c->hits[RESTIR_PREVIOUS] = st->hits[st->cur ^ 1u];
     c->seed = f->seed;
     c->frame = f->frame;
     /* The sequential shift starts with reconnection (temporal and first spatial pass). */

@@ -73,18 +73,9 @@ struct restir_sss_stats {
     float spatial_radius;          /* the radius used (pixels) */
 };
 
-/* A pixel's primary surface as the frame's initial pass built it (cos_o <= 0: no translucent
- * surface seen from its front): every shift and validity test of the frame reads it back instead
- * of rebuilding it from the G-buffer. */
-struct restir_sss_hit {
-    struct vec3 p, ng, ns;
-    float cos_o;
-};
-
 struct restir_sss_state {
     uint32_t width, height;
-    struct gbuffer gbuf[2];
-    struct restir_sss_hit *hits[2];   /* indexed like gbuf */
+    struct gbuffer gbuf[2];           /* with their primary surfaces (gbuffer_keep_surfaces) */
     uint32_t cur;
     uint8_t *res[2];   /* [0] working, [1] history (final) */
     void *pair_scratch;               /* paired spatial reuse (restir_pair_scratch_bytes) */
