@@ -1,17 +1,18 @@
 #!/usr/bin/env python3
-"""bench/restir_bdpt.py — `make bench`: ReSTIR BDPT (lightweight variant, caustic temporal
-reuse) against pt, restir_pt and bdpt on the caustic scenes: error against time, frame cost,
-and a moving light frame by frame.
+"""bench/restir_bdpt.py — `make bench`: ReSTIR BDPT (lightweight and full variants, caustic
+temporal reuse) against pt, restir_pt and bdpt on the caustic scenes: error against time, frame
+cost, and a moving light frame by frame.
 
 Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. In one
 run, on lamp-in-glass and caustic-sphere (BENCH_RBDPT_SCENES) at 256x256 (BENCH_RBDPT_SIZE):
-  0. restir_bdpt runs with its defaults (caustic reuse only), without caustic reuse, and with
-     the non-caustic reuse (`"reuse": true`);
+  0. restir_bdpt runs with its defaults (lightweight, caustic reuse only), without caustic
+     reuse, with the non-caustic reuse (`"reuse": true`), and as the full variant (`"variant":
+     "full"`: bdpt's vertex connections too, caustic reuse);
   1. a `bdpt` reference per scene of REF_FRAMES frames (bench/bdpt.py's, shared cache in
      build/refs/; `pt` cannot converge on these scenes: their light arrives through glass);
   2. MAPE against time (seed 000 footnote 3, `restir compare`), each over SEEDS seeds: `pt` at
-     1, 2, 4 ... spp, and for `bdpt`, `restir_pt`, `restir_bdpt` and `restir_bdpt` without its
-     caustic temporal reuse the mean of a session's first 1, 2, 4 ... frames (time: the sum of
+     1, 2, 4 ... spp, and for `bdpt`, `restir_pt` and each restir_bdpt run the mean of a
+     session's first 1, 2, 4 ... frames (time: the sum of
      those frames' render times, as the CLI reports it);
   3. equal time: each compared restir_bdpt variant's MAPE over restir_pt's interpolated (log-log) at the same time,
      at restir_bdpt's longest point; the single frame after WARMUP frames of each reusing method
@@ -61,9 +62,10 @@ ANIMATION = ROOT / "scenes" / "caustic-sphere" / "animations" / "light-path.json
 SESSIONS = [("bdpt", ["--method", "bdpt"]), ("restir_pt", ["--method", "restir_pt"]),
             ("restir_bdpt", ["--method", "restir_bdpt"]),
             ("restir_bdpt, no caustic reuse", ["--method", "restir_bdpt", "--params", '{"caustic_temporal": false}']),
-            ("restir_bdpt, reuse", ["--method", "restir_bdpt", "--params", '{"reuse": true}'])]
+            ("restir_bdpt, reuse", ["--method", "restir_bdpt", "--params", '{"reuse": true}']),
+            ("restir_bdpt, full", ["--method", "restir_bdpt", "--params", '{"variant": "full"}'])]
 # The variants of restir_bdpt whose equal-time error and frame cost are compared with restir_pt's.
-COMPARED = ["restir_bdpt", "restir_bdpt, reuse"]
+COMPARED = ["restir_bdpt", "restir_bdpt, reuse", "restir_bdpt, full"]
 
 
 def read_rgb(path):

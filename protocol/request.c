@@ -744,7 +744,8 @@ static const struct protocol_field bdpt_fields[] = {
 #define F(key, kind) REQUEST_FIELD(struct restir_bdpt_params, key, kind)
 static const struct protocol_field restir_bdpt_fields[] = {
     F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(light_paths, PROTOCOL_UINT),
-    F(lt_capacity, PROTOCOL_UINT), F(caustic_temporal, PROTOCOL_BOOL), F(temporal_cap, PROTOCOL_UINT),
+    F(lt_capacity, PROTOCOL_UINT), F(lvc_capacity, PROTOCOL_UINT), F(caustic_temporal, PROTOCOL_BOOL),
+    F(temporal_cap, PROTOCOL_UINT),
     F(moving_cap, PROTOCOL_UINT), F(reuse, PROTOCOL_BOOL), F(spatial_neighbors, PROTOCOL_UINT), F(spatial_radius, PROTOCOL_FLOAT),
 };
 #undef F
@@ -827,7 +828,8 @@ static bool request_bdpt_params(const cJSON *pv, const char *ptr, struct bdpt_pa
 static bool request_restir_bdpt_params(const cJSON *pv, const char *ptr, struct restir_bdpt_params *rp,
                                        struct err *err)
 {
-    static const char *const keys[] = {"variant", "max_depth", "rr_depth", "light_paths", "lt_capacity", "heuristic",
+    static const char *const keys[] = {"variant", "max_depth", "rr_depth", "light_paths", "lt_capacity", "lvc_capacity",
+                                       "heuristic",
                                        "caustic_temporal", "temporal_cap", "moving_cap", "reuse", "spatial_neighbors",
                                        "spatial_radius", NULL};
     char p[REQUEST_PTR];

@@ -372,24 +372,21 @@ static void bdpt_light_block(void *ctx, uint32_t block, unsigned worker)
 
 /* ---- camera pass -------------------------------------------------------------------------- */
 
-/* The LVC vertex with canonical index k (blocks in order, each block's vertices in order). */
-static const struct bdpt_light_vertex *bdpt_lvc_at(const struct bdpt_state *st, uint64_t k)
+const struct bdpt_light_vertex *bdpt_lvc_find(const struct bdpt_light_vertex *lvc, const uint64_t *block_first,
+                                              uint32_t blocks, uint32_t region, uint64_t k)
 {
-    uint32_t lo = 0, hi = st->blocks;  /* block_first[lo] <= k < block_first[hi] */
+    uint32_t lo = 0, hi = blocks;  /* block_first[lo] <= k < block_first[hi] */
     while (hi - lo > 1) {
         uint32_t mid = lo + (hi - lo) / 2;
-        if (st->block_first[mid] <= k) lo = mid; else hi = mid;
+        if (block_first[mid] <= k) lo = mid; else hi = mid;
     }
-    return &st->lvc[(size_t)lo * st->region + (k - st->block_first[lo])];
+    return &lvc[(size_t)lo * region + (k - block_first[lo])];
 }
 
-/* Camera vertex s (material m, incoming wo) joined to light vertex v; `t_c` surface vertices on
- * the camera subpath so far. Returns the contribution before the camera throughput. */
-static struct vec3 bdpt_connect_vertex(const struct bdpt_ctx *c, const struct surface *s, const struct material *m,
-                                       struct vec3 wo, const struct bdpt_mis *cam_mis,
-                                       const struct bdpt_light_vertex *v, struct ray_counters *rc, bool *made)
+struct vec3 bdpt_connect_light_vertex(const struct scene *scene, bool power, float lvc_scale, const struct surface *s,
+                                      const struct material *m, struct vec3 wo, const struct bdpt_mis *cam_mis,
+                                      const struct bdpt_light_vertex *v, struct ray_counters *rc, bool *made)
 {
-    const struct scene *scene = c->scene;
     struct vec3 zero = vec3_splat(0.0f);
     *made = false;
     struct surface sl;
@@ -415,10 +412,10 @@ static struct vec3 bdpt_connect_vertex(const struct bdpt_ctx *c, const struct su
     float light_fwd_a = material_pdf(ml, wol, wl) * fabsf(cos_c_ng) / dist2;
     float light_rev_w = material_pdf(ml, wl, wol);
     struct bdpt_mis lm = {v->dvcm, v->dvc};
-    float w = bdpt_mis_weight_connect(cam_mis, &lm, cam_fwd_a, cam_rev_w, light_fwd_a, light_rev_w, c->power);
+    float w = bdpt_mis_weight_connect(cam_mis, &lm, cam_fwd_a, cam_rev_w, light_fwd_a, light_rev_w, power);
     float corr = fabsf(wol.z) * fabsf(cos_l_ng) / fabsf(cos_lo_ng);
     *made = true;
-    return vec3_scale(vec3_mul(vec3_mul(fc, fl), v->beta), fabsf(wi.z) * corr * w * c->lvc_scale / dist2);
+    return vec3_scale(vec3_mul(vec3_mul(fc, fl), v->beta), fabsf(wi.z) * corr * w * lvc_scale / dist2);
 }
 
 static struct vec3 bdpt_camera_path(struct bdpt_ctx *c, struct vec3 dir, struct rng *rng, struct ray_counters *rc,
@@ -493,10 +490,12 @@ static struct vec3 bdpt_camera_path(struct bdpt_ctx *c, struct vec3 dir, struct 
             if (c->lvc_total > 0 && t_c < p->max_depth) {
                 uint64_t k = (uint64_t)((double)uc * (double)c->lvc_total);
                 if (k >= c->lvc_total) k = c->lvc_total - 1;
-                const struct bdpt_light_vertex *v = bdpt_lvc_at(c->st, k);
+                const struct bdpt_state *st = c->st;
+                const struct bdpt_light_vertex *v = bdpt_lvc_find(st->lvc, st->block_first, st->blocks, st->region, k);
                 if (t_c + v->depth <= p->max_depth) {
                     bool made;
-                    struct vec3 cv = bdpt_connect_vertex(c, &s, m, wo, &mis, v, rc, &made);
+                    struct vec3 cv = bdpt_connect_light_vertex(scene, c->power, c->lvc_scale, &s, m, wo, &mis, v, rc,
+                                                               &made);
                     if (made) {
                         wk->connections++;
                         L = vec3_add(L, vec3_mul(beta, cv));

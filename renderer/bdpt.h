@@ -130,5 +130,18 @@ struct vec3 bdpt_origin(const struct surface *s, struct vec3 dir);
 /* Whether nothing blocks the segment from a (normal na) to b (normal nb, NULL for the eye). */
 bool bdpt_visible(const struct accel *accel, struct vec3 a, struct vec3 na, struct vec3 b, const struct vec3 *nb,
                   struct ray_counters *rc);
+/* The cached vertex with canonical index k of an LVC kept in fixed per-block regions (blocks in
+ * order, each block's vertices in order; block_first: prefix sums of the blocks' counts). */
+const struct bdpt_light_vertex *bdpt_lvc_find(const struct bdpt_light_vertex *lvc, const uint64_t *block_first,
+                                              uint32_t blocks, uint32_t region, uint64_t k);
+/* A vertex connection (s >= 2, t >= 2): camera vertex s (material m, incoming direction wo in its
+ * shading frame, MIS state cam_mis after its hit) joined to cached light vertex v, with recursive
+ * MIS over all techniques. The contribution before the camera subpath's throughput, times
+ * lvc_scale = |LVC| / N_L (the vertex was drawn uniformly from the cache); *made is false when
+ * the connection carries nothing. */
+struct bdpt_mis;
+struct vec3 bdpt_connect_light_vertex(const struct scene *scene, bool power, float lvc_scale, const struct surface *s,
+                                      const struct material *m, struct vec3 wo, const struct bdpt_mis *cam_mis,
+                                      const struct bdpt_light_vertex *v, struct ray_counters *rc, bool *made);
 
 #endif

@@ -1,4 +1,4 @@
-/* restir_bdpt.c — ReSTIR BDPT, lightweight variant: initial resampling (see restir_bdpt.h).
+/* restir_bdpt.c — ReSTIR BDPT, lightweight and full variants: initial resampling (see restir_bdpt.h).
  *
  * Conventions as bdpt.c (radiance-side BSDF values on both subpaths, Veach's adjoint
  * shading-normal correction on the light side, pinhole camera sampled with density 1 per pixel).
@@ -12,7 +12,9 @@
  * camera side; s = 1 on the light side, whose dVC at the start is s = 0), and after it dVCM
  * names a connection technique (dropped from dVC's accumulation and from every weight), while
  * dVC carries only the kept far-end techniques. The emitter-hit weight's dVCM term is s = 1
- * itself and stays.
+ * itself and stays. Keeping dVCM after the first scattering as well (`full`) restores exactly
+ * the terms left out, and these functions then compute bdpt_mis.h's weights over all techniques
+ * (tests/unit/test_restir_bdpt.c compares the two): the full variant's MIS.
  *
  * Resampling. In primary sample space every candidate X_i has source pdf 1 and target
  * p̂(X_i) = lum(C_i), C_i = w_i f / p the MIS-weighted contribution: its resampling weight is
@@ -29,6 +31,7 @@
 #include <time.h>
 
 #include "accel.h"
+#include "bdpt_mis.h"
 #include "light_sampler.h"
 #include "material.h"
 #include "parallel.h"
@@ -53,14 +56,14 @@ static inline float rbdpt_mis_f(float x, bool power) { return power ? x * x : x;
 
 struct restir_bdpt_mis restir_bdpt_mis_camera_start(float light_paths, float camera_pdf_w, bool power)
 {
-    return (struct restir_bdpt_mis){rbdpt_mis_f(light_paths / camera_pdf_w, power), 0.0f, true};
+    return (struct restir_bdpt_mis){rbdpt_mis_f(light_paths / camera_pdf_w, power), 0.0f, true, false};
 }
 
 struct restir_bdpt_mis restir_bdpt_mis_light_start(float direct_pdf_a, float emission_pdf_w, float cos_light,
                                                    bool power)
 {
     return (struct restir_bdpt_mis){rbdpt_mis_f(direct_pdf_a / emission_pdf_w, power),
-                                    rbdpt_mis_f(cos_light / emission_pdf_w, power), true};
+                                    rbdpt_mis_f(cos_light / emission_pdf_w, power), true, false};
 }
 
 void restir_bdpt_mis_hit(struct restir_bdpt_mis *m, float dist2, float cos_hit, bool power)
@@ -81,7 +84,7 @@ void restir_bdpt_mis_scatter(struct restir_bdpt_mis *m, float cos_out, float pdf
         m->dvc = rbdpt_mis_f(c / pdf_fwd_w, power) * (m->dvc * rbdpt_mis_f(pdf_rev_w, power) + (m->near ? m->dvcm : 0.0f));
         m->dvcm = rbdpt_mis_f(1.0f / pdf_fwd_w, power);
     }
-    m->near = false;
+    m->near = m->full;
 }
 
 float restir_bdpt_mis_emission(const struct restir_bdpt_mis *cam, float direct_pdf_a, float emission_pdf_w, bool power)
@@ -111,17 +114,20 @@ float restir_bdpt_mis_camera(const struct restir_bdpt_mis *light, float camera_p
 struct restir_bdpt_params restir_bdpt_defaults(void)
 {
     return (struct restir_bdpt_params){.variant = RESTIR_BDPT_LIGHTWEIGHT, .max_depth = 64, .rr_depth = 3,
-                                       .light_paths = 0, .lt_capacity = 8, .heuristic = BDPT_HEURISTIC_POWER,
+                                       .light_paths = 0, .lt_capacity = 8, .lvc_capacity = 8,
+                                       .heuristic = BDPT_HEURISTIC_POWER,
                                        .caustic_temporal = true, .temporal_cap = 20, .moving_cap = 4, .reuse = false,
                                        .spatial_neighbors = 2, .spatial_radius = 30.0f};
 }
 
 bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *err)
 {
-    if (p->variant == RESTIR_BDPT_FULL)
-        return err_set(err, ERR_INVALID, "/params/variant", "variant \"full\" is not implemented; use \"lightweight\"");
-    if (p->variant != RESTIR_BDPT_LIGHTWEIGHT)
+    if (p->variant != RESTIR_BDPT_LIGHTWEIGHT && p->variant != RESTIR_BDPT_FULL)
         return err_set(err, ERR_INVALID, "/params/variant", "variant must be \"lightweight\" or \"full\"");
+    if (p->variant == RESTIR_BDPT_FULL && p->reuse)
+        return err_set(err, ERR_INVALID, "/params/reuse",
+                       "reuse of the non-caustic reservoirs is implemented for the lightweight variant only "
+                       "(the full variant's needs the bidirectional hybrid shift, which is not implemented)");
     /* A sample keeps its vertex count (depth + 2) in 8 bits of head.bits. */
     if (p->max_depth < 1 || p->max_depth > RESTIR_BDPT_MAX_DEPTH)
         return err_set(err, ERR_INVALID, "/params/max_depth", "max_depth must be in 1..%u", RESTIR_BDPT_MAX_DEPTH);
@@ -131,6 +137,8 @@ bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *er
                        1u << 26);
     if (p->lt_capacity < 1 || p->lt_capacity > 64)
         return err_set(err, ERR_INVALID, "/params/lt_capacity", "lt_capacity must be in 1..64");
+    if (p->lvc_capacity < 1 || p->lvc_capacity > 64)
+        return err_set(err, ERR_INVALID, "/params/lvc_capacity", "lvc_capacity must be in 1..64");
     if (p->heuristic != BDPT_HEURISTIC_POWER && p->heuristic != BDPT_HEURISTIC_BALANCE)
         return err_set(err, ERR_INVALID, "/params/heuristic", "heuristic must be \"power\" or \"balance\"");
     if (p->temporal_cap < 1 || p->temporal_cap > 65535)
@@ -158,8 +166,8 @@ bool restir_bdpt_variant_parse(const char *name, enum restir_bdpt_variant *out)
 }
 
 struct rbdpt_sizes {
-    uint32_t light_paths, blocks, region;
-    uint64_t lt, pixels, blocks_b, res;
+    uint32_t light_paths, blocks, region, lvc_region;
+    uint64_t lt, pixels, blocks_b, res, lvc;
 };
 
 static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
@@ -174,13 +182,28 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
     z.blocks_b = (uint64_t)z.blocks * (2 * sizeof(uint32_t) + 3 * sizeof(uint64_t));
     z.res = (p->reuse ? 5 : 3) * n * sizeof(struct restir_bdpt_reservoir) + 2 * n * sizeof(struct restir_bdpt_shifted) +
             (n + 1) * sizeof(uint32_t) + (p->reuse ? n * sizeof(struct gbuffer_pixel) : 0);
+    /* The full variant's LVC: the vertices, per block its count, its dropped count and its
+     * prefix sum (one more). */
+    bool full = p->variant == RESTIR_BDPT_FULL;
+    z.lvc_region = full ? RBDPT_BLOCK_PATHS * p->lvc_capacity : 0;
+    z.lvc = full ? (uint64_t)z.blocks * z.lvc_region * sizeof(struct bdpt_light_vertex) +
+                       (uint64_t)z.blocks * 2 * sizeof(uint32_t) + ((uint64_t)z.blocks + 1) * sizeof(uint64_t)
+                 : 0;
     return z;
 }
 
 uint64_t restir_bdpt_bytes_planned(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
 {
     struct rbdpt_sizes z = rbdpt_sizes_of(p, width, height);
-    return z.lt + z.pixels + z.blocks_b + z.res;
+    return z.lt + z.pixels + z.blocks_b + z.res + z.lvc;
+}
+
+size_t restir_bdpt_lvc_bytes(const struct restir_bdpt_state *st)
+{
+    if (!st->lvc) return 0;
+    return (size_t)st->blocks * st->lvc_region * sizeof *st->lvc +
+           (size_t)st->blocks * (sizeof *st->lvc_count + sizeof *st->lvc_dropped) +
+           ((size_t)st->blocks + 1) * sizeof *st->lvc_first;
 }
 
 size_t restir_bdpt_reservoir_bytes(const struct restir_bdpt_state *st)
@@ -212,7 +235,8 @@ size_t restir_bdpt_block_bytes(const struct restir_bdpt_state *st)
 size_t restir_bdpt_bytes(const struct restir_bdpt_state *st)
 {
     return restir_bdpt_reservoir_bytes(st) + restir_bdpt_lt_bytes(st) + restir_bdpt_shift_bytes(st) +
-           restir_bdpt_bucket_bytes(st) + restir_bdpt_block_bytes(st) + gbuffer_bytes(&st->gbuf);
+           restir_bdpt_bucket_bytes(st) + restir_bdpt_block_bytes(st) + gbuffer_bytes(&st->gbuf) +
+           restir_bdpt_lvc_bytes(st);
 }
 
 bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, const struct restir_bdpt_params *p,
@@ -257,9 +281,17 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
             return false;
         }
     }
+    if (p->variant == RESTIR_BDPT_FULL) {
+        st->lvc_region = z.lvc_region;
+        st->lvc = malloc((size_t)z.blocks * z.lvc_region * sizeof *st->lvc);
+        st->lvc_count = calloc(z.blocks, sizeof *st->lvc_count);
+        st->lvc_dropped = calloc(z.blocks, sizeof *st->lvc_dropped);
+        st->lvc_first = calloc((size_t)z.blocks + 1, sizeof *st->lvc_first);
+    }
     if (!st->lt || !st->lt_sorted || !st->pixel_first || !st->block_count || !st->block_dropped || !st->block_rays ||
         !st->res || !st->caustic || !st->caustic_prev || !st->shifted || !st->shifted_sorted || !st->shift_first ||
-        (p->reuse && (!st->res_prev || !st->res_spatial))) {
+        (p->reuse && (!st->res_prev || !st->res_spatial)) ||
+        (p->variant == RESTIR_BDPT_FULL && (!st->lvc || !st->lvc_count || !st->lvc_dropped || !st->lvc_first))) {
         restir_bdpt_destroy(st);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for restir_bdpt (%llu bytes)",
                        (unsigned long long)restir_bdpt_bytes_planned(p, width, height));
@@ -283,6 +315,10 @@ void restir_bdpt_destroy(struct restir_bdpt_state *st)
     free(st->shift_first);
     free(st->res_prev);
     free(st->res_spatial);
+    free(st->lvc);
+    free(st->lvc_count);
+    free(st->lvc_dropped);
+    free(st->lvc_first);
     gbuffer_destroy(&st->gbuf);
     memset(st, 0, sizeof *st);
 }
@@ -299,6 +335,7 @@ struct rbdpt_worker {
     _Alignas(64) uint64_t rays_intersect;
     uint64_t rays_occluded, candidates, rejected;
     uint64_t shifts, replay_failed, not_caustic, inverse_failed;
+    uint64_t connections;
 };
 
 /* What a frame sees: its scene and camera (the current frame's, or the previous one's for the
@@ -319,6 +356,9 @@ struct rbdpt_ctx {
     uint64_t seed;
     uint32_t frame;
     bool power;
+    bool full;                   /* the full variant: all techniques, an LVC */
+    uint64_t lvc_total;          /* full: |LVC| this frame */
+    float lvc_scale;             /* full: |LVC| / N_L */
     struct image *out;
     uint32_t tiles_x;
     struct rbdpt_worker worker[RBDPT_MAX_WORKERS];
@@ -404,14 +444,23 @@ static bool rbdpt_connect_camera(const struct rbdpt_ctx *c, const struct rbdpt_v
 
 /* ---- light subpaths ------------------------------------------------------------------------ */
 
+/* The full variant's light vertex cache of one block: `region` vertices, `count` used, the
+ * excess counted in `dropped`. */
+struct rbdpt_lvc_block {
+    struct bdpt_light_vertex *v;
+    uint32_t region, count, dropped;
+};
+
 /* Traces light subpath i with the random numbers of frame `origin_frame` in view `v` and writes
- * its t = 1 samples to out[0 .. cap) (*stored, the excess counted in *dropped). With
+ * its t = 1 samples to out[0 .. cap) (*stored, the excess counted in *dropped), and with `lvc`
+ * (the full variant's light pass) every connectable vertex into the cache as bdpt does. With
  * only_depth > 0 it is the random-replay shift of seed 000 Appendix A: the subpath is replayed
  * up to that vertex and only the sample there is written (nothing when the replayed path ends
  * earlier, the vertex is not connectable or the eye does not see it). */
 static void rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view *v, uint32_t origin_frame,
                               uint32_t i, uint32_t only_depth, struct restir_bdpt_lt_sample *out, uint32_t cap,
-                              uint32_t *stored, uint32_t *dropped, uint64_t *vertices, struct ray_counters *rc)
+                              uint32_t *stored, uint32_t *dropped, uint64_t *vertices, struct rbdpt_lvc_block *lvc,
+                              struct ray_counters *rc)
 {
     const struct scene *scene = v->scene;
     const struct restir_bdpt_params *p = c->p;
@@ -424,6 +473,7 @@ static void rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view
     struct vec3 dir = start.dir, beta = start.beta;
     struct vec3 rr_beta = vec3_splat(1.0f);
     struct restir_bdpt_mis mis = restir_bdpt_mis_light_start(ls.pdf_a, start.emission_pdf_w, start.cos_l, c->power);
+    mis.full = c->full;
     struct vec3 org = start.org, prev_p = ls.p;
     bool prev_rough = true;   /* the emitter itself is rough: x_2 of a depth-1 sample */
     uint32_t last = only_depth ? only_depth : p->max_depth;
@@ -439,6 +489,15 @@ static void rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view
         struct vec3 wo_world = vec3_neg(dir);
         if ((!only_depth || depth == only_depth) && (material_flags(m) & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
             if (vertices) (*vertices)++;
+            if (lvc && lvc->count < lvc->region) {
+                struct bdpt_light_vertex *lv = &lvc->v[lvc->count++];
+                *lv = (struct bdpt_light_vertex){.wo = wo_world, .beta = beta, .splat = {0, 0, 0}, .dvcm = mis.dvcm,
+                                                 .dvc = mis.dvc, .shape = s.shape, .prim = s.prim,
+                                                 .splat_pixel = UINT32_MAX, .depth = depth};
+                surface_point_code(scene, &hit, &s, &lv->b1, &lv->b2);
+            } else if (lvc) {
+                lvc->dropped++;
+            }
             uint32_t px;
             struct vec3 val;
             if (rbdpt_connect_camera(c, v, &s, m, wo_world, beta, &mis, rc, &px, &val) && vec3_is_finite(val) &&
@@ -495,8 +554,14 @@ static void rbdpt_light_block(void *ctx, uint32_t block, unsigned worker)
     uint64_t vertices = 0;
     uint32_t first = block * RBDPT_BLOCK_PATHS;
     uint32_t last = first + RBDPT_BLOCK_PATHS < st->light_paths ? first + RBDPT_BLOCK_PATHS : st->light_paths;
+    struct rbdpt_lvc_block lvc = {st->lvc ? &st->lvc[(size_t)block * st->lvc_region] : NULL, st->lvc_region, 0, 0};
     for (uint32_t i = first; i < last; i++)
-        rbdpt_trace_light(c, &c->view[0], c->frame, i, 0, region, st->region, &stored, &dropped, &vertices, &rc);
+        rbdpt_trace_light(c, &c->view[0], c->frame, i, 0, region, st->region, &stored, &dropped, &vertices,
+                          st->lvc ? &lvc : NULL, &rc);
+    if (st->lvc) {
+        st->lvc_count[block] = lvc.count;
+        st->lvc_dropped[block] = lvc.dropped;
+    }
     st->block_count[block] = stored;
     st->block_dropped[block] = dropped;
     st->block_rays[3 * block] = rc.intersect;
@@ -516,7 +581,7 @@ static enum rbdpt_replay rbdpt_replay_caustic(const struct rbdpt_ctx *c, const s
 {
     struct restir_bdpt_lt_sample out;
     uint32_t stored = 0, dropped = 0;
-    rbdpt_trace_light(c, v, origin_frame, i, depth, &out, 1, &stored, &dropped, NULL, rc);
+    rbdpt_trace_light(c, v, origin_frame, i, depth, &out, 1, &stored, &dropped, NULL, NULL, rc);
     if (stored == 0) return RBDPT_REPLAY_FAILED;
     if (!out.caustic) return RBDPT_REPLAY_NOT_CAUSTIC;
     *pixel = out.pixel;
@@ -568,6 +633,7 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
     if (!(cos0 > 0.0f)) return;
     struct restir_bdpt_mis mis = restir_bdpt_mis_camera_start(c->n_light, v->plane_dist2 / (cos0 * cos0 * cos0),
                                                                   c->power);
+    mis.full = c->full;
     struct vec3 org = cam->position, prev_p = org;
 
     for (uint32_t depth = 0;; depth++) {
@@ -601,6 +667,9 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
         struct vec3 wo = frame_to_local(&s.frame, wo_world);
         bool connectable = (material_flags(m) & (BSDF_DIFFUSE | BSDF_GLOSSY)) != 0;
         float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
+        /* The full variant's choice of a cached light vertex (the lightweight one draws none, so
+         * its random streams are as before). */
+        float uc = c->full ? rng_next_float(rng) : 0.0f;
         if (connectable) {
             struct light_sample ls;
             if (light_sampler_sample(lights, ul, u1, u2, &ls) && !ls.is_env) {
@@ -621,6 +690,29 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
                                                       direct_pdf_w, emission_pdf_w, cos_ng, cos_l, c->power);
                         struct vec3 C = vec3_mul(beta, vec3_scale(vec3_mul(f, Le), fabsf(wi.z) * w / direct_pdf_w));
                         if (rbdpt_offer(r, want, C, (uint16_t)(((depth + 2) << 8) | 1u), pixel, frame, pick, wk))
+                            return;
+                    }
+                }
+            }
+            /* s >= 2, t >= 2 (full variant): a connection to one light vertex drawn uniformly from
+             * the cache, weighted |LVC| / N_L, exactly as bdpt; paths longer than max_depth are
+             * cut. Technique s = the light vertex's surface vertices + the emitter's. */
+            const uint32_t t_c = depth + 1;   /* surface vertices on the camera subpath */
+            if (c->full && c->lvc_total > 0 && t_c < p->max_depth) {
+                const struct restir_bdpt_state *st = c->st;
+                uint64_t k = (uint64_t)((double)uc * (double)c->lvc_total);
+                if (k >= c->lvc_total) k = c->lvc_total - 1;
+                const struct bdpt_light_vertex *lv = bdpt_lvc_find(st->lvc, st->lvc_first, st->blocks, st->lvc_region, k);
+                if (t_c + lv->depth <= p->max_depth) {
+                    bool made;
+                    const struct bdpt_mis cm = {mis.dvcm, mis.dvc};
+                    struct vec3 cv = bdpt_connect_light_vertex(scene, c->power, c->lvc_scale, &s, m, wo, &cm, lv, rc,
+                                                               &made);
+                    if (made) {
+                        if (wk) wk->connections++;
+                        uint32_t vertices = t_c + lv->depth + 1, tech = lv->depth + 1;
+                        if (rbdpt_offer(r, want, vec3_mul(beta, cv), (uint16_t)((vertices << 8) | tech), pixel, frame,
+                                        pick, wk))
                             return;
                     }
                 }
@@ -675,7 +767,7 @@ static void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain
         struct restir_bdpt_lt_sample out;
         uint32_t stored = 0, dropped = 0;
         rbdpt_trace_light(c, v, src->origin_frame, src->light_path, (uint32_t)(src->head.bits >> 8) - 1u, &out, 1,
-                          &stored, &dropped, NULL, &cnt->rays);
+                          &stored, &dropped, NULL, NULL, &cnt->rays);
         ok = stored == 1 && !out.caustic && out.pixel == to.pixel;
         if (ok) C = out.F;
     } else {
@@ -886,7 +978,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
         return err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the state %ux%u", out->width, out->height,
                        st->width, st->height);
     struct rbdpt_sizes z = rbdpt_sizes_of(p, st->width, st->height);
-    if (z.light_paths != st->light_paths || z.region != st->region)
+    if (z.light_paths != st->light_paths || z.region != st->region || z.lvc_region != st->lvc_region)
         return err_set(err, ERR_INVALID, NULL, "the parameters changed the buffers' sizes since init");
     unsigned threads = f->threads ? f->threads : parallel_default_threads();
     if (threads > RBDPT_MAX_WORKERS) threads = RBDPT_MAX_WORKERS;
@@ -912,12 +1004,23 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     c->seed = f->seed;
     c->frame = f->frame;
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;
+    c->full = p->variant == RESTIR_BDPT_FULL;
     c->out = out;
 
     struct restir_bdpt_stats s = {0};
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
     if (!parallel_run(threads, st->blocks, rbdpt_light_block, c, NULL, NULL, err)) return false;
+    if (c->full) {
+        /* The cache's canonical order: blocks in order, each block's vertices in order. */
+        st->lvc_first[0] = 0;
+        for (uint32_t b = 0; b < st->blocks; b++) {
+            st->lvc_first[b + 1] = st->lvc_first[b] + st->lvc_count[b];
+            s.lvc_dropped += st->lvc_dropped[b];
+        }
+        c->lvc_total = st->lvc_first[st->blocks];
+        c->lvc_scale = (float)((double)c->lvc_total / (double)st->light_paths);
+    }
     s.light_ms = rbdpt_ms_since(&t0);
 
     /* Counting sort of the light-traced samples by pixel: counts, exclusive prefix sum, then a
@@ -1015,6 +1118,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
         s.caustic_replay_failed += c->worker[i].replay_failed;
         s.caustic_not_caustic += c->worker[i].not_caustic;
         s.caustic_inverse_failed += c->worker[i].inverse_failed;
+        s.connections += c->worker[i].connections;
     }
     /* This frame's caustic reservoirs become the history of the next. */
     struct restir_bdpt_reservoir *tmp = st->caustic_prev;
@@ -1044,6 +1148,7 @@ bool restir_bdpt_caustic_replay(struct restir_bdpt_state *st, const struct resti
     c->seed = f->seed;
     c->frame = f->frame;
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;
+    c->full = p->variant == RESTIR_BDPT_FULL;
     struct ray_counters rc = {0, 0};
     bool ok = rbdpt_replay_caustic(c, &c->view[0], origin_frame, light_path, depth, pixel, F, &rc) == RBDPT_REPLAY_OK;
     free(c);

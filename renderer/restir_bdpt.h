@@ -1,7 +1,11 @@
-/* restir_bdpt.h — ReSTIR BDPT, lightweight variant (seed 000 §4–5, "Lightweight BDPT"): the
- * techniques s = 0 (emitter hits), s = 1 (next-event estimation) and t = 1 (light tracing), no
- * vertex connections, resampled in the extended path space (path, technique) with the target
- * p̂ = lum(w_{s,t} f / p), w the MIS weight among these three techniques only.
+/* restir_bdpt.h — ReSTIR BDPT (seed 000 §4–5). The lightweight variant ("Lightweight BDPT"):
+ * the techniques s = 0 (emitter hits), s = 1 (next-event estimation) and t = 1 (light tracing),
+ * no vertex connections, resampled in the extended path space (path, technique) with the target
+ * p̂ = lum(w_{s,t} f / p), w the MIS weight among these three techniques only. The full variant
+ * adds every vertex connection (s >= 2, t >= 2) as `bdpt` makes them — each camera vertex joined
+ * to one vertex drawn uniformly from a light vertex cache (LVC) of this frame's light subpaths —
+ * and weighs all techniques with bdpt's recursive MIS (bdpt_mis.h), so its candidates are
+ * exactly bdpt's contributions.
  *
  * Per frame: N_L light subpaths start on emitters in proportion to power; every connectable
  * light vertex is connected to the camera (t = 1). The samples that land in a pixel are
@@ -28,12 +32,13 @@
  * target pixel again and is still non-caustic.
  *
  * Method `restir_bdpt` (renderer/view.c) renders frames with exactly this. What it does NOT do
- * yet: the full variant (the vertex connections, s >= 2 and t >= 2, the light vertex cache,
- * recursive reconnection MIS of eqs. 42-47 and the "copy MIS weight" variant) is refused by
- * restir_bdpt_params_valid naming /params/variant; the non-caustic reuse does not use the
- * bidirectional hybrid shift (no reconnection of the camera subpath to the light subpath), so a
- * light-traced sample never moves to a neighbouring pixel, and the switchable rejection of
- * non-caustic t <= 1 samples that cannot shift to the pixel's primary hit is not implemented.
+ * yet: the non-caustic reuse does not use the bidirectional hybrid shift (no reconnection of the
+ * camera subpath to the light subpath), so a light-traced sample never moves to a neighbouring
+ * pixel; with the full variant there is no non-caustic reuse at all (`reuse` is refused naming
+ * /params/reuse), hence no recursive reconnection MIS (eqs. 42-47) and no "copy MIS weight"
+ * variant; the switchable rejection of non-caustic t <= 1 samples that cannot shift to the
+ * pixel's primary hit is not implemented. The full variant's caustic reservoirs are reused as
+ * the lightweight one's, with the full MIS weight of the replayed t = 1 sample.
  * Scenes with environment light or translucent materials are refused, as by `bdpt`. */
 #ifndef RESTIRD_RESTIR_BDPT_H
 #define RESTIRD_RESTIR_BDPT_H
@@ -56,24 +61,27 @@ const char *restir_bdpt_variant_name(enum restir_bdpt_variant v);
 bool restir_bdpt_variant_parse(const char *name, enum restir_bdpt_variant *out);
 
 struct restir_bdpt_params {
-    enum restir_bdpt_variant variant;  /* only the lightweight variant is implemented */
+    enum restir_bdpt_variant variant;  /* lightweight (default) or full */
     uint32_t max_depth;        /* scattering events of a full path, 1..RESTIR_BDPT_MAX_DEPTH (64, as bdpt) */
     uint32_t rr_depth;         /* Russian roulette after this many bounces of a subpath (3) */
     uint32_t light_paths;      /* N_L per frame; 0 = the pixel count (default) */
     uint32_t lt_capacity;      /* light-traced samples kept per light subpath on average, 1..64 (8) */
+    uint32_t lvc_capacity;     /* full variant: light vertices cached per light subpath on average,
+                                  1..64 (8, as bdpt) */
     enum bdpt_heuristic heuristic;  /* power (default) or balance */
     bool caustic_temporal;     /* temporal reuse of the caustic reservoirs (true) */
     uint32_t temporal_cap;     /* caustic confidence capped at this absolute value, 1..65535 (20); with
                                   `reuse`, the non-caustic history's at this multiple of the current */
     uint32_t moving_cap;       /* the caustic confidence cap instead in a frame whose shapes or lights
                                   moved or changed since the previous frame, 1..65535 (4) */
-    bool reuse;                /* temporal and spatial reuse of the non-caustic reservoir (false) */
+    bool reuse;                /* temporal and spatial reuse of the non-caustic reservoir (false;
+                                  lightweight variant only) */
     uint32_t spatial_neighbors; /* with reuse: neighbours per pixel, 0..32 (2) */
     float spatial_radius;      /* with reuse: pixels, (0, 256] (30) */
 };
 
 struct restir_bdpt_params restir_bdpt_defaults(void);
-/* Ranges; errors name /params/<key>; the full variant is refused as not implemented. */
+/* Ranges; errors name /params/<key>; `reuse` with the full variant is refused as not implemented. */
 bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *err);
 
 /* A light-traced (t = 1) sample: its pixel, its contribution C (MIS weight and 1/N_L included). */
@@ -129,13 +137,21 @@ struct restir_bdpt_state {
      * and the G-buffer whose motion vectors temporal reuse follows. */
     struct restir_bdpt_reservoir *res_prev, *res_spatial;
     struct gbuffer gbuf;
+    /* The full variant's light vertex cache, in bdpt's layout: per block a region of lvc_region
+     * vertices, lvc_count of them used, lvc_first the prefix sums (blocks + 1). NULL otherwise. */
+    struct bdpt_light_vertex *lvc;
+    uint32_t lvc_region;
+    uint32_t *lvc_count, *lvc_dropped;
+    uint64_t *lvc_first;
 };
 
 struct restir_bdpt_stats {
     double light_ms, sort_ms, camera_ms;
     uint64_t light_subpaths;    /* N_L */
     uint64_t light_vertices;    /* connectable light vertices reached, each connected to the eye (t = 1):
-                                   what a light vertex cache would hold; this variant stores none */
+                                   what the full variant's light vertex cache holds */
+    uint64_t lvc_dropped;       /* full: vertices that found their block's LVC region full (a bias) */
+    uint64_t connections;       /* full: camera-to-LVC connections made (visible, non-zero) */
     uint64_t light_traced;      /* t = 1 samples that reached a pixel */
     uint64_t caustic_samples;   /* of which caustic */
     uint64_t lt_dropped;        /* samples that found their block's region full (a bias; see bdpt.h) */
@@ -180,6 +196,7 @@ size_t restir_bdpt_lt_bytes(const struct restir_bdpt_state *st);
 size_t restir_bdpt_shift_bytes(const struct restir_bdpt_state *st);
 size_t restir_bdpt_bucket_bytes(const struct restir_bdpt_state *st);
 size_t restir_bdpt_block_bytes(const struct restir_bdpt_state *st);
+size_t restir_bdpt_lvc_bytes(const struct restir_bdpt_state *st);   /* 0 for the lightweight variant */
 
 bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
                         const struct restir_bdpt_frame *f, struct image *out, struct restir_bdpt_stats *stats,
@@ -193,10 +210,13 @@ bool restir_bdpt_caustic_replay(struct restir_bdpt_state *st, const struct resti
                                 uint32_t depth, uint32_t *pixel, struct vec3 *F);
 
 /* The lightweight MIS state a subpath carries (SmallVCM's dVCM / dVC restricted to the
- * techniques s = 0, s = 1, t = 1; see restir_bdpt.c). Exposed for the unit test. */
+ * techniques s = 0, s = 1, t = 1; see restir_bdpt.c). Exposed for the unit test. With `full`
+ * set (the full variant) nothing is left out and the same functions compute bdpt_mis.h's
+ * weights over all techniques: dVCM keeps naming a technique after the first scattering. */
 struct restir_bdpt_mis {
     float dvcm, dvc;
-    bool near;                 /* no scattering yet: dvcm still names a wanted technique */
+    bool near;                 /* no scattering yet (or `full`): dvcm still names a wanted technique */
+    bool full;
 };
 struct restir_bdpt_mis restir_bdpt_mis_camera_start(float light_paths, float camera_pdf_w, bool power);
 struct restir_bdpt_mis restir_bdpt_mis_light_start(float direct_pdf_a, float emission_pdf_w, float cos_light,

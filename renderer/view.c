@@ -464,6 +464,7 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
         out[n++] = (struct view_buffer_bytes){"caustic_shifts", restir_bdpt_shift_bytes(&v->rbdpt)};
         out[n++] = (struct view_buffer_bytes){"pixel_buckets", restir_bdpt_bucket_bytes(&v->rbdpt)};
         out[n++] = (struct view_buffer_bytes){"light_blocks", restir_bdpt_block_bytes(&v->rbdpt)};
+        if (v->rbdpt.lvc) out[n++] = (struct view_buffer_bytes){"light_vertex_cache", restir_bdpt_lvc_bytes(&v->rbdpt)};
         if (v->rbdpt.gbuf.px) out[n++] = (struct view_buffer_bytes){"gbuffer", gbuffer_bytes(&v->rbdpt.gbuf)};
     }
     if (v->params.method == RENDER_METHOD_RESTIR_SSS) {

@@ -42,7 +42,8 @@
     "--method bdpt renders frames of bidirectional path tracing (one camera path per pixel and\n" \
     "N_L light subpaths per frame; --params '{\"heuristic\": \"balance\"}', see protocol/API.md)\n" \
     "--method restir_bdpt renders a session of ReSTIR BDPT frames (lightweight variant: s = 0, s = 1,\n" \
-    "t = 1 resampled per pixel, caustic reservoirs reused temporally; see protocol/API.md)\n"
+    "t = 1 resampled per pixel, caustic reservoirs reused temporally; --params '{\"variant\": \"full\"}'\n" \
+    "adds bdpt's vertex connections; see protocol/API.md)\n"
 
 static int cli_usage_error(const char *fmt, const char *arg)
 {
@@ -395,11 +396,13 @@ static int cli_render(int argc, char **argv)
             const struct restir_bdpt_stats *rb = &last.restir_bdpt;
             printf(",\"last_frame\":{\"light_ms\":%.3f,\"sort_ms\":%.3f,\"camera_ms\":%.3f,\"light_subpaths\":%" PRIu64
                    ",\"light_vertices\":%" PRIu64 ",\"light_traced\":%" PRIu64 ",\"lt_dropped\":%" PRIu64
+                   ",\"lvc_dropped\":%" PRIu64 ",\"connections\":%" PRIu64
                    ",\"caustic_samples\":%" PRIu64 ",\"caustic_shifts\":%" PRIu64 ",\"shift_failures\":{\"replay\":%" PRIu64
                    ",\"not_caustic\":%" PRIu64 ",\"inverse\":%" PRIu64 "},\"reuse_ms\":%.3f,\"reuse_shifts\":%" PRIu64
                    ",\"reuse_shift_failures\":%" PRIu64 ",\"reservoir_bytes\":%" PRIu64 "},\"session_bytes\":%zu",
                    rb->light_ms, rb->sort_ms, rb->camera_ms, rb->light_subpaths, rb->light_vertices, rb->light_traced,
-                   rb->lt_dropped, rb->caustic_samples, rb->caustic_shifts, rb->caustic_replay_failed,
+                   rb->lt_dropped, rb->lvc_dropped, rb->connections, rb->caustic_samples, rb->caustic_shifts,
+                   rb->caustic_replay_failed,
                    rb->caustic_not_caustic, rb->caustic_inverse_failed, rb->reuse_ms, rb->reuse_shifts,
                    rb->reuse_shift_failures, rb->reservoir_bytes, session_bytes);
         }

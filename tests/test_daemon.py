@@ -1319,7 +1319,7 @@ def test_restir_bdpt_session(daemon):
                     params={"heuristic": "balance"})
     assert s["method"] == "restir_bdpt"
     assert s["params"] == {"variant": "lightweight", "max_depth": 64, "rr_depth": 3, "light_paths": 0,
-                           "lt_capacity": 8, "heuristic": "balance", "caustic_temporal": True, "temporal_cap": 20,
+                           "lt_capacity": 8, "lvc_capacity": 8, "heuristic": "balance", "caustic_temporal": True, "temporal_cap": 20,
                            "moving_cap": 4, "reuse": False, "spatial_neighbors": 2, "spatial_radius": 30}
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
                                  "caustic_shifts", "pixel_buckets", "light_blocks"}
@@ -1342,14 +1342,15 @@ def test_restir_bdpt_session(daemon):
 
 
 @pytest.mark.parametrize("params,field", [
-    ({"variant": "full"}, "/params/variant"),
+    ({"variant": "full", "reuse": True}, "/params/reuse"),
     ({"variant": "heavy"}, "/params/variant"),
     ({"lt_capacity": 0}, "/params/lt_capacity"),
     ({"temporal_cap": 0}, "/params/temporal_cap"),
     ({"moving_cap": 0}, "/params/moving_cap"),
     ({"caustic_temporal": 1}, "/params/caustic_temporal"),
     ({"heuristic": "max"}, "/params/heuristic"),
-    ({"lvc_capacity": 8}, "/params/lvc_capacity"),
+    ({"lvc_capacity": 0}, "/params/lvc_capacity"),
+    ({"lvc_size": 8}, "/params/lvc_size"),
     ({"spatial_neighbors": 33}, "/params/spatial_neighbors"),
     ({"spatial_radius": 0}, "/params/spatial_radius"),
 ])

@@ -1,5 +1,5 @@
-"""restir_bdpt (the session method, lightweight variant with caustic temporal reuse, and with the
-non-caustic reuse of `"reuse": true`) is unbiased against `bdpt` (design TESTING.md tier 4): K
+"""restir_bdpt (the session method: the lightweight variant with caustic temporal reuse, with the
+non-caustic reuse of `"reuse": true`, and the full variant with its vertex connections) is unbiased against `bdpt` (design TESTING.md tier 4): K
 independent sessions of each method (fresh seeds), each the mean of its N frames, compared per
 pixel at 32x32 (Šidák-corrected z-test at 0.01, >= 99.75 % of pixels passing, global mean
 within 3 sigma; tests/stats.py). Frames of one restir_bdpt session are correlated through its
@@ -62,23 +62,38 @@ def _sessions(scene_path, tmp_path, method, params, anim, seed0):
     return np.stack(runs), stats
 
 
-# The defaults (caustic reuse only) on every case; the non-caustic reuse (`reuse`) on the case
-# that exercises it most, the table top lit by the moving filament (all four cases pass with it;
-# one keeps the test's time down).
-MATCH_CASES = [(scene, moving, False) for scene in CASES for moving in (False, True)] + [("lamp-in-glass", True, True)]
+# The defaults (caustic reuse only) and the full variant on every case; the non-caustic reuse
+# (`reuse`) on the case that exercises it most, the table top lit by the moving filament (all four
+# cases pass with it; one keeps the test's time down).
+MATCH_CASES = ([(scene, moving, False, "lightweight") for scene in CASES for moving in (False, True)] +
+               [("lamp-in-glass", True, True, "lightweight")] +
+               [(scene, moving, False, "full") for scene in CASES for moving in (False, True)])
+
+_REF = {}
+
+
+def _reference(path, tmp_path, case, anim, key):
+    """The bdpt sessions of a case, rendered once for all variants."""
+    if key not in _REF:
+        _REF[key] = _sessions(path, tmp_path, "bdpt", case["params"], anim, 5000)[0]
+    return _REF[key]
 
 
 @pytest.mark.statistical
-@pytest.mark.parametrize("scene,moving,reuse", MATCH_CASES,
-                         ids=[f"{s}-{'moving' if m else 'static'}-{'reuse' if r else 'default'}"
-                              for s, m, r in MATCH_CASES])
-def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse):
+@pytest.mark.parametrize("scene,moving,reuse,variant", MATCH_CASES,
+                         ids=[f"{s}-{'moving' if m else 'static'}-{'reuse' if r else 'default'}-{v}"
+                              for s, m, r, v in MATCH_CASES])
+def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse, variant):
     case = CASES[scene]
     anim = _animation(tmp_path, case, moving)
     path = scenes / scene / "scene.json"
-    runs, stats = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": reuse}, anim, 1000)
-    ref, _ = _sessions(path, tmp_path, "bdpt", case["params"], anim, 5000)
+    runs, stats = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": reuse, "variant": variant},
+                            anim, 1000)
+    ref = _reference(path, tmp_path, case, anim, (scene, moving))
     last = [st["last_frame"] for st in stats]
+    # The full variant connects camera vertices to cached light vertices, the lightweight one never.
+    assert all(lf["lvc_dropped"] == 0 for lf in last)
+    assert (sum(lf["connections"] for lf in last) > 0) == (variant == "full")
     # Every part ran: light tracing reached the crop, caustic samples were found and shifted
     # between frames, nothing was dropped (that would bias) or non-finite.
     assert all(lf["lt_dropped"] == 0 for lf in last) and all(st["nonfinite"] == 0 for st in stats)
@@ -89,20 +104,23 @@ def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse):
     assert np.isfinite(runs).all()
     res = ztest_runs(runs, ref)
     bad = ztest_runs(runs * 1.03, ref)
-    label = f"{scene}, {'moving' if moving else 'static'}, {'all reuse' if reuse else 'caustic reuse'}"
+    label = f"{scene}, {'moving' if moving else 'static'}, {'all reuse' if reuse else 'caustic reuse'}, {variant}"
     print(f"{label}: {res}; x1.03: {bad}; last frames' caustic shifts "
           f"{sum(lf['caustic_shifts'] for lf in last)}, failures {fails}")
     assert res.passed, f"{label}: {res}"
     assert not bad.passed, f"{label}: a bias of x1.03 went unseen: {bad}"
 
 
-@pytest.mark.parametrize("reuse", [False, True], ids=["default", "reuse"])
-def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes, reuse):
+@pytest.mark.parametrize("params", [{"reuse": False}, {"reuse": True}, {"variant": "full"}],
+                         ids=["default", "reuse", "full"])
+def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes, params):
     """Light-traced samples and replayed caustic samples are bucketed by counting sorts in
-    light-subpath and source-pixel order, and the reuse passes draw from per-pixel streams: 1 and
-    3 threads give the same frames, here with the light of caustic-sphere moving along its keys
-    (so caustic shifts run and some fail)."""
-    extra = ["--method", "restir_bdpt", "--frames", "4", "--params", json.dumps({"reuse": reuse}), "--animation",
+    light-subpath and source-pixel order, the full variant's light vertex cache is indexed in
+    block order, and the reuse passes draw from per-pixel streams: 1 and 3 threads give the same
+    frames, here with the light of caustic-sphere moving along its keys (so caustic shifts run and
+    some fail)."""
+    reuse = params.get("reuse", False)
+    extra = ["--method", "restir_bdpt", "--frames", "4", "--params", json.dumps(params), "--animation",
              str(scenes / "caustic-sphere" / "animations" / "light-path.json")]
     sc = scenes / "caustic-sphere" / "scene.json"
     a, sa = render(sc, tmp_path / "a.exr", spp=1, size="40x32", seed=4, extra=[*extra, "--threads", "1"])
@@ -112,10 +130,13 @@ def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes, reuse):
     assert np.array_equal(a, b)
 
 
-@pytest.mark.parametrize("params,where", [({"variant": "full"}, "/params/variant"),
-                                          ({"lt_capacity": 65}, "/params/lt_capacity")])
+@pytest.mark.parametrize("params,where", [({"variant": "full", "reuse": True}, "/params/reuse"),
+                                          ({"variant": "complete"}, "/params/variant"),
+                                          ({"lt_capacity": 65}, "/params/lt_capacity"),
+                                          ({"lvc_capacity": 0}, "/params/lvc_capacity")])
 def test_restir_bdpt_refuses_what_it_does_not_do(scenes, tmp_path, params, where):
-    """The full variant is not implemented: refused, not rendered as the lightweight one."""
+    """The full variant's non-caustic reuse is not implemented: refused, not rendered without it;
+    and parameters out of range name themselves."""
     res = run_cli("render", scenes / "caustic-sphere", "--method", "restir_bdpt", "--size", "8x8",
                   "--params", json.dumps(params), "-o", tmp_path / "f.exr")
     assert res.returncode == 2 and where in res.stderr, res.stderr

@@ -3,7 +3,10 @@
  *    weights of s = 0, s = 1 and t = 1 equal a brute-force recomputation and sum to 1; the full
  *    bdpt normalisation must disagree (the test can fail).
  *  - The caustic random-replay shift: round trips give back pixel and contribution exactly.
- *  - Parameters: the full variant is refused naming /params/variant; planned bytes = allocated.
+ *  - The full variant's MIS: the same state updates, with dVCM kept after the first scattering,
+ *    give the weights of all of bdpt's techniques (brute force) and sum to 1.
+ *  - Parameters: the full variant's non-caustic reuse is refused naming /params/reuse; planned
+ *    bytes = allocated, the light vertex cache included.
  *  - The session method: a view's planned bytes equal its named buffers' sum (with and without
  *    the non-caustic reuse); frames report their counters; scenes with environment light or
  *    translucent materials are refused.
@@ -21,6 +24,7 @@
 #include <string.h>
 
 #include "bdpt.h"
+#include "bdpt_mis.h"
 #include "restir_bdpt.h"
 #include "scene.h"
 #include "material.h"
@@ -74,12 +78,24 @@ static double brute_pdf(const struct tpath *t, int s)
 
 static double mis_d(double x, bool power) { return power ? x * x : x; }
 
-/* The lightweight weights of s = 0, s = 1 and t = 1 with the renderer's state updates. */
-static void recursive_weights(const struct tpath *t, bool power, double w[MAXV + 1])
+/* Whether technique s of all of bdpt's can produce the path (connections join non-delta
+ * vertices). */
+static bool available_full(const struct tpath *t, int s)
+{
+    int tt = t->n - s;
+    if (s <= 1 || tt == 1) return available(t, s);
+    return tt >= 2 && !t->delta[tt - 1] && !t->delta[tt];
+}
+
+/* The lightweight weights of s = 0, s = 1 and t = 1 with the renderer's state updates; with
+ * `full` (the full variant) the same functions' states, and bdpt's connection weight from them,
+ * for every technique. */
+static void recursive_weights(const struct tpath *t, bool power, bool full, double w[MAXV + 1])
 {
     int n = t->n;
     struct restir_bdpt_mis C[MAXV], L[MAXV];
     C[1] = restir_bdpt_mis_camera_start(t->n_light, camera_pdf_w(t), power);
+    C[1].full = full;
     restir_bdpt_mis_hit(&C[1], dist2(t, 0, 1), cos_at(t, 1, 0), power);
     for (int i = 1; i <= n - 2; i++) {
         C[i + 1] = C[i];
@@ -91,6 +107,7 @@ static void recursive_weights(const struct tpath *t, bool power, double w[MAXV +
     float cos_l = cos_at(t, n - 1, n - 2);
     float emission_pdf_w = t->pdf_a * cos_l * INV_PI_F;
     L[n - 2] = restir_bdpt_mis_light_start(t->pdf_a, emission_pdf_w, cos_l, power);
+    L[n - 2].full = full;
     restir_bdpt_mis_hit(&L[n - 2], dist2(t, n - 1, n - 2), cos_at(t, n - 2, n - 1), power);
     for (int i = n - 2; i >= 2; i--) {
         L[i - 1] = L[i];
@@ -102,7 +119,7 @@ static void recursive_weights(const struct tpath *t, bool power, double w[MAXV +
     for (int s = 0; s <= n - 1; s++) {
         int tt = n - s;
         w[s] = 0.0;
-        if (!available(t, s)) continue;
+        if (!(full ? available_full(t, s) : available(t, s))) continue;
         if (s == 0) {
             w[s] = restir_bdpt_mis_emission(&C[n - 1], t->pdf_a, emission_pdf_w, power);
         } else if (s == 1) {
@@ -113,58 +130,78 @@ static void recursive_weights(const struct tpath *t, bool power, double w[MAXV +
         } else if (tt == 1) {
             float cam_a = camera_pdf_w(t) * cos_at(t, 1, 0) / dist2(t, 0, 1);
             w[s] = restir_bdpt_mis_camera(&L[1], cam_a, t->n_light, pdf_w(t, 1, 0, 2), power);
+        } else {
+            int a = tt - 1, b = tt;   /* camera vertex a, light vertex b */
+            float d2 = dist2(t, a, b);
+            float cam_fwd_a = pdf_w(t, a, a - 1, b) * cos_at(t, b, a) / d2;
+            float light_fwd_a = pdf_w(t, b, b + 1, a) * cos_at(t, a, b) / d2;
+            const struct bdpt_mis ca = {C[a].dvcm, C[a].dvc}, lb = {L[b].dvcm, L[b].dvc};
+            w[s] = bdpt_mis_weight_connect(&ca, &lb, cam_fwd_a, pdf_w(t, a, b, a - 1), light_fwd_a,
+                                           pdf_w(t, b, a, b + 1), power);
         }
     }
 }
 
-/* Over random paths, the lightweight weights equal Mis(p_s) / sum Mis(p_i) over the three
- * techniques (brute force in double) and sum to 1; a control: the full bdpt normalisation
- * (vertex connections included) must disagree on paths that connections can produce. */
-static void check_mis(bool power)
+/* Over random paths, the recursive weights equal Mis(p_s) / sum Mis(p_i) (brute force in double)
+ * and sum to 1: over the three lightweight techniques, or with `full` (the same state updates
+ * with dVCM kept after the first scattering) over all of bdpt's. The lightweight case has a
+ * control: the full normalisation (vertex connections included) must disagree on paths that
+ * connections can produce. */
+static void check_mis(bool power, bool full)
 {
-    struct rng r = rng_make(9, power, 0, 0);
-    int paths = 0, multi = 0, control = 0;
+    struct rng r = rng_make(full ? 19 : 9, power, 0, 0);
+    int paths = 0, multi = 0, control = 0, connected = 0;
     double worst = 0.0;
     for (int trial = 0; trial < 4000; trial++) {
         struct tpath t;
         make_path(&t, &r, 3 + (int)(frand(&r) * 7.0f));
         double bf[MAXV + 1], rec[MAXV + 1], total = 0.0, all = 0.0;
         int avail = 0;
+        bool any_connection = false;
         for (int s = 0; s <= t.n - 1; s++) {
-            bf[s] = available(&t, s) ? mis_d(brute_pdf(&t, s), power) : 0.0;
+            bool here = full ? available_full(&t, s) : available(&t, s);
+            bf[s] = here ? mis_d(brute_pdf(&t, s), power) : 0.0;
             total += bf[s];
-            avail += available(&t, s);
-            int tt = t.n - s;
-            bool any = s == 0 || (s == 1 && !t.delta[t.n - 2]) || (tt == 1 && !t.delta[1]) ||
-                       (s >= 2 && tt >= 2 && !t.delta[tt - 1] && !t.delta[tt]);
-            all += any ? mis_d(brute_pdf(&t, s), power) : 0.0;
+            avail += here;
+            all += available_full(&t, s) ? mis_d(brute_pdf(&t, s), power) : 0.0;
+            any_connection = any_connection || (s >= 2 && t.n - s >= 2 && available_full(&t, s));
         }
         bool reachable = true;
         for (int i = 1; i <= t.n - 1; i++) reachable = reachable && pc(&t, i) > 0.0 && pl(&t, i) > 0.0;
         if (!reachable || !(total > 0.0) || !isfinite(total) || !isfinite(all)) continue;
-        recursive_weights(&t, power, rec);
+        recursive_weights(&t, power, full, rec);
         paths++;
         multi += avail > 1;
+        connected += any_connection;
         double sum = 0.0;
         for (int s = 0; s <= t.n - 1; s++) {
             double want = bf[s] / total;
             double e = fabs(rec[s] - want) / fmax(want, 1e-3);
             if (e > worst) worst = e;
-            CHECK_MSG(e < 2e-3, "n %d, s %d: recursive %.9g, brute force %.9g", t.n, s, rec[s], want);
+            CHECK_MSG(e < 2e-3, "%s, n %d, s %d: recursive %.9g, brute force %.9g", full ? "full" : "lightweight", t.n,
+                      s, rec[s], want);
             sum += rec[s];
         }
         CHECK_MSG(fabs(sum - 1.0) < 2e-3, "n %d: weights sum to %.9g", t.n, sum);
         if (bf[0] > 0.0 && fabs(rec[0] - bf[0] / all) / (bf[0] / all) > 2e-3) control++;
     }
-    printf("    %s: %d paths (%d with several techniques), worst relative error %.2e, %d differ from full bdpt\n",
-           power ? "power" : "balance", paths, multi, worst, control);
-    CHECK(paths > 3000 && multi > 1000 && control > 100);
+    printf("    %s, %s: %d paths (%d with several techniques, %d with a connection technique), worst relative "
+           "error %.2e, %d differ from full bdpt\n",
+           full ? "full" : "lightweight", power ? "power" : "balance", paths, multi, connected, worst, control);
+    CHECK(paths > 3000 && multi > 1000 && connected > 1000);
+    CHECK(full ? control == 0 : control > 100);
 }
 
 static void test_mis_lightweight(void)
 {
-    check_mis(true);
-    check_mis(false);
+    check_mis(true, false);
+    check_mis(false, false);
+}
+
+static void test_mis_full(void)
+{
+    check_mis(true, true);
+    check_mis(false, true);
 }
 
 static struct scene *load(const char *path)
@@ -186,8 +223,13 @@ static void test_params(void)
     struct restir_bdpt_params p = restir_bdpt_defaults();
     CHECK(restir_bdpt_params_valid(&p, &err));
     p.variant = RESTIR_BDPT_FULL;
-    CHECK(!restir_bdpt_params_valid(&p, &err) && strcmp(err.where, "/params/variant") == 0 &&
+    CHECK(restir_bdpt_params_valid(&p, &err));
+    p.reuse = true;   /* the full variant's non-caustic reuse is not implemented */
+    CHECK(!restir_bdpt_params_valid(&p, &err) && strcmp(err.where, "/params/reuse") == 0 &&
           strstr(err.message, "not implemented"));
+    p = restir_bdpt_defaults();
+    p.lvc_capacity = 65;
+    CHECK(!restir_bdpt_params_valid(&p, &err) && strcmp(err.where, "/params/lvc_capacity") == 0);
     p = restir_bdpt_defaults();
     p.lt_capacity = 0;
     CHECK(!restir_bdpt_params_valid(&p, &err) && strcmp(err.where, "/params/lt_capacity") == 0);
@@ -557,13 +599,17 @@ static void test_view_method(void)
     struct scene *sc = load("scenes/caustic-sphere/scene.json");
     if (!sc) return;
     struct err err = {0};
-    for (int k = 0; k < 3; k++) {
+    for (int k = 0; k < 4; k++) {
         struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_BDPT, 40, 24);
         if (k == 1) {
             vp.restir_bdpt.light_paths = 1000;
             vp.restir_bdpt.lt_capacity = 3;
         }
         vp.restir_bdpt.reuse = k == 2;
+        if (k == 3) {   /* the full variant, with its light vertex cache */
+            vp.restir_bdpt.variant = RESTIR_BDPT_FULL;
+            vp.restir_bdpt.lvc_capacity = 5;
+        }
         struct view v;
         CHECK_MSG(view_init(&v, sc, &vp, 2, &err), "%s", err.message);
         struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
@@ -571,9 +617,13 @@ static void test_view_method(void)
         uint32_t n = view_bytes(&v, b, &total);
         CHECK_MSG(total == view_bytes_planned(&vp, sc->shape_count), "allocated %zu, planned %llu", total,
                   (unsigned long long)view_bytes_planned(&vp, sc->shape_count));
-        size_t reservoirs = 0;
-        for (uint32_t i = 0; i < n; i++)
+        size_t reservoirs = 0, lvc = 0;
+        for (uint32_t i = 0; i < n; i++) {
             if (strcmp(b[i].name, "reservoirs") == 0) reservoirs = b[i].bytes;
+            if (strcmp(b[i].name, "light_vertex_cache") == 0) lvc = b[i].bytes;
+        }
+        /* 4 blocks of 256 light subpaths, 5 vertices each of 68 bytes, and the block tables. */
+        CHECK(lvc == (k == 3 ? 4u * 256 * 5 * 68 + 4 * 8 + 5 * 8 : 0u));
         CHECK(reservoirs == (k == 2 ? 5u : 3u) * 40 * 24 * RESTIR_BDPT_RESERVOIR_BYTES);
         struct frame_stats fs;
         for (int f = 0; f < 3; f++) CHECK_MSG(view_render(&v, NULL, &fs, NULL, NULL, &err), "%s", err.message);
@@ -582,6 +632,7 @@ static void test_view_method(void)
         CHECK(rs->light_subpaths == (k == 1 ? 1000u : 40u * 24) && rs->light_vertices >= rs->light_traced);
         CHECK((rs->reuse_shifts > rs->reuse_shift_failures) == (k == 2));
         CHECK(rs->light_traced > 0 && rs->caustic_samples > 0 && rs->caustic_shifts > 0 && rs->lt_dropped == 0);
+        CHECK((rs->connections > 0) == (k == 3) && rs->lvc_dropped == 0);
         CHECK(rs->reservoir_bytes == reservoirs && fs.render.nonfinite == 0 && fs.render.samples == 40 * 24);
         view_destroy(&v);
     }
@@ -600,7 +651,7 @@ static void test_view_method(void)
     }
 }
 
-TEST_MAIN(TEST(test_mis_lightweight), TEST(test_params), TEST(test_view_method), TEST(test_thread_determinism),
+TEST_MAIN(TEST(test_mis_lightweight), TEST(test_mis_full), TEST(test_params), TEST(test_view_method), TEST(test_thread_determinism),
           TEST(test_moving_cap),
           TEST(test_caustic_replay_round_trip), TEST(test_matches_bdpt_caustic_sphere),
           TEST(test_matches_bdpt_lamp_in_glass), TEST(test_caustic_temporal_paired),
