@@ -36,8 +36,9 @@
 /* Stream tag of the light subpaths (the camera subpaths use the pixel index, < 2^28). */
 #define BDPT_LIGHT_STREAM 0x4c49474854000000ull
 
-/* 68 bytes a cached vertex (protocol/API.md quotes it). */
-_Static_assert(sizeof(struct bdpt_light_vertex) == 68, "bdpt_light_vertex changed size");
+/* 52 bytes a cached vertex, 16 its splat (protocol/API.md quotes both). */
+_Static_assert(sizeof(struct bdpt_light_vertex) == 52, "bdpt_light_vertex changed size");
+_Static_assert(sizeof(struct bdpt_splat) == 16, "bdpt_splat changed size");
 
 struct bdpt_params bdpt_defaults(void)
 {
@@ -95,7 +96,7 @@ static struct bdpt_sizes bdpt_sizes_of(const struct bdpt_params *p, uint32_t wid
     z.light_paths = bdpt_light_count(p, width, height);
     z.blocks = (z.light_paths + BDPT_BLOCK_PATHS - 1) / BDPT_BLOCK_PATHS;
     z.region = BDPT_BLOCK_PATHS * p->lvc_capacity;
-    z.lvc_bytes = (uint64_t)z.blocks * z.region * sizeof(struct bdpt_light_vertex);
+    z.lvc_bytes = (uint64_t)z.blocks * z.region * (sizeof(struct bdpt_light_vertex) + sizeof(struct bdpt_splat));
     z.block_bytes = (uint64_t)z.blocks * (2 * sizeof(uint32_t) + 2 * sizeof(uint64_t)) + ((uint64_t)z.blocks + 1) * sizeof(uint64_t);
     return z;
 }
@@ -108,7 +109,7 @@ uint64_t bdpt_bytes_planned(const struct bdpt_params *p, uint32_t width, uint32_
 
 size_t bdpt_lvc_bytes(const struct bdpt_state *st)
 {
-    return (size_t)st->blocks * st->region * sizeof *st->lvc;
+    return (size_t)st->blocks * st->region * (sizeof *st->lvc + sizeof *st->splat);
 }
 
 size_t bdpt_block_bytes(const struct bdpt_state *st)
@@ -136,12 +137,14 @@ bool bdpt_init(struct bdpt_state *st, const struct scene *scene, const struct bd
     st->light_paths = z.light_paths;
     st->blocks = z.blocks;
     st->region = z.region;
-    st->lvc = malloc((size_t)z.lvc_bytes);
+    size_t slots = (size_t)z.blocks * z.region;
+    st->lvc = malloc(slots * sizeof *st->lvc);
+    st->splat = malloc(slots * sizeof *st->splat);
     st->block_count = calloc(z.blocks, sizeof *st->block_count);
     st->block_dropped = calloc(z.blocks, sizeof *st->block_dropped);
     st->block_rays = calloc(2 * (size_t)z.blocks, sizeof *st->block_rays);
     st->block_first = calloc((size_t)z.blocks + 1, sizeof *st->block_first);
-    if (!st->lvc || !st->block_count || !st->block_dropped || !st->block_rays || !st->block_first) {
+    if (!st->lvc || !st->splat || !st->block_count || !st->block_dropped || !st->block_rays || !st->block_first) {
         bdpt_destroy(st);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for the light vertex cache (%llu bytes)",
                        (unsigned long long)z.lvc_bytes);
@@ -152,6 +155,7 @@ bool bdpt_init(struct bdpt_state *st, const struct scene *scene, const struct bd
 void bdpt_destroy(struct bdpt_state *st)
 {
     free(st->lvc);
+    free(st->splat);
     free(st->block_count);
     free(st->block_dropped);
     free(st->block_rays);
@@ -287,6 +291,7 @@ static void bdpt_light_block(void *ctx, uint32_t block, unsigned worker)
     const struct bdpt_params *p = c->p;
     struct ray_counters rc = {0, 0};
     struct bdpt_light_vertex *region = &st->lvc[(size_t)block * st->region];
+    struct bdpt_splat *splats = &st->splat[(size_t)block * st->region];
     uint32_t stored = 0, dropped = 0;
     uint32_t first = block * BDPT_BLOCK_PATHS;
     uint32_t last = first + BDPT_BLOCK_PATHS < st->light_paths ? first + BDPT_BLOCK_PATHS : st->light_paths;
@@ -315,6 +320,7 @@ static void bdpt_light_block(void *ctx, uint32_t block, unsigned worker)
             if (flags & (BSDF_DIFFUSE | BSDF_GLOSSY)) {
                 /* A connectable vertex: into the cache, and seen by the camera (t = 1). */
                 if (stored < st->region) {
+                    struct bdpt_splat *sp = &splats[stored];
                     struct bdpt_light_vertex *v = &region[stored++];
                     v->wo = wo_world;
                     v->beta = beta;
@@ -324,15 +330,11 @@ static void bdpt_light_block(void *ctx, uint32_t block, unsigned worker)
                     v->prim = s.prim;
                     surface_point_code(scene, &hit, &s, &v->b1, &v->b2);
                     v->depth = depth;
-                    v->splat_pixel = BDPT_NO_PIXEL;
-                    v->splat = vec3_splat(0.0f);
+                    *sp = (struct bdpt_splat){vec3_splat(0.0f), BDPT_NO_PIXEL};
                     uint32_t px;
                     struct vec3 val;
                     if (bdpt_connect_camera(c, &s, m, wo_world, beta, &mis, &rc, &px, &val)) {
-                        if (vec3_is_finite(val)) {
-                            v->splat_pixel = px;
-                            v->splat = val;
-                        }
+                        if (vec3_is_finite(val)) *sp = (struct bdpt_splat){val, px};
                     }
                 } else {
                     dropped++;
@@ -608,10 +610,10 @@ bool bdpt_render(struct bdpt_state *st, const struct bdpt_params *p, const struc
         s.lvc_dropped += st->block_dropped[b];
         s.rays_intersect += st->block_rays[2 * b];
         s.rays_occluded += st->block_rays[2 * b + 1];
-        const struct bdpt_light_vertex *v = &st->lvc[(size_t)b * st->region];
+        const struct bdpt_splat *sp = &st->splat[(size_t)b * st->region];
         for (uint32_t j = 0; j < st->block_count[b]; j++) {
-            if (v[j].splat_pixel == BDPT_NO_PIXEL) continue;
-            out->pixels[v[j].splat_pixel] = vec3_add(out->pixels[v[j].splat_pixel], v[j].splat);
+            if (sp[j].pixel == BDPT_NO_PIXEL) continue;
+            out->pixels[sp[j].pixel] = vec3_add(out->pixels[sp[j].pixel], sp[j].value);
             s.light_traced++;
         }
     }

@@ -46,12 +46,17 @@ struct bdpt_params {
 struct bdpt_light_vertex {
     struct vec3 wo;            /* unit direction towards the previous light vertex */
     struct vec3 beta;          /* light subpath throughput up to this vertex */
-    struct vec3 splat;         /* its light-tracing contribution (already / N_L), or 0 */
     float dvcm, dvc;           /* recursive MIS quantities (bdpt_mis.h) */
     float b1, b2;              /* point code (surface_at) */
     uint32_t shape, prim;
-    uint32_t splat_pixel;      /* pixel of `splat`, UINT32_MAX when none */
     uint32_t depth;            /* number of surface vertices on the light subpath up to this one */
+};
+
+/* bdpt's light-tracing contribution (t = 1) of the cached vertex in the same slot, added to the
+ * image after the light pass in block order (restir_bdpt buckets its own instead). */
+struct bdpt_splat {
+    struct vec3 value;         /* already / N_L; 0 when none */
+    uint32_t pixel;            /* UINT32_MAX when none */
 };
 
 struct bdpt_state {
@@ -60,6 +65,7 @@ struct bdpt_state {
     uint32_t blocks;           /* ceil(N_L / BDPT_BLOCK_PATHS) */
     uint32_t region;           /* LVC vertices per block */
     struct bdpt_light_vertex *lvc;   /* blocks * region */
+    struct bdpt_splat *splat;        /* blocks * region, the same slots */
     uint32_t *block_count;     /* vertices stored per block */
     uint64_t *block_first;     /* prefix sums of block_count (blocks + 1) */
     uint32_t *block_dropped;   /* vertices dropped per block (region full) */

@@ -491,9 +491,8 @@ static void rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view
             if (vertices) (*vertices)++;
             if (lvc && lvc->count < lvc->region) {
                 struct bdpt_light_vertex *lv = &lvc->v[lvc->count++];
-                *lv = (struct bdpt_light_vertex){.wo = wo_world, .beta = beta, .splat = {0, 0, 0}, .dvcm = mis.dvcm,
-                                                 .dvc = mis.dvc, .shape = s.shape, .prim = s.prim,
-                                                 .splat_pixel = UINT32_MAX, .depth = depth};
+                *lv = (struct bdpt_light_vertex){.wo = wo_world, .beta = beta, .dvcm = mis.dvcm, .dvc = mis.dvc,
+                                                 .shape = s.shape, .prim = s.prim, .depth = depth};
                 surface_point_code(scene, &hit, &s, &lv->b1, &lv->b2);
             } else if (lvc) {
                 lvc->dropped++;

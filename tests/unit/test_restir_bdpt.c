@@ -622,8 +622,8 @@ static void test_view_method(void)
             if (strcmp(b[i].name, "reservoirs") == 0) reservoirs = b[i].bytes;
             if (strcmp(b[i].name, "light_vertex_cache") == 0) lvc = b[i].bytes;
         }
-        /* 4 blocks of 256 light subpaths, 5 vertices each of 68 bytes, and the block tables. */
-        CHECK(lvc == (k == 3 ? 4u * 256 * 5 * 68 + 4 * 8 + 5 * 8 : 0u));
+        /* 4 blocks of 256 light subpaths, 5 vertices each of 52 bytes, and the block tables. */
+        CHECK(lvc == (k == 3 ? 4u * 256 * 5 * 52 + 4 * 8 + 5 * 8 : 0u));
         CHECK(reservoirs == (k == 2 ? 5u : 3u) * 40 * 24 * RESTIR_BDPT_RESERVOIR_BYTES);
         struct frame_stats fs;
         for (int f = 0; f < 3; f++) CHECK_MSG(view_render(&v, NULL, &fs, NULL, NULL, &err), "%s", err.message);
