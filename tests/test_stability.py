@@ -301,13 +301,18 @@ SCENE_METHODS = ([(s, "pt") for s in ALL_SCENES] + [(s, "restir_pt") for s in AL
                  [(s, m) for s in ALL_SCENES if s not in ("furnace", "translucent") for m in ("bdpt", "restir_bdpt")] +
                  [(s, m) for s in ("refractive-slab", "reflective-plane", "caustic-sphere") for m in ("sms", "sms_ssp")] +
                  [(s, "restir_sss") for s in ("translucent", "cornell-box")] +
-                 [(s, "restir_sms") for s in ("refractive-slab", "reflective-plane", "caustic-sphere")])
+                 [(s, "restir_sms") for s in ("refractive-slab", "reflective-plane", "caustic-sphere")] +
+                 # restir_bdpt's full variant (vertex connections) on the scenes made for it.
+                 [(s, "restir_bdpt full") for s in ("lamp-in-glass", "caustic-sphere")])
 
 
 @pytest.mark.parametrize("scene,method", SCENE_METHODS)
 def test_no_nonfinite_over_100_frames(tmp_path, method, scene):
     """100 frames with the camera moving: no pass produced a NaN or Inf (the CLI sums each
     frame's count of non-finite pixels) and the last frame is finite."""
+    params = METHODS.get(method, {})
+    if method == "restir_bdpt full":
+        method, params = "restir_bdpt", {"variant": "full"}
     path = ROOT / "scenes" / scene / "scene.json"
     cam = json.loads(path.read_text())["camera"]
     span = [0.05 * (a - b) for a, b in zip(cam["look_at"], cam["position"])]
@@ -316,7 +321,7 @@ def test_no_nonfinite_over_100_frames(tmp_path, method, scene):
         {"t": 0, "position": cam["position"]},
         {"t": 99 / 30, "position": [p + d for p, d in zip(cam["position"], span)]}]}}))
     img, st = render(path, tmp_path / "o.exr", size="16x16", spp=1, seed=5,
-                     extra=("--method", method, "--params", json.dumps(METHODS[method]), "--frames", "100",
+                     extra=("--method", method, "--params", json.dumps(params), "--frames", "100",
                             "--animation", str(anim)))
     assert st["nonfinite"] == 0, st
     assert np.isfinite(img).all()
