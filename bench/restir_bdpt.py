@@ -139,10 +139,12 @@ def moving(tmp):
     anim = json.loads(ANIMATION.read_text())["animation"]
     fps, frames = anim["fps"], anim["frames"]
     scene_path = ROOT / "scenes" / "caustic-sphere" / "scene.json"
-    # restir_bdpt caps the caustic confidence at `moving_cap` (4) while the light moves; beside it
-    # the still scene's cap (20) in every frame: seed 000 §9.1 notes that the proxy confidence
-    # (eq. 27) follows the diffuse motion vectors, which moving caustics do not.
+    # restir_bdpt caps the caustic confidence at `moving_cap` (1) while the light moves; beside it
+    # caps of 4 (the earlier default) and of the still scene (20) in every frame: seed 000 §9.1
+    # notes that the proxy confidence (eq. 27) follows the diffuse motion vectors, which moving
+    # caustics do not.
     methods = [("pt, 1 spp", ["--spp", "1"]), *SESSIONS,
+               ("restir_bdpt, cap 4 while moving", ["--method", "restir_bdpt", "--params", '{"moving_cap": 4}']),
                ("restir_bdpt, cap 20 while moving", ["--method", "restir_bdpt", "--params", '{"moving_cap": 20}'])]
     series = {m: {"mape": [], "caustic_mape": []} for m, _ in methods}
     refs = []

@@ -73,7 +73,8 @@ struct restir_bdpt_params {
     uint32_t temporal_cap;     /* caustic confidence capped at this absolute value, 1..65535 (20); with
                                   `reuse`, the non-caustic history's at this multiple of the current */
     uint32_t moving_cap;       /* the caustic confidence cap instead in a frame whose shapes or lights
-                                  moved or changed since the previous frame, 1..65535 (4) */
+                                  moved or changed since the previous frame, 1..65535 (1: the history
+                                  and the new samples weigh alike there; docs/benchmarks.md) */
     bool reuse;                /* temporal and spatial reuse of the non-caustic reservoir (false;
                                   lightweight variant only) */
     uint32_t spatial_neighbors; /* with reuse: neighbours per pixel, 0..32 (2) */

@@ -538,8 +538,9 @@ static void test_moving_cap(void)
     CHECK_MSG(moved != NULL, "%s", err.message);
     if (!moved) return;
     struct restir_bdpt_params p = restir_bdpt_defaults();
+    CHECK(p.moving_cap == 1);   /* the default; 4 here, so that the cap shows in the confidences */
     p.temporal_cap = 7;
-    CHECK(p.moving_cap == 4);
+    p.moving_cap = 4;
     struct image img;
     CHECK(image_init(&img, 24, 20, &err));
     struct restir_bdpt_state st;
