@@ -179,8 +179,7 @@ struct bdpt_ctx {
     struct camera cam;
     float plane_dist2;     /* squared image-plane distance in pixel units */
     float n_light;         /* N_L */
-    float lvc_scale;       /* |LVC| / N_L */
-    uint64_t lvc_total;
+    struct bdpt_lvc_view lvc;   /* the frame's cache, after the light pass */
     uint64_t seed;
     uint32_t frame;
     bool power;
@@ -321,15 +320,7 @@ static void bdpt_light_block(void *ctx, uint32_t block, unsigned worker)
                 /* A connectable vertex: into the cache, and seen by the camera (t = 1). */
                 if (stored < st->region) {
                     struct bdpt_splat *sp = &splats[stored];
-                    struct bdpt_light_vertex *v = &region[stored++];
-                    v->wo = wo_world;
-                    v->beta = beta;
-                    v->dvcm = mis.dvcm;
-                    v->dvc = mis.dvc;
-                    v->shape = s.shape;
-                    v->prim = s.prim;
-                    surface_point_code(scene, &hit, &s, &v->b1, &v->b2);
-                    v->depth = depth;
+                    region[stored++] = bdpt_light_vertex_make(scene, &hit, &s, wo_world, beta, &mis, depth);
                     *sp = (struct bdpt_splat){vec3_splat(0.0f), BDPT_NO_PIXEL};
                     uint32_t px;
                     struct vec3 val;
@@ -374,15 +365,27 @@ static void bdpt_light_block(void *ctx, uint32_t block, unsigned worker)
 
 /* ---- camera pass -------------------------------------------------------------------------- */
 
-const struct bdpt_light_vertex *bdpt_lvc_find(const struct bdpt_light_vertex *lvc, const uint64_t *block_first,
-                                              uint32_t blocks, uint32_t region, uint64_t k)
+const struct bdpt_light_vertex *bdpt_lvc_pick(const struct bdpt_lvc_view *lvc, float u)
 {
-    uint32_t lo = 0, hi = blocks;  /* block_first[lo] <= k < block_first[hi] */
+    if (lvc->total == 0) return NULL;
+    uint64_t k = (uint64_t)((double)u * (double)lvc->total);
+    if (k >= lvc->total) k = lvc->total - 1;
+    uint32_t lo = 0, hi = lvc->blocks;  /* first[lo] <= k < first[hi] */
     while (hi - lo > 1) {
         uint32_t mid = lo + (hi - lo) / 2;
-        if (block_first[mid] <= k) lo = mid; else hi = mid;
+        if (lvc->first[mid] <= k) lo = mid; else hi = mid;
     }
-    return &lvc[(size_t)lo * region + (k - block_first[lo])];
+    return &lvc->v[(size_t)lo * lvc->region + (k - lvc->first[lo])];
+}
+
+struct bdpt_light_vertex bdpt_light_vertex_make(const struct scene *scene, const struct hit *hit,
+                                                const struct surface *s, struct vec3 wo, struct vec3 beta,
+                                                const struct bdpt_mis *mis, uint32_t depth)
+{
+    struct bdpt_light_vertex v = {.wo = wo, .beta = beta, .dvcm = mis->dvcm, .dvc = mis->dvc, .shape = s->shape,
+                                  .prim = s->prim, .depth = depth};
+    surface_point_code(scene, hit, s, &v.b1, &v.b2);
+    return v;
 }
 
 struct vec3 bdpt_connect_light_vertex(const struct scene *scene, bool power, float lvc_scale, const struct surface *s,
@@ -489,14 +492,11 @@ static struct vec3 bdpt_camera_path(struct bdpt_ctx *c, struct vec3 dir, struct 
                 }
             }
             /* s >= 2: one cached light vertex, uniformly; paths longer than max_depth are cut. */
-            if (c->lvc_total > 0 && t_c < p->max_depth) {
-                uint64_t k = (uint64_t)((double)uc * (double)c->lvc_total);
-                if (k >= c->lvc_total) k = c->lvc_total - 1;
-                const struct bdpt_state *st = c->st;
-                const struct bdpt_light_vertex *v = bdpt_lvc_find(st->lvc, st->block_first, st->blocks, st->region, k);
+            const struct bdpt_light_vertex *v = t_c < p->max_depth ? bdpt_lvc_pick(&c->lvc, uc) : NULL;
+            if (v) {
                 if (t_c + v->depth <= p->max_depth) {
                     bool made;
-                    struct vec3 cv = bdpt_connect_light_vertex(scene, c->power, c->lvc_scale, &s, m, wo, &mis, v, rc,
+                    struct vec3 cv = bdpt_connect_light_vertex(scene, c->power, c->lvc.scale, &s, m, wo, &mis, v, rc,
                                                                &made);
                     if (made) {
                         wk->connections++;
@@ -617,8 +617,8 @@ bool bdpt_render(struct bdpt_state *st, const struct bdpt_params *p, const struc
             s.light_traced++;
         }
     }
-    c->lvc_total = st->block_first[st->blocks];
-    c->lvc_scale = (float)((double)c->lvc_total / (double)st->light_paths);
+    c->lvc = (struct bdpt_lvc_view){st->lvc, st->block_first, st->blocks, st->region, st->block_first[st->blocks],
+                                    (float)((double)st->block_first[st->blocks] / (double)st->light_paths)};
     s.splat_ms = bdpt_ms_since(&t0);
 
     clock_gettime(CLOCK_MONOTONIC, &t0);
@@ -634,7 +634,7 @@ bool bdpt_render(struct bdpt_state *st, const struct bdpt_params *p, const struc
         s.nonfinite += c->worker[i].nonfinite;
     }
     s.light_subpaths = st->light_paths;
-    s.lvc_vertices = c->lvc_total;
+    s.lvc_vertices = c->lvc.total;
     if (stats) *stats = s;
     return true;
 }

@@ -136,16 +136,30 @@ struct vec3 bdpt_origin(const struct surface *s, struct vec3 dir);
 /* Whether nothing blocks the segment from a (normal na) to b (normal nb, NULL for the eye). */
 bool bdpt_visible(const struct accel *accel, struct vec3 a, struct vec3 na, struct vec3 b, const struct vec3 *nb,
                   struct ray_counters *rc);
-/* The cached vertex with canonical index k of an LVC kept in fixed per-block regions (blocks in
- * order, each block's vertices in order; block_first: prefix sums of the blocks' counts). */
-const struct bdpt_light_vertex *bdpt_lvc_find(const struct bdpt_light_vertex *lvc, const uint64_t *block_first,
-                                              uint32_t blocks, uint32_t region, uint64_t k);
+/* A light vertex cache kept in fixed per-block regions of `region` slots, in its canonical order
+ * (blocks in order, each block's vertices in order): first = the prefix sums of the blocks'
+ * counts (blocks + 1), total = first[blocks], scale = total / N_L. */
+struct bdpt_lvc_view {
+    const struct bdpt_light_vertex *v;
+    const uint64_t *first;
+    uint32_t blocks, region;
+    uint64_t total;
+    float scale;
+};
+/* The cached vertex drawn uniformly by u in [0, 1); NULL when the cache is empty. */
+const struct bdpt_light_vertex *bdpt_lvc_pick(const struct bdpt_lvc_view *lvc, float u);
+/* A connectable light vertex as the cache keeps it: the subpath's hit (its surface s), the
+ * direction back along the subpath, its throughput, MIS state and surface vertex count. */
+struct bdpt_mis;
+struct hit;
+struct bdpt_light_vertex bdpt_light_vertex_make(const struct scene *scene, const struct hit *hit,
+                                                const struct surface *s, struct vec3 wo, struct vec3 beta,
+                                                const struct bdpt_mis *mis, uint32_t depth);
 /* A vertex connection (s >= 2, t >= 2): camera vertex s (material m, incoming direction wo in its
  * shading frame, MIS state cam_mis after its hit) joined to cached light vertex v, with recursive
  * MIS over all techniques. The contribution before the camera subpath's throughput, times
  * lvc_scale = |LVC| / N_L (the vertex was drawn uniformly from the cache); *made is false when
  * the connection carries nothing. */
-struct bdpt_mis;
 struct vec3 bdpt_connect_light_vertex(const struct scene *scene, bool power, float lvc_scale, const struct surface *s,
                                       const struct material *m, struct vec3 wo, const struct bdpt_mis *cam_mis,
                                       const struct bdpt_light_vertex *v, struct ray_counters *rc, bool *made);

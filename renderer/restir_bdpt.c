@@ -357,8 +357,7 @@ struct rbdpt_ctx {
     uint32_t frame;
     bool power;
     bool full;                   /* the full variant: all techniques, an LVC */
-    uint64_t lvc_total;          /* full: |LVC| this frame */
-    float lvc_scale;             /* full: |LVC| / N_L */
+    struct bdpt_lvc_view lvc;    /* full: this frame's cache, after the light pass */
     struct image *out;
     uint32_t tiles_x;
     struct rbdpt_worker worker[RBDPT_MAX_WORKERS];
@@ -490,10 +489,8 @@ static void rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view
         if ((!only_depth || depth == only_depth) && (material_flags(m) & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
             if (vertices) (*vertices)++;
             if (lvc && lvc->count < lvc->region) {
-                struct bdpt_light_vertex *lv = &lvc->v[lvc->count++];
-                *lv = (struct bdpt_light_vertex){.wo = wo_world, .beta = beta, .dvcm = mis.dvcm, .dvc = mis.dvc,
-                                                 .shape = s.shape, .prim = s.prim, .depth = depth};
-                surface_point_code(scene, &hit, &s, &lv->b1, &lv->b2);
+                const struct bdpt_mis lm = {mis.dvcm, mis.dvc};
+                lvc->v[lvc->count++] = bdpt_light_vertex_make(scene, &hit, &s, wo_world, beta, &lm, depth);
             } else if (lvc) {
                 lvc->dropped++;
             }
@@ -697,15 +694,12 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
              * the cache, weighted |LVC| / N_L, exactly as bdpt; paths longer than max_depth are
              * cut. Technique s = the light vertex's surface vertices + the emitter's. */
             const uint32_t t_c = depth + 1;   /* surface vertices on the camera subpath */
-            if (c->full && c->lvc_total > 0 && t_c < p->max_depth) {
-                const struct restir_bdpt_state *st = c->st;
-                uint64_t k = (uint64_t)((double)uc * (double)c->lvc_total);
-                if (k >= c->lvc_total) k = c->lvc_total - 1;
-                const struct bdpt_light_vertex *lv = bdpt_lvc_find(st->lvc, st->lvc_first, st->blocks, st->lvc_region, k);
+            const struct bdpt_light_vertex *lv = c->full && t_c < p->max_depth ? bdpt_lvc_pick(&c->lvc, uc) : NULL;
+            if (lv) {
                 if (t_c + lv->depth <= p->max_depth) {
                     bool made;
                     const struct bdpt_mis cm = {mis.dvcm, mis.dvc};
-                    struct vec3 cv = bdpt_connect_light_vertex(scene, c->power, c->lvc_scale, &s, m, wo, &cm, lv, rc,
+                    struct vec3 cv = bdpt_connect_light_vertex(scene, c->power, c->lvc.scale, &s, m, wo, &cm, lv, rc,
                                                                &made);
                     if (made) {
                         if (wk) wk->connections++;
@@ -1017,8 +1011,8 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
             st->lvc_first[b + 1] = st->lvc_first[b] + st->lvc_count[b];
             s.lvc_dropped += st->lvc_dropped[b];
         }
-        c->lvc_total = st->lvc_first[st->blocks];
-        c->lvc_scale = (float)((double)c->lvc_total / (double)st->light_paths);
+        c->lvc = (struct bdpt_lvc_view){st->lvc, st->lvc_first, st->blocks, st->lvc_region, st->lvc_first[st->blocks],
+                                        (float)((double)st->lvc_first[st->blocks] / (double)st->light_paths)};
     }
     s.light_ms = rbdpt_ms_since(&t0);
 
