@@ -26,6 +26,7 @@
 #include "restir_bdpt.h"
 
 #include <math.h>
+#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -49,6 +50,7 @@
 
 _Static_assert(sizeof(struct restir_bdpt_reservoir) == RESTIR_BDPT_RESERVOIR_BYTES, "restir_bdpt_reservoir changed size");
 _Static_assert(sizeof(struct restir_bdpt_shifted) == 32, "restir_bdpt_shifted changed size");
+_Static_assert(sizeof(struct restir_bdpt_path) == RESTIR_BDPT_PATH_BYTES, "restir_bdpt_path changed size");
 
 /* ---- lightweight MIS ---------------------------------------------------------------------- */
 
@@ -107,6 +109,47 @@ float restir_bdpt_mis_camera(const struct restir_bdpt_mis *light, float camera_p
     float w_light = rbdpt_mis_f(camera_pdf_a / light_paths, power) *
                     ((light->near ? light->dvcm : 0.0f) + light->dvc * rbdpt_mis_f(light_rev_w, power));
     return 1.0f / (w_light + 1.0f);
+}
+
+void restir_bdpt_rc_mis_emission(const struct restir_bdpt_mis *cam, float direct_pdf_a, float emission_pdf_w,
+                                 float dist2, float cos_end, bool last, float suffix, bool power, float *a, float *b)
+{
+    float c = rbdpt_mis_f(fabsf(cos_end), power);
+    if (last) {
+        /* dVCM at the emitter is Mis(1 / p_fwd(x_k)) Mis(d^2) / Mis(|cos|), dVC = dVC_k / Mis(|cos|). */
+        *a = rbdpt_mis_f(direct_pdf_a, power) * rbdpt_mis_f(dist2, power) / c;
+        *b = rbdpt_mis_f(emission_pdf_w, power) / c;
+    } else {
+        *a = 1.0f + rbdpt_mis_f(direct_pdf_a, power) * cam->dvcm;
+        *b = rbdpt_mis_f(emission_pdf_w, power) * suffix;
+    }
+}
+
+void restir_bdpt_rc_mis_nee(float bsdf_fwd_w, float bsdf_rev_w, float direct_pdf_w,
+                            float emission_pdf_w, float cos_camera, float cos_light, bool last, float suffix,
+                            bool power, float *a, float *b)
+{
+    /* k >= 2: the NEE vertex has scattered before, so dVCM names no kept technique (near is false). */
+    float K = rbdpt_mis_f(emission_pdf_w * fabsf(cos_camera) / (direct_pdf_w * fabsf(cos_light)), power);
+    if (last) {
+        *a = 1.0f / direct_pdf_w;
+        *b = K;
+    } else {
+        *a = rbdpt_mis_f(bsdf_fwd_w / direct_pdf_w, power) + 1.0f;
+        *b = K * rbdpt_mis_f(bsdf_rev_w, power) * suffix;
+    }
+}
+
+float restir_bdpt_mis_reconnect(enum restir_bdpt_rc_kind kind, float a, float b, const struct restir_bdpt_mis *m,
+                                float pdf_fwd, float pdf_rev, bool power)
+{
+    switch (kind) {
+    case RBDPT_RC_AFTER: return 1.0f / (a + b * m->dvc);
+    case RBDPT_RC_EMIT_LAST: return 1.0f / (1.0f + a * rbdpt_mis_f(1.0f / pdf_fwd, power) + b * m->dvc);
+    case RBDPT_RC_NEE_LAST:
+        return 1.0f / (rbdpt_mis_f(pdf_fwd * a, power) + 1.0f + b * m->dvc * rbdpt_mis_f(pdf_rev, power));
+    }
+    return 0.0f;
 }
 
 /* ---- parameters and sizes ----------------------------------------------------------------- */
@@ -180,7 +223,8 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
     z.lt = 2 * (uint64_t)z.blocks * z.region * sizeof(struct restir_bdpt_lt_sample);
     z.pixels = (n + 1) * sizeof(uint32_t);
     z.blocks_b = (uint64_t)z.blocks * (2 * sizeof(uint32_t) + 3 * sizeof(uint64_t));
-    z.res = (p->reuse ? 5 : 3) * n * sizeof(struct restir_bdpt_reservoir) + 2 * n * sizeof(struct restir_bdpt_shifted) +
+    z.res = (p->reuse ? 3 : 1) * n * sizeof(struct restir_bdpt_path) + 2 * n * sizeof(struct restir_bdpt_reservoir) +
+            2 * n * sizeof(struct restir_bdpt_shifted) +
             (n + 1) * sizeof(uint32_t) + (p->reuse ? n * sizeof(struct gbuffer_pixel) : 0);
     /* The full variant's LVC: the vertices, per block its count, its dropped count and its
      * prefix sum (one more). */
@@ -208,7 +252,8 @@ size_t restir_bdpt_lvc_bytes(const struct restir_bdpt_state *st)
 
 size_t restir_bdpt_reservoir_bytes(const struct restir_bdpt_state *st)
 {
-    return (st->res_prev ? 5 : 3) * (size_t)st->width * st->height * sizeof *st->res;
+    size_t n = (size_t)st->width * st->height;
+    return (st->res_prev ? 3 : 1) * n * sizeof *st->res + 2 * n * sizeof *st->caustic;
 }
 
 size_t restir_bdpt_lt_bytes(const struct restir_bdpt_state *st)
@@ -357,24 +402,29 @@ struct rbdpt_ctx {
     uint32_t frame;
     bool power;
     bool full;                   /* the full variant: all techniques, an LVC */
+    bool static_scene;           /* the previous frame's scene equals this one (rbdpt_scene_moved) */
+    _Atomic uint64_t *reconnections;  /* with reuse: hybrid shifts attempted (rbdpt_reconnect) */
     struct bdpt_lvc_view lvc;    /* full: this frame's cache, after the light pass */
     struct image *out;
     uint32_t tiles_x;
     struct rbdpt_worker worker[RBDPT_MAX_WORKERS];
 };
 
-/* Streaming RIS over candidates in primary sample space (weight = p̂ = lum(C)). */
+/* Streaming RIS over candidates in primary sample space (p̂ = lum(C)). */
 struct rbdpt_ris {
     double wsum;
     float target;
     struct vec3 F;
     uint16_t bits;
     uint32_t light_path, origin_frame;
+    struct restir_bdpt_rc rc;   /* camera-side candidates with reuse: the selected one's reconnection */
 };
 
-/* Adds a candidate of contribution C (p̂ = lum(C)) with resampling weight w. */
-static void rbdpt_ris_add_w(struct rbdpt_ris *r, struct vec3 C, double w, uint16_t bits, uint32_t light_path,
-                            uint32_t origin_frame, struct rng *pick, struct rbdpt_worker *wk)
+/* Adds a candidate of contribution C (p̂ = lum(C)) with resampling weight w; `rc` its
+ * reconnection (NULL: none). */
+static void rbdpt_ris_add_rc(struct rbdpt_ris *r, struct vec3 C, double w, uint16_t bits, uint32_t light_path,
+                             uint32_t origin_frame, const struct restir_bdpt_rc *rc, struct rng *pick,
+                             struct rbdpt_worker *wk)
 {
     if (!(w > 0.0)) return;
     if (!isfinite(w) || !vec3_is_finite(C)) {
@@ -388,7 +438,15 @@ static void rbdpt_ris_add_w(struct rbdpt_ris *r, struct vec3 C, double w, uint16
         r->bits = bits;
         r->light_path = light_path;
         r->origin_frame = origin_frame;
+        if (rc) r->rc = *rc;
+        else memset(&r->rc, 0, sizeof r->rc);
     }
+}
+
+static void rbdpt_ris_add_w(struct rbdpt_ris *r, struct vec3 C, double w, uint16_t bits, uint32_t light_path,
+                            uint32_t origin_frame, struct rng *pick, struct rbdpt_worker *wk)
+{
+    rbdpt_ris_add_rc(r, C, w, bits, light_path, origin_frame, NULL, pick, wk);
 }
 
 /* An initial candidate: source pdf 1 in primary sample space, weight p̂ = lum(C). */
@@ -406,6 +464,12 @@ static void rbdpt_ris_finish(const struct rbdpt_ris *r, uint16_t M, struct resti
     out->F = r->target > 0.0f ? r->F : vec3_splat(0.0f);
     out->light_path = r->light_path;
     out->origin_frame = r->origin_frame;
+}
+
+static void rbdpt_ris_finish_path(const struct rbdpt_ris *r, uint16_t M, struct restir_bdpt_path *out)
+{
+    rbdpt_ris_finish(r, M, &out->r);
+    out->rc = r->rc;
 }
 
 /* t = 1: the light vertex at `s` seen by the eye of view `v`; lightweight MIS. */
@@ -587,33 +651,51 @@ static enum rbdpt_replay rbdpt_replay_caustic(const struct rbdpt_ctx *c, const s
 
 /* ---- camera pass: each pixel's candidates (s = 0, s = 1) and its light-traced bucket -------- */
 
-/* With `want` set, the camera subpath is a random replay (the shift of a camera-path sample):
- * no candidate is resampled, and the contribution of the one whose technique and length are
- * want->bits is returned in want->C (want->found). */
+/* With `want` set, the camera subpath is a random replay (the shift of a camera-path sample
+ * without a reconnection): no candidate is resampled, and the contribution of the one whose
+ * technique and length are want->bits is returned in want->C (want->found). The replayed
+ * candidate must have no reconnection either: the hybrid shift's replay-only class maps onto
+ * itself, or the shift would not be invertible. */
 struct rbdpt_want {
     uint16_t bits;
     bool found;
     struct vec3 C;
 };
 
-/* Offers a camera-side candidate to the reservoir, or hands it to the replay that wants it;
- * true when the replay has what it wanted (the path need not be traced further). */
-static bool rbdpt_offer(struct rbdpt_ris *r, struct rbdpt_want *want, struct vec3 C, uint16_t bits, uint32_t pixel,
-                        uint32_t frame, struct rng *pick, struct rbdpt_worker *wk)
+/* Offers a camera-side candidate of contribution C and resampling weight w to the reservoir, or
+ * hands it to the replay that wants it; true when the replay is settled (found or failed: the
+ * path need not be traced further). */
+static bool rbdpt_offer(struct rbdpt_ris *r, struct rbdpt_want *want, struct vec3 C, double w, uint16_t bits,
+                        const struct restir_bdpt_rc *rc, uint32_t pixel, uint32_t frame, struct rng *pick,
+                        struct rbdpt_worker *wk)
 {
     if (want) {
         if (want->bits != bits) return false;
-        want->found = true;
+        want->found = !rc || rc->k == 0;
         want->C = C;
         return true;
     }
     wk->candidates++;
-    rbdpt_ris_add(r, C, bits, pixel, frame, pick, wk);
+    rbdpt_ris_add_rc(r, C, w, bits, pixel, frame, rc, pick, wk);
     return false;
 }
 
+/* A vertex the hybrid shift may reconnect at or from: every lobe of its material is rough (the
+ * reconnection evaluates the whole BSDF, so a delta lobe beside a rough one would be lost). */
+static bool rbdpt_rough(const struct material *m)
+{
+    unsigned f = material_flags(m);
+    return (f & (BSDF_DIFFUSE | BSDF_GLOSSY)) && !(f & BSDF_DELTA);
+}
+
 /* The camera subpath of `pixel`'s stream (its ids: the pixel and frame whose random numbers
- * drive it) traced along `dir` in view v: its s = 0 and s = 1 candidates. */
+ * drive it) traced along `dir` in view v: its s = 0 and s = 1 candidates.
+ * With reuse (lightweight variant) each candidate also gets its reconnection (struct
+ * restir_bdpt_rc), and Russian roulette is decoupled from the primary sample space (seed 001 §6):
+ * C leaves the survival probabilities out and they divide the resampling weight instead, so a
+ * shift, which keeps the vertices after x_k, never has to roll the roulette again; a replay
+ * never ends by roulette. Without reuse no camera-side sample is ever shifted, and C keeps them
+ * (the same estimate; the image is then exactly bdpt's). */
 static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdpt_view *v, struct vec3 dir,
                                     uint32_t pixel, uint32_t frame, struct rng *rng, struct rng *pick,
                                     struct rbdpt_ris *r, struct ray_counters *rc, struct rbdpt_worker *wk,
@@ -624,13 +706,26 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
     const struct restir_bdpt_params *p = c->p;
     const struct light_sampler *lights = scene->lights;
     const struct camera *cam = &v->cam;
+    const bool track = p->reuse && !c->full;
     struct vec3 beta = vec3_splat(1.0f);
+    double src = 1.0;   /* track: the product of the roulette's survival probabilities so far */
     float cos0 = vec3_dot(dir, cam->forward);
     if (!(cos0 > 0.0f)) return;
     struct restir_bdpt_mis mis = restir_bdpt_mis_camera_start(c->n_light, v->plane_dist2 / (cos0 * cos0 * cos0),
                                                                   c->power);
     mis.full = c->full;
     struct vec3 org = cam->position, prev_p = org;
+    /* track: the reconnection found so far (rc_k.k = 0: none), dVC after x_k's scattering, the
+     * throughput of the scatterings after x_k, and the previous vertex as it was before its
+     * scattering (to redo that scattering along the segment to x_k). */
+    struct restir_bdpt_rc rc_k = {0};
+    struct restir_bdpt_mis suffix = {0.0f, 1.0f, false, false};   /* dVC's factors past x_k's scattering */
+    struct vec3 beta_suf = vec3_splat(1.0f);
+    struct surface prev_s = {0};
+    const struct material *prev_m = NULL;
+    struct vec3 prev_wo = {0, 0, 0}, prev_beta = beta;
+    struct restir_bdpt_mis prev_mis = mis;
+    bool prev_rough = false;
 
     for (uint32_t depth = 0;; depth++) {
         struct hit hit;
@@ -642,24 +737,64 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
             *has_primary = true;
         }
         float cos_hit = vec3_dot(dir, s.ng);
-        restir_bdpt_mis_hit(&mis, vec3_length2(vec3_sub(s.p, prev_p)), cos_hit, c->power);
+        float hit_d2 = vec3_length2(vec3_sub(s.p, prev_p));
+        restir_bdpt_mis_hit(&mis, hit_d2, cos_hit, c->power);
+        if (rc_k.k && rc_k.k <= depth) restir_bdpt_mis_hit(&suffix, hit_d2, cos_hit, c->power);
         const struct material *m = &scene->materials[s.material];
         /* Path vertices after the camera of an emitter hit here: depth + 1. */
         if (material_is_emissive(m)) {
             struct vec3 Le = light_sampler_emitted(m, -cos_hit);
             if (!vec3_is_zero(Le)) {
-                float w = 1.0f;
+                float w = 1.0f, direct_pdf_a = 0.0f, emission_pdf_w = 0.0f;
                 if (depth > 0) {
-                    float direct_pdf_a = light_sampler_pdf_a(lights, s.shape, s.prim);
-                    float emission_pdf_w = direct_pdf_a * bdpt_emit_dir_pdf_w(m, cos_hit);
+                    direct_pdf_a = light_sampler_pdf_a(lights, s.shape, s.prim);
+                    emission_pdf_w = direct_pdf_a * bdpt_emit_dir_pdf_w(m, cos_hit);
                     w = restir_bdpt_mis_emission(&mis, direct_pdf_a, emission_pdf_w, c->power);
                 }
                 struct vec3 C = vec3_scale(vec3_mul(beta, Le), w);
-                if (rbdpt_offer(r, want, C, (uint16_t)(((depth + 1) << 8) | 0u), pixel, frame, pick, wk)) return;
+                struct restir_bdpt_rc rce = rc_k;
+                if (rce.k) {
+                    const bool last = rce.k == depth;   /* x_k scattered straight onto this emitter */
+                    rce.L = last ? Le : vec3_mul(beta_suf, Le);
+                    restir_bdpt_rc_mis_emission(&mis, direct_pdf_a, emission_pdf_w, hit_d2, cos_hit, last, suffix.dvc,
+                                                c->power, &rce.mis_a, &rce.mis_b);
+                }
+                if (rbdpt_offer(r, want, C, vec3_luminance(C) / src, (uint16_t)(((depth + 1) << 8) | 0u),
+                                track ? &rce : NULL, pixel, frame, pick, wk))
+                    return;
             }
         }
         if (depth >= p->max_depth) break;
         struct vec3 wo_world = vec3_neg(dir);
+        const bool rough = track && rbdpt_rough(m);
+        if (rough && prev_rough && rc_k.k == 0) {
+            /* x_{depth+1} is x_k: its predecessor's scattering is redone along the segment between
+             * the two positions, as a shift evaluates it (the sampled ray left from an offset
+             * origin; at grazing angles the two differ by per cents). */
+            struct vec3 w = vec3_sub(s.p, prev_s.p);
+            float d2 = vec3_length2(w);
+            w = vec3_scale(w, 1.0f / sqrtf(d2));
+            struct vec3 wi = frame_to_local(&prev_s.frame, w);
+            struct vec3 f = material_eval(prev_m, prev_wo, wi, TRANSPORT_RADIANCE);
+            float pdf = material_pdf(prev_m, prev_wo, wi);
+            float cos_k = vec3_dot(w, s.ng);
+            /* Where the segment and the sampled ray disagree this much the path ends: under the
+             * reconnection's integrand it carries nothing. */
+            if (!(vec3_dot(w, prev_s.ng) * wi.z > 0.0f) || !(pdf > 0.0f) || vec3_is_zero(f) || cos_k == 0.0f ||
+                !(d2 > 0.0f))
+                break;
+            beta = vec3_mul(prev_beta, vec3_scale(f, fabsf(wi.z) / pdf));
+            mis = prev_mis;
+            restir_bdpt_mis_scatter(&mis, vec3_dot(w, prev_s.ng), pdf, material_pdf(prev_m, wi, prev_wo), false,
+                                    c->power);
+            restir_bdpt_mis_hit(&mis, d2, cos_k, c->power);
+            rc_k.k = depth + 1;
+            rc_k.shape = hit.shape;
+            rc_k.prim = hit.prim;
+            surface_point_code(scene, &hit, &s, &rc_k.b1, &rc_k.b2);
+            rc_k.pdf = pdf * fabsf(cos_k) / d2;
+            wo_world = vec3_neg(w);
+        }
         struct vec3 wo = frame_to_local(&s.frame, wo_world);
         bool connectable = (material_flags(m) & (BSDF_DIFFUSE | BSDF_GLOSSY)) != 0;
         float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
@@ -682,10 +817,25 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
                     struct vec3 f = material_eval(m, wo, wi, TRANSPORT_RADIANCE);
                     if (!vec3_is_zero(f) && bdpt_visible(scene->accel, s.p, s.ng, ls.p, &ls.n, rc)) {
                         float emission_pdf_w = ls.pdf_a * bdpt_emit_dir_pdf_w(lm, cos_l);
-                        float w = restir_bdpt_mis_nee(&mis, material_pdf(m, wo, wi), material_pdf(m, wi, wo),
-                                                      direct_pdf_w, emission_pdf_w, cos_ng, cos_l, c->power);
-                        struct vec3 C = vec3_mul(beta, vec3_scale(vec3_mul(f, Le), fabsf(wi.z) * w / direct_pdf_w));
-                        if (rbdpt_offer(r, want, C, (uint16_t)(((depth + 2) << 8) | 1u), pixel, frame, pick, wk))
+                        float fwd = material_pdf(m, wo, wi), rev = material_pdf(m, wi, wo);
+                        float w = restir_bdpt_mis_nee(&mis, fwd, rev, direct_pdf_w, emission_pdf_w, cos_ng, cos_l,
+                                                      c->power);
+                        struct vec3 end = vec3_scale(vec3_mul(f, Le), fabsf(wi.z) / direct_pdf_w);
+                        struct vec3 C = vec3_scale(vec3_mul(beta, end), w);
+                        struct restir_bdpt_rc rcn = rc_k;
+                        if (rcn.k) {
+                            const bool last = rcn.k == depth + 1;   /* the light sample leaves x_k itself */
+                            if (last) {
+                                rcn.L = vec3_scale(Le, 1.0f / direct_pdf_w);
+                                surface_oct_encode(wi_world, &rcn.wk_u, &rcn.wk_v);
+                            } else {
+                                rcn.L = vec3_mul(beta_suf, end);
+                            }
+                            restir_bdpt_rc_mis_nee(fwd, rev, direct_pdf_w, emission_pdf_w, cos_ng, cos_l, last,
+                                                   suffix.dvc, c->power, &rcn.mis_a, &rcn.mis_b);
+                        }
+                        if (rbdpt_offer(r, want, C, vec3_luminance(C) / src, (uint16_t)(((depth + 2) << 8) | 1u),
+                                        track ? &rcn : NULL, pixel, frame, pick, wk))
                             return;
                     }
                 }
@@ -704,8 +854,9 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
                     if (made) {
                         if (wk) wk->connections++;
                         uint32_t vertices = t_c + lv->depth + 1, tech = lv->depth + 1;
-                        if (rbdpt_offer(r, want, vec3_mul(beta, cv), (uint16_t)((vertices << 8) | tech), pixel, frame,
-                                        pick, wk))
+                        struct vec3 C = vec3_mul(beta, cv);
+                        if (rbdpt_offer(r, want, C, vec3_luminance(C), (uint16_t)((vertices << 8) | tech), NULL,
+                                        pixel, frame, pick, wk))
                             return;
                     }
                 }
@@ -717,15 +868,39 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
         struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
         float cos_i_ng = vec3_dot(wi_world, s.ng);
         if (cos_i_ng * bs.wi.z <= 0.0f) break;
-        beta = vec3_mul(beta, vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w));
-        restir_bdpt_mis_scatter(&mis, cos_i_ng, bs.pdf_w, bs.pdf_rev_w, (bs.flags & BSDF_DELTA) != 0, c->power);
+        prev_beta = beta;
+        prev_mis = mis;
+        if (rc_k.k == depth + 1) {
+            /* x_k's own scattering, as a shift evaluates it: the whole BSDF and its pdf. */
+            struct vec3 f = material_eval(m, wo, bs.wi, TRANSPORT_RADIANCE);
+            float pdf = material_pdf(m, wo, bs.wi);
+            if (vec3_is_zero(f) || !(pdf > 0.0f)) break;
+            beta = vec3_mul(beta, vec3_scale(f, fabsf(bs.wi.z) / pdf));
+            restir_bdpt_mis_scatter(&mis, cos_i_ng, pdf, material_pdf(m, bs.wi, wo), false, c->power);
+            rc_k.pdf *= pdf;
+            surface_oct_encode(wi_world, &rc_k.wk_u, &rc_k.wk_v);
+        } else {
+            struct vec3 factor = vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w);
+            beta = vec3_mul(beta, factor);
+            const bool delta = (bs.flags & BSDF_DELTA) != 0;
+            restir_bdpt_mis_scatter(&mis, cos_i_ng, bs.pdf_w, bs.pdf_rev_w, delta, c->power);
+            if (rc_k.k) {
+                beta_suf = vec3_mul(beta_suf, factor);
+                restir_bdpt_mis_scatter(&suffix, cos_i_ng, bs.pdf_w, bs.pdf_rev_w, delta, c->power);
+            }
+        }
         float u_rr = rng_next_float(rng);
-        if (depth + 1 >= p->rr_depth) {
-            float mx = vec3_max_comp(beta);
+        if (depth + 1 >= p->rr_depth && !(track && want)) {
+            float mx = vec3_max_comp(beta) / (float)src;
             float q = mx < 0.95f ? mx : 0.95f;
             if (!(q > 0.0f) || u_rr >= q) break;
-            beta = vec3_scale(beta, 1.0f / q);
+            if (track) src *= q;
+            else beta = vec3_scale(beta, 1.0f / q);
         }
+        prev_s = s;
+        prev_m = m;
+        prev_wo = wo;
+        prev_rough = rough;
         org = bdpt_origin(&s, wi_world);
         prev_p = s.p;
         dir = wi_world;
@@ -734,60 +909,181 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
 
 /* ---- reuse of the non-caustic reservoir (restir.c's passes) ------------------------------- */
 
-/* The shift of a non-caustic sample into domain `to` by random replay, whose Jacobian in
- * primary sample space is 1 (the identity on the random numbers):
- *  - s = 0 and s = 1: the camera subpath of the sample's own random stream (the pixel and frame
- *    it was drawn in) is traced again through the target pixel (its jitter from that stream) in
- *    the target frame's scene and camera, and the candidate of the same technique and length is
- *    the shifted sample; the lightweight MIS weight is recomputed on the new path;
+/* The hybrid shift of a camera-side sample with a reconnection (src->rc.k >= 2) into pixel
+ * `pixel` of view v, whose scene is the sample's own (seed 000 §6.1; the camera-subpath case of
+ * its bidirectional hybrid shift): the camera subpath is replayed with the sample's random
+ * numbers through the pixel up to x'_{k-1} — no pair before it may be connectable, or the
+ * shifted path would reconnect elsewhere and the shift would not be invertible — then joined to
+ * x_k, whose suffix is kept. Its contribution, the Jacobian p'_{k-1} G' p'_k / (p_{k-1} G p_k)
+ * (Appendix C), and the shifted path's own denominator (*pdf, for its later shifts); false when
+ * the shift fails. */
+static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct restir_bdpt_path *src,
+                            uint32_t pixel, struct vec3 *C, float *J, float *pdf, struct ray_counters *rays)
+{
+    const struct scene *scene = v->scene;
+    const struct camera *cam = &v->cam;
+    const uint32_t k = src->rc.k, e = (uint32_t)(src->r.head.bits >> 8);
+    const bool nee = (src->r.head.bits & 0xffu) == 1u;
+    struct rng rng = rng_make(c->seed, src->r.origin_frame, RBDPT_CAMERA_STREAM + src->r.light_path, 0);
+    float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
+    const uint32_t w = c->st->width;
+    struct vec3 dir = camera_ray_dir(cam, (float)(pixel % w) + jx, (float)(pixel / w) + jy);
+    float cos0 = vec3_dot(dir, cam->forward);
+    if (!(cos0 > 0.0f)) return false;
+    struct restir_bdpt_mis mis = restir_bdpt_mis_camera_start(c->n_light, v->plane_dist2 / (cos0 * cos0 * cos0),
+                                                                  c->power);
+    struct vec3 beta = vec3_splat(1.0f), org = cam->position, prev_p = org;
+    struct surface s;
+    const struct material *m = NULL;
+    bool prev_rough = false;
+    /* y_1 .. y_{k-1} by random replay, drawing the random numbers as rbdpt_camera_candidates does. */
+    for (uint32_t j = 1;; j++) {
+        struct hit hit;
+        if (!accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, &hit, rays)) return false;
+        surface_from_hit(scene, &hit, org, dir, &s);
+        restir_bdpt_mis_hit(&mis, vec3_length2(vec3_sub(s.p, prev_p)), vec3_dot(dir, s.ng), c->power);
+        m = &scene->materials[s.material];
+        const bool rough = rbdpt_rough(m);
+        if (j >= 2 && prev_rough && rough) return false;
+        if (j + 1 == k) break;
+        for (int n = 0; n < 3; n++) rng_next_float(&rng);   /* the light sample's */
+        struct vec3 wo = frame_to_local(&s.frame, vec3_neg(dir));
+        float ulobe = rng_next_float(&rng), v1 = rng_next_float(&rng), v2 = rng_next_float(&rng);
+        struct bsdf_sample bs;
+        if (!material_sample(m, wo, ulobe, v1, v2, TRANSPORT_RADIANCE, &bs)) return false;
+        struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
+        float cos_i_ng = vec3_dot(wi_world, s.ng);
+        if (cos_i_ng * bs.wi.z <= 0.0f) return false;
+        beta = vec3_mul(beta, vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w));
+        restir_bdpt_mis_scatter(&mis, cos_i_ng, bs.pdf_w, bs.pdf_rev_w, (bs.flags & BSDF_DELTA) != 0, c->power);
+        rng_next_float(&rng);   /* the roulette's: survival is certain in a shift */
+        prev_rough = rough;
+        org = bdpt_origin(&s, wi_world);
+        prev_p = s.p;
+        dir = wi_world;
+    }
+    if (!rbdpt_rough(m)) return false;
+    struct surface sk;
+    surface_at(scene, src->rc.shape, src->rc.prim, src->rc.b1, src->rc.b2, &sk);
+    const struct material *mk = &scene->materials[sk.material];
+    if (!rbdpt_rough(mk)) return false;
+    /* y_{k-1} -> x_k. */
+    struct vec3 w1 = vec3_sub(sk.p, s.p);
+    float d2 = vec3_length2(w1);
+    if (!(d2 > 0.0f)) return false;
+    w1 = vec3_scale(w1, 1.0f / sqrtf(d2));
+    struct vec3 wo = frame_to_local(&s.frame, vec3_neg(dir)), wi = frame_to_local(&s.frame, w1);
+    if (!(vec3_dot(w1, s.ng) * wi.z > 0.0f)) return false;
+    struct vec3 f1 = material_eval(m, wo, wi, TRANSPORT_RADIANCE);
+    float p1 = material_pdf(m, wo, wi);
+    float cos_k = vec3_dot(w1, sk.ng);
+    struct vec3 wo_k = frame_to_local(&sk.frame, vec3_neg(w1));
+    if (vec3_is_zero(f1) || !(p1 > 0.0f) || !(-cos_k * wo_k.z > 0.0f)) return false;
+    restir_bdpt_mis_scatter(&mis, vec3_dot(w1, s.ng), p1, material_pdf(m, wi, wo), false, c->power);
+    restir_bdpt_mis_hit(&mis, d2, cos_k, c->power);
+    /* x_k towards w_k with its new w_o. */
+    struct vec3 wk_world = surface_oct_decode(src->rc.wk_u, src->rc.wk_v);
+    struct vec3 wk = frame_to_local(&sk.frame, wk_world);
+    if (!(vec3_dot(wk_world, sk.ng) * wk.z > 0.0f)) return false;
+    struct vec3 fk = material_eval(mk, wo_k, wk, TRANSPORT_RADIANCE);
+    float fwd = material_pdf(mk, wo_k, wk), rev = material_pdf(mk, wk, wo_k);
+    if (vec3_is_zero(fk)) return false;
+    struct vec3 factor_k;
+    float B, mis_w;
+    if (nee && k + 1 == e) {
+        /* w_k is the light sample's direction, drawn independently of w_o: p_k = 1. */
+        factor_k = vec3_scale(fk, fabsf(wk.z));
+        B = 1.0f;
+        mis_w = restir_bdpt_mis_reconnect(RBDPT_RC_NEE_LAST, src->rc.mis_a, src->rc.mis_b, &mis, fwd, rev, c->power);
+    } else {
+        if (!(fwd > 0.0f)) return false;
+        factor_k = vec3_scale(fk, fabsf(wk.z) / fwd);
+        B = fwd;
+        restir_bdpt_mis_scatter(&mis, vec3_dot(wk_world, sk.ng), fwd, rev, false, c->power);
+        mis_w = restir_bdpt_mis_reconnect(k + 1 == e ? RBDPT_RC_EMIT_LAST : RBDPT_RC_AFTER, src->rc.mis_a,
+                                          src->rc.mis_b, &mis, fwd, rev, c->power);
+    }
+    if (!(mis_w > 0.0f) || !isfinite(mis_w)) return false;
+    if (!bdpt_visible(scene->accel, s.p, s.ng, sk.p, &sk.ng, rays)) return false;
+    *C = vec3_scale(vec3_mul(vec3_mul(beta, vec3_scale(f1, fabsf(wi.z) / p1)), vec3_mul(factor_k, src->rc.L)), mis_w);
+    *pdf = p1 * fabsf(cos_k) / d2 * B;
+    *J = *pdf / src->rc.pdf;
+    return isfinite(*J) && *J > 0.0f;
+}
+
+/* The shift of a non-caustic sample into domain `to`:
+ *  - s = 0 and s = 1 with a reconnection, between frames whose scenes agree: the hybrid shift
+ *    (rbdpt_reconnect);
+ *  - s = 0 and s = 1 otherwise: random replay, whose Jacobian in primary sample space is 1 (the
+ *    identity on the random numbers): the camera subpath of the sample's own random stream (the
+ *    pixel and frame it was drawn in) is traced again through the target pixel (its jitter from
+ *    that stream) in the target frame's scene and camera, and the candidate of the same
+ *    technique and length is the shifted sample, its lightweight MIS weight and reconnection
+ *    recomputed on the new path. Between frames whose scenes agree a sample without a
+ *    reconnection must shift to one without (the hybrid shift's replay-only class);
  *  - t = 1: the light subpath is replayed in the target frame; the shift succeeds only when the
  *    replayed sample lands in the target pixel and is still non-caustic (a light-traced sample
- *    belongs to the pixel it lands in: it cannot move to a neighbour).
+ *    belongs to the pixel it lands in: it cannot move to a neighbour; seed 000's reverse hybrid
+ *    shift is not implemented).
  * A replay that ends early, misses the technique or changes class fails (target 0). */
 static void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain from, struct restir_domain to,
                         void *dst_v, float *target, float *jacobian, struct restir_counters *cnt)
 {
-    (void)from;
     const struct rbdpt_ctx *c = ctx;
-    const struct restir_bdpt_reservoir *src = src_v;
+    const struct restir_bdpt_path *src = src_v;
     const struct rbdpt_view *v = &c->view[to.frame == RESTIR_PREVIOUS ? 1 : 0];
     const uint32_t w = c->st->width;
     *target = 0.0f;
     *jacobian = 1.0f;
     struct vec3 C = {0, 0, 0};
+    struct restir_bdpt_rc rc = src->rc;
     bool ok = false;
-    if ((src->head.bits & 0xffu) == RESTIR_BDPT_TECH_LT) {
+    if ((src->r.head.bits & 0xffu) == RESTIR_BDPT_TECH_LT) {
         struct restir_bdpt_lt_sample out;
         uint32_t stored = 0, dropped = 0;
-        rbdpt_trace_light(c, v, src->origin_frame, src->light_path, (uint32_t)(src->head.bits >> 8) - 1u, &out, 1,
-                          &stored, &dropped, NULL, NULL, &cnt->rays);
+        rbdpt_trace_light(c, v, src->r.origin_frame, src->r.light_path, (uint32_t)(src->r.head.bits >> 8) - 1u, &out,
+                          1, &stored, &dropped, NULL, NULL, &cnt->rays);
         ok = stored == 1 && !out.caustic && out.pixel == to.pixel;
         if (ok) C = out.F;
+    } else if (src->rc.k >= 2) {
+        /* Between scenes that differ the kept suffix would carry the other scene's light, and a
+         * replay of the sample's random numbers would not give its path back (the reconnection
+         * changed the numbers that x_{k-1} and x_k stand for): no shift there. */
+        if (from.frame == to.frame || c->static_scene) {
+            float pdf;
+            ok = rbdpt_reconnect(c, v, src, to.pixel, &C, jacobian, &pdf, &cnt->rays);
+            if (ok) rc.pdf = pdf;
+            atomic_fetch_add_explicit(c->reconnections, 1, memory_order_relaxed);
+        }
     } else {
-        struct rng rng = rng_make(c->seed, src->origin_frame, RBDPT_CAMERA_STREAM + src->light_path, 0);
+        struct rng rng = rng_make(c->seed, src->r.origin_frame, RBDPT_CAMERA_STREAM + src->r.light_path, 0);
         float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
         struct vec3 dir = camera_ray_dir(&v->cam, (float)(to.pixel % w) + jx, (float)(to.pixel / w) + jy);
-        struct rbdpt_want want = {.bits = src->head.bits, .found = false};
+        struct rbdpt_want want = {.bits = src->r.head.bits, .found = false};
         struct vec3 primary;
         bool has_primary;
-        rbdpt_camera_candidates(c, v, dir, src->light_path, src->origin_frame, &rng, NULL, NULL, &cnt->rays, NULL,
-                                &primary, &has_primary, &want);
+        rbdpt_camera_candidates(c, v, dir, src->r.light_path, src->r.origin_frame, &rng, NULL, NULL, &cnt->rays,
+                                NULL, &primary, &has_primary, &want);
         ok = want.found;
         C = want.C;
     }
-    if (!ok || !vec3_is_finite(C)) return;
+    if (!ok || !vec3_is_finite(C)) {
+        *jacobian = 1.0f;
+        return;
+    }
     *target = vec3_luminance(C);
     if (dst_v && *target > 0.0f) {
-        struct restir_bdpt_reservoir *dst = dst_v;
+        struct restir_bdpt_path *dst = dst_v;
         *dst = *src;
-        dst->F = C;
+        dst->r.F = C;
+        dst->rc = rc;
     }
 }
 
 static float rbdpt_target(const void *ctx, const void *elem)
 {
     (void)ctx;
-    return vec3_luminance(((const struct restir_bdpt_reservoir *)elem)->F);
+    return vec3_luminance(((const struct restir_bdpt_path *)elem)->r.F);
 }
 
 /* Every pixel can produce samples: its camera subpaths are jittered over the whole pixel, and
@@ -799,7 +1095,7 @@ static bool rbdpt_domain_valid(const void *ctx, struct restir_domain d)
     return true;
 }
 
-static const struct restir_ops rbdpt_ops = {.stride = sizeof(struct restir_bdpt_reservoir), .target = rbdpt_target,
+static const struct restir_ops rbdpt_ops = {.stride = sizeof(struct restir_bdpt_path), .target = rbdpt_target,
                                             .shift = rbdpt_shift, .domain_valid = rbdpt_domain_valid};
 
 /* The caustic reservoir's confidence (eq. 27): 1 for this frame's initial samples plus the
@@ -870,7 +1166,7 @@ static void rbdpt_camera_tile(void *ctx, uint32_t tile, unsigned worker)
                 uint16_t bits = (uint16_t)(((uint32_t)(ls->depth + 1) << 8) | RESTIR_BDPT_TECH_LT);
                 rbdpt_ris_add(ls->caustic ? &rcau : &r, ls->F, bits, ls->light_path, c->frame, &pick, wk);
             }
-            rbdpt_ris_finish(&r, 1, &st->res[pixel]);
+            rbdpt_ris_finish_path(&r, 1, &st->res[pixel]);
             uint16_t M = rbdpt_caustic_confidence(c, primary, has_primary);
             if (temporal) {
                 /* Appendix A: the initial caustic reservoir (confidence 1) against the previous
@@ -903,7 +1199,7 @@ static void rbdpt_camera_tile(void *ctx, uint32_t tile, unsigned worker)
             }
             /* With reuse the non-caustic estimate is added after the reuse passes. */
             struct vec3 L = vec3_scale(st->caustic[pixel].F, st->caustic[pixel].head.W);
-            if (!c->p->reuse) L = vec3_add(L, vec3_scale(st->res[pixel].F, st->res[pixel].head.W));
+            if (!c->p->reuse) L = vec3_add(L, vec3_scale(st->res[pixel].r.F, st->res[pixel].r.head.W));
             c->out->pixels[pixel] = L;
         }
     }
@@ -992,7 +1288,11 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     }
     c->has_prev = f->prev_scene && f->prev_camera && f->prev_scene->accel && f->prev_scene->lights;
     if (!c->has_prev) st->has_history = false;
-    c->caustic_cap = c->has_prev && rbdpt_scene_moved(f->prev_scene, f->scene) ? p->moving_cap : p->temporal_cap;
+    const bool moved = c->has_prev && rbdpt_scene_moved(f->prev_scene, f->scene);
+    c->caustic_cap = moved ? p->moving_cap : p->temporal_cap;
+    c->static_scene = c->has_prev && !moved;
+    _Atomic uint64_t reconnections = 0;
+    c->reconnections = &reconnections;
     c->n_light = (float)st->light_paths;
     c->seed = f->seed;
     c->frame = f->frame;
@@ -1084,20 +1384,22 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
                                   .radius = p->spatial_radius, .paired = false, .pair_scratch = NULL};
         struct restir_counters rc = {{0, 0}, 0, 0, 0};
         if (rr.history && !restir_temporal_pass(&rr, (uint8_t *)st->res, &rc, err)) return false;
-        struct restir_bdpt_reservoir *final = st->res;
+        struct restir_bdpt_path *final = st->res;
         if (p->spatial_neighbors) {
             if (!restir_spatial_pass(&rr, (const uint8_t *)st->res, (uint8_t *)st->res_spatial, &rc, err)) return false;
             final = st->res_spatial;
         }
-        for (uint32_t i = 0; i < npix; i++) out->pixels[i] = vec3_add(out->pixels[i], vec3_scale(final[i].F, final[i].head.W));
+        for (uint32_t i = 0; i < npix; i++)
+            out->pixels[i] = vec3_add(out->pixels[i], vec3_scale(final[i].r.F, final[i].r.head.W));
         /* The final buffer becomes the history; the old history is the next frame's scratch. */
-        struct restir_bdpt_reservoir *old = st->res_prev;
+        struct restir_bdpt_path *old = st->res_prev;
         st->res_prev = final;
         if (final == st->res) st->res = old; else st->res_spatial = old;
         s.rays_intersect += rc.rays.intersect;
         s.rays_occluded += rc.rays.occluded;
         s.reuse_shifts = rc.shifts;
         s.reuse_shift_failures = rc.shift_failures;
+        s.reuse_reconnections = atomic_load(&reconnections);
         s.rejected += rc.rejected;
         s.reuse_ms = rbdpt_ms_since(&t0);
     }

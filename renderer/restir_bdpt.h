@@ -23,22 +23,30 @@
  * plus that of the previous caustic reservoir its primary hit maps to (eq. 27), capped at
  * temporal_cap, or at moving_cap in a frame whose shapes or lights moved (restir_bdpt.c).
  *
- * Non-caustic reuse (`reuse`, off by default): temporal reuse along a G-buffer's motion
- * vectors and spatial reuse through restir.c's passes, with a random-replay shift (Jacobian 1 in
- * primary sample space): an s = 0 / s = 1 sample's camera subpath is traced again from its own
- * random stream through the target pixel and frame, the candidate of the same technique and
- * length being the shifted sample (its lightweight MIS weight recomputed on the new path); a
- * t = 1 sample's light subpath is replayed and the shift succeeds only when it lands in the
- * target pixel again and is still non-caustic.
+ * Non-caustic reuse (`reuse`, off by default; lightweight variant): temporal reuse along a
+ * G-buffer's motion vectors and spatial reuse through restir.c's passes. Camera-side samples
+ * (s = 0, s = 1) shift by the camera-subpath part of seed 000's bidirectional hybrid shift
+ * (§6.1): a sample whose path has a reconnectable pair (x_{k-1}, x_k), k >= 2, both vertices
+ * with only rough lobes, replays its camera subpath through the target pixel up to x'_{k-1} and
+ * joins it to x_k, keeping the rest of the path (struct restir_bdpt_rc), with the Jacobian of
+ * Appendix C and the MIS weight recomputed recursively from the suffix's constants (§6.2,
+ * restir_bdpt_mis_reconnect); a sample without such a pair shifts by random replay of its camera
+ * subpath (Jacobian 1 in primary sample space), its lightweight MIS weight recomputed on the new
+ * path, and must stay without one. Russian roulette is decoupled from the primary sample space
+ * for these samples (seed 001 §6): it divides the initial resampling weight, never the
+ * contribution, and a shift never rolls it. Between frames whose scenes differ a sample with a
+ * reconnection does not shift (its kept suffix carries the other scene's light). A t = 1 sample's
+ * light subpath is replayed and the shift succeeds only when it lands in the target pixel again
+ * and is still non-caustic.
  *
  * Method `restir_bdpt` (renderer/view.c) renders frames with exactly this. What it does NOT do
- * yet: the non-caustic reuse does not use the bidirectional hybrid shift (no reconnection of the
- * camera subpath to the light subpath), so a light-traced sample never moves to a neighbouring
- * pixel; with the full variant there is no non-caustic reuse at all (`reuse` is refused naming
- * /params/reuse), hence no recursive reconnection MIS (eqs. 42-47) and no "copy MIS weight"
- * variant; the switchable rejection of non-caustic t <= 1 samples that cannot shift to the
- * pixel's primary hit is not implemented. The full variant's caustic reservoirs are reused as
- * the lightweight one's, with the full MIS weight of the replayed t = 1 sample.
+ * yet: the light-subpath side of the bidirectional hybrid shift (the reverse hybrid shift of
+ * t = 1 samples, so a light-traced sample never moves to a neighbouring pixel; the light subpath
+ * of a connection technique), hence no non-caustic reuse for the full variant (`reuse` is refused
+ * naming /params/reuse); the "copy MIS weight" variant; the switchable rejection of non-caustic
+ * t <= 1 samples that cannot shift to the pixel's primary hit; re-tracing a reconnected sample's
+ * suffix in a moved scene. The full variant's caustic reservoirs are reused as the lightweight
+ * one's, with the full MIS weight of the replayed t = 1 sample.
  * Scenes with environment light or translucent materials are refused, as by `bdpt`. */
 #ifndef RESTIRD_RESTIR_BDPT_H
 #define RESTIRD_RESTIR_BDPT_H
@@ -103,6 +111,36 @@ struct restir_bdpt_reservoir {
     uint32_t origin_frame;     /* t = 1: the frame whose random numbers trace that subpath */
 };
 
+/* Where a camera-side sample (s = 0, s = 1) reconnects under the hybrid shift (seed 000 §6.1,
+ * after Lin et al. 2022): x_k is the first vertex with k >= 2 whose predecessor and itself have
+ * only rough (non-delta) lobes, k <= the last camera vertex that scatters or connects to the light;
+ * k = 0 when the path has no such pair (it shifts by random replay alone). A shift replays the
+ * camera subpath up to x'_{k-1} and joins it to this x_k; everything past x_k is kept:
+ *   - `L`: what x_k's outgoing direction w_k carries back, Russian roulette and the MIS weight
+ *     left out: the suffix throughput times the emission (s = 0), or times f |cos| Le / p_light of
+ *     the last vertex's light sample (s = 1), or, when x_k itself is that last vertex, Le (s = 0:
+ *     w_k hits the emitter) or Le / p_light (s = 1: w_k is the light sample's direction);
+ *   - `mis_a`, `mis_b`: the suffix's part of the lightweight MIS weight, so that the shifted
+ *     path's weight follows from its new prefix alone (the recursive reconnection MIS of seed
+ *     000 §6.2, restir_bdpt_mis_reconnect);
+ *   - `pdf`: p_{k-1}(w_{k-1}) |cos_k| / d^2 p_k(w_k) (p_k = 1 for a light sample's direction), the
+ *     reconnection's Jacobian denominator (seed 000 Appendix C). */
+struct restir_bdpt_rc {
+    uint32_t k;
+    uint32_t shape, prim;
+    float b1, b2;              /* x_k's point code (surface_at) */
+    float wk_u, wk_v;          /* octahedral w_k (world) */
+    struct vec3 L;
+    float pdf;
+    float mis_a, mis_b;
+};
+
+/* A non-caustic reservoir: the reservoir and its sample's reconnection. */
+struct restir_bdpt_path {
+    struct restir_bdpt_reservoir r;
+    struct restir_bdpt_rc rc;
+};
+
 /* A previous frame's caustic reservoir shifted into the current frame by random replay: the
  * pixel it lands in, its contribution there and its resampling weight (seed 000 eq. 51). */
 struct restir_bdpt_shifted {
@@ -113,8 +151,11 @@ struct restir_bdpt_shifted {
     uint16_t depth, valid;
 };
 
-/* Bytes of one reservoir; a pixel has three (non-caustic, caustic, previous caustic). */
+/* Bytes of one reservoir: a pixel has a non-caustic one (with its reconnection: 80 bytes) and
+ * two caustic ones (the current and the previous frame's, 28 bytes each); with `reuse` two more
+ * non-caustic ones (history and spatial output). */
 #define RESTIR_BDPT_RESERVOIR_BYTES 28u
+#define RESTIR_BDPT_PATH_BYTES 80u
 
 /* head.bits: technique s in the low byte (0, 1, or 0xff for t = 1), path vertices above. */
 #define RESTIR_BDPT_TECH_LT 0xffu
@@ -127,7 +168,7 @@ struct restir_bdpt_state {
     uint32_t *pixel_first;                   /* width * height + 1 (prefix sums) */
     uint32_t *block_count, *block_dropped;
     uint64_t *block_rays;                    /* 3 per block: intersect, occluded rays, light vertices */
-    struct restir_bdpt_reservoir *res;       /* width * height, non-caustic */
+    struct restir_bdpt_path *res;            /* width * height, non-caustic */
     struct restir_bdpt_reservoir *caustic;   /* width * height, caustic (this frame's) */
     struct restir_bdpt_reservoir *caustic_prev; /* width * height, the previous frame's */
     bool has_history;
@@ -136,7 +177,7 @@ struct restir_bdpt_state {
     uint32_t *shift_first;                      /* width * height + 1 */
     /* With reuse: the previous frame's final non-caustic reservoirs, the spatial pass's output,
      * and the G-buffer whose motion vectors temporal reuse follows. */
-    struct restir_bdpt_reservoir *res_prev, *res_spatial;
+    struct restir_bdpt_path *res_prev, *res_spatial;
     struct gbuffer gbuf;
     /* The full variant's light vertex cache, in bdpt's layout: per block a region of lvc_region
      * vertices, lvc_count of them used, lvc_first the prefix sums (blocks + 1). NULL otherwise. */
@@ -167,6 +208,8 @@ struct restir_bdpt_stats {
     double reuse_ms;            /* with reuse: G-buffer, temporal and spatial passes */
     uint64_t reuse_shifts;      /* with reuse: shifts of non-caustic samples, and those that failed */
     uint64_t reuse_shift_failures;
+    uint64_t reuse_reconnections; /* with reuse: shifts of camera-side samples that joined the
+                                     replayed prefix to the sample's x_k (the hybrid shift) */
     uint64_t reservoir_bytes;
     uint64_t rays_intersect, rays_occluded;
 };
@@ -231,5 +274,32 @@ float restir_bdpt_mis_nee(const struct restir_bdpt_mis *cam, float bsdf_fwd_w, f
                           float emission_pdf_w, float cos_camera, float cos_light, bool power);
 float restir_bdpt_mis_camera(const struct restir_bdpt_mis *light, float camera_pdf_a, float light_paths,
                              float light_rev_w, bool power);
+
+/* The recursive reconnection MIS (seed 000 §6.2; its eqs. 42–47 written in dVCM / dVC form, for
+ * the lightweight techniques). After x_1's scattering a camera subpath's dVC only gains factors
+ * of its own vertices (each hit divides by Mis(|cos|), each scattering multiplies by
+ * Mis(|cos| p_rev / p_fwd)), and those past x_k do not depend on x_{k-1}: the weight of a path
+ * whose prefix is replaced up to x_k is found from two constants of its suffix and the new
+ * state at x_k. Three cases, by where the path ends (e: its last vertex, x_e the emitter or, for
+ * s = 1, the light sample):
+ *   RBDPT_RC_AFTER: k < e - 1; 1 / w = a + b dVC, dVC after x_k's scattering;
+ *   RBDPT_RC_EMIT_LAST: s = 0, k = e - 1; 1 / w = 1 + a Mis(1 / p_fwd) + b dVC, dVC likewise and
+ *     p_fwd x_k's pdf of w_k;
+ *   RBDPT_RC_NEE_LAST: s = 1, k = e - 1; 1 / w = Mis(p_fwd a) + 1 + b dVC Mis(p_rev), dVC after
+ *     x_k's hit, p_fwd / p_rev x_k's BSDF pdfs towards the light and back.
+ * The make functions take the base path's state where its weight is computed (as
+ * restir_bdpt_mis_emission / _nee) and, for RBDPT_RC_AFTER, `suffix`: the factor its dVC gained
+ * since x_k's scattering (the same updates applied to dVC = 1 there; kept as a product rather
+ * than a quotient of the two states, which would be 0 / 0 when x_1 is delta and dVC is 0).
+ * tests/unit/test_restir_bdpt.c checks the weights against a recomputation along the whole new
+ * path. */
+enum restir_bdpt_rc_kind { RBDPT_RC_AFTER, RBDPT_RC_EMIT_LAST, RBDPT_RC_NEE_LAST };
+void restir_bdpt_rc_mis_emission(const struct restir_bdpt_mis *cam, float direct_pdf_a, float emission_pdf_w,
+                                 float dist2, float cos_end, bool last, float suffix, bool power, float *a, float *b);
+void restir_bdpt_rc_mis_nee(float bsdf_fwd_w, float bsdf_rev_w, float direct_pdf_w,
+                            float emission_pdf_w, float cos_camera, float cos_light, bool last, float suffix,
+                            bool power, float *a, float *b);
+float restir_bdpt_mis_reconnect(enum restir_bdpt_rc_kind kind, float a, float b, const struct restir_bdpt_mis *m,
+                                float pdf_fwd, float pdf_rev, bool power);
 
 #endif

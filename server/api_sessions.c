@@ -159,6 +159,7 @@ static void api_write_restir_bdpt(struct jsonw *w, const struct restir_bdpt_stat
     jsonw_key(w, "reuse_ms"); jsonw_double(w, b->reuse_ms);
     jsonw_key(w, "reuse_shifts"); jsonw_uint(w, b->reuse_shifts);
     jsonw_key(w, "reuse_shift_failures"); jsonw_uint(w, b->reuse_shift_failures);
+    jsonw_key(w, "reuse_reconnections"); jsonw_uint(w, b->reuse_reconnections);
     jsonw_key(w, "reservoir_bytes"); jsonw_uint(w, b->reservoir_bytes);
     jsonw_object_end(w);
 }

@@ -399,12 +399,13 @@ static int cli_render(int argc, char **argv)
                    ",\"lvc_dropped\":%" PRIu64 ",\"connections\":%" PRIu64
                    ",\"caustic_samples\":%" PRIu64 ",\"caustic_shifts\":%" PRIu64 ",\"shift_failures\":{\"replay\":%" PRIu64
                    ",\"not_caustic\":%" PRIu64 ",\"inverse\":%" PRIu64 "},\"reuse_ms\":%.3f,\"reuse_shifts\":%" PRIu64
-                   ",\"reuse_shift_failures\":%" PRIu64 ",\"reservoir_bytes\":%" PRIu64 "},\"session_bytes\":%zu",
+                   ",\"reuse_shift_failures\":%" PRIu64 ",\"reuse_reconnections\":%" PRIu64
+                   ",\"reservoir_bytes\":%" PRIu64 "},\"session_bytes\":%zu",
                    rb->light_ms, rb->sort_ms, rb->camera_ms, rb->light_subpaths, rb->light_vertices, rb->light_traced,
                    rb->lt_dropped, rb->lvc_dropped, rb->connections, rb->caustic_samples, rb->caustic_shifts,
                    rb->caustic_replay_failed,
                    rb->caustic_not_caustic, rb->caustic_inverse_failed, rb->reuse_ms, rb->reuse_shifts,
-                   rb->reuse_shift_failures, rb->reservoir_bytes, session_bytes);
+                   rb->reuse_shift_failures, rb->reuse_reconnections, rb->reservoir_bytes, session_bytes);
         }
         if (last.has_prior) {
             /* Seed 002 Table 1, prior construction, of the last frame. */

@@ -5,6 +5,8 @@
  *  - The caustic random-replay shift: round trips give back pixel and contribution exactly.
  *  - The full variant's MIS: the same state updates, with dVCM kept after the first scattering,
  *    give the weights of all of bdpt's techniques (brute force) and sum to 1.
+ *  - The recursive reconnection MIS (the hybrid shift's): a path whose prefix up to x_k changes
+ *    gets from its suffix's two constants the weight a recomputation along the whole path gives.
  *  - Parameters: the full variant's non-caustic reuse is refused naming /params/reuse; planned
  *    bytes = allocated, the light vertex cache included.
  *  - The session method: a view's planned bytes equal its named buffers' sum (with and without
@@ -202,6 +204,154 @@ static void test_mis_full(void)
 {
     check_mis(true, true);
     check_mis(false, true);
+}
+
+/* ---- the recursive reconnection MIS -------------------------------------------------------- */
+
+/* A camera subpath's per-vertex quantities for the MIS state: x_1 .. x_e (x_e the emitter of an
+ * s = 0 path; for s = 1 x_e stands for the light sample, reached by NEE from x_{e-1}). */
+struct rc_path {
+    float camera_pdf_w;
+    float hit_d2[16], hit_cos[16];               /* arriving at x_j */
+    float out_cos[16], pf[16], pr[16];           /* scattering at x_j */
+    bool delta[16];
+    float nee_fwd, nee_rev;                      /* s = 1: x_{e-1}'s pdfs towards the light and back */
+};
+
+static float urand(struct rng *r, float lo, float hi) { return lo + (hi - lo) * rng_next_float(r); }
+
+static void rc_path_random(struct rng *r, struct rc_path *p, uint32_t e)
+{
+    p->camera_pdf_w = urand(r, 0.5f, 40.0f);
+    for (uint32_t j = 1; j <= e; j++) {
+        p->hit_d2[j] = urand(r, 0.01f, 9.0f);
+        p->hit_cos[j] = urand(r, 0.05f, 1.0f) * (rng_next_float(r) < 0.5f ? -1.0f : 1.0f);
+        p->out_cos[j] = urand(r, 0.05f, 1.0f);
+        p->pf[j] = urand(r, 0.05f, 5.0f);
+        p->pr[j] = urand(r, 0.05f, 5.0f);
+        p->delta[j] = rng_next_float(r) < 0.2f;
+    }
+    p->nee_fwd = urand(r, 0.05f, 5.0f);
+    p->nee_rev = urand(r, 0.05f, 5.0f);
+}
+
+/* The MIS state after x_upto's hit (and its scattering when `scatter`), as a path tracer
+ * accumulates it. */
+static struct restir_bdpt_mis rc_path_state(const struct rc_path *p, uint32_t upto, bool scatter, bool power)
+{
+    struct restir_bdpt_mis m = restir_bdpt_mis_camera_start(1000.0f, p->camera_pdf_w, power);
+    for (uint32_t j = 1; j <= upto; j++) {
+        restir_bdpt_mis_hit(&m, p->hit_d2[j], p->hit_cos[j], power);
+        if (j < upto || scatter) restir_bdpt_mis_scatter(&m, p->out_cos[j], p->pf[j], p->pr[j], p->delta[j], power);
+    }
+    return m;
+}
+
+/* What dVC gains from x_k's scattering to x_end's hit: the same updates applied to dVC = 1. */
+static float rc_path_suffix(const struct rc_path *p, uint32_t k, uint32_t end, bool power)
+{
+    struct restir_bdpt_mis m = {0.0f, 1.0f, false, false};
+    for (uint32_t j = k + 1; j <= end; j++) {
+        restir_bdpt_mis_hit(&m, p->hit_d2[j], p->hit_cos[j], power);
+        if (j < end) restir_bdpt_mis_scatter(&m, p->out_cos[j], p->pf[j], p->pr[j], p->delta[j], power);
+    }
+    return m.dvc;
+}
+
+/* The weight of the path's technique (s = 0 or s = 1), recomputed along the whole path. */
+static float rc_path_weight(const struct rc_path *p, uint32_t e, int s, float dpa, float epw, float dpw, float cos_cam,
+                            float cos_light, bool power)
+{
+    if (s == 0) {
+        struct restir_bdpt_mis m = rc_path_state(p, e, false, power);
+        return restir_bdpt_mis_emission(&m, dpa, epw, power);
+    }
+    struct restir_bdpt_mis m = rc_path_state(p, e - 1, false, power);
+    return restir_bdpt_mis_nee(&m, p->nee_fwd, p->nee_rev, dpw, epw, cos_cam, cos_light, power);
+}
+
+/* Over random paths of 3 to 12 vertices, both techniques, both heuristics and every k in
+ * 2 .. e - 1: a path whose vertices up to x_k are replaced (new distances, cosines and pdfs
+ * arriving at x_k, and x_k's own pdfs, which depend on its new incoming direction) gets from
+ * restir_bdpt_mis_reconnect — the base path's two constants and the new state at x_k — the weight
+ * that recomputing the MIS along the whole new path gives. The constants of another path's
+ * suffix must give a different weight (the test can fail). */
+static void test_mis_reconnect(void)
+{
+    struct rng r = rng_make(7, 0, 0, 0x6d6973);
+    double worst = 0.0;
+    uint32_t cases = 0, wrong_suffix_differs = 0, wrong_suffix_cases = 0;
+    for (int it = 0; it < 4000; it++) {
+        const bool power = it & 1;
+        const int s = (it >> 1) & 1;
+        const uint32_t e = 3 + (uint32_t)(rng_next_float(&r) * 10.0f);
+        const uint32_t k = 2 + (uint32_t)(rng_next_float(&r) * (float)(e - 2));   /* 2 .. e - 1 */
+        struct rc_path base;
+        rc_path_random(&r, &base, e);
+        /* The reconnection pair and x_k itself are rough; an NEE vertex is too. */
+        base.delta[k - 1] = base.delta[k] = false;
+        if (s == 1) base.delta[e - 1] = false;
+        const float dpa = urand(&r, 0.1f, 3.0f), epw = urand(&r, 0.1f, 3.0f), dpw = urand(&r, 0.1f, 30.0f);
+        const float cos_cam = urand(&r, 0.05f, 1.0f), cos_light = urand(&r, 0.05f, 1.0f);
+        const bool last = k + 1 == e;
+        const enum restir_bdpt_rc_kind kind = !last ? RBDPT_RC_AFTER : s == 0 ? RBDPT_RC_EMIT_LAST : RBDPT_RC_NEE_LAST;
+        /* The base path's constants, where its weight is computed. */
+        float a, b;
+        const float suffix = rc_path_suffix(&base, k, s == 0 ? e : e - 1, power);
+        if (s == 0) {
+            struct restir_bdpt_mis m = rc_path_state(&base, e, false, power);
+            restir_bdpt_rc_mis_emission(&m, dpa, epw, base.hit_d2[e], base.hit_cos[e], last, suffix, power, &a, &b);
+        } else {
+            restir_bdpt_rc_mis_nee(base.nee_fwd, base.nee_rev, dpw, epw, cos_cam, cos_light, last, suffix, power, &a,
+                                   &b);
+        }
+        /* The shifted path: a new prefix up to x_k, x_k's pdfs anew, the rest kept. */
+        struct rc_path sh = base, fresh;
+        rc_path_random(&r, &fresh, e);
+        sh.camera_pdf_w = fresh.camera_pdf_w;
+        for (uint32_t j = 1; j <= k; j++) {
+            sh.hit_d2[j] = fresh.hit_d2[j];
+            sh.hit_cos[j] = fresh.hit_cos[j];
+            sh.pf[j] = fresh.pf[j];
+            sh.pr[j] = fresh.pr[j];
+            if (j < k) {
+                sh.out_cos[j] = fresh.out_cos[j];
+                sh.delta[j] = j == k - 1 ? false : fresh.delta[j];
+            }
+        }
+        if (s == 1 && last) sh.nee_fwd = fresh.nee_fwd, sh.nee_rev = fresh.nee_rev;
+        const float brute = rc_path_weight(&sh, e, s, dpa, epw, dpw, cos_cam, cos_light, power);
+        const struct restir_bdpt_mis at_k = rc_path_state(&sh, k, kind != RBDPT_RC_NEE_LAST, power);
+        const float fwd = kind == RBDPT_RC_NEE_LAST ? sh.nee_fwd : sh.pf[k];
+        const float rev = kind == RBDPT_RC_NEE_LAST ? sh.nee_rev : sh.pr[k];
+        const float rec = restir_bdpt_mis_reconnect(kind, a, b, &at_k, fwd, rev, power);
+        const double rel = fabs((double)rec - brute) / brute;
+        if (rel > worst) worst = rel;
+        cases++;
+        /* Another path's suffix constants (its own distances past x_k): the weight must move. */
+        if (k + 2 < e) {
+            struct rc_path other = base;
+            other.hit_cos[k + 1] *= 0.5f;
+            float a2, b2;
+            const float suffix2 = rc_path_suffix(&other, k, s == 0 ? e : e - 1, power);
+            if (s == 0) {
+                struct restir_bdpt_mis m = rc_path_state(&other, e, false, power);
+                restir_bdpt_rc_mis_emission(&m, dpa, epw, other.hit_d2[e], other.hit_cos[e], last, suffix2, power, &a2,
+                                            &b2);
+            } else {
+                restir_bdpt_rc_mis_nee(other.nee_fwd, other.nee_rev, dpw, epw, cos_cam, cos_light, last, suffix2,
+                                       power, &a2, &b2);
+            }
+            wrong_suffix_cases++;
+            if (fabsf(restir_bdpt_mis_reconnect(kind, a2, b2, &at_k, fwd, rev, power) - brute) > 1e-3f * brute)
+                wrong_suffix_differs++;
+        }
+    }
+    printf("    %u reconnections: worst relative error %.2g; another suffix's constants moved the weight in %u of "
+           "%u\n",
+           cases, worst, wrong_suffix_differs, wrong_suffix_cases);
+    CHECK(worst < 1e-4);
+    CHECK(wrong_suffix_differs > wrong_suffix_cases / 2);
 }
 
 static struct scene *load(const char *path)
@@ -625,13 +775,15 @@ static void test_view_method(void)
         }
         /* 4 blocks of 256 light subpaths, 5 vertices each of 52 bytes, and the block tables. */
         CHECK(lvc == (k == 3 ? 4u * 256 * 5 * 52 + 4 * 8 + 5 * 8 : 0u));
-        CHECK(reservoirs == (k == 2 ? 5u : 3u) * 40 * 24 * RESTIR_BDPT_RESERVOIR_BYTES);
+        /* Non-caustic reservoirs with their reconnections (three with reuse), two caustic ones. */
+        CHECK(reservoirs == ((k == 2 ? 3u : 1u) * RESTIR_BDPT_PATH_BYTES + 2u * RESTIR_BDPT_RESERVOIR_BYTES) * 40 * 24);
         struct frame_stats fs;
         for (int f = 0; f < 3; f++) CHECK_MSG(view_render(&v, NULL, &fs, NULL, NULL, &err), "%s", err.message);
         CHECK(fs.has_restir_bdpt && !fs.has_bdpt && !fs.has_passes);
         const struct restir_bdpt_stats *rs = &fs.restir_bdpt;
         CHECK(rs->light_subpaths == (k == 1 ? 1000u : 40u * 24) && rs->light_vertices >= rs->light_traced);
         CHECK((rs->reuse_shifts > rs->reuse_shift_failures) == (k == 2));
+        CHECK((rs->reuse_reconnections > 0) == (k == 2) && rs->reuse_reconnections <= rs->reuse_shifts);
         CHECK(rs->light_traced > 0 && rs->caustic_samples > 0 && rs->caustic_shifts > 0 && rs->lt_dropped == 0);
         CHECK((rs->connections > 0) == (k == 3) && rs->lvc_dropped == 0);
         CHECK(rs->reservoir_bytes == reservoirs && fs.render.nonfinite == 0 && fs.render.samples == 40 * 24);
@@ -652,7 +804,7 @@ static void test_view_method(void)
     }
 }
 
-TEST_MAIN(TEST(test_mis_lightweight), TEST(test_mis_full), TEST(test_params), TEST(test_view_method), TEST(test_thread_determinism),
+TEST_MAIN(TEST(test_mis_lightweight), TEST(test_mis_full), TEST(test_mis_reconnect), TEST(test_params), TEST(test_view_method), TEST(test_thread_determinism),
           TEST(test_moving_cap),
           TEST(test_caustic_replay_round_trip), TEST(test_matches_bdpt_caustic_sphere),
           TEST(test_matches_bdpt_lamp_in_glass), TEST(test_caustic_temporal_paired),
