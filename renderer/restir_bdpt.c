@@ -476,7 +476,7 @@ static void rbdpt_ris_finish_path(const struct rbdpt_ris *r, uint16_t M, struct 
 static bool rbdpt_connect_camera(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct surface *s,
                                  const struct material *m, struct vec3 wo_world, struct vec3 beta,
                                  const struct restir_bdpt_mis *mis, struct ray_counters *rc, uint32_t *pixel,
-                                 struct vec3 *value)
+                                 struct vec3 *value, float sub[2], float *camera_pdf_a_out)
 {
     const struct camera *cam = &v->cam;
     struct vec3 d = vec3_sub(cam->position, s->p);
@@ -502,6 +502,8 @@ static bool rbdpt_connect_camera(const struct rbdpt_ctx *c, const struct rbdpt_v
     float corr = fabsf(wo_local.z) * fabsf(cos_c_ng) / fabsf(cos_o_ng);
     *value = vec3_scale(vec3_mul(beta, f), w * corr * camera_pdf_w / (dist2 * c->n_light));
     *pixel = iy * cam->width + ix;
+    if (sub) sub[0] = px - (float)ix, sub[1] = py - (float)iy;
+    if (camera_pdf_a_out) *camera_pdf_a_out = camera_pdf_a;
     return true;
 }
 
@@ -514,24 +516,92 @@ struct rbdpt_lvc_block {
     uint32_t region, count, dropped;
 };
 
+/* A vertex the hybrid shift may reconnect at or from: every lobe of its material is rough (the
+ * reconnection evaluates the whole BSDF, so a delta lobe beside a rough one would be lost). */
+static bool rbdpt_rough(const struct material *m)
+{
+    unsigned f = material_flags(m);
+    return (f & (BSDF_DIFFUSE | BSDF_GLOSSY)) && !(f & BSDF_DELTA);
+}
+
+/* A light subpath's vertex x_2 (light depth `depth` >= 1) as it was before it scattered towards
+ * x_1: what the reverse hybrid shift keeps of a t = 1 sample and joins to a new x_1. */
+struct rbdpt_x2 {
+    struct surface s;
+    const struct material *m;
+    struct vec3 wo_world;        /* towards the previous light vertex */
+    struct vec3 beta, rr_beta;   /* before its scattering */
+    struct restir_bdpt_mis mis;  /* after its hit */
+    struct vec3 dir;             /* the direction it sampled (the base path's x_1 lies along it) */
+    float u_rr;                  /* the roulette's number after its scattering */
+    uint32_t depth;
+};
+
+/* The t = 1 sample of the light subpath through x2 and the surface x1 (visible from x2), with
+ * x_2's scattering taken along the segment between the two positions — the same numbers for
+ * the initial sample and for every reverse hybrid shift of it — and the roulette rolled again
+ * with x_2's own number (it is part of the light subpath's primary-sample-space integrand).
+ * Its pixel, contribution, sub-pixel position and the reverse hybrid shift's Jacobian
+ * denominator p_2(w) |cos_1| / d^2 / p_camera,A(x_1) (dw at x_2 per unit of image area).
+ * False when it contributes nothing. */
+static bool rbdpt_t1_eval(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct rbdpt_x2 *x2,
+                          const struct surface *x1, struct ray_counters *rays, uint32_t *pixel, struct vec3 *C,
+                          float sub[2], float *pdf)
+{
+    const struct material *m1 = &v->scene->materials[x1->material];
+    if (!(material_flags(m1) & (BSDF_DIFFUSE | BSDF_GLOSSY))) return false;
+    struct vec3 w = vec3_sub(x1->p, x2->s.p);
+    float d2 = vec3_length2(w);
+    if (!(d2 > 0.0f)) return false;
+    w = vec3_scale(w, 1.0f / sqrtf(d2));
+    struct vec3 wi = frame_to_local(&x2->s.frame, w), wo = frame_to_local(&x2->s.frame, x2->wo_world);
+    float cos_i_ng = vec3_dot(w, x2->s.ng), cos_o_ng = vec3_dot(x2->wo_world, x2->s.ng);
+    float cos_1 = vec3_dot(w, x1->ng);
+    if (!(cos_i_ng * wi.z > 0.0f) || cos_o_ng == 0.0f || cos_1 == 0.0f) return false;
+    struct vec3 f = material_eval(x2->m, wo, wi, TRANSPORT_IMPORTANCE);
+    float p2 = material_pdf(x2->m, wo, wi);
+    if (vec3_is_zero(f) || !(p2 > 0.0f)) return false;
+    struct vec3 weight = vec3_scale(f, fabsf(wo.z) * fabsf(cos_i_ng) / (fabsf(cos_o_ng) * p2));
+    struct vec3 beta = vec3_mul(x2->beta, weight);
+    if (x2->depth >= c->p->rr_depth) {
+        float mx = vec3_max_comp(vec3_mul(x2->rr_beta, weight));
+        float q = mx < 0.95f ? mx : 0.95f;
+        if (!(q > 0.0f) || x2->u_rr >= q) return false;
+        beta = vec3_scale(beta, 1.0f / q);
+    }
+    struct restir_bdpt_mis mis = x2->mis;
+    restir_bdpt_mis_scatter(&mis, cos_i_ng, p2, material_pdf(x2->m, wi, wo), false, c->power);
+    restir_bdpt_mis_hit(&mis, d2, cos_1, c->power);
+    float camera_pdf_a;
+    if (!rbdpt_connect_camera(c, v, x1, m1, vec3_neg(w), beta, &mis, rays, pixel, C, sub, &camera_pdf_a) ||
+        !vec3_is_finite(*C) || vec3_is_zero(*C))
+        return false;
+    *pdf = p2 * fabsf(cos_1) / d2 / camera_pdf_a;
+    return *pdf > 0.0f && isfinite(*pdf);
+}
+
 /* Traces light subpath i with the random numbers of frame `origin_frame` in view `v` and writes
  * its t = 1 samples to out[0 .. cap) (*stored, the excess counted in *dropped), and with `lvc`
  * (the full variant's light pass) every connectable vertex into the cache as bdpt does. With
  * only_depth > 0 it is the random-replay shift of seed 000 Appendix A: the subpath is replayed
  * up to that vertex and only the sample there is written (nothing when the replayed path ends
- * earlier, the vertex is not connectable or the eye does not see it). */
-static void rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view *v, uint32_t origin_frame,
+ * earlier, the vertex is not connectable or the eye does not see it). With `x2` (and
+ * only_depth >= 2) the replay stops at light depth only_depth - 1 instead and returns that
+ * vertex (true when it got there). With reuse (lightweight variant) a sample whose x_2 has only
+ * rough lobes is evaluated by rbdpt_t1_eval. */
+static bool rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view *v, uint32_t origin_frame,
                               uint32_t i, uint32_t only_depth, struct restir_bdpt_lt_sample *out, uint32_t cap,
                               uint32_t *stored, uint32_t *dropped, uint64_t *vertices, struct rbdpt_lvc_block *lvc,
-                              struct ray_counters *rc)
+                              struct rbdpt_x2 *x2_out, struct ray_counters *rc)
 {
     const struct scene *scene = v->scene;
     const struct restir_bdpt_params *p = c->p;
+    const bool track = p->reuse && !c->full;
     struct rng rng = rng_make(c->seed, origin_frame, RBDPT_LIGHT_STREAM + i, 1);
     float u[6];
     for (int k = 0; k < 6; k++) u[k] = rng_next_float(&rng);
     struct bdpt_light_start start;
-    if (!bdpt_light_start(scene, u, &start)) return;
+    if (!bdpt_light_start(scene, u, &start)) return false;
     const struct light_sample ls = start.ls;
     struct vec3 dir = start.dir, beta = start.beta;
     struct vec3 rr_beta = vec3_splat(1.0f);
@@ -540,17 +610,20 @@ static void rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view
     struct vec3 org = start.org, prev_p = ls.p;
     bool prev_rough = true;   /* the emitter itself is rough: x_2 of a depth-1 sample */
     uint32_t last = only_depth ? only_depth : p->max_depth;
-    if (last > p->max_depth) return;
+    if (last > p->max_depth) return false;
+    if (x2_out) last = only_depth - 1;
+    struct rbdpt_x2 x2 = {0};
+    bool x2_rough = false;    /* track: the previous vertex is a surface with only rough lobes */
 
     for (uint32_t depth = 1; depth <= last; depth++) {
         struct hit hit;
-        if (!accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, &hit, rc)) return;
+        if (!accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, &hit, rc)) return false;
         struct surface s;
         surface_from_hit(scene, &hit, org, dir, &s);
         restir_bdpt_mis_hit(&mis, vec3_length2(vec3_sub(s.p, prev_p)), vec3_dot(dir, s.ng), c->power);
         const struct material *m = &scene->materials[s.material];
         struct vec3 wo_world = vec3_neg(dir);
-        if ((!only_depth || depth == only_depth) && (material_flags(m) & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
+        if (!x2_out && (!only_depth || depth == only_depth) && (material_flags(m) & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
             if (vertices) (*vertices)++;
             if (lvc && lvc->count < lvc->region) {
                 const struct bdpt_mis lm = {mis.dvcm, mis.dvc};
@@ -560,25 +633,34 @@ static void rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view
             }
             uint32_t px;
             struct vec3 val;
-            if (rbdpt_connect_camera(c, v, &s, m, wo_world, beta, &mis, rc, &px, &val) && vec3_is_finite(val) &&
-                !vec3_is_zero(val)) {
+            const bool hybrid = track && depth >= 2 && x2_rough;
+            float sub[2], pdf;
+            bool made = hybrid ? rbdpt_t1_eval(c, v, &x2, &s, rc, &px, &val, sub, &pdf)
+                               : rbdpt_connect_camera(c, v, &s, m, wo_world, beta, &mis, rc, &px, &val, NULL, NULL) &&
+                                     vec3_is_finite(val) && !vec3_is_zero(val);
+            if (made) {
                 if (*stored < cap) {
                     out[(*stored)++] = (struct restir_bdpt_lt_sample){
                         .F = val, .pixel = px, .light_path = i, .depth = (uint16_t)depth,
-                        .caustic = (uint16_t)(prev_rough ? 0 : 1)};
+                        .caustic = (uint8_t)(prev_rough ? 0 : 1), .hybrid = (uint8_t)hybrid};
                 } else {
                     (*dropped)++;
                 }
             }
         }
-        if (depth >= last) return;
+        if (depth >= last && !x2_out) return true;
         struct vec3 wo = frame_to_local(&s.frame, wo_world);
         float ulobe = rng_next_float(&rng), v1 = rng_next_float(&rng), v2 = rng_next_float(&rng);
         struct bsdf_sample bs;
-        if (!material_sample(m, wo, ulobe, v1, v2, TRANSPORT_IMPORTANCE, &bs)) return;
+        if (!material_sample(m, wo, ulobe, v1, v2, TRANSPORT_IMPORTANCE, &bs)) return false;
         struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
         float cos_i_ng = vec3_dot(wi_world, s.ng), cos_o_ng = vec3_dot(wo_world, s.ng);
-        if (cos_i_ng * bs.wi.z <= 0.0f || cos_o_ng == 0.0f) return;
+        if (cos_i_ng * bs.wi.z <= 0.0f || cos_o_ng == 0.0f) return false;
+        if (track || x2_out) {
+            x2 = (struct rbdpt_x2){.s = s, .m = m, .wo_world = wo_world, .beta = beta, .rr_beta = rr_beta,
+                                   .mis = mis, .dir = wi_world, .depth = depth};
+            x2_rough = rbdpt_rough(m);
+        }
         struct vec3 weight = vec3_scale(bs.f, fabsf(wo.z) * fabsf(cos_i_ng) / (fabsf(cos_o_ng) * bs.pdf_w));
         beta = vec3_mul(beta, weight);
         rr_beta = vec3_mul(rr_beta, weight);
@@ -587,12 +669,17 @@ static void rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view
         /* Roughness of x_2 for the next vertex's sample: the lobe this vertex scattered by. */
         prev_rough = !delta;
         float u_rr = rng_next_float(&rng);
+        x2.u_rr = u_rr;
+        if (x2_out && depth == last) {
+            *x2_out = x2;
+            return true;
+        }
         if (depth >= p->rr_depth) {
             /* Russian roulette is part of the primary-sample-space integrand, so a replay that
              * the roulette ends fails the shift (C = 0 there). */
             float mx = vec3_max_comp(rr_beta);
             float q = mx < 0.95f ? mx : 0.95f;
-            if (!(q > 0.0f) || u_rr >= q) return;
+            if (!(q > 0.0f) || u_rr >= q) return false;
             beta = vec3_scale(beta, 1.0f / q);
             rr_beta = vec3_scale(rr_beta, 1.0f / q);
         }
@@ -600,6 +687,7 @@ static void rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view
         prev_p = s.p;
         dir = wi_world;
     }
+    return !x2_out;
 }
 
 /* The light pass: one job per block of light subpaths, each block into its own region. */
@@ -617,7 +705,7 @@ static void rbdpt_light_block(void *ctx, uint32_t block, unsigned worker)
     struct rbdpt_lvc_block lvc = {st->lvc ? &st->lvc[(size_t)block * st->lvc_region] : NULL, st->lvc_region, 0, 0};
     for (uint32_t i = first; i < last; i++)
         rbdpt_trace_light(c, &c->view[0], c->frame, i, 0, region, st->region, &stored, &dropped, &vertices,
-                          st->lvc ? &lvc : NULL, &rc);
+                          st->lvc ? &lvc : NULL, NULL, &rc);
     if (st->lvc) {
         st->lvc_count[block] = lvc.count;
         st->lvc_dropped[block] = lvc.dropped;
@@ -641,7 +729,7 @@ static enum rbdpt_replay rbdpt_replay_caustic(const struct rbdpt_ctx *c, const s
 {
     struct restir_bdpt_lt_sample out;
     uint32_t stored = 0, dropped = 0;
-    rbdpt_trace_light(c, v, origin_frame, i, depth, &out, 1, &stored, &dropped, NULL, NULL, rc);
+    rbdpt_trace_light(c, v, origin_frame, i, depth, &out, 1, &stored, &dropped, NULL, NULL, NULL, rc);
     if (stored == 0) return RBDPT_REPLAY_FAILED;
     if (!out.caustic) return RBDPT_REPLAY_NOT_CAUSTIC;
     *pixel = out.pixel;
@@ -680,13 +768,6 @@ static bool rbdpt_offer(struct rbdpt_ris *r, struct rbdpt_want *want, struct vec
     return false;
 }
 
-/* A vertex the hybrid shift may reconnect at or from: every lobe of its material is rough (the
- * reconnection evaluates the whole BSDF, so a delta lobe beside a rough one would be lost). */
-static bool rbdpt_rough(const struct material *m)
-{
-    unsigned f = material_flags(m);
-    return (f & (BSDF_DIFFUSE | BSDF_GLOSSY)) && !(f & BSDF_DELTA);
-}
 
 /* The camera subpath of `pixel`'s stream (its ids: the pixel and frame whose random numbers
  * drive it) traced along `dir` in view v: its s = 0 and s = 1 candidates.
@@ -1011,6 +1092,65 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
     return isfinite(*J) && *J > 0.0f;
 }
 
+/* The reverse hybrid shift of a non-caustic t = 1 sample whose x_2 has only rough lobes (seed
+ * 000 §6.1, "light tracing, non-caustic"): its light subpath is replayed with its random numbers
+ * in view v up to x'_2, and joined to the new x'_1: the surface the eye sees through the same
+ * point of the target pixel (the sample's sub-pixel position, kept in rc.b1 / rc.b2), so the
+ * shift maps the paths through one pixel one-to-one onto those through the other. Jacobian:
+ * the image-area density of x_1's direction at x_2, p_2(w) |cos_1| / d^2 / p_camera,A(x_1), of
+ * the new path over the old (rc.pdf). False when the shift fails. */
+static bool rbdpt_reverse(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct restir_bdpt_path *src,
+                          uint32_t pixel, struct vec3 *C, float *J, float *pdf, struct ray_counters *rays)
+{
+    const uint32_t depth = (uint32_t)(src->r.head.bits >> 8) - 1u;   /* x_1's light depth */
+    if (depth < 2 || !(src->rc.pdf > 0.0f)) return false;
+    struct rbdpt_x2 x2;
+    if (!rbdpt_trace_light(c, v, src->r.origin_frame, src->r.light_path, depth, NULL, 0, NULL, NULL, NULL, NULL, &x2,
+                           rays) ||
+        !rbdpt_rough(x2.m))
+        return false;
+    const struct camera *cam = &v->cam;
+    const uint32_t w = c->st->width;
+    struct vec3 dir = camera_ray_dir(cam, (float)(pixel % w) + src->rc.b1, (float)(pixel / w) + src->rc.b2);
+    struct hit hit;
+    if (!accel_intersect(v->scene->accel, cam->position, dir, 0.0f, INFINITY, &hit, rays)) return false;
+    struct surface x1;
+    surface_from_hit(v->scene, &hit, cam->position, dir, &x1);
+    uint32_t px;
+    if (!rbdpt_t1_eval(c, v, &x2, &x1, rays, &px, C, NULL, pdf) || px != pixel) return false;
+    if (!bdpt_visible(v->scene->accel, x2.s.p, x2.s.ng, x1.p, &x1.ng, rays)) return false;
+    *J = *pdf / src->rc.pdf;
+    return isfinite(*J) && *J > 0.0f;
+}
+
+/* The reconnection record of a pixel's selected t = 1 sample of the reverse hybrid shift's
+ * class, found once it is selected rather than kept for every light-traced sample: the light
+ * subpath is replayed to x_2, x_1 found along the direction x_2 sampled, and the sub-pixel
+ * position and Jacobian denominator taken from rbdpt_t1_eval, which made the sample. False (the
+ * sample then never shifts) if the replay does not give it back. */
+static bool rbdpt_reverse_record(const struct rbdpt_ctx *c, struct restir_bdpt_path *res, struct ray_counters *rays)
+{
+    const struct rbdpt_view *v = &c->view[0];
+    const uint32_t depth = (uint32_t)(res->r.head.bits >> 8) - 1u;
+    struct rbdpt_x2 x2;
+    if (!rbdpt_trace_light(c, v, res->r.origin_frame, res->r.light_path, depth, NULL, 0, NULL, NULL, NULL, NULL, &x2,
+                           rays))
+        return false;
+    struct hit hit;
+    struct vec3 org = bdpt_origin(&x2.s, x2.dir);
+    if (!accel_intersect(v->scene->accel, org, x2.dir, 0.0f, INFINITY, &hit, rays)) return false;
+    struct surface x1;
+    surface_from_hit(v->scene, &hit, org, x2.dir, &x1);
+    uint32_t px;
+    struct vec3 C;
+    float sub[2], pdf;
+    if (!rbdpt_t1_eval(c, v, &x2, &x1, rays, &px, &C, sub, &pdf)) return false;
+    res->rc.b1 = sub[0];
+    res->rc.b2 = sub[1];
+    res->rc.pdf = pdf;
+    return true;
+}
+
 /* The shift of a non-caustic sample into domain `to`:
  *  - s = 0 and s = 1 with a reconnection, between frames whose scenes agree: the hybrid shift
  *    (rbdpt_reconnect);
@@ -1038,12 +1178,18 @@ static void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain
     struct vec3 C = {0, 0, 0};
     struct restir_bdpt_rc rc = src->rc;
     bool ok = false;
-    if ((src->r.head.bits & 0xffu) == RESTIR_BDPT_TECH_LT) {
+    if ((src->r.head.bits & 0xffu) == RESTIR_BDPT_TECH_LT && src->rc.k) {
+        float pdf;
+        ok = rbdpt_reverse(c, v, src, to.pixel, &C, jacobian, &pdf, &cnt->rays);
+        if (ok) rc.pdf = pdf;
+        atomic_fetch_add_explicit(c->reconnections, 1, memory_order_relaxed);
+    } else if ((src->r.head.bits & 0xffu) == RESTIR_BDPT_TECH_LT) {
         struct restir_bdpt_lt_sample out;
         uint32_t stored = 0, dropped = 0;
         rbdpt_trace_light(c, v, src->r.origin_frame, src->r.light_path, (uint32_t)(src->r.head.bits >> 8) - 1u, &out,
-                          1, &stored, &dropped, NULL, NULL, &cnt->rays);
-        ok = stored == 1 && !out.caustic && out.pixel == to.pixel;
+                          1, &stored, &dropped, NULL, NULL, NULL, &cnt->rays);
+        /* It stays in its class: a replayed sample of the reverse hybrid shift's would not shift back. */
+        ok = stored == 1 && !out.caustic && !out.hybrid && out.pixel == to.pixel;
         if (ok) C = out.F;
     } else if (src->rc.k >= 2) {
         /* Between scenes that differ the kept suffix would carry the other scene's light, and a
@@ -1164,9 +1310,19 @@ static void rbdpt_camera_tile(void *ctx, uint32_t tile, unsigned worker)
             for (uint32_t k = st->pixel_first[pixel]; k < st->pixel_first[pixel + 1]; k++) {
                 const struct restir_bdpt_lt_sample *ls = &st->lt_sorted[k];
                 uint16_t bits = (uint16_t)(((uint32_t)(ls->depth + 1) << 8) | RESTIR_BDPT_TECH_LT);
-                rbdpt_ris_add(ls->caustic ? &rcau : &r, ls->F, bits, ls->light_path, c->frame, &pick, wk);
+                if (ls->hybrid && !ls->caustic) {
+                    /* Marks the reverse hybrid shift's class; the record is filled in once selected. */
+                    const struct restir_bdpt_rc mark = {.k = 1};
+                    rbdpt_ris_add_rc(&r, ls->F, vec3_luminance(ls->F), bits, ls->light_path, c->frame, &mark, &pick,
+                                     wk);
+                } else {
+                    rbdpt_ris_add(ls->caustic ? &rcau : &r, ls->F, bits, ls->light_path, c->frame, &pick, wk);
+                }
             }
             rbdpt_ris_finish_path(&r, 1, &st->res[pixel]);
+            if (st->res[pixel].rc.k == 1 && st->res[pixel].r.head.W > 0.0f &&
+                !rbdpt_reverse_record(c, &st->res[pixel], &rc))
+                st->res[pixel].rc.pdf = 0.0f;
             uint16_t M = rbdpt_caustic_confidence(c, primary, has_primary);
             if (temporal) {
                 /* Appendix A: the initial caustic reservoir (confidence 1) against the previous
@@ -1426,13 +1582,12 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     return true;
 }
 
-bool restir_bdpt_caustic_replay(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
-                                const struct restir_bdpt_frame *f, uint32_t origin_frame, uint32_t light_path,
-                                uint32_t depth, uint32_t *pixel, struct vec3 *F)
+/* Tests only: a context for one view (its worker array on the heap rather than the stack). */
+static struct rbdpt_ctx *rbdpt_test_ctx(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
+                                        const struct restir_bdpt_frame *f, _Atomic uint64_t *reconnections)
 {
-    /* Tests only: the context (its worker array) on the heap rather than the stack. */
     struct rbdpt_ctx *c = calloc(1, sizeof *c);
-    if (!c) return false;
+    if (!c) return NULL;
     c->p = p;
     c->st = st;
     c->view[0].scene = f->scene;
@@ -1444,6 +1599,41 @@ bool restir_bdpt_caustic_replay(struct restir_bdpt_state *st, const struct resti
     c->frame = f->frame;
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;
     c->full = p->variant == RESTIR_BDPT_FULL;
+    c->reconnections = reconnections;
+    return c;
+}
+
+int restir_bdpt_shift_round_trip(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
+                                 const struct restir_bdpt_frame *f, uint32_t pixel, uint32_t to,
+                                 float target[3], float *jj)
+{
+    if (!st->res_prev) return -1;
+    const struct restir_bdpt_path *x = &st->res_prev[pixel];   /* the frame just rendered */
+    if (!(x->r.head.W > 0.0f)) return -1;
+    _Atomic uint64_t reconnections = 0;
+    struct rbdpt_ctx *c = rbdpt_test_ctx(st, p, f, &reconnections);
+    if (!c) return -1;
+    const bool lt = (x->r.head.bits & 0xffu) == RESTIR_BDPT_TECH_LT;
+    const int kind = lt ? (x->rc.k ? 1 : 0) : (x->rc.k >= 2 ? 2 : 0);
+    struct restir_counters cnt = {{0, 0}, 0, 0, 0};
+    const struct restir_domain dp = {pixel, RESTIR_CURRENT}, dq = {to, RESTIR_CURRENT};
+    struct restir_bdpt_path y, z;
+    float j1 = 0.0f, j2 = 0.0f;
+    target[0] = vec3_luminance(x->r.F);
+    target[1] = target[2] = 0.0f;
+    rbdpt_shift(c, x, dp, dq, &y, &target[1], &j1, &cnt);
+    if (target[1] > 0.0f) rbdpt_shift(c, &y, dq, dp, &z, &target[2], &j2, &cnt);
+    *jj = j1 * j2;
+    free(c);
+    return kind;
+}
+
+bool restir_bdpt_caustic_replay(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
+                                const struct restir_bdpt_frame *f, uint32_t origin_frame, uint32_t light_path,
+                                uint32_t depth, uint32_t *pixel, struct vec3 *F)
+{
+    struct rbdpt_ctx *c = rbdpt_test_ctx(st, p, f, NULL);
+    if (!c) return false;
     struct ray_counters rc = {0, 0};
     bool ok = rbdpt_replay_caustic(c, &c->view[0], origin_frame, light_path, depth, pixel, F, &rc) == RBDPT_REPLAY_OK;
     free(c);

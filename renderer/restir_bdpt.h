@@ -37,15 +37,17 @@
  * contribution, and a shift never rolls it. Between frames whose scenes differ a sample with a
  * reconnection does not shift (its kept suffix carries the other scene's light). A t = 1 sample's
  * light subpath is replayed and the shift succeeds only when it lands in the target pixel again
- * and is still non-caustic.
+ * and is still non-caustic; one whose x_2 has only rough lobes instead shifts by the reverse
+ * hybrid shift (§6.1): its light subpath is replayed up to x'_2 and joined to the surface the eye
+ * sees through the same sub-pixel position of the target pixel, so it can move to a neighbour.
  *
  * Method `restir_bdpt` (renderer/view.c) renders frames with exactly this. What it does NOT do
- * yet: the light-subpath side of the bidirectional hybrid shift (the reverse hybrid shift of
- * t = 1 samples, so a light-traced sample never moves to a neighbouring pixel; the light subpath
- * of a connection technique), hence no non-caustic reuse for the full variant (`reuse` is refused
- * naming /params/reuse); the "copy MIS weight" variant; the switchable rejection of non-caustic
- * t <= 1 samples that cannot shift to the pixel's primary hit; re-tracing a reconnected sample's
- * suffix in a moved scene. The full variant's caustic reservoirs are reused as the lightweight
+ * yet: the connection techniques' shift (a camera subpath joined to a light subpath), hence no
+ * non-caustic reuse for the full variant (`reuse` is refused naming /params/reuse); the "copy
+ * MIS weight" variant; the switchable rejection of non-caustic t <= 1 samples that cannot shift
+ * to the pixel's primary hit (a t = 1 sample here shifts to the surface seen through the same
+ * sub-pixel position, not to a G-buffer's primary hit, so none has to be rejected); re-tracing
+ * a reconnected camera-side sample's suffix in a moved scene. The full variant's caustic reservoirs are reused as the lightweight
  * one's, with the full MIS weight of the replayed t = 1 sample.
  * Scenes with environment light or translucent materials are refused, as by `bdpt`. */
 #ifndef RESTIRD_RESTIR_BDPT_H
@@ -99,7 +101,9 @@ struct restir_bdpt_lt_sample {
     uint32_t pixel;
     uint32_t light_path;       /* index of its light subpath in the frame */
     uint16_t depth;            /* light vertices up to x_1 */
-    uint16_t caustic;          /* 1 when x_2 is not rough */
+    uint8_t caustic;           /* 1 when x_2 is not rough */
+    uint8_t hybrid;            /* with reuse: x_2 is a surface with only rough lobes (depth >= 2), so
+                                  the sample shifts by the reverse hybrid shift (restir_bdpt.c) */
 };
 
 /* A reservoir: the shared head (W, M, technique in `bits`), the selected sample's contribution
@@ -124,7 +128,11 @@ struct restir_bdpt_reservoir {
  *     path's weight follows from its new prefix alone (the recursive reconnection MIS of seed
  *     000 §6.2, restir_bdpt_mis_reconnect);
  *   - `pdf`: p_{k-1}(w_{k-1}) |cos_k| / d^2 p_k(w_k) (p_k = 1 for a light sample's direction), the
- *     reconnection's Jacobian denominator (seed 000 Appendix C). */
+ *     reconnection's Jacobian denominator (seed 000 Appendix C).
+ * A light-traced sample (t = 1) of the reverse hybrid shift's class (non-caustic, x_2 a surface
+ * with only rough lobes) has k = 1, its sub-pixel position in b1, b2 and in `pdf` the density
+ * p_2(w) |cos_1| / d^2 / p_camera,A(x_1) of its x_1 per unit of image area; other t = 1 samples
+ * k = 0. */
 struct restir_bdpt_rc {
     uint32_t k;
     uint32_t shape, prim;
@@ -252,6 +260,15 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
 bool restir_bdpt_caustic_replay(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
                                 const struct restir_bdpt_frame *f, uint32_t origin_frame, uint32_t light_path,
                                 uint32_t depth, uint32_t *pixel, struct vec3 *F);
+
+/* For tests, with reuse: the non-caustic sample that the frame just rendered left in `pixel`
+ * shifted into pixel `to` of the same frame (f's scene and camera) and back. target[0..2]: its
+ * target, the shifted one's, the one shifted back (0 where a shift failed); *jj: the product of
+ * the two Jacobians. Returns the shift kind: 2 the hybrid shift (camera side), 1 the reverse
+ * hybrid shift (t = 1), 0 random replay; -1 when the pixel holds no sample. */
+int restir_bdpt_shift_round_trip(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
+                                 const struct restir_bdpt_frame *f, uint32_t pixel, uint32_t to,
+                                 float target[3], float *jj);
 
 /* The lightweight MIS state a subpath carries (SmallVCM's dVCM / dVC restricted to the
  * techniques s = 0, s = 1, t = 1; see restir_bdpt.c). Exposed for the unit test. With `full`

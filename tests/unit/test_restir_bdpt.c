@@ -3,6 +3,8 @@
  *    weights of s = 0, s = 1 and t = 1 equal a brute-force recomputation and sum to 1; the full
  *    bdpt normalisation must disagree (the test can fail).
  *  - The caustic random-replay shift: round trips give back pixel and contribution exactly.
+ *  - The non-caustic shifts with reuse (hybrid, reverse hybrid, random replay): a sample shifted
+ *    to another pixel and back has its own target again, and the Jacobians multiply to 1.
  *  - The full variant's MIS: the same state updates, with dVCM kept after the first scattering,
  *    give the weights of all of bdpt's techniques (brute force) and sum to 1.
  *  - The recursive reconnection MIS (the hybrid shift's): a path whose prefix up to x_k changes
@@ -561,7 +563,7 @@ static void test_caustic_replay_round_trip(void)
     for (uint32_t px = 0; px < 32 * 32; px++) {
         const struct restir_bdpt_reservoir *r = &st.caustic_prev[px];   /* the frame just rendered */
         if (!(r->head.W > 0.0f)) continue;
-        uint32_t depth = (uint32_t)(r->head.bits >> 8) - 1u, q, q2, q3;
+        uint32_t depth = (uint32_t)(r->head.bits >> 8) - 1u, q = 0, q2 = 0, q3 = 0;
         struct vec3 F, F2, F3;
         CHECK((r->head.bits & 0xffu) == RESTIR_BDPT_TECH_LT && r->origin_frame == 7);
         CHECK(restir_bdpt_caustic_replay(&st, &p, &fa, 7, r->light_path, depth, &q, &F));
@@ -577,6 +579,70 @@ static void test_caustic_replay_round_trip(void)
     restir_bdpt_destroy(&st);
     image_destroy(&img);
     scene_release(sc);
+}
+
+/* The non-caustic shifts with reuse, on the samples a few frames leave in the reservoirs: each
+ * shifted into the pixel (3, 1) away in the same frame and back gives its own target again, and
+ * the two Jacobians multiply to 1 — for the hybrid shift of camera-side samples, the reverse
+ * hybrid shift of light-traced ones and random replay alike. Both kinds of reconnection must
+ * occur. */
+static void shift_round_trips(const char *path, struct camera_desc cam, uint32_t light_paths, uint32_t need[3])
+{
+    struct scene *sc = load(path);
+    if (!sc) return;
+    struct err err = {0};
+    struct restir_bdpt_params p = restir_bdpt_defaults();
+    p.reuse = true;
+    p.light_paths = light_paths;
+    const uint32_t W = 32, H = 32;
+    struct restir_bdpt_state st;
+    struct image img;
+    CHECK(image_init(&img, W, H, &err));
+    CHECK(restir_bdpt_init(&st, sc, &p, W, H, &err));
+    struct restir_bdpt_frame f = {.scene = sc, .camera = &cam, .seed = 5, .frame = 0, .threads = 2};
+    for (uint32_t k = 0; k < 4; k++) {
+        f.frame = k;
+        f.prev_scene = k ? sc : NULL;
+        f.prev_camera = k ? &cam : NULL;
+        CHECK_MSG(restir_bdpt_render(&st, &p, &f, &img, NULL, &err), "%s", err.message);
+    }
+    uint32_t there[3] = {0, 0, 0}, back[3] = {0, 0, 0}, wrong = 0;
+    double worst = 0.0;
+    for (uint32_t y = 0; y + 1 < H; y++) {
+        for (uint32_t x = 0; x + 3 < W; x++) {
+            float t[3], jj;
+            int kind = restir_bdpt_shift_round_trip(&st, &p, &f, y * W + x, (y + 1) * W + x + 3, t, &jj);
+            if (kind < 0 || !(t[1] > 0.0f)) continue;
+            there[kind]++;
+            if (!(t[2] > 0.0f)) continue;
+            back[kind]++;
+            double e = fmax(fabs((double)t[2] - t[0]) / t[0], fabs((double)jj - 1.0));
+            if (e > worst) worst = e;
+            wrong += e > 2e-3;
+        }
+    }
+    printf("    %s: shifted there / and back: reverse hybrid %u / %u, hybrid %u / %u, replay %u / %u; worst relative "
+           "error %.2g, %u over 2e-3\n",
+           path, there[1], back[1], there[2], back[2], there[0], back[0], worst, wrong);
+    for (int k = 0; k < 3; k++) CHECK(there[k] >= need[k] && back[k] * 100 >= there[k] * 99);
+    CHECK(wrong == 0);
+    restir_bdpt_destroy(&st);
+    image_destroy(&img);
+    scene_release(sc);
+}
+
+static void test_shift_round_trips(void)
+{
+    /* The crops of the unbiasedness tests: the lamp's table top, lit mostly by light-traced
+     * samples; the caustic sphere's floor. */
+    shift_round_trips("scenes/lamp-in-glass/scene.json",
+                      (struct camera_desc){.position = {0, 1.45f, -1.8f}, .look_at = {0, 0.68f, 1.2f}, .up = {0, 1, 0},
+                                           .fov_deg = 4},
+                      0, (uint32_t[3]){20, 20, 20});
+    shift_round_trips("scenes/caustic-sphere/scene.json",
+                      (struct camera_desc){.position = {-2.0f, 0.6f, -0.1f}, .look_at = {-0.45f, 0, -0.05f},
+                                           .up = {0, 1, 0}, .fov_deg = 6},
+                      8192, (uint32_t[3]){5, 0, 20});
 }
 
 /* Paired: the same sessions (same seeds, so the same non-caustic reservoirs frame by frame) with
@@ -806,6 +872,6 @@ static void test_view_method(void)
 
 TEST_MAIN(TEST(test_mis_lightweight), TEST(test_mis_full), TEST(test_mis_reconnect), TEST(test_params), TEST(test_view_method), TEST(test_thread_determinism),
           TEST(test_moving_cap),
-          TEST(test_caustic_replay_round_trip), TEST(test_matches_bdpt_caustic_sphere),
+          TEST(test_caustic_replay_round_trip), TEST(test_shift_round_trips), TEST(test_matches_bdpt_caustic_sphere),
           TEST(test_matches_bdpt_lamp_in_glass), TEST(test_caustic_temporal_paired),
           TEST(test_caustic_temporal_paired_moving))
