@@ -160,7 +160,7 @@ struct restir_bdpt_params restir_bdpt_defaults(void)
                                        .light_paths = 0, .lt_capacity = 8, .lvc_capacity = 8,
                                        .heuristic = BDPT_HEURISTIC_POWER,
                                        .caustic_temporal = true, .temporal_cap = 20, .moving_cap = 1, .reuse = false,
-                                       .spatial_neighbors = 2, .spatial_radius = 30.0f};
+                                       .spatial_neighbors = 2, .spatial_radius = 30.0f, .paired_spatial = true};
 }
 
 bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *err)
@@ -210,7 +210,7 @@ bool restir_bdpt_variant_parse(const char *name, enum restir_bdpt_variant *out)
 
 struct rbdpt_sizes {
     uint32_t light_paths, blocks, region, lvc_region;
-    uint64_t lt, pixels, blocks_b, res, lvc;
+    uint64_t lt, pixels, blocks_b, res, lvc, pairs;
 };
 
 static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
@@ -228,6 +228,7 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
             (n + 1) * sizeof(uint32_t) + (p->reuse ? n * sizeof(struct gbuffer_pixel) : 0);
     /* The full variant's LVC: the vertices, per block its count, its dropped count and its
      * prefix sum (one more). */
+    z.pairs = p->reuse && p->paired_spatial ? restir_pair_scratch_bytes(width, height) : 0;
     bool full = p->variant == RESTIR_BDPT_FULL;
     z.lvc_region = full ? RBDPT_BLOCK_PATHS * p->lvc_capacity : 0;
     z.lvc = full ? (uint64_t)z.blocks * z.lvc_region * sizeof(struct bdpt_light_vertex) +
@@ -239,7 +240,12 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
 uint64_t restir_bdpt_bytes_planned(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
 {
     struct rbdpt_sizes z = rbdpt_sizes_of(p, width, height);
-    return z.lt + z.pixels + z.blocks_b + z.res + z.lvc;
+    return z.lt + z.pixels + z.blocks_b + z.res + z.lvc + z.pairs;
+}
+
+size_t restir_bdpt_pair_bytes(const struct restir_bdpt_state *st)
+{
+    return st->pair_scratch ? restir_pair_scratch_bytes(st->width, st->height) : 0;
 }
 
 size_t restir_bdpt_lvc_bytes(const struct restir_bdpt_state *st)
@@ -281,7 +287,7 @@ size_t restir_bdpt_bytes(const struct restir_bdpt_state *st)
 {
     return restir_bdpt_reservoir_bytes(st) + restir_bdpt_lt_bytes(st) + restir_bdpt_shift_bytes(st) +
            restir_bdpt_bucket_bytes(st) + restir_bdpt_block_bytes(st) + gbuffer_bytes(&st->gbuf) +
-           restir_bdpt_lvc_bytes(st);
+           restir_bdpt_lvc_bytes(st) + restir_bdpt_pair_bytes(st);
 }
 
 bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, const struct restir_bdpt_params *p,
@@ -321,6 +327,7 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
     if (p->reuse) {
         st->res_prev = calloc(n, sizeof *st->res_prev);
         st->res_spatial = calloc(n, sizeof *st->res_spatial);
+        if (p->paired_spatial) st->pair_scratch = restir_buffer_alloc(1, z.pairs);
         if (st->res_prev && st->res_spatial && !gbuffer_init(&st->gbuf, width, height, err)) {
             restir_bdpt_destroy(st);
             return false;
@@ -335,7 +342,7 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
     }
     if (!st->lt || !st->lt_sorted || !st->pixel_first || !st->block_count || !st->block_dropped || !st->block_rays ||
         !st->res || !st->caustic || !st->caustic_prev || !st->shifted || !st->shifted_sorted || !st->shift_first ||
-        (p->reuse && (!st->res_prev || !st->res_spatial)) ||
+        (p->reuse && (!st->res_prev || !st->res_spatial || (p->paired_spatial && !st->pair_scratch))) ||
         (p->variant == RESTIR_BDPT_FULL && (!st->lvc || !st->lvc_count || !st->lvc_dropped || !st->lvc_first))) {
         restir_bdpt_destroy(st);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for restir_bdpt (%llu bytes)",
@@ -360,6 +367,7 @@ void restir_bdpt_destroy(struct restir_bdpt_state *st)
     free(st->shift_first);
     free(st->res_prev);
     free(st->res_spatial);
+    free(st->pair_scratch);
     free(st->lvc);
     free(st->lvc_count);
     free(st->lvc_dropped);
@@ -1537,7 +1545,8 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
                                   .seed = f->seed, .frame = f->frame, .threads = f->threads, .gbuf = &st->gbuf,
                                   .history = c->has_prev && st->has_history ? (const uint8_t *)st->res_prev : NULL,
                                   .temporal_cap = p->temporal_cap, .neighbors = p->spatial_neighbors,
-                                  .radius = p->spatial_radius, .paired = false, .pair_scratch = NULL};
+                                  .radius = p->spatial_radius, .paired = p->paired_spatial,
+                                  .pair_scratch = st->pair_scratch};
         struct restir_counters rc = {{0, 0}, 0, 0, 0};
         if (rr.history && !restir_temporal_pass(&rr, (uint8_t *)st->res, &rc, err)) return false;
         struct restir_bdpt_path *final = st->res;

@@ -89,6 +89,8 @@ struct restir_bdpt_params {
                                   lightweight variant only) */
     uint32_t spatial_neighbors; /* with reuse: neighbours per pixel, 0..32 (2) */
     float spatial_radius;      /* with reuse: pixels, (0, 256] (30) */
+    bool paired_spatial;       /* with reuse: neighbours paired so a pair's shifts serve both (true;
+                                  restir.h) */
 };
 
 struct restir_bdpt_params restir_bdpt_defaults(void);
@@ -187,6 +189,7 @@ struct restir_bdpt_state {
      * and the G-buffer whose motion vectors temporal reuse follows. */
     struct restir_bdpt_path *res_prev, *res_spatial;
     struct gbuffer gbuf;
+    void *pair_scratch;                         /* with reuse and paired_spatial: restir.c's pairs */
     /* The full variant's light vertex cache, in bdpt's layout: per block a region of lvc_region
      * vertices, lvc_count of them used, lvc_first the prefix sums (blocks + 1). NULL otherwise. */
     struct bdpt_light_vertex *lvc;
@@ -249,6 +252,7 @@ size_t restir_bdpt_shift_bytes(const struct restir_bdpt_state *st);
 size_t restir_bdpt_bucket_bytes(const struct restir_bdpt_state *st);
 size_t restir_bdpt_block_bytes(const struct restir_bdpt_state *st);
 size_t restir_bdpt_lvc_bytes(const struct restir_bdpt_state *st);   /* 0 for the lightweight variant */
+size_t restir_bdpt_pair_bytes(const struct restir_bdpt_state *st);  /* 0 without paired spatial reuse */
 
 bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
                         const struct restir_bdpt_frame *f, struct image *out, struct restir_bdpt_stats *stats,

@@ -466,6 +466,8 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
         out[n++] = (struct view_buffer_bytes){"light_blocks", restir_bdpt_block_bytes(&v->rbdpt)};
         if (v->rbdpt.lvc) out[n++] = (struct view_buffer_bytes){"light_vertex_cache", restir_bdpt_lvc_bytes(&v->rbdpt)};
         if (v->rbdpt.gbuf.px) out[n++] = (struct view_buffer_bytes){"gbuffer", gbuffer_bytes(&v->rbdpt.gbuf)};
+        if (v->rbdpt.pair_scratch)
+            out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_bdpt_pair_bytes(&v->rbdpt)};
     }
     if (v->params.method == RENDER_METHOD_RESTIR_SSS) {
         out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sss_reservoir_bytes(&v->sss)};

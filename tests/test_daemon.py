@@ -1312,19 +1312,21 @@ def test_bdpt_bad_params(daemon, params, field):
 
 def test_restir_bdpt_session(daemon):
     """A restir_bdpt session: its parameters with defaults, exactly its own buffers (three
-    reservoirs per pixel, the light-traced samples, the caustic shifts, the buckets), planned
-    bytes equal to allocated ones, and frames reporting light subpaths, light-traced and caustic
-    samples, shift failures by kind and reservoir bytes."""
+    reservoirs per pixel — the non-caustic one with its sample's reconnection — the light-traced
+    samples, the caustic shifts, the buckets), planned bytes equal to allocated ones, and frames
+    reporting light subpaths, light-traced and caustic samples, shift failures by kind and
+    reservoir bytes."""
     s = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24, seed=3,
                     params={"heuristic": "balance"})
     assert s["method"] == "restir_bdpt"
     assert s["params"] == {"variant": "lightweight", "max_depth": 64, "rr_depth": 3, "light_paths": 0,
                            "lt_capacity": 8, "lvc_capacity": 8, "heuristic": "balance", "caustic_temporal": True, "temporal_cap": 20,
-                           "moving_cap": 1, "reuse": False, "spatial_neighbors": 2, "spatial_radius": 30}
+                           "moving_cap": 1, "reuse": False, "spatial_neighbors": 2, "spatial_radius": 30,
+                           "paired_spatial": True}
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
                                  "caustic_shifts", "pixel_buckets", "light_blocks"}
     n = 32 * 24
-    assert s["reservoir_bytes_per_pixel"] == 28 and s["reservoir_bytes"] == 3 * 28 * n
+    assert s["reservoir_bytes_per_pixel"] == 28 and s["reservoir_bytes"] == (80 + 2 * 28) * n
     # 768 light subpaths: 3 blocks of 256, 8 samples of 24 bytes each, per-block and sorted.
     assert s["buffers"]["light_traced_samples"] == 2 * 3 * 256 * 8 * 24
     assert s["memory_bytes"] == sum(s["buffers"].values())
@@ -1332,7 +1334,7 @@ def test_restir_bdpt_session(daemon):
         st = post_frame(daemon, s, accept="application/json").json()
         b = st["restir_bdpt"]
         assert b["light_subpaths"] == n and b["light_vertices"] >= b["light_traced"] > 0 and b["lt_dropped"] == 0
-        assert b["caustic_samples"] > 0 and b["camera_candidates"] > 0 and b["reservoir_bytes"] == 3 * 28 * n
+        assert b["caustic_samples"] > 0 and b["camera_candidates"] > 0 and b["reservoir_bytes"] == (80 + 2 * 28) * n
         assert set(b["shift_failures"]) == {"replay", "not_caustic", "inverse"}
         assert (b["caustic_shifts"] > 0) == (i > 0), (i, b)
         assert st["nonfinite"] == 0 and st["samples"] == n and "passes" not in st and "bdpt" not in st
