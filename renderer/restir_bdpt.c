@@ -748,14 +748,28 @@ static enum rbdpt_replay rbdpt_replay_caustic(const struct rbdpt_ctx *c, const s
 /* ---- camera pass: each pixel's candidates (s = 0, s = 1) and its light-traced bucket -------- */
 
 /* With `want` set, the camera subpath is a random replay (the shift of a camera-path sample
- * without a reconnection): no candidate is resampled, and the contribution of the one whose
- * technique and length are want->bits is returned in want->C (want->found). The replayed
- * candidate must have no reconnection either: the hybrid shift's replay-only class maps onto
- * itself, or the shift would not be invertible. */
+ * without a reconnection, or the re-traced suffix of one with): no candidate is resampled, and
+ * the contribution of the one whose technique and length are want->bits is returned in want->C
+ * (want->found), its reconnection record in want->rc. Its reconnection must be at want->k (0:
+ * none): the hybrid shift's classes map onto themselves, or the shift would not be
+ * invertible. */
 struct rbdpt_want {
     uint16_t bits;
+    uint32_t k;
     bool found;
     struct vec3 C;
+    struct restir_bdpt_rc rc;
+};
+
+/* A camera subpath resumed past its reconnection vertex x_k (k >= 2): the hybrid shift between
+ * frames whose scenes differ re-traces the suffix in the target scene from x_k along w_k with the
+ * sample's own random numbers (the rng given is advanced to vertex k + 1), as ReSTIR PT does.
+ * The state after x_k's scattering on the shifted path, and x_k's record (k, point code, w_k,
+ * Jacobian denominator); L and the MIS constants are found anew. */
+struct rbdpt_resume {
+    struct vec3 org, dir, prev_p, beta;
+    struct restir_bdpt_mis mis;
+    struct restir_bdpt_rc rc;
 };
 
 /* Offers a camera-side candidate of contribution C and resampling weight w to the reservoir, or
@@ -767,8 +781,9 @@ static bool rbdpt_offer(struct rbdpt_ris *r, struct rbdpt_want *want, struct vec
 {
     if (want) {
         if (want->bits != bits) return false;
-        want->found = !rc || rc->k == 0;
+        want->found = (rc ? rc->k : 0u) == want->k;
         want->C = C;
+        if (rc) want->rc = *rc;
         return true;
     }
     wk->candidates++;
@@ -788,7 +803,8 @@ static bool rbdpt_offer(struct rbdpt_ris *r, struct rbdpt_want *want, struct vec
 static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdpt_view *v, struct vec3 dir,
                                     uint32_t pixel, uint32_t frame, struct rng *rng, struct rng *pick,
                                     struct rbdpt_ris *r, struct ray_counters *rc, struct rbdpt_worker *wk,
-                                    struct vec3 *primary, bool *has_primary, struct rbdpt_want *want)
+                                    struct vec3 *primary, bool *has_primary, struct rbdpt_want *want,
+                                    const struct rbdpt_resume *resume)
 {
     *has_primary = false;
     const struct scene *scene = v->scene;
@@ -798,7 +814,7 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
     const bool track = p->reuse && !c->full;
     struct vec3 beta = vec3_splat(1.0f);
     double src = 1.0;   /* track: the product of the roulette's survival probabilities so far */
-    float cos0 = vec3_dot(dir, cam->forward);
+    float cos0 = resume ? 1.0f : vec3_dot(dir, cam->forward);
     if (!(cos0 > 0.0f)) return;
     struct restir_bdpt_mis mis = restir_bdpt_mis_camera_start(c->n_light, v->plane_dist2 / (cos0 * cos0 * cos0),
                                                                   c->power);
@@ -815,8 +831,18 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
     struct vec3 prev_wo = {0, 0, 0}, prev_beta = beta;
     struct restir_bdpt_mis prev_mis = mis;
     bool prev_rough = false;
+    uint32_t first = 0;
+    if (resume) {
+        org = resume->org;
+        dir = resume->dir;
+        prev_p = resume->prev_p;
+        beta = resume->beta;
+        mis = resume->mis;
+        rc_k = resume->rc;
+        first = rc_k.k;
+    }
 
-    for (uint32_t depth = 0;; depth++) {
+    for (uint32_t depth = first;; depth++) {
         struct hit hit;
         if (!accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, &hit, rc)) break;
         struct surface s;
@@ -1006,8 +1032,9 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
  * x_k, whose suffix is kept. Its contribution, the Jacobian p'_{k-1} G' p'_k / (p_{k-1} G p_k)
  * (Appendix C), and the shifted path's own denominator (*pdf, for its later shifts); false when
  * the shift fails. */
-static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct restir_bdpt_path *src,
-                            uint32_t pixel, struct vec3 *C, float *J, float *pdf, struct ray_counters *rays)
+static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct scene *scene_from,
+                            const struct restir_bdpt_path *src, uint32_t pixel, struct vec3 *C, float *J,
+                            struct restir_bdpt_rc *rc_out, struct ray_counters *rays)
 {
     const struct scene *scene = v->scene;
     const struct camera *cam = &v->cam;
@@ -1078,7 +1105,9 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
     float fwd = material_pdf(mk, wo_k, wk), rev = material_pdf(mk, wk, wo_k);
     if (vec3_is_zero(fk)) return false;
     struct vec3 factor_k;
-    float B, mis_w;
+    float B, mis_w = 1.0f;
+    const bool retrace = scene_from != scene && !c->static_scene;
+    if (retrace && nee && k + 1 == e) return false;   /* its light sample is the other scene's */
     if (nee && k + 1 == e) {
         /* w_k is the light sample's direction, drawn independently of w_o: p_k = 1. */
         factor_k = vec3_scale(fk, fabsf(wk.z));
@@ -1089,15 +1118,36 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
         factor_k = vec3_scale(fk, fabsf(wk.z) / fwd);
         B = fwd;
         restir_bdpt_mis_scatter(&mis, vec3_dot(wk_world, sk.ng), fwd, rev, false, c->power);
-        mis_w = restir_bdpt_mis_reconnect(k + 1 == e ? RBDPT_RC_EMIT_LAST : RBDPT_RC_AFTER, src->rc.mis_a,
-                                          src->rc.mis_b, &mis, fwd, rev, c->power);
+        if (!retrace)
+            mis_w = restir_bdpt_mis_reconnect(k + 1 == e ? RBDPT_RC_EMIT_LAST : RBDPT_RC_AFTER, src->rc.mis_a,
+                                              src->rc.mis_b, &mis, fwd, rev, c->power);
     }
     if (!(mis_w > 0.0f) || !isfinite(mis_w)) return false;
     if (!bdpt_visible(scene->accel, s.p, s.ng, sk.p, &sk.ng, rays)) return false;
-    *C = vec3_scale(vec3_mul(vec3_mul(beta, vec3_scale(f1, fabsf(wi.z) / p1)), vec3_mul(factor_k, src->rc.L)), mis_w);
-    *pdf = p1 * fabsf(cos_k) / d2 * B;
-    *J = *pdf / src->rc.pdf;
-    return isfinite(*J) && *J > 0.0f;
+    *rc_out = src->rc;
+    rc_out->pdf = p1 * fabsf(cos_k) / d2 * B;
+    struct vec3 head = vec3_mul(beta, vec3_scale(f1, fabsf(wi.z) / p1));
+    if (retrace) {
+        /* The suffix in this scene: x_k's scattering along w_k, then the rest as the sample's own
+         * random numbers trace it (vertices 1 .. k drew 7 numbers each after the jitter's 2). */
+        struct rng r2 = rng_make(c->seed, src->r.origin_frame, RBDPT_CAMERA_STREAM + src->r.light_path, 0);
+        for (uint32_t n = 0; n < 2 + 7 * k; n++) rng_next_float(&r2);
+        const struct rbdpt_resume resume = {.org = bdpt_origin(&sk, wk_world), .dir = wk_world, .prev_p = sk.p,
+                                            .beta = vec3_mul(head, factor_k), .mis = mis, .rc = *rc_out};
+        struct rbdpt_want want = {.bits = src->r.head.bits, .k = k, .found = false};
+        struct vec3 primary;
+        bool has_primary;
+        rbdpt_camera_candidates(c, v, wk_world, src->r.light_path, src->r.origin_frame, &r2, NULL, NULL, rays, NULL,
+                                &primary, &has_primary, &want, &resume);
+        if (!want.found) return false;
+        *C = want.C;
+        *rc_out = want.rc;
+    } else {
+        *C = vec3_scale(vec3_mul(head, vec3_mul(factor_k, src->rc.L)), mis_w);
+    }
+    *J = rc_out->pdf / src->rc.pdf *
+         surface_area_ratio(scene_from, scene, src->rc.shape, src->rc.prim, src->rc.b1, src->rc.b2);
+    return isfinite(*J) && *J > 0.0f && vec3_is_finite(*C);
 }
 
 /* The reverse hybrid shift of a non-caustic t = 1 sample whose x_2 has only rough lobes (seed
@@ -1200,24 +1250,18 @@ static void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain
         ok = stored == 1 && !out.caustic && !out.hybrid && out.pixel == to.pixel;
         if (ok) C = out.F;
     } else if (src->rc.k >= 2) {
-        /* Between scenes that differ the kept suffix would carry the other scene's light, and a
-         * replay of the sample's random numbers would not give its path back (the reconnection
-         * changed the numbers that x_{k-1} and x_k stand for): no shift there. */
-        if (from.frame == to.frame || c->static_scene) {
-            float pdf;
-            ok = rbdpt_reconnect(c, v, src, to.pixel, &C, jacobian, &pdf, &cnt->rays);
-            if (ok) rc.pdf = pdf;
-            atomic_fetch_add_explicit(c->reconnections, 1, memory_order_relaxed);
-        }
+        ok = rbdpt_reconnect(c, v, c->view[from.frame == RESTIR_PREVIOUS ? 1 : 0].scene, src, to.pixel, &C, jacobian,
+                             &rc, &cnt->rays);
+        atomic_fetch_add_explicit(c->reconnections, 1, memory_order_relaxed);
     } else {
         struct rng rng = rng_make(c->seed, src->r.origin_frame, RBDPT_CAMERA_STREAM + src->r.light_path, 0);
         float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
         struct vec3 dir = camera_ray_dir(&v->cam, (float)(to.pixel % w) + jx, (float)(to.pixel / w) + jy);
-        struct rbdpt_want want = {.bits = src->r.head.bits, .found = false};
+        struct rbdpt_want want = {.bits = src->r.head.bits, .k = 0, .found = false};
         struct vec3 primary;
         bool has_primary;
         rbdpt_camera_candidates(c, v, dir, src->r.light_path, src->r.origin_frame, &rng, NULL, NULL, &cnt->rays,
-                                NULL, &primary, &has_primary, &want);
+                                NULL, &primary, &has_primary, &want, NULL);
         ok = want.found;
         C = want.C;
     }
@@ -1313,7 +1357,7 @@ static void rbdpt_camera_tile(void *ctx, uint32_t tile, unsigned worker)
             struct vec3 primary = {0, 0, 0};
             bool has_primary;
             rbdpt_camera_candidates(c, &c->view[0], dir, pixel, c->frame, &rng, &pick, &r, &rc, wk, &primary,
-                                    &has_primary, NULL);
+                                    &has_primary, NULL, NULL);
             /* The pixel's bucket of light-traced samples (eq. 26: C carries 1/N_L). */
             for (uint32_t k = st->pixel_first[pixel]; k < st->pixel_first[pixel + 1]; k++) {
                 const struct restir_bdpt_lt_sample *ls = &st->lt_sorted[k];
@@ -1613,8 +1657,8 @@ static struct rbdpt_ctx *rbdpt_test_ctx(struct restir_bdpt_state *st, const stru
 }
 
 int restir_bdpt_shift_round_trip(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
-                                 const struct restir_bdpt_frame *f, uint32_t pixel, uint32_t to,
-                                 float target[3], float *jj)
+                                 const struct restir_bdpt_frame *f, const struct restir_bdpt_frame *f_to,
+                                 uint32_t pixel, uint32_t to, float target[3], float *jj)
 {
     if (!st->res_prev) return -1;
     const struct restir_bdpt_path *x = &st->res_prev[pixel];   /* the frame just rendered */
@@ -1625,7 +1669,13 @@ int restir_bdpt_shift_round_trip(struct restir_bdpt_state *st, const struct rest
     const bool lt = (x->r.head.bits & 0xffu) == RESTIR_BDPT_TECH_LT;
     const int kind = lt ? (x->rc.k ? 1 : 0) : (x->rc.k >= 2 ? 2 : 0);
     struct restir_counters cnt = {{0, 0}, 0, 0, 0};
-    const struct restir_domain dp = {pixel, RESTIR_CURRENT}, dq = {to, RESTIR_CURRENT};
+    if (f_to) {
+        c->view[1].scene = f_to->scene;
+        camera_init(&c->view[1].cam, f_to->camera, st->width, st->height);
+        c->view[1].plane_dist2 = c->view[0].plane_dist2;
+        c->static_scene = f_to->scene == f->scene;
+    }
+    const struct restir_domain dp = {pixel, RESTIR_CURRENT}, dq = {to, f_to ? RESTIR_PREVIOUS : RESTIR_CURRENT};
     struct restir_bdpt_path y, z;
     float j1 = 0.0f, j2 = 0.0f;
     target[0] = vec3_luminance(x->r.F);

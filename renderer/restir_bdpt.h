@@ -266,13 +266,15 @@ bool restir_bdpt_caustic_replay(struct restir_bdpt_state *st, const struct resti
                                 uint32_t depth, uint32_t *pixel, struct vec3 *F);
 
 /* For tests, with reuse: the non-caustic sample that the frame just rendered left in `pixel`
- * shifted into pixel `to` of the same frame (f's scene and camera) and back. target[0..2]: its
+ * shifted into pixel `to` of the same frame (f's scene and camera), or with f_to of a frame of
+ * f_to's scene and camera (as the previous frame: a scene that differs makes a reconnected
+ * sample's suffix be traced again there), and back. target[0..2]: its
  * target, the shifted one's, the one shifted back (0 where a shift failed); *jj: the product of
  * the two Jacobians. Returns the shift kind: 2 the hybrid shift (camera side), 1 the reverse
  * hybrid shift (t = 1), 0 random replay; -1 when the pixel holds no sample. */
 int restir_bdpt_shift_round_trip(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
-                                 const struct restir_bdpt_frame *f, uint32_t pixel, uint32_t to,
-                                 float target[3], float *jj);
+                                 const struct restir_bdpt_frame *f, const struct restir_bdpt_frame *f_to,
+                                 uint32_t pixel, uint32_t to, float target[3], float *jj);
 
 /* The lightweight MIS state a subpath carries (SmallVCM's dVCM / dVC restricted to the
  * techniques s = 0, s = 1, t = 1; see restir_bdpt.c). Exposed for the unit test. With `full`

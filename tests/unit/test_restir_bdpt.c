@@ -586,7 +586,8 @@ static void test_caustic_replay_round_trip(void)
  * the two Jacobians multiply to 1 — for the hybrid shift of camera-side samples, the reverse
  * hybrid shift of light-traced ones and random replay alike. Both kinds of reconnection must
  * occur. */
-static void shift_round_trips(const char *path, struct camera_desc cam, uint32_t light_paths, uint32_t need[3])
+static void shift_round_trips(const char *path, struct camera_desc cam, uint32_t light_paths, uint32_t need[3],
+                              const char *light_name)
 {
     struct scene *sc = load(path);
     if (!sc) return;
@@ -606,12 +607,29 @@ static void shift_round_trips(const char *path, struct camera_desc cam, uint32_t
         f.prev_camera = k ? &cam : NULL;
         CHECK_MSG(restir_bdpt_render(&st, &p, &f, &img, NULL, &err), "%s", err.message);
     }
+    /* With light_name: into a scene whose light moved (and back), in the same pixel: the hybrid
+     * shift traces a reconnected sample's suffix again there. */
+    struct scene *moved = NULL;
+    if (light_name) {
+        int light = scene_find_shape(sc, light_name);
+        CHECK(light >= 0);
+        struct scene_shape_override o = {.shape = (uint32_t)light, .has_to_world = true};
+        o.to_world = sc->shapes[light].to_world;
+        o.to_world.m[0][3] += 0.02f;
+        o.to_world.m[1][3] += 0.01f;
+        moved = scene_derive(sc, &o, 1, &err);
+        CHECK_MSG(moved != NULL, "%s", err.message);
+        if (!moved) return;
+    }
+    struct restir_bdpt_frame f_moved = f;
+    f_moved.scene = moved;
     uint32_t there[3] = {0, 0, 0}, back[3] = {0, 0, 0}, wrong = 0;
     double worst = 0.0;
     for (uint32_t y = 0; y + 1 < H; y++) {
         for (uint32_t x = 0; x + 3 < W; x++) {
             float t[3], jj;
-            int kind = restir_bdpt_shift_round_trip(&st, &p, &f, y * W + x, (y + 1) * W + x + 3, t, &jj);
+            int kind = moved ? restir_bdpt_shift_round_trip(&st, &p, &f, &f_moved, y * W + x, y * W + x, t, &jj)
+                             : restir_bdpt_shift_round_trip(&st, &p, &f, NULL, y * W + x, (y + 1) * W + x + 3, t, &jj);
             if (kind < 0 || !(t[1] > 0.0f)) continue;
             there[kind]++;
             if (!(t[2] > 0.0f)) continue;
@@ -621,13 +639,14 @@ static void shift_round_trips(const char *path, struct camera_desc cam, uint32_t
             wrong += e > 2e-3;
         }
     }
-    printf("    %s: shifted there / and back: reverse hybrid %u / %u, hybrid %u / %u, replay %u / %u; worst relative "
-           "error %.2g, %u over 2e-3\n",
-           path, there[1], back[1], there[2], back[2], there[0], back[0], worst, wrong);
+    printf("    %s%s: shifted there / and back: reverse hybrid %u / %u, hybrid %u / %u, replay %u / %u; worst "
+           "relative error %.2g, %u over 2e-3\n",
+           path, moved ? ", light moved" : "", there[1], back[1], there[2], back[2], there[0], back[0], worst, wrong);
     for (int k = 0; k < 3; k++) CHECK(there[k] >= need[k] && back[k] * 100 >= there[k] * 99);
     CHECK(wrong == 0);
     restir_bdpt_destroy(&st);
     image_destroy(&img);
+    if (moved) scene_release(moved);
     scene_release(sc);
 }
 
@@ -638,11 +657,15 @@ static void test_shift_round_trips(void)
     shift_round_trips("scenes/lamp-in-glass/scene.json",
                       (struct camera_desc){.position = {0, 1.45f, -1.8f}, .look_at = {0, 0.68f, 1.2f}, .up = {0, 1, 0},
                                            .fov_deg = 4},
-                      0, (uint32_t[3]){20, 20, 20});
+                      0, (uint32_t[3]){20, 20, 20}, NULL);
     shift_round_trips("scenes/caustic-sphere/scene.json",
                       (struct camera_desc){.position = {-2.0f, 0.6f, -0.1f}, .look_at = {-0.45f, 0, -0.05f},
                                            .up = {0, 1, 0}, .fov_deg = 6},
-                      8192, (uint32_t[3]){5, 0, 20});
+                      8192, (uint32_t[3]){5, 0, 20}, NULL);
+    shift_round_trips("scenes/caustic-sphere/scene.json",
+                      (struct camera_desc){.position = {-2.0f, 0.6f, -0.1f}, .look_at = {-0.45f, 0, -0.05f},
+                                           .up = {0, 1, 0}, .fov_deg = 6},
+                      8192, (uint32_t[3]){5, 0, 20}, "light");
 }
 
 /* Paired: the same sessions (same seeds, so the same non-caustic reservoirs frame by frame) with
