@@ -47,6 +47,11 @@
 #define RBDPT_LIGHT_STREAM 0x52424c0000000000ull
 #define RBDPT_CAMERA_STREAM 0x5242430000000000ull
 #define RBDPT_PICK_STREAM 0x5242500000000000ull
+/* A lightweight camera subpath's random numbers (rbdpt_camera_candidates): the jitter's 2, then
+ * per vertex the light sample's 3, the BSDF sample's 3 and the roulette's 1. The shifts that
+ * replay part of a subpath (rbdpt_reconnect) draw them in the same order. */
+#define RBDPT_CAMERA_JITTER_DRAWS 2u
+#define RBDPT_CAMERA_VERTEX_DRAWS 7u
 
 _Static_assert(sizeof(struct restir_bdpt_reservoir) == RESTIR_BDPT_RESERVOIR_BYTES, "restir_bdpt_reservoir changed size");
 _Static_assert(sizeof(struct restir_bdpt_shifted) == 32, "restir_bdpt_shifted changed size");
@@ -1129,9 +1134,10 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
     struct vec3 head = vec3_mul(beta, vec3_scale(f1, fabsf(wi.z) / p1));
     if (retrace) {
         /* The suffix in this scene: x_k's scattering along w_k, then the rest as the sample's own
-         * random numbers trace it (vertices 1 .. k drew 7 numbers each after the jitter's 2). */
+         * random numbers trace it (those of vertices 1 .. k skipped). */
         struct rng r2 = rng_make(c->seed, src->r.origin_frame, RBDPT_CAMERA_STREAM + src->r.light_path, 0);
-        for (uint32_t n = 0; n < 2 + 7 * k; n++) rng_next_float(&r2);
+        const uint32_t skip = RBDPT_CAMERA_JITTER_DRAWS + RBDPT_CAMERA_VERTEX_DRAWS * k;
+        for (uint32_t n = 0; n < skip; n++) rng_next_float(&r2);
         const struct rbdpt_resume resume = {.org = bdpt_origin(&sk, wk_world), .dir = wk_world, .prev_p = sk.p,
                                             .beta = vec3_mul(head, factor_k), .mis = mis, .rc = *rc_out};
         struct rbdpt_want want = {.bits = src->r.head.bits, .k = k, .found = false};

@@ -34,8 +34,10 @@
  * subpath (Jacobian 1 in primary sample space), its lightweight MIS weight recomputed on the new
  * path, and must stay without one. Russian roulette is decoupled from the primary sample space
  * for these samples (seed 001 §6): it divides the initial resampling weight, never the
- * contribution, and a shift never rolls it. Between frames whose scenes differ a sample with a
- * reconnection does not shift (its kept suffix carries the other scene's light). A t = 1 sample's
+ * contribution, and a shift never rolls it. Between frames whose scenes differ the kept suffix
+ * would carry the other scene's light: there the suffix is traced again from x_k along w_k with
+ * the sample's own random numbers (as ReSTIR PT does), except for an s = 1 sample whose light
+ * sample leaves x_k itself, which does not shift there. A t = 1 sample's
  * light subpath is replayed and the shift succeeds only when it lands in the target pixel again
  * and is still non-caustic; one whose x_2 has only rough lobes instead shifts by the reverse
  * hybrid shift (§6.1): its light subpath is replayed up to x'_2 and joined to the surface the eye
@@ -46,9 +48,9 @@
  * non-caustic reuse for the full variant (`reuse` is refused naming /params/reuse); the "copy
  * MIS weight" variant; the switchable rejection of non-caustic t <= 1 samples that cannot shift
  * to the pixel's primary hit (a t = 1 sample here shifts to the surface seen through the same
- * sub-pixel position, not to a G-buffer's primary hit, so none has to be rejected); re-tracing
- * a reconnected camera-side sample's suffix in a moved scene. The full variant's caustic reservoirs are reused as the lightweight
- * one's, with the full MIS weight of the replayed t = 1 sample.
+ * sub-pixel position, not to a G-buffer's primary hit, so none has to be rejected). The full
+ * variant's caustic reservoirs are reused as the lightweight one's, with the full MIS weight of
+ * the replayed t = 1 sample.
  * Scenes with environment light or translucent materials are refused, as by `bdpt`. */
 #ifndef RESTIRD_RESTIR_BDPT_H
 #define RESTIRD_RESTIR_BDPT_H

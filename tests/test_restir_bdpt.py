@@ -64,9 +64,9 @@ def _sessions(scene_path, tmp_path, method, params, anim, seed0):
 
 # The defaults (caustic reuse only) and the full variant on every case; the non-caustic reuse
 # (`reuse`) on lamp-in-glass, whose table top exercises it most: with the filament still (hybrid
-# shifts in the temporal and the spatial pass) and moving (a sample with a reconnection does not
-# shift between frames whose scenes differ; spatial hybrid shifts only). All four cases pass with
-# it; two keep the test's time down.
+# shifts in the temporal and the spatial pass) and moving (between frames the reconnected
+# samples' suffixes are traced again in the moved scene). All four cases pass with it; two keep
+# the test's time down.
 MATCH_CASES = ([(scene, moving, False, "lightweight") for scene in CASES for moving in (False, True)] +
                [("lamp-in-glass", moving, True, "lightweight") for moving in (False, True)] +
                [(scene, moving, False, "full") for scene in CASES for moving in (False, True)])
