@@ -145,7 +145,9 @@ def moving(tmp):
     # caustics do not.
     methods = [("pt, 1 spp", ["--spp", "1"]), *SESSIONS,
                ("restir_bdpt, cap 4 while moving", ["--method", "restir_bdpt", "--params", '{"moving_cap": 4}']),
-               ("restir_bdpt, cap 20 while moving", ["--method", "restir_bdpt", "--params", '{"moving_cap": 20}'])]
+               ("restir_bdpt, cap 20 while moving", ["--method", "restir_bdpt", "--params", '{"moving_cap": 20}']),
+               ("restir_bdpt, reuse, no camera-side reconnection",
+                ["--method", "restir_bdpt", "--params", '{"reuse": true, "camera_reconnect": false}'])]
     series = {m: {"mape": [], "caustic_mape": []} for m, _ in methods}
     refs = []
     for i in range(frames):

@@ -165,7 +165,8 @@ struct restir_bdpt_params restir_bdpt_defaults(void)
                                        .light_paths = 0, .lt_capacity = 8, .lvc_capacity = 8,
                                        .heuristic = BDPT_HEURISTIC_POWER,
                                        .caustic_temporal = true, .temporal_cap = 20, .moving_cap = 1, .reuse = false,
-                                       .spatial_neighbors = 2, .spatial_radius = 30.0f, .paired_spatial = true};
+                                       .spatial_neighbors = 2, .spatial_radius = 30.0f, .paired_spatial = true,
+                                       .camera_reconnect = true};
 }
 
 bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *err)
@@ -886,7 +887,7 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
         }
         if (depth >= p->max_depth) break;
         struct vec3 wo_world = vec3_neg(dir);
-        const bool rough = track && rbdpt_rough(m);
+        const bool rough = track && p->camera_reconnect && rbdpt_rough(m);
         if (rough && prev_rough && rc_k.k == 0) {
             /* x_{depth+1} is x_k: its predecessor's scattering is redone along the segment between
              * the two positions, as a shift evaluates it (the sampled ray left from an offset

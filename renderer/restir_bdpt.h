@@ -93,6 +93,8 @@ struct restir_bdpt_params {
     float spatial_radius;      /* with reuse: pixels, (0, 256] (30) */
     bool paired_spatial;       /* with reuse: neighbours paired so a pair's shifts serve both (true;
                                   restir.h) */
+    bool camera_reconnect;     /* with reuse: camera-side samples reconnect (the hybrid shift); false:
+                                  they shift by random replay alone (true) */
 };
 
 struct restir_bdpt_params restir_bdpt_defaults(void);
