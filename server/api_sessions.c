@@ -203,7 +203,7 @@ static void api_write_session(struct jsonw *w, struct session *s)
     jsonw_key(w, "reservoir_bytes_per_pixel");
     jsonw_uint(w, p->method == RENDER_METHOD_RESTIR_PT    ? RESTIR_PT_RESERVOIR_BYTES
                   : p->method == RENDER_METHOD_RESTIR_SSS ? RESTIR_SSS_RESERVOIR_BYTES
-                  : p->method == RENDER_METHOD_RESTIR_BDPT ? RESTIR_BDPT_RESERVOIR_BYTES
+                  : p->method == RENDER_METHOD_RESTIR_BDPT ? RESTIR_BDPT_PATH_BYTES
                   : p->method == RENDER_METHOD_RESTIR_SMS ? RESTIR_SMS_RESERVOIR_BYTES
                                                           : 0);
     jsonw_key(w, "buffers");

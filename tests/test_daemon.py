@@ -1326,7 +1326,7 @@ def test_restir_bdpt_session(daemon):
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
                                  "caustic_shifts", "pixel_buckets", "light_blocks"}
     n = 32 * 24
-    assert s["reservoir_bytes_per_pixel"] == 28 and s["reservoir_bytes"] == (80 + 2 * 28) * n
+    assert s["reservoir_bytes_per_pixel"] == 80 and s["reservoir_bytes"] == (80 + 2 * 28) * n
     # 768 light subpaths: 3 blocks of 256, 8 samples of 24 bytes each, per-block and sorted.
     assert s["buffers"]["light_traced_samples"] == 2 * 3 * 256 * 8 * 24
     assert s["memory_bytes"] == sum(s["buffers"].values())
