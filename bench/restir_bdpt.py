@@ -26,9 +26,17 @@ run, on lamp-in-glass and caustic-sphere (BENCH_RBDPT_SCENES) at 256x256 (BENCH_
   5. writes build/bench/restir_bdpt.json, the charts build/bench/restir_bdpt_<scene>.svg (MAPE
      vs ms, log-log) and build/bench/restir_bdpt_moving.svg, caustic_moving.svg (per frame),
      and prints Markdown tables (medians over the seeds).
+  6. the biased switches (`--biased` runs this part alone): `copy_mis` and `reject_unshiftable`
+     beside the unbiased non-caustic reuse, BIAS_SESSIONS sessions of BIAS_FRAMES frames each
+     at BIAS_SIZE on both scenes, the three variants of a seed rendered one after the other
+     with the same seed, so their difference is mostly the bias: the whole image's mean
+     relative to the unbiased one's with its paired t, the darkest 8x8-pixel block's, how many
+     blocks are darker by over 3 standard errors, and the frame time.
 QUICK=1: 64x64, 1 seed, 1-16 frames, references of 256 frames (128 per moving-light frame),
 warm-up 16: a few minutes on 2 cores. Environment: BENCH_RBDPT_SEEDS (2), BENCH_RBDPT_REF_FRAMES
-(512), BENCH_RBDPT_WARMUP (32), BENCH_RBDPT_ANIM_REF_FRAMES (256), BENCH_THREADS (all cores).
+(512), BENCH_RBDPT_WARMUP (32), BENCH_RBDPT_ANIM_REF_FRAMES (256), BENCH_RBDPT_BIAS_SIZE (64x64),
+BENCH_RBDPT_BIAS_SESSIONS (16; 4 with QUICK), BENCH_RBDPT_BIAS_FRAMES (32), BENCH_THREADS (all
+cores).
 `bench/restir_bdpt.py --charts` redraws the charts from the last run's JSON."""
 import json
 import os
@@ -57,6 +65,12 @@ WARMUP = int(os.environ.get("BENCH_RBDPT_WARMUP", "16" if QUICK else "32"))
 ANIM_REF_FRAMES = int(os.environ.get("BENCH_RBDPT_ANIM_REF_FRAMES", "128" if QUICK else "256"))
 COUNTS = [1, 2, 4, 8, 16] if QUICK else [1, 2, 4, 8, 16, 32]
 ANIMATION = ROOT / "scenes" / "caustic-sphere" / "animations" / "light-path.json"
+BIAS_SIZE = os.environ.get("BENCH_RBDPT_BIAS_SIZE", "64x64")
+BIAS_SESSIONS = int(os.environ.get("BENCH_RBDPT_BIAS_SESSIONS", "4" if QUICK else "16"))
+BIAS_FRAMES = int(os.environ.get("BENCH_RBDPT_BIAS_FRAMES", "32"))
+# The biased switches of the non-caustic reuse, each against the unbiased reuse (the first).
+BIASED = [("reuse", {"reuse": True}), ("copy_mis", {"reuse": True, "copy_mis": True}),
+          ("reject_unshiftable", {"reuse": True, "reject_unshiftable": True})]
 
 # (label, CLI arguments) of the session methods; frames are averaged over a session's first n.
 SESSIONS = [("bdpt", ["--method", "bdpt"]), ("restir_pt", ["--method", "restir_pt"]),
@@ -169,6 +183,56 @@ def moving(tmp):
     return {"frames": frames, "fps": fps, "ref_frames": ANIM_REF_FRAMES, "series": series}
 
 
+def biased(tmp):
+    """Each biased switch against the unbiased reuse, paired by seed (part 6 of the docstring)."""
+    out = {}
+    for scene in SCENES:
+        scene_path = ROOT / "scenes" / scene / "scene.json"
+        lum = {m: [] for m, _ in BIASED}
+        ms = {m: [] for m, _ in BIASED}
+        dropped = {m: 0 for m, _ in BIASED}
+        for s in range(BIAS_SESSIONS):
+            for m, params in BIASED:
+                img = tmp / "bias.exr"
+                st = run(["render", str(scene_path), "--size", BIAS_SIZE, "--seed", str(2000 + s), "--json", "-o",
+                          str(img), "--method", "restir_bdpt", "--params", json.dumps(params), "--frames",
+                          str(BIAS_FRAMES), "--average-last", str(BIAS_FRAMES)])
+                lum[m].append(read_rgb(img).mean(axis=2))
+                ms[m].append(st["time_ms"] / BIAS_FRAMES)
+                dropped[m] += st["last_frame"]["lt_unshiftable"]
+        base = np.stack(lum[BIASED[0][0]])
+        h, w = base.shape[1:]
+        blocks = lambda a: a[:, :h - h % 8, :w - w % 8].reshape(a.shape[0], h // 8, 8, w // 8, 8).mean(axis=(2, 4))
+        rows = {BIASED[0][0]: {"frame_ms": statistics.median(ms[BIASED[0][0]])}}
+        for m, _ in BIASED[1:]:
+            d = np.stack(lum[m]) - base
+            g = d.mean(axis=(1, 2))
+            t = g.mean() / (g.std(ddof=1) / np.sqrt(len(g))) if g.std(ddof=1) > 0 else 0.0
+            db, bb = blocks(d), blocks(base).mean(axis=0)
+            zb = db.mean(axis=0) / np.maximum(db.std(axis=0, ddof=1) / np.sqrt(len(g)), 1e-12)
+            rows[m] = {"relative": float(g.mean() / base.mean()), "t": float(t),
+                       "darkest_block": float((db.mean(axis=0) / np.maximum(bb, 1e-9)).min()),
+                       "blocks_darker": int((zb < -3).sum()), "blocks": int(zb.size),
+                       "frame_ms": statistics.median(ms[m]), "lt_unshiftable_last_frames": dropped[m]}
+        out[scene] = rows
+        print(f"bench: biased switches on {scene} done", file=sys.stderr, flush=True)
+    return {"size": BIAS_SIZE, "sessions": BIAS_SESSIONS, "frames": BIAS_FRAMES, "scenes": out}
+
+
+def print_biased(b):
+    print(f"\nBiased switches against the unbiased reuse ({b['size']}, {b['sessions']} sessions of {b['frames']} "
+          f"frames each, paired by seed): image mean relative to reuse's (paired t), darkest 8x8 block, blocks "
+          f"darker by over 3 standard errors, frame ms (reuse's in brackets)\n")
+    print("| scene | switch | image mean | darkest block | blocks darker | frame ms |")
+    print("|---|---|---|---|---|---|")
+    for scene, rows in b["scenes"].items():
+        for m, r in rows.items():
+            if m == BIASED[0][0]:
+                continue
+            print(f"| {scene} | {m} | {r['relative']:+.4f} (t {r['t']:.1f}) | {r['darkest_block']:+.4f} | "
+                  f"{r['blocks_darker']} of {r['blocks']} | {r['frame_ms']:.1f} ({rows[BIASED[0][0]]['frame_ms']:.1f}) |")
+
+
 def charts(results):
     for scene, r in results["scenes"].items():
         loglog(OUT / f"restir_bdpt_{scene}.svg", f"{scene}, {results['size']}: MAPE against time",
@@ -189,6 +253,12 @@ def main():
         charts(json.loads((OUT / "restir_bdpt.json").read_text()))
         return
     OUT.mkdir(parents=True, exist_ok=True)
+    if sys.argv[1:] == ["--biased"]:
+        with tempfile.TemporaryDirectory() as td:
+            b = biased(Path(td))
+        (OUT / "restir_bdpt_biased.json").write_text(json.dumps(b, indent=1) + "\n")
+        print_biased(b)
+        return
     results = {"size": SIZE, "seeds": SEEDS, "ref_frames": REF_FRAMES, "warmup": WARMUP, "quick": QUICK,
                "threads": bdpt_bench.THREADS, "scenes": {}}
     with tempfile.TemporaryDirectory() as td:
@@ -211,6 +281,7 @@ def main():
             results["scenes"][scene] = r
         if os.environ.get("BENCH_RBDPT_MOVING", "1") != "0":
             results["moving"] = moving(tmp)
+        results["biased"] = biased(tmp)
     (OUT / "restir_bdpt.json").write_text(json.dumps(results, indent=1) + "\n")
     charts(results)
 
@@ -248,6 +319,7 @@ def main():
             for lo in (0, 10, 25):
                 cells.append(f"{np.mean(s['mape'][lo:lo + 5]):.3f} / {np.nanmean(s['caustic_mape'][lo:lo + 5]):.3f}")
             print(f"| {m} | " + " | ".join(cells) + " |")
+    print_biased(results["biased"])
     names = [f"restir_bdpt_{s}.svg" for s in results["scenes"]] + (
         ["restir_bdpt_moving.svg", "restir_bdpt_caustic_moving.svg"] if mv else [])
     print(f"\ncharts: {', '.join(str(OUT / n) for n in names)}")

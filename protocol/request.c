@@ -747,7 +747,8 @@ static const struct protocol_field restir_bdpt_fields[] = {
     F(lt_capacity, PROTOCOL_UINT), F(lvc_capacity, PROTOCOL_UINT), F(caustic_temporal, PROTOCOL_BOOL),
     F(temporal_cap, PROTOCOL_UINT),
     F(moving_cap, PROTOCOL_UINT), F(reuse, PROTOCOL_BOOL), F(spatial_neighbors, PROTOCOL_UINT), F(spatial_radius, PROTOCOL_FLOAT),
-    F(paired_spatial, PROTOCOL_BOOL), F(camera_reconnect, PROTOCOL_BOOL),
+    F(paired_spatial, PROTOCOL_BOOL), F(camera_reconnect, PROTOCOL_BOOL), F(copy_mis, PROTOCOL_BOOL),
+    F(reject_unshiftable, PROTOCOL_BOOL),
 };
 #undef F
 #define F(key, kind) REQUEST_FIELD(struct restir_sss_params, key, kind)
@@ -832,7 +833,8 @@ static bool request_restir_bdpt_params(const cJSON *pv, const char *ptr, struct 
     static const char *const keys[] = {"variant", "max_depth", "rr_depth", "light_paths", "lt_capacity", "lvc_capacity",
                                        "heuristic",
                                        "caustic_temporal", "temporal_cap", "moving_cap", "reuse", "spatial_neighbors",
-                                       "spatial_radius", "paired_spatial", "camera_reconnect", NULL};
+                                       "spatial_radius", "paired_spatial", "camera_reconnect", "copy_mis",
+                                       "reject_unshiftable", NULL};
     char p[REQUEST_PTR];
     const cJSON *v;
     if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_bdpt params", err) ||

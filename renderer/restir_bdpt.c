@@ -166,7 +166,8 @@ struct restir_bdpt_params restir_bdpt_defaults(void)
                                        .heuristic = BDPT_HEURISTIC_POWER,
                                        .caustic_temporal = true, .temporal_cap = 20, .moving_cap = 1, .reuse = false,
                                        .spatial_neighbors = 2, .spatial_radius = 30.0f, .paired_spatial = true,
-                                       .camera_reconnect = true};
+                                       .camera_reconnect = true, .copy_mis = false,
+                                       .reject_unshiftable = false};
 }
 
 bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *err)
@@ -177,6 +178,9 @@ bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *er
         return err_set(err, ERR_INVALID, "/params/reuse",
                        "reuse of the non-caustic reservoirs is implemented for the lightweight variant only "
                        "(the full variant's needs the bidirectional hybrid shift, which is not implemented)");
+    if (p->copy_mis && !p->reuse)
+        return err_set(err, ERR_INVALID, "/params/copy_mis",
+                       "copy_mis changes the shifts of the non-caustic reuse: it needs \"reuse\": true");
     /* A sample keeps its vertex count (depth + 2) in 8 bits of head.bits. */
     if (p->max_depth < 1 || p->max_depth > RESTIR_BDPT_MAX_DEPTH)
         return err_set(err, ERR_INVALID, "/params/max_depth", "max_depth must be in 1..%u", RESTIR_BDPT_MAX_DEPTH);
@@ -394,7 +398,7 @@ struct rbdpt_worker {
     _Alignas(64) uint64_t rays_intersect;
     uint64_t rays_occluded, candidates, rejected;
     uint64_t shifts, replay_failed, not_caustic, inverse_failed;
-    uint64_t connections;
+    uint64_t connections, unshiftable;
 };
 
 /* What a frame sees: its scene and camera (the current frame's, or the previous one's for the
@@ -490,7 +494,7 @@ static void rbdpt_ris_finish_path(const struct rbdpt_ris *r, uint16_t M, struct 
 static bool rbdpt_connect_camera(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct surface *s,
                                  const struct material *m, struct vec3 wo_world, struct vec3 beta,
                                  const struct restir_bdpt_mis *mis, struct ray_counters *rc, uint32_t *pixel,
-                                 struct vec3 *value, float sub[2], float *camera_pdf_a_out)
+                                 struct vec3 *value, float sub[2], float *camera_pdf_a_out, float *mis_out)
 {
     const struct camera *cam = &v->cam;
     struct vec3 d = vec3_sub(cam->position, s->p);
@@ -518,6 +522,7 @@ static bool rbdpt_connect_camera(const struct rbdpt_ctx *c, const struct rbdpt_v
     *pixel = iy * cam->width + ix;
     if (sub) sub[0] = px - (float)ix, sub[1] = py - (float)iy;
     if (camera_pdf_a_out) *camera_pdf_a_out = camera_pdf_a;
+    if (mis_out) *mis_out = w;
     return true;
 }
 
@@ -560,7 +565,7 @@ struct rbdpt_x2 {
  * False when it contributes nothing. */
 static bool rbdpt_t1_eval(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct rbdpt_x2 *x2,
                           const struct surface *x1, struct ray_counters *rays, uint32_t *pixel, struct vec3 *C,
-                          float sub[2], float *pdf)
+                          float sub[2], float *pdf, float *mis_w)
 {
     const struct material *m1 = &v->scene->materials[x1->material];
     if (!(material_flags(m1) & (BSDF_DIFFUSE | BSDF_GLOSSY))) return false;
@@ -587,7 +592,7 @@ static bool rbdpt_t1_eval(const struct rbdpt_ctx *c, const struct rbdpt_view *v,
     restir_bdpt_mis_scatter(&mis, cos_i_ng, p2, material_pdf(x2->m, wi, wo), false, c->power);
     restir_bdpt_mis_hit(&mis, d2, cos_1, c->power);
     float camera_pdf_a;
-    if (!rbdpt_connect_camera(c, v, x1, m1, vec3_neg(w), beta, &mis, rays, pixel, C, sub, &camera_pdf_a) ||
+    if (!rbdpt_connect_camera(c, v, x1, m1, vec3_neg(w), beta, &mis, rays, pixel, C, sub, &camera_pdf_a, mis_w) ||
         !vec3_is_finite(*C) || vec3_is_zero(*C))
         return false;
     *pdf = p2 * fabsf(cos_1) / d2 / camera_pdf_a;
@@ -649,8 +654,8 @@ static bool rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view
             struct vec3 val;
             const bool hybrid = track && depth >= 2 && x2_rough;
             float sub[2], pdf;
-            bool made = hybrid ? rbdpt_t1_eval(c, v, &x2, &s, rc, &px, &val, sub, &pdf)
-                               : rbdpt_connect_camera(c, v, &s, m, wo_world, beta, &mis, rc, &px, &val, NULL, NULL) &&
+            bool made = hybrid ? rbdpt_t1_eval(c, v, &x2, &s, rc, &px, &val, sub, &pdf, NULL)
+                               : rbdpt_connect_camera(c, v, &s, m, wo_world, beta, &mis, rc, &px, &val, NULL, NULL, NULL) &&
                                      vec3_is_finite(val) && !vec3_is_zero(val);
             if (made) {
                 if (*stored < cap) {
@@ -879,6 +884,7 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
                     rce.L = last ? Le : vec3_mul(beta_suf, Le);
                     restir_bdpt_rc_mis_emission(&mis, direct_pdf_a, emission_pdf_w, hit_d2, cos_hit, last, suffix.dvc,
                                                 c->power, &rce.mis_a, &rce.mis_b);
+                    if (p->copy_mis) rce.L = vec3_scale(rce.L, w);
                 }
                 if (rbdpt_offer(r, want, C, vec3_luminance(C) / src, (uint16_t)(((depth + 1) << 8) | 0u),
                                 track ? &rce : NULL, pixel, frame, pick, wk))
@@ -954,6 +960,7 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
                             }
                             restir_bdpt_rc_mis_nee(fwd, rev, direct_pdf_w, emission_pdf_w, cos_ng, cos_l, last,
                                                    suffix.dvc, c->power, &rcn.mis_a, &rcn.mis_b);
+                            if (p->copy_mis) rcn.L = vec3_scale(rcn.L, w);
                         }
                         if (rbdpt_offer(r, want, C, vec3_luminance(C) / src, (uint16_t)(((depth + 2) << 8) | 1u),
                                         track ? &rcn : NULL, pixel, frame, pick, wk))
@@ -1118,13 +1125,15 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
         /* w_k is the light sample's direction, drawn independently of w_o: p_k = 1. */
         factor_k = vec3_scale(fk, fabsf(wk.z));
         B = 1.0f;
-        mis_w = restir_bdpt_mis_reconnect(RBDPT_RC_NEE_LAST, src->rc.mis_a, src->rc.mis_b, &mis, fwd, rev, c->power);
+        if (!c->p->copy_mis)
+            mis_w = restir_bdpt_mis_reconnect(RBDPT_RC_NEE_LAST, src->rc.mis_a, src->rc.mis_b, &mis, fwd, rev,
+                                              c->power);
     } else {
         if (!(fwd > 0.0f)) return false;
         factor_k = vec3_scale(fk, fabsf(wk.z) / fwd);
         B = fwd;
         restir_bdpt_mis_scatter(&mis, vec3_dot(wk_world, sk.ng), fwd, rev, false, c->power);
-        if (!retrace)
+        if (!retrace && !c->p->copy_mis)
             mis_w = restir_bdpt_mis_reconnect(k + 1 == e ? RBDPT_RC_EMIT_LAST : RBDPT_RC_AFTER, src->rc.mis_a,
                                               src->rc.mis_b, &mis, fwd, rev, c->power);
     }
@@ -1182,8 +1191,11 @@ static bool rbdpt_reverse(const struct rbdpt_ctx *c, const struct rbdpt_view *v,
     struct surface x1;
     surface_from_hit(v->scene, &hit, cam->position, dir, &x1);
     uint32_t px;
-    if (!rbdpt_t1_eval(c, v, &x2, &x1, rays, &px, C, NULL, pdf) || px != pixel) return false;
+    float mis_w;
+    if (!rbdpt_t1_eval(c, v, &x2, &x1, rays, &px, C, NULL, pdf, &mis_w) || px != pixel) return false;
     if (!bdpt_visible(v->scene->accel, x2.s.p, x2.s.ng, x1.p, &x1.ng, rays)) return false;
+    /* copy_mis: the weight the sample was drawn with (seed 000 §6.4), not the new path's. */
+    if (c->p->copy_mis) *C = vec3_scale(*C, src->rc.mis_a / mis_w);
     *J = *pdf / src->rc.pdf;
     return isfinite(*J) && *J > 0.0f;
 }
@@ -1208,17 +1220,61 @@ static bool rbdpt_reverse_record(const struct rbdpt_ctx *c, struct restir_bdpt_p
     surface_from_hit(v->scene, &hit, org, x2.dir, &x1);
     uint32_t px;
     struct vec3 C;
-    float sub[2], pdf;
-    if (!rbdpt_t1_eval(c, v, &x2, &x1, rays, &px, &C, sub, &pdf)) return false;
+    float sub[2], pdf, mis_w;
+    if (!rbdpt_t1_eval(c, v, &x2, &x1, rays, &px, &C, sub, &pdf, &mis_w)) return false;
     res->rc.b1 = sub[0];
     res->rc.b2 = sub[1];
     res->rc.pdf = pdf;
+    res->rc.mis_a = mis_w;
     return true;
 }
 
+/* `reject_unshiftable` (seed 000 §7.2, "stable but biased temporal reuse of light traced
+ * samples"): whether the non-caustic t = 1 sample of light subpath `light_path` (frame
+ * `origin_frame`, x_1 at light depth `depth`) could be joined to the pixel's primary hit `xg`
+ * instead of its own x_1 — x_2 scatters (or, at depth 1, emits) towards xg, xg scatters towards
+ * the eye, and the two see each other. A sample the eye sees at x_1 through another surface than
+ * the primary hit fails (Fig. 6); dropping it darkens penumbrae a little. */
+static bool rbdpt_reaches_primary(const struct rbdpt_ctx *c, const struct rbdpt_view *v, uint32_t origin_frame,
+                                  uint32_t light_path, uint32_t depth, const struct surface *xg,
+                                  struct ray_counters *rays)
+{
+    const struct material *mg = &v->scene->materials[xg->material];
+    if (!(material_flags(mg) & (BSDF_DIFFUSE | BSDF_GLOSSY))) return false;
+    struct vec3 p2, n2;
+    struct rbdpt_x2 x2;
+    if (depth == 1) {
+        struct rng rng = rng_make(c->seed, origin_frame, RBDPT_LIGHT_STREAM + light_path, 1);
+        float u[6];
+        for (int k = 0; k < 6; k++) u[k] = rng_next_float(&rng);
+        struct bdpt_light_start start;
+        if (!bdpt_light_start(v->scene, u, &start)) return false;
+        p2 = start.ls.p;
+        n2 = start.n;
+        if (!(vec3_dot(vec3_sub(xg->p, p2), n2) > 0.0f)) return false;
+    } else {
+        if (!rbdpt_trace_light(c, v, origin_frame, light_path, depth, NULL, 0, NULL, NULL, NULL, NULL, &x2, rays))
+            return false;
+        p2 = x2.s.p;
+        n2 = x2.s.ng;
+        struct vec3 w = vec3_normalize(vec3_sub(xg->p, p2));
+        struct vec3 wi = frame_to_local(&x2.s.frame, w), wo = frame_to_local(&x2.s.frame, x2.wo_world);
+        if (!(vec3_dot(w, n2) * wi.z > 0.0f) ||
+            vec3_is_zero(material_eval(x2.m, wo, wi, TRANSPORT_IMPORTANCE)))
+            return false;
+    }
+    struct vec3 to2 = vec3_normalize(vec3_sub(p2, xg->p));
+    struct vec3 toeye = vec3_normalize(vec3_sub(v->cam.position, xg->p));
+    struct vec3 wi = frame_to_local(&xg->frame, to2), wo = frame_to_local(&xg->frame, toeye);
+    if (!(vec3_dot(to2, xg->ng) * wi.z > 0.0f) || !(vec3_dot(toeye, xg->ng) * wo.z > 0.0f) ||
+        vec3_is_zero(material_eval(mg, wo, wi, TRANSPORT_RADIANCE)))
+        return false;
+    return bdpt_visible(v->scene->accel, p2, n2, xg->p, &xg->ng, rays);
+}
+
 /* The shift of a non-caustic sample into domain `to`:
- *  - s = 0 and s = 1 with a reconnection, between frames whose scenes agree: the hybrid shift
- *    (rbdpt_reconnect);
+ *  - s = 0 and s = 1 with a reconnection: the hybrid shift (rbdpt_reconnect; between frames
+ *    whose scenes differ with its suffix traced again);
  *  - s = 0 and s = 1 otherwise: random replay, whose Jacobian in primary sample space is 1 (the
  *    identity on the random numbers): the camera subpath of the sample's own random stream (the
  *    pixel and frame it was drawn in) is traced again through the target pixel (its jitter from
@@ -1226,10 +1282,10 @@ static bool rbdpt_reverse_record(const struct rbdpt_ctx *c, struct restir_bdpt_p
  *    technique and length is the shifted sample, its lightweight MIS weight and reconnection
  *    recomputed on the new path. Between frames whose scenes agree a sample without a
  *    reconnection must shift to one without (the hybrid shift's replay-only class);
- *  - t = 1: the light subpath is replayed in the target frame; the shift succeeds only when the
- *    replayed sample lands in the target pixel and is still non-caustic (a light-traced sample
- *    belongs to the pixel it lands in: it cannot move to a neighbour; seed 000's reverse hybrid
- *    shift is not implemented).
+ *  - t = 1 of the reverse hybrid shift's class (rc.k = 1): rbdpt_reverse;
+ *  - other t = 1: the light subpath is replayed in the target frame; the shift succeeds only when
+ *    the replayed sample lands in the target pixel and is still non-caustic and outside that
+ *    class (such a sample belongs to the pixel it lands in: it cannot move to a neighbour).
  * A replay that ends early, misses the technique or changes class fails (target 0). */
 static void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain from, struct restir_domain to,
                         void *dst_v, float *target, float *jacobian, struct restir_counters *cnt)
@@ -1366,9 +1422,27 @@ static void rbdpt_camera_tile(void *ctx, uint32_t tile, unsigned worker)
             rbdpt_camera_candidates(c, &c->view[0], dir, pixel, c->frame, &rng, &pick, &r, &rc, wk, &primary,
                                     &has_primary, NULL, NULL);
             /* The pixel's bucket of light-traced samples (eq. 26: C carries 1/N_L). */
+            struct surface xg;
+            int xg_state = 0;   /* reject_unshiftable: the primary hit, traced when first needed (1: hit, -1: none) */
             for (uint32_t k = st->pixel_first[pixel]; k < st->pixel_first[pixel + 1]; k++) {
                 const struct restir_bdpt_lt_sample *ls = &st->lt_sorted[k];
                 uint16_t bits = (uint16_t)(((uint32_t)(ls->depth + 1) << 8) | RESTIR_BDPT_TECH_LT);
+                if (c->p->reject_unshiftable && !ls->caustic) {
+                    if (xg_state == 0) {
+                        struct hit hit;
+                        xg_state = -1;
+                        if (accel_intersect(c->view[0].scene->accel, c->view[0].cam.position, dir, 0.0f, INFINITY,
+                                            &hit, &rc)) {
+                            surface_from_hit(c->view[0].scene, &hit, c->view[0].cam.position, dir, &xg);
+                            xg_state = 1;
+                        }
+                    }
+                    if (xg_state < 0 || !rbdpt_reaches_primary(c, &c->view[0], c->frame, ls->light_path, ls->depth,
+                                                               &xg, &rc)) {
+                        wk->unshiftable++;
+                        continue;
+                    }
+                }
                 if (ls->hybrid && !ls->caustic) {
                     /* Marks the reverse hybrid shift's class; the record is filled in once selected. */
                     const struct restir_bdpt_rc mark = {.k = 1};
@@ -1630,6 +1704,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
         s.caustic_not_caustic += c->worker[i].not_caustic;
         s.caustic_inverse_failed += c->worker[i].inverse_failed;
         s.connections += c->worker[i].connections;
+        s.lt_unshiftable += c->worker[i].unshiftable;
     }
     /* This frame's caustic reservoirs become the history of the next. */
     struct restir_bdpt_reservoir *tmp = st->caustic_prev;

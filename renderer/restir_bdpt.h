@@ -43,12 +43,16 @@
  * hybrid shift (§6.1): its light subpath is replayed up to x'_2 and joined to the surface the eye
  * sees through the same sub-pixel position of the target pixel, so it can move to a neighbour.
  *
+ * Two biased switches, off by default: `copy_mis` keeps the MIS weight a sample was drawn with
+ * through its reconnection shifts (§6.4), and `reject_unshiftable` drops the non-caustic t = 1
+ * candidates whose x_2 cannot be joined to the pixel's primary hit (§7.2). The paper needs the
+ * rejection because it shifts t = 1 samples to a visibility buffer's hit; here a t = 1 sample
+ * shifts to the surface seen through its own sub-pixel position, so an unbiased session needs
+ * no rejection and the switch is there to measure what it costs.
+ *
  * Method `restir_bdpt` (renderer/view.c) renders frames with exactly this. What it does NOT do
  * yet: the connection techniques' shift (a camera subpath joined to a light subpath), hence no
- * non-caustic reuse for the full variant (`reuse` is refused naming /params/reuse); the "copy
- * MIS weight" variant; the switchable rejection of non-caustic t <= 1 samples that cannot shift
- * to the pixel's primary hit (a t = 1 sample here shifts to the surface seen through the same
- * sub-pixel position, not to a G-buffer's primary hit, so none has to be rejected). The full
+ * non-caustic reuse for the full variant (`reuse` is refused naming /params/reuse). The full
  * variant's caustic reservoirs are reused as the lightweight one's, with the full MIS weight of
  * the replayed t = 1 sample.
  * Scenes with environment light or translucent materials are refused, as by `bdpt`. */
@@ -95,6 +99,10 @@ struct restir_bdpt_params {
                                   restir.h) */
     bool camera_reconnect;     /* with reuse: camera-side samples reconnect (the hybrid shift); false:
                                   they shift by random replay alone (true) */
+    bool copy_mis;             /* with reuse: a reconnection shift keeps the base path's MIS weight
+                                  instead of recomputing it (seed 000 §6.4; biased, false) */
+    bool reject_unshiftable;   /* drop the non-caustic t = 1 candidates whose x_2 cannot reach the
+                                  pixel's primary hit (seed 000 §7.2; biased, false) */
 };
 
 struct restir_bdpt_params restir_bdpt_defaults(void);
@@ -135,10 +143,12 @@ struct restir_bdpt_reservoir {
  *     000 §6.2, restir_bdpt_mis_reconnect);
  *   - `pdf`: p_{k-1}(w_{k-1}) |cos_k| / d^2 p_k(w_k) (p_k = 1 for a light sample's direction), the
  *     reconnection's Jacobian denominator (seed 000 Appendix C).
+ * With `copy_mis` `L` carries the MIS weight of the path the sample was drawn as, which its
+ * shifts keep (mis_a and mis_b are then unused).
  * A light-traced sample (t = 1) of the reverse hybrid shift's class (non-caustic, x_2 a surface
  * with only rough lobes) has k = 1, its sub-pixel position in b1, b2 and in `pdf` the density
- * p_2(w) |cos_1| / d^2 / p_camera,A(x_1) of its x_1 per unit of image area; other t = 1 samples
- * k = 0. */
+ * p_2(w) |cos_1| / d^2 / p_camera,A(x_1) of its x_1 per unit of image area (with `copy_mis`, the
+ * MIS weight its shifts keep in mis_a); other t = 1 samples k = 0. */
 struct restir_bdpt_rc {
     uint32_t k;
     uint32_t shape, prim;
@@ -212,6 +222,7 @@ struct restir_bdpt_stats {
     uint64_t light_traced;      /* t = 1 samples that reached a pixel */
     uint64_t caustic_samples;   /* of which caustic */
     uint64_t lt_dropped;        /* samples that found their block's region full (a bias; see bdpt.h) */
+    uint64_t lt_unshiftable;    /* reject_unshiftable: non-caustic t = 1 candidates dropped (a bias) */
     uint64_t camera_candidates; /* s = 0 and s = 1 candidates with a non-zero contribution */
     uint64_t rejected;          /* candidates refused for a non-finite weight */
     uint64_t caustic_shifts;            /* random-replay shifts: previous caustic samples into this

@@ -145,6 +145,7 @@ static void api_write_restir_bdpt(struct jsonw *w, const struct restir_bdpt_stat
     jsonw_key(w, "light_vertices"); jsonw_uint(w, b->light_vertices);
     jsonw_key(w, "light_traced"); jsonw_uint(w, b->light_traced);
     jsonw_key(w, "lt_dropped"); jsonw_uint(w, b->lt_dropped);
+    jsonw_key(w, "lt_unshiftable"); jsonw_uint(w, b->lt_unshiftable);
     jsonw_key(w, "lvc_dropped"); jsonw_uint(w, b->lvc_dropped);
     jsonw_key(w, "connections"); jsonw_uint(w, b->connections);
     jsonw_key(w, "caustic_samples"); jsonw_uint(w, b->caustic_samples);

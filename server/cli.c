@@ -396,13 +396,13 @@ static int cli_render(int argc, char **argv)
             const struct restir_bdpt_stats *rb = &last.restir_bdpt;
             printf(",\"last_frame\":{\"light_ms\":%.3f,\"sort_ms\":%.3f,\"camera_ms\":%.3f,\"light_subpaths\":%" PRIu64
                    ",\"light_vertices\":%" PRIu64 ",\"light_traced\":%" PRIu64 ",\"lt_dropped\":%" PRIu64
-                   ",\"lvc_dropped\":%" PRIu64 ",\"connections\":%" PRIu64
+                   ",\"lt_unshiftable\":%" PRIu64 ",\"lvc_dropped\":%" PRIu64 ",\"connections\":%" PRIu64
                    ",\"caustic_samples\":%" PRIu64 ",\"caustic_shifts\":%" PRIu64 ",\"shift_failures\":{\"replay\":%" PRIu64
                    ",\"not_caustic\":%" PRIu64 ",\"inverse\":%" PRIu64 "},\"reuse_ms\":%.3f,\"reuse_shifts\":%" PRIu64
                    ",\"reuse_shift_failures\":%" PRIu64 ",\"reuse_reconnections\":%" PRIu64
                    ",\"reservoir_bytes\":%" PRIu64 "},\"session_bytes\":%zu",
                    rb->light_ms, rb->sort_ms, rb->camera_ms, rb->light_subpaths, rb->light_vertices, rb->light_traced,
-                   rb->lt_dropped, rb->lvc_dropped, rb->connections, rb->caustic_samples, rb->caustic_shifts,
+                   rb->lt_dropped, rb->lt_unshiftable, rb->lvc_dropped, rb->connections, rb->caustic_samples, rb->caustic_shifts,
                    rb->caustic_replay_failed,
                    rb->caustic_not_caustic, rb->caustic_inverse_failed, rb->reuse_ms, rb->reuse_shifts,
                    rb->reuse_shift_failures, rb->reuse_reconnections, rb->reservoir_bytes, session_bytes);

@@ -1322,7 +1322,8 @@ def test_restir_bdpt_session(daemon):
     assert s["params"] == {"variant": "lightweight", "max_depth": 64, "rr_depth": 3, "light_paths": 0,
                            "lt_capacity": 8, "lvc_capacity": 8, "heuristic": "balance", "caustic_temporal": True, "temporal_cap": 20,
                            "moving_cap": 1, "reuse": False, "spatial_neighbors": 2, "spatial_radius": 30,
-                           "paired_spatial": True, "camera_reconnect": True}
+                           "paired_spatial": True, "camera_reconnect": True, "copy_mis": False,
+                           "reject_unshiftable": False}
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
                                  "caustic_shifts", "pixel_buckets", "light_blocks"}
     n = 32 * 24
@@ -1334,6 +1335,7 @@ def test_restir_bdpt_session(daemon):
         st = post_frame(daemon, s, accept="application/json").json()
         b = st["restir_bdpt"]
         assert b["light_subpaths"] == n and b["light_vertices"] >= b["light_traced"] > 0 and b["lt_dropped"] == 0
+        assert b["lt_unshiftable"] == 0
         assert b["caustic_samples"] > 0 and b["camera_candidates"] > 0 and b["reservoir_bytes"] == (80 + 2 * 28) * n
         assert set(b["shift_failures"]) == {"replay", "not_caustic", "inverse"}
         assert (b["caustic_shifts"] > 0) == (i > 0), (i, b)
@@ -1355,6 +1357,8 @@ def test_restir_bdpt_session(daemon):
     ({"lvc_size": 8}, "/params/lvc_size"),
     ({"spatial_neighbors": 33}, "/params/spatial_neighbors"),
     ({"spatial_radius": 0}, "/params/spatial_radius"),
+    ({"copy_mis": True}, "/params/copy_mis"),
+    ({"reject_unshiftable": "yes"}, "/params/reject_unshiftable"),
 ])
 def test_restir_bdpt_bad_params(daemon, params, field):
     r = daemon.req("POST", f"{CORNELL}/sessions", json_body={"method": "restir_bdpt", "width": 8, "height": 8,

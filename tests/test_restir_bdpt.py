@@ -72,6 +72,7 @@ MATCH_CASES = ([(scene, moving, False, "lightweight") for scene in CASES for mov
                [(scene, moving, False, "full") for scene in CASES for moving in (False, True)])
 
 _REF = {}
+_RUNS = {}   # restir_bdpt sessions of test_restir_bdpt_matches_bdpt, for the paired test below
 
 
 def _reference(path, tmp_path, case, anim, key):
@@ -91,6 +92,7 @@ def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse, varian
     path = scenes / scene / "scene.json"
     runs, stats = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": reuse, "variant": variant},
                             anim, 1000)
+    _RUNS[(scene, moving, reuse, variant)] = runs
     ref = _reference(path, tmp_path, case, anim, (scene, moving))
     last = [st["last_frame"] for st in stats]
     # The full variant connects camera vertices to cached light vertices, the lightweight one never.
@@ -114,6 +116,30 @@ def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse, varian
     assert not bad.passed, f"{label}: a bias of x1.03 went unseen: {bad}"
 
 
+@pytest.mark.statistical
+def test_restir_bdpt_reject_unshiftable_darkens(tmp_path, scenes):
+    """`reject_unshiftable` (seed 000 §7.2) drops the non-caustic light-traced candidates whose x_2
+    cannot reach the pixel's primary hit: a bias by design, which the docs call small. On the
+    lamp-in-glass crop, paired with the unbiased reuse sessions of the same seeds (so most of their
+    noise cancels), it must darken the crop measurably (paired t < -2) and by less than 1 %; and
+    it must report what it dropped."""
+    scene, case = "lamp-in-glass", CASES["lamp-in-glass"]
+    anim = _animation(tmp_path, case, False)
+    path = scenes / scene / "scene.json"
+    key = (scene, False, True, "lightweight")
+    if key not in _RUNS:
+        _RUNS[key] = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": True}, anim, 1000)[0]
+    runs, stats = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": True,
+                                                             "reject_unshiftable": True}, anim, 1000)
+    assert sum(st["last_frame"]["lt_unshiftable"] for st in stats) > 0
+    base = _RUNS[key].mean(axis=(1, 2, 3))
+    d = runs.mean(axis=(1, 2, 3)) - base
+    rel = d.mean() / base.mean()
+    t = d.mean() / (d.std(ddof=1) / np.sqrt(len(d)))
+    print(f"reject_unshiftable on the lamp-in-glass crop: {rel:+.5f} relative to reuse, paired t = {t:.2f}")
+    assert t < -2.0 and rel > -0.01, (rel, t)
+
+
 @pytest.mark.parametrize("params", [{"reuse": False}, {"reuse": True}, {"variant": "full"}],
                          ids=["default", "reuse", "full"])
 def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes, params):
@@ -134,6 +160,7 @@ def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes, params):
 
 
 @pytest.mark.parametrize("params,where", [({"variant": "full", "reuse": True}, "/params/reuse"),
+                                          ({"copy_mis": True}, "/params/copy_mis"),
                                           ({"variant": "complete"}, "/params/variant"),
                                           ({"lt_capacity": 65}, "/params/lt_capacity"),
                                           ({"lvc_capacity": 0}, "/params/lvc_capacity")])

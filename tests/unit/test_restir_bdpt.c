@@ -585,16 +585,21 @@ static void test_caustic_replay_round_trip(void)
  * shifted into the pixel (3, 1) away in the same frame and back gives its own target again, and
  * the two Jacobians multiply to 1 — for the hybrid shift of camera-side samples, the reverse
  * hybrid shift of light-traced ones and random replay alike. Both kinds of reconnection must
- * occur. */
+ * occur. With `copy_mis` the same holds for the variant that keeps the base path's MIS weight,
+ * and for light-traced samples that weight must differ from the recomputed one in most reverse
+ * hybrid shifts (else the variant would copy nothing). */
 static void shift_round_trips(const char *path, struct camera_desc cam, uint32_t light_paths, uint32_t need[3],
-                              const char *light_name)
+                              const char *light_name, bool copy_mis)
 {
     struct scene *sc = load(path);
     if (!sc) return;
     struct err err = {0};
     struct restir_bdpt_params p = restir_bdpt_defaults();
     p.reuse = true;
+    p.copy_mis = copy_mis;
     p.light_paths = light_paths;
+    struct restir_bdpt_params p_recompute = p;
+    p_recompute.copy_mis = false;
     const uint32_t W = 32, H = 32;
     struct restir_bdpt_state st;
     struct image img;
@@ -623,7 +628,7 @@ static void shift_round_trips(const char *path, struct camera_desc cam, uint32_t
     }
     struct restir_bdpt_frame f_moved = f;
     f_moved.scene = moved;
-    uint32_t there[3] = {0, 0, 0}, back[3] = {0, 0, 0}, wrong = 0;
+    uint32_t there[3] = {0, 0, 0}, back[3] = {0, 0, 0}, wrong = 0, copied = 0, differs = 0;
     double worst = 0.0;
     for (uint32_t y = 0; y + 1 < H; y++) {
         for (uint32_t x = 0; x + 3 < W; x++) {
@@ -637,7 +642,19 @@ static void shift_round_trips(const char *path, struct camera_desc cam, uint32_t
             double e = fmax(fabs((double)t[2] - t[0]) / t[0], fabs((double)jj - 1.0));
             if (e > worst) worst = e;
             wrong += e > 2e-3;
+            if (copy_mis && kind == 1) {
+                /* The same light-traced sample's reverse hybrid shift with its weight recomputed. */
+                float tr[3], jr;
+                restir_bdpt_shift_round_trip(&st, &p_recompute, &f, NULL, y * W + x, (y + 1) * W + x + 3, tr, &jr);
+                copied++;
+                differs += fabs((double)tr[1] - t[1]) > 1e-3 * t[1];
+            }
         }
+    }
+    if (copy_mis) {
+        printf("    copy_mis: the recomputed weight differs from the copied one in %u of %u reverse hybrid shifts\n", differs,
+               copied);
+        CHECK(copied > 0 && differs * 2 > copied);
     }
     printf("    %s%s: shifted there / and back: reverse hybrid %u / %u, hybrid %u / %u, replay %u / %u; worst "
            "relative error %.2g, %u over 2e-3\n",
@@ -657,15 +674,19 @@ static void test_shift_round_trips(void)
     shift_round_trips("scenes/lamp-in-glass/scene.json",
                       (struct camera_desc){.position = {0, 1.45f, -1.8f}, .look_at = {0, 0.68f, 1.2f}, .up = {0, 1, 0},
                                            .fov_deg = 4},
-                      0, (uint32_t[3]){20, 20, 20}, NULL);
+                      0, (uint32_t[3]){20, 20, 20}, NULL, false);
     shift_round_trips("scenes/caustic-sphere/scene.json",
                       (struct camera_desc){.position = {-2.0f, 0.6f, -0.1f}, .look_at = {-0.45f, 0, -0.05f},
                                            .up = {0, 1, 0}, .fov_deg = 6},
-                      8192, (uint32_t[3]){5, 0, 20}, NULL);
+                      8192, (uint32_t[3]){5, 0, 20}, NULL, false);
     shift_round_trips("scenes/caustic-sphere/scene.json",
                       (struct camera_desc){.position = {-2.0f, 0.6f, -0.1f}, .look_at = {-0.45f, 0, -0.05f},
                                            .up = {0, 1, 0}, .fov_deg = 6},
-                      8192, (uint32_t[3]){5, 0, 20}, "light");
+                      8192, (uint32_t[3]){5, 0, 20}, "light", false);
+    shift_round_trips("scenes/lamp-in-glass/scene.json",
+                      (struct camera_desc){.position = {0, 1.45f, -1.8f}, .look_at = {0, 0.68f, 1.2f}, .up = {0, 1, 0},
+                                           .fov_deg = 4},
+                      0, (uint32_t[3]){20, 20, 20}, NULL, true);
 }
 
 /* Paired: the same sessions (same seeds, so the same non-caustic reservoirs frame by frame) with
