@@ -1110,8 +1110,33 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
     if (vec3_is_zero(f1) || !(p1 > 0.0f) || !(-cos_k * wo_k.z > 0.0f)) return false;
     restir_bdpt_mis_scatter(&mis, vec3_dot(w1, s.ng), p1, material_pdf(m, wi, wo), false, c->power);
     restir_bdpt_mis_hit(&mis, d2, cos_k, c->power);
+    const bool retrace = scene_from != scene && !c->static_scene;
+    const bool nee_last = nee && k + 1 == e;   /* the light sample leaves x_k itself */
     /* x_k towards w_k with its new w_o. */
-    struct vec3 wk_world = surface_oct_decode(src->rc.wk_u, src->rc.wk_v);
+    struct vec3 wk_world = surface_oct_decode(src->rc.wk_u, src->rc.wk_v), L_k = src->rc.L;
+    struct light_sample ls = {0};
+    float direct_pdf_w = 0.0f, emission_pdf_w = 0.0f, cos_l = 0.0f;
+    if (retrace && nee_last) {
+        /* The light sample is the other scene's: it is drawn again here from its own random
+         * numbers (x_k's, as rbdpt_camera_candidates draws them), its Jacobian 1 in primary
+         * sample space, as the suffix of any other reconnected sample is traced again. */
+        struct rng r2 = rng_make(c->seed, src->r.origin_frame, RBDPT_CAMERA_STREAM + src->r.light_path, 0);
+        const uint32_t skip = RBDPT_CAMERA_JITTER_DRAWS + RBDPT_CAMERA_VERTEX_DRAWS * (k - 1);
+        for (uint32_t n = 0; n < skip; n++) rng_next_float(&r2);
+        float ul = rng_next_float(&r2), u1 = rng_next_float(&r2), u2 = rng_next_float(&r2);
+        if (!light_sampler_sample(scene->lights, ul, u1, u2, &ls) || ls.is_env) return false;
+        struct vec3 d = vec3_sub(ls.p, sk.p);
+        float dl2 = vec3_length2(d);
+        if (!(dl2 > 0.0f)) return false;
+        wk_world = vec3_scale(d, 1.0f / sqrtf(dl2));
+        cos_l = -vec3_dot(wk_world, ls.n);
+        const struct material *lm = &scene->materials[scene->shapes[ls.shape].material];
+        struct vec3 Le = light_sampler_emitted(lm, cos_l);
+        direct_pdf_w = sampling_area_to_solid_angle(ls.pdf_a, dl2, cos_l);
+        if (!(direct_pdf_w > 0.0f) || vec3_is_zero(Le)) return false;
+        emission_pdf_w = ls.pdf_a * bdpt_emit_dir_pdf_w(lm, cos_l);
+        L_k = vec3_scale(Le, 1.0f / direct_pdf_w);
+    }
     struct vec3 wk = frame_to_local(&sk.frame, wk_world);
     if (!(vec3_dot(wk_world, sk.ng) * wk.z > 0.0f)) return false;
     struct vec3 fk = material_eval(mk, wo_k, wk, TRANSPORT_RADIANCE);
@@ -1119,15 +1144,18 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
     if (vec3_is_zero(fk)) return false;
     struct vec3 factor_k;
     float B, mis_w = 1.0f;
-    const bool retrace = scene_from != scene && !c->static_scene;
-    if (retrace && nee && k + 1 == e) return false;   /* its light sample is the other scene's */
-    if (nee && k + 1 == e) {
+    if (nee_last) {
         /* w_k is the light sample's direction, drawn independently of w_o: p_k = 1. */
         factor_k = vec3_scale(fk, fabsf(wk.z));
         B = 1.0f;
-        if (!c->p->copy_mis)
+        if (retrace) {
+            if (!bdpt_visible(scene->accel, sk.p, sk.ng, ls.p, &ls.n, rays)) return false;
+            const float cos_ng = vec3_dot(wk_world, sk.ng);
+            mis_w = restir_bdpt_mis_nee(&mis, fwd, rev, direct_pdf_w, emission_pdf_w, cos_ng, cos_l, c->power);
+        } else if (!c->p->copy_mis) {
             mis_w = restir_bdpt_mis_reconnect(RBDPT_RC_NEE_LAST, src->rc.mis_a, src->rc.mis_b, &mis, fwd, rev,
                                               c->power);
+        }
     } else {
         if (!(fwd > 0.0f)) return false;
         factor_k = vec3_scale(fk, fabsf(wk.z) / fwd);
@@ -1142,7 +1170,18 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
     *rc_out = src->rc;
     rc_out->pdf = p1 * fabsf(cos_k) / d2 * B;
     struct vec3 head = vec3_mul(beta, vec3_scale(f1, fabsf(wi.z) / p1));
-    if (retrace) {
+    if (retrace && nee_last) {
+        /* The new light sample becomes the sample's (what its later shifts keep). */
+        surface_oct_encode(wk_world, &rc_out->wk_u, &rc_out->wk_v);
+        restir_bdpt_rc_mis_nee(fwd, rev, direct_pdf_w, emission_pdf_w, vec3_dot(wk_world, sk.ng), cos_l, true, 1.0f,
+                               c->power, &rc_out->mis_a, &rc_out->mis_b);
+        if (c->p->copy_mis) {
+            L_k = vec3_scale(L_k, mis_w);
+            mis_w = 1.0f;
+        }
+        rc_out->L = L_k;
+        *C = vec3_scale(vec3_mul(head, vec3_mul(factor_k, L_k)), mis_w);
+    } else if (retrace) {
         /* The suffix in this scene: x_k's scattering along w_k, then the rest as the sample's own
          * random numbers trace it (those of vertices 1 .. k skipped). */
         struct rng r2 = rng_make(c->seed, src->r.origin_frame, RBDPT_CAMERA_STREAM + src->r.light_path, 0);

@@ -36,8 +36,8 @@
  * for these samples (seed 001 §6): it divides the initial resampling weight, never the
  * contribution, and a shift never rolls it. Between frames whose scenes differ the kept suffix
  * would carry the other scene's light: there the suffix is traced again from x_k along w_k with
- * the sample's own random numbers (as ReSTIR PT does), except for an s = 1 sample whose light
- * sample leaves x_k itself, which does not shift there. A t = 1 sample's
+ * the sample's own random numbers (as ReSTIR PT does); an s = 1 sample whose light sample
+ * leaves x_k itself draws that light sample again from its random numbers. A t = 1 sample's
  * light subpath is replayed and the shift succeeds only when it lands in the target pixel again
  * and is still non-caustic; one whose x_2 has only rough lobes instead shifts by the reverse
  * hybrid shift (§6.1): its light subpath is replayed up to x'_2 and joined to the surface the eye
