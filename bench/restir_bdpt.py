@@ -220,6 +220,8 @@ def biased(tmp):
 
 
 def print_biased(b):
+    if not b["scenes"]:
+        return
     print(f"\nBiased switches against the unbiased reuse ({b['size']}, {b['sessions']} sessions of {b['frames']} "
           f"frames each, paired by seed): image mean relative to reuse's (paired t), darkest 8x8 block, blocks "
           f"darker by over 3 standard errors, frame ms (reuse's in brackets)\n")
