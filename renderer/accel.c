@@ -28,6 +28,16 @@ struct accel {
     bool *is_identity;        /* to_world is exactly the identity (hit points skip it) */
 };
 
+/* Every scene, the instanced bottom levels included, allows a context filter
+ * (accel_intersect_shape_all). Embree runs the leaf intersectors of an instanced hit with the
+ * child scene as the current scene and requires the flag on whichever scene's geometry reaches
+ * the filter: the distribution's libembree3 keeps its assertions and aborts otherwise (tried:
+ * without the flag on the top level, or on the bottom levels only, the probe test aborts).
+ * Other queries cost the same with it: the single-ray path always carries the filter check (a
+ * null test on the context); the flag only selects the filtering variants of the ray-packet
+ * intersectors, which we do not use. */
+#define ACCEL_SCENE_FLAGS RTC_SCENE_FLAG_CONTEXT_FILTER_FUNCTION
+
 static bool accel_xform_is_identity(const struct xform *x)
 {
     const struct xform id = xform_identity();
@@ -163,7 +173,7 @@ struct accel *accel_new(const struct scene *scene, const bool *movable, struct e
      * triangles share an edge, which of the two a ray exactly on the edge reports can differ
      * between the two trees. */
     rtcSetSceneBuildQuality(a->top, RTC_BUILD_QUALITY_LOW);
-    if (two_level) rtcSetSceneFlags(a->top, RTC_SCENE_FLAG_DYNAMIC);
+    rtcSetSceneFlags(a->top, (two_level ? RTC_SCENE_FLAG_DYNAMIC : RTC_SCENE_FLAG_NONE) | ACCEL_SCENE_FLAGS);
 
     struct xform identity = xform_identity();
     for (uint32_t i = 0; i < n; i++) {
@@ -183,6 +193,7 @@ struct accel *accel_new(const struct scene *scene, const bool *movable, struct e
         if (is_movable || accel_is_ellipsoid(s)) {
             RTCScene blas = rtcNewScene(a->device);
             rtcSetSceneBuildQuality(blas, RTC_BUILD_QUALITY_HIGH);
+            rtcSetSceneFlags(blas, ACCEL_SCENE_FLAGS);
             a->inst_blas[a->inst_count++] = blas;
             if (!accel_add_geometry(a->device, blas, s, &identity, &gid, err)) {
                 accel_free(a);
@@ -196,6 +207,7 @@ struct accel *accel_new(const struct scene *scene, const bool *movable, struct e
             if (!a->static_blas) {
                 a->static_blas = rtcNewScene(a->device);
                 rtcSetSceneBuildQuality(a->static_blas, RTC_BUILD_QUALITY_HIGH);
+                rtcSetSceneFlags(a->static_blas, ACCEL_SCENE_FLAGS);
             }
             if (!accel_add_geometry(a->device, a->static_blas, s, &s->to_world, &gid, err)) {
                 accel_free(a);
@@ -288,24 +300,161 @@ bool accel_intersect(const struct accel *a, struct vec3 org, struct vec3 dir, fl
     return true;
 }
 
+/* Candidates kept by one accel_intersect_shape_all traversal. Larger than BSSRDF_MAX_HITS (16)
+ * with room for the duplicates that are merged afterwards; a ray crossing more surfaces of the
+ * shape keeps the closest ACCEL_ALL_HITS_CAP, so the list is then a correct but shorter prefix. */
+#define ACCEL_ALL_HITS_CAP 64
+
+/* RTCIntersectContext first, so that the filter can recover the whole struct from the context
+ * pointer Embree hands it. */
+struct accel_all_hits_ctx {
+    struct RTCIntersectContext rtc;
+    const struct accel *a;
+    uint32_t shape;
+    uint32_t n;
+    bool instanced;  /* the shape's hits come from its own instance: Ng is in object space */
+    struct hit cand[ACCEL_ALL_HITS_CAP];
+};
+
+/* Orders by t, then primID: the sort key of the candidates. */
+static bool accel_hit_before(const struct hit *x, const struct hit *y)
+{
+    return x->t < y->t || (x->t == y->t && x->prim < y->prim);
+}
+
+/* Embree's RTCRayN/RTCHitN accessors are C++ only (they return references); these read the same
+ * structure-of-arrays layout (rtcore_ray.h): word `field` of element i in a packet of N. */
+static float accel_rayn_f(const struct RTCRayN *r, unsigned N, unsigned i, unsigned field)
+{
+    return ((const float *)r)[field * N + i];
+}
+
+static float accel_hitn_f(const struct RTCHitN *h, unsigned N, unsigned i, unsigned field)
+{
+    return ((const float *)h)[field * N + i];
+}
+
+static unsigned accel_hitn_u(const struct RTCHitN *h, unsigned N, unsigned i, unsigned field)
+{
+    return ((const unsigned *)h)[field * N + i];
+}
+
+enum { ACCEL_RAYN_TFAR = 8 };
+enum { ACCEL_HITN_NG_X, ACCEL_HITN_NG_Y, ACCEL_HITN_NG_Z, ACCEL_HITN_U, ACCEL_HITN_V, ACCEL_HITN_PRIM,
+       ACCEL_HITN_GEOM, ACCEL_HITN_INST0 };
+
+/* Records every hit on the wanted shape and rejects all hits, so that Embree never shrinks tfar
+ * and one traversal visits every surface in (tmin, tmax). Embree has already applied its own
+ * interval test, the same one a closest-hit query with these bounds applies, so no t is tested
+ * again here (a second test in t could only disagree at rounding level). */
+static void accel_all_hits_filter(const struct RTCFilterFunctionNArguments *args)
+{
+    struct accel_all_hits_ctx *c = (struct accel_all_hits_ctx *)args->context;
+    const struct accel *a = c->a;
+    for (unsigned i = 0; i < args->N; i++) {
+        if (!args->valid[i]) continue;
+        args->valid[i] = 0;
+        unsigned iid = accel_hitn_u(args->hit, args->N, i, ACCEL_HITN_INST0);
+        unsigned gid = accel_hitn_u(args->hit, args->N, i, ACCEL_HITN_GEOM);
+        /* The shape mapping of accel_intersect. */
+        uint32_t shape;
+        bool instanced = false;
+        if (iid == RTC_INVALID_GEOMETRY_ID) {
+            shape = a->top_shape[gid];
+        } else if (iid == a->static_inst_id) {
+            shape = a->static_shape[gid];
+        } else {
+            shape = a->top_shape[iid];
+            instanced = true;
+        }
+        if (shape != c->shape) continue;
+        c->instanced = instanced;
+        /* During the filter call Embree sets the ray's tfar to the hit's t (and restores it when
+         * the hit is rejected); for instanced hits the ray is in object space, but the
+         * instance transform keeps the parameter t. */
+        struct hit h;
+        h.t = accel_rayn_f(args->ray, args->N, i, ACCEL_RAYN_TFAR);
+        h.shape = shape;
+        h.prim = accel_hitn_u(args->hit, args->N, i, ACCEL_HITN_PRIM);
+        h.b1 = accel_hitn_f(args->hit, args->N, i, ACCEL_HITN_U);
+        h.b2 = accel_hitn_f(args->hit, args->N, i, ACCEL_HITN_V);
+        h.ng = vec3_make(accel_hitn_f(args->hit, args->N, i, ACCEL_HITN_NG_X),
+                         accel_hitn_f(args->hit, args->N, i, ACCEL_HITN_NG_Y),
+                         accel_hitn_f(args->hit, args->N, i, ACCEL_HITN_NG_Z));
+        /* Insertion into the sorted candidates; when full, the farthest one gives way, so the
+         * closest ACCEL_ALL_HITS_CAP survive whatever order the traversal reports them in. */
+        uint32_t k = c->n;
+        if (k == ACCEL_ALL_HITS_CAP) {
+            if (!accel_hit_before(&h, &c->cand[k - 1])) continue;
+            k--;
+        } else {
+            c->n++;
+        }
+        while (k > 0 && accel_hit_before(&h, &c->cand[k - 1])) {
+            c->cand[k] = c->cand[k - 1];
+            k--;
+        }
+        c->cand[k] = h;
+    }
+}
+
 uint32_t accel_intersect_shape_all(const struct accel *a, uint32_t shape, struct vec3 org, struct vec3 dir,
                                    float tmin, float tmax, struct hit *hits, uint32_t max_hits,
                                    struct ray_counters *counters)
 {
-    /* Repeated closest-hit queries, each starting just past the previous hit: the ray itself never
-     * changes, so Embree recomputes the same t for a surface already reported, and starting at the
-     * next float above it excludes exactly that surface (a ray through a shared edge reports one of
-     * the two triangles, as a single query would). The order is by t by construction. The number
-     * of queries is bounded, so a pathological stack of coincident surfaces cannot loop. */
+    /* One traversal that sees every hit (the filter above), instead of one closest-hit query per
+     * hit: BSSRDF probes cross the translucent shape several times, and a query restarted past
+     * each hit re-traverses the BVH from the root every time. */
+    if (max_hits == 0) return 0;
+    struct accel_all_hits_ctx c;
+    rtcInitIntersectContext(&c.rtc);
+    c.rtc.filter = accel_all_hits_filter;
+    c.a = a;
+    c.shape = shape;
+    c.n = 0;
+    c.instanced = false;
+    struct RTCRayHit rh;
+    rh.ray.org_x = org.x;
+    rh.ray.org_y = org.y;
+    rh.ray.org_z = org.z;
+    rh.ray.dir_x = dir.x;
+    rh.ray.dir_y = dir.y;
+    rh.ray.dir_z = dir.z;
+    rh.ray.tnear = tmin;
+    rh.ray.tfar = tmax;
+    rh.ray.time = 0.0f;
+    rh.ray.mask = 0xFFFFFFFFu;
+    rh.ray.id = 0;
+    rh.ray.flags = 0;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(a->top, &c.rtc, &rh);
+    counters->intersect++;
+
+    /* Duplicates. A ray through an edge shared by two triangles of the shape (or tangent to a
+     * sphere) reports both, at equal or nearly equal t. The former method (closest-hit queries,
+     * each restarted at nextafterf of the hit just reported) reported one of them: its restart
+     * skipped everything up to one float step past the hit it returned, which was the smallest
+     * t. The same rule here: in order of t, a hit within one float step of the last kept one is
+     * dropped, so of a near-coincident group the smallest t is kept; at exactly equal t the
+     * former choice followed the BVH traversal order, not knowable here, and the lower primID
+     * (the sort key) is kept instead, which is deterministic.
+     * At that rounding level the former method was itself inconsistent (Embree tests tnear on an
+     * unnormalised distance, and culls boxes by tnear), and tests/unit/test_bssrdf.c compares
+     * the two on every such ray: it could report one hit twice, stop at such a repeat (on any
+     * shape) and lose every later hit, miss a second triangle a few floats beyond an edge, and it
+     * lost hits within a float step of another shape's hit, as where the floor meets a wall.
+     * This traversal has none of these; all need a ray within a few floats of an edge or of a
+     * repeat, so away from them both return the same list. */
     uint32_t n = 0;
-    float t0 = tmin;
-    for (uint32_t queries = 0; n < max_hits && queries < 4 * max_hits + 16; queries++) {
-        struct hit h;
-        if (!accel_intersect(a, org, dir, t0, tmax, &h, counters)) break;
-        if (h.shape == shape) hits[n++] = h;
-        float next = nextafterf(h.t, INFINITY);
-        if (!(next > t0)) break;
-        t0 = next;
+    for (uint32_t i = 0; i < c.n && n < max_hits; i++) {
+        const struct hit *h = &c.cand[i];
+        if (n > 0 && h->t <= nextafterf(hits[n - 1].t, INFINITY)) continue;
+        hits[n] = *h;
+        /* Embree's Ng is unnormalised and, for instanced hits, in object space (accel_intersect). */
+        struct vec3 ng = c.instanced ? xform_normal(&a->to_object[shape], h->ng) : h->ng;
+        hits[n].ng = vec3_normalize(ng);
+        n++;
     }
     return n;
 }

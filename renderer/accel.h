@@ -34,8 +34,9 @@ bool accel_intersect(const struct accel *accel, struct vec3 org, struct vec3 dir
 /* Every intersection with the one shape `shape` along org + t dir, t in (tmin, tmax), other
  * shapes ignored, in increasing t (so an index into the list names a hit deterministically: the
  * probe rays of bssrdf.h). Writes at most max_hits and returns how many; hits beyond max_hits are
- * not reported. Each found hit costs one closest-hit query (counted), and so does each hit on
- * another shape on the way. `dir` must be unit length. */
+ * not reported. Hits of the shape less than one float step apart in t count once (a ray through
+ * a shared edge: see accel.c). One traversal, counted as one intersect query. `dir` must be unit
+ * length. */
 uint32_t accel_intersect_shape_all(const struct accel *accel, uint32_t shape, struct vec3 org, struct vec3 dir,
                                    float tmin, float tmax, struct hit *hits, uint32_t max_hits,
                                    struct ray_counters *counters);
