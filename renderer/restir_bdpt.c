@@ -220,7 +220,21 @@ bool restir_bdpt_variant_parse(const char *name, enum restir_bdpt_variant *out)
 
 struct rbdpt_sizes {
     uint32_t light_paths, blocks, region, lvc_region;
-    uint64_t lt, pixels, blocks_b, res, lvc, pairs;
+    uint64_t lt, pixels, blocks_b, res, lvc, pairs, x2c;
+};
+
+/* A pixel's entry of the x_2 cache: what struct rbdpt_x2 holds, less what follows from the rest
+ * (the shading frame is frame_from_normal(ns), as surface_from_hit builds it), and whose sample
+ * it is: light subpath, origin frame and x_1's light depth, computed in frame `frame`'s scene. */
+struct rbdpt_x2_entry {
+    struct vec3 p, ng, ns;
+    uint32_t shape, prim, material;
+    struct vec3 wo_world, beta, rr_beta;
+    float dvcm, dvc, u_rr;
+    uint32_t depth;
+    uint32_t light_path, origin_frame, frame;
+    uint16_t x1_depth;
+    uint8_t near, valid;
 };
 
 static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
@@ -239,6 +253,7 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
     /* The full variant's LVC: the vertices, per block its count, its dropped count and its
      * prefix sum (one more). */
     z.pairs = p->reuse && p->paired_spatial ? restir_pair_scratch_bytes(width, height) : 0;
+    z.x2c = p->reuse ? n * sizeof(struct rbdpt_x2_entry) : 0;
     bool full = p->variant == RESTIR_BDPT_FULL;
     z.lvc_region = full ? RBDPT_BLOCK_PATHS * p->lvc_capacity : 0;
     z.lvc = full ? (uint64_t)z.blocks * z.lvc_region * sizeof(struct bdpt_light_vertex) +
@@ -250,7 +265,12 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
 uint64_t restir_bdpt_bytes_planned(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
 {
     struct rbdpt_sizes z = rbdpt_sizes_of(p, width, height);
-    return z.lt + z.pixels + z.blocks_b + z.res + z.lvc + z.pairs;
+    return z.lt + z.pixels + z.blocks_b + z.res + z.lvc + z.pairs + z.x2c;
+}
+
+size_t restir_bdpt_x2_bytes(const struct restir_bdpt_state *st)
+{
+    return st->x2c ? (size_t)st->width * st->height * sizeof *st->x2c : 0;
 }
 
 size_t restir_bdpt_pair_bytes(const struct restir_bdpt_state *st)
@@ -297,7 +317,7 @@ size_t restir_bdpt_bytes(const struct restir_bdpt_state *st)
 {
     return restir_bdpt_reservoir_bytes(st) + restir_bdpt_lt_bytes(st) + restir_bdpt_shift_bytes(st) +
            restir_bdpt_bucket_bytes(st) + restir_bdpt_block_bytes(st) + gbuffer_bytes(&st->gbuf) +
-           restir_bdpt_lvc_bytes(st) + restir_bdpt_pair_bytes(st);
+           restir_bdpt_lvc_bytes(st) + restir_bdpt_pair_bytes(st) + restir_bdpt_x2_bytes(st);
 }
 
 bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, const struct restir_bdpt_params *p,
@@ -338,6 +358,7 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
         st->res_prev = calloc(n, sizeof *st->res_prev);
         st->res_spatial = calloc(n, sizeof *st->res_spatial);
         if (p->paired_spatial) st->pair_scratch = restir_buffer_alloc(1, z.pairs);
+        st->x2c = calloc(n, sizeof *st->x2c);
         if (st->res_prev && st->res_spatial && !gbuffer_init(&st->gbuf, width, height, err)) {
             restir_bdpt_destroy(st);
             return false;
@@ -352,7 +373,7 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
     }
     if (!st->lt || !st->lt_sorted || !st->pixel_first || !st->block_count || !st->block_dropped || !st->block_rays ||
         !st->res || !st->caustic || !st->caustic_prev || !st->shifted || !st->shifted_sorted || !st->shift_first ||
-        (p->reuse && (!st->res_prev || !st->res_spatial || (p->paired_spatial && !st->pair_scratch))) ||
+        (p->reuse && (!st->res_prev || !st->res_spatial || !st->x2c || (p->paired_spatial && !st->pair_scratch))) ||
         (p->variant == RESTIR_BDPT_FULL && (!st->lvc || !st->lvc_count || !st->lvc_dropped || !st->lvc_first))) {
         restir_bdpt_destroy(st);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for restir_bdpt (%llu bytes)",
@@ -378,6 +399,7 @@ void restir_bdpt_destroy(struct restir_bdpt_state *st)
     free(st->res_prev);
     free(st->res_spatial);
     free(st->pair_scratch);
+    free(st->x2c);
     free(st->lvc);
     free(st->lvc_count);
     free(st->lvc_dropped);
@@ -707,6 +729,38 @@ static bool rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view
         dir = wi_world;
     }
     return !x2_out;
+}
+
+/* The x_2 cache (st->x2c): rbdpt_x2_keep stores what the replay of a sample's light subpath
+ * gave in this frame's scene, rbdpt_x2_cached gives it back to a shift in that same scene —
+ * the same numbers, so an image does not depend on whether a shift found its x_2 here. */
+static void rbdpt_x2_keep(const struct rbdpt_ctx *c, uint32_t pixel, const struct restir_bdpt_path *res,
+                          const struct rbdpt_x2 *x2)
+{
+    struct rbdpt_x2_entry *e = &c->st->x2c[pixel];
+    *e = (struct rbdpt_x2_entry){.p = x2->s.p, .ng = x2->s.ng, .ns = x2->s.ns, .shape = x2->s.shape,
+                                 .prim = x2->s.prim, .material = x2->s.material, .wo_world = x2->wo_world,
+                                 .beta = x2->beta, .rr_beta = x2->rr_beta, .dvcm = x2->mis.dvcm,
+                                 .dvc = x2->mis.dvc, .u_rr = x2->u_rr, .depth = x2->depth,
+                                 .light_path = res->r.light_path, .origin_frame = res->r.origin_frame,
+                                 .frame = c->frame, .x1_depth = (uint16_t)(res->r.head.bits >> 8),
+                                 .near = x2->mis.near, .valid = 1};
+}
+
+static bool rbdpt_x2_cached(const struct rbdpt_ctx *c, const struct rbdpt_view *v, uint32_t pixel,
+                            const struct restir_bdpt_path *src, struct rbdpt_x2 *x2)
+{
+    if (!c->st->x2c || pixel == UINT32_MAX || v->scene != c->view[0].scene) return false;
+    const struct rbdpt_x2_entry *e = &c->st->x2c[pixel];
+    if (!e->valid || e->frame != c->frame || e->light_path != src->r.light_path ||
+        e->origin_frame != src->r.origin_frame || e->x1_depth != (uint16_t)(src->r.head.bits >> 8))
+        return false;
+    *x2 = (struct rbdpt_x2){.s = {.p = e->p, .ng = e->ng, .ns = e->ns, .frame = frame_from_normal(e->ns),
+                                  .shape = e->shape, .prim = e->prim, .material = e->material},
+                            .m = &v->scene->materials[e->material], .wo_world = e->wo_world, .beta = e->beta,
+                            .rr_beta = e->rr_beta, .mis = {e->dvcm, e->dvc, e->near != 0, false},
+                            .u_rr = e->u_rr, .depth = e->depth};
+    return true;
 }
 
 /* The light pass: one job per block of light subpaths, each block into its own region. */
@@ -1213,15 +1267,17 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
  * the image-area density of x_1's direction at x_2, p_2(w) |cos_1| / d^2 / p_camera,A(x_1), of
  * the new path over the old (rc.pdf). False when the shift fails. */
 static bool rbdpt_reverse(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct restir_bdpt_path *src,
-                          uint32_t pixel, struct vec3 *C, float *J, float *pdf, struct ray_counters *rays)
+                          uint32_t from_pixel, uint32_t pixel, struct vec3 *C, float *J, float *pdf,
+                          struct ray_counters *rays)
 {
     const uint32_t depth = (uint32_t)(src->r.head.bits >> 8) - 1u;   /* x_1's light depth */
     if (depth < 2 || !(src->rc.pdf > 0.0f)) return false;
     struct rbdpt_x2 x2;
-    if (!rbdpt_trace_light(c, v, src->r.origin_frame, src->r.light_path, depth, NULL, 0, NULL, NULL, NULL, NULL, &x2,
-                           rays) ||
-        !rbdpt_rough(x2.m))
+    if (!rbdpt_x2_cached(c, v, from_pixel, src, &x2) &&
+        !rbdpt_trace_light(c, v, src->r.origin_frame, src->r.light_path, depth, NULL, 0, NULL, NULL, NULL, NULL, &x2,
+                           rays))
         return false;
+    if (!rbdpt_rough(x2.m)) return false;
     const struct camera *cam = &v->cam;
     const uint32_t w = c->st->width;
     struct vec3 dir = camera_ray_dir(cam, (float)(pixel % w) + src->rc.b1, (float)(pixel / w) + src->rc.b2);
@@ -1244,7 +1300,8 @@ static bool rbdpt_reverse(const struct rbdpt_ctx *c, const struct rbdpt_view *v,
  * subpath is replayed to x_2, x_1 found along the direction x_2 sampled, and the sub-pixel
  * position and Jacobian denominator taken from rbdpt_t1_eval, which made the sample. False (the
  * sample then never shifts) if the replay does not give it back. */
-static bool rbdpt_reverse_record(const struct rbdpt_ctx *c, struct restir_bdpt_path *res, struct ray_counters *rays)
+static bool rbdpt_reverse_record(const struct rbdpt_ctx *c, uint32_t pixel, struct restir_bdpt_path *res,
+                                 struct ray_counters *rays)
 {
     const struct rbdpt_view *v = &c->view[0];
     const uint32_t depth = (uint32_t)(res->r.head.bits >> 8) - 1u;
@@ -1265,6 +1322,7 @@ static bool rbdpt_reverse_record(const struct rbdpt_ctx *c, struct restir_bdpt_p
     res->rc.b2 = sub[1];
     res->rc.pdf = pdf;
     res->rc.mis_a = mis_w;
+    if (c->st->x2c) rbdpt_x2_keep(c, pixel, res, &x2);
     return true;
 }
 
@@ -1340,7 +1398,8 @@ static void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain
     bool ok = false;
     if ((src->r.head.bits & 0xffu) == RESTIR_BDPT_TECH_LT && src->rc.k) {
         float pdf;
-        ok = rbdpt_reverse(c, v, src, to.pixel, &C, jacobian, &pdf, &cnt->rays);
+        ok = rbdpt_reverse(c, v, src, from.frame == RESTIR_CURRENT ? from.pixel : UINT32_MAX, to.pixel, &C, jacobian,
+                           &pdf, &cnt->rays);
         if (ok) rc.pdf = pdf;
         atomic_fetch_add_explicit(c->reconnections, 1, memory_order_relaxed);
     } else if ((src->r.head.bits & 0xffu) == RESTIR_BDPT_TECH_LT) {
@@ -1493,7 +1552,7 @@ static void rbdpt_camera_tile(void *ctx, uint32_t tile, unsigned worker)
             }
             rbdpt_ris_finish_path(&r, 1, &st->res[pixel]);
             if (st->res[pixel].rc.k == 1 && st->res[pixel].r.head.W > 0.0f &&
-                !rbdpt_reverse_record(c, &st->res[pixel], &rc))
+                !rbdpt_reverse_record(c, pixel, &st->res[pixel], &rc))
                 st->res[pixel].rc.pdf = 0.0f;
             uint16_t M = rbdpt_caustic_confidence(c, primary, has_primary);
             if (temporal) {
@@ -1571,6 +1630,31 @@ static void rbdpt_history_row(void *ctx, uint32_t row, unsigned worker)
         *sh = (struct restir_bdpt_shifted){.F = F, .w = (float)(m * p_cur * prev->head.W), .pixel = q,
                                            .light_path = prev->light_path, .origin_frame = prev->origin_frame,
                                            .depth = (uint16_t)depth, .valid = 1};
+    }
+    wk->rays_intersect += rc.intersect;
+    wk->rays_occluded += rc.occluded;
+}
+
+/* Before the spatial pass: every pixel's sample of the reverse hybrid shift's class gets its x_2
+ * in this frame's scene into the cache, so that its shifts to the neighbours (and theirs) do not
+ * each replay its light subpath; most were kept when the sample was drawn, the rest came from
+ * the history. One job per row, each writing its own pixels. */
+static void rbdpt_x2_row(void *ctx, uint32_t row, unsigned worker)
+{
+    struct rbdpt_ctx *c = ctx;
+    struct restir_bdpt_state *st = c->st;
+    struct rbdpt_worker *wk = &c->worker[worker];
+    struct ray_counters rc = {0, 0};
+    for (uint32_t x = 0; x < st->width; x++) {
+        uint32_t pixel = row * st->width + x;
+        const struct restir_bdpt_path *res = &st->res[pixel];
+        struct rbdpt_x2 x2;
+        if ((res->r.head.bits & 0xffu) != RESTIR_BDPT_TECH_LT || res->rc.k != 1 || !(res->r.head.W > 0.0f) ||
+            rbdpt_x2_cached(c, &c->view[0], pixel, res, &x2))
+            continue;
+        if (rbdpt_trace_light(c, &c->view[0], res->r.origin_frame, res->r.light_path,
+                              (uint32_t)(res->r.head.bits >> 8) - 1u, NULL, 0, NULL, NULL, NULL, NULL, &x2, &rc))
+            rbdpt_x2_keep(c, pixel, res, &x2);
     }
     wk->rays_intersect += rc.intersect;
     wk->rays_occluded += rc.occluded;
@@ -1715,6 +1799,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
         if (rr.history && !restir_temporal_pass(&rr, (uint8_t *)st->res, &rc, err)) return false;
         struct restir_bdpt_path *final = st->res;
         if (p->spatial_neighbors) {
+            if (!parallel_run(threads, st->height, rbdpt_x2_row, c, NULL, NULL, err)) return false;
             if (!restir_spatial_pass(&rr, (const uint8_t *)st->res, (uint8_t *)st->res_spatial, &rc, err)) return false;
             final = st->res_spatial;
         }

@@ -204,6 +204,9 @@ struct restir_bdpt_state {
     struct restir_bdpt_path *res_prev, *res_spatial;
     struct gbuffer gbuf;
     void *pair_scratch;                         /* with reuse and paired_spatial: restir.c's pairs */
+    /* With reuse: per pixel the x_2 of its sample of the reverse hybrid shift's class in this
+     * frame's scene, so that the shifts of one sample replay its light subpath once (restir_bdpt.c). */
+    struct rbdpt_x2_entry *x2c;
     /* The full variant's light vertex cache, in bdpt's layout: per block a region of lvc_region
      * vertices, lvc_count of them used, lvc_first the prefix sums (blocks + 1). NULL otherwise. */
     struct bdpt_light_vertex *lvc;
@@ -262,6 +265,7 @@ size_t restir_bdpt_bytes(const struct restir_bdpt_state *st);
  * caustic shifts (by source and by landing pixel), the two per-pixel bucket tables, the
  * per-block counters. */
 size_t restir_bdpt_reservoir_bytes(const struct restir_bdpt_state *st);
+size_t restir_bdpt_x2_bytes(const struct restir_bdpt_state *st);
 size_t restir_bdpt_lt_bytes(const struct restir_bdpt_state *st);
 size_t restir_bdpt_shift_bytes(const struct restir_bdpt_state *st);
 size_t restir_bdpt_bucket_bytes(const struct restir_bdpt_state *st);

@@ -468,6 +468,7 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
         if (v->rbdpt.gbuf.px) out[n++] = (struct view_buffer_bytes){"gbuffer", gbuffer_bytes(&v->rbdpt.gbuf)};
         if (v->rbdpt.pair_scratch)
             out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_bdpt_pair_bytes(&v->rbdpt)};
+        if (v->rbdpt.x2c) out[n++] = (struct view_buffer_bytes){"light_x2_cache", restir_bdpt_x2_bytes(&v->rbdpt)};
     }
     if (v->params.method == RENDER_METHOD_RESTIR_SSS) {
         out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sss_reservoir_bytes(&v->sss)};

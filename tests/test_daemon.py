@@ -1345,6 +1345,22 @@ def test_restir_bdpt_session(daemon):
     assert daemon.req("DELETE", s["href"]).status == 204
 
 
+def test_restir_bdpt_reuse_session_buffers(daemon):
+    """With reuse a restir_bdpt session adds exactly the reuse's buffers: two more non-caustic
+    reservoirs, the G-buffer, the spatial pairs' scratch and the per-pixel x_2 cache of 116 bytes
+    (the reverse hybrid shift's replayed light vertex); its memory is their sum."""
+    s = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24, seed=3,
+                    params={"reuse": True})
+    n = 32 * 24
+    assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
+                                 "caustic_shifts", "pixel_buckets", "light_blocks", "gbuffer", "spatial_pairs",
+                                 "light_x2_cache"}
+    assert s["buffers"]["light_x2_cache"] == 116 * n
+    assert s["reservoir_bytes"] == (3 * 80 + 2 * 28) * n and s["reservoir_bytes_per_pixel"] == 80
+    assert s["memory_bytes"] == sum(s["buffers"].values())
+    assert daemon.req("DELETE", s["href"]).status == 204
+
+
 @pytest.mark.parametrize("params,field", [
     ({"variant": "full", "reuse": True}, "/params/reuse"),
     ({"variant": "heavy"}, "/params/variant"),
