@@ -253,11 +253,9 @@ void accel_free(struct accel *a)
     free(a);
 }
 
-bool accel_intersect(const struct accel *a, struct vec3 org, struct vec3 dir, float tmin, float tmax,
-                     struct hit *hit, struct ray_counters *counters)
+/* A single ray over [tmin, tmax] with no hit yet. */
+static struct RTCRayHit accel_ray_hit(struct vec3 org, struct vec3 dir, float tmin, float tmax)
 {
-    struct RTCIntersectContext ctx;
-    rtcInitIntersectContext(&ctx);
     struct RTCRayHit rh;
     rh.ray.org_x = org.x;
     rh.ray.org_y = org.y;
@@ -273,6 +271,15 @@ bool accel_intersect(const struct accel *a, struct vec3 org, struct vec3 dir, fl
     rh.ray.flags = 0;
     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    return rh;
+}
+
+bool accel_intersect(const struct accel *a, struct vec3 org, struct vec3 dir, float tmin, float tmax,
+                     struct hit *hit, struct ray_counters *counters)
+{
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    struct RTCRayHit rh = accel_ray_hit(org, dir, tmin, tmax);
     rtcIntersect1(a->top, &ctx, &rh);
     counters->intersect++;
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
@@ -413,21 +420,7 @@ uint32_t accel_intersect_shape_all(const struct accel *a, uint32_t shape, struct
     c.shape = shape;
     c.n = 0;
     c.instanced = false;
-    struct RTCRayHit rh;
-    rh.ray.org_x = org.x;
-    rh.ray.org_y = org.y;
-    rh.ray.org_z = org.z;
-    rh.ray.dir_x = dir.x;
-    rh.ray.dir_y = dir.y;
-    rh.ray.dir_z = dir.z;
-    rh.ray.tnear = tmin;
-    rh.ray.tfar = tmax;
-    rh.ray.time = 0.0f;
-    rh.ray.mask = 0xFFFFFFFFu;
-    rh.ray.id = 0;
-    rh.ray.flags = 0;
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    struct RTCRayHit rh = accel_ray_hit(org, dir, tmin, tmax);
     rtcIntersect1(a->top, &c.rtc, &rh);
     counters->intersect++;
 
