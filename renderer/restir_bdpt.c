@@ -621,6 +621,43 @@ static bool rbdpt_t1_eval(const struct rbdpt_ctx *c, const struct rbdpt_view *v,
     return *pdf > 0.0f && isfinite(*pdf);
 }
 
+/* Light subpath i of frame `origin_frame`: its random stream, and its start on an emitter drawn
+ * from the stream's first six numbers (the rest of the stream scatters the subpath). */
+static bool rbdpt_light_stream(const struct rbdpt_ctx *c, const struct scene *scene, uint32_t origin_frame,
+                               uint32_t i, struct rng *rng, struct bdpt_light_start *start)
+{
+    *rng = rng_make(c->seed, origin_frame, RBDPT_LIGHT_STREAM + i, 1);
+    float u[6];
+    for (int k = 0; k < 6; k++) u[k] = rng_next_float(rng);
+    return bdpt_light_start(scene, u, start);
+}
+
+/* Next-event estimation's light sample for a vertex at p from three random numbers: the
+ * direction to it, its emitted radiance towards p, its solid-angle density at p and its emission
+ * density (the MIS weight's). False when there is none or it carries nothing. */
+struct rbdpt_nee {
+    struct light_sample ls;
+    struct vec3 wi_world, Le;
+    float cos_l, direct_pdf_w, emission_pdf_w;
+};
+
+static bool rbdpt_nee_sample(const struct scene *scene, struct vec3 p, float ul, float u1, float u2,
+                             struct rbdpt_nee *out)
+{
+    if (!light_sampler_sample(scene->lights, ul, u1, u2, &out->ls) || out->ls.is_env) return false;
+    struct vec3 d = vec3_sub(out->ls.p, p);
+    float d2 = vec3_length2(d);
+    if (!(d2 > 0.0f)) return false;
+    out->wi_world = vec3_scale(d, 1.0f / sqrtf(d2));
+    out->cos_l = -vec3_dot(out->wi_world, out->ls.n);
+    const struct material *lm = &scene->materials[scene->shapes[out->ls.shape].material];
+    out->Le = light_sampler_emitted(lm, out->cos_l);
+    out->direct_pdf_w = sampling_area_to_solid_angle(out->ls.pdf_a, d2, out->cos_l);
+    if (!(out->direct_pdf_w > 0.0f) || vec3_is_zero(out->Le)) return false;
+    out->emission_pdf_w = out->ls.pdf_a * bdpt_emit_dir_pdf_w(lm, out->cos_l);
+    return true;
+}
+
 /* Traces light subpath i with the random numbers of frame `origin_frame` in view `v` and writes
  * its t = 1 samples to out[0 .. cap) (*stored, the excess counted in *dropped), and with `lvc`
  * (the full variant's light pass) every connectable vertex into the cache as bdpt does. With
@@ -638,11 +675,9 @@ static bool rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view
     const struct scene *scene = v->scene;
     const struct restir_bdpt_params *p = c->p;
     const bool track = p->reuse && !c->full;
-    struct rng rng = rng_make(c->seed, origin_frame, RBDPT_LIGHT_STREAM + i, 1);
-    float u[6];
-    for (int k = 0; k < 6; k++) u[k] = rng_next_float(&rng);
+    struct rng rng;
     struct bdpt_light_start start;
-    if (!bdpt_light_start(scene, u, &start)) return false;
+    if (!rbdpt_light_stream(c, scene, origin_frame, i, &rng, &start)) return false;
     const struct light_sample ls = start.ls;
     struct vec3 dir = start.dir, beta = start.beta;
     struct vec3 rr_beta = vec3_splat(1.0f);
@@ -983,21 +1018,15 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
          * its random streams are as before). */
         float uc = c->full ? rng_next_float(rng) : 0.0f;
         if (connectable) {
-            struct light_sample ls;
-            if (light_sampler_sample(lights, ul, u1, u2, &ls) && !ls.is_env) {
-                struct vec3 d = vec3_sub(ls.p, s.p);
-                float d2 = vec3_length2(d);
-                struct vec3 wi_world = vec3_scale(d, 1.0f / sqrtf(d2));
-                float cos_l = -vec3_dot(wi_world, ls.n);
-                const struct material *lm = &scene->materials[scene->shapes[ls.shape].material];
-                struct vec3 Le = light_sampler_emitted(lm, cos_l);
-                float direct_pdf_w = sampling_area_to_solid_angle(ls.pdf_a, d2, cos_l);
+            struct rbdpt_nee ns;
+            if (rbdpt_nee_sample(scene, s.p, ul, u1, u2, &ns)) {
+                const struct vec3 wi_world = ns.wi_world, Le = ns.Le;
+                const float cos_l = ns.cos_l, direct_pdf_w = ns.direct_pdf_w, emission_pdf_w = ns.emission_pdf_w;
                 struct vec3 wi = frame_to_local(&s.frame, wi_world);
                 float cos_ng = vec3_dot(wi_world, s.ng);
-                if (d2 > 0.0f && direct_pdf_w > 0.0f && !vec3_is_zero(Le) && cos_ng * wi.z > 0.0f) {
+                if (cos_ng * wi.z > 0.0f) {
                     struct vec3 f = material_eval(m, wo, wi, TRANSPORT_RADIANCE);
-                    if (!vec3_is_zero(f) && bdpt_visible(scene->accel, s.p, s.ng, ls.p, &ls.n, rc)) {
-                        float emission_pdf_w = ls.pdf_a * bdpt_emit_dir_pdf_w(lm, cos_l);
+                    if (!vec3_is_zero(f) && bdpt_visible(scene->accel, s.p, s.ng, ns.ls.p, &ns.ls.n, rc)) {
                         float fwd = material_pdf(m, wo, wi), rev = material_pdf(m, wi, wo);
                         float w = restir_bdpt_mis_nee(&mis, fwd, rev, direct_pdf_w, emission_pdf_w, cos_ng, cos_l,
                                                       c->power);
@@ -1178,18 +1207,14 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
         const uint32_t skip = RBDPT_CAMERA_JITTER_DRAWS + RBDPT_CAMERA_VERTEX_DRAWS * (k - 1);
         for (uint32_t n = 0; n < skip; n++) rng_next_float(&r2);
         float ul = rng_next_float(&r2), u1 = rng_next_float(&r2), u2 = rng_next_float(&r2);
-        if (!light_sampler_sample(scene->lights, ul, u1, u2, &ls) || ls.is_env) return false;
-        struct vec3 d = vec3_sub(ls.p, sk.p);
-        float dl2 = vec3_length2(d);
-        if (!(dl2 > 0.0f)) return false;
-        wk_world = vec3_scale(d, 1.0f / sqrtf(dl2));
-        cos_l = -vec3_dot(wk_world, ls.n);
-        const struct material *lm = &scene->materials[scene->shapes[ls.shape].material];
-        struct vec3 Le = light_sampler_emitted(lm, cos_l);
-        direct_pdf_w = sampling_area_to_solid_angle(ls.pdf_a, dl2, cos_l);
-        if (!(direct_pdf_w > 0.0f) || vec3_is_zero(Le)) return false;
-        emission_pdf_w = ls.pdf_a * bdpt_emit_dir_pdf_w(lm, cos_l);
-        L_k = vec3_scale(Le, 1.0f / direct_pdf_w);
+        struct rbdpt_nee ns;
+        if (!rbdpt_nee_sample(scene, sk.p, ul, u1, u2, &ns)) return false;
+        ls = ns.ls;
+        wk_world = ns.wi_world;
+        cos_l = ns.cos_l;
+        direct_pdf_w = ns.direct_pdf_w;
+        emission_pdf_w = ns.emission_pdf_w;
+        L_k = vec3_scale(ns.Le, 1.0f / direct_pdf_w);
     }
     struct vec3 wk = frame_to_local(&sk.frame, wk_world);
     if (!(vec3_dot(wk_world, sk.ng) * wk.z > 0.0f)) return false;
@@ -1341,11 +1366,9 @@ static bool rbdpt_reaches_primary(const struct rbdpt_ctx *c, const struct rbdpt_
     struct vec3 p2, n2;
     struct rbdpt_x2 x2;
     if (depth == 1) {
-        struct rng rng = rng_make(c->seed, origin_frame, RBDPT_LIGHT_STREAM + light_path, 1);
-        float u[6];
-        for (int k = 0; k < 6; k++) u[k] = rng_next_float(&rng);
+        struct rng rng;
         struct bdpt_light_start start;
-        if (!bdpt_light_start(v->scene, u, &start)) return false;
+        if (!rbdpt_light_stream(c, v->scene, origin_frame, light_path, &rng, &start)) return false;
         p2 = start.ls.p;
         n2 = start.n;
         if (!(vec3_dot(vec3_sub(xg->p, p2), n2) > 0.0f)) return false;
@@ -1799,7 +1822,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
         if (rr.history && !restir_temporal_pass(&rr, (uint8_t *)st->res, &rc, err)) return false;
         struct restir_bdpt_path *final = st->res;
         if (p->spatial_neighbors) {
-            if (!parallel_run(threads, st->height, rbdpt_x2_row, c, NULL, NULL, err)) return false;
+            if (st->x2c && !parallel_run(threads, st->height, rbdpt_x2_row, c, NULL, NULL, err)) return false;
             if (!restir_spatial_pass(&rr, (const uint8_t *)st->res, (uint8_t *)st->res_spatial, &rc, err)) return false;
             final = st->res_spatial;
         }

@@ -689,6 +689,47 @@ static void test_shift_round_trips(void)
                       0, (uint32_t[3]){20, 20, 20}, NULL, true);
 }
 
+/* The x_2 cache of the reverse hybrid shift only saves replays: the same session rendered with
+ * the cache and without it (its buffer withheld) gives bit-identical frames, and with it fewer
+ * rays (else the cache would never be hit). */
+static void test_x2_cache_changes_nothing(void)
+{
+    struct scene *sc = load("scenes/lamp-in-glass/scene.json");
+    if (!sc) return;
+    struct err err = {0};
+    const struct camera_desc cam = {.position = {0, 1.45f, -1.8f}, .look_at = {0, 0.68f, 1.2f}, .up = {0, 1, 0},
+                                    .fov_deg = 4};
+    struct restir_bdpt_params p = restir_bdpt_defaults();
+    p.reuse = true;
+    const uint32_t W = 32, H = 32;
+    struct image img[2];
+    uint64_t rays[2] = {0, 0};
+    for (int cached = 0; cached < 2; cached++) {
+        struct restir_bdpt_state st;
+        CHECK(image_init(&img[cached], W, H, &err));
+        CHECK_MSG(restir_bdpt_init(&st, sc, &p, W, H, &err), "%s", err.message);
+        struct rbdpt_x2_entry *keep = st.x2c;
+        CHECK(keep != NULL);
+        if (!cached) st.x2c = NULL;
+        for (uint32_t k = 0; k < 4; k++) {
+            struct restir_bdpt_frame f = {.scene = sc, .camera = &cam, .prev_scene = k ? sc : NULL,
+                                          .prev_camera = k ? &cam : NULL, .seed = 9, .frame = k, .threads = 2};
+            struct restir_bdpt_stats s;
+            CHECK_MSG(restir_bdpt_render(&st, &p, &f, &img[cached], &s, &err), "%s", err.message);
+            rays[cached] += s.rays_intersect;
+        }
+        st.x2c = keep;
+        restir_bdpt_destroy(&st);
+    }
+    printf("    4 frames: %llu rays without the cache, %llu with it\n", (unsigned long long)rays[0],
+           (unsigned long long)rays[1]);
+    CHECK(memcmp(img[0].pixels, img[1].pixels, (size_t)W * H * sizeof *img[0].pixels) == 0);
+    CHECK(rays[1] < rays[0]);
+    image_destroy(&img[0]);
+    image_destroy(&img[1]);
+    scene_release(sc);
+}
+
 /* Paired: the same sessions (same seeds, so the same non-caustic reservoirs frame by frame) with
  * caustic temporal reuse on and off; the difference of their images is the difference of the
  * caustic estimates alone, which must be 0 in expectation. With `moving`, the light slides and
@@ -916,6 +957,6 @@ static void test_view_method(void)
 
 TEST_MAIN(TEST(test_mis_lightweight), TEST(test_mis_full), TEST(test_mis_reconnect), TEST(test_params), TEST(test_view_method), TEST(test_thread_determinism),
           TEST(test_moving_cap),
-          TEST(test_caustic_replay_round_trip), TEST(test_shift_round_trips), TEST(test_matches_bdpt_caustic_sphere),
+          TEST(test_caustic_replay_round_trip), TEST(test_shift_round_trips), TEST(test_x2_cache_changes_nothing), TEST(test_matches_bdpt_caustic_sphere),
           TEST(test_matches_bdpt_lamp_in_glass), TEST(test_caustic_temporal_paired),
           TEST(test_caustic_temporal_paired_moving))
