@@ -48,7 +48,8 @@
 #define RBDPT_CAMERA_STREAM 0x5242430000000000ull
 #define RBDPT_PICK_STREAM 0x5242500000000000ull
 /* A lightweight camera subpath's random numbers (rbdpt_camera_candidates): the jitter's 2, then
- * per vertex the light sample's 3, the BSDF sample's 3 and the roulette's 1. The shifts that
+ * per vertex the light sample's 3, the BSDF sample's 3 and the roulette's 1; the full variant's
+ * draws one more after the light sample's, its choice of a cached light vertex. The shifts that
  * replay part of a subpath (rbdpt_reconnect) draw them in the same order. */
 #define RBDPT_CAMERA_JITTER_DRAWS 2u
 #define RBDPT_CAMERA_VERTEX_DRAWS 7u
@@ -174,13 +175,13 @@ bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *er
 {
     if (p->variant != RESTIR_BDPT_LIGHTWEIGHT && p->variant != RESTIR_BDPT_FULL)
         return err_set(err, ERR_INVALID, "/params/variant", "variant must be \"lightweight\" or \"full\"");
-    if (p->variant == RESTIR_BDPT_FULL && p->reuse)
-        return err_set(err, ERR_INVALID, "/params/reuse",
-                       "reuse of the non-caustic reservoirs is implemented for the lightweight variant only "
-                       "(the full variant's needs the bidirectional hybrid shift, which is not implemented)");
     if (p->copy_mis && !p->reuse)
         return err_set(err, ERR_INVALID, "/params/copy_mis",
                        "copy_mis changes the shifts of the non-caustic reuse: it needs \"reuse\": true");
+    if (p->copy_mis && p->variant == RESTIR_BDPT_FULL)
+        return err_set(err, ERR_INVALID, "/params/copy_mis",
+                       "copy_mis is a shortcut of the lightweight variant's reconnection shift; the full variant's "
+                       "shifts trace every suffix again and recompute the MIS weight on it");
     /* A sample keeps its vertex count (depth + 2) in 8 bits of head.bits. */
     if (p->max_depth < 1 || p->max_depth > RESTIR_BDPT_MAX_DEPTH)
         return err_set(err, ERR_INVALID, "/params/max_depth", "max_depth must be in 1..%u", RESTIR_BDPT_MAX_DEPTH);
@@ -256,7 +257,8 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
     z.x2c = p->reuse ? n * sizeof(struct rbdpt_x2_entry) : 0;
     bool full = p->variant == RESTIR_BDPT_FULL;
     z.lvc_region = full ? RBDPT_BLOCK_PATHS * p->lvc_capacity : 0;
-    z.lvc = full ? (uint64_t)z.blocks * z.lvc_region * sizeof(struct bdpt_light_vertex) +
+    z.lvc = full ? (uint64_t)z.blocks * z.lvc_region *
+                           (sizeof(struct bdpt_light_vertex) + (p->reuse ? sizeof(uint32_t) : 0)) +
                        (uint64_t)z.blocks * 2 * sizeof(uint32_t) + ((uint64_t)z.blocks + 1) * sizeof(uint64_t)
                  : 0;
     return z;
@@ -281,7 +283,7 @@ size_t restir_bdpt_pair_bytes(const struct restir_bdpt_state *st)
 size_t restir_bdpt_lvc_bytes(const struct restir_bdpt_state *st)
 {
     if (!st->lvc) return 0;
-    return (size_t)st->blocks * st->lvc_region * sizeof *st->lvc +
+    return (size_t)st->blocks * st->lvc_region * (sizeof *st->lvc + (st->lvc_path ? sizeof *st->lvc_path : 0)) +
            (size_t)st->blocks * (sizeof *st->lvc_count + sizeof *st->lvc_dropped) +
            ((size_t)st->blocks + 1) * sizeof *st->lvc_first;
 }
@@ -370,11 +372,13 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
         st->lvc_count = calloc(z.blocks, sizeof *st->lvc_count);
         st->lvc_dropped = calloc(z.blocks, sizeof *st->lvc_dropped);
         st->lvc_first = calloc((size_t)z.blocks + 1, sizeof *st->lvc_first);
+        if (p->reuse) st->lvc_path = malloc((size_t)z.blocks * z.lvc_region * sizeof *st->lvc_path);
     }
     if (!st->lt || !st->lt_sorted || !st->pixel_first || !st->block_count || !st->block_dropped || !st->block_rays ||
         !st->res || !st->caustic || !st->caustic_prev || !st->shifted || !st->shifted_sorted || !st->shift_first ||
         (p->reuse && (!st->res_prev || !st->res_spatial || !st->x2c || (p->paired_spatial && !st->pair_scratch))) ||
-        (p->variant == RESTIR_BDPT_FULL && (!st->lvc || !st->lvc_count || !st->lvc_dropped || !st->lvc_first))) {
+        (p->variant == RESTIR_BDPT_FULL && (!st->lvc || !st->lvc_count || !st->lvc_dropped || !st->lvc_first ||
+                                             (p->reuse && !st->lvc_path)))) {
         restir_bdpt_destroy(st);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for restir_bdpt (%llu bytes)",
                        (unsigned long long)restir_bdpt_bytes_planned(p, width, height));
@@ -401,6 +405,7 @@ void restir_bdpt_destroy(struct restir_bdpt_state *st)
     free(st->pair_scratch);
     free(st->x2c);
     free(st->lvc);
+    free(st->lvc_path);
     free(st->lvc_count);
     free(st->lvc_dropped);
     free(st->lvc_first);
@@ -554,6 +559,7 @@ static bool rbdpt_connect_camera(const struct rbdpt_ctx *c, const struct rbdpt_v
  * excess counted in `dropped`. */
 struct rbdpt_lvc_block {
     struct bdpt_light_vertex *v;
+    uint32_t *path;            /* with reuse: each vertex's light subpath; NULL otherwise */
     uint32_t region, count, dropped;
 };
 
@@ -665,8 +671,9 @@ static bool rbdpt_nee_sample(const struct scene *scene, struct vec3 p, float ul,
  * up to that vertex and only the sample there is written (nothing when the replayed path ends
  * earlier, the vertex is not connectable or the eye does not see it). With `x2` (and
  * only_depth >= 2) the replay stops at light depth only_depth - 1 instead and returns that
- * vertex (true when it got there). With reuse (lightweight variant) a sample whose x_2 has only
- * rough lobes is evaluated by rbdpt_t1_eval. */
+ * vertex (true when it got there). With `out` NULL and only_depth > 0 it only caches the vertex at
+ * that depth into `lvc` (a connection's shift, rbdpt_replay_light_vertex). With reuse a sample
+ * whose x_2 has only rough lobes is evaluated by rbdpt_t1_eval. */
 static bool rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view *v, uint32_t origin_frame,
                               uint32_t i, uint32_t only_depth, struct restir_bdpt_lt_sample *out, uint32_t cap,
                               uint32_t *stored, uint32_t *dropped, uint64_t *vertices, struct rbdpt_lvc_block *lvc,
@@ -674,7 +681,7 @@ static bool rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view
 {
     const struct scene *scene = v->scene;
     const struct restir_bdpt_params *p = c->p;
-    const bool track = p->reuse && !c->full;
+    const bool track = p->reuse;
     struct rng rng;
     struct bdpt_light_start start;
     if (!rbdpt_light_stream(c, scene, origin_frame, i, &rng, &start)) return false;
@@ -703,6 +710,7 @@ static bool rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view
             if (vertices) (*vertices)++;
             if (lvc && lvc->count < lvc->region) {
                 const struct bdpt_mis lm = {mis.dvcm, mis.dvc};
+                if (lvc->path) lvc->path[lvc->count] = i;
                 lvc->v[lvc->count++] = bdpt_light_vertex_make(scene, &hit, &s, wo_world, beta, &lm, depth);
             } else if (lvc) {
                 lvc->dropped++;
@@ -711,9 +719,10 @@ static bool rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view
             struct vec3 val;
             const bool hybrid = track && depth >= 2 && x2_rough;
             float sub[2], pdf;
-            bool made = hybrid ? rbdpt_t1_eval(c, v, &x2, &s, rc, &px, &val, sub, &pdf, NULL)
-                               : rbdpt_connect_camera(c, v, &s, m, wo_world, beta, &mis, rc, &px, &val, NULL, NULL, NULL) &&
-                                     vec3_is_finite(val) && !vec3_is_zero(val);
+            bool made = out && (hybrid ? rbdpt_t1_eval(c, v, &x2, &s, rc, &px, &val, sub, &pdf, NULL)
+                                       : rbdpt_connect_camera(c, v, &s, m, wo_world, beta, &mis, rc, &px, &val, NULL,
+                                                              NULL, NULL) &&
+                                             vec3_is_finite(val) && !vec3_is_zero(val));
             if (made) {
                 if (*stored < cap) {
                     out[(*stored)++] = (struct restir_bdpt_lt_sample){
@@ -793,7 +802,7 @@ static bool rbdpt_x2_cached(const struct rbdpt_ctx *c, const struct rbdpt_view *
     *x2 = (struct rbdpt_x2){.s = {.p = e->p, .ng = e->ng, .ns = e->ns, .frame = frame_from_normal(e->ns),
                                   .shape = e->shape, .prim = e->prim, .material = e->material},
                             .m = &v->scene->materials[e->material], .wo_world = e->wo_world, .beta = e->beta,
-                            .rr_beta = e->rr_beta, .mis = {e->dvcm, e->dvc, e->near != 0, false},
+                            .rr_beta = e->rr_beta, .mis = {e->dvcm, e->dvc, e->near != 0, c->full},
                             .u_rr = e->u_rr, .depth = e->depth};
     return true;
 }
@@ -810,7 +819,9 @@ static void rbdpt_light_block(void *ctx, uint32_t block, unsigned worker)
     uint64_t vertices = 0;
     uint32_t first = block * RBDPT_BLOCK_PATHS;
     uint32_t last = first + RBDPT_BLOCK_PATHS < st->light_paths ? first + RBDPT_BLOCK_PATHS : st->light_paths;
-    struct rbdpt_lvc_block lvc = {st->lvc ? &st->lvc[(size_t)block * st->lvc_region] : NULL, st->lvc_region, 0, 0};
+    const size_t lvc_at = (size_t)block * st->lvc_region;
+    struct rbdpt_lvc_block lvc = {st->lvc ? &st->lvc[lvc_at] : NULL, st->lvc_path ? &st->lvc_path[lvc_at] : NULL,
+                                  st->lvc_region, 0, 0};
     for (uint32_t i = first; i < last; i++)
         rbdpt_trace_light(c, &c->view[0], c->frame, i, 0, region, st->region, &stored, &dropped, &vertices,
                           st->lvc ? &lvc : NULL, NULL, &rc);
@@ -845,6 +856,25 @@ static enum rbdpt_replay rbdpt_replay_caustic(const struct rbdpt_ctx *c, const s
     return RBDPT_REPLAY_OK;
 }
 
+/* The light side of a connection's shift (s >= 2; seed 000 §5: the light subpath shifts by random
+ * replay): light subpath i of frame origin_frame replayed in view v to its vertex at light depth
+ * `depth`, as the light pass would have cached it. False when the replay ends earlier or the
+ * vertex is not connectable there (a changed classification fails the shift). */
+static bool rbdpt_replay_light_vertex(const struct rbdpt_ctx *c, const struct rbdpt_view *v, uint32_t origin_frame,
+                                      uint32_t i, uint32_t depth, struct bdpt_light_vertex *out,
+                                      struct ray_counters *rays)
+{
+    struct rbdpt_lvc_block one = {out, NULL, 1, 0, 0};
+    rbdpt_trace_light(c, v, origin_frame, i, depth, NULL, 0, NULL, NULL, NULL, &one, NULL, rays);
+    return one.count == 1;
+}
+
+/* Random numbers a camera subpath draws per vertex (RBDPT_CAMERA_VERTEX_DRAWS). */
+static uint32_t rbdpt_vertex_draws(const struct rbdpt_ctx *c)
+{
+    return RBDPT_CAMERA_VERTEX_DRAWS + (c->full ? 1u : 0u);
+}
+
 /* ---- camera pass: each pixel's candidates (s = 0, s = 1) and its light-traced bucket -------- */
 
 /* With `want` set, the camera subpath is a random replay (the shift of a camera-path sample
@@ -856,6 +886,8 @@ static enum rbdpt_replay rbdpt_replay_caustic(const struct rbdpt_ctx *c, const s
 struct rbdpt_want {
     uint16_t bits;
     uint32_t k;
+    const struct bdpt_light_vertex *lv;   /* s >= 2: the sample's light vertex, replayed, and */
+    uint32_t lv_path;                     /* its light subpath */
     bool found;
     struct vec3 C;
     struct restir_bdpt_rc rc;
@@ -911,7 +943,7 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
     const struct restir_bdpt_params *p = c->p;
     const struct light_sampler *lights = scene->lights;
     const struct camera *cam = &v->cam;
-    const bool track = p->reuse && !c->full;
+    const bool track = p->reuse;
     struct vec3 beta = vec3_splat(1.0f);
     double src = 1.0;   /* track: the product of the roulette's survival probabilities so far */
     float cos0 = resume ? 1.0f : vec3_dot(dir, cam->forward);
@@ -943,6 +975,9 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
     }
 
     for (uint32_t depth = first;; depth++) {
+        /* A replay is over once past the wanted path's length: every candidate made at this
+         * depth has at least depth + 1 vertices after the camera. */
+        if (want && depth + 1 > (uint32_t)(want->bits >> 8)) return;
         struct hit hit;
         if (!accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, &hit, rc)) break;
         struct surface s;
@@ -1052,24 +1087,38 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
                 }
             }
             /* s >= 2, t >= 2 (full variant): a connection to one light vertex drawn uniformly from
-             * the cache, weighted |LVC| / N_L, exactly as bdpt; paths longer than max_depth are
-             * cut. Technique s = the light vertex's surface vertices + the emitter's. */
+             * the cache, as bdpt; paths longer than max_depth are cut. Technique s = the light
+             * vertex's surface vertices + the emitter's. |LVC| / N_L = 1 / p_L is the choice's part
+             * of the unbiased contribution weight (seed 000 eq. 25): it scales the resampling
+             * weight, and the target C stays a function of the path alone, which a shift can
+             * evaluate in another frame whose cache is another. A shift's replay joins the
+             * sample's own light vertex instead, replayed (rbdpt_shift). */
             const uint32_t t_c = depth + 1;   /* surface vertices on the camera subpath */
-            const struct bdpt_light_vertex *lv = c->full && t_c < p->max_depth ? bdpt_lvc_pick(&c->lvc, uc) : NULL;
-            if (lv) {
-                if (t_c + lv->depth <= p->max_depth) {
-                    bool made;
-                    const struct bdpt_mis cm = {mis.dvcm, mis.dvc};
-                    struct vec3 cv = bdpt_connect_light_vertex(scene, c->power, c->lvc.scale, &s, m, wo, &cm, lv, rc,
-                                                               &made);
-                    if (made) {
-                        if (wk) wk->connections++;
-                        uint32_t vertices = t_c + lv->depth + 1, tech = lv->depth + 1;
-                        struct vec3 C = vec3_mul(beta, cv);
-                        if (rbdpt_offer(r, want, C, vec3_luminance(C), (uint16_t)((vertices << 8) | tech), NULL,
-                                        pixel, frame, pick, wk))
-                            return;
-                    }
+            const struct bdpt_light_vertex *lv = NULL;
+            uint32_t lv_path = UINT32_MAX;
+            if (want) {
+                if (want->lv && (uint32_t)(want->bits & 0xffu) == want->lv->depth + 1 &&
+                    t_c + want->lv->depth + 1 == (uint32_t)(want->bits >> 8)) {
+                    lv = want->lv;
+                    lv_path = want->lv_path;
+                }
+            } else if (c->full && t_c < p->max_depth) {
+                lv = bdpt_lvc_pick(&c->lvc, uc);
+                if (lv && c->st->lvc_path) lv_path = c->st->lvc_path[lv - c->st->lvc];
+            }
+            if (lv && t_c + lv->depth <= p->max_depth) {
+                bool made;
+                const struct bdpt_mis cm = {mis.dvcm, mis.dvc};
+                struct vec3 cv = bdpt_connect_light_vertex(scene, c->power, 1.0f, &s, m, wo, &cm, lv, rc, &made);
+                if (made) {
+                    if (wk) wk->connections++;
+                    uint32_t vertices = t_c + lv->depth + 1, tech = lv->depth + 1;
+                    struct vec3 C = vec3_mul(beta, cv);
+                    struct restir_bdpt_rc rcc = rc_k;
+                    rcc.light_path = lv_path;
+                    if (rbdpt_offer(r, want, C, vec3_luminance(C) * c->lvc.scale / src,
+                                    (uint16_t)((vertices << 8) | tech), track ? &rcc : NULL, pixel, frame, pick, wk))
+                        return;
                 }
             }
         }
@@ -1129,13 +1178,14 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
  * (Appendix C), and the shifted path's own denominator (*pdf, for its later shifts); false when
  * the shift fails. */
 static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct scene *scene_from,
-                            const struct restir_bdpt_path *src, uint32_t pixel, struct vec3 *C, float *J,
-                            struct restir_bdpt_rc *rc_out, struct ray_counters *rays)
+                            const struct restir_bdpt_path *src, const struct bdpt_light_vertex *lv, uint32_t pixel,
+                            struct vec3 *C, float *J, struct restir_bdpt_rc *rc_out, struct ray_counters *rays)
 {
     const struct scene *scene = v->scene;
     const struct camera *cam = &v->cam;
-    const uint32_t k = src->rc.k, e = (uint32_t)(src->r.head.bits >> 8);
-    const bool nee = (src->r.head.bits & 0xffu) == 1u;
+    const uint32_t k = src->rc.k, e = (uint32_t)(src->r.head.bits >> 8), tech = src->r.head.bits & 0xffu;
+    const bool nee = tech == 1u;
+    const uint32_t draws = rbdpt_vertex_draws(c);
     struct rng rng = rng_make(c->seed, src->r.origin_frame, RBDPT_CAMERA_STREAM + src->r.light_path, 0);
     float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
     const uint32_t w = c->st->width;
@@ -1144,6 +1194,7 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
     if (!(cos0 > 0.0f)) return false;
     struct restir_bdpt_mis mis = restir_bdpt_mis_camera_start(c->n_light, v->plane_dist2 / (cos0 * cos0 * cos0),
                                                                   c->power);
+    mis.full = c->full;
     struct vec3 beta = vec3_splat(1.0f), org = cam->position, prev_p = org;
     struct surface s;
     const struct material *m = NULL;
@@ -1158,7 +1209,7 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
         const bool rough = rbdpt_rough(m);
         if (j >= 2 && prev_rough && rough) return false;
         if (j + 1 == k) break;
-        for (int n = 0; n < 3; n++) rng_next_float(&rng);   /* the light sample's */
+        for (uint32_t n = 0; n < draws - 4u; n++) rng_next_float(&rng);   /* the light sample's (and vertex choice) */
         struct vec3 wo = frame_to_local(&s.frame, vec3_neg(dir));
         float ulobe = rng_next_float(&rng), v1 = rng_next_float(&rng), v2 = rng_next_float(&rng);
         struct bsdf_sample bs;
@@ -1193,7 +1244,25 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
     if (vec3_is_zero(f1) || !(p1 > 0.0f) || !(-cos_k * wo_k.z > 0.0f)) return false;
     restir_bdpt_mis_scatter(&mis, vec3_dot(w1, s.ng), p1, material_pdf(m, wi, wo), false, c->power);
     restir_bdpt_mis_hit(&mis, d2, cos_k, c->power);
-    const bool retrace = scene_from != scene && !c->static_scene;
+    if (tech >= 2u && k + tech == e) {
+        /* x_k itself joins the sample's light vertex (replayed in this scene by rbdpt_shift): the
+         * direction leaving x_k is the connection's, fixed by the light vertex, so p_k = 1 as for
+         * a light sample. */
+        bool made;
+        const struct bdpt_mis cm = {mis.dvcm, mis.dvc};
+        struct vec3 cv = bdpt_connect_light_vertex(scene, c->power, 1.0f, &sk, mk, wo_k, &cm, lv, rays, &made);
+        if (!made || !bdpt_visible(scene->accel, s.p, s.ng, sk.p, &sk.ng, rays)) return false;
+        *rc_out = src->rc;
+        rc_out->pdf = p1 * fabsf(cos_k) / d2;
+        *C = vec3_mul(vec3_mul(beta, vec3_scale(f1, fabsf(wi.z) / p1)), cv);
+        *J = rc_out->pdf / src->rc.pdf *
+             surface_area_ratio(scene_from, scene, src->rc.shape, src->rc.prim, src->rc.b1, src->rc.b2);
+        return isfinite(*J) && *J > 0.0f && vec3_is_finite(*C);
+    }
+    /* The full variant keeps no MIS constants of the suffix (its weight spans every technique):
+     * its shifts always trace the suffix again, which in a scene that did not move gives back the
+     * same vertices. */
+    const bool retrace = c->full || (scene_from != scene && !c->static_scene);
     const bool nee_last = nee && k + 1 == e;   /* the light sample leaves x_k itself */
     /* x_k towards w_k with its new w_o. */
     struct vec3 wk_world = surface_oct_decode(src->rc.wk_u, src->rc.wk_v), L_k = src->rc.L;
@@ -1204,7 +1273,7 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
          * numbers (x_k's, as rbdpt_camera_candidates draws them), its Jacobian 1 in primary
          * sample space, as the suffix of any other reconnected sample is traced again. */
         struct rng r2 = rng_make(c->seed, src->r.origin_frame, RBDPT_CAMERA_STREAM + src->r.light_path, 0);
-        const uint32_t skip = RBDPT_CAMERA_JITTER_DRAWS + RBDPT_CAMERA_VERTEX_DRAWS * (k - 1);
+        const uint32_t skip = RBDPT_CAMERA_JITTER_DRAWS + draws * (k - 1);
         for (uint32_t n = 0; n < skip; n++) rng_next_float(&r2);
         float ul = rng_next_float(&r2), u1 = rng_next_float(&r2), u2 = rng_next_float(&r2);
         struct rbdpt_nee ns;
@@ -1264,11 +1333,12 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
         /* The suffix in this scene: x_k's scattering along w_k, then the rest as the sample's own
          * random numbers trace it (those of vertices 1 .. k skipped). */
         struct rng r2 = rng_make(c->seed, src->r.origin_frame, RBDPT_CAMERA_STREAM + src->r.light_path, 0);
-        const uint32_t skip = RBDPT_CAMERA_JITTER_DRAWS + RBDPT_CAMERA_VERTEX_DRAWS * k;
+        const uint32_t skip = RBDPT_CAMERA_JITTER_DRAWS + draws * k;
         for (uint32_t n = 0; n < skip; n++) rng_next_float(&r2);
         const struct rbdpt_resume resume = {.org = bdpt_origin(&sk, wk_world), .dir = wk_world, .prev_p = sk.p,
                                             .beta = vec3_mul(head, factor_k), .mis = mis, .rc = *rc_out};
-        struct rbdpt_want want = {.bits = src->r.head.bits, .k = k, .found = false};
+        struct rbdpt_want want = {.bits = src->r.head.bits, .k = k, .lv = lv, .lv_path = src->rc.light_path,
+                                  .found = false};
         struct vec3 primary;
         bool has_primary;
         rbdpt_camera_candidates(c, v, wk_world, src->r.light_path, src->r.origin_frame, &r2, NULL, NULL, rays, NULL,
@@ -1418,6 +1488,9 @@ static void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain
     *jacobian = 1.0f;
     struct vec3 C = {0, 0, 0};
     struct restir_bdpt_rc rc = src->rc;
+    struct bdpt_light_vertex lv = {0};   /* s >= 2: the sample's light vertex in the target scene */
+    const uint32_t tech = src->r.head.bits & 0xffu;
+    const struct bdpt_light_vertex *lvp = tech >= 2u && tech != RESTIR_BDPT_TECH_LT ? &lv : NULL;
     bool ok = false;
     if ((src->r.head.bits & 0xffu) == RESTIR_BDPT_TECH_LT && src->rc.k) {
         float pdf;
@@ -1433,15 +1506,19 @@ static void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain
         /* It stays in its class: a replayed sample of the reverse hybrid shift's would not shift back. */
         ok = stored == 1 && !out.caustic && !out.hybrid && out.pixel == to.pixel;
         if (ok) C = out.F;
+    } else if (lvp && !rbdpt_replay_light_vertex(c, v, src->r.origin_frame, src->rc.light_path, tech - 1u, &lv,
+                                                 &cnt->rays)) {
+        ok = false;
     } else if (src->rc.k >= 2) {
-        ok = rbdpt_reconnect(c, v, c->view[from.frame == RESTIR_PREVIOUS ? 1 : 0].scene, src, to.pixel, &C, jacobian,
-                             &rc, &cnt->rays);
+        ok = rbdpt_reconnect(c, v, c->view[from.frame == RESTIR_PREVIOUS ? 1 : 0].scene, src, lvp, to.pixel, &C,
+                             jacobian, &rc, &cnt->rays);
         atomic_fetch_add_explicit(c->reconnections, 1, memory_order_relaxed);
     } else {
         struct rng rng = rng_make(c->seed, src->r.origin_frame, RBDPT_CAMERA_STREAM + src->r.light_path, 0);
         float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
         struct vec3 dir = camera_ray_dir(&v->cam, (float)(to.pixel % w) + jx, (float)(to.pixel / w) + jy);
-        struct rbdpt_want want = {.bits = src->r.head.bits, .k = 0, .found = false};
+        struct rbdpt_want want = {.bits = src->r.head.bits, .k = 0, .lv = lvp, .lv_path = src->rc.light_path,
+                                  .found = false};
         struct vec3 primary;
         bool has_primary;
         rbdpt_camera_candidates(c, v, dir, src->r.light_path, src->r.origin_frame, &rng, NULL, NULL, &cnt->rays,
@@ -1896,7 +1973,8 @@ int restir_bdpt_shift_round_trip(struct restir_bdpt_state *st, const struct rest
     struct rbdpt_ctx *c = rbdpt_test_ctx(st, p, f, &reconnections);
     if (!c) return -1;
     const bool lt = (x->r.head.bits & 0xffu) == RESTIR_BDPT_TECH_LT;
-    const int kind = lt ? (x->rc.k ? 1 : 0) : (x->rc.k >= 2 ? 2 : 0);
+    const bool conn = !lt && (x->r.head.bits & 0xffu) >= 2u;
+    const int kind = lt ? (x->rc.k ? 1 : 0) : conn ? (x->rc.k >= 2 ? 4 : 3) : (x->rc.k >= 2 ? 2 : 0);
     struct restir_counters cnt = {{0, 0}, 0, 0, 0};
     if (f_to) {
         c->view[1].scene = f_to->scene;

@@ -156,7 +156,13 @@ struct restir_bdpt_rc {
     float wk_u, wk_v;          /* octahedral w_k (world) */
     struct vec3 L;
     float pdf;
-    float mis_a, mis_b;
+    float mis_a;
+    union {
+        float mis_b;           /* lightweight variant */
+        uint32_t light_path;   /* full variant, s >= 2: the light subpath the connection joins (frame
+                                  r.origin_frame); the full variant's shifts trace the suffix again and
+                                  recompute the MIS weight, so they keep no MIS constants */
+    };
 };
 
 /* A non-caustic reservoir: the reservoir and its sample's reconnection. */
@@ -210,6 +216,8 @@ struct restir_bdpt_state {
     /* The full variant's light vertex cache, in bdpt's layout: per block a region of lvc_region
      * vertices, lvc_count of them used, lvc_first the prefix sums (blocks + 1). NULL otherwise. */
     struct bdpt_light_vertex *lvc;
+    uint32_t *lvc_path;        /* with reuse: per slot, the light subpath of the vertex (a connection's
+                                  shift replays it) */
     uint32_t lvc_region;
     uint32_t *lvc_count, *lvc_dropped;
     uint64_t *lvc_first;
@@ -290,7 +298,8 @@ bool restir_bdpt_caustic_replay(struct restir_bdpt_state *st, const struct resti
  * sample's suffix be traced again there), and back. target[0..2]: its
  * target, the shifted one's, the one shifted back (0 where a shift failed); *jj: the product of
  * the two Jacobians. Returns the shift kind: 2 the hybrid shift (camera side), 1 the reverse
- * hybrid shift (t = 1), 0 random replay; -1 when the pixel holds no sample. */
+ * hybrid shift (t = 1), 0 random replay, 3 a connection (s >= 2) by random replay of both
+ * subpaths, 4 a connection by the hybrid shift; -1 when the pixel holds no sample. */
 int restir_bdpt_shift_round_trip(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
                                  const struct restir_bdpt_frame *f, const struct restir_bdpt_frame *f_to,
                                  uint32_t pixel, uint32_t to, float target[3], float *jj);

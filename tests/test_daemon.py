@@ -1362,7 +1362,7 @@ def test_restir_bdpt_reuse_session_buffers(daemon):
 
 
 @pytest.mark.parametrize("params,field", [
-    ({"variant": "full", "reuse": True}, "/params/reuse"),
+    ({"variant": "full", "reuse": True, "copy_mis": True}, "/params/copy_mis"),
     ({"variant": "heavy"}, "/params/variant"),
     ({"lt_capacity": 0}, "/params/lt_capacity"),
     ({"temporal_cap": 0}, "/params/temporal_cap"),

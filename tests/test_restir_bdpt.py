@@ -68,10 +68,14 @@ def _sessions(scene_path, tmp_path, method, params, anim, seed0):
 # samples' suffixes are traced again in the moved scene), and on caustic-sphere with the light
 # moving, where most reconnected samples draw their light sample again in the moved scene. The
 # fourth case (caustic-sphere still, with reuse) passes too and is left out for the test's time.
+# The full variant with reuse on the same three: its connections (s >= 2) shift by replaying their
+# light subpath in the target frame's scene and rejoining the camera subpath to it.
 MATCH_CASES = ([(scene, moving, False, "lightweight") for scene in CASES for moving in (False, True)] +
                [("lamp-in-glass", moving, True, "lightweight") for moving in (False, True)] +
                [("caustic-sphere", True, True, "lightweight")] +
-               [(scene, moving, False, "full") for scene in CASES for moving in (False, True)])
+               [(scene, moving, False, "full") for scene in CASES for moving in (False, True)] +
+               [("lamp-in-glass", moving, True, "full") for moving in (False, True)] +
+               [("caustic-sphere", True, True, "full")])
 
 _REF = {}
 _RUNS = {}   # restir_bdpt sessions of test_restir_bdpt_matches_bdpt, for the paired test below
@@ -142,8 +146,9 @@ def test_restir_bdpt_reject_unshiftable_darkens(tmp_path, scenes):
     assert t < -2.0 and rel > -0.01, (rel, t)
 
 
-@pytest.mark.parametrize("params", [{"reuse": False}, {"reuse": True}, {"variant": "full"}],
-                         ids=["default", "reuse", "full"])
+@pytest.mark.parametrize("params", [{"reuse": False}, {"reuse": True}, {"variant": "full"},
+                                    {"variant": "full", "reuse": True}],
+                         ids=["default", "reuse", "full", "full-reuse"])
 def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes, params):
     """Light-traced samples and replayed caustic samples are bucketed by counting sorts in
     light-subpath and source-pixel order, the full variant's light vertex cache is indexed in
@@ -161,14 +166,15 @@ def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes, params):
     assert np.array_equal(a, b)
 
 
-@pytest.mark.parametrize("params,where", [({"variant": "full", "reuse": True}, "/params/reuse"),
+@pytest.mark.parametrize("params,where", [({"variant": "full", "reuse": True, "copy_mis": True}, "/params/copy_mis"),
                                           ({"copy_mis": True}, "/params/copy_mis"),
                                           ({"variant": "complete"}, "/params/variant"),
                                           ({"lt_capacity": 65}, "/params/lt_capacity"),
                                           ({"lvc_capacity": 0}, "/params/lvc_capacity")])
 def test_restir_bdpt_refuses_what_it_does_not_do(scenes, tmp_path, params, where):
-    """The full variant's non-caustic reuse is not implemented: refused, not rendered without it;
-    and parameters out of range name themselves."""
+    """What restir_bdpt does not do is refused, not rendered without it (copy_mis without reuse, or
+    with the full variant, whose shifts always recompute the MIS weight); parameters out of range
+    name themselves."""
     res = run_cli("render", scenes / "caustic-sphere", "--method", "restir_bdpt", "--size", "8x8",
                   "--params", json.dumps(params), "-o", tmp_path / "f.exr")
     assert res.returncode == 2 and where in res.stderr, res.stderr

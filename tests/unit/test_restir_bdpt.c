@@ -376,9 +376,11 @@ static void test_params(void)
     CHECK(restir_bdpt_params_valid(&p, &err));
     p.variant = RESTIR_BDPT_FULL;
     CHECK(restir_bdpt_params_valid(&p, &err));
-    p.reuse = true;   /* the full variant's non-caustic reuse is not implemented */
-    CHECK(!restir_bdpt_params_valid(&p, &err) && strcmp(err.where, "/params/reuse") == 0 &&
-          strstr(err.message, "not implemented"));
+    p.reuse = true;
+    CHECK(restir_bdpt_params_valid(&p, &err));
+    p.copy_mis = true;   /* the full variant's shifts always recompute the MIS weight */
+    CHECK(!restir_bdpt_params_valid(&p, &err) && strcmp(err.where, "/params/copy_mis") == 0 &&
+          strstr(err.message, "lightweight variant"));
     p = restir_bdpt_defaults();
     p.lvc_capacity = 65;
     CHECK(!restir_bdpt_params_valid(&p, &err) && strcmp(err.where, "/params/lvc_capacity") == 0);
@@ -587,9 +589,11 @@ static void test_caustic_replay_round_trip(void)
  * hybrid shift of light-traced ones and random replay alike. Both kinds of reconnection must
  * occur. With `copy_mis` the same holds for the variant that keeps the base path's MIS weight,
  * and for light-traced samples that weight must differ from the recomputed one in most reverse
- * hybrid shifts (else the variant would copy nothing). */
-static void shift_round_trips(const char *path, struct camera_desc cam, uint32_t light_paths, uint32_t need[3],
-                              const char *light_name, bool copy_mis)
+ * hybrid shifts (else the variant would copy nothing). With `full` the full variant's, whose
+ * connections (s >= 2) shift their light subpath by random replay and their camera subpath by
+ * the hybrid shift or random replay (kinds 4 and 3). need[kind]: round trips required. */
+static void shift_round_trips(const char *path, struct camera_desc cam, uint32_t light_paths, const uint32_t need[5],
+                              const char *light_name, bool copy_mis, bool full)
 {
     struct scene *sc = load(path);
     if (!sc) return;
@@ -598,6 +602,7 @@ static void shift_round_trips(const char *path, struct camera_desc cam, uint32_t
     p.reuse = true;
     p.copy_mis = copy_mis;
     p.light_paths = light_paths;
+    if (full) p.variant = RESTIR_BDPT_FULL;
     struct restir_bdpt_params p_recompute = p;
     p_recompute.copy_mis = false;
     const uint32_t W = 32, H = 32;
@@ -628,7 +633,7 @@ static void shift_round_trips(const char *path, struct camera_desc cam, uint32_t
     }
     struct restir_bdpt_frame f_moved = f;
     f_moved.scene = moved;
-    uint32_t there[3] = {0, 0, 0}, back[3] = {0, 0, 0}, wrong = 0, copied = 0, differs = 0;
+    uint32_t there[5] = {0}, back[5] = {0}, wrong = 0, copied = 0, differs = 0;
     double worst = 0.0;
     for (uint32_t y = 0; y + 1 < H; y++) {
         for (uint32_t x = 0; x + 3 < W; x++) {
@@ -656,10 +661,11 @@ static void shift_round_trips(const char *path, struct camera_desc cam, uint32_t
                copied);
         CHECK(copied > 0 && differs * 2 > copied);
     }
-    printf("    %s%s: shifted there / and back: reverse hybrid %u / %u, hybrid %u / %u, replay %u / %u; worst "
-           "relative error %.2g, %u over 2e-3\n",
-           path, moved ? ", light moved" : "", there[1], back[1], there[2], back[2], there[0], back[0], worst, wrong);
-    for (int k = 0; k < 3; k++) CHECK(there[k] >= need[k] && back[k] * 100 >= there[k] * 99);
+    printf("    %s%s%s: shifted there / and back: reverse hybrid %u / %u, hybrid %u / %u, replay %u / %u, "
+           "connection by replay %u / %u, by the hybrid shift %u / %u; worst relative error %.2g, %u over 2e-3\n",
+           path, full ? " (full)" : "", moved ? ", light moved" : "", there[1], back[1], there[2], back[2], there[0],
+           back[0], there[3], back[3], there[4], back[4], worst, wrong);
+    for (int k = 0; k < 5; k++) CHECK(there[k] >= need[k] && back[k] * 100 >= there[k] * 99);
     CHECK(wrong == 0);
     restir_bdpt_destroy(&st);
     image_destroy(&img);
@@ -674,19 +680,24 @@ static void test_shift_round_trips(void)
     shift_round_trips("scenes/lamp-in-glass/scene.json",
                       (struct camera_desc){.position = {0, 1.45f, -1.8f}, .look_at = {0, 0.68f, 1.2f}, .up = {0, 1, 0},
                                            .fov_deg = 4},
-                      0, (uint32_t[3]){20, 20, 20}, NULL, false);
+                      0, (uint32_t[5]){20, 20, 20, 0, 0}, NULL, false, false);
     shift_round_trips("scenes/caustic-sphere/scene.json",
                       (struct camera_desc){.position = {-2.0f, 0.6f, -0.1f}, .look_at = {-0.45f, 0, -0.05f},
                                            .up = {0, 1, 0}, .fov_deg = 6},
-                      8192, (uint32_t[3]){5, 0, 20}, NULL, false);
+                      8192, (uint32_t[5]){5, 0, 20, 0, 0}, NULL, false, false);
     shift_round_trips("scenes/caustic-sphere/scene.json",
                       (struct camera_desc){.position = {-2.0f, 0.6f, -0.1f}, .look_at = {-0.45f, 0, -0.05f},
                                            .up = {0, 1, 0}, .fov_deg = 6},
-                      8192, (uint32_t[3]){5, 0, 20}, "light", false);
+                      8192, (uint32_t[5]){5, 0, 20, 0, 0}, "light", false, false);
     shift_round_trips("scenes/lamp-in-glass/scene.json",
                       (struct camera_desc){.position = {0, 1.45f, -1.8f}, .look_at = {0, 0.68f, 1.2f}, .up = {0, 1, 0},
                                            .fov_deg = 4},
-                      0, (uint32_t[3]){20, 20, 20}, NULL, true);
+                      0, (uint32_t[5]){20, 20, 20, 0, 0}, NULL, true, false);
+    /* The full variant on the lamp's table top, in one frame and into the frame whose lamp moved. */
+    const struct camera_desc lamp = {.position = {0, 1.45f, -1.8f}, .look_at = {0, 0.68f, 1.2f}, .up = {0, 1, 0},
+                                     .fov_deg = 4};
+    shift_round_trips("scenes/lamp-in-glass/scene.json", lamp, 0, (uint32_t[5]){1, 1, 1, 1, 1}, NULL, false, true);
+    shift_round_trips("scenes/lamp-in-glass/scene.json", lamp, 0, (uint32_t[5]){1, 1, 1, 1, 1}, "filament", false, true);
 }
 
 /* The x_2 cache of the reverse hybrid shift only saves replays: the same session rendered with
