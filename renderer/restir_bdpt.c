@@ -224,18 +224,28 @@ struct rbdpt_sizes {
     uint64_t lt, pixels, blocks_b, res, lvc, pairs, x2c;
 };
 
-/* A pixel's entry of the x_2 cache: what struct rbdpt_x2 holds, less what follows from the rest
- * (the shading frame is frame_from_normal(ns), as surface_from_hit builds it), and whose sample
- * it is: light subpath, origin frame and x_1's light depth, computed in frame `frame`'s scene. */
+/* A pixel's entry of the light-side cache of its sample, computed in frame `frame`'s scene, and
+ * whose sample it is (light subpath, origin frame, `depth_key`):
+ *  - kind RBDPT_CACHE_X2, a t = 1 sample of the reverse hybrid shift's class: what struct
+ *    rbdpt_x2 holds, less what follows from the rest (the shading frame is frame_from_normal(ns),
+ *    as surface_from_hit builds it); depth_key is x_1's light depth;
+ *  - kind RBDPT_CACHE_LV, a connection (s >= 2, full variant): its light vertex as the replay
+ *    gives it; depth_key is the vertex's light depth. */
+enum { RBDPT_CACHE_NONE, RBDPT_CACHE_X2, RBDPT_CACHE_LV };
 struct rbdpt_x2_entry {
-    struct vec3 p, ng, ns;
-    uint32_t shape, prim, material;
-    struct vec3 wo_world, beta, rr_beta;
-    float dvcm, dvc, u_rr;
-    uint32_t depth;
+    union {
+        struct {
+            struct vec3 p, ng, ns;
+            uint32_t shape, prim, material;
+            struct vec3 wo_world, beta, rr_beta;
+            float dvcm, dvc, u_rr;
+            uint32_t depth;
+        };
+        struct bdpt_light_vertex lv;
+    };
     uint32_t light_path, origin_frame, frame;
-    uint16_t x1_depth;
-    uint8_t near, valid;
+    uint16_t depth_key;
+    uint8_t near, kind;
 };
 
 static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
@@ -463,29 +473,31 @@ struct rbdpt_ris {
     uint16_t bits;
     uint32_t light_path, origin_frame;
     struct restir_bdpt_rc rc;   /* camera-side candidates with reuse: the selected one's reconnection */
+    const struct bdpt_light_vertex *lv;   /* a selected connection's cached light vertex */
 };
 
 /* Adds a candidate of contribution C (p̂ = lum(C)) with resampling weight w; `rc` its
- * reconnection (NULL: none). */
-static void rbdpt_ris_add_rc(struct rbdpt_ris *r, struct vec3 C, double w, uint16_t bits, uint32_t light_path,
+ * reconnection (NULL: none). True when it is selected (so far). */
+static bool rbdpt_ris_add_rc(struct rbdpt_ris *r, struct vec3 C, double w, uint16_t bits, uint32_t light_path,
                              uint32_t origin_frame, const struct restir_bdpt_rc *rc, struct rng *pick,
                              struct rbdpt_worker *wk)
 {
-    if (!(w > 0.0)) return;
+    if (!(w > 0.0)) return false;
     if (!isfinite(w) || !vec3_is_finite(C)) {
         wk->rejected++;
-        return;
+        return false;
     }
     r->wsum += w;
-    if ((double)rng_next_float(pick) * r->wsum < w) {
-        r->target = vec3_luminance(C);
-        r->F = C;
-        r->bits = bits;
-        r->light_path = light_path;
-        r->origin_frame = origin_frame;
-        if (rc) r->rc = *rc;
-        else memset(&r->rc, 0, sizeof r->rc);
-    }
+    if ((double)rng_next_float(pick) * r->wsum >= w) return false;
+    r->target = vec3_luminance(C);
+    r->F = C;
+    r->bits = bits;
+    r->light_path = light_path;
+    r->origin_frame = origin_frame;
+    r->lv = NULL;
+    if (rc) r->rc = *rc;
+    else memset(&r->rc, 0, sizeof r->rc);
+    return true;
 }
 
 static void rbdpt_ris_add_w(struct rbdpt_ris *r, struct vec3 C, double w, uint16_t bits, uint32_t light_path,
@@ -787,8 +799,8 @@ static void rbdpt_x2_keep(const struct rbdpt_ctx *c, uint32_t pixel, const struc
                                  .beta = x2->beta, .rr_beta = x2->rr_beta, .dvcm = x2->mis.dvcm,
                                  .dvc = x2->mis.dvc, .u_rr = x2->u_rr, .depth = x2->depth,
                                  .light_path = res->r.light_path, .origin_frame = res->r.origin_frame,
-                                 .frame = c->frame, .x1_depth = (uint16_t)(res->r.head.bits >> 8),
-                                 .near = x2->mis.near, .valid = 1};
+                                 .frame = c->frame, .depth_key = (uint16_t)(res->r.head.bits >> 8),
+                                 .near = x2->mis.near, .kind = RBDPT_CACHE_X2};
 }
 
 static bool rbdpt_x2_cached(const struct rbdpt_ctx *c, const struct rbdpt_view *v, uint32_t pixel,
@@ -796,8 +808,8 @@ static bool rbdpt_x2_cached(const struct rbdpt_ctx *c, const struct rbdpt_view *
 {
     if (!c->st->x2c || pixel == UINT32_MAX || v->scene != c->view[0].scene) return false;
     const struct rbdpt_x2_entry *e = &c->st->x2c[pixel];
-    if (!e->valid || e->frame != c->frame || e->light_path != src->r.light_path ||
-        e->origin_frame != src->r.origin_frame || e->x1_depth != (uint16_t)(src->r.head.bits >> 8))
+    if (e->kind != RBDPT_CACHE_X2 || e->frame != c->frame || e->light_path != src->r.light_path ||
+        e->origin_frame != src->r.origin_frame || e->depth_key != (uint16_t)(src->r.head.bits >> 8))
         return false;
     *x2 = (struct rbdpt_x2){.s = {.p = e->p, .ng = e->ng, .ns = e->ns, .frame = frame_from_normal(e->ns),
                                   .shape = e->shape, .prim = e->prim, .material = e->material},
@@ -869,6 +881,44 @@ static bool rbdpt_replay_light_vertex(const struct rbdpt_ctx *c, const struct rb
     return one.count == 1;
 }
 
+/* Keeps a connection's light vertex in this frame's scene in the cache entry of `pixel`, whose
+ * sample src is. */
+static void rbdpt_light_vertex_keep(const struct rbdpt_ctx *c, uint32_t pixel, const struct restir_bdpt_path *src,
+                                    const struct bdpt_light_vertex *lv)
+{
+    c->st->x2c[pixel] = (struct rbdpt_x2_entry){.lv = *lv, .light_path = src->rc.light_path,
+                                                .origin_frame = src->r.origin_frame, .frame = c->frame,
+                                                .depth_key = (uint16_t)lv->depth, .kind = RBDPT_CACHE_LV};
+}
+
+/* A connection's light vertex (rbdpt_replay_light_vertex) through the cache entry of `pixel`,
+ * whose sample src is (UINT32_MAX: none; st->x2c, see rbdpt_x2_keep): found there when it was
+ * kept in this frame's scene, else replayed, and with `keep` (only the job that owns the pixel)
+ * kept there. The entry holds what the replay gave, so an image does not depend on it. */
+static bool rbdpt_light_vertex_of(const struct rbdpt_ctx *c, const struct rbdpt_view *v, uint32_t pixel,
+                                  const struct restir_bdpt_path *src, bool keep, struct bdpt_light_vertex *lv,
+                                  struct ray_counters *rays)
+{
+    const uint32_t depth = (src->r.head.bits & 0xffu) - 1u;
+    struct rbdpt_x2_entry *e =
+        c->st->x2c && pixel != UINT32_MAX && v->scene == c->view[0].scene ? &c->st->x2c[pixel] : NULL;
+    if (e && e->kind == RBDPT_CACHE_LV && e->frame == c->frame && e->light_path == src->rc.light_path &&
+        e->origin_frame == src->r.origin_frame && e->depth_key == depth) {
+        *lv = e->lv;
+        return true;
+    }
+    if (!rbdpt_replay_light_vertex(c, v, src->r.origin_frame, src->rc.light_path, depth, lv, rays)) return false;
+    if (e && keep) rbdpt_light_vertex_keep(c, pixel, src, lv);
+    return true;
+}
+
+/* Whether a non-caustic sample is a connection (s >= 2, the full variant's). */
+static bool rbdpt_is_connection(const struct restir_bdpt_path *x)
+{
+    const uint32_t tech = x->r.head.bits & 0xffu;
+    return tech >= 2u && tech != RESTIR_BDPT_TECH_LT;
+}
+
 /* Random numbers a camera subpath draws per vertex (RBDPT_CAMERA_VERTEX_DRAWS). */
 static uint32_t rbdpt_vertex_draws(const struct rbdpt_ctx *c)
 {
@@ -908,8 +958,8 @@ struct rbdpt_resume {
  * hands it to the replay that wants it; true when the replay is settled (found or failed: the
  * path need not be traced further). */
 static bool rbdpt_offer(struct rbdpt_ris *r, struct rbdpt_want *want, struct vec3 C, double w, uint16_t bits,
-                        const struct restir_bdpt_rc *rc, uint32_t pixel, uint32_t frame, struct rng *pick,
-                        struct rbdpt_worker *wk)
+                        const struct restir_bdpt_rc *rc, const struct bdpt_light_vertex *lv, uint32_t pixel,
+                        uint32_t frame, struct rng *pick, struct rbdpt_worker *wk)
 {
     if (want) {
         if (want->bits != bits) return false;
@@ -919,7 +969,7 @@ static bool rbdpt_offer(struct rbdpt_ris *r, struct rbdpt_want *want, struct vec
         return true;
     }
     wk->candidates++;
-    rbdpt_ris_add_rc(r, C, w, bits, pixel, frame, rc, pick, wk);
+    if (rbdpt_ris_add_rc(r, C, w, bits, pixel, frame, rc, pick, wk)) r->lv = lv;
     return false;
 }
 
@@ -1011,7 +1061,7 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
                     if (p->copy_mis) rce.L = vec3_scale(rce.L, w);
                 }
                 if (rbdpt_offer(r, want, C, vec3_luminance(C) / src, (uint16_t)(((depth + 1) << 8) | 0u),
-                                track ? &rce : NULL, pixel, frame, pick, wk))
+                                track ? &rce : NULL, NULL, pixel, frame, pick, wk))
                     return;
             }
         }
@@ -1081,7 +1131,7 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
                             if (p->copy_mis) rcn.L = vec3_scale(rcn.L, w);
                         }
                         if (rbdpt_offer(r, want, C, vec3_luminance(C) / src, (uint16_t)(((depth + 2) << 8) | 1u),
-                                        track ? &rcn : NULL, pixel, frame, pick, wk))
+                                        track ? &rcn : NULL, NULL, pixel, frame, pick, wk))
                             return;
                     }
                 }
@@ -1117,7 +1167,8 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
                     struct restir_bdpt_rc rcc = rc_k;
                     rcc.light_path = lv_path;
                     if (rbdpt_offer(r, want, C, vec3_luminance(C) * c->lvc.scale / src,
-                                    (uint16_t)((vertices << 8) | tech), track ? &rcc : NULL, pixel, frame, pick, wk))
+                                    (uint16_t)((vertices << 8) | tech), track ? &rcc : NULL, lv, pixel, frame, pick,
+                                    wk))
                         return;
                 }
             }
@@ -1489,8 +1540,7 @@ static void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain
     struct vec3 C = {0, 0, 0};
     struct restir_bdpt_rc rc = src->rc;
     struct bdpt_light_vertex lv = {0};   /* s >= 2: the sample's light vertex in the target scene */
-    const uint32_t tech = src->r.head.bits & 0xffu;
-    const struct bdpt_light_vertex *lvp = tech >= 2u && tech != RESTIR_BDPT_TECH_LT ? &lv : NULL;
+    const struct bdpt_light_vertex *lvp = rbdpt_is_connection(src) ? &lv : NULL;
     bool ok = false;
     if ((src->r.head.bits & 0xffu) == RESTIR_BDPT_TECH_LT && src->rc.k) {
         float pdf;
@@ -1506,8 +1556,8 @@ static void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain
         /* It stays in its class: a replayed sample of the reverse hybrid shift's would not shift back. */
         ok = stored == 1 && !out.caustic && !out.hybrid && out.pixel == to.pixel;
         if (ok) C = out.F;
-    } else if (lvp && !rbdpt_replay_light_vertex(c, v, src->r.origin_frame, src->rc.light_path, tech - 1u, &lv,
-                                                 &cnt->rays)) {
+    } else if (lvp && !rbdpt_light_vertex_of(c, v, from.frame == RESTIR_CURRENT ? from.pixel : UINT32_MAX, src,
+                                             false, &lv, &cnt->rays)) {
         ok = false;
     } else if (src->rc.k >= 2) {
         ok = rbdpt_reconnect(c, v, c->view[from.frame == RESTIR_PREVIOUS ? 1 : 0].scene, src, lvp, to.pixel, &C,
@@ -1654,6 +1704,10 @@ static void rbdpt_camera_tile(void *ctx, uint32_t tile, unsigned worker)
             if (st->res[pixel].rc.k == 1 && st->res[pixel].r.head.W > 0.0f &&
                 !rbdpt_reverse_record(c, pixel, &st->res[pixel], &rc))
                 st->res[pixel].rc.pdf = 0.0f;
+            /* A connection drawn in this frame joins a vertex of this frame's cache: the one its
+             * replay gives back. */
+            if (st->x2c && r.lv && rbdpt_is_connection(&st->res[pixel]) && st->res[pixel].r.head.W > 0.0f)
+                rbdpt_light_vertex_keep(c, pixel, &st->res[pixel], r.lv);
             uint16_t M = rbdpt_caustic_confidence(c, primary, has_primary);
             if (temporal) {
                 /* Appendix A: the initial caustic reservoir (confidence 1) against the previous
@@ -1736,9 +1790,10 @@ static void rbdpt_history_row(void *ctx, uint32_t row, unsigned worker)
 }
 
 /* Before the spatial pass: every pixel's sample of the reverse hybrid shift's class gets its x_2
- * in this frame's scene into the cache, so that its shifts to the neighbours (and theirs) do not
- * each replay its light subpath; most were kept when the sample was drawn, the rest came from
- * the history. One job per row, each writing its own pixels. */
+ * in this frame's scene into the cache, and every connection its light vertex, so that its
+ * shifts to the neighbours (and theirs) do not each replay its light subpath; most were kept
+ * when the sample was drawn, the rest came from the history. One job per row, each writing its
+ * own pixels. */
 static void rbdpt_x2_row(void *ctx, uint32_t row, unsigned worker)
 {
     struct rbdpt_ctx *c = ctx;
@@ -1749,6 +1804,11 @@ static void rbdpt_x2_row(void *ctx, uint32_t row, unsigned worker)
         uint32_t pixel = row * st->width + x;
         const struct restir_bdpt_path *res = &st->res[pixel];
         struct rbdpt_x2 x2;
+        if (rbdpt_is_connection(res) && res->r.head.W > 0.0f) {
+            struct bdpt_light_vertex lv;
+            rbdpt_light_vertex_of(c, &c->view[0], pixel, res, true, &lv, &rc);
+            continue;
+        }
         if ((res->r.head.bits & 0xffu) != RESTIR_BDPT_TECH_LT || res->rc.k != 1 || !(res->r.head.W > 0.0f) ||
             rbdpt_x2_cached(c, &c->view[0], pixel, res, &x2))
             continue;

@@ -703,7 +703,7 @@ static void test_shift_round_trips(void)
 /* The x_2 cache of the reverse hybrid shift only saves replays: the same session rendered with
  * the cache and without it (its buffer withheld) gives bit-identical frames, and with it fewer
  * rays (else the cache would never be hit). */
-static void test_x2_cache_changes_nothing(void)
+static void x2_cache_case(enum restir_bdpt_variant variant)
 {
     struct scene *sc = load("scenes/lamp-in-glass/scene.json");
     if (!sc) return;
@@ -712,6 +712,7 @@ static void test_x2_cache_changes_nothing(void)
                                     .fov_deg = 4};
     struct restir_bdpt_params p = restir_bdpt_defaults();
     p.reuse = true;
+    p.variant = variant;
     const uint32_t W = 32, H = 32;
     struct image img[2];
     uint64_t rays[2] = {0, 0};
@@ -732,13 +733,20 @@ static void test_x2_cache_changes_nothing(void)
         st.x2c = keep;
         restir_bdpt_destroy(&st);
     }
-    printf("    4 frames: %llu rays without the cache, %llu with it\n", (unsigned long long)rays[0],
-           (unsigned long long)rays[1]);
+    printf("    %s, 4 frames: %llu rays without the cache, %llu with it\n", restir_bdpt_variant_name(variant),
+           (unsigned long long)rays[0], (unsigned long long)rays[1]);
     CHECK(memcmp(img[0].pixels, img[1].pixels, (size_t)W * H * sizeof *img[0].pixels) == 0);
     CHECK(rays[1] < rays[0]);
     image_destroy(&img[0]);
     image_destroy(&img[1]);
     scene_release(sc);
+}
+
+/* The same for the full variant, whose cache also keeps the light vertices of connections. */
+static void test_x2_cache_changes_nothing(void)
+{
+    x2_cache_case(RESTIR_BDPT_LIGHTWEIGHT);
+    x2_cache_case(RESTIR_BDPT_FULL);
 }
 
 /* Paired: the same sessions (same seeds, so the same non-caustic reservoirs frame by frame) with
