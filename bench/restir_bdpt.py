@@ -7,7 +7,7 @@ Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a 
 run, on lamp-in-glass and caustic-sphere (BENCH_RBDPT_SCENES) at 256x256 (BENCH_RBDPT_SIZE):
   0. restir_bdpt runs with its defaults (lightweight, caustic reuse only), without caustic
      reuse, with the non-caustic reuse (`"reuse": true`), and as the full variant (`"variant":
-     "full"`: bdpt's vertex connections too, caustic reuse);
+     "full"`: bdpt's vertex connections too, caustic reuse), without and with `reuse`;
   1. a `bdpt` reference per scene of REF_FRAMES frames (bench/bdpt.py's, shared cache in
      build/refs/; `pt` cannot converge on these scenes: their light arrives through glass);
   2. MAPE against time (seed 000 footnote 3, `restir compare`), each over SEEDS seeds: `pt` at
@@ -77,9 +77,11 @@ SESSIONS = [("bdpt", ["--method", "bdpt"]), ("restir_pt", ["--method", "restir_p
             ("restir_bdpt", ["--method", "restir_bdpt"]),
             ("restir_bdpt, no caustic reuse", ["--method", "restir_bdpt", "--params", '{"caustic_temporal": false}']),
             ("restir_bdpt, reuse", ["--method", "restir_bdpt", "--params", '{"reuse": true}']),
-            ("restir_bdpt, full", ["--method", "restir_bdpt", "--params", '{"variant": "full"}'])]
+            ("restir_bdpt, full", ["--method", "restir_bdpt", "--params", '{"variant": "full"}']),
+            ("restir_bdpt, full, reuse", ["--method", "restir_bdpt", "--params",
+                                          '{"variant": "full", "reuse": true}'])]
 # The variants of restir_bdpt whose equal-time error and frame cost are compared with restir_pt's.
-COMPARED = ["restir_bdpt", "restir_bdpt, reuse", "restir_bdpt, full"]
+COMPARED = ["restir_bdpt", "restir_bdpt, reuse", "restir_bdpt, full", "restir_bdpt, full, reuse"]
 
 
 def read_rgb(path):

@@ -847,7 +847,7 @@ static bool request_restir_bdpt_params(const cJSON *pv, const char *ptr, struct 
         if (!restir_bdpt_variant_parse(name, &rp->variant))
             return err_set(err, ERR_INVALID, p, "unknown variant \"%.32s\" (lightweight or full)", name);
     }
-    /* Ranges are the renderer's (its pointers name /params/<key>; "full" is not implemented). */
+    /* Ranges are the renderer's (its pointers name /params/<key>). */
     return request_heuristic(pv, ptr, &rp->heuristic, err) && restir_bdpt_params_valid(rp, err);
 }
 

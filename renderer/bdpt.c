@@ -390,7 +390,8 @@ struct bdpt_light_vertex bdpt_light_vertex_make(const struct scene *scene, const
 
 struct vec3 bdpt_connect_light_vertex(const struct scene *scene, bool power, float lvc_scale, const struct surface *s,
                                       const struct material *m, struct vec3 wo, const struct bdpt_mis *cam_mis,
-                                      const struct bdpt_light_vertex *v, struct ray_counters *rc, bool *made)
+                                      const struct bdpt_light_vertex *v, struct ray_counters *rc, bool *made,
+                                      struct bdpt_connect_pdfs *pdfs)
 {
     struct vec3 zero = vec3_splat(0.0f);
     *made = false;
@@ -418,6 +419,7 @@ struct vec3 bdpt_connect_light_vertex(const struct scene *scene, bool power, flo
     float light_rev_w = material_pdf(ml, wl, wol);
     struct bdpt_mis lm = {v->dvcm, v->dvc};
     float w = bdpt_mis_weight_connect(cam_mis, &lm, cam_fwd_a, cam_rev_w, light_fwd_a, light_rev_w, power);
+    if (pdfs) *pdfs = (struct bdpt_connect_pdfs){cam_fwd_a, cam_rev_w, light_fwd_a, light_rev_w, w};
     float corr = fabsf(wol.z) * fabsf(cos_l_ng) / fabsf(cos_lo_ng);
     *made = true;
     return vec3_scale(vec3_mul(vec3_mul(fc, fl), v->beta), fabsf(wi.z) * corr * w * lvc_scale / dist2);
@@ -497,7 +499,7 @@ static struct vec3 bdpt_camera_path(struct bdpt_ctx *c, struct vec3 dir, struct 
                 if (t_c + v->depth <= p->max_depth) {
                     bool made;
                     struct vec3 cv = bdpt_connect_light_vertex(scene, c->power, c->lvc.scale, &s, m, wo, &mis, v, rc,
-                                                               &made);
+                                                               &made, NULL);
                     if (made) {
                         wk->connections++;
                         L = vec3_add(L, vec3_mul(beta, cv));

@@ -155,13 +155,19 @@ struct hit;
 struct bdpt_light_vertex bdpt_light_vertex_make(const struct scene *scene, const struct hit *hit,
                                                 const struct surface *s, struct vec3 wo, struct vec3 beta,
                                                 const struct bdpt_mis *mis, uint32_t depth);
+/* What a connection's MIS weight was made of (bdpt_mis_weight_connect's arguments besides the
+ * two MIS states), and the weight. */
+struct bdpt_connect_pdfs {
+    float cam_fwd_a, cam_rev_w, light_fwd_a, light_rev_w, w;
+};
 /* A vertex connection (s >= 2, t >= 2): camera vertex s (material m, incoming direction wo in its
  * shading frame, MIS state cam_mis after its hit) joined to cached light vertex v, with recursive
  * MIS over all techniques. The contribution before the camera subpath's throughput, times
  * lvc_scale = |LVC| / N_L (the vertex was drawn uniformly from the cache); *made is false when
- * the connection carries nothing. */
+ * the connection carries nothing. With `pdfs` (may be NULL) what its MIS weight was made of. */
 struct vec3 bdpt_connect_light_vertex(const struct scene *scene, bool power, float lvc_scale, const struct surface *s,
                                       const struct material *m, struct vec3 wo, const struct bdpt_mis *cam_mis,
-                                      const struct bdpt_light_vertex *v, struct ray_counters *rc, bool *made);
+                                      const struct bdpt_light_vertex *v, struct ray_counters *rc, bool *made,
+                                      struct bdpt_connect_pdfs *pdfs);
 
 #endif

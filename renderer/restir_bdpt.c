@@ -180,8 +180,8 @@ bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *er
                        "copy_mis changes the shifts of the non-caustic reuse: it needs \"reuse\": true");
     if (p->copy_mis && p->variant == RESTIR_BDPT_FULL)
         return err_set(err, ERR_INVALID, "/params/copy_mis",
-                       "copy_mis is a shortcut of the lightweight variant's reconnection shift; the full variant's "
-                       "shifts trace every suffix again and recompute the MIS weight on it");
+                       "copy_mis is a shortcut of the lightweight variant's reconnection shift; the full variant "
+                       "recomputes the MIS weight of every shifted path");
     /* A sample keeps its vertex count (depth + 2) in 8 bits of head.bits. */
     if (p->max_depth < 1 || p->max_depth > RESTIR_BDPT_MAX_DEPTH)
         return err_set(err, ERR_INVALID, "/params/max_depth", "max_depth must be in 1..%u", RESTIR_BDPT_MAX_DEPTH);
@@ -458,6 +458,7 @@ struct rbdpt_ctx {
     bool power;
     bool full;                   /* the full variant: all techniques, an LVC */
     bool static_scene;           /* the previous frame's scene equals this one (rbdpt_scene_moved) */
+    bool force_retrace;          /* tests: reconnection shifts trace every suffix again */
     _Atomic uint64_t *reconnections;  /* with reuse: hybrid shifts attempted (rbdpt_reconnect) */
     struct bdpt_lvc_view lvc;    /* full: this frame's cache, after the light pass */
     struct image *out;
@@ -919,6 +920,46 @@ static bool rbdpt_is_connection(const struct restir_bdpt_path *x)
     return tech >= 2u && tech != RESTIR_BDPT_TECH_LT;
 }
 
+/* The full variant's recursive reconnection MIS (seed 000 §6.2–6.3, in dVCM / dVC form). Past
+ * x_k's scattering every update of a camera subpath's MIS state is affine in that state: a hit
+ * scales both quantities, a rough scattering sets dVCM to a constant and makes dVC a linear
+ * combination of the two, a delta one zeroes dVCM and scales dVC. So the state where a
+ * candidate is made is M (dVCM_k, dVC_k) + o, (dVCM_k, dVC_k) the state right after x_k's
+ * scattering; M's columns are carried along the suffix from (1, 0) and (0, 1) by the linear
+ * part of the updates, o from (0, 0) by the updates themselves (rbdpt_suffix_basis,
+ * rbdpt_suffix_scatter). Every technique's weight is 1 / (1 + K0 + K1 dVCM + K2 dVC) in that
+ * state, with K >= 0 fixed by the candidate, so 1 / w = 1 + a dVCM_k + b dVC_k + c, a, b, c sums
+ * of non-negative terms (no cancellation). The shift recomputes the weight from its new prefix
+ * alone: eqs. 42–47's content, in three constants. */
+static void rbdpt_suffix_basis(struct restir_bdpt_mis basis[3])
+{
+    basis[0] = (struct restir_bdpt_mis){0.0f, 0.0f, true, true};
+    basis[1] = (struct restir_bdpt_mis){1.0f, 0.0f, true, true};
+    basis[2] = (struct restir_bdpt_mis){0.0f, 1.0f, true, true};
+}
+
+static void rbdpt_suffix_scatter(struct restir_bdpt_mis basis[3], float cos_out, float pdf_fwd_w, float pdf_rev_w,
+                                 bool delta, bool power)
+{
+    for (int j = 0; j < 3; j++) restir_bdpt_mis_scatter(&basis[j], cos_out, pdf_fwd_w, pdf_rev_w, delta, power);
+    basis[1].dvcm = basis[2].dvcm = 0.0f;   /* the constant a rough scattering sets belongs to o */
+}
+
+/* a, b, c from the carried states and the candidate's K. */
+static void rbdpt_full_constants(const struct restir_bdpt_mis basis[3], float K0, float K1, float K2,
+                                 struct restir_bdpt_rc *rc)
+{
+    rc->mis_a = K1 * basis[1].dvcm + K2 * basis[1].dvc;
+    rc->mis_b = K1 * basis[2].dvcm + K2 * basis[2].dvc;
+    rc->mis_c = K0 + K1 * basis[0].dvcm + K2 * basis[0].dvc;
+}
+
+/* The weight from those constants and the state after x_k's scattering on the shifted path. */
+static float rbdpt_full_weight(const struct restir_bdpt_rc *rc, const struct restir_bdpt_mis *at_k)
+{
+    return 1.0f / (1.0f + rc->mis_a * at_k->dvcm + rc->mis_b * at_k->dvc + rc->mis_c);
+}
+
 /* Random numbers a camera subpath draws per vertex (RBDPT_CAMERA_VERTEX_DRAWS). */
 static uint32_t rbdpt_vertex_draws(const struct rbdpt_ctx *c)
 {
@@ -975,8 +1016,8 @@ static bool rbdpt_offer(struct rbdpt_ris *r, struct rbdpt_want *want, struct vec
 
 
 /* The camera subpath of `pixel`'s stream (its ids: the pixel and frame whose random numbers
- * drive it) traced along `dir` in view v: its s = 0 and s = 1 candidates.
- * With reuse (lightweight variant) each candidate also gets its reconnection (struct
+ * drive it) traced along `dir` in view v: its s = 0 and s = 1 candidates, and the full variant's
+ * connections. With reuse each candidate also gets its reconnection (struct
  * restir_bdpt_rc), and Russian roulette is decoupled from the primary sample space (seed 001 §6):
  * C leaves the survival probabilities out and they divide the resampling weight instead, so a
  * shift, which keeps the vertices after x_k, never has to roll the roulette again; a replay
@@ -1007,6 +1048,8 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
      * scattering (to redo that scattering along the segment to x_k). */
     struct restir_bdpt_rc rc_k = {0};
     struct restir_bdpt_mis suffix = {0.0f, 1.0f, false, false};   /* dVC's factors past x_k's scattering */
+    struct restir_bdpt_mis basis[3];   /* full: the states carried from x_k's scattering (rbdpt_suffix_basis) */
+    rbdpt_suffix_basis(basis);
     struct vec3 beta_suf = vec3_splat(1.0f);
     struct surface prev_s = {0};
     const struct material *prev_m = NULL;
@@ -1039,7 +1082,10 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
         float cos_hit = vec3_dot(dir, s.ng);
         float hit_d2 = vec3_length2(vec3_sub(s.p, prev_p));
         restir_bdpt_mis_hit(&mis, hit_d2, cos_hit, c->power);
-        if (rc_k.k && rc_k.k <= depth) restir_bdpt_mis_hit(&suffix, hit_d2, cos_hit, c->power);
+        if (rc_k.k && rc_k.k <= depth) {
+            restir_bdpt_mis_hit(&suffix, hit_d2, cos_hit, c->power);
+            for (int j = 0; j < 3; j++) restir_bdpt_mis_hit(&basis[j], hit_d2, cos_hit, c->power);
+        }
         const struct material *m = &scene->materials[s.material];
         /* Path vertices after the camera of an emitter hit here: depth + 1. */
         if (material_is_emissive(m)) {
@@ -1056,8 +1102,13 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
                 if (rce.k) {
                     const bool last = rce.k == depth;   /* x_k scattered straight onto this emitter */
                     rce.L = last ? Le : vec3_mul(beta_suf, Le);
-                    restir_bdpt_rc_mis_emission(&mis, direct_pdf_a, emission_pdf_w, hit_d2, cos_hit, last, suffix.dvc,
-                                                c->power, &rce.mis_a, &rce.mis_b);
+                    if (c->full) {   /* restir_bdpt_mis_emission's K */
+                        rbdpt_full_constants(basis, 0.0f, rbdpt_mis_f(direct_pdf_a, c->power),
+                                             rbdpt_mis_f(emission_pdf_w, c->power), &rce);
+                    } else {
+                        restir_bdpt_rc_mis_emission(&mis, direct_pdf_a, emission_pdf_w, hit_d2, cos_hit, last,
+                                                    suffix.dvc, c->power, &rce.mis_a, &rce.mis_b);
+                    }
                     if (p->copy_mis) rce.L = vec3_scale(rce.L, w);
                 }
                 if (rbdpt_offer(r, want, C, vec3_luminance(C) / src, (uint16_t)(((depth + 1) << 8) | 0u),
@@ -1126,8 +1177,16 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
                             } else {
                                 rcn.L = vec3_mul(beta_suf, end);
                             }
-                            restir_bdpt_rc_mis_nee(fwd, rev, direct_pdf_w, emission_pdf_w, cos_ng, cos_l, last,
-                                                   suffix.dvc, c->power, &rcn.mis_a, &rcn.mis_b);
+                            if (!c->full) {
+                                restir_bdpt_rc_mis_nee(fwd, rev, direct_pdf_w, emission_pdf_w, cos_ng, cos_l, last,
+                                                       suffix.dvc, c->power, &rcn.mis_a, &rcn.mis_b);
+                            } else if (!last) {   /* (a light sample leaving x_k is drawn again by a shift) */
+                                /* restir_bdpt_mis_nee's K */
+                                const float k_cam = rbdpt_mis_f(emission_pdf_w * fabsf(cos_ng) /
+                                                                  (direct_pdf_w * fabsf(cos_l)), c->power);
+                                rbdpt_full_constants(basis, rbdpt_mis_f(fwd / direct_pdf_w, c->power), k_cam,
+                                                     k_cam * rbdpt_mis_f(rev, c->power), &rcn);
+                            }
                             if (p->copy_mis) rcn.L = vec3_scale(rcn.L, w);
                         }
                         if (rbdpt_offer(r, want, C, vec3_luminance(C) / src, (uint16_t)(((depth + 2) << 8) | 1u),
@@ -1159,13 +1218,24 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
             if (lv && t_c + lv->depth <= p->max_depth) {
                 bool made;
                 const struct bdpt_mis cm = {mis.dvcm, mis.dvc};
-                struct vec3 cv = bdpt_connect_light_vertex(scene, c->power, 1.0f, &s, m, wo, &cm, lv, rc, &made);
+                struct bdpt_connect_pdfs cp;
+                struct vec3 cv = bdpt_connect_light_vertex(scene, c->power, 1.0f, &s, m, wo, &cm, lv, rc, &made, &cp);
                 if (made) {
                     if (wk) wk->connections++;
                     uint32_t vertices = t_c + lv->depth + 1, tech = lv->depth + 1;
                     struct vec3 C = vec3_mul(beta, cv);
                     struct restir_bdpt_rc rcc = rc_k;
                     rcc.light_path = lv_path;
+                    if (rcc.k && rcc.k < t_c && cp.w > 0.0f) {
+                        /* Past x_k: what w_k carries back, and the suffix's MIS constants. */
+                        rcc.L = vec3_mul(beta_suf, vec3_scale(cv, 1.0f / cp.w));
+                        /* bdpt_mis_weight_connect's K */
+                        const float lf = rbdpt_mis_f(cp.light_fwd_a, c->power);
+                        rbdpt_full_constants(basis,
+                                             rbdpt_mis_f(cp.cam_fwd_a, c->power) *
+                                                 (lv->dvcm + lv->dvc * rbdpt_mis_f(cp.light_rev_w, c->power)),
+                                             lf, lf * rbdpt_mis_f(cp.cam_rev_w, c->power), &rcc);
+                    }
                     if (rbdpt_offer(r, want, C, vec3_luminance(C) * c->lvc.scale / src,
                                     (uint16_t)((vertices << 8) | tech), track ? &rcc : NULL, lv, pixel, frame, pick,
                                     wk))
@@ -1198,6 +1268,7 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
             if (rc_k.k) {
                 beta_suf = vec3_mul(beta_suf, factor);
                 restir_bdpt_mis_scatter(&suffix, cos_i_ng, bs.pdf_w, bs.pdf_rev_w, delta, c->power);
+                rbdpt_suffix_scatter(basis, cos_i_ng, bs.pdf_w, bs.pdf_rev_w, delta, c->power);
             }
         }
         float u_rr = rng_next_float(rng);
@@ -1301,7 +1372,7 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
          * a light sample. */
         bool made;
         const struct bdpt_mis cm = {mis.dvcm, mis.dvc};
-        struct vec3 cv = bdpt_connect_light_vertex(scene, c->power, 1.0f, &sk, mk, wo_k, &cm, lv, rays, &made);
+        struct vec3 cv = bdpt_connect_light_vertex(scene, c->power, 1.0f, &sk, mk, wo_k, &cm, lv, rays, &made, NULL);
         if (!made || !bdpt_visible(scene->accel, s.p, s.ng, sk.p, &sk.ng, rays)) return false;
         *rc_out = src->rc;
         rc_out->pdf = p1 * fabsf(cos_k) / d2;
@@ -1310,11 +1381,10 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
              surface_area_ratio(scene_from, scene, src->rc.shape, src->rc.prim, src->rc.b1, src->rc.b2);
         return isfinite(*J) && *J > 0.0f && vec3_is_finite(*C);
     }
-    /* The full variant keeps no MIS constants of the suffix (its weight spans every technique):
-     * its shifts always trace the suffix again, which in a scene that did not move gives back the
-     * same vertices. */
-    const bool retrace = c->full || (scene_from != scene && !c->static_scene);
     const bool nee_last = nee && k + 1 == e;   /* the light sample leaves x_k itself */
+    /* The full variant draws a light sample that leaves x_k again in every shift (its weight
+     * over all techniques has no suffix to keep constants of; the draw is cheap). */
+    const bool retrace = (c->full && nee_last) || (scene_from != scene && !c->static_scene) || c->force_retrace;
     /* x_k towards w_k with its new w_o. */
     struct vec3 wk_world = surface_oct_decode(src->rc.wk_u, src->rc.wk_v), L_k = src->rc.L;
     struct light_sample ls = {0};
@@ -1360,7 +1430,9 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
         factor_k = vec3_scale(fk, fabsf(wk.z) / fwd);
         B = fwd;
         restir_bdpt_mis_scatter(&mis, vec3_dot(wk_world, sk.ng), fwd, rev, false, c->power);
-        if (!retrace && !c->p->copy_mis)
+        if (!retrace && c->full)
+            mis_w = rbdpt_full_weight(&src->rc, &mis);
+        else if (!retrace && !c->p->copy_mis)
             mis_w = restir_bdpt_mis_reconnect(k + 1 == e ? RBDPT_RC_EMIT_LAST : RBDPT_RC_AFTER, src->rc.mis_a,
                                               src->rc.mis_b, &mis, fwd, rev, c->power);
     }
@@ -1539,8 +1611,17 @@ static void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain
     *jacobian = 1.0f;
     struct vec3 C = {0, 0, 0};
     struct restir_bdpt_rc rc = src->rc;
-    struct bdpt_light_vertex lv = {0};   /* s >= 2: the sample's light vertex in the target scene */
-    const struct bdpt_light_vertex *lvp = rbdpt_is_connection(src) ? &lv : NULL;
+    const struct scene *scene_from = c->view[from.frame == RESTIR_PREVIOUS ? 1 : 0].scene;
+    /* s >= 2: the sample's light vertex in the target scene, needed unless the hybrid shift keeps
+     * it (reconnected before the connecting vertex, in a scene where the light subpath replays
+     * to the same vertices). */
+    struct bdpt_light_vertex lv = {0};
+    const struct bdpt_light_vertex *lvp = NULL;
+    if (rbdpt_is_connection(src)) {
+        const uint32_t tech = src->r.head.bits & 0xffu, e = (uint32_t)(src->r.head.bits >> 8);
+        const bool moved = (scene_from != v->scene && !c->static_scene) || c->force_retrace;
+        if (src->rc.k < 2 || src->rc.k + tech == e || moved) lvp = &lv;
+    }
     bool ok = false;
     if ((src->r.head.bits & 0xffu) == RESTIR_BDPT_TECH_LT && src->rc.k) {
         float pdf;
@@ -1560,8 +1641,7 @@ static void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain
                                              false, &lv, &cnt->rays)) {
         ok = false;
     } else if (src->rc.k >= 2) {
-        ok = rbdpt_reconnect(c, v, c->view[from.frame == RESTIR_PREVIOUS ? 1 : 0].scene, src, lvp, to.pixel, &C,
-                             jacobian, &rc, &cnt->rays);
+        ok = rbdpt_reconnect(c, v, scene_from, src, lvp, to.pixel, &C, jacobian, &rc, &cnt->rays);
         atomic_fetch_add_explicit(c->reconnections, 1, memory_order_relaxed);
     } else {
         struct rng rng = rng_make(c->seed, src->r.origin_frame, RBDPT_CAMERA_STREAM + src->r.light_path, 0);
@@ -2052,6 +2132,26 @@ int restir_bdpt_shift_round_trip(struct restir_bdpt_state *st, const struct rest
     *jj = j1 * j2;
     free(c);
     return kind;
+}
+
+int restir_bdpt_shift_retrace_pair(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
+                                   const struct restir_bdpt_frame *f, uint32_t pixel, uint32_t to, float target[2],
+                                   float jacobian[2])
+{
+    if (!st->res_prev) return -1;
+    const struct restir_bdpt_path *x = &st->res_prev[pixel];
+    if (!(x->r.head.W > 0.0f) || (x->r.head.bits & 0xffu) == RESTIR_BDPT_TECH_LT || x->rc.k < 2) return -1;
+    _Atomic uint64_t reconnections = 0;
+    struct rbdpt_ctx *c = rbdpt_test_ctx(st, p, f, &reconnections);
+    if (!c) return -1;
+    struct restir_counters cnt = {{0, 0}, 0, 0, 0};
+    const struct restir_domain dp = {pixel, RESTIR_CURRENT}, dq = {to, RESTIR_CURRENT};
+    for (int k = 0; k < 2; k++) {
+        c->force_retrace = k == 1;
+        rbdpt_shift(c, x, dp, dq, NULL, &target[k], &jacobian[k], &cnt);
+    }
+    free(c);
+    return rbdpt_is_connection(x) ? 4 : 2;
 }
 
 bool restir_bdpt_caustic_replay(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,

@@ -23,7 +23,7 @@
  * plus that of the previous caustic reservoir its primary hit maps to (eq. 27), capped at
  * temporal_cap, or at moving_cap in a frame whose shapes or lights moved (restir_bdpt.c).
  *
- * Non-caustic reuse (`reuse`, off by default; lightweight variant): temporal reuse along a
+ * Non-caustic reuse (`reuse`, off by default; both variants): temporal reuse along a
  * G-buffer's motion vectors and spatial reuse through restir.c's passes. Camera-side samples
  * (s = 0, s = 1) shift by the camera-subpath part of seed 000's bidirectional hybrid shift
  * (§6.1): a sample whose path has a reconnectable pair (x_{k-1}, x_k), k >= 2, both vertices
@@ -43,6 +43,18 @@
  * hybrid shift (§6.1): its light subpath is replayed up to x'_2 and joined to the surface the eye
  * sees through the same sub-pixel position of the target pixel, so it can move to a neighbour.
  *
+ * The full variant's connections (s >= 2, t >= 2) shift as seed 000 §5 describes: the light
+ * subpath by random replay in the target frame's scene (its random numbers are those of light
+ * subpath rc.light_path of the origin frame), the camera subpath by the hybrid shift above or by
+ * random replay, joined to the replayed light vertex — at x_k itself when x_k is the connecting
+ * camera vertex. Its initial sample's unbiased contribution weight carries 1 / p_L = |LVC| / N_L
+ * (eq. 25) in its resampling weight, so the target is the path's own. The full variant's
+ * reconnection shifts (connections and camera-side samples alike) keep the suffix and recompute
+ * bdpt's MIS weight over all techniques from three constants of it (the recursive reconnection
+ * MIS, restir_bdpt.c); a light sample leaving x_k itself is drawn again. A per-pixel cache keeps
+ * the light vertex of each pixel's connection in this frame's scene, as it keeps x_2 of
+ * light-traced samples.
+ *
  * Two biased switches, off by default: `copy_mis` keeps the MIS weight a sample was drawn with
  * through its reconnection shifts (§6.4), and `reject_unshiftable` drops the non-caustic t = 1
  * candidates whose x_2 cannot be joined to the pixel's primary hit (§7.2). The paper needs the
@@ -50,11 +62,9 @@
  * shifts to the surface seen through its own sub-pixel position, so an unbiased session needs
  * no rejection and the switch is there to measure what it costs.
  *
- * Method `restir_bdpt` (renderer/view.c) renders frames with exactly this. What it does NOT do
- * yet: the connection techniques' shift (a camera subpath joined to a light subpath), hence no
- * non-caustic reuse for the full variant (`reuse` is refused naming /params/reuse). The full
- * variant's caustic reservoirs are reused as the lightweight one's, with the full MIS weight of
- * the replayed t = 1 sample.
+ * Method `restir_bdpt` (renderer/view.c) renders frames with exactly this. The full variant's
+ * caustic reservoirs are reused as the lightweight one's, with the full MIS weight of the
+ * replayed t = 1 sample; `copy_mis` is refused with it.
  * Scenes with environment light or translucent materials are refused, as by `bdpt`. */
 #ifndef RESTIRD_RESTIR_BDPT_H
 #define RESTIRD_RESTIR_BDPT_H
@@ -91,22 +101,22 @@ struct restir_bdpt_params {
     uint32_t moving_cap;       /* the caustic confidence cap instead in a frame whose shapes or lights
                                   moved or changed since the previous frame, 1..65535 (1: the history
                                   and the new samples weigh alike there; docs/benchmarks.md) */
-    bool reuse;                /* temporal and spatial reuse of the non-caustic reservoir (false;
-                                  lightweight variant only) */
+    bool reuse;                /* temporal and spatial reuse of the non-caustic reservoir (false) */
     uint32_t spatial_neighbors; /* with reuse: neighbours per pixel, 0..32 (2) */
     float spatial_radius;      /* with reuse: pixels, (0, 256] (30) */
     bool paired_spatial;       /* with reuse: neighbours paired so a pair's shifts serve both (true;
                                   restir.h) */
     bool camera_reconnect;     /* with reuse: camera-side samples reconnect (the hybrid shift); false:
                                   they shift by random replay alone (true) */
-    bool copy_mis;             /* with reuse: a reconnection shift keeps the base path's MIS weight
-                                  instead of recomputing it (seed 000 §6.4; biased, false) */
+    bool copy_mis;             /* with reuse, lightweight variant: a reconnection shift keeps the base
+                                  path's MIS weight instead of recomputing it (seed 000 §6.4; biased,
+                                  false) */
     bool reject_unshiftable;   /* drop the non-caustic t = 1 candidates whose x_2 cannot reach the
                                   pixel's primary hit (seed 000 §7.2; biased, false) */
 };
 
 struct restir_bdpt_params restir_bdpt_defaults(void);
-/* Ranges; errors name /params/<key>; `reuse` with the full variant is refused as not implemented. */
+/* Ranges; errors name /params/<key>; `copy_mis` needs `reuse` and the lightweight variant. */
 bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *err);
 
 /* A light-traced (t = 1) sample: its pixel, its contribution C (MIS weight and 1/N_L included). */
@@ -138,9 +148,11 @@ struct restir_bdpt_reservoir {
  *     left out: the suffix throughput times the emission (s = 0), or times f |cos| Le / p_light of
  *     the last vertex's light sample (s = 1), or, when x_k itself is that last vertex, Le (s = 0:
  *     w_k hits the emitter) or Le / p_light (s = 1: w_k is the light sample's direction);
- *   - `mis_a`, `mis_b`: the suffix's part of the lightweight MIS weight, so that the shifted
- *     path's weight follows from its new prefix alone (the recursive reconnection MIS of seed
- *     000 §6.2, restir_bdpt_mis_reconnect);
+ *   - `mis_a`, `mis_b`, `mis_c`: the suffix's part of the MIS weight, so that the shifted path's
+ *     weight follows from its new prefix alone (the recursive reconnection MIS of seed 000 §6.2;
+ *     lightweight: restir_bdpt_mis_reconnect's two constants; full: the weight is
+ *     1 / (1 + a dVCM + b dVC + c) with dVCM, dVC those after x_k's scattering, which the suffix
+ *     maps affinely onto the last vertex's — see restir_bdpt.c);
  *   - `pdf`: p_{k-1}(w_{k-1}) |cos_k| / d^2 p_k(w_k) (p_k = 1 for a light sample's direction), the
  *     reconnection's Jacobian denominator (seed 000 Appendix C).
  * With `copy_mis` `L` carries the MIS weight of the path the sample was drawn as, which its
@@ -148,7 +160,11 @@ struct restir_bdpt_reservoir {
  * A light-traced sample (t = 1) of the reverse hybrid shift's class (non-caustic, x_2 a surface
  * with only rough lobes) has k = 1, its sub-pixel position in b1, b2 and in `pdf` the density
  * p_2(w) |cos_1| / d^2 / p_camera,A(x_1) of its x_1 per unit of image area (with `copy_mis`, the
- * MIS weight its shifts keep in mis_a); other t = 1 samples k = 0. */
+ * MIS weight its shifts keep in mis_a); other t = 1 samples k = 0.
+ * A connection (s >= 2, full variant) has its camera subpath's x_k (k <= the connecting vertex;
+ * when equal, `pdf` leaves p_k out as for a light sample: the connection fixes w_k, and `L` is
+ * unused) and its light subpath in `light_path`; `L` is what w_k carries back: the suffix
+ * throughput times the connection's contribution, MIS weight left out. */
 struct restir_bdpt_rc {
     uint32_t k;
     uint32_t shape, prim;
@@ -156,13 +172,9 @@ struct restir_bdpt_rc {
     float wk_u, wk_v;          /* octahedral w_k (world) */
     struct vec3 L;
     float pdf;
-    float mis_a;
-    union {
-        float mis_b;           /* lightweight variant */
-        uint32_t light_path;   /* full variant, s >= 2: the light subpath the connection joins (frame
-                                  r.origin_frame); the full variant's shifts trace the suffix again and
-                                  recompute the MIS weight, so they keep no MIS constants */
-    };
+    float mis_a, mis_b, mis_c; /* the suffix's MIS constants (lightweight: a and b; full: all three) */
+    uint32_t light_path;       /* full variant, s >= 2: the light subpath the connection joins (frame
+                                  r.origin_frame) */
 };
 
 /* A non-caustic reservoir: the reservoir and its sample's reconnection. */
@@ -181,11 +193,11 @@ struct restir_bdpt_shifted {
     uint16_t depth, valid;
 };
 
-/* Bytes of one reservoir: a pixel has a non-caustic one (with its reconnection: 80 bytes) and
+/* Bytes of one reservoir: a pixel has a non-caustic one (with its reconnection: 88 bytes) and
  * two caustic ones (the current and the previous frame's, 28 bytes each); with `reuse` two more
  * non-caustic ones (history and spatial output). */
 #define RESTIR_BDPT_RESERVOIR_BYTES 28u
-#define RESTIR_BDPT_PATH_BYTES 80u
+#define RESTIR_BDPT_PATH_BYTES 88u
 
 /* head.bits: technique s in the low byte (0, 1, or 0xff for t = 1), path vertices above. */
 #define RESTIR_BDPT_TECH_LT 0xffu
@@ -303,6 +315,14 @@ bool restir_bdpt_caustic_replay(struct restir_bdpt_state *st, const struct resti
 int restir_bdpt_shift_round_trip(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
                                  const struct restir_bdpt_frame *f, const struct restir_bdpt_frame *f_to,
                                  uint32_t pixel, uint32_t to, float target[3], float *jj);
+/* For tests, with reuse: the reconnected sample (rc.k >= 2) the frame just rendered left in
+ * `pixel` shifted into pixel `to` of the same frame twice — with its suffix's constants (L and
+ * the recursive reconnection MIS) and with the suffix traced again from x_k — giving target[0],
+ * jacobian[0] and target[1], jacobian[1]. Returns the shift kind (2 or 4, as
+ * restir_bdpt_shift_round_trip), -1 when the pixel holds no such sample. */
+int restir_bdpt_shift_retrace_pair(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
+                                   const struct restir_bdpt_frame *f, uint32_t pixel, uint32_t to, float target[2],
+                                   float jacobian[2]);
 
 /* The lightweight MIS state a subpath carries (SmallVCM's dVCM / dVC restricted to the
  * techniques s = 0, s = 1, t = 1; see restir_bdpt.c). Exposed for the unit test. With `full`

@@ -1327,7 +1327,7 @@ def test_restir_bdpt_session(daemon):
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
                                  "caustic_shifts", "pixel_buckets", "light_blocks"}
     n = 32 * 24
-    assert s["reservoir_bytes_per_pixel"] == 80 and s["reservoir_bytes"] == (80 + 2 * 28) * n
+    assert s["reservoir_bytes_per_pixel"] == 88 and s["reservoir_bytes"] == (88 + 2 * 28) * n
     # 768 light subpaths: 3 blocks of 256, 8 samples of 24 bytes each, per-block and sorted.
     assert s["buffers"]["light_traced_samples"] == 2 * 3 * 256 * 8 * 24
     assert s["memory_bytes"] == sum(s["buffers"].values())
@@ -1336,7 +1336,7 @@ def test_restir_bdpt_session(daemon):
         b = st["restir_bdpt"]
         assert b["light_subpaths"] == n and b["light_vertices"] >= b["light_traced"] > 0 and b["lt_dropped"] == 0
         assert b["lt_unshiftable"] == 0
-        assert b["caustic_samples"] > 0 and b["camera_candidates"] > 0 and b["reservoir_bytes"] == (80 + 2 * 28) * n
+        assert b["caustic_samples"] > 0 and b["camera_candidates"] > 0 and b["reservoir_bytes"] == (88 + 2 * 28) * n
         assert set(b["shift_failures"]) == {"replay", "not_caustic", "inverse"}
         assert (b["caustic_shifts"] > 0) == (i > 0), (i, b)
         assert st["nonfinite"] == 0 and st["samples"] == n and "passes" not in st and "bdpt" not in st
@@ -1356,7 +1356,7 @@ def test_restir_bdpt_reuse_session_buffers(daemon):
                                  "caustic_shifts", "pixel_buckets", "light_blocks", "gbuffer", "spatial_pairs",
                                  "light_x2_cache"}
     assert s["buffers"]["light_x2_cache"] == 116 * n
-    assert s["reservoir_bytes"] == (3 * 80 + 2 * 28) * n and s["reservoir_bytes_per_pixel"] == 80
+    assert s["reservoir_bytes"] == (3 * 88 + 2 * 28) * n and s["reservoir_bytes_per_pixel"] == 88
     assert s["memory_bytes"] == sum(s["buffers"].values())
     assert daemon.req("DELETE", s["href"]).status == 204
 

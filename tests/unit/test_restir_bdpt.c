@@ -700,6 +700,65 @@ static void test_shift_round_trips(void)
     shift_round_trips("scenes/lamp-in-glass/scene.json", lamp, 0, (uint32_t[5]){1, 1, 1, 1, 1}, "filament", false, true);
 }
 
+/* The full variant's recursive reconnection MIS: the reconnected samples a few frames leave in
+ * the reservoirs of lamp-in-glass, shifted 3 px away with their suffix's constants (what w_k
+ * carries back and the three MIS constants), get the target and Jacobian of the same shift
+ * with the suffix traced again from x_k — whose weight is bdpt's forward recursion over the
+ * whole new path (test_mis_full checks that against brute force). Camera-side samples and
+ * connections must both occur, and the constants must matter: the weights differ from the
+ * unshifted ones. */
+static void test_full_reconnect_mis(void)
+{
+    struct scene *sc = load("scenes/lamp-in-glass/scene.json");
+    if (!sc) return;
+    struct err err = {0};
+    const struct camera_desc cam = {.position = {0, 1.45f, -1.8f}, .look_at = {0, 0.68f, 1.2f}, .up = {0, 1, 0},
+                                    .fov_deg = 4};
+    struct restir_bdpt_params p = restir_bdpt_defaults();
+    p.reuse = true;
+    p.variant = RESTIR_BDPT_FULL;
+    const uint32_t W = 32, H = 32;
+    struct restir_bdpt_state st;
+    struct image img;
+    CHECK(image_init(&img, W, H, &err));
+    CHECK_MSG(restir_bdpt_init(&st, sc, &p, W, H, &err), "%s", err.message);
+    struct restir_bdpt_frame f = {.scene = sc, .camera = &cam, .seed = 7, .threads = 2};
+    for (uint32_t k = 0; k < 4; k++) {
+        f.frame = k;
+        f.prev_scene = k ? sc : NULL;
+        f.prev_camera = k ? &cam : NULL;
+        CHECK_MSG(restir_bdpt_render(&st, &p, &f, &img, NULL, &err), "%s", err.message);
+    }
+    uint32_t agree[5] = {0}, one_failed = 0, changed = 0, n = 0;
+    double worst = 0.0;
+    for (uint32_t y = 0; y + 1 < H; y++) {
+        for (uint32_t x = 0; x + 3 < W; x++) {
+            float t[2], j[2];
+            int kind = restir_bdpt_shift_retrace_pair(&st, &p, &f, y * W + x, (y + 1) * W + x + 3, t, j);
+            if (kind < 0 || (!(t[0] > 0.0f) && !(t[1] > 0.0f))) continue;
+            n++;
+            if (!(t[0] > 0.0f) || !(t[1] > 0.0f)) {
+                one_failed++;
+                continue;
+            }
+            double e = fmax(fabs((double)t[0] - t[1]) / t[1], fabs((double)j[0] - j[1]) / j[1]);
+            if (e > worst) worst = e;
+            agree[kind] += e < 1e-4;
+            /* The shifted target differs from the base path's (new prefix, new weight). */
+            changed += fabs((double)t[0] - vec3_luminance(st.res_prev[y * W + x].r.F)) > 1e-3 * t[0];
+        }
+    }
+    printf("    full variant: %u reconnection shifts, camera-side %u and connections %u agree with the retraced "
+           "suffix (worst relative difference %.2g), %u failed one way only, %u changed the target\n",
+           n, agree[2], agree[4], worst, one_failed, changed);
+    CHECK(agree[2] >= 5 && agree[4] >= 20);
+    CHECK(agree[2] + agree[4] + one_failed == n && one_failed * 100 <= n);
+    CHECK(changed * 2 > agree[2] + agree[4]);
+    restir_bdpt_destroy(&st);
+    image_destroy(&img);
+    scene_release(sc);
+}
+
 /* The x_2 cache of the reverse hybrid shift only saves replays: the same session rendered with
  * the cache and without it (its buffer withheld) gives bit-identical frames, and with it fewer
  * rays (else the cache would never be hit). */
@@ -920,14 +979,15 @@ static void test_view_method(void)
     struct scene *sc = load("scenes/caustic-sphere/scene.json");
     if (!sc) return;
     struct err err = {0};
-    for (int k = 0; k < 4; k++) {
+    for (int k = 0; k < 5; k++) {
         struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_BDPT, 40, 24);
         if (k == 1) {
             vp.restir_bdpt.light_paths = 1000;
             vp.restir_bdpt.lt_capacity = 3;
         }
-        vp.restir_bdpt.reuse = k == 2;
-        if (k == 3) {   /* the full variant, with its light vertex cache */
+        const bool reuse = k == 2 || k == 4, full = k >= 3;
+        vp.restir_bdpt.reuse = reuse;
+        if (full) {   /* the full variant, with its light vertex cache (k = 4: and reuse) */
             vp.restir_bdpt.variant = RESTIR_BDPT_FULL;
             vp.restir_bdpt.lvc_capacity = 5;
         }
@@ -943,19 +1003,20 @@ static void test_view_method(void)
             if (strcmp(b[i].name, "reservoirs") == 0) reservoirs = b[i].bytes;
             if (strcmp(b[i].name, "light_vertex_cache") == 0) lvc = b[i].bytes;
         }
-        /* 4 blocks of 256 light subpaths, 5 vertices each of 52 bytes, and the block tables. */
-        CHECK(lvc == (k == 3 ? 4u * 256 * 5 * 52 + 4 * 8 + 5 * 8 : 0u));
+        /* 4 blocks of 256 light subpaths, 5 vertices each of 52 bytes (with reuse 4 more, the
+         * vertex's light subpath), and the block tables. */
+        CHECK(lvc == (full ? 4u * 256 * 5 * (reuse ? 56 : 52) + 4 * 8 + 5 * 8 : 0u));
         /* Non-caustic reservoirs with their reconnections (three with reuse), two caustic ones. */
-        CHECK(reservoirs == ((k == 2 ? 3u : 1u) * RESTIR_BDPT_PATH_BYTES + 2u * RESTIR_BDPT_RESERVOIR_BYTES) * 40 * 24);
+        CHECK(reservoirs == ((reuse ? 3u : 1u) * RESTIR_BDPT_PATH_BYTES + 2u * RESTIR_BDPT_RESERVOIR_BYTES) * 40 * 24);
         struct frame_stats fs;
         for (int f = 0; f < 3; f++) CHECK_MSG(view_render(&v, NULL, &fs, NULL, NULL, &err), "%s", err.message);
         CHECK(fs.has_restir_bdpt && !fs.has_bdpt && !fs.has_passes);
         const struct restir_bdpt_stats *rs = &fs.restir_bdpt;
         CHECK(rs->light_subpaths == (k == 1 ? 1000u : 40u * 24) && rs->light_vertices >= rs->light_traced);
-        CHECK((rs->reuse_shifts > rs->reuse_shift_failures) == (k == 2));
-        CHECK((rs->reuse_reconnections > 0) == (k == 2) && rs->reuse_reconnections <= rs->reuse_shifts);
+        CHECK((rs->reuse_shifts > rs->reuse_shift_failures) == reuse);
+        CHECK((rs->reuse_reconnections > 0) == reuse && rs->reuse_reconnections <= rs->reuse_shifts);
         CHECK(rs->light_traced > 0 && rs->caustic_samples > 0 && rs->caustic_shifts > 0 && rs->lt_dropped == 0);
-        CHECK((rs->connections > 0) == (k == 3) && rs->lvc_dropped == 0);
+        CHECK((rs->connections > 0) == full && rs->lvc_dropped == 0);
         CHECK(rs->reservoir_bytes == reservoirs && fs.render.nonfinite == 0 && fs.render.samples == 40 * 24);
         view_destroy(&v);
     }
@@ -976,6 +1037,6 @@ static void test_view_method(void)
 
 TEST_MAIN(TEST(test_mis_lightweight), TEST(test_mis_full), TEST(test_mis_reconnect), TEST(test_params), TEST(test_view_method), TEST(test_thread_determinism),
           TEST(test_moving_cap),
-          TEST(test_caustic_replay_round_trip), TEST(test_shift_round_trips), TEST(test_x2_cache_changes_nothing), TEST(test_matches_bdpt_caustic_sphere),
+          TEST(test_caustic_replay_round_trip), TEST(test_shift_round_trips), TEST(test_full_reconnect_mis), TEST(test_x2_cache_changes_nothing), TEST(test_matches_bdpt_caustic_sphere),
           TEST(test_matches_bdpt_lamp_in_glass), TEST(test_caustic_temporal_paired),
           TEST(test_caustic_temporal_paired_moving))
