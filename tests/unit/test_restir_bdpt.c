@@ -531,11 +531,14 @@ static void test_matches_bdpt_caustic_sphere(void)
     compare("scenes/caustic-sphere/scene.json", &crop, 1024, 1024, 8192);
 }
 
+/* The lamp's table top under the shade, lit mostly by light-traced samples: the crop of the
+ * unbiasedness tests (tests/test_restir_bdpt.py) and of the shift tests below. */
+static const struct camera_desc LAMP_CROP = {.position = {0, 1.45f, -1.8f}, .look_at = {0, 0.68f, 1.2f},
+                                             .up = {0, 1, 0}, .fov_deg = 4};
+
 static void test_matches_bdpt_lamp_in_glass(void)
 {
-    struct camera_desc crop = {.position = {0, 1.45f, -1.8f}, .look_at = {0, 0.68f, 1.2f}, .up = {0, 1, 0},
-                               .fov_deg = 4};
-    compare("scenes/lamp-in-glass/scene.json", &crop, 1024, 1024, 0);
+    compare("scenes/lamp-in-glass/scene.json", &LAMP_CROP, 1024, 1024, 0);
 }
 
 /* The random-replay shift: replaying a caustic sample in its own frame gives back its pixel and
@@ -677,10 +680,8 @@ static void test_shift_round_trips(void)
 {
     /* The crops of the unbiasedness tests: the lamp's table top, lit mostly by light-traced
      * samples; the caustic sphere's floor. */
-    shift_round_trips("scenes/lamp-in-glass/scene.json",
-                      (struct camera_desc){.position = {0, 1.45f, -1.8f}, .look_at = {0, 0.68f, 1.2f}, .up = {0, 1, 0},
-                                           .fov_deg = 4},
-                      0, (uint32_t[5]){20, 20, 20, 0, 0}, NULL, false, false);
+    shift_round_trips("scenes/lamp-in-glass/scene.json", LAMP_CROP, 0, (uint32_t[5]){20, 20, 20, 0, 0}, NULL, false,
+                      false);
     shift_round_trips("scenes/caustic-sphere/scene.json",
                       (struct camera_desc){.position = {-2.0f, 0.6f, -0.1f}, .look_at = {-0.45f, 0, -0.05f},
                                            .up = {0, 1, 0}, .fov_deg = 6},
@@ -689,15 +690,12 @@ static void test_shift_round_trips(void)
                       (struct camera_desc){.position = {-2.0f, 0.6f, -0.1f}, .look_at = {-0.45f, 0, -0.05f},
                                            .up = {0, 1, 0}, .fov_deg = 6},
                       8192, (uint32_t[5]){5, 0, 20, 0, 0}, "light", false, false);
-    shift_round_trips("scenes/lamp-in-glass/scene.json",
-                      (struct camera_desc){.position = {0, 1.45f, -1.8f}, .look_at = {0, 0.68f, 1.2f}, .up = {0, 1, 0},
-                                           .fov_deg = 4},
-                      0, (uint32_t[5]){20, 20, 20, 0, 0}, NULL, true, false);
+    shift_round_trips("scenes/lamp-in-glass/scene.json", LAMP_CROP, 0, (uint32_t[5]){20, 20, 20, 0, 0}, NULL, true,
+                      false);
     /* The full variant on the lamp's table top, in one frame and into the frame whose lamp moved. */
-    const struct camera_desc lamp = {.position = {0, 1.45f, -1.8f}, .look_at = {0, 0.68f, 1.2f}, .up = {0, 1, 0},
-                                     .fov_deg = 4};
-    shift_round_trips("scenes/lamp-in-glass/scene.json", lamp, 0, (uint32_t[5]){1, 1, 1, 1, 1}, NULL, false, true);
-    shift_round_trips("scenes/lamp-in-glass/scene.json", lamp, 0, (uint32_t[5]){1, 1, 1, 1, 1}, "filament", false, true);
+    shift_round_trips("scenes/lamp-in-glass/scene.json", LAMP_CROP, 0, (uint32_t[5]){1, 1, 1, 1, 1}, NULL, false, true);
+    shift_round_trips("scenes/lamp-in-glass/scene.json", LAMP_CROP, 0, (uint32_t[5]){1, 1, 1, 1, 1}, "filament", false,
+                      true);
 }
 
 /* The full variant's recursive reconnection MIS: the reconnected samples a few frames leave in
@@ -712,8 +710,7 @@ static void test_full_reconnect_mis(void)
     struct scene *sc = load("scenes/lamp-in-glass/scene.json");
     if (!sc) return;
     struct err err = {0};
-    const struct camera_desc cam = {.position = {0, 1.45f, -1.8f}, .look_at = {0, 0.68f, 1.2f}, .up = {0, 1, 0},
-                                    .fov_deg = 4};
+    const struct camera_desc *cam = &LAMP_CROP;
     struct restir_bdpt_params p = restir_bdpt_defaults();
     p.reuse = true;
     p.variant = RESTIR_BDPT_FULL;
@@ -722,11 +719,11 @@ static void test_full_reconnect_mis(void)
     struct image img;
     CHECK(image_init(&img, W, H, &err));
     CHECK_MSG(restir_bdpt_init(&st, sc, &p, W, H, &err), "%s", err.message);
-    struct restir_bdpt_frame f = {.scene = sc, .camera = &cam, .seed = 7, .threads = 2};
+    struct restir_bdpt_frame f = {.scene = sc, .camera = cam, .seed = 7, .threads = 2};
     for (uint32_t k = 0; k < 4; k++) {
         f.frame = k;
         f.prev_scene = k ? sc : NULL;
-        f.prev_camera = k ? &cam : NULL;
+        f.prev_camera = k ? cam : NULL;
         CHECK_MSG(restir_bdpt_render(&st, &p, &f, &img, NULL, &err), "%s", err.message);
     }
     uint32_t agree[5] = {0}, one_failed = 0, changed = 0, n = 0;
@@ -767,8 +764,6 @@ static void x2_cache_case(enum restir_bdpt_variant variant)
     struct scene *sc = load("scenes/lamp-in-glass/scene.json");
     if (!sc) return;
     struct err err = {0};
-    const struct camera_desc cam = {.position = {0, 1.45f, -1.8f}, .look_at = {0, 0.68f, 1.2f}, .up = {0, 1, 0},
-                                    .fov_deg = 4};
     struct restir_bdpt_params p = restir_bdpt_defaults();
     p.reuse = true;
     p.variant = variant;
@@ -783,8 +778,8 @@ static void x2_cache_case(enum restir_bdpt_variant variant)
         CHECK(keep != NULL);
         if (!cached) st.x2c = NULL;
         for (uint32_t k = 0; k < 4; k++) {
-            struct restir_bdpt_frame f = {.scene = sc, .camera = &cam, .prev_scene = k ? sc : NULL,
-                                          .prev_camera = k ? &cam : NULL, .seed = 9, .frame = k, .threads = 2};
+            struct restir_bdpt_frame f = {.scene = sc, .camera = &LAMP_CROP, .prev_scene = k ? sc : NULL,
+                                          .prev_camera = k ? &LAMP_CROP : NULL, .seed = 9, .frame = k, .threads = 2};
             struct restir_bdpt_stats s;
             CHECK_MSG(restir_bdpt_render(&st, &p, &f, &img[cached], &s, &err), "%s", err.message);
             rays[cached] += s.rays_intersect;
