@@ -2113,8 +2113,7 @@ int restir_bdpt_shift_round_trip(struct restir_bdpt_state *st, const struct rest
     struct rbdpt_ctx *c = rbdpt_test_ctx(st, p, f, &reconnections);
     if (!c) return -1;
     const bool lt = (x->r.head.bits & 0xffu) == RESTIR_BDPT_TECH_LT;
-    const bool conn = !lt && (x->r.head.bits & 0xffu) >= 2u;
-    const int kind = lt ? (x->rc.k ? 1 : 0) : conn ? (x->rc.k >= 2 ? 4 : 3) : (x->rc.k >= 2 ? 2 : 0);
+    const int kind = lt ? (x->rc.k ? 1 : 0) : rbdpt_is_connection(x) ? (x->rc.k >= 2 ? 4 : 3) : (x->rc.k >= 2 ? 2 : 0);
     struct restir_counters cnt = {{0, 0}, 0, 0, 0};
     if (f_to) {
         c->view[1].scene = f_to->scene;
