@@ -38,6 +38,25 @@ static inline void sampling_concentric_disk(float u1, float u2, float *dx, float
     }
 }
 
+/* The inverse of sampling_concentric_disk: the point of the unit square that maps to (x, y) on
+ * the unit disk. |x| >= |y| is the wedge where |a| >= |b|: there x = a cos t, y = a sin t, so a
+ * has x's sign and t = atan(y / x); the other wedge swaps the roles. */
+static inline void sampling_concentric_disk_inverse(float x, float y, float *u1, float *u2)
+{
+    float r = sqrtf(x * x + y * y), a, b;
+    if (!(r > 0.0f)) {
+        a = b = 0.0f;
+    } else if (fabsf(x) >= fabsf(y)) {
+        a = copysignf(r, x);
+        b = a * (4.0f / PI_F) * atanf(y / x);
+    } else {
+        b = copysignf(r, y);
+        a = b * (4.0f / PI_F) * atanf(x / y);
+    }
+    *u1 = 0.5f * (a + 1.0f);
+    *u2 = 0.5f * (b + 1.0f);
+}
+
 /* Cosine-weighted hemisphere around +z; pdf_w = cos(theta) / pi. */
 static inline struct vec3 sampling_cosine_hemisphere(float u1, float u2)
 {

@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "light_sampler.h"
+#include "sampling.h"
 #include "scene.h"
 
 struct ssp_params ssp_defaults(void)
@@ -83,21 +84,34 @@ static void ssp_cone_at(const struct sms_caster *c, struct vec3 x1, struct ssp_c
     if (cmin > 0.0f) k->cos_max = fmaxf(-1.0f, cmin - 1e-4f);
 }
 
+/* u -> direction: the concentric map takes the square to the unit disk, and the disk's radius r
+ * to the cone's polar angle with 1 - cos θ = r² (1 - cos θmax), which keeps areas: a uniform u
+ * is a uniform direction in the cone. Tiles stay near-square in direction space. The polar map
+ * (cos θ from u1, φ from u2) made tiles wedges meeting at the axis and slivers at the rim, and a
+ * 3 x 3 trust region there spans a wide range of azimuth but almost no polar angle: walks that
+ * would converge left it. */
 static struct vec3 ssp_dir(const struct ssp_cone *k, float u1, float u2)
 {
-    float c = 1.0f - u1 * (1.0f - k->cos_max), s = sqrtf(fmaxf(0.0f, 1.0f - c * c)), phi = 2.0f * PI_F * u2;
-    return frame_to_world(&k->f, vec3_make(s * cosf(phi), s * sinf(phi), c));
+    float x, y;
+    sampling_concentric_disk(u1, u2, &x, &y);
+    float r2 = x * x + y * y;
+    float c = 1.0f - r2 * (1.0f - k->cos_max), s = sqrtf(fmaxf(0.0f, 1.0f - c * c));
+    float sr = r2 > 0.0f ? s / sqrtf(r2) : 0.0f;
+    return frame_to_world(&k->f, vec3_make(x * sr, y * sr, c));
 }
 
 /* The tile (i along u1, j along u2) of the direction towards p; false outside the cone. */
 static bool ssp_tile_of(const struct ssp_cone *k, uint32_t n, struct vec3 p, uint32_t *ti, uint32_t *tj)
 {
     struct vec3 w = frame_to_local(&k->f, vec3_normalize(vec3_sub(p, k->x1)));
-    float u1 = (1.0f - w.z) / (1.0f - k->cos_max);
-    if (!(u1 >= 0.0f && u1 < 1.0f)) return false;
-    float u2 = atan2f(w.y, w.x) / (2.0f * PI_F);
-    if (u2 < 0.0f) u2 += 1.0f;
-    uint32_t i = (uint32_t)(u1 * (float)n), j = (uint32_t)(u2 * (float)n);
+    float r2 = (1.0f - w.z) / (1.0f - k->cos_max);
+    if (!(r2 >= 0.0f && r2 < 1.0f)) return false;
+    float h = sqrtf(w.x * w.x + w.y * w.y), u1 = 0.5f, u2 = 0.5f;
+    if (h > 0.0f) {
+        float r = sqrtf(r2) / h;
+        sampling_concentric_disk_inverse(w.x * r, w.y * r, &u1, &u2);
+    }
+    uint32_t i = (uint32_t)(fmaxf(u1, 0.0f) * (float)n), j = (uint32_t)(fmaxf(u2, 0.0f) * (float)n);
     *ti = i < n ? i : n - 1;
     *tj = j < n ? j : n - 1;
     return true;

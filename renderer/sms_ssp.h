@@ -4,10 +4,11 @@
  *
  * Seed space (§3.1). u in [0,1)^2 is a direction from x1 inside a cone that holds the caster
  * (spheres: the cone of the sphere; meshes: the narrowest cone about the direction to the world
- * bounding box's centre that holds its 8 corners): cos θ = 1 − u1 (1 − cos θmax), φ = 2π u2 (the
- * whole sphere when x1 is inside the box or the cone would be wider than a hemisphere). The map
- * is continuous and invertible, so every walk iterate has a u: the direction from x1 to its
- * first vertex.
+ * bounding box's centre that holds its 8 corners): the concentric map takes u to a point (x, y)
+ * of the unit disk, and 1 − cos θ = (x² + y²)(1 − cos θmax), φ = atan2(y, x) (the whole sphere
+ * when x1 is inside the box or the cone would be wider than a hemisphere). The map keeps areas
+ * and tiles near-square, and it is continuous and invertible, so every walk iterate has a u:
+ * the direction from x1 to its first vertex.
  *
  * Trust regions (§3.3). U is cut into N × N tiles; the trust region R(u) is the 3 × 3 tiles
  * around u's tile (periodic in both coordinates) and a walk that leaves it stops. A solution u*

@@ -26,6 +26,7 @@
 
 #include "fresnel.h"
 #include "material.h"
+#include "sampling.h"
 #include "microfacet.h"
 #include "rng.h"
 #include "test.h"
@@ -966,7 +967,31 @@ static void test_degenerate_inputs(void)
     }
 }
 
-TEST_MAIN(TEST(test_lobe_structure), TEST(test_fresnel), TEST(test_microfacet),
+/* sms_ssp's seed space reads a walk iterate's tile through the inverse of the concentric map:
+ * inverse(forward(u)) = u over the square, in all four wedges and on their diagonals. */
+static void test_concentric_disk_round_trip(void)
+{
+    float worst = 0.0f;
+    for (int i = 0; i < 97; i++) {
+        for (int j = 0; j < 97; j++) {
+            float u1 = ((float)i + 0.5f) / 97.0f, u2 = ((float)j + 0.5f) / 97.0f, x, y, v1, v2;
+            if (i == j) u2 = u1;  /* the diagonal |a| = |b| between two wedges */
+            sampling_concentric_disk(u1, u2, &x, &y);
+            CHECK(x * x + y * y <= 1.0f + 1e-6f);
+            sampling_concentric_disk_inverse(x, y, &v1, &v2);
+            worst = fmaxf(worst, fmaxf(fabsf(v1 - u1), fabsf(v2 - u2)));
+        }
+    }
+    CHECK(worst < 2e-6f);
+    float v1, v2;
+    sampling_concentric_disk_inverse(0.0f, 0.0f, &v1, &v2);
+    CHECK(v1 == 0.5f && v2 == 0.5f);
+    /* The bottom of the rim is the middle of the square's lower edge. */
+    sampling_concentric_disk_inverse(0.0f, -1.0f, &v1, &v2);
+    CHECK(fabsf(v1 - 0.5f) < 1e-6f && fabsf(v2) < 1e-6f);
+}
+
+TEST_MAIN(TEST(test_lobe_structure), TEST(test_concentric_disk_round_trip), TEST(test_fresnel), TEST(test_microfacet),
           TEST(test_gamma_q_known_values), TEST(test_pdf_integral), TEST(test_reciprocity),
           TEST(test_refraction_adjoint), TEST(test_sample_consistency), TEST(test_sidedness),
           TEST(test_white_furnace), TEST(test_degenerate_inputs), TEST(test_smooth_dielectric_lobe_fractions),
