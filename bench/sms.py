@@ -21,7 +21,14 @@ refractive-slab and reflective-plane at 64x64 (BENCH_SMS_SCENES, BENCH_SMS_SIZE)
   4. the failure case of seed 002 Fig. 10: a prior that misses pairs (2 walks per block instead
      of 128; `prior: false` is the fallback everywhere) — RMSE at equal spp (sms_ssp) and equal
      frames (restir_sms);
-  5. writes build/bench/sms.json, one SVG chart per scene (RMSE vs ms, log-log) and prints
+  5. how bumpy the casters are: copies of both scenes with the wave numbers of their bumps
+     scaled by each S of BENCH_SMS_BUMPS (1 2 3 4; the library's scenes have 1), written by
+     scenes/refractive-slab/generate.py into build/bench/bumps-S/, and Table 1's manifold
+     sampling statistics of `sms` and `sms_ssp` at 1 spp on each, at BENCH_SMS_BUMPS_SIZE
+     (128x128; not in the quick run);
+  With BENCH_SMS_SCALE=S, steps 1-4 run on such copies at scale S instead of the library's
+  scenes (seed 002's regime: S = 3).
+  6. writes build/bench/sms.json, one SVG chart per scene (RMSE vs ms, log-log) and prints
      Markdown tables (medians over the seeds).
 Environment: BENCH_SMS_SEEDS (3), BENCH_SMS_REF_SPP (1024), BENCH_SMS_REF_SMS_SPP (256),
 BENCH_THREADS (all cores); BENCH_SMS_QUICK=1 is a small run for a shared machine (refractive-slab
@@ -59,10 +66,15 @@ PT_SPPS = [1, 4, 16, 64] if QUICK else [1, 4, 16, 64, 256]
 SMS_SPPS = [1, 2, 4, 8] if QUICK else [1, 2, 4, 8, 16]
 RESTIR_FRAMES = [1, 2, 4, 8, 16] if QUICK else [1, 2, 4, 8, 16, 32]
 WARMUP = 16
+SCALE = os.environ.get("BENCH_SMS_SCALE")
+BUMPS = [float(x) for x in os.environ.get("BENCH_SMS_BUMPS", "" if QUICK else "1 2 3 4").split()]
+# The prior works on 16 x 16 pixel blocks: at 64x64 a block is a sixteenth of the image and mixes
+# very different shading points (seed 002 renders 1920x1080), so the sweep renders at 128x128.
+BUMPS_SIZE = os.environ.get("BENCH_SMS_BUMPS_SIZE", "128x128")
 
 
-def render(scene, out, method, params, seed, frames=None, extra=()):
-    cmd = [BIN, "render", str(scene), "--method", method, "--size", SIZE, "--seed", str(seed), "--threads", THREADS,
+def render(scene, out, method, params, seed, frames=None, extra=(), size=None):
+    cmd = [BIN, "render", str(scene), "--method", method, "--size", size or SIZE, "--seed", str(seed), "--threads", THREADS,
            "--params", json.dumps(params), "--json", "-o", str(out)]
     if method == "pt":
         cmd += ["--frames", "1"]
@@ -114,13 +126,58 @@ def table1(st, prior=None):
     return row
 
 
+def bumpy_copies(scale):
+    """Copies of refractive-slab and reflective-plane whose bumps have their wave numbers scaled."""
+    d = OUT / f"bumps-{scale:g}"
+    subprocess.run([sys.executable, str(ROOT / "scenes" / "refractive-slab" / "generate.py"), "--out", str(d),
+                    "--slab-freq", str(scale), "--plane-freq", str(scale)], check=True)
+    return d
+
+
+def bumps_sweep(tmp):
+    """Table 1's sampling statistics (sms, sms_ssp at 1 spp, medians over the seeds) on copies of
+    both scenes whose bumps have their wave numbers scaled by each of BUMPS."""
+    rows = []
+    for scale in BUMPS:
+        d = bumpy_copies(scale)
+        for name in ("refractive-slab", "reflective-plane"):
+            t = {}
+            for method in ("sms", "sms_ssp"):
+                rs = []
+                for seed in range(SEEDS):
+                    out = tmp / f"bumps-{scale:g}-{name}-{method}-{seed}.exr"
+                    _, st = render(d / name / "scene.json", out, method, {"spp": 1, "bernoulli_cap": 128}, seed,
+                                   size=BUMPS_SIZE)
+                    rs.append(table1(st["sms"], st.get("prior")))
+                t[method] = {k: statistics.median(r[k] for r in rs) for k in rs[0]}
+            rows.append({"scale": scale, "scene": name, **t})
+    return rows
+
+
+def print_bumps(rows):
+    print(f"\n# How bumpy the casters are: sms / sms_ssp at 1 spp ({BUMPS_SIZE}, medians over {SEEDS} seeds; "
+          "the wave numbers of the bumps scaled by S; the library's scenes have S = 1)\n")
+    print("| S | scene | sms success | sms Bernoulli / solution | sms Newtons / solution | sms_ssp success (x sms) | "
+          "sms_ssp Newtons / solution (x sms) |")
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        a, b = r["sms"], r["sms_ssp"]
+        rs = b["success_rate"] / a["success_rate"] if a["success_rate"] else float("nan")
+        rn = b["newtons_per_solution"] / a["newtons_per_solution"] if a["newtons_per_solution"] else float("nan")
+        print(f"| {r['scale']:g} | {r['scene']} | {100 * a['success_rate']:.1f} % | {a['bernoulli_per_solution']:.2f} | "
+              f"{a['newtons_per_solution']:.1f} | {100 * b['success_rate']:.1f} % ({rs:.2f}x) | "
+              f"{b['newtons_per_solution']:.1f} ({rn:.2f}x) |")
+
+
 def main():
     OUT.mkdir(parents=True, exist_ok=True)
     results = {}
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
+        bumps = bumps_sweep(tmp)
+        scenes = bumpy_copies(float(SCALE)) if SCALE else ROOT / "scenes"
         for name in SCENES:
-            scene = ROOT / "scenes" / name / "scene.json"
+            scene = scenes / name / "scene.json"
             ref = reference(scene, tmp)
             runs = [("pt", "pt", PT_SPPS, {}), ("sms", "sms", SMS_SPPS, {"bernoulli_cap": 128}),
                     ("sms_ssp", "sms_ssp", SMS_SPPS, {"bernoulli_cap": 128}),
@@ -168,9 +225,10 @@ def main():
             results[name] = {"curves": curves, "steady": steady,
                              "table1": {m: {k: statistics.median(r[k] for r in rows) for k in rows[0]}
                                         for m, rows in t1.items()}}
-    (OUT / "sms.json").write_text(json.dumps(results, indent=1))
-    print(f"# pt vs sms vs restir_sms ({SIZE}, medians over {SEEDS} seeds; reference: pt rest {REF_SPP} spp + sms caustics "
-          f"{REF_SMS_SPP} spp uncapped)\n")
+    (OUT / (f"sms-bumps-{float(SCALE):g}.json" if SCALE else "sms.json")).write_text(json.dumps({"scenes": results, "bumps": bumps}, indent=1))
+    where = f"bumps scaled by {SCALE}, build/bench/bumps-{float(SCALE):g}/" if SCALE else "the library's scenes"
+    print(f"# pt vs sms vs restir_sms ({where}; {SIZE}, medians over {SEEDS} seeds; reference: pt rest {REF_SPP} spp + "
+          f"sms caustics {REF_SMS_SPP} spp uncapped)\n")
     print("| scene | prior success | prior Newtons / sample | prior ms | success rate (sms / sms_ssp) | "
           "Newtons / sample | Bernoulli / solution | Newtons / solution | ms in the estimates (1 spp) |")
     print("|---|---|---|---|---|---|---|---|---|")
@@ -209,8 +267,10 @@ def main():
         for k in ("restir_sms", "restir_sms, sms sampler"):
             print(f"{name}: RMSE of one {k} frame / sms 1 spp: {st[k][1] / st['sms 1 spp'][1]:.3f} "
                   f"at {st[k][0] / st['sms 1 spp'][0]:.2f}x its time per frame")
-        loglog(OUT / f"sms-{name}.svg", f"{name}: RMSE vs time", "render time (ms)", "RMSE",
+        loglog(OUT / (f"sms-{name}-bumps-{float(SCALE):g}.svg" if SCALE else f"sms-{name}.svg"), f"{name}: RMSE vs time", "render time (ms)", "RMSE",
                [(m, [(a, b) for a, b, _ in pts], "line") for m, pts in r["curves"].items()])
+    if bumps:
+        print_bumps(bumps)
 
 
 if __name__ == "__main__":
