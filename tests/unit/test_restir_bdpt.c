@@ -36,12 +36,12 @@
 #include "test.h"
 #include "view.h"
 
-/* The statistical tests render thousands of frames: skipped in the sanitizer build, where
- * they would take minutes (as the pytest `statistical` marker is). */
-#if defined(__SANITIZE_ADDRESS__)
+/* The statistical tests render thousands of frames: skipped in the sanitizer builds (ASan and
+ * TSan), where they would take minutes (as the pytest `statistical` marker is). */
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
 #define STATISTICAL 0
 #elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
 #define STATISTICAL 0
 #endif
 #endif
