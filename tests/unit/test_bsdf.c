@@ -26,9 +26,9 @@
 
 #include "fresnel.h"
 #include "material.h"
-#include "sampling.h"
 #include "microfacet.h"
 #include "rng.h"
+#include "sampling.h"
 #include "test.h"
 
 #if defined(__SANITIZE_ADDRESS__)

@@ -243,7 +243,8 @@ static bool retrace(const struct scene *s, const struct manifold_chain *ch, cons
         struct vec3 o = surface_offset(org, ng, dir);
         /* Aimed from the offset origin: a ray parallel to the x1 -> v[0] line but shifted by the
          * offset lands beside v[0], where a curved caster's normal differs and turns the
-         * scattered ray (aimed so, the misses measured here are 2-3 times smaller on all four casters). */
+         * scattered ray (aimed so, the misses measured here are 2-3x smaller on all four
+         * casters). */
         if (i == 0) dir = vec3_normalize(vec3_sub(v[0].p, o));
         if (!accel_intersect(s->accel, o, dir, 0.0f, INFINITY, &h, &rc) || h.shape != ch->shape) return false;
         struct surface sf;
