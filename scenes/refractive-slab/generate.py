@@ -68,7 +68,8 @@ def write_obj(path, verts, norms, faces, header):
 # How bumpy the two casters are: a scale of the wave numbers of `bumps`. At 1 (the library's) the
 # casters undulate gently: one SMS seed in three (slab) or two (plane) finds a solution. Seed 002
 # measures its method where SMS struggles (its Table 1: 9.4 % and 8.1 %); bench/sms.py renders
-# copies at larger scales to show that regime (docs/benchmarks.md, "How bumpy the casters are").
+# copies at larger scales to show that regime (docs/benchmarks.md, "Near-square tiles, and how
+# bumpy the casters are").
 SLAB_FREQ = 1.0
 PLANE_FREQ = 1.0
 MAX_K = math.hypot(4.3, 0.7)  # the largest wave number of `bumps` at a scale of 1
