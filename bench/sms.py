@@ -26,13 +26,15 @@ refractive-slab and reflective-plane at 64x64 (BENCH_SMS_SCENES, BENCH_SMS_SIZE)
      scenes/refractive-slab/generate.py into build/bench/bumps-S/, and Table 1's manifold
      sampling statistics of `sms` and `sms_ssp` at 1 spp on each, at BENCH_SMS_BUMPS_SIZE
      (128x128; not in the quick run);
-  With BENCH_SMS_SCALE=S, steps 1-4 run on such copies at scale S instead of the library's
-  scenes (seed 002's regime: S = 3).
   6. writes build/bench/sms.json, one SVG chart per scene (RMSE vs ms, log-log) and prints
      Markdown tables (medians over the seeds).
+With BENCH_SMS_SCALE=S, steps 1-4 run on the copies at scale S instead of the library's scenes
+(seed 002's regime: S = 3), and the outputs are named sms-bumps-S.json, sms-<scene>-bumps-S.svg.
 Environment: BENCH_SMS_SEEDS (3), BENCH_SMS_REF_SPP (1024), BENCH_SMS_REF_SMS_SPP (256),
-BENCH_THREADS (all cores); BENCH_SMS_QUICK=1 is a small run for a shared machine (refractive-slab
-only, 32x32, 1 seed, shorter curves, reference 1024 + 1024 spp) unless those are set too."""
+BENCH_SMS_BUMPS ("1 2 3 4"; empty: no sweep), BENCH_SMS_BUMPS_SIZE (128x128), BENCH_SMS_SCALE
+(unset), BENCH_THREADS (all cores); BENCH_SMS_QUICK=1 is a small run for a shared machine
+(refractive-slab only, 32x32, 1 seed, shorter curves, reference 1024 + 1024 spp, no sweep) unless
+those are set too."""
 import hashlib
 import json
 import math
@@ -67,6 +69,7 @@ SMS_SPPS = [1, 2, 4, 8] if QUICK else [1, 2, 4, 8, 16]
 RESTIR_FRAMES = [1, 2, 4, 8, 16] if QUICK else [1, 2, 4, 8, 16, 32]
 WARMUP = 16
 SCALE = os.environ.get("BENCH_SMS_SCALE")
+SUFFIX = f"-bumps-{float(SCALE):g}" if SCALE else ""  # of the outputs of a run on the copies
 BUMPS = [float(x) for x in os.environ.get("BENCH_SMS_BUMPS", "" if QUICK else "1 2 3 4").split()]
 # The prior works on 16 x 16 pixel blocks: at 64x64 a block is a sixteenth of the image and mixes
 # very different shading points (seed 002 renders 1920x1080), so the sweep renders at 128x128.
@@ -74,8 +77,8 @@ BUMPS_SIZE = os.environ.get("BENCH_SMS_BUMPS_SIZE", "128x128")
 
 
 def render(scene, out, method, params, seed, frames=None, extra=(), size=None):
-    cmd = [BIN, "render", str(scene), "--method", method, "--size", size or SIZE, "--seed", str(seed), "--threads", THREADS,
-           "--params", json.dumps(params), "--json", "-o", str(out)]
+    cmd = [BIN, "render", str(scene), "--method", method, "--size", size or SIZE, "--seed", str(seed),
+           "--threads", THREADS, "--params", json.dumps(params), "--json", "-o", str(out)]
     if method == "pt":
         cmd += ["--frames", "1"]
     if frames:
@@ -225,8 +228,8 @@ def main():
             results[name] = {"curves": curves, "steady": steady,
                              "table1": {m: {k: statistics.median(r[k] for r in rows) for k in rows[0]}
                                         for m, rows in t1.items()}}
-    (OUT / (f"sms-bumps-{float(SCALE):g}.json" if SCALE else "sms.json")).write_text(json.dumps({"scenes": results, "bumps": bumps}, indent=1))
-    where = f"bumps scaled by {SCALE}, build/bench/bumps-{float(SCALE):g}/" if SCALE else "the library's scenes"
+    (OUT / f"sms{SUFFIX}.json").write_text(json.dumps({"scenes": results, "bumps": bumps}, indent=1))
+    where = f"bumps scaled by {SCALE}, {scenes.relative_to(ROOT)}/" if SCALE else "the library's scenes"
     print(f"# pt vs sms vs restir_sms ({where}; {SIZE}, medians over {SEEDS} seeds; reference: pt rest {REF_SPP} spp + "
           f"sms caustics {REF_SMS_SPP} spp uncapped)\n")
     print("| scene | prior success | prior Newtons / sample | prior ms | success rate (sms / sms_ssp) | "
@@ -267,7 +270,7 @@ def main():
         for k in ("restir_sms", "restir_sms, sms sampler"):
             print(f"{name}: RMSE of one {k} frame / sms 1 spp: {st[k][1] / st['sms 1 spp'][1]:.3f} "
                   f"at {st[k][0] / st['sms 1 spp'][0]:.2f}x its time per frame")
-        loglog(OUT / (f"sms-{name}-bumps-{float(SCALE):g}.svg" if SCALE else f"sms-{name}.svg"), f"{name}: RMSE vs time", "render time (ms)", "RMSE",
+        loglog(OUT / f"sms-{name}{SUFFIX}.svg", f"{name}: RMSE vs time", "render time (ms)", "RMSE",
                [(m, [(a, b) for a, b, _ in pts], "line") for m, pts in r["curves"].items()])
     if bumps:
         print_bumps(bumps)

@@ -16,11 +16,14 @@ import shutil
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
+# The sines of `bumps`: wave numbers along x and z at a scale of 1, and phase.
+TERMS = [(2.7, 1.9, 0.0), (-1.6, 3.1, 1.3), (4.3, -0.7, 2.1)]
+
+
 def bumps(x, z, amp, freq, phase):
     """Height and its gradient (dh/dx, dh/dz); freq scales the wave numbers."""
-    terms = [(2.7, 1.9, 0.0), (-1.6, 3.1, 1.3), (4.3, -0.7, 2.1)]
     h = hx = hz = 0.0
-    for kx, kz, ph in terms:
+    for kx, kz, ph in TERMS:
         kx, kz = freq * kx, freq * kz
         a = kx * x + kz * z + ph + phase
         h += amp * math.sin(a)
@@ -72,7 +75,7 @@ def write_obj(path, verts, norms, faces, header):
 # bumpy the casters are").
 SLAB_FREQ = 1.0
 PLANE_FREQ = 1.0
-MAX_K = math.hypot(4.3, 0.7)  # the largest wave number of `bumps` at a scale of 1
+MAX_K = max(math.hypot(kx, kz) for kx, kz, _ in TERMS)  # the largest wave number at a scale of 1
 
 
 def grid_size(half, freq, minimum):
