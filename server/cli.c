@@ -320,6 +320,9 @@ static int cli_render(int argc, char **argv)
     size_t session_bytes = 0;
     bool tty = isatty(STDERR_FILENO) && !json;
     uint32_t rendered = 1;
+    /* Samples per pixel and frame as rendered: --params may set a pt, sms or sms_ssp frame's own
+     * spp; the reuse methods and bdpt trace one camera path per pixel and frame. */
+    uint32_t frame_spp = p.spp;
     if (frames || anim_path || rm != RENDER_METHOD_PT) {
         if (has_crop || has_frame) {
             scene_release(scene);
@@ -344,6 +347,7 @@ static int cli_render(int argc, char **argv)
             scene_release(scene);
             return 2;
         }
+        frame_spp = rm == RENDER_METHOD_PT || rm == RENDER_METHOD_SMS || rm == RENDER_METHOD_SMS_SSP ? vp.pt.spp : 1u;
         if (!cli_render_sequence(scene, &vp, p.threads, frames, average_last, anim_path, tty, &img, &st, &rendered,
                                  &last, &session_bytes)) {
             scene_release(scene);
@@ -370,7 +374,7 @@ static int cli_render(int argc, char **argv)
         printf("{\"method\":\"%s\",\"width\":%u,\"height\":%u,\"spp\":%u,\"frames\":%u,\"seed\":%" PRIu64 ",\"threads\":%u,"
                "\"time_ms\":%.3f,\"rays\":%" PRIu64 ",\"rays_intersect\":%" PRIu64 ",\"rays_occluded\":%" PRIu64
                ",\"rays_per_s\":%.6g,\"samples\":%" PRIu64 ",\"nonfinite\":%" PRIu64 ",\"mean\":[%.9g,%.9g,%.9g]",
-               method, width, height, rm == RENDER_METHOD_PT ? p.spp : 1u, rendered, p.seed, threads, st.render_ms, rays,
+               method, width, height, frame_spp, rendered, p.seed, threads, st.render_ms, rays,
                st.rays_intersect, st.rays_occluded, rays_per_s, st.samples, st.nonfinite, mean[0], mean[1], mean[2]);
         if (last.has_passes) {
             /* The last frame's passes (seed 001 Table 1) and the session's memory. */
@@ -429,7 +433,7 @@ static int cli_render(int argc, char **argv)
         printf("}\n");
     } else {
         fprintf(stderr, "%s: %ux%u, %u spp%s, %s: %.3f s, %.2f Mrays/s (%" PRIu64 " rays, %u threads)%s\n", out_path,
-                width, height, rm == RENDER_METHOD_PT ? p.spp : 1u,
+                width, height, frame_spp,
                 rendered <= 1 ? "" : average_last > 1 ? " per frame, mean of a sequence's last frames" : " per frame, last of a sequence", method, st.render_ms * 1e-3, rays_per_s * 1e-6, rays, threads,
                 st.nonfinite ? ", non-finite samples dropped" : "");
     }
