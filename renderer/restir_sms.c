@@ -41,7 +41,7 @@ struct restir_sms_params restir_sms_defaults(void)
 {
     struct restir_sms_params p = {.ssp = ssp_defaults(), .shift_iterations = 5, .temporal = true,
                                   .temporal_cap = 20, .spatial_neighbors = 1, .spatial_radius = 30.0f,
-                                  .max_depth = 64, .rr_depth = 3};
+                                  .expected_shading = true, .max_depth = 64, .rr_depth = 3};
     return p;
 }
 
@@ -325,6 +325,13 @@ static float sms_target(const void *ctx, const void *elem)
     return vec3_luminance(vec3_make(s->F[0], s->F[1], s->F[2]));
 }
 
+static struct vec3 sms_value(const void *ctx, const void *elem)
+{
+    (void)ctx;
+    const struct sms_sample *s = elem;
+    return vec3_make(s->F[0], s->F[1], s->F[2]);
+}
+
 static void sms_shift(const void *ctx, const void *src, struct restir_domain from, struct restir_domain to, void *dst,
                       float *target, float *jacobian, struct restir_counters *cnt)
 {
@@ -344,6 +351,7 @@ const struct restir_ops restir_sms_ops = {
     .target = sms_target,
     .shift = sms_shift,
     .domain_valid = sms_domain_valid,
+    .value = sms_value,
 };
 
 void restir_sms_info(const void *ctx, const void *elem, struct restir_sms_info *out)
@@ -442,6 +450,7 @@ struct sms_pass {
     struct ray_counters rays[RESTIR_MAX_WORKERS];
     struct sms_counters sms[RESTIR_MAX_WORKERS];
     uint64_t nonfinite[RESTIR_MAX_WORKERS];
+    bool estimated;  /* the spatial pass added its expected contribution to out */
 };
 
 /* Initial pass: the candidate into the working buffer, and the sms_ssp path for the rest of the
@@ -492,7 +501,8 @@ static void sms_shade_rows(void *ctx, uint32_t job, unsigned worker)
             uint32_t pixel = y * w + x;
             const struct sms_sample *s = &res[pixel];
             struct vec3 L = pp->out->pixels[pixel];
-            if (s->head.W > 0.0f) L = vec3_add(L, vec3_scale(vec3_make(s->F[0], s->F[1], s->F[2]), s->head.W));
+            if (!pp->estimated && s->head.W > 0.0f)
+                L = vec3_add(L, vec3_scale(vec3_make(s->F[0], s->F[1], s->F[2]), s->head.W));
             if (!vec3_is_finite(L)) {
                 pp->nonfinite[worker]++;
                 L = vec3_splat(0.0f);
@@ -619,6 +629,10 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
     if (!restir_temporal_pass(&r, st->res[0], &rc, err)) return false;
     stats->temporal_ms = parallel_lap_ms(&t0);
     if (params->spatial_neighbors > 0) {
+        /* Two coloured lights and a luminance target: one selected sample per pixel is mostly
+         * colour noise, which the expectation over the pass's candidates leaves out. */
+        pp.estimated = params->expected_shading;
+        r.estimate = pp.estimated ? out->pixels : NULL;  /* adds to the path-traced rest */
         if (!restir_spatial_pass(&r, st->res[0], st->res[1], &rc, err)) return false;
     } else {
         uint8_t *tmp = st->res[0];

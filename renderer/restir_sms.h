@@ -70,6 +70,8 @@ struct restir_sms_params {
     uint32_t temporal_cap;        /* previous M capped at this multiple of the current M (20) */
     uint32_t spatial_neighbors;   /* (1); 0 = no spatial reuse */
     float spatial_radius;         /* pixels (30) */
+    bool expected_shading;        /* shade with the spatial pass's expected contribution over its
+                                     candidates instead of the selected sample's F W (true) */
     uint32_t max_depth, rr_depth; /* of the pt path that supplies the rest of the image (64, 3) */
 };
 

@@ -200,3 +200,30 @@ def test_restir_sms_environment_shows_through(tmp_path, scenes):
     assert st["nonfinite"] == 0 and np.isfinite(img).all()
     assert clear.sum() > 20 and np.all(np.abs(img[clear] - np.array(env)) < 1e-6)
     assert img[~sky].mean() > 0.0
+
+
+def test_restir_sms_expected_shading_changes_only_the_shading(tmp_path, scenes):
+    """`expected_shading` shades with the spatial pass's expectation over its candidates: the same
+    reservoirs and shifts (so the same statistics), a different image; with no spatial pass it has
+    nothing to shade from and the image is the selected samples' exactly. Its unbiasedness is the
+    z-tests' above, which run with it (the default)."""
+    sc = scenes / SCENE / "scene.json"
+
+    def run(tag, **params):
+        extra = ["--method", "restir_sms", "--frames", "4", "--params", json.dumps({**PARAMS, **params})]
+        return render(sc, tmp_path / f"{tag}.exr", spp=1, seed=3, extra=extra)
+
+    on, st_on = run("on")
+    off, st_off = run("off", expected_shading=False)
+    assert st_on["last_frame"]["shifts"] > 0
+    for key in ("shifts", "shift_failures"):
+        assert st_on["last_frame"][key] == st_off["last_frame"][key]
+    for group in ("sms", "manifold_shift"):
+        counts = {k: v for k, v in st_on[group].items() if not k.endswith("_ms")}
+        assert counts == {k: st_off[group][k] for k in counts}, group
+    differ = np.any(on != off, axis=2)
+    assert differ.sum() >= 10, f"{differ.sum()} pixels differ"
+    assert np.isfinite(on).all() and st_on["nonfinite"] == 0
+    no_spatial_on, _ = run("ns_on", spatial_neighbors=0)
+    no_spatial_off, _ = run("ns_off", spatial_neighbors=0, expected_shading=False)
+    assert np.array_equal(no_spatial_on, no_spatial_off)
