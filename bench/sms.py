@@ -26,8 +26,15 @@ refractive-slab and reflective-plane at 64x64 (BENCH_SMS_SCENES, BENCH_SMS_SIZE)
      scenes/refractive-slab/generate.py into build/bench/bumps-S/, and Table 1's manifold
      sampling statistics of `sms` and `sms_ssp` at 1 spp on each, at BENCH_SMS_BUMPS_SIZE
      (128x128; not in the quick run);
-  6. writes build/bench/sms.json, one SVG chart per scene (RMSE vs ms, log-log) and prints
-     Markdown tables (medians over the seeds).
+  6. steps 2 and 4's curves again on the caustic component alone (seed 002 Fig. 5 measures on a
+     crop of the caustic): every SMS method with `caustics_only`, pt with subset "caustic",
+     against the reference's SMS part. The rest of the image is one path-traced sample per pixel
+     and frame in every method, and on reflective-plane its noise is most of a whole image's
+     RMSE; here each method is measured on the paths it estimates itself;
+  7. writes build/bench/sms.json, two SVG charts per scene (RMSE vs ms, log-log: the whole image,
+     sms-<scene>.svg, and the caustic component, sms-<scene>-caustic.svg) and prints Markdown
+     tables (medians over the seeds); the real-time case is also compared at equal time: one
+     frame's RMSE against sms's curve at the same time per frame.
 With BENCH_SMS_SCALE=S, steps 1-4 run on the copies at scale S instead of the library's scenes
 (seed 002's regime: S = 3), and the outputs are named sms-bumps-S.json, sms-<scene>-bumps-S.svg.
 Environment: BENCH_SMS_SEEDS (3), BENCH_SMS_REF_SPP (1024), BENCH_SMS_REF_SMS_SPP (256),
@@ -95,21 +102,22 @@ def render(scene, out, method, params, seed, frames=None, extra=(), size=None):
 
 
 def reference(scene, tmp):
+    """The whole image's reference and its caustic component's (the sms part)."""
     h = hashlib.sha256()
     for f in sorted(scene.parent.iterdir()):
         if f.suffix in (".json", ".obj"):
             h.update(f.read_bytes())
     h.update(f"{SIZE} {REF_SPP} {REF_SMS_SPP}".encode())
-    path = REFS / f"sms-bench-{scene.parent.name}-{h.hexdigest()[:16]}.npy"
+    path = REFS / f"sms-bench-{scene.parent.name}-{h.hexdigest()[:16]}-parts.npy"
     if path.exists():
-        return np.load(path)
+        rest, caus = np.load(path)
+        return rest + caus, caus
     rest, _ = render(scene, tmp / "ref_rest.exr", "pt", {"spp": REF_SPP, "subset": "rest"}, 900001)
     caus, _ = render(scene, tmp / "ref_caus.exr", "sms", {"spp": REF_SMS_SPP, "caustics_only": True, "bernoulli_cap": 0},
                      900002)
-    ref = rest + caus
     REFS.mkdir(parents=True, exist_ok=True)
-    np.save(path, ref)
-    return ref
+    np.save(path, np.stack([rest, caus]))
+    return rest + caus, caus
 
 
 def rmse(img, ref):
@@ -172,6 +180,103 @@ def print_bumps(rows):
               f"{b['newtons_per_solution']:.1f} ({rn:.2f}x) |")
 
 
+# The runs of one measurement: (label, method, spps or frame counts, params).
+IMAGE_RUNS = [("pt", "pt", PT_SPPS, {}), ("sms", "sms", SMS_SPPS, {"bernoulli_cap": 128}),
+              ("sms_ssp", "sms_ssp", SMS_SPPS, {"bernoulli_cap": 128}),
+              ("sms_ssp, prior of 2 walks per block", "sms_ssp", [4], {"prior_samples": 2}),
+              ("sms_ssp, no prior (fallback)", "sms_ssp", [4], {"prior": False}),
+              ("restir_sms", "restir_sms", RESTIR_FRAMES, {"bernoulli_cap": 128}),
+              ("restir_sms, sms sampler", "restir_sms", RESTIR_FRAMES, {"bernoulli_cap": 128, "sampler": "sms"}),
+              # The prior misses a light: one walk per block finds at most one of the two
+              # (light, caster) pairs, so every block falls back to alpha = 0 for the other.
+              ("restir_sms, prior misses a light (1 walk per block)", "restir_sms", [8], {"prior_samples": 1}),
+              ("restir_sms, no prior (fallback)", "restir_sms", [8], {"prior": False})]
+# The caustic component alone (seed 002 Fig. 5 measures on a crop of the caustic): the paths SMS
+# owns, which every method here but pt renders with its own estimator, while the rest of the image
+# is one path-traced sample per pixel and frame in all of them. pt renders them as the filtered
+# reference does (subset caustic).
+CAUSTIC_RUNS = [("pt", "pt", PT_SPPS, {"subset": "caustic"}),
+                ("sms", "sms", SMS_SPPS, {"bernoulli_cap": 128, "caustics_only": True}),
+                ("sms_ssp", "sms_ssp", SMS_SPPS, {"bernoulli_cap": 128, "caustics_only": True}),
+                ("restir_sms", "restir_sms", RESTIR_FRAMES, {"bernoulli_cap": 128, "caustics_only": True}),
+                ("restir_sms, sms sampler", "restir_sms", RESTIR_FRAMES,
+                 {"bernoulli_cap": 128, "sampler": "sms", "caustics_only": True})]
+RATIOS = (("sms", "pt"), ("sms_ssp", "pt"), ("sms_ssp", "sms"), ("restir_sms", "sms"), ("restir_sms", "sms_ssp"),
+          ("restir_sms, sms sampler", "sms"))
+
+
+def measure(scene, name, ref, tmp, runs, tag):
+    """Curves (median time, median RMSE per spp or frame count) of `runs`, Table 1 of sms and
+    sms_ssp at 1 spp, and the real-time case: one frame after WARMUP frames of reuse."""
+    curves = {label: [] for label, *_ in runs}
+    t1 = {"sms": [], "sms_ssp": []}
+    for label, method, spps, extra in runs:
+        for spp in spps:
+            ms, err = [], []
+            for seed in range(SEEDS):
+                # A new file per render: OpenImageIO caches images by file name.
+                out = tmp / f"{name}-{tag}-{len(curves[label])}-{label[:12].replace(' ', '_')}-{spp}-{seed}.exr"
+                if method == "restir_sms":
+                    img, st = render(scene, out, method, extra, seed, frames=spp)
+                else:
+                    img, st = render(scene, out, method, {"spp": spp, **extra}, seed)
+                ms.append(st["time_ms"])
+                err.append(rmse(img, ref))
+                if label in t1 and spp == 1:
+                    t1[label].append(table1(st["sms"], st.get("prior")))
+            curves[label].append((statistics.median(ms), statistics.median(err), spp))
+    # Real-time use (seed 002 §6: 1 spp per frame): the error of one frame after WARMUP frames of
+    # reuse, with its time per frame (the warm-up's frames included).
+    steady = {}
+    for label, method, spps, params in runs:
+        if method != "restir_sms" or label not in ("restir_sms", "restir_sms, sms sampler"):
+            continue
+        ms, err = [], []
+        for seed in range(SEEDS):
+            out = tmp / f"{name}-{tag}-steady-{label[:14].replace(' ', '_')}-{seed}.exr"
+            img, st = render(scene, out, method, params, seed, extra=["--frames", str(WARMUP + 1), "--average-last", "1"])
+            ms.append(st["time_ms"] / (WARMUP + 1))
+            err.append(rmse(img, ref))
+        steady[label] = (statistics.median(ms), statistics.median(err))
+    table = {m: {k: statistics.median(r[k] for r in rows) for k in rows[0]} for m, rows in t1.items() if rows}
+    return {"curves": curves, "steady": steady, "table1": table}
+
+
+def at_time(curve, ms):
+    """A curve's RMSE interpolated log-log at time ms (None outside it)."""
+    for (a, ea, _), (b, eb, _) in zip(curve, curve[1:]):
+        if a <= ms <= b:
+            f = (math.log(ms) - math.log(a)) / (math.log(b) - math.log(a))
+            return math.exp(math.log(ea) + f * (math.log(eb) - math.log(ea)))
+    return None
+
+
+def print_curves(name, r, what):
+    print(f"\n| scene | method | spp (restir_sms: frames) | time (ms) | RMSE ({what}) |")
+    print("|---|---|---|---|---|")
+    for method, pts in r["curves"].items():
+        for ms, err, spp in pts:
+            print(f"| {name} | {method} | {spp} | {ms:.1f} | {err:.4g} |")
+    # Equal time: the other curve's RMSE interpolated log-log at each point's time.
+    for m, base in RATIOS:
+        ref_curve = sorted(r["curves"][base])
+        ratios = [err / e for ms, err, _ in r["curves"][m] if (e := at_time(ref_curve, ms))]
+        if ratios:
+            print(f"\n{name} ({what}): RMSE of {m} / {base} at equal time: median {statistics.median(ratios):.3f} "
+                  f"over {len(ratios)} points")
+        else:
+            print(f"\n{name} ({what}): RMSE of {m} / {base} at equal time: the curves do not overlap in time")
+    st = r["steady"]
+    sms = sorted(r["curves"]["sms"])
+    print(f"\n{name} ({what}), one frame after {WARMUP} frames of reuse (time per frame, RMSE): " +
+          ", ".join(f"{k} {v[0]:.1f} ms {v[1]:.4g}" for k, v in st.items()))
+    for k, (ms, err) in st.items():
+        e = at_time(sms, ms)
+        eq = f"{err / e:.3f}" if e else "outside the sms curve"
+        print(f"{name} ({what}): RMSE of one {k} frame / sms 1 spp: {err / sms[0][1]:.3f} at {ms / sms[0][0]:.2f}x "
+              f"its time per frame; / sms at the same time per frame: {eq}")
+
+
 def main():
     OUT.mkdir(parents=True, exist_ok=True)
     results = {}
@@ -181,53 +286,9 @@ def main():
         scenes = bumpy_copies(float(SCALE)) if SCALE else ROOT / "scenes"
         for name in SCENES:
             scene = scenes / name / "scene.json"
-            ref = reference(scene, tmp)
-            runs = [("pt", "pt", PT_SPPS, {}), ("sms", "sms", SMS_SPPS, {"bernoulli_cap": 128}),
-                    ("sms_ssp", "sms_ssp", SMS_SPPS, {"bernoulli_cap": 128}),
-                    ("sms_ssp, prior of 2 walks per block", "sms_ssp", [4], {"prior_samples": 2}),
-                    ("sms_ssp, no prior (fallback)", "sms_ssp", [4], {"prior": False}),
-                    ("restir_sms", "restir_sms", RESTIR_FRAMES, {"bernoulli_cap": 128}),
-                    ("restir_sms, sms sampler", "restir_sms", RESTIR_FRAMES, {"bernoulli_cap": 128, "sampler": "sms"}),
-                    # The prior misses a light: one walk per block finds at most one of the two
-                    # (light, caster) pairs, so every block falls back to alpha = 0 for the other.
-                    ("restir_sms, prior misses a light (1 walk per block)", "restir_sms", [8], {"prior_samples": 1}),
-                    ("restir_sms, no prior (fallback)", "restir_sms", [8], {"prior": False})]
-            curves = {label: [] for label, *_ in runs}
-            t1 = {"sms": [], "sms_ssp": []}
-            for label, method, spps, extra in runs:
-                for spp in spps:
-                    ms, err = [], []
-                    for seed in range(SEEDS):
-                        # A new file per render: OpenImageIO caches images by file name.
-                        out = tmp / f"{name}-{len(curves[label])}-{label[:12].replace(' ', '_')}-{spp}-{seed}.exr"
-                        if method == "restir_sms":
-                            img, st = render(scene, out, method, extra, seed, frames=spp)
-                        else:
-                            img, st = render(scene, out, method, {"spp": spp, **extra}, seed)
-                        ms.append(st["time_ms"])
-                        err.append(rmse(img, ref))
-                        if label in t1 and spp == 1:
-                            t1[label].append(table1(st["sms"], st.get("prior")))
-                    curves[label].append((statistics.median(ms), statistics.median(err), spp))
-            # Real-time use (seed 002 §6: 1 spp per frame): the error of one frame after WARMUP
-            # frames of reuse against sms at 1 spp, with each one's time per frame.
-            steady = {}
-            for label, method, params in (("sms 1 spp", "sms", {"spp": 1, "bernoulli_cap": 128}),
-                                          ("sms_ssp 1 spp", "sms_ssp", {"spp": 1, "bernoulli_cap": 128}),
-                                          ("restir_sms", "restir_sms", {"bernoulli_cap": 128}),
-                                          ("restir_sms, sms sampler", "restir_sms", {"bernoulli_cap": 128, "sampler": "sms"})):
-                ms, err = [], []
-                for seed in range(SEEDS):
-                    out = tmp / f"{name}-steady-{label[:14].replace(' ', '_')}-{seed}.exr"
-                    n = WARMUP + 1 if method == "restir_sms" else 1
-                    cmd_extra = ["--frames", str(n), "--average-last", "1"]
-                    img, st = render(scene, out, method, params, seed, extra=cmd_extra)
-                    ms.append(st["time_ms"] / n)
-                    err.append(rmse(img, ref))
-                steady[label] = (statistics.median(ms), statistics.median(err))
-            results[name] = {"curves": curves, "steady": steady,
-                             "table1": {m: {k: statistics.median(r[k] for r in rows) for k in rows[0]}
-                                        for m, rows in t1.items()}}
+            ref, caustic_ref = reference(scene, tmp)
+            results[name] = measure(scene, name, ref, tmp, IMAGE_RUNS, "image")
+            results[name]["caustic"] = measure(scene, name, caustic_ref, tmp, CAUSTIC_RUNS, "caustic")
     (OUT / f"sms{SUFFIX}.json").write_text(json.dumps({"scenes": results, "bumps": bumps}, indent=1))
     where = f"bumps scaled by {SCALE}, {scenes.relative_to(ROOT)}/" if SCALE else "the library's scenes"
     print(f"# pt vs sms vs restir_sms ({where}; {SIZE}, medians over {SEEDS} seeds; reference: pt rest {REF_SPP} spp + "
@@ -243,35 +304,13 @@ def main():
               f"{a['bernoulli_per_solution']:.2f} / {b['bernoulli_per_solution']:.2f} | "
               f"{a['newtons_per_solution']:.2f} / {b['newtons_per_solution']:.2f} | "
               f"{a['sms_ms']:.1f} / {b['sms_ms']:.1f} |")
-    print("\n| scene | method | spp (restir_sms: frames) | time (ms) | RMSE |")
-    print("|---|---|---|---|---|")
     for name, r in results.items():
-        for method, pts in r["curves"].items():
-            for ms, err, spp in pts:
-                print(f"| {name} | {method} | {spp} | {ms:.1f} | {err:.4g} |")
-        # Equal time: the other curve's RMSE interpolated log-log at each point's time.
-        for m, base in (("sms", "pt"), ("sms_ssp", "pt"), ("sms_ssp", "sms"), ("restir_sms", "sms"),
-                        ("restir_sms", "sms_ssp"), ("restir_sms, sms sampler", "sms")):
-            ref_curve = sorted(r["curves"][base])
-            ratios = []
-            for ms, err, _ in r["curves"][m]:
-                for (a, ea, _), (b, eb, _) in zip(ref_curve, ref_curve[1:]):
-                    if a <= ms <= b:
-                        f = (math.log(ms) - math.log(a)) / (math.log(b) - math.log(a))
-                        ratios.append(err / math.exp(math.log(ea) + f * (math.log(eb) - math.log(ea))))
-            if ratios:
-                print(f"\n{name}: RMSE of {m} / {base} at equal time: median {statistics.median(ratios):.3f} "
-                      f"over {len(ratios)} points")
-            else:
-                print(f"\n{name}: RMSE of {m} / {base} at equal time: the curves do not overlap in time")
-        st = r["steady"]
-        print(f"\n{name}, one frame after {WARMUP} frames of reuse (time per frame, RMSE): " +
-              ", ".join(f"{k} {v[0]:.1f} ms {v[1]:.4g}" for k, v in st.items()))
-        for k in ("restir_sms", "restir_sms, sms sampler"):
-            print(f"{name}: RMSE of one {k} frame / sms 1 spp: {st[k][1] / st['sms 1 spp'][1]:.3f} "
-                  f"at {st[k][0] / st['sms 1 spp'][0]:.2f}x its time per frame")
+        print_curves(name, r, "image")
+        print_curves(name, r["caustic"], "caustic component")
         loglog(OUT / f"sms-{name}{SUFFIX}.svg", f"{name}: RMSE vs time", "render time (ms)", "RMSE",
                [(m, [(a, b) for a, b, _ in pts], "line") for m, pts in r["curves"].items()])
+        loglog(OUT / f"sms-{name}-caustic{SUFFIX}.svg", f"{name}, caustic component: RMSE vs time", "render time (ms)",
+               "RMSE", [(m, [(a, b) for a, b, _ in pts], "line") for m, pts in r["caustic"]["curves"].items()])
     if bumps:
         print_bumps(bumps)
 
