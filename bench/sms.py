@@ -26,7 +26,7 @@ refractive-slab and reflective-plane at 64x64 (BENCH_SMS_SCENES, BENCH_SMS_SIZE)
      scenes/refractive-slab/generate.py into build/bench/bumps-S/, and Table 1's manifold
      sampling statistics of `sms` and `sms_ssp` at 1 spp on each, at BENCH_SMS_BUMPS_SIZE
      (128x128; not in the quick run);
-  6. steps 2 and 4's curves again on the caustic component alone (seed 002 Fig. 5 measures on a
+  6. step 2's curves and real-time case again on the caustic component alone (seed 002 Fig. 5 measures on a
      crop of the caustic): every SMS method with `caustics_only`, pt with subset "caustic",
      against the reference's SMS part. The rest of the image is one path-traced sample per pixel
      and frame in every method, and on reflective-plane its noise is most of a whole image's

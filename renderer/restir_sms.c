@@ -629,8 +629,9 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
     if (!restir_temporal_pass(&r, st->res[0], &rc, err)) return false;
     stats->temporal_ms = parallel_lap_ms(&t0);
     if (params->spatial_neighbors > 0) {
-        /* Two coloured lights and a luminance target: one selected sample per pixel is mostly
-         * colour noise, which the expectation over the pass's candidates leaves out. */
+        /* The target is a luminance, so one selected sample per pixel carries one sample's colour:
+         * under lights of different colours most of its noise is colour, which the expectation
+         * over the pass's candidates leaves out (seed 001 Fig. 5). */
         pp.estimated = params->expected_shading;
         r.estimate = pp.estimated ? out->pixels : NULL;  /* adds to the path-traced rest */
         if (!restir_spatial_pass(&r, st->res[0], st->res[1], &rc, err)) return false;
