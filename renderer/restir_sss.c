@@ -167,12 +167,10 @@ static bool sss_light_at(const struct scene *scene, const struct sss_sample *s, 
         x3->Le_scale = scene->env_radiance;
         return true;
     }
-    struct surface ls;
-    surface_at(scene, s->x3_shape, s->x3_prim, s->x3_b1, s->x3_b2, &ls);
-    const struct material *m = &scene->materials[ls.material];
+    /* The point and its geometric normal only: the emitter's shading frame is never used. */
+    surface_point_at(scene, s->x3_shape, s->x3_prim, s->x3_b1, s->x3_b2, &x3->p, &x3->n);
+    const struct material *m = &scene->materials[scene->shapes[s->x3_shape].material];
     x3->is_env = false;
-    x3->p = ls.p;
-    x3->n = ls.ng;
     x3->Le_scale = m->emission;
     x3->two_sided = m->two_sided_emission;
     return material_is_emissive(m);
