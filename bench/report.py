@@ -28,7 +28,6 @@ Environment: QUICK=1, BENCH_THREADS (all cores), REPORT_SCENES (comma list), REP
 import csv
 import hashlib
 import json
-import math
 import os
 import shutil
 import statistics
@@ -43,6 +42,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 sys.path.insert(0, str(ROOT / "tests"))
 import restir_pt  # noqa: E402
 import svgplot  # noqa: E402
+from curves import loglog_at  # noqa: E402
 from restir_pt import compare_all as compare  # noqa: E402
 
 QUICK = os.environ.get("QUICK") == "1"
@@ -225,14 +225,7 @@ def write_rgb(path, img):
 
 def at_time(rows, ms, key="mape"):
     """A method's error at a time, interpolated log-log inside its measured range (None outside)."""
-    pts = sorted((r["ms"], r[key]) for r in rows)
-    for (x0, y0), (x1, y1) in zip(pts, pts[1:]):
-        if x0 <= ms <= x1:
-            f = 0.0 if x1 == x0 else (math.log(ms) - math.log(x0)) / (math.log(x1) - math.log(x0))
-            return math.exp(math.log(y0) + f * (math.log(y1) - math.log(y0)))
-    if pts and abs(ms - pts[0][0]) <= 1e-9 * ms:
-        return pts[0][1]
-    return None
+    return loglog_at([(r["ms"], r[key]) for r in rows], ms)
 
 
 # ---- stability (through the daemon) ------------------------------------------------------------

@@ -44,7 +44,6 @@ BENCH_SMS_BUMPS ("1 2 3 4"; empty: no sweep), BENCH_SMS_BUMPS_SIZE (128x128), BE
 those are set too."""
 import hashlib
 import json
-import math
 import os
 import statistics
 import subprocess
@@ -56,6 +55,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from curves import loglog_at  # noqa: E402
 from svgplot import loglog  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -243,12 +243,8 @@ def measure(scene, name, ref, tmp, runs, tag):
 
 
 def at_time(curve, ms):
-    """A curve's RMSE interpolated log-log at time ms (None outside it)."""
-    for (a, ea, _), (b, eb, _) in zip(curve, curve[1:]):
-        if a <= ms <= b:
-            f = (math.log(ms) - math.log(a)) / (math.log(b) - math.log(a))
-            return math.exp(math.log(ea) + f * (math.log(eb) - math.log(ea)))
-    return None
+    """A curve's RMSE at time ms (curve: (ms, RMSE, spp) points)."""
+    return loglog_at([(a, e) for a, e, _ in curve], ms)
 
 
 def print_curves(name, r, what):
