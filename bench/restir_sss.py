@@ -17,7 +17,8 @@ mean free paths and one dominant light (Fig. 8) and more as they grow (Fig. 9); 
      blue = reconnection, yellow = delayed, grey = translucent without a sample);
   3. RMSE on the region against the reference: `pt` at 1, 2, 4 ... 32 spp and `restir_sss` with
      each shift (reconnection, delayed, hybrid, sequential in its exact mode) at 1, 2 and 4
-     candidates, each the median over SEEDS seeds; restir_sss's image is the frame after WARMUP
+     candidates, with each target (luminance: one reservoir per pixel; per_channel: one per colour
+     channel), each the median over SEEDS seeds; restir_sss's image is the frame after WARMUP
      frames of one session (`restir render`; errors do not depend on the machine's load);
   4. time, frame by frame in one daemon (bench/daemon.py), as restir_pt's frame cost: pt sessions
      at 1, 4 and 16 spp live throughout; each restir_sss setting gets a session, WARMUP frames,
@@ -33,6 +34,7 @@ mean free paths and one dominant light (Fig. 8) and more as they grow (Fig. 9); 
      of the best shift per scale.
 Environment: BENCH_SSS_SEEDS (3), BENCH_SSS_REF_SPP (2048), BENCH_SSS_WARMUP (16),
 BENCH_SSS_SHIFTS ("reconnection delayed hybrid sequential"), BENCH_SSS_CANDIDATES ("1 2 4"),
+BENCH_SSS_TARGETS ("luminance per_channel"),
 BENCH_SSS_MFP_SCALES ("1 4 16"), BENCH_SSS_ROUNDS (16), BENCH_SSS_PARAMS (a JSON object of more session params, "{}"),
 BENCH_SSS_MAX_DEPTH (unset: every method's default of 64; 1 is the direct-lighting case of seed 004 §3,
 paths camera - entry - exit - light, which its evaluation and Fig. 6 use: pt, its reference and
@@ -72,6 +74,7 @@ PT_TIMED_SPPS = [1, 4, 16]
 ROUNDS = int(os.environ.get("BENCH_SSS_ROUNDS", "16"))
 SHIFTS = [x for x in os.environ.get("BENCH_SSS_SHIFTS", "reconnection delayed hybrid sequential").split()]
 CANDIDATES = [int(c) for c in os.environ.get("BENCH_SSS_CANDIDATES", "1 2 4").split()]
+TARGETS = os.environ.get("BENCH_SSS_TARGETS", "luminance per_channel").split()
 # More session params for every restir_sss run, e.g. '{"expected_shading": false}'.
 EXTRA = json.loads(os.environ.get("BENCH_SSS_PARAMS", "{}"))
 MFP_SCALES = [float(k) for k in os.environ.get("BENCH_SSS_MFP_SCALES", "1 4 16").split()]
@@ -207,23 +210,23 @@ def measure(d, scene, label, title, img_path):
         res["pt"].append({"spp": spp, "rmse": statistics.median(err)})
     pt_pts = [(x["spp"], x["rmse"]) for x in res["pt"]]
     pt_ms = []
-    for shift in SHIFTS:
-        for cand in CANDIDATES:
-            params = {"shift": shift, "candidates": cand, **DEPTH_PARAMS, **EXTRA}
-            err, fails = [], []
-            for s in range(SEEDS):
-                st = run(["render", str(scene), "--method", "restir_sss", "--frames", str(WARMUP), "--size", SIZE,
-                          "--seed", str(s), "--params", json.dumps(params), "--json", "-o", str(img_path)])
-                err.append(rmse(read_exr(img_path), ref, mask))
-                lf = st["last_frame"]
-                fails.append(lf["shift_failures"] / max(lf["shifts"], 1))
-            t = timed(d, scene_id, params)
-            pt_ms.append(t["pt_ms"])
-            e, pt_e = statistics.median(err), interp_loglog(pt_pts, t["spp"])
-            res["restir_sss"][f"{shift}, {cand} cand."] = {
-                "shift": shift, "candidates": cand, "rmse": e, "shift_failure_rate": statistics.median(fails), **t,
-                "pt_rmse_at_equal_time": pt_e, "ratio": e / pt_e,
-                "ratio_range": [e / interp_loglog(pt_pts, t["spp_q1"]), e / interp_loglog(pt_pts, t["spp_q3"])]}
+    for shift, target, cand in ((sh, tg, c) for sh in SHIFTS for tg in TARGETS for c in CANDIDATES):
+        params = {"shift": shift, "candidates": cand, "target": target, **DEPTH_PARAMS, **EXTRA}
+        err, fails = [], []
+        for s in range(SEEDS):
+            st = run(["render", str(scene), "--method", "restir_sss", "--frames", str(WARMUP), "--size", SIZE,
+                      "--seed", str(s), "--params", json.dumps(params), "--json", "-o", str(img_path)])
+            err.append(rmse(read_exr(img_path), ref, mask))
+            lf = st["last_frame"]
+            fails.append(lf["shift_failures"] / max(lf["shifts"], 1))
+        t = timed(d, scene_id, params)
+        pt_ms.append(t["pt_ms"])
+        e, pt_e = statistics.median(err), interp_loglog(pt_pts, t["spp"])
+        name = f"{shift}, {cand} cand." + (", per_channel" if target == "per_channel" else "")
+        res["restir_sss"][name] = {
+            "shift": shift, "target": target, "candidates": cand, "rmse": e, "shift_failure_rate": statistics.median(fails), **t,
+            "pt_rmse_at_equal_time": pt_e, "ratio": e / pt_e,
+            "ratio_range": [e / interp_loglog(pt_pts, t["spp_q1"]), e / interp_loglog(pt_pts, t["spp_q3"])]}
     # pt's time per timed spp: the median over every setting's rounds' medians.
     res["pt_ms"] = {n: statistics.median(m[i] for m in pt_ms) for i, n in enumerate(PT_TIMED_SPPS)} if pt_ms else {}
     # The chart's time axis is in 1-spp pt frames: pt at its timed spp, restir_sss at its cost
@@ -232,8 +235,9 @@ def measure(d, scene, label, title, img_path):
     pt_curve = [(res["pt_ms"][x["spp"]] / t1, x["rmse"]) for x in res["pt"] if x["spp"] in res["pt_ms"]] if t1 else []
     loglog(OUT / f"{label}.svg", f"{title}, {SIZE}: RMSE on the translucent region against time",
            "frame time (1-spp pt frames)", "RMSE", [("pt, 1/4/16 spp", pt_curve, "line")] +
-           [(shift, [(v["cost"], v["rmse"]) for v in res["restir_sss"].values() if v["shift"] == shift], "line")
-            for shift in SHIFTS])
+           [(shift + ("" if target == "luminance" else f", {target}"),
+             [(v["cost"], v["rmse"]) for v in res["restir_sss"].values() if (v["shift"], v["target"]) == (shift, target)],
+             "line") for shift in SHIFTS for target in TARGETS])
     return res
 
 

@@ -856,7 +856,7 @@ static bool request_restir_sss_params(const cJSON *pv, const char *ptr, struct r
 {
     static const char *const keys[] = {"shift", "candidates", "temporal", "temporal_cap", "spatial_neighbors",
                                        "spatial_radius", "kappa_orientation", "max_depth", "rr_depth",
-                                       "index_shortcut", "paired_spatial", "expected_shading", NULL};
+                                       "index_shortcut", "paired_spatial", "expected_shading", "target", NULL};
     char p[REQUEST_PTR];
     const cJSON *v;
     if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_sss params", err))
@@ -867,6 +867,12 @@ static bool request_restir_sss_params(const cJSON *pv, const char *ptr, struct r
         if (!restir_sss_shift_parse(name, &rp->shift))
             return err_set(err, ERR_INVALID, p, "unknown shift \"%.64s\" (reconnection, delayed, hybrid or sequential)",
                            name);
+    }
+    if ((v = request_member(pv, ptr, "target", p))) {
+        const char *name = request_string(v, p, err);
+        if (!name) return false;
+        if (!restir_sss_target_parse(name, &rp->target))
+            return err_set(err, ERR_INVALID, p, "unknown target \"%.64s\" (luminance or per_channel)", name);
     }
     if (!request_fields(pv, ptr, restir_sss_fields, sizeof restir_sss_fields / sizeof restir_sss_fields[0], 1000000, rp, err)) return false;
     return restir_sss_params_valid(rp, err);

@@ -39,6 +39,17 @@ enum restir_sss_shift {
     RESTIR_SSS_SEQUENTIAL,
 };
 
+/* The target p̂ of a sample, a scalar function of its RGB contribution F. `luminance`: one
+ * reservoir per pixel, p̂ = luminance(F). `per_channel`: three reservoirs per pixel, the c-th with
+ * p̂ = F_c, each estimating channel c alone and reused on its own (three times the reservoirs and
+ * the shifts): the profile's mean free path differs per channel, so F's colour depends on how far
+ * the entry point is, and one luminance-resampled sample per pixel carries one such colour into
+ * the image as colour noise (docs/benchmarks.md, restir_sss). */
+enum restir_sss_target {
+    RESTIR_SSS_TARGET_LUMINANCE,
+    RESTIR_SSS_TARGET_PER_CHANNEL,
+};
+
 struct restir_sss_params {
     enum restir_sss_shift shift;  /* (hybrid) */
     uint32_t candidates;          /* BSSRDF probes per pixel and frame, each with one light sample
@@ -57,6 +68,7 @@ struct restir_sss_params {
                                      (restir.h, seed 001 Table 1), half the shifts (true) */
     bool expected_shading;        /* shade with the last spatial pass's expected contribution over
                                      its selection (restir.h; seed 001 Fig. 5) (true) */
+    enum restir_sss_target target; /* (luminance) */
 };
 
 struct restir_sss_params restir_sss_defaults(void);
@@ -64,6 +76,10 @@ struct restir_sss_params restir_sss_defaults(void);
 bool restir_sss_params_valid(const struct restir_sss_params *p, struct err *err);
 bool restir_sss_shift_parse(const char *name, enum restir_sss_shift *out);
 const char *restir_sss_shift_name(enum restir_sss_shift s);
+bool restir_sss_target_parse(const char *name, enum restir_sss_target *out);
+const char *restir_sss_target_name(enum restir_sss_target t);
+/* Reservoirs per pixel and buffer: 1, or 3 for the per_channel target. */
+uint32_t restir_sss_layers(const struct restir_sss_params *p);
 
 struct restir_sss_stats {
     double gbuffer_ms, initial_ms, temporal_ms, spatial_ms, shade_ms;
@@ -77,21 +93,24 @@ struct restir_sss_state {
     uint32_t width, height;
     struct gbuffer gbuf[2];           /* with their primary surfaces (gbuffer_keep_surfaces) */
     uint32_t cur;
-    uint8_t *res[2];   /* [0] working, [1] history (final) */
+    uint32_t layers;                  /* reservoirs per pixel (restir_sss_layers) */
+    uint8_t *res[2];   /* [0] working, [1] history (final); layer l's at l * width * height */
     void *pair_scratch;               /* paired spatial reuse (restir_pair_scratch_bytes) */
     bool has_history;
 };
 
-#define RESTIR_SSS_RESERVOIR_BYTES 60u
+#define RESTIR_SSS_RESERVOIR_BYTES 60u   /* per reservoir; a pixel has restir_sss_layers of them */
 
-bool restir_sss_init(struct restir_sss_state *st, uint32_t width, uint32_t height, struct err *err);
+/* Sized for params' target, which a session keeps. */
+bool restir_sss_init(struct restir_sss_state *st, const struct restir_sss_params *params, uint32_t width,
+                     uint32_t height, struct err *err);
 void restir_sss_destroy(struct restir_sss_state *st);
 void restir_sss_reset(struct restir_sss_state *st);
 size_t restir_sss_reservoir_bytes(const struct restir_sss_state *st);
 size_t restir_sss_gbuffer_bytes(const struct restir_sss_state *st);
 size_t restir_sss_hit_bytes(const struct restir_sss_state *st);
 size_t restir_sss_pair_bytes(const struct restir_sss_state *st);
-uint64_t restir_sss_bytes_planned(uint32_t width, uint32_t height);
+uint64_t restir_sss_bytes_planned(const struct restir_sss_params *params, uint32_t width, uint32_t height);
 
 struct restir_sss_frame {
     const struct scene *scene;

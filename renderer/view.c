@@ -89,7 +89,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         return false;
     if (params->method == RENDER_METHOD_RESTIR_SSS) {
         if (!restir_sss_params_valid(&params->restir_sss, err)) return false;
-        if (!restir_sss_init(&v->sss, params->width, params->height, err)) return false;
+        if (!restir_sss_init(&v->sss, &params->restir_sss, params->width, params->height, err)) return false;
     }
     if (params->method == RENDER_METHOD_RESTIR_SMS) {
         struct sms_scene ss;
@@ -435,7 +435,7 @@ uint64_t view_bytes_planned(const struct view_params *params, uint32_t shape_cou
     if (params->method == RENDER_METHOD_BDPT) bytes += bdpt_bytes_planned(&params->bdpt, params->width, params->height);
     if (params->method == RENDER_METHOD_RESTIR_BDPT)
         bytes += restir_bdpt_bytes_planned(&params->restir_bdpt, params->width, params->height);
-    if (params->method == RENDER_METHOD_RESTIR_SSS) bytes += restir_sss_bytes_planned(params->width, params->height);
+    if (params->method == RENDER_METHOD_RESTIR_SSS) bytes += restir_sss_bytes_planned(&params->restir_sss, params->width, params->height);
     if (params->method == RENDER_METHOD_SMS_SSP) bytes += ssp_prior_bytes(params->width, params->height);
     if (params->method == RENDER_METHOD_RESTIR_SMS) bytes += restir_sms_bytes_planned(params->width, params->height);
     return bytes;

@@ -75,6 +75,7 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
             jsonw_key(w, "heuristic"); jsonw_string(w, bdpt_heuristic_name(p->restir_bdpt.heuristic));
         } else if (p->method == RENDER_METHOD_RESTIR_SSS) {
             jsonw_key(w, "shift"); jsonw_string(w, restir_sss_shift_name(p->restir_sss.shift));
+            jsonw_key(w, "target"); jsonw_string(w, restir_sss_target_name(p->restir_sss.target));
         } else if (p->method == RENDER_METHOD_RESTIR_SMS) {
             jsonw_key(w, "sampler"); jsonw_string(w, restir_sms_sampler_name(p->restir_sms.sampler));
         }
@@ -203,7 +204,7 @@ static void api_write_session(struct jsonw *w, struct session *s)
     jsonw_key(w, "reservoir_bytes"); jsonw_uint(w, reservoir);
     jsonw_key(w, "reservoir_bytes_per_pixel");
     jsonw_uint(w, p->method == RENDER_METHOD_RESTIR_PT    ? RESTIR_PT_RESERVOIR_BYTES
-                  : p->method == RENDER_METHOD_RESTIR_SSS ? RESTIR_SSS_RESERVOIR_BYTES
+                  : p->method == RENDER_METHOD_RESTIR_SSS ? RESTIR_SSS_RESERVOIR_BYTES * restir_sss_layers(&p->restir_sss)
                   : p->method == RENDER_METHOD_RESTIR_BDPT ? RESTIR_BDPT_PATH_BYTES
                   : p->method == RENDER_METHOD_RESTIR_SMS ? RESTIR_SMS_RESERVOIR_BYTES
                                                           : 0);

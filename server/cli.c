@@ -323,6 +323,7 @@ static int cli_render(int argc, char **argv)
     /* Samples per pixel and frame as rendered: --params may set a pt, sms or sms_ssp frame's own
      * spp; the reuse methods and bdpt trace one camera path per pixel and frame. */
     uint32_t frame_spp = p.spp;
+    uint32_t sss_layers = 1;   /* restir_sss: reservoirs per pixel and buffer (its target) */
     if (frames || anim_path || rm != RENDER_METHOD_PT) {
         if (has_crop || has_frame) {
             scene_release(scene);
@@ -348,6 +349,7 @@ static int cli_render(int argc, char **argv)
             return 2;
         }
         frame_spp = rm == RENDER_METHOD_PT || rm == RENDER_METHOD_SMS || rm == RENDER_METHOD_SMS_SSP ? vp.pt.spp : 1u;
+        sss_layers = restir_sss_layers(&vp.restir_sss);
         if (!cli_render_sequence(scene, &vp, p.threads, frames, average_last, anim_path, tty, &img, &st, &rendered,
                                  &last, &session_bytes)) {
             scene_release(scene);
@@ -384,7 +386,7 @@ static int cli_render(int argc, char **argv)
                    "\"reservoir_bytes_per_pixel\":%u",
                    ps->gbuffer_ms, ps->initial_ms, ps->temporal_ms, ps->spatial_ms, ps->shade_ms, ps->shifts,
                    ps->shift_failures, session_bytes,
-                   rm == RENDER_METHOD_RESTIR_SSS   ? RESTIR_SSS_RESERVOIR_BYTES
+                   rm == RENDER_METHOD_RESTIR_SSS   ? RESTIR_SSS_RESERVOIR_BYTES * sss_layers
                    : rm == RENDER_METHOD_RESTIR_SMS ? RESTIR_SMS_RESERVOIR_BYTES
                                                     : RESTIR_PT_RESERVOIR_BYTES);
         }

@@ -6,7 +6,9 @@ cameras, camera still and sliding. Each session contributes the mean of its last
 after at least 8 frames of reuse. Šidák-corrected per-pixel z-test at 0.01, >= 99.75 % of pixels
 passing, global mean within 3 sigma (tests/stats.py); each comparison also rejects the same
 renders scaled by 1.03, so the test can see a bias of that size. The sequential shift is tested
-in its exact mode (its index shortcut is labelled slightly biased and not z-tested)."""
+in its exact mode (its index shortcut is labelled slightly biased and not z-tested). The
+per_channel target (three reservoirs per pixel, each reused on its own) is tested with the shifts
+whose passes differ most: hybrid under camera motion and sequential's two spatial passes."""
 import json
 
 import numpy as np
@@ -70,21 +72,23 @@ def _reference(sc, tmp_path, moving, depth=()):
 
 
 @pytest.mark.statistical
-@pytest.mark.parametrize("shift,motion,max_depth",
-                         [(shift, motion, None) for shift in ("reconnection", "delayed", "hybrid", "sequential")
+@pytest.mark.parametrize("shift,motion,max_depth,target",
+                         [(shift, motion, None, "luminance") for shift in ("reconnection", "delayed", "hybrid", "sequential")
                           for motion in ("static", "moving camera")] +
                          # The direct-lighting case of seed 004 §3 (camera, entry, exit, light), which
                          # its evaluation and bench/restir_sss.py's BENCH_SSS_MAX_DEPTH=1 use: pt then
                          # stops after next-event estimation at the exit points and restir_sss
                          # traces no rest on the object; both must still estimate the same paths.
-                         [("hybrid", "static", 1)])
-def test_restir_sss_unbiased(tmp_path, scenes, shift, motion, max_depth):
+                         [("hybrid", "static", 1, "luminance"),
+                          ("hybrid", "moving camera", None, "per_channel"), ("sequential", "static", None, "per_channel")])
+def test_restir_sss_unbiased(tmp_path, scenes, shift, motion, max_depth, target):
     sc = scenes / "translucent" / "scene.json"
     moving = motion != "static"
     anim, _ = _animations(tmp_path, moving)
     depth = ("--max-depth", str(max_depth)) if max_depth is not None else ()
     ref = _reference(sc, tmp_path, moving, depth)
-    params = {"shift": shift, "temporal_cap": TEMPORAL_CAP, **({"max_depth": max_depth} if max_depth else {})}
+    params = {"shift": shift, "temporal_cap": TEMPORAL_CAP, "target": target,
+              **({"max_depth": max_depth} if max_depth else {})}
     extra = ["--method", "restir_sss", "--frames", str(FRAMES), "--average-last", str(AVERAGED),
              "--animation", str(anim), "--params", json.dumps(params)]
     runs, stats = [], None
@@ -92,19 +96,22 @@ def test_restir_sss_unbiased(tmp_path, scenes, shift, motion, max_depth):
         img, stats = render(sc, tmp_path / f"s{s}.exr", spp=1, size=SIZE, seed=s, extra=extra)
         runs.append(img)
     runs = np.stack(runs)
-    assert stats["last_frame"]["shifts"] > 0 and stats["reservoir_bytes_per_pixel"] == 60
+    layers = 3 if target == "per_channel" else 1
+    assert stats["last_frame"]["shifts"] > 0 and stats["reservoir_bytes_per_pixel"] == 60 * layers
     assert np.isfinite(runs).all() and stats["nonfinite"] == 0
     res = ztest_runs(runs, ref)
-    assert res.passed, f"{shift}, {motion}: {res}"
+    assert res.passed, f"{shift}, {motion}, {target}: {res}"
     bad = ztest_runs(runs * 1.03, ref)
-    assert not bad.passed, f"{shift}, {motion}: a bias of x1.03 went unseen: {bad}"
+    assert not bad.passed, f"{shift}, {motion}, {target}: a bias of x1.03 went unseen: {bad}"
 
 
 def test_restir_sss_bad_params(tmp_path, scenes):
     sc = scenes / "translucent" / "scene.json"
     for params, field, text in [({"shift": "teleport"}, "/params/shift", "unknown shift"),
                                 ({"shift": "sequential", "spatial_neighbors": 3}, "/params/spatial_neighbors", "even"),
-                                ({"index_shortcut": True}, "/params/index_shortcut", "only the sequential")]:
+                                ({"index_shortcut": True}, "/params/index_shortcut", "only the sequential"),
+                                ({"target": "rgb"}, "/params/target", "unknown target \"rgb\" (luminance or per_channel)"),
+                                ({"target": 3}, "/params/target", "string")]:
         res = run_cli("render", sc, "--method", "restir_sss", "--size", "8x8", "--params", json.dumps(params),
                       "-o", tmp_path / "x.exr")
         assert res.returncode == 2 and field in res.stderr and text in res.stderr, res.stderr

@@ -116,7 +116,7 @@ static void shift_case(enum restir_sss_shift shift, bool temporal)
     p.candidates = 4;  /* more pixels with a sample */
     struct restir_sss_state st;
     struct err err = {0};
-    CHECK(restir_sss_init(&st, W, H, &err));
+    CHECK(restir_sss_init(&st, &p, W, H, &err));
     /* Temporal: frame 0 with the scene's camera, frame 1 with the camera moved a little; the
      * previous frame's pixels are the domains shifted to. */
     struct camera_desc cam0 = *scene_camera(sc), cam1 = cam0;
@@ -217,25 +217,38 @@ static void test_params(void)
     enum restir_sss_shift s;
     CHECK(restir_sss_shift_parse("delayed", &s) && s == RESTIR_SSS_DELAYED);
     CHECK(!restir_sss_shift_parse("teleport", &s));
+    enum restir_sss_target t;
+    CHECK(restir_sss_target_parse("per_channel", &t) && t == RESTIR_SSS_TARGET_PER_CHANNEL);
+    CHECK(restir_sss_target_parse("luminance", &t) && t == RESTIR_SSS_TARGET_LUMINANCE);
+    CHECK(!restir_sss_target_parse("rgb", &t));
+    p = restir_sss_defaults();
+    p.target = (enum restir_sss_target)7;
+    CHECK(!restir_sss_params_valid(&p, &err) && strcmp(err.where, "/params/target") == 0);
 }
 
+/* Planned and allocated bytes agree, and the per_channel target allocates three reservoirs per
+ * pixel and buffer, luminance one. */
 static void test_session_bytes_planned_match_allocated(void)
 {
     struct scene *sc = load("scenes/translucent/scene.json");
     if (!sc) return;
-    struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_SSS, 37, 23);
-    struct view v;
-    struct err err = {0};
-    CHECK(view_init(&v, sc, &vp, 1, &err));
-    struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
-    size_t total = 0;
-    uint32_t n = view_bytes(&v, b, &total);
-    CHECK(total == view_bytes_planned(&vp, sc->shape_count));
-    bool has_res = false;
-    for (uint32_t i = 0; i < n; i++)
-        if (strcmp(b[i].name, "reservoirs") == 0) has_res = b[i].bytes == 2u * 37 * 23 * RESTIR_SSS_RESERVOIR_BYTES;
-    CHECK(has_res);
-    view_destroy(&v);
+    for (uint32_t layers = 1; layers <= 3; layers += 2) {
+        struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_SSS, 37, 23);
+        vp.restir_sss.target = layers == 3 ? RESTIR_SSS_TARGET_PER_CHANNEL : RESTIR_SSS_TARGET_LUMINANCE;
+        struct view v;
+        struct err err = {0};
+        CHECK(view_init(&v, sc, &vp, 1, &err));
+        struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
+        size_t total = 0;
+        uint32_t n = view_bytes(&v, b, &total);
+        CHECK(total == view_bytes_planned(&vp, sc->shape_count));
+        bool has_res = false;
+        for (uint32_t i = 0; i < n; i++)
+            if (strcmp(b[i].name, "reservoirs") == 0)
+                has_res = b[i].bytes == 2u * 37 * 23 * layers * RESTIR_SSS_RESERVOIR_BYTES;
+        CHECK(has_res);
+        view_destroy(&v);
+    }
     scene_release(sc);
 }
 
