@@ -40,7 +40,8 @@ BENCH_SSS_MAX_DEPTH (unset: every method's default of 64; 1 is the direct-lighti
 paths camera - entry - exit - light, which its evaluation and Fig. 6 use: pt, its reference and
 restir_sss all get this max_depth, so on the translucent region both estimate exactly the paths
 restir_sss's reservoirs hold and restir_sss has no path-traced rest there; outputs get a
-"_depth<N>" suffix), BENCH_THREADS (all cores)."""
+"_depth<N>" suffix), BENCH_THREADS (all cores).
+`--charts` redraws the charts from the last run's JSON (same BENCH_SSS_MAX_DEPTH) without measuring."""
 import hashlib
 import json
 import math
@@ -229,19 +230,42 @@ def measure(d, scene, label, title, img_path):
             "ratio_range": [e / interp_loglog(pt_pts, t["spp_q1"]), e / interp_loglog(pt_pts, t["spp_q3"])]}
     # pt's time per timed spp: the median over every setting's rounds' medians.
     res["pt_ms"] = {n: statistics.median(m[i] for m in pt_ms) for i, n in enumerate(PT_TIMED_SPPS)} if pt_ms else {}
-    # The chart's time axis is in 1-spp pt frames: pt at its timed spp, restir_sss at its cost
-    # (the median of its rounds' frame time over the round's 1-spp pt frame).
-    t1 = res["pt_ms"].get(1)
-    pt_curve = [(res["pt_ms"][x["spp"]] / t1, x["rmse"]) for x in res["pt"] if x["spp"] in res["pt_ms"]] if t1 else []
-    loglog(OUT / f"{label}.svg", f"{title}, {SIZE}: RMSE on the translucent region against time",
-           "frame time (1-spp pt frames)", "RMSE", [("pt, 1/4/16 spp", pt_curve, "line")] +
-           [(shift + ("" if target == "luminance" else f", {target}"),
-             [(v["cost"], v["rmse"]) for v in res["restir_sss"].values() if (v["shift"], v["target"]) == (shift, target)],
-             "line") for shift in SHIFTS for target in TARGETS])
+    draw(res, label, title, SIZE)
     return res
 
 
+def draw(res, label, title, size):
+    """One scale's chart. Its time axis is in 1-spp pt frames: pt at its timed spp, restir_sss at
+    its cost (the median of its rounds' frame time over the round's 1-spp pt frame)."""
+    t1 = res["pt_ms"].get(1) or res["pt_ms"].get("1")
+    pt_ms = {int(n): m for n, m in res["pt_ms"].items()}
+    pt_curve = [(pt_ms[x["spp"]] / t1, x["rmse"]) for x in res["pt"] if x["spp"] in pt_ms] if t1 else []
+    settings = list(res["restir_sss"].values())
+    shifts = list(dict.fromkeys(v["shift"] for v in settings))
+    targets = list(dict.fromkeys(v.get("target", "luminance") for v in settings))
+    loglog(OUT / f"{label}.svg", f"{title}, {size}: RMSE on the translucent region against time",
+           "frame time (1-spp pt frames)", "RMSE", [("pt, 1/4/16 spp", pt_curve, "line")] +
+           # A shift's colour for both targets; per_channel dashed.
+           [(shift + ("" if target == "luminance" else f", {target}"),
+             [(v["cost"], v["rmse"]) for v in settings if (v["shift"], v.get("target", "luminance")) == (shift, target)],
+             "line" if target == "luminance" else "dashed", 1 + k) for k, shift in enumerate(shifts) for target in targets])
+
+
+def redraw():
+    """--charts: the charts again from build/bench/restir_sss<suffix>.json, without measuring."""
+    results = json.loads((OUT / f"restir_sss{SUFFIX}.json").read_text())
+    for k, res in results["scales"].items():
+        label = ("restir_sss" if k == "1" else f"restir_sss_mfp{k}") + SUFFIX
+        depth = results.get("max_depth")
+        title = ("translucent" if k == "1" else f"translucent, mean free path x{k}") + \
+            (f", max depth {depth}" if depth is not None else "")
+        draw(res, label, title, results["size"])
+
+
 def main():
+    if "--charts" in sys.argv[1:]:
+        redraw()
+        return
     OUT.mkdir(parents=True, exist_ok=True)
     build_region_tool()
     results = {"size": SIZE, "max_depth": MAX_DEPTH, "ref_spp": REF_SPP, "warmup": WARMUP, "seeds": SEEDS, "rounds": ROUNDS, "scales": {}}

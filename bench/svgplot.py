@@ -1,6 +1,7 @@
 """bench/svgplot.py — charts as standalone SVG (the benchmarks' charts; no plotting library is
 needed). chart(path, title, xlabel, ylabel, series, xlog, ylog) draws lines and points, where
-series is a list of (label, [(x, y), ...], style) and style is "line" or "points"; loglog() is
+series is a list of (label, [(x, y), ...], style[, colour]): style is "line", "dashed" or "points",
+colour an index into COLORS (default: the series' own index); loglog() is
 chart() with both axes logarithmic; stacked_bars(path, title, ylabel, bars, parts) draws one bar
 per (label, {part: value}) with its parts stacked."""
 import math
@@ -59,7 +60,7 @@ def loglog(path, title, xlabel, ylabel, series):
 
 def chart(path, title, xlabel, ylabel, series, xlog=True, ylog=True):
     ok = lambda p: (p[0] > 0 or not xlog) and (p[1] > 0 or not ylog) and all(map(math.isfinite, p))
-    pts = [p for _, data, _ in series for p in data if ok(p)]
+    pts = [p for s in series for p in s[1] if ok(p)]
     if not pts:
         raise ValueError("nothing to plot")
     pw, ph = W - LEFT - RIGHT, H - TOP - BOTTOM
@@ -68,7 +69,7 @@ def chart(path, title, xlabel, ylabel, series, xlog=True, ylog=True):
 
     out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" font-family="sans-serif" font-size="12">',
            f'<rect width="{W}" height="{H}" fill="white"/>',
-           f'<text x="{LEFT + pw / 2}" y="22" text-anchor="middle" font-size="14">{title}</text>',
+           f'<text x="{W / 2}" y="22" text-anchor="middle" font-size="14">{title}</text>',
            f'<rect x="{LEFT}" y="{TOP}" width="{pw}" height="{ph}" fill="none" stroke="#333"/>']
     for v in xticks:
         out.append(f'<line x1="{X(v):.1f}" y1="{TOP}" x2="{X(v):.1f}" y2="{TOP + ph}" stroke="#ddd"/>')
@@ -78,15 +79,20 @@ def chart(path, title, xlabel, ylabel, series, xlog=True, ylog=True):
         out.append(f'<text x="{LEFT - 6}" y="{Y(v) + 4:.1f}" text-anchor="end">{_fmt(v)}</text>')
     out.append(f'<text x="{LEFT + pw / 2}" y="{H - 14}" text-anchor="middle">{xlabel}</text>')
     out.append(f'<text transform="translate(16 {TOP + ph / 2}) rotate(-90)" text-anchor="middle">{ylabel}</text>')
-    for i, (label, data, style) in enumerate(series):
-        color = COLORS[i % len(COLORS)]
+    for i, (label, data, style, *colour) in enumerate(series):
+        color = COLORS[(colour[0] if colour else i) % len(COLORS)]
         data = [p for p in data if ok(p)]
-        if style == "line" and len(data) > 1:
+        if style in ("line", "dashed") and len(data) > 1:
             d = " ".join(f"{'M' if j == 0 else 'L'}{X(x):.1f},{Y(y):.1f}" for j, (x, y) in enumerate(data))
-            out.append(f'<path d="{d}" fill="none" stroke="{color}" stroke-width="2"/>')
+            dash = ' stroke-dasharray="6 4"' if style == "dashed" else ""
+            out.append(f'<path d="{d}" fill="none" stroke="{color}" stroke-width="2"{dash}/>')
         for x, y in data:
             out.append(f'<circle cx="{X(x):.1f}" cy="{Y(y):.1f}" r="3.5" fill="{color}"/>')
-        _legend(out, i, label, f'<circle cx="{LEFT + pw + 16}" cy="{{y}}" r="4" fill="{color}"/>', -4, pw)
+        mark = f'<circle cx="{LEFT + pw + 16}" cy="{{y}}" r="4" fill="{color}"/>'
+        if style == "dashed":
+            mark += (f'<line x1="{LEFT + pw + 6}" y1="{{y}}" x2="{LEFT + pw + 24}" y2="{{y}}" stroke="{color}" '
+                     f'stroke-width="2" stroke-dasharray="4 2"/>')
+        _legend(out, i, label, mark, -4, pw)
     _save(path, out)
 
 
@@ -112,7 +118,7 @@ def stacked_bars(path, title, ylabel, bars, parts):
     Y, yticks = _axis(0.0, top, False, TOP, ph, True)
     out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" font-family="sans-serif" font-size="12">',
            f'<rect width="{W}" height="{H}" fill="white"/>',
-           f'<text x="{LEFT + pw / 2}" y="22" text-anchor="middle" font-size="14">{title}</text>',
+           f'<text x="{W / 2}" y="22" text-anchor="middle" font-size="14">{title}</text>',
            f'<rect x="{LEFT}" y="{TOP}" width="{pw}" height="{ph}" fill="none" stroke="#333"/>']
     for v in yticks:
         if v < 0:

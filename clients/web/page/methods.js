@@ -78,6 +78,7 @@ export const METHODS = {
     params: [
       { name: 'shift', kind: 'text', value: 'hybrid', help: 'reconnection, delayed, hybrid or sequential' },
       { name: 'candidates', kind: 'number', value: 1, help: 'BSSRDF probes per pixel and frame' },
+      { name: 'target', kind: 'text', value: 'luminance', help: 'luminance, or per_channel (a reservoir per colour channel: 3x the reuse, no colour noise)' },
       { name: 'spatial_neighbors', kind: 'number', value: 4, help: 'spatial neighbours (0: none)' },
       { name: 'spatial_radius', kind: 'number', value: 0, help: 'spatial radius, pixels (0: from 2 max d)' },
       { name: 'temporal', kind: 'boolean', value: true, help: 'temporal reuse' },
