@@ -302,8 +302,10 @@ SCENE_METHODS = ([(s, "pt") for s in ALL_SCENES] + [(s, "restir_pt") for s in AL
                  [(s, m) for s in ("refractive-slab", "reflective-plane", "caustic-sphere") for m in ("sms", "sms_ssp")] +
                  [(s, "restir_sss") for s in ("translucent", "cornell-box")] +
                  [(s, "restir_sms") for s in ("refractive-slab", "reflective-plane", "caustic-sphere")] +
-                 # restir_bdpt's full variant (vertex connections) on the scenes made for it.
-                 [(s, "restir_bdpt full") for s in ("lamp-in-glass", "caustic-sphere")])
+                 # restir_bdpt's full variant (vertex connections) on the scenes made for it, and
+                 # restir_sss with a reservoir per colour channel on its own scene.
+                 [(s, "restir_bdpt full") for s in ("lamp-in-glass", "caustic-sphere")] +
+                 [("translucent", "restir_sss per_channel")])
 
 
 @pytest.mark.parametrize("scene,method", SCENE_METHODS)
@@ -313,6 +315,8 @@ def test_no_nonfinite_over_100_frames(tmp_path, method, scene):
     params = METHODS.get(method, {})
     if method == "restir_bdpt full":
         method, params = "restir_bdpt", {"variant": "full"}
+    if method == "restir_sss per_channel":
+        method, params = "restir_sss", {"target": "per_channel"}
     path = ROOT / "scenes" / scene / "scene.json"
     cam = json.loads(path.read_text())["camera"]
     span = [0.05 * (a - b) for a, b in zip(cam["look_at"], cam["position"])]
