@@ -1,6 +1,6 @@
 """restir_sss is unbiased for each shift it offers (design TESTING.md tier 4): K independent
 sessions (fresh seeds) of temporal and spatial reuse on the library scene `translucent`, the
-camera narrowed onto the wax sphere's upper half (24 x 24, most pixels on the sphere, its lit top, the
+camera narrowed onto the wax sphere's upper half (32 x 32, most pixels on the sphere, its lit top, the
 occluder's shadow edge and the glow below it), compared per pixel with `pt` over the same
 cameras, camera still and sliding. Each session contributes the mean of its last frames, each
 after at least 8 frames of reuse. Šidák-corrected per-pixel z-test at 0.01, >= 99.75 % of pixels
@@ -18,7 +18,7 @@ from conftest import render, run_cli, sky_all_round
 from stats import ztest_runs
 
 FPS = 30.0
-SIZE = "24x24"
+SIZE = "32x32"
 K = 64
 K_REF = 16
 FRAMES, AVERAGED = 12, 6
