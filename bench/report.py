@@ -38,9 +38,13 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "bench"))
+# bench/ first: `daemon` is bench/daemon.py (as for every bench), whose test_daemon is
+# tests/daemon.py's (sessions through req()), which the report drives; the tests' helpers
+# (test_stability, test_failure_cases, stats) come from tests/.
 sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "bench"))
 import restir_pt  # noqa: E402
+from daemon import test_daemon  # noqa: E402
 import svgplot  # noqa: E402
 from curves import loglog_at  # noqa: E402
 from restir_pt import compare_all as compare  # noqa: E402
@@ -281,14 +285,13 @@ def glass_lamp_scene():
 
 def stability():
     import numpy as np
-    from daemon import Daemon
     from test_stability import SWEEP, SWEEP_FRAMES, swept_camera
     side = STAB_SIDE
     frames = 24 if QUICK else 40
     # The methods cornell-box is a scene for (sms and restir_sss would render it as pt does:
     # tests/test_stability.py checks them on refractive-slab and translucent).
     methods = [m for m in ("pt", "restir_pt", "bdpt", "restir_bdpt") if m in METHODS]
-    d = Daemon(Path(tempfile.mkdtemp(dir=WORK)) / "data", "--threads", THREADS, "--frames-kept", "2")
+    d = test_daemon.Daemon(Path(tempfile.mkdtemp(dir=WORK)) / "data", "--threads", THREADS, "--frames-kept", "2")
     out = {"side": side, "frames": frames, "series": {}, "correlation": {}, "nonfinite": {},
            "sweep_fraction": SWEEP, "sweep_frames": SWEEP_FRAMES}
     try:
@@ -368,7 +371,6 @@ def failure_cases():
     Shadow boundaries for ReSTIR SSS's hybrid shift (seed 004 Fig. 5): per shift, the RMSE per
     frame on the wax sphere's shadow-boundary band, and on its lit and shadowed parts."""
     import numpy as np
-    from daemon import Daemon
     from test_failure_cases import boundary_masks
     out = {"light_tracing": {}, "sss": {}}
     for scene, ms in ALL_SCENES.items():
@@ -386,7 +388,7 @@ def failure_cases():
     ref = read_rgb(reference(ROOT / "scenes" / "translucent" / "scene.json", side, REF_SPP))
     out["sss"] = {"side": side, "frames": frames, "pixels": {k: int(v.sum()) for k, v in regions.items()},
                   "series": {}}
-    d = Daemon(Path(tempfile.mkdtemp(dir=WORK)) / "data", "--threads", THREADS, "--frames-kept", "2")
+    d = test_daemon.Daemon(Path(tempfile.mkdtemp(dir=WORK)) / "data", "--threads", THREADS, "--frames-kept", "2")
     try:
         for name, method, params in ([("pt 1 spp", "pt", {"spp": 1})] +
                                      [(sh, "restir_sss", {"shift": sh}) for sh in SSS_SHIFTS]):
@@ -679,8 +681,7 @@ def main():
     t0 = time.monotonic()
     started = time.strftime("%Y-%m-%d %H:%M", time.gmtime())
     results = {}
-    from daemon import Daemon
-    d = Daemon(Path(tempfile.mkdtemp(dir=WORK)) / "data", "--threads", THREADS, "--frames-kept", "2")
+    d = test_daemon.Daemon(Path(tempfile.mkdtemp(dir=WORK)) / "data", "--threads", THREADS, "--frames-kept", "2")
     try:
         for scene, methods in SCENES.items():
             path = ROOT / "scenes" / scene / "scene.json"
