@@ -286,7 +286,10 @@ static void sss_initial_pixel(const struct sss_ctx *c, uint32_t pixel, uint32_t 
     if (!sss_primary(c, (struct restir_domain){pixel, RESTIR_CURRENT}, &x1)) return;
     const struct scene *scene = c->scene[RESTIR_CURRENT];
     struct rng rng = rng_make(c->seed, c->frame, pixel, SSS_STREAM);
-    struct rng rng_layers = rng_make(c->seed, c->frame, pixel, SSS_LAYER_STREAM);
+    /* Layers 1 and 2 (per_channel) draw their selections from a stream of their own, so layer 0
+     * and a luminance reservoir see the same numbers. */
+    struct rng rng_layers = {0, 0};
+    if (layers > 1) rng_layers = rng_make(c->seed, c->frame, pixel, SSS_LAYER_STREAM);
     struct reservoir_stream rs[3];
     for (uint32_t l = 0; l < layers; l++) reservoir_stream_begin(&rs[l]);
     const float inv_m = 1.0f / (float)c->p->candidates;

@@ -127,6 +127,30 @@ def test_restir_sss_renders_and_reuses(tmp_path, scenes):
         assert np.isfinite(img).all() and st["nonfinite"] == 0 and st["last_frame"]["shifts"] > 0
 
 
+def test_restir_sss_per_channel_targets_one_channel(tmp_path, scenes):
+    """With a channel as a reservoir's target, the sample's value in its channel is its target, so
+    the spatial pass's expected contribution sum_i m_i W_i F_c(Y_i) is the selected sample's
+    F_c(Y) W (both sum the resampling weights): per_channel renders the same image with and
+    without expected shading, to float rounding. With the luminance target the two differ (the
+    selected sample's colour is not the expectation's). A layer whose target were not its own
+    channel would break the equality; a layer adding the other channels would also triple the
+    image against luminance's."""
+    sc = scenes / "translucent" / "scene.json"
+
+    def img(params):
+        out, st = render(sc, tmp_path / f"{len(list(tmp_path.iterdir()))}.exr", spp=1, size="32x32", seed=7,
+                         extra=["--method", "restir_sss", "--frames", "4", "--params",
+                                json.dumps({"shift": "delayed", **params})])
+        assert np.isfinite(out).all() and st["nonfinite"] == 0
+        return out
+
+    pc_on, pc_off = img({"target": "per_channel"}), img({"target": "per_channel", "expected_shading": False})
+    lum_on, lum_off = img({}), img({"expected_shading": False})
+    assert np.allclose(pc_on, pc_off, rtol=1e-4, atol=1e-7), float(np.abs(pc_on - pc_off).max())
+    assert (np.abs(lum_on - lum_off) > 1e-4 * (np.abs(lum_off) + 1e-3)).any(axis=-1).sum() >= 10
+    assert 0.8 < pc_on.mean() / lum_on.mean() < 1.25
+
+
 @pytest.mark.statistical
 def test_restir_sss_environment_unbiased(tmp_path, scenes):
     """The same z-test with an environment light and a view whose upper rows see the sky: x3 can
