@@ -100,13 +100,6 @@ static void mf_geom_eval(const struct mf_geom *g, double du, double dvv, struct 
     *p = g->sphere ? dv_madd(g->c, *n, g->r) : dv_madd(dv_madd(g->p, g->dpdu, du), g->dpdv, dvv);
 }
 
-static double mf_wrap(double a)
-{
-    while (a > M_PI) a -= 2.0 * M_PI;
-    while (a < -M_PI) a += 2.0 * M_PI;
-    return a;
-}
-
 /* Specular scattering of wo (unit, pointing away from the surface) about unit normal n. */
 static bool mf_scatter(struct dv3 wo, struct dv3 n, enum manifold_event ev, double ior, struct dv3 *out)
 {
@@ -127,9 +120,15 @@ static bool mf_scatter(struct dv3 wo, struct dv3 n, enum manifold_event ev, doub
     return true;
 }
 
-/* Angle-difference constraint of one vertex (see manifold.h for the choice of pole). */
-static bool mf_vertex_c(struct dv3 prev, struct dv3 p, struct dv3 n, struct dv3 next, struct dv3 tangent,
-                        enum manifold_event ev, double ior, double *c)
+/* A vertex's two directions in spherical coordinates about the pole s (see manifold.h for the
+ * choice of pole), each as w = cos θ s + sin θ (cos φ t + sin φ n): a = wi, towards the next
+ * vertex, and b = the specular scattering of wo. Kept as cos θ, sin θ and the (t, n) components
+ * (x, y), whose length is sin θ = |w × s| (accurate near the pole, where sqrt(1 - cos²) is not):
+ * the constraint takes one atan2 per angle from them, and a finite difference none. */
+struct mf_dirs { double ca, sa, xa, ya, cb, sb, xb, yb; };
+
+static bool mf_vertex_dirs(struct dv3 prev, struct dv3 p, struct dv3 n, struct dv3 next, struct dv3 tangent,
+                           enum manifold_event ev, double ior, struct mf_dirs *d)
 {
     struct dv3 wo = dv_sub(prev, p), wi = dv_sub(next, p);
     double lo = dv_len(wo), li = dv_len(wi);
@@ -143,21 +142,49 @@ static bool mf_vertex_c(struct dv3 prev, struct dv3 p, struct dv3 n, struct dv3 
     if (!(ls > 0.0)) return false;
     s = dv_scale(s, 1.0 / ls);
     struct dv3 t = dv_cross(n, s);
-    double th_i = acos(fmin(1.0, fmax(-1.0, dv_dot(wi, s)))), th_p = acos(fmin(1.0, fmax(-1.0, dv_dot(pred, s))));
-    double ph_i = atan2(dv_dot(wi, n), dv_dot(wi, t)), ph_p = atan2(dv_dot(pred, n), dv_dot(pred, t));
-    c[0] = th_i - th_p;
-    c[1] = mf_wrap(ph_i - ph_p);
-    return isfinite(c[0]) && isfinite(c[1]);
+    d->ca = dv_dot(wi, s), d->xa = dv_dot(wi, t), d->ya = dv_dot(wi, n);
+    d->cb = dv_dot(pred, s), d->xb = dv_dot(pred, t), d->yb = dv_dot(pred, n);
+    d->sa = sqrt(d->xa * d->xa + d->ya * d->ya);
+    d->sb = sqrt(d->xb * d->xb + d->yb * d->yb);
+    return isfinite(d->ca + d->sa + d->xa + d->ya + d->cb + d->sb + d->xb + d->yb);
 }
 
-/* C over the chain for positions p[] and unit normals n[] (frames from g[]), ends x1, xe. */
-static bool mf_eval(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct dv3 *p,
-                    const struct dv3 *n, const struct mf_geom *g, double *C)
+/* The angle turned from direction (x0, y0) to (x1, y1) of the plane, in [-π, π]. A finite
+ * difference turns by ~1e-7 rad, where atan(r) = r - r³/3 to 2e-16 (r ≤ 1e-3) and atan2, the
+ * costliest call of a walk, is not needed. */
+static double mf_turn(double x0, double y0, double x1, double y1)
+{
+    double sn = x0 * y1 - y0 * x1, cs = x0 * x1 + y0 * y1;
+    if (cs > 0.0 && fabs(sn) <= 1e-3 * cs) {
+        double r = sn / cs;
+        return r * (1.0 - r * r / 3.0);
+    }
+    return atan2(sn, cs);
+}
+
+/* The angle-difference constraint C = (Δθ, Δφ) = (θ_a - θ_b, φ_a - φ_b), Δφ in [-π, π]. */
+static void mf_dirs_c(const struct mf_dirs *d, double *c)
+{
+    c[0] = mf_turn(d->cb, d->sb, d->ca, d->sa);
+    c[1] = mf_turn(d->xb, d->yb, d->xa, d->ya);
+}
+
+/* C(d1) - C(d0), each angle's turn in [-π, π]. */
+static void mf_dirs_dc(const struct mf_dirs *d0, const struct mf_dirs *d1, double *dc)
+{
+    dc[0] = mf_turn(d0->ca, d0->sa, d1->ca, d1->sa) - mf_turn(d0->cb, d0->sb, d1->cb, d1->sb);
+    dc[1] = mf_turn(d0->xa, d0->ya, d1->xa, d1->ya) - mf_turn(d0->xb, d0->yb, d1->xb, d1->yb);
+}
+
+/* The directions of every vertex of the chain for positions p[] and unit normals n[] (frames
+ * from g[]), ends x1, xe. */
+static bool mf_eval_dirs(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct dv3 *p,
+                         const struct dv3 *n, const struct mf_geom *g, struct mf_dirs *D)
 {
     uint32_t k = chain->length;
     for (uint32_t i = 0; i < k; i++) {
         struct dv3 prev = i == 0 ? x1 : p[i - 1], next = i + 1 == k ? xe : p[i + 1];
-        if (!mf_vertex_c(prev, p[i], n[i], next, g[i].dpdu, chain->events[i], chain->ior, &C[2 * i])) return false;
+        if (!mf_vertex_dirs(prev, p[i], n[i], next, g[i].dpdu, chain->events[i], chain->ior, &D[i])) return false;
     }
     return true;
 }
@@ -169,39 +196,55 @@ static double mf_norm(const double *C, uint32_t n)
     return sqrt(s);
 }
 
+/* C at the chain's surface models' base points. */
 static bool mf_eval_at(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct mf_geom *g,
                        double *C)
 {
     struct dv3 p[MANIFOLD_MAX_CHAIN] = {0}, n[MANIFOLD_MAX_CHAIN] = {0};
+    struct mf_dirs D[MANIFOLD_MAX_CHAIN];
     for (uint32_t i = 0; i < chain->length; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
-    return mf_eval(chain, x1, xe, p, n, g, C);
+    if (!mf_eval_dirs(chain, x1, xe, p, n, g, D)) return false;
+    for (uint32_t i = 0; i < chain->length; i++) mf_dirs_c(&D[i], &C[2 * i]);
+    return isfinite(mf_norm(C, 2 * chain->length));
 }
 
-/* dC / d(u_j, v_j) by central differences over the surface model (step ~1e-6 of the shorter
- * adjacent segment: truncation ~1e-12, rounding ~1e-10 in double). */
+/* dC / d(u_j, v_j) over the surface model, by finite differences in double. Forward ones for a
+ * Newton step, step 1e-7 of the shorter adjacent segment: truncation ~5e-8 and rounding ~1e-8
+ * relative, which a step needs no better. Central ones (`central`) for the generalized
+ * geometry term, which enters the estimate, step 1e-6: truncation ~1e-12, rounding ~1e-10. */
 static bool mf_jacobian(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct mf_geom *g,
-                        double J[MF_N][MF_N])
+                        bool central, double J[MF_N][MF_N])
 {
-    uint32_t k = chain->length, n2 = 2 * k;
+    uint32_t k = chain->length;
     struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
+    struct mf_dirs D0[MANIFOLD_MAX_CHAIN], Dp[MANIFOLD_MAX_CHAIN], Dm[MANIFOLD_MAX_CHAIN];
     for (uint32_t i = 0; i < k; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
+    if (!central && !mf_eval_dirs(chain, x1, xe, p, n, g, D0)) return false;
+    const double rel = central ? 1e-6 : 1e-7;
     for (uint32_t j = 0; j < k; j++) {
         struct dv3 prev = j == 0 ? x1 : p[j - 1], next = j + 1 == k ? xe : p[j + 1];
-        double seg = fmin(dv_len(dv_sub(prev, p[j])), dv_len(dv_sub(next, p[j])));
+        double l0 = dv_len(dv_sub(prev, p[j])), l1 = dv_len(dv_sub(next, p[j]));
+        double seg = l0 < l1 ? l0 : l1;
         for (int a = 0; a < 2; a++) {
             double lt = dv_len(a == 0 ? g[j].dpdu : g[j].dpdv);
             if (!(lt > 0.0) || !(seg > 0.0)) return false;
-            double h = 1e-6 * seg / lt;
-            double Cp[MF_N], Cm[MF_N];
+            double h = rel * seg / lt;
             struct dv3 pj = p[j], nj = n[j];
             mf_geom_eval(&g[j], a == 0 ? h : 0.0, a == 1 ? h : 0.0, &p[j], &n[j]);
-            bool ok = mf_eval(chain, x1, xe, p, n, g, Cp);
-            mf_geom_eval(&g[j], a == 0 ? -h : 0.0, a == 1 ? -h : 0.0, &p[j], &n[j]);
-            ok = ok && mf_eval(chain, x1, xe, p, n, g, Cm);
+            bool ok = mf_eval_dirs(chain, x1, xe, p, n, g, Dp);
+            if (central) {
+                mf_geom_eval(&g[j], a == 0 ? -h : 0.0, a == 1 ? -h : 0.0, &p[j], &n[j]);
+                ok = ok && mf_eval_dirs(chain, x1, xe, p, n, g, Dm);
+            }
             p[j] = pj;
             n[j] = nj;
             if (!ok) return false;
-            for (uint32_t r = 0; r < n2; r++) J[r][2 * j + a] = mf_wrap(Cp[r] - Cm[r]) / (2.0 * h);
+            for (uint32_t i = 0; i < k; i++) {
+                double dc[2];
+                mf_dirs_dc(central ? &Dm[i] : &D0[i], &Dp[i], dc);
+                J[2 * i][2 * j + a] = dc[0] / (central ? 2.0 * h : h);
+                J[2 * i + 1][2 * j + a] = dc[1] / (central ? 2.0 * h : h);
+            }
         }
     }
     return true;
@@ -213,7 +256,8 @@ static bool mf_solve(uint32_t n, double A[MF_N][MF_N], double B[MF_N][2], uint32
 {
     double scale = 0.0;
     for (uint32_t r = 0; r < n; r++)
-        for (uint32_t c = 0; c < n; c++) scale = fmax(scale, fabs(A[r][c]));
+        for (uint32_t c = 0; c < n; c++)
+            if (fabs(A[r][c]) > scale) scale = fabs(A[r][c]);
     if (!(scale > 0.0) || !isfinite(scale)) return false;
     for (uint32_t c = 0; c < n; c++) {
         uint32_t piv = c;
@@ -374,7 +418,7 @@ bool manifold_walk_within(const struct scene *scene, const struct manifold_chain
         }
         if (!have_step) {
             double J[MF_N][MF_N];
-            if (!mf_jacobian(chain, x1, xe, g, J)) break;
+            if (!mf_jacobian(chain, x1, xe, g, false, J)) break;
             for (uint32_t r = 0; r < n2; r++) step[r][0] = -C[r];
             if (!mf_solve(n2, J, step, 1)) break;
             have_step = true;
@@ -459,7 +503,7 @@ double manifold_geometry(const struct scene *scene, const struct manifold_chain 
         if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) return 0.0;
     const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
     double J[MF_N][MF_N], B[MF_N][2];
-    if (!mf_jacobian(chain, x1, xe, g, J)) return 0.0;
+    if (!mf_jacobian(chain, x1, xe, g, true, J)) return 0.0;
     /* dC / d(end point) along an orthonormal tangent basis of the light (area scale 1). */
     struct frame fe = frame_from_normal(vec3_normalize(ends->nge));
     struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
@@ -467,10 +511,16 @@ double manifold_geometry(const struct scene *scene, const struct manifold_chain 
     double h = 1e-6 * dv_len(dv_sub(xe, p[k - 1]));
     for (int a = 0; a < 2; a++) {
         struct dv3 t = dv(a == 0 ? fe.s : fe.t);
-        double Cp[MF_N], Cm[MF_N];
-        if (!mf_eval(chain, x1, dv_madd(xe, t, h), p, n, g, Cp) || !mf_eval(chain, x1, dv_madd(xe, t, -h), p, n, g, Cm))
+        struct mf_dirs Dp[MANIFOLD_MAX_CHAIN], Dm[MANIFOLD_MAX_CHAIN];
+        if (!mf_eval_dirs(chain, x1, dv_madd(xe, t, h), p, n, g, Dp) ||
+            !mf_eval_dirs(chain, x1, dv_madd(xe, t, -h), p, n, g, Dm))
             return 0.0;
-        for (uint32_t r = 0; r < n2; r++) B[r][a] = -mf_wrap(Cp[r] - Cm[r]) / (2.0 * h);
+        for (uint32_t i = 0; i < k; i++) {
+            double dc[2];
+            mf_dirs_dc(&Dm[i], &Dp[i], dc);
+            B[2 * i][a] = -dc[0] / (2.0 * h);
+            B[2 * i + 1][a] = -dc[1] / (2.0 * h);
+        }
     }
     /* Implicit function theorem: d(u, v) / d(end) = -J^-1 dC/d(end); only x2's block matters. */
     if (!mf_solve(n2, J, B, 2)) return 0.0;

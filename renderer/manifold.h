@@ -15,10 +15,11 @@
  * incidence, where φ about the normal is undefined and its derivative blows up; a pole in the
  * tangent plane only sees grazing directions, which no useful caustic path takes.
  *
- * The Jacobian of C with respect to the vertices' surface parameters is taken by central
+ * The Jacobian of C with respect to the vertices' surface parameters is taken by finite
  * differences of C over the exact first-order surface model each vertex carries (position,
  * interpolated normal and their derivatives along the surface parameters), in double
- * precision; the 2k × 2k system (k ≤ MANIFOLD_MAX_CHAIN) is solved directly.
+ * precision: forward differences for a Newton step, central ones for the generalized geometry
+ * term; the 2k × 2k system (k ≤ MANIFOLD_MAX_CHAIN) is solved directly.
  *
  * Every routine here is deterministic (the Bernoulli trials of SMS depend on that),
  * allocation-free and thread-safe. */
