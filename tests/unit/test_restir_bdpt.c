@@ -33,6 +33,7 @@
 #include "scene.h"
 #include "material.h"
 #include "rng.h"
+#include "session_buffers.h"
 #include "test.h"
 #include "view.h"
 
@@ -988,16 +989,9 @@ static void test_view_method(void)
         }
         struct view v;
         CHECK_MSG(view_init(&v, sc, &vp, 2, &err), "%s", err.message);
-        struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
-        size_t total = 0;
-        uint32_t n = view_bytes(&v, b, &total);
-        CHECK_MSG(total == view_bytes_planned(&vp, sc->shape_count), "allocated %zu, planned %llu", total,
-                  (unsigned long long)view_bytes_planned(&vp, sc->shape_count));
-        size_t reservoirs = 0, lvc = 0;
-        for (uint32_t i = 0; i < n; i++) {
-            if (strcmp(b[i].name, "reservoirs") == 0) reservoirs = b[i].bytes;
-            if (strcmp(b[i].name, "light_vertex_cache") == 0) lvc = b[i].bytes;
-        }
+        struct session_buffers sb;
+        CHECK(session_buffers_agree(&v, &vp, sc->shape_count, &sb));
+        const size_t reservoirs = session_buffer(&sb, "reservoirs"), lvc = session_buffer(&sb, "light_vertex_cache");
         /* 4 blocks of 256 light subpaths, 5 vertices each of 52 bytes (with reuse 4 more, the
          * vertex's light subpath), and the block tables. */
         CHECK(lvc == (full ? 4u * 256 * 5 * (reuse ? 56 : 52) + 4 * 8 + 5 * 8 : 0u));

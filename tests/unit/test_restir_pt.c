@@ -13,6 +13,7 @@
 #include "restir_pt.h"
 #include "rng.h"
 #include "scene.h"
+#include "session_buffers.h"
 #include "test.h"
 #include "view.h"
 
@@ -282,11 +283,8 @@ static void test_session_bytes_planned_match_allocated(void)
     struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_PT, 40, 24);
     struct view v;
     CHECK(view_init(&v, sc, &vp, 1, &err));
-    struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
-    size_t total = 0;
-    view_bytes(&v, b, &total);
-    CHECK_MSG(total == view_bytes_planned(&vp, sc->shape_count), "allocated %zu, planned %llu", total,
-              (unsigned long long)view_bytes_planned(&vp, sc->shape_count));
+    struct session_buffers sb;
+    CHECK(session_buffers_agree(&v, &vp, sc->shape_count, &sb));
     view_destroy(&v);
     scene_release(sc);
 }

@@ -14,6 +14,7 @@
 
 #include "restir_sss.h"
 #include "scene.h"
+#include "session_buffers.h"
 #include "test.h"
 #include "view.h"
 
@@ -238,15 +239,9 @@ static void test_session_bytes_planned_match_allocated(void)
         struct view v;
         struct err err = {0};
         CHECK(view_init(&v, sc, &vp, 1, &err));
-        struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
-        size_t total = 0;
-        uint32_t n = view_bytes(&v, b, &total);
-        CHECK(total == view_bytes_planned(&vp, sc->shape_count));
-        bool has_res = false;
-        for (uint32_t i = 0; i < n; i++)
-            if (strcmp(b[i].name, "reservoirs") == 0)
-                has_res = b[i].bytes == 2u * 37 * 23 * layers * RESTIR_SSS_RESERVOIR_BYTES;
-        CHECK(has_res);
+        struct session_buffers sb;
+        CHECK(session_buffers_agree(&v, &vp, sc->shape_count, &sb));
+        CHECK(session_buffer(&sb, "reservoirs") == 2u * 37 * 23 * layers * RESTIR_SSS_RESERVOIR_BYTES);
         view_destroy(&v);
     }
     scene_release(sc);

@@ -10,6 +10,7 @@
 #include "../../renderer/sms_ssp.h"
 #include "../../renderer/view.h"
 #include "../test.h"
+#include "session_buffers.h"
 
 static struct scene *slab(void)
 {
@@ -31,13 +32,9 @@ static void test_planned_bytes_match(void)
             struct view v;
             struct err err = {0};
             CHECK_MSG(view_init(&v, s, &p, 1, &err), "%s", err.message);
-            struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
-            size_t total = 0;
-            uint32_t n = view_bytes(&v, b, &total);
-            CHECK(total == view_bytes_planned(&p, s->shape_count));
-            bool has_prior = false;
-            for (uint32_t k = 0; k < n; k++) has_prior |= strcmp(b[k].name, "prior") == 0;
-            CHECK(has_prior == (method == RENDER_METHOD_SMS_SSP));
+            struct session_buffers sb;
+            CHECK(session_buffers_agree(&v, &p, s->shape_count, &sb));
+            CHECK((session_buffer(&sb, "prior") > 0) == (method == RENDER_METHOD_SMS_SSP));
             view_destroy(&v);
         }
     }
