@@ -41,7 +41,7 @@ struct restir_sms_params restir_sms_defaults(void)
 {
     struct restir_sms_params p = {.ssp = ssp_defaults(), .shift_iterations = 5, .temporal = true,
                                   .temporal_cap = 20, .spatial_neighbors = 1, .spatial_radius = 30.0f,
-                                  .expected_shading = true, .max_depth = 64, .rr_depth = 3};
+                                  .paired_spatial = true, .expected_shading = true, .max_depth = 64, .rr_depth = 3};
     return p;
 }
 
@@ -381,7 +381,11 @@ uint64_t restir_sms_shift_newton(const void *ctx)
 
 /* ---- the frame ------------------------------------------------------------------------------ */
 
-bool restir_sms_init(struct restir_sms_state *st, uint32_t width, uint32_t height, struct err *err)
+static bool sms_uses_prior(const struct restir_sms_params *p) { return p->sampler == RESTIR_SMS_SAMPLER_SSP; }
+static bool sms_uses_pairs(const struct restir_sms_params *p) { return p->paired_spatial && p->spatial_neighbors > 0; }
+
+bool restir_sms_init(struct restir_sms_state *st, const struct restir_sms_params *params, uint32_t width,
+                     uint32_t height, struct err *err)
 {
     memset(st, 0, sizeof *st);
     st->width = width;
@@ -399,9 +403,16 @@ bool restir_sms_init(struct restir_sms_state *st, uint32_t width, uint32_t heigh
             return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
         }
     }
-    if (!ssp_prior_init(&st->prior, width, height, err)) {
+    if (sms_uses_prior(params) && !ssp_prior_init(&st->prior, width, height, err)) {
         restir_sms_destroy(st);
         return false;
+    }
+    if (sms_uses_pairs(params)) {
+        st->pair_scratch = restir_buffer_alloc(1, restir_pair_scratch_bytes(width, height));
+        if (!st->pair_scratch) {
+            restir_sms_destroy(st);
+            return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u spatial pairs", width, height);
+        }
     }
     return true;
 }
@@ -414,6 +425,7 @@ void restir_sms_destroy(struct restir_sms_state *st)
         free(st->recv[i]);
     }
     ssp_prior_destroy(&st->prior);
+    free(st->pair_scratch);
     memset(st, 0, sizeof *st);
 }
 
@@ -434,11 +446,22 @@ size_t restir_sms_receiver_bytes(const struct restir_sms_state *st)
     return 2 * (size_t)st->width * st->height * sizeof(struct restir_sms_receiver);
 }
 
-uint64_t restir_sms_bytes_planned(uint32_t width, uint32_t height)
+size_t restir_sms_prior_bytes(const struct restir_sms_state *st)
+{
+    return st->prior.entries ? ssp_prior_bytes(st->width, st->height) : 0;
+}
+
+size_t restir_sms_pair_bytes(const struct restir_sms_state *st)
+{
+    return st->pair_scratch ? restir_pair_scratch_bytes(st->width, st->height) : 0;
+}
+
+uint64_t restir_sms_bytes_planned(const struct restir_sms_params *params, uint32_t width, uint32_t height)
 {
     return 2 * (uint64_t)width * height *
                (sizeof(struct sms_sample) + sizeof(struct gbuffer_pixel) + sizeof(struct restir_sms_receiver)) +
-           ssp_prior_bytes(width, height);
+           (sms_uses_prior(params) ? ssp_prior_bytes(width, height) : 0) +
+           (sms_uses_pairs(params) ? restir_pair_scratch_bytes(width, height) : 0);
 }
 
 struct sms_pass {
@@ -543,6 +566,10 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
                       unsigned threads, struct restir_sms_stats *stats, struct err *err)
 {
     if (!restir_sms_params_valid(params, err)) return false;
+    if (sms_uses_prior(params) && !st->prior.entries)
+        return err_set(err, ERR_INVALID, "/params/sampler", "the session was made for the sms sampler: it has no prior");
+    if (sms_uses_pairs(params) && !st->pair_scratch)
+        return err_set(err, ERR_INVALID, "/params/paired_spatial", "the session was made without paired spatial reuse");
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
     struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,
@@ -624,7 +651,8 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
                              .seed = f->seed, .frame = f->frame, .threads = threads,
                              .gbuf = &st->gbuf[st->cur], .history = history ? st->res[1] : NULL,
                              .temporal_cap = params->temporal_cap, .neighbors = params->spatial_neighbors,
-                             .radius = params->spatial_radius};
+                             .radius = params->spatial_radius, .paired = params->paired_spatial,
+                             .pair_scratch = st->pair_scratch};
     struct restir_counters rc = {0};
     if (!restir_temporal_pass(&r, st->res[0], &rc, err)) return false;
     stats->temporal_ms = parallel_lap_ms(&t0);

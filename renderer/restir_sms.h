@@ -33,7 +33,9 @@
  * (surface_area_ratio; 1 for a static or rigidly moving light).
  *
  * Reuse: restir.c's temporal pass (generalized balance heuristic, confidence cap, default 20)
- * and spatial pass (pairwise MIS; default 1 neighbour in a 30-pixel radius, as seed 002 Fig. 4).
+ * and spatial pass (pairwise MIS; default 1 neighbour in a 30-pixel radius, as seed 002 Fig. 4),
+ * by default with paired neighbours (restir.h, seed 001): the neighbour relation is symmetric,
+ * so a pair's two manifold shifts serve both of its pixels, one shift per pixel instead of two.
  *
  * Everything else a pixel receives comes from one `sms_ssp` path per pixel and frame from the
  * same primary ray (the G-buffer's jitter): the path-traced rest of the light transport and the
@@ -70,6 +72,8 @@ struct restir_sms_params {
     uint32_t temporal_cap;        /* previous M capped at this multiple of the current M (20) */
     uint32_t spatial_neighbors;   /* (1); 0 = no spatial reuse */
     float spatial_radius;         /* pixels (30) */
+    bool paired_spatial;          /* symmetric neighbour pairs whose two shifts serve both pixels
+                                     (true; restir.h); else neighbours uniform in the radius */
     bool expected_shading;        /* shade with the spatial pass's expected contribution over its
                                      candidates instead of the selected sample's F W (true) */
     uint32_t max_depth, rr_depth; /* of the pt path that supplies the rest of the image (64, 3) */
@@ -111,18 +115,24 @@ struct restir_sms_state {
     struct restir_sms_receiver *recv[2];   /* with gbuf[cur] and gbuf[cur ^ 1] */
     uint8_t *res[2];   /* [0] working, [1] history (final) */
     bool has_history;
-    struct ssp_prior prior;
+    struct ssp_prior prior;   /* the ssp sampler's; no entries with the sms sampler */
+    void *pair_scratch;       /* paired spatial reuse: restir_pair_scratch_bytes(); else NULL */
 };
 
 #define RESTIR_SMS_RESERVOIR_BYTES 64u
 
-bool restir_sms_init(struct restir_sms_state *st, uint32_t width, uint32_t height, struct err *err);
+/* The buffers the parameters use: the prior only for the ssp sampler, the pair scratch only for
+ * paired spatial reuse (a render with other parameters is refused). */
+bool restir_sms_init(struct restir_sms_state *st, const struct restir_sms_params *params, uint32_t width,
+                     uint32_t height, struct err *err);
 void restir_sms_destroy(struct restir_sms_state *st);
 void restir_sms_reset(struct restir_sms_state *st);
 size_t restir_sms_reservoir_bytes(const struct restir_sms_state *st);
 size_t restir_sms_gbuffer_bytes(const struct restir_sms_state *st);
 size_t restir_sms_receiver_bytes(const struct restir_sms_state *st);
-uint64_t restir_sms_bytes_planned(uint32_t width, uint32_t height);
+size_t restir_sms_prior_bytes(const struct restir_sms_state *st);  /* 0 with the sms sampler */
+size_t restir_sms_pair_bytes(const struct restir_sms_state *st);   /* 0 without paired spatial reuse */
+uint64_t restir_sms_bytes_planned(const struct restir_sms_params *params, uint32_t width, uint32_t height);
 
 struct restir_sms_frame {
     const struct scene *scene;

@@ -94,7 +94,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
     if (params->method == RENDER_METHOD_RESTIR_SMS) {
         struct sms_scene ss;
         if (!restir_sms_params_valid(&params->restir_sms, err) || !sms_scene_init(scene, &ss, err)) return false;
-        if (!restir_sms_init(&v->rsms, params->width, params->height, err)) return false;
+        if (!restir_sms_init(&v->rsms, &params->restir_sms, params->width, params->height, err)) return false;
     }
     /* pt needs its frame and the accumulation buffer: no reservoirs, no G-buffer. */
     if (!image_init(&v->output, params->width, params->height, err) ||
@@ -437,7 +437,7 @@ uint64_t view_bytes_planned(const struct view_params *params, uint32_t shape_cou
         bytes += restir_bdpt_bytes_planned(&params->restir_bdpt, params->width, params->height);
     if (params->method == RENDER_METHOD_RESTIR_SSS) bytes += restir_sss_bytes_planned(&params->restir_sss, params->width, params->height);
     if (params->method == RENDER_METHOD_SMS_SSP) bytes += ssp_prior_bytes(params->width, params->height);
-    if (params->method == RENDER_METHOD_RESTIR_SMS) bytes += restir_sms_bytes_planned(params->width, params->height);
+    if (params->method == RENDER_METHOD_RESTIR_SMS) bytes += restir_sms_bytes_planned(&params->restir_sms, params->width, params->height);
     return bytes;
 }
 
@@ -481,7 +481,8 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
         out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sms_reservoir_bytes(&v->rsms)};
         out[n++] = (struct view_buffer_bytes){"gbuffers", restir_sms_gbuffer_bytes(&v->rsms)};
         out[n++] = (struct view_buffer_bytes){"receivers", restir_sms_receiver_bytes(&v->rsms)};
-        out[n++] = (struct view_buffer_bytes){"prior", ssp_prior_bytes(v->output.width, v->output.height)};
+        if (v->rsms.prior.entries) out[n++] = (struct view_buffer_bytes){"prior", restir_sms_prior_bytes(&v->rsms)};
+        if (v->rsms.pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_sms_pair_bytes(&v->rsms)};
     }
     size_t sum = 0;
     for (uint32_t i = 0; i < n; i++) sum += out[i].bytes;

@@ -1431,17 +1431,24 @@ def test_restir_sss_session(daemon):
 
 def test_restir_sms_session(daemon):
     """A restir_sms session on refractive-slab: its parameters with defaults, exactly its own
-    buffers (two 64-byte reservoir buffers, two G-buffers, two receiver buffers, the prior), frames with per-pass times,
-    the manifold shifts' counters and seed 002 Table 1's; bad values are refused naming the field."""
+    buffers (two 64-byte reservoir buffers, two G-buffers, two receiver buffers, the prior, the
+    spatial pairs; without the prior under the sms sampler, without the pairs unpaired), frames
+    with per-pass times, the manifold shifts' counters and seed 002 Table 1's; bad values are
+    refused naming the field."""
     s = new_session(daemon, scene="refractive-slab", method="restir_sms", width=24, height=24, seed=2,
                     params={"bernoulli_cap": 0})
     p = s["params"]
     assert p["shift_iterations"] == 5 and p["spatial_neighbors"] == 1 and p["spatial_radius"] == 30
     assert p["temporal_cap"] == 20 and p["bernoulli_cap"] == 0 and p["tiles"] == 16 and p["sampler"] == "ssp"
+    assert p["paired_spatial"] is True
     assert s["reservoir_bytes_per_pixel"] == 64
     assert s["reservoir_bytes"] == 2 * 64 * 24 * 24 == s["buffers"]["reservoirs"]
-    assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "receivers",
-                                 "prior"}
+    own = {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "receivers"}
+    assert set(s["buffers"]) == own | {"prior", "spatial_pairs"}
+    for params, extra in [({"sampler": "sms"}, {"spatial_pairs"}), ({"paired_spatial": False}, {"prior"})]:
+        t = new_session(daemon, scene="refractive-slab", method="restir_sms", width=8, height=8, params=params)
+        assert set(t["buffers"]) == own | extra, params
+        assert daemon.req("DELETE", t["href"]).status == 204
     post_frame(daemon, s, accept="application/json")
     st = post_frame(daemon, s, accept="application/json").json()
     assert st["passes"]["shifts"] > 0 and st["nonfinite"] == 0
@@ -1452,7 +1459,7 @@ def test_restir_sms_session(daemon):
     assert daemon.req("DELETE", s["href"]).status == 204
     for params, field in [({"shift_iterations": 0}, "/params/shift_iterations"), ({"tiles": 2}, "/params/tiles"),
                           ({"spatial_radius": 0}, "/params/spatial_radius"), ({"spp": 2}, "/params/spp"),
-                          ({"sampler": "bdpt"}, "/params/sampler")]:
+                          ({"sampler": "bdpt"}, "/params/sampler"), ({"paired_spatial": 1}, "/params/paired_spatial")]:
         r = daemon.req("POST", "/v1/scenes/refractive-slab/sessions",
                        json_body={"method": "restir_sms", "width": 8, "height": 8, "params": params})
         assert_problem(r, 422, "invalid-field", field)

@@ -13,6 +13,7 @@
 
 #include "restir_sms.h"
 #include "scene.h"
+#include "session_buffers.h"
 #include "test.h"
 #include "view.h"
 
@@ -106,7 +107,7 @@ static void shift_case(const char *scene_path, bool temporal, int offset, bool e
     struct restir_sms_params p = restir_sms_defaults();
     struct restir_sms_state st;
     struct err err = {0};
-    CHECK(restir_sms_init(&st, W, H, &err));
+    CHECK(restir_sms_init(&st, &p, W, H, &err));
     struct camera_desc cam0 = sc->camera, cam1 = cam0;
     cam1.position.x += 0.03f;
     cam1.look_at.x += 0.02f;
@@ -207,27 +208,47 @@ static void test_params(void)
     CHECK(!restir_sms_params_valid(&p, &err) && strcmp(err.where, "/params/spatial_radius") == 0);
 }
 
+/* Planned = allocated, and the buffers follow the parameters: the prior only for the ssp
+ * sampler, the pair scratch only for paired spatial reuse. */
 static void test_session_bytes_planned_match_allocated(void)
 {
     struct scene *sc = load("scenes/refractive-slab/scene.json");
     if (!sc) return;
-    struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_SMS, 37, 23);
-    struct view v;
+    for (int variant = 0; variant < 3; variant++) {
+        struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_SMS, 37, 23);
+        if (variant == 1) vp.restir_sms.sampler = RESTIR_SMS_SAMPLER_SMS;
+        if (variant == 2) vp.restir_sms.paired_spatial = false;
+        struct view v;
+        struct err err = {0};
+        CHECK(view_init(&v, sc, &vp, 1, &err));
+        struct session_buffers sb;
+        CHECK(session_buffers_agree(&v, &vp, sc->shape_count, &sb));
+        CHECK(session_buffer(&sb, "reservoirs") == 2u * 37 * 23 * RESTIR_SMS_RESERVOIR_BYTES);
+        CHECK((session_buffer(&sb, "prior") > 0) == (variant != 1));
+        CHECK(session_buffer(&sb, "spatial_pairs") == (variant != 2 ? restir_pair_scratch_bytes(37, 23) : 0));
+        struct frame_stats fs;
+        CHECK(view_render(&v, NULL, &fs, NULL, NULL, &err));
+        CHECK(view_render(&v, NULL, &fs, NULL, NULL, &err));
+        CHECK(fs.has_passes && fs.has_manifold_shift && fs.passes.shifts > 0 && fs.render.sms.samples > 0);
+        view_destroy(&v);
+    }
+    /* A render asking for what the session was not made for is refused, naming the parameter. */
+    struct restir_sms_params made = restir_sms_defaults(), asked = made;
+    made.sampler = RESTIR_SMS_SAMPLER_SMS;
+    made.paired_spatial = false;
+    struct restir_sms_state st;
     struct err err = {0};
-    CHECK(view_init(&v, sc, &vp, 1, &err));
-    struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
-    size_t total = 0;
-    uint32_t n = view_bytes(&v, b, &total);
-    CHECK(total == view_bytes_planned(&vp, sc->shape_count));
-    bool has_res = false;
-    for (uint32_t i = 0; i < n; i++)
-        if (strcmp(b[i].name, "reservoirs") == 0) has_res = b[i].bytes == 2u * 37 * 23 * RESTIR_SMS_RESERVOIR_BYTES;
-    CHECK(has_res);
-    struct frame_stats fs;
-    CHECK(view_render(&v, NULL, &fs, NULL, NULL, &err));
-    CHECK(view_render(&v, NULL, &fs, NULL, NULL, &err));
-    CHECK(fs.has_passes && fs.has_manifold_shift && fs.passes.shifts > 0 && fs.render.sms.samples > 0);
-    view_destroy(&v);
+    CHECK(restir_sms_init(&st, &made, 8, 8, &err));
+    struct image out;
+    CHECK(image_init(&out, 8, 8, &err));
+    struct restir_sms_frame f = {.scene = sc, .camera = &sc->camera, .seed = 1, .threads = 1};
+    CHECK(!restir_sms_render(&st, &asked, &f, &out, NULL, &err) && strcmp(err.where, "/params/sampler") == 0);
+    asked.sampler = RESTIR_SMS_SAMPLER_SMS;
+    CHECK(!restir_sms_render(&st, &asked, &f, &out, NULL, &err) && strcmp(err.where, "/params/paired_spatial") == 0);
+    asked.paired_spatial = false;
+    CHECK(restir_sms_render(&st, &asked, &f, &out, NULL, &err));
+    image_destroy(&out);
+    restir_sms_destroy(&st);
     scene_release(sc);
 }
 

@@ -92,6 +92,7 @@ export const METHODS = {
       { name: 'shift_iterations', kind: 'number', value: 5, help: 'Newton steps per manifold shift walk' },
       { name: 'spatial_neighbors', kind: 'number', value: 1, help: 'spatial neighbours (0: none)' },
       { name: 'spatial_radius', kind: 'number', value: 30, help: 'spatial radius, pixels' },
+      { name: 'paired_spatial', kind: 'boolean', value: true, help: 'paired neighbours (half the shifts)' },
       { name: 'temporal', kind: 'boolean', value: true, help: 'temporal reuse' },
       { name: 'temporal_cap', kind: 'number', value: 20, help: 'previous confidence cap, x current' },
       { name: 'bernoulli_cap', kind: 'number', value: 128, help: 'Bernoulli trials per solution (0: uncapped)' },
