@@ -379,17 +379,10 @@ double manifold_constraint_norm(const struct scene *scene, const struct manifold
     return mf_norm(C, 2 * chain->length);
 }
 
-bool manifold_walk(const struct scene *scene, const struct manifold_chain *chain, const struct manifold_ends *ends,
-                   struct manifold_vertex *v, uint32_t max_iterations, struct manifold_stats *stats,
-                   struct ray_counters *rc)
-{
-    return manifold_walk_within(scene, chain, ends, v, max_iterations, NULL, NULL, stats, rc);
-}
 
-bool manifold_walk_within(const struct scene *scene, const struct manifold_chain *chain,
-                          const struct manifold_ends *ends, struct manifold_vertex *v, uint32_t max_iterations,
-                          manifold_region_fn *inside, const void *region, struct manifold_stats *stats,
-                          struct ray_counters *rc)
+static bool mf_walk(const struct scene *scene, const struct manifold_chain *chain, const struct manifold_ends *ends,
+                    struct manifold_vertex *v, uint32_t max_iterations, manifold_region_fn *inside, const void *region,
+                    uint32_t polish_steps, struct manifold_stats *stats, struct ray_counters *rc)
 {
     const uint32_t k = chain->length, n2 = 2 * k;
     const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
@@ -411,7 +404,7 @@ bool manifold_walk_within(const struct scene *scene, const struct manifold_chain
              * on it to far better than the 1e-4 same-solution threshold of the Bernoulli trials,
              * even near a caustic fold where ‖C‖ < 1e-5 alone leaves the position loose. */
             ok = true;
-            if (norm < MANIFOLD_POLISH_TOLERANCE || polish >= MANIFOLD_POLISH_STEPS) break;
+            if (norm < MANIFOLD_POLISH_TOLERANCE || polish >= polish_steps) break;
             polish++;
         } else if (it >= max_iterations) {
             break;
@@ -465,6 +458,28 @@ bool manifold_walk_within(const struct scene *scene, const struct manifold_chain
 done:
     if (stats) stats->iterations += it;
     return ok;
+}
+
+bool manifold_walk(const struct scene *scene, const struct manifold_chain *chain, const struct manifold_ends *ends,
+                   struct manifold_vertex *v, uint32_t max_iterations, struct manifold_stats *stats,
+                   struct ray_counters *rc)
+{
+    return mf_walk(scene, chain, ends, v, max_iterations, NULL, NULL, MANIFOLD_POLISH_STEPS, stats, rc);
+}
+
+bool manifold_walk_unpolished(const struct scene *scene, const struct manifold_chain *chain,
+                              const struct manifold_ends *ends, struct manifold_vertex *v, uint32_t max_iterations,
+                              struct manifold_stats *stats, struct ray_counters *rc)
+{
+    return mf_walk(scene, chain, ends, v, max_iterations, NULL, NULL, 0, stats, rc);
+}
+
+bool manifold_walk_within(const struct scene *scene, const struct manifold_chain *chain,
+                          const struct manifold_ends *ends, struct manifold_vertex *v, uint32_t max_iterations,
+                          manifold_region_fn *inside, const void *region, struct manifold_stats *stats,
+                          struct ray_counters *rc)
+{
+    return mf_walk(scene, chain, ends, v, max_iterations, inside, region, MANIFOLD_POLISH_STEPS, stats, rc);
 }
 
 bool manifold_check(const struct scene *scene, const struct manifold_chain *chain, const struct manifold_ends *ends,

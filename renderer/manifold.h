@@ -86,6 +86,13 @@ bool manifold_walk(const struct scene *scene, const struct manifold_chain *chain
                    struct manifold_vertex *v, uint32_t max_iterations, struct manifold_stats *stats,
                    struct ray_counters *rc);
 
+/* The same walk without the polishing: it stops as soon as ‖C‖ < MANIFOLD_TOLERANCE. For a
+ * walk whose end is only compared with a known chain (manifold_same at 1e-4 of the segment,
+ * far above what ‖C‖ < 1e-5 leaves loose) and never used itself. */
+bool manifold_walk_unpolished(const struct scene *scene, const struct manifold_chain *chain,
+                              const struct manifold_ends *ends, struct manifold_vertex *v, uint32_t max_iterations,
+                              struct manifold_stats *stats, struct ray_counters *rc);
+
 /* The same walk confined to a trust region: `inside(region, x2)` says whether the first vertex
  * is still inside; the walk fails as soon as an accepted step leaves the region (so it fails
  * rather than converge outside). */

@@ -303,7 +303,7 @@ static void sms_shift_impl(const struct sms_ctx *c, const struct sms_sample *x, 
         sms_chain_at(sa, y, w);
         sms_chain_at(sa, x, base);
         float tol = 1e-4f * vec3_length(vec3_sub(base[0].p, a.s.p));
-        ok = manifold_walk(sa, &chain, &ea, w, c->p->shift_iterations, &st, rc) && manifold_same(w, base, k, tol);
+        ok = manifold_walk_unpolished(sa, &chain, &ea, w, c->p->shift_iterations, &st, rc) && manifold_same(w, base, k, tol);
         if (!ok) atomic_fetch_add_explicit(&c->shared->not_invertible, 1, memory_order_relaxed);
     }
     atomic_fetch_add_explicit(&c->shared->newton, st.iterations, memory_order_relaxed);
