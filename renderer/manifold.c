@@ -29,6 +29,17 @@ static inline struct dv3 dv_cross(struct dv3 a, struct dv3 b)
 static inline double dv_len(struct dv3 a) { return sqrt(dv_dot(a, a)); }
 static inline struct dv3 dv_norm(struct dv3 a) { return dv_scale(a, 1.0 / dv_len(a)); }
 
+/* A mesh vertex's world position and normal in double. Most shapes sit in world space (identity
+ * transform), where the transform is skipped: x * 1 + 0 is x exactly, so nothing changes. */
+static inline struct dv3 mf_world_point(const struct accel *accel, uint32_t shape, struct vec3 p)
+{
+    return dv(accel_shape_is_identity(accel, shape) ? p : xform_point(accel_shape_to_world(accel, shape), p));
+}
+static inline struct dv3 mf_world_normal(const struct accel *accel, uint32_t shape, struct vec3 n)
+{
+    return dv(accel_shape_is_identity(accel, shape) ? n : xform_normal(accel_shape_to_object(accel, shape), n));
+}
+
 /* First-order surface model around a vertex, in the vertex's own parameters (u, v):
  * meshes: p(u, v) = p + u dp/du + v dp/dv over the triangle's barycentrics (b1, b2), normal
  * normalize(ñ + u dñ/du + v dñ/dv) with ñ the interpolated vertex normal (exact on the
@@ -46,13 +57,12 @@ static bool mf_geom_of(const struct scene *scene, uint32_t shape, const struct m
     const struct shape *s = &scene->shapes[shape];
     const struct accel *accel = scene->accel;
     const struct xform *xf = accel_shape_to_world(accel, shape);
-    const struct xform *inv = accel_shape_to_object(accel, shape);
     struct dv3 ng = dv(v->ng);
     if (s->kind == SHAPE_MESH) {
         const uint32_t *tri = &s->indices[3 * v->prim];
-        struct dv3 P0 = dv(xform_point(xf, s->positions[tri[0]]));
-        struct dv3 P1 = dv(xform_point(xf, s->positions[tri[1]]));
-        struct dv3 P2 = dv(xform_point(xf, s->positions[tri[2]]));
+        struct dv3 P0 = mf_world_point(accel, shape, s->positions[tri[0]]);
+        struct dv3 P1 = mf_world_point(accel, shape, s->positions[tri[1]]);
+        struct dv3 P2 = mf_world_point(accel, shape, s->positions[tri[2]]);
         double b1 = v->bd[0], b2 = v->bd[1], b0 = 1.0 - b1 - b2;
         g->sphere = false;
         g->dpdu = dv_sub(P1, P0);
@@ -62,7 +72,7 @@ static bool mf_geom_of(const struct scene *scene, uint32_t shape, const struct m
         g->dntu = g->dntv = (struct dv3){0, 0, 0};
         if (s->normals) {
             struct dv3 N[3];
-            for (int i = 0; i < 3; i++) N[i] = dv(xform_normal(inv, s->normals[tri[i]]));
+            for (int i = 0; i < 3; i++) N[i] = mf_world_normal(accel, shape, s->normals[tri[i]]);
             struct dv3 nt = dv_add(dv_add(dv_scale(N[0], b0), dv_scale(N[1], b1)), dv_scale(N[2], b2));
             if (dv_dot(nt, nt) > 1e-12) {
                 /* As surface_from_hit: the shading normal is kept on the geometric front side. */
@@ -72,7 +82,8 @@ static bool mf_geom_of(const struct scene *scene, uint32_t shape, const struct m
                 g->dntv = dv_scale(dv_sub(N[2], N[0]), sg);
             }
         }
-        return dv_len(dv_cross(g->dpdu, g->dpdv)) > 0.0;
+        struct dv3 cr = dv_cross(g->dpdu, g->dpdv);
+        return dv_dot(cr, cr) > 0.0;
     }
     /* Sphere under a similarity transform (rotation, uniform scale, translation). */
     struct dv3 ex = dv(xform_vector(xf, vec3_make(1, 0, 0))), ey = dv(xform_vector(xf, vec3_make(0, 1, 0)));
@@ -312,9 +323,9 @@ static bool mf_trace(const struct scene *scene, uint32_t shape, struct dv3 from,
     dir = dv_norm(dir);
     if (sh->kind == SHAPE_MESH) {
         const uint32_t *tri = &sh->indices[3 * h.prim];
-        struct dv3 P0 = dv(xform_point(xf, sh->positions[tri[0]]));
-        struct dv3 e1 = dv_sub(dv(xform_point(xf, sh->positions[tri[1]])), P0);
-        struct dv3 e2 = dv_sub(dv(xform_point(xf, sh->positions[tri[2]])), P0);
+        struct dv3 P0 = mf_world_point(scene->accel, shape, sh->positions[tri[0]]);
+        struct dv3 e1 = dv_sub(mf_world_point(scene->accel, shape, sh->positions[tri[1]]), P0);
+        struct dv3 e2 = dv_sub(mf_world_point(scene->accel, shape, sh->positions[tri[2]]), P0);
         /* Möller-Trumbore in double (the hit may sit a rounding error outside the triangle). */
         struct dv3 pv = dv_cross(dir, e2);
         double det = dv_dot(e1, pv);
