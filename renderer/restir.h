@@ -106,6 +106,9 @@ struct restir_reuse {
 };
 
 size_t restir_pair_scratch_bytes(uint32_t width, uint32_t height);
+/* Whether a technique's spatial reuse needs that scratch: paired, with neighbours. A session
+ * allocates it only then. */
+static inline bool restir_pairs_needed(bool paired, uint32_t neighbors) { return paired && neighbors > 0; }
 
 /* A zeroed array of `count` elements of `stride` bytes that starts on a cache line (NULL when out
  * of memory; free() it). The reuse passes reach their neighbours' elements in no order a

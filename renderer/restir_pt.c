@@ -928,8 +928,13 @@ void restir_pt_info(const void *elem, struct restir_pt_info *out)
 
 /* ---- the frame ------------------------------------------------------------------------------ */
 
-bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, uint32_t width, uint32_t height,
-                    struct err *err)
+static bool pt_uses_pairs(const struct restir_pt_params *p)
+{
+    return restir_pairs_needed(p->paired_spatial, p->spatial_neighbors);
+}
+
+bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, const struct restir_pt_params *params,
+                    uint32_t width, uint32_t height, struct err *err)
 {
     memset(st, 0, sizeof *st);
     if (scene_has_translucent(scene))
@@ -965,10 +970,12 @@ bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, uint3
             return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
         }
     }
-    st->pair_scratch = restir_buffer_alloc(1, restir_pair_scratch_bytes(width, height));
-    if (!st->pair_scratch) {
-        restir_pt_destroy(st);
-        return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u spatial pairs", width, height);
+    if (pt_uses_pairs(params)) {
+        st->pair_scratch = restir_buffer_alloc(1, restir_pair_scratch_bytes(width, height));
+        if (!st->pair_scratch) {
+            restir_pt_destroy(st);
+            return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u spatial pairs", width, height);
+        }
     }
     return true;
 }
@@ -1006,14 +1013,16 @@ size_t restir_pt_hit_bytes(const struct restir_pt_state *st)
 
 size_t restir_pt_pair_bytes(const struct restir_pt_state *st)
 {
-    return restir_pair_scratch_bytes(st->width, st->height);
+    return st->pair_scratch ? restir_pair_scratch_bytes(st->width, st->height) : 0;
 }
 
-uint64_t restir_pt_bytes_planned(uint32_t width, uint32_t height, uint32_t shape_count)
+uint64_t restir_pt_bytes_planned(const struct restir_pt_params *params, uint32_t width, uint32_t height,
+                                 uint32_t shape_count)
 {
     uint64_t pixels = (uint64_t)width * height;
     return 2 * pixels * (sizeof(struct pt_sample) + sizeof(struct gbuffer_pixel) + sizeof(struct gbuffer_surface)) +
-           ((uint64_t)shape_count + 1) * sizeof(uint32_t) + restir_pair_scratch_bytes(width, height);
+           ((uint64_t)shape_count + 1) * sizeof(uint32_t) +
+           (pt_uses_pairs(params) ? restir_pair_scratch_bytes(width, height) : 0);
 }
 
 struct pt_pass {
@@ -1108,6 +1117,8 @@ static bool pt_begin(struct restir_pt_state *st, const struct restir_pt_params *
     if (f->scene->shape_count != st->shape_count)
         return err_set(err, ERR_INVALID, NULL, "the scene has %u shapes, the session %u", f->scene->shape_count,
                        st->shape_count);
+    if (pt_uses_pairs(params) && !st->pair_scratch)
+        return err_set(err, ERR_INVALID, "/params/paired_spatial", "the session was made without paired spatial reuse");
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
     struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,

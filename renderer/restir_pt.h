@@ -82,17 +82,20 @@ struct restir_pt_state {
 /* Bytes of one reservoir (the payload included). */
 #define RESTIR_PT_RESERVOIR_BYTES 64u
 
-bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, uint32_t width, uint32_t height,
-                    struct err *err);
+/* The buffers the parameters use: the pair scratch only for paired spatial reuse (a render that
+ * asks for it from a session made without is refused). */
+bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, const struct restir_pt_params *params,
+                    uint32_t width, uint32_t height, struct err *err);
 void restir_pt_destroy(struct restir_pt_state *st);
 /* Forgets the history (the next frame has no temporal predecessor). */
 void restir_pt_reset(struct restir_pt_state *st);
 size_t restir_pt_reservoir_bytes(const struct restir_pt_state *st);
 size_t restir_pt_gbuffer_bytes(const struct restir_pt_state *st);
-size_t restir_pt_pair_bytes(const struct restir_pt_state *st);
+size_t restir_pt_pair_bytes(const struct restir_pt_state *st);  /* 0 without paired spatial reuse */
 size_t restir_pt_hit_bytes(const struct restir_pt_state *st);
-/* What restir_pt_init allocates for this size and shape count (before allocating it). */
-uint64_t restir_pt_bytes_planned(uint32_t width, uint32_t height, uint32_t shape_count);
+/* What restir_pt_init allocates for these parameters, size and shape count (before allocating it). */
+uint64_t restir_pt_bytes_planned(const struct restir_pt_params *params, uint32_t width, uint32_t height,
+                                 uint32_t shape_count);
 
 struct restir_pt_frame {
     const struct scene *scene;           /* this frame */

@@ -382,7 +382,7 @@ uint64_t restir_sms_shift_newton(const void *ctx)
 /* ---- the frame ------------------------------------------------------------------------------ */
 
 static bool sms_uses_prior(const struct restir_sms_params *p) { return p->sampler == RESTIR_SMS_SAMPLER_SSP; }
-static bool sms_uses_pairs(const struct restir_sms_params *p) { return p->paired_spatial && p->spatial_neighbors > 0; }
+static bool sms_uses_pairs(const struct restir_sms_params *p) { return restir_pairs_needed(p->paired_spatial, p->spatial_neighbors); }
 
 bool restir_sms_init(struct restir_sms_state *st, const struct restir_sms_params *params, uint32_t width,
                      uint32_t height, struct err *err)

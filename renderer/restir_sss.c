@@ -565,10 +565,12 @@ bool restir_sss_init(struct restir_sss_state *st, const struct restir_sss_params
             return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
         }
     }
-    st->pair_scratch = malloc(restir_pair_scratch_bytes(width, height));
-    if (!st->pair_scratch) {
-        restir_sss_destroy(st);
-        return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u spatial pairs", width, height);
+    if (restir_pairs_needed(params->paired_spatial, params->spatial_neighbors)) {
+        st->pair_scratch = restir_buffer_alloc(1, restir_pair_scratch_bytes(width, height));
+        if (!st->pair_scratch) {
+            restir_sss_destroy(st);
+            return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u spatial pairs", width, height);
+        }
     }
     return true;
 }
@@ -602,7 +604,7 @@ size_t restir_sss_hit_bytes(const struct restir_sss_state *st)
 
 size_t restir_sss_pair_bytes(const struct restir_sss_state *st)
 {
-    return restir_pair_scratch_bytes(st->width, st->height);
+    return st->pair_scratch ? restir_pair_scratch_bytes(st->width, st->height) : 0;
 }
 
 uint64_t restir_sss_bytes_planned(const struct restir_sss_params *params, uint32_t width, uint32_t height)
@@ -610,7 +612,8 @@ uint64_t restir_sss_bytes_planned(const struct restir_sss_params *params, uint32
     return 2 * (uint64_t)width * height *
                (restir_sss_layers(params) * sizeof(struct sss_sample) + sizeof(struct gbuffer_pixel) +
                 sizeof(struct gbuffer_surface)) +
-           restir_pair_scratch_bytes(width, height);
+           (restir_pairs_needed(params->paired_spatial, params->spatial_neighbors) ? restir_pair_scratch_bytes(width, height)
+                                                                                  : 0);
 }
 
 struct sss_pass {
@@ -718,6 +721,8 @@ static bool sss_begin(struct restir_sss_state *st, const struct restir_sss_param
     if (!restir_sss_params_valid(params, err)) return false;
     if (restir_sss_layers(params) != st->layers)
         return err_set(err, ERR_INVALID, "/params/target", "the session's reservoirs were made for the other target");
+    if (restir_pairs_needed(params->paired_spatial, params->spatial_neighbors) && !st->pair_scratch)
+        return err_set(err, ERR_INVALID, "/params/paired_spatial", "the session was made without paired spatial reuse");
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
     struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,

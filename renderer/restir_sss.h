@@ -101,7 +101,8 @@ struct restir_sss_state {
 
 #define RESTIR_SSS_RESERVOIR_BYTES 60u   /* per reservoir; a pixel has restir_sss_layers of them */
 
-/* Sized for params' target, which a session keeps. */
+/* Sized for params' target, which a session keeps; the pair scratch only for paired spatial
+ * reuse (a render asking for another target, or for pairs the session lacks, is refused). */
 bool restir_sss_init(struct restir_sss_state *st, const struct restir_sss_params *params, uint32_t width,
                      uint32_t height, struct err *err);
 void restir_sss_destroy(struct restir_sss_state *st);
@@ -109,7 +110,7 @@ void restir_sss_reset(struct restir_sss_state *st);
 size_t restir_sss_reservoir_bytes(const struct restir_sss_state *st);
 size_t restir_sss_gbuffer_bytes(const struct restir_sss_state *st);
 size_t restir_sss_hit_bytes(const struct restir_sss_state *st);
-size_t restir_sss_pair_bytes(const struct restir_sss_state *st);
+size_t restir_sss_pair_bytes(const struct restir_sss_state *st);  /* 0 without paired spatial reuse */
 uint64_t restir_sss_bytes_planned(const struct restir_sss_params *params, uint32_t width, uint32_t height);
 
 struct restir_sss_frame {

@@ -79,7 +79,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
         return false;
     if (params->method == RENDER_METHOD_RESTIR_PT) {
         if (!restir_pt_params_valid(&params->restir_pt, err)) return false;
-        if (!restir_pt_init(&v->restir, scene, params->width, params->height, err)) return false;
+        if (!restir_pt_init(&v->restir, scene, &params->restir_pt, params->width, params->height, err)) return false;
     }
     if (params->method == RENDER_METHOD_BDPT &&
         !bdpt_init(&v->bdpt, scene, &params->bdpt, params->width, params->height, err))
@@ -431,7 +431,7 @@ uint64_t view_bytes_planned(const struct view_params *params, uint32_t shape_cou
      * restir_pt: its reservoirs, G-buffers and primitive table too). */
     uint64_t pixels = (uint64_t)params->width * params->height;
     uint64_t bytes = 2 * pixels * sizeof(struct vec3) + (uint64_t)(shape_count ? shape_count : 1) * sizeof(struct view_shape_change);
-    if (params->method == RENDER_METHOD_RESTIR_PT) bytes += restir_pt_bytes_planned(params->width, params->height, shape_count);
+    if (params->method == RENDER_METHOD_RESTIR_PT) bytes += restir_pt_bytes_planned(&params->restir_pt, params->width, params->height, shape_count);
     if (params->method == RENDER_METHOD_BDPT) bytes += bdpt_bytes_planned(&params->bdpt, params->width, params->height);
     if (params->method == RENDER_METHOD_RESTIR_BDPT)
         bytes += restir_bdpt_bytes_planned(&params->restir_bdpt, params->width, params->height);
@@ -451,7 +451,7 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
         out[n++] = (struct view_buffer_bytes){"reservoirs", restir_pt_reservoir_bytes(&v->restir)};
         out[n++] = (struct view_buffer_bytes){"gbuffers", restir_pt_gbuffer_bytes(&v->restir)};
         out[n++] = (struct view_buffer_bytes){"primitive_table", ((size_t)v->restir.shape_count + 1) * sizeof *v->restir.prim_first};
-        out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_pt_pair_bytes(&v->restir)};
+        if (v->restir.pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_pt_pair_bytes(&v->restir)};
         out[n++] = (struct view_buffer_bytes){"primary_hits", restir_pt_hit_bytes(&v->restir)};
     }
     if (v->params.method == RENDER_METHOD_BDPT) {
@@ -474,7 +474,7 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
         out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sss_reservoir_bytes(&v->sss)};
         out[n++] = (struct view_buffer_bytes){"gbuffers", restir_sss_gbuffer_bytes(&v->sss)};
         out[n++] = (struct view_buffer_bytes){"primary_hits", restir_sss_hit_bytes(&v->sss)};
-        out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_sss_pair_bytes(&v->sss)};
+        if (v->sss.pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_sss_pair_bytes(&v->sss)};
     }
     if (v->params.method == RENDER_METHOD_SMS_SSP) out[n++] = (struct view_buffer_bytes){"prior", ssp_prior_bytes(v->output.width, v->output.height)};
     if (v->params.method == RENDER_METHOD_RESTIR_SMS) {

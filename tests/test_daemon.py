@@ -1255,12 +1255,14 @@ def test_restir_pt_session(daemon):
     two = new_session(daemon, scene="refractive-slab", method="restir_pt", width=8, height=8)
     given = new_session(daemon, method="restir_pt", width=8, height=8, params={"nee_candidates": 3})
     assert two["params"]["nee_candidates"] == 4 and given["params"]["nee_candidates"] == 3
-    for x in (two, given):
+    unpaired = new_session(daemon, method="restir_pt", width=8, height=8, params={"paired_spatial": False})
+    for x in (two, given, unpaired):
         assert daemon.req("DELETE", x["href"]).status == 204
     assert s["reservoir_bytes_per_pixel"] == 64
     assert s["reservoir_bytes"] == 2 * 64 * 32 * 24 == s["buffers"]["reservoirs"]
-    assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "primitive_table",
-                                 "spatial_pairs", "primary_hits"}
+    own = {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "primitive_table", "primary_hits"}
+    assert set(s["buffers"]) == own | {"spatial_pairs"}
+    assert set(unpaired["buffers"]) == own  # the pairs' scratch only with paired spatial reuse
     first = post_frame(daemon, s, accept="application/json").json()
     assert first["passes"]["temporal_ms"] >= 0 and first["passes"]["shifts"] > 0
     moved = {"camera": {"position": [288, 273, -800]}}

@@ -110,7 +110,7 @@ static void spatial_case(const char *path, const struct restir_pt_params *p, uin
     if (!sc) return;
     struct err err = {0};
     struct restir_pt_state st;
-    CHECK(restir_pt_init(&st, sc, SIZE, SIZE, &err));
+    CHECK(restir_pt_init(&st, sc, p, SIZE, SIZE, &err));
     struct restir_pt_frame f = {.scene = sc, .camera = &sc->camera, .prev_camera = &sc->camera, .seed = 7, .threads = 1};
     struct tally t = {0};
     struct rng r = rng_make(11, 0, 0, 0);
@@ -182,7 +182,7 @@ static void temporal_case(bool move_shape)
     }
     struct restir_pt_params p = restir_pt_defaults();
     struct restir_pt_state st;
-    CHECK(restir_pt_init(&st, sc, SIZE, SIZE, &err));
+    CHECK(restir_pt_init(&st, sc, &p, SIZE, SIZE, &err));
     struct image img;
     CHECK(image_init(&img, SIZE, SIZE, &err));
     struct camera_desc cam0 = sc->camera, cam1 = sc->camera;
@@ -233,7 +233,7 @@ static void test_identity_shift_reproduces_initial_contribution(void)
     struct err err = {0};
     struct restir_pt_params p = restir_pt_defaults();
     struct restir_pt_state st;
-    CHECK(restir_pt_init(&st, sc, SIZE, SIZE, &err));
+    CHECK(restir_pt_init(&st, sc, &p, SIZE, SIZE, &err));
     struct restir_pt_frame f = {.scene = sc, .camera = &sc->camera, .prev_camera = &sc->camera, .seed = 5, .threads = 1};
     CHECK(restir_pt_initial_only(&st, &p, &f, &err));
     _Alignas(16) uint8_t ctx[RESTIR_PT_CTX_BYTES];
@@ -274,18 +274,35 @@ static void test_reservoir_is_compact(void)
     CHECK(RESTIR_PT_RESERVOIR_BYTES <= 64);
 }
 
-/* The memory budget reserves what a session will allocate: planned bytes = allocated bytes. */
+/* The memory budget reserves what a session will allocate: planned bytes = allocated bytes, with
+ * the pair scratch only for paired spatial reuse; a render asking for pairs the session was made
+ * without is refused naming the parameter. */
 static void test_session_bytes_planned_match_allocated(void)
 {
     struct scene *sc = load("scenes/cornell-glossy/scene.json");
     if (!sc) return;
     struct err err = {0};
-    struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_PT, 40, 24);
-    struct view v;
-    CHECK(view_init(&v, sc, &vp, 1, &err));
-    struct session_buffers sb;
-    CHECK(session_buffers_agree(&v, &vp, sc->shape_count, &sb));
-    view_destroy(&v);
+    for (int paired = 0; paired < 2; paired++) {
+        struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_PT, 40, 24);
+        vp.restir_pt.paired_spatial = paired;
+        struct view v;
+        CHECK(view_init(&v, sc, &vp, 1, &err));
+        struct session_buffers sb;
+        CHECK(session_buffers_agree(&v, &vp, sc->shape_count, &sb));
+        CHECK(session_buffer(&sb, "spatial_pairs") == (paired ? restir_pair_scratch_bytes(40, 24) : 0));
+        view_destroy(&v);
+    }
+    struct restir_pt_params made = restir_pt_defaults(), asked = made;
+    made.paired_spatial = false;
+    struct restir_pt_state st;
+    CHECK(restir_pt_init(&st, sc, &made, 8, 8, &err));
+    struct image out;
+    CHECK(image_init(&out, 8, 8, &err));
+    struct restir_pt_frame f = {.scene = sc, .camera = &sc->camera, .seed = 1, .threads = 1};
+    CHECK(!restir_pt_render(&st, &asked, &f, &out, NULL, &err) && strcmp(err.where, "/params/paired_spatial") == 0);
+    CHECK(restir_pt_render(&st, &made, &f, &out, NULL, &err));
+    image_destroy(&out);
+    restir_pt_destroy(&st);
     scene_release(sc);
 }
 

@@ -227,23 +227,38 @@ static void test_params(void)
     CHECK(!restir_sss_params_valid(&p, &err) && strcmp(err.where, "/params/target") == 0);
 }
 
-/* Planned and allocated bytes agree, and the per_channel target allocates three reservoirs per
- * pixel and buffer, luminance one. */
+/* Planned and allocated bytes agree; the per_channel target allocates three reservoirs per pixel
+ * and buffer, luminance one; the pair scratch comes with paired spatial reuse only, and a render
+ * asking for pairs the session lacks is refused naming the parameter. */
 static void test_session_bytes_planned_match_allocated(void)
 {
     struct scene *sc = load("scenes/translucent/scene.json");
     if (!sc) return;
-    for (uint32_t layers = 1; layers <= 3; layers += 2) {
+    struct err err = {0};
+    for (int variant = 0; variant < 3; variant++) {
+        const uint32_t layers = variant == 1 ? 3 : 1;
         struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_SSS, 37, 23);
         vp.restir_sss.target = layers == 3 ? RESTIR_SSS_TARGET_PER_CHANNEL : RESTIR_SSS_TARGET_LUMINANCE;
+        vp.restir_sss.paired_spatial = variant != 2;
         struct view v;
-        struct err err = {0};
         CHECK(view_init(&v, sc, &vp, 1, &err));
         struct session_buffers sb;
         CHECK(session_buffers_agree(&v, &vp, sc->shape_count, &sb));
         CHECK(session_buffer(&sb, "reservoirs") == 2u * 37 * 23 * layers * RESTIR_SSS_RESERVOIR_BYTES);
+        CHECK(session_buffer(&sb, "spatial_pairs") == (variant != 2 ? restir_pair_scratch_bytes(37, 23) : 0));
         view_destroy(&v);
     }
+    struct restir_sss_params made = restir_sss_defaults(), asked = made;
+    made.paired_spatial = false;
+    struct restir_sss_state st;
+    CHECK(restir_sss_init(&st, &made, 8, 8, &err));
+    struct image out;
+    CHECK(image_init(&out, 8, 8, &err));
+    struct restir_sss_frame f = {.scene = sc, .camera = &sc->camera, .seed = 1, .threads = 1};
+    CHECK(!restir_sss_render(&st, &asked, &f, &out, NULL, &err) && strcmp(err.where, "/params/paired_spatial") == 0);
+    CHECK(restir_sss_render(&st, &made, &f, &out, NULL, &err));
+    image_destroy(&out);
+    restir_sss_destroy(&st);
     scene_release(sc);
 }
 
