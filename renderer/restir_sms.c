@@ -303,7 +303,8 @@ static void sms_shift_impl(const struct sms_ctx *c, const struct sms_sample *x, 
         sms_chain_at(sa, y, w);
         sms_chain_at(sa, x, base);
         float tol = 1e-4f * vec3_length(vec3_sub(base[0].p, a.s.p));
-        ok = manifold_walk_unpolished(sa, &chain, &ea, w, c->p->shift_iterations, &st, rc) && manifold_same(w, base, k, tol);
+        ok = manifold_walk_unpolished(sa, &chain, &ea, w, c->p->shift_iterations, &st, rc) &&
+             manifold_same(w, base, k, tol);
         if (!ok) atomic_fetch_add_explicit(&c->shared->not_invertible, 1, memory_order_relaxed);
     }
     atomic_fetch_add_explicit(&c->shared->newton, st.iterations, memory_order_relaxed);
@@ -382,7 +383,10 @@ uint64_t restir_sms_shift_newton(const void *ctx)
 /* ---- the frame ------------------------------------------------------------------------------ */
 
 static bool sms_uses_prior(const struct restir_sms_params *p) { return p->sampler == RESTIR_SMS_SAMPLER_SSP; }
-static bool sms_uses_pairs(const struct restir_sms_params *p) { return restir_pairs_needed(p->paired_spatial, p->spatial_neighbors); }
+static bool sms_uses_pairs(const struct restir_sms_params *p)
+{
+    return restir_pairs_needed(p->paired_spatial, p->spatial_neighbors);
+}
 
 bool restir_sms_init(struct restir_sms_state *st, const struct restir_sms_params *params, uint32_t width,
                      uint32_t height, struct err *err)
@@ -567,7 +571,7 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
 {
     if (!restir_sms_params_valid(params, err)) return false;
     if (sms_uses_prior(params) && !st->prior.entries)
-        return err_set(err, ERR_INVALID, "/params/sampler", "the session was made for the sms sampler: it has no prior");
+        return err_set(err, ERR_INVALID, "/params/sampler", "the session was made for the sms sampler (no prior)");
     if (sms_uses_pairs(params) && !st->pair_scratch)
         return err_set(err, ERR_INVALID, "/params/paired_spatial", "the session was made without paired spatial reuse");
     struct timespec t0;

@@ -546,6 +546,11 @@ void restir_sss_info(const void *ctx, const void *elem, uint32_t pixel, struct r
 
 /* ---- the frame ------------------------------------------------------------------------------ */
 
+static bool sss_uses_pairs(const struct restir_sss_params *p)
+{
+    return restir_pairs_needed(p->paired_spatial, p->spatial_neighbors);
+}
+
 bool restir_sss_init(struct restir_sss_state *st, const struct restir_sss_params *params, uint32_t width,
                      uint32_t height, struct err *err)
 {
@@ -565,7 +570,7 @@ bool restir_sss_init(struct restir_sss_state *st, const struct restir_sss_params
             return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
         }
     }
-    if (restir_pairs_needed(params->paired_spatial, params->spatial_neighbors)) {
+    if (sss_uses_pairs(params)) {
         st->pair_scratch = restir_buffer_alloc(1, restir_pair_scratch_bytes(width, height));
         if (!st->pair_scratch) {
             restir_sss_destroy(st);
@@ -612,8 +617,7 @@ uint64_t restir_sss_bytes_planned(const struct restir_sss_params *params, uint32
     return 2 * (uint64_t)width * height *
                (restir_sss_layers(params) * sizeof(struct sss_sample) + sizeof(struct gbuffer_pixel) +
                 sizeof(struct gbuffer_surface)) +
-           (restir_pairs_needed(params->paired_spatial, params->spatial_neighbors) ? restir_pair_scratch_bytes(width, height)
-                                                                                  : 0);
+           (sss_uses_pairs(params) ? restir_pair_scratch_bytes(width, height) : 0);
 }
 
 struct sss_pass {
@@ -721,7 +725,7 @@ static bool sss_begin(struct restir_sss_state *st, const struct restir_sss_param
     if (!restir_sss_params_valid(params, err)) return false;
     if (restir_sss_layers(params) != st->layers)
         return err_set(err, ERR_INVALID, "/params/target", "the session's reservoirs were made for the other target");
-    if (restir_pairs_needed(params->paired_spatial, params->spatial_neighbors) && !st->pair_scratch)
+    if (sss_uses_pairs(params) && !st->pair_scratch)
         return err_set(err, ERR_INVALID, "/params/paired_spatial", "the session was made without paired spatial reuse");
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);

@@ -404,5 +404,49 @@ static void test_caustic_interfaces_key(void)
     }
 }
 
+/* The constraint is linear near a solution: ‖C‖ / t stays the same as the vertex moves t away
+ * from it, on both sides of the point where a small angle stops being taken as r - r³/3 and
+ * goes to atan2 (|Δ| = 1e-3 rad: between t = 6e-4 and 2e-3 here), on a flat mirror and a flat
+ * refractive interface. (Below t ~ 1e-4 the float points of the seed path blur the ratio.) */
+static void constraint_linear_across(const struct scene *s, const struct manifold_chain *ch,
+                                     const struct manifold_ends *e, const struct vec3 *expect, const char *name)
+{
+    const struct vec3 dir = vec3_normalize(vec3_make(1.0f, 0.0f, 0.3f));
+    static const double ts[] = {1e-4, 3e-4, 6e-4, 2e-3, 4e-3};
+    double ratio[5];
+    for (int k = 0; k < 5; k++) {
+        struct manifold_vertex v[MANIFOLD_MAX_CHAIN];
+        struct ray_counters rc = {0, 0};
+        CHECK(manifold_seed_path(s, ch, e, vec3_add(expect[0], vec3_scale(dir, (float)ts[k])), v, &rc));
+        ratio[k] = manifold_constraint_norm(s, ch, e, v) / ts[k];
+    }
+    for (int k = 0; k < 5; k++)
+        CHECK_MSG(fabs(ratio[k] / ratio[1] - 1.0) < 5e-3, "%s: |C| / t = %.6g at t = %g, %.6g at t = 3e-4", name,
+                  ratio[k], ts[k], ratio[1]);
+}
+
+static void test_constraint_is_continuous(void)
+{
+    struct scene *m = load(mirror_json);
+    if (m) {
+        struct manifold_chain ch = {.shape = 0, .length = 1, .events = {MANIFOLD_REFLECT}};
+        struct manifold_ends e = {.x1 = vec3_make(-0.5f, 1.0f, 0.1f), .ng1 = vec3_make(0, 1, 0),
+                                  .xe = vec3_make(0.7f, 2.0f, -0.3f), .nge = vec3_make(0, -1, 0)};
+        struct vec3 img = vec3_make(0.7f, -2.0f, -0.3f);
+        struct vec3 expect = vec3_add(e.x1, vec3_scale(vec3_sub(img, e.x1), 1.0f / 3.0f));
+        constraint_linear_across(m, &ch, &e, &expect, "mirror");
+        scene_release(m);
+    }
+    struct scene *g = load(interface_json);
+    if (g) {
+        struct manifold_chain ch = {.shape = 0, .length = 1, .events = {MANIFOLD_REFRACT}, .ior = 1.5f};
+        struct vec3 a = vec3_make(-0.6f, 1.2f, 0.2f), b = vec3_make(0.5f, -0.9f, -0.4f);
+        struct manifold_ends e = {.x1 = a, .ng1 = vec3_make(0, 1, 0), .xe = b, .nge = vec3_make(0, 1, 0)};
+        struct vec3 expect = snell_point(a, 1.2f, 1.0, b, 0.9f, 1.5);
+        constraint_linear_across(g, &ch, &e, &expect, "interface");
+        scene_release(g);
+    }
+}
+
 TEST_MAIN(TEST(test_caustic_interfaces_key), TEST(test_flat_mirror), TEST(test_flat_interface), TEST(test_flat_slab), TEST(test_curved),
-          TEST(test_shift_inverts))
+          TEST(test_shift_inverts), TEST(test_constraint_is_continuous))
