@@ -143,6 +143,11 @@ uint32_t light_sampler_count(const struct light_sampler *ls)
     return ls->count;
 }
 
+static inline struct vec3 light_sampler_triangle_at(const struct light_entry *e, float b1, float b2)
+{
+    return vec3_add(e->p0, vec3_add(vec3_scale(e->e1, b1), vec3_scale(e->e2, b2)));
+}
+
 bool light_sampler_sample(const struct light_sampler *ls, float u_pick, float u1, float u2, struct light_sample *out)
 {
     if (ls->count == 0) return false;
@@ -153,7 +158,7 @@ bool light_sampler_sample(const struct light_sampler *ls, float u_pick, float u1
     switch (e->kind) {
     case LIGHT_TRIANGLE: {
         sampling_uniform_triangle(u1, u2, &out->b1, &out->b2);
-        out->p = vec3_add(e->p0, vec3_add(vec3_scale(e->e1, out->b1), vec3_scale(e->e2, out->b2)));
+        out->p = light_sampler_triangle_at(e, out->b1, out->b2);
         out->n = e->n;
         out->pdf_a = pmf / e->area;
         break;
@@ -181,6 +186,19 @@ float light_sampler_pdf_a(const struct light_sampler *ls, uint32_t shape, uint32
     /* Zero-area triangles (accepted in mesh files) get zero power and are never sampled. */
     if (i >= ls->count || !(ls->entries[i].area > 0.0f)) return 0.0f;
     return ls->dist.pmf[i] / ls->entries[i].area;
+}
+
+bool light_sampler_triangle_point(const struct light_sampler *ls, uint32_t shape, uint32_t prim, float b1, float b2,
+                                  struct vec3 *p, struct vec3 *n)
+{
+    if (shape >= ls->shape_count || ls->shape_first[shape] < 0) return false;
+    uint64_t i = (uint64_t)ls->shape_first[shape] + prim;
+    if (ls->entries[ls->shape_first[shape]].kind != LIGHT_TRIANGLE || i >= ls->count) return false;
+    const struct light_entry *e = &ls->entries[i];
+    if (e->shape != shape || e->prim != prim) return false;
+    *p = light_sampler_triangle_at(e, b1, b2);
+    *n = e->n;
+    return true;
 }
 
 float light_sampler_env_pdf_w(const struct light_sampler *ls)

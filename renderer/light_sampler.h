@@ -31,6 +31,12 @@ bool light_sampler_sample(const struct light_sampler *ls, float u_pick, float u1
 /* Area pdf that light_sampler_sample produces the point on (shape, prim): used for MIS when a
  * BSDF-sampled ray hits an emitter. */
 float light_sampler_pdf_a(const struct light_sampler *ls, uint32_t shape, uint32_t prim);
+/* The point with code (b1, b2) on emissive triangle `prim` of `shape`, and its front normal, as
+ * light_sampler_sample computes them for that code (the same bits), from the sampler's
+ * world-space table: no transform and no normalisation. False (nothing written) when (shape,
+ * prim) is not an emissive triangle. */
+bool light_sampler_triangle_point(const struct light_sampler *ls, uint32_t shape, uint32_t prim, float b1, float b2,
+                                  struct vec3 *p, struct vec3 *n);
 /* Solid-angle pdf of sampling the environment in any direction (uniform sphere). */
 float light_sampler_env_pdf_w(const struct light_sampler *ls);
 

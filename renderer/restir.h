@@ -62,9 +62,9 @@ struct restir_ops {
     /* p̂ of the element's sample in the element's own domain. */
     float (*target)(const void *ctx, const void *elem);
     /* Shifts the sample of `src` (valid in domain `from`) into domain `to`: writes the shifted
-     * element to `dst` (head copied from src; dst may be NULL when only the numbers are wanted),
-     * its target in `to` to *target (0 when the shift fails or the sample is worth nothing
-     * there) and the Jacobian determinant |d to / d from| to *jacobian. */
+     * element to `dst` (head copied from src; dst may be NULL when only the numbers are wanted,
+     * and is never src), its target in `to` to *target (0 when the shift fails or the sample is
+     * worth nothing there) and the Jacobian determinant |d to / d from| to *jacobian. */
     void (*shift)(const void *ctx, const void *src, struct restir_domain from, struct restir_domain to, void *dst,
                   float *target, float *jacobian, struct restir_counters *c);
     /* False when the domain cannot produce any sample (its primary ray escaped): such a pixel

@@ -193,11 +193,14 @@ static uint32_t pt_prim_id(const struct restir_pt_state *st, uint32_t shape, uin
 
 static void pt_prim_decode(const struct restir_pt_state *st, uint32_t id, uint32_t *shape, uint32_t *prim)
 {
-    uint32_t lo = 0, hi = st->shape_count;  /* prim_first[lo] <= id < prim_first[hi] */
-    while (hi - lo > 1) {
-        uint32_t mid = (lo + hi) / 2;
-        if (st->prim_first[mid] <= id) lo = mid;
-        else hi = mid;
+    /* The last shape whose first primitive is <= id (shapes without primitives share their
+     * successor's first id and are skipped). Branch-free: every shift decodes one id, and the
+     * comparisons of a search over a few shapes are unpredictable. */
+    uint32_t lo = 0, n = st->shape_count;  /* the answer is in [lo, lo + n) */
+    while (n > 1) {
+        const uint32_t half = n / 2;
+        lo = st->prim_first[lo + half] <= id ? lo + half : lo;
+        n -= half;
     }
     *shape = lo;
     *prim = id - st->prim_first[lo];
@@ -403,6 +406,15 @@ static void pt_light_code(const struct scene *scene, const struct light_sample *
 }
 
 
+/* A light point from its code: emissive triangles from the light sampler's table (what NEE
+ * sampled, bit for bit, at the cost of a lookup), spheres rebuilt from the surface. */
+static void pt_light_point(const struct scene *scene, uint32_t shape, uint32_t prim, float b1, float b2, struct vec3 *p,
+                           struct vec3 *ng)
+{
+    if (!light_sampler_triangle_point(scene->lights, shape, prim, b1, b2, p, ng))
+        surface_point_at(scene, shape, prim, b1, b2, p, ng);
+}
+
 /* ---- initial path sampling ------------------------------------------------------------------ */
 
 /* Where a path reconnects, as stored with it. */
@@ -537,7 +549,7 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
                             pt_light_code(scene, &ls.light, &r.b1, &r.b2);
                             r.rc_pdf = ls.light.pdf_a;
                             struct vec3 lp, lng;
-                            surface_point_at(scene, ls.light.shape, ls.light.prim, r.b1, r.b2, &lp, &lng);
+                            pt_light_point(scene, ls.light.shape, ls.light.prim, r.b1, r.b2, &lp, &lng);
                             struct pt_segment lseg;
                             pt_segment_geo(c, &v, -1, lp, lng, &lseg);
                             if (pt_connectable(&th, d, &lseg, true, false, 0.0f)) r.k = d;
@@ -773,7 +785,7 @@ static void pt_shift_impl(const struct pt_thread *th, const struct pt_sample *x,
         } else {
             uint32_t shape, prim;
             pt_prim_decode(c->st, x->rc_prim, &shape, &prim);
-            surface_point_at(scene, shape, prim, x->rc_b1, x->rc_b2, &light_p, &light_ng);
+            pt_light_point(scene, shape, prim, x->rc_b1, x->rc_b2, &light_p, &light_ng);
             struct vec3 dv = vec3_sub(light_p, v.s.p);
             float d2 = vec3_length2(dv);
             if (!(d2 > 0.0f)) return;
@@ -898,8 +910,7 @@ static void pt_shift(const void *ctx, const void *src, struct restir_domain from
 {
     struct pt_thread t = {.c = ctx, .cnt = cnt};
     struct pt_sample y;
-    pt_shift_impl(&t, src, from, to, &y, target, jacobian);
-    if (dst) memcpy(dst, &y, sizeof y);
+    pt_shift_impl(&t, src, from, to, dst ? (struct pt_sample *)dst : &y, target, jacobian);
 }
 
 /* From the G-buffer surface, which a shift into the domain reads next. */

@@ -448,8 +448,10 @@ static void shape_all_compare(const struct scene *sc, const struct accel *a, uin
          * - edge: the former method missed the second triangle of an edge crossing a few floats
          *   beyond the first (its restarted query culls BVH boxes by tnear, and a box can end
          *   exactly at that edge, as every edge of the tetrahedron lies on its bounding box);
-         * - contact: it lost a hit of the shape within one float step of a hit on another
-         *   shape (where two shapes touch), since it stepped past both;
+         * - contact: it lost a hit of the shape just past a hit on another shape (where two
+         *   shapes touch), since it stepped past both: within the lists' own tolerance (1e-6
+         *   relative, a few float steps), as the two t of one contact can differ by more than
+         *   one step depending on the instruction set Embree's kernels run with;
          * - truncated: its list was cut at max_hits by duplicates, so the new one goes on.
          * Collapse the former list with the new rule, then walk both lists together. */
         struct hit canon[BSSRDF_MAX_HITS];
@@ -489,7 +491,7 @@ static void shape_all_compare(const struct scene *sc, const struct accel *a, uin
             /* A hit only the new list has. */
             bool explained = false;
             for (uint32_t k = 0; k < n_seq && !explained; k++)
-                explained = seq[k].shape != shape && seq[k].t <= g->t && g->t <= nextafterf(seq[k].t, INFINITY);
+                explained = seq[k].shape != shape && seq[k].t <= g->t && g->t - seq[k].t <= 1e-6f * g->t;
             if (explained) {
                 contact = true;
             } else if (g->t >= stop_t) {
