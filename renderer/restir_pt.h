@@ -23,7 +23,7 @@
 
 struct restir_pt_params {
     uint32_t max_depth;          /* as `pt`: scattering events before the path stops (64) */
-    uint32_t rr_depth;           /* Russian roulette from this vertex on (3) */
+    uint32_t rr_depth;           /* Russian roulette from this vertex on (1) */
     bool rr;                     /* Russian roulette on initial paths (decoupled from PSS) */
     uint32_t nee_candidates;     /* RIS NEE candidates; 1 = plain NEE, 0 = no NEE
                                     (RESTIR_PT_NEE_BY_SCENE: restir_pt_nee_by_scene) */

@@ -28,7 +28,8 @@
     "                [--half] [--json] -o OUT.exr\n"                                              \
     "  restir compare A.exr B.exr      (B is the reference; prints one JSON object)\n"             \
     "defaults: --method pt --spp 16 --size 256x256 --seed 0 --max-depth 64 --rr-depth 3 (Russian\n"         \
-    "roulette after R bounces; R >= max depth turns it off), next-event estimation with MIS\n"     \
+    "roulette after R bounces, restir_pt's initial paths after 1 unless given; R >= max depth\n"   \
+    "turns it off), next-event estimation with MIS\n"                                              \
     "(--no-nee: BSDF sampling only), all cores, float EXR.\n"                                    \
     "--frames F renders F consecutive frames in one session (seeds per frame, as the daemon's\n"   \
     "sessions) and writes the last; --animation FILE.json takes camera and light keys from a file\n" \
@@ -225,7 +226,7 @@ static int cli_render(int argc, char **argv)
     struct pt_params p = reference_pt_defaults(width, height);
     bool half = false, json = false;
     uint32_t crop[4] = {0, 0, 0, 0};
-    bool has_crop = false, has_frame = false;
+    bool has_crop = false, has_frame = false, has_rr_depth = false;
     uint32_t frames = 0;
     const char *anim_path = NULL, *params_json = NULL;
     uint32_t average_last = 0;
@@ -273,6 +274,7 @@ static int cli_render(int argc, char **argv)
             if (!cli_parse_u32(v, 1024, &p.max_depth)) return cli_usage_error("--max-depth: expected 0..1024, got '%s'", v);
         } else if (strcmp(a, "--rr-depth") == 0) {
             if (!cli_parse_u32(v, 1u << 20, &p.rr_depth)) return cli_usage_error("--rr-depth: expected 0..1048576, got '%s'", v);
+            has_rr_depth = true;
         } else if (strcmp(a, "--crop") == 0) {
             if (!cli_parse_crop(v, crop)) return cli_usage_error("--crop: expected X0,Y0,X1,Y1, got '%s'", v);
             has_crop = true;
@@ -333,7 +335,7 @@ static int cli_render(int argc, char **argv)
         vp.seed = p.seed;
         vp.pt = (struct view_pt_params){.spp = p.spp, .max_depth = p.max_depth, .rr_depth = p.rr_depth, .nee = p.nee};
         vp.restir_pt.max_depth = p.max_depth;
-        vp.restir_pt.rr_depth = p.rr_depth;
+        if (has_rr_depth) vp.restir_pt.rr_depth = p.rr_depth;  /* else its own default (1) */
         if (!p.nee) vp.restir_pt.nee_candidates = 0;
         vp.bdpt.max_depth = p.max_depth;
         vp.bdpt.rr_depth = p.rr_depth;
