@@ -430,8 +430,10 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
         it++;
         /* Propose the step in each vertex's tangent plane, then re-project by tracing from the
          * (new) previous vertex towards the proposed point. */
-        struct manifold_vertex nv[MANIFOLD_MAX_CHAIN] = {0};
-        struct mf_geom ng_[MANIFOLD_MAX_CHAIN] = {0};
+        /* Written vertex by vertex below and read only when every vertex was (a walk takes
+         * ~5 steps per shift: zeroing them cost 2 % of a restir_sms frame). */
+        struct manifold_vertex nv[MANIFOLD_MAX_CHAIN];
+        struct mf_geom ng_[MANIFOLD_MAX_CHAIN];
         double Cn[MF_N];
         bool moved = true;
         struct dv3 from = x1;
