@@ -341,10 +341,12 @@ static void sms_shift(const void *ctx, const void *src, struct restir_domain fro
     if (dst) memcpy(dst, &y, sizeof y);
 }
 
+/* Whether the pixel has a receiver, without rebuilding its surface (sms_receiver does that for a
+ * shift): the reuse passes ask this of every neighbour and predecessor they consider. */
 static bool sms_domain_valid(const void *ctx, struct restir_domain d)
 {
-    struct sms_x1 x1;
-    return sms_receiver(ctx, d, &x1);
+    const struct sms_ctx *c = ctx;
+    return c->recv[d.frame][d.pixel].valid;
 }
 
 const struct restir_ops restir_sms_ops = {
