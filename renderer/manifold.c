@@ -207,12 +207,12 @@ static double mf_norm(const double *C, uint32_t n)
     return sqrt(s);
 }
 
-/* C at the chain's surface models' base points. */
+/* C at the chain's surface models' base points, and the directions it came from (D: the
+ * Newton step's forward differences start from them). */
 static bool mf_eval_at(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct mf_geom *g,
-                       double *C)
+                       double *C, struct mf_dirs *D)
 {
     struct dv3 p[MANIFOLD_MAX_CHAIN] = {0}, n[MANIFOLD_MAX_CHAIN] = {0};
-    struct mf_dirs D[MANIFOLD_MAX_CHAIN];
     for (uint32_t i = 0; i < chain->length; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
     if (!mf_eval_dirs(chain, x1, xe, p, n, g, D)) return false;
     for (uint32_t i = 0; i < chain->length; i++) mf_dirs_c(&D[i], &C[2 * i]);
@@ -221,16 +221,17 @@ static bool mf_eval_at(const struct manifold_chain *chain, struct dv3 x1, struct
 
 /* dC / d(u_j, v_j) over the surface model, by finite differences in double. Forward ones for a
  * Newton step, step 1e-7 of the shorter adjacent segment: truncation ~5e-8 and rounding ~1e-8
- * relative, which a step needs no better. Central ones (`central`) for the generalized
- * geometry term, which enters the estimate, step 1e-6: truncation ~1e-12, rounding ~1e-10. */
+ * relative, which a step needs no better; they start from D0, the directions at the base points
+ * (mf_eval_at's, computed with the same numbers). Central ones (`central`, D0 unused) for the
+ * generalized geometry term, which enters the estimate, step 1e-6: truncation ~1e-12, rounding
+ * ~1e-10. */
 static bool mf_jacobian(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct mf_geom *g,
-                        bool central, double J[MF_N][MF_N])
+                        bool central, const struct mf_dirs *D0, double J[MF_N][MF_N])
 {
     uint32_t k = chain->length;
     struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
-    struct mf_dirs D0[MANIFOLD_MAX_CHAIN], Dp[MANIFOLD_MAX_CHAIN], Dm[MANIFOLD_MAX_CHAIN];
+    struct mf_dirs Dp[MANIFOLD_MAX_CHAIN], Dm[MANIFOLD_MAX_CHAIN];
     for (uint32_t i = 0; i < k; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
-    if (!central && !mf_eval_dirs(chain, x1, xe, p, n, g, D0)) return false;
     const double rel = central ? 1e-6 : 1e-7;
     for (uint32_t j = 0; j < k; j++) {
         struct dv3 prev = j == 0 ? x1 : p[j - 1], next = j + 1 == k ? xe : p[j + 1];
@@ -383,10 +384,11 @@ double manifold_constraint_norm(const struct scene *scene, const struct manifold
                                 const struct manifold_ends *ends, const struct manifold_vertex *v)
 {
     struct mf_geom g[MANIFOLD_MAX_CHAIN];
+    struct mf_dirs D[MANIFOLD_MAX_CHAIN];
     double C[MF_N];
     for (uint32_t i = 0; i < chain->length; i++)
         if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) return INFINITY;
-    if (!mf_eval_at(chain, dv(ends->x1), dv(ends->xe), g, C)) return INFINITY;
+    if (!mf_eval_at(chain, dv(ends->x1), dv(ends->xe), g, C, D)) return INFINITY;
     return mf_norm(C, 2 * chain->length);
 }
 
@@ -398,6 +400,7 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
     const uint32_t k = chain->length, n2 = 2 * k;
     const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
     struct mf_geom g[MANIFOLD_MAX_CHAIN] = {0};
+    struct mf_dirs D[MANIFOLD_MAX_CHAIN];   /* the directions C at g came from */
     double C[MF_N], step[MF_N][2];
     uint32_t it = 0;
     bool ok = false, have_step = false;
@@ -405,7 +408,7 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
     if (k == 0 || k > MANIFOLD_MAX_CHAIN) goto done;
     for (uint32_t i = 0; i < k; i++)
         if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) goto done;
-    if (!mf_eval_at(chain, x1, xe, g, C)) goto done;
+    if (!mf_eval_at(chain, x1, xe, g, C, D)) goto done;
     double norm = mf_norm(C, n2);
     uint32_t polish = 0;
     for (;;) {
@@ -422,7 +425,7 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
         }
         if (!have_step) {
             double J[MF_N][MF_N];
-            if (!mf_jacobian(chain, x1, xe, g, false, J)) break;
+            if (!mf_jacobian(chain, x1, xe, g, false, D, J)) break;
             for (uint32_t r = 0; r < n2; r++) step[r][0] = -C[r];
             if (!mf_solve(n2, J, step, 1)) break;
             have_step = true;
@@ -434,6 +437,7 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
          * ~5 steps per shift: zeroing them cost 2 % of a restir_sms frame). */
         struct manifold_vertex nv[MANIFOLD_MAX_CHAIN];
         struct mf_geom ng_[MANIFOLD_MAX_CHAIN];
+        struct mf_dirs Dn[MANIFOLD_MAX_CHAIN];
         double Cn[MF_N];
         bool moved = true;
         struct dv3 from = x1;
@@ -448,7 +452,7 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
             from_ng = nv[j].ng;
         }
         double nn = INFINITY;
-        if (moved && mf_eval_at(chain, x1, xe, ng_, Cn)) nn = mf_norm(Cn, n2);
+        if (moved && mf_eval_at(chain, x1, xe, ng_, Cn, Dn)) nn = mf_norm(Cn, n2);
         if (nn < norm) {
             /* A trust region ends the walk as soon as an accepted step leaves it (seed 002 §3.3). */
             if (inside && !inside(region, nv[0].p)) {
@@ -458,6 +462,7 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
             for (uint32_t j = 0; j < k; j++) {
                 v[j] = nv[j];
                 g[j] = ng_[j];
+                D[j] = Dn[j];
             }
             for (uint32_t r = 0; r < n2; r++) C[r] = Cn[r];
             norm = nn;
@@ -531,7 +536,7 @@ double manifold_geometry(const struct scene *scene, const struct manifold_chain 
         if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) return 0.0;
     const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
     double J[MF_N][MF_N], B[MF_N][2];
-    if (!mf_jacobian(chain, x1, xe, g, true, J)) return 0.0;
+    if (!mf_jacobian(chain, x1, xe, g, true, NULL, J)) return 0.0;
     /* dC / d(end point) along an orthonormal tangent basis of the light (area scale 1). */
     struct frame fe = frame_from_normal(vec3_normalize(ends->nge));
     struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
