@@ -433,8 +433,8 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
         it++;
         /* Propose the step in each vertex's tangent plane, then re-project by tracing from the
          * (new) previous vertex towards the proposed point. */
-        /* Written vertex by vertex below and read only when every vertex was (a walk takes
-         * ~5 steps per shift: zeroing them cost 2 % of a restir_sms frame). */
+        /* Written vertex by vertex below and read only when every vertex was (zeroing them
+         * every step cost 1 % of a restir_sms frame's instructions). */
         struct manifold_vertex nv[MANIFOLD_MAX_CHAIN];
         struct mf_geom ng_[MANIFOLD_MAX_CHAIN];
         struct mf_dirs Dn[MANIFOLD_MAX_CHAIN];

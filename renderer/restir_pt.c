@@ -88,8 +88,9 @@ static inline uint16_t pt_bits(uint32_t d, uint32_t k, bool nee, int lobe_prev, 
 
 /* Russian roulette from the first bounce on (rr_depth 1; pt waits for 3): seed 001 §6 applies
  * it to shorten the initial paths, whose extra noise reuse mostly absorbs. Against rr_depth 3,
- * 13 seeds of 256x256 frames after 32 warm-up frames (docs/benchmarks.md) took 8-17 % less time
- * at the same MAPE within 2 %: the frame cost falls, the error at equal time does too. */
+ * 13 seeds of 256x256 frames after 32 warm-up frames took 7-17 % less time with a frame's MAPE
+ * within -8 % and +3 %: at equal time the error falls (docs/benchmarks.md, "Russian roulette
+ * from the first bounce"). */
 struct restir_pt_params restir_pt_defaults(void)
 {
     return (struct restir_pt_params){
