@@ -261,6 +261,7 @@ static void test_light_sampler_pdfs(void)
     CHECK(light_sampler_count(ls) == 2);  /* the lamp's two triangles */
     struct rng r = rng_make(5, 0, 0, 0);
     double mean_x = 0, mean_z = 0;
+    uint32_t last_shape = 0;
     enum { N = 100000 };
     for (int i = 0; i < N; i++) {
         struct light_sample smp;
@@ -274,6 +275,14 @@ static void test_light_sampler_pdfs(void)
         /* Uniform over the 2 x 2 lamp: pdf_a = 1/4 everywhere, and pdf_a() agrees. */
         CHECK_NEAR(smp.pdf_a, 0.25f, 1e-6);
         CHECK_NEAR(light_sampler_pdf_a(ls, smp.shape, smp.prim), smp.pdf_a, 1e-7);
+        /* The point rebuilt from its code is the sampled one, bit for bit (restir_pt's shifts rely
+         * on it), and the surface's reconstruction of that code within rounding. */
+        struct vec3 tp, tn, sp, sn;
+        CHECK(light_sampler_triangle_point(ls, smp.shape, smp.prim, smp.b1, smp.b2, &tp, &tn));
+        CHECK(memcmp(&tp, &smp.p, sizeof tp) == 0 && memcmp(&tn, &smp.n, sizeof tn) == 0);
+        surface_point_at(s, smp.shape, smp.prim, smp.b1, smp.b2, &sp, &sn);
+        CHECK(vec3_length(vec3_sub(sp, tp)) < 1e-5f && vec3_length(vec3_sub(sn, tn)) < 1e-5f);
+        last_shape = smp.shape;
         mean_x += smp.p.x;
         mean_z += smp.p.z;
     }
@@ -281,8 +290,34 @@ static void test_light_sampler_pdfs(void)
     CHECK(fabs(mean_x / N) < 4.0 / sqrt(3.0 * N));
     CHECK(fabs(mean_z / N) < 4.0 / sqrt(3.0 * N));
     CHECK(light_sampler_pdf_a(ls, 0, 0) == 0.0f);  /* the floor is no emitter */
+    struct vec3 tp = {0}, tn = {0};
+    CHECK(!light_sampler_triangle_point(ls, 0, 0, 0.25f, 0.25f, &tp, &tn));            /* not an emitter */
+    CHECK(!light_sampler_triangle_point(ls, last_shape, 2, 0.25f, 0.25f, &tp, &tn));   /* no third triangle */
+    CHECK(!light_sampler_triangle_point(ls, s->shape_count, 0, 0.25f, 0.25f, &tp, &tn));  /* no such shape */
     CHECK(light_sampler_emitted(&s->materials[1], 0.5f).x == 4.0f);
     CHECK(light_sampler_emitted(&s->materials[1], -0.5f).x == 0.0f);  /* one-sided */
+    scene_release(s);
+}
+
+/* With several emitters the sampler's table holds them back to back: a primitive past one
+ * emissive mesh's last triangle is no emitter, though the table has an entry at that index. */
+static void test_light_sampler_triangle_point_per_shape(void)
+{
+    struct err err = {0};
+    struct scene *s = scene_load_file("scenes/refractive-slab/scene.json", &err);
+    CHECK_MSG(s != NULL, "%s", err.message);
+    if (!s) return;
+    CHECK_MSG(scene_commit(s, &err), "%s", err.message);
+    uint32_t emissive = 0;
+    for (uint32_t i = 0; i < s->shape_count; i++) {
+        const struct shape *sh = &s->shapes[i];
+        if (sh->kind != SHAPE_MESH || !material_is_emissive(&s->materials[sh->material])) continue;
+        struct vec3 p, n;
+        CHECK(light_sampler_triangle_point(s->lights, i, sh->triangle_count - 1, 0.2f, 0.3f, &p, &n));
+        CHECK(!light_sampler_triangle_point(s->lights, i, sh->triangle_count, 0.2f, 0.3f, &p, &n));
+        emissive++;
+    }
+    CHECK(emissive >= 2);  /* not vacuous: the first emitter's past-the-end index is the next's first */
     scene_release(s);
 }
 
@@ -304,4 +339,4 @@ static void test_camera_rays(void)
 TEST_MAIN(TEST(test_rng_uniform_chi2), TEST(test_rng_streams_differ), TEST(test_rng_keyed_first_numbers_chi2),
           TEST(test_distrib_chi2),
           TEST(test_accel_flat_and_two_level), TEST(test_accel_move_instance), TEST(test_offset_avoids_self_hit),
-          TEST(test_light_sampler_pdfs), TEST(test_camera_rays))
+          TEST(test_light_sampler_pdfs), TEST(test_light_sampler_triangle_point_per_shape), TEST(test_camera_rays))
