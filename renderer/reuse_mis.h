@@ -28,8 +28,8 @@ float reuse_mis_balance(const float *M, const float *p_hat, uint32_t n, uint32_t
  * Canonical weight:      (1 + sum_n (1 - t_n)) / (k + 1),
  *                        t_n = M_n p_n_shifted / (M_n p_n_shifted + (M_c/k) p_c_own).
  * For any sample the weights of the domains that can produce it sum to 1, so the GRIS estimate
- * stays unbiased; k is the same nominal neighbour count in every term (a neighbour whose shift
- * failed still counts in k). */
+ * stays unbiased; k >= 1 is the same nominal neighbour count in every term (a neighbour whose
+ * shift failed still counts in k; with no neighbour there is nothing to weigh). */
 float reuse_mis_pairwise_neighbor(float M_c, float M_n, float p_n_own, float p_c_shifted, uint32_t k);
 /* One neighbour's term 1 - t_n of the canonical weight (add them up, then call
  * reuse_mis_pairwise_canonical). */

@@ -186,6 +186,26 @@ def test_cli_frames_match_daemon_session(daemon, tmp_path):
     assert np.array_equal(cli_render(tmp_path, "--frames", 4), frame(daemon, a))
 
 
+def test_cli_restir_pt_matches_daemon_defaults(daemon, tmp_path):
+    # `restir render --method restir_pt` without --params or --rr-depth is a daemon restir_pt
+    # session with its defaults; --rr-depth reaches it only when given (then it is the session
+    # param rr_depth). The CLI's own --rr-depth default (3, pt's) once leaked into restir_pt.
+    def restir_session(params):
+        st, hdr, body = call(daemon, "POST", "/v1/scenes/cornell-box/sessions",
+                             {"method": "restir_pt", "width": 24, "height": 24, "seed": 7, "params": params})
+        assert st == 201, body
+        s = hdr["Location"]
+        for _ in range(2):
+            frame(daemon, s)
+        return frame(daemon, s)
+
+    default = cli_render(tmp_path, "--method", "restir_pt", "--frames", 3)
+    assert np.array_equal(default, restir_session({}))
+    third = cli_render(tmp_path, "--method", "restir_pt", "--frames", 3, "--rr-depth", 3)
+    assert np.array_equal(third, restir_session({"rr_depth": 3}))
+    assert not np.array_equal(default, third)
+
+
 def test_cli_animation_matches_daemon_job(daemon, tmp_path):
     body = {"animation": {"fps": 10, "frames": 3, "interpolation": "catmull_rom",
                           "camera_keys": [{"t": 0, "position": [278, 273, -800]},
