@@ -88,7 +88,9 @@ bool manifold_walk(const struct scene *scene, const struct manifold_chain *chain
 
 /* The same walk without the polishing: it stops as soon as ‖C‖ < MANIFOLD_TOLERANCE. For a
  * walk whose end is only compared with a known chain (manifold_same at 1e-4 of the segment,
- * far above what ‖C‖ < 1e-5 leaves loose) and never used itself. */
+ * far above what ‖C‖ < 1e-5 leaves loose), or kept as float point codes (~1e-7 of the
+ * segment), as a manifold shift keeps its chain: polishing below that buys nothing. Not for
+ * the Bernoulli trials, which compare two walks' ends with each other. */
 bool manifold_walk_unpolished(const struct scene *scene, const struct manifold_chain *chain,
                               const struct manifold_ends *ends, struct manifold_vertex *v, uint32_t max_iterations,
                               struct manifold_stats *stats, struct ray_counters *rc);

@@ -287,10 +287,13 @@ static void sms_shift_impl(const struct sms_ctx *c, const struct sms_sample *x, 
     if (!sms_ends_at(sa, x, &a, &ea, &la) || !sms_ends_at(sb, x, &b, &eb, &lb)) return;
     struct ray_counters *rc = &cnt->rays;
     struct manifold_stats st = {0};
-    /* Forward: from the base chain to the target pixel's x1, x_n fixed (§5.2), <= 5 steps (§5.3). */
+    /* Forward: from the base chain to the target pixel's x1, x_n fixed (§5.2), <= 5 steps (§5.3).
+     * Unpolished: the shifted chain is kept as float point codes, and polishing it to the double
+     * floor cost 23 % of the shifts' Newton steps. */
     struct manifold_vertex v[MANIFOLD_MAX_CHAIN], w[MANIFOLD_MAX_CHAIN], base[MANIFOLD_MAX_CHAIN];
     sms_chain_at(sb, x, v);
-    bool ok = manifold_walk(sb, &chain, &eb, v, c->p->shift_iterations, &st, rc) && manifold_check(sb, &chain, &eb, v, rc);
+    bool ok = manifold_walk_unpolished(sb, &chain, &eb, v, c->p->shift_iterations, &st, rc) &&
+              manifold_check(sb, &chain, &eb, v, rc);
     struct vec3 F = vec3_splat(0.0f);
     if (ok) F = vec3_mul(sms_solution_value(sb, &chain, &eb, v, &b.s, b.m, b.wo, lb), b.T);
     ok = ok && !vec3_is_zero(F) && vec3_is_finite(F);
