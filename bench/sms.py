@@ -34,7 +34,12 @@ refractive-slab and reflective-plane at 64x64 (BENCH_SMS_SCENES, BENCH_SMS_SIZE)
   7. writes build/bench/sms.json, two SVG charts per scene (RMSE vs ms, log-log: the whole image,
      sms-<scene>.svg, and the caustic component, sms-<scene>-caustic.svg) and prints Markdown
      tables (medians over the seeds); the real-time case is also compared at equal time: one
-     frame's RMSE against sms's curve at the same time per frame.
+     frame's RMSE against sms's curve at the same time per frame;
+  8. beside the real-time case of the caustic component, what one reservoir per pixel cannot go
+     below whatever its reuse (build/bench/sms_floors, bench/sms_floors.c, built here against
+     librenderer.a): the caustic's variation over a pixel (one jittered point per frame) and the
+     colour of one path selected by luminance, as a fraction of a 1-spp sms frame's RMSE, and the
+     equal-time ratio that leaves at restir_sms's time per frame.
 With BENCH_SMS_SCALE=S, steps 1-4 run on the copies at scale S instead of the library's scenes
 (seed 002's regime: S = 3), and the outputs are named sms-bumps-S.json, sms-<scene>-bumps-S.svg.
 Environment: BENCH_SMS_SEEDS (3), BENCH_SMS_REF_SPP (1024), BENCH_SMS_REF_SMS_SPP (256),
@@ -44,6 +49,7 @@ BENCH_SMS_BUMPS ("1 2 3 4"; empty: no sweep), BENCH_SMS_BUMPS_SIZE (128x128), BE
 those are set too."""
 import hashlib
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -242,6 +248,19 @@ def measure(scene, name, ref, tmp, runs, tag):
     return {"curves": curves, "steady": steady, "table1": table}
 
 
+def build_floors_tool():
+    """build/bench/sms_floors, against this build's librenderer.a (once per run)."""
+    subprocess.run(["cc", "-O2", "-std=c17", "-D_DEFAULT_SOURCE", "-Irenderer", "bench/sms_floors.c",
+                    "build/obj/librenderer.a", "-lOpenEXRCore", "-ldeflate", "-lembree3", "-lassimp", "-lcjson", "-lm",
+                    "-pthread", "-o", str(OUT / "sms_floors")], cwd=ROOT, check=True)
+
+
+def floors(scene):
+    """What one reservoir per pixel cannot go below, as a fraction of a 1-spp sms frame's RMSE."""
+    run = subprocess.run([str(OUT / "sms_floors"), str(scene), SIZE], capture_output=True, text=True, check=True)
+    return json.loads(run.stdout)
+
+
 def at_time(curve, ms):
     """A curve's RMSE at time ms (curve: (ms, RMSE, spp) points)."""
     return loglog_at([(a, e) for a, e, _ in curve], ms)
@@ -271,11 +290,21 @@ def print_curves(name, r, what):
         eq = f"{err / e:.3f}" if e else "outside the sms curve"
         print(f"{name} ({what}): RMSE of one {k} frame / sms 1 spp: {err / sms[0][1]:.3f} at {ms / sms[0][0]:.2f}x "
               f"its time per frame; / sms at the same time per frame: {eq}")
+    f = r.get("floors")
+    if f and "floor" in f:
+        # sms at x times the time per frame has about 1/sqrt(x) of its 1-spp RMSE.
+        print(f"{name} ({what}): one reservoir per pixel cannot go below {f['floor']:.3f} of a 1-spp sms frame's "
+              f"RMSE (jitter {f['jitter_floor']:.3f}, colour {f['colour_floor']:.3f}; bench/sms_floors.c, "
+              f"{f['pixels']} pixels that see a receiver directly), so no better than "
+              + ", ".join(f"{f['floor'] * math.sqrt(ms / sms[0][0]):.3f} for one {k} frame"
+                          for k, (ms, _) in st.items())
+              + " / sms at the same time per frame")
 
 
 def main():
     OUT.mkdir(parents=True, exist_ok=True)
     results = {}
+    build_floors_tool()
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
         bumps = bumps_sweep(tmp)
@@ -285,6 +314,7 @@ def main():
             ref, caustic_ref = reference(scene, tmp)
             results[name] = measure(scene, name, ref, tmp, IMAGE_RUNS, "image")
             results[name]["caustic"] = measure(scene, name, caustic_ref, tmp, CAUSTIC_RUNS, "caustic")
+            results[name]["caustic"]["floors"] = floors(scene)
     (OUT / f"sms{SUFFIX}.json").write_text(json.dumps({"scenes": results, "bumps": bumps}, indent=1))
     where = f"bumps scaled by {SCALE}, {scenes.relative_to(ROOT)}/" if SCALE else "the library's scenes"
     print(f"# pt vs sms vs restir_sms ({where}; {SIZE}, medians over {SEEDS} seeds; reference: pt rest {REF_SPP} spp + "
