@@ -10,7 +10,9 @@
  * Both are measured against the variance of one `sms` sample (uncapped Bernoulli trials) at the
  * same jittered points, summed over RGB and over the pixels whose first hit is a diffuse or glossy
  * receiver (pixels that see receivers through a caster are left out): floor / 1-spp RMSE. Built
- * and run by bench/sms.py (a benchmark helper, not part of the daemon); prints one JSON object.
+ * and run by bench/sms.py (a benchmark helper, not part of the daemon); prints one JSON object:
+ * jitter_floor, colour_floor, floor (the two together), and colour_floor_norm_target, the colour
+ * part had the target been the RGB vector's length instead of its luminance.
  * usage: sms_floors SCENE.json WIDTHxHEIGHT [samples per point] [points per pixel] [pixel step] */
 #include <math.h>
 #include <stdio.h>
@@ -68,12 +70,15 @@ static bool floors_point(const struct scene *sc, const struct sms_scene *ss, con
     return true;
 }
 
-/* Sum over RGB of the variance of one path resampled exactly by luminance (the colour part). */
-static double floors_colour(const struct floors_point *q)
+/* Sum over RGB of the variance of one path resampled exactly by a scalar target (the colour
+ * part): luminance, restir_sms's, or (`norm`) the RGB vector's length, which minimises that sum
+ * among scalar targets. */
+static double floors_colour(const struct floors_point *q, bool norm)
 {
     double l = 0.0, lk[FLOORS_MAX_LIGHTS];
     for (uint32_t k = 0; k < q->lights; k++) {
-        lk[k] = 0.2126 * q->L[k][0] + 0.7152 * q->L[k][1] + 0.0722 * q->L[k][2];
+        const double *c = q->L[k];
+        lk[k] = norm ? sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]) : 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
         l += lk[k];
     }
     double v = 0.0;
@@ -111,7 +116,7 @@ int main(int argc, char **argv)
     p.bernoulli_cap = 0;
     struct ray_counters rc = {0, 0};
     static struct floors_point q[FLOORS_MAX_POINTS];
-    double one = 0.0, jitter = 0.0, colour = 0.0;
+    double one = 0.0, jitter = 0.0, colour = 0.0, colour_norm = 0.0;
     uint32_t pixels = 0;
     for (uint32_t py = step / 2; py < h; py += step)
         for (uint32_t px = step / 2; px < w; px += step) {
@@ -149,14 +154,18 @@ int main(int argc, char **argv)
                 one += within + jit;
                 jitter += jit > 0.0 ? jit : 0.0;
             }
-            for (uint32_t j = 0; j < points; j++) colour += floors_colour(&q[j]) / points;
+            for (uint32_t j = 0; j < points; j++) {
+                colour += floors_colour(&q[j], false) / points;
+                colour_norm += floors_colour(&q[j], true) / points;
+            }
         }
     scene_release(sc);
     if (!(one > 0.0)) {
         printf("{\"pixels\":%u,\"error\":\"no caustic radiance at directly seen receivers\"}\n", pixels);
         return 0;
     }
-    printf("{\"pixels\":%u,\"samples\":%u,\"points\":%u,\"jitter_floor\":%.4f,\"colour_floor\":%.4f,\"floor\":%.4f}\n",
-           pixels, n, points, sqrt(jitter / one), sqrt(colour / one), sqrt((jitter + colour) / one));
+    printf("{\"pixels\":%u,\"samples\":%u,\"points\":%u,\"jitter_floor\":%.4f,\"colour_floor\":%.4f,\"floor\":%.4f,"
+           "\"colour_floor_norm_target\":%.4f}\n",
+           pixels, n, points, sqrt(jitter / one), sqrt(colour / one), sqrt((jitter + colour) / one), sqrt(colour_norm / one));
     return 0;
 }
