@@ -80,6 +80,14 @@ static struct vec3 gbuffer_prev_point(const struct gbuffer_frame *f, uint32_t sh
     return xform_point(prev, xform_point(&inv, p));
 }
 
+/* A position moved by a step of at most 0.5, reflected back into [0, 1). */
+static float gbuffer_reflect(float z)
+{
+    if (z < 0.0f) z = -z;
+    if (z >= 1.0f) z = 2.0f - z;
+    return z < 1.0f ? z : 0x1.fffffep-1f;
+}
+
 static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct gbuffer_job *gj = ctx;
@@ -94,6 +102,11 @@ static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
             struct rng rng = rng_make(f->seed, f->frame, pixel, GBUFFER_STREAM);
             gp->jx = rng_next_float(&rng);
             gp->jy = rng_next_float(&rng);
+            if (f->prev_gbuffer && f->jitter_walk > 0.0f) {
+                const struct gbuffer_pixel *pp = &f->prev_gbuffer->px[pixel];
+                gp->jx = gbuffer_reflect(pp->jx + (2.0f * gp->jx - 1.0f) * f->jitter_walk);
+                gp->jy = gbuffer_reflect(pp->jy + (2.0f * gp->jy - 1.0f) * f->jitter_walk);
+            }
             struct vec3 dir = camera_ray_dir(&gj->cam, (float)x + gp->jx, (float)y + gp->jy);
             struct hit hit;
             gp->prev_x = gp->prev_y = NAN;

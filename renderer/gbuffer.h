@@ -4,6 +4,11 @@
  * The primary ray goes through a uniformly jittered position in the pixel (the box filter the
  * reference path tracer integrates), drawn from the pixel's own stream for the frame, so a
  * method that starts its paths at the G-buffer's hits estimates the same pixel integral as `pt`.
+ * With a jitter walk the position is instead the previous frame's moved by a uniform step of at
+ * most `jitter_walk` pixels per axis, reflected at the pixel's edges: the uniform distribution is
+ * stationary under a symmetric step reflected at the edges, so every frame's position is still
+ * uniform in the pixel (the first frame's is drawn afresh), while consecutive frames look at
+ * nearby points of it, where a method's temporal history was gathered.
  * The previous position accounts for camera motion and for shapes that moved between the two
  * frames' scenes (derived scenes keep shape indices). Visibility in the previous frame is not
  * checked here: a temporal shift validates its own vertices.
@@ -64,6 +69,9 @@ struct gbuffer_frame {
     uint64_t seed;
     uint32_t frame;
     unsigned threads;                     /* 0 = all cores */
+    float jitter_walk;                    /* 0: a fresh position every frame; in (0, 0.5]: the
+                                             largest step per axis from prev_gbuffer's, pixels */
+    const struct gbuffer *prev_gbuffer;   /* the previous frame's (same size); NULL = fresh */
 };
 
 /* Traces one primary ray per pixel. *rays gets the number of ray queries. */

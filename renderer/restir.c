@@ -540,6 +540,7 @@ bool restir_gbuffer_next(struct gbuffer gbuf[2], uint32_t *cur, bool *has_histor
     const bool history = *has_history && gf.prev_scene;
     if (history) *cur ^= 1u;
     else gf.prev_scene = NULL;
+    gf.prev_gbuffer = history ? &gbuf[*cur ^ 1u] : NULL;
     if (!gbuffer_render(&gbuf[*cur], &gf, rays, err)) return false;
     if (!history) *has_history = false;
     return true;

@@ -131,7 +131,8 @@ bool restir_spatial_pass(const struct restir_reuse *r, const uint8_t *in, uint8_
 
 /* The G-buffer pass of a frame for a method that keeps two (gbuf[*cur] current, the other the
  * previous frame's): when the previous frame is history (*has_history and gf.prev_scene) they
- * swap and the motion vectors point into it; otherwise the history is dropped. */
+ * swap, the motion vectors point into it and a jitter walk (gf.jitter_walk) starts from its
+ * positions; otherwise the history is dropped and the positions are drawn afresh. */
 bool restir_gbuffer_next(struct gbuffer gbuf[2], uint32_t *cur, bool *has_history, struct gbuffer_frame gf,
                          uint64_t *rays, struct err *err);
 

@@ -41,7 +41,8 @@ struct restir_sms_params restir_sms_defaults(void)
 {
     struct restir_sms_params p = {.ssp = ssp_defaults(), .shift_iterations = 5, .temporal = true,
                                   .temporal_cap = 20, .spatial_neighbors = 1, .spatial_radius = 30.0f,
-                                  .paired_spatial = true, .expected_shading = true, .max_depth = 64, .rr_depth = 3};
+                                  .paired_spatial = true, .expected_shading = true, .jitter_walk = 0.1f,
+                                  .max_depth = 64, .rr_depth = 3};
     return p;
 }
 
@@ -81,6 +82,8 @@ bool restir_sms_params_valid(const struct restir_sms_params *p, struct err *err)
         return err_set(err, ERR_INVALID, "/params/spatial_neighbors", "must be in [0, 32], got %u", p->spatial_neighbors);
     if (!(p->spatial_radius >= 1.0f && p->spatial_radius <= 256.0f))
         return err_set(err, ERR_INVALID, "/params/spatial_radius", "must be in [1, 256] pixels");
+    if (!(p->jitter_walk >= 0.0f && p->jitter_walk <= 0.5f))
+        return err_set(err, ERR_INVALID, "/params/jitter_walk", "must be in [0, 0.5] pixels");
     if (p->max_depth > 1024) return err_set(err, ERR_INVALID, "/params/max_depth", "must be at most 1024");
     return true;
 }
@@ -582,7 +585,8 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
     struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,
-                               .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame, .threads = threads};
+                               .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame, .threads = threads,
+                               .jitter_walk = params->jitter_walk};
     uint64_t grays = 0;
     if (!restir_gbuffer_next(st->gbuf, &st->cur, &st->has_history, gf, &grays, err)) return false;
     stats->gbuffer_ms = parallel_lap_ms(&t0);

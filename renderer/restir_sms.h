@@ -76,6 +76,10 @@ struct restir_sms_params {
                                      (true; restir.h); else neighbours uniform in the radius */
     bool expected_shading;        /* shade with the spatial pass's expected contribution over its
                                      candidates instead of the selected sample's F W (true) */
+    float jitter_walk;            /* the primary ray's position in the pixel moves by at most this
+                                     per axis and frame (0.1 pixels; gbuffer.h), so that the history
+                                     was gathered near where the frame looks: a sharp caustic varies
+                                     within a pixel; 0 = a fresh position every frame */
     uint32_t max_depth, rr_depth; /* of the pt path that supplies the rest of the image (64, 3) */
 };
 

@@ -1442,7 +1442,7 @@ def test_restir_sms_session(daemon):
     p = s["params"]
     assert p["shift_iterations"] == 5 and p["spatial_neighbors"] == 1 and p["spatial_radius"] == 30
     assert p["temporal_cap"] == 20 and p["bernoulli_cap"] == 0 and p["tiles"] == 16 and p["sampler"] == "ssp"
-    assert p["paired_spatial"] is True
+    assert p["paired_spatial"] is True and p["jitter_walk"] == pytest.approx(0.1)
     assert s["reservoir_bytes_per_pixel"] == 64
     assert s["reservoir_bytes"] == 2 * 64 * 24 * 24 == s["buffers"]["reservoirs"]
     own = {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "receivers"}
@@ -1461,7 +1461,8 @@ def test_restir_sms_session(daemon):
     assert daemon.req("DELETE", s["href"]).status == 204
     for params, field in [({"shift_iterations": 0}, "/params/shift_iterations"), ({"tiles": 2}, "/params/tiles"),
                           ({"spatial_radius": 0}, "/params/spatial_radius"), ({"spp": 2}, "/params/spp"),
-                          ({"sampler": "bdpt"}, "/params/sampler"), ({"paired_spatial": 1}, "/params/paired_spatial")]:
+                          ({"sampler": "bdpt"}, "/params/sampler"), ({"paired_spatial": 1}, "/params/paired_spatial"),
+                          ({"jitter_walk": 0.6}, "/params/jitter_walk"), ({"jitter_walk": -0.1}, "/params/jitter_walk")]:
         r = daemon.req("POST", "/v1/scenes/refractive-slab/sessions",
                        json_body={"method": "restir_sms", "width": 8, "height": 8, "params": params})
         assert_problem(r, 422, "invalid-field", field)

@@ -1,7 +1,8 @@
 /* test_gbuffer.c — camera projection and G-buffer motion vectors, as round trips: a position
  * projected back through the camera gives the same ray; a pixel's previous position, traced
  * from the previous camera in the previous scene, hits the same surface point (camera motion,
- * a moved shape, both). And the primary surfaces a G-buffer keeps. */
+ * a moved shape, both). The jitter walk keeps positions uniform in the pixel. And the primary
+ * surfaces a G-buffer keeps. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -184,6 +185,77 @@ static void test_jitter_deterministic(void)
     scene_release(s);
 }
 
+/* Pearson's chi-square of positions in [0, 1)^2 against the uniform distribution, 8 x 8 cells. */
+static double jitter_chi2(const float *x, const float *y, uint32_t n)
+{
+    uint32_t cell[64] = {0};
+    for (uint32_t i = 0; i < n; i++) cell[(uint32_t)(x[i] * 8.0f) * 8 + (uint32_t)(y[i] * 8.0f)]++;
+    double e = n / 64.0, chi2 = 0.0;
+    for (int c = 0; c < 64; c++) chi2 += (cell[c] - e) * (cell[c] - e) / e;
+    return chi2;
+}
+
+/* The jitter walk (gbuffer.h): each frame's position is the previous one's moved by at most the
+ * step per axis, the first frame's and one without a previous G-buffer are drawn afresh, and
+ * after many frames the positions are still uniform in the pixel (chi-square over 4096 pixels,
+ * 8 x 8 cells, p = 1e-4: 113.7 for 63 degrees of freedom by Wilson-Hilferty). The same steps
+ * clamped at the pixel's edges instead of reflected pile up there and fail the same test. */
+static void test_jitter_walk(void)
+{
+    struct scene *s = load_cornell();
+    if (!s) return;
+    enum { W = 64, H = 64, N = W * H, FRAMES = 64 };
+    /* Larger than restir_sms's 0.1: the walk mixes in fewer frames and the clamped control piles
+     * up more at the edges (chi-square ~450 against 55-90 for the walk over seeds 5-9). */
+    const float step = 0.25f;
+    struct gbuffer g[2], fresh;
+    struct err err = {0};
+    CHECK(gbuffer_init(&g[0], W, H, &err) && gbuffer_init(&g[1], W, H, &err) && gbuffer_init(&fresh, W, H, &err));
+    static float cx[N], cy[N];
+    float worst = 0.0f;
+    uint32_t cur = 0;
+    struct gbuffer_frame f = {.scene = s, .camera = &s->camera, .seed = 5, .frame = 0, .threads = 2, .jitter_walk = step};
+    CHECK(gbuffer_render(&g[cur], &f, NULL, &err));
+    CHECK(gbuffer_render(&fresh, &(struct gbuffer_frame){.scene = s, .camera = &s->camera, .seed = 5, .threads = 2},
+                         NULL, &err));
+    CHECK(memcmp(g[cur].px, fresh.px, N * sizeof *fresh.px) == 0);  /* no previous G-buffer: afresh */
+    for (uint32_t i = 0; i < N; i++) cx[i] = g[cur].px[i].jx, cy[i] = g[cur].px[i].jy;
+    for (uint32_t t = 1; t <= FRAMES; t++) {
+        f.frame = t;
+        f.prev_gbuffer = &g[cur];
+        cur ^= 1u;
+        CHECK(gbuffer_render(&g[cur], &f, NULL, &err));
+        for (uint32_t i = 0; i < N; i++) {
+            const struct gbuffer_pixel *a = &g[cur ^ 1u].px[i], *b = &g[cur].px[i];
+            worst = fmaxf(worst, fmaxf(fabsf(b->jx - a->jx), fabsf(b->jy - a->jy)));
+            CHECK(b->jx >= 0.0f && b->jx < 1.0f && b->jy >= 0.0f && b->jy < 1.0f);
+            /* The control: the walk's own steps, clamped at the edges. */
+            struct rng rng = rng_make(f.seed, t, i, GBUFFER_STREAM);
+            float ux = rng_next_float(&rng), uy = rng_next_float(&rng);
+            cx[i] = fminf(fmaxf(cx[i] + (2.0f * ux - 1.0f) * step, 0.0f), 0x1.fffffep-1f);
+            cy[i] = fminf(fmaxf(cy[i] + (2.0f * uy - 1.0f) * step, 0.0f), 0x1.fffffep-1f);
+        }
+    }
+    CHECK_MSG(worst <= step * (1.0f + 1e-6f) && worst > 0.5f * step, "largest move %g for a step of %g", worst, step);
+    static float jx[N], jy[N];
+    for (uint32_t i = 0; i < N; i++) jx[i] = g[cur].px[i].jx, jy[i] = g[cur].px[i].jy;
+    const double walk = jitter_chi2(jx, jy, N), clamped = jitter_chi2(cx, cy, N);
+    printf("    jitter walk: chi-square %.1f after %d frames, clamped control %.1f (threshold 113.7), largest move %g\n",
+           walk, FRAMES, clamped, worst);
+    CHECK_MSG(walk < 113.7, "positions after %d frames of the walk: chi-square %.1f (63 dof)", FRAMES, walk);
+    CHECK_MSG(clamped > 113.7, "the clamped control passes: chi-square %.1f", clamped);
+    /* A walk of 0 draws every frame afresh, whatever the previous G-buffer. */
+    f.jitter_walk = 0.0f;
+    f.frame = 0;
+    f.prev_gbuffer = &g[cur];
+    CHECK(gbuffer_render(&g[cur ^ 1u], &f, NULL, &err));
+    CHECK(memcmp(g[cur ^ 1u].px, fresh.px, N * sizeof *fresh.px) == 0);
+    gbuffer_destroy(&g[0]);
+    gbuffer_destroy(&g[1]);
+    gbuffer_destroy(&fresh);
+    scene_release(s);
+}
+
 /* Checks the kept surfaces of one rendered G-buffer; returns the pixels whose ray escaped. */
 static uint32_t check_kept_surfaces(const struct gbuffer *g, const struct scene *s)
 {
@@ -259,4 +331,4 @@ static void test_kept_surfaces(void)
 }
 
 TEST_MAIN(TEST(test_camera_project_round_trip), TEST(test_motion_vectors), TEST(test_jitter_deterministic),
-          TEST(test_kept_surfaces))
+          TEST(test_jitter_walk), TEST(test_kept_surfaces))

@@ -206,6 +206,14 @@ static void test_params(void)
     p = restir_sms_defaults();
     p.spatial_radius = 0.0f;
     CHECK(!restir_sms_params_valid(&p, &err) && strcmp(err.where, "/params/spatial_radius") == 0);
+    p = restir_sms_defaults();
+    CHECK(p.jitter_walk == 0.1f);
+    p.jitter_walk = 0.5f;
+    CHECK(restir_sms_params_valid(&p, &err));
+    p.jitter_walk = 0.6f;
+    CHECK(!restir_sms_params_valid(&p, &err) && strcmp(err.where, "/params/jitter_walk") == 0);
+    p.jitter_walk = NAN;
+    CHECK(!restir_sms_params_valid(&p, &err) && strcmp(err.where, "/params/jitter_walk") == 0);
 }
 
 /* Planned = allocated, and the buffers follow the parameters: the prior only for the ssp
