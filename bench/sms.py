@@ -35,11 +35,11 @@ refractive-slab and reflective-plane at 64x64 (BENCH_SMS_SCENES, BENCH_SMS_SIZE)
      sms-<scene>.svg, and the caustic component, sms-<scene>-caustic.svg) and prints Markdown
      tables (medians over the seeds); the real-time case is also compared at equal time: one
      frame's RMSE against sms's curve at the same time per frame;
-  8. beside the real-time case of the caustic component, what one reservoir per pixel cannot go
-     below whatever its reuse (build/bench/sms_floors, bench/sms_floors.c, built here against
-     librenderer.a): the caustic's variation over a pixel (one jittered point per frame) and the
-     colour of one path selected by luminance, as a fraction of a 1-spp sms frame's RMSE, and the
-     equal-time ratio that leaves at restir_sms's time per frame.
+  8. beside the real-time case of the caustic component, what a frame shading one selected path
+     per pixel cannot go below whatever its reuse (build/bench/sms_floors, bench/sms_floors.c,
+     built here against librenderer.a): the caustic's variation over a pixel (one jittered point
+     per frame) and the colour of one path selected by luminance, as a fraction of a 1-spp sms
+     frame's RMSE, and the equal-time ratio that leaves at restir_sms's time per frame.
 With BENCH_SMS_SCALE=S, steps 1-4 run on the copies at scale S instead of the library's scenes
 (seed 002's regime: S = 3), and the outputs are named sms-bumps-S.json, sms-<scene>-bumps-S.svg.
 Environment: BENCH_SMS_SEEDS (3), BENCH_SMS_REF_SPP (1024), BENCH_SMS_REF_SMS_SPP (256),
@@ -293,9 +293,10 @@ def print_curves(name, r, what):
     f = r.get("floors")
     if f and "floor" in f:
         # sms at x times the time per frame has about 1/sqrt(x) of its 1-spp RMSE.
-        print(f"{name} ({what}): one reservoir per pixel cannot go below {f['floor']:.3f} of a 1-spp sms frame's "
-              f"RMSE (jitter {f['jitter_floor']:.3f}, colour {f['colour_floor']:.3f}; bench/sms_floors.c, "
-              f"{f['pixels']} pixels that see a receiver directly), so no better than "
+        print(f"{name} ({what}): one selected path per pixel cannot go below {f['floor']:.3f} of a 1-spp sms "
+              f"frame's RMSE (jitter {f['jitter_floor']:.3f}, colour {f['colour_floor']:.3f}; bench/sms_floors.c, "
+              f"{f['pixels']} pixels that see a receiver directly; expected shading averages more than one path and "
+              f"can go somewhat below the colour part), so no better than "
               + ", ".join(f"{f['floor'] * math.sqrt(ms / sms[0][0]):.3f} for one {k} frame"
                           for k, (ms, _) in st.items())
               + " / sms at the same time per frame")

@@ -1,12 +1,15 @@
-/* bench/sms_floors.c — the error one restir_sms frame cannot go below on a scene, whatever its
- * reuse, as a fraction of a 1-spp `sms` frame's error. A frame shades one jittered point x1 per
- * pixel with one selected path, so even perfect resampling (the reservoir's path distributed
- * exactly in proportion to the target p̂ = luminance, seed 002 §5) leaves
+/* bench/sms_floors.c — the error a restir_sms frame that shades one selected path per pixel
+ * cannot go below on a scene, whatever its reuse, as a fraction of a 1-spp `sms` frame's error.
+ * Such a frame shades one jittered point x1 per pixel with one path, so even perfect resampling
+ * (the reservoir's path distributed exactly in proportion to the target p̂ = luminance, seed 002
+ * §5) leaves
  *   - the jitter part: how much the caustic varies over the pixel (Var over x1 of L(x1));
  *   - the colour part: one path carries one light's colour. Grouping paths by light k, with L_k
  *     the RGB radiance of light k's paths and l_k its luminance, an exactly resampled path
  *     estimates channel c with variance  sum_k L_kc² l / l_k − L_c²  (l = sum_k l_k), exact when
  *     every path of a light has the light's colour (colourless casters, as the library's).
+ * (restir_sms's expected shading averages the spatial pass's candidates, more than one path, and
+ * can go somewhat below the colour part.)
  * Both are measured against the variance of one `sms` sample (uncapped Bernoulli trials) at the
  * same jittered points, summed over RGB and over the pixels whose first hit is a diffuse or glossy
  * receiver (pixels that see receivers through a caster are left out): floor / 1-spp RMSE. Built
