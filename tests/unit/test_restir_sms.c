@@ -260,6 +260,50 @@ static void test_session_bytes_planned_match_allocated(void)
     scene_release(sc);
 }
 
+/* The session's jitter_walk reaches its G-buffer: with the default each pixel's primary ray moves
+ * by at most 0.1 pixels per axis between consecutive frames; with 0 most move further (a fresh
+ * position every frame); after a reset the walk starts afresh. */
+static void test_jitter_walk_reaches_the_gbuffer(void)
+{
+    struct scene *sc = load("scenes/reflective-plane/scene.json");
+    if (!sc) return;
+    enum { W = 16, H = 16, N = W * H };
+    for (int walk = 0; walk < 2; walk++) {
+        struct restir_sms_params p = restir_sms_defaults();
+        p.sampler = RESTIR_SMS_SAMPLER_SMS;
+        p.ssp.sms.caustics_only = true;
+        if (!walk) p.jitter_walk = 0.0f;
+        struct restir_sms_state st;
+        struct err err = {0};
+        struct image out;
+        CHECK(restir_sms_init(&st, &p, W, H, &err) && image_init(&out, W, H, &err));
+        float jx[N], jy[N], worst = 0.0f;
+        for (uint32_t t = 0; t < 3; t++) {
+            struct restir_sms_frame f = {.scene = sc, .camera = &sc->camera, .prev_scene = t ? sc : NULL,
+                                         .prev_camera = &sc->camera, .seed = 4, .frame = t, .threads = 1};
+            CHECK_MSG(restir_sms_render(&st, &p, &f, &out, NULL, &err), "%s", err.message);
+            const struct gbuffer_pixel *px = st.gbuf[st.cur].px;
+            for (uint32_t i = 0; i < N; i++) {
+                if (t) worst = fmaxf(worst, fmaxf(fabsf(px[i].jx - jx[i]), fabsf(px[i].jy - jy[i])));
+                jx[i] = px[i].jx, jy[i] = px[i].jy;
+            }
+        }
+        if (walk) CHECK_MSG(worst <= 0.1f * (1.0f + 1e-6f), "walk 0.1: largest move %g", worst);
+        else CHECK_MSG(worst > 0.5f, "no walk: largest move only %g", worst);
+        /* After a reset the first frame has no history: its positions are drawn afresh. */
+        restir_sms_reset(&st);
+        struct restir_sms_frame f = {.scene = sc, .camera = &sc->camera, .prev_scene = sc, .prev_camera = &sc->camera,
+                                     .seed = 4, .frame = 3, .threads = 1};
+        CHECK(restir_sms_render(&st, &p, &f, &out, NULL, &err));
+        float moved = 0.0f;
+        for (uint32_t i = 0; i < N; i++) moved = fmaxf(moved, fabsf(st.gbuf[st.cur].px[i].jx - jx[i]));
+        CHECK_MSG(moved > 0.5f, "after a reset: largest move only %g", moved);
+        image_destroy(&out);
+        restir_sms_destroy(&st);
+    }
+    scene_release(sc);
+}
+
 TEST_MAIN(TEST(test_slab_round_trips), TEST(test_plane_round_trips), TEST(test_temporal_round_trips), TEST(test_scaled_light_jacobians),
           TEST(test_far_shifts_fail_cleanly), TEST(test_params),
-          TEST(test_session_bytes_planned_match_allocated))
+          TEST(test_session_bytes_planned_match_allocated), TEST(test_jitter_walk_reaches_the_gbuffer))
