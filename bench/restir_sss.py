@@ -56,6 +56,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import ctool  # noqa: E402
 from daemon import Daemon  # noqa: E402
 from svgplot import loglog  # noqa: E402
 
@@ -126,15 +127,6 @@ def reference(scene):
         run(["render", str(scene), "--spp", str(REF_SPP), "--size", SIZE, "--seed", "999", *DEPTH_ARGS, "--json",
              "-o", str(ref)])
     return read_exr(ref)
-
-
-def build_region_tool():
-    """build/bench/sss_hybrid_map, against this build's librenderer.a (once per run)."""
-    tool = OUT / "sss_hybrid_map"
-    cflags = subprocess.run(["pkg-config", "--cflags", "OpenEXR"], capture_output=True, text=True).stdout.split()
-    subprocess.run(["cc", "-O2", "-std=c17", "-D_DEFAULT_SOURCE", "-Irenderer", "bench/sss_hybrid_map.c",
-                    "build/obj/librenderer.a", "-lOpenEXRCore", "-ldeflate", "-lembree3", "-lassimp", "-lcjson", "-lm",
-                    "-pthread", *cflags, "-o", str(tool)], cwd=ROOT, check=True)
 
 
 def region_map(scene, out):
@@ -267,7 +259,7 @@ def main():
         redraw()
         return
     OUT.mkdir(parents=True, exist_ok=True)
-    build_region_tool()
+    ctool.build("sss_hybrid_map")
     results = {"size": SIZE, "max_depth": MAX_DEPTH, "ref_spp": REF_SPP, "warmup": WARMUP, "seeds": SEEDS, "rounds": ROUNDS, "scales": {}}
     d = Daemon(RESTIRD, THREADS)
     try:

@@ -61,6 +61,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import ctool  # noqa: E402
 from curves import loglog_at  # noqa: E402
 from svgplot import loglog  # noqa: E402
 
@@ -248,13 +249,6 @@ def measure(scene, name, ref, tmp, runs, tag):
     return {"curves": curves, "steady": steady, "table1": table}
 
 
-def build_floors_tool():
-    """build/bench/sms_floors, against this build's librenderer.a (once per run)."""
-    subprocess.run(["cc", "-O2", "-std=c17", "-D_DEFAULT_SOURCE", "-Irenderer", "bench/sms_floors.c",
-                    "build/obj/librenderer.a", "-lOpenEXRCore", "-ldeflate", "-lembree3", "-lassimp", "-lcjson", "-lm",
-                    "-pthread", "-o", str(OUT / "sms_floors")], cwd=ROOT, check=True)
-
-
 def floors(scene):
     """What one reservoir per pixel cannot go below, as a fraction of a 1-spp sms frame's RMSE."""
     run = subprocess.run([str(OUT / "sms_floors"), str(scene), SIZE], capture_output=True, text=True, check=True)
@@ -305,7 +299,7 @@ def print_curves(name, r, what):
 def main():
     OUT.mkdir(parents=True, exist_ok=True)
     results = {}
-    build_floors_tool()
+    ctool.build("sms_floors")
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
         bumps = bumps_sweep(tmp)
