@@ -313,6 +313,33 @@ def test_preview_page_is_read_only(daemon):
         assert r.header("Allow") == "GET"
 
 
+def preview_page_methods():
+    """The methods the preview page's session form offers, each with its parameters' values as the
+    form starts (clients/web/page/methods.js, read as text)."""
+    text = (PAGE / "methods.js").read_text()
+    starts = [(m.start(), m.group(1)) for m in re.finditer(r"^  (\w+): \{$", text, re.M)]
+    methods = {}
+    for k, (at, name) in enumerate(starts):
+        block = text[at:starts[k + 1][0] if k + 1 < len(starts) else len(text)]
+        values = {n: json.loads(v.replace("'", '"'))
+                  for n, v in re.findall(r"name: '(\w+)', kind: '\w+', value: ([^,]+),", block)}
+        methods[name] = {n: v for n, v in values.items() if v != ""}  # the page leaves out empty fields
+    return methods
+
+
+def test_preview_page_form_makes_sessions(daemon):
+    """The page sends every parameter its form shows for the chosen method: each method's form, as
+    it starts, must make a session (a parameter of another method would be refused)."""
+    methods = preview_page_methods()
+    assert {"pt", "sms", "sms_ssp", "restir_pt", "restir_sms"} <= set(methods)
+    for method, params in methods.items():
+        assert params, method
+        r = daemon.req("POST", "/v1/scenes/refractive-slab/sessions",
+                       json_body={"method": method, "width": 8, "height": 8, "params": params})
+        assert r.status == 201, (method, r.body[:300])
+        assert daemon.req("DELETE", r.json()["href"]).status == 204
+
+
 def test_metrics_prometheus(daemon):
     text = daemon.req("GET", "/metrics").body.decode()
     before = metric_value(text, "restird_requests_total", {"route": "/healthz", "code": "200"}) or 0

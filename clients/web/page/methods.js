@@ -32,7 +32,6 @@ export const METHODS = {
       { name: 'prior_samples', kind: 'number', value: 128, help: 'prior walks per block' },
       { name: 'alpha', kind: 'number', value: 0.8, help: 'mixing weight of the prior' },
       { name: 'bernoulli_cap', kind: 'number', value: 128, help: 'Bernoulli trials per solution (0: uncapped)' },
-      { name: 'jitter_walk', kind: 'number', value: 0.1, help: 'primary ray moves at most this per frame, pixels (0: fresh)' },
       { name: 'caustics_only', kind: 'boolean', value: false, help: 'only the caustics SMS owns' },
     ],
   },
