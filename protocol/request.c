@@ -768,7 +768,7 @@ static const struct protocol_field restir_sms_fields[] = {
         F(shift_iterations, PROTOCOL_UINT), F(temporal_cap, PROTOCOL_UINT), F(spatial_neighbors, PROTOCOL_UINT),
         F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(temporal, PROTOCOL_BOOL),
         F(spatial_radius, PROTOCOL_FLOAT), F(paired_spatial, PROTOCOL_BOOL), F(expected_shading, PROTOCOL_BOOL),
-        F(jitter_walk, PROTOCOL_FLOAT), FS("bernoulli_cap", ssp.sms.bernoulli_cap, PROTOCOL_UINT),
+        F(jitter_walk, PROTOCOL_FLOAT), F(light_reservoirs, PROTOCOL_UINT), FS("bernoulli_cap", ssp.sms.bernoulli_cap, PROTOCOL_UINT),
         FS("max_iterations", ssp.sms.max_iterations, PROTOCOL_UINT),
         FS("caustics_only", ssp.sms.caustics_only, PROTOCOL_BOOL), FS("tiles", ssp.tiles, PROTOCOL_UINT),
         FS("prior", ssp.prior, PROTOCOL_BOOL), FS("prior_samples", ssp.prior_samples, PROTOCOL_UINT),

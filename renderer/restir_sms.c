@@ -42,7 +42,7 @@ struct restir_sms_params restir_sms_defaults(void)
     struct restir_sms_params p = {.ssp = ssp_defaults(), .shift_iterations = 5, .temporal = true,
                                   .temporal_cap = 20, .spatial_neighbors = 1, .spatial_radius = 30.0f,
                                   .paired_spatial = true, .expected_shading = true, .jitter_walk = 0.1f,
-                                  .max_depth = 64, .rr_depth = 3};
+                                  .light_reservoirs = RESTIR_SMS_LIGHT_RESERVOIRS_BY_SCENE, .max_depth = 64, .rr_depth = 3};
     return p;
 }
 
@@ -84,8 +84,31 @@ bool restir_sms_params_valid(const struct restir_sms_params *p, struct err *err)
         return err_set(err, ERR_INVALID, "/params/spatial_radius", "must be in [1, 256] pixels");
     if (!(p->jitter_walk >= 0.0f && p->jitter_walk <= 0.5f))
         return err_set(err, ERR_INVALID, "/params/jitter_walk", "must be in [0, 0.5] pixels");
+    if (p->light_reservoirs > RESTIR_SMS_MAX_LIGHT_RESERVOIRS)
+        return err_set(err, ERR_INVALID, "/params/light_reservoirs", "must be in [0, %u] (0: one per emissive shape), got %u",
+                       RESTIR_SMS_MAX_LIGHT_RESERVOIRS, p->light_reservoirs);
     if (p->max_depth > 1024) return err_set(err, ERR_INVALID, "/params/max_depth", "must be at most 1024");
     return true;
+}
+
+uint32_t restir_sms_layers(const struct restir_sms_params *p, const struct scene *scene)
+{
+    if (p->light_reservoirs != RESTIR_SMS_LIGHT_RESERVOIRS_BY_SCENE) return p->light_reservoirs;
+    uint32_t emitters = 0;
+    for (uint32_t i = 0; i < scene->shape_count; i++)
+        emitters += material_is_emissive(&scene->materials[scene->shapes[i].material]);
+    return emitters < 1 ? 1 : emitters > RESTIR_SMS_MAX_LIGHT_RESERVOIRS ? RESTIR_SMS_MAX_LIGHT_RESERVOIRS : emitters;
+}
+
+uint32_t restir_sms_light_reservoir(const struct scene *scene, uint32_t light_shape, uint32_t layers)
+{
+    if (layers <= 1) return 0;
+    /* A scan over the shapes before it, once per candidate that found a solution: scenes with
+     * caustic casters have few shapes, and the walk that found it cost far more. */
+    uint32_t rank = 0;
+    for (uint32_t i = 0; i < light_shape && i < scene->shape_count; i++)
+        rank += material_is_emissive(&scene->materials[scene->shapes[i].material]);
+    return rank % layers;
 }
 
 /* ---- per-frame context ---------------------------------------------------------------------- */
@@ -230,8 +253,8 @@ static bool sms_ends_at(const struct scene *scene, const struct sms_sample *x, c
 
 /* ---- candidates ----------------------------------------------------------------------------- */
 
-static void sms_initial_pixel(const struct sms_ctx *c, uint32_t pixel, struct sms_sample *out,
-                              struct sms_counters *sc, struct ray_counters *rc)
+static void sms_initial_candidate(const struct sms_ctx *c, uint32_t pixel, struct sms_sample *out,
+                                  struct sms_counters *sc, struct ray_counters *rc)
 {
     memset(out, 0, sizeof *out);
     struct sms_x1 x1;
@@ -267,6 +290,25 @@ static void sms_initial_pixel(const struct sms_ctx *c, uint32_t pixel, struct sm
     out->F[0] = sol.value.x, out->F[1] = sol.value.y, out->F[2] = sol.value.z;
     /* A single candidate: W = w / p̂ = the sampler's estimated inverse pdf (eq. 11). */
     out->head.W = (float)sol.W;
+}
+
+/* The pixel's initial reservoirs, layer l's at res[l * n]: the candidate in its light's, and in
+ * every other one the same candidate seen with target 0 (restir_sms.h). */
+static void sms_initial_pixel(const struct sms_ctx *c, uint32_t pixel, uint32_t layers, size_t n, struct sms_sample *res,
+                              struct sms_counters *sc, struct ray_counters *rc)
+{
+    struct sms_sample cand;
+    sms_initial_candidate(c, pixel, &cand, sc, rc);
+    uint32_t own = cand.head.W > 0.0f ? restir_sms_light_reservoir(c->scene[RESTIR_CURRENT], cand.light_shape, layers) : 0;
+    for (uint32_t l = 0; l < layers; l++) {
+        struct sms_sample *out = &res[l * n + pixel];
+        if (l == own) {
+            *out = cand;
+        } else {
+            memset(out, 0, sizeof *out);
+            out->head.M = cand.head.M;
+        }
+    }
 }
 
 /* ---- the manifold shift --------------------------------------------------------------------- */
@@ -396,19 +438,20 @@ static bool sms_uses_pairs(const struct restir_sms_params *p)
     return restir_pairs_needed(p->paired_spatial, p->spatial_neighbors);
 }
 
-bool restir_sms_init(struct restir_sms_state *st, const struct restir_sms_params *params, uint32_t width,
-                     uint32_t height, struct err *err)
+bool restir_sms_init(struct restir_sms_state *st, const struct scene *scene, const struct restir_sms_params *params,
+                     uint32_t width, uint32_t height, struct err *err)
 {
     memset(st, 0, sizeof *st);
     st->width = width;
     st->height = height;
+    st->layers = restir_sms_layers(params, scene);
     size_t n = (size_t)width * height;
     for (int i = 0; i < 2; i++) {
         if (!gbuffer_init(&st->gbuf[i], width, height, err)) {
             restir_sms_destroy(st);
             return false;
         }
-        st->res[i] = calloc(n, sizeof(struct sms_sample));
+        st->res[i] = calloc(n * st->layers, sizeof(struct sms_sample));
         st->recv[i] = calloc(n, sizeof(struct restir_sms_receiver));
         if (!st->res[i] || !st->recv[i]) {
             restir_sms_destroy(st);
@@ -445,7 +488,7 @@ void restir_sms_reset(struct restir_sms_state *st) { st->has_history = false; }
 
 size_t restir_sms_reservoir_bytes(const struct restir_sms_state *st)
 {
-    return 2 * (size_t)st->width * st->height * sizeof(struct sms_sample);
+    return 2 * (size_t)st->width * st->height * st->layers * sizeof(struct sms_sample);
 }
 
 size_t restir_sms_gbuffer_bytes(const struct restir_sms_state *st)
@@ -468,10 +511,12 @@ size_t restir_sms_pair_bytes(const struct restir_sms_state *st)
     return st->pair_scratch ? restir_pair_scratch_bytes(st->width, st->height) : 0;
 }
 
-uint64_t restir_sms_bytes_planned(const struct restir_sms_params *params, uint32_t width, uint32_t height)
+uint64_t restir_sms_bytes_planned(const struct restir_sms_params *params, const struct scene *scene, uint32_t width,
+                                  uint32_t height)
 {
+    uint64_t layers = restir_sms_layers(params, scene);
     return 2 * (uint64_t)width * height *
-               (sizeof(struct sms_sample) + sizeof(struct gbuffer_pixel) + sizeof(struct restir_sms_receiver)) +
+               (layers * sizeof(struct sms_sample) + sizeof(struct gbuffer_pixel) + sizeof(struct restir_sms_receiver)) +
            (sms_uses_prior(params) ? ssp_prior_bytes(width, height) : 0) +
            (sms_uses_pairs(params) ? restir_pair_scratch_bytes(width, height) : 0);
 }
@@ -512,7 +557,7 @@ static void sms_initial_rows(void *ctx, uint32_t job, unsigned worker)
             const struct hit *primary = gbuffer_hit(c->scene[RESTIR_CURRENT], g, &first);
             sms_find_receiver(c->scene[RESTIR_CURRENT], c->max_depth, pp->camera.position, dir, primary, &recv[pixel],
                               rc);
-            sms_initial_pixel(c, pixel, &res[pixel], sc, rc);
+            sms_initial_pixel(c, pixel, pp->st->layers, (size_t)w * h, res, sc, rc);
             if (!pp->out) continue;
             struct rng rng = rng_make(c->seed, c->frame, pixel, SMS_PT_STREAM);
             struct rng srng = rng_make(c->seed, c->frame, pixel, SMS_PT_SMS_STREAM);
@@ -531,13 +576,15 @@ static void sms_shade_rows(void *ctx, uint32_t job, unsigned worker)
     uint32_t w = pp->st->width, h = pp->st->height;
     uint32_t y1 = (job + 1) * SMS_ROWS_PER_JOB < h ? (job + 1) * SMS_ROWS_PER_JOB : h;
     const struct sms_sample *res = (const struct sms_sample *)pp->st->res[1];
+    const size_t n = (size_t)w * h;
     for (uint32_t y = job * SMS_ROWS_PER_JOB; y < y1; y++) {
         for (uint32_t x = 0; x < w; x++) {
             uint32_t pixel = y * w + x;
-            const struct sms_sample *s = &res[pixel];
             struct vec3 L = pp->out->pixels[pixel];
-            if (!pp->estimated && s->head.W > 0.0f)
-                L = vec3_add(L, vec3_scale(vec3_make(s->F[0], s->F[1], s->F[2]), s->head.W));
+            for (uint32_t l = 0; l < pp->st->layers && !pp->estimated; l++) {
+                const struct sms_sample *s = &res[l * n + pixel];
+                if (s->head.W > 0.0f) L = vec3_add(L, vec3_scale(vec3_make(s->F[0], s->F[1], s->F[2]), s->head.W));
+            }
             if (!vec3_is_finite(L)) {
                 pp->nonfinite[worker]++;
                 L = vec3_splat(0.0f);
@@ -578,6 +625,9 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
                       unsigned threads, struct restir_sms_stats *stats, struct err *err)
 {
     if (!restir_sms_params_valid(params, err)) return false;
+    if (restir_sms_layers(params, f->scene) != st->layers)
+        return err_set(err, ERR_INVALID, "/params/light_reservoirs", "the session has %u reservoirs per pixel, not %u",
+                       st->layers, restir_sms_layers(params, f->scene));
     if (sms_uses_prior(params) && !st->prior.entries)
         return err_set(err, ERR_INVALID, "/params/sampler", "the session was made for the sms sampler (no prior)");
     if (sms_uses_pairs(params) && !st->pair_scratch)
@@ -660,14 +710,21 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
 
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
+    /* One reuse per reservoir layer, each over its own share of the lights; they share the
+     * G-buffers, the receivers, the pair scratch (one pass at a time) and the neighbour pairings. */
+    const uint32_t layers = st->layers;
+    const size_t layer_bytes = (size_t)st->width * st->height * sizeof(struct sms_sample);
     struct restir_reuse r = {.ops = &restir_sms_ops, .ctx = &c, .width = st->width, .height = st->height,
                              .seed = f->seed, .frame = f->frame, .threads = threads,
-                             .gbuf = &st->gbuf[st->cur], .history = history ? st->res[1] : NULL,
+                             .gbuf = &st->gbuf[st->cur], .history = NULL,
                              .temporal_cap = params->temporal_cap, .neighbors = params->spatial_neighbors,
                              .radius = params->spatial_radius, .paired = params->paired_spatial,
                              .pair_scratch = st->pair_scratch};
     struct restir_counters rc = {0};
-    if (!restir_temporal_pass(&r, st->res[0], &rc, err)) return false;
+    for (uint32_t l = 0; l < layers; l++) {
+        r.history = history ? st->res[1] + l * layer_bytes : NULL;
+        if (!restir_temporal_pass(&r, st->res[0] + l * layer_bytes, &rc, err)) return false;
+    }
     stats->temporal_ms = parallel_lap_ms(&t0);
     if (params->spatial_neighbors > 0) {
         /* The target is a luminance, so one selected sample per pixel carries one sample's colour:
@@ -675,7 +732,9 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
          * over the pass's candidates leaves out (seed 001 Fig. 5). */
         pp.estimated = params->expected_shading;
         r.estimate = pp.estimated ? out->pixels : NULL;  /* adds to the path-traced rest */
-        if (!restir_spatial_pass(&r, st->res[0], st->res[1], &rc, err)) return false;
+        for (uint32_t l = 0; l < layers; l++)
+            if (!restir_spatial_pass(&r, st->res[0] + l * layer_bytes, st->res[1] + l * layer_bytes, &rc, err))
+                return false;
     } else {
         uint8_t *tmp = st->res[0];
         st->res[0] = st->res[1];

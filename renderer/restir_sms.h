@@ -37,6 +37,17 @@
  * by default with paired neighbours (restir.h, seed 001): the neighbour relation is symmetric,
  * so a pair's two manifold shifts serve both of its pixels, one shift per pixel instead of two.
  *
+ * Reservoirs per light (`light_reservoirs` n > 1). One selected path carries one light's colour,
+ * so under lights of different colours most of a frame's error is that colour (docs/benchmarks.md,
+ * "What one reservoir per pixel cannot go below"). With n reservoirs a pixel splits the domain by
+ * emitter: reservoir k resamples only the paths whose x_n lies on an emitter of share k
+ * (restir_sms_light_reservoir), with target p̂_k = p̂ there and 0 elsewhere, and the pixel's value
+ * is the sum of the n estimates, each unbiased for its share of the integral. The pixel's one
+ * candidate goes to the reservoir of its light; every other reservoir counts it as a candidate of
+ * target 0 (M = 1, W = 0), which is exactly what RIS over p̂_k does with it. The shift keeps x_n,
+ * so a reservoir's samples never leave its share. Each reservoir is reused on its own, so the
+ * shifts multiply by up to n (reservoirs left empty cost no shift).
+ *
  * Everything else a pixel receives comes from one `sms_ssp` path per pixel and frame from the
  * same primary ray (the G-buffer's jitter): the path-traced rest of the light transport and the
  * SMS estimates at every other non-delta vertex (reference_pt_radiance_sms, which leaves out
@@ -80,8 +91,14 @@ struct restir_sms_params {
                                      per axis and frame (0.1 pixels; gbuffer.h), so that the history
                                      was gathered near where the frame looks: a sharp caustic varies
                                      within a pixel; 0 = a fresh position every frame */
+    uint32_t light_reservoirs;    /* reservoirs per pixel, each resampling only the paths to its
+                                     share of the emitters (restir_sms_light_reservoir); BY_SCENE
+                                     (the default): one per emissive shape, at most MAX */
     uint32_t max_depth, rr_depth; /* of the pt path that supplies the rest of the image (64, 3) */
 };
+
+#define RESTIR_SMS_MAX_LIGHT_RESERVOIRS 8u
+#define RESTIR_SMS_LIGHT_RESERVOIRS_BY_SCENE 0u
 
 struct restir_sms_params restir_sms_defaults(void);
 /* ERR_INVALID naming the parameter (where = "/params/<name>"). */
@@ -117,18 +134,27 @@ struct restir_sms_state {
     struct gbuffer gbuf[2];
     uint32_t cur;
     struct restir_sms_receiver *recv[2];   /* with gbuf[cur] and gbuf[cur ^ 1] */
-    uint8_t *res[2];   /* [0] working, [1] history (final) */
+    uint32_t layers;   /* reservoirs per pixel (restir_sms_layers) */
+    uint8_t *res[2];   /* [0] working, [1] history (final); layer l's at l * width * height */
     bool has_history;
     struct ssp_prior prior;   /* the ssp sampler's; no entries with the sms sampler */
     void *pair_scratch;       /* paired spatial reuse: restir_pair_scratch_bytes(); else NULL */
 };
 
-#define RESTIR_SMS_RESERVOIR_BYTES 64u
+#define RESTIR_SMS_RESERVOIR_BYTES 64u   /* per reservoir; a pixel has light_reservoirs of them */
 
-/* The buffers the parameters use: the prior only for the ssp sampler, the pair scratch only for
- * paired spatial reuse (a render with other parameters is refused). */
-bool restir_sms_init(struct restir_sms_state *st, const struct restir_sms_params *params, uint32_t width,
-                     uint32_t height, struct err *err);
+/* The reservoir a path to an emissive shape belongs to, of `layers`: the shape's rank among the
+ * scene's emissive shapes (in scene order), modulo `layers`. */
+uint32_t restir_sms_light_reservoir(const struct scene *scene, uint32_t light_shape, uint32_t layers);
+
+/* The reservoirs per pixel the parameters give on a scene: light_reservoirs, or BY_SCENE's count. */
+uint32_t restir_sms_layers(const struct restir_sms_params *p, const struct scene *scene);
+
+/* The buffers the parameters use on the scene: restir_sms_layers reservoirs per pixel, the prior
+ * only for the ssp sampler, the pair scratch only for paired spatial reuse (a render with other
+ * parameters is refused). */
+bool restir_sms_init(struct restir_sms_state *st, const struct scene *scene, const struct restir_sms_params *params,
+                     uint32_t width, uint32_t height, struct err *err);
 void restir_sms_destroy(struct restir_sms_state *st);
 void restir_sms_reset(struct restir_sms_state *st);
 size_t restir_sms_reservoir_bytes(const struct restir_sms_state *st);
@@ -136,7 +162,8 @@ size_t restir_sms_gbuffer_bytes(const struct restir_sms_state *st);
 size_t restir_sms_receiver_bytes(const struct restir_sms_state *st);
 size_t restir_sms_prior_bytes(const struct restir_sms_state *st);  /* 0 with the sms sampler */
 size_t restir_sms_pair_bytes(const struct restir_sms_state *st);   /* 0 without paired spatial reuse */
-uint64_t restir_sms_bytes_planned(const struct restir_sms_params *params, uint32_t width, uint32_t height);
+uint64_t restir_sms_bytes_planned(const struct restir_sms_params *params, const struct scene *scene, uint32_t width,
+                                  uint32_t height);
 
 struct restir_sms_frame {
     const struct scene *scene;

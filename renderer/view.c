@@ -94,7 +94,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
     if (params->method == RENDER_METHOD_RESTIR_SMS) {
         struct sms_scene ss;
         if (!restir_sms_params_valid(&params->restir_sms, err) || !sms_scene_init(scene, &ss, err)) return false;
-        if (!restir_sms_init(&v->rsms, &params->restir_sms, params->width, params->height, err)) return false;
+        if (!restir_sms_init(&v->rsms, scene, &params->restir_sms, params->width, params->height, err)) return false;
     }
     /* pt needs its frame and the accumulation buffer: no reservoirs, no G-buffer. */
     if (!image_init(&v->output, params->width, params->height, err) ||
@@ -123,6 +123,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
     v->params = *params;
     if (params->method == RENDER_METHOD_RESTIR_PT && params->restir_pt.nee_candidates == RESTIR_PT_NEE_BY_SCENE)
         v->params.restir_pt.nee_candidates = v->restir.nee_by_scene;  /* the session reports what it uses */
+    if (params->method == RENDER_METHOD_RESTIR_SMS) v->params.restir_sms.light_reservoirs = v->rsms.layers;  /* likewise */
     v->threads = threads;
     scene_retain(scene);
     scene_retain(scene);
@@ -425,8 +426,9 @@ bool view_accumulated(const struct view *v, struct image *out, uint32_t *count, 
     return true;
 }
 
-uint64_t view_bytes_planned(const struct view_params *params, uint32_t shape_count)
+uint64_t view_bytes_planned(const struct view_params *params, const struct scene *scene)
 {
+    const uint32_t shape_count = scene->shape_count;
     /* The same buffers view_init allocates for the method (every method: frame and accumulation;
      * restir_pt: its reservoirs, G-buffers and primitive table too). */
     uint64_t pixels = (uint64_t)params->width * params->height;
@@ -437,7 +439,7 @@ uint64_t view_bytes_planned(const struct view_params *params, uint32_t shape_cou
         bytes += restir_bdpt_bytes_planned(&params->restir_bdpt, params->width, params->height);
     if (params->method == RENDER_METHOD_RESTIR_SSS) bytes += restir_sss_bytes_planned(&params->restir_sss, params->width, params->height);
     if (params->method == RENDER_METHOD_SMS_SSP) bytes += ssp_prior_bytes(params->width, params->height);
-    if (params->method == RENDER_METHOD_RESTIR_SMS) bytes += restir_sms_bytes_planned(&params->restir_sms, params->width, params->height);
+    if (params->method == RENDER_METHOD_RESTIR_SMS) bytes += restir_sms_bytes_planned(&params->restir_sms, scene, params->width, params->height);
     return bytes;
 }
 

@@ -164,10 +164,9 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
 /* The mean of the accumulated frames into `out` (initialised here); ERR_INVALID when none. */
 bool view_accumulated(const struct view *v, struct image *out, uint32_t *count, struct err *err);
 
-/* Bytes of the buffers view_init would allocate for `params` on a scene of `shape_count` shapes
- * (equal to view_bytes' total right after view_init), so a caller can refuse a view before
- * allocating it. */
-uint64_t view_bytes_planned(const struct view_params *params, uint32_t shape_count);
+/* Bytes of the buffers view_init would allocate for `params` on `scene` (equal to view_bytes'
+ * total right after view_init), so a caller can refuse a view before allocating it. */
+uint64_t view_bytes_planned(const struct view_params *params, const struct scene *scene);
 
 /* Buffers by name; returns the count (<= VIEW_MAX_BUFFERS). *total gets the sum. */
 uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_BUFFERS], size_t *total);

@@ -206,7 +206,7 @@ static void api_write_session(struct jsonw *w, struct session *s)
     jsonw_uint(w, p->method == RENDER_METHOD_RESTIR_PT    ? RESTIR_PT_RESERVOIR_BYTES
                   : p->method == RENDER_METHOD_RESTIR_SSS ? RESTIR_SSS_RESERVOIR_BYTES * restir_sss_layers(&p->restir_sss)
                   : p->method == RENDER_METHOD_RESTIR_BDPT ? RESTIR_BDPT_PATH_BYTES
-                  : p->method == RENDER_METHOD_RESTIR_SMS ? RESTIR_SMS_RESERVOIR_BYTES
+                  : p->method == RENDER_METHOD_RESTIR_SMS ? RESTIR_SMS_RESERVOIR_BYTES * p->restir_sms.light_reservoirs  /* as view_init resolved it */
                                                           : 0);
     jsonw_key(w, "buffers");
     jsonw_object_begin(w);
@@ -229,7 +229,7 @@ static struct session *api_session_admit(struct daemon *d, const char *scene_id,
                                          const struct view_params *params, bool *budget_full, struct err *e)
 {
     *budget_full = false;
-    uint64_t planned = session_bytes_planned(params, scene->shape_count, d->cfg.frames_kept);
+    uint64_t planned = session_bytes_planned(params, scene, d->cfg.frames_kept);
     if (planned > d->cfg.max_session_bytes) {
         err_set(e, ERR_LIMIT, "", "a %ux%u session holds up to %llu bytes (its buffers and %u kept frames), more than "
                 "max_session_bytes (%llu)", params->width, params->height, (unsigned long long)planned,

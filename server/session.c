@@ -226,10 +226,10 @@ uint32_t sessions_count(struct sessions *t)
     return n;
 }
 
-uint64_t session_bytes_planned(const struct view_params *params, uint32_t shape_count, uint32_t frames_kept)
+uint64_t session_bytes_planned(const struct view_params *params, const struct scene *scene, uint32_t frames_kept)
 {
     uint64_t frame = (uint64_t)params->width * params->height * sizeof(struct vec3);
-    return view_bytes_planned(params, shape_count) + (uint64_t)(frames_kept ? frames_kept : 1) * frame;
+    return view_bytes_planned(params, scene) + (uint64_t)(frames_kept ? frames_kept : 1) * frame;
 }
 
 size_t session_bytes(struct session *s)

@@ -136,7 +136,7 @@ void session_release(struct session *s);
 
 /* The most a session of these parameters holds: its view's buffers and `frames_kept` frames
  * (what the budget reserves for it, before anything is allocated). */
-uint64_t session_bytes_planned(const struct view_params *params, uint32_t shape_count, uint32_t frames_kept);
+uint64_t session_bytes_planned(const struct view_params *params, const struct scene *scene, uint32_t frames_kept);
 /* Memory of the session: its view's buffers plus kept frames. */
 size_t session_bytes(struct session *s);
 

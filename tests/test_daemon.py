@@ -1470,13 +1470,19 @@ def test_restir_sms_session(daemon):
     assert p["shift_iterations"] == 5 and p["spatial_neighbors"] == 1 and p["spatial_radius"] == 30
     assert p["temporal_cap"] == 20 and p["bernoulli_cap"] == 0 and p["tiles"] == 16 and p["sampler"] == "ssp"
     assert p["paired_spatial"] is True and p["jitter_walk"] == pytest.approx(0.1)
-    assert s["reservoir_bytes_per_pixel"] == 64
-    assert s["reservoir_bytes"] == 2 * 64 * 24 * 24 == s["buffers"]["reservoirs"]
+    assert p["light_reservoirs"] == 2  # one per light, as the session resolved it on the slab
+    assert s["reservoir_bytes_per_pixel"] == 2 * 64
+    assert s["reservoir_bytes"] == 2 * 2 * 64 * 24 * 24 == s["buffers"]["reservoirs"]
     own = {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "receivers"}
     assert set(s["buffers"]) == own | {"prior", "spatial_pairs"}
     for params, extra in [({"sampler": "sms"}, {"spatial_pairs"}), ({"paired_spatial": False}, {"prior"})]:
         t = new_session(daemon, scene="refractive-slab", method="restir_sms", width=8, height=8, params=params)
         assert set(t["buffers"]) == own | extra, params
+        assert daemon.req("DELETE", t["href"]).status == 204
+    for asked, kept in [(1, 1), (3, 3), (0, 2)]:
+        t = new_session(daemon, scene="refractive-slab", method="restir_sms", width=8, height=8,
+                        params={"light_reservoirs": asked})
+        assert t["params"]["light_reservoirs"] == kept and t["buffers"]["reservoirs"] == 2 * kept * 64 * 8 * 8
         assert daemon.req("DELETE", t["href"]).status == 204
     post_frame(daemon, s, accept="application/json")
     st = post_frame(daemon, s, accept="application/json").json()
@@ -1489,7 +1495,9 @@ def test_restir_sms_session(daemon):
     for params, field in [({"shift_iterations": 0}, "/params/shift_iterations"), ({"tiles": 2}, "/params/tiles"),
                           ({"spatial_radius": 0}, "/params/spatial_radius"), ({"spp": 2}, "/params/spp"),
                           ({"sampler": "bdpt"}, "/params/sampler"), ({"paired_spatial": 1}, "/params/paired_spatial"),
-                          ({"jitter_walk": 0.6}, "/params/jitter_walk"), ({"jitter_walk": -0.1}, "/params/jitter_walk")]:
+                          ({"jitter_walk": 0.6}, "/params/jitter_walk"), ({"jitter_walk": -0.1}, "/params/jitter_walk"),
+                          ({"light_reservoirs": 9}, "/params/light_reservoirs"),
+                          ({"light_reservoirs": -1}, "/params/light_reservoirs")]:
         r = daemon.req("POST", "/v1/scenes/refractive-slab/sessions",
                        json_body={"method": "restir_sms", "width": 8, "height": 8, "params": params})
         assert_problem(r, 422, "invalid-field", field)

@@ -5,7 +5,8 @@ tests/test_sms.py, shared with it through its cache).
 - Unbiased with a still camera: K independent sessions (caustics only, Bernoulli trials
   uncapped), each the mean of its last frames, pass the per-pixel z-test (tests/stats.py: Šidák
   at 0.01, >= 99.75 % of pixels, global mean within the t threshold) on refractive-slab at 32x32,
-  and the same runs scaled by 1.05 fail it.
+  and the same runs scaled by 1.05 fail it; with a reservoir per light (the default, one for each
+  of the slab's two lights) and with one reservoir for both.
 - Unbiased with the camera moving: the camera travels away and back before the averaged frames,
   so those frames resample reservoirs that went through temporal shifts under camera motion
   (control: the runs scaled by 1.07 fail).
@@ -76,12 +77,15 @@ def _moving_camera(tmp_path, sc, frames, avg):
 
 
 @pytest.mark.statistical
-def test_restir_sms_unbiased_still_camera(tmp_path, scenes, sampler="ssp"):
-    """The paper's sampler (partitioning with the prior); plain SMS candidates are z-tested on
-    reflective-plane below (against sms) and were checked here too (global t -0.17, x1.05 t 7.2)."""
+@pytest.mark.parametrize("light_reservoirs", [0, 1])
+def test_restir_sms_unbiased_still_camera(tmp_path, scenes, light_reservoirs, sampler="ssp"):
+    """The paper's sampler (partitioning with the prior), with a reservoir per light (the default:
+    the slab's two) and with one for both; plain SMS candidates are z-tested on reflective-plane
+    below (against sms) and were checked here too (global t -0.17, x1.05 t 7.2)."""
     sc = scenes / SCENE / "scene.json"
     ref = _cached_reference(tmp_path, sc)
-    runs, st = _runs(tmp_path, sc, {**PARAMS, "sampler": sampler})
+    runs, st = _runs(tmp_path, sc, {**PARAMS, "sampler": sampler, "light_reservoirs": light_reservoirs},
+                     tag=f"r{light_reservoirs}")
     assert np.isfinite(runs).all() and st["nonfinite"] == 0 and st["sms"]["capped"] == 0
     assert st["last_frame"]["shifts"] > 0
     res = ztest_runs(runs, ref)

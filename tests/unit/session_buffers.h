@@ -18,11 +18,11 @@ struct session_buffers {
 
 /* Fills *s with the view's buffers; whether their sum is the planned bytes for vp (if not, both
  * figures go to stderr). */
-static inline bool session_buffers_agree(const struct view *v, const struct view_params *vp, uint32_t shape_count,
+static inline bool session_buffers_agree(const struct view *v, const struct view_params *vp, const struct scene *scene,
                                          struct session_buffers *s)
 {
     s->n = view_bytes(v, s->b, &s->total);
-    unsigned long long planned = view_bytes_planned(vp, shape_count);
+    unsigned long long planned = view_bytes_planned(vp, scene);
     if (s->total == planned) return true;
     fprintf(stderr, "  allocated %zu bytes, planned %llu\n", s->total, planned);
     return false;

@@ -197,7 +197,7 @@ static void test_session_bytes_planned_match_allocated(void)
         struct view v;
         CHECK(view_init(&v, sc, &vp, 1, &err));
         struct session_buffers sb;
-        CHECK(session_buffers_agree(&v, &vp, sc->shape_count, &sb));
+        CHECK(session_buffers_agree(&v, &vp, sc, &sb));
         CHECK(session_buffer(&sb, "light_vertex_cache") > 0);
         view_destroy(&v);
     }

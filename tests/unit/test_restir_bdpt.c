@@ -990,7 +990,7 @@ static void test_view_method(void)
         struct view v;
         CHECK_MSG(view_init(&v, sc, &vp, 2, &err), "%s", err.message);
         struct session_buffers sb;
-        CHECK(session_buffers_agree(&v, &vp, sc->shape_count, &sb));
+        CHECK(session_buffers_agree(&v, &vp, sc, &sb));
         const size_t reservoirs = session_buffer(&sb, "reservoirs"), lvc = session_buffer(&sb, "light_vertex_cache");
         /* 4 blocks of 256 light subpaths, 5 vertices each of 52 bytes (with reuse 4 more, the
          * vertex's light subpath), and the block tables. */

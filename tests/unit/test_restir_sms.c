@@ -107,7 +107,7 @@ static void shift_case(const char *scene_path, bool temporal, int offset, bool e
     struct restir_sms_params p = restir_sms_defaults();
     struct restir_sms_state st;
     struct err err = {0};
-    CHECK(restir_sms_init(&st, &p, W, H, &err));
+    CHECK(restir_sms_init(&st, sc, &p, W, H, &err));
     struct camera_desc cam0 = sc->camera, cam1 = cam0;
     cam1.position.x += 0.03f;
     cam1.look_at.x += 0.02f;
@@ -124,11 +124,16 @@ static void shift_case(const char *scene_path, bool temporal, int offset, bool e
     struct tally t = {0};
     int identity_ok = 0, identity_tried = 0;
     const size_t stride = restir_sms_ops.stride;
-    for (uint32_t y = 0; y < H; y++) {
+    /* Every reservoir layer's rows in turn (one per light on the slab). */
+    for (uint32_t row = 0; row < H * st.layers; row++) {
+        const uint32_t y = row % H, layer = row / H;
         for (uint32_t x = 0; x < W; x++) {
             uint32_t pixel = y * W + x;
-            const uint8_t *elem = st.res[0] + (size_t)pixel * stride;
+            const uint8_t *elem = st.res[0] + ((size_t)layer * W * H + pixel) * stride;
             if (!(((const struct restir_head *)elem)->W > 0.0f)) continue;
+            struct restir_sms_info li;
+            restir_sms_info(ctx, elem, &li);
+            CHECK(restir_sms_light_reservoir(temporal ? sc : base, li.light_shape, st.layers) == layer);
             struct restir_domain from = {pixel, RESTIR_CURRENT};
             struct surface s1;
             surface_at(sc, recv[pixel].shape, recv[pixel].prim, recv[pixel].b1, recv[pixel].b2, &s1);
@@ -214,6 +219,65 @@ static void test_params(void)
     CHECK(!restir_sms_params_valid(&p, &err) && strcmp(err.where, "/params/jitter_walk") == 0);
     p.jitter_walk = NAN;
     CHECK(!restir_sms_params_valid(&p, &err) && strcmp(err.where, "/params/jitter_walk") == 0);
+    p = restir_sms_defaults();
+    CHECK(p.light_reservoirs == RESTIR_SMS_LIGHT_RESERVOIRS_BY_SCENE);
+    p.light_reservoirs = RESTIR_SMS_MAX_LIGHT_RESERVOIRS;
+    CHECK(restir_sms_params_valid(&p, &err));
+    p.light_reservoirs = RESTIR_SMS_MAX_LIGHT_RESERVOIRS + 1;
+    CHECK(!restir_sms_params_valid(&p, &err) && strcmp(err.where, "/params/light_reservoirs") == 0);
+}
+
+/* Reservoirs per light: by default one per emissive shape (the slab's two lights, the plane's
+ * one), each light's paths in the reservoir of its rank; an explicit count is kept. */
+static void test_light_reservoirs(void)
+{
+    struct scene *slab = load("scenes/refractive-slab/scene.json");
+    struct scene *plane = load("scenes/reflective-plane/scene.json");
+    if (!slab || !plane) {
+        if (slab) scene_release(slab);
+        if (plane) scene_release(plane);
+        return;
+    }
+    struct restir_sms_params p = restir_sms_defaults();
+    CHECK(restir_sms_layers(&p, slab) == 2 && restir_sms_layers(&p, plane) == 1);
+    p.light_reservoirs = 3;
+    CHECK(restir_sms_layers(&p, slab) == 3 && restir_sms_layers(&p, plane) == 3);
+    int warm = scene_find_shape(slab, "warm_light"), cool = scene_find_shape(slab, "cool_light");
+    CHECK(warm >= 0 && cool >= 0);
+    if (warm >= 0 && cool >= 0) {
+        CHECK(restir_sms_light_reservoir(slab, (uint32_t)warm, 2) == 0 && restir_sms_light_reservoir(slab, (uint32_t)cool, 2) == 1);
+        CHECK(restir_sms_light_reservoir(slab, (uint32_t)cool, 1) == 0);
+    }
+    /* On the plane's one light a second reservoir stays empty: the frames are bit for bit those
+     * of one reservoir (it adds nothing, and its passes draw from no stream the other uses). */
+    enum { W = 24, H = 24 };
+    struct image img[2];
+    for (int k = 0; k < 2; k++) {
+        struct restir_sms_params q = restir_sms_defaults();
+        q.sampler = RESTIR_SMS_SAMPLER_SMS;
+        q.light_reservoirs = (uint32_t)k + 1;
+        struct restir_sms_state st;
+        struct err err = {0};
+        CHECK(restir_sms_init(&st, plane, &q, W, H, &err) && image_init(&img[k], W, H, &err));
+        for (uint32_t t = 0; t < 3; t++) {
+            struct restir_sms_frame f = {.scene = plane, .camera = &plane->camera, .prev_scene = t ? plane : NULL,
+                                         .prev_camera = &plane->camera, .seed = 5, .frame = t, .threads = 2};
+            CHECK_MSG(restir_sms_render(&st, &q, &f, &img[k], NULL, &err), "%s", err.message);
+        }
+        restir_sms_destroy(&st);
+    }
+    double lit = 0.0;
+    bool same = true;
+    for (uint32_t i = 0; i < W * H; i++) {
+        same = same && memcmp(&img[0].pixels[i], &img[1].pixels[i], sizeof img[0].pixels[i]) == 0;
+        lit += img[0].pixels[i].x;
+    }
+    CHECK(same);
+    CHECK(lit > 0.0);
+    image_destroy(&img[0]);
+    image_destroy(&img[1]);
+    scene_release(slab);
+    scene_release(plane);
 }
 
 /* Planned = allocated, and the buffers follow the parameters: the prior only for the ssp
@@ -222,16 +286,19 @@ static void test_session_bytes_planned_match_allocated(void)
 {
     struct scene *sc = load("scenes/refractive-slab/scene.json");
     if (!sc) return;
-    for (int variant = 0; variant < 3; variant++) {
+    for (int variant = 0; variant < 4; variant++) {
         struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_SMS, 37, 23);
         if (variant == 1) vp.restir_sms.sampler = RESTIR_SMS_SAMPLER_SMS;
         if (variant == 2) vp.restir_sms.paired_spatial = false;
+        if (variant == 3) vp.restir_sms.light_reservoirs = 1;
         struct view v;
         struct err err = {0};
         CHECK(view_init(&v, sc, &vp, 1, &err));
         struct session_buffers sb;
-        CHECK(session_buffers_agree(&v, &vp, sc->shape_count, &sb));
-        CHECK(session_buffer(&sb, "reservoirs") == 2u * 37 * 23 * RESTIR_SMS_RESERVOIR_BYTES);
+        CHECK(session_buffers_agree(&v, &vp, sc, &sb));
+        /* One reservoir per light by default: the slab has two. */
+        CHECK(session_buffer(&sb, "reservoirs") == 2u * 37 * 23 * RESTIR_SMS_RESERVOIR_BYTES * (variant == 3 ? 1 : 2));
+        CHECK(v.params.restir_sms.light_reservoirs == (variant == 3 ? 1u : 2u));  /* what the session reports */
         CHECK((session_buffer(&sb, "prior") > 0) == (variant != 1));
         CHECK(session_buffer(&sb, "spatial_pairs") == (variant != 2 ? restir_pair_scratch_bytes(37, 23) : 0));
         struct frame_stats fs;
@@ -246,7 +313,7 @@ static void test_session_bytes_planned_match_allocated(void)
     made.paired_spatial = false;
     struct restir_sms_state st;
     struct err err = {0};
-    CHECK(restir_sms_init(&st, &made, 8, 8, &err));
+    CHECK(restir_sms_init(&st, sc, &made, 8, 8, &err));
     struct image out;
     CHECK(image_init(&out, 8, 8, &err));
     struct restir_sms_frame f = {.scene = sc, .camera = &sc->camera, .seed = 1, .threads = 1};
@@ -254,6 +321,9 @@ static void test_session_bytes_planned_match_allocated(void)
     asked.sampler = RESTIR_SMS_SAMPLER_SMS;
     CHECK(!restir_sms_render(&st, &asked, &f, &out, NULL, &err) && strcmp(err.where, "/params/paired_spatial") == 0);
     asked.paired_spatial = false;
+    asked.light_reservoirs = 1;
+    CHECK(!restir_sms_render(&st, &asked, &f, &out, NULL, &err) && strcmp(err.where, "/params/light_reservoirs") == 0);
+    asked.light_reservoirs = RESTIR_SMS_LIGHT_RESERVOIRS_BY_SCENE;
     CHECK(restir_sms_render(&st, &asked, &f, &out, NULL, &err));
     image_destroy(&out);
     restir_sms_destroy(&st);
@@ -276,7 +346,7 @@ static void test_jitter_walk_reaches_the_gbuffer(void)
         struct restir_sms_state st;
         struct err err = {0};
         struct image out;
-        CHECK(restir_sms_init(&st, &p, W, H, &err) && image_init(&out, W, H, &err));
+        CHECK(restir_sms_init(&st, sc, &p, W, H, &err) && image_init(&out, W, H, &err));
         float jx[N], jy[N], worst = 0.0f;
         for (uint32_t t = 0; t < 3; t++) {
             struct restir_sms_frame f = {.scene = sc, .camera = &sc->camera, .prev_scene = t ? sc : NULL,
@@ -306,4 +376,5 @@ static void test_jitter_walk_reaches_the_gbuffer(void)
 
 TEST_MAIN(TEST(test_slab_round_trips), TEST(test_plane_round_trips), TEST(test_temporal_round_trips), TEST(test_scaled_light_jacobians),
           TEST(test_far_shifts_fail_cleanly), TEST(test_params),
-          TEST(test_session_bytes_planned_match_allocated), TEST(test_jitter_walk_reaches_the_gbuffer))
+          TEST(test_session_bytes_planned_match_allocated), TEST(test_jitter_walk_reaches_the_gbuffer),
+          TEST(test_light_reservoirs))

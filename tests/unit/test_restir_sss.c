@@ -243,7 +243,7 @@ static void test_session_bytes_planned_match_allocated(void)
         struct view v;
         CHECK(view_init(&v, sc, &vp, 1, &err));
         struct session_buffers sb;
-        CHECK(session_buffers_agree(&v, &vp, sc->shape_count, &sb));
+        CHECK(session_buffers_agree(&v, &vp, sc, &sb));
         CHECK(session_buffer(&sb, "reservoirs") == 2u * 37 * 23 * layers * RESTIR_SSS_RESERVOIR_BYTES);
         CHECK(session_buffer(&sb, "spatial_pairs") == (variant != 2 ? restir_pair_scratch_bytes(37, 23) : 0));
         view_destroy(&v);

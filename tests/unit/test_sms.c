@@ -33,7 +33,7 @@ static void test_planned_bytes_match(void)
             struct err err = {0};
             CHECK_MSG(view_init(&v, s, &p, 1, &err), "%s", err.message);
             struct session_buffers sb;
-            CHECK(session_buffers_agree(&v, &p, s->shape_count, &sb));
+            CHECK(session_buffers_agree(&v, &p, s, &sb));
             CHECK((session_buffer(&sb, "prior") > 0) == (method == RENDER_METHOD_SMS_SSP));
             view_destroy(&v);
         }

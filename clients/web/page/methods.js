@@ -97,6 +97,7 @@ export const METHODS = {
       { name: 'temporal_cap', kind: 'number', value: 20, help: 'previous confidence cap, x current' },
       { name: 'bernoulli_cap', kind: 'number', value: 128, help: 'Bernoulli trials per solution (0: uncapped)' },
       { name: 'jitter_walk', kind: 'number', value: 0.1, help: 'primary ray moves at most this per frame, pixels (0: fresh)' },
+      { name: 'light_reservoirs', kind: 'number', value: 0, help: 'reservoirs per pixel, by light (0: one per emitter)' },
       { name: 'caustics_only', kind: 'boolean', value: false, help: 'only the caustics SMS owns' },
     ],
   },
