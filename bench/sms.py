@@ -5,7 +5,7 @@ sample-space partitioning with per-frame priors (`sms_ssp`) and ReSTIR over its 
 manifold sampling, sms / sms_ssp).
 
 Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. On
-refractive-slab and reflective-plane at 64x64 (BENCH_SMS_SCENES, BENCH_SMS_SIZE):
+refractive-slab and reflective-plane at 128x128 (BENCH_SMS_SCENES, BENCH_SMS_SIZE):
   1. a reference per scene: `pt` subset rest at REF_SPP plus `sms` caustics only, uncapped, at
      REF_SMS_SPP (path tracing alone does not converge on these caustics in any reasonable time;
      tests/test_sms.py shows the SMS part unbiased against path tracing restricted to the same
@@ -24,8 +24,8 @@ refractive-slab and reflective-plane at 64x64 (BENCH_SMS_SCENES, BENCH_SMS_SIZE)
   5. how bumpy the casters are: copies of both scenes with the wave numbers of their bumps
      scaled by each S of BENCH_SMS_BUMPS (1 2 3 4; the library's scenes have 1), written by
      scenes/refractive-slab/generate.py into build/bench/bumps-S/, and Table 1's manifold
-     sampling statistics of `sms` and `sms_ssp` at 1 spp on each, at BENCH_SMS_BUMPS_SIZE
-     (128x128; not in the quick run);
+     sampling statistics of `sms` and `sms_ssp` (N = 16 and 32, both seed 002's) at 1 spp on
+     each, at BENCH_SMS_BUMPS_SIZE (128x128; not in the quick run);
   6. step 2's curves and real-time case again on the caustic component alone (seed 002 Fig. 5 measures on a
      crop of the caustic): every SMS method with `caustics_only`, pt with subset "caustic",
      against the reference's SMS part. The rest of the image is one path-traced sample per pixel
@@ -36,10 +36,12 @@ refractive-slab and reflective-plane at 64x64 (BENCH_SMS_SCENES, BENCH_SMS_SIZE)
      tables (medians over the seeds); the real-time case is also compared at equal time: one
      frame's RMSE against sms's curve at the same time per frame;
   8. beside the real-time case of the caustic component, what a frame shading one selected path
-     per pixel cannot go below whatever its reuse (build/bench/sms_floors, bench/sms_floors.c,
-     built here against librenderer.a): the caustic's variation over a pixel (one jittered point
-     per frame) and the colour of one path selected by luminance, as a fraction of a 1-spp sms
-     frame's RMSE, and the equal-time ratio that leaves at restir_sms's time per frame.
+     per pixel and reservoir cannot go below whatever its reuse (build/bench/sms_floors,
+     bench/sms_floors.c, built here against librenderer.a): the caustic's variation over a pixel
+     (one jittered point per frame) and, with one reservoir for all lights, the colour of one path
+     selected by luminance, as a fraction of a 1-spp sms frame's RMSE, and the equal-time ratio
+     that leaves at restir_sms's time per frame (its default, a reservoir per light, has no colour
+     part with the library's colourless casters).
 With BENCH_SMS_SCALE=S, steps 1-4 run on the copies at scale S instead of the library's scenes
 (seed 002's regime: S = 3), and the outputs are named sms-bumps-S.json, sms-<scene>-bumps-S.svg.
 Environment: BENCH_SMS_SEEDS (3), BENCH_SMS_REF_SPP (1024), BENCH_SMS_REF_SMS_SPP (256),
@@ -71,7 +73,10 @@ OUT = ROOT / "build" / "bench"
 REFS = ROOT / "build" / "refs"
 QUICK = os.environ.get("BENCH_SMS_QUICK") == "1"
 SCENES = os.environ.get("BENCH_SMS_SCENES", "refractive-slab" if QUICK else "refractive-slab reflective-plane").split()
-SIZE = os.environ.get("BENCH_SMS_SIZE", "32x32" if QUICK else "64x64")
+# 128x128: the prior's 16 x 16 pixel blocks are a quarter of a 64x64 image, where a block mixes
+# very different shading points (seed 002 renders 1920x1080), and the caustic's variation within a
+# pixel is a larger part of the error (docs/benchmarks.md); 64x64 runs in a third of the time.
+SIZE = os.environ.get("BENCH_SMS_SIZE", "32x32" if QUICK else "128x128")
 SEEDS = int(os.environ.get("BENCH_SMS_SEEDS", "1" if QUICK else "3"))
 REF_SPP = int(os.environ.get("BENCH_SMS_REF_SPP", "1024"))
 # The quick run's 32x32 reference can afford 4x the samples of the full run's 64x64 one (the
@@ -160,14 +165,16 @@ def bumps_sweep(tmp):
         d = bumpy_copies(scale)
         for name in ("refractive-slab", "reflective-plane"):
             t = {}
-            for method in ("sms", "sms_ssp"):
+            # sms_ssp with both tile counts of seed 002 (N = 16 and 32).
+            for label, method, extra in (("sms", "sms", {}), ("sms_ssp", "sms_ssp", {}),
+                                         ("sms_ssp32", "sms_ssp", {"tiles": 32})):
                 rs = []
                 for seed in range(SEEDS):
-                    out = tmp / f"bumps-{scale:g}-{name}-{method}-{seed}.exr"
-                    _, st = render(d / name / "scene.json", out, method, {"spp": 1, "bernoulli_cap": 128}, seed,
-                                   size=BUMPS_SIZE)
+                    out = tmp / f"bumps-{scale:g}-{name}-{label}-{seed}.exr"
+                    _, st = render(d / name / "scene.json", out, method, {"spp": 1, "bernoulli_cap": 128, **extra},
+                                   seed, size=BUMPS_SIZE)
                     rs.append(table1(st["sms"], st.get("prior")))
-                t[method] = {k: statistics.median(r[k] for r in rs) for k in rs[0]}
+                t[label] = {k: statistics.median(r[k] for r in rs) for k in rs[0]}
             rows.append({"scale": scale, "scene": name, **t})
     return rows
 
@@ -176,15 +183,18 @@ def print_bumps(rows):
     print(f"\n# How bumpy the casters are: sms / sms_ssp at 1 spp ({BUMPS_SIZE}, medians over {SEEDS} seeds; "
           "the wave numbers of the bumps scaled by S; the library's scenes have S = 1)\n")
     print("| S | scene | sms success | sms Bernoulli / solution | sms Newtons / solution | sms_ssp success (x sms) | "
-          "sms_ssp Newtons / solution (x sms) |")
-    print("|---|---|---|---|---|---|---|")
-    for r in rows:
-        a, b = r["sms"], r["sms_ssp"]
+          "sms_ssp Newtons / solution (x sms) | N = 32: success (x sms) | N = 32: Newtons / solution (x sms) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+
+    def versus(a, b):
         rs = b["success_rate"] / a["success_rate"] if a["success_rate"] else float("nan")
         rn = b["newtons_per_solution"] / a["newtons_per_solution"] if a["newtons_per_solution"] else float("nan")
+        return f"{100 * b['success_rate']:.1f} % ({rs:.2f}x) | {b['newtons_per_solution']:.1f} ({rn:.2f}x)"
+
+    for r in rows:
+        a = r["sms"]
         print(f"| {r['scale']:g} | {r['scene']} | {100 * a['success_rate']:.1f} % | {a['bernoulli_per_solution']:.2f} | "
-              f"{a['newtons_per_solution']:.1f} | {100 * b['success_rate']:.1f} % ({rs:.2f}x) | "
-              f"{b['newtons_per_solution']:.1f} ({rn:.2f}x) |")
+              f"{a['newtons_per_solution']:.1f} | {versus(a, r['sms_ssp'])} | {versus(a, r['sms_ssp32'])} |")
 
 
 # The runs of one measurement: (label, method, spps or frame counts, params).
@@ -286,12 +296,15 @@ def print_curves(name, r, what):
               f"its time per frame; / sms at the same time per frame: {eq}")
     f = r.get("floors")
     if f and "floor" in f:
-        # sms at x times the time per frame has about 1/sqrt(x) of its 1-spp RMSE.
-        print(f"{name} ({what}): one selected path per pixel cannot go below {f['floor']:.3f} of a 1-spp sms "
-              f"frame's RMSE (jitter {f['jitter_floor']:.3f}, colour {f['colour_floor']:.3f}; bench/sms_floors.c, "
-              f"{f['pixels']} pixels that see a receiver directly; expected shading averages more than one path and "
-              f"can go somewhat below the colour part), so no better than "
-              + ", ".join(f"{f['floor'] * math.sqrt(ms / sms[0][0]):.3f} for one {k} frame"
+        # sms at x times the time per frame has about 1/sqrt(x) of its 1-spp RMSE. restir_sms keeps
+        # a reservoir per light by default: each light's paths have that light's colour here
+        # (colourless casters), so only the jitter part is left to it.
+        print(f"{name} ({what}): one selected path per pixel for all lights cannot go below {f['floor']:.3f} of a "
+              f"1-spp sms frame's RMSE (jitter {f['jitter_floor']:.3f}, colour {f['colour_floor']:.3f}; "
+              f"bench/sms_floors.c, {f['pixels']} pixels that see a receiver directly; expected shading averages "
+              f"more than one path and can go somewhat below the colour part); one per light (restir_sms's default) "
+              f"not below the jitter part, so no better than "
+              + ", ".join(f"{f['jitter_floor'] * math.sqrt(ms / sms[0][0]):.3f} for one {k} frame"
                           for k, (ms, _) in st.items())
               + " / sms at the same time per frame")
 
