@@ -32,7 +32,8 @@ refractive-slab and reflective-plane at 128x128 (BENCH_SMS_SCENES, BENCH_SMS_SIZ
      and frame in every method, and on reflective-plane its noise is most of a whole image's
      RMSE; here each method is measured on the paths it estimates itself;
   7. writes build/bench/sms.json, two SVG charts per scene (RMSE vs ms, log-log: the whole image,
-     sms-<scene>.svg, and the caustic component, sms-<scene>-caustic.svg) and prints Markdown
+     sms-<scene>.svg, and the caustic component, sms-<scene>-caustic.svg; each restir_sms
+     variant's real-time case, its frame WARMUP + 1, as an open square) and prints Markdown
      tables (medians over the seeds); the real-time case is also compared at equal time: one
      frame's RMSE against sms's curve at the same time per frame;
   8. beside the real-time case of the caustic component, what a frame shading one selected path
@@ -341,10 +342,16 @@ def main():
     for name, r in results.items():
         print_curves(name, r, "image")
         print_curves(name, r["caustic"], "caustic component")
-        loglog(OUT / f"sms-{name}{SUFFIX}.svg", f"{name}: RMSE vs time", "render time (ms)", "RMSE",
-               [(m, [(a, b) for a, b, _ in pts], "line") for m, pts in r["curves"].items()])
-        loglog(OUT / f"sms-{name}-caustic{SUFFIX}.svg", f"{name}, caustic component: RMSE vs time", "render time (ms)",
-               "RMSE", [(m, [(a, b) for a, b, _ in pts], "line") for m, pts in r["caustic"]["curves"].items()])
+        for rr, path, title in ((r, f"sms-{name}{SUFFIX}.svg", f"{name}: RMSE vs time"),
+                                (r["caustic"], f"sms-{name}-caustic{SUFFIX}.svg",
+                                 f"{name}, caustic component: RMSE vs time")):
+            labels = list(rr["curves"])
+            # The curves (restir_sms: the mean of a session's frames), and each restir_sms variant's
+            # real-time case (one frame after WARMUP frames of reuse) as an open square in its colour.
+            series = [(m, [(a, b) for a, b, _ in pts], "line") for m, pts in rr["curves"].items()]
+            series += [(f"{k}, frame {WARMUP + 1}", [tuple(v)], "squares", labels.index(k))
+                       for k, v in rr["steady"].items() if k in labels]
+            loglog(OUT / path, title, "render time (ms)", "RMSE", series)
     if bumps:
         print_bumps(bumps)
 

@@ -1,6 +1,7 @@
 """bench/svgplot.py — charts as standalone SVG (the benchmarks' charts; no plotting library is
 needed). chart(path, title, xlabel, ylabel, series, xlog, ylog) draws lines and points, where
-series is a list of (label, [(x, y), ...], style[, colour]): style is "line", "dashed" or "points",
+series is a list of (label, [(x, y), ...], style[, colour]): style is "line", "dashed", "points" or
+"squares" (open squares: single measurements beside the curves),
 colour an index into COLORS (default: the series' own index); loglog() is
 chart() with both axes logarithmic; stacked_bars(path, title, ylabel, bars, parts) draws one bar
 per (label, {part: value}) with its parts stacked."""
@@ -87,8 +88,15 @@ def chart(path, title, xlabel, ylabel, series, xlog=True, ylog=True):
             dash = ' stroke-dasharray="6 4"' if style == "dashed" else ""
             out.append(f'<path d="{d}" fill="none" stroke="{color}" stroke-width="2"{dash}/>')
         for x, y in data:
-            out.append(f'<circle cx="{X(x):.1f}" cy="{Y(y):.1f}" r="3.5" fill="{color}"/>')
+            if style == "squares":
+                out.append(f'<rect x="{X(x) - 5:.1f}" y="{Y(y) - 5:.1f}" width="10" height="10" fill="none" '
+                           f'stroke="{color}" stroke-width="2"/>')
+            else:
+                out.append(f'<circle cx="{X(x):.1f}" cy="{Y(y):.1f}" r="3.5" fill="{color}"/>')
         mark = f'<circle cx="{LEFT + pw + 16}" cy="{{y}}" r="4" fill="{color}"/>'
+        if style == "squares":
+            mark = (f'<rect x="{LEFT + pw + 11}" y="{{y_5}}" width="10" height="10" fill="none" stroke="{color}" '
+                    f'stroke-width="2"/>')
         if style == "dashed":
             mark += (f'<line x1="{LEFT + pw + 6}" y1="{{y}}" x2="{LEFT + pw + 24}" y2="{{y}}" stroke="{color}" '
                      f'stroke-width="2" stroke-dasharray="4 2"/>')
@@ -97,9 +105,9 @@ def chart(path, title, xlabel, ylabel, series, xlog=True, ylog=True):
 
 
 def _legend(out, i, label, mark, dy, pw):
-    """Legend entry i: `mark` with {y} filled in, then the label."""
+    """Legend entry i: `mark` with {y} (and {y_5}, 5 above it) filled in, then the label."""
     ly = TOP + 14 + 18 * i
-    out.append(mark.format(y=ly + dy))
+    out.append(mark.format(y=ly + dy, y_5=ly + dy - 5))
     out.append(f'<text x="{LEFT + pw + 26}" y="{ly}">{label}</text>')
 
 
