@@ -91,9 +91,20 @@ bool restir_sms_params_valid(const struct restir_sms_params *p, struct err *err)
     return true;
 }
 
+/* The scene as loaded: a derived scene (moved shapes, changed emission) holds its base. The
+ * reservoirs' lights are ranked there, so a light switched off or on during a session moves no
+ * other light's paths to another reservoir: a reservoir whose history held one light's paths and
+ * whose candidates came from another's would count a light twice. */
+static const struct scene *sms_loaded_scene(const struct scene *scene)
+{
+    while (scene->base) scene = scene->base;
+    return scene;
+}
+
 uint32_t restir_sms_layers(const struct restir_sms_params *p, const struct scene *scene)
 {
     if (p->light_reservoirs != RESTIR_SMS_LIGHT_RESERVOIRS_BY_SCENE) return p->light_reservoirs;
+    scene = sms_loaded_scene(scene);
     uint32_t emitters = 0;
     for (uint32_t i = 0; i < scene->shape_count; i++)
         emitters += material_is_emissive(&scene->materials[scene->shapes[i].material]);
@@ -105,6 +116,7 @@ uint32_t restir_sms_light_reservoir(const struct scene *scene, uint32_t light_sh
     if (layers <= 1) return 0;
     /* A scan over the shapes before it, once per candidate that found a solution: scenes with
      * caustic casters have few shapes, and the walk that found it cost far more. */
+    scene = sms_loaded_scene(scene);
     uint32_t rank = 0;
     for (uint32_t i = 0; i < light_shape && i < scene->shape_count; i++)
         rank += material_is_emissive(&scene->materials[scene->shapes[i].material]);

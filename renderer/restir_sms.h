@@ -144,10 +144,12 @@ struct restir_sms_state {
 #define RESTIR_SMS_RESERVOIR_BYTES 64u   /* per reservoir; a pixel has light_reservoirs of them */
 
 /* The reservoir a path to an emissive shape belongs to, of `layers`: the shape's rank among the
- * scene's emissive shapes (in scene order), modulo `layers`. */
+ * emissive shapes (in scene order) of the scene as loaded (a derived scene's base), modulo
+ * `layers`; the same in every frame of a session whatever its lights' emission. */
 uint32_t restir_sms_light_reservoir(const struct scene *scene, uint32_t light_shape, uint32_t layers);
 
-/* The reservoirs per pixel the parameters give on a scene: light_reservoirs, or BY_SCENE's count. */
+/* The reservoirs per pixel the parameters give on a scene: light_reservoirs, or BY_SCENE's count
+ * (of the scene as loaded, like restir_sms_light_reservoir's ranks). */
 uint32_t restir_sms_layers(const struct restir_sms_params *p, const struct scene *scene);
 
 /* The buffers the parameters use on the scene: restir_sms_layers reservoirs per pixel, the prior

@@ -247,6 +247,19 @@ static void test_light_reservoirs(void)
     if (warm >= 0 && cool >= 0) {
         CHECK(restir_sms_light_reservoir(slab, (uint32_t)warm, 2) == 0 && restir_sms_light_reservoir(slab, (uint32_t)cool, 2) == 1);
         CHECK(restir_sms_light_reservoir(slab, (uint32_t)cool, 1) == 0);
+        /* The warm light switched off in a frame's scene: the cool light's paths stay in the
+         * second reservoir and the count stays 2 (ranked in the scene as loaded), so no reservoir
+         * mixes one light's history with another's candidates. */
+        struct scene_shape_override off = {.shape = (uint32_t)warm, .has_emission = true};
+        struct err derr = {0};
+        struct scene *dark = scene_derive(slab, &off, 1, &derr);
+        CHECK_MSG(dark != NULL, "%s", derr.message);
+        if (dark) {
+            CHECK(!material_is_emissive(&dark->materials[dark->shapes[warm].material]));
+            CHECK(restir_sms_light_reservoir(dark, (uint32_t)cool, 2) == 1);
+            CHECK(restir_sms_layers(&(struct restir_sms_params){0}, dark) == 2);
+            scene_release(dark);
+        }
     }
     /* On the plane's one light a second reservoir stays empty: the frames are bit for bit those
      * of one reservoir (it adds nothing, and its passes draw from no stream the other uses). */
