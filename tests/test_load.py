@@ -96,9 +96,12 @@ def test_full_job_queue_answers_429_with_retry_after(tmp_path):
         sessions = [new_session(d, width=16, height=16) for _ in range(4)]
         answers = [d.req("POST", s["href"] + "/renders", json_body={"animation": {"frames": 2000}}) for s in sessions]
         codes = [a.status for a in answers]
-        # One job runs, at most one waits in the queue of 1 (the worker may not have taken the
-        # first yet), the rest are refused.
-        assert codes[0] == 202 and codes[2:] == [429, 429] and codes[1] in (202, 429), codes
+        # One job runs and at most one waits in the queue of 1, so at most two are accepted and at
+        # least two refused; which ones depends on when the worker takes the first job off the
+        # queue (until it does, the first fills the queue and the second is refused, and a later
+        # one may then be queued).
+        assert codes[0] == 202 and set(codes) <= {202, 429}, codes
+        assert codes.count(202) <= 2 and codes.count(429) >= 2, codes
         for a in answers:
             if a.status == 429:
                 assert_problem(a, 429, "queue-full")
