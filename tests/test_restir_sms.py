@@ -14,6 +14,8 @@ tests/test_sms.py, shared with it through its cache).
   block finds at most one of the two (light, caster) pairs, so every block falls back to
   partitioning alone (alpha = 0) for the other light; the estimate stays unbiased (same z-test).
   bench/sms.py charts what it costs.
+- A light switched off during a session (reservoirs holding history from both lights) agrees
+  with fresh sessions on a copy without it.
 - Receivers behind delta vertices (the caustic seen in reflective-plane's mirror) agree with
   `sms`, which estimates at every vertex itself; leaving out the prefix's throughput fails it.
 - The test can fail on a real bias too: with a Bernoulli cap of 1 trial (solutions not found
@@ -23,6 +25,7 @@ Each of K sessions renders FRAMES frames and averages the last AVG (one run's me
 standard deviation of ~4 % here, so K = 24 runs put the x1.05 control at t ~ 5-6); the frames of one session are
 correlated, the sessions are independent, which is what the z-test's per-pixel variance needs."""
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -182,12 +185,50 @@ def test_restir_sms_receivers_behind_a_mirror(tmp_path, scenes):
     assert not bad.passed, f"a bias of x1.05 went unseen: {bad}"
 
 
+@pytest.mark.statistical
+def test_restir_sms_light_switched_off_stays_unbiased(tmp_path, scenes):
+    """refractive-slab's warm light goes off at frame 8 of a session, so the reservoirs resample
+    history gathered under both lights (the warm light's paths then shift to black and drop out,
+    the cool light's stay in their reservoir): the mean of frames 16-31 agrees with that of fresh
+    sessions on a copy whose warm light is off from the start (a fresh session is z-tested against
+    path tracing above), 16 of each; x1.07 fails."""
+    sc = scenes / SCENE / "scene.json"
+    doc = json.loads(sc.read_text())
+    warm = doc["materials"]["warm"]["emission"]
+    fps, frames = 30.0, 32
+    anim = tmp_path / "off.json"
+    anim.write_text(json.dumps({"animation": {"fps": fps, "frames": frames, "light_keys": {"warm_light": [
+        {"t": 7 / fps, "emission": warm}, {"t": 8 / fps, "emission": [0, 0, 0]}]}}}))
+    dark = tmp_path / "dark"
+    shutil.copytree(scenes / SCENE, dark)
+    doc["materials"]["warm"]["emission"] = [0, 0, 0]
+    (dark / "scene.json").write_text(json.dumps(doc))
+    runs, base = [], []
+    st = None
+    for s in range(16):
+        img, st = render(sc, tmp_path / f"off{s}.exr", seed=s,
+                         extra=["--method", "restir_sms", "--params", json.dumps({**PARAMS, "sampler": "sms"}),
+                                "--frames", str(frames), "--average-last", "16", "--animation", str(anim)])
+        runs.append(img)
+        ref, _ = render(dark / "scene.json", tmp_path / f"dark{s}.exr", seed=1000 + s,
+                        extra=["--method", "restir_sms", "--params", json.dumps({**PARAMS, "sampler": "sms"}),
+                               "--frames", str(frames), "--average-last", "16"])
+        base.append(ref)
+    runs, base = np.stack(runs), np.stack(base)
+    assert np.isfinite(runs).all() and st["nonfinite"] == 0 and st["sms"]["capped"] == 0
+    assert base.mean() > 0.0
+    res = ztest_runs(runs, base)
+    bad = ztest_runs(runs * 1.07, base)
+    print(f"restir_sms, warm light off at frame 8, vs fresh sessions without it: {res}; x1.07: {bad}")
+    assert res.passed, f"restir_sms after a light went off vs fresh sessions without it: {res}"
+    assert not bad.passed, f"a bias of x1.07 went unseen: {bad}"
+
+
 def test_restir_sms_environment_shows_through(tmp_path, scenes):
     """With an environment light, a pixel whose camera ray escapes (the G-buffer's entry without a
     hit) shows the environment exactly, as in pt, and the rest of the image stays finite: the
     scene's own views have no sky. refractive-slab copied with an environment and a camera that
     looks over the slab at the horizon."""
-    import shutil
     folder = tmp_path / "slab-sky"
     shutil.copytree(scenes / SCENE, folder)
     doc = json.loads((folder / "scene.json").read_text())
