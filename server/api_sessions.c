@@ -231,9 +231,16 @@ static struct session *api_session_admit(struct daemon *d, const char *scene_id,
     *budget_full = false;
     uint64_t planned = session_bytes_planned(params, scene, d->cfg.frames_kept);
     if (planned > d->cfg.max_session_bytes) {
+        /* restir_sms's reservoirs grow with the scene's lights by default: say so, and how to ask
+         * for fewer. */
+        uint32_t layers = params->method == RENDER_METHOD_RESTIR_SMS ? restir_sms_layers(&params->restir_sms, scene) : 1;
+        char hint[96] = "";
+        if (layers > 1)
+            snprintf(hint, sizeof hint, "; it keeps %u reservoirs per pixel, one per light share (fewer: "
+                     "/params/light_reservoirs)", layers);
         err_set(e, ERR_LIMIT, "", "a %ux%u session holds up to %llu bytes (its buffers and %u kept frames), more than "
-                "max_session_bytes (%llu)", params->width, params->height, (unsigned long long)planned,
-                d->cfg.frames_kept, (unsigned long long)d->cfg.max_session_bytes);
+                "max_session_bytes (%llu)%s", params->width, params->height, (unsigned long long)planned,
+                d->cfg.frames_kept, (unsigned long long)d->cfg.max_session_bytes, hint);
         return NULL;
     }
     if (!budget_reserve(&d->budget, BUDGET_SESSIONS, planned, e)) {

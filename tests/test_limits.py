@@ -143,6 +143,28 @@ def test_max_session_bytes_boundary(tmp_path):
     assert rc == 0, d.stderr()[-3000:]
 
 
+def test_max_session_bytes_names_restir_sms_light_reservoirs(tmp_path):
+    """restir_sms keeps a reservoir per light by default: a session refused on its size says how
+    many and which parameter asks for fewer, and asking for fewer fits."""
+    slab = "/v1/scenes/refractive-slab"
+    body = {"method": "restir_sms", "width": 16, "height": 16}
+    probe = Daemon(tmp_path / "probe", *limits_args())
+    try:
+        one = probe.req("POST", f"{slab}/sessions", json_body={**body, "params": {"light_reservoirs": 1}}).json()
+    finally:
+        probe.stop()
+    d = Daemon(tmp_path / "data", *limits_args(**{"--max-session-bytes": one["reserved_bytes"]}))
+    try:
+        r = refused(d.req("POST", f"{slab}/sessions", json_body=body), 422, "limit-exceeded", "",
+                    one["reserved_bytes"])
+        assert "2 reservoirs per pixel" in r["detail"] and "/params/light_reservoirs" in r["detail"], r
+        ok = d.req("POST", f"{slab}/sessions", json_body={**body, "params": {"light_reservoirs": 1}})
+        assert ok.status == 201, ok.body[:300]
+    finally:
+        rc, _ = d.stop()
+    assert rc == 0, d.stderr()[-3000:]
+
+
 def test_memory_budget_refuses_and_gives_back(tmp_path):
     planned = planned_16x16(tmp_path)
     budget = 2 * planned + 1000
