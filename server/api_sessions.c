@@ -236,8 +236,8 @@ static struct session *api_session_admit(struct daemon *d, const char *scene_id,
         uint32_t layers = params->method == RENDER_METHOD_RESTIR_SMS ? restir_sms_layers(&params->restir_sms, scene) : 1;
         char hint[96] = "";
         if (layers > 1)
-            snprintf(hint, sizeof hint, "; it keeps %u reservoirs per pixel, one per light share (fewer: "
-                     "/params/light_reservoirs)", layers);
+            snprintf(hint, sizeof hint, "; it keeps %u reservoirs per pixel, by light (/params/light_reservoirs "
+                     "sets fewer)", layers);
         err_set(e, ERR_LIMIT, "", "a %ux%u session holds up to %llu bytes (its buffers and %u kept frames), more than "
                 "max_session_bytes (%llu)%s", params->width, params->height, (unsigned long long)planned,
                 d->cfg.frames_kept, (unsigned long long)d->cfg.max_session_bytes, hint);
