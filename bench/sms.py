@@ -47,7 +47,8 @@ With BENCH_SMS_SCALE=S, steps 1-4 run on the copies at scale S instead of the li
 (seed 002's regime: S = 3), and the outputs are named sms-bumps-S.json, sms-<scene>-bumps-S.svg.
 Environment: BENCH_SMS_SEEDS (3), BENCH_SMS_REF_SPP (1024), BENCH_SMS_REF_SMS_SPP (256),
 BENCH_SMS_BUMPS ("1 2 3 4"; empty: no sweep), BENCH_SMS_BUMPS_SIZE (128x128), BENCH_SMS_SCALE
-(unset), BENCH_THREADS (all cores); BENCH_SMS_QUICK=1 is a small run for a shared machine
+(unset), BENCH_SMS_TILES (unset: N = 16; outputs named sms-tiles-N.json, ...), BENCH_THREADS (all
+cores); BENCH_SMS_QUICK=1 is a small run for a shared machine
 (refractive-slab only, 32x32, 1 seed, shorter curves, reference 1024 + 1024 spp, no sweep) unless
 those are set too."""
 import hashlib
@@ -89,7 +90,11 @@ SMS_SPPS = [1, 2, 4, 8] if QUICK else [1, 2, 4, 8, 16]
 RESTIR_FRAMES = [1, 2, 4, 8, 16] if QUICK else [1, 2, 4, 8, 16, 32]
 WARMUP = 16
 SCALE = os.environ.get("BENCH_SMS_SCALE")
-SUFFIX = f"-bumps-{float(SCALE):g}" if SCALE else ""  # of the outputs of a run on the copies
+# N of the partitioned sampler in every sms_ssp and restir_sms run that does not set its own (unset:
+# the methods' default, seed 002's 16).
+TILES = os.environ.get("BENCH_SMS_TILES")
+# The outputs of a run on the copies, or with other tiles, carry it in their names.
+SUFFIX = (f"-bumps-{float(SCALE):g}" if SCALE else "") + (f"-tiles-{int(TILES)}" if TILES else "")
 BUMPS = [float(x) for x in os.environ.get("BENCH_SMS_BUMPS", "" if QUICK else "1 2 3 4").split()]
 # The prior works on 16 x 16 pixel blocks: at 64x64 a block is a sixteenth of the image and mixes
 # very different shading points (seed 002 renders 1920x1080), so the sweep renders at 128x128.
@@ -97,6 +102,8 @@ BUMPS_SIZE = os.environ.get("BENCH_SMS_BUMPS_SIZE", "128x128")
 
 
 def render(scene, out, method, params, seed, frames=None, extra=(), size=None):
+    if TILES and method in ("sms_ssp", "restir_sms") and "tiles" not in params:
+        params = {**params, "tiles": int(TILES)}
     cmd = [BIN, "render", str(scene), "--method", method, "--size", size or SIZE, "--seed", str(seed),
            "--threads", THREADS, "--params", json.dumps(params), "--json", "-o", str(out)]
     if method == "pt":
