@@ -101,26 +101,27 @@ static const struct scene *sms_loaded_scene(const struct scene *scene)
     return scene;
 }
 
+/* Emissive shapes among the first `end` shapes of the scene as loaded. Once per candidate that
+ * found a solution: scenes with caustic casters have few shapes, and the walk cost far more. */
+static uint32_t sms_emitters_before(const struct scene *scene, uint32_t end)
+{
+    scene = sms_loaded_scene(scene);
+    uint32_t n = 0;
+    for (uint32_t i = 0; i < end && i < scene->shape_count; i++)
+        n += material_is_emissive(&scene->materials[scene->shapes[i].material]);
+    return n;
+}
+
 uint32_t restir_sms_layers(const struct restir_sms_params *p, const struct scene *scene)
 {
     if (p->light_reservoirs != RESTIR_SMS_LIGHT_RESERVOIRS_BY_SCENE) return p->light_reservoirs;
-    scene = sms_loaded_scene(scene);
-    uint32_t emitters = 0;
-    for (uint32_t i = 0; i < scene->shape_count; i++)
-        emitters += material_is_emissive(&scene->materials[scene->shapes[i].material]);
+    uint32_t emitters = sms_emitters_before(scene, UINT32_MAX);
     return emitters < 1 ? 1 : emitters > RESTIR_SMS_MAX_LIGHT_RESERVOIRS ? RESTIR_SMS_MAX_LIGHT_RESERVOIRS : emitters;
 }
 
 uint32_t restir_sms_light_reservoir(const struct scene *scene, uint32_t light_shape, uint32_t layers)
 {
-    if (layers <= 1) return 0;
-    /* A scan over the shapes before it, once per candidate that found a solution: scenes with
-     * caustic casters have few shapes, and the walk that found it cost far more. */
-    scene = sms_loaded_scene(scene);
-    uint32_t rank = 0;
-    for (uint32_t i = 0; i < light_shape && i < scene->shape_count; i++)
-        rank += material_is_emissive(&scene->materials[scene->shapes[i].material]);
-    return rank % layers;
+    return layers <= 1 ? 0 : sms_emitters_before(scene, light_shape) % layers;
 }
 
 /* ---- per-frame context ---------------------------------------------------------------------- */
