@@ -168,50 +168,24 @@ static bool sms_receiver(const struct sms_ctx *c, struct restir_domain d, struct
     return true;
 }
 
-/* Follows a camera ray, whose first hit the caller has (`primary`; NULL: it escaped), through
- * canonical delta lobes to the receiver, exactly as path tracing steps (the same hits,
- * scattering and ray offsets as reference_pt.c, and the same first hit), so that both agree on
- * which vertex is the receiver. */
+/* The receiver of a camera ray whose first hit the caller has (`primary`; NULL: it escaped). */
 static void sms_find_receiver(const struct scene *scene, uint32_t max_depth, struct vec3 org, struct vec3 dir,
                               const struct hit *primary, struct restir_sms_receiver *out, struct ray_counters *rc)
 {
     memset(out, 0, sizeof *out);
-    struct vec3 T = vec3_splat(1.0f);
-    for (uint32_t depth = 0; depth < max_depth && depth <= SMS_RECEIVER_MAX_PREFIX; depth++) {
-        struct hit hit;
-        if (depth == 0) {
-            if (!primary) return;
-            hit = *primary;
-        } else if (!accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, &hit, rc)) {
-            return;
-        }
-        struct surface s;
-        surface_from_hit(scene, &hit, org, dir, &s);
-        const struct material *m = &scene->materials[s.material];
-        struct vec3 wo_world = vec3_neg(dir);
-        unsigned flags = material_flags(m);
-        if (flags & (BSDF_DIFFUSE | BSDF_GLOSSY)) {
-            if (m->kind == MATERIAL_TRANSLUCENT) return;
-            out->shape = hit.shape;
-            out->prim = hit.prim;
-            surface_point_code(scene, &hit, &s, &out->b1, &out->b2);
-            out->wo[0] = wo_world.x, out->wo[1] = wo_world.y, out->wo[2] = wo_world.z;
-            out->T[0] = T.x, out->T[1] = T.y, out->T[2] = T.z;
-            out->depth = (uint16_t)depth;
-            out->valid = 1;
-            return;
-        }
-        struct bsdf_sample bs;
-        struct vec3 wo = frame_to_local(&s.frame, wo_world);
-        if (!sms_canonical_lobe(m, wo, &bs)) return;
-        struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
-        float cos_ng = vec3_dot(wi_world, s.ng);
-        if (cos_ng * bs.wi.z <= 0.0f) return;
-        /* Path tracing's weight f |cos| / pdf times the probability pdf of taking this lobe. */
-        T = vec3_scale(vec3_mul(T, bs.f), fabsf(bs.wi.z));
-        org = surface_offset_along(s.p, cos_ng < 0.0f ? vec3_neg(s.ng) : s.ng);
-        dir = wi_world;
-    }
+    struct hit hit;
+    struct surface s;
+    struct vec3 wo_world, T;
+    uint32_t depth;
+    if (!primary || !sms_receiver_trace(scene, max_depth, org, dir, primary, &hit, &s, &wo_world, &T, &depth, rc))
+        return;
+    out->shape = hit.shape;
+    out->prim = hit.prim;
+    surface_point_code(scene, &hit, &s, &out->b1, &out->b2);
+    out->wo[0] = wo_world.x, out->wo[1] = wo_world.y, out->wo[2] = wo_world.z;
+    out->T[0] = T.x, out->T[1] = T.y, out->T[2] = T.z;
+    out->depth = (uint16_t)depth;
+    out->valid = 1;
 }
 
 static inline uint32_t sms_length(const struct sms_sample *x) { return x->head.bits; }

@@ -173,6 +173,37 @@ bool sms_canonical_lobe(const struct material *m, struct vec3 wo, struct bsdf_sa
     return material_sample(m, wo, 0x1.fffffep-1f, 0.5f, 0.5f, TRANSPORT_RADIANCE, out) && (out->flags & BSDF_DELTA);
 }
 
+bool sms_receiver_trace(const struct scene *scene, uint32_t max_depth, struct vec3 org, struct vec3 dir,
+                        const struct hit *primary, struct hit *hit, struct surface *s, struct vec3 *wo,
+                        struct vec3 *T, uint32_t *depth, struct ray_counters *rc)
+{
+    *T = vec3_splat(1.0f);
+    for (uint32_t d = 0; d < max_depth && d <= SMS_RECEIVER_MAX_PREFIX; d++) {
+        if (d == 0)
+            *hit = *primary;
+        else if (!accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, hit, rc))
+            return false;
+        surface_from_hit(scene, hit, org, dir, s);
+        const struct material *m = &scene->materials[s->material];
+        struct vec3 wo_world = vec3_neg(dir);
+        if (material_flags(m) & (BSDF_DIFFUSE | BSDF_GLOSSY)) {
+            *wo = wo_world;
+            *depth = d;
+            return m->kind != MATERIAL_TRANSLUCENT;
+        }
+        struct bsdf_sample bs;
+        if (!sms_canonical_lobe(m, frame_to_local(&s->frame, wo_world), &bs)) return false;
+        struct vec3 wi_world = frame_to_world(&s->frame, bs.wi);
+        float cos_ng = vec3_dot(wi_world, s->ng);
+        if (cos_ng * bs.wi.z <= 0.0f) return false;
+        /* Path tracing's weight f |cos| / pdf times the probability pdf of taking this lobe. */
+        *T = vec3_scale(vec3_mul(*T, bs.f), fabsf(bs.wi.z));
+        org = surface_offset_along(s->p, cos_ng < 0.0f ? vec3_neg(s->ng) : s->ng);
+        dir = wi_world;
+    }
+    return false;
+}
+
 double sms_now_ms(void)
 {
     struct timespec t;

@@ -195,9 +195,16 @@ void ssp_prior_build(struct ssp_prior *pr, const struct scene *scene, const stru
                 struct vec3 dir = camera_ray_dir(cam, px, py);
                 struct hit h;
                 if (!accel_intersect(scene->accel, cam->position, dir, 0.0f, INFINITY, &h, rc)) continue;
+                /* The pixel's shading point (§4.1): its receiver, which for a pixel seen through
+                 * a glass slab or in a mirror lies behind the delta vertices, where its SMS estimate
+                 * is made. Primary hits alone left those pixels without a prior of their own, or
+                 * worse, with the tiles of other pixels' solutions, seen from elsewhere. */
+                struct hit rh;
                 struct surface x1;
-                surface_from_hit(scene, &h, cam->position, dir, &x1);
-                if (!(material_flags(&scene->materials[x1.material]) & (BSDF_DIFFUSE | BSDF_GLOSSY))) continue;
+                struct vec3 wo, T;
+                uint32_t depth;
+                if (!sms_receiver_trace(scene, UINT32_MAX, cam->position, dir, &h, &rh, &x1, &wo, &T, &depth, rc))
+                    continue;
                 uint32_t ci = (uint32_t)(uc * (float)ss->count);
                 if (ci >= ss->count) ci = ss->count - 1;
                 const struct sms_caster *cs = &ss->casters[ci];

@@ -17,8 +17,10 @@
  * and W = (Bernoulli trials drawn from p restricted to C(u*)) / P(C(u*)) has E[W] = 1/P'.
  *
  * Prior (§4). Before a frame, for every B × B pixel block (B = 16), `prior_samples` unrestricted
- * walks from the primary hits of random pixels of the block, each towards a random caster and
- * light point, mark the tiles of the solutions they find per (light shape, caster) pair. Seeds
+ * walks from the shading points of random pixels of the block, each towards a random caster and
+ * light point, mark the tiles of the solutions they find per (light shape, caster) pair. A
+ * pixel's shading point is its receiver (sms_receiver_trace): the primary hit, or for a pixel
+ * seen through glass or in a mirror the surface behind the delta vertices. Seeds
  * are then drawn from p(u) = α p_I(u) + (1 − α) p_U(u) (eq. 7), with the closed-form marginal
  * P(C(u*)) = α #(I ∩ C)/#I + (1 − α) 9/N² (eq. 8) and trials drawn inside I ∩ C with probability
  * α' = α #(I ∩ C)/#I / P(C) (eq. 9), else uniformly in C. A pair the prior has nothing for falls

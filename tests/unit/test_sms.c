@@ -104,6 +104,49 @@ static void test_seed_map_covers_the_box(void)
     scene_release(s);
 }
 
+/* The prior's walks start at the block's shading points (seed 002 §4.1): a pixel seen through
+ * the slab shades the floor behind it, so a block whose every primary hit is glass still gets a
+ * prior, built from the floor points it sees (before, primary hits alone gave it none). Every
+ * walk that finds a solution marks a tile of its (light, caster) pair. */
+static void test_prior_built_behind_the_slab(void)
+{
+    struct scene *s = slab();
+    if (!s) return;
+    struct sms_scene ss;
+    struct err err = {0};
+    CHECK(sms_scene_init(s, &ss, &err) && ss.count == 1);
+    /* Straight down through the slab's middle: at y = 0.7 the view is 0.23 wide, inside the slab. */
+    struct camera cam;
+    camera_init(&cam, &(struct camera_desc){vec3_make(0, 2, 0), vec3_make(0, 0, 0), vec3_make(0, 0, -1), 20.0f},
+                SSP_BLOCK, SSP_BLOCK);
+    struct hit h;
+    struct ray_counters rc = {0};
+    for (uint32_t y = 0; y < SSP_BLOCK; y += 5)
+        for (uint32_t x = 0; x < SSP_BLOCK; x += 5)
+            CHECK(accel_intersect(s->accel, cam.position, camera_ray_dir(&cam, x + 0.5f, y + 0.5f), 0.0f, INFINITY, &h,
+                                  &rc) &&
+                  (int)h.shape == scene_find_shape(s, "slab"));
+    struct ssp_prior pr;
+    struct ssp_params p = ssp_defaults();
+    CHECK(ssp_prior_init(&pr, SSP_BLOCK, SSP_BLOCK, &err));
+    struct ssp_prior_counters c = {0};
+    ssp_prior_build(&pr, s, &ss, &p, &cam, 7, 0, &c, &rc);
+    CHECK_MSG(c.samples == p.prior_samples, "%llu walks of %u", (unsigned long long)c.samples, p.prior_samples);
+    CHECK_MSG(c.solutions > 0, "no solution in %llu walks", (unsigned long long)c.samples);
+    uint32_t pairs = 0, tiles = 0;
+    for (int i = 0; i < SSP_PRIOR_ENTRIES; i++)
+        if (pr.entries[i].light_shape >= 0) {
+            pairs++;
+            tiles += pr.entries[i].count;
+            CHECK(pr.entries[i].caster == 0 && pr.entries[i].count > 0);
+        }
+    /* Both lights' caustics fall on the floor under the slab. */
+    CHECK_MSG(pairs == 2 && tiles <= c.solutions, "%u pairs, %u tiles, %llu solutions", pairs, tiles,
+              (unsigned long long)c.solutions);
+    ssp_prior_destroy(&pr);
+    scene_release(s);
+}
+
 static void test_params_checked(void)
 {
     struct err err = {0};
@@ -123,4 +166,4 @@ static void test_params_checked(void)
 }
 
 TEST_MAIN(TEST(test_planned_bytes_match), TEST(test_track_owns_exactly_the_chain), TEST(test_seed_map_covers_the_box),
-          TEST(test_params_checked))
+          TEST(test_prior_built_behind_the_slab), TEST(test_params_checked))
