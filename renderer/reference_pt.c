@@ -186,8 +186,9 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
     struct vec3 prev_p = org;
     struct sms_track track = sms_track_start();
     bool skip_emission = false;  /* after subsurface scattering with NEE (pt_sss_primary) */
-    /* restir_sms: every vertex so far delta and through its canonical lobe (sms.h). */
-    bool canonical = split->sms_after_primary;
+    /* Every vertex so far delta and through its canonical lobe (sms.h): the next non-delta
+     * vertex is the pixel's receiver, restir_sms's and the one sms_ssp's prior was built at. */
+    bool canonical = split->ss && (split->sms_after_primary || params->ssp);
 
     for (uint32_t depth = 0;; depth++) {
         struct hit hit;
@@ -265,11 +266,14 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         int shadow_side = -1;
 
         /* Specular manifold sampling owns the caustic chains that start here (sms.h). */
-        const bool at_receiver = canonical && depth <= SMS_RECEIVER_MAX_PREFIX && m->kind != MATERIAL_TRANSLUCENT;
-        if (split->ss && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY)) && !at_receiver) {
+        const bool receiver = canonical && depth <= SMS_RECEIVER_MAX_PREFIX && m->kind != MATERIAL_TRANSLUCENT;
+        if (split->ss && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY)) && !(receiver && split->sms_after_primary)) {
             uint32_t room = max_depth > depth + 1 ? max_depth - depth - 1 : 0;
-            struct vec3 c = params->ssp ? ssp_estimate(scene, split->ss, params->ssp, params->ssp_prior, split->px, split->py,
-                                                       &s, m, wo, room, split->sms_rng, split->sc, rc)
+            /* The block's prior describes its receivers' solutions; seen from any other vertex
+             * its tiles are arbitrary, and a solution outside them would carry the uniform
+             * share's weight, N² / (9 (1 − α)). Elsewhere seeds come from plain partitioning. */
+            struct vec3 c = params->ssp ? ssp_estimate(scene, split->ss, params->ssp, receiver ? params->ssp_prior : NULL,
+                                                       split->px, split->py, &s, m, wo, room, split->sms_rng, split->sc, rc)
                                         : sms_estimate(scene, split->ss, params->sms, &s, m, wo, room, split->sms_rng,
                                                        split->sc, rc);
             L = vec3_add(L, vec3_mul(beta, c));

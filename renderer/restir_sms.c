@@ -646,9 +646,10 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     pp->pt.max_depth = params->max_depth;
     pp->pt.rr_depth = params->rr_depth;
     pp->pt.nee = true;
+    /* The rest's SMS estimates, at every non-delta vertex but the receiver, are plain SMS with
+     * either sampler: the prior describes receivers only, and without it partitioning has more
+     * variance than SMS's seeds over the whole caster (restir_sms.h). */
     pp->pt.sms = &params->ssp.sms;
-    pp->pt.ssp = ssp ? &params->ssp : NULL;
-    pp->pt.ssp_prior = ssp ? &st->prior : NULL;
     if (!sms_run(pp, threads, sms_initial_rows, err)) return false;
     for (unsigned i = 0; i < threads; i++) {
         stats->rays_intersect += pp->rays[i].intersect;

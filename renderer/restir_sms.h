@@ -48,12 +48,14 @@
  * so a reservoir's samples never leave its share. Each reservoir is reused on its own, so the
  * shifts multiply by up to n (reservoirs left empty cost no shift).
  *
- * Everything else a pixel receives comes from one `sms_ssp` path per pixel and frame from the
- * same primary ray (the G-buffer's jitter): the path-traced rest of the light transport and the
- * SMS estimates at every other non-delta vertex (reference_pt_radiance_sms, which leaves out
- * exactly the receiver when its path took the canonical prefix, whose expectation T_prefix · SMS
- * the reservoirs carry), so the image estimates exactly what `pt` does (or, with caustics_only,
- * pt's caustic subset).
+ * Everything else a pixel receives comes from one path per pixel and frame from the same
+ * primary ray (the G-buffer's jitter): the path-traced rest of the light transport and plain SMS
+ * estimates at every other non-delta vertex (reference_pt_radiance_sms, which leaves out exactly
+ * the receiver when its path took the canonical prefix, whose expectation T_prefix · SMS the
+ * reservoirs carry), so the image estimates exactly what `pt` does (or, with caustics_only, pt's
+ * caustic subset). Those other vertices take plain SMS with either sampler: the prior describes
+ * the receivers only, and partitioning without it draws rare solutions from a 9 / N² share of
+ * the seeds, whose weights were most of a frame's error (docs/benchmarks.md).
  * The state is allocated once per session; a steady-state frame allocates nothing.
  * Refs: seed 002 §5, eqs. 10-13; design METHODS.md §0, §3. */
 #ifndef RESTIRD_RESTIR_SMS_H
@@ -75,9 +77,9 @@ enum restir_sms_sampler { RESTIR_SMS_SAMPLER_SSP, RESTIR_SMS_SAMPLER_SMS };
 
 struct restir_sms_params {
     enum restir_sms_sampler sampler; /* (ssp) */
-    struct ssp_params ssp;        /* the candidate sampler and the SMS at later vertices (sms_ssp's
-                                     params: bernoulli_cap, max_iterations, caustics_only, tiles,
-                                     prior, prior_samples, alpha) */
+    struct ssp_params ssp;        /* the candidate sampler (sms_ssp's params: bernoulli_cap,
+                                     max_iterations, caustics_only, tiles, prior, prior_samples,
+                                     alpha); ssp.sms also the plain SMS at other vertices */
     uint32_t shift_iterations;    /* Newton steps of each walk of a shift (5, §5.3) */
     bool temporal;                /* (true) */
     uint32_t temporal_cap;        /* previous M capped at this multiple of the current M (20) */

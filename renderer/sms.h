@@ -66,6 +66,7 @@ struct sms_counters {
     uint64_t trials;           /* Bernoulli trials (walks) of the solutions */
     uint64_t newton_trials;    /* Newton steps of those trials */
     uint64_t capped;           /* solutions dropped at the Bernoulli cap (energy lost) */
+    uint64_t with_prior;       /* sms_ssp: samples seeded from the prior (α > 0), the others fell back */
     double sample_ms;          /* time in sms_estimate (summed over threads) */
 };
 
@@ -79,6 +80,7 @@ static inline void sms_counters_add(struct sms_counters *sum, const struct sms_c
     sum->trials += c->trials;
     sum->newton_trials += c->newton_trials;
     sum->capped += c->capped;
+    sum->with_prior += c->with_prior;
     sum->sample_ms += c->sample_ms;
 }
 

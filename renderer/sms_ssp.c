@@ -269,9 +269,10 @@ bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const str
     struct ssp_cone k;
     ssp_cone_at(cs, s->p, &k);
     /* The prior of this pixel's block for the pair, or none (fallback: alpha = 0). */
-    uint32_t block = (py / SSP_BLOCK) * pr->blocks_x + px / SSP_BLOCK;
-    const struct ssp_entry *I = p->prior ? ssp_find(pr, block, ls.shape, ci) : NULL;
+    uint32_t block = pr ? (py / SSP_BLOCK) * pr->blocks_x + px / SSP_BLOCK : 0;
+    const struct ssp_entry *I = p->prior && pr ? ssp_find(pr, block, ls.shape, ci) : NULL;
     float alpha = I && I->count ? p->alpha : 0.0f;
+    if (alpha > 0.0f) c->with_prior++;
     /* Seed from eq. 7: a tile of I with probability alpha, else anywhere. */
     float u1 = s1, u2 = s2;
     if (us < alpha) {

@@ -24,7 +24,10 @@
  * are then drawn from p(u) = α p_I(u) + (1 − α) p_U(u) (eq. 7), with the closed-form marginal
  * P(C(u*)) = α #(I ∩ C)/#I + (1 − α) 9/N² (eq. 8) and trials drawn inside I ∩ C with probability
  * α' = α #(I ∩ C)/#I / P(C) (eq. 9), else uniformly in C. A pair the prior has nothing for falls
- * back to α = 0 (plain partitioning). The block is the pixel's, for every vertex of its path.
+ * back to α = 0 (plain partitioning). The prior serves only the vertex it was built at, the
+ * pixel's receiver (its block's); every other vertex of the path, after a diffuse bounce or a
+ * delta lobe other than the canonical one, samples with α = 0 too (pr = NULL), since a tile set
+ * seen from another point marks arbitrary tiles.
  * Casters and light points are picked as in `sms` (the prior's pair importance sampling of §4.2
  * is not used). Deterministic per seed, frame and pixel; the prior pass is serial. */
 #ifndef RESTIRD_SMS_SSP_H
@@ -78,7 +81,8 @@ void ssp_prior_build(struct ssp_prior *pr, const struct scene *scene, const stru
                      struct ssp_prior_counters *c, struct ray_counters *rc);
 
 /* One sample at x1 (the sampling half of ssp_estimate, consuming the random stream exactly as
- * it does; sms.h's struct sms_solution) with
+ * it does; sms.h's struct sms_solution), with pixel (px, py)'s block of prior `pr` when x1 is that
+ * pixel's receiver, or pr = NULL (plain partitioning), and
  *     W = trials / P(C(u*)) · C / p(x_n),   E[W | x̄*, x_n] = 1 / p(caster, x_n, x̄*)
  * (eqs. 2 and 8 with the caster and light choices). */
 bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const struct ssp_params *p,

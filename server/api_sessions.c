@@ -472,6 +472,7 @@ static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
         jsonw_key(w, "trials"); jsonw_uint(w, sc->trials);
         jsonw_key(w, "newton_trials"); jsonw_uint(w, sc->newton_trials);
         jsonw_key(w, "capped"); jsonw_uint(w, sc->capped);
+        jsonw_key(w, "with_prior"); jsonw_uint(w, sc->with_prior);
         jsonw_key(w, "sample_ms"); jsonw_double(w, sc->sample_ms);
         jsonw_key(w, "success_rate"); jsonw_double(w, n > 0 ? sol / n : 0.0);
         jsonw_key(w, "newtons_per_sample"); jsonw_double(w, n > 0 ? (double)sc->newton_sample / n : 0.0);

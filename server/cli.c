@@ -197,6 +197,7 @@ static bool cli_render_sequence(struct scene *scene, const struct view_params *v
         st->sms.trials += fs.render.sms.trials;
         st->sms.newton_trials += fs.render.sms.newton_trials;
         st->sms.capped += fs.render.sms.capped;
+        st->sms.with_prior += fs.render.sms.with_prior;
         st->sms.sample_ms += fs.render.sms.sample_ms;
         *last = fs;
         if (i + average_last >= frames) {
@@ -433,8 +434,10 @@ static int cli_render(int argc, char **argv)
             /* Seed 002 Table 1 (manifold sampling) over all frames rendered. */
             const struct sms_counters *c = &st.sms;
             printf(",\"sms\":{\"samples\":%" PRIu64 ",\"solutions\":%" PRIu64 ",\"newton_sample\":%" PRIu64
-                   ",\"trials\":%" PRIu64 ",\"newton_trials\":%" PRIu64 ",\"capped\":%" PRIu64 ",\"sample_ms\":%.3f}",
-                   c->samples, c->solutions, c->newton_sample, c->trials, c->newton_trials, c->capped, c->sample_ms);
+                   ",\"trials\":%" PRIu64 ",\"newton_trials\":%" PRIu64 ",\"capped\":%" PRIu64 ",\"with_prior\":%" PRIu64
+                   ",\"sample_ms\":%.3f}",
+                   c->samples, c->solutions, c->newton_sample, c->trials, c->newton_trials, c->capped, c->with_prior,
+                   c->sample_ms);
         }
         printf("}\n");
     } else {

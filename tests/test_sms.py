@@ -145,6 +145,29 @@ def test_sms_ssp_prior_and_fallback(tmp_path, scenes):
     assert out[True][1] > 3 * out[False][1], out
 
 
+def test_prior_seeds_only_receivers(tmp_path, scenes):
+    """The prior holds the tiles of solutions seen from its block's receivers (sms_ssp.h), so only
+    a pixel's receiver draws seeds from it: at most one SMS sample per camera path (sms_ssp) or per
+    pixel and frame (restir_sms, whose candidates are made there). Every other vertex of a path
+    falls back to partitioning alone (sms_ssp) or plain SMS (restir_sms). On reflective-plane,
+    whose wall and floor meet, paths reach diffuse surfaces more than once, so there are more
+    samples than receivers."""
+    sc = scenes / "reflective-plane" / "scene.json"
+    w = h = 32
+    _, st = render(sc, tmp_path / "ssp.exr", size=f"{w}x{h}", seed=1,
+                   extra=["--method", "sms_ssp", *_params({"spp": 4, "caustics_only": True})])
+    n = st["sms"]
+    assert 0 < n["with_prior"] <= w * h * 4 < n["samples"], n
+    _, st = render(sc, tmp_path / "restir.exr", size=f"{w}x{h}", seed=1,
+                   extra=["--method", "restir_sms", "--frames", "2", *_params({"caustics_only": True})])
+    n = st["sms"]
+    assert 0 < n["with_prior"] <= w * h * 2 < n["samples"], n
+    # With SMS candidates nothing is drawn from a prior.
+    _, st = render(sc, tmp_path / "sms.exr", size=f"{w}x{h}", seed=1,
+                   extra=["--method", "restir_sms", *_params({"caustics_only": True, "sampler": "sms"})])
+    assert st["sms"]["with_prior"] == 0 and st["sms"]["samples"] > 0, st["sms"]
+
+
 def test_sms_session_in_the_daemon(tmp_path):
     """An sms session: its parameters with defaults, no buffers beyond pt's, and frames that report
     seed 002 Table 1's counters; a bad parameter is a 422 naming it."""
