@@ -51,7 +51,7 @@ BENCH_SMS_BUMPS ("1 2 3 4"; empty: no sweep), BENCH_SMS_BUMPS_SIZE (128x128), BE
 (unset), BENCH_SMS_TILES (unset: N = 16; outputs named sms-tiles-N.json, ...), BENCH_THREADS (all
 cores); BENCH_SMS_QUICK=1 is a small run for a shared machine
 (refractive-slab only, 32x32, 1 seed, shorter curves, reference 1024 + 1024 spp, no sweep) unless
-those are set too."""
+those are set too. `--charts` redraws the charts from the last run's JSON without measuring."""
 import hashlib
 import json
 import math
@@ -326,7 +326,26 @@ def print_curves(name, r, what):
               + " / sms at the same time per frame")
 
 
+def charts(results):
+    for name, r in results.items():
+        for rr, path, title in ((r, f"sms-{name}{SUFFIX}.svg", f"{name}: RMSE vs time"),
+                                (r["caustic"], f"sms-{name}-caustic{SUFFIX}.svg",
+                                 f"{name}, caustic component: RMSE vs time")):
+            labels = list(rr["curves"])
+            # The curves (restir_sms: the mean of a session's frames), and each restir_sms variant's
+            # real-time case (the median of one frame after WARMUP frames of reuse) as an open
+            # square in its colour.
+            series = [(m, [(a, b) for a, b, _ in pts], "line") for m, pts in rr["curves"].items()]
+            series += [(f"{k}, frame {WARMUP + 1}", [(v[0], v[1])], "squares", labels.index(k))
+                       for k, v in rr["steady"].items() if k in labels]
+            loglog(OUT / path, title, "render time (ms)", "RMSE", series)
+
+
 def main():
+    if "--charts" in sys.argv[1:]:
+        # The charts again from the last run's JSON (same BENCH_SMS_SCALE and BENCH_SMS_TILES).
+        charts(json.loads((OUT / f"sms{SUFFIX}.json").read_text())["scenes"])
+        return
     OUT.mkdir(parents=True, exist_ok=True)
     results = {}
     ctool.build("sms_floors")
@@ -358,16 +377,7 @@ def main():
     for name, r in results.items():
         print_curves(name, r, "image")
         print_curves(name, r["caustic"], "caustic component")
-        for rr, path, title in ((r, f"sms-{name}{SUFFIX}.svg", f"{name}: RMSE vs time"),
-                                (r["caustic"], f"sms-{name}-caustic{SUFFIX}.svg",
-                                 f"{name}, caustic component: RMSE vs time")):
-            labels = list(rr["curves"])
-            # The curves (restir_sms: the mean of a session's frames), and each restir_sms variant's
-            # real-time case (one frame after WARMUP frames of reuse) as an open square in its colour.
-            series = [(m, [(a, b) for a, b, _ in pts], "line") for m, pts in rr["curves"].items()]
-            series += [(f"{k}, frame {WARMUP + 1} (median)", [(v[0], v[1])], "squares", labels.index(k))
-                       for k, v in rr["steady"].items() if k in labels]
-            loglog(OUT / path, title, "render time (ms)", "RMSE", series)
+    charts(results)
     if bumps:
         print_bumps(bumps)
 
