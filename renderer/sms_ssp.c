@@ -154,6 +154,20 @@ static const struct ssp_entry *ssp_find(const struct ssp_prior *pr, uint32_t blo
     return NULL;
 }
 
+/* Whether receiver x lies near the receivers that built tile set e: inside their box grown by its
+ * largest extent on every side. The tiles are directions from those receivers; from a receiver
+ * far from them they mark arbitrary tiles, and a solution outside them would carry the uniform
+ * share's weight, N² / (9 (1 − α)). One receiver's set (an empty box) serves no other. */
+static bool ssp_covers(const struct ssp_entry *e, struct vec3 x)
+{
+    float ext = 0.0f;
+    for (int a = 0; a < 3; a++) ext = fmaxf(ext, e->hi[a] - e->lo[a]);
+    const float m = ext;
+    for (int a = 0; a < 3; a++)
+        if (vec3_comp(x, a) < e->lo[a] - m || vec3_comp(x, a) > e->hi[a] + m) return false;
+    return true;
+}
+
 /* A walk from seed u (tile ti, tj plus offsets) confined to R(u). */
 static bool ssp_walk(const struct scene *scene, const struct sms_caster *cs, const struct manifold_ends *e,
                      const struct ssp_cone *k, uint32_t n, float u1, float u2, uint32_t max_it,
@@ -232,6 +246,12 @@ void ssp_prior_build(struct ssp_prior *pr, const struct scene *scene, const stru
                     c->dropped_pairs++;
                     continue;
                 }
+                if (slot->light_shape < 0)
+                    for (int a = 0; a < 3; a++) slot->lo[a] = slot->hi[a] = vec3_comp(x1.p, a);
+                for (int a = 0; a < 3; a++) {
+                    slot->lo[a] = fminf(slot->lo[a], vec3_comp(x1.p, a));
+                    slot->hi[a] = fmaxf(slot->hi[a], vec3_comp(x1.p, a));
+                }
                 slot->light_shape = (int32_t)ls.shape;
                 slot->caster = (int32_t)ci;
                 uint32_t t = ti * n + tj;
@@ -271,7 +291,7 @@ bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const str
     /* The prior of this pixel's block for the pair, or none (fallback: alpha = 0). */
     uint32_t block = pr ? (py / SSP_BLOCK) * pr->blocks_x + px / SSP_BLOCK : 0;
     const struct ssp_entry *I = p->prior && pr ? ssp_find(pr, block, ls.shape, ci) : NULL;
-    float alpha = I && I->count ? p->alpha : 0.0f;
+    float alpha = I && I->count && ssp_covers(I, s->p) ? p->alpha : 0.0f;
     if (alpha > 0.0f) c->with_prior++;
     /* Seed from eq. 7: a tile of I with probability alpha, else anywhere. */
     float u1 = s1, u2 = s2;

@@ -24,7 +24,11 @@
  * are then drawn from p(u) = α p_I(u) + (1 − α) p_U(u) (eq. 7), with the closed-form marginal
  * P(C(u*)) = α #(I ∩ C)/#I + (1 − α) 9/N² (eq. 8) and trials drawn inside I ∩ C with probability
  * α' = α #(I ∩ C)/#I / P(C) (eq. 9), else uniformly in C. A pair the prior has nothing for falls
- * back to α = 0 (plain partitioning). The prior serves only the vertex it was built at, the
+ * back to α = 0 (plain partitioning), and so does a receiver far from the receivers whose walks
+ * built the pair's tile set (outside their box grown by its largest extent): at a slab's far
+ * edge, floor seen along the slab by total internal reflection moves far with a small step in
+ * the pixel, and a tile set from one such receiver missed its neighbours' solutions, which then
+ * carried the uniform share's weight. The prior serves only the vertex it was built at, the
  * pixel's receiver (its block's); every other vertex of the path, after a diffuse bounce or a
  * delta lobe other than the canonical one, samples with α = 0 too (pr = NULL), since a tile set
  * seen from another point marks arbitrary tiles.
@@ -54,6 +58,7 @@ struct ssp_params {
 struct ssp_entry {
     int32_t light_shape, caster;  /* -1: unused */
     uint32_t count;               /* tiles in the set */
+    float lo[3], hi[3];           /* the box of the receivers whose walks found its solutions */
     uint64_t bits[SSP_MAX_TILES * SSP_MAX_TILES / 64];
 };
 

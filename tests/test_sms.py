@@ -191,14 +191,14 @@ def test_sms_session_in_the_daemon(tmp_path):
                               ({"subset": "caustic"}, "/params/subset")]:
             r = d.req("POST", f"/v1/scenes/{SCENE}/sessions", json_body={"method": "sms", "params": params})
             assert r.status == 422 and r.json().get("field") == field, (params, repr(r))
-        # sms_ssp: its prior is its only buffer beyond pt's (8 pair entries of 144 bytes per 16x16 block).
+        # sms_ssp: its prior is its only buffer beyond pt's (8 pair entries of 168 bytes per 16x16 block).
         r = d.req("POST", f"/v1/scenes/{SCENE}/sessions",
                   json_body={"method": "sms_ssp", "width": 40, "height": 20, "params": {"tiles": 8, "alpha": 0.5}})
         assert r.status == 201, repr(r)
         s = r.json()
         assert s["params"]["tiles"] == 8 and s["params"]["alpha"] == 0.5 and s["params"]["prior_samples"] == 128
         assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "prior"}
-        assert s["buffers"]["prior"] == 3 * 2 * 8 * 144
+        assert s["buffers"]["prior"] == 3 * 2 * 8 * 168
         f = d.req("POST", s["href"] + "/frames", headers={"Accept": "application/json"}).json()
         assert f["prior"]["samples"] > 0 and f["sms"]["samples"] > 0
         for params, field in [({"alpha": 1}, "/params/alpha"), ({"tiles": 33}, "/params/tiles"),

@@ -143,6 +143,31 @@ static void test_prior_built_behind_the_slab(void)
     /* Both lights' caustics fall on the floor under the slab. */
     CHECK_MSG(pairs == 2 && tiles <= c.solutions, "%u pairs, %u tiles, %llu solutions", pairs, tiles,
               (unsigned long long)c.solutions);
+    /* The block's middle pixel's receiver draws seeds from the prior; a floor point far from the
+     * block's receivers (the floor's corner) falls back, though it asks with the same pixel. */
+    struct hit rh;
+    struct surface x1;
+    struct vec3 wo, T;
+    uint32_t depth;
+    const uint32_t mid = SSP_BLOCK / 2;
+    CHECK(accel_intersect(s->accel, cam.position, camera_ray_dir(&cam, mid, mid), 0.0f, INFINITY, &h, &rc) &&
+          sms_receiver_trace(s, 64, cam.position, camera_ray_dir(&cam, mid, mid), &h, &rh, &x1, &wo, &T, &depth, &rc) &&
+          depth == 2);
+    struct vec3 far_org = vec3_make(1.8f, 1.0f, 1.8f), down = vec3_make(0.0f, -1.0f, 0.0f);
+    struct hit fh;
+    struct surface far;
+    CHECK(accel_intersect(s->accel, far_org, down, 0.0f, INFINITY, &fh, &rc));
+    surface_from_hit(s, &fh, far_org, down, &far);
+    for (int k = 0; k < 2; k++) {
+        const struct surface *at = k ? &far : &x1;
+        struct sms_counters sc = {0};
+        struct sms_solution sol;
+        struct rng rng = rng_make(3, 0, 0, 0);
+        ssp_sample(s, &ss, &p, &pr, mid, mid, at, &s->materials[at->material], frame_to_local(&at->frame, vec3_make(0, 1, 0)),
+                   8, &rng, &sol, &sc, &rc);
+        CHECK_MSG(sc.samples == 1 && sc.with_prior == (k ? 0u : 1u), "%s: %llu of %llu samples with the prior",
+                  k ? "far" : "receiver", (unsigned long long)sc.with_prior, (unsigned long long)sc.samples);
+    }
     ssp_prior_destroy(&pr);
     scene_release(s);
 }
