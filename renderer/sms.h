@@ -140,10 +140,11 @@ bool sms_canonical_lobe(const struct material *m, struct vec3 wo, struct bsdf_sa
 /* Follows a camera ray from its first hit (`primary`, of the ray org + t dir) through canonical
  * delta lobes to the receiver, stepping exactly as path tracing does (the same hits, scattering
  * and ray offsets as reference_pt.c), so that every method agrees on which vertex is the
- * receiver. Out: the receiver's hit and surface, the direction back along the last segment (wo), the prefix's expected throughput T (the product
- * of f |cos| over its delta vertices) and its depth (delta vertices before it). False when the path
- * ends before one: it escapes, a lobe cannot be taken, it meets a translucent surface, or it would
- * need more than max_depth or SMS_RECEIVER_MAX_PREFIX delta vertices. */
+ * receiver. Out: the receiver's hit and surface, the direction back along the last segment (wo),
+ * the prefix's expected throughput T (the product of f |cos| over its delta vertices) and its
+ * depth (delta vertices before it). False when the path ends before one: it escapes, a lobe
+ * cannot be taken, it meets a translucent surface, or it would need more than max_depth or
+ * SMS_RECEIVER_MAX_PREFIX delta vertices. */
 bool sms_receiver_trace(const struct scene *scene, uint32_t max_depth, struct vec3 org, struct vec3 dir,
                         const struct hit *primary, struct hit *hit, struct surface *s, struct vec3 *wo,
                         struct vec3 *T, uint32_t *depth, struct ray_counters *rc);

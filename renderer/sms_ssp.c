@@ -162,9 +162,8 @@ static bool ssp_covers(const struct ssp_entry *e, struct vec3 x)
 {
     float ext = 0.0f;
     for (int a = 0; a < 3; a++) ext = fmaxf(ext, e->hi[a] - e->lo[a]);
-    const float m = ext;
     for (int a = 0; a < 3; a++)
-        if (vec3_comp(x, a) < e->lo[a] - m || vec3_comp(x, a) > e->hi[a] + m) return false;
+        if (vec3_comp(x, a) < e->lo[a] - ext || vec3_comp(x, a) > e->hi[a] + ext) return false;
     return true;
 }
 
