@@ -66,7 +66,7 @@ struct sms_counters {
     uint64_t trials;           /* Bernoulli trials (walks) of the solutions */
     uint64_t newton_trials;    /* Newton steps of those trials */
     uint64_t capped;           /* solutions dropped at the Bernoulli cap (energy lost) */
-    uint64_t with_prior;       /* sms_ssp: samples seeded from the prior (α > 0), the others fell back */
+    uint64_t with_prior;       /* ssp_sample: samples seeded from the prior (α > 0); the others fell back */
     double sample_ms;          /* time in sms_estimate (summed over threads) */
 };
 
