@@ -638,7 +638,9 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     /* The prior pass (seed 002 §4.1) under this frame's scene and camera. */
     struct ray_counters prc = {0, 0};
     const bool ssp = params->sampler == RESTIR_SMS_SAMPLER_SSP;
-    if (ssp) ssp_prior_build(&st->prior, f->scene, &c->ss, &params->ssp, &pp->camera, f->seed, f->frame, &stats->prior, &prc);
+    if (ssp && !ssp_prior_build(&st->prior, f->scene, &c->ss, &params->ssp, &pp->camera, f->seed, f->frame, threads,
+                                &stats->prior, &prc, err))
+        return false;
     stats->rays_intersect += prc.intersect;
     stats->rays_occluded += prc.occluded;
     stats->prior_ms = parallel_lap_ms(&t0);

@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "light_sampler.h"
+#include "parallel.h"
 #include "sampling.h"
 #include "scene.h"
 
@@ -182,9 +183,98 @@ static bool ssp_walk(const struct scene *scene, const struct sms_caster *cs, con
     return ok;
 }
 
-void ssp_prior_build(struct ssp_prior *pr, const struct scene *scene, const struct sms_scene *ss,
+/* One prior job: a block's walks, into its own entry table with its own random stream, so the
+ * prior does not depend on which worker builds which block. Counters go to the worker's slot. */
+struct ssp_prior_job {
+    struct ssp_prior *pr;
+    const struct scene *scene;
+    const struct sms_scene *ss;
+    const struct ssp_params *p;
+    const struct camera *cam;
+    uint64_t seed;
+    uint32_t frame;
+    struct ssp_prior_counters c[SSP_PRIOR_WORKERS];
+    struct ray_counters rc[SSP_PRIOR_WORKERS];
+};
+
+static void ssp_prior_block(void *ctx, uint32_t block, unsigned worker)
+{
+    struct ssp_prior_job *job = ctx;
+    struct ssp_prior *pr = job->pr;
+    const struct scene *scene = job->scene;
+    const struct sms_scene *ss = job->ss;
+    const struct ssp_params *p = job->p;
+    const struct camera *cam = job->cam;
+    struct ssp_prior_counters *c = &job->c[worker];
+    struct ray_counters *rc = &job->rc[worker];
+    const uint32_t n = p->tiles, bx = block % pr->blocks_x, by = block / pr->blocks_x;
+    struct ssp_entry *tab = &pr->entries[(size_t)block * SSP_PRIOR_ENTRIES];
+    /* Its own stream: a frame's prior does not depend on the pixels' samples. */
+    struct rng rng = rng_make(job->seed, job->frame, block, (uint64_t)2 << 40);
+    for (uint32_t s = 0; s < p->prior_samples; s++) {
+        float px = ((float)bx + rng_next_float(&rng)) * SSP_BLOCK, py = ((float)by + rng_next_float(&rng)) * SSP_BLOCK;
+        float uc = rng_next_float(&rng), ul = rng_next_float(&rng), l1 = rng_next_float(&rng);
+        float l2 = rng_next_float(&rng), u1 = rng_next_float(&rng), u2 = rng_next_float(&rng);
+        if (px >= (float)cam->width || py >= (float)cam->height) continue;
+        struct vec3 dir = camera_ray_dir(cam, px, py);
+        struct hit h;
+        if (!accel_intersect(scene->accel, cam->position, dir, 0.0f, INFINITY, &h, rc)) continue;
+        /* The pixel's shading point (§4.1): its receiver, which for a pixel seen through
+         * a glass slab or in a mirror lies behind the delta vertices, where its SMS estimate
+         * is made. Primary hits alone left those pixels without a prior of their own, or
+         * worse, with the tiles of other pixels' solutions, seen from elsewhere. */
+        struct hit rh;
+        struct surface x1;
+        struct vec3 wo, T;
+        uint32_t depth;
+        if (!sms_receiver_trace(scene, UINT32_MAX, cam->position, dir, &h, &rh, &x1, &wo, &T, &depth, rc))
+            continue;
+        uint32_t ci = (uint32_t)(uc * (float)ss->count);
+        if (ci >= ss->count) ci = ss->count - 1;
+        const struct sms_caster *cs = &ss->casters[ci];
+        struct light_sample ls;
+        if (!light_sampler_sample(scene->lights, ul, l1, l2, &ls) || ls.is_env) continue;
+        c->samples++;
+        struct manifold_ends e = {.x1 = x1.p, .ng1 = x1.ng, .xe = ls.p, .nge = ls.n};
+        struct ssp_cone k;
+        ssp_cone_at(cs, x1.p, &k);
+        struct manifold_vertex v[MANIFOLD_MAX_CHAIN];
+        struct manifold_stats st = {0};
+        /* Unrestricted walks (§4.1): no trust region while building the prior. */
+        bool ok = manifold_seed_path(scene, &cs->chain, &e, vec3_madd(k.x1, ssp_dir(&k, u1, u2), k.dist), v, rc) &&
+                  manifold_walk(scene, &cs->chain, &e, v, p->sms.max_iterations, &st, rc) &&
+                  manifold_check(scene, &cs->chain, &e, v, rc);
+        c->newton += st.iterations;
+        uint32_t ti, tj;
+        if (!ok || !ssp_tile_of(&k, n, v[0].p, &ti, &tj)) continue;
+        c->solutions++;
+        struct ssp_entry *slot = NULL;
+        for (int q = 0; q < SSP_PRIOR_ENTRIES && !slot; q++)
+            if ((tab[q].light_shape == (int32_t)ls.shape && tab[q].caster == (int32_t)ci) || tab[q].light_shape < 0)
+                slot = &tab[q];
+        if (!slot) {
+            c->dropped_pairs++;
+            continue;
+        }
+        if (slot->light_shape < 0)
+            for (int a = 0; a < 3; a++) slot->lo[a] = slot->hi[a] = vec3_comp(x1.p, a);
+        for (int a = 0; a < 3; a++) {
+            slot->lo[a] = fminf(slot->lo[a], vec3_comp(x1.p, a));
+            slot->hi[a] = fmaxf(slot->hi[a], vec3_comp(x1.p, a));
+        }
+        slot->light_shape = (int32_t)ls.shape;
+        slot->caster = (int32_t)ci;
+        uint32_t t = ti * n + tj;
+        if (!ssp_bit(slot, t)) {
+            slot->bits[t >> 6] |= (uint64_t)1 << (t & 63);
+            slot->count++;
+        }
+    }
+}
+
+bool ssp_prior_build(struct ssp_prior *pr, const struct scene *scene, const struct sms_scene *ss,
                      const struct ssp_params *p, const struct camera *cam, uint64_t seed, uint32_t frame,
-                     struct ssp_prior_counters *c, struct ray_counters *rc)
+                     unsigned threads, struct ssp_prior_counters *c, struct ray_counters *rc, struct err *err)
 {
     double t0 = sms_now_ms();
     size_t count = (size_t)pr->blocks_x * pr->blocks_y * SSP_PRIOR_ENTRIES;
@@ -192,76 +282,21 @@ void ssp_prior_build(struct ssp_prior *pr, const struct scene *scene, const stru
         memset(&pr->entries[i], 0, sizeof pr->entries[i]);
         pr->entries[i].light_shape = pr->entries[i].caster = -1;
     }
-    const uint32_t n = p->tiles;
-    if (!p->prior || ss->count == 0) return;
-    for (uint32_t by = 0; by < pr->blocks_y; by++) {
-        for (uint32_t bx = 0; bx < pr->blocks_x; bx++) {
-            uint32_t block = by * pr->blocks_x + bx;
-            struct ssp_entry *tab = &pr->entries[(size_t)block * SSP_PRIOR_ENTRIES];
-            /* Its own stream: a frame's prior does not depend on the pixels' samples. */
-            struct rng rng = rng_make(seed, frame, block, (uint64_t)2 << 40);
-            for (uint32_t s = 0; s < p->prior_samples; s++) {
-                float px = ((float)bx + rng_next_float(&rng)) * SSP_BLOCK, py = ((float)by + rng_next_float(&rng)) * SSP_BLOCK;
-                float uc = rng_next_float(&rng), ul = rng_next_float(&rng), l1 = rng_next_float(&rng);
-                float l2 = rng_next_float(&rng), u1 = rng_next_float(&rng), u2 = rng_next_float(&rng);
-                if (px >= (float)cam->width || py >= (float)cam->height) continue;
-                struct vec3 dir = camera_ray_dir(cam, px, py);
-                struct hit h;
-                if (!accel_intersect(scene->accel, cam->position, dir, 0.0f, INFINITY, &h, rc)) continue;
-                /* The pixel's shading point (§4.1): its receiver, which for a pixel seen through
-                 * a glass slab or in a mirror lies behind the delta vertices, where its SMS estimate
-                 * is made. Primary hits alone left those pixels without a prior of their own, or
-                 * worse, with the tiles of other pixels' solutions, seen from elsewhere. */
-                struct hit rh;
-                struct surface x1;
-                struct vec3 wo, T;
-                uint32_t depth;
-                if (!sms_receiver_trace(scene, UINT32_MAX, cam->position, dir, &h, &rh, &x1, &wo, &T, &depth, rc))
-                    continue;
-                uint32_t ci = (uint32_t)(uc * (float)ss->count);
-                if (ci >= ss->count) ci = ss->count - 1;
-                const struct sms_caster *cs = &ss->casters[ci];
-                struct light_sample ls;
-                if (!light_sampler_sample(scene->lights, ul, l1, l2, &ls) || ls.is_env) continue;
-                c->samples++;
-                struct manifold_ends e = {.x1 = x1.p, .ng1 = x1.ng, .xe = ls.p, .nge = ls.n};
-                struct ssp_cone k;
-                ssp_cone_at(cs, x1.p, &k);
-                struct manifold_vertex v[MANIFOLD_MAX_CHAIN];
-                struct manifold_stats st = {0};
-                /* Unrestricted walks (§4.1): no trust region while building the prior. */
-                bool ok = manifold_seed_path(scene, &cs->chain, &e, vec3_madd(k.x1, ssp_dir(&k, u1, u2), k.dist), v, rc) &&
-                          manifold_walk(scene, &cs->chain, &e, v, p->sms.max_iterations, &st, rc) &&
-                          manifold_check(scene, &cs->chain, &e, v, rc);
-                c->newton += st.iterations;
-                uint32_t ti, tj;
-                if (!ok || !ssp_tile_of(&k, n, v[0].p, &ti, &tj)) continue;
-                c->solutions++;
-                struct ssp_entry *slot = NULL;
-                for (int q = 0; q < SSP_PRIOR_ENTRIES && !slot; q++)
-                    if ((tab[q].light_shape == (int32_t)ls.shape && tab[q].caster == (int32_t)ci) || tab[q].light_shape < 0)
-                        slot = &tab[q];
-                if (!slot) {
-                    c->dropped_pairs++;
-                    continue;
-                }
-                if (slot->light_shape < 0)
-                    for (int a = 0; a < 3; a++) slot->lo[a] = slot->hi[a] = vec3_comp(x1.p, a);
-                for (int a = 0; a < 3; a++) {
-                    slot->lo[a] = fminf(slot->lo[a], vec3_comp(x1.p, a));
-                    slot->hi[a] = fmaxf(slot->hi[a], vec3_comp(x1.p, a));
-                }
-                slot->light_shape = (int32_t)ls.shape;
-                slot->caster = (int32_t)ci;
-                uint32_t t = ti * n + tj;
-                if (!ssp_bit(slot, t)) {
-                    slot->bits[t >> 6] |= (uint64_t)1 << (t & 63);
-                    slot->count++;
-                }
-            }
-        }
+    if (!p->prior || ss->count == 0) return true;
+    /* Blocks are independent, so the pass runs on the frame's workers. */
+    struct ssp_prior_job job = {.pr = pr, .scene = scene, .ss = ss, .p = p, .cam = cam, .seed = seed, .frame = frame};
+    threads = parallel_threads(threads, SSP_PRIOR_WORKERS);
+    if (!parallel_run(threads, pr->blocks_x * pr->blocks_y, ssp_prior_block, &job, NULL, NULL, err)) return false;
+    for (unsigned w = 0; w < threads; w++) {
+        c->samples += job.c[w].samples;
+        c->solutions += job.c[w].solutions;
+        c->newton += job.c[w].newton;
+        c->dropped_pairs += job.c[w].dropped_pairs;
+        rc->intersect += job.rc[w].intersect;
+        rc->occluded += job.rc[w].occluded;
     }
     c->ms += sms_now_ms() - t0;
+    return true;
 }
 
 bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const struct ssp_params *p,

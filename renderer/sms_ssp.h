@@ -33,7 +33,7 @@
  * delta lobe other than the canonical one, samples with α = 0 too (pr = NULL), since a tile set
  * seen from another point marks arbitrary tiles.
  * Casters and light points are picked as in `sms` (the prior's pair importance sampling of §4.2
- * is not used). Deterministic per seed, frame and pixel; the prior pass is serial. */
+ * is not used). Deterministic per seed, frame and pixel, whatever the number of workers. */
 #ifndef RESTIRD_SMS_SSP_H
 #define RESTIRD_SMS_SSP_H
 
@@ -46,6 +46,7 @@
 #define SSP_MAX_TILES 32          /* N <= 32: a tile set is 1024 bits */
 #define SSP_BLOCK 16              /* B: prior pixel blocks */
 #define SSP_PRIOR_ENTRIES 8       /* (light shape, caster) pairs kept per block */
+#define SSP_PRIOR_WORKERS 64u     /* the prior pass's workers at most (per-worker counters) */
 
 struct ssp_params {
     struct sms_params sms;        /* bernoulli_cap, max_iterations, caustics_only */
@@ -80,10 +81,12 @@ size_t ssp_prior_bytes(uint32_t width, uint32_t height);
 bool ssp_prior_init(struct ssp_prior *pr, uint32_t width, uint32_t height, struct err *err);
 void ssp_prior_destroy(struct ssp_prior *pr);
 
-/* Builds this frame's prior (all entries are rewritten). */
-void ssp_prior_build(struct ssp_prior *pr, const struct scene *scene, const struct sms_scene *ss,
+/* Builds this frame's prior (all entries are rewritten) with `threads` workers (0 = all cores,
+ * at most SSP_PRIOR_WORKERS); the result does not depend on the count. False only when
+ * parallel_run runs out of memory. */
+bool ssp_prior_build(struct ssp_prior *pr, const struct scene *scene, const struct sms_scene *ss,
                      const struct ssp_params *p, const struct camera *cam, uint64_t seed, uint32_t frame,
-                     struct ssp_prior_counters *c, struct ray_counters *rc);
+                     unsigned threads, struct ssp_prior_counters *c, struct ray_counters *rc, struct err *err);
 
 /* One sample at x1 (the sampling half of ssp_estimate, consuming the random stream exactly as
  * it does; sms.h's struct sms_solution), with pixel (px, py)'s block of prior `pr` when x1 is that

@@ -355,7 +355,11 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
                 scene_release(scene);
                 return false;
             }
-            ssp_prior_build(&v->prior, scene, &ss, &v->params.ssp, &cam, v->params.seed, v->frame, &prior, &prc);
+            if (!ssp_prior_build(&v->prior, scene, &ss, &v->params.ssp, &cam, v->params.seed, v->frame, v->threads,
+                                 &prior, &prc, err)) {
+                scene_release(scene);
+                return false;
+            }
             p.sms = &v->params.ssp.sms;
             p.ssp = &v->params.ssp;
             p.ssp_prior = &v->prior;

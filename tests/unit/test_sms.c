@@ -130,7 +130,7 @@ static void test_prior_built_behind_the_slab(void)
     struct ssp_params p = ssp_defaults();
     CHECK(ssp_prior_init(&pr, SSP_BLOCK, SSP_BLOCK, &err));
     struct ssp_prior_counters c = {0};
-    ssp_prior_build(&pr, s, &ss, &p, &cam, 7, 0, &c, &rc);
+    CHECK(ssp_prior_build(&pr, s, &ss, &p, &cam, 7, 0, 2, &c, &rc, &err));
     CHECK_MSG(c.samples == p.prior_samples, "%llu walks of %u", (unsigned long long)c.samples, p.prior_samples);
     CHECK_MSG(c.solutions > 0, "no solution in %llu walks", (unsigned long long)c.samples);
     uint32_t pairs = 0, tiles = 0;
