@@ -671,7 +671,8 @@ static bool request_sms_params(const cJSON *pv, const char *ptr, const struct pr
     static const char *const keys[] = {"spp", "max_depth", "rr_depth", "bernoulli_cap", "max_iterations",
                                        "caustics_only", NULL};
     static const char *const ssp_keys[] = {"spp", "max_depth", "rr_depth", "bernoulli_cap", "max_iterations",
-                                           "caustics_only", "tiles", "prior", "prior_samples", "alpha", NULL};
+                                           "caustics_only", "tiles", "prior", "prior_samples", "alpha",
+                                           "prior_frames", NULL};
     char p[REQUEST_PTR];
     const cJSON *v;
     if (!request_object(pv, ptr, "a params", err) ||
@@ -683,6 +684,9 @@ static bool request_sms_params(const cJSON *pv, const char *ptr, const struct pr
         if ((v = request_member(pv, ptr, "prior", p)) && !request_bool(v, p, &ssp->prior, err)) return false;
         if ((v = request_member(pv, ptr, "prior_samples", p)) &&
             !request_uint32(v, p, 0, 4096, NULL, &ssp->prior_samples, err))
+            return false;
+        if ((v = request_member(pv, ptr, "prior_frames", p)) &&
+            !request_uint32(v, p, 1, SSP_MAX_PRIOR_FRAMES, NULL, &ssp->prior_frames, err))
             return false;
         if ((v = request_member(pv, ptr, "alpha", p))) {
             if (!request_float(v, p, &ssp->alpha, err)) return false;
@@ -772,7 +776,7 @@ static const struct protocol_field restir_sms_fields[] = {
         FS("max_iterations", ssp.sms.max_iterations, PROTOCOL_UINT),
         FS("caustics_only", ssp.sms.caustics_only, PROTOCOL_BOOL), FS("tiles", ssp.tiles, PROTOCOL_UINT),
         FS("prior", ssp.prior, PROTOCOL_BOOL), FS("prior_samples", ssp.prior_samples, PROTOCOL_UINT),
-        FS("alpha", ssp.alpha, PROTOCOL_FLOAT),
+        FS("alpha", ssp.alpha, PROTOCOL_FLOAT), FS("prior_frames", ssp.prior_frames, PROTOCOL_UINT),
     };
 #undef FS
 #undef F

@@ -451,13 +451,13 @@ struct rbdpt_ctx {
     struct restir_bdpt_state *st;
     struct rbdpt_view view[2];   /* [0] current, [1] previous (valid when has_prev) */
     bool has_prev;
-    uint32_t caustic_cap;        /* temporal_cap, or moving_cap when the scene moved (rbdpt_scene_moved) */
+    uint32_t caustic_cap;        /* temporal_cap, or moving_cap when the scene moved (scene_moved) */
     float n_light;
     uint64_t seed;
     uint32_t frame;
     bool power;
     bool full;                   /* the full variant: all techniques, an LVC */
-    bool static_scene;           /* the previous frame's scene equals this one (rbdpt_scene_moved) */
+    bool static_scene;           /* the previous frame's scene equals this one (scene_moved) */
     bool force_retrace;          /* tests: reconnection shifts trace every suffix again */
     _Atomic uint64_t *reconnections;  /* with reuse: hybrid shifts attempted (rbdpt_reconnect) */
     struct bdpt_lvc_view lvc;    /* full: this frame's cache, after the light pass */
@@ -1706,26 +1706,6 @@ static uint16_t rbdpt_caustic_confidence(const struct rbdpt_ctx *c, struct vec3 
     return (uint16_t)M;
 }
 
-/* Whether a shape's transform or any emission differs between two frames' scenes. Eq. 27 takes a
- * caustic reservoir's confidence from the pixel the camera's motion maps it to, but caustics move
- * with their lights and casters, not with the camera (seed 000 §9.1): in such a frame the
- * reservoirs under the caustic hold history that no longer lies where they are, and with the cap
- * of a still scene (20) a moving caustic's error grows over the frames. A lower cap there bounds
- * that history. The test reads only the scenes, never the samples, so the weights stay a valid
- * MIS whatever it decides. */
-static bool rbdpt_scene_moved(const struct scene *a, const struct scene *b)
-{
-    if (a == b) return false;
-    if (a->shape_count != b->shape_count || !vec3_equal(a->env_radiance, b->env_radiance)) return true;
-    for (uint32_t i = 0; i < a->shape_count; i++) {
-        const struct shape *sa = &a->shapes[i], *sb = &b->shapes[i];
-        if (memcmp(&sa->to_world, &sb->to_world, sizeof sa->to_world) != 0 ||
-            !vec3_equal(a->materials[sa->material].emission, b->materials[sb->material].emission))
-            return true;
-    }
-    return false;
-}
-
 static void rbdpt_camera_tile(void *ctx, uint32_t tile, unsigned worker)
 {
     struct rbdpt_ctx *c = ctx;
@@ -1940,7 +1920,13 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     }
     c->has_prev = f->prev_scene && f->prev_camera && f->prev_scene->accel && f->prev_scene->lights;
     if (!c->has_prev) st->has_history = false;
-    const bool moved = c->has_prev && rbdpt_scene_moved(f->prev_scene, f->scene);
+    /* Eq. 27 takes a caustic reservoir's confidence from the pixel the camera's motion maps it
+     * to, but caustics move with their lights and casters, not with the camera (seed 000 §9.1):
+     * in a frame whose scene moved the reservoirs under the caustic hold history that no longer
+     * lies where they are, and with the cap of a still scene (20) a moving caustic's error grows
+     * over the frames. A lower cap there bounds that history. The test reads only the scenes,
+     * never the samples, so the weights stay a valid MIS whatever it decides. */
+    const bool moved = c->has_prev && scene_moved(f->prev_scene, f->scene);
     c->caustic_cap = moved ? p->moving_cap : p->temporal_cap;
     c->static_scene = c->has_prev && !moved;
     _Atomic uint64_t reconnections = 0;

@@ -445,7 +445,7 @@ bool restir_sms_init(struct restir_sms_state *st, const struct scene *scene, con
             return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
         }
     }
-    if (sms_uses_prior(params) && !ssp_prior_init(&st->prior, width, height, err)) {
+    if (sms_uses_prior(params) && !ssp_prior_init(&st->prior, width, height, params->ssp.prior_frames, err)) {
         restir_sms_destroy(st);
         return false;
     }
@@ -490,7 +490,7 @@ size_t restir_sms_receiver_bytes(const struct restir_sms_state *st)
 
 size_t restir_sms_prior_bytes(const struct restir_sms_state *st)
 {
-    return st->prior.entries ? ssp_prior_bytes(st->width, st->height) : 0;
+    return st->prior.entries ? ssp_prior_bytes(st->width, st->height, st->prior.frames) : 0;
 }
 
 size_t restir_sms_pair_bytes(const struct restir_sms_state *st)
@@ -504,7 +504,7 @@ uint64_t restir_sms_bytes_planned(const struct restir_sms_params *params, const 
     uint64_t layers = restir_sms_layers(params, scene);
     return 2 * (uint64_t)width * height *
                (layers * sizeof(struct sms_sample) + sizeof(struct gbuffer_pixel) + sizeof(struct restir_sms_receiver)) +
-           (sms_uses_prior(params) ? ssp_prior_bytes(width, height) : 0) +
+           (sms_uses_prior(params) ? ssp_prior_bytes(width, height, params->ssp.prior_frames) : 0) +
            (sms_uses_pairs(params) ? restir_pair_scratch_bytes(width, height) : 0);
 }
 
@@ -617,6 +617,9 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
                        st->layers, restir_sms_layers(params, f->scene));
     if (sms_uses_prior(params) && !st->prior.entries)
         return err_set(err, ERR_INVALID, "/params/sampler", "the session was made for the sms sampler (no prior)");
+    if (sms_uses_prior(params) && st->prior.frames != params->ssp.prior_frames)
+        return err_set(err, ERR_INVALID, "/params/prior_frames", "the session keeps %u frames of prior walks, not %u",
+                       st->prior.frames, params->ssp.prior_frames);
     if (sms_uses_pairs(params) && !st->pair_scratch)
         return err_set(err, ERR_INVALID, "/params/paired_spatial", "the session was made without paired spatial reuse");
     struct timespec t0;
@@ -638,8 +641,11 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     /* The prior pass (seed 002 §4.1) under this frame's scene and camera. */
     struct ray_counters prc = {0, 0};
     const bool ssp = params->sampler == RESTIR_SMS_SAMPLER_SSP;
-    if (ssp && !ssp_prior_build(&st->prior, f->scene, &c->ss, &params->ssp, &pp->camera, f->seed, f->frame, threads,
-                                &stats->prior, &prc, err))
+    /* The walks kept from earlier frames describe this one while nothing moved (sms_ssp.h). */
+    const bool still = st->has_history && f->prev_scene && f->prev_camera &&
+                       memcmp(f->camera, f->prev_camera, sizeof *f->camera) == 0 && !scene_moved(f->prev_scene, f->scene);
+    if (ssp && !ssp_prior_build(&st->prior, f->scene, &c->ss, &params->ssp, &pp->camera, f->seed, f->frame, still,
+                                threads, &stats->prior, &prc, err))
         return false;
     stats->rays_intersect += prc.intersect;
     stats->rays_occluded += prc.occluded;

@@ -150,6 +150,19 @@ int scene_find_shape(const struct scene *scene, const char *name)
     return -1;
 }
 
+bool scene_moved(const struct scene *a, const struct scene *b)
+{
+    if (a == b) return false;
+    if (a->shape_count != b->shape_count || !vec3_equal(a->env_radiance, b->env_radiance)) return true;
+    for (uint32_t i = 0; i < a->shape_count; i++) {
+        const struct shape *sa = &a->shapes[i], *sb = &b->shapes[i];
+        if (memcmp(&sa->to_world, &sb->to_world, sizeof sa->to_world) != 0 ||
+            !vec3_equal(a->materials[sa->material].emission, b->materials[sb->material].emission))
+            return true;
+    }
+    return false;
+}
+
 bool scene_has_translucent(const struct scene *scene)
 {
     for (uint32_t i = 0; i < scene->material_count; i++)

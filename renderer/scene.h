@@ -71,6 +71,9 @@ struct scene *scene_load_json(const char *json, size_t len, const char *base_dir
 
 /* Builds the acceleration structure and light sampler; the scene is immutable afterwards. */
 bool scene_commit(struct scene *scene, struct err *err);
+/* Whether a shape's transform or any emission differs between two frames' scenes (false for
+ * the same scene). */
+bool scene_moved(const struct scene *a, const struct scene *b);
 /* Whether any material is `translucent` (subsurface scattering): methods that do not sample the
  * BSSRDF refuse such scenes rather than render its BSDF stand-in everywhere. */
 bool scene_has_translucent(const struct scene *scene);

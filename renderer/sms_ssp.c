@@ -14,7 +14,8 @@
 
 struct ssp_params ssp_defaults(void)
 {
-    return (struct ssp_params){.sms = sms_defaults(), .tiles = 16, .prior = true, .prior_samples = 128, .alpha = 0.8f};
+    return (struct ssp_params){.sms = sms_defaults(), .tiles = 16, .prior = true, .prior_samples = 128, .alpha = 0.8f,
+                                .prior_frames = 4};
 }
 
 bool ssp_params_valid(const struct ssp_params *p, struct err *err)
@@ -24,6 +25,9 @@ bool ssp_params_valid(const struct ssp_params *p, struct err *err)
         return err_set(err, ERR_INVALID, "tiles", "tiles must be in [3, %d], got %u", SSP_MAX_TILES, p->tiles);
     if (p->prior_samples > 4096)
         return err_set(err, ERR_INVALID, "prior_samples", "prior_samples must be at most 4096, got %u", p->prior_samples);
+    if (p->prior_frames < 1 || p->prior_frames > SSP_MAX_PRIOR_FRAMES)
+        return err_set(err, ERR_INVALID, "prior_frames", "prior_frames must be in [1, %u], got %u", SSP_MAX_PRIOR_FRAMES,
+                       p->prior_frames);
     if (!(p->alpha >= 0.0f && p->alpha < 1.0f))
         return err_set(err, ERR_INVALID, "alpha", "alpha must be in [0, 1), got %g", (double)p->alpha);
     return true;
@@ -31,24 +35,37 @@ bool ssp_params_valid(const struct ssp_params *p, struct err *err)
 
 static uint32_t ssp_blocks(uint32_t n) { return (n + SSP_BLOCK - 1) / SSP_BLOCK; }
 
-size_t ssp_prior_bytes(uint32_t width, uint32_t height)
+static size_t ssp_table_entries(uint32_t width, uint32_t height)
 {
-    return (size_t)ssp_blocks(width) * ssp_blocks(height) * SSP_PRIOR_ENTRIES * sizeof(struct ssp_entry);
+    return (size_t)ssp_blocks(width) * ssp_blocks(height) * SSP_PRIOR_ENTRIES;
 }
 
-bool ssp_prior_init(struct ssp_prior *pr, uint32_t width, uint32_t height, struct err *err)
+size_t ssp_prior_bytes(uint32_t width, uint32_t height, uint32_t frames)
 {
+    return (frames > 1 ? 1 + (size_t)frames : 1) * ssp_table_entries(width, height) * sizeof(struct ssp_entry);
+}
+
+bool ssp_prior_init(struct ssp_prior *pr, uint32_t width, uint32_t height, uint32_t frames, struct err *err)
+{
+    memset(pr, 0, sizeof *pr);
     pr->blocks_x = ssp_blocks(width);
     pr->blocks_y = ssp_blocks(height);
-    pr->entries = calloc((size_t)pr->blocks_x * pr->blocks_y * SSP_PRIOR_ENTRIES, sizeof *pr->entries);
-    if (!pr->entries) return err_set(err, ERR_NOMEM, NULL, "out of memory for the sms_ssp prior");
+    pr->frames = frames > 1 ? frames : 1;
+    size_t n = ssp_table_entries(width, height);
+    pr->entries = calloc(n, sizeof *pr->entries);
+    if (pr->frames > 1) pr->walks = calloc(n * pr->frames, sizeof *pr->walks);
+    if (!pr->entries || (pr->frames > 1 && !pr->walks)) {
+        ssp_prior_destroy(pr);
+        return err_set(err, ERR_NOMEM, NULL, "out of memory for the sms_ssp prior");
+    }
     return true;
 }
 
 void ssp_prior_destroy(struct ssp_prior *pr)
 {
     free(pr->entries);
-    pr->entries = NULL;
+    free(pr->walks);
+    pr->entries = pr->walks = NULL;
 }
 
 /* ---- the seed space: directions in the caster's bounding cone ---- */
@@ -183,6 +200,45 @@ static bool ssp_walk(const struct scene *scene, const struct sms_caster *cs, con
     return ok;
 }
 
+static void ssp_table_clear(struct ssp_entry *tab)
+{
+    memset(tab, 0, SSP_PRIOR_ENTRIES * sizeof *tab);
+    for (int i = 0; i < SSP_PRIOR_ENTRIES; i++) tab[i].light_shape = tab[i].caster = -1;
+}
+
+/* The block's prior as the union of its kept frames' tile sets and boxes per pair, the newest
+ * frame (`slot`) first. */
+static void ssp_prior_unite(struct ssp_prior *pr, uint32_t block, uint32_t slot)
+{
+    const size_t table = (size_t)pr->blocks_x * pr->blocks_y * SSP_PRIOR_ENTRIES;
+    struct ssp_entry *out = &pr->entries[(size_t)block * SSP_PRIOR_ENTRIES];
+    ssp_table_clear(out);
+    for (uint32_t age = 0; age < pr->kept; age++) {
+        const struct ssp_entry *in = &pr->walks[((slot + pr->frames - age) % pr->frames) * table +
+                                                (size_t)block * SSP_PRIOR_ENTRIES];
+        for (int i = 0; i < SSP_PRIOR_ENTRIES && in[i].light_shape >= 0; i++) {
+            struct ssp_entry *o = NULL;
+            for (int q = 0; q < SSP_PRIOR_ENTRIES && !o; q++)
+                if ((out[q].light_shape == in[i].light_shape && out[q].caster == in[i].caster) || out[q].light_shape < 0)
+                    o = &out[q];
+            if (!o) continue;
+            if (o->light_shape < 0) {
+                *o = in[i];
+                continue;
+            }
+            for (int a = 0; a < 3; a++) {
+                o->lo[a] = fminf(o->lo[a], in[i].lo[a]);
+                o->hi[a] = fmaxf(o->hi[a], in[i].hi[a]);
+            }
+            o->count = 0;
+            for (size_t w = 0; w < sizeof o->bits / sizeof o->bits[0]; w++) {
+                o->bits[w] |= in[i].bits[w];
+                o->count += (uint32_t)__builtin_popcountll(o->bits[w]);
+            }
+        }
+    }
+}
+
 /* One prior job: a block's walks, into its own entry table with its own random stream, so the
  * prior does not depend on which worker builds which block. Counters go to the worker's slot. */
 struct ssp_prior_job {
@@ -193,6 +249,7 @@ struct ssp_prior_job {
     const struct camera *cam;
     uint64_t seed;
     uint32_t frame;
+    uint32_t slot;     /* this frame's walks go to walks[slot] (K > 1) */
     struct ssp_prior_counters c[SSP_PRIOR_WORKERS];
     struct ray_counters rc[SSP_PRIOR_WORKERS];
 };
@@ -208,7 +265,10 @@ static void ssp_prior_block(void *ctx, uint32_t block, unsigned worker)
     struct ssp_prior_counters *c = &job->c[worker];
     struct ray_counters *rc = &job->rc[worker];
     const uint32_t n = p->tiles, bx = block % pr->blocks_x, by = block / pr->blocks_x;
-    struct ssp_entry *tab = &pr->entries[(size_t)block * SSP_PRIOR_ENTRIES];
+    const size_t table = (size_t)pr->blocks_x * pr->blocks_y * SSP_PRIOR_ENTRIES;
+    struct ssp_entry *tab = pr->walks ? &pr->walks[job->slot * table + (size_t)block * SSP_PRIOR_ENTRIES]
+                                      : &pr->entries[(size_t)block * SSP_PRIOR_ENTRIES];
+    ssp_table_clear(tab);
     /* Its own stream: a frame's prior does not depend on the pixels' samples. */
     struct rng rng = rng_make(job->seed, job->frame, block, (uint64_t)2 << 40);
     for (uint32_t s = 0; s < p->prior_samples; s++) {
@@ -270,23 +330,30 @@ static void ssp_prior_block(void *ctx, uint32_t block, unsigned worker)
             slot->count++;
         }
     }
+    if (pr->walks) ssp_prior_unite(pr, block, job->slot);
 }
 
 bool ssp_prior_build(struct ssp_prior *pr, const struct scene *scene, const struct sms_scene *ss,
-                     const struct ssp_params *p, const struct camera *cam, uint64_t seed, uint32_t frame,
+                     const struct ssp_params *p, const struct camera *cam, uint64_t seed, uint32_t frame, bool still,
                      unsigned threads, struct ssp_prior_counters *c, struct ray_counters *rc, struct err *err)
 {
     double t0 = sms_now_ms();
-    size_t count = (size_t)pr->blocks_x * pr->blocks_y * SSP_PRIOR_ENTRIES;
-    for (size_t i = 0; i < count; i++) {
-        memset(&pr->entries[i], 0, sizeof pr->entries[i]);
-        pr->entries[i].light_shape = pr->entries[i].caster = -1;
+    const uint32_t blocks = pr->blocks_x * pr->blocks_y;
+    if (!still) pr->kept = 0;
+    if (!p->prior || ss->count == 0) {
+        for (uint32_t b = 0; b < blocks; b++) ssp_table_clear(&pr->entries[(size_t)b * SSP_PRIOR_ENTRIES]);
+        pr->kept = 0;
+        return true;
     }
-    if (!p->prior || ss->count == 0) return true;
+    struct ssp_prior_job job = {.pr = pr, .scene = scene, .ss = ss, .p = p, .cam = cam, .seed = seed, .frame = frame,
+                                .slot = pr->next};
+    if (pr->walks) {
+        pr->kept = pr->kept < pr->frames ? pr->kept + 1 : pr->frames;
+        pr->next = (pr->next + 1) % pr->frames;
+    }
     /* Blocks are independent, so the pass runs on the frame's workers. */
-    struct ssp_prior_job job = {.pr = pr, .scene = scene, .ss = ss, .p = p, .cam = cam, .seed = seed, .frame = frame};
     threads = parallel_threads(threads, SSP_PRIOR_WORKERS);
-    if (!parallel_run(threads, pr->blocks_x * pr->blocks_y, ssp_prior_block, &job, NULL, NULL, err)) return false;
+    if (!parallel_run(threads, blocks, ssp_prior_block, &job, NULL, NULL, err)) return false;
     for (unsigned w = 0; w < threads; w++) {
         c->samples += job.c[w].samples;
         c->solutions += job.c[w].solutions;

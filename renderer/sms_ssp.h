@@ -32,6 +32,16 @@
  * pixel's receiver (its block's); every other vertex of the path, after a diffuse bounce or a
  * delta lobe other than the canonical one, samples with α = 0 too (pr = NULL), since a tile set
  * seen from another point marks arbitrary tiles.
+ * Still views (K = prior_frames > 1). §4.1 builds the prior afresh each frame from 128 walks
+ * per block (256 for its two-light scene). While the camera and the scene stay as they were,
+ * the walks of the last K frames describe the same receivers, so the prior is the union of
+ * their tile sets (and boxes) per pair: K times the walks at one frame's cost. On
+ * refractive-slab the receivers seen along the slab by total internal reflection are rare
+ * among a block's walks, and 128 walks often missed their tiles. Each frame's walks use their
+ * own random stream, independent of the frame's samples, so any union leaves the estimate
+ * unbiased. When the camera or the scene changes the kept walks are dropped and the prior is
+ * the frame's own, as in the paper. The newest frame's pairs come first; a pair seen only in
+ * older frames is left out when a block's SSP_PRIOR_ENTRIES are taken.
  * Casters and light points are picked as in `sms` (the prior's pair importance sampling of §4.2
  * is not used). Deterministic per seed, frame and pixel, whatever the number of workers. */
 #ifndef RESTIRD_SMS_SSP_H
@@ -46,6 +56,7 @@
 #define SSP_MAX_TILES 32          /* N <= 32: a tile set is 1024 bits */
 #define SSP_BLOCK 16              /* B: prior pixel blocks */
 #define SSP_PRIOR_ENTRIES 8       /* (light shape, caster) pairs kept per block */
+#define SSP_MAX_PRIOR_FRAMES 16u  /* prior_frames <= 16 */
 #define SSP_PRIOR_WORKERS 64u     /* the prior pass's workers at most (per-worker counters) */
 
 struct ssp_params {
@@ -54,6 +65,7 @@ struct ssp_params {
     bool prior;                   /* build and use the per-frame prior (default true) */
     uint32_t prior_samples;       /* walks per block (default 128) */
     float alpha;                  /* mixing weight of the prior (default 0.8) */
+    uint32_t prior_frames;        /* K: frames whose walks a still view's prior unites (default 4) */
 };
 
 struct ssp_entry {
@@ -69,23 +81,30 @@ struct ssp_prior_counters {
     double ms;
 };
 
-/* The per-session prior: one entry table per pixel block. */
+/* The per-session prior: one entry table per pixel block, the one seeds are drawn from; with
+ * K = prior_frames > 1 also the tables of the last K frames' walks, whose union it is. */
 struct ssp_prior {
     uint32_t blocks_x, blocks_y;
+    uint32_t frames;              /* K */
+    uint32_t kept, next;          /* frames of walks in `walks` since the view last changed; the next slot */
     struct ssp_entry *entries;    /* blocks_x * blocks_y * SSP_PRIOR_ENTRIES */
+    struct ssp_entry *walks;      /* K > 1: K such tables, one per frame; else NULL */
 };
 
 struct ssp_params ssp_defaults(void);
 bool ssp_params_valid(const struct ssp_params *p, struct err *err);
-size_t ssp_prior_bytes(uint32_t width, uint32_t height);
-bool ssp_prior_init(struct ssp_prior *pr, uint32_t width, uint32_t height, struct err *err);
+/* Bytes of a prior for prior_frames K: one table, plus K with K > 1. */
+size_t ssp_prior_bytes(uint32_t width, uint32_t height, uint32_t frames);
+bool ssp_prior_init(struct ssp_prior *pr, uint32_t width, uint32_t height, uint32_t frames, struct err *err);
 void ssp_prior_destroy(struct ssp_prior *pr);
 
 /* Builds this frame's prior (all entries are rewritten) with `threads` workers (0 = all cores,
- * at most SSP_PRIOR_WORKERS); the result does not depend on the count. False only when
- * parallel_run runs out of memory. */
+ * at most SSP_PRIOR_WORKERS); the result does not depend on the count. `still`: the camera and
+ * the scene are those of the previous frame built, so the walks kept from earlier frames still
+ * describe the blocks' receivers; otherwise they are dropped. False only when parallel_run runs
+ * out of memory. */
 bool ssp_prior_build(struct ssp_prior *pr, const struct scene *scene, const struct sms_scene *ss,
-                     const struct ssp_params *p, const struct camera *cam, uint64_t seed, uint32_t frame,
+                     const struct ssp_params *p, const struct camera *cam, uint64_t seed, uint32_t frame, bool still,
                      unsigned threads, struct ssp_prior_counters *c, struct ray_counters *rc, struct err *err);
 
 /* One sample at x1 (the sampling half of ssp_estimate, consuming the random stream exactly as

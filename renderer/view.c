@@ -75,7 +75,7 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
             !sms_scene_init(scene, &ss, err))
             return false;
     }
-    if (params->method == RENDER_METHOD_SMS_SSP && !ssp_prior_init(&v->prior, params->width, params->height, err))
+    if (params->method == RENDER_METHOD_SMS_SSP && !ssp_prior_init(&v->prior, params->width, params->height, params->ssp.prior_frames, err))
         return false;
     if (params->method == RENDER_METHOD_RESTIR_PT) {
         if (!restir_pt_params_valid(&params->restir_pt, err)) return false;
@@ -355,7 +355,9 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
                 scene_release(scene);
                 return false;
             }
-            if (!ssp_prior_build(&v->prior, scene, &ss, &v->params.ssp, &cam, v->params.seed, v->frame, v->threads,
+            /* The walks kept from earlier frames describe this one while nothing moved. */
+            bool still = v->frame > 0 && memcmp(&camera, &v->camera, sizeof camera) == 0 && !scene_moved(v->scene, scene);
+            if (!ssp_prior_build(&v->prior, scene, &ss, &v->params.ssp, &cam, v->params.seed, v->frame, still, v->threads,
                                  &prior, &prc, err)) {
                 scene_release(scene);
                 return false;
@@ -442,7 +444,7 @@ uint64_t view_bytes_planned(const struct view_params *params, const struct scene
     if (params->method == RENDER_METHOD_RESTIR_BDPT)
         bytes += restir_bdpt_bytes_planned(&params->restir_bdpt, params->width, params->height);
     if (params->method == RENDER_METHOD_RESTIR_SSS) bytes += restir_sss_bytes_planned(&params->restir_sss, params->width, params->height);
-    if (params->method == RENDER_METHOD_SMS_SSP) bytes += ssp_prior_bytes(params->width, params->height);
+    if (params->method == RENDER_METHOD_SMS_SSP) bytes += ssp_prior_bytes(params->width, params->height, params->ssp.prior_frames);
     if (params->method == RENDER_METHOD_RESTIR_SMS) bytes += restir_sms_bytes_planned(&params->restir_sms, scene, params->width, params->height);
     return bytes;
 }
@@ -482,7 +484,7 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
         out[n++] = (struct view_buffer_bytes){"primary_hits", restir_sss_hit_bytes(&v->sss)};
         if (v->sss.pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_sss_pair_bytes(&v->sss)};
     }
-    if (v->params.method == RENDER_METHOD_SMS_SSP) out[n++] = (struct view_buffer_bytes){"prior", ssp_prior_bytes(v->output.width, v->output.height)};
+    if (v->params.method == RENDER_METHOD_SMS_SSP) out[n++] = (struct view_buffer_bytes){"prior", ssp_prior_bytes(v->output.width, v->output.height, v->prior.frames)};
     if (v->params.method == RENDER_METHOD_RESTIR_SMS) {
         out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sms_reservoir_bytes(&v->rsms)};
         out[n++] = (struct view_buffer_bytes){"gbuffers", restir_sms_gbuffer_bytes(&v->rsms)};

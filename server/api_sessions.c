@@ -92,6 +92,7 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
             jsonw_key(w, "prior"); jsonw_bool(w, p->ssp.prior);
             jsonw_key(w, "prior_samples"); jsonw_uint(w, p->ssp.prior_samples);
             jsonw_key(w, "alpha"); jsonw_double(w, p->ssp.alpha);
+            jsonw_key(w, "prior_frames"); jsonw_uint(w, p->ssp.prior_frames);
         }
     } else {
         static const char *const subsets[] = {"all", "caustic", "rest"};

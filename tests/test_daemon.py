@@ -1475,6 +1475,8 @@ def test_restir_sms_session(daemon):
     assert s["reservoir_bytes"] == 2 * 2 * 64 * 24 * 24 == s["buffers"]["reservoirs"]
     own = {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "receivers"}
     assert set(s["buffers"]) == own | {"prior", "spatial_pairs"}
+    # 2 x 2 blocks of 16 x 16 pixels, 8 pair entries of 168 bytes, in 1 + prior_frames tables.
+    assert p["prior_frames"] == 4 and s["buffers"]["prior"] == (1 + 4) * 2 * 2 * 8 * 168
     for params, extra in [({"sampler": "sms"}, {"spatial_pairs"}), ({"paired_spatial": False}, {"prior"})]:
         t = new_session(daemon, scene="refractive-slab", method="restir_sms", width=8, height=8, params=params)
         assert set(t["buffers"]) == own | extra, params
@@ -1497,7 +1499,8 @@ def test_restir_sms_session(daemon):
                           ({"sampler": "bdpt"}, "/params/sampler"), ({"paired_spatial": 1}, "/params/paired_spatial"),
                           ({"jitter_walk": 0.6}, "/params/jitter_walk"), ({"jitter_walk": -0.1}, "/params/jitter_walk"),
                           ({"light_reservoirs": 9}, "/params/light_reservoirs"),
-                          ({"light_reservoirs": -1}, "/params/light_reservoirs")]:
+                          ({"light_reservoirs": -1}, "/params/light_reservoirs"),
+                          ({"prior_frames": 0}, "/params/prior_frames"), ({"prior_frames": 17}, "/params/prior_frames")]:
         r = daemon.req("POST", "/v1/scenes/refractive-slab/sessions",
                        json_body={"method": "restir_sms", "width": 8, "height": 8, "params": params})
         assert_problem(r, 422, "invalid-field", field)

@@ -191,18 +191,23 @@ def test_sms_session_in_the_daemon(tmp_path):
                               ({"subset": "caustic"}, "/params/subset")]:
             r = d.req("POST", f"/v1/scenes/{SCENE}/sessions", json_body={"method": "sms", "params": params})
             assert r.status == 422 and r.json().get("field") == field, (params, repr(r))
-        # sms_ssp: its prior is its only buffer beyond pt's (8 pair entries of 168 bytes per 16x16 block).
+        # sms_ssp: its prior is its only buffer beyond pt's (8 pair entries of 168 bytes per 16x16 block,
+        # in the table sampled from and in each of the prior_frames tables of kept walks).
         r = d.req("POST", f"/v1/scenes/{SCENE}/sessions",
                   json_body={"method": "sms_ssp", "width": 40, "height": 20, "params": {"tiles": 8, "alpha": 0.5}})
         assert r.status == 201, repr(r)
         s = r.json()
         assert s["params"]["tiles"] == 8 and s["params"]["alpha"] == 0.5 and s["params"]["prior_samples"] == 128
         assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "prior"}
-        assert s["buffers"]["prior"] == 3 * 2 * 8 * 168
+        assert s["params"]["prior_frames"] == 4 and s["buffers"]["prior"] == (1 + 4) * 3 * 2 * 8 * 168
+        r = d.req("POST", f"/v1/scenes/{SCENE}/sessions",
+                  json_body={"method": "sms_ssp", "width": 40, "height": 20, "params": {"prior_frames": 1}})
+        assert r.status == 201 and r.json()["buffers"]["prior"] == 3 * 2 * 8 * 168, repr(r)
         f = d.req("POST", s["href"] + "/frames", headers={"Accept": "application/json"}).json()
         assert f["prior"]["samples"] > 0 and f["sms"]["samples"] > 0
         for params, field in [({"alpha": 1}, "/params/alpha"), ({"tiles": 33}, "/params/tiles"),
-                              ({"prior": 1}, "/params/prior")]:
+                              ({"prior": 1}, "/params/prior"), ({"prior_frames": 0}, "/params/prior_frames"),
+                              ({"prior_frames": 17}, "/params/prior_frames")]:
             r = d.req("POST", f"/v1/scenes/{SCENE}/sessions", json_body={"method": "sms_ssp", "params": params})
             assert r.status == 422 and r.json().get("field") == field, (params, repr(r))
         r = d.req("POST", f"/v1/scenes/{SCENE}/sessions", json_body={"method": "pt", "params": {"subset": "some"}})
@@ -210,6 +215,28 @@ def test_sms_session_in_the_daemon(tmp_path):
     finally:
         rc, _ = d.stop()
         assert rc == 0, d.stderr()[-3000:]
+
+
+def test_prior_unites_walks_of_a_still_view(tmp_path, scenes):
+    """The prior of a still view is the union of the last prior_frames frames' walks (sms_ssp.h):
+    under the scene's camera, prior_frames 4 and 1 give different frames from the same samples'
+    streams. When the camera moves every frame the kept walks are dropped, so both give the same
+    frames byte for byte, for restir_sms and for an sms_ssp session alike."""
+    sc = scenes / SCENE / "scene.json"
+    moving = tmp_path / "moving.json"
+    moving.write_text(json.dumps({"animation": {"fps": 30, "frames": 3, "camera_keys": [
+        {"t": 0, "position": [0, 2.2, 2.6], "look_at": [0, 0.2, 0]},
+        {"t": 0.1, "position": [0.3, 2.2, 2.5], "look_at": [0, 0.2, 0]}]}}))
+    for method, params in [("restir_sms", {"caustics_only": True}), ("sms_ssp", {"caustics_only": True, "spp": 2})]:
+        img = {}
+        for k in (1, 4):
+            for still in (True, False):
+                extra = ["--method", method, "--frames", "3", *_params({**params, "prior_frames": k})]
+                img[k, still], _ = render(sc, tmp_path / f"{method}{k}{still}.exr", size="32x32", seed=3,
+                                          extra=extra if still else [*extra, "--animation", str(moving)])
+        assert img[1, True].mean() > 0 and img[1, False].mean() > 0, method
+        assert not np.array_equal(img[1, True], img[4, True]), method
+        assert np.array_equal(img[1, False], img[4, False]), method
 
 
 @pytest.mark.parametrize("method", ["sms", "sms_ssp"])

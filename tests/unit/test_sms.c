@@ -20,6 +20,15 @@ static struct scene *slab(void)
     return s;
 }
 
+/* The slab scene and its one caster (the slab). */
+static struct scene *slab_caster(struct sms_scene *ss)
+{
+    struct err err = {0};
+    struct scene *s = slab();
+    CHECK_MSG(!s || (sms_scene_init(s, ss, &err) && ss->count == 1), "%s", err.message);
+    return s;
+}
+
 static void test_planned_bytes_match(void)
 {
     struct scene *s = slab();
@@ -80,11 +89,9 @@ static void test_track_owns_exactly_the_chain(void)
 /* Every seed of the bounding-box map lies on the box's surface, and every face gets seeds. */
 static void test_seed_map_covers_the_box(void)
 {
-    struct scene *s = slab();
-    if (!s) return;
     struct sms_scene ss;
-    struct err err = {0};
-    CHECK(sms_scene_init(s, &ss, &err) && ss.count == 1);
+    struct scene *s = slab_caster(&ss);
+    if (!s) return;
     const struct sms_caster *c = &ss.casters[0];
     int faces[6] = {0};
     for (int i = 0; i < 64; i++)
@@ -110,11 +117,10 @@ static void test_seed_map_covers_the_box(void)
  * walk that finds a solution marks a tile of its (light, caster) pair. */
 static void test_prior_built_behind_the_slab(void)
 {
-    struct scene *s = slab();
-    if (!s) return;
     struct sms_scene ss;
+    struct scene *s = slab_caster(&ss);
+    if (!s) return;
     struct err err = {0};
-    CHECK(sms_scene_init(s, &ss, &err) && ss.count == 1);
     /* Straight down through the slab's middle: at y = 0.7 the view is 0.23 wide, inside the slab. */
     struct camera cam;
     camera_init(&cam, &(struct camera_desc){vec3_make(0, 2, 0), vec3_make(0, 0, 0), vec3_make(0, 0, -1), 20.0f},
@@ -128,9 +134,9 @@ static void test_prior_built_behind_the_slab(void)
                   (int)h.shape == scene_find_shape(s, "slab"));
     struct ssp_prior pr;
     struct ssp_params p = ssp_defaults();
-    CHECK(ssp_prior_init(&pr, SSP_BLOCK, SSP_BLOCK, &err));
+    CHECK(ssp_prior_init(&pr, SSP_BLOCK, SSP_BLOCK, 1, &err));
     struct ssp_prior_counters c = {0};
-    CHECK(ssp_prior_build(&pr, s, &ss, &p, &cam, 7, 0, 2, &c, &rc, &err));
+    CHECK(ssp_prior_build(&pr, s, &ss, &p, &cam, 7, 0, false, 2, &c, &rc, &err));
     CHECK_MSG(c.samples == p.prior_samples, "%llu walks of %u", (unsigned long long)c.samples, p.prior_samples);
     CHECK_MSG(c.solutions > 0, "no solution in %llu walks", (unsigned long long)c.samples);
     uint32_t pairs = 0, tiles = 0;
@@ -172,6 +178,75 @@ static void test_prior_built_behind_the_slab(void)
     scene_release(s);
 }
 
+/* The same pair's entry in a block's table, or NULL. */
+static const struct ssp_entry *pair_in(const struct ssp_entry *tab, const struct ssp_entry *e)
+{
+    for (int i = 0; i < SSP_PRIOR_ENTRIES; i++)
+        if (tab[i].light_shape == e->light_shape && tab[i].caster == e->caster) return &tab[i];
+    return NULL;
+}
+
+/* A still view's prior is the union of its kept frames' walks (sms_ssp.h): with prior_frames 4,
+ * frame 1's table holds every tile and the box of frame 0's and frame 1's own priors, per pair,
+ * and nothing else; a frame that is not still starts again from its own walks alone. */
+static void test_prior_unites_still_frames(void)
+{
+    struct sms_scene ss;
+    struct scene *s = slab_caster(&ss);
+    if (!s) return;
+    struct err err = {0};
+    struct camera cam;
+    camera_init(&cam, &s->camera, 2 * SSP_BLOCK, 2 * SSP_BLOCK);
+    struct ssp_params p = ssp_defaults();
+    struct ray_counters rc = {0};
+    struct ssp_prior own[3], kept;
+    for (uint32_t f = 0; f < 3; f++) {
+        struct ssp_prior_counters c = {0};
+        CHECK(ssp_prior_init(&own[f], cam.width, cam.height, 1, &err) &&
+              ssp_prior_build(&own[f], s, &ss, &p, &cam, 5, f, false, 2, &c, &rc, &err));
+    }
+    CHECK(ssp_prior_init(&kept, cam.width, cam.height, 4, &err));
+    const size_t n = 4 * SSP_PRIOR_ENTRIES;
+    for (uint32_t f = 0; f < 3; f++) {
+        struct ssp_prior_counters c = {0};
+        CHECK(ssp_prior_build(&kept, s, &ss, &p, &cam, 5, f, f == 1, 2, &c, &rc, &err));
+        if (f == 0 || f == 2) {
+            CHECK_MSG(memcmp(kept.entries, own[f].entries, n * sizeof *kept.entries) == 0, "frame %u", f);
+            continue;
+        }
+        uint32_t united = 0, single = 0;
+        for (uint32_t b = 0; b < 4; b++) {
+            const struct ssp_entry *u = &kept.entries[b * SSP_PRIOR_ENTRIES];
+            for (int i = 0; i < SSP_PRIOR_ENTRIES && u[i].light_shape >= 0; i++) {
+                const struct ssp_entry *a = pair_in(&own[0].entries[b * SSP_PRIOR_ENTRIES], &u[i]);
+                const struct ssp_entry *z = pair_in(&own[1].entries[b * SSP_PRIOR_ENTRIES], &u[i]);
+                CHECK(a || z);
+                uint32_t bits = 0;
+                for (int w = 0; w < SSP_MAX_TILES * SSP_MAX_TILES / 64; w++) {
+                    uint64_t want = (a ? a->bits[w] : 0) | (z ? z->bits[w] : 0);
+                    CHECK_MSG(u[i].bits[w] == want, "block %u pair %d word %d", b, i, w);
+                    bits += (uint32_t)__builtin_popcountll(u[i].bits[w]);
+                }
+                CHECK(u[i].count == bits);
+                for (int k = 0; k < 3; k++)
+                    CHECK(u[i].lo[k] == fminf(a ? a->lo[k] : INFINITY, z ? z->lo[k] : INFINITY) &&
+                          u[i].hi[k] == fmaxf(a ? a->hi[k] : -INFINITY, z ? z->hi[k] : -INFINITY));
+                united += u[i].count;
+                single += z ? z->count : 0;
+            }
+            for (int i = 0; i < SSP_PRIOR_ENTRIES; i++)
+                for (int k = 0; k < 2; k++) {
+                    const struct ssp_entry *e = &own[k].entries[b * SSP_PRIOR_ENTRIES + i];
+                    CHECK(e->light_shape < 0 || pair_in(u, e));
+                }
+        }
+        CHECK_MSG(united > single && single > 0, "%u tiles united, %u in frame 1's own", united, single);
+    }
+    for (int f = 0; f < 3; f++) ssp_prior_destroy(&own[f]);
+    ssp_prior_destroy(&kept);
+    scene_release(s);
+}
+
 static void test_params_checked(void)
 {
     struct err err = {0};
@@ -182,13 +257,20 @@ static void test_params_checked(void)
     p = ssp_defaults();
     p.alpha = 1.0f;
     CHECK(!ssp_params_valid(&p, &err) && strcmp(err.where, "alpha") == 0);
+    p = ssp_defaults();
+    CHECK(p.prior_frames == 4);
+    p.prior_frames = 0;
+    CHECK(!ssp_params_valid(&p, &err) && strcmp(err.where, "prior_frames") == 0);
+    p.prior_frames = SSP_MAX_PRIOR_FRAMES + 1;
+    CHECK(!ssp_params_valid(&p, &err) && strcmp(err.where, "prior_frames") == 0);
     struct sms_params q = sms_defaults();
     CHECK(q.bernoulli_cap == 128 && q.max_iterations == MANIFOLD_MAX_ITERATIONS);
     q.max_iterations = 0;
     CHECK(!sms_params_valid(&q, &err) && strcmp(err.where, "max_iterations") == 0);
     /* 16 x 16 blocks of 8 pair entries. */
-    CHECK(ssp_prior_bytes(17, 16) == 2 * SSP_PRIOR_ENTRIES * sizeof(struct ssp_entry));
+    CHECK(ssp_prior_bytes(17, 16, 1) == 2 * SSP_PRIOR_ENTRIES * sizeof(struct ssp_entry));
+    CHECK(ssp_prior_bytes(17, 16, 4) == 5 * 2 * SSP_PRIOR_ENTRIES * sizeof(struct ssp_entry));
 }
 
 TEST_MAIN(TEST(test_planned_bytes_match), TEST(test_track_owns_exactly_the_chain), TEST(test_seed_map_covers_the_box),
-          TEST(test_prior_built_behind_the_slab), TEST(test_params_checked))
+          TEST(test_prior_built_behind_the_slab), TEST(test_prior_unites_still_frames), TEST(test_params_checked))

@@ -30,6 +30,7 @@ export const METHODS = {
       { name: 'tiles', kind: 'number', value: 16, help: 'N x N tiles of the seed space' },
       { name: 'prior', kind: 'boolean', value: true, help: 'per-frame prior from 16x16 pixel blocks' },
       { name: 'prior_samples', kind: 'number', value: 128, help: 'prior walks per block' },
+      { name: 'prior_frames', kind: 'number', value: 4, help: 'frames of walks a still view\'s prior unites' },
       { name: 'alpha', kind: 'number', value: 0.8, help: 'mixing weight of the prior' },
       { name: 'bernoulli_cap', kind: 'number', value: 128, help: 'Bernoulli trials per solution (0: uncapped)' },
       { name: 'caustics_only', kind: 'boolean', value: false, help: 'only the caustics SMS owns' },
