@@ -432,6 +432,17 @@ bool view_accumulated(const struct view *v, struct image *out, uint32_t *count, 
     return true;
 }
 
+uint32_t view_reservoir_bytes_per_pixel(const struct view_params *params, const struct scene *scene)
+{
+    switch (params->method) {
+    case RENDER_METHOD_RESTIR_PT: return RESTIR_PT_RESERVOIR_BYTES;
+    case RENDER_METHOD_RESTIR_SSS: return RESTIR_SSS_RESERVOIR_BYTES * restir_sss_layers(&params->restir_sss);
+    case RENDER_METHOD_RESTIR_BDPT: return RESTIR_BDPT_PATH_BYTES;
+    case RENDER_METHOD_RESTIR_SMS: return RESTIR_SMS_RESERVOIR_BYTES * restir_sms_layers(&params->restir_sms, scene);
+    default: return 0;
+    }
+}
+
 uint64_t view_bytes_planned(const struct view_params *params, const struct scene *scene)
 {
     const uint32_t shape_count = scene->shape_count;

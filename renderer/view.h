@@ -168,6 +168,11 @@ bool view_accumulated(const struct view *v, struct image *out, uint32_t *count, 
  * total right after view_init), so a caller can refuse a view before allocating it. */
 uint64_t view_bytes_planned(const struct view_params *params, const struct scene *scene);
 
+/* Bytes of one pixel's reservoirs in one of the method's reservoir buffers (0 without reuse):
+ * restir_sss and restir_sms have one per layer (their target, light_reservoirs resolved on
+ * `scene` when left to the scene). */
+uint32_t view_reservoir_bytes_per_pixel(const struct view_params *params, const struct scene *scene);
+
 /* Buffers by name; returns the count (<= VIEW_MAX_BUFFERS). *total gets the sum. */
 uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_BUFFERS], size_t *total);
 

@@ -204,11 +204,7 @@ static void api_write_session(struct jsonw *w, struct session *s)
     jsonw_key(w, "camera"); api_write_camera(w, &cam);
     jsonw_key(w, "reservoir_bytes"); jsonw_uint(w, reservoir);
     jsonw_key(w, "reservoir_bytes_per_pixel");
-    jsonw_uint(w, p->method == RENDER_METHOD_RESTIR_PT    ? RESTIR_PT_RESERVOIR_BYTES
-                  : p->method == RENDER_METHOD_RESTIR_SSS ? RESTIR_SSS_RESERVOIR_BYTES * restir_sss_layers(&p->restir_sss)
-                  : p->method == RENDER_METHOD_RESTIR_BDPT ? RESTIR_BDPT_PATH_BYTES
-                  : p->method == RENDER_METHOD_RESTIR_SMS ? RESTIR_SMS_RESERVOIR_BYTES * p->restir_sms.light_reservoirs  /* as view_init resolved it */
-                                                          : 0);
+    jsonw_uint(w, view_reservoir_bytes_per_pixel(p, s->view.scene));
     jsonw_key(w, "buffers");
     jsonw_object_begin(w);
     for (uint32_t i = 0; i < nb; i++) {

@@ -326,8 +326,7 @@ static int cli_render(int argc, char **argv)
     /* Samples per pixel and frame as rendered: --params may set a pt, sms or sms_ssp frame's own
      * spp; the reuse methods and bdpt trace one camera path per pixel and frame. */
     uint32_t frame_spp = p.spp;
-    uint32_t sss_layers = 1;   /* restir_sss: reservoirs per pixel and buffer (its target) */
-    uint32_t sms_layers = 1;   /* restir_sms: reservoirs per pixel and buffer (light_reservoirs) */
+    uint32_t reservoir_bytes = 0;   /* per pixel and reservoir buffer */
     if (frames || anim_path || rm != RENDER_METHOD_PT) {
         if (has_crop || has_frame) {
             scene_release(scene);
@@ -353,8 +352,7 @@ static int cli_render(int argc, char **argv)
             return 2;
         }
         frame_spp = rm == RENDER_METHOD_PT || rm == RENDER_METHOD_SMS || rm == RENDER_METHOD_SMS_SSP ? vp.pt.spp : 1u;
-        sss_layers = restir_sss_layers(&vp.restir_sss);
-        sms_layers = restir_sms_layers(&vp.restir_sms, scene);
+        reservoir_bytes = view_reservoir_bytes_per_pixel(&vp, scene);
         if (!cli_render_sequence(scene, &vp, p.threads, frames, average_last, anim_path, tty, &img, &st, &rendered,
                                  &last, &session_bytes)) {
             scene_release(scene);
@@ -390,10 +388,7 @@ static int cli_render(int argc, char **argv)
                    "\"shade_ms\":%.3f,\"shifts\":%" PRIu64 ",\"shift_failures\":%" PRIu64 "},\"session_bytes\":%zu,"
                    "\"reservoir_bytes_per_pixel\":%u",
                    ps->gbuffer_ms, ps->initial_ms, ps->temporal_ms, ps->spatial_ms, ps->shade_ms, ps->shifts,
-                   ps->shift_failures, session_bytes,
-                   rm == RENDER_METHOD_RESTIR_SSS   ? RESTIR_SSS_RESERVOIR_BYTES * sss_layers
-                   : rm == RENDER_METHOD_RESTIR_SMS ? RESTIR_SMS_RESERVOIR_BYTES * sms_layers
-                                                    : RESTIR_PT_RESERVOIR_BYTES);
+                   ps->shift_failures, session_bytes, reservoir_bytes);
         }
         if (last.has_bdpt) {
             const struct bdpt_stats *bs = &last.bdpt;

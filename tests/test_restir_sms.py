@@ -91,6 +91,8 @@ def test_restir_sms_unbiased_still_camera(tmp_path, scenes, light_reservoirs, sa
                      tag=f"r{light_reservoirs}")
     assert np.isfinite(runs).all() and st["nonfinite"] == 0 and st["sms"]["capped"] == 0
     assert st["last_frame"]["shifts"] > 0
+    # 64 bytes per reservoir: one per light (the slab's two) when left to the scene.
+    assert st["reservoir_bytes_per_pixel"] == 64 * (light_reservoirs or 2)
     res = ztest_runs(runs, ref)
     bad = ztest_runs(runs * 1.05, ref)
     print(f"restir_sms ({sampler}, still) vs filtered reference: {res}; x1.05: {bad}; last run: {st['last_frame']}, "
