@@ -46,7 +46,7 @@ refractive-slab and reflective-plane at 128x128 (BENCH_SMS_SCENES, BENCH_SMS_SIZ
      part with the library's colourless casters).
 With BENCH_SMS_SCALE=S, steps 1-4 run on the copies at scale S instead of the library's scenes
 (seed 002's regime: S = 3), and the outputs are named sms-bumps-S.json, sms-<scene>-bumps-S.svg.
-Environment: BENCH_SMS_SEEDS (3), BENCH_SMS_STEADY_SEEDS (8: the real-time case's sessions), BENCH_SMS_REF_SPP (1024), BENCH_SMS_REF_SMS_SPP (256),
+Environment: BENCH_SMS_SEEDS (3), BENCH_SMS_STEADY_SEEDS (16: the real-time case's sessions), BENCH_SMS_REF_SPP (1024), BENCH_SMS_REF_SMS_SPP (256),
 BENCH_SMS_BUMPS ("1 2 3 4"; empty: no sweep), BENCH_SMS_BUMPS_SIZE (128x128), BENCH_SMS_SCALE
 (unset), BENCH_SMS_TILES (unset: N = 16; outputs named sms-tiles-N.json, ...), BENCH_THREADS (all
 cores); BENCH_SMS_QUICK=1 is a small run for a shared machine
@@ -85,7 +85,7 @@ SEEDS = int(os.environ.get("BENCH_SMS_SEEDS", "1" if QUICK else "3"))
 # large weight can make most of a frame's error), so it is measured over more sessions than the
 # curves and reported both as the median and as the root of the mean squared error over them
 # (what a viewer sees on average over frames).
-STEADY_SEEDS = int(os.environ.get("BENCH_SMS_STEADY_SEEDS", "1" if QUICK else "8"))
+STEADY_SEEDS = int(os.environ.get("BENCH_SMS_STEADY_SEEDS", "1" if QUICK else "16"))
 REF_SPP = int(os.environ.get("BENCH_SMS_REF_SPP", "1024"))
 # The quick run's 32x32 reference can afford 4x the samples of the full run's 64x64 one (the
 # ratios below need a reference well under the compared errors).
