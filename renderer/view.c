@@ -438,7 +438,9 @@ uint32_t view_reservoir_bytes_per_pixel(const struct view_params *params, const 
     case RENDER_METHOD_RESTIR_PT: return RESTIR_PT_RESERVOIR_BYTES;
     case RENDER_METHOD_RESTIR_SSS: return RESTIR_SSS_RESERVOIR_BYTES * restir_sss_layers(&params->restir_sss);
     case RENDER_METHOD_RESTIR_BDPT: return RESTIR_BDPT_PATH_BYTES;
-    case RENDER_METHOD_RESTIR_SMS: return RESTIR_SMS_RESERVOIR_BYTES * restir_sms_layers(&params->restir_sms, scene);
+    case RENDER_METHOD_RESTIR_SMS:
+        return RESTIR_SMS_RESERVOIR_BYTES *
+               (scene ? restir_sms_layers(&params->restir_sms, scene) : params->restir_sms.light_reservoirs);
     default: return 0;
     }
 }

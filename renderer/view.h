@@ -169,8 +169,10 @@ bool view_accumulated(const struct view *v, struct image *out, uint32_t *count, 
 uint64_t view_bytes_planned(const struct view_params *params, const struct scene *scene);
 
 /* Bytes of one pixel's reservoirs in one of the method's reservoir buffers (0 without reuse):
- * restir_sss and restir_sms have one per layer (their target, light_reservoirs resolved on
- * `scene` when left to the scene). */
+ * restir_sss and restir_sms have one per layer (their target; light_reservoirs). `scene`: the
+ * scene the params are for, which resolves a light_reservoirs left to the scene (0); NULL for
+ * a view's own params, which view_init resolved (the view's scene changes while it renders, so
+ * a reader of a busy view must not touch it). */
 uint32_t view_reservoir_bytes_per_pixel(const struct view_params *params, const struct scene *scene);
 
 /* Buffers by name; returns the count (<= VIEW_MAX_BUFFERS). *total gets the sum. */

@@ -204,7 +204,7 @@ static void api_write_session(struct jsonw *w, struct session *s)
     jsonw_key(w, "camera"); api_write_camera(w, &cam);
     jsonw_key(w, "reservoir_bytes"); jsonw_uint(w, reservoir);
     jsonw_key(w, "reservoir_bytes_per_pixel");
-    jsonw_uint(w, view_reservoir_bytes_per_pixel(p, s->view.scene));
+    jsonw_uint(w, view_reservoir_bytes_per_pixel(p, NULL));  /* the view resolved light_reservoirs */
     jsonw_key(w, "buffers");
     jsonw_object_begin(w);
     for (uint32_t i = 0; i < nb; i++) {
