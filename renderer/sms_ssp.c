@@ -206,6 +206,15 @@ static void ssp_table_clear(struct ssp_entry *tab)
     for (int i = 0; i < SSP_PRIOR_ENTRIES; i++) tab[i].light_shape = tab[i].caster = -1;
 }
 
+/* The entry of pair (light, caster) in a block's table, or else its first unused entry (NULL
+ * when all SSP_PRIOR_ENTRIES hold other pairs). */
+static struct ssp_entry *ssp_slot(struct ssp_entry *tab, int32_t light, int32_t caster)
+{
+    for (int q = 0; q < SSP_PRIOR_ENTRIES; q++)
+        if ((tab[q].light_shape == light && tab[q].caster == caster) || tab[q].light_shape < 0) return &tab[q];
+    return NULL;
+}
+
 /* The block's prior as the union of its kept frames' tile sets and boxes per pair, the newest
  * frame (`slot`) first. */
 static void ssp_prior_unite(struct ssp_prior *pr, uint32_t block, uint32_t slot)
@@ -217,10 +226,7 @@ static void ssp_prior_unite(struct ssp_prior *pr, uint32_t block, uint32_t slot)
         const struct ssp_entry *in = &pr->walks[((slot + pr->frames - age) % pr->frames) * table +
                                                 (size_t)block * SSP_PRIOR_ENTRIES];
         for (int i = 0; i < SSP_PRIOR_ENTRIES && in[i].light_shape >= 0; i++) {
-            struct ssp_entry *o = NULL;
-            for (int q = 0; q < SSP_PRIOR_ENTRIES && !o; q++)
-                if ((out[q].light_shape == in[i].light_shape && out[q].caster == in[i].caster) || out[q].light_shape < 0)
-                    o = &out[q];
+            struct ssp_entry *o = ssp_slot(out, in[i].light_shape, in[i].caster);
             if (!o) continue;
             if (o->light_shape < 0) {
                 *o = in[i];
@@ -308,10 +314,7 @@ static void ssp_prior_block(void *ctx, uint32_t block, unsigned worker)
         uint32_t ti, tj;
         if (!ok || !ssp_tile_of(&k, n, v[0].p, &ti, &tj)) continue;
         c->solutions++;
-        struct ssp_entry *slot = NULL;
-        for (int q = 0; q < SSP_PRIOR_ENTRIES && !slot; q++)
-            if ((tab[q].light_shape == (int32_t)ls.shape && tab[q].caster == (int32_t)ci) || tab[q].light_shape < 0)
-                slot = &tab[q];
+        struct ssp_entry *slot = ssp_slot(tab, (int32_t)ls.shape, (int32_t)ci);
         if (!slot) {
             c->dropped_pairs++;
             continue;
