@@ -9,7 +9,10 @@ refractive-slab and reflective-plane at 128x128 (BENCH_SMS_SCENES, BENCH_SMS_SIZ
   1. a reference per scene: `pt` subset rest at REF_SPP plus `sms` caustics only, uncapped, at
      REF_SMS_SPP (path tracing alone does not converge on these caustics in any reasonable time;
      tests/test_sms.py shows the SMS part unbiased against path tracing restricted to the same
-     paths), cached in build/refs/ under the scene files' hash and the spps;
+     paths), cached in build/refs/ under the scene files' hash and the spps; each part is two
+     halves with independent seeds, whose difference estimates the reference's own RMSE: it is
+     printed, drawn in the charts, and a ratio whose RMSEs are within 3x of it is flagged (uncapped
+     SMS is heavy-tailed where the casters are bumpy, see BENCH_SMS_SCALE);
   2. `pt`, `sms` and `sms_ssp` (Bernoulli cap 128 and N = 16, as seed 002 §6) at 1, 2, 4 ...
      spp, over SEEDS seeds: render time and RMSE against the reference (seed 002 reports RMSE);
      `restir_sms` (same sampler, 1 candidate per pixel and frame, reuse on) as sessions of 1, 2,
@@ -128,22 +131,31 @@ def render(scene, out, method, params, seed, frames=None, extra=(), size=None):
 
 
 def reference(scene, tmp):
-    """The whole image's reference and its caustic component's (the sms part)."""
+    """The whole image's reference, its caustic component's (the sms part), and each one's own
+    RMSE. Each part is rendered as two halves with independent seeds: the reference is their mean,
+    and RMS(half 1 - half 2) / 2 estimates the mean's own error (the halves' difference has twice
+    a half's variance, the mean half of it). Uncapped SMS is heavy-tailed where basins are small: a
+    rare solution found after thousands of trials makes a pixel hundreds of times its mean, and a
+    reference holding one measures itself in every method's RMSE."""
     h = hashlib.sha256()
     for f in sorted(scene.parent.iterdir()):
         if f.suffix in (".json", ".obj"):
             h.update(f.read_bytes())
-    h.update(f"{SIZE} {REF_SPP} {REF_SMS_SPP}".encode())
-    path = REFS / f"sms-bench-{scene.parent.name}-{h.hexdigest()[:16]}-parts.npy"
+    h.update(f"{SIZE} {REF_SPP} {REF_SMS_SPP} halves".encode())
+    path = REFS / f"sms-bench-{scene.parent.name}-{h.hexdigest()[:16]}-halves.npy"
     if path.exists():
-        rest, caus = np.load(path)
-        return rest + caus, caus
-    rest, _ = render(scene, tmp / "ref_rest.exr", "pt", {"spp": REF_SPP, "subset": "rest"}, 900001)
-    caus, _ = render(scene, tmp / "ref_caus.exr", "sms", {"spp": REF_SMS_SPP, "caustics_only": True, "bernoulli_cap": 0},
-                     900002)
-    REFS.mkdir(parents=True, exist_ok=True)
-    np.save(path, np.stack([rest, caus]))
-    return rest + caus, caus
+        rest1, rest2, caus1, caus2 = np.load(path)
+    else:
+        rest1, rest2 = (render(scene, tmp / f"ref_rest{i}.exr", "pt", {"spp": REF_SPP // 2, "subset": "rest"}, seed)[0]
+                        for i, seed in ((1, 900001), (2, 900003)))
+        caus1, caus2 = (render(scene, tmp / f"ref_caus{i}.exr", "sms",
+                               {"spp": REF_SMS_SPP // 2, "caustics_only": True, "bernoulli_cap": 0}, seed)[0]
+                        for i, seed in ((1, 900002), (2, 900004)))
+        REFS.mkdir(parents=True, exist_ok=True)
+        np.save(path, np.stack([rest1, rest2, caus1, caus2]))
+    caus = (caus1 + caus2) / 2
+    own = {"image": rmse(rest1 + caus1, rest2 + caus2) / 2, "caustic": rmse(caus1, caus2) / 2}
+    return (rest1 + rest2) / 2 + caus, caus, own
 
 
 def rmse(img, ref):
@@ -285,7 +297,21 @@ def at_time(curve, ms):
     return loglog_at([(a, e) for a, e, _ in curve], ms)
 
 
+# A measured RMSE m is sqrt(t^2 + r^2) for a method's own error t and the reference's r. At m >= 3 r,
+# t >= 2.83 r and m overstates t by at most 6 %; below that a ratio of two RMSEs says more about
+# the reference than about the methods, and the bench says so beside it.
+NEAR_REFERENCE = 3.0
+
+
+def near_reference(err, r):
+    own = r.get("reference_rmse")
+    return f" [within {NEAR_REFERENCE:g}x the reference's own RMSE {own:.3g}: not a measurement of the method]" \
+        if own is not None and err < NEAR_REFERENCE * own else ""
+
+
 def print_curves(name, r, what):
+    if "reference_rmse" in r:
+        print(f"\n{name} ({what}): the reference's own RMSE, from its two independent halves: {r['reference_rmse']:.4g}")
     print(f"\n| scene | method | spp (restir_sms: frames) | time (ms) | RMSE ({what}) |")
     print("|---|---|---|---|---|")
     for method, pts in r["curves"].items():
@@ -294,10 +320,11 @@ def print_curves(name, r, what):
     # Equal time: the other curve's RMSE interpolated log-log at each point's time.
     for m, base in RATIOS:
         ref_curve = sorted(r["curves"][base])
-        ratios = [err / e for ms, err, _ in r["curves"][m] if (e := at_time(ref_curve, ms))]
-        if ratios:
-            print(f"\n{name} ({what}): RMSE of {m} / {base} at equal time: median {statistics.median(ratios):.3f} "
-                  f"over {len(ratios)} points")
+        pairs = [(err, e) for ms, err, _ in r["curves"][m] if (e := at_time(ref_curve, ms))]
+        if pairs:
+            print(f"\n{name} ({what}): RMSE of {m} / {base} at equal time: median "
+                  f"{statistics.median(a / b for a, b in pairs):.3f} over {len(pairs)} points"
+                  + near_reference(min(min(p) for p in pairs), r))
         else:
             print(f"\n{name} ({what}): RMSE of {m} / {base} at equal time: the curves do not overlap in time")
     st = r["steady"]
@@ -306,11 +333,15 @@ def print_curves(name, r, what):
           f"RMSE: median, root mean square over the sessions, each session's): " +
           ", ".join(f"{k} {v[0]:.1f} ms {v[1]:.4g} {v[2]:.4g} [{' '.join(f'{e:.3g}' for e in v[3])}]"
                     for k, v in st.items()))
+    own = r.get("reference_rmse", 0.0)
     for k, (ms, err, rms, _) in st.items():
         e = at_time(sms, ms)
         eq = f"{err / e:.3f} (root mean square: {rms / e:.3f})" if e else "outside the sms curve"
+        if e and own and err > own and e > own:
+            # The reference's error is independent of both: its variance adds to each mean square.
+            eq += f"; without the reference's own error in either: {math.sqrt((err * err - own * own) / (e * e - own * own)):.3f}"
         print(f"{name} ({what}): RMSE of one {k} frame / sms 1 spp: {err / sms[0][1]:.3f} at {ms / sms[0][0]:.2f}x "
-              f"its time per frame; / sms at the same time per frame: {eq}")
+              f"its time per frame; / sms at the same time per frame: {eq}" + near_reference(err, r))
     f = r.get("floors")
     if f and "floor" in f:
         # sms at x times the time per frame has about 1/sqrt(x) of its 1-spp RMSE. restir_sms keeps
@@ -338,6 +369,11 @@ def charts(results):
             series = [(m, [(a, b) for a, b, _ in pts], "line") for m, pts in rr["curves"].items()]
             series += [(f"{k}, frame {WARMUP + 1}", [(v[0], v[1])], "squares", labels.index(k))
                        for k, v in rr["steady"].items() if k in labels]
+            if "reference_rmse" in rr:
+                # Below this line a curve measures the reference's own noise more than the method.
+                ms = [a for _, pts, *_ in series for a, _ in pts]
+                series.append(("the reference's own RMSE", [(min(ms), rr["reference_rmse"]),
+                                                              (max(ms), rr["reference_rmse"])], "dashed", 5))
             loglog(OUT / path, title, "render time (ms)", "RMSE", series)
 
 
@@ -355,14 +391,16 @@ def main():
         scenes = bumpy_copies(float(SCALE)) if SCALE else ROOT / "scenes"
         for name in SCENES:
             scene = scenes / name / "scene.json"
-            ref, caustic_ref = reference(scene, tmp)
+            ref, caustic_ref, own = reference(scene, tmp)
             results[name] = measure(scene, name, ref, tmp, IMAGE_RUNS, "image")
             results[name]["caustic"] = measure(scene, name, caustic_ref, tmp, CAUSTIC_RUNS, "caustic")
+            results[name]["reference_rmse"] = own["image"]
+            results[name]["caustic"]["reference_rmse"] = own["caustic"]
             results[name]["caustic"]["floors"] = floors(scene)
     (OUT / f"sms{SUFFIX}.json").write_text(json.dumps({"scenes": results, "bumps": bumps}, indent=1))
     where = f"bumps scaled by {SCALE}, {scenes.relative_to(ROOT)}/" if SCALE else "the library's scenes"
     print(f"# pt vs sms vs restir_sms ({where}; {SIZE}, medians over {SEEDS} seeds; reference: pt rest {REF_SPP} spp + "
-          f"sms caustics {REF_SMS_SPP} spp uncapped)\n")
+          f"sms caustics {REF_SMS_SPP} spp uncapped, each in two halves)\n")
     print("| scene | prior success | prior Newtons / sample | prior ms | success rate (sms / sms_ssp) | "
           "Newtons / sample | Bernoulli / solution | Newtons / solution | ms in the estimates (1 spp) |")
     print("|---|---|---|---|---|---|---|---|---|")
