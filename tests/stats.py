@@ -33,6 +33,8 @@ class ZTest:
     global_z: float
     threshold: float
     global_threshold: float
+    untested: int = 0  # pixel values left out of the per-pixel test (ztest_runs' min_nonzero_b)
+    untested_share: float = 0.0  # their share of both sides' summed means
 
     @property
     def passed(self):
@@ -41,7 +43,8 @@ class ZTest:
     def __str__(self):
         return (f"pixels passing {100 * self.fraction_pass:.3f}% (threshold |z| <= {self.threshold:.2f}), "
                 f"worst |z| {self.worst_z:.2f}, global mean t {self.global_z:.2f} "
-                f"(threshold {self.global_threshold:.2f})")
+                f"(threshold {self.global_threshold:.2f})" + (f", {self.untested} values untested ({100 * self.untested_share:.2f} % of the image's sum)"
+                   if self.untested else ""))
 
 
 def sidak_threshold(n_tests, alpha=0.01):
@@ -52,9 +55,17 @@ def sidak_threshold(n_tests, alpha=0.01):
 FLOAT_REL_FLOOR = 1e-5
 
 
-def ztest_runs(runs_a, runs_b=None, expected=None, rel_floor=FLOAT_REL_FLOOR):
+def ztest_runs(runs_a, runs_b=None, expected=None, rel_floor=FLOAT_REL_FLOOR, min_nonzero_b=0):
     """runs_a, runs_b: arrays K x H x W x C of independent renders. Either runs_b (a second set)
     or `expected` (an exact image, H x W x C, or a scalar) is the comparison.
+
+    min_nonzero_b: pixel values where fewer of runs_b than this are nonzero are left out of the
+    per-pixel test (and counted in ZTest.untested, with their share of the image's sum), unless
+    every run of both sides is zero there; the image means still hold them. A reference
+    that met a pixel's rare paths in a run or two, or in none, has a sample variance of 0 or of
+    one or two samples, so its standard error there says nothing, and a correct estimator's mean
+    reads as many sigma away. Path tracing towards small lights seen through glass leaves such pixels at any
+    affordable sample count.
 
     rel_floor: a standard-error floor relative to the value. Pixels whose paths all carry the
     same weight up to float rounding (e.g. lossless specular paths that end before Russian
@@ -86,9 +97,19 @@ def ztest_runs(runs_a, runs_b=None, expected=None, rel_floor=FLOAT_REL_FLOOR):
     # Where both sides have zero variance the values must agree exactly (up to float rounding).
     exact = se == 0
     z = np.where(exact, np.where(np.abs(diff) <= 1e-6 * (1 + np.abs(mean_b)), 0.0, np.inf), diff / np.where(exact, 1, se))
-    n = z.size
+    tested = np.ones(z.shape, dtype=bool)
+    if min_nonzero_b and runs_b is not None:
+        # Values both sides left at zero in every run agree exactly and stay in.
+        hits_b = np.count_nonzero(b, axis=0)
+        tested = (hits_b >= min_nonzero_b) | ((hits_b == 0) & (np.count_nonzero(a, axis=0) == 0))
+    n = int(np.count_nonzero(tested))
+    if n == 0:  # nothing left to test per pixel: fail, rather than pass vacuously
+        return ZTest(0.0, float("inf"), float("inf"), float("inf"), t_quantile(GLOBAL_P / 2, dof), z.size)
     thr = sidak_threshold(n)
-    frac = float(np.mean(np.abs(z) <= thr))
+    frac = float(np.mean(np.abs(z[tested]) <= thr))
     g_se = np.sqrt(g_se**2 + (rel_floor * abs(mean_b.mean())) ** 2)
     global_z = float(g_diff / g_se) if g_se > 0 else (0.0 if abs(g_diff) < 1e-9 else float("inf"))
-    return ZTest(frac, float(np.max(np.abs(z))), global_z, thr, t_quantile(GLOBAL_P / 2, dof))
+    weight = np.abs(mean_a) + np.abs(mean_b)
+    share = float(weight[~tested].sum() / weight.sum()) if weight.sum() > 0 else 0.0
+    return ZTest(frac, float(np.max(np.abs(z[tested]))), global_z, thr, t_quantile(GLOBAL_P / 2, dof), z.size - n,
+                 share)

@@ -10,7 +10,9 @@ renders exactly those paths (the filtered reference) and "rest" all others.
 - The SMS estimate is unbiased: K independent runs of `sms` (caustics only, Bernoulli trials
   uncapped) pass the per-pixel z-test (tests/stats.py: Šidák at 0.01, >= 99.75 % of pixels, global
   mean within the t threshold) against K_REF runs of the filtered reference on refractive-slab at
-  32x32, and the same runs scaled by 1.03 fail it.
+  32x32, and the same runs scaled by 1.03 fail it. Pixel values the reference met in fewer than
+  REF_MIN_HITS of its runs are left out of the per-pixel part (their standard error is unknown),
+  at most MAX_UNTESTED of them; the global mean holds them.
 - The Bernoulli cap loses energy (seed 002 Fig. 7): a cap of 1 trial drops every solution not
   found again at once, and the counters report it.
 
@@ -33,6 +35,10 @@ K = 16               # sms runs
 SMS_SPP = 32
 K_REF = 32           # reference runs
 REF_SPP = 4096
+# The reference is path tracing towards two 0.1 x 0.1 lights through glass: at the caustic's
+# edges a pixel may see its paths in none of the K_REF runs, where its sample variance is 0.
+REF_MIN_HITS = 3
+MAX_UNTESTED = 0.01  # of the image's sum (both sides' means)
 REF_SOURCES = ["renderer/reference_pt.c", "renderer/sms.c", "renderer/material.c", "renderer/bsdf_dielectric.c",
                "renderer/bsdf_diffuse.c", "renderer/light_sampler.c", "renderer/surface.c", "renderer/camera.c"]
 
@@ -99,8 +105,9 @@ def test_sms_unbiased_against_filtered_reference(tmp_path, scenes):
         runs.append(img)
     runs = np.stack(runs)
     assert np.isfinite(runs).all() and stats["nonfinite"] == 0 and stats["sms"]["capped"] == 0
-    res = ztest_runs(runs, ref)
-    bad = ztest_runs(runs * 1.03, ref)
+    res = ztest_runs(runs, ref, min_nonzero_b=REF_MIN_HITS)
+    bad = ztest_runs(runs * 1.03, ref, min_nonzero_b=REF_MIN_HITS)
+    assert res.untested_share <= MAX_UNTESTED, f"the reference leaves too much of the image unresolved: {res}"
     print(f"sms vs filtered reference: {res}; x1.03: {bad}; counters of the last run: {stats['sms']}")
     assert res.passed, f"sms vs pt subset caustic: {res}"
     assert not bad.passed, f"a bias of x1.03 went unseen: {bad}"
@@ -112,20 +119,23 @@ def test_sms_ssp_unbiased_against_filtered_reference(tmp_path, scenes):
     the per-frame prior) renders the same subset without bias. N = 8 tiles: at 32x32 a 16-pixel
     prior block covers a quarter of the image, so the prior is coarse and solutions outside it
     carry weights up to 1/P(C) = N^2 / (9 (1 - alpha)); N = 8 keeps the variance, and the test's
-    time, affordable. The control is x1.05 (its t is ~6 here; x1.03 sits at the threshold)."""
+    time, affordable. The control is x1.05 (its t is ~6 here; x1.03 sits at the threshold).
+    Each run is the mean of a still view's first 4 frames at 16 spp: frames 2-4 draw from the
+    union of the walks kept so far (prior_frames, default 4), so the union is tested too."""
     sc = scenes / SCENE / "scene.json"
     ref = _cached_reference(tmp_path, sc)
     runs, stats = [], None
     for s in range(24):
         img, stats = render(sc, tmp_path / f"ssp{s}.exr", seed=s,
-                            extra=["--method", "sms_ssp", *_params({"spp": 64, "caustics_only": True,
-                                                                    "bernoulli_cap": 0, "tiles": 8})])
+                            extra=["--method", "sms_ssp", "--frames", "4", "--average-last", "4",
+                                   *_params({"spp": 16, "caustics_only": True, "bernoulli_cap": 0, "tiles": 8})])
         runs.append(img)
     runs = np.stack(runs)
     assert np.isfinite(runs).all() and stats["nonfinite"] == 0 and stats["sms"]["capped"] == 0
     assert stats["prior"]["solutions"] > 0
-    res = ztest_runs(runs, ref)
-    bad = ztest_runs(runs * 1.05, ref)
+    res = ztest_runs(runs, ref, min_nonzero_b=REF_MIN_HITS)
+    bad = ztest_runs(runs * 1.05, ref, min_nonzero_b=REF_MIN_HITS)
+    assert res.untested_share <= MAX_UNTESTED, f"the reference leaves too much of the image unresolved: {res}"
     print(f"sms_ssp vs filtered reference: {res}; x1.05: {bad}; last run: {stats['sms']}, prior {stats['prior']}")
     assert res.passed, f"sms_ssp vs pt subset caustic: {res}"
     assert not bad.passed, f"a bias of x1.05 went unseen: {bad}"
