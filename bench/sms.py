@@ -6,10 +6,10 @@ manifold sampling, sms / sms_ssp).
 
 Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. On
 refractive-slab and reflective-plane at 128x128 (BENCH_SMS_SCENES, BENCH_SMS_SIZE):
-  1. a reference per scene: `pt` subset rest at REF_SPP plus `sms` caustics only, uncapped, at
-     REF_SMS_SPP (path tracing alone does not converge on these caustics in any reasonable time;
-     tests/test_sms.py shows the SMS part unbiased against path tracing restricted to the same
-     paths), cached in build/refs/ under the scene files' hash and the spps; each part is two
+  1. a reference per scene: `pt` subset rest at REF_SPP plus `sms` caustics only, uncapped
+     (or capped at BENCH_SMS_REF_CAP trials), at REF_SMS_SPP (path tracing alone does not
+     converge on these caustics in any reasonable time; tests/test_sms.py shows the SMS part
+     unbiased against path tracing restricted to the same paths), cached in build/refs/ under the scene files' hash and the spps; each part is two
      halves with independent seeds, whose difference estimates the reference's own RMSE: it is
      printed, drawn in the charts, and a ratio whose RMSEs are within 3x of it is flagged (uncapped
      SMS is heavy-tailed where the casters are bumpy, see BENCH_SMS_SCALE);

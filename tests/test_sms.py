@@ -93,6 +93,17 @@ def _cached_reference(tmp_path, sc):
     return ref
 
 
+def _assert_unbiased(name, runs, ref, control, info):
+    """The z-test of `runs` against the filtered reference's runs, and of runs scaled by `control`,
+    which must fail; values the reference did not resolve stay out of the per-pixel part."""
+    res = ztest_runs(runs, ref, min_nonzero_b=REF_MIN_HITS)
+    bad = ztest_runs(runs * control, ref, min_nonzero_b=REF_MIN_HITS)
+    print(f"{name} vs filtered reference: {res}; x{control}: {bad}; {info}")
+    assert res.untested_share <= MAX_UNTESTED, f"the reference leaves too much of the image unresolved: {res}"
+    assert res.passed, f"{name} vs pt subset caustic: {res}"
+    assert not bad.passed, f"a bias of x{control} went unseen: {bad}"
+
+
 @pytest.mark.statistical
 def test_sms_unbiased_against_filtered_reference(tmp_path, scenes):
     sc = scenes / SCENE / "scene.json"
@@ -105,12 +116,7 @@ def test_sms_unbiased_against_filtered_reference(tmp_path, scenes):
         runs.append(img)
     runs = np.stack(runs)
     assert np.isfinite(runs).all() and stats["nonfinite"] == 0 and stats["sms"]["capped"] == 0
-    res = ztest_runs(runs, ref, min_nonzero_b=REF_MIN_HITS)
-    bad = ztest_runs(runs * 1.03, ref, min_nonzero_b=REF_MIN_HITS)
-    assert res.untested_share <= MAX_UNTESTED, f"the reference leaves too much of the image unresolved: {res}"
-    print(f"sms vs filtered reference: {res}; x1.03: {bad}; counters of the last run: {stats['sms']}")
-    assert res.passed, f"sms vs pt subset caustic: {res}"
-    assert not bad.passed, f"a bias of x1.03 went unseen: {bad}"
+    _assert_unbiased("sms", runs, ref, 1.03, f"counters of the last run: {stats['sms']}")
 
 
 @pytest.mark.statistical
@@ -133,12 +139,7 @@ def test_sms_ssp_unbiased_against_filtered_reference(tmp_path, scenes):
     runs = np.stack(runs)
     assert np.isfinite(runs).all() and stats["nonfinite"] == 0 and stats["sms"]["capped"] == 0
     assert stats["prior"]["solutions"] > 0
-    res = ztest_runs(runs, ref, min_nonzero_b=REF_MIN_HITS)
-    bad = ztest_runs(runs * 1.05, ref, min_nonzero_b=REF_MIN_HITS)
-    assert res.untested_share <= MAX_UNTESTED, f"the reference leaves too much of the image unresolved: {res}"
-    print(f"sms_ssp vs filtered reference: {res}; x1.05: {bad}; last run: {stats['sms']}, prior {stats['prior']}")
-    assert res.passed, f"sms_ssp vs pt subset caustic: {res}"
-    assert not bad.passed, f"a bias of x1.05 went unseen: {bad}"
+    _assert_unbiased("sms_ssp", runs, ref, 1.05, f"last run: {stats['sms']}, prior {stats['prior']}")
 
 
 def test_sms_ssp_prior_and_fallback(tmp_path, scenes):
