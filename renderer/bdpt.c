@@ -433,6 +433,7 @@ static struct vec3 bdpt_camera_path(struct bdpt_ctx *c, struct vec3 dir, struct 
     const struct light_sampler *lights = scene->lights;
     const struct camera *cam = &c->cam;
     struct vec3 L = vec3_splat(0.0f), beta = vec3_splat(1.0f);
+    float rr_scale = 1.0f;  /* undoes refraction's radiance scaling for the roulette (reference_pt.c) */
     float cos0 = vec3_dot(dir, cam->forward);
     if (!(cos0 > 0.0f)) return L;
     struct bdpt_mis mis = bdpt_mis_camera_start(c->n_light, c->plane_dist2 / (cos0 * cos0 * cos0), c->power);
@@ -516,10 +517,11 @@ static struct vec3 bdpt_camera_path(struct bdpt_ctx *c, struct vec3 dir, struct 
         float cos_i_ng = vec3_dot(wi_world, s.ng);
         if (cos_i_ng * bs.wi.z <= 0.0f) break;
         beta = vec3_mul(beta, vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w));
+        if (bs.flags & BSDF_TRANSMISSION) rr_scale /= material_radiance_scale(m, wo, bs.wi);
         bdpt_mis_scatter(&mis, cos_i_ng, bs.pdf_w, bs.pdf_rev_w, (bs.flags & BSDF_DELTA) != 0, c->power);
         float u_rr = rng_next_float(rng);
         if (depth + 1 >= p->rr_depth) {
-            float mx = vec3_max_comp(beta);
+            float mx = vec3_max_comp(beta) * rr_scale;
             float q = mx < 0.95f ? mx : 0.95f;
             if (!(q > 0.0f) || u_rr >= q) break;
             beta = vec3_scale(beta, 1.0f / q);

@@ -112,6 +112,13 @@ float material_pdf(const struct material *m, struct vec3 wo, struct vec3 wi)
     return 0.0f;
 }
 
+float material_radiance_scale(const struct material *m, struct vec3 wo, struct vec3 wi)
+{
+    if (m->kind != MATERIAL_DIELECTRIC || material_dielectric_lobe_of(wo, wi) != 1) return 1.0f;
+    const float eta = wo.z > 0.0f ? m->ior : 1.0f / m->ior;  /* eta_wi / eta_wo */
+    return 1.0f / (eta * eta);
+}
+
 bool material_sample(const struct material *m, struct vec3 wo, float u_lobe, float u1, float u2,
                      enum transport_mode mode, struct bsdf_sample *out)
 {

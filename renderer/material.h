@@ -96,5 +96,11 @@ float material_pdf_lobe(const struct material *m, int lobe, struct vec3 wo, stru
  * f_radiance(wi, wo)). */
 bool material_sample(const struct material *m, struct vec3 wo, float u_lobe, float u1, float u2,
                      enum transport_mode mode, struct bsdf_sample *out);
+/* The factor (eta_wo / eta_wi)^2 that TRANSPORT_RADIANCE puts into a refraction from wo to wi
+ * through a dielectric (wo and wi on opposite sides); 1 for every other scattering. A camera
+ * path's throughput carries the product of these factors, which cancels when the path leaves
+ * the medium it entered: Russian roulette that divides it out decides on the energy the path
+ * will carry out of the medium, not on the 1 / eta^2 it carries inside (Veach 1997 §5.2). */
+float material_radiance_scale(const struct material *m, struct vec3 wo, struct vec3 wi);
 
 #endif

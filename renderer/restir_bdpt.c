@@ -1037,6 +1037,9 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
     const bool track = p->reuse;
     struct vec3 beta = vec3_splat(1.0f);
     double src = 1.0;   /* track: the product of the roulette's survival probabilities so far */
+    /* Undoes refraction's radiance scaling for the roulette (reference_pt.c). A resumed suffix
+     * starts it at 1: resuming is a replay, and replays play no roulette. */
+    float rr_scale = 1.0f;
     float cos0 = resume ? 1.0f : vec3_dot(dir, cam->forward);
     if (!(cos0 > 0.0f)) return;
     struct restir_bdpt_mis mis = restir_bdpt_mis_camera_start(c->n_light, v->plane_dist2 / (cos0 * cos0 * cos0),
@@ -1271,9 +1274,10 @@ static void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdp
                 rbdpt_suffix_scatter(basis, cos_i_ng, bs.pdf_w, bs.pdf_rev_w, delta, c->power);
             }
         }
+        if (bs.flags & BSDF_TRANSMISSION) rr_scale /= material_radiance_scale(m, wo, bs.wi);
         float u_rr = rng_next_float(rng);
         if (depth + 1 >= p->rr_depth && !(track && want)) {
-            float mx = vec3_max_comp(beta) / (float)src;
+            float mx = vec3_max_comp(beta) * rr_scale / (float)src;
             float q = mx < 0.95f ? mx : 0.95f;
             if (!(q > 0.0f) || u_rr >= q) break;
             if (track) src *= q;

@@ -497,6 +497,8 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
     struct vec3 beta_prev = beta;             /* prod over x_1 .. x_{j-2} */
     int prev_lobe = 0;                        /* the lobe sampled at x_{j-1} */
     double src = 1.0;                         /* prod of Russian roulette survival probabilities */
+    float rr_scale = 1.0f;                    /* undoes refraction's radiance scaling for the
+                                                 roulette (reference_pt.c) */
     struct pt_segment seg = {0};              /* enters x_j (j >= 2) */
     struct pt_rc_record rc = {0};             /* the first connectable pair of the continuation */
     const bool nee_on = c->nee_m > 0 && light_sampler_count(scene->lights) > 0;
@@ -582,10 +584,11 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
         const struct vec3 beta_in = beta;  /* prod over x_1 .. x_{j-1} */
         beta = vec3_mul(beta, stp.factor);
         if (rc.k && !found_here) beta_suf = vec3_mul(beta_suf, stp.factor);
+        if (stp.bs.flags & BSDF_TRANSMISSION) rr_scale /= material_radiance_scale(v.m, v.wo, stp.bs.wi);
         if (p->rr && j >= p->rr_depth) {
             /* Decoupled RR (seed 001 §6): survival changes the source pdf, never the integrand. */
             struct rng rr = pt_stream(seed, j, PT_PURPOSE_RR);
-            float q = (float)(vec3_max_comp(beta) / src);
+            float q = (float)(vec3_max_comp(beta) * rr_scale / src);
             q = q < 0.95f ? q : 0.95f;
             if (!(q > 0.0f) || rng_next_float(&rr) >= q) break;
             src *= q;

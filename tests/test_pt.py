@@ -121,6 +121,35 @@ def test_furnace_lossless_specular_sphere(tmp_path, material):
     assert not ztest_runs(runs * 1.03, expected=1.0).passed
 
 
+def test_roulette_ignores_the_radiance_scaling_of_refraction(tmp_path):
+    """Russian roulette weighs the throughput a path will have outside the glass it is in. Inside
+    glass of ior 1.5 a camera path's throughput carries the factor 1 / 1.5^2 of refraction's
+    radiance scaling, which leaving the glass undoes. A roulette weighing it would let only 44 %
+    of the paths inside a lossless sphere survive and weight the survivors by 2.25, so that they
+    leave with weight 2.37 (2.25 / 0.95). Weighing the throughput without it, every survival
+    probability in the lossless furnace is 0.95, and a 1-spp path's weight is exactly 0.95^-n
+    after n bounces, n an integer; 2.25 / 0.95^n is not one (log 2.25 / log(1 / 0.95) = 15.8).
+    The roulette runs from the first bounce (--rr-depth 1); the images still average 1. Checked
+    to fail with the roulette on the plain throughput."""
+    scene = {
+        "camera": {"position": [0, 0, -4], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_deg": 35},
+        "materials": {"m": {"type": "dielectric", "ior": 1.5}},
+        "shapes": [{"type": "sphere", "center": [0, 0, 0], "radius": 1, "material": "m"}],
+        "environment": {"radiance": [1, 1, 1]},
+    }
+    path = tmp_path / "glass.json"
+    path.write_text(json.dumps(scene))
+    one = _runs(path, tmp_path, range(4), spp=1, size="32x32", extra=["--rr-depth", "1"])
+    weights = one[one > 0]
+    bounces = np.log(weights) / -np.log(0.95)
+    worst = np.abs(bounces - np.round(bounces)).max()
+    assert weights.size > 1000 and worst < 0.01, f"a path weight 0.95^-n with n {worst:.3f} away from an integer"
+    runs = _runs(path, tmp_path, range(100, 124), spp=16, size="16x16", extra=["--rr-depth", "1"])
+    res = ztest_runs(runs, expected=1.0)
+    assert res.passed, str(res)
+    assert not ztest_runs(runs * 1.03, expected=1.0).passed
+
+
 def test_nee_mis_agrees_with_bsdf_sampling(tmp_path):
     """Two unbiased estimators of the same image must agree: NEE combined with BSDF sampling by
     MIS (the default) and BSDF sampling alone (--no-nee). The scene has every non-delta lobe
