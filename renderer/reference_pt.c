@@ -183,9 +183,10 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
     struct vec3 L = vec3_splat(0.0f), beta = vec3_splat(1.0f);
     /* The product of 1 / material_radiance_scale over the path's refractions: beta times this
      * is the throughput the path will have outside the glass it is in, which is what Russian
-     * roulette weighs. Weighing beta itself kills two paths in three inside glass of ior 1.5
-     * (beta / 2.25) and multiplies the survivors by up to 3 when they leave: a floor point lit
-     * through a slab's side wall then reads 2.4 times the light's radiance. */
+     * roulette weighs. Weighing beta itself, which inside glass of ior 1.5 is 1 / 2.25 of that,
+     * kills two in three of the paths that kept 75 % of their energy and weights the survivors
+     * by 3: a floor point lit through a slab's side wall then reads 2.4 times the light's
+     * radiance. */
     float rr_scale = 1.0f;
     float prev_pdf_w = 0.0f;   /* solid-angle pdf of the BSDF sample that produced `dir` */
     bool prev_delta = true;    /* camera rays and delta scattering get no MIS on emission */
