@@ -168,6 +168,18 @@ def rmse(img, ref):
     return float(np.sqrt(np.mean((img - ref) ** 2)))
 
 
+TOP_PIXELS = 10
+
+
+def top_share(img, ref):
+    """The share of an image's squared error held by its TOP_PIXELS worst pixels. Where a few
+    candidates carry most of a frame's error (docs/benchmarks.md, "What stops the plane's reuse
+    at S = 4"), the RMSE measures those pixels, and reuse that cannot dilute them leaves it."""
+    e = np.sort(((img - ref) ** 2).sum(axis=-1).ravel())[::-1]
+    total = float(e.sum())
+    return float(e[:TOP_PIXELS].sum()) / total if total > 0 else 0.0
+
+
 def table1(st, prior=None):
     n, sol = st["samples"], st["solutions"]
     row = {"success_rate": sol / n if n else 0.0, "newtons_per_sample": st["newton_sample"] / n if n else 0.0,
@@ -280,14 +292,15 @@ def measure(scene, name, ref, tmp, runs, tag):
     for label, method, spps, params in runs:
         if method != "restir_sms" or label not in ("restir_sms", "restir_sms, sms sampler"):
             continue
-        ms, err = [], []
+        ms, err, top = [], [], []
         for seed in range(STEADY_SEEDS):
             out = tmp / f"{name}-{tag}-steady-{label[:14].replace(' ', '_')}-{seed}.exr"
             img, st = render(scene, out, method, params, seed, extra=["--frames", str(WARMUP + 1), "--average-last", "1"])
             ms.append(st["time_ms"] / (WARMUP + 1))
             err.append(rmse(img, ref))
+            top.append(top_share(img, ref))
         steady[label] = (statistics.median(ms), statistics.median(err), math.sqrt(sum(e * e for e in err) / len(err)),
-                         sorted(err))
+                         sorted(err), statistics.median(top))
     table = {m: {k: statistics.median(r[k] for r in rows) for k in rows[0]} for m, rows in t1.items() if rows}
     return {"curves": curves, "steady": steady, "table1": table}
 
@@ -336,11 +349,12 @@ def print_curves(name, r, what):
     st = r["steady"]
     sms = sorted(r["curves"]["sms"])
     print(f"\n{name} ({what}), one frame after {WARMUP} frames of reuse, {STEADY_SEEDS} sessions (time per frame, "
-          f"RMSE: median, root mean square over the sessions, each session's): " +
-          ", ".join(f"{k} {v[0]:.1f} ms {v[1]:.4g} {v[2]:.4g} [{' '.join(f'{e:.3g}' for e in v[3])}]"
-                    for k, v in st.items()))
+          f"RMSE: median, root mean square over the sessions, each session's; the median share of a frame's "
+          f"squared error in its {TOP_PIXELS} worst pixels): " +
+          ", ".join(f"{k} {v[0]:.1f} ms {v[1]:.4g} {v[2]:.4g} [{' '.join(f'{e:.3g}' for e in v[3])}] "
+                    f"{100 * v[4]:.0f} %" for k, v in st.items()))
     own = r.get("reference_rmse", 0.0)
-    for k, (ms, err, rms, _) in st.items():
+    for k, (ms, err, rms, *_) in st.items():
         e = at_time(sms, ms)
         eq = f"{err / e:.3f} (root mean square: {rms / e:.3f})" if e else "outside the sms curve"
         if e and own and err > own and e > own:
