@@ -19,20 +19,16 @@ import argparse
 import json
 import statistics
 import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
-import OpenImageIO as oiio
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from exrimage import read_rgb  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def read_exr(path):
-    inp = oiio.ImageInput.open(str(path))
-    img = np.asarray(inp.read_image(oiio.FLOAT), dtype=np.float64)[:, :, :3]
-    inp.close()
-    return img
 
 
 def render(binary, scene, method, params, size, seed, threads, out):
@@ -40,9 +36,11 @@ def render(binary, scene, method, params, size, seed, threads, out):
            "--params", params, "--json", "-o", str(out)]
     if threads:
         cmd += ["--threads", threads]
-    run = subprocess.run(cmd, capture_output=True, text=True, check=True)
+    run = subprocess.run(cmd, capture_output=True, text=True)
+    if run.returncode != 0:
+        raise SystemExit(f"bench: {' '.join(cmd)}: {run.stderr.strip()}")
     stats = json.loads(run.stdout.strip().splitlines()[-1])
-    return read_exr(out), stats["time_ms"]
+    return read_rgb(out), stats["time_ms"]
 
 
 def noise(images):

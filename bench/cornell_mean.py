@@ -12,7 +12,9 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import OpenImageIO as oiio
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from exrimage import read_rgb  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -34,9 +36,7 @@ def main():
             res = subprocess.run(cmd, capture_output=True, text=True)
             if res.returncode != 0:
                 sys.exit(f"render failed: {res.stderr}")
-            img = oiio.ImageInput.open(str(out))
-            px = np.asarray(img.read_image(oiio.FLOAT), dtype=np.float64)[..., :3]
-            img.close()
+            px = read_rgb(out)
             means.append(px.reshape(-1, 3).mean(axis=0))
     m = np.array(means)
     mean = m.mean(axis=0)

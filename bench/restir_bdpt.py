@@ -46,11 +46,11 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import OpenImageIO as oiio
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bdpt as bdpt_bench  # noqa: E402
 from bdpt import compare, run  # noqa: E402
+from exrimage import read_rgb  # noqa: E402
 from restir_pt import pt_mape_at  # noqa: E402
 from svgplot import chart, loglog  # noqa: E402
 
@@ -82,15 +82,6 @@ SESSIONS = [("bdpt", ["--method", "bdpt"]), ("restir_pt", ["--method", "restir_p
                                           '{"variant": "full", "reuse": true}'])]
 # The variants of restir_bdpt whose equal-time error and frame cost are compared with restir_pt's.
 COMPARED = ["restir_bdpt", "restir_bdpt, reuse", "restir_bdpt, full", "restir_bdpt, full, reuse"]
-
-
-def read_rgb(path):
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise SystemExit(f"bench: cannot read {path}: {oiio.geterror()}")
-    px = np.asarray(inp.read_image(oiio.FLOAT), dtype=np.float64)[..., :3]
-    inp.close()
-    return px
 
 
 def render(scene_path, out, seed, args):

@@ -53,11 +53,11 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import OpenImageIO as oiio
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import ctool  # noqa: E402
 from daemon import Daemon  # noqa: E402
+from exrimage import read_rgb  # noqa: E402
 from svgplot import loglog  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -84,16 +84,6 @@ MAX_DEPTH = int(os.environ["BENCH_SSS_MAX_DEPTH"]) if os.environ.get("BENCH_SSS_
 DEPTH_ARGS = ["--max-depth", str(MAX_DEPTH)] if MAX_DEPTH is not None else []
 DEPTH_PARAMS = {"max_depth": MAX_DEPTH} if MAX_DEPTH is not None else {}
 SUFFIX = f"_depth{MAX_DEPTH}" if MAX_DEPTH is not None else ""
-
-
-def read_exr(path):
-    inp = oiio.ImageInput.open(str(path))
-    assert inp is not None, oiio.geterror()
-    try:
-        px = inp.read_image(oiio.FLOAT)
-    finally:
-        inp.close()
-    return np.asarray(px, dtype=np.float64)[..., :3]
 
 
 def run(args):
@@ -126,14 +116,14 @@ def reference(scene):
         print(f"bench: rendering the reference {ref.name} ...", file=sys.stderr, flush=True)
         run(["render", str(scene), "--spp", str(REF_SPP), "--size", SIZE, "--seed", "999", *DEPTH_ARGS, "--json",
              "-o", str(ref)])
-    return read_exr(ref)
+    return read_rgb(ref)
 
 
 def region_map(scene, out):
     tool = OUT / "sss_hybrid_map"
     counts = json.loads(subprocess.run([str(tool), str(scene), SIZE, str(out), "16"], capture_output=True, text=True,
                                        check=True).stdout)
-    img = read_exr(out)
+    img = read_rgb(out)
     mask = img.sum(axis=2) > 0  # every class but "not translucent" has a colour
     return mask, counts
 
@@ -199,7 +189,7 @@ def measure(d, scene, label, title, img_path):
         for s in range(SEEDS):
             run(["render", str(scene), "--spp", str(spp), "--size", SIZE, "--seed", str(s), *DEPTH_ARGS, "--json",
                  "-o", str(img_path)])
-            err.append(rmse(read_exr(img_path), ref, mask))
+            err.append(rmse(read_rgb(img_path), ref, mask))
         res["pt"].append({"spp": spp, "rmse": statistics.median(err)})
     pt_pts = [(x["spp"], x["rmse"]) for x in res["pt"]]
     pt_ms = []
@@ -209,7 +199,7 @@ def measure(d, scene, label, title, img_path):
         for s in range(SEEDS):
             st = run(["render", str(scene), "--method", "restir_sss", "--frames", str(WARMUP), "--size", SIZE,
                       "--seed", str(s), "--params", json.dumps(params), "--json", "-o", str(img_path)])
-            err.append(rmse(read_exr(img_path), ref, mask))
+            err.append(rmse(read_rgb(img_path), ref, mask))
             lf = st["last_frame"]
             fails.append(lf["shift_failures"] / max(lf["shifts"], 1))
         t = timed(d, scene_id, params)

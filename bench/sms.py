@@ -67,11 +67,11 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import OpenImageIO as oiio
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import ctool  # noqa: E402
 from curves import loglog_at  # noqa: E402
+from exrimage import read_rgb  # noqa: E402
 from svgplot import loglog  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -130,10 +130,7 @@ def render(scene, out, method, params, seed, frames=None, extra=(), size=None):
     res = subprocess.run(cmd, capture_output=True, text=True)
     if res.returncode != 0:
         raise SystemExit(f"bench: {' '.join(cmd)}: {res.stderr.strip()}")
-    inp = oiio.ImageInput.open(str(out))
-    img = np.asarray(inp.read_image(oiio.FLOAT), dtype=np.float64)[:, :, :3]
-    inp.close()
-    return img, json.loads(res.stdout)
+    return read_rgb(out), json.loads(res.stdout)
 
 
 def reference(scene, tmp):
