@@ -137,10 +137,24 @@ bool protocol_parse_render_request(const char *body, size_t len, const struct pr
                                    struct protocol_render_request *out, struct err *err);
 void protocol_render_request_destroy(struct protocol_render_request *req);
 
-/* POST …/sessions/{sid}/references/{name}: {"spp": N} (1..max_spp, default 1024; a default
- * over max_spp is ERR_LIMIT at "/spp"). *spp is written only on success. */
+/* How a server-rendered reference is estimated: the path tracer, or the path tracer with
+ * specular manifold sampling (uncapped Bernoulli trials: unbiased) for the caustic paths it owns,
+ * which pt alone finds only by hitting a small light through the caster. */
+enum protocol_reference_method { PROTOCOL_REFERENCE_PT, PROTOCOL_REFERENCE_SMS };
+
+struct protocol_reference_request {
+    uint32_t spp;
+    enum protocol_reference_method method;
+};
+
+/* "pt" / "sms" (the names the request and the answers use). */
+const char *protocol_reference_method_name(enum protocol_reference_method m);
+
+/* POST …/sessions/{sid}/references/{name}: {"spp": N, "method": "pt" | "sms"} (spp 1..max_spp,
+ * default 1024; a default over max_spp is ERR_LIMIT at "/spp"; method default "pt"). *out is
+ * written only on success. */
 bool protocol_parse_reference_request(const char *body, size_t len, const struct protocol_limits *limits,
-                                      uint32_t *spp, struct err *err);
+                                      struct protocol_reference_request *out, struct err *err);
 
 /* Writes "<base>/<key>" into out with key escaped per RFC 6901 (~ -> ~0, / -> ~1). A result
  * longer than size - 1 is cut before the first escape or UTF-8 character that does not fit. */

@@ -1204,11 +1204,16 @@ bool protocol_parse_render_request(const char *body, size_t len, const struct pr
 
 /* ---- reference request ---- */
 
-bool protocol_parse_reference_request(const char *body, size_t len, const struct protocol_limits *limits,
-                                      uint32_t *spp, struct err *err)
+const char *protocol_reference_method_name(enum protocol_reference_method m)
 {
-    static const char *const keys[] = {"spp", NULL};
-    if (!spp || !limits) return err_set(err, ERR_INVALID, "", "no output or limits given");
+    return m == PROTOCOL_REFERENCE_SMS ? "sms" : "pt";
+}
+
+bool protocol_parse_reference_request(const char *body, size_t len, const struct protocol_limits *limits,
+                                      struct protocol_reference_request *out, struct err *err)
+{
+    static const char *const keys[] = {"spp", "method", NULL};
+    if (!out || !limits) return err_set(err, ERR_INVALID, "", "no output or limits given");
     cJSON *root;
     if (!request_parse(body, len, &root, err)) return false;
     char p[REQUEST_PTR];
@@ -1218,7 +1223,16 @@ bool protocol_parse_reference_request(const char *body, size_t len, const struct
     if (ok && v) ok = request_uint32(v, p, 1, limits->max_spp, "max_spp", &n, err);
     else if (ok && n > limits->max_spp)
         ok = err_set(err, ERR_LIMIT, p, "the default spp %u is over the limit max_spp = %u (send spp)", n, limits->max_spp);
+    enum protocol_reference_method method = PROTOCOL_REFERENCE_PT;
+    const cJSON *mv = request_member(root, "", "method", p);
+    if (ok && mv) {
+        const char *name = request_string(mv, p, err);
+        ok = name != NULL;
+        if (ok && strcmp(name, "sms") == 0) method = PROTOCOL_REFERENCE_SMS;
+        else if (ok && strcmp(name, "pt") != 0)
+            ok = err_set(err, ERR_INVALID, p, "unknown reference method \"%.64s\" (known: pt, sms)", name);
+    }
     cJSON_Delete(root);
-    if (ok) *spp = n;
+    if (ok) *out = (struct protocol_reference_request){.spp = n, .method = method};
     return ok;
 }

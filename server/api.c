@@ -590,6 +590,9 @@ static void api_ref_json(struct api_call *c, struct jsonw *w, void *ctx)
     jsonw_key(w, "width"); jsonw_uint(w, r->img.width);
     jsonw_key(w, "height"); jsonw_uint(w, r->img.height);
     jsonw_key(w, "spp"); jsonw_uint(w, r->spp);
+    jsonw_key(w, "method");
+    if (r->method) jsonw_string(w, r->method);
+    else jsonw_null(w);
     jsonw_key(w, "mean");
     jsonw_array_begin(w);
     for (int i = 0; i < 3; i++) jsonw_double(w, mean[i]);
@@ -631,7 +634,7 @@ static void api_reference_put(struct api_call *c)
     }
     uint32_t w_ = img.width, h_ = img.height;
     bool existed;
-    if (!refstore_put(c->d->refs, c->seg[2], c->seg[4], &img, 0, &existed, &e)) {
+    if (!refstore_put(c->d->refs, c->seg[2], c->seg[4], &img, 0, NULL, &existed, &e)) {
         api_budget_error(c, &e);
         return;
     }

@@ -816,6 +816,7 @@ static void api_write_job(struct jsonw *w, struct session *s, const struct job *
         char href[256];
         snprintf(href, sizeof href, "/v1/scenes/%s/references/%s", s->scene_id, j->ref_name);
         jsonw_key(w, "spp"); jsonw_uint(w, j->ref_spp);
+        jsonw_key(w, "method"); jsonw_string(w, protocol_reference_method_name(j->ref_method));
         jsonw_key(w, "href"); jsonw_string(w, href);
     }
     jsonw_key(w, "error");
@@ -1057,9 +1058,9 @@ out:
 void api_session_reference_post(struct api_call *c)
 {
     if (!api_require_json(c)) return;
-    uint32_t spp = 0;
+    struct protocol_reference_request req;
     struct err e = {0};
-    if (!protocol_parse_reference_request(c->req->body, c->req->body_len, &c->d->cfg.limits, &spp, &e)) {
+    if (!protocol_parse_reference_request(c->req->body, c->req->body_len, &c->d->cfg.limits, &req, &e)) {
         api_error(c, &e);
         return;
     }
@@ -1078,6 +1079,18 @@ void api_session_reference_post(struct api_call *c)
     scene_retain(scene);
     struct camera_desc cam = s->view.camera;
     session_unclaim(s);
+    /* The casters SMS would walk on, checked now: past the job's start a failure would only
+     * read as a failed job. */
+    if (req.method == PROTOCOL_REFERENCE_SMS) {
+        struct sms_scene ss;  /* ~6 KiB */
+        if (!sms_scene_init(scene, &ss, &e)) {
+            if (!e.where[0]) snprintf(e.where, sizeof e.where, "/method");
+            scene_release(scene);
+            api_error(c, &e);
+            session_release(s);
+            return;
+        }
+    }
     struct job *j = session_job_new(s, JOB_REFERENCE, key, &e);
     if (!j) {
         scene_release(scene);
@@ -1088,8 +1101,9 @@ void api_session_reference_post(struct api_call *c)
     j->ref_scene = scene;
     j->ref_camera = cam;
     snprintf(j->ref_name, sizeof j->ref_name, "%s", c->seg[6]);
-    j->frames_total = spp < JOBS_REFERENCE_PASSES ? spp : JOBS_REFERENCE_PASSES;
-    j->ref_spp = spp / j->frames_total * j->frames_total;
+    j->frames_total = req.spp < JOBS_REFERENCE_PASSES ? req.spp : JOBS_REFERENCE_PASSES;
+    j->ref_spp = req.spp / j->frames_total * j->frames_total;
+    j->ref_method = req.method;
     if (!jobs_submit(c->d->jobs, j, &e)) {
         api_problem(c, 429, "queue-full", NULL, "%s", e.message);
         session_job_forget(s, j);

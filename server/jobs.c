@@ -142,6 +142,11 @@ static void jobs_run_reference(struct jobs *q, struct job *j)
     p.seed = vp->seed;
     p.threads = s->view.threads;
     p.camera = &j->ref_camera;
+    /* Uncapped Bernoulli trials: a capped count returns 0 past the cap, which loses energy
+     * (seed 002 Fig. 7); a reference must not. */
+    struct sms_params sms = sms_defaults();
+    sms.bernoulli_cap = 0;
+    if (j->ref_method == PROTOCOL_REFERENCE_SMS) p.sms = &sms;
     bool ok = true;
     for (uint32_t i = 0; ok && i < passes; i++) {
         if (atomic_load(&j->cancel) || !gate_enter(q->gate, false, &j->error)) {
@@ -168,7 +173,8 @@ static void jobs_run_reference(struct jobs *q, struct job *j)
     }
     image_scale(&sum, 1.0f / (float)passes);
     bool replaced;
-    if (!refstore_put(q->refs, s->scene_id, j->ref_name, &sum, spp_pass * passes, &replaced, &j->error)) {
+    if (!refstore_put(q->refs, s->scene_id, j->ref_name, &sum, spp_pass * passes,
+                      protocol_reference_method_name(j->ref_method), &replaced, &j->error)) {
         jobs_fail(j, 503, j->error.code == ERR_BUSY ? "memory-budget" : "busy");
         return;
     }

@@ -61,7 +61,7 @@ static long refstore_find(struct refstore *rs, const char *scene, const char *na
 }
 
 bool refstore_put(struct refstore *rs, const char *scene, const char *name, struct image *img, uint32_t spp,
-                  bool *replaced, struct err *err)
+                  const char *method, bool *replaced, struct err *err)
 {
     *replaced = false;
     uint64_t bytes = refstore_image_bytes(img);
@@ -79,6 +79,7 @@ bool refstore_put(struct refstore *rs, const char *scene, const char *name, stru
     snprintf(r->scene, sizeof r->scene, "%s", scene);
     snprintf(r->name, sizeof r->name, "%s", name);
     r->spp = spp;
+    r->method = method;
     r->img = *img;
     img->pixels = NULL;
     img->width = img->height = 0;

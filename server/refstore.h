@@ -1,5 +1,5 @@
-/* refstore.h — reference images by (scene, name): rendered by the server with `pt` or uploaded
- * as EXR. Immutable once stored and shared by reference count, so a metrics computation keeps
+/* refstore.h — reference images by (scene, name): rendered by the server (`pt`, or `pt` with
+ * specular manifold sampling) or uploaded as EXR. Immutable once stored and shared by reference count, so a metrics computation keeps
  * its reference alive while another request replaces it. In memory for the daemon's lifetime.
  * Thread-safe. */
 #ifndef RESTIRD_REFSTORE_H
@@ -17,6 +17,7 @@ struct ref_image {
     int refcount;
     char scene[65], name[65];
     uint32_t spp;                /* 0 = uploaded */
+    const char *method;          /* static: "pt" or "sms"; NULL = uploaded */
     struct image img;
 };
 
@@ -24,11 +25,11 @@ struct refstore;
 /* budget: references' pixels are reserved from it (BUDGET_REFERENCES) while stored; NULL = none. */
 struct refstore *refstore_new(struct budget *budget);
 void refstore_free(struct refstore *rs);
-/* Stores (or replaces) a reference; takes the image's pixels (img is left empty, also on
+/* Stores (or replaces) a reference (method: a static string, or NULL for an upload); takes the image's pixels (img is left empty, also on
  * failure). *replaced tells whether a reference of that name existed. Errors: ERR_BUSY (the
  * memory budget cannot hold the pixels), ERR_NOMEM. */
 bool refstore_put(struct refstore *rs, const char *scene, const char *name, struct image *img, uint32_t spp,
-                  bool *replaced, struct err *err);
+                  const char *method, bool *replaced, struct err *err);
 /* Retained reference or NULL; ref_image_release when done. */
 struct ref_image *refstore_get(struct refstore *rs, const char *scene, const char *name);
 void ref_image_release(struct ref_image *r);

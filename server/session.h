@@ -58,6 +58,7 @@ struct job {
     /* reference */
     char ref_name[65];
     uint32_t ref_spp;
+    enum protocol_reference_method ref_method;
     struct scene *ref_scene;         /* retained: the session's scene when submitted */
     struct camera_desc ref_camera;
     /* failure */

@@ -294,7 +294,23 @@ def test_frame_arguments():
     assert (a.server, a.command, a.scene, a.output) == ("http://h:1", "frame", "cornell-box", "x.exr")
     assert a.size == (128, 64) and a.spp == 8 and a.seed == 3 and a.png and a.exposure == -1.5
     a = restir.build_parser().parse_args(["frame", "s", "-o", "y.exr"])
-    assert a.size == (256, 256) and a.spp == 4 and a.method == "pt" and not a.png
+    assert a.size == (256, 256) and a.spp is None and a.method == "pt" and not a.png
+    assert restir._session_params(a) == {"spp": 4}
+
+
+@pytest.mark.parametrize("argv,params", [
+    (["frame", "s", "-o", "x"], {"spp": 4}),
+    (["frame", "s", "-o", "x", "--method", "sms_ssp"], {"spp": 4}),
+    (["frame", "s", "-o", "x", "--method", "restir_sms"], {}),
+    (["frame", "s", "-o", "x", "--method", "bdpt"], {}),
+    (["frame", "s", "-o", "x", "--method", "restir_pt", "--spp", "2"], {"spp": 2}),
+    (["metrics", "s", "-o", "m.csv", "--method", "restir_sss"], {}),
+    (["metrics", "s", "-o", "m.csv"], {"spp": 1}),
+])
+def test_session_params_send_spp_only_to_methods_that_take_it(argv, params):
+    """restir_pt, restir_sss, restir_sms, bdpt and restir_bdpt sessions refuse "spp" (422 at
+    /params/spp): without --spp the client sends none to them."""
+    assert restir._session_params(restir.build_parser().parse_args(argv)) == params
 
 
 def test_other_commands_arguments():
@@ -302,7 +318,10 @@ def test_other_commands_arguments():
     a = p.parse_args(["orbit", "s", "--frames", "12", "-o", "d", "--center", "1,2,3", "--radius", "5"])
     assert a.frames == 12 and a.center == [1.0, 2.0, 3.0] and a.radius == 5.0 and a.fps == 30.0
     a = p.parse_args(["metrics", "s", "--reference-spp", "256", "--frames", "4", "-o", "m.csv"])
-    assert a.reference_spp == 256 and a.frames == 4 and a.spp == 1
+    assert a.reference_spp == 256 and a.frames == 4 and a.spp is None and a.spp_default == 1
+    assert a.reference_method == "pt"
+    a = p.parse_args(["metrics", "s", "-o", "m.csv", "--reference-method", "sms"])
+    assert a.reference_method == "sms"
     a = p.parse_args(["upload", "id", "scene.json", "a.ply", "b.obj"])
     assert a.scene_id == "id" and a.assets == ["a.ply", "b.obj"]
 
@@ -311,6 +330,7 @@ def test_other_commands_arguments():
     [], ["frame"], ["frame", "s"], ["frame", "s", "-o", "x", "--size", "12"],
     ["frame", "s", "-o", "x", "--size", "0x4"], ["frame", "s", "-o", "x", "--spp", "0"],
     ["orbit", "s", "-o", "d", "--center", "1,2"], ["nonsense"], ["frame", "s", "-o", "x", "--exposure", "nan"],
+    ["metrics", "s", "-o", "m.csv", "--reference-method", "bdpt"],
 ])
 def test_usage_errors_exit_2(argv, capsys):
     with pytest.raises(SystemExit) as exc:
@@ -586,14 +606,15 @@ def test_cli_orbit_submits_one_job_and_downloads_every_frame(fake, tmp_path):
     assert anim["camera_keys"][0]["position"] == CAMERA["position"]
 
 
-def test_cli_metrics_writes_csv(fake, tmp_path):
+@pytest.mark.parametrize("method", ["pt", "sms"])
+def test_cli_metrics_writes_csv(fake, tmp_path, method):
     out_file = tmp_path / "m.csv"
     code, out, err = run_cli(fake, "metrics", "lib-box", "--reference-spp", "64", "--frames", "4",
-                             "-o", str(out_file))
+                             "--reference-method", method, "-o", str(out_file))
     assert code == 0, err
     rows = out_file.read_text().splitlines()
     assert rows[0] == "frame,time_s,render_ms,mape,rmse,relmse" and len(rows) == 5
     kinds = [j["kind"] for j in fake.jobs.values()]
     assert kinds == ["reference", "animation"]
     ref, anim = fake.jobs.values()
-    assert ref["_req"] == {"spp": 64} and anim["_req"]["reference"] == ref["reference"]
+    assert ref["_req"] == {"spp": 64, "method": method} and anim["_req"]["reference"] == ref["reference"]

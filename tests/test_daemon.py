@@ -678,7 +678,7 @@ def test_references_render_upload_metrics_error_map(daemon, tmp_path):
     assert r.status == 202, repr(r)
     job = r.json()
     assert job["kind"] == "reference" and job["status"] in ("queued", "running", "done")
-    assert job["spp"] == 32 and job["href"] == f"{CORNELL}/references/ref32", job
+    assert job["spp"] == 32 and job["method"] == "pt" and job["href"] == f"{CORNELL}/references/ref32", job
     assert job["progress"]["frames_total"] == 16, job  # 16 passes of spp/16
     loc = r.header("Location")
     assert loc and loc.startswith(s["href"] + "/renders/") and loc.endswith("/" + job["id"]), repr(r)
@@ -689,7 +689,7 @@ def test_references_render_upload_metrics_error_map(daemon, tmp_path):
     r = daemon.req("GET", f"{CORNELL}/references/ref32", headers={"Accept": "application/json"})
     assert r.status == 200, repr(r)
     info = r.json()
-    assert (info["name"], info["width"], info["height"], info["spp"]) == ("ref32", 32, 32, 32)
+    assert (info["name"], info["width"], info["height"], info["spp"], info["method"]) == ("ref32", 32, 32, 32, "pt")
     assert np.allclose(info["mean"], CORNELL_MEAN, rtol=0.15), info
     r = daemon.req("GET", f"{CORNELL}/references/ref32")
     assert r.status == 200 and r.header("Content-Type") == "image/x-exr", repr(r)
@@ -725,7 +725,8 @@ def test_references_render_upload_metrics_error_map(daemon, tmp_path):
                    headers={"Content-Type": "image/x-exr"})
     assert r.status == 201, repr(r)
     info = daemon.req("GET", f"{CORNELL}/references/up32", headers={"Accept": "application/json"}).json()
-    assert (info["width"], info["height"], info["spp"]) == (32, 32, 0) and np.allclose(info["mean"], [0.25, 0.5, 0.25])
+    assert (info["width"], info["height"], info["spp"], info["method"]) == (32, 32, 0, None)
+    assert np.allclose(info["mean"], [0.25, 0.5, 0.25])
     assert np.array_equal(exr_rgb(daemon.req("GET", f"{CORNELL}/references/up32").body), const)
     r = daemon.req("PUT", f"{CORNELL}/references/up-aces", body=write_exr(tmp_path / "n.exr", const, "none"),
                    headers={"Content-Type": "image/aces"})
@@ -752,6 +753,56 @@ def test_references_render_upload_metrics_error_map(daemon, tmp_path):
     assert_problem(daemon.req("GET", s["href"] + "/frames/0/metrics?reference=nope"), 404, "not-found")
     assert_problem(daemon.req("GET", f"{CORNELL}/references/nope"), 404, "not-found")
     assert daemon.req("DELETE", s["href"]).status == 204
+
+
+def test_sms_reference_finds_the_caustics_pt_misses(daemon):
+    """`"method": "sms"` renders a reference with specular manifold sampling for the caustic
+    paths: on reflective-plane (a small light seen in a bumpy mirror) two such references with
+    independent seeds agree far better than two `pt` ones at the same spp, whose caustic comes
+    from rare BSDF-sampled hits of the light. Measured with the CLI at 32x32, 32 spp: RMSE
+    between two seeds 0.0036 (sms) against 0.55 (pt). A reference that ignored the method fails."""
+    plane = "/v1/scenes/reflective-plane"
+    imgs = {}
+    for method in ("pt", "sms"):
+        for seed in (1, 2):
+            s = new_session(daemon, scene="reflective-plane", width=32, height=32, seed=seed, params={"spp": 1})
+            name = f"{method}{seed}"
+            r = daemon.req("POST", s["href"] + f"/references/{name}", json_body={"spp": 32, "method": method})
+            assert r.status == 202 and r.json()["method"] == method, repr(r)
+            job = wait_job(daemon, r.header("Location"))
+            assert job["error"] is None and job["method"] == method and job["spp"] == 32, job
+            info = daemon.req("GET", f"{plane}/references/{name}", headers={"Accept": "application/json"}).json()
+            assert info["method"] == method and info["spp"] == 32, info
+            imgs[name] = exr_rgb(daemon.req("GET", f"{plane}/references/{name}").body)
+            assert np.isfinite(imgs[name]).all()
+            assert daemon.req("DELETE", s["href"]).status == 204
+
+    def rmse(a, b):
+        return float(np.sqrt(np.mean((imgs[a] - imgs[b]) ** 2)))
+
+    assert rmse("sms1", "sms2") < 0.05 * rmse("pt1", "pt2"), (rmse("sms1", "sms2"), rmse("pt1", "pt2"))
+    # An unknown method names the field; an uploaded reference has none.
+    s = new_session(daemon, scene="reflective-plane", width=8, height=8)
+    r = daemon.req("POST", s["href"] + "/references/x", json_body={"method": "bdpt"})
+    assert_problem(r, 422, "invalid-field", "/method")
+    assert 'unknown reference method "bdpt" (known: pt, sms)' in r.json()["detail"], repr(r)
+    assert daemon.req("DELETE", s["href"]).status == 204
+    # A scene with more caustic casters than SMS holds (64): a pt session works, an sms reference
+    # of it is refused before a job starts.
+    scene = cornell_scene()
+    scene["materials"]["glass"] = {"type": "dielectric", "ior": 1.5}
+    scene["shapes"] += [{"type": "sphere", "material": "glass", "center": [30 + 7 * i, 60, 200], "radius": 3,
+                         "caustic_caster": True} for i in range(65)]
+    assert daemon.req("PUT", "/v1/scenes/many-casters", json_body=scene).status == 201
+    s = new_session(daemon, scene="many-casters", width=8, height=8)
+    r = daemon.req("POST", s["href"] + "/references/x", json_body={"method": "sms"})
+    assert_problem(r, 422, "limit-exceeded", "/method")
+    assert r.json()["detail"] == "more than 64 caustic casters", repr(r)
+    r = daemon.req("POST", s["href"] + "/references/x", json_body={"spp": 1})
+    assert r.status == 202 and r.json()["method"] == "pt", repr(r)
+    wait_job(daemon, r.header("Location"))
+    assert daemon.req("DELETE", s["href"]).status == 204
+    assert daemon.req("DELETE", "/v1/scenes/many-casters").status == 204
 
 
 @pytest.mark.concurrency

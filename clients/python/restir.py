@@ -586,9 +586,12 @@ class Client:
                                      headers={"Idempotency-Key": key})
         return self._job_answer(s, resp)
 
-    def create_reference(self, session, name, spp=None, scene=None):
-        """Renders a reference of the session's view on the server; returns the job object."""
+    def create_reference(self, session, name, spp=None, scene=None, method=None):
+        """Renders a reference of the session's view on the server (method "pt", the default, or
+        "sms": specular manifold sampling for the caustics); returns the job object."""
         body = {} if spp is None else {"spp": spp}
+        if method is not None:
+            body["method"] = method
         s, resp = self._session_call(session, "POST", "/references/%s" % _q(name), scene=scene,
                                      json_body=body)
         return self._job_answer(s, resp)
@@ -833,12 +836,19 @@ def finite_float(text):
     return v
 
 
+# The methods whose sessions take "spp"; the others (reuse methods, bdpt) render one sample
+# per pixel and frame and refuse the key.
+SPP_METHODS = ("pt", "sms", "sms_ssp")
+
+
 def _session_args(p, spp_default):
     p.add_argument("--method", default="pt", help="rendering method (default pt)")
     p.add_argument("--size", type=parse_size, default=(256, 256), metavar="WxH",
                    help="image size (default 256x256)")
-    p.add_argument("--spp", type=positive_int, default=spp_default,
-                   help="samples per pixel per frame (default %d)" % spp_default)
+    p.add_argument("--spp", type=positive_int, default=None,
+                   help="samples per pixel per frame, for %s (default %d); the other methods take "
+                        "one per frame" % (", ".join(SPP_METHODS), spp_default))
+    p.set_defaults(spp_default=spp_default)
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
 
 
@@ -891,6 +901,9 @@ def build_parser():
     sp.add_argument("scene")
     sp.add_argument("--reference-spp", type=positive_int, default=1024,
                     help="samples per pixel of the reference (default 1024)")
+    sp.add_argument("--reference-method", choices=("pt", "sms"), default="pt",
+                    help="how the server estimates the reference: pt, or sms for the caustics of "
+                         "scenes with caustic casters (default pt)")
     sp.add_argument("--reference", default=None, help="reference name (default: made from the session id)")
     sp.add_argument("--frames", type=positive_int, default=16, help="frames (default 16)")
     sp.add_argument("--fps", type=finite_float, default=30.0, help="frames per second (default 30)")
@@ -946,10 +959,18 @@ def _write(path, data):
     os.replace(tmp, path)
 
 
+def _session_params(args):
+    """The session's params: --spp as given (the daemon names it if the method refuses it), else
+    the command's default for the methods that take spp, else none (the method's defaults)."""
+    if args.spp is not None:
+        return {"spp": args.spp}
+    return {"spp": args.spp_default} if args.method in SPP_METHODS else {}
+
+
 def _make_session(client, args):
     w, h = args.size
     return client.create_session(args.scene, method=args.method, width=w, height=h, seed=args.seed,
-                                 params={"spp": args.spp})
+                                 params=_session_params(args))
 
 
 def cmd_health(client, args, out, prog):
@@ -984,7 +1005,8 @@ def cmd_frame(client, args, out, prog):
     accept, query = _image_query(args)
     s = _make_session(client, args)
     try:
-        prog.update("session %s: rendering %dx%d, %d spp" % (s.id, args.size[0], args.size[1], args.spp))
+        spp = _session_params(args).get("spp", 1)
+        prog.update("session %s: rendering %dx%d, %d spp" % (s.id, args.size[0], args.size[1], spp))
         data = client.frame(s, accept=accept, **query)
         hdr = client.last_response.headers
         _write(args.output, data)
@@ -1096,8 +1118,9 @@ def cmd_metrics(client, args, out, prog):
     s = _make_session(client, args)
     try:
         name = args.reference or ("ref-%s" % s.id)[:64]
-        prog.update("session %s: rendering reference %s at %d spp" % (s.id, name, args.reference_spp))
-        ref_job = client.create_reference(s, name, spp=args.reference_spp)
+        prog.update("session %s: rendering reference %s at %d spp (%s)" % (s.id, name, args.reference_spp,
+                                                                          args.reference_method))
+        ref_job = client.create_reference(s, name, spp=args.reference_spp, method=args.reference_method)
 
         def show(stage):
             def cb(state):

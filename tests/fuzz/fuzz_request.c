@@ -62,9 +62,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     fuzz_check(ok, &err, within);
     protocol_render_request_destroy(&r);
 #elif FUZZ_PARSER == FUZZ_REFERENCE
-    uint32_t spp = 0;
-    bool ok = protocol_parse_reference_request(body, size, &LIMITS, &spp, &err);
-    fuzz_check(ok, &err, !ok || (spp >= 1 && spp <= LIMITS.max_spp));
+    struct protocol_reference_request r = {0};
+    bool ok = protocol_parse_reference_request(body, size, &LIMITS, &r, &err);
+    fuzz_check(ok, &err, !ok || (r.spp >= 1 && r.spp <= LIMITS.max_spp &&
+                                 (r.method == PROTOCOL_REFERENCE_PT || r.method == PROTOCOL_REFERENCE_SMS)));
 #else
 #error "FUZZ_PARSER must be 1..4"
 #endif

@@ -39,8 +39,8 @@ static bool parse_one(enum which w, const char *body, size_t len, struct err *er
         return ok;
     }
     case REFERENCE: {
-        uint32_t spp;
-        return protocol_parse_reference_request(body, len, &LIMITS, &spp, err);
+        struct protocol_reference_request r;
+        return protocol_parse_reference_request(body, len, &LIMITS, &r, err);
     }
     }
     return false;
@@ -250,15 +250,22 @@ static void test_render_valid(void)
 
 static void test_reference_valid(void)
 {
-    uint32_t spp = 0;
+    struct protocol_reference_request r = {0};
     struct err err;
-    CHECK(protocol_parse_reference_request("{\"spp\": 16}", 11, &LIMITS, &spp, &err) && spp == 16);
-    CHECK(protocol_parse_reference_request("", 0, &LIMITS, &spp, &err) && spp == 1024);
-    CHECK(protocol_parse_reference_request("{}", 2, &LIMITS, &spp, &err) && spp == 1024);
-    CHECK(protocol_parse_reference_request("{\"spp\": 2048}", 13, &LIMITS, &spp, &err) && spp == 2048);
+    CHECK(protocol_parse_reference_request("{\"spp\": 16}", 11, &LIMITS, &r, &err) && r.spp == 16 &&
+          r.method == PROTOCOL_REFERENCE_PT);
+    CHECK(protocol_parse_reference_request("", 0, &LIMITS, &r, &err) && r.spp == 1024);
+    CHECK(protocol_parse_reference_request("{}", 2, &LIMITS, &r, &err) && r.spp == 1024);
+    CHECK(protocol_parse_reference_request("{\"spp\": 2048}", 13, &LIMITS, &r, &err) && r.spp == 2048);
+    const char *sms = "{\"spp\": 64, \"method\": \"sms\"}";
+    CHECK(protocol_parse_reference_request(sms, strlen(sms), &LIMITS, &r, &err) && r.spp == 64 &&
+          r.method == PROTOCOL_REFERENCE_SMS && strcmp(protocol_reference_method_name(r.method), "sms") == 0);
+    const char *pt = "{\"method\": \"pt\"}";
+    CHECK(protocol_parse_reference_request(pt, strlen(pt), &LIMITS, &r, &err) && r.spp == 1024 &&
+          r.method == PROTOCOL_REFERENCE_PT && strcmp(protocol_reference_method_name(r.method), "pt") == 0);
     const struct protocol_limits low = {.max_side = 64, .max_pixels = 4096, .max_spp = 512, .max_frames = 1, .max_keys = 1};
-    spp = 7;
-    CHECK(!protocol_parse_reference_request("", 0, &low, &spp, &err) && spp == 7);
+    r.spp = 7;
+    CHECK(!protocol_parse_reference_request("", 0, &low, &r, &err) && r.spp == 7);
     CHECK(err.code == ERR_LIMIT && strcmp(err.where, "/spp") == 0 && strstr(err.message, "max_spp = 512"));
 }
 
@@ -436,6 +443,8 @@ static const struct bad_case BAD[] = {
     {REFERENCE, "{\"spp\": 2.5}", ERR_INVALID, "/spp", "expected an integer"},
     {REFERENCE, "{\"spp\": \"64\"}", ERR_INVALID, "/spp", "expected a number, got a string"},
     {REFERENCE, "{\"samples\": 4}", ERR_INVALID, "/samples", "unknown key"},
+    {REFERENCE, "{\"method\": \"bdpt\"}", ERR_INVALID, "/method", "unknown reference method \"bdpt\" (known: pt, sms)"},
+    {REFERENCE, "{\"method\": 1}", ERR_INVALID, "/method", "expected a string, got a number"},
     {REFERENCE, "{\"spp\": 4", ERR_PARSE, "", "end of input"},
 };
 

@@ -621,7 +621,7 @@ action('stop-animation', 'Stop animation', async () => {
 action('render-reference', 'Render reference', async () => {
   const s = sessionA();
   const name = $('ref-name').value.trim();
-  const job = await sendJson('POST', `${s.href}/references/${encodeURIComponent(name)}`, withDefined({ spp: typed($('ref-spp')) }));
+  const job = await sendJson('POST', `${s.href}/references/${encodeURIComponent(name)}`, withDefined({ spp: typed($('ref-spp')), method: $('ref-method').value }));
   state.refJob = { session: s, id: job.id, name };
   setRefStatus('rendering', `'${name}': queued`);
   settleJobs(s);

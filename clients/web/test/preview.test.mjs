@@ -253,9 +253,13 @@ test('A/B: a second session becomes A, the first B; the toggle and the swipe sho
 
 test('a reference: MAPE chart points equal the daemon metrics; error map and its scale; B = reference', async () => {
   await page.fill('#ref-spp', '32');
+  await page.selectOption('#ref-method', 'sms');
   await page.click('#render-reference');
   await waitData('#ref-status', 'state', 'ready');
   assert.equal((await dataset('#ref-status')).name, 'ref');
+  const refInfo = await (await api('GET', '/v1/scenes/cornell-box/references/ref')).json();
+  assert.equal(refInfo.method, 'sms', 'the page sends the chosen reference method');
+  assert.equal(refInfo.spp, 32);
 
   await page.click('#render-frame');
   await waitData('#view', 'aFrame', '1');
