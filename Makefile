@@ -208,8 +208,10 @@ bench: $(OUT)/restir $(OUT)/restird $(OBJ)/librenderer.a
 	$(PYTHON) bench/sms.py | tee $(BUILD)/bench/sms.md
 
 # The speed-against-accuracy report (docs/report/): every scene x method, stability, Cycles as a
-# peer. QUICK=1 for a few minutes at 64x64.
+# peer (Debian's blender, installed here unless REPORT_NO_CYCLES=1). QUICK=1 for a few minutes at
+# 64x64.
 bench-report: $(OUT)/restir $(OUT)/restird
+	@[ "$(REPORT_NO_CYCLES)" = 1 ] || bash scripts/install-deps.sh blender
 	QUICK=$(QUICK) $(PYTHON) bench/report.py
 
 # ---- fuzzing: libFuzzer targets, built by clang with ASan + UBSan into build/fuzz/ ----

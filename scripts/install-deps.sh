@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Installs every Debian package restird needs to build, test and benchmark.
+# Installs every Debian package restird needs to build, test and benchmark, and the optional
+# packages named as arguments (make bench-report: blender, the report's peer, ~300 MB).
 # Idempotent: does nothing (and needs no network) when all packages are present.
 set -euo pipefail
 
@@ -21,6 +22,7 @@ packages=(
 )
 # npm comes with some builds of nodejs and as Debian's own package with others.
 command -v npm >/dev/null || packages+=(npm)
+packages+=("$@")
 
 missing=()
 for p in "${packages[@]}"; do
