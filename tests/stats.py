@@ -41,10 +41,12 @@ class ZTest:
         return self.fraction_pass >= 0.9975 and abs(self.global_z) <= self.global_threshold
 
     def __str__(self):
-        return (f"pixels passing {100 * self.fraction_pass:.3f}% (threshold |z| <= {self.threshold:.2f}), "
+        text = (f"pixels passing {100 * self.fraction_pass:.3f}% (threshold |z| <= {self.threshold:.2f}), "
                 f"worst |z| {self.worst_z:.2f}, global mean t {self.global_z:.2f} "
-                f"(threshold {self.global_threshold:.2f})" + (f", {self.untested} values untested ({100 * self.untested_share:.2f} % of the image's sum)"
-                   if self.untested else ""))
+                f"(threshold {self.global_threshold:.2f})")
+        if self.untested:
+            text += f", {self.untested} values untested ({100 * self.untested_share:.2f} % of the image's sum)"
+        return text
 
 
 def sidak_threshold(n_tests, alpha=0.01):
@@ -96,7 +98,8 @@ def ztest_runs(runs_a, runs_b=None, expected=None, rel_floor=FLOAT_REL_FLOOR, mi
     diff = mean_a - mean_b
     # Where both sides have zero variance the values must agree exactly (up to float rounding).
     exact = se == 0
-    z = np.where(exact, np.where(np.abs(diff) <= 1e-6 * (1 + np.abs(mean_b)), 0.0, np.inf), diff / np.where(exact, 1, se))
+    agree = np.abs(diff) <= 1e-6 * (1 + np.abs(mean_b))
+    z = np.where(exact, np.where(agree, 0.0, np.inf), diff / np.where(exact, 1, se))
     tested = np.ones(z.shape, dtype=bool)
     if min_nonzero_b and runs_b is not None:
         # Values both sides left at zero in every run agree exactly and stay in.
