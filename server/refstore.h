@@ -1,7 +1,7 @@
 /* refstore.h — reference images by (scene, name): rendered by the server (`pt`, or `pt` with
- * specular manifold sampling) or uploaded as EXR. Immutable once stored and shared by reference count, so a metrics computation keeps
- * its reference alive while another request replaces it. In memory for the daemon's lifetime.
- * Thread-safe. */
+ * specular manifold sampling) or uploaded as EXR. Immutable once stored and shared by reference
+ * count, so a metrics computation keeps its reference alive while another request replaces it.
+ * In memory for the daemon's lifetime. Thread-safe. */
 #ifndef RESTIRD_REFSTORE_H
 #define RESTIRD_REFSTORE_H
 
@@ -25,9 +25,9 @@ struct refstore;
 /* budget: references' pixels are reserved from it (BUDGET_REFERENCES) while stored; NULL = none. */
 struct refstore *refstore_new(struct budget *budget);
 void refstore_free(struct refstore *rs);
-/* Stores (or replaces) a reference (method: a static string, or NULL for an upload); takes the image's pixels (img is left empty, also on
- * failure). *replaced tells whether a reference of that name existed. Errors: ERR_BUSY (the
- * memory budget cannot hold the pixels), ERR_NOMEM. */
+/* Stores (or replaces) a reference (method: a static string, or NULL for an upload); takes the
+ * image's pixels (img is left empty, also on failure). *replaced tells whether a reference of
+ * that name existed. Errors: ERR_BUSY (the memory budget cannot hold the pixels), ERR_NOMEM. */
 bool refstore_put(struct refstore *rs, const char *scene, const char *name, struct image *img, uint32_t spp,
                   const char *method, bool *replaced, struct err *err);
 /* Retained reference or NULL; ref_image_release when done. */

@@ -621,7 +621,8 @@ action('stop-animation', 'Stop animation', async () => {
 action('render-reference', 'Render reference', async () => {
   const s = sessionA();
   const name = $('ref-name').value.trim();
-  const job = await sendJson('POST', `${s.href}/references/${encodeURIComponent(name)}`, withDefined({ spp: typed($('ref-spp')), method: $('ref-method').value }));
+  const body = withDefined({ spp: typed($('ref-spp')), method: $('ref-method').value });
+  const job = await sendJson('POST', `${s.href}/references/${encodeURIComponent(name)}`, body);
   state.refJob = { session: s, id: job.id, name };
   setRefStatus('rendering', `'${name}': queued`);
   settleJobs(s);
