@@ -30,7 +30,7 @@ OPENEXR_CFLAGS = $(shell pkg-config --cflags OpenEXR 2>/dev/null)
 PYTHON  := /usr/bin/python3
 DEPS_OK := $(BUILD)/.deps-ok
 
-RENDERER_SRC := $(wildcard renderer/*.c)
+RENDERER_SRC := $(wildcard renderer/*/*.c)
 RENDERER_OBJ := $(RENDERER_SRC:%.c=$(OBJ)/%.o)
 PROTOCOL_SRC := $(wildcard protocol/*.c)
 PROTOCOL_OBJ := $(PROTOCOL_SRC:%.c=$(OBJ)/%.o)
@@ -292,5 +292,5 @@ clean:
 	rm -rf $(BUILD) .pytest_cache tests/__pycache__ tests/cluster/__pycache__ clients/python/__pycache__ bench/__pycache__ \
 	       $(WEB)/node_modules
 
--include $(wildcard $(FUZZ_OBJ)/*/*.d)
+-include $(wildcard $(FUZZ_OBJ)/*/*.d $(FUZZ_OBJ)/*/*/*.d)
 -include $(RENDERER_OBJ:.o=.d) $(PROTOCOL_OBJ:.o=.d) $(SERVER_OBJ:.o=.d) $(OBJ)/server/cli.d $(OBJ)/server/main.d $(UNIT_SRC:tests/unit/%.c=$(OBJ)/tests/unit/%.d)

@@ -18,7 +18,7 @@
 #include <string.h>
 #include <time.h>
 
-#include "exrio.h"
+#include "image/exrio.h"
 
 static double clock_ms(clockid_t id)
 {

@@ -21,13 +21,13 @@
 #include <stdio.h>
 #include <stdlib.h>
 
-#include "accel.h"
-#include "camera.h"
-#include "material.h"
-#include "rng.h"
-#include "scene.h"
-#include "sms.h"
-#include "surface.h"
+#include "scene/accel.h"
+#include "scene/camera.h"
+#include "material/material.h"
+#include "core/rng.h"
+#include "scene/scene.h"
+#include "integrators/sms.h"
+#include "scene/surface.h"
 
 #define FLOORS_MAX_LIGHTS 32
 #define FLOORS_MAX_POINTS 64

@@ -9,9 +9,9 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "exrio.h"
-#include "restir_sss.h"
-#include "scene.h"
+#include "image/exrio.h"
+#include "integrators/restir_sss.h"
+#include "scene/scene.h"
 
 int main(int argc, char **argv)
 {

@@ -20,9 +20,9 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "animation.h"
-#include "err.h"
-#include "view.h"
+#include "scene/animation.h"
+#include "core/err.h"
+#include "session/view.h"
 
 #define PROTOCOL_ID_MAX 64          /* ids: [A-Za-z0-9_-]{1,64} */
 #define PROTOCOL_MAX_DEPTH 16       /* JSON nesting depth accepted in a request body */

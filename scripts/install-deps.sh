@@ -8,7 +8,7 @@ packages=(
   build-essential pkg-config
   libembree-dev          # ray tracing backend (Embree 3)
   libopenexr-dev         # EXR I/O through the C API (openexr.h)
-  libdeflate-dev         # fast deflate for EXR ZIP chunks (renderer/exrio.c)
+  libdeflate-dev         # fast deflate for EXR ZIP chunks (renderer/image/exrio.c)
   libmicrohttpd-dev      # HTTP daemon
   libcjson-dev           # JSON
   libassimp-dev          # PLY / OBJ mesh loading

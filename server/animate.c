@@ -5,7 +5,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "camera.h"
+#include "scene/camera.h"
 
 bool animate_complete_camera(const struct protocol_camera *pc, const struct camera_desc *base, struct camera_desc *out,
                              const char **why)

@@ -6,7 +6,7 @@
 #define RESTIRD_ANIMATE_H
 
 #include "protocol.h"
-#include "view.h"
+#include "session/view.h"
 
 /* Fills *out (arrays malloc'd; the request's shape keys are moved out of it). Errors carry the
  * JSON pointer of the offending key: ERR_INVALID ("/animation/camera_keys/i" for a camera that

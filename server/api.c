@@ -11,9 +11,9 @@
 #include <time.h>
 #include <math.h>
 
-#include "exrio.h"
-#include "light_sampler.h"
-#include "tonemap.h"
+#include "image/exrio.h"
+#include "scene/light_sampler.h"
+#include "image/tonemap.h"
 #include "webui.h"
 
 /* The API description, linked in from protocol/openapi.yaml (see the Makefile). */

@@ -10,7 +10,7 @@
 #include <math.h>
 
 #include "animate.h"
-#include "tonemap.h"
+#include "image/tonemap.h"
 
 static const char *const api_image_types[] = {"image/x-exr", "image/png", "application/json", NULL};
 

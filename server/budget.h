@@ -11,7 +11,7 @@
 #include <stdbool.h>
 #include <stdint.h>
 
-#include "err.h"
+#include "core/err.h"
 
 enum budget_kind { BUDGET_SESSIONS, BUDGET_SCENES, BUDGET_REFERENCES, BUDGET_KINDS };
 

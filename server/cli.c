@@ -11,12 +11,12 @@
 #include <unistd.h>
 
 #include "animate.h"
-#include "exrio.h"
-#include "fileio.h"
-#include "metrics.h"
-#include "reference_pt.h"
-#include "scene.h"
-#include "view.h"
+#include "image/exrio.h"
+#include "input/fileio.h"
+#include "image/metrics.h"
+#include "integrators/reference_pt.h"
+#include "scene/scene.h"
+#include "session/view.h"
 
 #define CLI_USAGE                                                                                  \
     "usage:\n"                                                                                     \

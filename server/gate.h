@@ -9,7 +9,7 @@
 #include <pthread.h>
 #include <stdbool.h>
 
-#include "err.h"
+#include "core/err.h"
 
 struct gate {
     pthread_mutex_t lock;

@@ -15,7 +15,7 @@
 #include <stdint.h>
 #include <sys/types.h>
 
-#include "err.h"
+#include "core/err.h"
 
 #define HTTP_MAX_HEADERS 12
 

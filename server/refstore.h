@@ -10,8 +10,8 @@
 #include <stdint.h>
 
 #include "budget.h"
-#include "err.h"
-#include "image.h"
+#include "core/err.h"
+#include "image/image.h"
 
 struct ref_image {
     int refcount;

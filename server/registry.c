@@ -19,9 +19,9 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-#include "fileio.h"
-#include "light_sampler.h"
-#include "mesh_io.h"
+#include "input/fileio.h"
+#include "scene/light_sampler.h"
+#include "input/mesh_io.h"
 
 /* Content hash: 64-bit FNV-1a over
  *     u64 json length, json bytes,

@@ -20,8 +20,8 @@
 #include <stdint.h>
 
 #include "budget.h"
-#include "err.h"
-#include "scene.h"
+#include "core/err.h"
+#include "scene/scene.h"
 
 #define REGISTRY_ID_MAX 64
 #define REGISTRY_ASSET_NAME_MAX 64

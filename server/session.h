@@ -16,13 +16,13 @@
 #include <stdbool.h>
 #include <stdint.h>
 
-#include "animation.h"
+#include "scene/animation.h"
 #include "budget.h"
 #include "gate.h"
-#include "metrics.h"
+#include "image/metrics.h"
 #include "protocol.h"
 #include "refstore.h"
-#include "view.h"
+#include "session/view.h"
 
 #define SESSION_EVENTS 64          /* events kept for SSE readers that fall behind */
 #define SESSION_JOBS 16            /* jobs remembered per session (oldest finished dropped) */

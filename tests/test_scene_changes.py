@@ -1,7 +1,7 @@
 """Camera and light changes sent with a frame request are exact: a frame rendered after a change
 is bit-identical to the same frame of a scene file that has the change written into it, and the
-change stays in force for later frames. These pin down renderer/view.c and scene_derive in
-renderer/scene.c (derived scenes share geometry with the loaded one) through the daemon."""
+change stays in force for later frames. These pin down renderer/session/view.c and scene_derive in
+renderer/scene/scene.c (derived scenes share geometry with the loaded one) through the daemon."""
 import copy
 import http.client
 import json

@@ -1,6 +1,6 @@
 """Specular manifold sampling (method `sms`) against path tracing restricted to the paths it owns.
 
-The split (renderer/sms.h): after a non-delta vertex, a path that crosses exactly one caster's
+The split (renderer/integrators/sms.h): after a non-delta vertex, a path that crosses exactly one caster's
 chain of delta vertices into an emitter belongs to SMS; `pt` with params.subset = "caustic"
 renders exactly those paths (the filtered reference) and "rest" all others.
 
@@ -39,8 +39,8 @@ REF_SPP = 4096
 # edges a pixel may see its paths in none of the K_REF runs, where its sample variance is 0.
 REF_MIN_HITS = 3
 MAX_UNTESTED = 0.01  # of the image's sum (both sides' means)
-REF_SOURCES = ["renderer/reference_pt.c", "renderer/sms.c", "renderer/material.c", "renderer/bsdf_dielectric.c",
-               "renderer/bsdf_diffuse.c", "renderer/light_sampler.c", "renderer/surface.c", "renderer/camera.c"]
+REF_SOURCES = ["renderer/integrators/reference_pt.c", "renderer/integrators/sms.c", "renderer/material/material.c", "renderer/material/bsdf_dielectric.c",
+               "renderer/material/bsdf_diffuse.c", "renderer/scene/light_sampler.c", "renderer/scene/surface.c", "renderer/scene/camera.c"]
 
 
 def _params(d):

@@ -1,5 +1,5 @@
 """Subsurface scattering in the reference path tracer (`pt`): the translucent material's BSSRDF
-importance sampling at the primary hit (renderer/bssrdf.c, reference_pt.c pt_sss_primary).
+importance sampling at the primary hit (renderer/material/bssrdf.c, reference_pt.c pt_sss_primary).
 
 - an analytic furnace: a large translucent plane under a uniform environment returns exactly
   albedo (1 - F(wo)) (the profile integrates to 1 over the plane, the entry lobe's cosine

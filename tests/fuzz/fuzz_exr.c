@@ -1,4 +1,4 @@
-/* fuzz_exr.c — libFuzzer target for the EXR reader and its header gate (renderer/exrio.c),
+/* fuzz_exr.c — libFuzzer target for the EXR reader and its header gate (renderer/image/exrio.c),
  * the code every uploaded reference goes through (PUT …/references/{name}). The probe runs
  * first (it parses the header without the gate), then the gated decode. An accepted image
  * must be within the gate's limits. */
@@ -6,7 +6,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 
-#include "exrio.h"
+#include "image/exrio.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 

@@ -1,4 +1,4 @@
-/* fuzz_mesh.c — libFuzzer targets for the mesh decoders (renderer/mesh_io.c). Built once per
+/* fuzz_mesh.c — libFuzzer targets for the mesh decoders (renderer/input/mesh_io.c). Built once per
  * format with -DFUZZ_MESH_EXT="ply" or "obj". An accepted mesh must keep the decoder's own
  * promises: at least one triangle, every index below vertex_count, every position finite. */
 #include <math.h>
@@ -6,7 +6,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 
-#include "mesh_io.h"
+#include "input/mesh_io.h"
 
 #ifndef FUZZ_MESH_EXT
 #error "build with -DFUZZ_MESH_EXT=\"ply\" or \"obj\""

@@ -1,4 +1,4 @@
-/* fuzz_scene_json.c — libFuzzer target for the scene JSON loader (renderer/scene_load.c).
+/* fuzz_scene_json.c — libFuzzer target for the scene JSON loader (renderer/input/scene_load.c).
  * Mesh paths resolve under tests/meshes (make runs from the tree's root), so the path checks
  * and the mesh decoders behind them are reached too. A rejected scene must come back as an
  * error code; an accepted one must be within the shape limit (an empty scene is valid). */
@@ -6,7 +6,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 
-#include "scene.h"
+#include "scene/scene.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 

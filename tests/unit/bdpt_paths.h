@@ -8,9 +8,9 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "material.h"
-#include "rng.h"
-#include "vec.h"
+#include "material/material.h"
+#include "core/rng.h"
+#include "core/vec.h"
 
 #define MAXV 10
 

@@ -8,7 +8,7 @@
 #include <stdio.h>
 #include <string.h>
 
-#include "view.h"
+#include "session/view.h"
 
 struct session_buffers {
     struct view_buffer_bytes b[VIEW_MAX_BUFFERS];

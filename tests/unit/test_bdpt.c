@@ -1,4 +1,4 @@
-/* test_bdpt.c — the recursive MIS of `bdpt` (renderer/bdpt_mis.h) against a brute-force
+/* test_bdpt.c — the recursive MIS of `bdpt` (renderer/integrators/bdpt_mis.h) against a brute-force
  * recomputation. Random paths x_0 (pinhole camera) .. x_{n-1} (area emitter) with diffuse,
  * glossy (GGX conductor) and delta vertices are built; every technique that can produce the
  * path — emitter hit (s = 0), next-event estimation (s = 1), vertex connections (2 <= s <=
@@ -13,14 +13,14 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "bdpt.h"
-#include "bdpt_mis.h"
-#include "material.h"
-#include "rng.h"
-#include "scene.h"
+#include "integrators/bdpt.h"
+#include "integrators/bdpt_mis.h"
+#include "material/material.h"
+#include "core/rng.h"
+#include "scene/scene.h"
 #include "session_buffers.h"
 #include "test.h"
-#include "view.h"
+#include "session/view.h"
 
 #include "bdpt_paths.h"
 

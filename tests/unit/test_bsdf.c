@@ -24,11 +24,11 @@
 #include <stdint.h>
 #include <stdlib.h>
 
-#include "fresnel.h"
-#include "material.h"
-#include "microfacet.h"
-#include "rng.h"
-#include "sampling.h"
+#include "material/fresnel.h"
+#include "material/material.h"
+#include "material/microfacet.h"
+#include "core/rng.h"
+#include "core/sampling.h"
 #include "test.h"
 
 #if defined(__SANITIZE_ADDRESS__)

@@ -1,4 +1,4 @@
-/* test_bssrdf.c — Burley diffusion and BSSRDF importance sampling (renderer/bssrdf.c) and the
+/* test_bssrdf.c — Burley diffusion and BSSRDF importance sampling (renderer/material/bssrdf.c) and the
  * probe query it relies on (accel_intersect_shape_all):
  * - the CDF is the integral of the profile pdf; sampled radii pass a chi-square test against
  *   that CDF, and the same test rejects radii drawn with a 5 % larger d (the test can fail);
@@ -21,13 +21,13 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "accel.h"
-#include "bssrdf.h"
-#include "material.h"
-#include "rng.h"
-#include "sampling.h"
-#include "scene.h"
-#include "surface.h"
+#include "scene/accel.h"
+#include "material/bssrdf.h"
+#include "material/material.h"
+#include "core/rng.h"
+#include "core/sampling.h"
+#include "scene/scene.h"
+#include "scene/surface.h"
 #include "test.h"
 
 static struct material test_material(struct vec3 albedo, struct vec3 mfp, float ior)

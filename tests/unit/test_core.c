@@ -6,13 +6,13 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "accel.h"
-#include "camera.h"
-#include "distrib.h"
-#include "light_sampler.h"
-#include "rng.h"
-#include "scene.h"
-#include "surface.h"
+#include "scene/accel.h"
+#include "scene/camera.h"
+#include "core/distrib.h"
+#include "scene/light_sampler.h"
+#include "core/rng.h"
+#include "scene/scene.h"
+#include "scene/surface.h"
 #include "test.h"
 
 /* χ² statistic critical value for `dof` degrees of freedom at significance 1e-4

@@ -10,9 +10,9 @@
 #include <string.h>
 #include <unistd.h>
 
-#include "deflate.h"
-#include "exrio.h"
-#include "rng.h"
+#include "image/deflate.h"
+#include "image/exrio.h"
+#include "core/rng.h"
 #include "test.h"
 #if defined(__SSE2__)
 #include <xmmintrin.h>

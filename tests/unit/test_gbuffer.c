@@ -7,12 +7,12 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "accel.h"
-#include "camera.h"
-#include "gbuffer.h"
-#include "rng.h"
-#include "scene.h"
-#include "surface.h"
+#include "scene/accel.h"
+#include "scene/camera.h"
+#include "reuse/gbuffer.h"
+#include "core/rng.h"
+#include "scene/scene.h"
+#include "scene/surface.h"
 #include "test.h"
 
 static struct scene *load_cornell(void)

@@ -4,11 +4,11 @@
  * the 1/M factor, or a target that ignores the cosine, would move the mean or the variance. */
 #include <math.h>
 
-#include "accel.h"
-#include "light_ris.h"
-#include "rng.h"
-#include "scene.h"
-#include "surface.h"
+#include "scene/accel.h"
+#include "scene/light_ris.h"
+#include "core/rng.h"
+#include "scene/scene.h"
+#include "scene/surface.h"
 #include "test.h"
 
 struct stats { double sum, sum2; unsigned n; };

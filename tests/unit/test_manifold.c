@@ -8,13 +8,13 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "../../renderer/fresnel.h"
-#include "../../renderer/manifold.h"
-#include "../../renderer/material.h"
-#include "../../renderer/rng.h"
-#include "../../renderer/scene.h"
-#include "../../renderer/surface.h"
-#include "../test.h"
+#include "material/fresnel.h"
+#include "integrators/manifold.h"
+#include "material/material.h"
+#include "core/rng.h"
+#include "scene/scene.h"
+#include "scene/surface.h"
+#include "test.h"
 
 static struct scene *load(const char *json)
 {

@@ -6,7 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "metrics.h"
+#include "image/metrics.h"
 #include "test.h"
 
 static struct image make(uint32_t w, uint32_t h, const struct vec3 *px)

@@ -6,9 +6,9 @@
 #include <math.h>
 #include <stdint.h>
 
-#include "reservoir.h"
-#include "reuse_mis.h"
-#include "rng.h"
+#include "reuse/reservoir.h"
+#include "reuse/reuse_mis.h"
+#include "core/rng.h"
 #include "test.h"
 
 /* Streaming resampling picks candidate i with probability w_i / sum w (chi-square over 6

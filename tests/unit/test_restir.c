@@ -7,8 +7,8 @@
 #include <math.h>
 #include <stdlib.h>
 
-#include "restir.h"
-#include "rng.h"
+#include "reuse/restir.h"
+#include "core/rng.h"
 #include "test.h"
 
 #define W_PX 16u

@@ -1,4 +1,4 @@
-/* test_restir_bdpt.c — ReSTIR BDPT, lightweight variant (renderer/restir_bdpt.h).
+/* test_restir_bdpt.c — ReSTIR BDPT, lightweight variant (renderer/integrators/restir_bdpt.h).
  *  - The lightweight MIS: over random paths (built as in tests/unit/test_bdpt.c), the recursive
  *    weights of s = 0, s = 1 and t = 1 equal a brute-force recomputation and sum to 1; the full
  *    bdpt normalisation must disagree (the test can fail).
@@ -27,15 +27,15 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "bdpt.h"
-#include "bdpt_mis.h"
-#include "restir_bdpt.h"
-#include "scene.h"
-#include "material.h"
-#include "rng.h"
+#include "integrators/bdpt.h"
+#include "integrators/bdpt_mis.h"
+#include "integrators/restir_bdpt.h"
+#include "scene/scene.h"
+#include "material/material.h"
+#include "core/rng.h"
 #include "session_buffers.h"
 #include "test.h"
-#include "view.h"
+#include "session/view.h"
 
 /* The statistical tests render thousands of frames: skipped in the sanitizer builds (ASan and
  * TSan), where they would take minutes (as the pytest `statistical` marker is). */

@@ -10,12 +10,12 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "restir_pt.h"
-#include "rng.h"
-#include "scene.h"
+#include "integrators/restir_pt.h"
+#include "core/rng.h"
+#include "scene/scene.h"
 #include "session_buffers.h"
 #include "test.h"
-#include "view.h"
+#include "session/view.h"
 
 static struct scene *load(const char *path)
 {

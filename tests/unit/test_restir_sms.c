@@ -11,11 +11,11 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "restir_sms.h"
-#include "scene.h"
+#include "integrators/restir_sms.h"
+#include "scene/scene.h"
 #include "session_buffers.h"
 #include "test.h"
-#include "view.h"
+#include "session/view.h"
 
 static struct scene *load(const char *path)
 {

@@ -12,11 +12,11 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "restir_sss.h"
-#include "scene.h"
+#include "integrators/restir_sss.h"
+#include "scene/scene.h"
 #include "session_buffers.h"
 #include "test.h"
-#include "view.h"
+#include "session/view.h"
 
 static struct scene *load(const char *path)
 {

@@ -13,8 +13,8 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-#include "mesh_io.h"
-#include "scene.h"
+#include "input/mesh_io.h"
+#include "scene/scene.h"
 #include "test.h"
 
 #define CAM "\"camera\": {\"position\": [0, 0, 5], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0], \"fov_deg\": 40}"

@@ -5,11 +5,11 @@
 #include <math.h>
 #include <string.h>
 
-#include "../../renderer/scene.h"
-#include "../../renderer/sms.h"
-#include "../../renderer/sms_ssp.h"
-#include "../../renderer/view.h"
-#include "../test.h"
+#include "scene/scene.h"
+#include "integrators/sms.h"
+#include "integrators/sms_ssp.h"
+#include "session/view.h"
+#include "test.h"
 #include "session_buffers.h"
 
 static struct scene *slab(void)

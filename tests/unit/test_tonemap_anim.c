@@ -10,11 +10,11 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "animation.h"
-#include "deflate.h"
-#include "rng.h"
+#include "scene/animation.h"
+#include "image/deflate.h"
+#include "core/rng.h"
 #include "test.h"
-#include "tonemap.h"
+#include "image/tonemap.h"
 
 /* ---- helpers ----------------------------------------------------------------------------- */
 

@@ -2,7 +2,7 @@
 // curve and the sRGB transfer function, zoomed by whole factors with square pixels, with the
 // float values under the pointer. It shows image A, image B, a swipe (A left of the split, B
 // right of it) or an 8-bit false-colour error map.
-// The curves are those of the daemon's PNG previews (renderer/tonemap.c), so ?tonemap= and this
+// The curves are those of the daemon's PNG previews (renderer/image/tonemap.c), so ?tonemap= and this
 // view agree: clamp, Reinhard x/(1+x), and Narkowicz's ACES fit clipped at 1.
 
 const CURVES = {

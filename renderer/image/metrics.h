@@ -1,0 +1,58 @@
+/* metrics.h — image error metrics against a reference: MAPE, RMSE, relMSE, non-finite counts.
+ * Pure functions over two `struct image`s; no I/O, no allocation, no global state.
+ * Must not let a NaN/Inf pixel poison a sum: such pixels are counted and left out.
+ * Refs: MAPE as in the ReSTIR BDPT paper (footnote 3); relMSE as in Rousselle et al. 2011 /
+ * common denoising practice; design TESTING.md (biased methods get an error bound). */
+#ifndef RESTIRD_METRICS_H
+#define RESTIRD_METRICS_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "core/err.h"
+#include "image/image.h"
+
+/* relMSE denominator offset: (I - I_ref)^2 / (I_ref^2 + METRICS_RELMSE_EPS). 1e-2 is the usual
+ * choice: it keeps near-black reference pixels from dominating without hiding errors on
+ * pixels of ordinary brightness (~0.1 and up). */
+#define METRICS_RELMSE_EPS 1e-2
+/* MAPE denominator: I_ref + METRICS_MAPE_MEAN_FRACTION * mean(I_ref) (paper footnote 3). */
+#define METRICS_MAPE_MEAN_FRACTION 0.01
+
+/* All sums run over "used" pixels: pixels whose three channels are finite in BOTH images.
+ * Each used pixel contributes three samples (R, G, B); every mean is over those samples.
+ *   mape     = mean |I - R| / (R + 0.01 * ref_mean)
+ *   rmse     = sqrt(mean (I - R)^2)
+ *   relmse   = mean (I - R)^2 / (R^2 + METRICS_RELMSE_EPS)
+ *   ref_mean = mean R  (the reference mean used by MAPE, over used samples only)
+ * With no used pixels every metric is NaN. MAPE is NaN when ref_mean <= 0 (an all-black or
+ * negative reference leaves the paper's formula undefined); negative reference samples make
+ * it meaningless in general, radiance images have none. */
+struct metrics {
+    uint32_t width, height;
+    uint64_t pixels_used;          /* pixels in the sums */
+    uint64_t samples;              /* 3 * pixels_used */
+    double mape, rmse, relmse, ref_mean;
+    uint64_t nan_image, nan_ref;   /* pixels with at least one NaN channel */
+    uint64_t inf_image, inf_ref;   /* pixels with at least one +-Inf channel */
+};
+
+/* Compares `image` against `ref`. Sizes must match (ERR_INVALID naming both sizes otherwise);
+ * a NULL or empty image is ERR_INVALID. Accumulates in double. */
+bool metrics_compare(const struct image *image, const struct image *ref, struct metrics *out,
+                     struct err *err);
+
+/* Per-channel mean over the image's finite pixels, accumulated in double; returns how many
+ * pixels were left out because a channel was NaN or Inf. An empty image gives means of 0. */
+uint64_t metrics_image_mean(const struct image *img, double mean[3]);
+
+/* One JSON object, no newline, numbers as %.9g and non-finite values as null:
+ *   {"width":W,"height":H,"pixels_used":N,"samples":S,"mape":x,"rmse":x,"relmse":x,
+ *    "ref_mean":x,"nan":{"a":n,"b":n},"inf":{"a":n,"b":n}}
+ * where "a" is the image and "b" the reference. Fits in METRICS_JSON_MAX bytes; false with
+ * ERR_LIMIT if `size` is too small (buf then holds a truncated, unusable string). */
+#define METRICS_JSON_MAX 512
+bool metrics_format_json(const struct metrics *m, char *buf, size_t size, struct err *err);
+
+#endif

@@ -1,0 +1,173 @@
+/* bdpt.h — method `bdpt`: bidirectional path tracing with a light vertex cache (seed 000 §3
+ * and METHODS.md §2; Davidovič et al. 2014 for the cache). Each frame traces N_L light
+ * subpaths, starting on emitters in proportion to their power; every non-delta light vertex is
+ * kept in the light vertex cache (LVC) and connected to the camera (light tracing, t = 1).
+ * Then one camera subpath per pixel collects emission it hits (s = 0), next-event estimation
+ * (s = 1) and, at each non-delta vertex, a connection to one vertex drawn uniformly from the
+ * LVC (weighted |LVC| / N_L, so in expectation it equals connecting to every vertex of one
+ * light subpath). All techniques are weighted with recursive MIS (bdpt_mis.h).
+ *
+ * Determinism: light subpath i draws from its own random stream and light subpaths are traced
+ * in fixed blocks; each block writes its vertices into its own fixed region of the LVC, and the
+ * light-tracing contributions are added to the image block by block, vertex by vertex, in one
+ * thread: frames are bit-identical whatever the thread count.
+ *
+ * Limits (said, not hidden): constant environment light is not supported (bdpt_init refuses
+ * such scenes); a block whose light subpaths store more vertices than its region holds drops
+ * the excess vertices (and their light-tracing contributions) and counts them in
+ * bdpt_stats.lvc_dropped — a bias, so the region size is a parameter and the statistical tests
+ * assert that nothing was dropped. Paths longer than max_depth bounces are cut, as in `pt`. */
+#ifndef RESTIRD_BDPT_H
+#define RESTIRD_BDPT_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "scene/camera.h"
+#include "core/err.h"
+#include "image/image.h"
+#include "scene/light_sampler.h"
+#include "scene/scene.h"
+
+enum bdpt_heuristic { BDPT_HEURISTIC_POWER, BDPT_HEURISTIC_BALANCE };
+
+struct bdpt_params {
+    uint32_t max_depth;        /* maximum scattering events of a full path, 1..1024 (default 64) */
+    uint32_t rr_depth;         /* Russian roulette after this many bounces of a subpath (default 3) */
+    uint32_t light_paths;      /* N_L per frame; 0 = the pixel count (default) */
+    uint32_t lvc_capacity;     /* LVC vertices kept per light subpath on average, 1..64 (default 8) */
+    enum bdpt_heuristic heuristic;  /* power (beta = 2, default) or balance */
+};
+
+/* Light subpaths per LVC block (the unit of parallel work and of the LVC's fixed regions). */
+#define BDPT_BLOCK_PATHS 256u
+
+/* One light subpath vertex in the cache. The surface is rebuilt from its point code. */
+struct bdpt_light_vertex {
+    struct vec3 wo;            /* unit direction towards the previous light vertex */
+    struct vec3 beta;          /* light subpath throughput up to this vertex */
+    float dvcm, dvc;           /* recursive MIS quantities (bdpt_mis.h) */
+    float b1, b2;              /* point code (surface_at) */
+    uint32_t shape, prim;
+    uint32_t depth;            /* number of surface vertices on the light subpath up to this one */
+};
+
+/* bdpt's light-tracing contribution (t = 1) of the cached vertex in the same slot, added to the
+ * image after the light pass in block order (restir_bdpt buckets its own instead). */
+struct bdpt_splat {
+    struct vec3 value;         /* already / N_L; 0 when none */
+    uint32_t pixel;            /* UINT32_MAX when none */
+};
+
+struct bdpt_state {
+    uint32_t width, height;
+    uint32_t light_paths;      /* N_L resolved */
+    uint32_t blocks;           /* ceil(N_L / BDPT_BLOCK_PATHS) */
+    uint32_t region;           /* LVC vertices per block */
+    struct bdpt_light_vertex *lvc;   /* blocks * region */
+    struct bdpt_splat *splat;        /* blocks * region, the same slots */
+    uint32_t *block_count;     /* vertices stored per block */
+    uint64_t *block_first;     /* prefix sums of block_count (blocks + 1) */
+    uint32_t *block_dropped;   /* vertices dropped per block (region full) */
+    uint64_t *block_rays;      /* per block: rays traced (intersect, occluded) */
+};
+
+struct bdpt_stats {
+    double light_ms, splat_ms, camera_ms;
+    uint64_t light_subpaths;   /* N_L */
+    uint64_t lvc_vertices;     /* |LVC| */
+    uint64_t lvc_dropped;      /* vertices that found their block's region full (see above) */
+    uint64_t light_traced;     /* light-tracing samples that reached a pixel (t = 1) */
+    uint64_t connections;      /* camera-to-LVC connections made (visible, non-zero) */
+    uint64_t rays_intersect, rays_occluded;
+    uint64_t nonfinite;
+};
+
+struct bdpt_frame {
+    const struct scene *scene;
+    const struct camera_desc *camera;
+    uint64_t seed;
+    uint32_t frame;
+    unsigned threads;          /* 0 = all cores */
+};
+
+/* Defaults: max_depth 64, rr_depth 3, N_L = pixel count, 8 LVC vertices per path, power. */
+struct bdpt_params bdpt_defaults(void);
+/* Ranges; errors name /params/<key>. */
+bool bdpt_params_valid(const struct bdpt_params *p, struct err *err);
+const char *bdpt_heuristic_name(enum bdpt_heuristic h);
+bool bdpt_heuristic_parse(const char *name, enum bdpt_heuristic *out);
+
+/* Allocates the LVC for width x height and the parameters' N_L; ERR_INVALID for a scene with
+ * environment light (not supported). */
+bool bdpt_init(struct bdpt_state *st, const struct scene *scene, const struct bdpt_params *p, uint32_t width,
+               uint32_t height, struct err *err);
+void bdpt_destroy(struct bdpt_state *st);
+/* Bytes bdpt_init allocates (equal to bdpt_bytes after it). */
+uint64_t bdpt_bytes_planned(const struct bdpt_params *p, uint32_t width, uint32_t height);
+size_t bdpt_lvc_bytes(const struct bdpt_state *st);
+size_t bdpt_block_bytes(const struct bdpt_state *st);
+
+/* Renders one frame into `out` (width x height, allocated by the caller). Allocates nothing. */
+bool bdpt_render(struct bdpt_state *st, const struct bdpt_params *p, const struct bdpt_frame *f, struct image *out,
+                 struct bdpt_stats *stats, struct err *err);
+
+/* Geometry helpers shared with restir_bdpt.c (the same conventions on both). */
+struct accel;
+struct material;
+struct ray_counters;
+struct surface;
+/* Solid-angle pdf of an emitted direction at cosine `cos` with the emitting side's normal. */
+float bdpt_emit_dir_pdf_w(const struct material *m, float cos);
+/* The start of a light subpath: an emitter point by power (numbers ul, u1, u2), its side for a
+ * two-sided emitter (us), a cosine-distributed direction (ud1, ud2), the throughput Le cos / p
+ * and the pdfs MIS needs. False when the sample carries nothing (environment light, zero pdf or
+ * emission). */
+struct bdpt_light_start {
+    struct light_sample ls;
+    struct vec3 n;              /* the emitting side's normal */
+    struct vec3 dir, org;       /* the first direction and its ray origin */
+    struct vec3 beta;           /* Le cos / (pdf_a pdf_w) */
+    float cos_l, emission_pdf_w;
+};
+bool bdpt_light_start(const struct scene *scene, const float u[6], struct bdpt_light_start *out);
+/* Ray origin on the side of the geometric normal that `dir` leaves through. */
+struct vec3 bdpt_origin(const struct surface *s, struct vec3 dir);
+/* Whether nothing blocks the segment from a (normal na) to b (normal nb, NULL for the eye). */
+bool bdpt_visible(const struct accel *accel, struct vec3 a, struct vec3 na, struct vec3 b, const struct vec3 *nb,
+                  struct ray_counters *rc);
+/* A light vertex cache kept in fixed per-block regions of `region` slots, in its canonical order
+ * (blocks in order, each block's vertices in order): first = the prefix sums of the blocks'
+ * counts (blocks + 1), total = first[blocks], scale = total / N_L. */
+struct bdpt_lvc_view {
+    const struct bdpt_light_vertex *v;
+    const uint64_t *first;
+    uint32_t blocks, region;
+    uint64_t total;
+    float scale;
+};
+/* The cached vertex drawn uniformly by u in [0, 1); NULL when the cache is empty. */
+const struct bdpt_light_vertex *bdpt_lvc_pick(const struct bdpt_lvc_view *lvc, float u);
+/* A connectable light vertex as the cache keeps it: the subpath's hit (its surface s), the
+ * direction back along the subpath, its throughput, MIS state and surface vertex count. */
+struct bdpt_mis;
+struct hit;
+struct bdpt_light_vertex bdpt_light_vertex_make(const struct scene *scene, const struct hit *hit,
+                                                const struct surface *s, struct vec3 wo, struct vec3 beta,
+                                                const struct bdpt_mis *mis, uint32_t depth);
+/* What a connection's MIS weight was made of (bdpt_mis_weight_connect's arguments besides the
+ * two MIS states), and the weight. */
+struct bdpt_connect_pdfs {
+    float cam_fwd_a, cam_rev_w, light_fwd_a, light_rev_w, w;
+};
+/* A vertex connection (s >= 2, t >= 2): camera vertex s (material m, incoming direction wo in its
+ * shading frame, MIS state cam_mis after its hit) joined to cached light vertex v, with recursive
+ * MIS over all techniques. The contribution before the camera subpath's throughput, times
+ * lvc_scale = |LVC| / N_L (the vertex was drawn uniformly from the cache); *made is false when
+ * the connection carries nothing. With `pdfs` (may be NULL) what its MIS weight was made of. */
+struct vec3 bdpt_connect_light_vertex(const struct scene *scene, bool power, float lvc_scale, const struct surface *s,
+                                      const struct material *m, struct vec3 wo, const struct bdpt_mis *cam_mis,
+                                      const struct bdpt_light_vertex *v, struct ray_counters *rc, bool *made,
+                                      struct bdpt_connect_pdfs *pdfs);
+
+#endif

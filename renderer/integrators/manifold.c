@@ -1,0 +1,608 @@
+/* manifold.c — manifold walks (see manifold.h).
+ * Refs: Jakob & Marschner 2012 (manifold exploration, generalized geometry term §4);
+ * Zeltner et al. 2020 §4 (angle-difference constraint, step-size control, re-projection);
+ * seed 002 §3.1. */
+#include "integrators/manifold.h"
+
+#include <math.h>
+
+#include "material/fresnel.h"
+#include "material/microfacet.h"
+#include "scene/scene.h"
+#include "scene/surface.h"
+
+#define MF_N (2 * MANIFOLD_MAX_CHAIN)
+
+struct dv3 { double x, y, z; };
+
+static inline struct dv3 dv(struct vec3 a) { return (struct dv3){a.x, a.y, a.z}; }
+static inline struct vec3 dv_f(struct dv3 a) { return vec3_make((float)a.x, (float)a.y, (float)a.z); }
+static inline struct dv3 dv_add(struct dv3 a, struct dv3 b) { return (struct dv3){a.x + b.x, a.y + b.y, a.z + b.z}; }
+static inline struct dv3 dv_sub(struct dv3 a, struct dv3 b) { return (struct dv3){a.x - b.x, a.y - b.y, a.z - b.z}; }
+static inline struct dv3 dv_scale(struct dv3 a, double s) { return (struct dv3){a.x * s, a.y * s, a.z * s}; }
+static inline struct dv3 dv_madd(struct dv3 a, struct dv3 b, double s) { return dv_add(a, dv_scale(b, s)); }
+static inline double dv_dot(struct dv3 a, struct dv3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+static inline struct dv3 dv_cross(struct dv3 a, struct dv3 b)
+{
+    return (struct dv3){a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+}
+static inline double dv_len(struct dv3 a) { return sqrt(dv_dot(a, a)); }
+static inline struct dv3 dv_norm(struct dv3 a) { return dv_scale(a, 1.0 / dv_len(a)); }
+
+/* A mesh vertex's world position and normal in double. Most shapes sit in world space (identity
+ * transform), where the transform is skipped: x * 1 + 0 is x exactly, so nothing changes. */
+static inline struct dv3 mf_world_point(const struct accel *accel, uint32_t shape, struct vec3 p)
+{
+    return dv(accel_shape_is_identity(accel, shape) ? p : xform_point(accel_shape_to_world(accel, shape), p));
+}
+static inline struct dv3 mf_world_normal(const struct accel *accel, uint32_t shape, struct vec3 n)
+{
+    return dv(accel_shape_is_identity(accel, shape) ? n : xform_normal(accel_shape_to_object(accel, shape), n));
+}
+
+/* First-order surface model around a vertex, in the vertex's own parameters (u, v):
+ * meshes: p(u, v) = p + u dp/du + v dp/dv over the triangle's barycentrics (b1, b2), normal
+ * normalize(ñ + u dñ/du + v dñ/dv) with ñ the interpolated vertex normal (exact on the
+ * triangle); spheres: n(u, v) = normalize(d + u t1 + v t2), p = c + r n (exact). */
+struct mf_geom {
+    bool sphere;
+    struct dv3 p, dpdu, dpdv;
+    struct dv3 nt, dntu, dntv;   /* unnormalised normal, on the geometric front side */
+    struct dv3 c;
+    double r;
+};
+
+static bool mf_geom_of(const struct scene *scene, uint32_t shape, const struct manifold_vertex *v, struct mf_geom *g)
+{
+    const struct shape *s = &scene->shapes[shape];
+    const struct accel *accel = scene->accel;
+    const struct xform *xf = accel_shape_to_world(accel, shape);
+    struct dv3 ng = dv(v->ng);
+    if (s->kind == SHAPE_MESH) {
+        const uint32_t *tri = &s->indices[3 * v->prim];
+        struct dv3 P0 = mf_world_point(accel, shape, s->positions[tri[0]]);
+        struct dv3 P1 = mf_world_point(accel, shape, s->positions[tri[1]]);
+        struct dv3 P2 = mf_world_point(accel, shape, s->positions[tri[2]]);
+        double b1 = v->bd[0], b2 = v->bd[1], b0 = 1.0 - b1 - b2;
+        g->sphere = false;
+        g->dpdu = dv_sub(P1, P0);
+        g->dpdv = dv_sub(P2, P0);
+        g->p = dv_madd(dv_madd(P0, g->dpdu, b1), g->dpdv, b2);
+        g->nt = ng;
+        g->dntu = g->dntv = (struct dv3){0, 0, 0};
+        if (s->normals) {
+            struct dv3 N[3];
+            for (int i = 0; i < 3; i++) N[i] = mf_world_normal(accel, shape, s->normals[tri[i]]);
+            struct dv3 nt = dv_add(dv_add(dv_scale(N[0], b0), dv_scale(N[1], b1)), dv_scale(N[2], b2));
+            if (dv_dot(nt, nt) > 1e-12) {
+                /* As surface_from_hit: the shading normal is kept on the geometric front side. */
+                double sg = dv_dot(nt, ng) < 0.0 ? -1.0 : 1.0;
+                g->nt = dv_scale(nt, sg);
+                g->dntu = dv_scale(dv_sub(N[1], N[0]), sg);
+                g->dntv = dv_scale(dv_sub(N[2], N[0]), sg);
+            }
+        }
+        struct dv3 cr = dv_cross(g->dpdu, g->dpdv);
+        return dv_dot(cr, cr) > 0.0;
+    }
+    /* Sphere under a similarity transform (rotation, uniform scale, translation). */
+    struct dv3 ex = dv(xform_vector(xf, vec3_make(1, 0, 0))), ey = dv(xform_vector(xf, vec3_make(0, 1, 0)));
+    double sx = dv_len(ex), sy = dv_len(ey);
+    if (!(fabs(sx - sy) <= 1e-5 * sx) || fabs(dv_dot(ex, ey)) > 1e-5 * sx * sy) return false;
+    g->sphere = true;
+    g->c = dv(xform_point(xf, s->center));
+    g->r = (double)s->radius * sx;
+    struct dv3 d = dv_norm(dv_sub((struct dv3){v->pd[0], v->pd[1], v->pd[2]}, g->c));
+    struct frame f = frame_from_normal(dv_f(d));
+    g->nt = d;
+    g->dntu = dv(f.s);
+    g->dntv = dv(f.t);
+    g->p = dv_madd(g->c, d, g->r);
+    g->dpdu = dv_scale(g->dntu, g->r);
+    g->dpdv = dv_scale(g->dntv, g->r);
+    return true;
+}
+
+/* The model at parameter offset (du, dv): position and unit normal. */
+static void mf_geom_eval(const struct mf_geom *g, double du, double dvv, struct dv3 *p, struct dv3 *n)
+{
+    struct dv3 nt = dv_madd(dv_madd(g->nt, g->dntu, du), g->dntv, dvv);
+    *n = dv_norm(nt);
+    *p = g->sphere ? dv_madd(g->c, *n, g->r) : dv_madd(dv_madd(g->p, g->dpdu, du), g->dpdv, dvv);
+}
+
+/* Specular scattering of wo (unit, pointing away from the surface) about unit normal n. */
+static bool mf_scatter(struct dv3 wo, struct dv3 n, enum manifold_event ev, double ior, struct dv3 *out)
+{
+    double c = dv_dot(wo, n);
+    if (ev == MANIFOLD_REFLECT) {
+        *out = dv_sub(dv_scale(n, 2.0 * c), wo);
+        return true;
+    }
+    /* As the smooth dielectric: the side of wo on the shading normal decides inside/outside. */
+    bool outside = c > 0.0;
+    double eta = outside ? ior : 1.0 / ior;
+    struct dv3 nn = outside ? n : dv_scale(n, -1.0);
+    double ci = fabs(c);
+    double sin2t = (1.0 - ci * ci) / (eta * eta);
+    if (!(sin2t < 1.0)) return false;
+    double ct = sqrt(1.0 - sin2t);
+    *out = dv_add(dv_scale(wo, -1.0 / eta), dv_scale(nn, ci / eta - ct));
+    return true;
+}
+
+/* A vertex's two directions in spherical coordinates about the pole s (see manifold.h for the
+ * choice of pole), each as w = cos θ s + sin θ (cos φ t + sin φ n): a = wi, towards the next
+ * vertex, and b = the specular scattering of wo. Kept as cos θ, sin θ and the (t, n) components
+ * (x, y), whose length is sin θ = |w × s| (accurate near the pole, where sqrt(1 - cos²) is not):
+ * the constraint takes one atan2 per angle from them, and a finite difference none. */
+struct mf_dirs { double ca, sa, xa, ya, cb, sb, xb, yb; };
+
+static bool mf_vertex_dirs(struct dv3 prev, struct dv3 p, struct dv3 n, struct dv3 next, struct dv3 tangent,
+                           enum manifold_event ev, double ior, struct mf_dirs *d)
+{
+    struct dv3 wo = dv_sub(prev, p), wi = dv_sub(next, p);
+    double lo = dv_len(wo), li = dv_len(wi);
+    if (!(lo > 0.0) || !(li > 0.0)) return false;
+    wo = dv_scale(wo, 1.0 / lo);
+    wi = dv_scale(wi, 1.0 / li);
+    struct dv3 pred;
+    if (!mf_scatter(wo, n, ev, ior, &pred)) return false;
+    struct dv3 s = dv_sub(tangent, dv_scale(n, dv_dot(n, tangent)));
+    double ls = dv_len(s);
+    if (!(ls > 0.0)) return false;
+    s = dv_scale(s, 1.0 / ls);
+    struct dv3 t = dv_cross(n, s);
+    d->ca = dv_dot(wi, s), d->xa = dv_dot(wi, t), d->ya = dv_dot(wi, n);
+    d->cb = dv_dot(pred, s), d->xb = dv_dot(pred, t), d->yb = dv_dot(pred, n);
+    d->sa = sqrt(d->xa * d->xa + d->ya * d->ya);
+    d->sb = sqrt(d->xb * d->xb + d->yb * d->yb);
+    return isfinite(d->ca + d->sa + d->xa + d->ya + d->cb + d->sb + d->xb + d->yb);
+}
+
+/* The angle turned from direction (x0, y0) to (x1, y1) of the plane, in [-π, π]. A finite
+ * difference turns by ~1e-7 rad, where atan(r) = r - r³/3 to 2e-16 (r ≤ 1e-3) and atan2, the
+ * costliest call of a walk, is not needed. */
+static double mf_turn(double x0, double y0, double x1, double y1)
+{
+    double sn = x0 * y1 - y0 * x1, cs = x0 * x1 + y0 * y1;
+    if (cs > 0.0 && fabs(sn) <= 1e-3 * cs) {
+        double r = sn / cs;
+        return r * (1.0 - r * r / 3.0);
+    }
+    return atan2(sn, cs);
+}
+
+/* The angle-difference constraint C = (Δθ, Δφ) = (θ_a - θ_b, φ_a - φ_b), Δφ in [-π, π]. */
+static void mf_dirs_c(const struct mf_dirs *d, double *c)
+{
+    c[0] = mf_turn(d->cb, d->sb, d->ca, d->sa);
+    c[1] = mf_turn(d->xb, d->yb, d->xa, d->ya);
+}
+
+/* C(d1) - C(d0), each angle's turn in [-π, π]. */
+static void mf_dirs_dc(const struct mf_dirs *d0, const struct mf_dirs *d1, double *dc)
+{
+    dc[0] = mf_turn(d0->ca, d0->sa, d1->ca, d1->sa) - mf_turn(d0->cb, d0->sb, d1->cb, d1->sb);
+    dc[1] = mf_turn(d0->xa, d0->ya, d1->xa, d1->ya) - mf_turn(d0->xb, d0->yb, d1->xb, d1->yb);
+}
+
+/* The directions of every vertex of the chain for positions p[] and unit normals n[] (frames
+ * from g[]), ends x1, xe. */
+static bool mf_eval_dirs(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct dv3 *p,
+                         const struct dv3 *n, const struct mf_geom *g, struct mf_dirs *D)
+{
+    uint32_t k = chain->length;
+    for (uint32_t i = 0; i < k; i++) {
+        struct dv3 prev = i == 0 ? x1 : p[i - 1], next = i + 1 == k ? xe : p[i + 1];
+        if (!mf_vertex_dirs(prev, p[i], n[i], next, g[i].dpdu, chain->events[i], chain->ior, &D[i])) return false;
+    }
+    return true;
+}
+
+static double mf_norm(const double *C, uint32_t n)
+{
+    double s = 0.0;
+    for (uint32_t i = 0; i < n; i++) s += C[i] * C[i];
+    return sqrt(s);
+}
+
+/* C at the chain's surface models' base points, and the directions it came from (D: the
+ * Newton step's forward differences start from them). */
+static bool mf_eval_at(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct mf_geom *g,
+                       double *C, struct mf_dirs *D)
+{
+    struct dv3 p[MANIFOLD_MAX_CHAIN] = {0}, n[MANIFOLD_MAX_CHAIN] = {0};
+    for (uint32_t i = 0; i < chain->length; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
+    if (!mf_eval_dirs(chain, x1, xe, p, n, g, D)) return false;
+    for (uint32_t i = 0; i < chain->length; i++) mf_dirs_c(&D[i], &C[2 * i]);
+    return isfinite(mf_norm(C, 2 * chain->length));
+}
+
+/* dC / d(u_j, v_j) over the surface model, by finite differences in double. Forward ones for a
+ * Newton step, step 1e-7 of the shorter adjacent segment: truncation ~5e-8 and rounding ~1e-8
+ * relative, which a step needs no better; they start from D0, the directions at the base points
+ * (mf_eval_at's, computed with the same numbers). Central ones (`central`, D0 unused) for the
+ * generalized geometry term, which enters the estimate, step 1e-6: truncation ~1e-12, rounding
+ * ~1e-10. */
+static bool mf_jacobian(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct mf_geom *g,
+                        bool central, const struct mf_dirs *D0, double J[MF_N][MF_N])
+{
+    uint32_t k = chain->length;
+    struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
+    struct mf_dirs Dp[MANIFOLD_MAX_CHAIN], Dm[MANIFOLD_MAX_CHAIN];
+    for (uint32_t i = 0; i < k; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
+    const double rel = central ? 1e-6 : 1e-7;
+    for (uint32_t j = 0; j < k; j++) {
+        struct dv3 prev = j == 0 ? x1 : p[j - 1], next = j + 1 == k ? xe : p[j + 1];
+        double l0 = dv_len(dv_sub(prev, p[j])), l1 = dv_len(dv_sub(next, p[j]));
+        double seg = l0 < l1 ? l0 : l1;
+        for (int a = 0; a < 2; a++) {
+            double lt = dv_len(a == 0 ? g[j].dpdu : g[j].dpdv);
+            if (!(lt > 0.0) || !(seg > 0.0)) return false;
+            double h = rel * seg / lt;
+            struct dv3 pj = p[j], nj = n[j];
+            mf_geom_eval(&g[j], a == 0 ? h : 0.0, a == 1 ? h : 0.0, &p[j], &n[j]);
+            bool ok = mf_eval_dirs(chain, x1, xe, p, n, g, Dp);
+            if (central) {
+                mf_geom_eval(&g[j], a == 0 ? -h : 0.0, a == 1 ? -h : 0.0, &p[j], &n[j]);
+                ok = ok && mf_eval_dirs(chain, x1, xe, p, n, g, Dm);
+            }
+            p[j] = pj;
+            n[j] = nj;
+            if (!ok) return false;
+            for (uint32_t i = 0; i < k; i++) {
+                double dc[2];
+                mf_dirs_dc(central ? &Dm[i] : &D0[i], &Dp[i], dc);
+                J[2 * i][2 * j + a] = dc[0] / (central ? 2.0 * h : h);
+                J[2 * i + 1][2 * j + a] = dc[1] / (central ? 2.0 * h : h);
+            }
+        }
+    }
+    return true;
+}
+
+/* Solves A X = B in place (n x n, `m` right-hand sides in B's columns); Gaussian elimination
+ * with partial pivoting. False when A is (numerically) singular. */
+static bool mf_solve(uint32_t n, double A[MF_N][MF_N], double B[MF_N][2], uint32_t m)
+{
+    double scale = 0.0;
+    for (uint32_t r = 0; r < n; r++)
+        for (uint32_t c = 0; c < n; c++)
+            if (fabs(A[r][c]) > scale) scale = fabs(A[r][c]);
+    if (!(scale > 0.0) || !isfinite(scale)) return false;
+    for (uint32_t c = 0; c < n; c++) {
+        uint32_t piv = c;
+        for (uint32_t r = c + 1; r < n; r++)
+            if (fabs(A[r][c]) > fabs(A[piv][c])) piv = r;
+        if (!(fabs(A[piv][c]) > 1e-12 * scale)) return false;
+        if (piv != c) {
+            for (uint32_t q = 0; q < n; q++) {
+                double t = A[c][q]; A[c][q] = A[piv][q]; A[piv][q] = t;
+            }
+            for (uint32_t q = 0; q < m; q++) {
+                double t = B[c][q]; B[c][q] = B[piv][q]; B[piv][q] = t;
+            }
+        }
+        for (uint32_t r = c + 1; r < n; r++) {
+            double f = A[r][c] / A[c][c];
+            for (uint32_t q = c; q < n; q++) A[r][q] -= f * A[c][q];
+            for (uint32_t q = 0; q < m; q++) B[r][q] -= f * B[c][q];
+        }
+    }
+    for (uint32_t c = n; c-- > 0;) {
+        for (uint32_t q = 0; q < m; q++) {
+            double s = B[c][q];
+            for (uint32_t r = c + 1; r < n; r++) s -= A[c][r] * B[r][q];
+            B[c][q] = s / A[c][c];
+        }
+    }
+    return true;
+}
+
+static inline struct dv3 mf_pd(const struct manifold_vertex *v) { return (struct dv3){v->pd[0], v->pd[1], v->pd[2]}; }
+
+/* The first hit of the ray from `from` along `dir` (double), which must lie on the chain's
+ * caster. Embree finds the primitive from the offset float ray; the point is then recomputed
+ * in double on that primitive (triangle plane or sphere) from the unoffset double ray. */
+static bool mf_trace(const struct scene *scene, uint32_t shape, struct dv3 from, struct vec3 from_ng, struct dv3 dir,
+                     struct manifold_vertex *v, struct ray_counters *rc)
+{
+    struct vec3 dirf = vec3_normalize(dv_f(dir));
+    struct vec3 org = surface_offset(dv_f(from), from_ng, dirf);
+    struct hit h;
+    if (!accel_intersect(scene->accel, org, dirf, 0.0f, INFINITY, &h, rc) || h.shape != shape) return false;
+    struct surface s;
+    surface_from_hit(scene, &h, org, dirf, &s);
+    v->p = s.p;
+    v->ng = s.ng;
+    v->ns = s.ns;
+    v->prim = h.prim;
+    surface_point_code(scene, &h, &s, &v->b1, &v->b2);
+    const struct shape *sh = &scene->shapes[shape];
+    const struct xform *xf = accel_shape_to_world(scene->accel, shape);
+    dir = dv_norm(dir);
+    if (sh->kind == SHAPE_MESH) {
+        const uint32_t *tri = &sh->indices[3 * h.prim];
+        struct dv3 P0 = mf_world_point(scene->accel, shape, sh->positions[tri[0]]);
+        struct dv3 e1 = dv_sub(mf_world_point(scene->accel, shape, sh->positions[tri[1]]), P0);
+        struct dv3 e2 = dv_sub(mf_world_point(scene->accel, shape, sh->positions[tri[2]]), P0);
+        /* Möller-Trumbore in double (the hit may sit a rounding error outside the triangle). */
+        struct dv3 pv = dv_cross(dir, e2);
+        double det = dv_dot(e1, pv);
+        if (!(fabs(det) > 0.0)) return false;
+        struct dv3 tv = dv_sub(from, P0), qv = dv_cross(tv, e1);
+        double b1 = dv_dot(tv, pv) / det, b2 = dv_dot(dir, qv) / det, t = dv_dot(e2, qv) / det;
+        if (!(t > 0.0)) return false;
+        struct dv3 p = dv_madd(from, dir, t);
+        v->bd[0] = b1;
+        v->bd[1] = b2;
+        v->pd[0] = p.x, v->pd[1] = p.y, v->pd[2] = p.z;
+        return true;
+    }
+    struct dv3 c = dv(xform_point(xf, sh->center));
+    double r = (double)sh->radius * dv_len(dv(xform_vector(xf, vec3_make(1, 0, 0))));
+    struct dv3 oc = dv_sub(from, c);
+    double b = dv_dot(oc, dir), q = dv_dot(oc, oc) - r * r, disc = b * b - q;
+    if (!(disc >= 0.0)) disc = 0.0;
+    double sq = sqrt(disc), t0 = -b - sq, t1 = -b + sq;
+    /* The root Embree found (its distance from the float origin is within rounding of ours). */
+    double th = dv_len(dv_sub(dv(s.p), from));
+    double t = fabs(t0 - th) < fabs(t1 - th) ? t0 : t1;
+    if (!(t > 0.0)) return false;
+    struct dv3 p = dv_madd(from, dir, t);
+    v->pd[0] = p.x, v->pd[1] = p.y, v->pd[2] = p.z;
+    v->bd[0] = v->b1, v->bd[1] = v->b2;
+    return true;
+}
+
+bool manifold_seed_path(const struct scene *scene, const struct manifold_chain *chain, const struct manifold_ends *ends,
+                        struct vec3 target, struct manifold_vertex *v, struct ray_counters *rc)
+{
+    struct dv3 from = dv(ends->x1);
+    struct vec3 from_ng = ends->ng1;
+    struct dv3 dir = dv_sub(dv(target), from);
+    if (!(dv_len(dir) > 0.0)) return false;
+    dir = dv_norm(dir);
+    for (uint32_t i = 0; i < chain->length; i++) {
+        if (!mf_trace(scene, chain->shape, from, from_ng, dir, &v[i], rc)) return false;
+        if (i + 1 < chain->length) {
+            struct mf_geom g;
+            struct dv3 p, n, out;
+            if (!mf_geom_of(scene, chain->shape, &v[i], &g)) return false;
+            mf_geom_eval(&g, 0.0, 0.0, &p, &n);
+            if (!mf_scatter(dv_scale(dir, -1.0), n, chain->events[i], chain->ior, &out)) return false;
+            dir = dv_norm(out);
+        }
+        from = mf_pd(&v[i]);
+        from_ng = v[i].ng;
+    }
+    return true;
+}
+
+double manifold_constraint_norm(const struct scene *scene, const struct manifold_chain *chain,
+                                const struct manifold_ends *ends, const struct manifold_vertex *v)
+{
+    struct mf_geom g[MANIFOLD_MAX_CHAIN];
+    struct mf_dirs D[MANIFOLD_MAX_CHAIN];
+    double C[MF_N];
+    for (uint32_t i = 0; i < chain->length; i++)
+        if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) return INFINITY;
+    if (!mf_eval_at(chain, dv(ends->x1), dv(ends->xe), g, C, D)) return INFINITY;
+    return mf_norm(C, 2 * chain->length);
+}
+
+
+static bool mf_walk(const struct scene *scene, const struct manifold_chain *chain, const struct manifold_ends *ends,
+                    struct manifold_vertex *v, uint32_t max_iterations, manifold_region_fn *inside, const void *region,
+                    uint32_t polish_steps, struct manifold_stats *stats, struct ray_counters *rc)
+{
+    const uint32_t k = chain->length, n2 = 2 * k;
+    const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
+    struct mf_geom g[MANIFOLD_MAX_CHAIN] = {0};
+    struct mf_dirs D[MANIFOLD_MAX_CHAIN];   /* the directions C at g came from */
+    double C[MF_N], step[MF_N][2];
+    uint32_t it = 0;
+    bool ok = false, have_step = false;
+    double beta = 1.0;
+    if (k == 0 || k > MANIFOLD_MAX_CHAIN) goto done;
+    for (uint32_t i = 0; i < k; i++)
+        if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) goto done;
+    if (!mf_eval_at(chain, x1, xe, g, C, D)) goto done;
+    double norm = mf_norm(C, n2);
+    uint32_t polish = 0;
+    for (;;) {
+        if (norm < MANIFOLD_TOLERANCE) {
+            /* Converged. A few more full steps (quadratic convergence: usually one) take C to
+             * the double-precision floor, so that two walks that reach the same solution agree
+             * on it to far better than the 1e-4 same-solution threshold of the Bernoulli trials,
+             * even near a caustic fold where ‖C‖ < 1e-5 alone leaves the position loose. */
+            ok = true;
+            if (norm < MANIFOLD_POLISH_TOLERANCE || polish >= polish_steps) break;
+            polish++;
+        } else if (it >= max_iterations) {
+            break;
+        }
+        if (!have_step) {
+            double J[MF_N][MF_N];
+            if (!mf_jacobian(chain, x1, xe, g, false, D, J)) break;
+            for (uint32_t r = 0; r < n2; r++) step[r][0] = -C[r];
+            if (!mf_solve(n2, J, step, 1)) break;
+            have_step = true;
+        }
+        it++;
+        /* Propose the step in each vertex's tangent plane, then re-project by tracing from the
+         * (new) previous vertex towards the proposed point. */
+        /* Written vertex by vertex below and read only when every vertex was (zeroing them
+         * every step cost 1 % of a restir_sms frame's instructions). */
+        struct manifold_vertex nv[MANIFOLD_MAX_CHAIN];
+        struct mf_geom ng_[MANIFOLD_MAX_CHAIN];
+        struct mf_dirs Dn[MANIFOLD_MAX_CHAIN];
+        double Cn[MF_N];
+        bool moved = true;
+        struct dv3 from = x1;
+        struct vec3 from_ng = ends->ng1;
+        for (uint32_t j = 0; j < k && moved; j++) {
+            struct dv3 target = dv_madd(dv_madd(g[j].p, g[j].dpdu, beta * step[2 * j][0]), g[j].dpdv,
+                                        beta * step[2 * j + 1][0]);
+            struct dv3 dir = dv_sub(target, from);
+            moved = dv_len(dir) > 0.0 && mf_trace(scene, chain->shape, from, from_ng, dir, &nv[j], rc) &&
+                    mf_geom_of(scene, chain->shape, &nv[j], &ng_[j]);
+            from = mf_pd(&nv[j]);
+            from_ng = nv[j].ng;
+        }
+        double nn = INFINITY;
+        if (moved && mf_eval_at(chain, x1, xe, ng_, Cn, Dn)) nn = mf_norm(Cn, n2);
+        if (nn < norm) {
+            /* A trust region ends the walk as soon as an accepted step leaves it (seed 002 §3.3). */
+            if (inside && !inside(region, nv[0].p)) {
+                ok = false;
+                break;
+            }
+            for (uint32_t j = 0; j < k; j++) {
+                v[j] = nv[j];
+                g[j] = ng_[j];
+                D[j] = Dn[j];
+            }
+            for (uint32_t r = 0; r < n2; r++) C[r] = Cn[r];
+            norm = nn;
+            beta = fmin(1.0, 2.0 * beta);
+            have_step = false;
+        } else {
+            if (ok) break;  /* polishing stalled at the rounding floor */
+            beta *= 0.5;
+        }
+    }
+done:
+    if (stats) stats->iterations += it;
+    return ok;
+}
+
+bool manifold_walk(const struct scene *scene, const struct manifold_chain *chain, const struct manifold_ends *ends,
+                   struct manifold_vertex *v, uint32_t max_iterations, struct manifold_stats *stats,
+                   struct ray_counters *rc)
+{
+    return mf_walk(scene, chain, ends, v, max_iterations, NULL, NULL, MANIFOLD_POLISH_STEPS, stats, rc);
+}
+
+bool manifold_walk_unpolished(const struct scene *scene, const struct manifold_chain *chain,
+                              const struct manifold_ends *ends, struct manifold_vertex *v, uint32_t max_iterations,
+                              struct manifold_stats *stats, struct ray_counters *rc)
+{
+    return mf_walk(scene, chain, ends, v, max_iterations, NULL, NULL, 0, stats, rc);
+}
+
+bool manifold_walk_within(const struct scene *scene, const struct manifold_chain *chain,
+                          const struct manifold_ends *ends, struct manifold_vertex *v, uint32_t max_iterations,
+                          manifold_region_fn *inside, const void *region, struct manifold_stats *stats,
+                          struct ray_counters *rc)
+{
+    return mf_walk(scene, chain, ends, v, max_iterations, inside, region, MANIFOLD_POLISH_STEPS, stats, rc);
+}
+
+bool manifold_check(const struct scene *scene, const struct manifold_chain *chain, const struct manifold_ends *ends,
+                    const struct manifold_vertex *v, struct ray_counters *rc)
+{
+    struct vec3 from = ends->x1, from_ng = ends->ng1;
+    for (uint32_t i = 0; i < chain->length; i++) {
+        struct vec3 d = vec3_sub(v[i].p, from);
+        float dist = vec3_length(d);
+        if (!(dist > 0.0f)) return false;
+        struct manifold_vertex h;
+        if (!mf_trace(scene, chain->shape, dv(from), from_ng, dv(d), &h, rc)) return false;
+        if (vec3_length(vec3_sub(h.p, v[i].p)) > 1e-4f * dist + 1e-6f) return false;
+        struct vec3 next = i + 1 == chain->length ? ends->xe : v[i + 1].p;
+        struct vec3 wo = vec3_normalize(vec3_sub(from, v[i].p)), wi = vec3_normalize(vec3_sub(next, v[i].p));
+        float so = vec3_dot(wo, v[i].ng), si = vec3_dot(wi, v[i].ng);
+        if (chain->events[i] == MANIFOLD_REFLECT ? !(so * si > 0.0f) : !(so * si < 0.0f)) return false;
+        /* Path tracing's own rule for a scattered direction: same side of both normals. */
+        if (!(si * vec3_dot(wi, v[i].ns) > 0.0f) || vec3_dot(wo, v[i].ns) == 0.0f) return false;
+        from = v[i].p;
+        from_ng = v[i].ng;
+    }
+    struct vec3 d = vec3_sub(ends->xe, from);
+    float dist = vec3_length(d);
+    if (!(dist > 0.0f)) return false;
+    d = vec3_scale(d, 1.0f / dist);
+    return !accel_occluded(scene->accel, surface_offset(from, from_ng, d), d, 0.0f, dist * (1.0f - 1e-4f), rc);
+}
+
+double manifold_geometry(const struct scene *scene, const struct manifold_chain *chain,
+                         const struct manifold_ends *ends, const struct manifold_vertex *v)
+{
+    const uint32_t k = chain->length, n2 = 2 * k;
+    struct mf_geom g[MANIFOLD_MAX_CHAIN];
+    for (uint32_t i = 0; i < k; i++)
+        if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) return 0.0;
+    const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
+    double J[MF_N][MF_N], B[MF_N][2];
+    if (!mf_jacobian(chain, x1, xe, g, true, NULL, J)) return 0.0;
+    /* dC / d(end point) along an orthonormal tangent basis of the light (area scale 1). */
+    struct frame fe = frame_from_normal(vec3_normalize(ends->nge));
+    struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
+    for (uint32_t i = 0; i < k; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
+    double h = 1e-6 * dv_len(dv_sub(xe, p[k - 1]));
+    for (int a = 0; a < 2; a++) {
+        struct dv3 t = dv(a == 0 ? fe.s : fe.t);
+        struct mf_dirs Dp[MANIFOLD_MAX_CHAIN], Dm[MANIFOLD_MAX_CHAIN];
+        if (!mf_eval_dirs(chain, x1, dv_madd(xe, t, h), p, n, g, Dp) ||
+            !mf_eval_dirs(chain, x1, dv_madd(xe, t, -h), p, n, g, Dm))
+            return 0.0;
+        for (uint32_t i = 0; i < k; i++) {
+            double dc[2];
+            mf_dirs_dc(&Dm[i], &Dp[i], dc);
+            B[2 * i][a] = -dc[0] / (2.0 * h);
+            B[2 * i + 1][a] = -dc[1] / (2.0 * h);
+        }
+    }
+    /* Implicit function theorem: d(u, v) / d(end) = -J^-1 dC/d(end); only x2's block matters. */
+    if (!mf_solve(n2, J, B, 2)) return 0.0;
+    double det = fabs(B[0][0] * B[1][1] - B[0][1] * B[1][0]);
+    struct dv3 w = dv_sub(p[0], x1);
+    double d2 = dv_dot(w, w);
+    w = dv_scale(w, 1.0 / sqrt(d2));
+    /* Solid angle at x1 per parameter area at x2: |cos| dA / d² with dA = |dp/du × dp/dv| du dv
+     * (geometric normal of the surface patch). */
+    struct dv3 cr = dv_cross(g[0].dpdu, g[0].dpdv);
+    double area = dv_len(cr);
+    double cosg = fabs(dv_dot(w, cr)) / area;
+    double G = cosg / d2 * area * det;
+    return isfinite(G) ? G : 0.0;
+}
+
+struct vec3 manifold_throughput(const struct scene *scene, const struct manifold_chain *chain,
+                                const struct manifold_ends *ends, const struct manifold_vertex *v)
+{
+    const struct material *m = &scene->materials[scene->shapes[chain->shape].material];
+    struct vec3 T = vec3_splat(1.0f);
+    struct vec3 prev = ends->x1;
+    for (uint32_t i = 0; i < chain->length; i++) {
+        struct vec3 next = i + 1 == chain->length ? ends->xe : v[i + 1].p;
+        struct vec3 wo = vec3_normalize(vec3_sub(prev, v[i].p)), wi = vec3_normalize(vec3_sub(next, v[i].p));
+        float co = vec3_dot(wo, v[i].ns), ci = vec3_dot(wi, v[i].ns);
+        if (chain->events[i] == MANIFOLD_REFLECT) {
+            if (m->kind == MATERIAL_CONDUCTOR && microfacet_is_delta(m->roughness))
+                T = vec3_mul(T, fresnel_conductor_rgb(fabsf(co), m->eta, m->k));
+            else if (m->kind == MATERIAL_DIELECTRIC && microfacet_is_delta(m->roughness))
+                T = vec3_scale(T, fresnel_dielectric(fabsf(co), co > 0.0f ? m->ior : 1.0f / m->ior));
+            else
+                return vec3_splat(0.0f);
+        } else {
+            if (m->kind != MATERIAL_DIELECTRIC || !microfacet_is_delta(m->roughness)) return vec3_splat(0.0f);
+            bool outside = co > 0.0f;
+            float eta_o = outside ? 1.0f : m->ior, eta_i = outside ? m->ior : 1.0f;
+            float tr = fresnel_dielectric_transmittance(fabsf(co), fabsf(ci), eta_o, eta_i);
+            /* Radiance transport: (eta_wo / eta_wi)^2, the smooth dielectric's refraction weight. */
+            T = vec3_scale(T, tr * (eta_o / eta_i) * (eta_o / eta_i));
+        }
+        prev = v[i].p;
+    }
+    return T;
+}
+
+bool manifold_same(const struct manifold_vertex *a, const struct manifold_vertex *b, uint32_t length, float tol)
+{
+    for (uint32_t i = 0; i < length; i++)
+        if (!(dv_len(dv_sub(mf_pd(&a[i]), mf_pd(&b[i]))) <= tol)) return false;
+    return true;
+}

@@ -1,0 +1,527 @@
+/* reference_pt.c — method `pt` (see reference_pt.h).
+ * Estimator per path vertex (Veach 1997 §9.2, one-sample-each MIS with the power heuristic):
+ *   emission reached by BSDF sampling, weighted w_bsdf = p_bsdf^2 / (p_bsdf^2 + p_light^2),
+ *   plus NEE towards one light sample, weighted w_light = p_light^2 / (p_light^2 + p_bsdf^2),
+ * with all pdfs in solid angle at the shading point (area pdfs converted by dist^2 / |cos|).
+ * Russian roulette survival q = min(0.95, max(throughput)) after rr_depth bounces keeps the
+ * estimator unbiased. Random numbers come from a PCG stream per (seed, frame, pixel, sample),
+ * so images do not depend on the thread count. */
+#include "integrators/reference_pt.h"
+
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "scene/accel.h"
+#include "material/bssrdf.h"
+#include "scene/camera.h"
+#include "scene/light_sampler.h"
+#include "material/material.h"
+#include "core/rng.h"
+#include "core/sampling.h"
+#include "scene/surface.h"
+
+#define PT_TILE 16
+#define PT_MAX_WORKERS 1024
+
+struct pt_job {
+    const struct scene *scene;
+    const struct sms_scene *sms_scene;   /* method sms: the casters */
+    const struct pt_params *params;
+    struct camera camera;
+    struct image *out;
+    uint32_t tiles_x;
+    struct render_stats worker_stats[PT_MAX_WORKERS];
+};
+
+struct pt_params reference_pt_defaults(uint32_t width, uint32_t height)
+{
+    return (struct pt_params){.width = width, .height = height, .spp = 16, .max_depth = 64, .rr_depth = 3, .nee = true};
+}
+
+/* The emitter normal on the side that direction `wi` (towards the emitter) arrives from. */
+static inline struct vec3 pt_emitter_side(struct vec3 n, struct vec3 wi)
+{
+    return vec3_dot(wi, n) < 0.0f ? n : vec3_neg(n);
+}
+
+/* A light sample as seen from p: the direction towards it, the radiance it sends to p and the
+ * solid-angle pdf of having sampled it. False when it cannot contribute (zero distance or pdf). */
+static bool pt_light_toward(const struct scene *scene, const struct light_sample *ls, struct vec3 p, struct vec3 *wi_world,
+                            struct vec3 *Le, float *pdf_light_w)
+{
+    if (ls->is_env) {
+        *wi_world = ls->dir;
+        *pdf_light_w = ls->pdf_w;
+        *Le = scene->env_radiance;
+        return *pdf_light_w > 0.0f;
+    }
+    struct vec3 d = vec3_sub(ls->p, p);
+    float d2 = vec3_length2(d);
+    if (!(d2 > 0.0f)) return false;
+    *wi_world = vec3_scale(d, 1.0f / sqrtf(d2));
+    float cos_l = -vec3_dot(*wi_world, ls->n);
+    *Le = light_sampler_emitted(&scene->materials[scene->shapes[ls->shape].material], cos_l);
+    *pdf_light_w = sampling_area_to_solid_angle(ls->pdf_a, d2, cos_l);
+    return *pdf_light_w > 0.0f;
+}
+
+/* Subsurface scattering at the primary hit x1 on a translucent material (seed 004 §2.1, §3.1):
+ * one probe of BSSRDF importance sampling; every hit x2_j on the same shape is an entry point,
+ * each weighted by S / bssrdf_pdf_a (eq. 10: all intersections, not one picked at random), and
+ * each gets next-event estimation towards one light sample through the entry lobe
+ * (1 - F(wi)) / (c pi). Direct light at the entry points is counted by NEE alone (no MIS): the
+ * continuation below skips emission at its first hit (*skip_emission). Without NEE
+ * (params->nee false) that emission is counted instead, with weight 1 — a second unbiased
+ * estimator of the same integral. The path continues from one entry point picked uniformly
+ * (weight N, the number of hits) with a cosine-sampled direction. Returns false when the path
+ * ends; otherwise updates beta, the next ray and the vertex it leaves from. With sss_direct false
+ * the NEE at the entry points is left out (restir_sss resamples that part) and so is the
+ * continuation's emission that would duplicate it. */
+static bool pt_sss_primary(const struct scene *scene, const struct pt_params *params, const struct material *m,
+                           const struct surface *s, struct vec3 wo_world, struct vec3 *beta, struct vec3 *L,
+                           struct rng *rng, struct ray_counters *rc, struct vec3 *org, struct vec3 *dir,
+                           struct vec3 *prev_p, bool *skip_emission, bool sss_direct)
+{
+    const struct light_sampler *lights = scene->lights;
+    const bool nee = params->nee && light_sampler_count(lights) > 0;
+    float cos_o = vec3_dot(wo_world, s->ns);
+    /* Light leaves through the front (outside) only. */
+    float ut = rng_next_float(rng), ur = rng_next_float(rng), ua = rng_next_float(rng), upick = rng_next_float(rng);
+    if (!(cos_o > 0.0f) || !(vec3_dot(wo_world, s->ng) > 0.0f)) return false;
+    int axis, channel;
+    bssrdf_pick_technique(ut, &axis, &channel);
+    struct bssrdf_probe probe;
+    if (!bssrdf_probe_make(m, s->p, &s->frame, axis, channel, ur, ua, &probe)) return false;
+    struct hit hits[BSSRDF_MAX_HITS];
+    uint32_t n = accel_intersect_shape_all(scene->accel, s->shape, probe.org, probe.dir, 0.0f, probe.tmax, hits,
+                                           BSSRDF_MAX_HITS, rc);
+    if (n == 0) return false;
+    uint32_t pick = (uint32_t)(upick * (float)n);
+    if (pick >= n) pick = n - 1;
+    struct vec3 beta_o = vec3_scale(*beta, bssrdf_transmittance(m, cos_o));
+    struct vec3 beta_pick = vec3_splat(0.0f);
+    struct surface s_pick = *s;  /* overwritten by the picked hit; read only when one was picked */
+    for (uint32_t j = 0; j < n; j++) {
+        struct surface s2;
+        surface_from_hit(scene, &hits[j], probe.org, probe.dir, &s2);
+        float pdf = bssrdf_pdf_a(m, s->p, &s->frame, s2.p, s2.ng);
+        if (!(pdf > 0.0f)) continue;
+        struct vec3 w = vec3_scale(vec3_mul(beta_o, bssrdf_profile(m, vec3_length(vec3_sub(s2.p, s->p)))), 1.0f / pdf);
+        if (j == pick) {
+            beta_pick = w;
+            s_pick = s2;
+        }
+        if (!nee || !sss_direct) continue;
+        float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
+        struct light_sample ls;
+        if (!light_sampler_sample(lights, ul, u1, u2, &ls)) continue;
+        struct vec3 wi_world, Le;
+        float pdf_light_w;
+        if (!pt_light_toward(scene, &ls, s2.p, &wi_world, &Le, &pdf_light_w)) continue;
+        float cos_i = vec3_dot(wi_world, s2.ns);
+        if (vec3_is_zero(Le) || !(cos_i > 0.0f) || !(vec3_dot(wi_world, s2.ng) > 0.0f)) continue;
+        /* Offset end to offset end, as next-event estimation in pt_radiance. */
+        struct vec3 sorg = surface_offset_along(s2.p, s2.ng), sdir = wi_world;
+        float tmax = INFINITY;
+        if (!ls.is_env) {
+            struct vec3 seg = vec3_sub(surface_offset_along(ls.p, pt_emitter_side(ls.n, wi_world)), sorg);
+            float len = vec3_length(seg);
+            if (!(len > 0.0f)) continue;
+            sdir = vec3_scale(seg, 1.0f / len);
+            tmax = len * (1.0f - 1e-4f);
+        }
+        if (accel_occluded(scene->accel, sorg, sdir, 0.0f, tmax, rc)) continue;
+        float f = bssrdf_entry_eval(m, cos_i);
+        *L = vec3_add(*L, vec3_mul(w, vec3_scale(Le, f * cos_i / pdf_light_w)));
+    }
+    if (vec3_is_zero(beta_pick)) return false;
+    /* Continue from the picked entry point: cosine sampling of the entry lobe, whose weight
+     * f cos / pdf is (1 - F(wi)) / c. */
+    float u1 = rng_next_float(rng), u2 = rng_next_float(rng);
+    struct vec3 wi = sampling_cosine_hemisphere(u1, u2);
+    if (!(wi.z > 0.0f)) return false;
+    struct vec3 wi_world = frame_to_world(&s_pick.frame, wi);
+    if (!(vec3_dot(wi_world, s_pick.ng) > 0.0f)) return false;
+    *beta = vec3_scale(beta_pick, (float)n * bssrdf_entry_eval(m, wi.z) * PI_F);
+    *org = surface_offset_along(s_pick.p, s_pick.ng);
+    *dir = wi_world;
+    *prev_p = s_pick.p;
+    *skip_emission = nee;
+    return true;
+}
+
+/* Radiance along one camera ray. The per-vertex work around the two ray queries is most of
+ * what a ray costs besides Embree's traversal (docs/benchmarks.md, instructions per ray), so the
+ * loop keeps it lean: parameters are read into locals once (every Embree call is opaque to the
+ * compiler, so values behind pointers would be reloaded after each ray), and the offset origin
+ * of the shadow ray is reused by the continuation ray when both leave on the same side. */
+/* What pt_radiance adds (sms.h explains the split): emission of SMS-owned paths, everything
+ * else path tracing does, and SMS estimates. */
+struct pt_split {
+    bool owned, rest, tracked;
+    const struct sms_scene *ss;
+    struct sms_counters *sc;
+    struct rng *sms_rng;
+    uint32_t px, py;     /* the pixel (sms_ssp's prior block) */
+    bool sms_after_primary;  /* restir_sms: no SMS estimate at its receiver (sms.h), the reservoirs' */
+    /* The caller's G-buffer pass found the camera ray's first hit already: `primary` (NULL: the
+     * ray escaped) stands for the first query, so the ray is not traced twice. */
+    bool primary_given;
+    const struct hit *primary;
+};
+
+static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
+                               struct vec3 dir, struct rng *rng, struct ray_counters *rc, const struct pt_split *split,
+                               bool sss_direct)
+{
+    const struct light_sampler *lights = scene->lights;
+    const struct accel *accel = scene->accel;
+    const bool mis = params->nee;
+    const bool nee = params->nee && light_sampler_count(lights) > 0;
+    const uint32_t max_depth = params->max_depth, rr_depth = params->rr_depth;
+    struct vec3 L = vec3_splat(0.0f), beta = vec3_splat(1.0f);
+    /* The product of 1 / material_radiance_scale over the path's refractions: beta times this
+     * is the throughput the path will have outside the glass it is in, which is what Russian
+     * roulette weighs. Weighing beta itself, which inside glass of ior 1.5 is 1 / 2.25 of that,
+     * kills two in three of the paths that kept 75 % of their energy and weights the survivors
+     * by 3: a floor point lit through a slab's side wall then reads 2.4 times the light's
+     * radiance. */
+    float rr_scale = 1.0f;
+    float prev_pdf_w = 0.0f;   /* solid-angle pdf of the BSDF sample that produced `dir` */
+    bool prev_delta = true;    /* camera rays and delta scattering get no MIS on emission */
+    struct vec3 prev_p = org;
+    struct sms_track track = sms_track_start();
+    bool skip_emission = false;  /* after subsurface scattering with NEE (pt_sss_primary) */
+    /* Every vertex so far delta and through its canonical lobe (sms.h): the next non-delta
+     * vertex is the pixel's receiver, restir_sms's and the one sms_ssp's prior was built at. */
+    bool canonical = split->ss && (split->sms_after_primary || params->ssp);
+
+    for (uint32_t depth = 0;; depth++) {
+        struct hit hit;
+        bool found;
+        if (depth == 0 && split->primary_given) {
+            found = split->primary != NULL;
+            if (found) hit = *split->primary;
+        } else {
+            found = accel_intersect(accel, org, dir, 0.0f, INFINITY, &hit, rc);
+        }
+        if (!found) {
+            if (split->rest && !vec3_is_zero(scene->env_radiance) && !skip_emission) {
+                float w = 1.0f;
+                if (!prev_delta && mis) w = sampling_power_heuristic(prev_pdf_w, light_sampler_env_pdf_w(lights));
+                L = vec3_add(L, vec3_scale(vec3_mul(beta, scene->env_radiance), w));
+            }
+            break;
+        }
+        struct surface s;
+        surface_from_hit(scene, &hit, org, dir, &s);
+        const struct material *m = &scene->materials[s.material];
+
+        bool owned = split->tracked && sms_track_owned(scene, &track);
+        if (material_is_emissive(m) && (owned ? split->owned : split->rest) && !skip_emission) {
+            struct vec3 Le = light_sampler_emitted(m, -vec3_dot(dir, s.ng));
+            if (!vec3_is_zero(Le)) {
+                float w = 1.0f;
+                if (!prev_delta && mis) {
+                    float d2 = vec3_length2(vec3_sub(s.p, prev_p));
+                    float pdf_light_w = sampling_area_to_solid_angle(light_sampler_pdf_a(lights, s.shape, s.prim), d2,
+                                                                     vec3_dot(dir, s.ng));
+                    w = sampling_power_heuristic(prev_pdf_w, pdf_light_w);
+                }
+                L = vec3_add(L, vec3_scale(vec3_mul(beta, Le), w));
+            }
+        }
+        if (depth >= max_depth) break;
+        skip_emission = false;
+
+        if (depth == 0 && m->kind == MATERIAL_TRANSLUCENT) {
+            /* With next-event estimation the path through the entry points adds light only by NEE
+             * there (the emission its next vertex finds is skipped) or after a further bounce: at
+             * max_depth 1 (the direct-lighting case of seed 004 §3, which its evaluation uses)
+             * nothing is left to add once NEE at the entry points is someone else's, and no
+             * continuation ray needs tracing. */
+            const bool direct_here = sss_direct && split->rest;
+            if (nee && !direct_here && depth + 1 >= max_depth) break;
+            /* Direct light at the entry points belongs to the rest of the light transport; the
+             * track stays where it was, so no path through subsurface scattering counts as owned
+             * by specular manifold sampling (which does not sample from entry points). */
+            if (!pt_sss_primary(scene, params, m, &s, vec3_neg(dir), &beta, &L, rng, rc, &org, &dir, &prev_p,
+                                &skip_emission, direct_here))
+                break;
+            if (skip_emission && depth + 1 >= max_depth) break;
+            canonical = false;
+            /* A cosine-sampled direction: emission it reaches is MIS-weighted like a diffuse
+             * bounce's when NEE is off (weight 1 then) — it is skipped when NEE is on. */
+            prev_delta = true;
+            prev_pdf_w = 0.0f;
+            float u_rr = rng_next_float(rng);
+            if (depth + 1 >= rr_depth) {
+                float mx = vec3_max_comp(beta);
+                float q = mx < 0.95f ? mx : 0.95f;
+                if (!(q > 0.0f) || u_rr >= q) break;
+                beta = vec3_scale(beta, 1.0f / q);
+            }
+            continue;
+        }
+
+        struct vec3 wo_world = vec3_neg(dir);
+        struct vec3 wo = frame_to_local(&s.frame, wo_world);
+        unsigned flags = material_flags(m);
+        /* Offset origin of the shadow ray, and which side of ng it is on (-1: none traced). */
+        struct vec3 shadow_org = s.p;
+        int shadow_side = -1;
+
+        /* Specular manifold sampling owns the caustic chains that start here (sms.h). */
+        const bool receiver = canonical && depth <= SMS_RECEIVER_MAX_PREFIX && m->kind != MATERIAL_TRANSLUCENT;
+        if (split->ss && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY)) && !(receiver && split->sms_after_primary)) {
+            uint32_t room = max_depth > depth + 1 ? max_depth - depth - 1 : 0;
+            /* The block's prior describes its receivers' solutions; seen from any other vertex
+             * its tiles are arbitrary, and a solution outside them would carry the uniform
+             * share's weight, N² / (9 (1 − α)). Elsewhere seeds come from plain partitioning. */
+            struct vec3 c = params->ssp ? ssp_estimate(scene, split->ss, params->ssp, receiver ? params->ssp_prior : NULL,
+                                                       split->px, split->py, &s, m, wo, room, split->sms_rng, split->sc, rc)
+                                        : sms_estimate(scene, split->ss, params->sms, &s, m, wo, room, split->sms_rng,
+                                                       split->sc, rc);
+            L = vec3_add(L, vec3_mul(beta, c));
+        }
+        /* Next-event estimation: one light sample, MIS-weighted against BSDF sampling. */
+        if (nee && split->rest && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
+            float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
+            struct light_sample ls;
+            if (light_sampler_sample(lights, ul, u1, u2, &ls)) {
+                struct vec3 wi_world, Le;
+                float pdf_light_w;
+                bool ok = pt_light_toward(scene, &ls, s.p, &wi_world, &Le, &pdf_light_w);
+                /* The cheap rejections first (back of a one-sided emitter, zero pdf), before the
+                 * frame conversion and the BSDF. */
+                if (ok && !vec3_is_zero(Le)) {
+                    struct vec3 wi = frame_to_local(&s.frame, wi_world);
+                    /* Reject directions on different sides of the geometric and shading normals:
+                     * they would leak light through the surface. */
+                    float cos_ng = vec3_dot(wi_world, s.ng);
+                    if (cos_ng * wi.z > 0.0f) {
+                        struct vec3 f = material_eval(m, wo, wi, TRANSPORT_RADIANCE);
+                        if (!vec3_is_zero(f)) {
+                            shadow_side = cos_ng < 0.0f;
+                            shadow_org = surface_offset_along(s.p, shadow_side ? vec3_neg(s.ng) : s.ng);
+                            /* To an emitter, the ray spans from the offset origin to
+                             * the light point offset towards it: a length measured from s.p
+                             * lets a short ray from large coordinates (offset 256 ulps, 0.016
+                             * near 500) reach the emitter itself and count it as occluder. */
+                            struct vec3 sdir = wi_world;
+                            float tmax = INFINITY;
+                            if (!ls.is_env) {
+                                struct vec3 end = surface_offset_along(ls.p, pt_emitter_side(ls.n, wi_world));
+                                struct vec3 seg = vec3_sub(end, shadow_org);
+                                float len = vec3_length(seg);
+                                sdir = vec3_scale(seg, 1.0f / len);
+                                /* Also a relative margin: near the origin the end's offset is an
+                                 * absolute 1/65536, below a long ray's intersection error. */
+                                tmax = len * (1.0f - 1e-4f);
+                            }
+                            if (tmax > 0.0f && !accel_occluded(accel, shadow_org, sdir, 0.0f, tmax, rc)) {
+                                float pdf_bsdf_w = material_pdf(m, wo, wi);
+                                float w = sampling_power_heuristic(pdf_light_w, pdf_bsdf_w);
+                                struct vec3 c = vec3_scale(vec3_mul(f, Le), fabsf(wi.z) * w / pdf_light_w);
+                                L = vec3_add(L, vec3_mul(beta, c));
+                            }
+                        }
+                    }
+                }
+            }
+        } else {
+            /* Keep the random stream aligned whether or not NEE ran. */
+            rng_next_float(rng);
+            rng_next_float(rng);
+            rng_next_float(rng);
+        }
+
+        /* BSDF sampling continues the path. */
+        float u_lobe = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
+        struct bsdf_sample bs;
+        if (!material_sample(m, wo, u_lobe, u1, u2, TRANSPORT_RADIANCE, &bs)) break;  /* pdf_w > 0 then */
+        struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
+        float cos_ng = vec3_dot(wi_world, s.ng);
+        if (cos_ng * bs.wi.z <= 0.0f) break;
+        beta = vec3_mul(beta, vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w));
+        if (bs.flags & BSDF_TRANSMISSION) rr_scale /= material_radiance_scale(m, wo, bs.wi);
+        if (split->tracked) sms_track_scatter(scene, &track, &s, bs.flags);
+        if (canonical) {
+            struct bsdf_sample cb;
+            canonical = (bs.flags & BSDF_DELTA) && sms_canonical_lobe(m, wo, &cb) && cb.lobe == bs.lobe;
+        }
+        prev_delta = (bs.flags & BSDF_DELTA) != 0;
+        prev_pdf_w = bs.pdf_w;
+        prev_p = s.p;
+
+        float u_rr = rng_next_float(rng);
+        if (depth + 1 >= rr_depth) {
+            /* fminf(0.95f, max) spelled out: fminf is a libm call at -O2 (NaN rules), and a NaN
+             * max gives 0.95 either way. */
+            float mx = vec3_max_comp(beta) * rr_scale;
+            float q = mx < 0.95f ? mx : 0.95f;
+            if (!(q > 0.0f) || u_rr >= q) break;
+            beta = vec3_scale(beta, 1.0f / q);
+        }
+        int side = cos_ng < 0.0f;
+        org = side == shadow_side ? shadow_org : surface_offset_along(s.p, side ? vec3_neg(s.ng) : s.ng);
+        dir = wi_world;
+    }
+    return L;
+}
+
+struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
+                                  struct vec3 dir, const struct hit *primary, struct rng *rng, bool sss_direct,
+                                  struct ray_counters *rc)
+{
+    const struct pt_split all = {.owned = true, .rest = true, .primary_given = true, .primary = primary};
+    return pt_radiance(scene, params, org, dir, rng, rc, &all, sss_direct);
+}
+
+struct vec3 reference_pt_radiance_sms(const struct scene *scene, const struct pt_params *params,
+                                      const struct sms_scene *ss, uint32_t px, uint32_t py, struct vec3 org,
+                                      struct vec3 dir, const struct hit *primary, struct rng *rng,
+                                      struct rng *sms_rng, struct sms_counters *sc, struct ray_counters *rc)
+{
+    const struct pt_split split = {.owned = false, .rest = !params->sms->caustics_only, .tracked = true, .ss = ss,
+                                   .sc = sc, .sms_rng = sms_rng, .px = px, .py = py, .sms_after_primary = true,
+                                   .primary_given = true, .primary = primary};
+    return pt_radiance(scene, params, org, dir, rng, rc, &split, true);
+}
+
+static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
+{
+    struct pt_job *job = ctx;
+    const struct pt_params *p = job->params;
+    /* Counted job-locally and added to the worker's slot at the end (see sms_counters_add). */
+    struct render_stats local = {0};
+    struct render_stats *st = &local;
+    struct ray_counters rc = {0, 0};
+    struct pt_split split = {.owned = p->subset != PT_SUBSET_REST && !p->sms, .rest = p->subset != PT_SUBSET_CAUSTIC,
+                             .ss = job->sms_scene, .sc = &st->sms};
+    if (p->sms) split.rest = !p->sms->caustics_only;
+    split.tracked = p->subset != PT_SUBSET_ALL || p->sms;
+    uint32_t tx = tile % job->tiles_x, ty = tile / job->tiles_x;
+    uint32_t x0 = p->crop_x0 + tx * PT_TILE, y0 = p->crop_y0 + ty * PT_TILE;
+    uint32_t x1 = x0 + PT_TILE < p->crop_x1 ? x0 + PT_TILE : p->crop_x1;
+    uint32_t y1 = y0 + PT_TILE < p->crop_y1 ? y0 + PT_TILE : p->crop_y1;
+    for (uint32_t y = y0; y < y1; y++) {
+        for (uint32_t x = x0; x < x1; x++) {
+            uint64_t pixel = (uint64_t)y * p->width + x;
+            double acc[3] = {0, 0, 0};
+            for (uint32_t s = 0; s < p->spp; s++) {
+                struct rng rng = rng_make(p->seed, p->frame, pixel, s);
+                float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
+                struct vec3 dir = camera_ray_dir(&job->camera, (float)x + jx, (float)y + jy);
+                /* SMS draws from its own stream, so the path-traced part of `sms` is the same
+                 * sample as pt's PT_SUBSET_REST image. */
+                struct rng sms_rng = rng_make(p->seed, p->frame, pixel, ((uint64_t)1 << 40) | s);
+                split.sms_rng = &sms_rng;
+                split.px = x;
+                split.py = y;
+                struct vec3 L = pt_radiance(job->scene, p, job->camera.position, dir, &rng, &rc, &split, true);
+                if (!vec3_is_finite(L)) {
+                    st->nonfinite++;
+                    continue;
+                }
+                acc[0] += L.x;
+                acc[1] += L.y;
+                acc[2] += L.z;
+            }
+            double inv = 1.0 / p->spp;
+            job->out->pixels[pixel] = vec3_make((float)(acc[0] * inv), (float)(acc[1] * inv), (float)(acc[2] * inv));
+            st->samples += p->spp;
+        }
+    }
+    struct render_stats *sum = &job->worker_stats[worker];
+    sum->rays_intersect += rc.intersect;
+    sum->rays_occluded += rc.occluded;
+    sum->samples += local.samples;
+    sum->nonfinite += local.nonfinite;
+    sms_counters_add(&sum->sms, &local.sms);
+}
+
+bool reference_pt_render(const struct scene *scene, const struct pt_params *params, struct image *out,
+                         struct render_stats *stats, parallel_progress_fn *progress, void *progress_ctx,
+                         struct err *err)
+{
+    if (!image_init(out, params->width, params->height, err)) return false;
+    if (reference_pt_render_into(scene, params, out, stats, progress, progress_ctx, err)) return true;
+    image_destroy(out);
+    return false;
+}
+
+bool reference_pt_render_into(const struct scene *scene, const struct pt_params *params, struct image *out,
+                              struct render_stats *stats, parallel_progress_fn *progress, void *progress_ctx,
+                              struct err *err)
+{
+    if (!scene->accel || !scene->lights) return err_set(err, ERR_INVALID, NULL, "scene is not committed");
+    if (params->spp == 0) return err_set(err, ERR_INVALID, "spp", "spp must be at least 1");
+    struct pt_params p = *params;
+    if (p.crop_x1 == 0 && p.crop_y1 == 0) {
+        p.crop_x0 = p.crop_y0 = 0;
+        p.crop_x1 = p.width;
+        p.crop_y1 = p.height;
+    }
+    if (p.crop_x0 >= p.crop_x1 || p.crop_y0 >= p.crop_y1 || p.crop_x1 > p.width || p.crop_y1 > p.height)
+        return err_set(err, ERR_INVALID, "crop", "crop window [%u,%u)x[%u,%u) is empty or outside %ux%u", p.crop_x0,
+                       p.crop_x1, p.crop_y0, p.crop_y1, p.width, p.height);
+    if (out->width != p.width || out->height != p.height || !out->pixels)
+        return err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the render %ux%u", out->width, out->height,
+                       p.width, p.height);
+    /* Pixels outside a crop keep 0, as in a fresh image. */
+    if (p.crop_x0 != 0 || p.crop_y0 != 0 || p.crop_x1 != p.width || p.crop_y1 != p.height)
+        memset(out->pixels, 0, (size_t)p.width * p.height * sizeof *out->pixels);
+
+    /* On the stack (per-worker counters, ~57 KiB): a steady-state frame allocates nothing. */
+    struct pt_job job_storage;
+    struct pt_job *job = &job_storage;
+    memset(job, 0, sizeof *job);
+    job->scene = scene;
+    job->params = &p;
+    job->out = out;
+    struct sms_scene sms_scene;   /* ~6 KiB on the stack, like the job */
+    if (p.sms) {
+        if (!sms_params_valid(p.sms, err) || !sms_scene_init(scene, &sms_scene, err)) return false;
+        job->sms_scene = &sms_scene;
+    }
+    camera_init(&job->camera, p.camera ? p.camera : &scene->camera, p.width, p.height);
+    job->tiles_x = (p.crop_x1 - p.crop_x0 + PT_TILE - 1) / PT_TILE;
+    uint32_t tiles_y = (p.crop_y1 - p.crop_y0 + PT_TILE - 1) / PT_TILE;
+    unsigned threads = p.threads ? p.threads : parallel_default_threads();
+    if (threads > PT_MAX_WORKERS) threads = PT_MAX_WORKERS;
+
+    struct timespec t0, t1;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    bool ok = parallel_run(threads, job->tiles_x * tiles_y, pt_tile, job, progress, progress_ctx, err);
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+
+    if (stats) {
+        memset(stats, 0, sizeof *stats);
+        for (unsigned i = 0; i < threads; i++) {
+            stats->rays_intersect += job->worker_stats[i].rays_intersect;
+            stats->rays_occluded += job->worker_stats[i].rays_occluded;
+            stats->samples += job->worker_stats[i].samples;
+            stats->nonfinite += job->worker_stats[i].nonfinite;
+            sms_counters_add(&stats->sms, &job->worker_stats[i].sms);
+        }
+        stats->threads = threads;
+        stats->render_ms = (double)(t1.tv_sec - t0.tv_sec) * 1e3 + (double)(t1.tv_nsec - t0.tv_nsec) * 1e-6;
+    }
+    return ok;
+}
+
+bool reference_pt_add_pass(const struct scene *scene, const struct pt_params *params, uint32_t pass, struct image *sum,
+                           struct image *scratch, struct render_stats *stats, struct err *err)
+{
+    if (sum->width != params->width || sum->height != params->height || !sum->pixels)
+        return err_set(err, ERR_INVALID, NULL, "the sum image is %ux%u, the render %ux%u", sum->width, sum->height,
+                       params->width, params->height);
+    struct pt_params p = *params;
+    p.frame = REFERENCE_PT_PASS_FRAME0 + pass;
+    if (!reference_pt_render_into(scene, &p, scratch, stats, NULL, NULL, err)) return false;
+    size_t n = (size_t)p.width * p.height;
+    for (size_t i = 0; i < n; i++) sum->pixels[i] = vec3_add(sum->pixels[i], scratch->pixels[i]);
+    return true;
+}

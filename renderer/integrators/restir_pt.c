@@ -1,0 +1,1238 @@
+/* restir_pt.c — ReSTIR PT Enhanced (see restir_pt.h): initial path sampling, the hybrid shift,
+ * and the frame driver that runs the shared reuse passes of restir.c.
+ *
+ * The integrand. A path x_0 (camera) x_1 (the pixel's G-buffer hit) ... x_d is sampled vertex by
+ * vertex; at every vertex x_j the lobe and direction come from the random numbers of stream
+ * (path seed, j), so a path is its seed plus, past its reconnection vertex, stored geometry.
+ * Its contribution in primary sample space (seed 001 eq. 3) is
+ *   F = prod_{j<d-1} f_j |cos_j| / p_j  *  (last step)
+ * where the last step is f |cos| Le w_bsdf / p (BSDF sampling hit an emitter) or
+ * f |cos| Le w_nee / p_light (NEE), p_light the single-sample light pdf in solid angle and
+ * w_nee = M p_light / (M p_light + p_bsdf), w_bsdf = p_bsdf / (M p_light + p_bsdf) (seed 001
+ * §5, M = RIS candidates; the BSDF pdf is the marginal one, so both weights sum to 1 over the
+ * lobes). Emission at x_1 is added by the shade pass, outside the reservoir. The target is
+ * p̂ = luminance(F).
+ *
+ * Initial candidates. Every NEE connection and every emitter hit along one path is a candidate
+ * in its own PSS domain (length d, technique); they are resampled by streaming RIS with
+ * confidence 1 in total. Their source weight is 1 / prod q_i of the Russian roulette survivals
+ * (seed 001 §6: RR changes the source pdf only, shifts never roll it) times, for NEE, the RIS
+ * contribution weight W_ris p_light (seed 001 §5).
+ *
+ * Reconnection vertex. x_k is the first vertex (k >= 2) such that x_{k-1} and x_k are both
+ * connectable: their lobes are rough (lobe roughness >= alpha_min, or with pdf_connect
+ * 1/p(w)^2 >= alpha_min, eq. 26; delta lobes never) and the segment passes the dual footprint
+ * threshold (eq. 5) or, without it, a near-field distance. An emitter at the end needs only the
+ * first footprint term. The environment is never a reconnection vertex. k <= 63.
+ *
+ * Hybrid shift to another domain (pixel and frame): replay y_1 .. y_{k-1} with the same random
+ * numbers (identity in PSS), reconnect y_{k-1} -> x_k through the stored lobe l_{k-1}, reuse the
+ * suffix after x_k (cached radiance; re-traced by replay when the shift changes scenes). Its
+ * Jacobian (eq. 4, area form) is
+ *   |J| = [p^y_{k-1}(w', l_{k-1}) G(y_{k-1} -> x_k) p^y_k(w_k, l_k)] /
+ *         [p^x_{k-1}(w, l_{k-1})  G(x_{k-1} -> x_k) p^x_k(w_k, l_k)]  * dA_to / dA_from,
+ * the last factor for a vertex on a shape that moved between the two frames. The shift fails
+ * (target 0) unless the offset path would have chosen the same k: no earlier connectable pair,
+ * and (y_{k-1}, x_k) connectable. These rules depend only on the path, so T^-1(T(x)) = x
+ * (tests/unit/test_restir_pt.c). */
+#include "integrators/restir_pt.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "scene/camera.h"
+#include "scene/light_ris.h"
+#include "scene/light_sampler.h"
+#include "core/parallel.h"
+#include "reuse/reservoir.h"
+#include "core/rng.h"
+#include "core/sampling.h"
+#include "scene/surface.h"
+
+#define PT_STREAM 0x7270ull                     /* per-path vertex streams */
+#define PT_SELECT_STREAM 0x7273656cull          /* initial resampling decisions */
+#define PT_PURPOSE_BSDF 1u
+#define PT_PURPOSE_NEE 2u
+#define PT_PURPOSE_RR 3u
+#define PT_MAX_RC 63u                           /* reconnection index fits 6 bits */
+#define PT_MAX_LENGTH 127u                      /* path length fits 7 bits */
+#define PT_ENV_PRIM UINT32_MAX                  /* rc_prim of an environment light sample */
+#define PT_ROWS_PER_JOB 2u
+
+/* head.bits: length d (7 bits), reconnection index k (6), NEE technique (1), lobe at x_{k-1}
+ * (1), lobe at x_k (1). */
+struct pt_sample {
+    struct restir_head head;
+    float F[3];          /* contribution in the element's own domain (target = luminance) */
+    uint32_t seed;       /* random-replay seed */
+    uint32_t rc_prim;    /* scene-wide primitive of x_k, or of the NEE light point when k = 0 */
+    float rc_b1, rc_b2;  /* its point code (surface_at) */
+    float wk_u, wk_v;    /* octahedral w_k leaving x_k; NEE to the environment with k = 0: its direction */
+    float rad[3];        /* suffix after x_k's scattering (k <= d-2: with its MIS; k = d-1: Le) */
+    float rc_pdf;        /* p_{k-1} G p_k of this path (eq. 4 denominator); NEE end: light pdf_a */
+    float light_pdf;     /* k = d-1: light pdf (solid angle at x_k) of the end, for its MIS */
+};
+_Static_assert(sizeof(struct pt_sample) == RESTIR_PT_RESERVOIR_BYTES, "compact reservoir");
+
+static inline uint32_t pt_length(const struct pt_sample *s) { return s->head.bits & 0x7fu; }
+static inline uint32_t pt_rc(const struct pt_sample *s) { return (s->head.bits >> 7) & 0x3fu; }
+static inline bool pt_is_nee(const struct pt_sample *s) { return (s->head.bits >> 13) & 1u; }
+static inline int pt_lobe_prev(const struct pt_sample *s) { return (s->head.bits >> 14) & 1u; }
+static inline int pt_lobe_rc(const struct pt_sample *s) { return (s->head.bits >> 15) & 1u; }
+static inline uint16_t pt_bits(uint32_t d, uint32_t k, bool nee, int lobe_prev, int lobe_rc)
+{
+    return (uint16_t)(d | k << 7 | (uint32_t)nee << 13 | (uint32_t)lobe_prev << 14 | (uint32_t)lobe_rc << 15);
+}
+
+/* Russian roulette from the first bounce on (rr_depth 1; pt waits for 3): seed 001 §6 applies
+ * it to shorten the initial paths, whose extra noise reuse mostly absorbs. Against rr_depth 3,
+ * 13 seeds of 256x256 frames after 32 warm-up frames took 7-17 % less time with a frame's MAPE
+ * within -8 % and +3 %: at equal time the error falls (docs/benchmarks.md, "Russian roulette
+ * from the first bounce"). */
+struct restir_pt_params restir_pt_defaults(void)
+{
+    return (struct restir_pt_params){
+        .max_depth = 64, .rr_depth = 1, .rr = true, .nee_candidates = RESTIR_PT_NEE_BY_SCENE, .unify_di = true,
+        .temporal = true, .temporal_cap = 20, .spatial_neighbors = 3, .spatial_radius = 20.0f, .spatial_rounds = 1,
+        .paired_spatial = true,
+        .expected_shading = true,
+        .footprint = true, .footprint_c = 0.02f, .near_distance = 0.03f, .pdf_connect = true, .roughness_min = 0.2f,
+    };
+}
+
+/* RIS among light candidates (seed 001 §5) pays where choosing a light by its power alone is
+ * poor: several emitters at different distances and orientations from the shading point. With
+ * one emitter the candidates differ only in the cosines and distances over it; on cornell-box,
+ * cornell-glossy and door-ajar the three extra candidates cost about a fifth of the frame and
+ * bought no measurable error reduction (docs/benchmarks.md), so a single-emitter scene gets
+ * plain NEE. */
+uint32_t restir_pt_nee_by_scene(const struct scene *scene)
+{
+    uint32_t emitters = !vec3_is_zero(scene->env_radiance);
+    for (uint32_t i = 0; i < scene->shape_count && emitters < 2; i++)
+        emitters += material_is_emissive(&scene->materials[scene->shapes[i].material]);
+    return emitters >= 2 ? 4u : 1u;
+}
+
+bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err)
+{
+    if (p->max_depth < 1 || p->max_depth > PT_MAX_LENGTH - 1)
+        return err_set(err, ERR_INVALID, "/params/max_depth", "max_depth must be in 1..%u", PT_MAX_LENGTH - 1);
+    if (p->nee_candidates > 64 && p->nee_candidates != RESTIR_PT_NEE_BY_SCENE)
+        return err_set(err, ERR_INVALID, "/params/nee_candidates", "nee_candidates must be in 0..64");
+    if (p->temporal_cap < 1 || p->temporal_cap > 1000)
+        return err_set(err, ERR_INVALID, "/params/temporal_cap", "temporal_cap must be in 1..1000");
+    if (p->spatial_neighbors > 64)
+        return err_set(err, ERR_INVALID, "/params/spatial_neighbors", "spatial_neighbors must be in 0..64");
+    if (!(p->spatial_radius >= 1.0f && p->spatial_radius <= 256.0f))
+        return err_set(err, ERR_INVALID, "/params/spatial_radius", "spatial_radius must be in 1..256 pixels");
+    if (p->spatial_rounds < 1 || p->spatial_rounds > 8)
+        return err_set(err, ERR_INVALID, "/params/spatial_rounds", "spatial_rounds must be in 1..8");
+    if (!(p->footprint_c > 0.0f && p->footprint_c <= 100.0f))
+        return err_set(err, ERR_INVALID, "/params/footprint_c", "footprint_c must be in (0, 100]");
+    if (!(p->near_distance >= 0.0f && p->near_distance <= 1.0f))
+        return err_set(err, ERR_INVALID, "/params/near_distance", "near_distance must be in [0, 1]");
+    if (!(p->roughness_min > 0.0f && p->roughness_min <= 1.0f))
+        return err_set(err, ERR_INVALID, "/params/roughness_min", "roughness_min must be in (0, 1]");
+    return true;
+}
+
+/* ---- per-frame context ---------------------------------------------------------------------- */
+
+struct pt_ctx {
+    const struct restir_pt_params *p;
+    const struct restir_pt_state *st;
+    const struct scene *scene[2];        /* [RESTIR_CURRENT], [RESTIR_PREVIOUS] */
+    struct vec3 eye[2];
+    const struct gbuffer *gbuf[2];
+    uint64_t seed;
+    uint32_t frame;
+    uint32_t nee_m;                      /* RIS candidates; 0 = no NEE */
+    float near_dist2;                    /* without footprint: squared minimum segment length */
+    float pdf_max;                       /* pdf_connect: a lobe is rough when p(w) <= this */
+};
+_Static_assert(sizeof(struct pt_ctx) <= RESTIR_PT_CTX_BYTES, "context fits the test buffer");
+
+/* A path vertex on a surface, with w_o in its shading frame. */
+struct pt_vertex {
+    struct surface s;
+    const struct material *m;
+    struct vec3 wo;
+    float b1, b2;      /* point code (surface_at) */
+};
+
+/* The segment entering vertex x_j from x_{j-1}: what connectability and the Jacobian need. */
+struct pt_segment {
+    float pdf_lobe;    /* p_{j-1}(w_{j-1}, l_{j-1}): the sampling pdf (solid angle) */
+    float pdf_marg;    /* the marginal BSDF pdf of w_{j-1} (footprint, eq. 26) */
+    bool rough;        /* the lobe used at x_{j-1} is rough */
+    int lobe;          /* l_{j-1} */
+    float dist2;
+    float cos_end;     /* |cos| at x_j (geometric normal) */
+    float cos_start;   /* |cos| at x_{j-1} */
+};
+
+struct pt_thread {
+    const struct pt_ctx *c;
+    struct restir_counters *cnt;
+    float footprint;   /* the domain's eq. 5 right-hand side */
+};
+
+static uint32_t pt_path_seed(uint64_t seed, uint32_t frame, uint32_t pixel)
+{
+    return (uint32_t)rng_mix64(seed ^ rng_mix64((uint64_t)frame << 32 ^ pixel ^ rng_mix64(PT_STREAM)));
+}
+
+static inline struct rng pt_stream(uint32_t path_seed, uint32_t vertex, uint32_t purpose)
+{
+    /* Distinct (path seed, vertex, purpose) give distinct keys: vertex < 2^24, purpose < 2^8. */
+    return rng_keyed((uint64_t)path_seed << 32 | (uint64_t)vertex << 8 | purpose);
+}
+
+static uint32_t pt_prim_id(const struct restir_pt_state *st, uint32_t shape, uint32_t prim)
+{
+    return st->prim_first[shape] + prim;
+}
+
+static void pt_prim_decode(const struct restir_pt_state *st, uint32_t id, uint32_t *shape, uint32_t *prim)
+{
+    /* The last shape whose first primitive is <= id (shapes without primitives share their
+     * successor's first id and are skipped). Branch-free: every shift decodes one id, and the
+     * comparisons of a search over a few shapes are unpredictable. */
+    uint32_t lo = 0, n = st->shape_count;  /* the answer is in [lo, lo + n) */
+    while (n > 1) {
+        const uint32_t half = n / 2;
+        lo = st->prim_first[lo + half] <= id ? lo + half : lo;
+        n -= half;
+    }
+    *shape = lo;
+    *prim = id - st->prim_first[lo];
+}
+
+static inline float pt_balance(float a, float b)
+{
+    return a / (a + b);
+}
+
+/* The marginal pdf of wi over all lobes, given that of one lobe: the same number for a one-lobe
+ * material (diffuse, conductor), where it saves a BSDF evaluation per vertex. */
+static inline float pt_marginal(const struct material *m, float lobe_pdf, struct vec3 wo, struct vec3 wi)
+{
+    return material_lobe_count(m) == 1 ? lobe_pdf : material_pdf(m, wo, wi);
+}
+
+/* A stored lobe seen again at a reconnection: its value and pdf for (wo, wi); false when the
+ * material there has no such lobe, it is delta (never reconnected) or it gives nothing. */
+static bool pt_lobe_at(const struct material *m, int lobe, struct vec3 wo, struct vec3 wi, struct vec3 *f, float *pdf)
+{
+    if (lobe >= material_lobe_count(m) || (material_lobe_flags(m, lobe) & BSDF_DELTA)) return false;
+    *pdf = material_pdf_lobe(m, lobe, wo, wi);
+    *f = material_eval_lobe(m, lobe, wo, wi, TRANSPORT_RADIANCE);
+    return *pdf > 0.0f && !vec3_is_zero(*f);
+}
+
+/* Rough lobe at a vertex: never delta; eq. 26 with pdf_connect, else lobe roughness. */
+static bool pt_rough_lobe(const struct pt_ctx *c, const struct material *m, int lobe, float pdf_marg)
+{
+    unsigned flags = material_lobe_flags(m, lobe);
+    if (flags & BSDF_DELTA) return false;
+    if (c->p->pdf_connect) return pdf_marg > 0.0f && pdf_marg <= c->pdf_max;
+    return (flags & BSDF_DIFFUSE) || material_lobe_roughness(m, lobe) >= c->p->roughness_min;
+}
+
+/* The same for NEE, which evaluates every non-delta lobe. */
+static bool pt_rough_nee(const struct pt_ctx *c, const struct material *m, float pdf_marg)
+{
+    for (int l = 0; l < material_lobe_count(m); l++)
+        if (pt_rough_lobe(c, m, l, pdf_marg)) return true;
+    return false;
+}
+
+/* Whether x_{j-1} and x_j form the reconnection pair: `seg` enters x_j; `end` when x_j is the
+ * path's emitter, else the lobe leaving x_j is rough (out_rough) with marginal pdf out_pdf. */
+static bool pt_connectable(const struct pt_thread *t, uint32_t j, const struct pt_segment *seg, bool end,
+                           bool out_rough, float out_pdf)
+{
+    if (j < 2 || j > PT_MAX_RC || !seg->rough || !(end || out_rough)) return false;
+    const struct pt_ctx *c = t->c;
+    if (!c->p->footprint) return seg->dist2 >= c->near_dist2;
+    /* Eq. 5: 1 / max(p_{k-1} G(x_{k-1} -> x_k), p_k G(x_k -> x_{k-1})) >= threshold. */
+    float a = seg->pdf_marg * seg->cos_end / seg->dist2;
+    if (!end) {
+        float b = out_pdf * seg->cos_start / seg->dist2;
+        if (b > a) a = b;
+    }
+    return a * t->footprint <= 1.0f;
+}
+
+/* The primary vertex of a domain and its eq. 5 threshold (c/100) |x0 - x1|^2 / (cos / 4 pi):
+ * the G-buffer's surface, the same numbers for the initial pass and every shift into the pixel.
+ * x_1 never reconnects (k >= 2), so its primitive and point code are not loaded. */
+static bool pt_primary(const struct pt_ctx *c, struct restir_domain d, struct pt_vertex *v, float *footprint)
+{
+    const struct gbuffer_surface *h = &c->gbuf[d.frame]->surf[d.pixel];
+    if (h->material == GBUFFER_NO_HIT) return false;
+    const struct scene *scene = c->scene[d.frame];
+    v->s.p = h->p, v->s.ng = h->ng, v->s.ns = h->ns;
+    v->s.frame = frame_from_normal(h->ns);
+    v->s.material = h->material;
+    v->s.shape = v->s.prim = UINT32_MAX;
+    v->b1 = v->b2 = 0.0f;
+    v->m = &scene->materials[v->s.material];
+    struct vec3 to_eye = vec3_sub(c->eye[d.frame], v->s.p);
+    float d2 = vec3_length2(to_eye);
+    struct vec3 wo_world = vec3_scale(to_eye, 1.0f / sqrtf(d2));
+    v->wo = frame_to_local(&v->s.frame, wo_world);
+    float cos1 = fabsf(vec3_dot(wo_world, v->s.ng));
+    *footprint = c->p->footprint_c * 0.01f * d2 * (4.0f * (float)M_PI) / (cos1 > 1e-6f ? cos1 : 1e-6f);
+    return true;
+}
+
+/* Traces from vertex v along world direction `dir` (leaving on the side it points to). */
+static bool pt_trace(const struct scene *scene, const struct pt_vertex *v, struct vec3 dir, struct hit *hit,
+                     struct ray_counters *rc)
+{
+    struct vec3 org = surface_offset(v->s.p, v->s.ng, dir);
+    return accel_intersect(scene->accel, org, dir, 0.0f, INFINITY, hit, rc);
+}
+
+/* Whether the environment is seen from v along `dir` (points use pt_visible_points: a segment
+ * between two offset ends). */
+static bool pt_sees_env(const struct scene *scene, const struct pt_vertex *v, struct vec3 dir, struct ray_counters *rc)
+{
+    struct vec3 org = surface_offset(v->s.p, v->s.ng, dir);
+    return !accel_occluded(scene->accel, org, dir, 0.0f, INFINITY, rc);
+}
+
+/* Visibility between two surface points, both ends moved off their surfaces: a reconnection
+ * tests a vertex that was found by a ray from elsewhere, and its rebuilt position may sit a float
+ * rounding behind its own surface. */
+static bool pt_visible_points(const struct scene *scene, struct vec3 a, struct vec3 a_ng, struct vec3 b, struct vec3 b_ng,
+                              struct ray_counters *rc)
+{
+    struct vec3 dir = vec3_sub(b, a);
+    struct vec3 org = surface_offset(a, a_ng, dir), end = surface_offset(b, b_ng, vec3_neg(dir));
+    struct vec3 seg = vec3_sub(end, org);
+    float len = vec3_length(seg);
+    if (!(len > 0.0f)) return false;
+    return !accel_occluded(scene->accel, org, vec3_scale(seg, 1.0f / len), 0.0f, len * (1.0f - 1e-4f), rc);
+}
+
+static void pt_vertex_from_hit(const struct scene *scene, const struct pt_vertex *from, struct vec3 dir,
+                               const struct hit *hit, struct pt_vertex *out)
+{
+    surface_from_hit(scene, hit, from->s.p, dir, &out->s);
+    surface_point_code(scene, hit, &out->s, &out->b1, &out->b2);
+    out->m = &scene->materials[out->s.material];
+    /* w_o points at the previous vertex itself, not back along the ray (whose origin was offset
+     * off the surface): a shift that rebuilds this vertex from its code computes the same w_o. */
+    out->wo = frame_to_local(&out->s.frame, vec3_normalize(vec3_sub(from->s.p, out->s.p)));
+}
+
+/* One BSDF step from v with the replay stream of vertex j: direction, factor f |cos| / p, the
+ * marginal pdf and roughness of the lobe. False when the path ends there. */
+struct pt_step {
+    struct bsdf_sample bs;
+    struct vec3 dir;
+    struct vec3 factor;
+    float pdf_marg;
+    bool rough;
+};
+
+static bool pt_bsdf_step(const struct pt_ctx *c, const struct pt_vertex *v, uint32_t path_seed, uint32_t j,
+                         struct pt_step *out)
+{
+    struct rng r = pt_stream(path_seed, j, PT_PURPOSE_BSDF);
+    float ul = rng_next_float(&r), u1 = rng_next_float(&r), u2 = rng_next_float(&r);
+    if (!material_sample(v->m, v->wo, ul, u1, u2, TRANSPORT_RADIANCE, &out->bs)) return false;
+    out->dir = frame_to_world(&v->s.frame, out->bs.wi);
+    if (!(vec3_dot(out->dir, v->s.ng) * out->bs.wi.z > 0.0f)) return false;
+    out->factor = vec3_scale(out->bs.f, fabsf(out->bs.wi.z) / out->bs.pdf_w);
+    bool delta = (out->bs.flags & BSDF_DELTA) != 0;
+    out->pdf_marg = delta ? 0.0f : pt_marginal(v->m, out->bs.pdf_w, v->wo, out->bs.wi);
+    out->rough = !delta && pt_rough_lobe(c, v->m, out->bs.lobe, out->pdf_marg);
+    return true;
+}
+
+/* The segment from vertex a (leaving through `lobe`, -1 = NEE's all lobes) to the point b, from
+ * the two positions: the initial pass and every shift derive connectability and the Jacobian
+ * from the same numbers, whichever ray found b. */
+static void pt_segment_geo(const struct pt_ctx *c, const struct pt_vertex *a, int lobe, struct vec3 b_p, struct vec3 b_ng,
+                           struct pt_segment *seg)
+{
+    struct vec3 w = vec3_sub(b_p, a->s.p);
+    seg->dist2 = vec3_length2(w);
+    w = vec3_scale(w, 1.0f / sqrtf(seg->dist2));
+    struct vec3 wi = frame_to_local(&a->s.frame, w);
+    seg->lobe = lobe < 0 ? 0 : lobe;
+    if (lobe < 0) {
+        seg->pdf_marg = seg->pdf_lobe = material_pdf(a->m, a->wo, wi);
+        seg->rough = pt_rough_nee(c, a->m, seg->pdf_marg);
+    } else {
+        seg->pdf_lobe = material_pdf_lobe(a->m, lobe, a->wo, wi);
+        seg->pdf_marg = pt_marginal(a->m, seg->pdf_lobe, a->wo, wi);
+        seg->rough = pt_rough_lobe(c, a->m, lobe, seg->pdf_marg);
+    }
+    seg->cos_end = fabsf(vec3_dot(w, b_ng));
+    seg->cos_start = fabsf(vec3_dot(w, a->s.ng));
+}
+
+/* Light pdf (solid angle at the shading point) of an emitter point seen along `dir`. */
+static float pt_light_pdf_w(const struct scene *scene, uint32_t shape, uint32_t prim, float dist2, float cos_light)
+{
+    return sampling_area_to_solid_angle(light_sampler_pdf_a(scene->lights, shape, prim), dist2, cos_light);
+}
+
+/* MIS weight of BSDF sampling against M-candidate NEE for a BSDF-sampled end. */
+static float pt_mis_bsdf(const struct pt_ctx *c, bool delta, float pdf_marg, float light_pdf_w)
+{
+    if (delta || c->nee_m == 0 || !(light_pdf_w > 0.0f)) return 1.0f;
+    return pt_balance(pdf_marg, (float)c->nee_m * light_pdf_w);
+}
+
+static float pt_env_pdf_w(const struct scene *scene)
+{
+    return vec3_is_zero(scene->env_radiance) ? 0.0f : light_sampler_env_pdf_w(scene->lights);
+}
+
+/* Point code of a light sample (triangles: its barycentrics; spheres: the object-space direction). */
+static void pt_light_code(const struct scene *scene, const struct light_sample *ls, float *b1, float *b2)
+{
+    if (scene->shapes[ls->shape].kind == SHAPE_MESH) {
+        *b1 = ls->b1;
+        *b2 = ls->b2;
+        return;
+    }
+    const struct shape *sh = &scene->shapes[ls->shape];
+    struct vec3 d = vec3_normalize(vec3_sub(xform_point(accel_shape_to_object(scene->accel, ls->shape), ls->p), sh->center));
+    surface_oct_encode(d, b1, b2);
+}
+
+
+/* A light point from its code: emissive triangles from the light sampler's table (what NEE
+ * sampled, bit for bit, at the cost of a lookup), spheres rebuilt from the surface. */
+static void pt_light_point(const struct scene *scene, uint32_t shape, uint32_t prim, float b1, float b2, struct vec3 *p,
+                           struct vec3 *ng)
+{
+    if (!light_sampler_triangle_point(scene->lights, shape, prim, b1, b2, p, ng))
+        surface_point_at(scene, shape, prim, b1, b2, p, ng);
+}
+
+/* ---- initial path sampling ------------------------------------------------------------------ */
+
+/* Where a path reconnects, as stored with it. */
+struct pt_rc_record {
+    uint32_t k;          /* 0 = none */
+    uint32_t prim;       /* scene-wide primitive of x_k (or of the light point; PT_ENV_PRIM) */
+    float b1, b2;
+    struct vec3 wk;      /* world direction leaving x_k (NEE to the environment: its direction) */
+    int lobe_prev, lobe_rc;
+    float rc_pdf;
+};
+
+static void pt_store(struct pt_sample *out, uint32_t seed, uint32_t d, bool nee, struct vec3 F,
+                     const struct pt_rc_record *rc, struct vec3 rad, float light_pdf)
+{
+    out->F[0] = F.x, out->F[1] = F.y, out->F[2] = F.z;
+    out->seed = seed;
+    out->head.bits = pt_bits(d, rc->k, nee, rc->lobe_prev, rc->lobe_rc);
+    out->rc_prim = rc->prim;
+    out->rc_b1 = rc->b1, out->rc_b2 = rc->b2;
+    surface_oct_encode(rc->wk, &out->wk_u, &out->wk_v);
+    out->rad[0] = rad.x, out->rad[1] = rad.y, out->rad[2] = rad.z;
+    out->rc_pdf = rc->rc_pdf;
+    out->light_pdf = light_pdf;
+}
+
+static struct pt_rc_record pt_rc_at(const struct pt_ctx *c, const struct pt_vertex *v, struct vec3 wk, int lobe_prev,
+                                    int lobe_rc, float rc_pdf, uint32_t k)
+{
+    return (struct pt_rc_record){.k = k, .prim = pt_prim_id(c->st, v->s.shape, v->s.prim), .b1 = v->b1, .b2 = v->b2,
+                                 .wk = wk, .lobe_prev = lobe_prev, .lobe_rc = lobe_rc, .rc_pdf = rc_pdf};
+}
+
+/* The path throughput up to a reconnection vertex x_k as a shift evaluates it: x_{k-1}'s factor
+ * f |cos| / p of lobe `lobe` taken along the segment between the two positions rather than along
+ * the sampled ray, whose origin was moved off the surface. At grazing angles the two differ by
+ * several per cent; with this the initial sample and its shift to its own pixel compute one
+ * integrand (seed 001 eq. 4 is written on vertex positions). `beta_before` is the throughput up to
+ * x_{k-2}; false (beta untouched) when the lobe gives nothing along the segment. */
+static bool pt_rc_beta(const struct pt_vertex *prev, int lobe, struct vec3 xk_p, struct vec3 beta_before,
+                       struct vec3 *beta)
+{
+    struct vec3 w = vec3_normalize(vec3_sub(xk_p, prev->s.p));
+    struct vec3 wi = frame_to_local(&prev->s.frame, w);
+    struct vec3 f;
+    float pdf;
+    if (!(vec3_dot(w, prev->s.ng) * wi.z > 0.0f) || !pt_lobe_at(prev->m, lobe, prev->wo, wi, &f, &pdf)) return false;
+    *beta = vec3_mul(beta_before, vec3_scale(f, fabsf(wi.z) / pdf));
+    return true;
+}
+
+/* Samples one path from the pixel's primary hit and resamples its candidates into `out`; light
+ * that reaches the pixel outside the reservoir — emission seen directly (the environment for an
+ * escaped primary ray), and direct light when it is not unified — goes to *direct. */
+static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct pt_sample *out, struct vec3 *direct)
+{
+    const struct pt_ctx *c = t->c;
+    const struct restir_pt_params *p = c->p;
+    const struct scene *scene = c->scene[RESTIR_CURRENT];
+    struct ray_counters *rays = &t->cnt->rays;
+    memset(out, 0, sizeof *out);
+    *direct = scene->env_radiance;
+    struct pt_thread th = *t;
+    struct pt_vertex v;
+    if (!pt_primary(c, (struct restir_domain){pixel, RESTIR_CURRENT}, &v, &th.footprint)) return;
+    *direct = light_sampler_emitted(v.m, vec3_dot(vec3_sub(c->eye[RESTIR_CURRENT], v.s.p), v.s.ng));
+
+    const uint32_t seed = pt_path_seed(c->seed, c->frame, pixel);
+    struct rng sel = rng_make(c->seed, c->frame, pixel, PT_SELECT_STREAM);
+    struct reservoir_stream rs;
+    reservoir_stream_begin(&rs);
+    struct vec3 beta = vec3_splat(1.0f);      /* prod f |cos| / p over x_1 .. x_{j-1} */
+    struct vec3 beta_suf = vec3_splat(1.0f);  /* the same over the vertices after x_k */
+    struct pt_vertex prev = v;                /* x_{j-1} (j >= 2) */
+    struct vec3 beta_prev = beta;             /* prod over x_1 .. x_{j-2} */
+    int prev_lobe = 0;                        /* the lobe sampled at x_{j-1} */
+    double src = 1.0;                         /* prod of Russian roulette survival probabilities */
+    float rr_scale = 1.0f;                    /* undoes refraction's radiance scaling for the
+                                                 roulette (reference_pt.c) */
+    struct pt_segment seg = {0};              /* enters x_j (j >= 2) */
+    struct pt_rc_record rc = {0};             /* the first connectable pair of the continuation */
+    const bool nee_on = c->nee_m > 0 && light_sampler_count(scene->lights) > 0;
+
+    for (uint32_t j = 1; j <= p->max_depth; j++) {
+        const uint32_t d = j + 1;  /* length of the paths that end after x_j */
+        const bool offer = p->unify_di || j >= 2;
+        /* The throughput up to x_j when x_j reconnects (pt_rc_beta; beta itself when the lobe gives
+         * nothing along the segment): NEE and the BSDF step may both want it, it is computed once. */
+        struct vec3 beta_rc = beta;
+        bool beta_rc_done = false;
+
+        /* NEE candidate: x_1 .. x_j -> light. */
+        if (nee_on && (material_flags(v.m) & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
+            struct rng nr = pt_stream(seed, j, PT_PURPOSE_NEE);
+            struct light_ris_sample ls = {0};
+            unsigned rejected = 0;
+            if (light_ris_sample(scene, &v.s, v.m, v.wo, c->nee_m, &nr, &ls, &rejected) &&
+                (ls.light.is_env ? pt_sees_env(scene, &v, ls.wi_world, rays)
+                                 : pt_visible_points(scene, v.s.p, v.s.ng, ls.light.p, ls.light.n, rays))) {
+                struct vec3 wi = frame_to_local(&v.s.frame, ls.wi_world);
+                float p1 = ls.pdf_light_w, p2 = material_pdf(v.m, v.wo, wi);
+                struct vec3 end = vec3_scale(vec3_mul(ls.f_cos, ls.Le), pt_balance((float)c->nee_m * p1, p2) / p1);
+                bool rough = pt_rough_nee(c, v.m, p2);
+                /* x_j reconnects when no earlier pair did and (x_{j-1}, x_j) is connectable. */
+                const bool rc_here = offer && rc.k == 0 && pt_connectable(&th, j, &seg, false, rough, p2);
+                if (rc_here && !beta_rc_done) {
+                    pt_rc_beta(&prev, prev_lobe, v.s.p, beta_prev, &beta_rc);
+                    beta_rc_done = true;
+                }
+                struct vec3 F = vec3_mul(rc_here ? beta_rc : beta, end);
+                double W_u = (double)ls.W * p1 / src;  /* seed 001 §5: W_ris p_light */
+                float target = vec3_luminance(F);
+                if (!offer) {
+                    *direct = vec3_add(*direct, vec3_scale(F, (float)W_u));
+                } else if (reservoir_stream_offer(&rs, target * W_u, target, 0.0f, rng_next_float(&sel))) {
+                    struct pt_rc_record r = rc;
+                    struct vec3 rad = vec3_mul(beta_suf, end);
+                    float light_pdf = 0.0f;
+                    if (rc_here) {
+                        /* x_j reconnects; the NEE direction leaves it (its pdf ignores w_o: B = 1). */
+                        r = pt_rc_at(c, &v, ls.wi_world, seg.lobe, 0, seg.pdf_lobe * seg.cos_end / seg.dist2, j);
+                        rad = ls.Le;
+                        light_pdf = p1;
+                    } else if (rc.k == 0) {
+                        /* The light point itself is stored: reconnected (k = d) or replayed (k = 0).
+                         * Its connectability is judged on the point rebuilt from its code, as a
+                         * shift sees it. */
+                        r = (struct pt_rc_record){.k = 0, .wk = ls.wi_world};
+                        if (ls.light.is_env) {
+                            r.prim = PT_ENV_PRIM;
+                            r.rc_pdf = ls.light.pdf_w;
+                        } else {
+                            r.prim = pt_prim_id(c->st, ls.light.shape, ls.light.prim);
+                            pt_light_code(scene, &ls.light, &r.b1, &r.b2);
+                            r.rc_pdf = ls.light.pdf_a;
+                            struct vec3 lp, lng;
+                            pt_light_point(scene, ls.light.shape, ls.light.prim, r.b1, r.b2, &lp, &lng);
+                            struct pt_segment lseg;
+                            pt_segment_geo(c, &v, -1, lp, lng, &lseg);
+                            if (pt_connectable(&th, d, &lseg, true, false, 0.0f)) r.k = d;
+                        }
+                    }
+                    pt_store(out, seed, d, true, F, &r, rad, light_pdf);
+                }
+            }
+            t->cnt->rejected += rejected;
+        }
+
+        /* BSDF sampling continues the path. */
+        struct pt_step stp;
+        if (!pt_bsdf_step(c, &v, seed, j, &stp)) break;
+        bool found_here = false;
+        if (rc.k == 0 && pt_connectable(&th, j, &seg, false, stp.rough, stp.pdf_marg)) {
+            rc = pt_rc_at(c, &v, stp.dir, seg.lobe, stp.bs.lobe, seg.pdf_lobe * seg.cos_end / seg.dist2 * stp.bs.pdf_w, j);
+            found_here = true;
+            if (!beta_rc_done) {
+                pt_rc_beta(&prev, prev_lobe, v.s.p, beta_prev, &beta_rc);
+                beta_rc_done = true;
+            }
+            beta = beta_rc;
+        }
+        const struct vec3 beta_in = beta;  /* prod over x_1 .. x_{j-1} */
+        beta = vec3_mul(beta, stp.factor);
+        if (rc.k && !found_here) beta_suf = vec3_mul(beta_suf, stp.factor);
+        if (stp.bs.flags & BSDF_TRANSMISSION) rr_scale /= material_radiance_scale(v.m, v.wo, stp.bs.wi);
+        if (p->rr && j >= p->rr_depth) {
+            /* Decoupled RR (seed 001 §6): survival changes the source pdf, never the integrand. */
+            struct rng rr = pt_stream(seed, j, PT_PURPOSE_RR);
+            float q = (float)(vec3_max_comp(beta) * rr_scale / src);
+            q = q < 0.95f ? q : 0.95f;
+            if (!(q > 0.0f) || rng_next_float(&rr) >= q) break;
+            src *= q;
+        }
+
+        const bool delta = (stp.bs.flags & BSDF_DELTA) != 0;
+        struct hit hit;
+        if (!pt_trace(scene, &v, stp.dir, &hit, rays)) {
+            if (!vec3_is_zero(scene->env_radiance) && offer) {
+                float lp = pt_env_pdf_w(scene);
+                struct vec3 end = vec3_scale(scene->env_radiance, pt_mis_bsdf(c, delta, stp.pdf_marg, lp));
+                struct vec3 F = vec3_mul(beta, end);
+                float target = vec3_luminance(F);
+                if (reservoir_stream_offer(&rs, target / src, target, 0.0f, rng_next_float(&sel))) {
+                    struct pt_rc_record r = rc;
+                    struct vec3 rad = found_here ? scene->env_radiance : vec3_mul(beta_suf, end);
+                    pt_store(out, seed, d, false, F, &r, rad, found_here ? lp : 0.0f);
+                }
+            } else if (!vec3_is_zero(scene->env_radiance)) {
+                float lp = pt_env_pdf_w(scene);
+                *direct = vec3_add(*direct, vec3_scale(vec3_mul(beta, scene->env_radiance),
+                                                       pt_mis_bsdf(c, delta, stp.pdf_marg, lp) / (float)src));
+            }
+            break;
+        }
+        struct pt_vertex nv;
+        pt_vertex_from_hit(scene, &v, stp.dir, &hit, &nv);
+        float dist2 = vec3_length2(vec3_sub(nv.s.p, v.s.p));
+        /* The segment's connectability numbers matter only until the reconnection pair is found. */
+        struct pt_segment nseg = {0};
+        if (rc.k == 0) pt_segment_geo(c, &v, stp.bs.lobe, nv.s.p, nv.s.ng, &nseg);
+
+        if (material_is_emissive(nv.m)) {
+            struct vec3 Le = light_sampler_emitted(nv.m, -vec3_dot(stp.dir, nv.s.ng));
+            if (!vec3_is_zero(Le)) {
+                float lp = pt_light_pdf_w(scene, nv.s.shape, nv.s.prim, dist2, vec3_dot(stp.dir, nv.s.ng));
+                struct vec3 end = vec3_scale(Le, pt_mis_bsdf(c, delta, stp.pdf_marg, lp));
+                struct vec3 beta_end = beta;
+                /* The emitter x_d itself reconnects: its segment's numbers come from the positions. */
+                const bool rc_end = offer && !found_here && rc.k == 0 && pt_connectable(&th, d, &nseg, true, false, 0.0f);
+                if (rc_end && pt_rc_beta(&v, stp.bs.lobe, nv.s.p, beta_in, &beta_end))
+                    end = vec3_scale(Le, pt_mis_bsdf(c, false, nseg.pdf_marg,
+                                                     pt_light_pdf_w(scene, nv.s.shape, nv.s.prim, nseg.dist2, nseg.cos_end)));
+                struct vec3 F = vec3_mul(beta_end, end);
+                float target = vec3_luminance(F);
+                if (!offer) {
+                    *direct = vec3_add(*direct, vec3_scale(F, (float)(1.0 / src)));
+                } else if (reservoir_stream_offer(&rs, target / src, target, 0.0f, rng_next_float(&sel))) {
+                    struct pt_rc_record r = rc;
+                    struct vec3 rad = vec3_mul(beta_suf, end);
+                    float light_pdf = 0.0f;
+                    if (found_here) {
+                        rad = Le;
+                        light_pdf = lp;
+                    } else if (rc_end) {
+                        r = pt_rc_at(c, &nv, stp.dir, stp.bs.lobe, 0, nseg.pdf_lobe * nseg.cos_end / nseg.dist2, d);
+                    }
+                    pt_store(out, seed, d, false, F, &r, rad, light_pdf);
+                }
+            }
+        }
+        prev = v;
+        prev_lobe = stp.bs.lobe;
+        beta_prev = beta_in;
+        v = nv;
+        seg = nseg;
+    }
+    t->cnt->rejected += rs.rejected;
+    struct reservoir r = reservoir_stream_finish(&rs);
+    out->head.W = r.W;
+    out->head.M = 1;  /* one path: all its candidates together have confidence 1 */
+}
+
+/* ---- the hybrid shift ----------------------------------------------------------------------- */
+
+/* Re-traces the suffix of a BSDF-sampled path from x_k along w_k by replay in `scene` (a shift
+ * between frames whose scenes differ): the cached radiance of x_k's suffix, and for k = d-1 the
+ * light pdf of the end. False when the replayed suffix does not end on an emitter at x_d. */
+static bool pt_suffix(const struct pt_thread *t, const struct scene *scene, const struct pt_vertex *xk, struct vec3 wk,
+                      uint32_t seed, uint32_t k, uint32_t d, struct vec3 *rad, float *light_pdf)
+{
+    const struct pt_ctx *c = t->c;
+    struct pt_vertex v = *xk;
+    struct vec3 dir = wk, beta = vec3_splat(1.0f);
+    bool delta = false;
+    float pdf_marg = 0.0f;
+    for (uint32_t j = k;; j++) {
+        struct hit hit;
+        bool found = pt_trace(scene, &v, dir, &hit, &t->cnt->rays);
+        if (j + 1 == d) {
+            struct vec3 Le;
+            float lp;
+            if (!found) {
+                Le = scene->env_radiance;
+                lp = pt_env_pdf_w(scene);
+            } else {
+                struct pt_vertex nv;
+                pt_vertex_from_hit(scene, &v, dir, &hit, &nv);
+                float dist2 = vec3_length2(vec3_sub(nv.s.p, v.s.p));
+                float cosl = vec3_dot(dir, nv.s.ng);
+                Le = light_sampler_emitted(nv.m, -cosl);
+                lp = pt_light_pdf_w(scene, nv.s.shape, nv.s.prim, dist2, cosl);
+            }
+            if (vec3_is_zero(Le)) return false;
+            if (j == k) {
+                *rad = Le;
+                *light_pdf = lp;
+            } else {
+                *rad = vec3_mul(beta, vec3_scale(Le, pt_mis_bsdf(c, delta, pdf_marg, lp)));
+                *light_pdf = 0.0f;
+            }
+            return true;
+        }
+        if (!found) return false;
+        struct pt_vertex nv;
+        pt_vertex_from_hit(scene, &v, dir, &hit, &nv);
+        struct pt_step stp;
+        if (!pt_bsdf_step(c, &nv, seed, j + 1, &stp)) return false;
+        beta = vec3_mul(beta, stp.factor);
+        delta = (stp.bs.flags & BSDF_DELTA) != 0;
+        pdf_marg = stp.pdf_marg;
+        dir = stp.dir;
+        v = nv;
+    }
+}
+
+static void pt_shift_impl(const struct pt_ctx *c, struct restir_counters *cnt, const struct pt_sample *x,
+                          struct restir_domain from, struct restir_domain to, struct pt_sample *y, float *target,
+                          float *jacobian)
+{
+    *target = 0.0f;
+    *jacobian = 0.0f;
+    *y = *x;
+    const uint32_t d = pt_length(x), k = pt_rc(x);
+    const bool nee = pt_is_nee(x);
+    const struct scene *scene = c->scene[to.frame], *scene_from = c->scene[from.frame];
+    const bool retrace = scene != scene_from;
+    /* A shift between scenes re-traces a cached suffix; an NEE end inside it has no stored point
+     * (in both directions alike, so the mapping stays a bijection on what it accepts). */
+    if (retrace && nee && k > 0 && k < d) return;
+    struct ray_counters *rays = &cnt->rays;
+    struct pt_thread t = {.c = c, .cnt = cnt};
+    struct pt_vertex v;
+    if (!pt_primary(c, to, &v, &t.footprint)) return;
+    const uint32_t seed = x->seed;
+    const uint32_t last = k ? k - 1 : d - 1;  /* the last vertex random replay reaches */
+    struct vec3 beta = vec3_splat(1.0f);
+    struct pt_segment seg = {0};
+
+    /* Random replay of y_1 .. y_last: none of its pairs may be connectable (invertibility). */
+    for (uint32_t j = 1; j < last; j++) {
+        struct pt_step stp;
+        if (!pt_bsdf_step(c, &v, seed, j, &stp)) return;
+        if (pt_connectable(&t, j, &seg, false, stp.rough, stp.pdf_marg)) return;
+        beta = vec3_mul(beta, stp.factor);
+        struct hit hit;
+        if (!pt_trace(scene, &v, stp.dir, &hit, rays)) return;
+        struct pt_vertex nv;
+        pt_vertex_from_hit(scene, &v, stp.dir, &hit, &nv);
+        pt_segment_geo(c, &v, stp.bs.lobe, nv.s.p, nv.s.ng, &seg);
+        v = nv;
+    }
+
+    struct vec3 F;
+    float J = 1.0f;
+    if (k == 0 && !nee) {
+        /* Pure replay to an emitter. */
+        struct pt_step stp;
+        if (!pt_bsdf_step(c, &v, seed, last, &stp)) return;
+        if (pt_connectable(&t, last, &seg, false, stp.rough, stp.pdf_marg)) return;
+        const bool delta = (stp.bs.flags & BSDF_DELTA) != 0;
+        struct hit hit;
+        struct vec3 end;
+        if (!pt_trace(scene, &v, stp.dir, &hit, rays)) {
+            end = vec3_scale(scene->env_radiance, pt_mis_bsdf(c, delta, stp.pdf_marg, pt_env_pdf_w(scene)));
+        } else {
+            struct pt_vertex nv;
+            pt_vertex_from_hit(scene, &v, stp.dir, &hit, &nv);
+            float dist2 = vec3_length2(vec3_sub(nv.s.p, v.s.p));
+            struct pt_segment nseg;
+            pt_segment_geo(c, &v, stp.bs.lobe, nv.s.p, nv.s.ng, &nseg);
+            if (pt_connectable(&t, d, &nseg, true, false, 0.0f)) return;
+            struct vec3 Le = light_sampler_emitted(nv.m, -vec3_dot(stp.dir, nv.s.ng));
+            float lp = pt_light_pdf_w(scene, nv.s.shape, nv.s.prim, dist2, vec3_dot(stp.dir, nv.s.ng));
+            end = vec3_scale(Le, pt_mis_bsdf(c, delta, stp.pdf_marg, lp));
+        }
+        F = vec3_mul(beta, vec3_mul(stp.factor, end));
+    } else if (nee && (k == 0 || k == d)) {
+        /* NEE from y_{d-1} to the stored light point: reconnection (k = d) or, with k = 0, the
+         * replay of the light sample's coordinates (the same point on the same emitter). */
+        if (!(material_flags(v.m) & (BSDF_DIFFUSE | BSDF_GLOSSY)) || c->nee_m == 0) return;
+        struct vec3 wi_world, Le, light_p = {0}, light_ng = {0};
+        float dist, p1, pdf_a = 0.0f;
+        struct pt_segment lseg = {0};
+        if (x->rc_prim == PT_ENV_PRIM) {
+            wi_world = surface_oct_decode(x->wk_u, x->wk_v);
+            dist = INFINITY;
+            p1 = pt_env_pdf_w(scene);
+            Le = scene->env_radiance;
+            J = p1 / x->rc_pdf;
+            y->rc_pdf = p1;
+        } else {
+            uint32_t shape, prim;
+            pt_prim_decode(c->st, x->rc_prim, &shape, &prim);
+            pt_light_point(scene, shape, prim, x->rc_b1, x->rc_b2, &light_p, &light_ng);
+            struct vec3 dv = vec3_sub(light_p, v.s.p);
+            float d2 = vec3_length2(dv);
+            if (!(d2 > 0.0f)) return;
+            dist = sqrtf(d2);
+            wi_world = vec3_scale(dv, 1.0f / dist);
+            float cosl = vec3_dot(wi_world, light_ng);
+            Le = light_sampler_emitted(&scene->materials[scene->shapes[shape].material], -cosl);
+            pdf_a = light_sampler_pdf_a(scene->lights, shape, prim);
+            p1 = sampling_area_to_solid_angle(pdf_a, d2, cosl);
+            lseg.dist2 = d2;
+            lseg.cos_end = fabsf(cosl);
+            J = pdf_a * surface_area_ratio(scene_from, scene, shape, prim, x->rc_b1, x->rc_b2) / x->rc_pdf;
+            y->rc_pdf = pdf_a;
+        }
+        if (vec3_is_zero(Le) || !(p1 > 0.0f)) return;
+        struct vec3 wi = frame_to_local(&v.s.frame, wi_world);
+        if (!(vec3_dot(wi_world, v.s.ng) * wi.z > 0.0f)) return;
+        float p2 = material_pdf(v.m, v.wo, wi);
+        bool rough = pt_rough_nee(c, v.m, p2);
+        if (pt_connectable(&t, d - 1, &seg, false, rough, p2)) return;
+        lseg.pdf_marg = p2;
+        lseg.rough = rough;
+        bool end_connectable = x->rc_prim != PT_ENV_PRIM && pt_connectable(&t, d, &lseg, true, false, 0.0f);
+        if (end_connectable != (k == d)) return;
+        if (x->rc_prim == PT_ENV_PRIM ? !pt_sees_env(scene, &v, wi_world, rays)
+                                      : !pt_visible_points(scene, v.s.p, v.s.ng, light_p, light_ng, rays))
+            return;
+        struct vec3 f_cos = vec3_scale(material_eval(v.m, v.wo, wi, TRANSPORT_RADIANCE), fabsf(wi.z));
+        F = vec3_mul(beta, vec3_scale(vec3_mul(f_cos, Le), pt_balance((float)c->nee_m * p1, p2) / p1));
+    } else {
+        /* Reconnection y_{k-1} -> x_k through the stored lobe l_{k-1}. */
+        uint32_t shape, prim;
+        pt_prim_decode(c->st, x->rc_prim, &shape, &prim);
+        struct pt_vertex xk;
+        surface_at(scene, shape, prim, x->rc_b1, x->rc_b2, &xk.s);
+        xk.m = &scene->materials[xk.s.material];
+        xk.b1 = x->rc_b1, xk.b2 = x->rc_b2;
+        struct vec3 dv = vec3_sub(xk.s.p, v.s.p);
+        float d2 = vec3_length2(dv);
+        if (!(d2 > 0.0f)) return;
+        float dist = sqrtf(d2);
+        struct vec3 w1 = vec3_scale(dv, 1.0f / dist);
+        struct vec3 wi = frame_to_local(&v.s.frame, w1);
+        if (!(vec3_dot(w1, v.s.ng) * wi.z > 0.0f)) return;
+        const int l1 = pt_lobe_prev(x);
+        struct vec3 f1;
+        float p_l1;
+        if (!pt_lobe_at(v.m, l1, v.wo, wi, &f1, &p_l1)) return;
+        float marg1 = pt_marginal(v.m, p_l1, v.wo, wi);
+        bool rough1 = pt_rough_lobe(c, v.m, l1, marg1);
+        if (pt_connectable(&t, k - 1, &seg, false, rough1, marg1)) return;
+        struct pt_segment kseg = {.pdf_lobe = p_l1, .pdf_marg = marg1, .rough = rough1, .lobe = l1, .dist2 = d2,
+                                  .cos_end = fabsf(vec3_dot(w1, xk.s.ng)), .cos_start = fabsf(vec3_dot(w1, v.s.ng))};
+        const float A = p_l1 * kseg.cos_end / d2;   /* area density of x_k from y_{k-1} */
+        struct vec3 first = vec3_scale(f1, fabsf(wi.z) / p_l1);
+        struct vec3 end;
+        float B = 1.0f;
+        if (k == d) {
+            /* x_k is the emitter a BSDF sample hit. */
+            if (!pt_connectable(&t, k, &kseg, true, false, 0.0f)) return;
+            struct vec3 Le = light_sampler_emitted(xk.m, -vec3_dot(w1, xk.s.ng));
+            if (vec3_is_zero(Le)) return;
+            float lp = pt_light_pdf_w(scene, shape, prim, d2, kseg.cos_end);
+            end = vec3_scale(Le, pt_mis_bsdf(c, false, marg1, lp));
+        } else {
+            /* x_k scatters towards w_k with new w_o. */
+            xk.wo = frame_to_local(&xk.s.frame, vec3_neg(w1));
+            struct vec3 wk_world = surface_oct_decode(x->wk_u, x->wk_v);
+            struct vec3 wk = frame_to_local(&xk.s.frame, wk_world);
+            if (!(vec3_dot(wk_world, xk.s.ng) * wk.z > 0.0f)) return;
+            struct vec3 rad = vec3_make(x->rad[0], x->rad[1], x->rad[2]);
+            float light_pdf = x->light_pdf;
+            if (nee && k == d - 1) {
+                float p2 = material_pdf(xk.m, xk.wo, wk);
+                if (!pt_connectable(&t, k, &kseg, false, pt_rough_nee(c, xk.m, p2), p2)) return;
+                struct vec3 f = material_eval(xk.m, xk.wo, wk, TRANSPORT_RADIANCE);
+                end = vec3_scale(vec3_mul(f, rad), fabsf(wk.z) * pt_balance((float)c->nee_m * light_pdf, p2) / light_pdf);
+            } else {
+                const int lk = pt_lobe_rc(x);
+                struct vec3 fk;
+                float p_lk;
+                if (!pt_lobe_at(xk.m, lk, xk.wo, wk, &fk, &p_lk)) return;
+                float marg_k = pt_marginal(xk.m, p_lk, xk.wo, wk);
+                if (!pt_connectable(&t, k, &kseg, false, pt_rough_lobe(c, xk.m, lk, marg_k), marg_k)) return;
+                if (retrace && !pt_suffix(&t, scene, &xk, wk_world, seed, k, d, &rad, &light_pdf)) return;
+                struct vec3 fac = vec3_scale(fk, fabsf(wk.z) / p_lk);
+                end = vec3_mul(fac, k == d - 1 ? vec3_scale(rad, pt_mis_bsdf(c, false, marg_k, light_pdf)) : rad);
+                B = p_lk;
+            }
+            y->rad[0] = rad.x, y->rad[1] = rad.y, y->rad[2] = rad.z;
+            y->light_pdf = light_pdf;
+        }
+        if (!pt_visible_points(scene, v.s.p, v.s.ng, xk.s.p, xk.s.ng, rays)) return;
+        F = vec3_mul(beta, vec3_mul(first, end));
+        y->rc_pdf = A * B;
+        J = A * B * surface_area_ratio(scene_from, scene, shape, prim, x->rc_b1, x->rc_b2) / x->rc_pdf;
+    }
+
+    float tgt = vec3_luminance(F);
+    if (!(tgt > 0.0f) || !isfinite(tgt) || !(J > 0.0f) || !isfinite(J)) return;
+    y->F[0] = F.x, y->F[1] = F.y, y->F[2] = F.z;
+    *target = tgt;
+    *jacobian = J;
+}
+
+static struct vec3 pt_value(const void *ctx, const void *elem)
+{
+    (void)ctx;
+    const struct pt_sample *s = elem;
+    return vec3_make(s->F[0], s->F[1], s->F[2]);
+}
+
+static float pt_target(const void *ctx, const void *elem)
+{
+    (void)ctx;
+    const struct pt_sample *s = elem;
+    return vec3_luminance(vec3_make(s->F[0], s->F[1], s->F[2]));
+}
+
+static void pt_shift(const void *ctx, const void *src, struct restir_domain from, struct restir_domain to, void *dst,
+                     float *target, float *jacobian, struct restir_counters *cnt)
+{
+    struct pt_sample y;
+    pt_shift_impl(ctx, cnt, src, from, to, dst ? (struct pt_sample *)dst : &y, target, jacobian);
+}
+
+/* From the G-buffer surface, which a shift into the domain reads next. */
+static bool pt_domain_valid(const void *ctx, struct restir_domain d)
+{
+    const struct pt_ctx *c = ctx;
+    return c->gbuf[d.frame]->surf[d.pixel].material != GBUFFER_NO_HIT;
+}
+
+const struct restir_ops restir_pt_ops = {
+    .stride = sizeof(struct pt_sample),
+    .target = pt_target,
+    .shift = pt_shift,
+    .domain_valid = pt_domain_valid,
+    .value = pt_value,
+};
+
+void restir_pt_info(const void *elem, struct restir_pt_info *out)
+{
+    const struct pt_sample *s = elem;
+    out->length = pt_length(s);
+    out->rc = pt_rc(s);
+    out->nee = pt_is_nee(s);
+    out->F = vec3_make(s->F[0], s->F[1], s->F[2]);
+}
+
+/* ---- the frame ------------------------------------------------------------------------------ */
+
+static bool pt_uses_pairs(const struct restir_pt_params *p)
+{
+    return restir_pairs_needed(p->paired_spatial, p->spatial_neighbors);
+}
+
+bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, const struct restir_pt_params *params,
+                    uint32_t width, uint32_t height, struct err *err)
+{
+    memset(st, 0, sizeof *st);
+    if (scene_has_translucent(scene))
+        return err_set(err, ERR_INVALID, "/method",
+                       "restir_pt does not sample subsurface scattering (the scene has translucent materials); use pt "
+                       "or restir_sss");
+    st->width = width;
+    st->height = height;
+    st->nee_by_scene = restir_pt_nee_by_scene(scene);
+    st->shape_count = scene->shape_count;
+    st->prim_first = malloc(((size_t)scene->shape_count + 1) * sizeof *st->prim_first);
+    if (!st->prim_first) return err_set(err, ERR_NOMEM, NULL, "out of memory for a restir_pt session");
+    uint64_t total = 0;
+    for (uint32_t i = 0; i < scene->shape_count; i++) {
+        st->prim_first[i] = (uint32_t)total;
+        total += scene->shapes[i].kind == SHAPE_MESH ? scene->shapes[i].triangle_count : 1;
+    }
+    st->prim_first[scene->shape_count] = (uint32_t)total;
+    if (total >= PT_ENV_PRIM) {
+        restir_pt_destroy(st);
+        return err_set(err, ERR_LIMIT, NULL, "the scene has %llu primitives; restir_pt stores at most 2^32 - 1",
+                       (unsigned long long)total);
+    }
+    size_t n = (size_t)width * height;
+    for (int i = 0; i < 2; i++) {
+        if (!gbuffer_init(&st->gbuf[i], width, height, err) || !gbuffer_keep_surfaces(&st->gbuf[i], err)) {
+            restir_pt_destroy(st);
+            return false;
+        }
+        st->res[i] = restir_buffer_alloc(n, sizeof(struct pt_sample));
+        if (!st->res[i]) {
+            restir_pt_destroy(st);
+            return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
+        }
+    }
+    if (pt_uses_pairs(params)) {
+        st->pair_scratch = restir_buffer_alloc(1, restir_pair_scratch_bytes(width, height));
+        if (!st->pair_scratch) {
+            restir_pt_destroy(st);
+            return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u spatial pairs", width, height);
+        }
+    }
+    return true;
+}
+
+void restir_pt_destroy(struct restir_pt_state *st)
+{
+    for (int i = 0; i < 2; i++) {
+        gbuffer_destroy(&st->gbuf[i]);
+        free(st->res[i]);
+    }
+    free(st->prim_first);
+    free(st->pair_scratch);
+    memset(st, 0, sizeof *st);
+}
+
+void restir_pt_reset(struct restir_pt_state *st)
+{
+    st->has_history = false;
+}
+
+size_t restir_pt_reservoir_bytes(const struct restir_pt_state *st)
+{
+    return 2 * (size_t)st->width * st->height * sizeof(struct pt_sample);
+}
+
+size_t restir_pt_gbuffer_bytes(const struct restir_pt_state *st)
+{
+    return gbuffer_bytes(&st->gbuf[0]) + gbuffer_bytes(&st->gbuf[1]);
+}
+
+size_t restir_pt_hit_bytes(const struct restir_pt_state *st)
+{
+    return gbuffer_surface_bytes(&st->gbuf[0]) + gbuffer_surface_bytes(&st->gbuf[1]);
+}
+
+size_t restir_pt_pair_bytes(const struct restir_pt_state *st)
+{
+    return st->pair_scratch ? restir_pair_scratch_bytes(st->width, st->height) : 0;
+}
+
+uint64_t restir_pt_bytes_planned(const struct restir_pt_params *params, uint32_t width, uint32_t height,
+                                 uint32_t shape_count)
+{
+    uint64_t pixels = (uint64_t)width * height;
+    return 2 * pixels * (sizeof(struct pt_sample) + sizeof(struct gbuffer_pixel) + sizeof(struct gbuffer_surface)) +
+           ((uint64_t)shape_count + 1) * sizeof(uint32_t) +
+           (pt_uses_pairs(params) ? restir_pair_scratch_bytes(width, height) : 0);
+}
+
+struct pt_pass {
+    const struct pt_ctx *c;
+    struct restir_pt_state *st;
+    struct image *out;
+    bool estimated;    /* the last spatial pass added its expected contribution to out */
+    struct restir_counters counters[RESTIR_MAX_WORKERS];
+    uint64_t nonfinite[RESTIR_MAX_WORKERS];
+};
+
+/* Initial pass: one path per pixel into the working buffer; the image gets what the reservoir
+ * does not carry. */
+static void pt_initial_rows(void *ctx, uint32_t job, unsigned worker)
+{
+    struct pt_pass *pp = ctx;
+    const struct pt_ctx *c = pp->c;
+    struct restir_counters cnt = {0};  /* job-local: see restir_counters_add */
+    struct pt_thread t = {.c = c, .cnt = &cnt};
+    uint32_t w = pp->st->width, h = pp->st->height;
+    uint32_t y1 = (job + 1) * PT_ROWS_PER_JOB < h ? (job + 1) * PT_ROWS_PER_JOB : h;
+    struct pt_sample *res = (struct pt_sample *)pp->st->res[0];
+    for (uint32_t y = job * PT_ROWS_PER_JOB; y < y1; y++) {
+        for (uint32_t x = 0; x < w; x++) {
+            uint32_t pixel = y * w + x;
+            struct vec3 direct;
+            pt_initial_pixel(&t, pixel, &res[pixel], &direct);
+            if (pp->out) pp->out->pixels[pixel] = direct;
+        }
+    }
+    restir_counters_add(&pp->counters[worker], &cnt);
+}
+
+/* Shade pass: F(Y) W of the final reservoir added to the image. */
+static void pt_shade_rows(void *ctx, uint32_t job, unsigned worker)
+{
+    struct pt_pass *pp = ctx;
+    uint32_t w = pp->st->width, h = pp->st->height;
+    uint32_t y1 = (job + 1) * PT_ROWS_PER_JOB < h ? (job + 1) * PT_ROWS_PER_JOB : h;
+    const struct pt_sample *res = (const struct pt_sample *)pp->st->res[1];
+    for (uint32_t y = job * PT_ROWS_PER_JOB; y < y1; y++) {
+        for (uint32_t x = 0; x < w; x++) {
+            uint32_t pixel = y * w + x;
+            const struct pt_sample *s = &res[pixel];
+            struct vec3 L = pp->out->pixels[pixel];
+            /* Unless the last spatial pass already added its expected contribution. */
+            if (!pp->estimated && s->head.W > 0.0f)
+                L = vec3_add(L, vec3_scale(vec3_make(s->F[0], s->F[1], s->F[2]), s->head.W));
+            if (!vec3_is_finite(L)) {
+                pp->nonfinite[worker]++;
+                L = vec3_splat(0.0f);
+            }
+            pp->out->pixels[pixel] = L;
+        }
+    }
+}
+
+void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *params, const struct restir_pt_frame *f,
+                    void *ctx)
+{
+    struct pt_ctx *c = ctx;
+    memset(c, 0, sizeof *c);
+    c->p = params;
+    c->st = st;
+    c->scene[RESTIR_CURRENT] = f->scene;
+    c->scene[RESTIR_PREVIOUS] = f->prev_scene ? f->prev_scene : f->scene;
+    c->eye[RESTIR_CURRENT] = f->camera->position;
+    c->eye[RESTIR_PREVIOUS] = f->prev_camera ? f->prev_camera->position : f->camera->position;
+    c->gbuf[RESTIR_CURRENT] = &st->gbuf[st->cur];
+    c->gbuf[RESTIR_PREVIOUS] = &st->gbuf[st->cur ^ 1u];
+    c->seed = f->seed;
+    c->frame = f->frame;
+    c->nee_m = params->nee_candidates == RESTIR_PT_NEE_BY_SCENE ? st->nee_by_scene : params->nee_candidates;
+    struct vec3 ext = vec3_sub(f->scene->bounds_max, f->scene->bounds_min);
+    float radius = 0.5f * vec3_length(ext);
+    c->near_dist2 = (params->near_distance * radius) * (params->near_distance * radius);
+    c->pdf_max = 1.0f / sqrtf(params->roughness_min);
+}
+
+static bool pt_run(struct pt_pass *pp, unsigned threads, parallel_job_fn *fn, struct err *err)
+{
+    uint32_t jobs = (pp->st->height + PT_ROWS_PER_JOB - 1) / PT_ROWS_PER_JOB;
+    return parallel_run(threads, jobs, fn, pp, NULL, NULL, err);
+}
+
+/* G-buffer and initial pass; the context is bound into `c`. */
+static bool pt_begin(struct restir_pt_state *st, const struct restir_pt_params *params, const struct restir_pt_frame *f,
+                     struct pt_ctx *c, struct pt_pass *pp, struct image *out, unsigned threads,
+                     struct restir_pt_stats *stats, struct err *err)
+{
+    if (!restir_pt_params_valid(params, err)) return false;
+    if (f->scene->shape_count != st->shape_count)
+        return err_set(err, ERR_INVALID, NULL, "the scene has %u shapes, the session %u", f->scene->shape_count,
+                       st->shape_count);
+    if (pt_uses_pairs(params) && !st->pair_scratch)
+        return err_set(err, ERR_INVALID, "/params/paired_spatial", "the session was made without paired spatial reuse");
+    struct timespec t0;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,
+                               .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame, .threads = threads};
+    uint64_t grays = 0;
+    if (!restir_gbuffer_next(st->gbuf, &st->cur, &st->has_history, gf, &grays, err)) return false;
+    stats->gbuffer_ms = parallel_lap_ms(&t0);
+    stats->rays_intersect += grays;
+
+    restir_pt_bind(st, params, f, c);
+    memset(pp, 0, sizeof *pp);
+    pp->c = c;
+    pp->st = st;
+    pp->out = out;
+    if (!pt_run(pp, threads, pt_initial_rows, err)) return false;
+    stats->initial_ms = parallel_lap_ms(&t0);
+    return true;
+}
+
+static void pt_add_counters(struct restir_pt_stats *stats, const struct restir_counters *c)
+{
+    stats->rays_intersect += c->rays.intersect;
+    stats->rays_occluded += c->rays.occluded;
+    stats->shifts += c->shifts;
+    stats->shift_failures += c->shift_failures;
+    stats->rejected += c->rejected;
+}
+
+bool restir_pt_initial_only(struct restir_pt_state *st, const struct restir_pt_params *params,
+                            const struct restir_pt_frame *f, struct err *err)
+{
+    struct pt_ctx c;
+    struct pt_pass *pp = malloc(sizeof *pp);
+    if (!pp) return err_set(err, ERR_NOMEM, NULL, "out of memory");
+    struct restir_pt_stats stats = {0};
+    const unsigned threads = parallel_threads(f->threads, RESTIR_MAX_WORKERS);
+    bool ok = pt_begin(st, params, f, &c, pp, NULL, threads, &stats, err);
+    free(pp);
+    return ok;
+}
+
+bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params *params,
+                      const struct restir_pt_frame *f, struct image *out, struct restir_pt_stats *stats,
+                      struct err *err)
+{
+    if (out->width != st->width || out->height != st->height)
+        return err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the session %ux%u", out->width, out->height,
+                       st->width, st->height);
+    struct restir_pt_stats local;
+    if (!stats) stats = &local;
+    memset(stats, 0, sizeof *stats);
+    const unsigned threads = parallel_threads(f->threads, RESTIR_MAX_WORKERS);
+    /* On the stack (~50 KiB of per-worker counters): a frame allocates nothing. */
+    struct pt_ctx c;
+    struct pt_pass pp;
+    const bool history = st->has_history && f->prev_scene && params->temporal;
+    if (!pt_begin(st, params, f, &c, &pp, out, threads, stats, err)) return false;
+    for (unsigned i = 0; i < threads; i++) pt_add_counters(stats, &pp.counters[i]);
+
+    struct timespec t0;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    struct restir_reuse r = {.ops = &restir_pt_ops, .ctx = &c, .width = st->width, .height = st->height,
+                             .seed = f->seed, .frame = f->frame, .threads = threads,
+                             .gbuf = &st->gbuf[st->cur], .history = history ? st->res[1] : NULL,
+                             .temporal_cap = params->temporal_cap, .neighbors = params->spatial_neighbors,
+                             .radius = params->spatial_radius, .paired = params->paired_spatial,
+                             .pair_scratch = st->pair_scratch};
+    struct restir_counters rc = {0};
+    if (!restir_temporal_pass(&r, st->res[0], &rc, err)) return false;
+    stats->temporal_ms = parallel_lap_ms(&t0);
+
+    /* Spatial rounds ping-pong between the two buffers and end in res[1], the history. */
+    if (params->spatial_neighbors > 0) {
+        for (uint32_t round = 0; round < params->spatial_rounds; round++) {
+            r.frame = f->frame * 8u + round;  /* a distinct neighbour stream per round */
+            pp.estimated = params->expected_shading && round + 1 == params->spatial_rounds;
+            r.estimate = pp.estimated ? out->pixels : NULL;  /* adds to the light outside the reservoir */
+            if (!restir_spatial_pass(&r, st->res[0], st->res[1], &rc, err)) return false;
+            if (round + 1 < params->spatial_rounds) {
+                uint8_t *tmp = st->res[0];
+                st->res[0] = st->res[1];
+                st->res[1] = tmp;
+            }
+        }
+    } else {
+        uint8_t *tmp = st->res[0];
+        st->res[0] = st->res[1];
+        st->res[1] = tmp;
+    }
+    stats->spatial_ms = parallel_lap_ms(&t0);
+    pt_add_counters(stats, &rc);
+
+    memset(pp.nonfinite, 0, sizeof pp.nonfinite);
+    if (!pt_run(&pp, threads, pt_shade_rows, err)) return false;
+    for (unsigned i = 0; i < threads; i++) stats->nonfinite += pp.nonfinite[i];
+    stats->shade_ms = parallel_lap_ms(&t0);
+    st->has_history = true;
+    return true;
+}

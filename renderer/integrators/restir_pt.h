@@ -1,0 +1,133 @@
+/* restir_pt.h — method `restir_pt`: ReSTIR path tracing with the Enhanced improvements.
+ * Each pixel keeps one resampled path (from its G-buffer primary hit on) in a 64-byte reservoir;
+ * a frame runs G-buffer -> initial path sampling -> temporal reuse -> spatial reuse -> shade.
+ * Paths live in lobe-indexed primary sample space (PSS) and move between pixels and frames by the
+ * hybrid shift: random replay until the first two consecutive connectable vertices, then
+ * reconnection to the base path's vertex x_k (Jacobian: seed 001 eq. 4).
+ * Options (each a session parameter, defaults as seed 001): dual ray-footprint threshold (eq. 5,
+ * c = 0.02) instead of a near-field distance; PDF-based connectability (eq. 26) instead of lobe
+ * roughness; Russian roulette that changes only the initial source pdf (§6); RIS-based NEE with
+ * M candidates and the M-sample MIS weight (§5); direct light in the same reservoir as indirect
+ * (DI/GI unification, §7).
+ * The state is allocated once per session; a steady-state frame allocates nothing.
+ * Refs: seed 001 (ReSTIR PT Enhanced) §1–8; Lin et al. 2022 (ReSTIR PT, GRIS); design METHODS.md §0–1. */
+#ifndef RESTIRD_RESTIR_PT_H
+#define RESTIRD_RESTIR_PT_H
+
+#include <stdint.h>
+
+#include "reuse/gbuffer.h"
+#include "image/image.h"
+#include "reuse/restir.h"
+#include "scene/scene.h"
+
+struct restir_pt_params {
+    uint32_t max_depth;          /* as `pt`: scattering events before the path stops (64) */
+    uint32_t rr_depth;           /* Russian roulette from this vertex on (1) */
+    bool rr;                     /* Russian roulette on initial paths (decoupled from PSS) */
+    uint32_t nee_candidates;     /* RIS NEE candidates; 1 = plain NEE, 0 = no NEE
+                                    (RESTIR_PT_NEE_BY_SCENE: restir_pt_nee_by_scene) */
+    bool unify_di;               /* direct light resampled with indirect (true) */
+    bool temporal;               /* temporal reuse (true) */
+    uint32_t temporal_cap;       /* previous M capped at this multiple of the current M (20) */
+    uint32_t spatial_neighbors;  /* per round (3); 0 = no spatial reuse */
+    float spatial_radius;        /* pixels (20) */
+    uint32_t spatial_rounds;     /* (1) */
+    bool paired_spatial;         /* neighbours paired so a pair's shifts serve both (true; restir.h) */
+    bool expected_shading;       /* shade with the last spatial pass's expected contribution over
+                                    its selection instead of the selected sample's F W: colour
+                                    noise reduction, seed 001 Fig. 5 (true; restir.h) */
+    bool footprint;              /* dual footprint threshold (eq. 5) vs near-field distance */
+    float footprint_c;           /* c of eq. 5 (0.02) */
+    float near_distance;         /* without footprint: minimum segment length, fraction of the
+                                    scene's bounding radius (0.03) */
+    bool pdf_connect;            /* PDF-based connectability (eq. 26) vs lobe roughness */
+    float roughness_min;         /* alpha_min of both tests (0.2) */
+};
+
+/* nee_candidates of the defaults: chosen from the session's scene at restir_pt_init. */
+#define RESTIR_PT_NEE_BY_SCENE UINT32_MAX
+
+struct restir_pt_params restir_pt_defaults(void);
+/* The RIS NEE candidates a scene gets by default: 4 with two or more emitters (emissive
+ * shapes; a lit environment counts as one), 1 (plain NEE) with a single one. */
+uint32_t restir_pt_nee_by_scene(const struct scene *scene);
+/* ERR_INVALID naming the parameter (where = "/params/<name>") when out of range. */
+bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err);
+
+/* Frame statistics: per-pass times as seed 001 Table 1, and the reuse counters. */
+struct restir_pt_stats {
+    double gbuffer_ms, initial_ms, temporal_ms, spatial_ms, shade_ms;
+    uint64_t rays_intersect, rays_occluded;   /* G-buffer included */
+    uint64_t shifts, shift_failures, rejected;
+    uint64_t nonfinite;   /* pixels whose shaded value was not finite (written as 0) */
+};
+
+/* Per-session state: two G-buffers (current, previous), each keeping its primary surfaces
+ * (gbuffer_keep_surfaces: the initial pass and every shift read x_1 from there), and two
+ * reservoir buffers (the frame's working buffer and the history the next frame reuses). */
+struct restir_pt_state {
+    uint32_t width, height;
+    struct gbuffer gbuf[2];
+    uint32_t cur;              /* index of the current G-buffer */
+    uint8_t *res[2];           /* [0] working (initial + temporal), [1] history (final) */
+    bool has_history;
+    uint32_t shape_count;
+    uint32_t *prim_first;      /* shape -> first scene-wide primitive id (shape_count + 1) */
+    void *pair_scratch;        /* paired spatial reuse: restir_pair_scratch_bytes() */
+    uint32_t nee_by_scene;     /* restir_pt_nee_by_scene of the scene at init: fixed for the session,
+                                  as the integrand's MIS weights must not change between frames */
+};
+
+/* Bytes of one reservoir (the payload included). */
+#define RESTIR_PT_RESERVOIR_BYTES 64u
+
+/* The buffers the parameters use: the pair scratch only for paired spatial reuse (a render that
+ * asks for it from a session made without is refused). */
+bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, const struct restir_pt_params *params,
+                    uint32_t width, uint32_t height, struct err *err);
+void restir_pt_destroy(struct restir_pt_state *st);
+/* Forgets the history (the next frame has no temporal predecessor). */
+void restir_pt_reset(struct restir_pt_state *st);
+size_t restir_pt_reservoir_bytes(const struct restir_pt_state *st);
+size_t restir_pt_gbuffer_bytes(const struct restir_pt_state *st);
+size_t restir_pt_pair_bytes(const struct restir_pt_state *st);  /* 0 without paired spatial reuse */
+size_t restir_pt_hit_bytes(const struct restir_pt_state *st);
+/* What restir_pt_init allocates for these parameters, size and shape count (before allocating it). */
+uint64_t restir_pt_bytes_planned(const struct restir_pt_params *params, uint32_t width, uint32_t height,
+                                 uint32_t shape_count);
+
+struct restir_pt_frame {
+    const struct scene *scene;           /* this frame */
+    const struct camera_desc *camera;
+    const struct scene *prev_scene;      /* the previous frame's (NULL = no previous frame) */
+    const struct camera_desc *prev_camera;
+    uint64_t seed;
+    uint32_t frame;
+    unsigned threads;                    /* 0 = all cores */
+};
+
+/* Renders one frame into `out` (width x height) and makes it the history of the next. */
+bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params *params,
+                      const struct restir_pt_frame *f, struct image *out, struct restir_pt_stats *stats,
+                      struct err *err);
+
+/* For tests of the shift: the G-buffers and initial reservoirs of a frame (no reuse), then the
+ * shift of one reservoir element between domains. restir_pt_bind fills an opaque context of
+ * RESTIR_PT_CTX_BYTES bytes valid while st, params and f live. */
+#define RESTIR_PT_CTX_BYTES 512u
+bool restir_pt_initial_only(struct restir_pt_state *st, const struct restir_pt_params *params,
+                            const struct restir_pt_frame *f, struct err *err);
+void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *params, const struct restir_pt_frame *f,
+                    void *ctx);
+extern const struct restir_ops restir_pt_ops;
+/* Decoded fields of a reservoir element (tests and stats). */
+struct restir_pt_info {
+    uint32_t length;      /* path vertices after the camera (x_1 .. x_d) */
+    uint32_t rc;          /* reconnection vertex index k, 0 = none (random replay only) */
+    bool nee;             /* the last vertex was sampled by NEE */
+    struct vec3 F;        /* the path's contribution in its own pixel */
+};
+void restir_pt_info(const void *elem, struct restir_pt_info *out);
+
+#endif

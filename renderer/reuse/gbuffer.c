@@ -1,0 +1,157 @@
+/* gbuffer.c — primary hits and motion vectors (see gbuffer.h). */
+#include "reuse/gbuffer.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "scene/camera.h"
+#include "core/parallel.h"
+#include "core/rng.h"
+#include "scene/surface.h"
+
+bool gbuffer_init(struct gbuffer *g, uint32_t width, uint32_t height, struct err *err)
+{
+    g->width = g->height = 0;
+    g->px = NULL;
+    g->surf = NULL;
+    if (width == 0 || height == 0 || width > 16384 || height > 16384)
+        return err_set(err, ERR_LIMIT, NULL, "G-buffer size %ux%u outside 1..16384", width, height);
+    g->px = calloc((size_t)width * height, sizeof *g->px);
+    if (!g->px) return err_set(err, ERR_NOMEM, NULL, "out of memory for a %ux%u G-buffer", width, height);
+    g->width = width;
+    g->height = height;
+    return true;
+}
+
+const struct hit *gbuffer_hit(const struct scene *scene, const struct gbuffer_pixel *px, struct hit *out)
+{
+    if (!isfinite(px->t)) return NULL;
+    *out = surface_hit_at(scene, px->shape, px->prim, px->t, px->b1, px->b2);
+    return out;
+}
+
+bool gbuffer_keep_surfaces(struct gbuffer *g, struct err *err)
+{
+    if (g->surf) return true;
+    g->surf = calloc((size_t)g->width * g->height, sizeof *g->surf);
+    if (!g->surf)
+        return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u primary surfaces", g->width, g->height);
+    return true;
+}
+
+void gbuffer_destroy(struct gbuffer *g)
+{
+    free(g->px);
+    free(g->surf);
+    g->px = NULL;
+    g->surf = NULL;
+    g->width = g->height = 0;
+}
+
+size_t gbuffer_bytes(const struct gbuffer *g)
+{
+    return (size_t)g->width * g->height * sizeof *g->px;
+}
+
+size_t gbuffer_surface_bytes(const struct gbuffer *g)
+{
+    return g->surf ? (size_t)g->width * g->height * sizeof *g->surf : 0;
+}
+
+#define GBUFFER_ROWS_PER_JOB 4u
+#define GBUFFER_MAX_WORKERS 1024u
+
+struct gbuffer_job {
+    struct gbuffer *g;
+    const struct gbuffer_frame *f;
+    struct camera cam, prev_cam;
+    uint64_t rays[GBUFFER_MAX_WORKERS];
+};
+
+/* The point's position in the previous frame's world: unchanged unless its shape moved. */
+static struct vec3 gbuffer_prev_point(const struct gbuffer_frame *f, uint32_t shape, struct vec3 p)
+{
+    const struct xform *cur = accel_shape_to_world(f->scene->accel, shape);
+    const struct xform *prev = accel_shape_to_world(f->prev_scene->accel, shape);
+    if (memcmp(cur, prev, sizeof *cur) == 0) return p;
+    struct xform inv;
+    if (!xform_invert(cur, &inv)) return p;
+    return xform_point(prev, xform_point(&inv, p));
+}
+
+/* A position moved by a step of at most 0.5, reflected back into [0, 1). */
+static float gbuffer_reflect(float z)
+{
+    if (z < 0.0f) z = -z;
+    if (z >= 1.0f) z = 2.0f - z;
+    return z < 1.0f ? z : 0x1.fffffep-1f;
+}
+
+static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
+{
+    struct gbuffer_job *gj = ctx;
+    struct gbuffer *g = gj->g;
+    const struct gbuffer_frame *f = gj->f;
+    struct ray_counters rc = {0, 0};
+    uint32_t y1 = (job + 1) * GBUFFER_ROWS_PER_JOB < g->height ? (job + 1) * GBUFFER_ROWS_PER_JOB : g->height;
+    for (uint32_t y = job * GBUFFER_ROWS_PER_JOB; y < y1; y++) {
+        for (uint32_t x = 0; x < g->width; x++) {
+            uint64_t pixel = (uint64_t)y * g->width + x;
+            struct gbuffer_pixel *gp = &g->px[pixel];
+            struct rng rng = rng_make(f->seed, f->frame, pixel, GBUFFER_STREAM);
+            gp->jx = rng_next_float(&rng);
+            gp->jy = rng_next_float(&rng);
+            if (f->prev_gbuffer && f->jitter_walk > 0.0f) {
+                const struct gbuffer_pixel *pp = &f->prev_gbuffer->px[pixel];
+                gp->jx = gbuffer_reflect(pp->jx + (2.0f * gp->jx - 1.0f) * f->jitter_walk);
+                gp->jy = gbuffer_reflect(pp->jy + (2.0f * gp->jy - 1.0f) * f->jitter_walk);
+            }
+            struct vec3 dir = camera_ray_dir(&gj->cam, (float)x + gp->jx, (float)y + gp->jy);
+            struct hit hit;
+            gp->prev_x = gp->prev_y = NAN;
+            bool found = accel_intersect(f->scene->accel, gj->cam.position, dir, 0.0f, INFINITY, &hit, &rc);
+            if (!found) {
+                gp->t = INFINITY;
+                gp->shape = gp->prim = 0;
+                gp->b1 = gp->b2 = 0.0f;
+                if (g->surf) g->surf[pixel] = (struct gbuffer_surface){.material = GBUFFER_NO_HIT};
+                if (f->prev_scene) camera_project_dir(&gj->prev_cam, dir, &gp->prev_x, &gp->prev_y);
+                continue;
+            }
+            gp->t = hit.t;
+            gp->shape = hit.shape;
+            gp->prim = hit.prim;
+            struct surface s;
+            surface_from_hit(f->scene, &hit, gj->cam.position, dir, &s);
+            surface_point_code(f->scene, &hit, &s, &gp->b1, &gp->b2);
+            if (g->surf) g->surf[pixel] = (struct gbuffer_surface){s.p, s.ng, s.ns, s.material};
+            if (f->prev_scene) {
+                struct vec3 q = gbuffer_prev_point(f, hit.shape, s.p);
+                camera_project(&gj->prev_cam, q, &gp->prev_x, &gp->prev_y);
+            }
+        }
+    }
+    gj->rays[worker] += rc.intersect + rc.occluded;
+}
+
+bool gbuffer_render(struct gbuffer *g, const struct gbuffer_frame *f, uint64_t *rays, struct err *err)
+{
+    /* On the stack (8 KiB of counters): a steady-state frame allocates nothing. */
+    struct gbuffer_job job_storage;
+    struct gbuffer_job *gj = &job_storage;
+    memset(gj, 0, sizeof *gj);
+    gj->g = g;
+    gj->f = f;
+    camera_init(&gj->cam, f->camera, g->width, g->height);
+    if (f->prev_scene) camera_init(&gj->prev_cam, f->prev_camera, g->width, g->height);
+    unsigned threads = f->threads ? f->threads : parallel_default_threads();
+    if (threads > GBUFFER_MAX_WORKERS) threads = GBUFFER_MAX_WORKERS;
+    uint32_t jobs = (g->height + GBUFFER_ROWS_PER_JOB - 1) / GBUFFER_ROWS_PER_JOB;
+    bool ok = parallel_run(threads, jobs, gbuffer_rows, gj, NULL, NULL, err);
+    if (rays) {
+        *rays = 0;
+        for (unsigned i = 0; i < threads; i++) *rays += gj->rays[i];
+    }
+    return ok;
+}

@@ -1,0 +1,84 @@
+/* gbuffer.h — the primary hit of every pixel for one frame, and where that point was seen in
+ * the previous frame (the motion vector temporal reuse follows). A session keeps two (current
+ * and previous) and swaps them; they are allocated once, never per frame.
+ * The primary ray goes through a uniformly jittered position in the pixel (the box filter the
+ * reference path tracer integrates), drawn from the pixel's own stream for the frame, so a
+ * method that starts its paths at the G-buffer's hits estimates the same pixel integral as `pt`.
+ * With a jitter walk the position is instead the previous frame's moved by a uniform step of at
+ * most `jitter_walk` pixels per axis, reflected at the pixel's edges: the uniform distribution is
+ * stationary under a symmetric step reflected at the edges, so every frame's position is still
+ * uniform in the pixel (the first frame's is drawn afresh), while consecutive frames look at
+ * nearby points of it, where a method's temporal history was gathered.
+ * The previous position accounts for camera motion and for shapes that moved between the two
+ * frames' scenes (derived scenes keep shape indices). Visibility in the previous frame is not
+ * checked here: a temporal shift validates its own vertices.
+ * Refs: design ARCHITECTURE.md ("gbuffer pass"); METHODS.md §1 (temporal reuse evaluates the
+ * previous domain with the previous camera and scene). */
+#ifndef RESTIRD_GBUFFER_H
+#define RESTIRD_GBUFFER_H
+
+#include <stdint.h>
+
+#include "scene/accel.h"
+#include "core/err.h"
+#include "scene/scene.h"
+
+struct gbuffer_pixel {
+    float t;                /* distance to the primary hit; INFINITY when the ray escaped */
+    uint32_t shape, prim;   /* the hit (valid when t is finite) */
+    float b1, b2;           /* its point code: surface_at rebuilds the surface */
+    float jx, jy;           /* the primary ray's position inside the pixel, in [0, 1) */
+    float prev_x, prev_y;   /* image position (pixels) of the same point, or of the same
+                               direction for an escaped ray, in the previous frame; NAN when
+                               there is no previous frame or the point was behind its camera */
+};
+
+/* A primary hit's surface as the G-buffer pass built it, for a method whose shifts come back to
+ * the primary hits of the current and the previous frame several times a frame: reading it costs
+ * less than rebuilding the surface from the point code, and every reader sees the same numbers.
+ * (The shading frame is frame_from_normal(ns).) */
+struct gbuffer_surface {
+    struct vec3 p, ng, ns;
+    uint32_t material;   /* GBUFFER_NO_HIT: the primary ray escaped */
+};
+#define GBUFFER_NO_HIT UINT32_MAX
+
+struct gbuffer {
+    uint32_t width, height;
+    struct gbuffer_pixel *px;      /* width * height, row-major, top row first */
+    struct gbuffer_surface *surf;  /* the same pixels' surfaces; NULL unless gbuffer_keep_surfaces */
+};
+
+/* Allocates (ERR_LIMIT / ERR_NOMEM). */
+bool gbuffer_init(struct gbuffer *g, uint32_t width, uint32_t height, struct err *err);
+/* From now on gbuffer_render also writes g->surf (ERR_NOMEM). */
+bool gbuffer_keep_surfaces(struct gbuffer *g, struct err *err);
+void gbuffer_destroy(struct gbuffer *g);
+size_t gbuffer_bytes(const struct gbuffer *g);          /* the pixels, surfaces not included */
+size_t gbuffer_surface_bytes(const struct gbuffer *g);  /* 0 without surfaces */
+
+/* Random stream id of the jitter: rng_make(seed, frame, pixel, GBUFFER_STREAM). Methods use
+ * other ids for their own random numbers. */
+#define GBUFFER_STREAM 0x6762ull
+
+struct gbuffer_frame {
+    const struct scene *scene;            /* this frame */
+    const struct camera_desc *camera;
+    const struct scene *prev_scene;       /* the previous frame; NULL = none (first frame) */
+    const struct camera_desc *prev_camera;
+    uint64_t seed;
+    uint32_t frame;
+    unsigned threads;                     /* 0 = all cores */
+    float jitter_walk;                    /* 0: a fresh position every frame; in (0, 0.5]: the
+                                             largest step per axis from prev_gbuffer's, pixels */
+    const struct gbuffer *prev_gbuffer;   /* the previous frame's (same size); NULL = fresh */
+};
+
+/* Traces one primary ray per pixel. *rays gets the number of ray queries. */
+bool gbuffer_render(struct gbuffer *g, const struct gbuffer_frame *f, uint64_t *rays, struct err *err);
+
+/* The pixel's primary hit for a path that follows the same camera ray (surface_hit_at), written
+ * to *out; NULL when the ray escaped. A method that continues the ray need not trace it again. */
+const struct hit *gbuffer_hit(const struct scene *scene, const struct gbuffer_pixel *px, struct hit *out);
+
+#endif

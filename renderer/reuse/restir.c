@@ -1,0 +1,547 @@
+/* restir.c — temporal and spatial reuse passes (see restir.h). */
+#include "reuse/restir.h"
+
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "core/parallel.h"
+#include "reuse/reservoir.h"
+#include "reuse/reuse_mis.h"
+#include "core/rng.h"
+
+#define RESTIR_TEMPORAL_STREAM 0x7274ull
+#define RESTIR_SPATIAL_STREAM 0x7273ull
+#define RESTIR_ROWS_PER_JOB 2u
+
+/* One pixel of a pass: reads `in` (NULL for the in-place temporal pass), writes `out`. */
+struct restir_pass;
+typedef void restir_pixel_fn(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c);
+
+struct restir_pass {
+    const struct restir_reuse *r;
+    restir_pixel_fn *pixel;
+    const uint8_t *in;
+    uint8_t *out;
+    uint32_t matching;  /* paired spatial reuse: which pairing of the round */
+    uint64_t pair_key[65];  /* paired spatial reuse: each pairing's hash key (restir_pair_keys) */
+    uint32_t pair_log2;     /* and log2 of its block size */
+    struct restir_counters counters[RESTIR_MAX_WORKERS];
+};
+
+static inline const struct restir_head *restir_elem(const uint8_t *buf, size_t stride, uint32_t pixel)
+{
+    return (const struct restir_head *)(buf + (size_t)pixel * stride);
+}
+
+/* Adds weight * F(elem) to *acc when the term is finite (a weight the reservoir refuses is
+ * refused here too). */
+static inline void restir_estimate_add(const struct restir_reuse *r, struct vec3 *acc, const void *elem, double weight)
+{
+    if (!(weight > 0.0) || !isfinite(weight)) return;
+    struct vec3 t = vec3_scale(r->ops->value(r->ctx, elem), (float)weight);
+    if (vec3_is_finite(t)) *acc = vec3_add(*acc, t);
+}
+
+static inline bool restir_estimating(const struct restir_reuse *r) { return r->estimate && r->ops->value; }
+
+/* A pixel the pass leaves as it was: its sample's own F(Y) W. */
+static void restir_estimate_unchanged(const struct restir_reuse *r, uint32_t pixel, const struct restir_head *h)
+{
+    if (!restir_estimating(r) || !(h->W > 0.0f)) return;
+    struct vec3 acc = vec3_splat(0.0f);
+    restir_estimate_add(r, &acc, h, h->W);
+    r->estimate[pixel] = vec3_add(r->estimate[pixel], acc);
+}
+
+/* A shift, counted: returns the target in `to` (0 when it fails) and sets *jacobian. */
+static float restir_shift(const struct restir_reuse *r, const void *src, struct restir_domain from,
+                          struct restir_domain to, void *dst, float *jacobian, struct restir_counters *c)
+{
+    float t = 0.0f;
+    *jacobian = 0.0f;
+    r->ops->shift(r->ctx, src, from, to, dst, &t, jacobian, c);
+    c->shifts++;
+    if (t > 0.0f) return t;
+    c->shift_failures++;
+    return 0.0f;
+}
+
+static inline uint16_t restir_clamp_m(float m)
+{
+    return m >= 65535.0f ? 65535u : (uint16_t)m;
+}
+
+/* Temporal reuse of one pixel: the generalized balance heuristic over the current domain c and
+ * the previous domain q the motion vector lands in (GRIS eq. 9), both weights evaluated in c's
+ * measure:
+ *   m_c = M_c p̂_c(Y_c) / (M_c p̂_c(Y_c) + M_q p̂_q(T_cq(Y_c)) |J_cq|)
+ *   m_q = M_q p̂_q(Y_q) / (M_q p̂_q(Y_q) + M_c p̂_c(T_qc(Y_q)) |J_qc|)
+ * with resampling weights w = m p̂_c(shifted) W |J|. */
+static void restir_temporal_pixel(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c)
+{
+    const struct restir_reuse *r = p->r;
+    uint8_t *cur = p->out;
+    const struct restir_ops *ops = r->ops;
+    const size_t stride = ops->stride;
+    struct restir_head *hc = (struct restir_head *)(cur + (size_t)pixel * stride);
+    const struct restir_domain dc = {pixel, RESTIR_CURRENT};
+    if (!ops->domain_valid(r->ctx, dc)) return;
+    const struct gbuffer_pixel *g = &r->gbuf->px[pixel];
+    if (!(g->prev_x >= 0.0f) || !(g->prev_y >= 0.0f) || g->prev_x >= (float)r->width || g->prev_y >= (float)r->height)
+        return;  /* no previous frame, NaN, or off screen */
+    const struct restir_domain dq = {(uint32_t)g->prev_y * r->width + (uint32_t)g->prev_x, RESTIR_PREVIOUS};
+    if (!ops->domain_valid(r->ctx, dq)) return;
+
+    const struct restir_head *hq = restir_elem(r->history, stride, dq.pixel);
+    const float M_c = (float)hc->M;
+    float M_q = (float)hq->M;
+    if (M_q > (float)r->temporal_cap * M_c) M_q = (float)r->temporal_cap * M_c;
+
+    struct rng rng = rng_make(r->seed, r->frame, pixel, RESTIR_TEMPORAL_STREAM);
+    struct reservoir_stream s;
+    reservoir_stream_begin(&s);
+    _Alignas(16) uint8_t shifted[RESTIR_MAX_STRIDE];
+    bool take_prev = false;
+
+    /* The current sample, and how likely the previous domain was to produce it. */
+    const float p_c = hc->W > 0.0f ? ops->target(r->ctx, hc) : 0.0f;
+    if (p_c > 0.0f) {
+        float j_cq;
+        float t_cq = restir_shift(r, hc, dc, dq, NULL, &j_cq, c);
+        float pm[2] = {p_c, t_cq * j_cq}, mm[2] = {M_c, M_q};
+        float m_c = reuse_mis_balance(mm, pm, 2, 0);
+        reservoir_stream_offer(&s, (double)m_c * p_c * hc->W, p_c, M_c, rng_next_float(&rng));
+    } else {
+        reservoir_stream_offer(&s, 0.0, 0.0f, M_c, rng_next_float(&rng));
+    }
+    /* The previous sample shifted into this pixel. */
+    float u = rng_next_float(&rng);
+    const float p_q = hq->W > 0.0f ? ops->target(r->ctx, hq) : 0.0f;
+    if (p_q > 0.0f) {
+        float j_qc;
+        float t_qc = restir_shift(r, hq, dq, dc, shifted, &j_qc, c);
+        if (t_qc > 0.0f) {
+            float pm[2] = {p_q, t_qc * j_qc}, mm[2] = {M_q, M_c};
+            float m_q = reuse_mis_balance(mm, pm, 2, 0);
+            take_prev = reservoir_stream_offer(&s, (double)m_q * t_qc * hq->W * j_qc, t_qc, M_q, u);
+        } else {
+            reservoir_stream_offer(&s, 0.0, 0.0f, M_q, u);
+        }
+    } else {
+        reservoir_stream_offer(&s, 0.0, 0.0f, M_q, u);
+    }
+    c->rejected += s.rejected;
+
+    struct reservoir res = reservoir_stream_finish(&s);
+    if (take_prev) memcpy(hc, shifted, stride);
+    hc->W = res.W;
+    hc->M = restir_clamp_m(res.M);
+}
+
+/* Spatial reuse of one pixel with defensive pairwise MIS (Bitterli 2022, GRIS §6.2): the
+ * canonical sample keeps weight (1 + sum_n (1 - t_n)) / (k + 1), neighbour n's sample
+ * M_n p̂_n / (M_n p̂_n + (M_c / k) p̂_c(T(X_n)) |J|) / (k + 1); k counts the neighbours that
+ * can produce samples, chosen before any sample is looked at. */
+static void restir_spatial_pixel(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c)
+{
+    const struct restir_reuse *r = p->r;
+    const uint8_t *in = p->in;
+    uint8_t *out = p->out;
+    const struct restir_ops *ops = r->ops;
+    const size_t stride = ops->stride;
+    const struct restir_head *hc = restir_elem(in, stride, pixel);
+    struct restir_head *ho = (struct restir_head *)(out + (size_t)pixel * stride);
+    memcpy(ho, hc, stride);
+    const struct restir_domain dc = {pixel, RESTIR_CURRENT};
+    if (!ops->domain_valid(r->ctx, dc) || r->neighbors == 0) {
+        restir_estimate_unchanged(r, pixel, ho);
+        return;
+    }
+
+    struct rng rng = rng_make(r->seed, r->frame, pixel, RESTIR_SPATIAL_STREAM);
+    uint32_t nb[64];
+    uint32_t k = 0;
+    const int px = (int)(pixel % r->width), py = (int)(pixel / r->width);
+    for (uint32_t i = 0; i < r->neighbors && i < 64; i++) {
+        /* Uniform in the disk of the radius (by its area), rounded to a pixel. */
+        float rad = r->radius * sqrtf(rng_next_float(&rng)), phi = 6.2831853f * rng_next_float(&rng);
+        int qx = px + (int)lrintf(rad * cosf(phi)), qy = py + (int)lrintf(rad * sinf(phi));
+        if (qx < 0 || qy < 0 || qx >= (int)r->width || qy >= (int)r->height || (qx == px && qy == py)) continue;
+        uint32_t q = (uint32_t)qy * r->width + (uint32_t)qx;
+        if (!ops->domain_valid(r->ctx, (struct restir_domain){q, RESTIR_CURRENT})) continue;
+        nb[k++] = q;
+    }
+    if (k == 0) {
+        restir_estimate_unchanged(r, pixel, ho);
+        return;
+    }
+
+    const float M_c = (float)hc->M;
+    const float p_c = hc->W > 0.0f ? ops->target(r->ctx, hc) : 0.0f;
+    struct reservoir_stream s;
+    reservoir_stream_begin(&s);
+    _Alignas(16) uint8_t shifted[RESTIR_MAX_STRIDE];
+    float canonical_terms = 0.0f;
+    struct vec3 est = vec3_splat(0.0f);
+    const bool estimating = restir_estimating(r);
+    for (uint32_t i = 0; i < k; i++) {
+        const struct restir_domain dn = {nb[i], RESTIR_CURRENT};
+        const struct restir_head *hn = restir_elem(in, stride, dn.pixel);
+        const float M_n = (float)hn->M;
+        /* The canonical sample seen from the neighbour. */
+        if (p_c > 0.0f) {
+            float j_cn;
+            float t_cn = restir_shift(r, hc, dc, dn, NULL, &j_cn, c);
+            canonical_terms += reuse_mis_pairwise_canonical_term(M_c, M_n, p_c, t_cn * j_cn, k);
+        }
+        /* The neighbour's sample shifted here. */
+        float u = rng_next_float(&rng);
+        const float p_n = hn->W > 0.0f ? ops->target(r->ctx, hn) : 0.0f;
+        if (p_n > 0.0f) {
+            float j_nc;
+            float t_nc = restir_shift(r, hn, dn, dc, shifted, &j_nc, c);
+            if (t_nc > 0.0f) {
+                float m_n = reuse_mis_pairwise_neighbor(M_c, M_n, p_n, t_nc * j_nc, k);
+                if (estimating) restir_estimate_add(r, &est, shifted, (double)m_n * hn->W * j_nc);
+                if (reservoir_stream_offer(&s, (double)m_n * t_nc * hn->W * j_nc, t_nc, M_n, u))
+                    memcpy(ho, shifted, stride);
+                continue;
+            }
+        }
+        reservoir_stream_offer(&s, 0.0, 0.0f, M_n, u);
+    }
+    float u = rng_next_float(&rng);
+    if (p_c > 0.0f) {
+        float m_c = reuse_mis_pairwise_canonical(canonical_terms, k);
+        if (estimating) restir_estimate_add(r, &est, hc, (double)m_c * hc->W);
+        if (reservoir_stream_offer(&s, (double)m_c * p_c * hc->W, p_c, M_c, u)) memcpy(ho, hc, stride);
+    } else {
+        reservoir_stream_offer(&s, 0.0, 0.0f, M_c, u);
+    }
+    c->rejected += s.rejected;
+    struct reservoir res = reservoir_stream_finish(&s);
+    ho->W = res.W;
+    ho->M = restir_clamp_m(res.M);
+    if (estimating) r->estimate[pixel] = vec3_add(r->estimate[pixel], est);
+}
+
+/* ---- paired spatial reuse --------------------------------------------------------------------
+ * Pairwise MIS needs, for a canonical pixel c and a neighbour n, two shifts: n's sample into c
+ * (the candidate) and c's sample into n (c's canonical weight). When n also takes c as a
+ * neighbour it needs the very same two shifts, so a symmetric neighbour relation halves the
+ * shifts of a round (seed 001, Table 1, "paired spatial reuse"). Each of the round's `neighbors`
+ * pairings is an involution on the pixels: the image is cut into B x B blocks (B the largest
+ * power of two <= radius, the block grid shifted at random per pairing) and inside a block pixel
+ * (x, y) pairs with (x ^ a, y ^ b) for a random non-zero mask (a, b) per block. Partners are
+ * therefore within B - 1 pixels on each axis, drawn independently of any sample; the pairing's
+ * owner (the smaller pixel index) computes both shifts and updates both reservoirs, which no
+ * other pair of the same pairing touches. */
+
+#define RESTIR_PAIR_STREAM 0x7270ull
+
+#define RESTIR_PAIR_CACHED 4u
+#define RESTIR_NO_PARTNER UINT32_MAX
+
+/* A pixel's reservoir while a paired round streams into it (the selected payload goes straight
+ * into the output buffer). */
+struct restir_pair_acc {
+    struct reservoir_stream s;
+    float canonical_terms;  /* sum over partners of the canonical weight's terms 1 - t_n */
+    uint32_t k;             /* partners that can produce samples (pairings whose partner is valid) */
+    struct vec3 est;        /* restir_reuse.estimate: sum of m_i W_i |J_i| F(Y_i) so far */
+    /* The valid partner of each of the first RESTIR_PAIR_CACHED pairings (RESTIR_NO_PARTNER: off
+     * the image or unable to produce samples), found once when the round opens: the later
+     * pairings read it instead of hashing the partner's coordinates again. */
+    uint32_t partner[RESTIR_PAIR_CACHED];
+};
+
+size_t restir_pair_scratch_bytes(uint32_t width, uint32_t height)
+{
+    return (size_t)width * height * sizeof(struct restir_pair_acc);
+}
+
+#define RESTIR_CACHE_LINE 64u
+
+void *restir_buffer_alloc(size_t count, size_t stride)
+{
+    if (stride && count > (SIZE_MAX - RESTIR_CACHE_LINE) / stride) return NULL;
+    size_t bytes = (count * stride + RESTIR_CACHE_LINE - 1) / RESTIR_CACHE_LINE * RESTIR_CACHE_LINE;
+    void *buf = aligned_alloc(RESTIR_CACHE_LINE, bytes ? bytes : RESTIR_CACHE_LINE);
+    if (buf) memset(buf, 0, bytes);
+    return buf;
+}
+
+/* log2 of the block size B: the largest power of two <= radius (at least 2, at most 256). */
+static uint32_t restir_pair_log2(float radius)
+{
+    uint32_t l = 1;
+    while ((float)(2u << l) <= radius && l < 8) l++;
+    return l;
+}
+
+/* 32-bit integer hash (the "lowbias32" constants): per-block masks and per-pixel decisions are
+ * hashed from a per-pairing key, which costs a handful of instructions instead of a stream. */
+static inline uint32_t restir_hash32(uint32_t x)
+{
+    x ^= x >> 16;
+    x *= 0x7feb352du;
+    x ^= x >> 15;
+    x *= 0x846ca68bu;
+    x ^= x >> 16;
+    return x;
+}
+
+/* One key per pairing of the round (and one more for the canonical candidate's decision). */
+static void restir_pair_keys(const struct restir_reuse *r, uint64_t keys[65])
+{
+    for (uint32_t m = 0; m <= 64; m++)
+        keys[m] = rng_mix64(r->seed ^ rng_mix64(((uint64_t)r->frame << 8 | m) ^ RESTIR_PAIR_STREAM));
+}
+
+/* The partner of pixel (x, y) under the pairing with key h and blocks of 2^L pixels (false: off
+ * the image). */
+static bool restir_partner_of(const struct restir_reuse *r, uint64_t h, uint32_t L, uint32_t x, uint32_t y,
+                              uint32_t *partner)
+{
+    const uint32_t mask = (1u << L) - 1;
+    const uint32_t ox = (uint32_t)h & mask, oy = (uint32_t)(h >> 20) & mask;
+    const uint32_t gx = x + ox, gy = y + oy;
+    const uint32_t t = restir_hash32((uint32_t)(h >> 32) ^ restir_hash32((gx >> L) << 16 ^ (gy >> L)));
+    uint32_t a = t & mask, b = (t >> 16) & mask;
+    if (a == 0 && b == 0) a = 1;
+    const int64_t qx = (int64_t)((gx & ~mask) | ((gx & mask) ^ a)) - ox;
+    const int64_t qy = (int64_t)((gy & ~mask) | ((gy & mask) ^ b)) - oy;
+    if (qx < 0 || qy < 0 || qx >= r->width || qy >= r->height) return false;
+    *partner = (uint32_t)qy * r->width + (uint32_t)qx;
+    return true;
+}
+
+static inline bool restir_partner(const struct restir_pass *p, uint32_t m, uint32_t x, uint32_t y, uint32_t *partner)
+{
+    return restir_partner_of(p->r, p->pair_key[m], p->pair_log2, x, y, partner);
+}
+
+bool restir_pair_partner(const struct restir_reuse *r, uint32_t m, uint32_t pixel, uint32_t *partner)
+{
+    uint64_t keys[65];
+    restir_pair_keys(r, keys);
+    return m < 64 &&
+           restir_partner_of(r, keys[m], restir_pair_log2(r->radius), pixel % r->width, pixel / r->width, partner);
+}
+
+/* The partner of pixel (x, y) in pairing m, when it is on the image and can produce samples. */
+static bool restir_pair_valid(const struct restir_pass *p, uint32_t m, uint32_t x, uint32_t y, uint32_t *partner)
+{
+    return restir_partner(p, m, x, y, partner) &&
+           p->r->ops->domain_valid(p->r->ctx, (struct restir_domain){*partner, RESTIR_CURRENT});
+}
+
+/* The uniform number of pixel's candidate from pairing m (m = neighbors: the canonical one). */
+static float restir_pair_u(const struct restir_pass *p, uint32_t pixel, uint32_t m)
+{
+    const uint64_t h = p->pair_key[m];
+    return (float)(restir_hash32((uint32_t)h ^ restir_hash32(pixel ^ (uint32_t)(h >> 32))) >> 8) * 0x1p-24f;
+}
+
+/* Opens the round for a pixel: k counts the valid partners, the first ones are kept. The output
+ * is written only when a candidate is selected, and when the round closes if the canonical sample
+ * stays. The first pairing, which opens the round, has already found the pixel's partner there
+ * (`first`, RESTIR_NO_PARTNER when none) and whether the pixel can produce samples (`valid`). */
+static void restir_pair_open(const struct restir_pass *p, uint32_t pixel, bool valid, uint32_t first)
+{
+    const struct restir_reuse *r = p->r;
+    struct restir_pair_acc *a = (struct restir_pair_acc *)r->pair_scratch + pixel;
+    memset(a, 0, sizeof *a);
+    reservoir_stream_begin(&a->s);
+    for (uint32_t m = 0; m < RESTIR_PAIR_CACHED; m++) a->partner[m] = RESTIR_NO_PARTNER;
+    if (!valid) return;
+    a->partner[0] = first;
+    a->k = first != RESTIR_NO_PARTNER;
+    const uint32_t x = pixel % r->width, y = pixel / r->width;
+    for (uint32_t m = 1; m < r->neighbors; m++) {
+        uint32_t q;
+        if (!restir_pair_valid(p, m, x, y, &q)) continue;
+        a->k++;
+        if (m < RESTIR_PAIR_CACHED) a->partner[m] = q;
+    }
+}
+
+/* The half of a pair's work that lands in pixel c: its canonical term from the shift of its own
+ * sample into n, and n's sample shifted into c as a candidate. */
+static void restir_pair_side(const struct restir_pass *p, struct restir_domain dc, struct restir_domain dn,
+                             float p_c, float t_cn_j, float p_n, float t_nc, float j_nc, const void *shifted,
+                             struct restir_counters *c)
+{
+    const struct restir_reuse *r = p->r;
+    const size_t stride = r->ops->stride;
+    const struct restir_head *hc = restir_elem(p->in, stride, dc.pixel), *hn = restir_elem(p->in, stride, dn.pixel);
+    struct restir_pair_acc *a = (struct restir_pair_acc *)r->pair_scratch + dc.pixel;
+    const float M_c = (float)hc->M, M_n = (float)hn->M;
+    if (p_c > 0.0f) a->canonical_terms += reuse_mis_pairwise_canonical_term(M_c, M_n, p_c, t_cn_j, a->k);
+    const float u = restir_pair_u(p, dc.pixel, p->matching);
+    const unsigned before = a->s.rejected;
+    if (p_n > 0.0f && t_nc > 0.0f) {
+        float m_n = reuse_mis_pairwise_neighbor(M_c, M_n, p_n, t_nc * j_nc, a->k);
+        if (restir_estimating(r)) restir_estimate_add(r, &a->est, shifted, (double)m_n * hn->W * j_nc);
+        if (reservoir_stream_offer(&a->s, (double)m_n * t_nc * hn->W * j_nc, t_nc, M_n, u))
+            memcpy(p->out + (size_t)dc.pixel * stride, shifted, stride);
+    } else {
+        reservoir_stream_offer(&a->s, 0.0, 0.0f, M_n, u);
+    }
+    c->rejected += a->s.rejected - before;
+}
+
+/* The valid partner of a pixel that can produce samples, under pairing p->matching: as the round's
+ * opening stored it, or found afresh (in the first pairing, which opens the round, and past the
+ * stored ones). *valid: whether the pixel itself can produce samples (set when found afresh). */
+static bool restir_pair_of_round(const struct restir_pass *p, uint32_t pixel, bool *valid, uint32_t *q)
+{
+    const struct restir_reuse *r = p->r;
+    if (p->matching > 0 && p->matching < RESTIR_PAIR_CACHED) {
+        *q = ((const struct restir_pair_acc *)r->pair_scratch)[pixel].partner[p->matching];
+        return *q != RESTIR_NO_PARTNER;
+    }
+    *valid = r->ops->domain_valid(r->ctx, (struct restir_domain){pixel, RESTIR_CURRENT});
+    return *valid && restir_pair_valid(p, p->matching, pixel % r->width, pixel / r->width, q);
+}
+
+/* The pair (pixel, q) of pairing p->matching: both shifts, and each side's candidate. */
+static void restir_pair_work(const struct restir_pass *p, uint32_t pixel, uint32_t q, struct restir_counters *c)
+{
+    const struct restir_reuse *r = p->r;
+    const struct restir_ops *ops = r->ops;
+    const size_t stride = ops->stride;
+    const struct restir_domain dp = {pixel, RESTIR_CURRENT}, dq = {q, RESTIR_CURRENT};
+    const struct restir_head *hp = restir_elem(p->in, stride, pixel), *hq = restir_elem(p->in, stride, q);
+    const float p_p = hp->W > 0.0f ? ops->target(r->ctx, hp) : 0.0f;
+    const float p_q = hq->W > 0.0f ? ops->target(r->ctx, hq) : 0.0f;
+    _Alignas(16) uint8_t to_q[RESTIR_MAX_STRIDE], to_p[RESTIR_MAX_STRIDE];
+    float t_pq = 0.0f, j_pq = 0.0f, t_qp = 0.0f, j_qp = 0.0f;
+    if (p_p > 0.0f) t_pq = restir_shift(r, hp, dp, dq, to_q, &j_pq, c);
+    if (p_q > 0.0f) t_qp = restir_shift(r, hq, dq, dp, to_p, &j_qp, c);
+    restir_pair_side(p, dp, dq, p_p, t_pq * j_pq, p_q, t_qp, j_qp, to_p, c);
+    restir_pair_side(p, dq, dp, p_q, t_qp * j_qp, p_p, t_pq, j_pq, to_q, c);
+}
+
+/* Closes the round for a pixel: the canonical sample is the last candidate. */
+static void restir_pair_close(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c)
+{
+    const struct restir_reuse *r = p->r;
+    const size_t stride = r->ops->stride;
+    struct restir_pair_acc *a = (struct restir_pair_acc *)r->pair_scratch + pixel;
+    const struct restir_head *hc = restir_elem(p->in, stride, pixel);
+    struct restir_head *ho = (struct restir_head *)(p->out + (size_t)pixel * stride);
+    if (a->k == 0) {  /* the canonical reservoir goes on as it was */
+        memcpy(ho, hc, stride);
+        restir_estimate_unchanged(r, pixel, hc);
+        return;
+    }
+    const float M_c = (float)hc->M;
+    const float p_c = hc->W > 0.0f ? r->ops->target(r->ctx, hc) : 0.0f;
+    const float u = restir_pair_u(p, pixel, r->neighbors);
+    const unsigned before = a->s.rejected;
+    /* The output holds the selected partner's sample, if any was; else the canonical one stays
+     * (with W = 0 when it is worth nothing either). */
+    bool canonical = !a->s.selected;
+    if (p_c > 0.0f) {
+        float m_c = reuse_mis_pairwise_canonical(a->canonical_terms, a->k);
+        if (restir_estimating(r)) restir_estimate_add(r, &a->est, hc, (double)m_c * hc->W);
+        if (reservoir_stream_offer(&a->s, (double)m_c * p_c * hc->W, p_c, M_c, u)) canonical = true;
+    } else {
+        reservoir_stream_offer(&a->s, 0.0, 0.0f, M_c, u);
+    }
+    if (canonical) memcpy(ho, hc, stride);
+    c->rejected += a->s.rejected - before;
+    struct reservoir res = reservoir_stream_finish(&a->s);
+    ho->W = res.W;
+    ho->M = restir_clamp_m(res.M);
+    if (restir_estimating(r)) r->estimate[pixel] = vec3_add(r->estimate[pixel], a->est);
+}
+
+/* One pixel's part in pairing p->matching. The owner of a pair (its smaller pixel) does the pair;
+ * a pixel without a valid partner does only its own bookkeeping. The first pairing also opens the
+ * round and the last one closes it, for both pixels of each pair, while their elements are in
+ * cache: the partner relation is symmetric, so every pixel is opened once before any candidate
+ * reaches it and closed once after all of them, without passes of their own. */
+static void restir_pair_pixel(const struct restir_pass *p, uint32_t pixel, struct restir_counters *c)
+{
+    const bool opens = p->matching == 0, closes = p->matching + 1 == p->r->neighbors;
+    uint32_t q;
+    bool valid = true;
+    const bool paired = restir_pair_of_round(p, pixel, &valid, &q);
+    if (paired && q < pixel) return;  /* q owns the pair */
+    if (opens) {
+        /* Pairing 0 is an involution: q's partner there is this pixel, and both can produce samples. */
+        restir_pair_open(p, pixel, valid, paired ? q : RESTIR_NO_PARTNER);
+        if (paired) restir_pair_open(p, q, true, pixel);
+    }
+    if (paired) restir_pair_work(p, pixel, q, c);
+    if (closes) {
+        restir_pair_close(p, pixel, c);
+        if (paired) restir_pair_close(p, q, c);
+    }
+}
+
+static void restir_rows(void *ctx, uint32_t job, unsigned worker)
+{
+    struct restir_pass *p = ctx;
+    const struct restir_reuse *r = p->r;
+    uint32_t y1 = (job + 1) * RESTIR_ROWS_PER_JOB < r->height ? (job + 1) * RESTIR_ROWS_PER_JOB : r->height;
+    struct restir_counters c = {0};
+    for (uint32_t y = job * RESTIR_ROWS_PER_JOB; y < y1; y++)
+        for (uint32_t x = 0; x < r->width; x++) p->pixel(p, y * r->width + x, &c);
+    restir_counters_add(&p->counters[worker], &c);
+}
+
+static bool restir_run(const struct restir_reuse *r, restir_pixel_fn *fn, const uint8_t *in, uint8_t *out,
+                       uint32_t matching, struct restir_counters *c, struct err *err)
+{
+    /* On the stack (40 KiB of counters): a frame allocates nothing. */
+    struct restir_pass pass;
+    memset(&pass, 0, sizeof pass);
+    pass.r = r;
+    pass.pixel = fn;
+    pass.in = in;
+    pass.out = out;
+    pass.matching = matching;
+    if (r->paired) {
+        restir_pair_keys(r, pass.pair_key);  /* 65 hashes: nothing beside a pass */
+        pass.pair_log2 = restir_pair_log2(r->radius);
+    }
+    unsigned threads = r->threads ? r->threads : parallel_default_threads();
+    if (threads > RESTIR_MAX_WORKERS) threads = RESTIR_MAX_WORKERS;
+    uint32_t jobs = (r->height + RESTIR_ROWS_PER_JOB - 1) / RESTIR_ROWS_PER_JOB;
+    if (!parallel_run(threads, jobs, restir_rows, &pass, NULL, NULL, err)) return false;
+    for (unsigned i = 0; i < threads; i++) restir_counters_add(c, &pass.counters[i]);
+    return true;
+}
+
+bool restir_temporal_pass(const struct restir_reuse *r, uint8_t *cur, struct restir_counters *c, struct err *err)
+{
+    if (!r->history) return true;
+    return restir_run(r, restir_temporal_pixel, NULL, cur, 0, c, err);
+}
+
+bool restir_spatial_pass(const struct restir_reuse *r, const uint8_t *in, uint8_t *out, struct restir_counters *c,
+                         struct err *err)
+{
+    if (!r->paired || r->neighbors == 0) return restir_run(r, restir_spatial_pixel, in, out, 0, c, err);
+    if (!r->pair_scratch) return err_set(err, ERR_INTERNAL, NULL, "paired spatial reuse without its scratch buffer");
+    for (uint32_t m = 0; m < r->neighbors; m++)
+        if (!restir_run(r, restir_pair_pixel, in, out, m, c, err)) return false;
+    return true;
+}
+
+bool restir_gbuffer_next(struct gbuffer gbuf[2], uint32_t *cur, bool *has_history, struct gbuffer_frame gf,
+                         uint64_t *rays, struct err *err)
+{
+    const bool history = *has_history && gf.prev_scene;
+    if (history) *cur ^= 1u;
+    else gf.prev_scene = NULL;
+    gf.prev_gbuffer = history ? &gbuf[*cur ^ 1u] : NULL;
+    if (!gbuffer_render(&gbuf[*cur], &gf, rays, err)) return false;
+    if (!history) *has_history = false;
+    return true;
+}

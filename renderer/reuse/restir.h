@@ -1,0 +1,139 @@
+/* restir.h — the reuse passes every ReSTIR technique shares: temporal reuse along the G-buffer's
+ * motion vectors (generalized balance heuristic over {current, previous}, confidence cap) and
+ * spatial reuse over k neighbours (defensive pairwise MIS), over ping-pong reservoir buffers.
+ * A technique plugs in through `struct restir_ops`: its reservoir element (a `struct restir_head`
+ * then the technique's own sample payload) and its shift mapping between domains. The passes
+ * never look inside a payload; a technique's initial and shade passes live in its own file.
+ * Deterministic for a seed: every random decision comes from a per-(frame, pixel, pass) stream.
+ * Allocation-free per frame (the element scratch of a shift is on the stack).
+ * Refs: Lin et al. 2022 (GRIS) eq. 9 and §6.2; design ARCHITECTURE.md (pass pipeline),
+ * METHODS.md §0 (caps, null samples, neighbours that can never produce a sample). */
+#ifndef RESTIRD_RESTIR_H
+#define RESTIRD_RESTIR_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "scene/accel.h"
+#include "core/err.h"
+#include "reuse/gbuffer.h"
+
+/* First bytes of every reservoir element. W is the unbiased contribution weight of the sample
+ * (0 = none), M its confidence (an integer count of candidates, capped), `bits` belongs to the
+ * technique. The sample's target p̂ in its own domain is read through restir_ops.target. */
+struct restir_head {
+    float W;
+    uint16_t M;
+    uint16_t bits;
+};
+
+#define RESTIR_MAX_STRIDE 256u
+
+/* A domain: one pixel of the current or the previous frame (each with its own camera, scene
+ * and G-buffer hit). */
+enum { RESTIR_CURRENT = 0, RESTIR_PREVIOUS = 1 };
+struct restir_domain {
+    uint32_t pixel;
+    uint32_t frame;  /* RESTIR_CURRENT or RESTIR_PREVIOUS */
+};
+
+/* Per-worker counters of a pass. */
+struct restir_counters {
+    struct ray_counters rays;
+    uint64_t shifts;          /* shift evaluations */
+    uint64_t shift_failures;  /* shifts that produced no valid sample (target 0) */
+    uint64_t rejected;        /* candidates refused for a non-finite weight */
+};
+
+/* *sum += c. A pass counts into a job-local copy and adds it here once per job: the workers'
+ * slots of a per-worker array share cache lines, and counting every ray straight into them makes
+ * the cores fight over those lines (docs/benchmarks.md, "Two threads that shared a cache line"). */
+static inline void restir_counters_add(struct restir_counters *sum, const struct restir_counters *c)
+{
+    sum->rays.intersect += c->rays.intersect;
+    sum->rays.occluded += c->rays.occluded;
+    sum->shifts += c->shifts;
+    sum->shift_failures += c->shift_failures;
+    sum->rejected += c->rejected;
+}
+
+struct restir_ops {
+    size_t stride;  /* bytes per element, a multiple of 4, <= RESTIR_MAX_STRIDE */
+    /* p̂ of the element's sample in the element's own domain. */
+    float (*target)(const void *ctx, const void *elem);
+    /* Shifts the sample of `src` (valid in domain `from`) into domain `to`: writes the shifted
+     * element to `dst` (head copied from src; dst may be NULL when only the numbers are wanted,
+     * and is never src), its target in `to` to *target (0 when the shift fails or the sample is
+     * worth nothing there) and the Jacobian determinant |d to / d from| to *jacobian. */
+    void (*shift)(const void *ctx, const void *src, struct restir_domain from, struct restir_domain to, void *dst,
+                  float *target, float *jacobian, struct restir_counters *c);
+    /* False when the domain cannot produce any sample (its primary ray escaped): such a pixel
+     * is neither a neighbour nor a temporal predecessor, so it counts in neither M nor any MIS
+     * denominator. */
+    bool (*domain_valid)(const void *ctx, struct restir_domain d);
+    /* Optional: the element's contribution vector F in its own domain (the target is a scalar
+     * function of it, e.g. its luminance); needed for restir_reuse.estimate. */
+    struct vec3 (*value)(const void *ctx, const void *elem);
+};
+
+struct restir_reuse {
+    const struct restir_ops *ops;
+    const void *ctx;
+    uint32_t width, height;
+    uint64_t seed;
+    uint32_t frame;
+    unsigned threads;                /* 0 = all cores */
+    const struct gbuffer *gbuf;      /* the current frame's (motion vectors) */
+    /* Temporal: the previous frame's final reservoirs (NULL = no history), and the cap on their
+     * confidence as a multiple of the current M (ReSTIR PT: 20). */
+    const uint8_t *history;
+    uint32_t temporal_cap;
+    /* Spatial: neighbours per round, and the radius in pixels of the disk they are drawn from. */
+    uint32_t neighbors;
+    float radius;
+    /* Paired spatial reuse (restir.c): the neighbour relation is made symmetric so each pair's
+     * two shifts serve both pixels, and neighbours come from B x B blocks, B the largest power of
+     * two <= radius. Needs restir_pair_scratch_bytes() of scratch, owned by the technique. */
+    bool paired;
+    void *pair_scratch;
+    /* Spatial: when set (and ops->value is), the pass adds to estimate[pixel] the expectation of
+     * F(Y) W over its own final selection, sum_i w_i F(Y_i) / p̂(Y_i) = sum_i m_i W_i |J_i| F(Y_i)
+     * over every candidate it resampled: the same unbiased estimate without the selection's noise,
+     * which for a luminance target is mostly colour noise (seed 001 Fig. 5: "the vectorized form
+     * of the resampling weight"). For a frame's last spatial pass; the selected sample still goes
+     * on as the next frame's history. Pixels the pass leaves as they were add F(Y) W. */
+    struct vec3 *estimate;
+};
+
+size_t restir_pair_scratch_bytes(uint32_t width, uint32_t height);
+/* Whether a technique's spatial reuse needs that scratch: paired, with neighbours. A session
+ * allocates it only then. */
+static inline bool restir_pairs_needed(bool paired, uint32_t neighbors) { return paired && neighbors > 0; }
+
+/* A zeroed array of `count` elements of `stride` bytes that starts on a cache line (NULL when out
+ * of memory; free() it). The reuse passes reach their neighbours' elements in no order a
+ * prefetcher follows: a 64-byte element of an aligned array is one cache line, of an unaligned
+ * one it straddles two. */
+void *restir_buffer_alloc(size_t count, size_t stride);
+/* The partner of `pixel` in pairing m (< 64) of the round r->frame names (false: off the image);
+ * for tests: the pairing is an involution. */
+bool restir_pair_partner(const struct restir_reuse *r, uint32_t m, uint32_t pixel, uint32_t *partner);
+
+#define RESTIR_MAX_WORKERS 1024u
+
+/* Temporal reuse in place: `cur` holds each pixel's initial reservoir and receives the merge
+ * with the history's reservoir at the pixel the motion vector points to. Counters are summed
+ * into *c. */
+bool restir_temporal_pass(const struct restir_reuse *r, uint8_t *cur, struct restir_counters *c, struct err *err);
+/* One round of spatial reuse from `in` to `out` (distinct buffers of width*height elements). */
+bool restir_spatial_pass(const struct restir_reuse *r, const uint8_t *in, uint8_t *out, struct restir_counters *c,
+                         struct err *err);
+
+/* The G-buffer pass of a frame for a method that keeps two (gbuf[*cur] current, the other the
+ * previous frame's): when the previous frame is history (*has_history and gf.prev_scene) they
+ * swap, the motion vectors point into it and a jitter walk (gf.jitter_walk) starts from its
+ * positions; otherwise the history is dropped and the positions are drawn afresh. */
+bool restir_gbuffer_next(struct gbuffer gbuf[2], uint32_t *cur, bool *has_history, struct gbuffer_frame gf,
+                         uint64_t *rays, struct err *err);
+
+#endif

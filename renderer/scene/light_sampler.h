@@ -1,0 +1,53 @@
+/* light_sampler.h — picks emitters proportionally to emitted power (alias table over emissive
+ * triangles, emissive spheres and the constant environment) and samples points on them
+ * uniformly by area. pdfs are explicit about their measure: pdf_a on surfaces, pdf_w for the
+ * environment. Immutable after creation; thread-safe. */
+#ifndef RESTIRD_LIGHT_SAMPLER_H
+#define RESTIRD_LIGHT_SAMPLER_H
+
+#include <stdint.h>
+
+#include "core/err.h"
+#include "core/vec.h"
+
+struct scene;
+struct light_sampler;
+
+struct light_sample {
+    bool is_env;        /* environment: `dir` is set, p/n are not */
+    struct vec3 p, n;   /* point on the emitter and its geometric normal (front side) */
+    struct vec3 dir;    /* environment: direction towards the environment */
+    uint32_t shape, prim;
+    float b1, b2;       /* triangles: barycentrics of p (the point code surface_at takes) */
+    float pdf_a;        /* area pdf of p including the emitter choice (surfaces) */
+    float pdf_w;        /* solid-angle pdf of dir including the emitter choice (environment) */
+};
+
+struct light_sampler *light_sampler_new(const struct scene *scene, struct err *err);
+void light_sampler_free(struct light_sampler *ls);
+/* Number of emitters (triangles + spheres + environment); 0 = no light at all. */
+uint32_t light_sampler_count(const struct light_sampler *ls);
+bool light_sampler_sample(const struct light_sampler *ls, float u_pick, float u1, float u2, struct light_sample *out);
+/* Area pdf that light_sampler_sample produces the point on (shape, prim): used for MIS when a
+ * BSDF-sampled ray hits an emitter. */
+float light_sampler_pdf_a(const struct light_sampler *ls, uint32_t shape, uint32_t prim);
+/* The point with code (b1, b2) on emissive triangle `prim` of `shape`, and its front normal, as
+ * light_sampler_sample computes them for that code (the same bits), from the sampler's
+ * world-space table: no transform and no normalisation. False (nothing written) when (shape,
+ * prim) is not an emissive triangle. */
+bool light_sampler_triangle_point(const struct light_sampler *ls, uint32_t shape, uint32_t prim, float b1, float b2,
+                                  struct vec3 *p, struct vec3 *n);
+/* Solid-angle pdf of sampling the environment in any direction (uniform sphere). */
+float light_sampler_env_pdf_w(const struct light_sampler *ls);
+
+#include "material/material.h"
+
+/* Radiance a material emits towards a direction making cosine `cos_front` with the emitter's
+ * front (geometric) normal: one-sided emitters are black from behind. */
+static inline struct vec3 light_sampler_emitted(const struct material *m, float cos_front)
+{
+    if (cos_front > 0.0f || (m->two_sided_emission && cos_front < 0.0f)) return m->emission;
+    return vec3_splat(0.0f);
+}
+
+#endif
