@@ -31,7 +31,7 @@ int main(int argc, char **argv)
     p.shift = RESTIR_SSS_HYBRID;
     if (argc > 4) p.candidates = (uint32_t)atoi(argv[4]);
     struct restir_sss_state st;
-    struct restir_sss_frame f = {.scene = sc, .camera = &sc->camera, .seed = 1, .frame = 0, .threads = 0};
+    struct method_frame f = {.scene = sc, .camera = &sc->camera, .seed = 1, .frame = 0, .threads = 0};
     struct image img;
     if (!restir_sss_init(&st, &p, w, h, &err) || !restir_sss_initial_only(&st, &p, &f, &err) ||
         !image_init(&img, w, h, &err)) {

@@ -7,6 +7,8 @@
  * Refs: RFC 8259 §7 (string escapes), RFC 9457 (problem details). */
 #include "protocol.h"
 
+#include "input/json_read.h"
+
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -87,25 +89,6 @@ void jsonw_array_end(struct jsonw *w) { jsonw_close(w, ']'); }
 
 /* Length of the well-formed UTF-8 sequence at s (n bytes left), 0 when ill-formed (RFC 3629:
  * no overlong forms, no surrogates, nothing above U+10FFFF). */
-size_t protocol_utf8_seq(const unsigned char *s, size_t n)
-{
-    unsigned char c = s[0];
-    if (c < 0x80) return 1;
-    size_t len;
-    unsigned char lo = 0x80, hi = 0xbf;
-    if (c >= 0xc2 && c <= 0xdf) len = 2;
-    else if (c == 0xe0) { len = 3; lo = 0xa0; }
-    else if (c == 0xed) { len = 3; hi = 0x9f; }
-    else if (c >= 0xe1 && c <= 0xef) len = 3;
-    else if (c == 0xf0) { len = 4; lo = 0x90; }
-    else if (c == 0xf4) { len = 4; hi = 0x8f; }
-    else if (c >= 0xf1 && c <= 0xf3) len = 4;
-    else return 0;
-    if (n < len || s[1] < lo || s[1] > hi) return 0;
-    for (size_t i = 2; i < len; i++)
-        if (s[i] < 0x80 || s[i] > 0xbf) return 0;
-    return len;
-}
 
 /* A quoted string. Messages quote request text (keys, names), which may hold any byte, so
  * every byte that would not be valid JSON is rewritten rather than trusted. */
@@ -117,7 +100,7 @@ static void jsonw_quoted(struct jsonw *w, const char *str)
     size_t run = 0;  /* start of the pending run of bytes copied as they are */
     for (size_t i = 0; i < n && !w->failed;) {
         unsigned char c = s[i];
-        size_t len = c < 0x80 ? 1 : protocol_utf8_seq(s + i, n - i);
+        size_t len = c < 0x80 ? 1 : json_utf8_seq(s + i, n - i);
         if (c >= 0x20 && c != '"' && c != '\\' && len > 0) {
             i += len;
             continue;

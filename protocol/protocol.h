@@ -19,9 +19,11 @@
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 
 #include "scene/animation.h"
 #include "core/err.h"
+#include "input/json_read.h"
 #include "session/view.h"
 
 #define PROTOCOL_ID_MAX 64          /* ids: [A-Za-z0-9_-]{1,64} */
@@ -42,25 +44,12 @@ bool protocol_valid_id(const char *s, size_t len);
 
 /* POST /v1/scenes/{scene}/sessions:
  * {"method": "pt", "width": W, "height": H, "seed": S, "params": {...}}; method defaults to
- * "pt", width/height to 256, seed to 0; params are the method's (pt: spp 1..max_spp,
- * max_depth 0..1024, rr_depth 0..1024, nee bool) with view_params_defaults for absent ones.
+ * "pt", width/height to 256, seed to 0; params are the method's, read through its descriptor's
+ * parameter table (methods/method.h), with view_params_defaults for absent ones.
  * width and height: 1..max_side, reported at "/width" or "/height"; width * height over
  * max_pixels is reported at "" (the product belongs to neither member alone).
  * seed: integer 0..2^53 (checked as a double: 2^53 + 1 reads as 2^53). *out is written only
  * on success. */
-/* A number or flag of a method's params struct: how a session create request names it and where
- * it lives. The parser reads params through these tables and the session object writes them
- * back through the same tables, so a param cannot be accepted and not echoed. */
-enum protocol_field_kind { PROTOCOL_UINT, PROTOCOL_BOOL, PROTOCOL_FLOAT };
-struct protocol_field {
-    const char *key;
-    enum protocol_field_kind kind;
-    size_t off;  /* offset in the method's params struct */
-};
-/* The numeric and boolean params of restir_pt, bdpt, restir_sss, restir_sms (NULL, *count = 0 for the
- * others, whose params are written out by hand). */
-const struct protocol_field *protocol_method_fields(enum render_method method, size_t *count);
-
 bool protocol_parse_session_create(const char *body, size_t len, const struct protocol_limits *limits,
                                    struct view_params *out, struct err *err);
 
@@ -86,7 +75,7 @@ struct protocol_shape_change {
  * position, transform, emission and must not set both position and transform (both errors at
  * "/lights/<name>"); at most PROTOCOL_MAX_SHAPE_CHANGES (ERR_LIMIT at "/lights"). Shape names
  * are checked against the scene by the caller, which reports "/lights/<name>" (see
- * protocol_pointer_key). *out is zeroed on failure. */
+ * json_pointer_key). *out is zeroed on failure. */
 struct protocol_frame_request {
     struct protocol_camera camera;
     uint32_t shape_count;
@@ -156,13 +145,7 @@ const char *protocol_reference_method_name(enum protocol_reference_method m);
 bool protocol_parse_reference_request(const char *body, size_t len, const struct protocol_limits *limits,
                                       struct protocol_reference_request *out, struct err *err);
 
-/* Writes "<base>/<key>" into out with key escaped per RFC 6901 (~ -> ~0, / -> ~1). A result
- * longer than size - 1 is cut before the first escape or UTF-8 character that does not fit. */
-void protocol_pointer_key(char *out, size_t size, const char *base, const char *key);
-
-/* Length (1..4) of the well-formed UTF-8 sequence at s[0..n), or 0 when it is malformed,
- * overlong, a surrogate or above U+10FFFF (RFC 3629). */
-size_t protocol_utf8_seq(const unsigned char *s, size_t n);
+/* JSON pointers and UTF-8 sequences: input/json_read.h (json_pointer_key, json_utf8_seq). */
 
 /* ---- responses ---- */
 
@@ -217,6 +200,18 @@ char *protocol_problem_json(const struct protocol_problem *p, size_t *len);
 const char *protocol_problem_title(const char *slug);
 /* Writes the problem's members into an object the caller opened (and closes, after adding
  * members of its own such as "job"): job errors and error events are problems too. */
+/* Methods as JSON, from their descriptors (method_json.c). A session's params object; the frame's
+ * method counters as members of the frame object being written (the daemon's form); the same
+ * counters as the CLI's --json prints them, each member preceded by a comma, with the session's
+ * bytes and one pixel's reservoir bytes where the method's table places them; one method's
+ * descriptor and the whole registry (GET /v1/methods; spp ranges within limits->max_spp). */
+void protocol_write_method_params(struct jsonw *w, const struct method_desc *m, const void *params);
+void protocol_write_method_counters(struct jsonw *w, const struct method_desc *m, const struct frame_stats *st);
+void protocol_print_method_counters(FILE *out, const struct method_desc *m, const struct frame_stats *st,
+                                    size_t session_bytes, uint32_t reservoir_bytes_per_pixel);
+void protocol_write_method(struct jsonw *w, const struct method_desc *m, const struct protocol_limits *limits);
+void protocol_write_methods(struct jsonw *w, const struct protocol_limits *limits);
+
 void protocol_problem_members(struct jsonw *w, const struct protocol_problem *p);
 
 #endif

@@ -8,6 +8,8 @@
  * Refs: RFC 8259 (JSON), RFC 3629 (UTF-8), RFC 6901 (JSON pointer); shared design PROTOCOL.md. */
 #include "protocol.h"
 
+#include "input/json_read.h"
+
 #include <cjson/cJSON.h>
 #include <float.h>
 #include <math.h>
@@ -18,7 +20,6 @@
 
 #define REQUEST_PTR 256              /* same size as err.where: longer pointers are truncated */
 #define REQUEST_MAX_NUMBER_CHARS 63  /* cJSON copies a number into a 64-byte buffer */
-#define REQUEST_MAX_PT_DEPTH 1024u   /* max_depth and rr_depth of pt */
 #define REQUEST_MAX_SEED 9007199254740992.0  /* 2^53: every integer up to here is exact in a double */
 #define REQUEST_DEFAULT_SIDE 256u
 #define REQUEST_DEFAULT_FPS 30.0
@@ -29,47 +30,12 @@
 /* Appends whole characters only, so a truncated pointer never ends inside an escape or a
  * UTF-8 sequence (it goes into JSON error bodies). Bytes that are not UTF-8 are copied one by
  * one; the JSON writer replaces them. */
-void protocol_pointer_key(char *out, size_t size, const char *base, const char *key)
-{
-    if (!out || size == 0) return;
-    size_t n = 0;
-    const char *parts[2] = {base ? base : "", key ? key : ""};
-    for (int part = 0; part < 2; part++) {
-        if (part == 1) {
-            if (n + 1 >= size) break;
-            out[n++] = '/';
-        }
-        const unsigned char *s = (const unsigned char *)parts[part];
-        size_t avail = strlen(parts[part]);
-        bool full = false;
-        for (size_t i = 0; i < avail && !full;) {
-            char esc[2];
-            const char *unit = (const char *)s + i;
-            size_t ulen = protocol_utf8_seq(s + i, avail - i);
-            if (ulen == 0) ulen = 1;
-            if (part == 1 && (s[i] == '~' || s[i] == '/')) {
-                esc[0] = '~';
-                esc[1] = s[i] == '~' ? '0' : '1';
-                unit = esc;
-                ulen = 2;
-                i++;
-            } else {
-                i += ulen;
-            }
-            if (n + ulen >= size) { full = true; break; }
-            memcpy(out + n, unit, ulen);
-            n += ulen;
-        }
-        if (full) break;
-    }
-    out[n] = '\0';
-}
 
 static void request_ptr_index(char out[REQUEST_PTR], const char *base, size_t i)
 {
     char idx[24];
     snprintf(idx, sizeof idx, "%zu", i);
-    protocol_pointer_key(out, REQUEST_PTR, base, idx);
+    json_pointer_key(out, REQUEST_PTR, base, idx);
 }
 
 /* ---- ids ---- */
@@ -155,7 +121,7 @@ static bool request_scan_string(struct request_scan *sc)
         if (c == '"') { sc->i++; return true; }
         if (c < 0x20) return request_scan_fail(sc, sc->i, "control characters in a string must be escaped");
         if (c >= 0x80) {
-            size_t n = protocol_utf8_seq(sc->s + sc->i, sc->len - sc->i);
+            size_t n = json_utf8_seq(sc->s + sc->i, sc->len - sc->i);
             if (!n) return request_scan_fail(sc, sc->i, "strings must be UTF-8");
             sc->i += n;
             continue;
@@ -336,42 +302,9 @@ static bool request_parse(const char *body, size_t len, cJSON **root, struct err
 
 /* ---- typed, strict accessors ---- */
 
-static const char *request_type_name(const cJSON *v)
-{
-    if (cJSON_IsNull(v)) return "null";
-    if (cJSON_IsBool(v)) return "a boolean";
-    if (cJSON_IsNumber(v)) return "a number";
-    if (cJSON_IsString(v)) return "a string";
-    if (cJSON_IsArray(v)) return "an array";
-    if (cJSON_IsObject(v)) return "an object";
-    return "an invalid value";
-}
 
 /* Every key of `obj` must be in the NULL-terminated `allowed` list (at most 32), at most once.
  * The first offending key in document order is reported, by its pointer. */
-static bool request_check_keys(const cJSON *obj, const char *ptr, const char *const *allowed, const char *context,
-                               struct err *err)
-{
-    uint32_t seen = 0;
-    char p[REQUEST_PTR];
-    for (const cJSON *c = obj->child; c; c = c->next) {
-        int idx = -1;
-        for (int i = 0; allowed[i]; i++)
-            if (strcmp(c->string, allowed[i]) == 0) { idx = i; break; }
-        protocol_pointer_key(p, sizeof p, ptr, c->string);
-        if (idx < 0) {
-            char list[256];
-            size_t n = 0;
-            list[0] = '\0';
-            for (int i = 0; allowed[i] && n < sizeof list; i++)
-                n += (size_t)snprintf(list + n, sizeof list - n, "%s%s", i ? ", " : "", allowed[i]);
-            return err_set(err, ERR_INVALID, p, "unknown key \"%.64s\"%s (expected one of: %s)", c->string, context, list);
-        }
-        if (seen & (1u << idx)) return err_set(err, ERR_INVALID, p, "duplicate key \"%s\"", allowed[idx]);
-        seen |= 1u << idx;
-    }
-    return true;
-}
 
 /* Members of a name-keyed object (shape names): each a valid id, each once. O(n^2) in the
  * member count, which the caller bounds first. */
@@ -379,7 +312,7 @@ static bool request_check_names(const cJSON *obj, const char *ptr, struct err *e
 {
     char p[REQUEST_PTR];
     for (const cJSON *c = obj->child; c; c = c->next) {
-        protocol_pointer_key(p, sizeof p, ptr, c->string);
+        json_pointer_key(p, sizeof p, ptr, c->string);
         if (!protocol_valid_id(c->string, strlen(c->string)))
             return err_set(err, ERR_INVALID, p, "invalid name \"%.64s\": names must match [A-Za-z0-9_-]{1,%d}", c->string,
                            PROTOCOL_ID_MAX);
@@ -389,23 +322,18 @@ static bool request_check_names(const cJSON *obj, const char *ptr, struct err *e
     return true;
 }
 
-static bool request_object(const cJSON *v, const char *ptr, const char *what, struct err *err)
-{
-    if (!cJSON_IsObject(v)) return err_set(err, ERR_INVALID, ptr, "expected %s object, got %s", what, request_type_name(v));
-    return true;
-}
 
 /* The member `key` of obj and its pointer; NULL when absent. */
 static const cJSON *request_member(const cJSON *obj, const char *ptr, const char *key, char p[REQUEST_PTR])
 {
-    protocol_pointer_key(p, REQUEST_PTR, ptr, key);
+    json_pointer_key(p, REQUEST_PTR, ptr, key);
     return cJSON_GetObjectItemCaseSensitive(obj, key);
 }
 
 /* A finite number. cJSON turns 1e999 into inf, which is refused here. */
 static bool request_double(const cJSON *v, const char *ptr, double *out, struct err *err)
 {
-    if (!cJSON_IsNumber(v)) return err_set(err, ERR_INVALID, ptr, "expected a number, got %s", request_type_name(v));
+    if (!cJSON_IsNumber(v)) return err_set(err, ERR_INVALID, ptr, "expected a number, got %s", json_type_name(v));
     if (!isfinite(v->valuedouble))
         return err_set(err, ERR_INVALID, ptr, "expected a finite number (the value overflows to infinity)");
     *out = v->valuedouble;
@@ -447,26 +375,12 @@ static bool request_uint32(const cJSON *v, const char *ptr, uint32_t lo, uint32_
     return true;
 }
 
-static bool request_bool(const cJSON *v, const char *ptr, bool *out, struct err *err)
-{
-    if (!cJSON_IsBool(v)) return err_set(err, ERR_INVALID, ptr, "expected true or false, got %s", request_type_name(v));
-    *out = cJSON_IsTrue(v);
-    return true;
-}
 
-static const char *request_string(const cJSON *v, const char *ptr, struct err *err)
-{
-    if (!cJSON_IsString(v) || !v->valuestring) {
-        err_set(err, ERR_INVALID, ptr, "expected a string, got %s", request_type_name(v));
-        return NULL;
-    }
-    return v->valuestring;
-}
 
 /* An id member copied into out[PROTOCOL_ID_MAX + 1]. */
 static bool request_id(const cJSON *v, const char *ptr, char *out, struct err *err)
 {
-    const char *s = request_string(v, ptr, err);
+    const char *s = json_string(v, ptr, err);
     if (!s) return false;
     size_t n = strlen(s);
     if (!protocol_valid_id(s, n))
@@ -481,7 +395,7 @@ enum request_range { RANGE_ANY, RANGE_NONNEG };
 static bool request_vec3(const cJSON *v, const char *ptr, enum request_range r, struct vec3 *out, struct err *err)
 {
     if (!cJSON_IsArray(v))
-        return err_set(err, ERR_INVALID, ptr, "expected an array of 3 numbers, got %s", request_type_name(v));
+        return err_set(err, ERR_INVALID, ptr, "expected an array of 3 numbers, got %s", json_type_name(v));
     int n = cJSON_GetArraySize(v);
     if (n != 3) return err_set(err, ERR_INVALID, ptr, "expected an array of 3 numbers, got %d elements", n);
     float f[3];
@@ -518,7 +432,7 @@ static bool request_trs(const cJSON *t, const char *ptr, struct trs *out, struct
     char p[REQUEST_PTR], q[REQUEST_PTR];
 
     *out = trs_identity();
-    if (!request_object(t, ptr, "a transform", err) || !request_check_keys(t, ptr, keys, " in a transform", err) ||
+    if (!json_object(t, ptr, "a transform", err) || !json_check_keys(t, ptr, keys, " in a transform", err) ||
         !request_key_vec3(t, ptr, "translate", RANGE_ANY, &has_t, &out->translate, err) ||
         !request_key_vec3(t, ptr, "rotate_deg", RANGE_ANY, &has_r, &out->rotate_deg, err))
         return false;
@@ -532,7 +446,7 @@ static bool request_trs(const cJSON *t, const char *ptr, struct trs *out, struct
         } else if (array) {
             if (!request_vec3(sv, p, RANGE_ANY, &out->scale, err)) return false;
         } else {
-            return err_set(err, ERR_INVALID, p, "expected a number or an array of 3 numbers, got %s", request_type_name(sv));
+            return err_set(err, ERR_INVALID, p, "expected a number or an array of 3 numbers, got %s", json_type_name(sv));
         }
         for (int i = 0; i < 3; i++) {
             float s = vec3_comp(out->scale, i);
@@ -571,13 +485,13 @@ static bool request_camera(const cJSON *obj, const char *ptr, struct protocol_ca
         out->has_fov_deg = true;
     }
     if (out->has_up && vec3_is_zero(out->up)) {
-        protocol_pointer_key(p, sizeof p, ptr, "up");
+        json_pointer_key(p, sizeof p, ptr, "up");
         return err_set(err, ERR_INVALID, p, "up must be non-zero");
     }
     if (out->has_position && out->has_look_at) {
         struct vec3 dir = vec3_sub(out->look_at, out->position);
         if (!vec3_is_finite(dir) || vec3_is_zero(dir)) {
-            protocol_pointer_key(p, sizeof p, ptr, "look_at");
+            json_pointer_key(p, sizeof p, ptr, "look_at");
             return err_set(err, ERR_INVALID, p, "look_at must differ from position (and the difference be finite)");
         }
         if (out->has_up) {
@@ -589,7 +503,7 @@ static bool request_camera(const cJSON *obj, const char *ptr, struct protocol_ca
             double lens = sqrt(((double)dir.x * dir.x + (double)dir.y * dir.y + (double)dir.z * dir.z) *
                                ((double)u.x * u.x + (double)u.y * u.y + (double)u.z * u.z));
             if (!(sqrt(cx * cx + cy * cy + cz * cz) > 1e-6 * lens)) {
-                protocol_pointer_key(p, sizeof p, ptr, "up");
+                json_pointer_key(p, sizeof p, ptr, "up");
                 return err_set(err, ERR_INVALID, p, "up must not be parallel to the view direction");
             }
         }
@@ -614,7 +528,7 @@ static bool request_shape_channels(const cJSON *obj, const char *ptr, struct ani
     if (!pos && !tr && !em) return err_set(err, ERR_INVALID, ptr, "no channel: set position, transform or emission");
     if (!request_key_vec3(obj, ptr, "position", RANGE_ANY, &out->has_position, &out->position, err)) return false;
     if (tr) {
-        protocol_pointer_key(p, sizeof p, ptr, "transform");
+        json_pointer_key(p, sizeof p, ptr, "transform");
         if (!request_trs(tr, p, &out->transform, err)) return false;
         out->has_transform = true;
     }
@@ -637,283 +551,66 @@ static bool request_key_time(const cJSON *key, const char *ptr, double prev, dou
 
 /* ---- session create ---- */
 
-static bool request_pt_params(const cJSON *pv, const char *ptr, const struct protocol_limits *limits,
-                              struct view_pt_params *pt, struct err *err)
+/* A method's "params" object, read through its descriptor's parameter table (method.h): every
+ * key must be one of the table's, each value of the key's kind and within its range (spp within
+ * max_spp too); then the method's own validation checks what the table cannot (its pointers name
+ * /params/<key>). */
+static bool request_method_params(const cJSON *pv, const char *ptr, const struct method_desc *m,
+                                  const struct protocol_limits *limits, void *params, struct err *err)
 {
-    static const char *const keys[] = {"spp", "max_depth", "rr_depth", "nee", "subset", NULL};
+    char context[64];
+    snprintf(context, sizeof context, " in %s params", m->name);
+    const char *keys[m->param_count + 1];
+    for (uint32_t i = 0; i < m->param_count; i++) keys[i] = m->params[i].key;
+    keys[m->param_count] = NULL;
+    if (!json_object(pv, ptr, "a params", err) || !json_check_keys(pv, ptr, keys, context, err)) return false;
     char p[REQUEST_PTR];
-    const cJSON *v;
-    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in pt params", err)) return false;
-    if ((v = request_member(pv, ptr, "subset", p))) {
-        const char *s = request_string(v, p, err);
-        if (!s) return false;
-        if (strcmp(s, "all") == 0) pt->subset = PT_SUBSET_ALL;
-        else if (strcmp(s, "caustic") == 0) pt->subset = PT_SUBSET_CAUSTIC;
-        else if (strcmp(s, "rest") == 0) pt->subset = PT_SUBSET_REST;
-        else return err_set(err, ERR_INVALID, p, "unknown subset '%.64s' (expected all, caustic or rest)", s);
-    }
-    if ((v = request_member(pv, ptr, "spp", p)) && !request_uint32(v, p, 1, limits->max_spp, "max_spp", &pt->spp, err))
-        return false;
-    if ((v = request_member(pv, ptr, "max_depth", p)) && !request_uint32(v, p, 0, REQUEST_MAX_PT_DEPTH, NULL, &pt->max_depth, err))
-        return false;
-    if ((v = request_member(pv, ptr, "rr_depth", p)) && !request_uint32(v, p, 0, REQUEST_MAX_PT_DEPTH, NULL, &pt->rr_depth, err))
-        return false;
-    if ((v = request_member(pv, ptr, "nee", p)) && !request_bool(v, p, &pt->nee, err)) return false;
-    return true;
-}
-
-/* sms: pt's spp and depths, plus the manifold sampling parameters (sms.h); sms_ssp (ssp != NULL)
- * adds the sample-space partitioning and prior parameters (sms_ssp.h). */
-static bool request_sms_params(const cJSON *pv, const char *ptr, const struct protocol_limits *limits,
-                               struct view_pt_params *pt, struct sms_params *sp, struct ssp_params *ssp,
-                               struct err *err)
-{
-    static const char *const keys[] = {"spp", "max_depth", "rr_depth", "bernoulli_cap", "max_iterations",
-                                       "caustics_only", NULL};
-    static const char *const ssp_keys[] = {"spp", "max_depth", "rr_depth", "bernoulli_cap", "max_iterations",
-                                           "caustics_only", "tiles", "prior", "prior_samples", "alpha",
-                                           "prior_frames", NULL};
-    char p[REQUEST_PTR];
-    const cJSON *v;
-    if (!request_object(pv, ptr, "a params", err) ||
-        !request_check_keys(pv, ptr, ssp ? ssp_keys : keys, ssp ? " in sms_ssp params" : " in sms params", err))
-        return false;
-    if (ssp) {
-        if ((v = request_member(pv, ptr, "tiles", p)) && !request_uint32(v, p, 3, SSP_MAX_TILES, NULL, &ssp->tiles, err))
-            return false;
-        if ((v = request_member(pv, ptr, "prior", p)) && !request_bool(v, p, &ssp->prior, err)) return false;
-        if ((v = request_member(pv, ptr, "prior_samples", p)) &&
-            !request_uint32(v, p, 0, 4096, NULL, &ssp->prior_samples, err))
-            return false;
-        if ((v = request_member(pv, ptr, "prior_frames", p)) &&
-            !request_uint32(v, p, 1, SSP_MAX_PRIOR_FRAMES, NULL, &ssp->prior_frames, err))
-            return false;
-        if ((v = request_member(pv, ptr, "alpha", p))) {
-            if (!request_float(v, p, &ssp->alpha, err)) return false;
-            if (!(ssp->alpha >= 0.0f && ssp->alpha < 1.0f))
-                return err_set(err, ERR_INVALID, p, "alpha must be in [0, 1), got %g", (double)ssp->alpha);
-        }
-        sp = &ssp->sms;
-    }
-    if ((v = request_member(pv, ptr, "spp", p)) && !request_uint32(v, p, 1, limits->max_spp, "max_spp", &pt->spp, err))
-        return false;
-    if ((v = request_member(pv, ptr, "max_depth", p)) && !request_uint32(v, p, 0, REQUEST_MAX_PT_DEPTH, NULL, &pt->max_depth, err))
-        return false;
-    if ((v = request_member(pv, ptr, "rr_depth", p)) && !request_uint32(v, p, 0, REQUEST_MAX_PT_DEPTH, NULL, &pt->rr_depth, err))
-        return false;
-    if ((v = request_member(pv, ptr, "bernoulli_cap", p)) &&
-        !request_uint32(v, p, 0, SMS_HARD_TRIAL_LIMIT, NULL, &sp->bernoulli_cap, err))
-        return false;
-    if ((v = request_member(pv, ptr, "max_iterations", p)) && !request_uint32(v, p, 1, 100, NULL, &sp->max_iterations, err))
-        return false;
-    if ((v = request_member(pv, ptr, "caustics_only", p)) && !request_bool(v, p, &sp->caustics_only, err)) return false;
-    return true;
-}
-
-/* Reads every field present in the object at ptr into base; unsigned fields take 0..umax (the
- * method's own validation checks the real ranges and names /params/<key>). */
-static bool request_fields(const cJSON *pv, const char *ptr, const struct protocol_field *f, size_t n, uint32_t umax,
-                           void *base, struct err *err)
-{
-    char p[REQUEST_PTR];
-    for (size_t i = 0; i < n; i++) {
-        const cJSON *v = request_member(pv, ptr, f[i].key, p);
+    for (uint32_t i = 0; i < m->param_count; i++) {
+        const struct method_param *mp = &m->params[i];
+        const cJSON *v = request_member(pv, ptr, mp->key, p);
         if (!v) continue;
-        char *at = (char *)base + f[i].off;
-        bool ok = f[i].kind == PROTOCOL_UINT   ? request_uint32(v, p, 0, umax, NULL, (uint32_t *)at, err)
-                  : f[i].kind == PROTOCOL_BOOL ? request_bool(v, p, (bool *)at, err)
-                                              : request_float(v, p, (float *)at, err);
-        if (!ok) return false;
+        char *at = (char *)params + mp->offset;
+        switch (mp->kind) {
+        case METHOD_PARAM_UINT: {
+            bool spp = mp->flags & METHOD_PARAM_SPP_LIMIT;
+            double hi = spp && limits->max_spp < mp->max ? limits->max_spp : mp->max;
+            if (!request_uint32(v, p, (uint32_t)mp->min, (uint32_t)hi, spp ? "max_spp" : NULL, (uint32_t *)at, err))
+                return false;
+            break;
+        }
+        case METHOD_PARAM_BOOL:
+            if (!json_bool(v, p, (bool *)at, err)) return false;
+            break;
+        case METHOD_PARAM_FLOAT: {
+            float x;
+            if (!request_float(v, p, &x, err)) return false;
+            bool low = mp->min_open ? !(x > mp->min) : !(x >= mp->min);
+            bool high = mp->max_open ? !(x < mp->max) : !(x <= mp->max);
+            if (low || high)
+                return err_set(err, ERR_INVALID, p, "%s must be in %c%g, %g%c, got %g", mp->key,
+                               mp->min_open ? '(' : '[', mp->min, mp->max, mp->max_open ? ')' : ']', (double)x);
+            *(float *)at = x;
+            break;
+        }
+        case METHOD_PARAM_ENUM: {
+            const char *name = json_string(v, p, err);
+            if (!name) return false;
+            int found = -1;
+            char list[160];
+            size_t n = 0;
+            list[0] = '\0';
+            for (int k = 0; mp->choices[k]; k++) {
+                if (strcmp(name, mp->choices[k]) == 0) found = k;
+                const char *sep = k == 0 ? "" : mp->choices[k + 1] ? ", " : " or ";
+                if (n < sizeof list) n += (size_t)snprintf(list + n, sizeof list - n, "%s%s", sep, mp->choices[k]);
+            }
+            if (found < 0) return err_set(err, ERR_INVALID, p, "unknown %s \"%.64s\" (%s)", mp->key, name, list);
+            *(int *)at = found;
+            break;
+        }
+        }
     }
-    return true;
-}
-
-#define REQUEST_FIELD(type, key, kind) {#key, kind, offsetof(type, key)}
-
-#define F(key, kind) REQUEST_FIELD(struct restir_pt_params, key, kind)
-static const struct protocol_field restir_pt_fields[] = {
-        F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(nee_candidates, PROTOCOL_UINT),
-        F(temporal_cap, PROTOCOL_UINT), F(spatial_neighbors, PROTOCOL_UINT), F(spatial_rounds, PROTOCOL_UINT),
-        F(rr, PROTOCOL_BOOL), F(unify_di, PROTOCOL_BOOL), F(temporal, PROTOCOL_BOOL), F(paired_spatial, PROTOCOL_BOOL),
-        F(expected_shading, PROTOCOL_BOOL),
-        F(footprint, PROTOCOL_BOOL), F(pdf_connect, PROTOCOL_BOOL), F(spatial_radius, PROTOCOL_FLOAT),
-        F(footprint_c, PROTOCOL_FLOAT), F(near_distance, PROTOCOL_FLOAT), F(roughness_min, PROTOCOL_FLOAT),
-    };
-#undef F
-#define F(key, kind) REQUEST_FIELD(struct bdpt_params, key, kind)
-static const struct protocol_field bdpt_fields[] = {
-    F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(light_paths, PROTOCOL_UINT), F(lvc_capacity, PROTOCOL_UINT),
-};
-#undef F
-#define F(key, kind) REQUEST_FIELD(struct restir_bdpt_params, key, kind)
-static const struct protocol_field restir_bdpt_fields[] = {
-    F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(light_paths, PROTOCOL_UINT),
-    F(lt_capacity, PROTOCOL_UINT), F(lvc_capacity, PROTOCOL_UINT), F(caustic_temporal, PROTOCOL_BOOL),
-    F(temporal_cap, PROTOCOL_UINT),
-    F(moving_cap, PROTOCOL_UINT), F(reuse, PROTOCOL_BOOL), F(spatial_neighbors, PROTOCOL_UINT), F(spatial_radius, PROTOCOL_FLOAT),
-    F(paired_spatial, PROTOCOL_BOOL), F(camera_reconnect, PROTOCOL_BOOL), F(copy_mis, PROTOCOL_BOOL),
-    F(reject_unshiftable, PROTOCOL_BOOL),
-};
-#undef F
-#define F(key, kind) REQUEST_FIELD(struct restir_sss_params, key, kind)
-static const struct protocol_field restir_sss_fields[] = {
-        F(candidates, PROTOCOL_UINT), F(temporal_cap, PROTOCOL_UINT), F(spatial_neighbors, PROTOCOL_UINT),
-        F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(temporal, PROTOCOL_BOOL),
-        F(index_shortcut, PROTOCOL_BOOL), F(paired_spatial, PROTOCOL_BOOL), F(expected_shading, PROTOCOL_BOOL),
-        F(spatial_radius, PROTOCOL_FLOAT),
-        F(kappa_orientation, PROTOCOL_FLOAT),
-    };
-#undef F
-
-/* restir_sms: its own fields and the sms_ssp sampler's, named as sms_ssp names them. */
-#define F(key, kind) REQUEST_FIELD(struct restir_sms_params, key, kind)
-#define FS(key, member, kind) {key, kind, offsetof(struct restir_sms_params, member)}
-static const struct protocol_field restir_sms_fields[] = {
-        F(shift_iterations, PROTOCOL_UINT), F(temporal_cap, PROTOCOL_UINT), F(spatial_neighbors, PROTOCOL_UINT),
-        F(max_depth, PROTOCOL_UINT), F(rr_depth, PROTOCOL_UINT), F(temporal, PROTOCOL_BOOL),
-        F(spatial_radius, PROTOCOL_FLOAT), F(paired_spatial, PROTOCOL_BOOL), F(expected_shading, PROTOCOL_BOOL),
-        F(jitter_walk, PROTOCOL_FLOAT), F(light_reservoirs, PROTOCOL_UINT), FS("bernoulli_cap", ssp.sms.bernoulli_cap, PROTOCOL_UINT),
-        FS("max_iterations", ssp.sms.max_iterations, PROTOCOL_UINT),
-        FS("caustics_only", ssp.sms.caustics_only, PROTOCOL_BOOL), FS("tiles", ssp.tiles, PROTOCOL_UINT),
-        FS("prior", ssp.prior, PROTOCOL_BOOL), FS("prior_samples", ssp.prior_samples, PROTOCOL_UINT),
-        FS("alpha", ssp.alpha, PROTOCOL_FLOAT), FS("prior_frames", ssp.prior_frames, PROTOCOL_UINT),
-    };
-#undef FS
-#undef F
-
-const struct protocol_field *protocol_method_fields(enum render_method method, size_t *count)
-{
-    switch (method) {
-    case RENDER_METHOD_RESTIR_PT: *count = sizeof restir_pt_fields / sizeof restir_pt_fields[0]; return restir_pt_fields;
-    case RENDER_METHOD_BDPT: *count = sizeof bdpt_fields / sizeof bdpt_fields[0]; return bdpt_fields;
-    case RENDER_METHOD_RESTIR_SSS: *count = sizeof restir_sss_fields / sizeof restir_sss_fields[0]; return restir_sss_fields;
-    case RENDER_METHOD_RESTIR_BDPT:
-        *count = sizeof restir_bdpt_fields / sizeof restir_bdpt_fields[0];
-        return restir_bdpt_fields;
-    case RENDER_METHOD_RESTIR_SMS: *count = sizeof restir_sms_fields / sizeof restir_sms_fields[0]; return restir_sms_fields;
-    default: *count = 0; return NULL;
-    }
-}
-
-static bool request_restir_pt_params(const cJSON *pv, const char *ptr, struct restir_pt_params *rp, struct err *err)
-{
-    static const char *const keys[] = {"max_depth", "rr_depth", "rr", "nee_candidates", "unify_di", "temporal",
-                                       "temporal_cap", "spatial_neighbors", "spatial_radius", "spatial_rounds",
-                                       "paired_spatial", "expected_shading", "footprint", "footprint_c", "near_distance", "pdf_connect", "roughness_min",
-                                       NULL};
-    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_pt params", err) ||
-        !request_fields(pv, ptr, restir_pt_fields, sizeof restir_pt_fields / sizeof restir_pt_fields[0], 1000000, rp, err))
-        return false;
-    /* Ranges are the renderer's (its pointers name /params/<key>). */
-    return restir_pt_params_valid(rp, err);
-}
-
-/* "heuristic" of bdpt and restir_bdpt, when present. */
-static bool request_heuristic(const cJSON *pv, const char *ptr, enum bdpt_heuristic *out, struct err *err)
-{
-    char p[REQUEST_PTR];
-    const cJSON *v = request_member(pv, ptr, "heuristic", p);
-    if (!v) return true;
-    const char *name = request_string(v, p, err);
-    if (!name) return false;
-    if (!bdpt_heuristic_parse(name, out))
-        return err_set(err, ERR_INVALID, p, "unknown heuristic \"%.32s\" (power or balance)", name);
-    return true;
-}
-
-static bool request_bdpt_params(const cJSON *pv, const char *ptr, struct bdpt_params *bp, struct err *err)
-{
-    static const char *const keys[] = {"max_depth", "rr_depth", "light_paths", "lvc_capacity", "heuristic", NULL};
-    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in bdpt params", err) ||
-        !request_fields(pv, ptr, bdpt_fields, sizeof bdpt_fields / sizeof bdpt_fields[0], 1u << 26, bp, err) ||
-        !request_heuristic(pv, ptr, &bp->heuristic, err))
-        return false;
-    /* Ranges are the renderer's (its pointers name /params/<key>). */
-    return bdpt_params_valid(bp, err);
-}
-
-static bool request_restir_bdpt_params(const cJSON *pv, const char *ptr, struct restir_bdpt_params *rp,
-                                       struct err *err)
-{
-    static const char *const keys[] = {"variant", "max_depth", "rr_depth", "light_paths", "lt_capacity", "lvc_capacity",
-                                       "heuristic",
-                                       "caustic_temporal", "temporal_cap", "moving_cap", "reuse", "spatial_neighbors",
-                                       "spatial_radius", "paired_spatial", "camera_reconnect", "copy_mis",
-                                       "reject_unshiftable", NULL};
-    char p[REQUEST_PTR];
-    const cJSON *v;
-    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_bdpt params", err) ||
-        !request_fields(pv, ptr, restir_bdpt_fields, sizeof restir_bdpt_fields / sizeof restir_bdpt_fields[0], 1u << 26,
-                        rp, err))
-        return false;
-    if ((v = request_member(pv, ptr, "variant", p))) {
-        const char *name = request_string(v, p, err);
-        if (!name) return false;
-        if (!restir_bdpt_variant_parse(name, &rp->variant))
-            return err_set(err, ERR_INVALID, p, "unknown variant \"%.32s\" (lightweight or full)", name);
-    }
-    /* Ranges are the renderer's (its pointers name /params/<key>). */
-    return request_heuristic(pv, ptr, &rp->heuristic, err) && restir_bdpt_params_valid(rp, err);
-}
-
-static bool request_restir_sss_params(const cJSON *pv, const char *ptr, struct restir_sss_params *rp, struct err *err)
-{
-    static const char *const keys[] = {"shift", "candidates", "temporal", "temporal_cap", "spatial_neighbors",
-                                       "spatial_radius", "kappa_orientation", "max_depth", "rr_depth",
-                                       "index_shortcut", "paired_spatial", "expected_shading", "target", NULL};
-    char p[REQUEST_PTR];
-    const cJSON *v;
-    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_sss params", err))
-        return false;
-    if ((v = request_member(pv, ptr, "shift", p))) {
-        const char *name = request_string(v, p, err);
-        if (!name) return false;
-        if (!restir_sss_shift_parse(name, &rp->shift))
-            return err_set(err, ERR_INVALID, p, "unknown shift \"%.64s\" (reconnection, delayed, hybrid or sequential)",
-                           name);
-    }
-    if ((v = request_member(pv, ptr, "target", p))) {
-        const char *name = request_string(v, p, err);
-        if (!name) return false;
-        if (!restir_sss_target_parse(name, &rp->target))
-            return err_set(err, ERR_INVALID, p, "unknown target \"%.64s\" (luminance or per_channel)", name);
-    }
-    if (!request_fields(pv, ptr, restir_sss_fields, sizeof restir_sss_fields / sizeof restir_sss_fields[0], 1000000, rp, err)) return false;
-    return restir_sss_params_valid(rp, err);
-}
-
-static bool request_restir_sms_params(const cJSON *pv, const char *ptr, struct restir_sms_params *rp, struct err *err)
-{
-    const size_t n = sizeof restir_sms_fields / sizeof restir_sms_fields[0];
-    const char *keys[sizeof restir_sms_fields / sizeof restir_sms_fields[0] + 2];
-    for (size_t i = 0; i < n; i++) keys[i] = restir_sms_fields[i].key;
-    keys[n] = "sampler";
-    keys[n + 1] = NULL;
-    char p[REQUEST_PTR];
-    const cJSON *v;
-    if (!request_object(pv, ptr, "a params", err) || !request_check_keys(pv, ptr, keys, " in restir_sms params", err) ||
-        !request_fields(pv, ptr, restir_sms_fields, n, SMS_HARD_TRIAL_LIMIT, rp, err))
-        return false;
-    if ((v = request_member(pv, ptr, "sampler", p))) {
-        const char *name = request_string(v, p, err);
-        if (!name) return false;
-        if (!restir_sms_sampler_parse(name, &rp->sampler))
-            return err_set(err, ERR_INVALID, p, "unknown sampler \"%.64s\" (ssp or sms)", name);
-    }
-    /* Ranges are the renderer's (its pointers name /params/<key>). */
-    return restir_sms_params_valid(rp, err);
-}
-
-/* Names of every method view_method_name knows, for error messages. Probes enum values rather
- * than listing names, so a method added to view.c shows up here without an edit. */
-static void request_method_list(char *out, size_t size)
-{
-    size_t n = 0;
-    out[0] = '\0';
-    for (int m = 0; m < 32 && n < size; m++) {
-        const char *name = view_method_name((enum render_method)m);
-        if (name) n += (size_t)snprintf(out + n, size - n, "%s%s", n ? ", " : "", name);
-    }
+    return m->validate(params, err);
 }
 
 /* A side: given (1..max_side) or the default, which must be within the limit too. */
@@ -938,16 +635,16 @@ bool protocol_parse_session_create(const char *body, size_t len, const struct pr
     cJSON *root;
     if (!request_parse(body, len, &root, err)) return false;
 
-    bool ok = request_check_keys(root, "", keys, " at the top level", err);
-    enum render_method method = RENDER_METHOD_PT;
+    bool ok = json_check_keys(root, "", keys, " at the top level", err);
+    const struct method_desc *method = method_default();
     char p[REQUEST_PTR];
     const cJSON *mv = request_member(root, "", "method", p);
     if (ok && mv) {
-        const char *name = request_string(mv, p, err);
+        const char *name = json_string(mv, p, err);
         ok = name != NULL;
-        if (ok && !view_method_parse(name, &method)) {
+        if (ok && !(method = method_find(name))) {
             char known[256];
-            request_method_list(known, sizeof known);
+            method_names(known, sizeof known, ", ");
             ok = err_set(err, ERR_INVALID, p, "unknown method \"%.64s\" (known methods: %s)", name, known);
         }
     }
@@ -957,7 +654,8 @@ bool protocol_parse_session_create(const char *body, size_t len, const struct pr
     if (ok && (uint64_t)w * h > limits->max_pixels)
         ok = err_set(err, ERR_LIMIT, "", "%ux%u is %llu pixels, over the limit max_pixels = %llu", w, h,
                      (unsigned long long)w * h, (unsigned long long)limits->max_pixels);
-    struct view_params vp = view_params_defaults(method, w, h);
+    /* An unknown method has failed above (ok is false) and has no defaults. */
+    struct view_params vp = view_params_defaults(method ? method : method_default(), w, h);
     const cJSON *sv = request_member(root, "", "seed", p);
     if (ok && sv) {
         double seed = 0.0;
@@ -965,37 +663,20 @@ bool protocol_parse_session_create(const char *body, size_t len, const struct pr
         vp.seed = ok ? (uint64_t)seed : 0;
     }
     const cJSON *pv = request_member(root, "", "params", p);
-    if (ok && pv) {
-        switch (method) {
-        case RENDER_METHOD_PT:
-            ok = request_pt_params(pv, p, limits, &vp.pt, err);
-            break;
-        case RENDER_METHOD_RESTIR_PT:
-            ok = request_restir_pt_params(pv, p, &vp.restir_pt, err);
-            break;
-        case RENDER_METHOD_BDPT:
-            ok = request_bdpt_params(pv, p, &vp.bdpt, err);
-            break;
-        case RENDER_METHOD_SMS:
-            ok = request_sms_params(pv, p, limits, &vp.pt, &vp.sms, NULL, err);
-            break;
-        case RENDER_METHOD_SMS_SSP:
-            ok = request_sms_params(pv, p, limits, &vp.pt, &vp.sms, &vp.ssp, err);
-            break;
-        case RENDER_METHOD_RESTIR_SSS:
-            ok = request_restir_sss_params(pv, p, &vp.restir_sss, err);
-            break;
-        case RENDER_METHOD_RESTIR_BDPT:
-            ok = request_restir_bdpt_params(pv, p, &vp.restir_bdpt, err);
-            break;
-        case RENDER_METHOD_RESTIR_SMS:
-            ok = request_restir_sms_params(pv, p, &vp.restir_sms, err);
-            break;
+    if (ok && pv) ok = request_method_params(pv, p, method, limits, vp.method_params, err);
+    /* A default within a parameter's range may still be over a configured limit. */
+    for (uint32_t i = 0; ok && i < method->param_count; i++) {
+        const struct method_param *mp = &method->params[i];
+        uint32_t value;
+        if (!(mp->flags & METHOD_PARAM_SPP_LIMIT)) continue;
+        memcpy(&value, vp.method_params + mp->offset, sizeof value);
+        if (value > limits->max_spp) {
+            char at[REQUEST_PTR];
+            json_pointer_key(at, sizeof at, "/params", mp->key);
+            ok = err_set(err, ERR_LIMIT, at, "the default %s %u is over the limit max_spp = %u (send params.%s)",
+                         mp->key, value, limits->max_spp, mp->key);
         }
     }
-    if (ok && vp.pt.spp > limits->max_spp)
-        ok = err_set(err, ERR_LIMIT, "/params/spp", "the default spp %u is over the limit max_spp = %u (send params.spp)",
-                     vp.pt.spp, limits->max_spp);
     cJSON_Delete(root);
     if (ok) *out = vp;
     return ok;
@@ -1014,15 +695,15 @@ bool protocol_parse_frame_request(const char *body, size_t len, struct protocol_
     if (!request_parse(body, len, &root, err)) return false;
 
     char p[REQUEST_PTR];
-    bool ok = request_check_keys(root, "", keys, " at the top level", err);
+    bool ok = json_check_keys(root, "", keys, " at the top level", err);
     const cJSON *cv = request_member(root, "", "camera", p);
     if (ok && cv)
-        ok = request_object(cv, p, "a camera", err) && request_check_keys(cv, p, camera_keys, " in the camera", err) &&
+        ok = json_object(cv, p, "a camera", err) && json_check_keys(cv, p, camera_keys, " in the camera", err) &&
              request_camera(cv, p, &out->camera, err);
 
     const cJSON *lv = request_member(root, "", "lights", p);
     if (ok && lv) {
-        ok = request_object(lv, p, "a lights", err);
+        ok = json_object(lv, p, "a lights", err);
         int n = ok ? cJSON_GetArraySize(lv) : 0;
         if (ok && n > PROTOCOL_MAX_SHAPE_CHANGES)
             ok = err_set(err, ERR_LIMIT, p, "%d shape changes, over the limit of %d per frame", n, PROTOCOL_MAX_SHAPE_CHANGES);
@@ -1031,8 +712,8 @@ bool protocol_parse_frame_request(const char *body, size_t len, struct protocol_
         for (const cJSON *c = ok ? lv->child : NULL; c && ok; c = c->next) {
             struct protocol_shape_change *sc = &out->shapes[out->shape_count];
             struct animation_shape_state st;
-            protocol_pointer_key(q, sizeof q, p, c->string);
-            ok = request_object(c, q, "a shape change", err) && request_check_keys(c, q, shape_keys, " in a shape change", err) &&
+            json_pointer_key(q, sizeof q, p, c->string);
+            ok = json_object(c, q, "a shape change", err) && json_check_keys(c, q, shape_keys, " in a shape change", err) &&
                  request_shape_channels(c, q, &st, err);
             if (!ok) break;
             snprintf(sc->name, sizeof sc->name, "%s", c->string);
@@ -1082,7 +763,7 @@ static bool request_camera_keys(const cJSON *v, const char *ptr, const struct pr
 {
     static const char *const keys[] = {"t", "position", "look_at", "up", "fov_deg", NULL};
     uint32_t n = 0;
-    if (!cJSON_IsArray(v)) return err_set(err, ERR_INVALID, ptr, "expected an array of camera keys, got %s", request_type_name(v));
+    if (!cJSON_IsArray(v)) return err_set(err, ERR_INVALID, ptr, "expected an array of camera keys, got %s", json_type_name(v));
     if (!request_count(v, ptr, limits->max_keys, "max_keys", "camera keys", &n, err)) return false;
     if (n == 0) return true;
     out->camera_keys = calloc(n, sizeof *out->camera_keys);
@@ -1092,7 +773,7 @@ static bool request_camera_keys(const cJSON *v, const char *ptr, const struct pr
     for (const cJSON *k = v->child; k; k = k->next) {
         struct protocol_camera_key *ck = &out->camera_keys[out->camera_key_count];
         request_ptr_index(p, ptr, out->camera_key_count);
-        if (!request_object(k, p, "a camera key", err) || !request_check_keys(k, p, keys, " in a camera key", err) ||
+        if (!json_object(k, p, "a camera key", err) || !json_check_keys(k, p, keys, " in a camera key", err) ||
             !request_key_time(k, p, prev, &ck->t_s, err) || !request_camera(k, p, &ck->camera, err))
             return false;
         const struct protocol_camera *c = &ck->camera;
@@ -1109,7 +790,7 @@ static bool request_shape_track(const cJSON *v, const char *ptr, const struct pr
 {
     static const char *const keys[] = {"t", "position", "transform", "emission", NULL};
     uint32_t n = 0;
-    if (!cJSON_IsArray(v)) return err_set(err, ERR_INVALID, ptr, "expected an array of shape keys, got %s", request_type_name(v));
+    if (!cJSON_IsArray(v)) return err_set(err, ERR_INVALID, ptr, "expected an array of shape keys, got %s", json_type_name(v));
     if (!request_count(v, ptr, limits->max_keys, "max_keys", "keys", &n, err)) return false;
     if (n == 0) return err_set(err, ERR_INVALID, ptr, "a shape track needs at least one key");
     track->keys = calloc(n, sizeof *track->keys);
@@ -1120,7 +801,7 @@ static bool request_shape_track(const cJSON *v, const char *ptr, const struct pr
         struct animation_shape_key *sk = &track->keys[track->key_count];
         struct animation_shape_state st;
         request_ptr_index(p, ptr, track->key_count);
-        if (!request_object(k, p, "a shape key", err) || !request_check_keys(k, p, keys, " in a shape key", err) ||
+        if (!json_object(k, p, "a shape key", err) || !json_check_keys(k, p, keys, " in a shape key", err) ||
             !request_key_time(k, p, prev, &sk->t_s, err) || !request_shape_channels(k, p, &st, err))
             return false;
         sk->has_position = st.has_position;
@@ -1141,7 +822,7 @@ static bool request_animation(const cJSON *a, const char *ptr, const struct prot
     static const char *const keys[] = {"fps", "frames", "interpolation", "camera_keys", "light_keys", NULL};
     char p[REQUEST_PTR];
     const cJSON *v;
-    if (!request_object(a, ptr, "an animation", err) || !request_check_keys(a, ptr, keys, " in the animation", err))
+    if (!json_object(a, ptr, "an animation", err) || !json_check_keys(a, ptr, keys, " in the animation", err))
         return false;
     if ((v = request_member(a, ptr, "fps", p))) {
         if (!request_double(v, p, &out->fps, err)) return false;
@@ -1151,7 +832,7 @@ static bool request_animation(const cJSON *a, const char *ptr, const struct prot
     if (!v) return err_set(err, ERR_INVALID, p, "missing required key");
     if (!request_uint32(v, p, 1, limits->max_frames, "max_frames", &out->frames, err)) return false;
     if ((v = request_member(a, ptr, "interpolation", p))) {
-        const char *s = request_string(v, p, err);
+        const char *s = json_string(v, p, err);
         if (!s) return false;
         if (strcmp(s, "linear") == 0) out->interp = ANIMATION_LINEAR;
         else if (strcmp(s, "catmull_rom") == 0) out->interp = ANIMATION_CATMULL_ROM;
@@ -1160,7 +841,7 @@ static bool request_animation(const cJSON *a, const char *ptr, const struct prot
     if ((v = request_member(a, ptr, "camera_keys", p)) && !request_camera_keys(v, p, limits, out, err)) return false;
     if ((v = request_member(a, ptr, "light_keys", p))) {
         uint32_t n = 0;
-        if (!request_object(v, p, "a light_keys", err) ||
+        if (!json_object(v, p, "a light_keys", err) ||
             !request_count(v, p, PROTOCOL_MAX_SHAPE_CHANGES, "PROTOCOL_MAX_SHAPE_CHANGES", "shape tracks", &n, err) ||
             !request_check_names(v, p, err))
             return false;
@@ -1171,7 +852,7 @@ static bool request_animation(const cJSON *a, const char *ptr, const struct prot
         for (const cJSON *c = v->child; c; c = c->next) {
             struct protocol_shape_track *track = &out->shape_tracks[out->shape_track_count++];
             snprintf(track->name, sizeof track->name, "%s", c->string);
-            protocol_pointer_key(q, sizeof q, p, c->string);
+            json_pointer_key(q, sizeof q, p, c->string);
             if (!request_shape_track(c, q, limits, track, err)) return false;
         }
     }
@@ -1191,7 +872,7 @@ bool protocol_parse_render_request(const char *body, size_t len, const struct pr
     if (!request_parse(body, len, &root, err)) return false;
 
     char p[REQUEST_PTR];
-    bool ok = request_check_keys(root, "", keys, " at the top level", err);
+    bool ok = json_check_keys(root, "", keys, " at the top level", err);
     const cJSON *av = request_member(root, "", "animation", p);
     if (ok && !av) ok = err_set(err, ERR_INVALID, p, "missing required key");
     ok = ok && request_animation(av, p, limits, out, err);
@@ -1218,7 +899,7 @@ bool protocol_parse_reference_request(const char *body, size_t len, const struct
     if (!request_parse(body, len, &root, err)) return false;
     char p[REQUEST_PTR];
     uint32_t n = REQUEST_DEFAULT_REFERENCE_SPP;
-    bool ok = request_check_keys(root, "", keys, " at the top level", err);
+    bool ok = json_check_keys(root, "", keys, " at the top level", err);
     const cJSON *v = request_member(root, "", "spp", p);
     if (ok && v) ok = request_uint32(v, p, 1, limits->max_spp, "max_spp", &n, err);
     else if (ok && n > limits->max_spp)
@@ -1226,7 +907,7 @@ bool protocol_parse_reference_request(const char *body, size_t len, const struct
     enum protocol_reference_method method = PROTOCOL_REFERENCE_PT;
     const cJSON *mv = request_member(root, "", "method", p);
     if (ok && mv) {
-        const char *name = request_string(mv, p, err);
+        const char *name = json_string(mv, p, err);
         ok = name != NULL;
         if (ok && strcmp(name, "sms") == 0) method = PROTOCOL_REFERENCE_SMS;
         else if (ok && strcmp(name, "pt") != 0)

@@ -1,10 +1,12 @@
 #!/usr/bin/python3
 """Checks that two builds of the offline CLI render the same bytes.
 
-For every method and every library scene it renders 32x32, 4 frames, a fixed seed, with each
+For every method the new build's registry lists (`restir methods --json`) and every library
+scene it renders 32x32, 4 frames, a fixed seed, with each
 build, and compares the EXR files byte for byte and the --json statistics with their timings
 removed (times differ from run to run; counts, means and sizes must not). A method that refuses
-a scene must refuse it in both builds with the same message.
+a scene must refuse it in both builds at the same place (the message's JSON pointer or file);
+where the words differ, both messages are printed beside the pair.
 
     /usr/bin/python3 scripts/same_output.py OLD/restir NEW/restir [--keep DIR]
 
@@ -20,7 +22,12 @@ import tempfile
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SCENES_DIR = os.path.join(HERE, "..", "scenes")
-METHODS = ["pt", "restir_pt", "bdpt", "restir_bdpt", "sms", "sms_ssp", "restir_sss", "restir_sms"]
+
+
+def methods(binary):
+    """Every method the CLI knows (its `methods --json`, the registry)."""
+    out = subprocess.run([binary, "methods", "--json"], capture_output=True, text=True, check=True).stdout
+    return [m["name"] for m in json.loads(out)["methods"]]
 
 
 def timing_free(stats):
@@ -38,7 +45,12 @@ def render(binary, scene, method, out_dir):
     cmd = [binary, "render", os.path.join(SCENES_DIR, scene), "--method", method, "--size", "32x32",
            "--frames", "4", "--seed", "7", "--json", "-o", exr]
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
-    result = {"rc": run.returncode, "stderr": run.stderr.strip()}
+    result = {"rc": run.returncode}
+    message = run.stderr.strip()
+    if run.returncode:
+        # "restir: /method: ..." -> "/method": where the refusal points.
+        result["refused_at"] = message.split(": ")[1] if message.count(": ") >= 2 else message
+        result["message"] = message
     if run.returncode == 0:
         result["stats"] = timing_free(json.loads(run.stdout))
         with open(exr, "rb") as f:
@@ -59,20 +71,23 @@ def main():
         dirs = [os.path.join(root, "old"), os.path.join(root, "new")]
         for d in dirs:
             os.makedirs(d, exist_ok=True)
-        for method in METHODS:
+        # The new build's methods: a build from before `restir methods` existed is the old one.
+        for method in methods(args.new):
             for scene in scenes:
                 a = render(args.old, scene, method, dirs[0])
                 b = render(args.new, scene, method, dirs[1])
                 what = "refused" if a["rc"] else "rendered"
-                if a == b:
+                diff = [k for k in sorted(set(a) | set(b)) if k != "message" and a.get(k) != b.get(k)]
+                if not diff:
                     passed += 1
                     print(f"same  {method:12s} {scene:18s} {what}")
+                    if a.get("message") != b.get("message"):
+                        print(f"      old words: {a['message']}\n      new words: {b['message']}")
                 else:
                     failed += 1
-                    diff = [k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
                     print(f"DIFF  {method:12s} {scene:18s} {', '.join(diff)}")
-                    if "stderr" in diff:
-                        print(f"      old: {a['stderr']}\n      new: {b['stderr']}")
+                    if "message" in a or "message" in b:
+                        print(f"      old: {a.get('message')}\n      new: {b.get('message')}")
     print(f"{passed} passed, {failed} failed")
     return 1 if failed else 0
 

@@ -54,7 +54,7 @@ bool animate_resolve(struct protocol_render_request *rq, const struct scene *sce
         int idx = scene_find_shape(scene, rq->shape_tracks[i].name);
         if (idx < 0) {
             char ptr[160];
-            protocol_pointer_key(ptr, sizeof ptr, "/animation/light_keys", rq->shape_tracks[i].name);
+            json_pointer_key(ptr, sizeof ptr, "/animation/light_keys", rq->shape_tracks[i].name);
             animate_destroy(out);
             return err_set(err, ERR_INVALID, ptr, "the scene has no shape named '%s'", rq->shape_tracks[i].name);
         }

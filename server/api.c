@@ -338,6 +338,16 @@ static void api_metrics(struct api_call *c)
     c->resp->body_len = len;
 }
 
+/* The method registry: every method's name, summary, capabilities and parameters with their
+ * defaults and ranges (spp within this daemon's max_spp). Clients build their forms from it. */
+static void api_methods(struct api_call *c)
+{
+    struct jsonw w;
+    jsonw_init(&w);
+    protocol_write_methods(&w, &c->d->cfg.limits);
+    api_json(c, 200, &w);
+}
+
 static void api_limits(struct api_call *c)
 {
     const struct daemon_config *cfg = &c->d->cfg;
@@ -674,6 +684,7 @@ static const struct api_route api_routes[] = {
     {"/readyz", {"GET"}, {api_readyz}, {0}, api_json_only},
     {"/metrics", {"GET"}, {api_metrics}, {0}, api_prometheus},
     {"/v1/limits", {"GET"}, {api_limits}, {0}, api_json_only},
+    {"/v1/methods", {"GET"}, {api_methods}, {0}, api_json_only},
     {"/v1/openapi.yaml", {"GET"}, {api_openapi}, {0}, api_yaml},
     {"/v1/scenes", {"GET"}, {api_scenes_list}, {0}, api_json_only},
     {"/v1/scenes/*", {"GET", "PUT", "DELETE"}, {api_scene_get, api_scene_put, api_scene_delete}, {0, BODY_JSON, 0},

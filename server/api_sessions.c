@@ -43,130 +43,6 @@ static void api_write_camera(struct jsonw *w, const struct camera_desc *cam)
     jsonw_object_end(w);
 }
 
-/* Params read through a protocol field table, written back through it. */
-static void api_write_fields(struct jsonw *w, const struct protocol_field *f, size_t n, const char *base)
-{
-    for (size_t i = 0; i < n; i++) {
-        jsonw_key(w, f[i].key);
-        const char *at = base + f[i].off;
-        if (f[i].kind == PROTOCOL_UINT) jsonw_uint(w, *(const uint32_t *)at);
-        else if (f[i].kind == PROTOCOL_BOOL) jsonw_bool(w, *(const bool *)at);
-        else jsonw_double(w, *(const float *)at);
-    }
-}
-
-/* The method's parameters, as a session create request names them. */
-static void api_write_method_params(struct jsonw *w, const struct view_params *p)
-{
-    jsonw_object_begin(w);
-    size_t nf;
-    const struct protocol_field *fields = protocol_method_fields(p->method, &nf);
-    if (fields) {
-        const char *base = p->method == RENDER_METHOD_RESTIR_PT   ? (const char *)&p->restir_pt
-                         : p->method == RENDER_METHOD_BDPT        ? (const char *)&p->bdpt
-                         : p->method == RENDER_METHOD_RESTIR_BDPT ? (const char *)&p->restir_bdpt
-                         : p->method == RENDER_METHOD_RESTIR_SMS  ? (const char *)&p->restir_sms
-                                                                  : (const char *)&p->restir_sss;
-        api_write_fields(w, fields, nf, base);
-        if (p->method == RENDER_METHOD_BDPT) {
-            jsonw_key(w, "heuristic"); jsonw_string(w, bdpt_heuristic_name(p->bdpt.heuristic));
-        } else if (p->method == RENDER_METHOD_RESTIR_BDPT) {
-            jsonw_key(w, "variant"); jsonw_string(w, restir_bdpt_variant_name(p->restir_bdpt.variant));
-            jsonw_key(w, "heuristic"); jsonw_string(w, bdpt_heuristic_name(p->restir_bdpt.heuristic));
-        } else if (p->method == RENDER_METHOD_RESTIR_SSS) {
-            jsonw_key(w, "shift"); jsonw_string(w, restir_sss_shift_name(p->restir_sss.shift));
-            jsonw_key(w, "target"); jsonw_string(w, restir_sss_target_name(p->restir_sss.target));
-        } else if (p->method == RENDER_METHOD_RESTIR_SMS) {
-            jsonw_key(w, "sampler"); jsonw_string(w, restir_sms_sampler_name(p->restir_sms.sampler));
-        }
-    } else if (p->method == RENDER_METHOD_SMS || p->method == RENDER_METHOD_SMS_SSP) {
-        const struct sms_params *sp = p->method == RENDER_METHOD_SMS ? &p->sms : &p->ssp.sms;
-        jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);
-        jsonw_key(w, "max_depth"); jsonw_uint(w, p->pt.max_depth);
-        jsonw_key(w, "rr_depth"); jsonw_uint(w, p->pt.rr_depth);
-        jsonw_key(w, "bernoulli_cap"); jsonw_uint(w, sp->bernoulli_cap);
-        jsonw_key(w, "max_iterations"); jsonw_uint(w, sp->max_iterations);
-        jsonw_key(w, "caustics_only"); jsonw_bool(w, sp->caustics_only);
-        if (p->method == RENDER_METHOD_SMS_SSP) {
-            jsonw_key(w, "tiles"); jsonw_uint(w, p->ssp.tiles);
-            jsonw_key(w, "prior"); jsonw_bool(w, p->ssp.prior);
-            jsonw_key(w, "prior_samples"); jsonw_uint(w, p->ssp.prior_samples);
-            jsonw_key(w, "alpha"); jsonw_double(w, p->ssp.alpha);
-            jsonw_key(w, "prior_frames"); jsonw_uint(w, p->ssp.prior_frames);
-        }
-    } else {
-        static const char *const subsets[] = {"all", "caustic", "rest"};
-        jsonw_key(w, "spp"); jsonw_uint(w, p->pt.spp);
-        jsonw_key(w, "max_depth"); jsonw_uint(w, p->pt.max_depth);
-        jsonw_key(w, "rr_depth"); jsonw_uint(w, p->pt.rr_depth);
-        jsonw_key(w, "nee"); jsonw_bool(w, p->pt.nee);
-        jsonw_key(w, "subset"); jsonw_string(w, subsets[p->pt.subset]);
-    }
-    jsonw_object_end(w);
-}
-
-/* Per-pass times and reuse counters of a restir_pt frame (seed 001 Table 1). */
-static void api_write_passes(struct jsonw *w, const struct restir_pt_stats *ps)
-{
-    jsonw_object_begin(w);
-    jsonw_key(w, "gbuffer_ms"); jsonw_double(w, ps->gbuffer_ms);
-    jsonw_key(w, "initial_ms"); jsonw_double(w, ps->initial_ms);
-    jsonw_key(w, "temporal_ms"); jsonw_double(w, ps->temporal_ms);
-    jsonw_key(w, "spatial_ms"); jsonw_double(w, ps->spatial_ms);
-    jsonw_key(w, "shade_ms"); jsonw_double(w, ps->shade_ms);
-    jsonw_key(w, "shifts"); jsonw_uint(w, ps->shifts);
-    jsonw_key(w, "shift_failures"); jsonw_uint(w, ps->shift_failures);
-    jsonw_key(w, "rejected"); jsonw_uint(w, ps->rejected);
-    jsonw_object_end(w);
-}
-
-/* Light subpaths, the light vertex cache and the light-tracing samples of a bdpt frame. */
-static void api_write_bdpt(struct jsonw *w, const struct bdpt_stats *b)
-{
-    jsonw_object_begin(w);
-    jsonw_key(w, "light_ms"); jsonw_double(w, b->light_ms);
-    jsonw_key(w, "splat_ms"); jsonw_double(w, b->splat_ms);
-    jsonw_key(w, "camera_ms"); jsonw_double(w, b->camera_ms);
-    jsonw_key(w, "light_subpaths"); jsonw_uint(w, b->light_subpaths);
-    jsonw_key(w, "lvc_vertices"); jsonw_uint(w, b->lvc_vertices);
-    jsonw_key(w, "lvc_dropped"); jsonw_uint(w, b->lvc_dropped);
-    jsonw_key(w, "light_traced"); jsonw_uint(w, b->light_traced);
-    jsonw_key(w, "connections"); jsonw_uint(w, b->connections);
-    jsonw_object_end(w);
-}
-
-/* A restir_bdpt frame: light subpaths and their vertices, light-traced and caustic samples, the
- * caustic shifts and their failures by kind, reservoir bytes (restir_bdpt.h). */
-static void api_write_restir_bdpt(struct jsonw *w, const struct restir_bdpt_stats *b)
-{
-    jsonw_object_begin(w);
-    jsonw_key(w, "light_ms"); jsonw_double(w, b->light_ms);
-    jsonw_key(w, "sort_ms"); jsonw_double(w, b->sort_ms);
-    jsonw_key(w, "camera_ms"); jsonw_double(w, b->camera_ms);
-    jsonw_key(w, "light_subpaths"); jsonw_uint(w, b->light_subpaths);
-    jsonw_key(w, "light_vertices"); jsonw_uint(w, b->light_vertices);
-    jsonw_key(w, "light_traced"); jsonw_uint(w, b->light_traced);
-    jsonw_key(w, "lt_dropped"); jsonw_uint(w, b->lt_dropped);
-    jsonw_key(w, "lt_unshiftable"); jsonw_uint(w, b->lt_unshiftable);
-    jsonw_key(w, "lvc_dropped"); jsonw_uint(w, b->lvc_dropped);
-    jsonw_key(w, "connections"); jsonw_uint(w, b->connections);
-    jsonw_key(w, "caustic_samples"); jsonw_uint(w, b->caustic_samples);
-    jsonw_key(w, "camera_candidates"); jsonw_uint(w, b->camera_candidates);
-    jsonw_key(w, "caustic_shifts"); jsonw_uint(w, b->caustic_shifts);
-    jsonw_key(w, "shift_failures");
-    jsonw_object_begin(w);
-    jsonw_key(w, "replay"); jsonw_uint(w, b->caustic_replay_failed);
-    jsonw_key(w, "not_caustic"); jsonw_uint(w, b->caustic_not_caustic);
-    jsonw_key(w, "inverse"); jsonw_uint(w, b->caustic_inverse_failed);
-    jsonw_object_end(w);
-    jsonw_key(w, "reuse_ms"); jsonw_double(w, b->reuse_ms);
-    jsonw_key(w, "reuse_shifts"); jsonw_uint(w, b->reuse_shifts);
-    jsonw_key(w, "reuse_shift_failures"); jsonw_uint(w, b->reuse_shift_failures);
-    jsonw_key(w, "reuse_reconnections"); jsonw_uint(w, b->reuse_reconnections);
-    jsonw_key(w, "reservoir_bytes"); jsonw_uint(w, b->reservoir_bytes);
-    jsonw_object_end(w);
-}
-
 static void api_write_session(struct jsonw *w, struct session *s)
 {
     struct view_buffer_bytes b[VIEW_MAX_BUFFERS];
@@ -191,12 +67,12 @@ static void api_write_session(struct jsonw *w, struct session *s)
     jsonw_object_begin(w);
     jsonw_key(w, "id"); jsonw_string(w, s->id);
     jsonw_key(w, "scene"); jsonw_string(w, s->scene_id);
-    jsonw_key(w, "method"); jsonw_string(w, view_method_name(p->method));
+    jsonw_key(w, "method"); jsonw_string(w, p->method->name);
     jsonw_key(w, "width"); jsonw_uint(w, p->width);
     jsonw_key(w, "height"); jsonw_uint(w, p->height);
     jsonw_key(w, "seed"); jsonw_uint(w, p->seed);
     jsonw_key(w, "params");
-    api_write_method_params(w, p);
+    protocol_write_method_params(w, p->method, p->method_params);
     jsonw_key(w, "frames_rendered"); jsonw_uint(w, frames);
     jsonw_key(w, "busy"); jsonw_bool(w, busy);
     jsonw_key(w, "job");
@@ -228,13 +104,9 @@ static struct session *api_session_admit(struct daemon *d, const char *scene_id,
     *budget_full = false;
     uint64_t planned = session_bytes_planned(params, scene, d->cfg.frames_kept);
     if (planned > d->cfg.max_session_bytes) {
-        /* restir_sms's reservoirs grow with the scene's lights by default: say so, and how to ask
-         * for fewer. */
-        uint32_t layers = params->method == RENDER_METHOD_RESTIR_SMS ? restir_sms_layers(&params->restir_sms, scene) : 1;
-        char hint[96] = "";
-        if (layers > 1)
-            snprintf(hint, sizeof hint, "; it keeps %u reservoirs per pixel, by light (/params/light_reservoirs "
-                     "sets fewer)", layers);
+        /* A method whose buffers grow with the scene says so, and how to ask for less. */
+        char hint[128] = "";
+        if (params->method->size_hint) params->method->size_hint(params->method_params, scene, hint, sizeof hint);
         err_set(e, ERR_LIMIT, "", "a %ux%u session holds up to %llu bytes (its buffers and %u kept frames), more than "
                 "max_session_bytes (%llu)%s", params->width, params->height, (unsigned long long)planned,
                 d->cfg.frames_kept, (unsigned long long)d->cfg.max_session_bytes, hint);
@@ -421,43 +293,8 @@ static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
     jsonw_key(w, "nonfinite"); jsonw_uint(w, r->nonfinite);
     jsonw_key(w, "threads"); jsonw_uint(w, r->threads);
     jsonw_key(w, "accumulated"); jsonw_uint(w, f->stats->accumulated);
-    if (f->stats->has_passes) {
-        jsonw_key(w, "passes");
-        api_write_passes(w, &f->stats->passes);
-    }
-    if (f->stats->has_bdpt) {
-        jsonw_key(w, "bdpt");
-        api_write_bdpt(w, &f->stats->bdpt);
-    }
-    if (f->stats->has_restir_bdpt) {
-        jsonw_key(w, "restir_bdpt");
-        api_write_restir_bdpt(w, &f->stats->restir_bdpt);
-    }
-    if (f->stats->has_prior) {
-        /* Seed 002 Table 1, prior construction, for this frame. */
-        const struct ssp_prior_counters *pc = &f->stats->prior;
-        jsonw_key(w, "prior");
-        jsonw_object_begin(w);
-        jsonw_key(w, "samples"); jsonw_uint(w, pc->samples);
-        jsonw_key(w, "solutions"); jsonw_uint(w, pc->solutions);
-        jsonw_key(w, "newton"); jsonw_uint(w, pc->newton);
-        jsonw_key(w, "dropped_pairs"); jsonw_uint(w, pc->dropped_pairs);
-        jsonw_key(w, "ms"); jsonw_double(w, pc->ms);
-        jsonw_object_end(w);
-    }
-    if (f->stats->has_manifold_shift) {
-        /* restir_sms: the resampling column of seed 002 Table 1 beside the passes. */
-        uint64_t shifts = f->stats->passes.shifts;
-        jsonw_key(w, "manifold_shift");
-        jsonw_object_begin(w);
-        jsonw_key(w, "newton"); jsonw_uint(w, f->stats->shift_newton);
-        jsonw_key(w, "newtons_per_shift"); jsonw_double(w, shifts ? (double)f->stats->shift_newton / (double)shifts : 0.0);
-        jsonw_key(w, "not_invertible"); jsonw_uint(w, f->stats->shift_not_invertible);
-        jsonw_key(w, "success_rate");
-        jsonw_double(w, shifts ? 1.0 - (double)f->stats->passes.shift_failures / (double)shifts : 0.0);
-        jsonw_object_end(w);
-    }
-    if (f->stats->has_sms) {
+    protocol_write_method_counters(w, f->s->view.params.method, f->stats);
+    if (f->s->view.params.method->caps & METHOD_MANIFOLD_COUNTERS) {
         /* Seed 002 Table 1, manifold sampling columns, for this frame. */
         const struct sms_counters *sc = &r->sms;
         double n = (double)sc->samples, sol = (double)sc->solutions;
@@ -545,7 +382,7 @@ void api_frames_post(struct api_call *c)
     for (uint32_t i = 0; ok && i < fr->shape_count; i++) {
         const struct protocol_shape_change *sc = &fr->shapes[i];
         char ptr[160];
-        protocol_pointer_key(ptr, sizeof ptr, "/lights", sc->name);
+        json_pointer_key(ptr, sizeof ptr, "/lights", sc->name);
         int idx = scene_find_shape(s->view.base, sc->name);
         if (idx < 0) {
             api_problem(c, 422, "invalid-field", ptr, "scene '%s' has no shape named '%s'", s->scene_id, sc->name);
@@ -1213,8 +1050,8 @@ bool api_default_session(struct daemon *d, const char *scene_id, char *href, siz
         fprintf(stderr, "restird: no scene '%s' for the default session\n", scene_id);
         return false;
     }
-    struct view_params p = view_params_defaults(RENDER_METHOD_PT, 256, 256);
-    p.pt.spp = 16;
+    struct view_params p = view_params_defaults(method_default(), 256, 256);
+    view_params_set_uint(&p, "spp", 16);
     if (!registry_session_added(d->registry, scene_id, &e)) {
         scene_release(scene);
         return false;

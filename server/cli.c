@@ -18,15 +18,19 @@
 #include "scene/scene.h"
 #include "session/view.h"
 
+/* The most samples per pixel and frame the CLI takes (--spp and --params). */
+#define CLI_MAX_SPP (1u << 24)
+
 #define CLI_USAGE                                                                                  \
     "usage:\n"                                                                                     \
-    "  restir render SCENE.json|SCENE_FOLDER [--method pt|restir_pt|bdpt|restir_bdpt|sms|sms_ssp|restir_sss|restir_sms]\n" \
+    "  restir render SCENE.json|SCENE_FOLDER [--method NAME]\n"                                    \
     "                [--spp N] [--size WxH]\n" \
     "                [--seed S] [--frame F]\n" \
     "                [--threads T] [--max-depth D] [--rr-depth R] [--no-nee] [--crop X0,Y0,X1,Y1]\n"    \
     "                [--frames F] [--average-last N] [--animation FILE.json] [--params JSON]\n"       \
     "                [--half] [--json] -o OUT.exr\n"                                              \
     "  restir compare A.exr B.exr      (B is the reference; prints one JSON object)\n"             \
+    "  restir methods [--json]         (the methods, their capabilities and parameters)\n"        \
     "defaults: --method pt --spp 16 --size 256x256 --seed 0 --max-depth 64 --rr-depth 3 (Russian\n"         \
     "roulette after R bounces, restir_pt's initial paths after 1 unless given; R >= max depth\n"   \
     "turns it off), next-event estimation with MIS\n"                                              \
@@ -46,12 +50,51 @@
     "t = 1 resampled per pixel, caustic reservoirs reused temporally; --params '{\"variant\": \"full\"}'\n" \
     "adds bdpt's vertex connections; see protocol/API.md)\n"
 
+/* The usage text, then the methods --method takes, from the registry. */
+static void cli_usage(FILE *out)
+{
+    fputs(CLI_USAGE, out);
+    fputs("methods (restir methods --json gives their parameters, defaults and ranges):\n", out);
+    for (uint32_t i = 0; i < method_count(); i++)
+        fprintf(out, "  %-12s %s\n", method_at(i)->name, method_at(i)->summary);
+}
+
 static int cli_usage_error(const char *fmt, const char *arg)
 {
     fprintf(stderr, "restir: ");
     fprintf(stderr, fmt, arg);
-    fprintf(stderr, "\n%s", CLI_USAGE);
+    fputc('\n', stderr);
+    cli_usage(stderr);
     return 2;
+}
+
+/* The registry: one line per method, or with --json the body of the daemon's GET /v1/methods
+ * (spp ranges within the CLI's own limit). */
+static int cli_methods(int argc, char **argv)
+{
+    bool json = argc == 1 && strcmp(argv[0], "--json") == 0;
+    if (argc > 1 || (argc == 1 && !json)) return cli_usage_error("%s", "methods takes only --json");
+    if (!json) {
+        for (uint32_t i = 0; i < method_count(); i++) {
+            const struct method_desc *m = method_at(i);
+            printf("%-12s %s\n", m->name, m->summary);
+            for (uint32_t k = 0; k < m->param_count; k++) printf("    %-20s %s\n", m->params[k].key, m->params[k].help);
+        }
+        return 0;
+    }
+    const struct protocol_limits limits = {.max_spp = CLI_MAX_SPP};
+    struct jsonw w;
+    jsonw_init(&w);
+    protocol_write_methods(&w, &limits);
+    size_t len = 0;
+    char *text = jsonw_finish(&w, &len);
+    if (!text) {
+        fprintf(stderr, "restir: out of memory\n");
+        return 1;
+    }
+    printf("%s\n", text);
+    free(text);
+    return 0;
 }
 
 static bool cli_parse_u64(const char *s, uint64_t max, uint64_t *out)
@@ -104,21 +147,14 @@ static bool cli_method_params(const char *params_json, struct view_params *vp, s
     char *body = malloc(len);
     if (!body) return err_set(err, ERR_NOMEM, NULL, "out of memory");
     snprintf(body, len, "{\"method\":\"%s\",\"width\":%u,\"height\":%u,\"params\":%s}",
-             view_method_name(vp->method), vp->width, vp->height, params_json);
-    const struct protocol_limits limits = {.max_side = 16384, .max_pixels = 16384ull * 16384ull, .max_spp = 1u << 24,
+             vp->method->name, vp->width, vp->height, params_json);
+    const struct protocol_limits limits = {.max_side = 16384, .max_pixels = 16384ull * 16384ull, .max_spp = CLI_MAX_SPP,
                                            .max_frames = 1000000, .max_keys = 100000};
     struct view_params parsed;
     bool ok = protocol_parse_session_create(body, strlen(body), &limits, &parsed, err);
     free(body);
     if (!ok) return false;
-    vp->pt = parsed.pt;
-    vp->restir_pt = parsed.restir_pt;
-    vp->bdpt = parsed.bdpt;
-    vp->restir_bdpt = parsed.restir_bdpt;
-    vp->sms = parsed.sms;
-    vp->restir_sss = parsed.restir_sss;
-    vp->ssp = parsed.ssp;
-    vp->restir_sms = parsed.restir_sms;
+    memcpy(vp->method_params, parsed.method_params, sizeof vp->method_params);
     return true;
 }
 
@@ -152,7 +188,7 @@ static bool cli_render_sequence(struct scene *scene, const struct view_params *v
             return false;
         }
         const struct protocol_limits limits = {.max_side = 16384, .max_pixels = 16384ull * 16384ull,
-                                               .max_spp = 1u << 24, .max_frames = 1000000, .max_keys = 100000};
+                                               .max_spp = CLI_MAX_SPP, .max_frames = 1000000, .max_keys = 100000};
         struct protocol_render_request rq;
         bool ok = protocol_parse_render_request(text, len, &limits, &rq, &err) &&
                   animate_resolve(&rq, scene, &scene->camera, &anim, &err);
@@ -222,12 +258,12 @@ static bool cli_render_sequence(struct scene *scene, const struct view_params *v
 
 static int cli_render(int argc, char **argv)
 {
-    const char *scene_path = NULL, *out_path = NULL, *method = "pt";
+    const char *scene_path = NULL, *out_path = NULL, *method = method_default()->name;
     uint32_t width = 256, height = 256;
     struct pt_params p = reference_pt_defaults(width, height);
     bool half = false, json = false;
     uint32_t crop[4] = {0, 0, 0, 0};
-    bool has_crop = false, has_frame = false, has_rr_depth = false;
+    bool has_crop = false, has_frame = false, has_rr_depth = false, has_max_depth = false;
     uint32_t frames = 0;
     const char *anim_path = NULL, *params_json = NULL;
     uint32_t average_last = 0;
@@ -249,7 +285,7 @@ static int cli_render(int argc, char **argv)
         if (strcmp(a, "-o") == 0) out_path = v;
         else if (strcmp(a, "--method") == 0) method = v;
         else if (strcmp(a, "--spp") == 0) {
-            if (!cli_parse_u32(v, 1u << 24, &p.spp) || p.spp == 0) return cli_usage_error("--spp: expected 1..16777216, got '%s'", v);
+            if (!cli_parse_u32(v, CLI_MAX_SPP, &p.spp) || p.spp == 0) return cli_usage_error("--spp: expected 1..16777216, got '%s'", v);
         } else if (strcmp(a, "--size") == 0) {
             if (!cli_parse_size(v, &width, &height)) return cli_usage_error("--size: expected WxH with sides 1..16384, got '%s'", v);
         } else if (strcmp(a, "--seed") == 0) {
@@ -273,6 +309,7 @@ static int cli_render(int argc, char **argv)
             p.threads = t;
         } else if (strcmp(a, "--max-depth") == 0) {
             if (!cli_parse_u32(v, 1024, &p.max_depth)) return cli_usage_error("--max-depth: expected 0..1024, got '%s'", v);
+            has_max_depth = true;
         } else if (strcmp(a, "--rr-depth") == 0) {
             if (!cli_parse_u32(v, 1u << 20, &p.rr_depth)) return cli_usage_error("--rr-depth: expected 0..1048576, got '%s'", v);
             has_rr_depth = true;
@@ -283,12 +320,14 @@ static int cli_render(int argc, char **argv)
     }
     if (!scene_path) return cli_usage_error("%s", "render needs a scene file");
     if (!out_path) return cli_usage_error("%s", "render needs -o OUT.exr");
-    enum render_method rm;
-    if (!view_method_parse(method, &rm))
-        return cli_usage_error("--method: unknown method '%s' (available: pt, restir_pt, bdpt, restir_bdpt, sms, sms_ssp, "
-                               "restir_sss, restir_sms)",
-                               method);
-    if (rm != RENDER_METHOD_PT && (has_crop || has_frame))
+    const struct method_desc *rm = method_find(method);
+    if (!rm) {
+        char msg[400], names[256];
+        method_names(names, sizeof names, ", ");
+        snprintf(msg, sizeof msg, "--method: unknown method '%.48s' (available: %s)", method, names);
+        return cli_usage_error("%s", msg);
+    }
+    if (!(rm->caps & METHOD_STILL_CROP) && (has_crop || has_frame))
         return cli_usage_error("%s", "--crop and --frame are options of --method pt");
     p.width = width;
     p.height = height;
@@ -327,31 +366,25 @@ static int cli_render(int argc, char **argv)
      * spp; the reuse methods and bdpt trace one camera path per pixel and frame. */
     uint32_t frame_spp = p.spp;
     uint32_t reservoir_bytes = 0;   /* per pixel and reservoir buffer */
-    if (frames || anim_path || rm != RENDER_METHOD_PT) {
+    if (frames || anim_path || !(rm->caps & METHOD_STILL_CROP)) {
         if (has_crop || has_frame) {
             scene_release(scene);
             return cli_usage_error("%s", "--crop and --frame do not combine with --frames or --animation");
         }
         struct view_params vp = view_params_defaults(rm, width, height);
         vp.seed = p.seed;
-        vp.pt = (struct view_pt_params){.spp = p.spp, .max_depth = p.max_depth, .rr_depth = p.rr_depth, .nee = p.nee};
-        vp.restir_pt.max_depth = p.max_depth;
-        if (has_rr_depth) vp.restir_pt.rr_depth = p.rr_depth;  /* else its own default (1) */
-        if (!p.nee) vp.restir_pt.nee_candidates = 0;
-        vp.bdpt.max_depth = p.max_depth;
-        vp.bdpt.rr_depth = p.rr_depth;
-        vp.restir_bdpt.max_depth = p.max_depth;
-        vp.restir_bdpt.rr_depth = p.rr_depth;
-        vp.restir_sss.max_depth = p.max_depth;
-        vp.restir_sss.rr_depth = p.rr_depth;
-        vp.restir_sms.max_depth = p.max_depth;
-        vp.restir_sms.rr_depth = p.rr_depth;
+        /* The common options, for the methods that have them (--params then replaces all). */
+        view_params_set_uint(&vp, "spp", p.spp);
+        if (has_max_depth) view_params_set_uint(&vp, "max_depth", p.max_depth);
+        if (has_rr_depth) view_params_set_uint(&vp, "rr_depth", p.rr_depth);
+        if (!p.nee && !view_params_set_bool(&vp, "nee", false)) view_params_set_uint(&vp, "nee_candidates", 0);
         if (params_json && !cli_method_params(params_json, &vp, &err)) {
             fprintf(stderr, "restir: --params: %s\n", err_format(&err, msg, sizeof msg));
             scene_release(scene);
             return 2;
         }
-        frame_spp = rm == RENDER_METHOD_PT || rm == RENDER_METHOD_SMS || rm == RENDER_METHOD_SMS_SSP ? vp.pt.spp : 1u;
+        frame_spp = 1;
+        if (rm->caps & METHOD_TAKES_SPP) view_params_get_uint(&vp, "spp", &frame_spp);
         reservoir_bytes = view_reservoir_bytes_per_pixel(&vp, scene);
         if (!cli_render_sequence(scene, &vp, p.threads, frames, average_last, anim_path, tty, &img, &st, &rendered,
                                  &last, &session_bytes)) {
@@ -381,51 +414,9 @@ static int cli_render(int argc, char **argv)
                ",\"rays_per_s\":%.6g,\"samples\":%" PRIu64 ",\"nonfinite\":%" PRIu64 ",\"mean\":[%.9g,%.9g,%.9g]",
                method, width, height, frame_spp, rendered, p.seed, threads, st.render_ms, rays,
                st.rays_intersect, st.rays_occluded, rays_per_s, st.samples, st.nonfinite, mean[0], mean[1], mean[2]);
-        if (last.has_passes) {
-            /* The last frame's passes (seed 001 Table 1) and the session's memory. */
-            const struct restir_pt_stats *ps = &last.passes;
-            printf(",\"last_frame\":{\"gbuffer_ms\":%.3f,\"initial_ms\":%.3f,\"temporal_ms\":%.3f,\"spatial_ms\":%.3f,"
-                   "\"shade_ms\":%.3f,\"shifts\":%" PRIu64 ",\"shift_failures\":%" PRIu64 "},\"session_bytes\":%zu,"
-                   "\"reservoir_bytes_per_pixel\":%u",
-                   ps->gbuffer_ms, ps->initial_ms, ps->temporal_ms, ps->spatial_ms, ps->shade_ms, ps->shifts,
-                   ps->shift_failures, session_bytes, reservoir_bytes);
-        }
-        if (last.has_bdpt) {
-            const struct bdpt_stats *bs = &last.bdpt;
-            printf(",\"last_frame\":{\"light_ms\":%.3f,\"splat_ms\":%.3f,\"camera_ms\":%.3f,\"light_subpaths\":%" PRIu64
-                   ",\"lvc_vertices\":%" PRIu64 ",\"lvc_dropped\":%" PRIu64 ",\"light_traced\":%" PRIu64
-                   ",\"connections\":%" PRIu64 "},\"session_bytes\":%zu",
-                   bs->light_ms, bs->splat_ms, bs->camera_ms, bs->light_subpaths, bs->lvc_vertices, bs->lvc_dropped,
-                   bs->light_traced, bs->connections, session_bytes);
-        }
-        if (last.has_restir_bdpt) {
-            const struct restir_bdpt_stats *rb = &last.restir_bdpt;
-            printf(",\"last_frame\":{\"light_ms\":%.3f,\"sort_ms\":%.3f,\"camera_ms\":%.3f,\"light_subpaths\":%" PRIu64
-                   ",\"light_vertices\":%" PRIu64 ",\"light_traced\":%" PRIu64 ",\"lt_dropped\":%" PRIu64
-                   ",\"lt_unshiftable\":%" PRIu64 ",\"lvc_dropped\":%" PRIu64 ",\"connections\":%" PRIu64
-                   ",\"caustic_samples\":%" PRIu64 ",\"caustic_shifts\":%" PRIu64 ",\"shift_failures\":{\"replay\":%" PRIu64
-                   ",\"not_caustic\":%" PRIu64 ",\"inverse\":%" PRIu64 "},\"reuse_ms\":%.3f,\"reuse_shifts\":%" PRIu64
-                   ",\"reuse_shift_failures\":%" PRIu64 ",\"reuse_reconnections\":%" PRIu64
-                   ",\"reservoir_bytes\":%" PRIu64 "},\"session_bytes\":%zu",
-                   rb->light_ms, rb->sort_ms, rb->camera_ms, rb->light_subpaths, rb->light_vertices, rb->light_traced,
-                   rb->lt_dropped, rb->lt_unshiftable, rb->lvc_dropped, rb->connections, rb->caustic_samples, rb->caustic_shifts,
-                   rb->caustic_replay_failed,
-                   rb->caustic_not_caustic, rb->caustic_inverse_failed, rb->reuse_ms, rb->reuse_shifts,
-                   rb->reuse_shift_failures, rb->reuse_reconnections, rb->reservoir_bytes, session_bytes);
-        }
-        if (last.has_prior) {
-            /* Seed 002 Table 1, prior construction, of the last frame. */
-            const struct ssp_prior_counters *pc = &last.prior;
-            printf(",\"prior\":{\"samples\":%" PRIu64 ",\"solutions\":%" PRIu64 ",\"newton\":%" PRIu64
-                   ",\"dropped_pairs\":%" PRIu64 ",\"ms\":%.3f}",
-                   pc->samples, pc->solutions, pc->newton, pc->dropped_pairs, pc->ms);
-        }
-        if (last.has_manifold_shift) {
-            /* restir_sms: the last frame's shifts (Newton steps of both walks, failed walks back). */
-            printf(",\"manifold_shift\":{\"newton\":%" PRIu64 ",\"not_invertible\":%" PRIu64 "}", last.shift_newton,
-                   last.shift_not_invertible);
-        }
-        if (rm == RENDER_METHOD_SMS || rm == RENDER_METHOD_SMS_SSP || rm == RENDER_METHOD_RESTIR_SMS) {
+        /* The last frame's method counters, as its descriptor lays them out. */
+        protocol_print_method_counters(stdout, rm, &last, session_bytes, reservoir_bytes);
+        if (rm->caps & METHOD_MANIFOLD_COUNTERS) {
             /* Seed 002 Table 1 (manifold sampling) over all frames rendered. */
             const struct sms_counters *c = &st.sms;
             printf(",\"sms\":{\"samples\":%" PRIu64 ",\"solutions\":%" PRIu64 ",\"newton_sample\":%" PRIu64
@@ -478,7 +469,7 @@ static int cli_compare(int argc, char **argv)
 int main(int argc, char **argv)
 {
     if (argc < 2 || strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0) {
-        fputs(CLI_USAGE, argc < 2 ? stderr : stdout);
+        cli_usage(argc < 2 ? stderr : stdout);
         return argc < 2 ? 2 : 0;
     }
     if (strcmp(argv[1], "render") == 0) {
@@ -487,5 +478,6 @@ int main(int argc, char **argv)
         return status;
     }
     if (strcmp(argv[1], "compare") == 0) return cli_compare(argc - 2, argv + 2);
-    return cli_usage_error("unknown command '%s' (render, compare)", argv[1]);
+    if (strcmp(argv[1], "methods") == 0) return cli_methods(argc - 2, argv + 2);
+    return cli_usage_error("unknown command '%s' (render, compare, methods)", argv[1]);
 }

@@ -6,6 +6,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "integrators/reference_pt.h"
+
 struct jobs {
     pthread_mutex_t lock;
     pthread_cond_t cond;
@@ -138,7 +140,10 @@ static void jobs_run_reference(struct jobs *q, struct job *j)
     uint32_t spp_pass = j->ref_spp / passes;
     struct pt_params p = reference_pt_defaults(vp->width, vp->height);
     p.spp = spp_pass;
-    p.max_depth = vp->pt.max_depth > 64 ? vp->pt.max_depth : 64;
+    /* At least the session's own depth (64 when its method has none). */
+    uint32_t depth = 64;
+    view_params_get_uint(vp, "max_depth", &depth);
+    p.max_depth = depth > 64 ? depth : 64;
     p.seed = vp->seed;
     p.threads = s->view.threads;
     p.camera = &j->ref_camera;

@@ -109,6 +109,9 @@ class FakeDaemon:
             return self.ok(200, {"status": "ready"})
         if path == "/v1/limits":
             return self.ok(200, {"max_keys": 4096, "frames_kept": self.frames_kept})
+        if path == "/v1/methods":
+            return self.ok(200, {"methods": [{"name": n, "capabilities": {"takes_spp": n in ("pt", "sms")}}
+                                             for n in ("pt", "sms", "restir_pt", "bdpt")]})
         if path == "/v1/scenes" and method == "GET":
             ids = sorted(set(self.scenes) | self.BUILTIN)
             return self.ok(200, {"scenes": [{"id": i, "builtin": i in self.BUILTIN, "hash": "0",
@@ -295,7 +298,12 @@ def test_frame_arguments():
     assert a.size == (128, 64) and a.spp == 8 and a.seed == 3 and a.png and a.exposure == -1.5
     a = restir.build_parser().parse_args(["frame", "s", "-o", "y.exr"])
     assert a.size == (256, 256) and a.spp is None and a.method == "pt" and not a.png
-    assert restir._session_params(a) == {"spp": 4}
+    assert restir._session_params(a, _registry(("pt", True))) == {"spp": 4}
+
+
+def _registry(*methods):
+    """A method registry as Client.methods() returns it: (name, takes_spp) pairs."""
+    return {name: {"name": name, "capabilities": {"takes_spp": spp}} for name, spp in methods}
 
 
 @pytest.mark.parametrize("argv,params", [
@@ -304,13 +312,24 @@ def test_frame_arguments():
     (["frame", "s", "-o", "x", "--method", "restir_sms"], {}),
     (["frame", "s", "-o", "x", "--method", "bdpt"], {}),
     (["frame", "s", "-o", "x", "--method", "restir_pt", "--spp", "2"], {"spp": 2}),
+    (["frame", "s", "-o", "x", "--method", "unknown"], {}),
     (["metrics", "s", "-o", "m.csv", "--method", "restir_sss"], {}),
     (["metrics", "s", "-o", "m.csv"], {"spp": 1}),
 ])
 def test_session_params_send_spp_only_to_methods_that_take_it(argv, params):
-    """restir_pt, restir_sss, restir_sms, bdpt and restir_bdpt sessions refuse "spp" (422 at
-    /params/spp): without --spp the client sends none to them."""
-    assert restir._session_params(restir.build_parser().parse_args(argv)) == params
+    """Without --spp the client sends spp only to the methods whose registry entry says they take
+    it (the others refuse the key with a 422 at /params/spp)."""
+    registry = _registry(("pt", True), ("sms_ssp", True), ("restir_sms", False), ("bdpt", False),
+                         ("restir_pt", False), ("restir_sss", False))
+    assert restir._session_params(restir.build_parser().parse_args(argv), registry) == params
+
+
+def test_spp_rule_follows_the_registry():
+    """The rule is the registry's, not a list of the client's own: a method whose entry gains
+    takes_spp gets spp without a change to the client."""
+    a = restir.build_parser().parse_args(["frame", "s", "-o", "x", "--method", "restir_pt"])
+    assert restir._session_params(a, _registry(("restir_pt", False))) == {}
+    assert restir._session_params(a, _registry(("restir_pt", True))) == {"spp": 4}
 
 
 def test_other_commands_arguments():

@@ -314,31 +314,57 @@ def test_preview_page_is_read_only(daemon):
         assert r.header("Allow") == "GET"
 
 
-def preview_page_methods():
-    """The methods the preview page's session form offers, each with its parameters' values as the
-    form starts (clients/web/page/methods.js, read as text)."""
-    text = (PAGE / "methods.js").read_text()
-    starts = [(m.start(), m.group(1)) for m in re.finditer(r"^  (\w+): \{$", text, re.M)]
-    methods = {}
-    for k, (at, name) in enumerate(starts):
-        block = text[at:starts[k + 1][0] if k + 1 < len(starts) else len(text)]
-        values = {n: json.loads(v.replace("'", '"'))
-                  for n, v in re.findall(r"name: '(\w+)', kind: '\w+', value: ([^,]+),", block)}
-        methods[name] = {n: v for n, v in values.items() if v != ""}  # the page leaves out empty fields
-    return methods
-
-
-def test_preview_page_form_makes_sessions(daemon):
-    """The page sends every parameter its form shows for the chosen method: each method's form, as
-    it starts, must make a session (a parameter of another method would be refused)."""
-    methods = preview_page_methods()
-    assert {"pt", "sms", "sms_ssp", "restir_pt", "restir_sms"} <= set(methods)
-    for method, params in methods.items():
-        assert params, method
+def test_methods_registry(daemon):
+    """GET /v1/methods lists every method with its parameters; each method's defaults, sent back as
+    the page's form sends them (every parameter with a default), make a session that reports the
+    same values; the Python client's spp rule follows the capabilities; and openapi.yaml documents
+    each parameter with the registry's default and range."""
+    import yaml
+    sys_path_client()
+    import restir
+    r = daemon.req("GET", "/v1/methods")
+    assert r.status == 200 and r.header("Content-Type").startswith("application/json")
+    methods = r.json()["methods"]
+    names = [m["name"] for m in methods]
+    assert names == ["pt", "restir_pt", "bdpt", "sms", "restir_sss", "sms_ssp", "restir_bdpt", "restir_sms"]
+    schemas = yaml.safe_load((ROOT / "protocol" / "openapi.yaml").read_text())["components"]["schemas"]
+    schema_of = {"pt": "PtParams", "restir_pt": "RestirPtParams", "bdpt": "BdptParams", "sms": "SmsParams",
+                 "restir_sss": "RestirSssParams", "sms_ssp": "SmsSspParams", "restir_bdpt": "RestirBdptParams",
+                 "restir_sms": "RestirSmsParams"}
+    max_spp = daemon.req("GET", "/v1/limits").json()["max_spp"]
+    for m in methods:
+        assert m["summary"] and set(m["capabilities"]) == {"takes_spp", "reuses_frames", "reuses_pixels",
+                                                          "manifold_counters"}
+        params = {p["name"]: p for p in m["params"]}
+        assert ("spp" in params) == m["capabilities"]["takes_spp"], m["name"]
+        if "spp" in params:
+            assert params["spp"]["maximum"] == max_spp
+        doc = schemas[schema_of[m["name"]]]["properties"]
+        assert set(doc) == set(params), (m["name"], set(doc) ^ set(params))
+        for name, p in params.items():
+            if p["default"] is not None:
+                assert doc[name].get("default") == pytest.approx(p["default"]), (m["name"], name)
+        sent = {n: p["default"] for n, p in params.items() if p["default"] is not None}
         r = daemon.req("POST", "/v1/scenes/refractive-slab/sessions",
-                       json_body={"method": method, "width": 8, "height": 8, "params": params})
-        assert r.status == 201, (method, r.body[:300])
-        assert daemon.req("DELETE", r.json()["href"]).status == 204
+                       json_body={"method": m["name"], "width": 8, "height": 8, "params": sent})
+        assert r.status == 201, (m["name"], r.body[:300])
+        s = r.json()
+        assert set(s["params"]) == set(params)
+        for n, v in sent.items():
+            assert s["params"][n] == pytest.approx(v), (m["name"], n)
+        assert daemon.req("DELETE", s["href"]).status == 204
+        # The client sends spp (without --spp) exactly to the methods whose entry takes it.
+        a = restir.build_parser().parse_args(["frame", "s", "-o", "x", "--method", m["name"]])
+        registry = {x["name"]: x for x in methods}
+        assert ("spp" in restir._session_params(a, registry)) == m["capabilities"]["takes_spp"]
+
+
+def sys_path_client():
+    """Makes clients/python importable."""
+    import sys
+    path = str(ROOT / "clients" / "python")
+    if path not in sys.path:
+        sys.path.insert(0, path)
 
 
 def test_metrics_prometheus(daemon):

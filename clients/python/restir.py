@@ -243,6 +243,7 @@ class Client:
         self._sources = {}   # scene -> {"doc": bytes, "assets": {name: (bytes, content_type)}}
         self._sessions = {}  # (scene, sid) -> Session
         self._jobs = {}      # job id -> Location path
+        self._methods = None  # GET /v1/methods, by name, once fetched
         self._opener = urllib.request.build_opener(_NoRedirect)
 
     # ---- transport ----
@@ -415,6 +416,13 @@ class Client:
 
     def limits(self):
         return self.request("GET", "/v1/limits").json()
+
+    def methods(self):
+        """The daemon's method registry, by name: each method's summary, capabilities and
+        parameters (name, type, default, range, help), as GET /v1/methods gives it."""
+        if self._methods is None:
+            self._methods = {m["name"]: m for m in self.request("GET", "/v1/methods").json()["methods"]}
+        return self._methods
 
     def openapi(self):
         return self.request("GET", "/v1/openapi.yaml").body.decode("utf-8")
@@ -836,18 +844,14 @@ def finite_float(text):
     return v
 
 
-# The methods whose sessions take "spp"; the others (reuse methods, bdpt) render one sample
-# per pixel and frame and refuse the key.
-SPP_METHODS = ("pt", "sms", "sms_ssp")
-
-
 def _session_args(p, spp_default):
     p.add_argument("--method", default="pt", help="rendering method (default pt)")
     p.add_argument("--size", type=parse_size, default=(256, 256), metavar="WxH",
                    help="image size (default 256x256)")
     p.add_argument("--spp", type=positive_int, default=None,
-                   help="samples per pixel per frame, for %s (default %d); the other methods take "
-                        "one per frame" % (", ".join(SPP_METHODS), spp_default))
+                   help="samples per pixel per frame, for the methods that take spp (GET /v1/methods: "
+                        "capabilities.takes_spp; default %d); the others trace one path per pixel and "
+                        "frame" % spp_default)
     p.set_defaults(spp_default=spp_default)
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
 
@@ -959,18 +963,21 @@ def _write(path, data):
     os.replace(tmp, path)
 
 
-def _session_params(args):
+def _session_params(args, methods):
     """The session's params: --spp as given (the daemon names it if the method refuses it), else
-    the command's default for the methods that take spp, else none (the method's defaults)."""
+    the command's default for the methods whose registry entry (`methods`, Client.methods) says
+    they take spp, else none (the method's defaults)."""
     if args.spp is not None:
         return {"spp": args.spp}
-    return {"spp": args.spp_default} if args.method in SPP_METHODS else {}
+    method = methods.get(args.method)
+    takes_spp = bool(method and method.get("capabilities", {}).get("takes_spp"))
+    return {"spp": args.spp_default} if takes_spp else {}
 
 
 def _make_session(client, args):
     w, h = args.size
     return client.create_session(args.scene, method=args.method, width=w, height=h, seed=args.seed,
-                                 params=_session_params(args))
+                                 params=_session_params(args, client.methods()))
 
 
 def cmd_health(client, args, out, prog):
@@ -1005,7 +1012,7 @@ def cmd_frame(client, args, out, prog):
     accept, query = _image_query(args)
     s = _make_session(client, args)
     try:
-        spp = _session_params(args).get("spp", 1)
+        spp = _session_params(args, client.methods()).get("spp", 1)
         prog.update("session %s: rendering %dx%d, %d spp" % (s.id, args.size[0], args.size[1], spp))
         data = client.frame(s, accept=accept, **query)
         hdr = client.last_response.headers

@@ -18,6 +18,7 @@
 
 #include "material/bssrdf.h"
 #include "input/fileio.h"
+#include "input/json_read.h"
 #include "input/mesh_io.h"
 
 #define SCENE_LOAD_MAX_JSON_BYTES (4u << 20)
@@ -43,80 +44,21 @@ struct scene_load {
     uint64_t triangles;                       /* all shapes so far, against the scene budget */
 };
 
-/* ---- JSON pointers (RFC 6901: "~" -> "~0", "/" -> "~1") ---- */
-
-static void scene_load_ptr_key(char out[SCENE_LOAD_PTR], const char *parent, const char *key)
-{
-    size_t n = 0;
-    for (const char *c = parent; *c && n < SCENE_LOAD_PTR - 1; c++) out[n++] = *c;
-    if (n < SCENE_LOAD_PTR - 1) out[n++] = '/';
-    for (const char *c = key; *c && n < SCENE_LOAD_PTR - 1; c++) {
-        if (*c == '~' || *c == '/') {
-            if (n + 2 > SCENE_LOAD_PTR - 1) break;
-            out[n++] = '~';
-            out[n++] = *c == '~' ? '0' : '1';
-        } else {
-            out[n++] = *c;
-        }
-    }
-    out[n] = '\0';
-}
+/* ---- JSON pointers (RFC 6901; keys: input/json_read.h) ---- */
 
 static void scene_load_ptr_index(char out[SCENE_LOAD_PTR], const char *parent, size_t i)
 {
     snprintf(out, SCENE_LOAD_PTR, "%.200s/%zu", parent, i);
 }
 
-/* ---- typed, strict accessors ---- */
-
-static const char *scene_load_type_name(const cJSON *v)
-{
-    if (cJSON_IsNull(v)) return "null";
-    if (cJSON_IsBool(v)) return "a boolean";
-    if (cJSON_IsNumber(v)) return "a number";
-    if (cJSON_IsString(v)) return "a string";
-    if (cJSON_IsArray(v)) return "an array";
-    if (cJSON_IsObject(v)) return "an object";
-    return "an invalid value";
-}
-
-/* Every key of `obj` must be in the NULL-terminated `allowed` list (at most 32), at most once. */
-static bool scene_load_check_keys(const cJSON *obj, const char *ptr, const char *const *allowed,
-                                  const char *context, struct err *err)
-{
-    uint32_t seen = 0;
-    char p[SCENE_LOAD_PTR];
-    for (const cJSON *c = obj->child; c; c = c->next) {
-        int idx = -1;
-        for (int i = 0; allowed[i]; i++)
-            if (strcmp(c->string, allowed[i]) == 0) { idx = i; break; }
-        scene_load_ptr_key(p, ptr, c->string);
-        if (idx < 0) {
-            char list[256];
-            size_t n = 0;
-            list[0] = '\0';
-            for (int i = 0; allowed[i] && n < sizeof list; i++)
-                n += (size_t)snprintf(list + n, sizeof list - n, "%s%s", i ? ", " : "", allowed[i]);
-            return err_set(err, ERR_INVALID, p, "unknown key%s (expected one of: %s)", context, list);
-        }
-        if (seen & (1u << idx)) return err_set(err, ERR_INVALID, p, "duplicate key");
-        seen |= 1u << idx;
-    }
-    return true;
-}
-
-static bool scene_load_object(const cJSON *v, const char *ptr, const char *what, struct err *err)
-{
-    if (!cJSON_IsObject(v)) return err_set(err, ERR_INVALID, ptr, "expected %s object, got %s", what, scene_load_type_name(v));
-    return true;
-}
+/* ---- typed, strict accessors (the shared ones: input/json_read.h) ---- */
 
 static const cJSON *scene_load_require(const cJSON *obj, const char *ptr, const char *key, struct err *err)
 {
     const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
     if (!v) {
         char p[SCENE_LOAD_PTR];
-        scene_load_ptr_key(p, ptr, key);
+        json_pointer_key(p, SCENE_LOAD_PTR, ptr, key);
         err_set(err, ERR_INVALID, p, "missing required key");
     }
     return v;
@@ -125,7 +67,7 @@ static const cJSON *scene_load_require(const cJSON *obj, const char *ptr, const 
 /* A finite number that is also finite as a 32-bit float (cJSON turns 1e999 into inf). */
 static bool scene_load_float(const cJSON *v, const char *ptr, float *out, struct err *err)
 {
-    if (!cJSON_IsNumber(v)) return err_set(err, ERR_INVALID, ptr, "expected a number, got %s", scene_load_type_name(v));
+    if (!cJSON_IsNumber(v)) return err_set(err, ERR_INVALID, ptr, "expected a number, got %s", json_type_name(v));
     double d = v->valuedouble;
     if (!isfinite(d)) return err_set(err, ERR_INVALID, ptr, "expected a finite number (the value overflows to infinity)");
     if (fabs(d) > (double)FLT_MAX)
@@ -162,7 +104,7 @@ static bool scene_load_vec3_in(const cJSON *v, const char *ptr, enum scene_load_
                                struct err *err)
 {
     if (!cJSON_IsArray(v))
-        return err_set(err, ERR_INVALID, ptr, "expected an array of 3 numbers, got %s", scene_load_type_name(v));
+        return err_set(err, ERR_INVALID, ptr, "expected an array of 3 numbers, got %s", json_type_name(v));
     int n = cJSON_GetArraySize(v);
     if (n != 3) return err_set(err, ERR_INVALID, ptr, "expected an array of 3 numbers, got %d elements", n);
     float f[3];
@@ -183,7 +125,7 @@ static bool scene_load_key_vec3(const cJSON *obj, const char *ptr, const char *k
     const cJSON *v = required ? scene_load_require(obj, ptr, key, err) : cJSON_GetObjectItemCaseSensitive(obj, key);
     if (!v) return !required;
     char p[SCENE_LOAD_PTR];
-    scene_load_ptr_key(p, ptr, key);
+    json_pointer_key(p, SCENE_LOAD_PTR, ptr, key);
     return scene_load_vec3_in(v, p, r, out, err);
 }
 
@@ -193,7 +135,7 @@ static bool scene_load_key_number(const cJSON *obj, const char *ptr, const char 
     const cJSON *v = required ? scene_load_require(obj, ptr, key, err) : cJSON_GetObjectItemCaseSensitive(obj, key);
     if (!v) return !required;
     char p[SCENE_LOAD_PTR];
-    scene_load_ptr_key(p, ptr, key);
+    json_pointer_key(p, SCENE_LOAD_PTR, ptr, key);
     return scene_load_number_in(v, p, r, out, err);
 }
 
@@ -202,20 +144,10 @@ static bool scene_load_key_bool(const cJSON *obj, const char *ptr, const char *k
     const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
     if (!v) return true;
     char p[SCENE_LOAD_PTR];
-    scene_load_ptr_key(p, ptr, key);
-    if (!cJSON_IsBool(v)) return err_set(err, ERR_INVALID, p, "expected true or false, got %s", scene_load_type_name(v));
-    *out = cJSON_IsTrue(v);
-    return true;
+    json_pointer_key(p, SCENE_LOAD_PTR, ptr, key);
+    return json_bool(v, p, out, err);
 }
 
-static const char *scene_load_string(const cJSON *v, const char *ptr, struct err *err)
-{
-    if (!cJSON_IsString(v) || !v->valuestring) {
-        err_set(err, ERR_INVALID, ptr, "expected a string, got %s", scene_load_type_name(v));
-        return NULL;
-    }
-    return v->valuestring;
-}
 
 /* Names of materials and shapes: [A-Za-z0-9_-]{1,63}, safe in URLs and JSON pointers. */
 static bool scene_load_valid_name(const char *s)
@@ -284,8 +216,8 @@ static bool scene_load_camera(const cJSON *root, struct camera_desc *cam, struct
 {
     static const char *const keys[] = {"position", "look_at", "up", "fov_deg", NULL};
     const cJSON *c = scene_load_require(root, "", "camera", err);
-    if (!c || !scene_load_object(c, "/camera", "a camera", err) ||
-        !scene_load_check_keys(c, "/camera", keys, " in the camera", err) ||
+    if (!c || !json_object(c, "/camera", "a camera", err) ||
+        !json_check_keys(c, "/camera", keys, " in the camera", err) ||
         !scene_load_key_vec3(c, "/camera", "position", true, RANGE_ANY, &cam->position, err) ||
         !scene_load_key_vec3(c, "/camera", "look_at", true, RANGE_ANY, &cam->look_at, err) ||
         !scene_load_key_vec3(c, "/camera", "up", true, RANGE_ANY, &cam->up, err) ||
@@ -312,8 +244,8 @@ static bool scene_load_environment(const cJSON *root, struct vec3 *radiance, str
     const cJSON *e = cJSON_GetObjectItemCaseSensitive(root, "environment");
     *radiance = vec3_splat(0.0f);
     if (!e) return true;
-    return scene_load_object(e, "/environment", "an environment", err) &&
-           scene_load_check_keys(e, "/environment", keys, " in the environment", err) &&
+    return json_object(e, "/environment", "an environment", err) &&
+           json_check_keys(e, "/environment", keys, " in the environment", err) &&
            scene_load_key_vec3(e, "/environment", "radiance", true, RANGE_NONNEG, radiance, err);
 }
 
@@ -326,44 +258,44 @@ static bool scene_load_material(const cJSON *m, const char *ptr, struct material
     char p[SCENE_LOAD_PTR];
 
     memset(out, 0, sizeof *out);
-    if (!scene_load_object(m, ptr, "a material", err)) return false;
+    if (!json_object(m, ptr, "a material", err)) return false;
     const cJSON *tv = scene_load_require(m, ptr, "type", err);
     if (!tv) return false;
-    scene_load_ptr_key(p, ptr, "type");
-    const char *type = scene_load_string(tv, p, err);
+    json_pointer_key(p, SCENE_LOAD_PTR, ptr, "type");
+    const char *type = json_string(tv, p, err);
     if (!type) return false;
     if (strcmp(type, "diffuse") == 0) {
         out->kind = MATERIAL_DIFFUSE;
-        if (!scene_load_check_keys(m, ptr, diffuse_keys, " for a diffuse material", err) ||
+        if (!json_check_keys(m, ptr, diffuse_keys, " for a diffuse material", err) ||
             !scene_load_key_vec3(m, ptr, "albedo", true, RANGE_UNIT, &out->albedo, err))
             return false;
     } else if (strcmp(type, "conductor") == 0) {
         out->kind = MATERIAL_CONDUCTOR;
-        if (!scene_load_check_keys(m, ptr, conductor_keys, " for a conductor material", err) ||
+        if (!json_check_keys(m, ptr, conductor_keys, " for a conductor material", err) ||
             !scene_load_key_vec3(m, ptr, "eta", true, RANGE_POS, &out->eta, err) ||
             !scene_load_key_vec3(m, ptr, "k", true, RANGE_NONNEG, &out->k, err) ||
             !scene_load_key_number(m, ptr, "roughness", true, RANGE_NONNEG, &out->roughness, err))
             return false;
     } else if (strcmp(type, "dielectric") == 0) {
         out->kind = MATERIAL_DIELECTRIC;
-        if (!scene_load_check_keys(m, ptr, dielectric_keys, " for a dielectric material", err) ||
+        if (!json_check_keys(m, ptr, dielectric_keys, " for a dielectric material", err) ||
             !scene_load_key_number(m, ptr, "ior", true, RANGE_POS, &out->ior, err) ||
             !scene_load_key_number(m, ptr, "roughness", false, RANGE_NONNEG, &out->roughness, err))
             return false;
         if (out->ior == 1.0f) {
-            scene_load_ptr_key(p, ptr, "ior");
+            json_pointer_key(p, SCENE_LOAD_PTR, ptr, "ior");
             return err_set(err, ERR_INVALID, p, "ior must not be 1 (an index-matched interface is invisible)");
         }
     } else if (strcmp(type, "translucent") == 0) {
         out->kind = MATERIAL_TRANSLUCENT;
         out->ior = 1.4f;
-        if (!scene_load_check_keys(m, ptr, translucent_keys, " for a translucent material", err) ||
+        if (!json_check_keys(m, ptr, translucent_keys, " for a translucent material", err) ||
             !scene_load_key_vec3(m, ptr, "albedo", true, RANGE_UNIT, &out->albedo, err) ||
             !scene_load_key_vec3(m, ptr, "mfp", true, RANGE_POS, &out->mfp, err) ||
             !scene_load_key_number(m, ptr, "ior", false, RANGE_POS, &out->ior, err))
             return false;
         if (out->ior == 1.0f) {
-            scene_load_ptr_key(p, ptr, "ior");
+            json_pointer_key(p, SCENE_LOAD_PTR, ptr, "ior");
             return err_set(err, ERR_INVALID, p, "ior must not be 1 (the boundary's Fresnel terms need an interface)");
         }
         bssrdf_prepare(out);
@@ -381,7 +313,7 @@ static bool scene_load_materials(const cJSON *root, struct scene *scene, struct 
                                  struct err *err)
 {
     const cJSON *ms = scene_load_require(root, "", "materials", err);
-    if (!ms || !scene_load_object(ms, "/materials", "an", err)) return false;
+    if (!ms || !json_object(ms, "/materials", "an", err)) return false;
     int n = cJSON_GetArraySize(ms);
     if ((unsigned)n > SCENE_LOAD_MAX_MATERIALS)
         return err_set(err, ERR_LIMIT, "/materials", "%d materials, more than the limit of %u", n, SCENE_LOAD_MAX_MATERIALS);
@@ -394,7 +326,7 @@ static bool scene_load_materials(const cJSON *root, struct scene *scene, struct 
     char p[SCENE_LOAD_PTR];
     uint32_t i = 0;
     for (const cJSON *m = ms->child; m && ok; m = m->next, i++) {
-        scene_load_ptr_key(p, "/materials", m->string);
+        json_pointer_key(p, SCENE_LOAD_PTR, "/materials", m->string);
         if (!scene_load_valid_name(m->string))
             ok = err_set(err, ERR_INVALID, p, "invalid material name: names must match [A-Za-z0-9_-]{1,63}");
         else if (scene_load_names_insert(names, m->string, i) >= 0)
@@ -419,13 +351,13 @@ static bool scene_load_transform(const cJSON *t, const char *ptr, struct xform *
 
     *out = xform_identity();
     *uniform = true;
-    if (!scene_load_object(t, ptr, "a transform", err) ||
-        !scene_load_check_keys(t, ptr, keys, " in a transform", err) ||
+    if (!json_object(t, ptr, "a transform", err) ||
+        !json_check_keys(t, ptr, keys, " in a transform", err) ||
         !scene_load_key_vec3(t, ptr, "translate", false, RANGE_ANY, &tr, err) ||
         !scene_load_key_vec3(t, ptr, "rotate_deg", false, RANGE_ANY, &rot, err))
         return false;
     const cJSON *sv = cJSON_GetObjectItemCaseSensitive(t, "scale");
-    scene_load_ptr_key(p, ptr, "scale");
+    json_pointer_key(p, SCENE_LOAD_PTR, ptr, "scale");
     if (sv && cJSON_IsNumber(sv)) {
         if (!scene_load_float(sv, p, &s[0], err)) return false;
         s[1] = s[2] = s[0];
@@ -435,7 +367,7 @@ static bool scene_load_transform(const cJSON *t, const char *ptr, struct xform *
         s[0] = v.x, s[1] = v.y, s[2] = v.z;
         *uniform = s[0] == s[1] && s[1] == s[2];
     } else if (sv) {
-        return err_set(err, ERR_INVALID, p, "expected a number or an array of 3 numbers, got %s", scene_load_type_name(sv));
+        return err_set(err, ERR_INVALID, p, "expected a number or an array of 3 numbers, got %s", json_type_name(sv));
     }
     for (int i = 0; i < 3; i++) {
         const char *where = p;
@@ -482,9 +414,9 @@ static bool scene_load_quad(const cJSON *sh, const char *ptr, struct shape *s, s
     char p[SCENE_LOAD_PTR], q[SCENE_LOAD_PTR];
     const cJSON *v = scene_load_require(sh, ptr, "vertices", err);
     if (!v) return false;
-    scene_load_ptr_key(p, ptr, "vertices");
+    json_pointer_key(p, SCENE_LOAD_PTR, ptr, "vertices");
     if (!cJSON_IsArray(v))
-        return err_set(err, ERR_INVALID, p, "expected an array of 4 points, got %s", scene_load_type_name(v));
+        return err_set(err, ERR_INVALID, p, "expected an array of 4 points, got %s", json_type_name(v));
     int n = cJSON_GetArraySize(v);
     if (n != 4) return err_set(err, ERR_INVALID, p, "expected an array of 4 points, got %d elements", n);
     struct vec3 pts[4];
@@ -511,7 +443,7 @@ static bool scene_load_box(const cJSON *sh, const char *ptr, struct shape *s, st
     for (int a = 0; a < 3; a++) {
         if (!(vec3_comp(hi, a) > vec3_comp(lo, a))) {
             char p[SCENE_LOAD_PTR];
-            scene_load_ptr_key(p, ptr, "max");
+            json_pointer_key(p, SCENE_LOAD_PTR, ptr, "max");
             return err_set(err, ERR_INVALID, p, "max must be greater than min in every component (%c: %g <= %g)",
                            "xyz"[a], (double)vec3_comp(hi, a), (double)vec3_comp(lo, a));
         }
@@ -547,7 +479,7 @@ static bool scene_load_disk(const cJSON *sh, const char *ptr, struct shape *s, s
     double nl = sqrt((double)n.x * n.x + (double)n.y * n.y + (double)n.z * n.z);
     if (!(nl > 0.0) || !isfinite(nl)) {
         char p[SCENE_LOAD_PTR];
-        scene_load_ptr_key(p, ptr, "normal");
+        json_pointer_key(p, SCENE_LOAD_PTR, ptr, "normal");
         return err_set(err, ERR_INVALID, p, "normal must be non-zero");
     }
     if (!scene_load_key_number(sh, ptr, "radius", true, RANGE_POS, &r, err)) return false;
@@ -602,8 +534,8 @@ static bool scene_load_mesh(struct scene_load *L, const cJSON *sh, const char *p
     char p[SCENE_LOAD_PTR];
     const cJSON *fv = scene_load_require(sh, ptr, "file", err);
     if (!fv) return false;
-    scene_load_ptr_key(p, ptr, "file");
-    const char *file = scene_load_string(fv, p, err);
+    json_pointer_key(p, SCENE_LOAD_PTR, ptr, "file");
+    const char *file = json_string(fv, p, err);
     if (!file) return false;
     size_t len = strlen(file);
     if (len == 0) return err_set(err, ERR_INVALID, p, "empty mesh path");
@@ -682,7 +614,7 @@ static bool scene_load_mesh(struct scene_load *L, const cJSON *sh, const char *p
 static bool scene_load_check_world(const struct shape *s, const char *ptr, bool has_transform, struct err *err)
 {
     char p[SCENE_LOAD_PTR];
-    if (has_transform) scene_load_ptr_key(p, ptr, "transform");
+    if (has_transform) json_pointer_key(p, SCENE_LOAD_PTR, ptr, "transform");
     else snprintf(p, sizeof p, "%s", ptr);
     if (s->kind == SHAPE_MESH) {
         for (uint32_t v = 0; v < s->vertex_count; v++)
@@ -708,8 +640,8 @@ static bool scene_load_caustic_interfaces(const cJSON *sh, const char *ptr, stru
     s->caustic_interfaces = s->caustic_caster ? (m->kind == MATERIAL_DIELECTRIC ? 2 : 1) : 0;
     if (!v) return true;
     char p[SCENE_LOAD_PTR];
-    scene_load_ptr_key(p, ptr, "caustic_interfaces");
-    if (!cJSON_IsNumber(v)) return err_set(err, ERR_INVALID, p, "expected 1 or 2, got %s", scene_load_type_name(v));
+    json_pointer_key(p, SCENE_LOAD_PTR, ptr, "caustic_interfaces");
+    if (!cJSON_IsNumber(v)) return err_set(err, ERR_INVALID, p, "expected 1 or 2, got %s", json_type_name(v));
     if (!s->caustic_caster) return err_set(err, ERR_INVALID, p, "caustic_interfaces needs \"caustic_caster\": true");
     if (v->valuedouble != 1.0 && v->valuedouble != 2.0)
         return err_set(err, ERR_INVALID, p, "caustic_interfaces must be 1 or 2, got %g", v->valuedouble);
@@ -744,23 +676,23 @@ static bool scene_load_shape(struct scene_load *L, const cJSON *sh, const char *
     char p[SCENE_LOAD_PTR];
 
     s->to_world = xform_identity();
-    if (!scene_load_object(sh, ptr, "a shape", err)) return false;
+    if (!json_object(sh, ptr, "a shape", err)) return false;
     const cJSON *tv = scene_load_require(sh, ptr, "type", err);
     if (!tv) return false;
-    scene_load_ptr_key(p, ptr, "type");
-    const char *type = scene_load_string(tv, p, err);
+    json_pointer_key(p, SCENE_LOAD_PTR, ptr, "type");
+    const char *type = json_string(tv, p, err);
     if (!type) return false;
     int t = -1;
     for (int i = 0; i < (int)(sizeof types / sizeof types[0]); i++)
         if (strcmp(type, types[i].type) == 0) t = i;
     if (t < 0)
         return err_set(err, ERR_INVALID, p, "unknown shape type '%.64s' (expected mesh, quad, sphere, box or disk)", type);
-    if (!scene_load_check_keys(sh, ptr, types[t].keys, types[t].context, err)) return false;
+    if (!json_check_keys(sh, ptr, types[t].keys, types[t].context, err)) return false;
 
     const cJSON *nv = cJSON_GetObjectItemCaseSensitive(sh, "name");
     if (nv) {
-        scene_load_ptr_key(p, ptr, "name");
-        const char *name = scene_load_string(nv, p, err);
+        json_pointer_key(p, SCENE_LOAD_PTR, ptr, "name");
+        const char *name = json_string(nv, p, err);
         if (!name) return false;
         if (!scene_load_valid_name(name))
             return err_set(err, ERR_INVALID, p, "invalid shape name: names must match [A-Za-z0-9_-]{1,63}");
@@ -772,8 +704,8 @@ static bool scene_load_shape(struct scene_load *L, const cJSON *sh, const char *
 
     const cJSON *mv = scene_load_require(sh, ptr, "material", err);
     if (!mv) return false;
-    scene_load_ptr_key(p, ptr, "material");
-    const char *mname = scene_load_string(mv, p, err);
+    json_pointer_key(p, SCENE_LOAD_PTR, ptr, "material");
+    const char *mname = json_string(mv, p, err);
     if (!mname) return false;
     int64_t mi = scene_load_names_find(L->material_index, mname);
     if (mi < 0) return err_set(err, ERR_NOT_FOUND, p, "unknown material '%.64s'", mname);
@@ -785,13 +717,13 @@ static bool scene_load_shape(struct scene_load *L, const cJSON *sh, const char *
     const cJSON *tf = cJSON_GetObjectItemCaseSensitive(sh, "transform");
     bool uniform = true;
     if (tf) {
-        scene_load_ptr_key(p, ptr, "transform");
+        json_pointer_key(p, SCENE_LOAD_PTR, ptr, "transform");
         if (!scene_load_transform(tf, p, &s->to_world, &uniform, err)) return false;
     }
     /* The light sampler samples spheres uniformly by area, which an ellipsoid breaks. */
     if (t == 2 && !uniform && material_is_emissive(&L->scene->materials[mi])) {
         char q[SCENE_LOAD_PTR];
-        scene_load_ptr_key(q, p, "scale");
+        json_pointer_key(q, SCENE_LOAD_PTR, p, "scale");
         return err_set(err, ERR_INVALID, q, "an emissive sphere needs a uniform scale (material '%s' emits)", mname);
     }
 
@@ -811,7 +743,7 @@ static bool scene_load_shapes(struct scene_load *L, const cJSON *root)
     struct err *err = L->err;
     const cJSON *ss = scene_load_require(root, "", "shapes", err);
     if (!ss) return false;
-    if (!cJSON_IsArray(ss)) return err_set(err, ERR_INVALID, "/shapes", "expected an array of shapes, got %s", scene_load_type_name(ss));
+    if (!cJSON_IsArray(ss)) return err_set(err, ERR_INVALID, "/shapes", "expected an array of shapes, got %s", json_type_name(ss));
     int n = cJSON_GetArraySize(ss);
     if ((unsigned)n > SCENE_LOAD_MAX_SHAPES)
         return err_set(err, ERR_LIMIT, "/shapes", "%d shapes, more than the limit of %u", n, SCENE_LOAD_MAX_SHAPES);
@@ -852,7 +784,7 @@ static bool scene_load_format(const cJSON *root, struct err *err)
     if (!f) return true;
     /* Compared as the exact double: a version number is not a rounded quantity. */
     if (!cJSON_IsNumber(f))
-        return err_set(err, ERR_INVALID, "/format", "expected the number 1, got %s", scene_load_type_name(f));
+        return err_set(err, ERR_INVALID, "/format", "expected the number 1, got %s", json_type_name(f));
     double v = f->valuedouble;
     if (v == 1.0) return true;
     if (isfinite(v) && v == floor(v) && v > 1.0)
@@ -983,8 +915,8 @@ struct scene *scene_load_json(const char *json, size_t len, const char *base_dir
     scene->refcount = 1;
     struct scene_load_names material_index = {0};
     struct scene_load L = {scene, base_dir, NULL, err, &material_index};
-    bool ok = scene_load_object(root, "", "the scene to be an", err) &&
-              scene_load_check_keys(root, "", keys, " at the top level", err) &&
+    bool ok = json_object(root, "", "the scene to be an", err) &&
+              json_check_keys(root, "", keys, " at the top level", err) &&
               scene_load_format(root, err) &&
               scene_load_camera(root, &scene->camera, err) &&
               scene_load_materials(root, scene, &material_index, err) &&

@@ -125,11 +125,10 @@ bool bdpt_init(struct bdpt_state *st, const struct scene *scene, const struct bd
     if (!bdpt_params_valid(p, err)) return false;
     if (!vec3_is_zero(scene->env_radiance))
         return err_set(err, ERR_INVALID, "/method",
-                       "bdpt does not support environment light (the scene has env_radiance); use pt or restir_pt");
+                       "bdpt does not support environment light (the scene has env_radiance)");
     if (scene_has_translucent(scene))
         return err_set(err, ERR_INVALID, "/method",
-                       "bdpt does not sample subsurface scattering (the scene has translucent materials); use pt or "
-                       "restir_sss");
+                       "bdpt does not sample subsurface scattering (the scene has translucent materials)");
     struct bdpt_sizes z = bdpt_sizes_of(p, width, height);
     if (z.light_paths == 0) return err_set(err, ERR_INVALID, "/params/light_paths", "no light subpaths");
     st->width = width;
@@ -566,7 +565,7 @@ static double bdpt_ms_since(const struct timespec *t0)
     return (double)(t1.tv_sec - t0->tv_sec) * 1e3 + (double)(t1.tv_nsec - t0->tv_nsec) * 1e-6;
 }
 
-bool bdpt_render(struct bdpt_state *st, const struct bdpt_params *p, const struct bdpt_frame *f, struct image *out,
+bool bdpt_render(struct bdpt_state *st, const struct bdpt_params *p, const struct method_frame *f, struct image *out,
                  struct bdpt_stats *stats, struct err *err)
 {
     if (!bdpt_params_valid(p, err)) return false;

@@ -23,15 +23,17 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "core/alias.h"
 #include "scene/camera.h"
 #include "core/err.h"
 #include "image/image.h"
 #include "scene/light_sampler.h"
+#include "integrators/frame.h"
 #include "scene/scene.h"
 
 enum bdpt_heuristic { BDPT_HEURISTIC_POWER, BDPT_HEURISTIC_BALANCE };
 
-struct bdpt_params {
+struct RESTIRD_STORED_IN_BYTES bdpt_params {
     uint32_t max_depth;        /* maximum scattering events of a full path, 1..1024 (default 64) */
     uint32_t rr_depth;         /* Russian roulette after this many bounces of a subpath (default 3) */
     uint32_t light_paths;      /* N_L per frame; 0 = the pixel count (default) */
@@ -72,7 +74,7 @@ struct bdpt_state {
     uint64_t *block_rays;      /* per block: rays traced (intersect, occluded) */
 };
 
-struct bdpt_stats {
+struct RESTIRD_STORED_IN_BYTES bdpt_stats {
     double light_ms, splat_ms, camera_ms;
     uint64_t light_subpaths;   /* N_L */
     uint64_t lvc_vertices;     /* |LVC| */
@@ -83,13 +85,6 @@ struct bdpt_stats {
     uint64_t nonfinite;
 };
 
-struct bdpt_frame {
-    const struct scene *scene;
-    const struct camera_desc *camera;
-    uint64_t seed;
-    uint32_t frame;
-    unsigned threads;          /* 0 = all cores */
-};
 
 /* Defaults: max_depth 64, rr_depth 3, N_L = pixel count, 8 LVC vertices per path, power. */
 struct bdpt_params bdpt_defaults(void);
@@ -109,7 +104,7 @@ size_t bdpt_lvc_bytes(const struct bdpt_state *st);
 size_t bdpt_block_bytes(const struct bdpt_state *st);
 
 /* Renders one frame into `out` (width x height, allocated by the caller). Allocates nothing. */
-bool bdpt_render(struct bdpt_state *st, const struct bdpt_params *p, const struct bdpt_frame *f, struct image *out,
+bool bdpt_render(struct bdpt_state *st, const struct bdpt_params *p, const struct method_frame *f, struct image *out,
                  struct bdpt_stats *stats, struct err *err);
 
 /* Geometry helpers shared with restir_bdpt.c (the same conventions on both). */

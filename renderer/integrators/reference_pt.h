@@ -11,6 +11,7 @@
 #include "core/parallel.h"
 #include "scene/scene.h"
 #include "integrators/sms.h"
+#include "integrators/frame.h"
 #include "integrators/sms_ssp.h"
 
 struct pt_params {
@@ -37,15 +38,6 @@ struct pt_params {
      * partitioning and this frame's prior (built by the caller). */
     const struct ssp_params *ssp;
     const struct ssp_prior *ssp_prior;
-};
-
-struct render_stats {
-    uint64_t rays_intersect, rays_occluded;
-    uint64_t samples;
-    uint64_t nonfinite;    /* samples dropped because their value was NaN or Inf */
-    unsigned threads;      /* worker threads used */
-    double render_ms;
-    struct sms_counters sms;   /* method sms: seed 002 Table 1 counters */
 };
 
 /* Defaults: 16 spp, max_depth 64, rr_depth 3, NEE on, seed 0, all cores, whole image. */

@@ -339,12 +339,10 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
     if (!restir_bdpt_params_valid(p, err)) return false;
     if (!vec3_is_zero(scene->env_radiance))
         return err_set(err, ERR_INVALID, "/method",
-                       "restir_bdpt does not support environment light (the scene has env_radiance); use pt or "
-                       "restir_pt");
+                       "restir_bdpt does not support environment light (the scene has env_radiance)");
     if (scene_has_translucent(scene))
         return err_set(err, ERR_INVALID, "/method",
-                       "restir_bdpt does not sample subsurface scattering (the scene has translucent materials); use "
-                       "pt or restir_sss");
+                       "restir_bdpt does not sample subsurface scattering (the scene has translucent materials)");
     struct rbdpt_sizes z = rbdpt_sizes_of(p, width, height);
     if (z.light_paths == 0) return err_set(err, ERR_INVALID, "/params/light_paths", "no light subpaths");
     size_t n = (size_t)width * height;
@@ -1892,7 +1890,7 @@ static double rbdpt_ms_since(const struct timespec *t0)
 }
 
 bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
-                        const struct restir_bdpt_frame *f, struct image *out, struct restir_bdpt_stats *stats,
+                        const struct method_frame *f, struct image *out, struct restir_bdpt_stats *stats,
                         struct err *err)
 {
     if (!restir_bdpt_params_valid(p, err)) return false;
@@ -2073,7 +2071,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
 
 /* Tests only: a context for one view (its worker array on the heap rather than the stack). */
 static struct rbdpt_ctx *rbdpt_test_ctx(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
-                                        const struct restir_bdpt_frame *f, _Atomic uint64_t *reconnections)
+                                        const struct method_frame *f, _Atomic uint64_t *reconnections)
 {
     struct rbdpt_ctx *c = calloc(1, sizeof *c);
     if (!c) return NULL;
@@ -2093,7 +2091,7 @@ static struct rbdpt_ctx *rbdpt_test_ctx(struct restir_bdpt_state *st, const stru
 }
 
 int restir_bdpt_shift_round_trip(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
-                                 const struct restir_bdpt_frame *f, const struct restir_bdpt_frame *f_to,
+                                 const struct method_frame *f, const struct method_frame *f_to,
                                  uint32_t pixel, uint32_t to, float target[3], float *jj)
 {
     if (!st->res_prev) return -1;
@@ -2124,7 +2122,7 @@ int restir_bdpt_shift_round_trip(struct restir_bdpt_state *st, const struct rest
 }
 
 int restir_bdpt_shift_retrace_pair(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
-                                   const struct restir_bdpt_frame *f, uint32_t pixel, uint32_t to, float target[2],
+                                   const struct method_frame *f, uint32_t pixel, uint32_t to, float target[2],
                                    float jacobian[2])
 {
     if (!st->res_prev) return -1;
@@ -2144,7 +2142,7 @@ int restir_bdpt_shift_retrace_pair(struct restir_bdpt_state *st, const struct re
 }
 
 bool restir_bdpt_caustic_replay(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
-                                const struct restir_bdpt_frame *f, uint32_t origin_frame, uint32_t light_path,
+                                const struct method_frame *f, uint32_t origin_frame, uint32_t light_path,
                                 uint32_t depth, uint32_t *pixel, struct vec3 *F)
 {
     struct rbdpt_ctx *c = rbdpt_test_ctx(st, p, f, NULL);

@@ -72,12 +72,14 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "core/alias.h"
 #include "integrators/bdpt.h"
 #include "scene/camera.h"
 #include "core/err.h"
 #include "reuse/gbuffer.h"
 #include "image/image.h"
 #include "reuse/restir.h"
+#include "integrators/frame.h"
 #include "scene/scene.h"
 
 #define RESTIR_BDPT_MAX_DEPTH 250u  /* a sample's vertex count is kept in 8 bits */
@@ -86,7 +88,7 @@ enum restir_bdpt_variant { RESTIR_BDPT_LIGHTWEIGHT, RESTIR_BDPT_FULL };
 const char *restir_bdpt_variant_name(enum restir_bdpt_variant v);
 bool restir_bdpt_variant_parse(const char *name, enum restir_bdpt_variant *out);
 
-struct restir_bdpt_params {
+struct RESTIRD_STORED_IN_BYTES restir_bdpt_params {
     enum restir_bdpt_variant variant;  /* lightweight (default) or full */
     uint32_t max_depth;        /* scattering events of a full path, 1..RESTIR_BDPT_MAX_DEPTH (64, as bdpt) */
     uint32_t rr_depth;         /* Russian roulette after this many bounces of a subpath (3) */
@@ -235,7 +237,7 @@ struct restir_bdpt_state {
     uint64_t *lvc_first;
 };
 
-struct restir_bdpt_stats {
+struct RESTIRD_STORED_IN_BYTES restir_bdpt_stats {
     double light_ms, sort_ms, camera_ms;
     uint64_t light_subpaths;    /* N_L */
     uint64_t light_vertices;    /* connectable light vertices reached, each connected to the eye (t = 1):
@@ -263,15 +265,6 @@ struct restir_bdpt_stats {
     uint64_t rays_intersect, rays_occluded;
 };
 
-struct restir_bdpt_frame {
-    const struct scene *scene;
-    const struct camera_desc *camera;
-    const struct scene *prev_scene;      /* the previous frame's (NULL = no previous frame) */
-    const struct camera_desc *prev_camera;
-    uint64_t seed;
-    uint32_t frame;
-    unsigned threads;          /* 0 = all cores */
-};
 
 uint64_t restir_bdpt_bytes_planned(const struct restir_bdpt_params *p, uint32_t width, uint32_t height);
 bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, const struct restir_bdpt_params *p,
@@ -294,14 +287,14 @@ size_t restir_bdpt_lvc_bytes(const struct restir_bdpt_state *st);   /* 0 for the
 size_t restir_bdpt_pair_bytes(const struct restir_bdpt_state *st);  /* 0 without paired spatial reuse */
 
 bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
-                        const struct restir_bdpt_frame *f, struct image *out, struct restir_bdpt_stats *stats,
+                        const struct method_frame *f, struct image *out, struct restir_bdpt_stats *stats,
                         struct err *err);
 
 /* For tests: the random-replay shift of a caustic sample (light subpath `light_path` traced with
  * the random numbers of frame `origin_frame`, its vertex `depth`) into the view of f->scene and
  * f->camera: the pixel it lands in and its contribution there; false when the shift fails. */
 bool restir_bdpt_caustic_replay(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
-                                const struct restir_bdpt_frame *f, uint32_t origin_frame, uint32_t light_path,
+                                const struct method_frame *f, uint32_t origin_frame, uint32_t light_path,
                                 uint32_t depth, uint32_t *pixel, struct vec3 *F);
 
 /* For tests, with reuse: the non-caustic sample that the frame just rendered left in `pixel`
@@ -313,7 +306,7 @@ bool restir_bdpt_caustic_replay(struct restir_bdpt_state *st, const struct resti
  * hybrid shift (t = 1), 0 random replay, 3 a connection (s >= 2) by random replay of both
  * subpaths, 4 a connection by the hybrid shift; -1 when the pixel holds no sample. */
 int restir_bdpt_shift_round_trip(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
-                                 const struct restir_bdpt_frame *f, const struct restir_bdpt_frame *f_to,
+                                 const struct method_frame *f, const struct method_frame *f_to,
                                  uint32_t pixel, uint32_t to, float target[3], float *jj);
 /* For tests, with reuse: the reconnected sample (rc.k >= 2) the frame just rendered left in
  * `pixel` shifted into pixel `to` of the same frame twice — with its suffix's constants (L and
@@ -321,7 +314,7 @@ int restir_bdpt_shift_round_trip(struct restir_bdpt_state *st, const struct rest
  * jacobian[0] and target[1], jacobian[1]. Returns the shift kind (2 or 4, as
  * restir_bdpt_shift_round_trip), -1 when the pixel holds no such sample. */
 int restir_bdpt_shift_retrace_pair(struct restir_bdpt_state *st, const struct restir_bdpt_params *p,
-                                   const struct restir_bdpt_frame *f, uint32_t pixel, uint32_t to, float target[2],
+                                   const struct method_frame *f, uint32_t pixel, uint32_t to, float target[2],
                                    float jacobian[2]);
 
 /* The lightweight MIS state a subpath carries (SmallVCM's dVCM / dVC restricted to the

@@ -957,8 +957,7 @@ bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, const
     memset(st, 0, sizeof *st);
     if (scene_has_translucent(scene))
         return err_set(err, ERR_INVALID, "/method",
-                       "restir_pt does not sample subsurface scattering (the scene has translucent materials); use pt "
-                       "or restir_sss");
+                       "restir_pt does not sample subsurface scattering (the scene has translucent materials)");
     st->width = width;
     st->height = height;
     st->nee_by_scene = restir_pt_nee_by_scene(scene);
@@ -1098,7 +1097,7 @@ static void pt_shade_rows(void *ctx, uint32_t job, unsigned worker)
     }
 }
 
-void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *params, const struct restir_pt_frame *f,
+void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *params, const struct method_frame *f,
                     void *ctx)
 {
     struct pt_ctx *c = ctx;
@@ -1127,7 +1126,7 @@ static bool pt_run(struct pt_pass *pp, unsigned threads, parallel_job_fn *fn, st
 }
 
 /* G-buffer and initial pass; the context is bound into `c`. */
-static bool pt_begin(struct restir_pt_state *st, const struct restir_pt_params *params, const struct restir_pt_frame *f,
+static bool pt_begin(struct restir_pt_state *st, const struct restir_pt_params *params, const struct method_frame *f,
                      struct pt_ctx *c, struct pt_pass *pp, struct image *out, unsigned threads,
                      struct restir_pt_stats *stats, struct err *err)
 {
@@ -1166,7 +1165,7 @@ static void pt_add_counters(struct restir_pt_stats *stats, const struct restir_c
 }
 
 bool restir_pt_initial_only(struct restir_pt_state *st, const struct restir_pt_params *params,
-                            const struct restir_pt_frame *f, struct err *err)
+                            const struct method_frame *f, struct err *err)
 {
     struct pt_ctx c;
     struct pt_pass *pp = malloc(sizeof *pp);
@@ -1179,7 +1178,7 @@ bool restir_pt_initial_only(struct restir_pt_state *st, const struct restir_pt_p
 }
 
 bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params *params,
-                      const struct restir_pt_frame *f, struct image *out, struct restir_pt_stats *stats,
+                      const struct method_frame *f, struct image *out, struct restir_pt_stats *stats,
                       struct err *err)
 {
     if (out->width != st->width || out->height != st->height)

@@ -16,12 +16,14 @@
 
 #include <stdint.h>
 
+#include "core/alias.h"
 #include "reuse/gbuffer.h"
 #include "image/image.h"
 #include "reuse/restir.h"
+#include "integrators/frame.h"
 #include "scene/scene.h"
 
-struct restir_pt_params {
+struct RESTIRD_STORED_IN_BYTES restir_pt_params {
     uint32_t max_depth;          /* as `pt`: scattering events before the path stops (64) */
     uint32_t rr_depth;           /* Russian roulette from this vertex on (1) */
     bool rr;                     /* Russian roulette on initial paths (decoupled from PSS) */
@@ -56,7 +58,7 @@ uint32_t restir_pt_nee_by_scene(const struct scene *scene);
 bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err);
 
 /* Frame statistics: per-pass times as seed 001 Table 1, and the reuse counters. */
-struct restir_pt_stats {
+struct RESTIRD_STORED_IN_BYTES restir_pt_stats {
     double gbuffer_ms, initial_ms, temporal_ms, spatial_ms, shade_ms;
     uint64_t rays_intersect, rays_occluded;   /* G-buffer included */
     uint64_t shifts, shift_failures, rejected;
@@ -97,19 +99,10 @@ size_t restir_pt_hit_bytes(const struct restir_pt_state *st);
 uint64_t restir_pt_bytes_planned(const struct restir_pt_params *params, uint32_t width, uint32_t height,
                                  uint32_t shape_count);
 
-struct restir_pt_frame {
-    const struct scene *scene;           /* this frame */
-    const struct camera_desc *camera;
-    const struct scene *prev_scene;      /* the previous frame's (NULL = no previous frame) */
-    const struct camera_desc *prev_camera;
-    uint64_t seed;
-    uint32_t frame;
-    unsigned threads;                    /* 0 = all cores */
-};
 
 /* Renders one frame into `out` (width x height) and makes it the history of the next. */
 bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params *params,
-                      const struct restir_pt_frame *f, struct image *out, struct restir_pt_stats *stats,
+                      const struct method_frame *f, struct image *out, struct restir_pt_stats *stats,
                       struct err *err);
 
 /* For tests of the shift: the G-buffers and initial reservoirs of a frame (no reuse), then the
@@ -117,8 +110,8 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
  * RESTIR_PT_CTX_BYTES bytes valid while st, params and f live. */
 #define RESTIR_PT_CTX_BYTES 512u
 bool restir_pt_initial_only(struct restir_pt_state *st, const struct restir_pt_params *params,
-                            const struct restir_pt_frame *f, struct err *err);
-void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *params, const struct restir_pt_frame *f,
+                            const struct method_frame *f, struct err *err);
+void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *params, const struct method_frame *f,
                     void *ctx);
 extern const struct restir_ops restir_pt_ops;
 /* Decoded fields of a reservoir element (tests and stats). */

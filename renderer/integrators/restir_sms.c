@@ -582,7 +582,7 @@ static void sms_shade_rows(void *ctx, uint32_t job, unsigned worker)
 }
 
 static bool sms_bind(struct restir_sms_state *st, const struct restir_sms_params *params,
-                     const struct restir_sms_frame *f, struct sms_ctx *c, struct err *err)
+                     const struct method_frame *f, struct sms_ctx *c, struct err *err)
 {
     memset(c, 0, sizeof *c);
     c->p = params;
@@ -608,7 +608,7 @@ static bool sms_run(struct sms_pass *pp, unsigned threads, parallel_job_fn *fn, 
 }
 
 static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_params *params,
-                      const struct restir_sms_frame *f, struct sms_ctx *c, struct sms_pass *pp, struct image *out,
+                      const struct method_frame *f, struct sms_ctx *c, struct sms_pass *pp, struct image *out,
                       unsigned threads, struct restir_sms_stats *stats, struct err *err)
 {
     if (!restir_sms_params_valid(params, err)) return false;
@@ -668,13 +668,13 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     return true;
 }
 
-static unsigned sms_threads(const struct restir_sms_frame *f)
+static unsigned sms_threads(const struct method_frame *f)
 {
     return parallel_threads(f->threads, RESTIR_MAX_WORKERS);
 }
 
 bool restir_sms_initial_only(struct restir_sms_state *st, const struct restir_sms_params *params,
-                             const struct restir_sms_frame *f, void *ctx, struct err *err)
+                             const struct method_frame *f, void *ctx, struct err *err)
 {
     struct sms_pass *pp = malloc(sizeof *pp);
     if (!pp) return err_set(err, ERR_NOMEM, NULL, "out of memory");
@@ -687,7 +687,7 @@ bool restir_sms_initial_only(struct restir_sms_state *st, const struct restir_sm
 }
 
 bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_params *params,
-                       const struct restir_sms_frame *f, struct image *out, struct restir_sms_stats *stats,
+                       const struct method_frame *f, struct image *out, struct restir_sms_stats *stats,
                        struct err *err)
 {
     if (out->width != st->width || out->height != st->height)

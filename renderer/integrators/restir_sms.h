@@ -63,9 +63,11 @@
 
 #include <stdint.h>
 
+#include "core/alias.h"
 #include "reuse/gbuffer.h"
 #include "image/image.h"
 #include "reuse/restir.h"
+#include "integrators/frame.h"
 #include "scene/scene.h"
 #include "integrators/sms_ssp.h"
 
@@ -75,7 +77,7 @@
  * estimates at the pt path's later vertices use the same sampler. */
 enum restir_sms_sampler { RESTIR_SMS_SAMPLER_SSP, RESTIR_SMS_SAMPLER_SMS };
 
-struct restir_sms_params {
+struct RESTIRD_STORED_IN_BYTES restir_sms_params {
     enum restir_sms_sampler sampler; /* (ssp) */
     struct ssp_params ssp;        /* the candidate sampler (sms_ssp's params: bernoulli_cap,
                                      max_iterations, caustics_only, tiles, prior, prior_samples,
@@ -108,7 +110,7 @@ bool restir_sms_params_valid(const struct restir_sms_params *p, struct err *err)
 bool restir_sms_sampler_parse(const char *name, enum restir_sms_sampler *out);
 const char *restir_sms_sampler_name(enum restir_sms_sampler s);
 
-struct restir_sms_stats {
+struct RESTIRD_STORED_IN_BYTES restir_sms_stats {
     double gbuffer_ms, prior_ms, initial_ms, temporal_ms, spatial_ms, shade_ms;
     uint64_t rays_intersect, rays_occluded;
     uint64_t shifts, shift_failures, rejected;
@@ -169,18 +171,9 @@ size_t restir_sms_pair_bytes(const struct restir_sms_state *st);   /* 0 without 
 uint64_t restir_sms_bytes_planned(const struct restir_sms_params *params, const struct scene *scene, uint32_t width,
                                   uint32_t height);
 
-struct restir_sms_frame {
-    const struct scene *scene;
-    const struct camera_desc *camera;
-    const struct scene *prev_scene;      /* NULL = no previous frame */
-    const struct camera_desc *prev_camera;
-    uint64_t seed;
-    uint32_t frame;
-    unsigned threads;
-};
 
 bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_params *params,
-                       const struct restir_sms_frame *f, struct image *out, struct restir_sms_stats *stats,
+                       const struct method_frame *f, struct image *out, struct restir_sms_stats *stats,
                        struct err *err);
 
 /* For tests: the shift on its own. A context bound to a frame whose G-buffers were rendered
@@ -188,7 +181,7 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
  * solution at a domain, and the shift through restir_sms_ops. */
 #define RESTIR_SMS_CTX_BYTES 8192u
 bool restir_sms_initial_only(struct restir_sms_state *st, const struct restir_sms_params *params,
-                             const struct restir_sms_frame *f, void *ctx, struct err *err);
+                             const struct method_frame *f, void *ctx, struct err *err);
 extern const struct restir_ops restir_sms_ops;
 struct restir_sms_info {
     uint32_t caster, length, light_shape;

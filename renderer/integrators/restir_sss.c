@@ -693,7 +693,7 @@ static void sss_shade_rows(void *ctx, uint32_t job, unsigned worker)
 }
 
 void restir_sss_bind(struct restir_sss_state *st, const struct restir_sss_params *params,
-                     const struct restir_sss_frame *f, void *ctx)
+                     const struct method_frame *f, void *ctx)
 {
     struct sss_ctx *c = ctx;
     memset(c, 0, sizeof *c);
@@ -719,7 +719,7 @@ static bool sss_run(struct sss_pass *pp, unsigned threads, parallel_job_fn *fn, 
 }
 
 static bool sss_begin(struct restir_sss_state *st, const struct restir_sss_params *params,
-                      const struct restir_sss_frame *f, struct sss_ctx *c, struct sss_pass *pp, struct image *out,
+                      const struct method_frame *f, struct sss_ctx *c, struct sss_pass *pp, struct image *out,
                       unsigned threads, struct restir_sss_stats *stats, struct err *err)
 {
     if (!restir_sss_params_valid(params, err)) return false;
@@ -783,7 +783,7 @@ static float sss_auto_radius(const struct sss_ctx *c, const struct camera_desc *
 }
 
 bool restir_sss_initial_only(struct restir_sss_state *st, const struct restir_sss_params *params,
-                             const struct restir_sss_frame *f, struct err *err)
+                             const struct method_frame *f, struct err *err)
 {
     struct sss_ctx c;
     struct sss_pass *pp = malloc(sizeof *pp);
@@ -796,7 +796,7 @@ bool restir_sss_initial_only(struct restir_sss_state *st, const struct restir_ss
 }
 
 bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_params *params,
-                       const struct restir_sss_frame *f, struct image *out, struct restir_sss_stats *stats,
+                       const struct method_frame *f, struct image *out, struct restir_sss_stats *stats,
                        struct err *err)
 {
     if (out->width != st->width || out->height != st->height)

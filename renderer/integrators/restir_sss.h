@@ -27,9 +27,11 @@
 
 #include <stdint.h>
 
+#include "core/alias.h"
 #include "reuse/gbuffer.h"
 #include "image/image.h"
 #include "reuse/restir.h"
+#include "integrators/frame.h"
 #include "scene/scene.h"
 
 enum restir_sss_shift {
@@ -50,7 +52,7 @@ enum restir_sss_target {
     RESTIR_SSS_TARGET_PER_CHANNEL,
 };
 
-struct restir_sss_params {
+struct RESTIRD_STORED_IN_BYTES restir_sss_params {
     enum restir_sss_shift shift;  /* (hybrid) */
     uint32_t candidates;          /* BSSRDF probes per pixel and frame, each with one light sample
                                      shared by all its hits (1) */
@@ -81,7 +83,7 @@ const char *restir_sss_target_name(enum restir_sss_target t);
 /* Reservoirs per pixel and buffer: 1, or 3 for the per_channel target. */
 uint32_t restir_sss_layers(const struct restir_sss_params *p);
 
-struct restir_sss_stats {
+struct RESTIRD_STORED_IN_BYTES restir_sss_stats {
     double gbuffer_ms, initial_ms, temporal_ms, spatial_ms, shade_ms;
     uint64_t rays_intersect, rays_occluded;
     uint64_t shifts, shift_failures, rejected;
@@ -113,27 +115,18 @@ size_t restir_sss_hit_bytes(const struct restir_sss_state *st);
 size_t restir_sss_pair_bytes(const struct restir_sss_state *st);  /* 0 without paired spatial reuse */
 uint64_t restir_sss_bytes_planned(const struct restir_sss_params *params, uint32_t width, uint32_t height);
 
-struct restir_sss_frame {
-    const struct scene *scene;
-    const struct camera_desc *camera;
-    const struct scene *prev_scene;      /* NULL = no previous frame */
-    const struct camera_desc *prev_camera;
-    uint64_t seed;
-    uint32_t frame;
-    unsigned threads;
-};
 
 bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_params *params,
-                       const struct restir_sss_frame *f, struct image *out, struct restir_sss_stats *stats,
+                       const struct method_frame *f, struct image *out, struct restir_sss_stats *stats,
                        struct err *err);
 
 /* For tests: G-buffers and initial reservoirs only, a bound context (RESTIR_SSS_CTX_BYTES) for
  * calling restir_sss_ops directly, and the decoded sample. */
 #define RESTIR_SSS_CTX_BYTES 256u
 bool restir_sss_initial_only(struct restir_sss_state *st, const struct restir_sss_params *params,
-                             const struct restir_sss_frame *f, struct err *err);
+                             const struct method_frame *f, struct err *err);
 void restir_sss_bind(struct restir_sss_state *st, const struct restir_sss_params *params,
-                     const struct restir_sss_frame *f, void *ctx);
+                     const struct method_frame *f, void *ctx);
 extern const struct restir_ops restir_sss_ops;
 struct restir_sss_info {
     uint32_t x2_shape, x2_prim;

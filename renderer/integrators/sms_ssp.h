@@ -50,6 +50,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "core/alias.h"
 #include "scene/camera.h"
 #include "integrators/sms.h"
 
@@ -76,7 +77,7 @@ struct ssp_entry {
 };
 
 /* Prior construction counters (seed 002 Table 1, first columns). */
-struct ssp_prior_counters {
+struct RESTIRD_STORED_IN_BYTES ssp_prior_counters {
     uint64_t samples, solutions, newton, dropped_pairs;
     double ms;
 };

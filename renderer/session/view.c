@@ -1,50 +1,48 @@
 /* view.c — per-session persistent state and the frame driver (see view.h). */
 #include "session/view.h"
 
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
 
-struct view_params view_params_defaults(enum render_method method, uint32_t width, uint32_t height)
+struct view_params view_params_defaults(const struct method_desc *method, uint32_t width, uint32_t height)
 {
-    struct view_params p = {.method = method, .width = width, .height = height, .seed = 0};
-    p.pt = (struct view_pt_params){.spp = 1, .max_depth = 64, .rr_depth = 3, .nee = true};
-    p.restir_pt = restir_pt_defaults();
-    p.bdpt = bdpt_defaults();
-    p.sms = sms_defaults();
-    p.restir_sss = restir_sss_defaults();
-    p.ssp = ssp_defaults();
-    p.restir_bdpt = restir_bdpt_defaults();
-    p.restir_sms = restir_sms_defaults();
+    struct view_params p;
+    memset(&p, 0, sizeof p);
+    p.method = method;
+    p.width = width;
+    p.height = height;
+    method->defaults(p.method_params);
     return p;
 }
 
-bool view_method_parse(const char *name, enum render_method *out)
+/* The parameter `key` of p's method if it is of `kind`, else NULL. */
+static const struct method_param *view_param(const struct view_params *p, const char *key, enum method_param_kind kind)
 {
-    if (strcmp(name, "pt") == 0) { *out = RENDER_METHOD_PT; return true; }
-    if (strcmp(name, "restir_pt") == 0) { *out = RENDER_METHOD_RESTIR_PT; return true; }
-    if (strcmp(name, "bdpt") == 0) { *out = RENDER_METHOD_BDPT; return true; }
-    if (strcmp(name, "sms") == 0) { *out = RENDER_METHOD_SMS; return true; }
-    if (strcmp(name, "restir_sss") == 0) { *out = RENDER_METHOD_RESTIR_SSS; return true; }
-    if (strcmp(name, "sms_ssp") == 0) { *out = RENDER_METHOD_SMS_SSP; return true; }
-    if (strcmp(name, "restir_bdpt") == 0) { *out = RENDER_METHOD_RESTIR_BDPT; return true; }
-    if (strcmp(name, "restir_sms") == 0) { *out = RENDER_METHOD_RESTIR_SMS; return true; }
-    return false;
+    const struct method_param *mp = method_param_find(p->method, key);
+    return mp && mp->kind == kind ? mp : NULL;
 }
 
-const char *view_method_name(enum render_method method)
+bool view_params_get_uint(const struct view_params *p, const char *key, uint32_t *out)
 {
-    switch (method) {
-    case RENDER_METHOD_PT: return "pt";
-    case RENDER_METHOD_RESTIR_PT: return "restir_pt";
-    case RENDER_METHOD_BDPT: return "bdpt";
-    case RENDER_METHOD_SMS: return "sms";
-    case RENDER_METHOD_RESTIR_SSS: return "restir_sss";
-    case RENDER_METHOD_SMS_SSP: return "sms_ssp";
-    case RENDER_METHOD_RESTIR_BDPT: return "restir_bdpt";
-    case RENDER_METHOD_RESTIR_SMS: return "restir_sms";
-    }
-    return NULL;
+    const struct method_param *mp = view_param(p, key, METHOD_PARAM_UINT);
+    if (mp) memcpy(out, p->method_params + mp->offset, sizeof *out);
+    return mp != NULL;
+}
+
+bool view_params_set_uint(struct view_params *p, const char *key, uint32_t value)
+{
+    const struct method_param *mp = view_param(p, key, METHOD_PARAM_UINT);
+    if (mp) memcpy(p->method_params + mp->offset, &value, sizeof value);
+    return mp != NULL;
+}
+
+bool view_params_set_bool(struct view_params *p, const char *key, bool value)
+{
+    const struct method_param *mp = view_param(p, key, METHOD_PARAM_BOOL);
+    if (mp) memcpy(p->method_params + mp->offset, &value, sizeof value);
+    return mp != NULL;
 }
 
 static void view_drop_history(struct view *v)
@@ -54,11 +52,43 @@ static void view_drop_history(struct view *v)
     v->prev_camera = v->camera;
     v->frame = 0;
     v->accum_count = 0;
-    restir_pt_reset(&v->restir);
-    restir_sss_reset(&v->sss);
-    restir_bdpt_reset(&v->rbdpt);
-    restir_sms_reset(&v->rsms);
+    if (v->params.method->reset) v->params.method->reset(v->state);
     if (v->accum.pixels) memset(v->accum.pixels, 0, (size_t)v->accum.width * v->accum.height * sizeof *v->accum.pixels);
+}
+
+/* Refuses a scene with a feature the method refuses (method.h's METHOD_NO_*), naming the
+ * methods that render it. */
+static bool view_scene_supported(const struct method_desc *m, const struct scene *scene, struct err *err)
+{
+    static const struct {
+        unsigned cap;
+        const char *what;
+    } features[] = {
+        {METHOD_NO_ENVIRONMENT, "does not support environment light (the scene has env_radiance)"},
+        {METHOD_NO_TRANSLUCENT, "does not sample subsurface scattering (the scene has translucent materials)"},
+    };
+    for (size_t f = 0; f < sizeof features / sizeof features[0]; f++) {
+        bool has = features[f].cap == METHOD_NO_ENVIRONMENT ? !vec3_is_zero(scene->env_radiance)
+                                                            : scene_has_translucent(scene);
+        if (!has || !(m->caps & features[f].cap)) continue;
+        char others[256] = "";
+        size_t n = 0;
+        for (uint32_t i = 0; i < method_count() && n < sizeof others; i++)
+            if (!(method_at(i)->caps & features[f].cap))
+                n += (size_t)snprintf(others + n, sizeof others - n, "%s%s", n ? ", " : "", method_at(i)->name);
+        return err_set(err, ERR_INVALID, "/method", "%s %s; methods that do: %s", m->name, features[f].what, others);
+    }
+    return true;
+}
+
+/* Frees the method's state and the view's buffers (any of them may be missing). */
+static void view_free(struct view *v)
+{
+    if (v->state) v->params.method->destroy(v->state);
+    free(v->state);
+    image_destroy(&v->output);
+    image_destroy(&v->accum);
+    free(v->changes);
 }
 
 bool view_init(struct view *v, struct scene *scene, const struct view_params *params, unsigned threads,
@@ -67,63 +97,33 @@ bool view_init(struct view *v, struct scene *scene, const struct view_params *pa
     memset(v, 0, sizeof *v);
     if (params->width == 0 || params->height == 0)
         return err_set(err, ERR_INVALID, "/width", "image size must be at least 1x1");
-    if (params->method != RENDER_METHOD_RESTIR_PT && params->pt.spp == 0)
-        return err_set(err, ERR_INVALID, "/params/spp", "spp must be at least 1");
-    if (params->method == RENDER_METHOD_SMS || params->method == RENDER_METHOD_SMS_SSP) {
-        struct sms_scene ss;
-        if (!sms_params_valid(&params->sms, err) || !ssp_params_valid(&params->ssp, err) ||
-            !sms_scene_init(scene, &ss, err))
-            return false;
+    const struct method_desc *m = params->method;
+    if (!m->validate(params->method_params, err) || !view_scene_supported(m, scene, err)) return false;
+    v->params = *params;
+    if (m->state_bytes && !(v->state = calloc(1, m->state_bytes))) {
+        memset(v, 0, sizeof *v);
+        return err_set(err, ERR_NOMEM, NULL, "out of memory for a view");
     }
-    if (params->method == RENDER_METHOD_SMS_SSP && !ssp_prior_init(&v->prior, params->width, params->height, params->ssp.prior_frames, err))
+    /* The method may resolve defaults left to the scene in the view's own copy of its params:
+     * the session reports what it uses. */
+    if (!m->init(v->state, scene, v->params.method_params, params->width, params->height, err)) {
+        free(v->state);
+        memset(v, 0, sizeof *v);
         return false;
-    if (params->method == RENDER_METHOD_RESTIR_PT) {
-        if (!restir_pt_params_valid(&params->restir_pt, err)) return false;
-        if (!restir_pt_init(&v->restir, scene, &params->restir_pt, params->width, params->height, err)) return false;
     }
-    if (params->method == RENDER_METHOD_BDPT &&
-        !bdpt_init(&v->bdpt, scene, &params->bdpt, params->width, params->height, err))
-        return false;
-    if (params->method == RENDER_METHOD_RESTIR_BDPT &&
-        !restir_bdpt_init(&v->rbdpt, scene, &params->restir_bdpt, params->width, params->height, err))
-        return false;
-    if (params->method == RENDER_METHOD_RESTIR_SSS) {
-        if (!restir_sss_params_valid(&params->restir_sss, err)) return false;
-        if (!restir_sss_init(&v->sss, &params->restir_sss, params->width, params->height, err)) return false;
-    }
-    if (params->method == RENDER_METHOD_RESTIR_SMS) {
-        struct sms_scene ss;
-        if (!restir_sms_params_valid(&params->restir_sms, err) || !sms_scene_init(scene, &ss, err)) return false;
-        if (!restir_sms_init(&v->rsms, scene, &params->restir_sms, params->width, params->height, err)) return false;
-    }
-    /* pt needs its frame and the accumulation buffer: no reservoirs, no G-buffer. */
+    /* Every method needs its frame and the accumulation buffer. */
     if (!image_init(&v->output, params->width, params->height, err) ||
         !image_init(&v->accum, params->width, params->height, err)) {
-        image_destroy(&v->output);
-        restir_pt_destroy(&v->restir);
-        bdpt_destroy(&v->bdpt);
-        restir_bdpt_destroy(&v->rbdpt);
-        restir_sss_destroy(&v->sss);
-        restir_sms_destroy(&v->rsms);
-        ssp_prior_destroy(&v->prior);
+        view_free(v);
+        memset(v, 0, sizeof *v);
         return false;
     }
     v->changes = calloc(scene->shape_count ? scene->shape_count : 1, sizeof *v->changes);
     if (!v->changes) {
-        image_destroy(&v->output);
-        image_destroy(&v->accum);
-        restir_pt_destroy(&v->restir);
-        bdpt_destroy(&v->bdpt);
-        restir_bdpt_destroy(&v->rbdpt);
-        restir_sss_destroy(&v->sss);
-        restir_sms_destroy(&v->rsms);
-        ssp_prior_destroy(&v->prior);
+        view_free(v);
+        memset(v, 0, sizeof *v);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for a view");
     }
-    v->params = *params;
-    if (params->method == RENDER_METHOD_RESTIR_PT && params->restir_pt.nee_candidates == RESTIR_PT_NEE_BY_SCENE)
-        v->params.restir_pt.nee_candidates = v->restir.nee_by_scene;  /* the session reports what it uses */
-    if (params->method == RENDER_METHOD_RESTIR_SMS) v->params.restir_sms.light_reservoirs = v->rsms.layers;  /* likewise */
     v->threads = threads;
     scene_retain(scene);
     scene_retain(scene);
@@ -137,15 +137,7 @@ void view_destroy(struct view *v)
     scene_release(v->prev_scene);
     scene_release(v->scene);
     scene_release(v->base);
-    image_destroy(&v->output);
-    image_destroy(&v->accum);
-    restir_pt_destroy(&v->restir);
-    bdpt_destroy(&v->bdpt);
-    restir_bdpt_destroy(&v->rbdpt);
-    restir_sss_destroy(&v->sss);
-    restir_sms_destroy(&v->rsms);
-    ssp_prior_destroy(&v->prior);
-    free(v->changes);
+    view_free(v);
     memset(v, 0, sizeof *v);
 }
 
@@ -205,16 +197,6 @@ static struct scene *view_build_scene(const struct view *v, struct err *err)
     return scene_derive(v->base, ov, v->change_count, err);
 }
 
-/* The render stats of a frame a reusing or bidirectional method rendered in one go: one sample
- * per pixel, the method's own ray and non-finite counts and pass times. */
-static struct render_stats view_frame_stats(const struct view *v, const struct image *out, uint64_t intersect,
-                                            uint64_t occluded, uint64_t nonfinite, double ms)
-{
-    return (struct render_stats){.rays_intersect = intersect, .rays_occluded = occluded,
-                                 .samples = (uint64_t)out->width * out->height, .nonfinite = nonfinite,
-                                 .threads = v->threads ? v->threads : parallel_default_threads(), .render_ms = ms};
-}
-
 static double view_ms_since(const struct timespec *t0)
 {
     struct timespec t1;
@@ -257,125 +239,14 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         restart = true;
     }
 
-    struct render_stats rs;
-    struct restir_pt_stats passes;
-    struct bdpt_stats bstats;
-    struct restir_bdpt_stats rbstats;
-    struct ssp_prior_counters prior = {0};
-    struct restir_sms_stats ms;
-    memset(&ms, 0, sizeof ms);
-    bool ok;
-    if (v->params.method == RENDER_METHOD_RESTIR_PT) {
-        /* The previous frame's scene and camera are the view's current ones until the commit
-         * below: temporal reuse evaluates the previous domain with them. */
-        struct restir_pt_frame f = {.scene = scene, .camera = &camera, .prev_scene = v->frame ? v->scene : NULL,
-                                    .prev_camera = &v->camera, .seed = v->params.seed, .frame = v->frame,
-                                    .threads = v->threads};
-        ok = restir_pt_render(&v->restir, &v->params.restir_pt, &f, out, &passes, err);
-        if (ok) {
-            rs = view_frame_stats(v, out, passes.rays_intersect, passes.rays_occluded, passes.nonfinite,
-                                  passes.gbuffer_ms + passes.initial_ms + passes.temporal_ms + passes.spatial_ms +
-                                      passes.shade_ms);
-            if (progress) progress(progress_ctx, 1, 1);
-        }
-    } else if (v->params.method == RENDER_METHOD_BDPT) {
-        struct bdpt_frame f = {.scene = scene, .camera = &camera, .seed = v->params.seed, .frame = v->frame,
-                               .threads = v->threads};
-        ok = bdpt_render(&v->bdpt, &v->params.bdpt, &f, out, &bstats, err);
-        if (ok) {
-            rs = view_frame_stats(v, out, bstats.rays_intersect, bstats.rays_occluded, bstats.nonfinite,
-                                  bstats.light_ms + bstats.splat_ms + bstats.camera_ms);
-            if (progress) progress(progress_ctx, 1, 1);
-        }
-    } else if (v->params.method == RENDER_METHOD_RESTIR_BDPT) {
-        /* The previous scene and camera: where the caustic reservoirs' history was rendered. */
-        struct restir_bdpt_frame f = {.scene = scene, .camera = &camera, .prev_scene = v->frame ? v->scene : NULL,
-                                      .prev_camera = &v->camera, .seed = v->params.seed, .frame = v->frame,
-                                      .threads = v->threads};
-        ok = restir_bdpt_render(&v->rbdpt, &v->params.restir_bdpt, &f, out, &rbstats, err);
-        if (ok) {
-            rs = view_frame_stats(v, out, rbstats.rays_intersect, rbstats.rays_occluded, rbstats.rejected,
-                                  rbstats.light_ms + rbstats.sort_ms + rbstats.camera_ms + rbstats.reuse_ms);
-            if (progress) progress(progress_ctx, 1, 1);
-        }
-    } else if (v->params.method == RENDER_METHOD_RESTIR_SSS) {
-        struct restir_sss_frame f = {.scene = scene, .camera = &camera, .prev_scene = v->frame ? v->scene : NULL,
-                                     .prev_camera = &v->camera, .seed = v->params.seed, .frame = v->frame,
-                                     .threads = v->threads};
-        struct restir_sss_stats ss;
-        ok = restir_sss_render(&v->sss, &v->params.restir_sss, &f, out, &ss, err);
-        if (ok) {
-            memset(&passes, 0, sizeof passes);
-            passes.gbuffer_ms = ss.gbuffer_ms, passes.initial_ms = ss.initial_ms, passes.temporal_ms = ss.temporal_ms;
-            passes.spatial_ms = ss.spatial_ms, passes.shade_ms = ss.shade_ms;
-            passes.rays_intersect = ss.rays_intersect, passes.rays_occluded = ss.rays_occluded;
-            passes.shifts = ss.shifts, passes.shift_failures = ss.shift_failures, passes.rejected = ss.rejected;
-            passes.nonfinite = ss.nonfinite;
-            rs = view_frame_stats(v, out, ss.rays_intersect, ss.rays_occluded, ss.nonfinite,
-                                  ss.gbuffer_ms + ss.initial_ms + ss.temporal_ms + ss.spatial_ms + ss.shade_ms);
-            if (progress) progress(progress_ctx, 1, 1);
-        }
-    } else if (v->params.method == RENDER_METHOD_RESTIR_SMS) {
-        struct restir_sms_frame f = {.scene = scene, .camera = &camera, .prev_scene = v->frame ? v->scene : NULL,
-                                     .prev_camera = &v->camera, .seed = v->params.seed, .frame = v->frame,
-                                     .threads = v->threads};
-        ok = restir_sms_render(&v->rsms, &v->params.restir_sms, &f, out, &ms, err);
-        if (ok) {
-            memset(&passes, 0, sizeof passes);
-            passes.gbuffer_ms = ms.gbuffer_ms, passes.temporal_ms = ms.temporal_ms;
-            /* The prior pass counts as part of the initial pass (it only serves the candidates). */
-            passes.initial_ms = ms.prior_ms + ms.initial_ms;
-            passes.spatial_ms = ms.spatial_ms, passes.shade_ms = ms.shade_ms;
-            passes.rays_intersect = ms.rays_intersect, passes.rays_occluded = ms.rays_occluded;
-            passes.shifts = ms.shifts, passes.shift_failures = ms.shift_failures, passes.rejected = ms.rejected;
-            passes.nonfinite = ms.nonfinite;
-            rs = view_frame_stats(v, out, ms.rays_intersect, ms.rays_occluded, ms.nonfinite,
-                                  ms.gbuffer_ms + ms.prior_ms + ms.initial_ms + ms.temporal_ms + ms.spatial_ms +
-                                      ms.shade_ms);
-            rs.sms = ms.sms;
-            prior = ms.prior;
-            if (progress) progress(progress_ctx, 1, 1);
-        }
-    } else {
-        struct pt_params p = reference_pt_defaults(v->params.width, v->params.height);
-        p.spp = v->params.pt.spp;
-        p.max_depth = v->params.pt.max_depth;
-        p.rr_depth = v->params.pt.rr_depth;
-        p.nee = v->params.pt.nee;
-        struct sms_scene ss;
-        if (v->params.method == RENDER_METHOD_SMS) {
-            p.sms = &v->params.sms;
-        } else if (v->params.method == RENDER_METHOD_SMS_SSP) {
-            /* The prior pass (seed 002 §4.1) before the frame, under this frame's scene and camera. */
-            struct camera cam;
-            struct ray_counters prc = {0, 0};
-            camera_init(&cam, &camera, v->params.width, v->params.height);
-            memset(&prior, 0, sizeof prior);
-            if (!sms_scene_init(scene, &ss, err)) {
-                scene_release(scene);
-                return false;
-            }
-            /* The walks kept from earlier frames describe this one while nothing moved. */
-            bool still = v->frame > 0 && memcmp(&camera, &v->camera, sizeof camera) == 0 && !scene_moved(v->scene, scene);
-            if (!ssp_prior_build(&v->prior, scene, &ss, &v->params.ssp, &cam, v->params.seed, v->frame, still, v->threads,
-                                 &prior, &prc, err)) {
-                scene_release(scene);
-                return false;
-            }
-            p.sms = &v->params.ssp.sms;
-            p.ssp = &v->params.ssp;
-            p.ssp_prior = &v->prior;
-        } else {
-            p.subset = v->params.pt.subset;
-        }
-        p.seed = v->params.seed;
-        p.frame = v->frame;
-        p.threads = v->threads;
-        p.camera = &camera;
-        ok = reference_pt_render_into(scene, &p, out, &rs, progress, progress_ctx, err);
-        if (ok && p.ssp) rs.render_ms += prior.ms;
-    }
-    if (!ok) {
+    /* The previous frame's scene and camera are the view's current ones until the commit
+     * below: temporal reuse evaluates the previous domain with them. */
+    const struct method_frame f = {.scene = scene, .camera = &camera, .prev_scene = v->frame ? v->scene : NULL,
+                                   .prev_camera = &v->camera, .seed = v->params.seed, .frame = v->frame,
+                                   .threads = v->threads};
+    struct frame_stats fs;
+    memset(&fs, 0, sizeof fs);
+    if (!v->params.method->render(v->state, v->params.method_params, &f, out, &fs, progress, progress_ctx, err)) {
         scene_release(scene);
         return false;
     }
@@ -396,26 +267,11 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
     v->accum_count++;
 
     if (stats) {
-        memset(stats, 0, sizeof *stats);
-        stats->frame = v->frame;
-        stats->time_s = v->time_s;
-        stats->render = rs;
-        stats->scene_update_ms = update_ms;
-        stats->accumulated = v->accum_count;
-        stats->has_passes = v->params.method == RENDER_METHOD_RESTIR_PT || v->params.method == RENDER_METHOD_RESTIR_SSS ||
-                            v->params.method == RENDER_METHOD_RESTIR_SMS;
-        if (stats->has_passes) stats->passes = passes;
-        stats->has_bdpt = v->params.method == RENDER_METHOD_BDPT;
-        if (stats->has_bdpt) stats->bdpt = bstats;
-        stats->has_restir_bdpt = v->params.method == RENDER_METHOD_RESTIR_BDPT;
-        if (stats->has_restir_bdpt) stats->restir_bdpt = rbstats;
-        stats->has_sms = v->params.method == RENDER_METHOD_SMS || v->params.method == RENDER_METHOD_SMS_SSP ||
-                         v->params.method == RENDER_METHOD_RESTIR_SMS;
-        stats->has_prior = v->params.method == RENDER_METHOD_SMS_SSP || v->params.method == RENDER_METHOD_RESTIR_SMS;
-        stats->prior = prior;
-        stats->has_manifold_shift = v->params.method == RENDER_METHOD_RESTIR_SMS;
-        stats->shift_newton = ms.shift_newton;
-        stats->shift_not_invertible = ms.shift_not_invertible;
+        fs.frame = v->frame;
+        fs.time_s = v->time_s;
+        fs.scene_update_ms = update_ms;
+        fs.accumulated = v->accum_count;
+        *stats = fs;
     }
     v->frame++;
     return true;
@@ -434,31 +290,19 @@ bool view_accumulated(const struct view *v, struct image *out, uint32_t *count, 
 
 uint32_t view_reservoir_bytes_per_pixel(const struct view_params *params, const struct scene *scene)
 {
-    switch (params->method) {
-    case RENDER_METHOD_RESTIR_PT: return RESTIR_PT_RESERVOIR_BYTES;
-    case RENDER_METHOD_RESTIR_SSS: return RESTIR_SSS_RESERVOIR_BYTES * restir_sss_layers(&params->restir_sss);
-    case RENDER_METHOD_RESTIR_BDPT: return RESTIR_BDPT_PATH_BYTES;
-    case RENDER_METHOD_RESTIR_SMS:
-        return RESTIR_SMS_RESERVOIR_BYTES *
-               (scene ? restir_sms_layers(&params->restir_sms, scene) : params->restir_sms.light_reservoirs);
-    default: return 0;
-    }
+    const struct method_desc *m = params->method;
+    return m->reservoir_bytes_per_pixel ? m->reservoir_bytes_per_pixel(params->method_params, scene) : 0;
 }
 
 uint64_t view_bytes_planned(const struct view_params *params, const struct scene *scene)
 {
     const uint32_t shape_count = scene->shape_count;
-    /* The same buffers view_init allocates for the method (every method: frame and accumulation;
-     * restir_pt: its reservoirs, G-buffers and primitive table too). */
+    /* The same buffers view_init allocates: every method's frame, accumulation and shape
+     * changes, and the method's own. */
     uint64_t pixels = (uint64_t)params->width * params->height;
     uint64_t bytes = 2 * pixels * sizeof(struct vec3) + (uint64_t)(shape_count ? shape_count : 1) * sizeof(struct view_shape_change);
-    if (params->method == RENDER_METHOD_RESTIR_PT) bytes += restir_pt_bytes_planned(&params->restir_pt, params->width, params->height, shape_count);
-    if (params->method == RENDER_METHOD_BDPT) bytes += bdpt_bytes_planned(&params->bdpt, params->width, params->height);
-    if (params->method == RENDER_METHOD_RESTIR_BDPT)
-        bytes += restir_bdpt_bytes_planned(&params->restir_bdpt, params->width, params->height);
-    if (params->method == RENDER_METHOD_RESTIR_SSS) bytes += restir_sss_bytes_planned(&params->restir_sss, params->width, params->height);
-    if (params->method == RENDER_METHOD_SMS_SSP) bytes += ssp_prior_bytes(params->width, params->height, params->ssp.prior_frames);
-    if (params->method == RENDER_METHOD_RESTIR_SMS) bytes += restir_sms_bytes_planned(&params->restir_sms, scene, params->width, params->height);
+    const struct method_desc *m = params->method;
+    if (m->bytes_planned) bytes += m->bytes_planned(params->method_params, scene, params->width, params->height);
     return bytes;
 }
 
@@ -468,43 +312,8 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
     out[n++] = (struct view_buffer_bytes){"frame", (size_t)v->output.width * v->output.height * sizeof *v->output.pixels};
     out[n++] = (struct view_buffer_bytes){"accumulation", (size_t)v->accum.width * v->accum.height * sizeof *v->accum.pixels};
     out[n++] = (struct view_buffer_bytes){"shape_changes", (size_t)(v->base->shape_count ? v->base->shape_count : 1) * sizeof *v->changes};
-    if (v->params.method == RENDER_METHOD_RESTIR_PT) {
-        out[n++] = (struct view_buffer_bytes){"reservoirs", restir_pt_reservoir_bytes(&v->restir)};
-        out[n++] = (struct view_buffer_bytes){"gbuffers", restir_pt_gbuffer_bytes(&v->restir)};
-        out[n++] = (struct view_buffer_bytes){"primitive_table", ((size_t)v->restir.shape_count + 1) * sizeof *v->restir.prim_first};
-        if (v->restir.pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_pt_pair_bytes(&v->restir)};
-        out[n++] = (struct view_buffer_bytes){"primary_hits", restir_pt_hit_bytes(&v->restir)};
-    }
-    if (v->params.method == RENDER_METHOD_BDPT) {
-        out[n++] = (struct view_buffer_bytes){"light_vertex_cache", bdpt_lvc_bytes(&v->bdpt)};
-        out[n++] = (struct view_buffer_bytes){"lvc_blocks", bdpt_block_bytes(&v->bdpt)};
-    }
-    if (v->params.method == RENDER_METHOD_RESTIR_BDPT) {
-        out[n++] = (struct view_buffer_bytes){"reservoirs", restir_bdpt_reservoir_bytes(&v->rbdpt)};
-        out[n++] = (struct view_buffer_bytes){"light_traced_samples", restir_bdpt_lt_bytes(&v->rbdpt)};
-        out[n++] = (struct view_buffer_bytes){"caustic_shifts", restir_bdpt_shift_bytes(&v->rbdpt)};
-        out[n++] = (struct view_buffer_bytes){"pixel_buckets", restir_bdpt_bucket_bytes(&v->rbdpt)};
-        out[n++] = (struct view_buffer_bytes){"light_blocks", restir_bdpt_block_bytes(&v->rbdpt)};
-        if (v->rbdpt.lvc) out[n++] = (struct view_buffer_bytes){"light_vertex_cache", restir_bdpt_lvc_bytes(&v->rbdpt)};
-        if (v->rbdpt.gbuf.px) out[n++] = (struct view_buffer_bytes){"gbuffer", gbuffer_bytes(&v->rbdpt.gbuf)};
-        if (v->rbdpt.pair_scratch)
-            out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_bdpt_pair_bytes(&v->rbdpt)};
-        if (v->rbdpt.x2c) out[n++] = (struct view_buffer_bytes){"light_x2_cache", restir_bdpt_x2_bytes(&v->rbdpt)};
-    }
-    if (v->params.method == RENDER_METHOD_RESTIR_SSS) {
-        out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sss_reservoir_bytes(&v->sss)};
-        out[n++] = (struct view_buffer_bytes){"gbuffers", restir_sss_gbuffer_bytes(&v->sss)};
-        out[n++] = (struct view_buffer_bytes){"primary_hits", restir_sss_hit_bytes(&v->sss)};
-        if (v->sss.pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_sss_pair_bytes(&v->sss)};
-    }
-    if (v->params.method == RENDER_METHOD_SMS_SSP) out[n++] = (struct view_buffer_bytes){"prior", ssp_prior_bytes(v->output.width, v->output.height, v->prior.frames)};
-    if (v->params.method == RENDER_METHOD_RESTIR_SMS) {
-        out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sms_reservoir_bytes(&v->rsms)};
-        out[n++] = (struct view_buffer_bytes){"gbuffers", restir_sms_gbuffer_bytes(&v->rsms)};
-        out[n++] = (struct view_buffer_bytes){"receivers", restir_sms_receiver_bytes(&v->rsms)};
-        if (v->rsms.prior.entries) out[n++] = (struct view_buffer_bytes){"prior", restir_sms_prior_bytes(&v->rsms)};
-        if (v->rsms.pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_sms_pair_bytes(&v->rsms)};
-    }
+    const struct method_desc *m = v->params.method;
+    if (m->buffers) n += m->buffers(v->state, v->params.method_params, out + n);
     size_t sum = 0;
     for (uint32_t i = 0; i < n; i++) sum += out[i].bytes;
     if (total) *total = sum;

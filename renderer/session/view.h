@@ -2,9 +2,9 @@
  * image size and seed, the current and previous camera and scene (the previous pair is what
  * temporal reuse evaluates the previous domain with), the frame counter, and the buffers the
  * method needs — allocated once when the view is created, never during a frame.
- * A method allocates only what it uses: `pt` keeps an accumulation buffer and no reservoirs or
- * G-buffers; `restir_pt` adds its two reservoir buffers and two G-buffers. view_bytes() reports
- * every buffer by name.
+ * A method allocates only what it uses (its descriptor's init): `pt` keeps an accumulation buffer
+ * and no reservoirs or G-buffers; `restir_pt` adds its two reservoir buffers and two G-buffers.
+ * view_bytes() reports every buffer by name.
  * Not thread-safe: one frame at a time per view (the caller serialises). */
 #ifndef RESTIRD_VIEW_H
 #define RESTIRD_VIEW_H
@@ -13,48 +13,28 @@
 #include <stdint.h>
 
 #include "scene/animation.h"
-#include "integrators/bdpt.h"
 #include "image/image.h"
 #include "core/parallel.h"
-#include "integrators/reference_pt.h"
-#include "integrators/restir_bdpt.h"
-#include "integrators/restir_pt.h"
-#include "integrators/restir_sms.h"
-#include "integrators/restir_sss.h"
+#include "methods/method.h"
 #include "scene/scene.h"
 
-enum render_method { RENDER_METHOD_PT, RENDER_METHOD_RESTIR_PT, RENDER_METHOD_BDPT, RENDER_METHOD_SMS,
-                     RENDER_METHOD_RESTIR_SSS, RENDER_METHOD_SMS_SSP, RENDER_METHOD_RESTIR_BDPT,
-                     RENDER_METHOD_RESTIR_SMS };
-
-/* Parameters of `pt` (reference_pt.h documents them). */
-struct view_pt_params {
-    uint32_t spp, max_depth, rr_depth;
-    bool nee;
-    enum pt_subset subset;   /* pt: which light transport (sms.h); sms: ignored */
-};
-
+/* A session's method and parameters. The method's own parameters live in `method_params`, as
+ * its parameter struct (VIEW_METHOD_PARAMS); the method's descriptor documents them. */
 struct view_params {
-    enum render_method method;
+    const struct method_desc *method;
     uint32_t width, height;
     uint64_t seed;
-    struct view_pt_params pt;
-    struct restir_pt_params restir_pt;   /* method restir_pt (restir_pt.h) */
-    struct bdpt_params bdpt;             /* method bdpt (bdpt.h) */
-    struct sms_params sms;               /* method sms (sms.h; spp, depths and nee from `pt`) */
-    struct restir_sss_params restir_sss; /* method restir_sss (restir_sss.h) */
-    struct ssp_params ssp;               /* method sms_ssp (sms_ssp.h; spp and depths from `pt`) */
-    struct restir_bdpt_params restir_bdpt; /* method restir_bdpt (restir_bdpt.h) */
-    struct restir_sms_params restir_sms; /* method restir_sms (restir_sms.h) */
+    _Alignas(8) unsigned char method_params[METHOD_PARAMS_BYTES];
 };
+#define VIEW_METHOD_PARAMS(vp, type) ((type *)(void *)(vp)->method_params)
 
-/* Defaults of every method's parameters (pt: 1 spp per frame, max_depth 64, rr_depth 3, NEE;
- * restir_pt: restir_pt_defaults()). */
-struct view_params view_params_defaults(enum render_method method, uint32_t width, uint32_t height);
-/* "pt" <-> RENDER_METHOD_PT, "restir_pt" <-> RENDER_METHOD_RESTIR_PT, "restir_sss" <->
- * RENDER_METHOD_RESTIR_SSS; false/NULL when unknown. */
-bool view_method_parse(const char *name, enum render_method *out);
-const char *view_method_name(enum render_method method);
+/* The method's defaults for a width x height session, seed 0. */
+struct view_params view_params_defaults(const struct method_desc *method, uint32_t width, uint32_t height);
+/* A parameter of the session's method by name (method.h's table): false when the method has no
+ * such parameter of that kind (nothing is written then). */
+bool view_params_get_uint(const struct view_params *p, const char *key, uint32_t *out);
+bool view_params_set_uint(struct view_params *p, const char *key, uint32_t value);
+bool view_params_set_bool(struct view_params *p, const char *key, bool value);
 
 /* A change applied to one named shape before a frame (absent channels keep their value). */
 struct view_shape_change {
@@ -96,32 +76,6 @@ struct view_animation {
 bool view_animation_change(const struct view_animation *a, double t_s, struct view_frame_change *out,
                            struct view_shape_change *shapes, struct err *err);
 
-struct view_buffer_bytes {
-    const char *name;                     /* "accumulation", "reservoirs", "gbuffer", ... */
-    size_t bytes;
-};
-#define VIEW_MAX_BUFFERS 12
-
-struct frame_stats {
-    uint32_t frame;                       /* index of this frame in the session's sequence */
-    double time_s;
-    struct render_stats render;           /* rays, samples, nonfinite, threads, render_ms */
-    double scene_update_ms;               /* rebuilding the scene for moved or re-lit shapes */
-    uint32_t accumulated;                 /* frames in the accumulation buffer after this one */
-    bool has_sms;                         /* sms, sms_ssp: render.sms holds seed 002 Table 1's counters */
-    bool has_prior;                       /* sms_ssp: the prior pass's counters */
-    struct ssp_prior_counters prior;
-    bool has_passes;                      /* restir_pt, restir_sss: the per-pass numbers below are set
-                                             (restir_sss fills the fields the two share) */
-    struct restir_pt_stats passes;
-    bool has_bdpt;                        /* bdpt: the numbers below are set */
-    struct bdpt_stats bdpt;
-    bool has_restir_bdpt;                 /* restir_bdpt: the numbers below are set */
-    struct restir_bdpt_stats restir_bdpt;
-    bool has_manifold_shift;              /* restir_sms: its shifts' Newton steps and failed walks back */
-    uint64_t shift_newton, shift_not_invertible;
-};
-
 struct view {
     struct view_params params;
     unsigned threads;                     /* 0 = all cores */
@@ -134,12 +88,7 @@ struct view {
     struct image output;                  /* the frame last rendered (view_render's output) */
     struct image accum;                   /* running sum since the last change */
     uint32_t accum_count;
-    struct restir_pt_state restir;        /* restir_pt only: G-buffers and reservoirs */
-    struct bdpt_state bdpt;               /* bdpt only: the light vertex cache */
-    struct restir_sss_state sss;          /* restir_sss only: G-buffers and reservoirs */
-    struct ssp_prior prior;               /* sms_ssp only: the per-frame prior */
-    struct restir_bdpt_state rbdpt;       /* restir_bdpt only: light-traced samples and reservoirs */
-    struct restir_sms_state rsms;         /* restir_sms only: G-buffers, reservoirs, prior */
+    void *state;                          /* the method's (its descriptor's state_bytes) */
     struct view_shape_change *changes;    /* the shape changes in force, one per changed shape */
     uint32_t change_count;
 };

@@ -45,9 +45,12 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 #if FUZZ_PARSER == FUZZ_SESSION
     struct view_params p;
     bool ok = protocol_parse_session_create(body, size, &LIMITS, &p, &err);
+    /* A method that takes spp has 1..max_spp of them. */
+    uint32_t spp = 1;
+    if (ok) view_params_get_uint(&p, "spp", &spp);
     fuzz_check(ok, &err, !ok || (p.width >= 1 && p.width <= LIMITS.max_side && p.height >= 1 &&
                                  p.height <= LIMITS.max_side &&
-                                 (uint64_t)p.width * p.height <= LIMITS.max_pixels && p.pt.spp >= 1 && p.pt.spp <= LIMITS.max_spp));
+                                 (uint64_t)p.width * p.height <= LIMITS.max_pixels && spp >= 1 && spp <= LIMITS.max_spp));
 #elif FUZZ_PARSER == FUZZ_FRAME
     static struct protocol_frame_request f; /* large: kept off the stack */
     bool ok = protocol_parse_frame_request(body, size, &f, &err);

@@ -189,10 +189,10 @@ static void test_session_bytes_planned_match_allocated(void)
     if (!sc) return;
     for (int k = 0; k < 2; k++) {
         struct err err = {0};
-        struct view_params vp = view_params_defaults(RENDER_METHOD_BDPT, 40, 24);
+        struct view_params vp = view_params_defaults(method_find("bdpt"), 40, 24);
         if (k) {
-            vp.bdpt.light_paths = 1000;
-            vp.bdpt.lvc_capacity = 3;
+            VIEW_METHOD_PARAMS(&vp, struct bdpt_params)->light_paths = 1000;
+            VIEW_METHOD_PARAMS(&vp, struct bdpt_params)->lvc_capacity = 3;
         }
         struct view v;
         CHECK(view_init(&v, sc, &vp, 1, &err));
@@ -211,14 +211,14 @@ static void test_frames_and_stats(void)
     struct scene *sc = load("scenes/caustic-sphere/scene.json");
     if (!sc) return;
     struct err err = {0};
-    struct view_params vp = view_params_defaults(RENDER_METHOD_BDPT, 24, 16);
+    struct view_params vp = view_params_defaults(method_find("bdpt"), 24, 16);
     struct view v;
     CHECK(view_init(&v, sc, &vp, 2, &err));
-    struct frame_stats fs;
+    struct frame_stats fs = {0};
     for (int f = 0; f < 2; f++) CHECK_MSG(view_render(&v, NULL, &fs, NULL, NULL, &err), "%s", err.message);
-    CHECK(fs.has_bdpt && !fs.has_passes);
-    CHECK(fs.bdpt.light_subpaths == 24 * 16 && fs.bdpt.lvc_vertices > 0 && fs.bdpt.lvc_dropped == 0);
-    CHECK(fs.bdpt.light_traced > 0 && fs.bdpt.connections > 0 && fs.render.nonfinite == 0);
+    const struct bdpt_stats *bs = (const struct bdpt_stats *)(const void *)fs.counters;
+    CHECK(bs->light_subpaths == 24 * 16 && bs->lvc_vertices > 0 && bs->lvc_dropped == 0);
+    CHECK(bs->light_traced > 0 && bs->connections > 0 && fs.render.nonfinite == 0);
     double sum = 0.0;
     for (uint32_t i = 0; i < 24 * 16; i++) sum += v.output.pixels[i].x;
     CHECK(sum > 0.0 && isfinite(sum));

@@ -57,7 +57,7 @@ static void test_planned_session_bytes_match_the_session(void)
     budget_init(&b, 1u << 30);
     const uint32_t sizes[][2] = {{1, 1}, {16, 9}, {33, 17}};
     for (int i = 0; i < 3; i++) {
-        struct view_params p = view_params_defaults(RENDER_METHOD_PT, sizes[i][0], sizes[i][1]);
+        struct view_params p = view_params_defaults(method_find("pt"), sizes[i][0], sizes[i][1]);
         uint64_t planned = session_bytes_planned(&p, scene, 3);
         CHECK(budget_reserve(&b, BUDGET_SESSIONS, planned, &err));
         struct session *s = sessions_create(t, "cb", NULL, scene, &p, 3, 1, &b, planned, &err);

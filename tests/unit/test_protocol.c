@@ -9,6 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "methods/path_params.h"
 #include "protocol.h"
 #include "test.h"
 
@@ -86,23 +87,26 @@ static void test_valid_id(void)
 static void test_pointer_key(void)
 {
     char out[256];
-    protocol_pointer_key(out, sizeof out, "", "a/b~c");
+    json_pointer_key(out, sizeof out, "", "a/b~c");
     CHECK(strcmp(out, "/a~1b~0c") == 0);
-    protocol_pointer_key(out, sizeof out, "/lights", "lamp");
+    json_pointer_key(out, sizeof out, "/lights", "lamp");
     CHECK(strcmp(out, "/lights/lamp") == 0);
-    protocol_pointer_key(out, sizeof out, "", "");
+    json_pointer_key(out, sizeof out, "", "");
     CHECK(strcmp(out, "/") == 0);
     /* Truncation keeps whole escapes and whole UTF-8 characters. */
     char small[8];
-    protocol_pointer_key(small, sizeof small, "/abc", "~~~");
+    json_pointer_key(small, sizeof small, "/abc", "~~~");
     CHECK_MSG(strcmp(small, "/abc/~0") == 0, "%s", small);
     char five[5];
-    protocol_pointer_key(five, sizeof five, "", "\xc3\xa9\xc3\xa9");
+    json_pointer_key(five, sizeof five, "", "\xc3\xa9\xc3\xa9");
     CHECK_MSG(strcmp(five, "/\xc3\xa9") == 0, "%s", five);
     char one[1] = {'x'};
-    protocol_pointer_key(one, sizeof one, "/a", "b");
+    json_pointer_key(one, sizeof one, "/a", "b");
     CHECK(one[0] == '\0');
 }
+
+/* The pt params a parsed session holds. */
+#define PT(vp) VIEW_METHOD_PARAMS(&(vp), const struct pt_method_params)
 
 static void test_session_valid(void)
 {
@@ -111,22 +115,22 @@ static void test_session_valid(void)
     struct view_params p;
     struct err err;
     CHECK(protocol_parse_session_create(body, strlen(body), &LIMITS, &p, &err));
-    CHECK(p.method == RENDER_METHOD_PT && p.width == 640 && p.height == 480 && p.seed == 42);
-    CHECK(p.pt.spp == 16 && p.pt.max_depth == 8 && p.pt.rr_depth == 0 && !p.pt.nee);
+    CHECK(p.method == method_find("pt") && p.width == 640 && p.height == 480 && p.seed == 42);
+    CHECK(PT(p)->spp == 16 && PT(p)->max_depth == 8 && PT(p)->rr_depth == 0 && !PT(p)->nee);
 
     /* Defaults: the empty body and {} are the same; params default per view_params_defaults. */
-    const struct view_params d = view_params_defaults(RENDER_METHOD_PT, 256, 256);
+    const struct view_params d = view_params_defaults(method_find("pt"), 256, 256);
     CHECK(protocol_parse_session_create("", 0, &LIMITS, &p, &err));
-    CHECK(p.method == RENDER_METHOD_PT && p.width == 256 && p.height == 256 && p.seed == 0);
-    CHECK(p.pt.spp == d.pt.spp && p.pt.max_depth == d.pt.max_depth && p.pt.rr_depth == d.pt.rr_depth &&
-          p.pt.nee == d.pt.nee);
+    CHECK(p.method == method_find("pt") && p.width == 256 && p.height == 256 && p.seed == 0);
+    CHECK(PT(p)->spp == PT(d)->spp && PT(p)->max_depth == PT(d)->max_depth && PT(p)->rr_depth == PT(d)->rr_depth &&
+          PT(p)->nee == PT(d)->nee);
     CHECK(protocol_parse_session_create(" {\n} ", 5, &LIMITS, &p, &err));
     CHECK(p.width == 256 && p.height == 256);
 
     /* Partial params keep the other defaults; the largest seed is exact. */
     body = "{\"params\": {\"spp\": 2048}, \"seed\": 9007199254740992, \"width\": 4096, \"height\": 2048}";
     CHECK(protocol_parse_session_create(body, strlen(body), &LIMITS, &p, &err));
-    CHECK(p.pt.spp == 2048 && p.pt.max_depth == d.pt.max_depth && p.pt.nee == d.pt.nee);
+    CHECK(PT(p)->spp == 2048 && PT(p)->max_depth == PT(d)->max_depth && PT(p)->nee == PT(d)->nee);
     CHECK(p.seed == 9007199254740992ull);
     CHECK(p.width == 4096 && p.height == 2048);
 

@@ -436,10 +436,10 @@ static bool render_series(const struct scene *sc, const struct camera_desc *cam,
     rp.caustic_temporal = false;
     for (uint32_t f = 0; f < frames && ok; f++) {
         if (restir) {
-            struct restir_bdpt_frame fr = {.scene = sc, .camera = cam, .seed = seed, .frame = f, .threads = 2};
+            struct method_frame fr = {.scene = sc, .camera = cam, .seed = seed, .frame = f, .threads = 2};
             ok = restir_bdpt_render(&rs, &rp, &fr, &img, last, &err);
         } else {
-            struct bdpt_frame fr = {.scene = sc, .camera = cam, .seed = seed, .frame = f, .threads = 2};
+            struct method_frame fr = {.scene = sc, .camera = cam, .seed = seed, .frame = f, .threads = 2};
             ok = bdpt_render(&bs, &bp, &fr, &img, NULL, &err);
         }
         CHECK_MSG(ok, "%s", err.message);
@@ -561,8 +561,8 @@ static void test_caustic_replay_round_trip(void)
     struct image img;
     CHECK(image_init(&img, 32, 32, &err));
     CHECK(restir_bdpt_init(&st, sc, &p, 32, 32, &err));
-    struct restir_bdpt_frame fa = {.scene = sc, .camera = &a, .seed = 3, .frame = 7, .threads = 2};
-    struct restir_bdpt_frame fb = fa;
+    struct method_frame fa = {.scene = sc, .camera = &a, .seed = 3, .frame = 7, .threads = 2};
+    struct method_frame fb = fa;
     fb.camera = &b;
     CHECK_MSG(restir_bdpt_render(&st, &p, &fa, &img, NULL, &err), "%s", err.message);
     uint32_t tried = 0, moved = 0;
@@ -614,7 +614,7 @@ static void shift_round_trips(const char *path, struct camera_desc cam, uint32_t
     struct image img;
     CHECK(image_init(&img, W, H, &err));
     CHECK(restir_bdpt_init(&st, sc, &p, W, H, &err));
-    struct restir_bdpt_frame f = {.scene = sc, .camera = &cam, .seed = 5, .frame = 0, .threads = 2};
+    struct method_frame f = {.scene = sc, .camera = &cam, .seed = 5, .frame = 0, .threads = 2};
     for (uint32_t k = 0; k < 4; k++) {
         f.frame = k;
         f.prev_scene = k ? sc : NULL;
@@ -635,7 +635,7 @@ static void shift_round_trips(const char *path, struct camera_desc cam, uint32_t
         CHECK_MSG(moved != NULL, "%s", err.message);
         if (!moved) return;
     }
-    struct restir_bdpt_frame f_moved = f;
+    struct method_frame f_moved = f;
     f_moved.scene = moved;
     uint32_t there[5] = {0}, back[5] = {0}, wrong = 0, copied = 0, differs = 0;
     double worst = 0.0;
@@ -720,7 +720,7 @@ static void test_full_reconnect_mis(void)
     struct image img;
     CHECK(image_init(&img, W, H, &err));
     CHECK_MSG(restir_bdpt_init(&st, sc, &p, W, H, &err), "%s", err.message);
-    struct restir_bdpt_frame f = {.scene = sc, .camera = cam, .seed = 7, .threads = 2};
+    struct method_frame f = {.scene = sc, .camera = cam, .seed = 7, .threads = 2};
     for (uint32_t k = 0; k < 4; k++) {
         f.frame = k;
         f.prev_scene = k ? sc : NULL;
@@ -779,7 +779,7 @@ static void x2_cache_case(enum restir_bdpt_variant variant)
         CHECK(keep != NULL);
         if (!cached) st.x2c = NULL;
         for (uint32_t k = 0; k < 4; k++) {
-            struct restir_bdpt_frame f = {.scene = sc, .camera = &LAMP_CROP, .prev_scene = k ? sc : NULL,
+            struct method_frame f = {.scene = sc, .camera = &LAMP_CROP, .prev_scene = k ? sc : NULL,
                                           .prev_camera = k ? &LAMP_CROP : NULL, .seed = 9, .frame = k, .threads = 2};
             struct restir_bdpt_stats s;
             CHECK_MSG(restir_bdpt_render(&st, &p, &f, &img[cached], &s, &err), "%s", err.message);
@@ -850,7 +850,7 @@ static void caustic_temporal_paired(bool moving)
             p.caustic_temporal = on;
             restir_bdpt_reset(&st);
             for (uint32_t f = 0; f < FRAMES; f++) {
-                struct restir_bdpt_frame fr = {.scene = scenes[f], .camera = &cams[f],
+                struct method_frame fr = {.scene = scenes[f], .camera = &cams[f],
                                                .prev_scene = f ? scenes[f - 1] : NULL,
                                                .prev_camera = f ? &cams[f - 1] : NULL, .seed = 500 + k, .frame = f,
                                                .threads = 2};
@@ -923,7 +923,7 @@ static void test_moving_cap(void)
     const struct scene *seq[12] = {base, base, base, base, base, base, base, base, base, moved, moved, moved};
     uint32_t m[12];
     for (uint32_t f = 0; f < 12; f++) {
-        struct restir_bdpt_frame fr = {.scene = seq[f], .camera = &base->camera, .prev_scene = f ? seq[f - 1] : NULL,
+        struct method_frame fr = {.scene = seq[f], .camera = &base->camera, .prev_scene = f ? seq[f - 1] : NULL,
                                        .prev_camera = f ? &base->camera : NULL, .seed = 9, .frame = f, .threads = 2};
         CHECK_MSG(restir_bdpt_render(&st, &p, &fr, &img, NULL, &err), "%s", err.message);
         m[f] = max_caustic_m(&st);
@@ -952,7 +952,7 @@ static void test_thread_determinism(void)
         struct restir_bdpt_state st;
         CHECK(restir_bdpt_init(&st, sc, &p, 24, 20, &err));
         for (uint32_t f = 0; f < 3; f++) {
-            struct restir_bdpt_frame fr = {.scene = sc, .camera = &sc->camera, .prev_scene = f ? sc : NULL,
+            struct method_frame fr = {.scene = sc, .camera = &sc->camera, .prev_scene = f ? sc : NULL,
                                            .prev_camera = f ? &sc->camera : NULL, .seed = 5, .frame = f,
                                            .threads = k ? 2u : 1u};
             CHECK_MSG(restir_bdpt_render(&st, &p, &fr, &img[k], NULL, &err), "%s", err.message);
@@ -976,16 +976,16 @@ static void test_view_method(void)
     if (!sc) return;
     struct err err = {0};
     for (int k = 0; k < 5; k++) {
-        struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_BDPT, 40, 24);
+        struct view_params vp = view_params_defaults(method_find("restir_bdpt"), 40, 24);
         if (k == 1) {
-            vp.restir_bdpt.light_paths = 1000;
-            vp.restir_bdpt.lt_capacity = 3;
+            VIEW_METHOD_PARAMS(&vp, struct restir_bdpt_params)->light_paths = 1000;
+            VIEW_METHOD_PARAMS(&vp, struct restir_bdpt_params)->lt_capacity = 3;
         }
         const bool reuse = k == 2 || k == 4, full = k >= 3;
-        vp.restir_bdpt.reuse = reuse;
+        VIEW_METHOD_PARAMS(&vp, struct restir_bdpt_params)->reuse = reuse;
         if (full) {   /* the full variant, with its light vertex cache (k = 4: and reuse) */
-            vp.restir_bdpt.variant = RESTIR_BDPT_FULL;
-            vp.restir_bdpt.lvc_capacity = 5;
+            VIEW_METHOD_PARAMS(&vp, struct restir_bdpt_params)->variant = RESTIR_BDPT_FULL;
+            VIEW_METHOD_PARAMS(&vp, struct restir_bdpt_params)->lvc_capacity = 5;
         }
         struct view v;
         CHECK_MSG(view_init(&v, sc, &vp, 2, &err), "%s", err.message);
@@ -997,10 +997,9 @@ static void test_view_method(void)
         CHECK(lvc == (full ? 4u * 256 * 5 * (reuse ? 56 : 52) + 4 * 8 + 5 * 8 : 0u));
         /* Non-caustic reservoirs with their reconnections (three with reuse), two caustic ones. */
         CHECK(reservoirs == ((reuse ? 3u : 1u) * RESTIR_BDPT_PATH_BYTES + 2u * RESTIR_BDPT_RESERVOIR_BYTES) * 40 * 24);
-        struct frame_stats fs;
+        struct frame_stats fs = {0};
         for (int f = 0; f < 3; f++) CHECK_MSG(view_render(&v, NULL, &fs, NULL, NULL, &err), "%s", err.message);
-        CHECK(fs.has_restir_bdpt && !fs.has_bdpt && !fs.has_passes);
-        const struct restir_bdpt_stats *rs = &fs.restir_bdpt;
+        const struct restir_bdpt_stats *rs = (const struct restir_bdpt_stats *)(const void *)fs.counters;
         CHECK(rs->light_subpaths == (k == 1 ? 1000u : 40u * 24) && rs->light_vertices >= rs->light_traced);
         CHECK((rs->reuse_shifts > rs->reuse_shift_failures) == reuse);
         CHECK((rs->reuse_reconnections > 0) == reuse && rs->reuse_reconnections <= rs->reuse_shifts);
@@ -1010,7 +1009,7 @@ static void test_view_method(void)
         view_destroy(&v);
     }
     scene_release(sc);
-    struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_BDPT, 8, 8);
+    struct view_params vp = view_params_defaults(method_find("restir_bdpt"), 8, 8);
     struct view v;
     const char *refused[] = {"scenes/furnace/scene.json", "scenes/translucent/scene.json"};
     const char *why[] = {"environment", "subsurface"};

@@ -111,7 +111,7 @@ static void spatial_case(const char *path, const struct restir_pt_params *p, uin
     struct err err = {0};
     struct restir_pt_state st;
     CHECK(restir_pt_init(&st, sc, p, SIZE, SIZE, &err));
-    struct restir_pt_frame f = {.scene = sc, .camera = &sc->camera, .prev_camera = &sc->camera, .seed = 7, .threads = 1};
+    struct method_frame f = {.scene = sc, .camera = &sc->camera, .prev_camera = &sc->camera, .seed = 7, .threads = 1};
     struct tally t = {0};
     struct rng r = rng_make(11, 0, 0, 0);
     /* Several frames: more paths per pixel (each frame a fresh initial pass). */
@@ -189,9 +189,9 @@ static void temporal_case(bool move_shape)
     struct camera_desc cam0 = sc->camera, cam1 = sc->camera;
     cam1.position.x += 15.0f;
     cam1.look_at.y += 6.0f;
-    struct restir_pt_frame f0 = {.scene = sc, .camera = &cam0, .prev_camera = &cam0, .seed = 3, .frame = 0, .threads = 1};
+    struct method_frame f0 = {.scene = sc, .camera = &cam0, .prev_camera = &cam0, .seed = 3, .frame = 0, .threads = 1};
     CHECK(restir_pt_render(&st, &p, &f0, &img, NULL, &err));
-    struct restir_pt_frame f1 = {.scene = moved, .camera = &cam1, .prev_scene = sc, .prev_camera = &cam0, .seed = 3,
+    struct method_frame f1 = {.scene = moved, .camera = &cam1, .prev_scene = sc, .prev_camera = &cam0, .seed = 3,
                                  .frame = 1, .threads = 1};
     CHECK(restir_pt_initial_only(&st, &p, &f1, &err));
     _Alignas(16) uint8_t ctx[RESTIR_PT_CTX_BYTES];
@@ -235,7 +235,7 @@ static void test_identity_shift_reproduces_initial_contribution(void)
     struct restir_pt_params p = restir_pt_defaults();
     struct restir_pt_state st;
     CHECK(restir_pt_init(&st, sc, &p, SIZE, SIZE, &err));
-    struct restir_pt_frame f = {.scene = sc, .camera = &sc->camera, .prev_camera = &sc->camera, .seed = 5, .threads = 1};
+    struct method_frame f = {.scene = sc, .camera = &sc->camera, .prev_camera = &sc->camera, .seed = 5, .threads = 1};
     CHECK(restir_pt_initial_only(&st, &p, &f, &err));
     _Alignas(16) uint8_t ctx[RESTIR_PT_CTX_BYTES];
     restir_pt_bind(&st, &p, &f, ctx);
@@ -284,8 +284,8 @@ static void test_session_bytes_planned_match_allocated(void)
     if (!sc) return;
     struct err err = {0};
     for (int paired = 0; paired < 2; paired++) {
-        struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_PT, 40, 24);
-        vp.restir_pt.paired_spatial = paired;
+        struct view_params vp = view_params_defaults(method_find("restir_pt"), 40, 24);
+        VIEW_METHOD_PARAMS(&vp, struct restir_pt_params)->paired_spatial = paired;
         struct view v;
         CHECK(view_init(&v, sc, &vp, 1, &err));
         struct session_buffers sb;
@@ -299,7 +299,7 @@ static void test_session_bytes_planned_match_allocated(void)
     CHECK(restir_pt_init(&st, sc, &made, 8, 8, &err));
     struct image out;
     CHECK(image_init(&out, 8, 8, &err));
-    struct restir_pt_frame f = {.scene = sc, .camera = &sc->camera, .seed = 1, .threads = 1};
+    struct method_frame f = {.scene = sc, .camera = &sc->camera, .seed = 1, .threads = 1};
     CHECK(!restir_pt_render(&st, &asked, &f, &out, NULL, &err) && strcmp(err.where, "/params/paired_spatial") == 0);
     CHECK(restir_pt_render(&st, &made, &f, &out, NULL, &err));
     image_destroy(&out);

@@ -112,10 +112,10 @@ static void shift_case(const char *scene_path, bool temporal, int offset, bool e
     cam1.position.x += 0.03f;
     cam1.look_at.x += 0.02f;
     _Alignas(16) static uint8_t ctx[RESTIR_SMS_CTX_BYTES];
-    struct restir_sms_frame f = {.scene = base, .camera = &cam0, .seed = 7, .frame = 0, .threads = 2};
+    struct method_frame f = {.scene = base, .camera = &cam0, .seed = 7, .frame = 0, .threads = 2};
     CHECK(restir_sms_initial_only(&st, &p, &f, ctx, &err));
     if (temporal) {
-        f = (struct restir_sms_frame){.scene = sc, .camera = &cam1, .prev_scene = base, .prev_camera = &cam0, .seed = 7,
+        f = (struct method_frame){.scene = sc, .camera = &cam1, .prev_scene = base, .prev_camera = &cam0, .seed = 7,
                                       .frame = 1, .threads = 2};
         CHECK(restir_sms_initial_only(&st, &p, &f, ctx, &err));
     }
@@ -273,7 +273,7 @@ static void test_light_reservoirs(void)
         struct err err = {0};
         CHECK(restir_sms_init(&st, plane, &q, W, H, &err) && image_init(&img[k], W, H, &err));
         for (uint32_t t = 0; t < 3; t++) {
-            struct restir_sms_frame f = {.scene = plane, .camera = &plane->camera, .prev_scene = t ? plane : NULL,
+            struct method_frame f = {.scene = plane, .camera = &plane->camera, .prev_scene = t ? plane : NULL,
                                          .prev_camera = &plane->camera, .seed = 5, .frame = t, .threads = 2};
             CHECK_MSG(restir_sms_render(&st, &q, &f, &img[k], NULL, &err), "%s", err.message);
         }
@@ -300,10 +300,10 @@ static void test_session_bytes_planned_match_allocated(void)
     struct scene *sc = load("scenes/refractive-slab/scene.json");
     if (!sc) return;
     for (int variant = 0; variant < 4; variant++) {
-        struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_SMS, 37, 23);
-        if (variant == 1) vp.restir_sms.sampler = RESTIR_SMS_SAMPLER_SMS;
-        if (variant == 2) vp.restir_sms.paired_spatial = false;
-        if (variant == 3) vp.restir_sms.light_reservoirs = 1;
+        struct view_params vp = view_params_defaults(method_find("restir_sms"), 37, 23);
+        if (variant == 1) VIEW_METHOD_PARAMS(&vp, struct restir_sms_params)->sampler = RESTIR_SMS_SAMPLER_SMS;
+        if (variant == 2) VIEW_METHOD_PARAMS(&vp, struct restir_sms_params)->paired_spatial = false;
+        if (variant == 3) VIEW_METHOD_PARAMS(&vp, struct restir_sms_params)->light_reservoirs = 1;
         struct view v;
         struct err err = {0};
         CHECK(view_init(&v, sc, &vp, 1, &err));
@@ -311,13 +311,14 @@ static void test_session_bytes_planned_match_allocated(void)
         CHECK(session_buffers_agree(&v, &vp, sc, &sb));
         /* One reservoir per light by default: the slab has two. */
         CHECK(session_buffer(&sb, "reservoirs") == 2u * 37 * 23 * RESTIR_SMS_RESERVOIR_BYTES * (variant == 3 ? 1 : 2));
-        CHECK(v.params.restir_sms.light_reservoirs == (variant == 3 ? 1u : 2u));  /* what the session reports */
+        CHECK(VIEW_METHOD_PARAMS(&v.params, struct restir_sms_params)->light_reservoirs == (variant == 3 ? 1u : 2u));  /* what the session reports */
         CHECK((session_buffer(&sb, "prior") > 0) == (variant != 1));
         CHECK(session_buffer(&sb, "spatial_pairs") == (variant != 2 ? restir_pair_scratch_bytes(37, 23) : 0));
-        struct frame_stats fs;
+        struct frame_stats fs = {0};
         CHECK(view_render(&v, NULL, &fs, NULL, NULL, &err));
         CHECK(view_render(&v, NULL, &fs, NULL, NULL, &err));
-        CHECK(fs.has_passes && fs.has_manifold_shift && fs.passes.shifts > 0 && fs.render.sms.samples > 0);
+        const struct restir_sms_stats *ms = (const struct restir_sms_stats *)(const void *)fs.counters;
+        CHECK(ms->shifts > 0 && ms->shift_newton > 0 && fs.render.sms.samples > 0);
         view_destroy(&v);
     }
     /* A render asking for what the session was not made for is refused, naming the parameter. */
@@ -329,7 +330,7 @@ static void test_session_bytes_planned_match_allocated(void)
     CHECK(restir_sms_init(&st, sc, &made, 8, 8, &err));
     struct image out;
     CHECK(image_init(&out, 8, 8, &err));
-    struct restir_sms_frame f = {.scene = sc, .camera = &sc->camera, .seed = 1, .threads = 1};
+    struct method_frame f = {.scene = sc, .camera = &sc->camera, .seed = 1, .threads = 1};
     CHECK(!restir_sms_render(&st, &asked, &f, &out, NULL, &err) && strcmp(err.where, "/params/sampler") == 0);
     asked.sampler = RESTIR_SMS_SAMPLER_SMS;
     CHECK(!restir_sms_render(&st, &asked, &f, &out, NULL, &err) && strcmp(err.where, "/params/paired_spatial") == 0);
@@ -362,7 +363,7 @@ static void test_jitter_walk_reaches_the_gbuffer(void)
         CHECK(restir_sms_init(&st, sc, &p, W, H, &err) && image_init(&out, W, H, &err));
         float jx[N], jy[N], worst = 0.0f;
         for (uint32_t t = 0; t < 3; t++) {
-            struct restir_sms_frame f = {.scene = sc, .camera = &sc->camera, .prev_scene = t ? sc : NULL,
+            struct method_frame f = {.scene = sc, .camera = &sc->camera, .prev_scene = t ? sc : NULL,
                                          .prev_camera = &sc->camera, .seed = 4, .frame = t, .threads = 1};
             CHECK_MSG(restir_sms_render(&st, &p, &f, &out, NULL, &err), "%s", err.message);
             const struct gbuffer_pixel *px = st.gbuf[st.cur].px;
@@ -375,7 +376,7 @@ static void test_jitter_walk_reaches_the_gbuffer(void)
         else CHECK_MSG(worst > 0.5f, "no walk: largest move only %g", worst);
         /* After a reset the first frame has no history: its positions are drawn afresh. */
         restir_sms_reset(&st);
-        struct restir_sms_frame f = {.scene = sc, .camera = &sc->camera, .prev_scene = sc, .prev_camera = &sc->camera,
+        struct method_frame f = {.scene = sc, .camera = &sc->camera, .prev_scene = sc, .prev_camera = &sc->camera,
                                      .seed = 4, .frame = 3, .threads = 1};
         CHECK(restir_sms_render(&st, &p, &f, &out, NULL, &err));
         float moved = 0.0f;

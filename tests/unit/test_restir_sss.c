@@ -123,13 +123,13 @@ static void shift_case(enum restir_sss_shift shift, bool temporal)
     struct camera_desc cam0 = *scene_camera(sc), cam1 = cam0;
     cam1.position.x += 0.02f;
     cam1.look_at.x += 0.02f;
-    struct restir_sss_frame f0 = {.scene = sc, .camera = &cam0, .seed = 5, .frame = 0, .threads = 2};
+    struct method_frame f0 = {.scene = sc, .camera = &cam0, .seed = 5, .frame = 0, .threads = 2};
     CHECK(restir_sss_initial_only(&st, &p, &f0, &err));
-    struct restir_sss_frame f = f0;
+    struct method_frame f = f0;
     if (temporal) {
         /* The history must exist for the previous G-buffer to be kept. */
         st.has_history = true;
-        f = (struct restir_sss_frame){.scene = sc, .camera = &cam1, .prev_scene = sc, .prev_camera = &cam0,
+        f = (struct method_frame){.scene = sc, .camera = &cam1, .prev_scene = sc, .prev_camera = &cam0,
                                       .seed = 5, .frame = 1, .threads = 2};
         CHECK(restir_sss_initial_only(&st, &p, &f, &err));
     }
@@ -237,9 +237,9 @@ static void test_session_bytes_planned_match_allocated(void)
     struct err err = {0};
     for (int variant = 0; variant < 3; variant++) {
         const uint32_t layers = variant == 1 ? 3 : 1;
-        struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_SSS, 37, 23);
-        vp.restir_sss.target = layers == 3 ? RESTIR_SSS_TARGET_PER_CHANNEL : RESTIR_SSS_TARGET_LUMINANCE;
-        vp.restir_sss.paired_spatial = variant != 2;
+        struct view_params vp = view_params_defaults(method_find("restir_sss"), 37, 23);
+        VIEW_METHOD_PARAMS(&vp, struct restir_sss_params)->target = layers == 3 ? RESTIR_SSS_TARGET_PER_CHANNEL : RESTIR_SSS_TARGET_LUMINANCE;
+        VIEW_METHOD_PARAMS(&vp, struct restir_sss_params)->paired_spatial = variant != 2;
         struct view v;
         CHECK(view_init(&v, sc, &vp, 1, &err));
         struct session_buffers sb;
@@ -254,7 +254,7 @@ static void test_session_bytes_planned_match_allocated(void)
     CHECK(restir_sss_init(&st, &made, 8, 8, &err));
     struct image out;
     CHECK(image_init(&out, 8, 8, &err));
-    struct restir_sss_frame f = {.scene = sc, .camera = &sc->camera, .seed = 1, .threads = 1};
+    struct method_frame f = {.scene = sc, .camera = &sc->camera, .seed = 1, .threads = 1};
     CHECK(!restir_sss_render(&st, &asked, &f, &out, NULL, &err) && strcmp(err.where, "/params/paired_spatial") == 0);
     CHECK(restir_sss_render(&st, &made, &f, &out, NULL, &err));
     image_destroy(&out);

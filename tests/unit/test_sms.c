@@ -35,7 +35,7 @@ static void test_planned_bytes_match(void)
     if (!s) return;
     static const uint32_t sizes[][2] = {{1, 1}, {16, 16}, {17, 33}, {64, 48}};
     for (int m = 0; m < 2; m++) {
-        enum render_method method = m ? RENDER_METHOD_SMS_SSP : RENDER_METHOD_SMS;
+        const struct method_desc *method = m ? method_find("sms_ssp") : method_find("sms");
         for (size_t i = 0; i < sizeof sizes / sizeof sizes[0]; i++) {
             struct view_params p = view_params_defaults(method, sizes[i][0], sizes[i][1]);
             struct view v;
@@ -43,7 +43,7 @@ static void test_planned_bytes_match(void)
             CHECK_MSG(view_init(&v, s, &p, 1, &err), "%s", err.message);
             struct session_buffers sb;
             CHECK(session_buffers_agree(&v, &p, s, &sb));
-            CHECK((session_buffer(&sb, "prior") > 0) == (method == RENDER_METHOD_SMS_SSP));
+            CHECK((session_buffer(&sb, "prior") > 0) == (method == method_find("sms_ssp")));
             view_destroy(&v);
         }
     }

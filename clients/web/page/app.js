@@ -7,7 +7,7 @@ import { ApiError, getExrBytes, getJson, request, sendJson } from './api.js';
 import { orbitAnimation, stillAnimation } from './animation.js';
 import { MapeChart } from './chart.js';
 import { decodeExr } from './exr.js';
-import { METHODS } from './methods.js';
+import { describeParam, initialText, loadMethods } from './methods.js';
 import { HdrViewer } from './viewer.js';
 
 document.body.dataset.started = 'true'; // boot.js reports a page whose modules never ran
@@ -28,6 +28,7 @@ const state = {
   refJob: null, // {session, id, name}
   errorMapFor: '',
   pointer: null, // the image pixel last under the pointer
+  methods: new Map(), // the daemon's method registry, by name (methods.js)
 };
 const viewer = new HdrViewer($('image'), $('split-line'));
 const chart = new MapeChart($('chart'));
@@ -515,23 +516,24 @@ function updateControls() {
 }
 
 function buildParams() {
-  const method = METHODS[$('method').value];
+  const method = state.methods.get($('method').value);
+  $('method').title = method ? method.summary : '';
   const box = $('params');
   box.replaceChildren(
-    ...method.params.map((p) => {
+    ...(method ? method.params : []).map((p) => {
       const label = document.createElement('label');
-      label.title = p.help;
+      label.title = describeParam(p);
       const input = document.createElement('input');
       input.id = `param-${p.name}`;
       input.dataset.param = p.name;
-      if (p.kind === 'boolean') {
+      if (p.type === 'boolean') {
         input.type = 'checkbox';
-        input.checked = p.value;
+        input.checked = p.default;
       } else {
         input.type = 'text';
-        input.inputMode = 'numeric';
-        input.size = 5;
-        input.value = String(p.value);
+        if (p.type !== 'string') input.inputMode = 'numeric';
+        input.size = p.type === 'string' ? 10 : 5;
+        input.value = initialText(p);
       }
       label.append(`${p.name} `, input);
       return label;
@@ -691,11 +693,12 @@ $('image').addEventListener('mousemove', (e) => {
 // ---- start ----
 
 async function start() {
-  setOptions($('method'), Object.entries(METHODS).map(([id, m]) => [id, m.label]), 'pt');
-  buildParams();
   $('view').dataset.mode = viewer.mode;
   updateControls();
   try {
+    state.methods = await loadMethods();
+    setOptions($('method'), [...state.methods.keys()].map((name) => [name, name]), 'pt');
+    buildParams();
     const health = await fetch('/healthz', { cache: 'no-store' });
     $('daemon').textContent = `daemon ${health.headers.get('X-Served-By') ?? ''}: ${health.ok ? 'ok' : health.status}`;
     $('daemon').dataset.state = health.ok ? 'ok' : 'down';

@@ -128,6 +128,41 @@ test('the daemon serves the page at / and the page lists the scenes', async () =
   await screenshot('01-start');
 });
 
+// The form's fields for the method now selected: name -> value as the page shows it.
+const formFields = () =>
+  page.$$eval('#params input', (inputs) =>
+    Object.fromEntries(inputs.map((i) => [i.dataset.param, i.type === 'checkbox' ? i.checked : i.value])),
+  );
+
+test('the session form is built from the daemon\'s method registry', async () => {
+  const { methods } = await (await api('GET', '/v1/methods')).json();
+  const offered = await page.$$eval('#method option', (os) => os.map((o) => o.value));
+  assert.deepEqual(offered, methods.map((m) => m.name), 'every method, in the registry\'s order');
+  for (const m of methods) {
+    await page.selectOption('#method', m.name);
+    const want = Object.fromEntries(
+      m.params.map((p) => [p.name, p.type === 'boolean' ? p.default : p.default === null ? '' : String(p.default)]),
+    );
+    assert.deepEqual(await formFields(), want, m.name);
+  }
+  await page.selectOption('#method', 'pt');
+
+  // A parameter the registry gains appears in the form with no change to the page.
+  const other = await browser.newPage();
+  await other.route('**/v1/methods', async (route) => {
+    const body = await (await route.fetch()).json();
+    body.methods.find((m) => m.name === 'restir_pt').params.push(
+      { name: 'extra_knob', type: 'integer', default: 7, minimum: 0, maximum: 9, help: 'a parameter added to the descriptor' });
+    await route.fulfill({ json: body });
+  });
+  await other.goto(`${base}/`);
+  await other.waitForSelector('body[data-ready="true"]');
+  await other.selectOption('#method', 'restir_pt');
+  assert.equal(await other.$eval('#param-extra_knob', (i) => i.value), '7');
+  assert.match(await other.$eval('#param-extra_knob', (i) => i.parentElement.title), /added to the descriptor — \[0, 9\]/);
+  await other.close();
+});
+
 let first; // the first session: {id, href}
 let firstLook; // its canvas after the exposure change
 

@@ -1,0 +1,99 @@
+/* method_pt.c — method `pt`: the reference path tracer (integrators/reference_pt.h), `spp`
+ * independent paths per pixel and frame; frames are independent, so the session's accumulation
+ * converges to the ground truth every other method is tested against. */
+#include <stddef.h>
+#include <string.h>
+
+#include "integrators/reference_pt.h"
+#include "methods/method.h"
+#include "methods/path_params.h"
+
+METHOD_FITS(struct pt_method_params, METHOD_PARAMS_BYTES);
+
+/* Depths of every path method: the same bound as the CLI's --max-depth. */
+#define PATH_MAX_DEPTH 1024
+
+struct pt_method_params pt_method_defaults(void)
+{
+    return (struct pt_method_params){.spp = 1, .max_depth = 64, .rr_depth = 3, .nee = true, .subset = PT_SUBSET_ALL};
+}
+
+bool pt_method_params_valid(const struct pt_method_params *p, struct err *err)
+{
+    if (p->spp == 0) return err_set(err, ERR_INVALID, "/params/spp", "spp must be at least 1");
+    return true;
+}
+
+static void pt_defaults(void *params)
+{
+    *(struct pt_method_params *)params = pt_method_defaults();
+}
+
+static bool pt_validate(const void *params, struct err *err)
+{
+    return pt_method_params_valid(params, err);
+}
+
+static bool pt_init(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
+                    struct err *err)
+{
+    (void)state, (void)scene, (void)params, (void)width, (void)height, (void)err;
+    return true;
+}
+
+static void pt_destroy(void *state)
+{
+    (void)state;
+}
+
+struct pt_params pt_method_frame_params(const struct pt_method_params *pp, const struct method_frame *f,
+                                        const struct image *out)
+{
+    struct pt_params p = reference_pt_defaults(out->width, out->height);
+    p.spp = pp->spp;
+    p.max_depth = pp->max_depth;
+    p.rr_depth = pp->rr_depth;
+    p.nee = pp->nee;
+    p.seed = f->seed;
+    p.frame = f->frame;
+    p.threads = f->threads;
+    p.camera = f->camera;
+    return p;
+}
+
+static bool pt_render(void *state, const void *params, const struct method_frame *f, struct image *out,
+                      struct frame_stats *stats, parallel_progress_fn *progress, void *progress_ctx, struct err *err)
+{
+    (void)state;
+    const struct pt_method_params *pp = params;
+    struct pt_params p = pt_method_frame_params(pp, f, out);
+    p.subset = pp->subset;
+    return reference_pt_render_into(f->scene, &p, out, &stats->render, progress, progress_ctx, err);
+}
+
+static const char *const pt_subsets[] = {"all", "caustic", "rest", NULL};
+
+#define P(key, kind, lo, hi, help) METHOD_PARAM(struct pt_method_params, key, kind, lo, hi, help)
+static const struct method_param pt_params_table[] = {
+    {.key = "spp", .kind = METHOD_PARAM_UINT, .offset = offsetof(struct pt_method_params, spp), .min = 1,
+     .max = UINT32_MAX, .flags = METHOD_PARAM_SPP_LIMIT, .help = "samples per pixel and frame"},
+    P(max_depth, METHOD_PARAM_UINT, 0, PATH_MAX_DEPTH, "scattering events before a path stops; 0 = emitters only"),
+    P(rr_depth, METHOD_PARAM_UINT, 0, PATH_MAX_DEPTH, "Russian roulette after this many bounces"),
+    P(nee, METHOD_PARAM_BOOL, 0, 1, "next-event estimation with MIS (false: BSDF sampling only)"),
+    METHOD_ENUM(struct pt_method_params, subset, pt_subsets,
+                "which light transport the image holds: all, the caustic paths SMS owns, or the rest"),
+};
+#undef P
+
+const struct method_desc method_pt = {
+    .name = "pt",
+    .summary = "reference path tracer: unidirectional, next-event estimation with MIS, Russian roulette",
+    .caps = METHOD_TAKES_SPP | METHOD_STILL_CROP,
+    .params = pt_params_table,
+    .param_count = sizeof pt_params_table / sizeof pt_params_table[0],
+    .defaults = pt_defaults,
+    .validate = pt_validate,
+    .init = pt_init,
+    .destroy = pt_destroy,
+    .render = pt_render,
+};

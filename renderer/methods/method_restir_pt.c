@@ -1,0 +1,125 @@
+/* method_restir_pt.c — method `restir_pt`: ReSTIR path tracing with the Enhanced improvements
+ * (integrators/restir_pt.h): one initial path per pixel, temporal and spatial reuse of
+ * path-space reservoirs through the hybrid shift. */
+#include <stddef.h>
+
+#include "integrators/restir_pt.h"
+#include "methods/method.h"
+#include "methods/passes.h"
+
+METHOD_FITS(struct restir_pt_params, METHOD_PARAMS_BYTES);
+METHOD_FITS(struct restir_pt_stats, METHOD_COUNTERS_BYTES);
+
+static void rpt_defaults(void *params)
+{
+    *(struct restir_pt_params *)params = restir_pt_defaults();
+}
+
+static bool rpt_validate(const void *params, struct err *err)
+{
+    return restir_pt_params_valid(params, err);
+}
+
+static bool rpt_init(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
+                     struct err *err)
+{
+    struct restir_pt_params *p = params;
+    if (!restir_pt_init(state, scene, p, width, height, err)) return false;
+    /* The session reports the NEE candidates it uses. */
+    if (p->nee_candidates == RESTIR_PT_NEE_BY_SCENE) p->nee_candidates = ((struct restir_pt_state *)state)->nee_by_scene;
+    return true;
+}
+
+static void rpt_reset(void *state)
+{
+    restir_pt_reset(state);
+}
+
+static void rpt_destroy(void *state)
+{
+    restir_pt_destroy(state);
+}
+
+static bool rpt_render(void *state, const void *params, const struct method_frame *f, struct image *out,
+                       struct frame_stats *stats, parallel_progress_fn *progress, void *progress_ctx, struct err *err)
+{
+    struct restir_pt_stats *c = (struct restir_pt_stats *)(void *)stats->counters;
+    if (!restir_pt_render(state, params, f, out, c, err)) return false;
+    stats->render = METHOD_PASS_RENDER_STATS(out, f->threads, c, 0.0);
+    if (progress) progress(progress_ctx, 1, 1);
+    return true;
+}
+
+static uint64_t rpt_bytes_planned(const void *params, const struct scene *scene, uint32_t width, uint32_t height)
+{
+    return restir_pt_bytes_planned(params, width, height, scene->shape_count);
+}
+
+static uint32_t rpt_reservoir_bytes(const void *params, const struct scene *scene)
+{
+    (void)params, (void)scene;
+    return RESTIR_PT_RESERVOIR_BYTES;
+}
+
+static uint32_t rpt_buffers(const void *state, const void *params, struct view_buffer_bytes *out)
+{
+    (void)params;
+    const struct restir_pt_state *st = state;
+    uint32_t n = 0;
+    out[n++] = (struct view_buffer_bytes){"reservoirs", restir_pt_reservoir_bytes(st)};
+    out[n++] = (struct view_buffer_bytes){"gbuffers", restir_pt_gbuffer_bytes(st)};
+    out[n++] = (struct view_buffer_bytes){"primitive_table", ((size_t)st->shape_count + 1) * sizeof *st->prim_first};
+    if (st->pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_pt_pair_bytes(st)};
+    out[n++] = (struct view_buffer_bytes){"primary_hits", restir_pt_hit_bytes(st)};
+    return n;
+}
+
+static const struct method_stat rpt_stats[] = {
+    METHOD_PASS_STATS(struct restir_pt_stats, METHOD_PASS_INITIAL(struct restir_pt_stats)),
+};
+
+#define P(key, kind, lo, hi, help) METHOD_PARAM(struct restir_pt_params, key, kind, lo, hi, help)
+static const struct method_param rpt_params[] = {
+    P(max_depth, METHOD_PARAM_UINT, 1, 126, "scattering events before a path stops"),
+    P(rr_depth, METHOD_PARAM_UINT, 0, 1000000, "Russian roulette from this vertex on"),
+    P(rr, METHOD_PARAM_BOOL, 0, 1, "Russian roulette on initial paths (decoupled from the primary sample space)"),
+    {.key = "nee_candidates", .kind = METHOD_PARAM_UINT, .offset = offsetof(struct restir_pt_params, nee_candidates),
+     .min = 0, .max = 64, .flags = METHOD_PARAM_SCENE_DEFAULT,
+     .help = "RIS next-event estimation candidates; 1 = plain NEE, 0 = none; by default chosen from the scene's emitters"},
+    P(unify_di, METHOD_PARAM_BOOL, 0, 1, "direct light resampled together with indirect"),
+    P(temporal, METHOD_PARAM_BOOL, 0, 1, "temporal reuse"),
+    P(temporal_cap, METHOD_PARAM_UINT, 1, 1000, "previous confidence capped at this multiple of the current"),
+    P(spatial_neighbors, METHOD_PARAM_UINT, 0, 64, "spatial neighbours per round; 0 = no spatial reuse"),
+    P(spatial_radius, METHOD_PARAM_FLOAT, 1, 256, "spatial reuse radius in pixels"),
+    P(spatial_rounds, METHOD_PARAM_UINT, 1, 8, "spatial reuse rounds"),
+    P(paired_spatial, METHOD_PARAM_BOOL, 0, 1, "neighbours paired so a pair's shifts serve both pixels"),
+    P(expected_shading, METHOD_PARAM_BOOL, 0, 1,
+      "shade with the last spatial pass's expected contribution over its selection"),
+    P(footprint, METHOD_PARAM_BOOL, 0, 1, "dual ray-footprint threshold for reconnection (else a near-field distance)"),
+    P(footprint_c, METHOD_PARAM_FLOAT, 0, 100, "c of the footprint threshold"),
+    P(near_distance, METHOD_PARAM_FLOAT, 0, 1, "without footprint: minimum segment length, fraction of the scene"),
+    P(pdf_connect, METHOD_PARAM_BOOL, 0, 1, "PDF-based connectability (else lobe roughness)"),
+    P(roughness_min, METHOD_PARAM_FLOAT, 0, 1, "alpha_min of both connectability tests"),
+};
+#undef P
+
+const struct method_desc method_restir_pt = {
+    .name = "restir_pt",
+    .summary = "ReSTIR path tracing (Enhanced): temporal and spatial reuse of whole paths through the hybrid shift",
+    .caps = METHOD_REUSES_FRAMES | METHOD_REUSES_PIXELS | METHOD_NO_TRANSLUCENT,
+    .refuses = "translucent materials (subsurface scattering is not sampled)",
+    .params = rpt_params,
+    .param_count = sizeof rpt_params / sizeof rpt_params[0],
+    .stats = rpt_stats,
+    .stat_count = sizeof rpt_stats / sizeof rpt_stats[0],
+    .defaults = rpt_defaults,
+    .validate = rpt_validate,
+    .state_bytes = sizeof(struct restir_pt_state),
+    .init = rpt_init,
+    .reset = rpt_reset,
+    .destroy = rpt_destroy,
+    .render = rpt_render,
+    .bytes_planned = rpt_bytes_planned,
+    .reservoir_bytes_per_pixel = rpt_reservoir_bytes,
+    .buffers = rpt_buffers,
+};

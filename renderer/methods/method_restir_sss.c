@@ -1,0 +1,121 @@
+/* method_restir_sss.c — method `restir_sss`: ReSTIR for subsurface scattering
+ * (integrators/restir_sss.h): BSSRDF probe candidates at translucent primary hits, reused
+ * temporally and spatially through the reconnection, delayed, hybrid or sequential shift; the rest
+ * of the image is the path tracer's. */
+#include <stddef.h>
+
+#include "integrators/restir_sss.h"
+#include "methods/method.h"
+#include "methods/passes.h"
+
+METHOD_FITS(struct restir_sss_params, METHOD_PARAMS_BYTES);
+METHOD_FITS(struct restir_sss_stats, METHOD_COUNTERS_BYTES);
+
+static void sss_defaults(void *params)
+{
+    *(struct restir_sss_params *)params = restir_sss_defaults();
+}
+
+static bool sss_validate(const void *params, struct err *err)
+{
+    return restir_sss_params_valid(params, err);
+}
+
+static bool sss_init(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
+                     struct err *err)
+{
+    (void)scene;
+    return restir_sss_init(state, params, width, height, err);
+}
+
+static void sss_reset(void *state)
+{
+    restir_sss_reset(state);
+}
+
+static void sss_destroy(void *state)
+{
+    restir_sss_destroy(state);
+}
+
+static bool sss_render(void *state, const void *params, const struct method_frame *f, struct image *out,
+                       struct frame_stats *stats, parallel_progress_fn *progress, void *progress_ctx, struct err *err)
+{
+    struct restir_sss_stats *c = (struct restir_sss_stats *)(void *)stats->counters;
+    if (!restir_sss_render(state, params, f, out, c, err)) return false;
+    stats->render = METHOD_PASS_RENDER_STATS(out, f->threads, c, 0.0);
+    if (progress) progress(progress_ctx, 1, 1);
+    return true;
+}
+
+static uint64_t sss_bytes_planned(const void *params, const struct scene *scene, uint32_t width, uint32_t height)
+{
+    (void)scene;
+    return restir_sss_bytes_planned(params, width, height);
+}
+
+static uint32_t sss_reservoir_bytes(const void *params, const struct scene *scene)
+{
+    (void)scene;
+    return RESTIR_SSS_RESERVOIR_BYTES * restir_sss_layers(params);
+}
+
+static uint32_t sss_buffers(const void *state, const void *params, struct view_buffer_bytes *out)
+{
+    (void)params;
+    const struct restir_sss_state *st = state;
+    uint32_t n = 0;
+    out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sss_reservoir_bytes(st)};
+    out[n++] = (struct view_buffer_bytes){"gbuffers", restir_sss_gbuffer_bytes(st)};
+    out[n++] = (struct view_buffer_bytes){"primary_hits", restir_sss_hit_bytes(st)};
+    if (st->pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_sss_pair_bytes(st)};
+    return n;
+}
+
+static const struct method_stat sss_stats[] = {
+    METHOD_PASS_STATS(struct restir_sss_stats, METHOD_PASS_INITIAL(struct restir_sss_stats)),
+};
+
+static const char *const sss_shifts[] = {"reconnection", "delayed", "hybrid", "sequential", NULL};
+static const char *const sss_targets[] = {"luminance", "per_channel", NULL};
+
+#define P(key, kind, lo, hi, help) METHOD_PARAM(struct restir_sss_params, key, kind, lo, hi, help)
+static const struct method_param sss_params[] = {
+    METHOD_ENUM(struct restir_sss_params, shift, sss_shifts, "the shift between pixels and frames"),
+    P(candidates, METHOD_PARAM_UINT, 1, 32, "BSSRDF probes per pixel and frame, each with one light sample"),
+    P(temporal, METHOD_PARAM_BOOL, 0, 1, "temporal reuse"),
+    P(temporal_cap, METHOD_PARAM_UINT, 1, 1000, "previous confidence capped at this multiple of the current"),
+    P(spatial_neighbors, METHOD_PARAM_UINT, 0, 32, "spatial neighbours (even for the sequential shift); 0 = none"),
+    P(spatial_radius, METHOD_PARAM_FLOAT, 0, 256,
+      "spatial radius in pixels; 0 = from the profile's extent at the translucent pixels' distance"),
+    P(kappa_orientation, METHOD_PARAM_FLOAT, -1, 1, "hybrid shift: reconnect when the normals' dot is at most this"),
+    P(max_depth, METHOD_PARAM_UINT, 0, 1024, "scattering events of the path-traced rest"),
+    P(rr_depth, METHOD_PARAM_UINT, 0, 1000000, "Russian roulette of the path-traced rest after this many bounces"),
+    P(index_shortcut, METHOD_PARAM_BOOL, 0, 1, "sequential shift only: the slightly biased intersection-index shortcut"),
+    P(paired_spatial, METHOD_PARAM_BOOL, 0, 1, "neighbours paired so a pair's shifts serve both pixels"),
+    P(expected_shading, METHOD_PARAM_BOOL, 0, 1,
+      "shade with the last spatial pass's expected contribution over its selection"),
+    METHOD_ENUM(struct restir_sss_params, target, sss_targets,
+                "the resampling target: luminance (one reservoir per pixel) or per channel (three)"),
+};
+#undef P
+
+const struct method_desc method_restir_sss = {
+    .name = "restir_sss",
+    .summary = "ReSTIR subsurface scattering: reuse of BSSRDF probe samples across pixels and frames",
+    .caps = METHOD_REUSES_FRAMES | METHOD_REUSES_PIXELS,
+    .params = sss_params,
+    .param_count = sizeof sss_params / sizeof sss_params[0],
+    .stats = sss_stats,
+    .stat_count = sizeof sss_stats / sizeof sss_stats[0],
+    .defaults = sss_defaults,
+    .validate = sss_validate,
+    .state_bytes = sizeof(struct restir_sss_state),
+    .init = sss_init,
+    .reset = sss_reset,
+    .destroy = sss_destroy,
+    .render = sss_render,
+    .bytes_planned = sss_bytes_planned,
+    .reservoir_bytes_per_pixel = sss_reservoir_bytes,
+    .buffers = sss_buffers,
+};
