@@ -112,7 +112,7 @@ size_t bdpt_block_bytes(const struct bdpt_state *st);
 bool bdpt_render(struct bdpt_state *st, const struct bdpt_params *p, const struct bdpt_frame *f, struct image *out,
                  struct bdpt_stats *stats, struct err *err);
 
-/* Geometry helpers shared with restir_bdpt.c (the same conventions on both). */
+/* Geometry helpers shared with restir_bdpt_*.c (the same conventions on both). */
 struct accel;
 struct material;
 struct ray_counters;

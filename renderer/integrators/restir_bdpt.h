@@ -51,7 +51,7 @@
  * (eq. 25) in its resampling weight, so the target is the path's own. The full variant's
  * reconnection shifts (connections and camera-side samples alike) keep the suffix and recompute
  * bdpt's MIS weight over all techniques from three constants of it (the recursive reconnection
- * MIS, restir_bdpt.c); a light sample leaving x_k itself is drawn again. A per-pixel cache keeps
+ * MIS, restir_bdpt_internal.h); a light sample leaving x_k itself is drawn again. A per-pixel cache keeps
  * the light vertex of each pixel's connection in this frame's scene, as it keeps x_2 of
  * light-traced samples.
  *
@@ -127,7 +127,7 @@ struct restir_bdpt_lt_sample {
     uint16_t depth;            /* light vertices up to x_1 */
     uint8_t caustic;           /* 1 when x_2 is not rough */
     uint8_t hybrid;            /* with reuse: x_2 is a surface with only rough lobes (depth >= 2), so
-                                  the sample shifts by the reverse hybrid shift (restir_bdpt.c) */
+                                  the sample shifts by the reverse hybrid shift (restir_bdpt_reuse.c) */
 };
 
 /* A reservoir: the shared head (W, M, technique in `bits`), the selected sample's contribution
@@ -152,7 +152,7 @@ struct restir_bdpt_reservoir {
  *     weight follows from its new prefix alone (the recursive reconnection MIS of seed 000 §6.2;
  *     lightweight: restir_bdpt_mis_reconnect's two constants; full: the weight is
  *     1 / (1 + a dVCM + b dVC + c) with dVCM, dVC those after x_k's scattering, which the suffix
- *     maps affinely onto the last vertex's — see restir_bdpt.c);
+ *     maps affinely onto the last vertex's — see restir_bdpt_internal.h);
  *   - `pdf`: p_{k-1}(w_{k-1}) |cos_k| / d^2 p_k(w_k) (p_k = 1 for a light sample's direction), the
  *     reconnection's Jacobian denominator (seed 000 Appendix C).
  * With `copy_mis` `L` carries the MIS weight of the path the sample was drawn as, which its
@@ -223,7 +223,7 @@ struct restir_bdpt_state {
     struct gbuffer gbuf;
     void *pair_scratch;                         /* with reuse and paired_spatial: restir.c's pairs */
     /* With reuse: per pixel the x_2 of its sample of the reverse hybrid shift's class in this
-     * frame's scene, so that the shifts of one sample replay its light subpath once (restir_bdpt.c). */
+     * frame's scene, so that the shifts of one sample replay its light subpath once (restir_bdpt_reuse.c). */
     struct rbdpt_x2_entry *x2c;
     /* The full variant's light vertex cache, in bdpt's layout: per block a region of lvc_region
      * vertices, lvc_count of them used, lvc_first the prefix sums (blocks + 1). NULL otherwise. */
