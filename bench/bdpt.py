@@ -9,7 +9,7 @@ run, on lamp-in-glass and caustic-sphere at 256x256 (BENCH_BDPT_SCENES, _SIZE):
      build/refs/ under the scene file's hash, the size and the frame count;
   2. `pt` at 1, 2, 4 ... 32 spp; `bdpt` averaged over 1, 2, 4 ... 32 frames (its time is the sum
      of the frames'); `restir_pt` (defaults) as the frame after WARMUP warm-up frames: each over
-     SEEDS seeds, time and MAPE (seed 000 footnote 3, `restir compare`) against the reference;
+     SEEDS seeds, time and MAPE ([ReSTIR BDPT footnote 3], `restir compare`) against the reference;
   3. the equal-time error ratios bdpt / pt and restir_pt / pt (pt's MAPE interpolated log-log at
      the other's time) and the frame cost ratios against pt at 1 spp;
   4. writes build/bench/bdpt.json, one SVG chart per scene (MAPE vs ms, log-log) in

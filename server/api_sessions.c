@@ -105,7 +105,7 @@ static void api_write_method_params(struct jsonw *w, const struct view_params *p
     jsonw_object_end(w);
 }
 
-/* Per-pass times and reuse counters of a restir_pt frame (seed 001 Table 1). */
+/* Per-pass times and reuse counters of a restir_pt frame ([ReSTIR PT Enhanced Table 1]). */
 static void api_write_passes(struct jsonw *w, const struct restir_pt_stats *ps)
 {
     jsonw_object_begin(w);
@@ -434,7 +434,7 @@ static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
         api_write_restir_bdpt(w, &f->stats->restir_bdpt);
     }
     if (f->stats->has_prior) {
-        /* Seed 002 Table 1, prior construction, for this frame. */
+        /* [SMS-SSP Table 1], prior construction, for this frame. */
         const struct ssp_prior_counters *pc = &f->stats->prior;
         jsonw_key(w, "prior");
         jsonw_object_begin(w);
@@ -446,7 +446,7 @@ static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
         jsonw_object_end(w);
     }
     if (f->stats->has_manifold_shift) {
-        /* restir_sms: the resampling column of seed 002 Table 1 beside the passes. */
+        /* restir_sms: the resampling column of [SMS-SSP Table 1] beside the passes. */
         uint64_t shifts = f->stats->passes.shifts;
         jsonw_key(w, "manifold_shift");
         jsonw_object_begin(w);
@@ -458,7 +458,7 @@ static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
         jsonw_object_end(w);
     }
     if (f->stats->has_sms) {
-        /* Seed 002 Table 1, manifold sampling columns, for this frame. */
+        /* [SMS-SSP Table 1], manifold sampling columns, for this frame. */
         const struct sms_counters *sc = &r->sms;
         double n = (double)sc->samples, sol = (double)sc->solutions;
         jsonw_key(w, "sms");

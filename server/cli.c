@@ -382,7 +382,7 @@ static int cli_render(int argc, char **argv)
                method, width, height, frame_spp, rendered, p.seed, threads, st.render_ms, rays,
                st.rays_intersect, st.rays_occluded, rays_per_s, st.samples, st.nonfinite, mean[0], mean[1], mean[2]);
         if (last.has_passes) {
-            /* The last frame's passes (seed 001 Table 1) and the session's memory. */
+            /* The last frame's passes ([ReSTIR PT Enhanced Table 1]) and the session's memory. */
             const struct restir_pt_stats *ps = &last.passes;
             printf(",\"last_frame\":{\"gbuffer_ms\":%.3f,\"initial_ms\":%.3f,\"temporal_ms\":%.3f,\"spatial_ms\":%.3f,"
                    "\"shade_ms\":%.3f,\"shifts\":%" PRIu64 ",\"shift_failures\":%" PRIu64 "},\"session_bytes\":%zu,"
@@ -414,7 +414,7 @@ static int cli_render(int argc, char **argv)
                    rb->reuse_shift_failures, rb->reuse_reconnections, rb->reservoir_bytes, session_bytes);
         }
         if (last.has_prior) {
-            /* Seed 002 Table 1, prior construction, of the last frame. */
+            /* [SMS-SSP Table 1], prior construction, of the last frame. */
             const struct ssp_prior_counters *pc = &last.prior;
             printf(",\"prior\":{\"samples\":%" PRIu64 ",\"solutions\":%" PRIu64 ",\"newton\":%" PRIu64
                    ",\"dropped_pairs\":%" PRIu64 ",\"ms\":%.3f}",
@@ -426,7 +426,7 @@ static int cli_render(int argc, char **argv)
                    last.shift_not_invertible);
         }
         if (rm == RENDER_METHOD_SMS || rm == RENDER_METHOD_SMS_SSP || rm == RENDER_METHOD_RESTIR_SMS) {
-            /* Seed 002 Table 1 (manifold sampling) over all frames rendered. */
+            /* [SMS-SSP Table 1] (manifold sampling) over all frames rendered. */
             const struct sms_counters *c = &st.sms;
             printf(",\"sms\":{\"samples\":%" PRIu64 ",\"solutions\":%" PRIu64 ",\"newton_sample\":%" PRIu64
                    ",\"trials\":%" PRIu64 ",\"newton_trials\":%" PRIu64 ",\"capped\":%" PRIu64 ",\"with_prior\":%" PRIu64

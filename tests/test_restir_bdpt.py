@@ -124,7 +124,7 @@ def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse, varian
 
 @pytest.mark.statistical
 def test_restir_bdpt_reject_unshiftable_darkens(tmp_path, scenes):
-    """`reject_unshiftable` (seed 000 §7.2) drops the non-caustic light-traced candidates whose x_2
+    """`reject_unshiftable` ([ReSTIR BDPT §7.2]) drops the non-caustic light-traced candidates whose x_2
     cannot reach the pixel's primary hit: a bias by design, which the docs call small. On the
     lamp-in-glass crop, paired with the unbiased reuse sessions of the same seeds (so most of their
     noise cancels), it must darken the crop measurably (paired t < -2) and by less than 1 %; and

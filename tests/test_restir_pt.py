@@ -103,7 +103,7 @@ def test_restir_pt_unbiased(tmp_path, scenes, scene, motion):
 
 @pytest.mark.statistical
 def test_restir_pt_ris_nee_unbiased(tmp_path, scenes):
-    """RIS NEE with 4 candidates and its multi-sample MIS weights (seed 001 §5), the default
+    """RIS NEE with 4 candidates and its multi-sample MIS weights ([ReSTIR PT Enhanced §5]), the default
     under two or more lights, asked for here on cornell-glossy (one light: plain NEE by default)
     with the camera moving."""
     case = CASES["cornell-glossy"]

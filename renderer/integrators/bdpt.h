@@ -1,5 +1,5 @@
-/* bdpt.h — method `bdpt`: bidirectional path tracing with a light vertex cache (seed 000 §3
- * and METHODS.md §2; Davidovič et al. 2014 for the cache). Each frame traces N_L light
+/* bdpt.h — method `bdpt`: bidirectional path tracing with a light vertex cache ([ReSTIR BDPT §3]
+ * and docs/methods.md (bdpt); Davidovič et al. 2014 for the cache). Each frame traces N_L light
  * subpaths, starting on emitters in proportion to their power; every non-delta light vertex is
  * kept in the light vertex cache (LVC) and connected to the camera (light tracing, t = 1).
  * Then one camera subpath per pixel collects emission it hits (s = 0), next-event estimation

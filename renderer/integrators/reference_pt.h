@@ -45,7 +45,7 @@ struct render_stats {
     uint64_t nonfinite;    /* samples dropped because their value was NaN or Inf */
     unsigned threads;      /* worker threads used */
     double render_ms;
-    struct sms_counters sms;   /* method sms: seed 002 Table 1 counters */
+    struct sms_counters sms;   /* method sms: [SMS-SSP Table 1] counters */
 };
 
 /* Defaults: 16 spp, max_depth 64, rr_depth 3, NEE on, seed 0, all cores, whole image. */

@@ -23,8 +23,9 @@
  * lum(C_i), W = sum / p̂(Y) and the pixel estimate C_Y W. Candidates from distinct techniques
  * (and path lengths) live in disjoint parts of the extended path space, each with one candidate
  * per pixel from the camera side; the t = 1 part gets N_L candidates per pixel — one per light
- * subpath, most of them null for this pixel — each with the MIS weight 1/N_L (seed 000 eq. 26),
- * which C already carries. So the merge is unbiased whatever lands where. */
+ * subpath, most of them null for this pixel — each with the MIS weight 1/N_L
+ * ([ReSTIR BDPT eq. 26]), which C already carries. So the merge is unbiased whatever lands
+ * where. */
 #include "integrators/restir_bdpt.h"
 
 #include <stdlib.h>
@@ -423,11 +424,11 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     c->has_prev = f->prev_scene && f->prev_camera && f->prev_scene->accel && f->prev_scene->lights;
     if (!c->has_prev) st->has_history = false;
     /* Eq. 27 takes a caustic reservoir's confidence from the pixel the camera's motion maps it
-     * to, but caustics move with their lights and casters, not with the camera (seed 000 §9.1):
-     * in a frame whose scene moved the reservoirs under the caustic hold history that no longer
-     * lies where they are, and with the cap of a still scene (20) a moving caustic's error grows
-     * over the frames. A lower cap there bounds that history. The test reads only the scenes,
-     * never the samples, so the weights stay a valid MIS whatever it decides. */
+     * to, but caustics move with their lights and casters, not with the camera
+     * ([ReSTIR BDPT §9.1]): in a frame whose scene moved the reservoirs under the caustic hold
+     * history that no longer lies where they are, and with the cap of a still scene (20) a moving
+     * caustic's error grows over the frames. A lower cap there bounds that history. The test reads
+     * only the scenes, never the samples, so the weights stay a valid MIS whatever it decides. */
     const bool moved = c->has_prev && scene_moved(f->prev_scene, f->scene);
     c->caustic_cap = moved ? p->moving_cap : p->temporal_cap;
     c->static_scene = c->has_prev && !moved;

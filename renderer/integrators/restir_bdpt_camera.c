@@ -85,11 +85,11 @@ static bool rbdpt_offer(struct rbdpt_ris *r, struct rbdpt_want *want, struct vec
 /* The camera subpath of `pixel`'s stream (its ids: the pixel and frame whose random numbers
  * drive it) traced along `dir` in view v: its s = 0 and s = 1 candidates, and the full variant's
  * connections. With reuse each candidate also gets its reconnection (struct
- * restir_bdpt_rc), and Russian roulette is decoupled from the primary sample space (seed 001 §6):
- * C leaves the survival probabilities out and they divide the resampling weight instead, so a
- * shift, which keeps the vertices after x_k, never has to roll the roulette again; a replay
- * never ends by roulette. Without reuse no camera-side sample is ever shifted, and C keeps them
- * (the same estimate; the image is then exactly bdpt's). */
+ * restir_bdpt_rc), and Russian roulette is decoupled from the primary sample space
+ * ([ReSTIR PT Enhanced §6]): C leaves the survival probabilities out and they divide the resampling
+ * weight instead, so a shift, which keeps the vertices after x_k, never has to roll the roulette
+ * again; a replay never ends by roulette. Without reuse no camera-side sample is ever shifted, and
+ * C keeps them (the same estimate; the image is then exactly bdpt's). */
 void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdpt_view *v, struct vec3 dir,
                              uint32_t pixel, uint32_t frame, struct rng *rng, struct rng *pick,
                              struct rbdpt_ris *r, struct ray_counters *rc, struct rbdpt_worker *wk,
@@ -268,7 +268,7 @@ void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdpt_view 
             /* s >= 2, t >= 2 (full variant): a connection to one light vertex drawn uniformly from
              * the cache, as bdpt; paths longer than max_depth are cut. Technique s = the light
              * vertex's surface vertices + the emitter's. |LVC| / N_L = 1 / p_L is the choice's part
-             * of the unbiased contribution weight (seed 000 eq. 25): it scales the resampling
+             * of the unbiased contribution weight ([ReSTIR BDPT eq. 25]): it scales the resampling
              * weight, and the target C stays a function of the path alone, which a shift can
              * evaluate in another frame whose cache is another. A shift's replay joins the
              * sample's own light vertex instead, replayed (rbdpt_shift). */

@@ -186,7 +186,7 @@ static inline bool rbdpt_is_connection(const struct restir_bdpt_path *x)
     return tech >= 2u && tech != RESTIR_BDPT_TECH_LT;
 }
 
-/* The full variant's recursive reconnection MIS (seed 000 §6.2–6.3, in dVCM / dVC form). Past
+/* The full variant's recursive reconnection MIS ([ReSTIR BDPT §6.2–6.3], in dVCM / dVC form). Past
  * x_k's scattering every update of a camera subpath's MIS state is affine in that state: a hit
  * scales both quantities, a rough scattering sets dVCM to a constant and makes dVC a linear
  * combination of the two, a delta one zeroes dVCM and scales dVC. So the state where a

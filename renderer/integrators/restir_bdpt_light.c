@@ -89,7 +89,7 @@ bool rbdpt_t1_eval(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const 
 /* Traces light subpath i with the random numbers of frame `origin_frame` in view `v` and writes
  * its t = 1 samples to out[0 .. cap) (*stored, the excess counted in *dropped), and with `lvc`
  * (the full variant's light pass) every connectable vertex into the cache as bdpt does. With
- * only_depth > 0 it is the random-replay shift of seed 000 Appendix A: the subpath is replayed
+ * only_depth > 0 it is the random-replay shift of [ReSTIR BDPT Appendix A]: the subpath is replayed
  * up to that vertex and only the sample there is written (nothing when the replayed path ends
  * earlier, the vertex is not connectable or the eye does not see it). With `x2` (and
  * only_depth >= 2) the replay stops at light depth only_depth - 1 instead and returns that
@@ -226,9 +226,9 @@ void rbdpt_light_block(void *ctx, uint32_t block, unsigned worker)
     st->block_rays[3 * block + 2] = vertices;
 }
 
-/* The light side of a connection's shift (s >= 2; seed 000 §5: the light subpath shifts by random
- * replay): light subpath i of frame origin_frame replayed in view v to its vertex at light depth
- * `depth`, as the light pass would have cached it. False when the replay ends earlier or the
+/* The light side of a connection's shift (s >= 2; [ReSTIR BDPT §5]: the light subpath shifts by
+ * random replay): light subpath i of frame origin_frame replayed in view v to its vertex at light
+ * depth `depth`, as the light pass would have cached it. False when the replay ends earlier or the
  * vertex is not connectable there (a changed classification fails the shift). */
 static bool rbdpt_replay_light_vertex(const struct rbdpt_ctx *c, const struct rbdpt_view *v, uint32_t origin_frame,
                                       uint32_t i, uint32_t depth, struct bdpt_light_vertex *out,

@@ -40,8 +40,8 @@ static bool rbdpt_x2_cached(const struct rbdpt_ctx *c, const struct rbdpt_view *
 }
 
 /* The hybrid shift of a camera-side sample with a reconnection (src->rc.k >= 2) into pixel
- * `pixel` of view v, whose scene is the sample's own (seed 000 §6.1; the camera-subpath case of
- * its bidirectional hybrid shift): the camera subpath is replayed with the sample's random
+ * `pixel` of view v, whose scene is the sample's own ([ReSTIR BDPT §6.1]; the camera-subpath case
+ * of its bidirectional hybrid shift): the camera subpath is replayed with the sample's random
  * numbers through the pixel up to x'_{k-1} — no pair before it may be connectable, or the
  * shifted path would reconnect elsewhere and the shift would not be invertible — then joined to
  * x_k, whose suffix is kept. Its contribution, the Jacobian p'_{k-1} G' p'_k / (p_{k-1} G p_k)
@@ -225,10 +225,10 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
     return isfinite(*J) && *J > 0.0f && vec3_is_finite(*C);
 }
 
-/* The reverse hybrid shift of a non-caustic t = 1 sample whose x_2 has only rough lobes (seed
- * 000 §6.1, "light tracing, non-caustic"): its light subpath is replayed with its random numbers
- * in view v up to x'_2, and joined to the new x'_1: the surface the eye sees through the same
- * point of the target pixel (the sample's sub-pixel position, kept in rc.b1 / rc.b2), so the
+/* The reverse hybrid shift of a non-caustic t = 1 sample whose x_2 has only rough lobes
+ * ([ReSTIR BDPT §6.1], "light tracing, non-caustic"): its light subpath is replayed with its random
+ * numbers in view v up to x'_2, and joined to the new x'_1: the surface the eye sees through the
+ * same point of the target pixel (the sample's sub-pixel position, kept in rc.b1 / rc.b2), so the
  * shift maps the paths through one pixel one-to-one onto those through the other. Jacobian:
  * the image-area density of x_1's direction at x_2, p_2(w) |cos_1| / d^2 / p_camera,A(x_1), of
  * the new path over the old (rc.pdf). False when the shift fails. */
@@ -255,7 +255,7 @@ static bool rbdpt_reverse(const struct rbdpt_ctx *c, const struct rbdpt_view *v,
     float mis_w;
     if (!rbdpt_t1_eval(c, v, &x2, &x1, rays, &px, C, NULL, pdf, &mis_w) || px != pixel) return false;
     if (!bdpt_visible(v->scene->accel, x2.s.p, x2.s.ng, x1.p, &x1.ng, rays)) return false;
-    /* copy_mis: the weight the sample was drawn with (seed 000 §6.4), not the new path's. */
+    /* copy_mis: the weight the sample was drawn with ([ReSTIR BDPT §6.4]), not the new path's. */
     if (c->p->copy_mis) *C = vec3_scale(*C, src->rc.mis_a / mis_w);
     *J = *pdf / src->rc.pdf;
     return isfinite(*J) && *J > 0.0f;
@@ -292,7 +292,7 @@ bool rbdpt_reverse_record(const struct rbdpt_ctx *c, uint32_t pixel, struct rest
     return true;
 }
 
-/* `reject_unshiftable` (seed 000 §7.2, "stable but biased temporal reuse of light traced
+/* `reject_unshiftable` ([ReSTIR BDPT §7.2], "stable but biased temporal reuse of light traced
  * samples"): whether the non-caustic t = 1 sample of light subpath `light_path` (frame
  * `origin_frame`, x_1 at light depth `depth`) could be joined to the pixel's primary hit `xg`
  * instead of its own x_1 — x_2 scatters (or, at depth 1, emits) towards xg, xg scatters towards

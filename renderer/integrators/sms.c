@@ -1,5 +1,5 @@
 /* sms.c — specular manifold sampling inside the path tracer (see sms.h).
- * Refs: Zeltner et al. 2020 §4-5 (seeds, Bernoulli trials for 1/P); seed 002 §3.1 eqs. 1-2,
+ * Refs: Zeltner et al. 2020 §4-5 (seeds, Bernoulli trials for 1/P); [SMS-SSP §3.1 eqs. 1-2],
  * §5.2 eqs. 12-13 (the integrand over light points); Booth 2007 (unbiased reciprocal). */
 #include "integrators/sms.h"
 
@@ -236,7 +236,7 @@ bool sms_sample(const struct scene *scene, const struct sms_scene *ss, const str
     struct vec3 value = sms_solution_value(scene, &cs->chain, &e, v, s, m, wo, lm);
     if (vec3_is_zero(value)) goto out;
     /* Bernoulli trials: the number of fresh seeds until one walks to this solution again has
-     * expectation 1 / P(x̄*) (seed 002 §3.1). Same-solution threshold: 1e-4 of |x1 - x2|. */
+     * expectation 1 / P(x̄*) ([SMS-SSP §3.1]). Same-solution threshold: 1e-4 of |x1 - x2|. */
     float tol = 1e-4f * vec3_length(vec3_sub(v[0].p, s->p));
     uint32_t limit = p->bernoulli_cap ? p->bernoulli_cap : SMS_HARD_TRIAL_LIMIT;
     uint32_t trials = 0;

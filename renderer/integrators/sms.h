@@ -1,4 +1,4 @@
-/* sms.h — specular manifold sampling (Zeltner et al. 2020; seed 002 §3.1) as an estimator
+/* sms.h — specular manifold sampling (Zeltner et al. 2020; [SMS-SSP §3.1]) as an estimator
  * inside the path tracer (method `sms`), and the split of light transport it needs so that
  * nothing is counted twice.
  *
@@ -20,7 +20,7 @@
  *     f(x1) |cos θ1| T(x̄*) G(x1 ↔ x_n) L_e · C / p(x_n) · W,
  * with T the specular throughput, G the generalized geometry term |dω1/dA(x_n)| and W the
  * number of Bernoulli trials (fresh seeds walked until one reaches the same solution again),
- * whose expectation is 1 / P(x̄*) (Booth 2007; seed 002 eq. 2). With a cap, a solution whose
+ * whose expectation is 1 / P(x̄*) (Booth 2007; [SMS-SSP eq. 2]). With a cap, a solution whose
  * trials exceed it contributes 0 (biased: energy lost, counted); cap 0 = uncapped.
  *
  * The seed map: u picks a point on the surface of the caster's world bounding box (a face by
@@ -53,12 +53,12 @@ enum pt_subset { PT_SUBSET_ALL, PT_SUBSET_CAUSTIC, PT_SUBSET_REST };
 
 struct sms_params {
     uint32_t bernoulli_cap;    /* max Bernoulli trials per solution; 0 = uncapped (default 128,
-                                  as seed 002 §6) */
+                                  as [SMS-SSP §6]) */
     uint32_t max_iterations;   /* Newton steps per walk (default 20) */
     bool caustics_only;        /* render only the SMS estimate (no path-traced rest) */
 };
 
-/* Table 1 of seed 002 (manifold sampling columns). */
+/* Table 1 of [SMS-SSP] (manifold sampling columns). */
 struct sms_counters {
     uint64_t samples;          /* SMS estimates attempted (one per x1) */
     uint64_t solutions;        /* of those, a valid solution with a non-zero contribution */

@@ -1,5 +1,5 @@
 /* sms_ssp.c — sample-space partitioning and per-frame priors for SMS (see sms_ssp.h).
- * Refs: seed 002 §3.3 (trust regions, conditional sample space, eqs. 4-5), §4.1 (prior,
+ * Refs: [SMS-SSP §3.3] (trust regions, conditional sample space, eqs. 4-5), §4.1 (prior,
  * eqs. 7-9). */
 #include "integrators/sms_ssp.h"
 

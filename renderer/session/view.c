@@ -346,7 +346,7 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
         if (v->params.method == RENDER_METHOD_SMS) {
             p.sms = &v->params.sms;
         } else if (v->params.method == RENDER_METHOD_SMS_SSP) {
-            /* The prior pass (seed 002 §4.1) before the frame, under this frame's scene and camera. */
+            /* The prior pass ([SMS-SSP §4.1]) before the frame, under this frame's scene and camera. */
             struct camera cam;
             struct ray_counters prc = {0, 0};
             camera_init(&cam, &camera, v->params.width, v->params.height);

@@ -108,7 +108,7 @@ struct frame_stats {
     struct render_stats render;           /* rays, samples, nonfinite, threads, render_ms */
     double scene_update_ms;               /* rebuilding the scene for moved or re-lit shapes */
     uint32_t accumulated;                 /* frames in the accumulation buffer after this one */
-    bool has_sms;                         /* sms, sms_ssp: render.sms holds seed 002 Table 1's counters */
+    bool has_sms;                         /* sms, sms_ssp: render.sms holds [SMS-SSP Table 1]'s counters */
     bool has_prior;                       /* sms_ssp: the prior pass's counters */
     struct ssp_prior_counters prior;
     bool has_passes;                      /* restir_pt, restir_sss: the per-pass numbers below are set

@@ -14,7 +14,7 @@
  * - probe hits come back ordered by distance on the one shape asked for, and the single
  *   filtered traversal returns what the repeated closest-hit queries it replaced returned, over
  *   24 000 random rays (every difference is one of the documented rounding-level cases);
- * - probabilistic inversion (seed 004 Algorithm 4) round trips, and it picks techniques in
+ * - probabilistic inversion ([ReSTIR SSS Algorithm 4]) round trips, and it picks techniques in
  *   proportion to P(t) p_t(x2);
  * - the translucent stand-in BSDF is reciprocal and its directional albedo is albedo (1 - F). */
 #include <math.h>

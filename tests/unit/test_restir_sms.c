@@ -1,5 +1,5 @@
 /* test_restir_sms.c — the manifold shift of restir_sms as round trips (design TESTING.md tier 3,
- * METHODS.md §0): for samples drawn by the initial pass (the sms_ssp sampler) on
+ * docs/methods.md (restir_sms)): for samples drawn by the initial pass (the sms_ssp sampler) on
  * refractive-slab (a two-interface chain through a glass slab) and reflective-plane (one
  * reflection), a shift to a pixel a few pixels away (and to the previous frame's pixel with the
  * camera moved) that succeeds is undone by the shift back: the same chain vertices (within 1e-4
