@@ -15,20 +15,8 @@
 #include "scene/scene.h"
 #include "session_buffers.h"
 #include "test.h"
+#include "scene_fixture.h"
 #include "session/view.h"
-
-static struct scene *load(const char *path)
-{
-    struct err err = {0};
-    struct scene *s = scene_load_file(path, &err);
-    CHECK_MSG(s != NULL, "%s: %s", path, err.message);
-    if (s && !scene_commit(s, &err)) {
-        CHECK_MSG(false, "%s", err.message);
-        scene_release(s);
-        return NULL;
-    }
-    return s;
-}
 
 struct tally {
     int tried, forward_ok, round_trips, failures, nontrivial_j;
@@ -83,7 +71,7 @@ static void round_trip(const void *ctx, const uint8_t *elem, struct restir_domai
 
 static void shift_case(const char *scene_path, bool temporal, int offset, bool expect_success, bool scale_light)
 {
-    struct scene *base = load(scene_path);
+    struct scene *base = fixture_load(scene_path);
     if (!base) return;
     struct scene *sc = base;
     if (scale_light) {
@@ -231,8 +219,8 @@ static void test_params(void)
  * one), each light's paths in the reservoir of its rank; an explicit count is kept. */
 static void test_light_reservoirs(void)
 {
-    struct scene *slab = load("scenes/refractive-slab/scene.json");
-    struct scene *plane = load("scenes/reflective-plane/scene.json");
+    struct scene *slab = fixture_load("scenes/refractive-slab/scene.json");
+    struct scene *plane = fixture_load("scenes/reflective-plane/scene.json");
     if (!slab || !plane) {
         if (slab) scene_release(slab);
         if (plane) scene_release(plane);
@@ -297,7 +285,7 @@ static void test_light_reservoirs(void)
  * sampler, the pair scratch only for paired spatial reuse. */
 static void test_session_bytes_planned_match_allocated(void)
 {
-    struct scene *sc = load("scenes/refractive-slab/scene.json");
+    struct scene *sc = fixture_load("scenes/refractive-slab/scene.json");
     if (!sc) return;
     for (int variant = 0; variant < 4; variant++) {
         struct view_params vp = view_params_defaults(RENDER_METHOD_RESTIR_SMS, 37, 23);
@@ -348,7 +336,7 @@ static void test_session_bytes_planned_match_allocated(void)
  * position every frame); after a reset the walk starts afresh. */
 static void test_jitter_walk_reaches_the_gbuffer(void)
 {
-    struct scene *sc = load("scenes/reflective-plane/scene.json");
+    struct scene *sc = fixture_load("scenes/reflective-plane/scene.json");
     if (!sc) return;
     enum { W = 16, H = 16, N = W * H };
     for (int walk = 0; walk < 2; walk++) {
