@@ -136,6 +136,24 @@ struct vec3 bdpt_origin(const struct surface *s, struct vec3 dir);
 /* Whether nothing blocks the segment from a (normal na) to b (normal nb, NULL for the eye). */
 bool bdpt_visible(const struct accel *accel, struct vec3 a, struct vec3 na, struct vec3 b, const struct vec3 *nb,
                   struct ray_counters *rc);
+/* Light tracing (t = 1): the eye's side of joining the surface vertex s (material m, the light
+ * arriving along -wo_world) to the pinhole camera, whose image plane lies at squared distance
+ * plane_dist2 in pixel units. The MIS weight is the caller's: its contribution is
+ * beta f · w · corr · camera_pdf_w / (dist2 N_L) in pixel (ix, iy). False when the vertex is
+ * behind the camera or off the image, faces away from the eye, sends nothing towards it or is
+ * hidden from it. */
+struct bdpt_eye_link {
+    float px, py;               /* the image-plane position in pixels */
+    uint32_t ix, iy;            /* its pixel */
+    struct vec3 f;              /* the BSDF towards the eye (radiance side) */
+    float rev_w;                /* the BSDF's pdf of wo from the eye's direction (the MIS weight's) */
+    float dist2;                /* squared distance to the eye */
+    float camera_pdf_w, camera_pdf_a;  /* the camera's density of the direction, and per area at s */
+    float corr;                 /* Veach's adjoint shading-normal correction |wo.ns| |wc.ng| / |wo.ng| */
+};
+bool bdpt_eye_link(const struct camera *cam, float plane_dist2, const struct accel *accel, const struct surface *s,
+                   const struct material *m, struct vec3 wo_world, struct ray_counters *rc,
+                   struct bdpt_eye_link *out);
 /* A light vertex cache kept in fixed per-block regions of `region` slots, in its canonical order
  * (blocks in order, each block's vertices in order): first = the prefix sums of the blocks'
  * counts (blocks + 1), total = first[blocks], scale = total / N_L. */

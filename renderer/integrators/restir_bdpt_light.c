@@ -7,38 +7,19 @@
 
 /* ---- light subpaths ------------------------------------------------------------------------ */
 
-/* t = 1: the light vertex at `s` seen by the eye of view `v`; lightweight MIS. */
+/* t = 1: the light vertex at `s` seen by the eye of view `v` (bdpt_eye_link); lightweight MIS. */
 static bool rbdpt_connect_camera(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct surface *s,
                                  const struct material *m, struct vec3 wo_world, struct vec3 beta,
                                  const struct restir_bdpt_mis *mis, struct ray_counters *rc, uint32_t *pixel,
                                  struct vec3 *value, float sub[2], float *camera_pdf_a_out, float *mis_out)
 {
-    const struct camera *cam = &v->cam;
-    struct vec3 d = vec3_sub(cam->position, s->p);
-    float dist2 = vec3_length2(d);
-    if (!(dist2 > 0.0f)) return false;
-    struct vec3 wc = vec3_scale(d, 1.0f / sqrtf(dist2));
-    float cos0 = -vec3_dot(wc, cam->forward);
-    if (!(cos0 > 0.0f)) return false;
-    float px, py;
-    if (!camera_project(cam, s->p, &px, &py)) return false;
-    if (!(px >= 0.0f && py >= 0.0f && px < (float)cam->width && py < (float)cam->height)) return false;
-    uint32_t ix = (uint32_t)px, iy = (uint32_t)py;
-    if (ix >= cam->width || iy >= cam->height) return false;
-    struct vec3 wc_local = frame_to_local(&s->frame, wc), wo_local = frame_to_local(&s->frame, wo_world);
-    float cos_c_ng = vec3_dot(wc, s->ng), cos_o_ng = vec3_dot(wo_world, s->ng);
-    if (!(cos_c_ng * wc_local.z > 0.0f) || cos_o_ng == 0.0f) return false;
-    struct vec3 f = material_eval(m, wc_local, wo_local, TRANSPORT_RADIANCE);
-    if (vec3_is_zero(f)) return false;
-    if (!bdpt_visible(v->scene->accel, s->p, s->ng, cam->position, NULL, rc)) return false;
-    float camera_pdf_w = v->plane_dist2 / (cos0 * cos0 * cos0);
-    float camera_pdf_a = camera_pdf_w * fabsf(cos_c_ng) / dist2;
-    float w = restir_bdpt_mis_camera(mis, camera_pdf_a, c->n_light, material_pdf(m, wc_local, wo_local), c->power);
-    float corr = fabsf(wo_local.z) * fabsf(cos_c_ng) / fabsf(cos_o_ng);
-    *value = vec3_scale(vec3_mul(beta, f), w * corr * camera_pdf_w / (dist2 * c->n_light));
-    *pixel = iy * cam->width + ix;
-    if (sub) sub[0] = px - (float)ix, sub[1] = py - (float)iy;
-    if (camera_pdf_a_out) *camera_pdf_a_out = camera_pdf_a;
+    struct bdpt_eye_link e;
+    if (!bdpt_eye_link(&v->cam, v->plane_dist2, v->scene->accel, s, m, wo_world, rc, &e)) return false;
+    float w = restir_bdpt_mis_camera(mis, e.camera_pdf_a, c->n_light, e.rev_w, c->power);
+    *value = vec3_scale(vec3_mul(beta, e.f), w * e.corr * e.camera_pdf_w / (e.dist2 * c->n_light));
+    *pixel = e.iy * v->cam.width + e.ix;
+    if (sub) sub[0] = e.px - (float)e.ix, sub[1] = e.py - (float)e.iy;
+    if (camera_pdf_a_out) *camera_pdf_a_out = e.camera_pdf_a;
     if (mis_out) *mis_out = w;
     return true;
 }
