@@ -128,6 +128,40 @@ struct vec3 sms_solution_value(const struct scene *scene, const struct manifold_
                                const struct material *m, struct vec3 wo, const struct material *light);
 double sms_now_ms(void);
 
+/* One Bernoulli trial: a fresh seed drawn from rng, walked to a solution in w (false: none). */
+typedef bool sms_trial_fn(const void *ctx, struct rng *rng, struct manifold_vertex *w, struct sms_counters *c,
+                          struct ray_counters *rc);
+/* Bernoulli trials (Booth 2007; [SMS-SSP §3.1]): how many fresh seeds, each drawn and walked by
+ * `trial`, it takes until one reaches the solution v (chain length n, from x1) again — the same
+ * solution within 1e-4 of |x1 - x2| — whose expectation is 1 / P(v) (the seed distribution's).
+ * 0 when p->bernoulli_cap trials (0: SMS_HARD_TRIAL_LIMIT) do not find it: that solution's
+ * energy is lost. Counts the trials, and the solution as found or capped. Inline, so that the
+ * sampler's trial is a direct call. */
+static inline uint32_t sms_bernoulli(const struct sms_params *p, const struct manifold_vertex *v, uint32_t n,
+                                     struct vec3 x1, sms_trial_fn *trial, const void *ctx, struct rng *rng,
+                                     struct sms_counters *c, struct ray_counters *rc)
+{
+    float tol = 1e-4f * vec3_length(vec3_sub(v[0].p, x1));
+    uint32_t limit = p->bernoulli_cap ? p->bernoulli_cap : SMS_HARD_TRIAL_LIMIT;
+    struct manifold_vertex w[MANIFOLD_MAX_CHAIN];
+    uint32_t trials = 0;
+    bool found = false;
+    while (trials < limit) {
+        trials++;
+        if (trial(ctx, rng, w, c, rc) && manifold_same(w, v, n, tol)) {
+            found = true;
+            break;
+        }
+    }
+    c->trials += trials;
+    if (!found) {
+        c->capped++;
+        return 0;
+    }
+    c->solutions++;
+    return trials;
+}
+
 /* restir_sms's receivers (restir_sms.h): the first diffuse or glossy vertex of a camera path
  * whose delta vertices before it (at most SMS_RECEIVER_MAX_PREFIX) all took their material's
  * canonical lobe — the one material_sample picks for u_lobe -> 1: refraction through a smooth
