@@ -2,7 +2,7 @@
 """bench/bdpt.py — `make bench`: bidirectional path tracing against path tracing and ReSTIR PT
 on the caustic scenes, error against time.
 
-Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. In one
+Benchmarks are not tests: nothing here passes or fails on a timing. In one
 run, on lamp-in-glass and caustic-sphere at 256x256 (BENCH_BDPT_SCENES, _SIZE):
   1. a reference per scene: `bdpt` averaged over REF_FRAMES frames (`pt` cannot converge on
      these scenes in any reasonable time: their light arrives through glass), cached in

@@ -3,7 +3,7 @@
 temporal reuse) against pt, restir_pt and bdpt on the caustic scenes: error against time, frame
 cost, and a moving light frame by frame.
 
-Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. In one
+Benchmarks are not tests: nothing here passes or fails on a timing. In one
 run, on lamp-in-glass and caustic-sphere (BENCH_RBDPT_SCENES) at 256x256 (BENCH_RBDPT_SIZE):
   0. restir_bdpt runs with its defaults (lightweight, caustic reuse only), without caustic
      reuse, with the non-caustic reuse (`"reuse": true`), and as the full variant (`"variant":

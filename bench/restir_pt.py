@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """bench/restir_pt.py — `make bench`: path tracing against ReSTIR PT, error against time.
 
-Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. In one
+Benchmarks are not tests: nothing here passes or fails on a timing. In one
 run, on cornell-box, cornell-glossy and door-ajar at 256x256 (BENCH_RESTIR_SCENES, _SIZE):
   1. a reference per scene: `pt` at REF_SPP, cached in build/refs/ under the scene file's hash,
      the size and the spp (delete the folder to re-render);

@@ -3,7 +3,7 @@
 error against time (as [ReSTIR SSS Fig. 6]), over scaled mean free paths (as Fig. 9), and the hybrid
 criterion's choice per pixel (Fig. 4).
 
-Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. In one
+Benchmarks are not tests: nothing here passes or fails on a timing. In one
 run, on scenes/translucent at 128x128 (BENCH_SSS_SIZE), for each mean-free-path scale k
 (BENCH_SSS_MFP_SCALES, "1 4 16"; k = 1 is the scene as it is, k > 1 a copy in build/bench/ with
 every translucent material's mfp times k: [ReSTIR SSS §6] finds the method gains little with short

@@ -4,7 +4,7 @@ sample-space partitioning with per-frame priors (`sms_ssp`) and ReSTIR over its 
 (`restir_sms`): error against time, and [SMS-SSP Table 1]'s statistics (prior construction and
 manifold sampling, sms / sms_ssp).
 
-Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. On
+Benchmarks are not tests: nothing here passes or fails on a timing. On
 refractive-slab and reflective-plane at 128x128 (BENCH_SMS_SCENES, BENCH_SMS_SIZE):
   1. a reference per scene: `pt` subset rest at REF_SPP plus `sms` caustics only, uncapped
      (or capped at BENCH_SMS_REF_CAP trials), at REF_SMS_SPP (path tracing alone does not

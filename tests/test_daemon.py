@@ -1,4 +1,4 @@
-"""End-to-end tests of the render daemon build/restird against protocol/API.md (TESTING.md tier 5).
+"""End-to-end tests of the render daemon build/restird against protocol/API.md (tests/README.md).
 
 The real daemon runs on an ephemeral loopback port (`--listen 127.0.0.1:0`, the port is read from
 its first stdout line). One module-scoped daemon serves most tests; tests that restart, signal or

@@ -1,5 +1,5 @@
 """restir_bdpt (the session method: the lightweight variant with caustic temporal reuse, with the
-non-caustic reuse of `"reuse": true`, and the full variant with its vertex connections) is unbiased against `bdpt` (design TESTING.md tier 4): K
+non-caustic reuse of `"reuse": true`, and the full variant with its vertex connections) is unbiased against `bdpt` (statistical, tests/README.md): K
 independent sessions of each method (fresh seeds), each the mean of its N frames, compared per
 pixel at 32x32 (Šidák-corrected z-test at 0.01, >= 99.75 % of pixels passing, global mean
 within 3 sigma; tests/stats.py). Frames of one restir_bdpt session are correlated through its

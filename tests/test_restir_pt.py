@@ -1,4 +1,4 @@
-"""restir_pt is unbiased (design TESTING.md tier 4): K independent sessions (fresh seeds) of
+"""restir_pt is unbiased (statistical, tests/README.md): K independent sessions (fresh seeds) of
 temporal and spatial reuse are compared per pixel with the reference path tracer on 32x32
 images, with the camera still and moving: all of cornell-glossy, and a crop of door-ajar (the
 camera narrowed to 14 degrees on the door opening, where the light from the next room enters).

@@ -1,4 +1,4 @@
-"""restir_sss is unbiased for each shift it offers (design TESTING.md tier 4): K independent
+"""restir_sss is unbiased for each shift it offers (statistical, tests/README.md): K independent
 sessions (fresh seeds) of temporal and spatial reuse on the library scene `translucent`, the
 camera narrowed onto the wax sphere's upper half (32 x 32, most pixels on the sphere, its lit top, the
 occluder's shadow edge and the glow below it), compared per pixel with `pt` over the same

@@ -2,7 +2,7 @@
  * Pure functions over two `struct image`s; no I/O, no allocation, no global state.
  * Must not let a NaN/Inf pixel poison a sum: such pixels are counted and left out.
  * Refs: MAPE as in [ReSTIR BDPT footnote 3]; relMSE as in Rousselle et al. 2011 /
- * common denoising practice; design TESTING.md (biased methods get an error bound). */
+ * common denoising practice. */
 #ifndef RESTIRD_METRICS_H
 #define RESTIRD_METRICS_H
 

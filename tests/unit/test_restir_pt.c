@@ -1,4 +1,4 @@
-/* test_restir_pt.c — the hybrid shift of restir_pt as round trips (design TESTING.md tier 3):
+/* test_restir_pt.c — the hybrid shift of restir_pt as round trips (tests/README.md, unit tests):
  * for paths sampled by the initial pass on cornell-glossy and door-ajar, a shift to another
  * domain and back returns the same path and contribution (T^-1(T(x)) = x) and the two Jacobians
  * multiply to 1 (J * J^-1 = 1 to 1e-4), for each kind of shift: pure random replay (no

@@ -1,7 +1,7 @@
-/* test_restir_sms.c — the manifold shift of restir_sms as round trips (design TESTING.md tier 3,
- * docs/methods.md (restir_sms)): for samples drawn by the initial pass (the sms_ssp sampler) on
- * refractive-slab (a two-interface chain through a glass slab) and reflective-plane (one
- * reflection), a shift to a pixel a few pixels away (and to the previous frame's pixel with the
+/* test_restir_sms.c — the manifold shift of restir_sms as round trips (tests/README.md, unit
+ * tests; docs/methods.md, restir_sms): for samples drawn by the initial pass (the sms_ssp
+ * sampler) on refractive-slab (a two-interface chain through a glass slab) and reflective-plane
+ * (one reflection), a shift to a pixel a few pixels away (and to the previous frame's pixel with the
  * camera moved) that succeeds is undone by the shift back: the same chain vertices (within 1e-4
  * of |x1 − x2|), the same light point, the same contribution, and Jacobians whose product is 1
  * within 1e-4. A shift to the sample's own pixel reproduces the stored chain and contribution.

@@ -1,4 +1,4 @@
-/* test_restir_sss.c — the shifts of restir_sss as round trips (design TESTING.md tier 3): for
+/* test_restir_sss.c — the shifts of restir_sss as round trips (tests/README.md, unit tests): for
  * samples drawn by the initial pass on the scene `translucent`, a shift to a neighbouring pixel
  * and back returns the same entry point x2 and contribution (T^-1(T(x)) = x) and the Jacobians
  * multiply to 1 (J * J^-1 = 1 to 1e-4), for the reconnection, delayed reconnection and hybrid
