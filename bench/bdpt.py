@@ -2,14 +2,14 @@
 """bench/bdpt.py — `make bench`: bidirectional path tracing against path tracing and ReSTIR PT
 on the caustic scenes, error against time.
 
-Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. In one
+Benchmarks are not tests: nothing here passes or fails on a timing. In one
 run, on lamp-in-glass and caustic-sphere at 256x256 (BENCH_BDPT_SCENES, _SIZE):
   1. a reference per scene: `bdpt` averaged over REF_FRAMES frames (`pt` cannot converge on
      these scenes in any reasonable time: their light arrives through glass), cached in
      build/refs/ under the scene file's hash, the size and the frame count;
   2. `pt` at 1, 2, 4 ... 32 spp; `bdpt` averaged over 1, 2, 4 ... 32 frames (its time is the sum
      of the frames'); `restir_pt` (defaults) as the frame after WARMUP warm-up frames: each over
-     SEEDS seeds, time and MAPE (seed 000 footnote 3, `restir compare`) against the reference;
+     SEEDS seeds, time and MAPE ([ReSTIR BDPT footnote 3], `restir compare`) against the reference;
   3. the equal-time error ratios bdpt / pt and restir_pt / pt (pt's MAPE interpolated log-log at
      the other's time) and the frame cost ratios against pt at 1 spp;
   4. writes build/bench/bdpt.json, one SVG chart per scene (MAPE vs ms, log-log) in

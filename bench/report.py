@@ -19,8 +19,8 @@ What it measures, per scene (SCENES) and method (METHODS):
     non-finite pixels over 100 frames of every scene, and restir_pt's known weak case (a light
     behind glass);
   * the papers' failure cases: bdpt's light tracing wasted on a light the camera cannot see
-    (seed 000 Fig. 10), ReSTIR SSS's shifts on a shadow boundary (seed 004 Fig. 5) and the
-    sample-space prior missing a light (seed 002 Fig. 10);
+    ([ReSTIR BDPT Fig. 10]), ReSTIR SSS's shifts on a shadow boundary ([ReSTIR SSS Fig. 5]) and the
+    sample-space prior missing a light ([SMS-SSP Fig. 10]);
   * the peer: Blender Cycles (Debian's `blender`, CPU, bench/crosscheck_cycles.py) on
     cornell-box at several spp, on the same error axes against the same reference, with and
     without its light sampling, and the radiometric agreement of its converged image with ours.
@@ -366,9 +366,9 @@ SSS_SHIFTS = ["reconnection", "delayed", "hybrid", "sequential"]
 
 
 def failure_cases():
-    """Light tracing wasted on a light the camera cannot see (seed 000 Fig. 10): bdpt's
+    """Light tracing wasted on a light the camera cannot see ([ReSTIR BDPT Fig. 10]): bdpt's
     light-traced samples per light subpath and its light pass's share of the frame, per scene.
-    Shadow boundaries for ReSTIR SSS's hybrid shift (seed 004 Fig. 5): per shift, the RMSE per
+    Shadow boundaries for ReSTIR SSS's hybrid shift ([ReSTIR SSS Fig. 5]): per shift, the RMSE per
     frame on the wax sphere's shadow-boundary band, and on its lit and shadowed parts."""
     import numpy as np
     from test_failure_cases import boundary_masks
@@ -408,7 +408,7 @@ def failure_cases():
     return out
 
 
-# Seed 002 Fig. 10: the per-frame prior misses (light, caster) pairs. refractive-slab has two
+# [SMS-SSP Fig. 10]: the per-frame prior misses (light, caster) pairs. refractive-slab has two
 # lights; with 2 prior walks per 16x16 block most blocks find no solution for one or both of
 # them, and a pair without one falls back to partitioning alone (alpha = 0) in that block;
 # `prior: false` is that fallback everywhere.
@@ -521,7 +521,7 @@ def write(results, stab, peer, fail, started, elapsed):
           f"Images {SIZE}; references: `pt` at {REF_SPP} spp, or where pt practically never finds the light "
           + ", ".join(f"{sc}: `{m}` ({n} {'frames' if m == 'bdpt' else 'spp, no Bernoulli cap'})" for sc, (m, n) in REF_BY.items())
           + f"; cached in build/refs/; medians over {SEEDS} seed(s). "
-          "Errors: MAPE as seed 000 (footnote 3) and RMSE, against the reference. Time: a frame's render time "
+          "Errors: MAPE as [ReSTIR BDPT footnote 3] and RMSE, against the reference. Time: a frame's render time "
           "(`pt`, `sms`, `sms_ssp`: the frame at that spp; a method of sessions: the summed render times of the k "
           "frames after its warm-up frames whose mean is the image, one daemon session per seed).", "", "## Which method wins each scene", "",
           "Lowest MAPE at three time budgets (pt's frame time at 1, 4 and 16 spp); a method counts only inside "
@@ -609,7 +609,7 @@ def write(results, stab, peer, fail, started, elapsed):
         md += ["## The papers' failure cases", "",
                "`tests/test_failure_cases.py` checks the same cases at 32×32 (the regime is there; the method stays "
                "unbiased in it); restir_pt with its light behind glass is in the stability section above.", "",
-               "### Light tracing wasted on a light the camera cannot see (seed 000 Fig. 10)", "",
+               "### Light tracing wasted on a light the camera cannot see ([ReSTIR BDPT Fig. 10])", "",
                f"`bdpt`, 4 frames at {SIZE}, the last frame's statistics: door-ajar's only light is outside the room, "
                "so its light subpaths almost never reach a point the camera sees, while the light pass still traces "
                "all of them.", "",
@@ -628,7 +628,7 @@ def write(results, stab, peer, fail, started, elapsed):
                       f"({sss['pixels']['band']} pixels)", "frame", "RMSE",
                       [(name, list(enumerate(v["band"], 1)), "line") for name, v in ser.items()], xlog=False, ylog=True)
         half = sss["frames"] // 2
-        md += ["", "### Shadow boundaries for the hybrid shift of ReSTIR SSS (seed 004 Fig. 5)", "",
+        md += ["", "### Shadow boundaries for the hybrid shift of ReSTIR SSS ([ReSTIR SSS Fig. 5])", "",
                f"scenes/translucent at {sss['side']}×{sss['side']}, {sss['frames']} frames per session through the "
                "daemon, medians over seeds. Regions of the wax sphere from two variants of the scene (the sphere "
                "emissive: which pixels it covers; the sphere white diffuse, direct light only: which the lamp lights): "
@@ -641,7 +641,7 @@ def write(results, stab, peer, fail, started, elapsed):
             cells = [f"{statistics.mean(v[k][half:]):.4f}" for k in ("band", "lit", "shadowed")]
             md.append(f"| {name} | " + " | ".join(cells) + " | |")
         pr = fail["prior"]
-        md += ["", "### The sample-space prior misses a light (seed 002 Fig. 10)", "",
+        md += ["", "### The sample-space prior misses a light ([SMS-SSP Fig. 10])", "",
                f"scenes/refractive-slab (two lights) at {pr['side']}×{pr['side']}, medians over seeds, RMSE against the "
                f"uncapped `sms` reference: `sms` and `sms_ssp` at {pr['spp']} spp, `restir_sms` its last frame of "
                f"{pr['frames']} (time per frame). With 2 prior walks per 16×16 block (the default is 128) most blocks "

@@ -3,14 +3,14 @@
 temporal reuse) against pt, restir_pt and bdpt on the caustic scenes: error against time, frame
 cost, and a moving light frame by frame.
 
-Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. In one
+Benchmarks are not tests: nothing here passes or fails on a timing. In one
 run, on lamp-in-glass and caustic-sphere (BENCH_RBDPT_SCENES) at 256x256 (BENCH_RBDPT_SIZE):
   0. restir_bdpt runs with its defaults (lightweight, caustic reuse only), without caustic
      reuse, with the non-caustic reuse (`"reuse": true`), and as the full variant (`"variant":
      "full"`: bdpt's vertex connections too, caustic reuse), without and with `reuse`;
   1. a `bdpt` reference per scene of REF_FRAMES frames (bench/bdpt.py's, shared cache in
      build/refs/; `pt` cannot converge on these scenes: their light arrives through glass);
-  2. MAPE against time (seed 000 footnote 3, `restir compare`), each over SEEDS seeds: `pt` at
+  2. MAPE against time ([ReSTIR BDPT footnote 3], `restir compare`), each over SEEDS seeds: `pt` at
      1, 2, 4 ... spp, and for `bdpt`, `restir_pt` and each restir_bdpt run the mean of a
      session's first 1, 2, 4 ... frames (time: the sum of
      those frames' render times, as the CLI reports it);
@@ -147,7 +147,7 @@ def moving(tmp):
     fps, frames = anim["fps"], anim["frames"]
     scene_path = ROOT / "scenes" / "caustic-sphere" / "scene.json"
     # restir_bdpt caps the caustic confidence at `moving_cap` (1) while the light moves; beside it
-    # caps of 4 (the earlier default) and of the still scene (20) in every frame: seed 000 §9.1
+    # caps of 4 (the earlier default) and of the still scene (20) in every frame: [ReSTIR BDPT §9.1]
     # notes that the proxy confidence (eq. 27) follows the diffuse motion vectors, which moving
     # caustics do not.
     methods = [("pt, 1 spp", ["--spp", "1"]), *SESSIONS,

@@ -1,18 +1,18 @@
 #!/usr/bin/env python3
 """bench/restir_pt.py — `make bench`: path tracing against ReSTIR PT, error against time.
 
-Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. In one
+Benchmarks are not tests: nothing here passes or fails on a timing. In one
 run, on cornell-box, cornell-glossy and door-ajar at 256x256 (BENCH_RESTIR_SCENES, _SIZE):
   1. a reference per scene: `pt` at REF_SPP, cached in build/refs/ under the scene file's hash,
      the size and the spp (delete the folder to re-render);
   2. `pt` at 1, 2, 4 ... 64 spp and `restir_pt` (default parameters, and with more spatial
-     reuse), each over SEEDS seeds: frame time and MAPE (seed 000 footnote 3, `restir compare`)
+     reuse), each over SEEDS seeds: frame time and MAPE ([ReSTIR BDPT footnote 3], `restir compare`)
      against the reference. restir_pt's point is the frame after 32 warm-up frames of one
      session: single-frame quality, as a session delivers it;
   3. the equal-time error ratio restir_pt / pt (pt's MAPE interpolated log-log at restir_pt's
      frame time) and the frame cost ratio restir_pt / pt at 1 spp, from frames of the two
      rendered in turn by one daemon (measure_frame_cost);
-  4. an ablation on door-ajar as seed 001 Table 1: pass times and MAPE with each Enhanced
+  4. an ablation on door-ajar as [ReSTIR PT Enhanced Table 1]: pass times and MAPE with each Enhanced
      feature switched off in turn;
   5. writes build/bench/restir_pt.json, one SVG chart per scene (MAPE vs ms, log-log) in
      build/bench/, and prints Markdown tables (medians over the seeds).
@@ -258,7 +258,7 @@ def main():
         fc = r["frame_cost"]
         print(f"| {scene} | {fc['pt_ms']:.1f} | {frame_cost_cell(fc['variants']['defaults'])} |")
     if "ablation" in results:
-        print(f"\n### Ablation on {results['ablation']['scene']} (seed 001 Table 1), ms per pass, medians\n")
+        print(f"\n### Ablation on {results['ablation']['scene']} ([ReSTIR PT Enhanced Table 1]), ms per pass, medians\n")
         print("| setting | G-buffer | initial | temporal | spatial | shade | frame | MAPE |")
         print("|---|---|---|---|---|---|---|---|")
         for row in results["ablation"]["rows"]:

@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
 """bench/restir_sss.py — `make bench`: path tracing against ReSTIR SSS on the translucent region,
-error against time (as seed 004 Fig. 6), over scaled mean free paths (as Fig. 9), and the hybrid
+error against time (as [ReSTIR SSS Fig. 6]), over scaled mean free paths (as Fig. 9), and the hybrid
 criterion's choice per pixel (Fig. 4).
 
-Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. In one
+Benchmarks are not tests: nothing here passes or fails on a timing. In one
 run, on scenes/translucent at 128x128 (BENCH_SSS_SIZE), for each mean-free-path scale k
 (BENCH_SSS_MFP_SCALES, "1 4 16"; k = 1 is the scene as it is, k > 1 a copy in build/bench/ with
-every translucent material's mfp times k: seed 004 §6 finds the method gains little with short
+every translucent material's mfp times k: [ReSTIR SSS §6] finds the method gains little with short
 mean free paths and one dominant light (Fig. 8) and more as they grow (Fig. 9); its Fig. 6 is a
 "highly scattering object"):
   1. a reference: `pt` at REF_SPP, cached in build/refs/ under the scene file's hash, the size
@@ -36,7 +36,7 @@ Environment: BENCH_SSS_SEEDS (3), BENCH_SSS_REF_SPP (2048), BENCH_SSS_WARMUP (16
 BENCH_SSS_SHIFTS ("reconnection delayed hybrid sequential"), BENCH_SSS_CANDIDATES ("1 2 4"),
 BENCH_SSS_TARGETS ("luminance per_channel"),
 BENCH_SSS_MFP_SCALES ("1 4 16"), BENCH_SSS_ROUNDS (16), BENCH_SSS_PARAMS (a JSON object of more session params, "{}"),
-BENCH_SSS_MAX_DEPTH (unset: every method's default of 64; 1 is the direct-lighting case of seed 004 §3,
+BENCH_SSS_MAX_DEPTH (unset: every method's default of 64; 1 is the direct-lighting case of [ReSTIR SSS §3],
 paths camera - entry - exit - light, which its evaluation and Fig. 6 use: pt, its reference and
 restir_sss all get this max_depth, so on the translucent region both estimate exactly the paths
 restir_sss's reservoirs hold and restir_sss has no path-traced rest there; outputs get a

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # bench/run.sh — `make bench`: throughput of our path tracer vs Embree's pathtracer tutorial.
 #
-# Benchmarks are not tests (shared design TESTING.md): nothing here passes or fails on a timing.
+# Benchmarks are not tests: nothing here passes or fails on a timing.
 # What it does, in one run, with the same thread count on both sides:
 #   1. builds build/bench/raycount_preload.so (LD_PRELOAD ray counter for the peer) and, when
 #      bench/exr_encode.c exists, build/bench/exr_encode; it builds nothing else (the Makefile

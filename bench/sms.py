@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
 """bench/sms.py — `make bench`: path tracing against specular manifold sampling (`sms`), its
 sample-space partitioning with per-frame priors (`sms_ssp`) and ReSTIR over its samples
-(`restir_sms`): error against time, and seed 002 Table 1's statistics (prior construction and
+(`restir_sms`): error against time, and [SMS-SSP Table 1]'s statistics (prior construction and
 manifold sampling, sms / sms_ssp).
 
-Benchmarks are not tests (design TESTING.md): nothing here passes or fails on a timing. On
+Benchmarks are not tests: nothing here passes or fails on a timing. On
 refractive-slab and reflective-plane at 128x128 (BENCH_SMS_SCENES, BENCH_SMS_SIZE):
   1. a reference per scene: `pt` subset rest at REF_SPP plus `sms` caustics only, uncapped
      (or capped at BENCH_SMS_REF_CAP trials), at REF_SMS_SPP (path tracing alone does not
@@ -13,23 +13,23 @@ refractive-slab and reflective-plane at 128x128 (BENCH_SMS_SCENES, BENCH_SMS_SIZ
      halves with independent seeds, whose difference estimates the reference's own RMSE: it is
      printed, drawn in the charts, and a ratio whose RMSEs are within 3x of it is flagged (uncapped
      SMS is heavy-tailed where the casters are bumpy, see BENCH_SMS_SCALE);
-  2. `pt`, `sms` and `sms_ssp` (Bernoulli cap 128 and N = 16, as seed 002 §6) at 1, 2, 4 ...
-     spp, over SEEDS seeds: render time and RMSE against the reference (seed 002 reports RMSE);
+  2. `pt`, `sms` and `sms_ssp` (Bernoulli cap 128 and N = 16, as [SMS-SSP §6]) at 1, 2, 4 ...
+     spp, over SEEDS seeds: render time and RMSE against the reference ([SMS-SSP] reports RMSE);
      `restir_sms` (same sampler, 1 candidate per pixel and frame, reuse on) as sessions of 1, 2,
      4 ... frames whose mean is the image and whose summed frame times are its time (the
      warm-up of the reservoirs is paid for, as an accumulating viewer would);
   3. Table 1 of `sms` and `sms_ssp` at 1 spp: prior construction (success rate, Newton steps
      per sample, ms) and manifold sampling (sample success rate, Newton steps per sample,
      Bernoulli trials per solution, Newton steps per solution, time in the estimates);
-  4. the failure case of seed 002 Fig. 10: a prior that misses pairs (2 walks per block instead
+  4. the failure case of [SMS-SSP Fig. 10]: a prior that misses pairs (2 walks per block instead
      of 128; `prior: false` is the fallback everywhere) — RMSE at equal spp (sms_ssp) and equal
      frames (restir_sms);
   5. how bumpy the casters are: copies of both scenes with the wave numbers of their bumps
      scaled by each S of BENCH_SMS_BUMPS (1 2 3 4; the library's scenes have 1), written by
      scenes/refractive-slab/generate.py into build/bench/bumps-S/, and Table 1's manifold
-     sampling statistics of `sms` and `sms_ssp` (N = 16 and 32, both seed 002's) at 1 spp on
+     sampling statistics of `sms` and `sms_ssp` (N = 16 and 32, both [SMS-SSP]'s) at 1 spp on
      each, at BENCH_SMS_BUMPS_SIZE (128x128; not in the quick run);
-  6. step 2's curves and real-time case again on the caustic component alone (seed 002 Fig. 5 measures on a
+  6. step 2's curves and real-time case again on the caustic component alone ([SMS-SSP Fig. 5] measures on a
      crop of the caustic): every SMS method with `caustics_only`, pt with subset "caustic",
      against the reference's SMS part. The rest of the image is one path-traced sample per pixel
      and frame in every method, and on reflective-plane its noise is most of a whole image's
@@ -48,9 +48,9 @@ refractive-slab and reflective-plane at 128x128 (BENCH_SMS_SCENES, BENCH_SMS_SIZ
      that leaves at restir_sms's time per frame (its default, a reservoir per light, has no colour
      part with the library's colourless casters).
 With BENCH_SMS_SCALE=S, steps 1-4 run on the copies at scale S instead of the library's scenes
-(seed 002's regime: S = 3), and the outputs are named sms-bumps-S.json, sms-<scene>-bumps-S.svg.
+([SMS-SSP]'s regime: S = 3), and the outputs are named sms-bumps-S.json, sms-<scene>-bumps-S.svg.
 Environment: BENCH_SMS_SEEDS (3), BENCH_SMS_STEADY_SEEDS (16: the real-time case's sessions), BENCH_SMS_REF_SPP (1024), BENCH_SMS_REF_SMS_SPP (256),
-BENCH_SMS_REF_CAP (0: the caustic reference uncapped; seed 002 Fig. 7 uses 1024),
+BENCH_SMS_REF_CAP (0: the caustic reference uncapped; [SMS-SSP Fig. 7] uses 1024),
 BENCH_SMS_BUMPS ("1 2 3 4"; empty: no sweep), BENCH_SMS_BUMPS_SIZE (128x128), BENCH_SMS_SCALE
 (unset), BENCH_SMS_TILES (unset: N = 16; outputs named sms-tiles-N.json, ...), BENCH_THREADS (all
 cores); BENCH_SMS_QUICK=1 is a small run for a shared machine
@@ -81,7 +81,7 @@ REFS = ROOT / "build" / "refs"
 QUICK = os.environ.get("BENCH_SMS_QUICK") == "1"
 SCENES = os.environ.get("BENCH_SMS_SCENES", "refractive-slab" if QUICK else "refractive-slab reflective-plane").split()
 # 128x128: the prior's 16 x 16 pixel blocks are a quarter of a 64x64 image, where a block mixes
-# very different shading points (seed 002 renders 1920x1080), and the caustic's variation within a
+# very different shading points ([SMS-SSP] renders 1920x1080), and the caustic's variation within a
 # pixel is a larger part of the error (docs/benchmarks.md); 64x64 runs in a third of the time.
 SIZE = os.environ.get("BENCH_SMS_SIZE", "32x32" if QUICK else "128x128")
 SEEDS = int(os.environ.get("BENCH_SMS_SEEDS", "1" if QUICK else "3"))
@@ -95,7 +95,7 @@ REF_SPP = int(os.environ.get("BENCH_SMS_REF_SPP", "1024"))
 # ratios below need a reference well under the compared errors).
 REF_SMS_SPP = int(os.environ.get("BENCH_SMS_REF_SMS_SPP", "1024" if QUICK else "256"))
 # The caustic reference's Bernoulli cap: 0 (uncapped, unbiased) by default. Where the casters are
-# bumpy, uncapped SMS is too heavy-tailed for any affordable reference; seed 002 Fig. 7 renders its
+# bumpy, uncapped SMS is too heavy-tailed for any affordable reference; [SMS-SSP Fig. 7] renders its
 # references with a cap of 1024, which bounds a solution's weight and loses the energy of
 # solutions needing more trials (the methods here, capped at 128, lose more).
 REF_CAP = int(os.environ.get("BENCH_SMS_REF_CAP", "0"))
@@ -106,13 +106,13 @@ RESTIR_FRAMES = [1, 2, 4, 8, 16] if QUICK else [1, 2, 4, 8, 16, 32]
 WARMUP = 16
 SCALE = os.environ.get("BENCH_SMS_SCALE")
 # N of the partitioned sampler in every sms_ssp and restir_sms run that does not set its own (unset:
-# the methods' default, seed 002's 16).
+# the methods' default, [SMS-SSP]'s 16).
 TILES = os.environ.get("BENCH_SMS_TILES")
 # The outputs of a run on the copies, or with other tiles, carry it in their names.
 SUFFIX = (f"-bumps-{float(SCALE):g}" if SCALE else "") + (f"-tiles-{int(TILES)}" if TILES else "")
 BUMPS = [float(x) for x in os.environ.get("BENCH_SMS_BUMPS", "" if QUICK else "1 2 3 4").split()]
 # The prior works on 16 x 16 pixel blocks: at 64x64 a block is a sixteenth of the image and mixes
-# very different shading points (seed 002 renders 1920x1080), so the sweep renders at 128x128.
+# very different shading points ([SMS-SSP] renders 1920x1080), so the sweep renders at 128x128.
 BUMPS_SIZE = os.environ.get("BENCH_SMS_BUMPS_SIZE", "128x128")
 
 
@@ -206,7 +206,7 @@ def bumps_sweep(tmp):
         d = bumpy_copies(scale)
         for name in ("refractive-slab", "reflective-plane"):
             t = {}
-            # sms_ssp with both tile counts of seed 002 (N = 16 and 32).
+            # sms_ssp with both tile counts of [SMS-SSP] (N = 16 and 32).
             for label, method, extra in (("sms", "sms", {}), ("sms_ssp", "sms_ssp", {}),
                                          ("sms_ssp32", "sms_ssp", {"tiles": 32})):
                 rs = []
@@ -249,7 +249,7 @@ IMAGE_RUNS = [("pt", "pt", PT_SPPS, {}), ("sms", "sms", SMS_SPPS, {"bernoulli_ca
               # (light, caster) pairs, so every block falls back to alpha = 0 for the other.
               ("restir_sms, prior misses a light (1 walk per block)", "restir_sms", [8], {"prior_samples": 1}),
               ("restir_sms, no prior (fallback)", "restir_sms", [8], {"prior": False})]
-# The caustic component alone (seed 002 Fig. 5 measures on a crop of the caustic): the paths SMS
+# The caustic component alone ([SMS-SSP Fig. 5] measures on a crop of the caustic): the paths SMS
 # owns, which every method here but pt renders with its own estimator, while the rest of the image
 # is one path-traced sample per pixel and frame in all of them. pt renders them as the filtered
 # reference does (subset caustic).
@@ -283,7 +283,7 @@ def measure(scene, name, ref, tmp, runs, tag):
                 if label in t1 and spp == 1:
                     t1[label].append(table1(st["sms"], st.get("prior")))
             curves[label].append((statistics.median(ms), statistics.median(err), spp))
-    # Real-time use (seed 002 §6: 1 spp per frame): the error of one frame after WARMUP frames of
+    # Real-time use ([SMS-SSP §6]: 1 spp per frame): the error of one frame after WARMUP frames of
     # reuse, with its time per frame (the warm-up's frames included).
     steady = {}
     for label, method, spps, params in runs:

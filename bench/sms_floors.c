@@ -1,7 +1,7 @@
 /* bench/sms_floors.c — the error a restir_sms frame that shades one selected path per pixel
  * cannot go below on a scene, whatever its reuse, as a fraction of a 1-spp `sms` frame's error.
  * Such a frame shades one jittered point x1 per pixel with one path, so even perfect resampling
- * (the reservoir's path distributed exactly in proportion to the target p̂ = luminance, seed 002
+ * (the reservoir's path distributed exactly in proportion to the target p̂ = luminance, [SMS-SSP]
  * §5) leaves
  *   - the jitter part: how much the caustic varies over the pixel (Var over x1 of L(x1));
  *   - the colour part: one path carries one light's colour. Grouping paths by light k, with L_k

@@ -1,5 +1,5 @@
-/* bench/sss_hybrid_map.c — which shift the hybrid criterion of restir_sss picks per pixel (seed
- * 004 §4.1, as its Fig. 4): the initial samples of one frame are classified by
+/* bench/sss_hybrid_map.c — which shift the hybrid criterion of restir_sss picks per pixel
+ * ([ReSTIR SSS §4.1], as its Fig. 4): the initial samples of one frame are classified by
  * |x2 - x1| >= 2 max(d) or n1 . n2 <= 0.5 (reconnection) versus delayed reconnection.
  * Writes an EXR: blue = reconnection, yellow = delayed, dark grey = translucent but no sample,
  * black = not translucent; prints the counts as JSON. Built and run by bench/restir_sss.py

@@ -12,7 +12,7 @@
  * message names the limit and its value), ERR_NOMEM, ERR_UNSUPPORTED.
  * Every parser reads an empty body (len 0) as {}. A default that is over a configured limit
  * is reported as ERR_LIMIT at the member's pointer, never silently lowered.
- * Refs: shared design PROTOCOL.md; protocol/API.md documents every field. */
+ * Refs: protocol/API.md documents every field. */
 #ifndef RESTIRD_PROTOCOL_H
 #define RESTIRD_PROTOCOL_H
 

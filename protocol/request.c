@@ -5,7 +5,7 @@
  * Must not: touch the network or the file system, keep state between calls, resolve names
  * against a scene (the server does), or invent a value the request did not give beyond the
  * defaults protocol.h documents.
- * Refs: RFC 8259 (JSON), RFC 3629 (UTF-8), RFC 6901 (JSON pointer); shared design PROTOCOL.md. */
+ * Refs: RFC 8259 (JSON), RFC 3629 (UTF-8), RFC 6901 (JSON pointer); protocol/API.md. */
 #include "protocol.h"
 
 #include "input/json_read.h"

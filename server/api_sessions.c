@@ -295,7 +295,7 @@ static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
     jsonw_key(w, "accumulated"); jsonw_uint(w, f->stats->accumulated);
     protocol_write_method_counters(w, f->s->view.params.method, f->stats);
     if (f->s->view.params.method->caps & METHOD_MANIFOLD_COUNTERS) {
-        /* Seed 002 Table 1, manifold sampling columns, for this frame. */
+        /* [SMS-SSP Table 1], manifold sampling columns, for this frame. */
         const struct sms_counters *sc = &r->sms;
         double n = (double)sc->samples, sol = (double)sc->solutions;
         jsonw_key(w, "sms");

@@ -417,7 +417,7 @@ static int cli_render(int argc, char **argv)
         /* The last frame's method counters, as its descriptor lays them out. */
         protocol_print_method_counters(stdout, rm, &last, session_bytes, reservoir_bytes);
         if (rm->caps & METHOD_MANIFOLD_COUNTERS) {
-            /* Seed 002 Table 1 (manifold sampling) over all frames rendered. */
+            /* [SMS-SSP Table 1] (manifold sampling) over all frames rendered. */
             const struct sms_counters *c = &st.sms;
             printf(",\"sms\":{\"samples\":%" PRIu64 ",\"solutions\":%" PRIu64 ",\"newton_sample\":%" PRIu64
                    ",\"trials\":%" PRIu64 ",\"newton_trials\":%" PRIu64 ",\"capped\":%" PRIu64 ",\"with_prior\":%" PRIu64

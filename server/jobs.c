@@ -148,7 +148,7 @@ static void jobs_run_reference(struct jobs *q, struct job *j)
     p.threads = s->view.threads;
     p.camera = &j->ref_camera;
     /* Uncapped Bernoulli trials: a capped count returns 0 past the cap, which loses energy
-     * (seed 002 Fig. 7); a reference must not. */
+     * ([SMS-SSP Fig. 7]); a reference must not. */
     struct sms_params sms = sms_defaults();
     sms.bernoulli_cap = 0;
     if (j->ref_method == PROTOCOL_REFERENCE_SMS) p.sms = &sms;

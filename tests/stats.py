@@ -1,4 +1,4 @@
-"""Statistical comparisons of Monte Carlo images (TESTING.md tier 4).
+"""Statistical comparisons of Monte Carlo images (the pytest tier, tests/README.md).
 
 Two sets of independent renders (or one set and a known analytic image) are compared per pixel
 with Welch's z statistic; the per-pixel threshold is Šidák-corrected so that the whole image

@@ -1,4 +1,4 @@
-"""bdpt is unbiased (design TESTING.md tier 4): K independent sessions of `bdpt` (fresh seeds),
+"""bdpt is unbiased (statistical, tests/README.md): K independent sessions of `bdpt` (fresh seeds),
 each the mean of its frames, are compared per pixel with K_REF independent `pt` renders on
 32x32 images: the whole cornell-box (power and balance heuristics), and a crop of
 lamp-in-glass. Šidák-corrected per-pixel z-test at 0.01, >= 99.75 % of pixels passing, global

@@ -1,4 +1,4 @@
-"""End-to-end tests of the render daemon build/restird against protocol/API.md (TESTING.md tier 5).
+"""End-to-end tests of the render daemon build/restird against protocol/API.md (tests/README.md).
 
 The real daemon runs on an ephemeral loopback port (`--listen 127.0.0.1:0`, the port is read from
 its first stdout line). One module-scoped daemon serves most tests; tests that restart, signal or
@@ -1548,7 +1548,7 @@ def test_restir_sms_session(daemon):
     """A restir_sms session on refractive-slab: its parameters with defaults, exactly its own
     buffers (two 64-byte reservoir buffers, two G-buffers, two receiver buffers, the prior, the
     spatial pairs; without the prior under the sms sampler, without the pairs unpaired), frames
-    with per-pass times, the manifold shifts' counters and seed 002 Table 1's; bad values are
+    with per-pass times, the manifold shifts' counters and [SMS-SSP Table 1]'s; bad values are
     refused naming the field."""
     s = new_session(daemon, scene="refractive-slab", method="restir_sms", width=24, height=24, seed=2,
                     params={"bernoulli_cap": 0})

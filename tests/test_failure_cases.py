@@ -2,10 +2,10 @@
 present (so a scene change that removes it is noticed) and that the method stays correct inside
 it. bench/report.py charts the same cases at the report's size. (restir_pt with next-event estimation blocked by glass is in test_stability.py.)
 
-* Light tracing wasted on lights the camera cannot see (seed 000 Fig. 10): in door-ajar the
+* Light tracing wasted on lights the camera cannot see ([ReSTIR BDPT Fig. 10]): in door-ajar the
   only light is outside the room, so almost no light subpath of `bdpt` reaches a point the
   camera sees.
-* Shadow boundaries for the hybrid shift of ReSTIR SSS (seed 004 Fig. 5): the criterion
+* Shadow boundaries for the hybrid shift of ReSTIR SSS ([ReSTIR SSS Fig. 5]): the criterion
   decides per path from local distances and normals, so along the occluder's shadow on the wax
   sphere it cannot always choose the better shift; the sequential shift applies both."""
 import json

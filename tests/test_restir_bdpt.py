@@ -1,5 +1,5 @@
 """restir_bdpt (the session method: the lightweight variant with caustic temporal reuse, with the
-non-caustic reuse of `"reuse": true`, and the full variant with its vertex connections) is unbiased against `bdpt` (design TESTING.md tier 4): K
+non-caustic reuse of `"reuse": true`, and the full variant with its vertex connections) is unbiased against `bdpt` (statistical, tests/README.md): K
 independent sessions of each method (fresh seeds), each the mean of its N frames, compared per
 pixel at 32x32 (Šidák-corrected z-test at 0.01, >= 99.75 % of pixels passing, global mean
 within 3 sigma; tests/stats.py). Frames of one restir_bdpt session are correlated through its
@@ -124,7 +124,7 @@ def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse, varian
 
 @pytest.mark.statistical
 def test_restir_bdpt_reject_unshiftable_darkens(tmp_path, scenes):
-    """`reject_unshiftable` (seed 000 §7.2) drops the non-caustic light-traced candidates whose x_2
+    """`reject_unshiftable` ([ReSTIR BDPT §7.2]) drops the non-caustic light-traced candidates whose x_2
     cannot reach the pixel's primary hit: a bias by design, which the docs call small. On the
     lamp-in-glass crop, paired with the unbiased reuse sessions of the same seeds (so most of their
     noise cancels), it must darken the crop measurably (paired t < -2) and by less than 1 %; and

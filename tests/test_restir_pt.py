@@ -1,4 +1,4 @@
-"""restir_pt is unbiased (design TESTING.md tier 4): K independent sessions (fresh seeds) of
+"""restir_pt is unbiased (statistical, tests/README.md): K independent sessions (fresh seeds) of
 temporal and spatial reuse are compared per pixel with the reference path tracer on 32x32
 images, with the camera still and moving: all of cornell-glossy, and a crop of door-ajar (the
 camera narrowed to 14 degrees on the door opening, where the light from the next room enters).
@@ -103,7 +103,7 @@ def test_restir_pt_unbiased(tmp_path, scenes, scene, motion):
 
 @pytest.mark.statistical
 def test_restir_pt_ris_nee_unbiased(tmp_path, scenes):
-    """RIS NEE with 4 candidates and its multi-sample MIS weights (seed 001 §5), the default
+    """RIS NEE with 4 candidates and its multi-sample MIS weights ([ReSTIR PT Enhanced §5]), the default
     under two or more lights, asked for here on cornell-glossy (one light: plain NEE by default)
     with the camera moving."""
     case = CASES["cornell-glossy"]

@@ -1,4 +1,4 @@
-"""ReSTIR over specular manifold samples (method `restir_sms`, seed 002 §5) against path tracing
+"""ReSTIR over specular manifold samples (method `restir_sms`, [SMS-SSP §5]) against path tracing
 restricted to the paths SMS owns (`pt` with subset "caustic", the filtered reference of
 tests/test_sms.py, shared with it through its cache).
 
@@ -10,7 +10,7 @@ tests/test_sms.py, shared with it through its cache).
 - Unbiased with the camera moving: the camera travels away and back before the averaged frames,
   so those frames resample reservoirs that went through temporal shifts under camera motion
   (control: the runs scaled by 1.07 fail).
-- The failure case of seed 002 (the prior misses a light): with one prior walk per 16x16 block a
+- The failure case of [SMS-SSP] (the prior misses a light): with one prior walk per 16x16 block a
   block finds at most one of the two (light, caster) pairs, so every block falls back to
   partitioning alone (alpha = 0) for the other light; the estimate stays unbiased (same z-test).
   bench/sms.py charts what it costs.
@@ -19,7 +19,7 @@ tests/test_sms.py, shared with it through its cache).
 - Receivers behind delta vertices (the caustic seen in reflective-plane's mirror) agree with
   `sms`, which estimates at every vertex itself; leaving out the prefix's throughput fails it.
 - The test can fail on a real bias too: with a Bernoulli cap of 1 trial (solutions not found
-  again at once are dropped, seed 002 Fig. 7) the same test fails.
+  again at once are dropped, [SMS-SSP Fig. 7]) the same test fails.
 
 Each of K sessions renders FRAMES frames and averages the last AVG (one run's mean has a relative
 standard deviation of ~4 % here, so K = 24 runs put the x1.05 control at t ~ 5-6); the frames of one session are

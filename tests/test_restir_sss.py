@@ -1,4 +1,4 @@
-"""restir_sss is unbiased for each shift it offers (design TESTING.md tier 4): K independent
+"""restir_sss is unbiased for each shift it offers (statistical, tests/README.md): K independent
 sessions (fresh seeds) of temporal and spatial reuse on the library scene `translucent`, the
 camera narrowed onto the wax sphere's upper half (32 x 32, most pixels on the sphere, its lit top, the
 occluder's shadow edge and the glow below it), compared per pixel with `pt` over the same
@@ -25,7 +25,7 @@ FRAMES, AVERAGED = 12, 6
 REF_SPP = 384
 CAMERA = {"position": [2.0, 1.0, 3.0], "look_at": [0.1, 0.62, 0.0], "fov_deg": 8}
 MOVE = [0.25, 0.0, -0.1]
-# The confidence cap of the history, as a multiple of the current M. The default (20, seed 004
+# The confidence cap of the history, as a multiple of the current M. The default (20, [ReSTIR SSS]
 # §5.1) keeps a sample alive for dozens of frames on a still camera, and the reconnection shift
 # then spreads one rare bright entry point over many pixels: a session's frames are so strongly
 # correlated that a per-pixel test at this K sees heavy tails, not bias (reconnection at cap 20
@@ -75,7 +75,7 @@ def _reference(sc, tmp_path, moving, depth=()):
 @pytest.mark.parametrize("shift,motion,max_depth,target",
                          [(shift, motion, None, "luminance") for shift in ("reconnection", "delayed", "hybrid", "sequential")
                           for motion in ("static", "moving camera")] +
-                         # The direct-lighting case of seed 004 §3 (camera, entry, exit, light), which
+                         # The direct-lighting case of [ReSTIR SSS §3] (camera, entry, exit, light), which
                          # its evaluation and bench/restir_sss.py's BENCH_SSS_MAX_DEPTH=1 use: pt then
                          # stops after next-event estimation at the exit points and restir_sss
                          # traces no rest on the object; both must still estimate the same paths.

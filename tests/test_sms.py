@@ -13,7 +13,7 @@ renders exactly those paths (the filtered reference) and "rest" all others.
   32x32, and the same runs scaled by 1.03 fail it. Pixel values the reference met in fewer than
   REF_MIN_HITS of its runs are left out of the per-pixel part (their standard error is unknown),
   at most MAX_UNTESTED of them; the global mean holds them.
-- The Bernoulli cap loses energy (seed 002 Fig. 7): a cap of 1 trial drops every solution not
+- The Bernoulli cap loses energy ([SMS-SSP Fig. 7]): a cap of 1 trial drops every solution not
   found again at once, and the counters report it.
 
 The filtered reference is path tracing hitting two 0.1 x 0.1 lights through a glass slab: its
@@ -181,7 +181,7 @@ def test_prior_seeds_only_receivers(tmp_path, scenes):
 
 def test_sms_session_in_the_daemon(tmp_path):
     """An sms session: its parameters with defaults, no buffers beyond pt's, and frames that report
-    seed 002 Table 1's counters; a bad parameter is a 422 naming it."""
+    [SMS-SSP Table 1]'s counters; a bad parameter is a 422 naming it."""
     from daemon import Daemon
     d = Daemon(tmp_path / "data", "--threads", "2")
     try:

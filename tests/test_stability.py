@@ -60,7 +60,7 @@ HOME = {"pt": "cornell-box", "restir_pt": "cornell-box", "bdpt": "cornell-box", 
 
 
 def mape(img, ref):
-    """seed 000's MAPE (footnote 3), as the daemon computes it."""
+    """The MAPE of [ReSTIR BDPT footnote 3], as the daemon computes it."""
     return float(np.mean(np.abs(img - ref) / (ref + 0.01 * ref.mean())))
 
 
@@ -333,7 +333,7 @@ def test_no_nonfinite_over_100_frames(tmp_path, method, scene):
 
 def _glass_lamp_scene(path):
     """cornell-box with its ceiling light replaced by a small emitting sphere inside a glass
-    sphere: next-event estimation from the room always hits the glass (seed 001's weak case for
+    sphere: next-event estimation from the room always hits the glass ([ReSTIR PT Enhanced]'s weak case for
     ReSTIR PT: only BSDF-sampled paths through the glass find the light)."""
     scene = json.loads((ROOT / "scenes" / "cornell-box" / "scene.json").read_text())
     scene["shapes"] = [s for s in scene["shapes"] if s.get("name") != "ceiling_light"]

@@ -3,7 +3,7 @@
  * to know about EXR channel lists, chunks or compression codecs.
  * Must not trust input files: the reader checks the whole header against fixed limits before
  * it decodes a single pixel, and a truncated or corrupt file is an error, never a crash.
- * Refs: OpenEXR file layout and C API (openexr.h, libOpenEXRCore 3.1); design ARCHITECTURE.md. */
+ * Refs: OpenEXR file layout and C API (openexr.h, libOpenEXRCore 3.1); docs/architecture.md. */
 #ifndef RESTIRD_EXRIO_H
 #define RESTIRD_EXRIO_H
 

@@ -1,7 +1,7 @@
 /* metrics.c — MAPE, RMSE, relMSE and non-finite pixel counts (contracts in metrics.h).
  * Two passes over the pixels: the first finds ref_mean (MAPE's denominator needs it), the
  * second accumulates the errors. Must not allocate or print.
- * Refs: ReSTIR BDPT paper, footnote 3 (MAPE definition). */
+ * Refs: [ReSTIR BDPT footnote 3] (MAPE definition). */
 #include "image/metrics.h"
 
 #include <math.h>

@@ -1,8 +1,8 @@
 /* metrics.h — image error metrics against a reference: MAPE, RMSE, relMSE, non-finite counts.
  * Pure functions over two `struct image`s; no I/O, no allocation, no global state.
  * Must not let a NaN/Inf pixel poison a sum: such pixels are counted and left out.
- * Refs: MAPE as in the ReSTIR BDPT paper (footnote 3); relMSE as in Rousselle et al. 2011 /
- * common denoising practice; design TESTING.md (biased methods get an error bound). */
+ * Refs: MAPE as in [ReSTIR BDPT footnote 3]; relMSE as in Rousselle et al. 2011 /
+ * common denoising practice. */
 #ifndef RESTIRD_METRICS_H
 #define RESTIRD_METRICS_H
 
@@ -17,7 +17,7 @@
  * choice: it keeps near-black reference pixels from dominating without hiding errors on
  * pixels of ordinary brightness (~0.1 and up). */
 #define METRICS_RELMSE_EPS 1e-2
-/* MAPE denominator: I_ref + METRICS_MAPE_MEAN_FRACTION * mean(I_ref) (paper footnote 3). */
+/* MAPE denominator: I_ref + METRICS_MAPE_MEAN_FRACTION * mean(I_ref) ([ReSTIR BDPT footnote 3]). */
 #define METRICS_MAPE_MEAN_FRACTION 0.01
 
 /* All sums run over "used" pixels: pixels whose three channels are finite in BOTH images.

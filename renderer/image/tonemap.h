@@ -37,7 +37,7 @@ bool tonemap_png(const struct image *img, const struct tonemap_opts *opts, unsig
                  struct err *err);
 
 /* False-colour map of the per-pixel relative error |img - ref| / (ref + 0.01), averaged over
- * the three channels (the per-pixel term of MAPE, seed 000 footnote 3; a negative ref counts
+ * the three channels (the per-pixel term of MAPE, [ReSTIR BDPT footnote 3]; a negative ref counts
  * as 0 in the denominator), mapped from 0 to `scale_max` through a perceptually ordered colour
  * ramp (lightness rising from dark indigo at 0 through blue, teal and green to pale yellow at
  * scale_max and above; the anchors are listed in tonemap.c); scale_max <= 0 picks the 99th

@@ -4,7 +4,7 @@
  * and disks into object-space triangles. cJSON is included here and in protocol/ only.
  * Must not: commit the scene (scene_commit), build acceleration or light structures, invent a
  * value the file did not give (every default is documented), or exit on bad input.
- * Refs: RFC 6901 (JSON pointer); shared design SCENES.md. */
+ * Refs: RFC 6901 (JSON pointer); docs/scene-format.md. */
 #include "scene/scene.h"
 
 #include <cjson/cJSON.h>

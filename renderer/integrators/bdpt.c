@@ -243,18 +243,14 @@ bool bdpt_visible(const struct accel *accel, struct vec3 a, struct vec3 na, stru
     return !accel_occluded(accel, oa, vec3_scale(e, 1.0f / len), 0.0f, len * (1.0f - 1e-4f), rc);
 }
 
-/* Light tracing (t = 1): the light vertex at `s` (material m, incoming direction wo, throughput
- * beta, MIS state mis) seen by the camera. Fills *pixel and *value, or returns false. */
-static bool bdpt_connect_camera(const struct bdpt_ctx *c, const struct surface *s, const struct material *m,
-                                struct vec3 wo_world, struct vec3 beta, const struct bdpt_mis *mis,
-                                struct ray_counters *rc, uint32_t *pixel, struct vec3 *value)
+bool bdpt_eye_link(const struct camera *cam, float plane_dist2, const struct accel *accel, const struct surface *s,
+                   const struct material *m, struct vec3 wo_world, struct ray_counters *rc,
+                   struct bdpt_eye_link *out)
 {
-    const struct camera *cam = &c->cam;
     struct vec3 d = vec3_sub(cam->position, s->p);
     float dist2 = vec3_length2(d);
     if (!(dist2 > 0.0f)) return false;
-    float dist = sqrtf(dist2);
-    struct vec3 wc = vec3_scale(d, 1.0f / dist);
+    struct vec3 wc = vec3_scale(d, 1.0f / sqrtf(dist2));
     float cos0 = -vec3_dot(wc, cam->forward);
     if (!(cos0 > 0.0f)) return false;
     float px, py;
@@ -267,14 +263,31 @@ static bool bdpt_connect_camera(const struct bdpt_ctx *c, const struct surface *
     if (!(cos_c_ng * wc_local.z > 0.0f) || cos_o_ng == 0.0f) return false;
     struct vec3 f = material_eval(m, wc_local, wo_local, TRANSPORT_RADIANCE);
     if (vec3_is_zero(f)) return false;
-    if (!bdpt_visible(c->scene->accel, s->p, s->ng, cam->position, NULL, rc)) return false;
-    float camera_pdf_w = c->plane_dist2 / (cos0 * cos0 * cos0);
-    float camera_pdf_a = camera_pdf_w * fabsf(cos_c_ng) / dist2;
-    float rev_w = material_pdf(m, wc_local, wo_local);
-    float w = bdpt_mis_weight_camera(mis, camera_pdf_a, c->n_light, rev_w, c->power);
-    float corr = fabsf(wo_local.z) * fabsf(cos_c_ng) / fabsf(cos_o_ng);
-    *value = vec3_scale(vec3_mul(beta, f), w * corr * camera_pdf_w / (dist2 * c->n_light));
-    *pixel = iy * cam->width + ix;
+    if (!bdpt_visible(accel, s->p, s->ng, cam->position, NULL, rc)) return false;
+    out->px = px;
+    out->py = py;
+    out->ix = ix;
+    out->iy = iy;
+    out->f = f;
+    out->rev_w = material_pdf(m, wc_local, wo_local);
+    out->dist2 = dist2;
+    out->camera_pdf_w = plane_dist2 / (cos0 * cos0 * cos0);
+    out->camera_pdf_a = out->camera_pdf_w * fabsf(cos_c_ng) / dist2;
+    out->corr = fabsf(wo_local.z) * fabsf(cos_c_ng) / fabsf(cos_o_ng);
+    return true;
+}
+
+/* Light tracing (t = 1): the light vertex at `s` (material m, incoming direction wo, throughput
+ * beta, MIS state mis) seen by the camera. Fills *pixel and *value, or returns false. */
+static bool bdpt_connect_camera(const struct bdpt_ctx *c, const struct surface *s, const struct material *m,
+                                struct vec3 wo_world, struct vec3 beta, const struct bdpt_mis *mis,
+                                struct ray_counters *rc, uint32_t *pixel, struct vec3 *value)
+{
+    struct bdpt_eye_link e;
+    if (!bdpt_eye_link(&c->cam, c->plane_dist2, c->scene->accel, s, m, wo_world, rc, &e)) return false;
+    float w = bdpt_mis_weight_camera(mis, e.camera_pdf_a, c->n_light, e.rev_w, c->power);
+    *value = vec3_scale(vec3_mul(beta, e.f), w * e.corr * e.camera_pdf_w / (e.dist2 * c->n_light));
+    *pixel = e.iy * c->cam.width + e.ix;
     return true;
 }
 

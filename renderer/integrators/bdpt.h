@@ -1,5 +1,5 @@
-/* bdpt.h — method `bdpt`: bidirectional path tracing with a light vertex cache (seed 000 §3
- * and METHODS.md §2; Davidovič et al. 2014 for the cache). Each frame traces N_L light
+/* bdpt.h — method `bdpt`: bidirectional path tracing with a light vertex cache ([ReSTIR BDPT §3]
+ * and docs/methods.md (bdpt); Davidovič et al. 2014 for the cache). Each frame traces N_L light
  * subpaths, starting on emitters in proportion to their power; every non-delta light vertex is
  * kept in the light vertex cache (LVC) and connected to the camera (light tracing, t = 1).
  * Then one camera subpath per pixel collects emission it hits (s = 0), next-event estimation
@@ -107,7 +107,7 @@ size_t bdpt_block_bytes(const struct bdpt_state *st);
 bool bdpt_render(struct bdpt_state *st, const struct bdpt_params *p, const struct method_frame *f, struct image *out,
                  struct bdpt_stats *stats, struct err *err);
 
-/* Geometry helpers shared with restir_bdpt.c (the same conventions on both). */
+/* Geometry helpers shared with restir_bdpt_*.c (the same conventions on both). */
 struct accel;
 struct material;
 struct ray_counters;
@@ -131,6 +131,24 @@ struct vec3 bdpt_origin(const struct surface *s, struct vec3 dir);
 /* Whether nothing blocks the segment from a (normal na) to b (normal nb, NULL for the eye). */
 bool bdpt_visible(const struct accel *accel, struct vec3 a, struct vec3 na, struct vec3 b, const struct vec3 *nb,
                   struct ray_counters *rc);
+/* Light tracing (t = 1): the eye's side of joining the surface vertex s (material m, the light
+ * arriving along -wo_world) to the pinhole camera, whose image plane lies at squared distance
+ * plane_dist2 in pixel units. The MIS weight is the caller's: its contribution is
+ * beta f · w · corr · camera_pdf_w / (dist2 N_L) in pixel (ix, iy). False when the vertex is
+ * behind the camera or off the image, faces away from the eye, sends nothing towards it or is
+ * hidden from it. */
+struct bdpt_eye_link {
+    float px, py;               /* the image-plane position in pixels */
+    uint32_t ix, iy;            /* its pixel */
+    struct vec3 f;              /* the BSDF towards the eye (radiance side) */
+    float rev_w;                /* the BSDF's pdf of wo from the eye's direction (the MIS weight's) */
+    float dist2;                /* squared distance to the eye */
+    float camera_pdf_w, camera_pdf_a;  /* the camera's density of the direction, and per area at s */
+    float corr;                 /* Veach's adjoint shading-normal correction |wo.ns| |wc.ng| / |wo.ng| */
+};
+bool bdpt_eye_link(const struct camera *cam, float plane_dist2, const struct accel *accel, const struct surface *s,
+                   const struct material *m, struct vec3 wo_world, struct ray_counters *rc,
+                   struct bdpt_eye_link *out);
 /* A light vertex cache kept in fixed per-block regions of `region` slots, in its canonical order
  * (blocks in order, each block's vertices in order): first = the prefix sums of the blocks'
  * counts (blocks + 1), total = first[blocks], scale = total / N_L. */

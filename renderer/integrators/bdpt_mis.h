@@ -1,8 +1,8 @@
 /* bdpt_mis.h — recursive multiple importance sampling for bidirectional path tracing: the
  * partial weights dVCM and dVC that a subpath carries from vertex to vertex, so that the MIS
- * weight of any connection is found from the two endpoints alone, in O(1) (Georgiev et al.
- * 2012, "Implementing Vertex Connection and Merging", technical report; here with vertex
- * merging left out, i.e. plain BDPT; seed 000 §6 uses the same quantities).
+ * weight of any connection is found from the two endpoints alone, in O(1) (Georgiev 2012,
+ * "Implementing Vertex Connection and Merging", technical report; here with vertex
+ * merging left out, i.e. plain BDPT; [ReSTIR BDPT §6] uses the same quantities).
  *
  * Notation. A path x_0 .. x_k (x_0 the camera, x_k on an emitter) can be produced by every
  * technique that splits it into a camera subpath of t vertices and a light subpath of s = k+1-t

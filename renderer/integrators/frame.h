@@ -31,7 +31,7 @@ struct render_stats {
     uint64_t nonfinite;    /* samples dropped because their value was NaN or Inf */
     unsigned threads;      /* worker threads used */
     double render_ms;
-    struct sms_counters sms;   /* sms, sms_ssp, restir_sms: seed 002 Table 1 counters */
+    struct sms_counters sms;   /* sms, sms_ssp, restir_sms: [SMS-SSP Table 1] counters */
 };
 
 #endif

@@ -1,7 +1,7 @@
 /* manifold.c — manifold walks (see manifold.h).
  * Refs: Jakob & Marschner 2012 (manifold exploration, generalized geometry term §4);
  * Zeltner et al. 2020 §4 (angle-difference constraint, step-size control, re-projection);
- * seed 002 §3.1. */
+ * [SMS-SSP §3.1]. */
 #include "integrators/manifold.h"
 
 #include <math.h>
@@ -454,7 +454,8 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
         double nn = INFINITY;
         if (moved && mf_eval_at(chain, x1, xe, ng_, Cn, Dn)) nn = mf_norm(Cn, n2);
         if (nn < norm) {
-            /* A trust region ends the walk as soon as an accepted step leaves it (seed 002 §3.3). */
+            /* A trust region ends the walk as soon as an accepted step leaves it
+             * ([SMS-SSP §3.3]). */
             if (inside && !inside(region, nv[0].p)) {
                 ok = false;
                 break;

@@ -1,5 +1,5 @@
 /* manifold.h — manifold walks over chains of specular vertices (Jakob & Marschner 2012;
- * Zeltner et al. 2020, the solver of specular manifold sampling, seed 002 §3.1).
+ * Zeltner et al. 2020, the solver of specular manifold sampling, [SMS-SSP §3.1]).
  *
  * A chain connects a fixed start point x1 (a non-specular shading point) through `length`
  * specular vertices on one caster shape, each a reflection or a refraction, to a fixed end

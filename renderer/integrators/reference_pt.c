@@ -66,7 +66,7 @@ static bool pt_light_toward(const struct scene *scene, const struct light_sample
     return *pdf_light_w > 0.0f;
 }
 
-/* Subsurface scattering at the primary hit x1 on a translucent material (seed 004 §2.1, §3.1):
+/* Subsurface scattering at the primary hit x1 on a translucent material ([ReSTIR SSS §2.1, §3.1]):
  * one probe of BSSRDF importance sampling; every hit x2_j on the same shape is an entry point,
  * each weighted by S / bssrdf_pdf_a (eq. 10: all intersections, not one picked at random), and
  * each gets next-event estimation towards one light sample through the entry lobe
@@ -238,7 +238,7 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         if (depth == 0 && m->kind == MATERIAL_TRANSLUCENT) {
             /* With next-event estimation the path through the entry points adds light only by NEE
              * there (the emission its next vertex finds is skipped) or after a further bounce: at
-             * max_depth 1 (the direct-lighting case of seed 004 §3, which its evaluation uses)
+             * max_depth 1 (the direct-lighting case of [ReSTIR SSS §3], which its evaluation uses)
              * nothing is left to add once NEE at the entry points is someone else's, and no
              * continuation ray needs tracing. */
             const bool direct_here = sss_direct && split->rest;

@@ -1,4 +1,4 @@
-/* restir_bdpt.h — ReSTIR BDPT (seed 000 §4–5). The lightweight variant ("Lightweight BDPT"):
+/* restir_bdpt.h — ReSTIR BDPT ([ReSTIR BDPT §4–5]). The lightweight variant ("Lightweight BDPT"):
  * the techniques s = 0 (emitter hits), s = 1 (next-event estimation) and t = 1 (light tracing),
  * no vertex connections, resampled in the extended path space (path, technique) with the target
  * p̂ = lum(w_{s,t} f / p), w the MIS weight among these three techniques only. The full variant
@@ -12,7 +12,7 @@
  * bucketed per pixel by a counting sort over pixel ids (prefix sum, in light-subpath order,
  * independent of the thread count) and merged into that pixel's reservoir next to its own
  * camera-path candidates, each with resampling weight lum(C) where C already carries the
- * light-tracing estimator's 1/N_L (seed 000 eq. 26). A t = 1 sample whose secondary hit x_2 is
+ * light-tracing estimator's 1/N_L ([ReSTIR BDPT eq. 26]). A t = 1 sample whose secondary hit x_2 is
  * not rough (its light-side scattering lobe was delta) is caustic and goes to the pixel's
  * separate caustic reservoir (§5.1); the image is the sum of both reservoirs' estimates.
  *
@@ -25,7 +25,7 @@
  *
  * Non-caustic reuse (`reuse`, off by default; both variants): temporal reuse along a
  * G-buffer's motion vectors and spatial reuse through restir.c's passes. Camera-side samples
- * (s = 0, s = 1) shift by the camera-subpath part of seed 000's bidirectional hybrid shift
+ * (s = 0, s = 1) shift by the camera-subpath part of [ReSTIR BDPT]'s bidirectional hybrid shift
  * (§6.1): a sample whose path has a reconnectable pair (x_{k-1}, x_k), k >= 2, both vertices
  * with only rough lobes, replays its camera subpath through the target pixel up to x'_{k-1} and
  * joins it to x_k, keeping the rest of the path (struct restir_bdpt_rc), with the Jacobian of
@@ -33,7 +33,7 @@
  * restir_bdpt_mis_reconnect); a sample without such a pair shifts by random replay of its camera
  * subpath (Jacobian 1 in primary sample space), its lightweight MIS weight recomputed on the new
  * path, and must stay without one. Russian roulette is decoupled from the primary sample space
- * for these samples (seed 001 §6): it divides the initial resampling weight, never the
+ * for these samples ([ReSTIR PT Enhanced §6]): it divides the initial resampling weight, never the
  * contribution, and a shift never rolls it. Between frames whose scenes differ the kept suffix
  * would carry the other scene's light: there the suffix is traced again from x_k along w_k with
  * the sample's own random numbers (as ReSTIR PT does); an s = 1 sample whose light sample
@@ -43,7 +43,7 @@
  * hybrid shift (§6.1): its light subpath is replayed up to x'_2 and joined to the surface the eye
  * sees through the same sub-pixel position of the target pixel, so it can move to a neighbour.
  *
- * The full variant's connections (s >= 2, t >= 2) shift as seed 000 §5 describes: the light
+ * The full variant's connections (s >= 2, t >= 2) shift as [ReSTIR BDPT §5] describes: the light
  * subpath by random replay in the target frame's scene (its random numbers are those of light
  * subpath rc.light_path of the origin frame), the camera subpath by the hybrid shift above or by
  * random replay, joined to the replayed light vertex — at x_k itself when x_k is the connecting
@@ -51,7 +51,7 @@
  * (eq. 25) in its resampling weight, so the target is the path's own. The full variant's
  * reconnection shifts (connections and camera-side samples alike) keep the suffix and recompute
  * bdpt's MIS weight over all techniques from three constants of it (the recursive reconnection
- * MIS, restir_bdpt.c); a light sample leaving x_k itself is drawn again. A per-pixel cache keeps
+ * MIS, restir_bdpt_internal.h); a light sample leaving x_k itself is drawn again. A per-pixel cache keeps
  * the light vertex of each pixel's connection in this frame's scene, as it keeps x_2 of
  * light-traced samples.
  *
@@ -111,10 +111,10 @@ struct RESTIRD_STORED_IN_BYTES restir_bdpt_params {
     bool camera_reconnect;     /* with reuse: camera-side samples reconnect (the hybrid shift); false:
                                   they shift by random replay alone (true) */
     bool copy_mis;             /* with reuse, lightweight variant: a reconnection shift keeps the base
-                                  path's MIS weight instead of recomputing it (seed 000 §6.4; biased,
+                                  path's MIS weight instead of recomputing it ([ReSTIR BDPT §6.4]; biased,
                                   false) */
     bool reject_unshiftable;   /* drop the non-caustic t = 1 candidates whose x_2 cannot reach the
-                                  pixel's primary hit (seed 000 §7.2; biased, false) */
+                                  pixel's primary hit ([ReSTIR BDPT §7.2]; biased, false) */
 };
 
 struct restir_bdpt_params restir_bdpt_defaults(void);
@@ -129,7 +129,7 @@ struct restir_bdpt_lt_sample {
     uint16_t depth;            /* light vertices up to x_1 */
     uint8_t caustic;           /* 1 when x_2 is not rough */
     uint8_t hybrid;            /* with reuse: x_2 is a surface with only rough lobes (depth >= 2), so
-                                  the sample shifts by the reverse hybrid shift (restir_bdpt.c) */
+                                  the sample shifts by the reverse hybrid shift (restir_bdpt_reuse.c) */
 };
 
 /* A reservoir: the shared head (W, M, technique in `bits`), the selected sample's contribution
@@ -141,7 +141,7 @@ struct restir_bdpt_reservoir {
     uint32_t origin_frame;     /* t = 1: the frame whose random numbers trace that subpath */
 };
 
-/* Where a camera-side sample (s = 0, s = 1) reconnects under the hybrid shift (seed 000 §6.1,
+/* Where a camera-side sample (s = 0, s = 1) reconnects under the hybrid shift ([ReSTIR BDPT §6.1],
  * after Lin et al. 2022): x_k is the first vertex with k >= 2 whose predecessor and itself have
  * only rough (non-delta) lobes, k <= the last camera vertex that scatters or connects to the light;
  * k = 0 when the path has no such pair (it shifts by random replay alone). A shift replays the
@@ -151,12 +151,13 @@ struct restir_bdpt_reservoir {
  *     the last vertex's light sample (s = 1), or, when x_k itself is that last vertex, Le (s = 0:
  *     w_k hits the emitter) or Le / p_light (s = 1: w_k is the light sample's direction);
  *   - `mis_a`, `mis_b`, `mis_c`: the suffix's part of the MIS weight, so that the shifted path's
- *     weight follows from its new prefix alone (the recursive reconnection MIS of seed 000 §6.2;
- *     lightweight: restir_bdpt_mis_reconnect's two constants; full: the weight is
+ *     weight follows from its new prefix alone (the recursive reconnection MIS of
+ *     [ReSTIR BDPT §6.2]; lightweight: restir_bdpt_mis_reconnect's two constants; full: the
+ *     weight is
  *     1 / (1 + a dVCM + b dVC + c) with dVCM, dVC those after x_k's scattering, which the suffix
- *     maps affinely onto the last vertex's — see restir_bdpt.c);
+ *     maps affinely onto the last vertex's — see restir_bdpt_internal.h);
  *   - `pdf`: p_{k-1}(w_{k-1}) |cos_k| / d^2 p_k(w_k) (p_k = 1 for a light sample's direction), the
- *     reconnection's Jacobian denominator (seed 000 Appendix C).
+ *     reconnection's Jacobian denominator ([ReSTIR BDPT Appendix C]).
  * With `copy_mis` `L` carries the MIS weight of the path the sample was drawn as, which its
  * shifts keep (mis_a and mis_b are then unused).
  * A light-traced sample (t = 1) of the reverse hybrid shift's class (non-caustic, x_2 a surface
@@ -186,7 +187,7 @@ struct restir_bdpt_path {
 };
 
 /* A previous frame's caustic reservoir shifted into the current frame by random replay: the
- * pixel it lands in, its contribution there and its resampling weight (seed 000 eq. 51). */
+ * pixel it lands in, its contribution there and its resampling weight ([ReSTIR BDPT eq. 51]). */
 struct restir_bdpt_shifted {
     struct vec3 F;
     float w;
@@ -225,7 +226,7 @@ struct restir_bdpt_state {
     struct gbuffer gbuf;
     void *pair_scratch;                         /* with reuse and paired_spatial: restir.c's pairs */
     /* With reuse: per pixel the x_2 of its sample of the reverse hybrid shift's class in this
-     * frame's scene, so that the shifts of one sample replay its light subpath once (restir_bdpt.c). */
+     * frame's scene, so that the shifts of one sample replay its light subpath once (restir_bdpt_reuse.c). */
     struct rbdpt_x2_entry *x2c;
     /* The full variant's light vertex cache, in bdpt's layout: per block a region of lvc_region
      * vertices, lvc_count of them used, lvc_first the prefix sums (blocks + 1). NULL otherwise. */
@@ -339,8 +340,8 @@ float restir_bdpt_mis_nee(const struct restir_bdpt_mis *cam, float bsdf_fwd_w, f
 float restir_bdpt_mis_camera(const struct restir_bdpt_mis *light, float camera_pdf_a, float light_paths,
                              float light_rev_w, bool power);
 
-/* The recursive reconnection MIS (seed 000 §6.2; its eqs. 42–47 written in dVCM / dVC form, for
- * the lightweight techniques). After x_1's scattering a camera subpath's dVC only gains factors
+/* The recursive reconnection MIS ([ReSTIR BDPT §6.2]; its eqs. 42–47 written in dVCM / dVC form,
+ * for the lightweight techniques). After x_1's scattering a camera subpath's dVC only gains factors
  * of its own vertices (each hit divides by Mis(|cos|), each scattering multiplies by
  * Mis(|cos| p_rev / p_fwd)), and those past x_k do not depend on x_{k-1}: the weight of a path
  * whose prefix is replaced up to x_k is found from two constants of its suffix and the new

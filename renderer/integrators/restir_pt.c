@@ -4,20 +4,20 @@
  * The integrand. A path x_0 (camera) x_1 (the pixel's G-buffer hit) ... x_d is sampled vertex by
  * vertex; at every vertex x_j the lobe and direction come from the random numbers of stream
  * (path seed, j), so a path is its seed plus, past its reconnection vertex, stored geometry.
- * Its contribution in primary sample space (seed 001 eq. 3) is
+ * Its contribution in primary sample space ([ReSTIR PT Enhanced eq. 3]) is
  *   F = prod_{j<d-1} f_j |cos_j| / p_j  *  (last step)
  * where the last step is f |cos| Le w_bsdf / p (BSDF sampling hit an emitter) or
  * f |cos| Le w_nee / p_light (NEE), p_light the single-sample light pdf in solid angle and
- * w_nee = M p_light / (M p_light + p_bsdf), w_bsdf = p_bsdf / (M p_light + p_bsdf) (seed 001
- * §5, M = RIS candidates; the BSDF pdf is the marginal one, so both weights sum to 1 over the
- * lobes). Emission at x_1 is added by the shade pass, outside the reservoir. The target is
- * p̂ = luminance(F).
+ * w_nee = M p_light / (M p_light + p_bsdf), w_bsdf = p_bsdf / (M p_light + p_bsdf)
+ * ([ReSTIR PT Enhanced] §5, M = RIS candidates; the BSDF pdf is the marginal one, so both weights
+ * sum to 1 over the lobes). Emission at x_1 is added by the shade pass, outside the reservoir. The
+ * target is p̂ = luminance(F).
  *
  * Initial candidates. Every NEE connection and every emitter hit along one path is a candidate
  * in its own PSS domain (length d, technique); they are resampled by streaming RIS with
  * confidence 1 in total. Their source weight is 1 / prod q_i of the Russian roulette survivals
- * (seed 001 §6: RR changes the source pdf only, shifts never roll it) times, for NEE, the RIS
- * contribution weight W_ris p_light (seed 001 §5).
+ * ([ReSTIR PT Enhanced §6]: RR changes the source pdf only, shifts never roll it) times, for NEE,
+ * the RIS contribution weight W_ris p_light ([ReSTIR PT Enhanced §5]).
  *
  * Reconnection vertex. x_k is the first vertex (k >= 2) such that x_{k-1} and x_k are both
  * connectable: their lobes are rough (lobe roughness >= alpha_min, or with pdf_connect
@@ -86,9 +86,9 @@ static inline uint16_t pt_bits(uint32_t d, uint32_t k, bool nee, int lobe_prev, 
     return (uint16_t)(d | k << 7 | (uint32_t)nee << 13 | (uint32_t)lobe_prev << 14 | (uint32_t)lobe_rc << 15);
 }
 
-/* Russian roulette from the first bounce on (rr_depth 1; pt waits for 3): seed 001 §6 applies
- * it to shorten the initial paths, whose extra noise reuse mostly absorbs. Against rr_depth 3,
- * 13 seeds of 256x256 frames after 32 warm-up frames took 7-17 % less time with a frame's MAPE
+/* Russian roulette from the first bounce on (rr_depth 1; pt waits for 3): [ReSTIR PT Enhanced §6]
+ * applies it to shorten the initial paths, whose extra noise reuse mostly absorbs. Against rr_depth
+ * 3, 13 seeds of 256x256 frames after 32 warm-up frames took 7-17 % less time with a frame's MAPE
  * within -8 % and +3 %: at equal time the error falls (docs/benchmarks.md, "Russian roulette
  * from the first bounce"). */
 struct restir_pt_params restir_pt_defaults(void)
@@ -102,9 +102,9 @@ struct restir_pt_params restir_pt_defaults(void)
     };
 }
 
-/* RIS among light candidates (seed 001 §5) pays where choosing a light by its power alone is
- * poor: several emitters at different distances and orientations from the shading point. With
- * one emitter the candidates differ only in the cosines and distances over it; on cornell-box,
+/* RIS among light candidates ([ReSTIR PT Enhanced §5]) pays where choosing a light by its power
+ * alone is poor: several emitters at different distances and orientations from the shading point.
+ * With one emitter the candidates differ only in the cosines and distances over it; on cornell-box,
  * cornell-glossy and door-ajar the three extra candidates cost about a fifth of the frame and
  * bought no measurable error reduction (docs/benchmarks.md), so a single-emitter scene gets
  * plain NEE. */
@@ -457,8 +457,9 @@ static struct pt_rc_record pt_rc_at(const struct pt_ctx *c, const struct pt_vert
  * f |cos| / p of lobe `lobe` taken along the segment between the two positions rather than along
  * the sampled ray, whose origin was moved off the surface. At grazing angles the two differ by
  * several per cent; with this the initial sample and its shift to its own pixel compute one
- * integrand (seed 001 eq. 4 is written on vertex positions). `beta_before` is the throughput up to
- * x_{k-2}; false (beta untouched) when the lobe gives nothing along the segment. */
+ * integrand ([ReSTIR PT Enhanced eq. 4] is written on vertex positions). `beta_before` is the
+ * throughput up to x_{k-2}; false (beta untouched) when the lobe gives nothing along the
+ * segment. */
 static bool pt_rc_beta(const struct pt_vertex *prev, int lobe, struct vec3 xk_p, struct vec3 beta_before,
                        struct vec3 *beta)
 {
@@ -530,7 +531,7 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
                     beta_rc_done = true;
                 }
                 struct vec3 F = vec3_mul(rc_here ? beta_rc : beta, end);
-                double W_u = (double)ls.W * p1 / src;  /* seed 001 §5: W_ris p_light */
+                double W_u = (double)ls.W * p1 / src;  /* [ReSTIR PT Enhanced §5]: W_ris p_light */
                 float target = vec3_luminance(F);
                 if (!offer) {
                     *direct = vec3_add(*direct, vec3_scale(F, (float)W_u));
@@ -586,7 +587,8 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
         if (rc.k && !found_here) beta_suf = vec3_mul(beta_suf, stp.factor);
         if (stp.bs.flags & BSDF_TRANSMISSION) rr_scale /= material_radiance_scale(v.m, v.wo, stp.bs.wi);
         if (p->rr && j >= p->rr_depth) {
-            /* Decoupled RR (seed 001 §6): survival changes the source pdf, never the integrand. */
+            /* Decoupled RR ([ReSTIR PT Enhanced §6]): survival changes the source pdf, never the
+             * integrand. */
             struct rng rr = pt_stream(seed, j, PT_PURPOSE_RR);
             float q = (float)(vec3_max_comp(beta) * rr_scale / src);
             q = q < 0.95f ? q : 0.95f;

@@ -3,14 +3,15 @@
  * a frame runs G-buffer -> initial path sampling -> temporal reuse -> spatial reuse -> shade.
  * Paths live in lobe-indexed primary sample space (PSS) and move between pixels and frames by the
  * hybrid shift: random replay until the first two consecutive connectable vertices, then
- * reconnection to the base path's vertex x_k (Jacobian: seed 001 eq. 4).
- * Options (each a session parameter, defaults as seed 001): dual ray-footprint threshold (eq. 5,
- * c = 0.02) instead of a near-field distance; PDF-based connectability (eq. 26) instead of lobe
- * roughness; Russian roulette that changes only the initial source pdf (§6); RIS-based NEE with
- * M candidates and the M-sample MIS weight (§5); direct light in the same reservoir as indirect
- * (DI/GI unification, §7).
+ * reconnection to the base path's vertex x_k (Jacobian: [ReSTIR PT Enhanced eq. 4]).
+ * Options (each a session parameter, defaults as [ReSTIR PT Enhanced]): dual ray-footprint
+ * threshold (eq. 5, c = 0.02) instead of a near-field distance; PDF-based connectability (eq. 26)
+ * instead of lobe roughness; Russian roulette that changes only the initial source pdf (§6);
+ * RIS-based NEE with M candidates and the M-sample MIS weight (§5); direct light in the same
+ * reservoir as indirect (DI/GI unification, §7).
  * The state is allocated once per session; a steady-state frame allocates nothing.
- * Refs: seed 001 (ReSTIR PT Enhanced) §1–8; Lin et al. 2022 (ReSTIR PT, GRIS); design METHODS.md §0–1. */
+ * Refs: [ReSTIR PT Enhanced §1–8]; Lin et al. 2022 (ReSTIR PT, GRIS);
+ * docs/methods.md (restir_pt). */
 #ifndef RESTIRD_RESTIR_PT_H
 #define RESTIRD_RESTIR_PT_H
 
@@ -38,7 +39,7 @@ struct RESTIRD_STORED_IN_BYTES restir_pt_params {
     bool paired_spatial;         /* neighbours paired so a pair's shifts serve both (true; restir.h) */
     bool expected_shading;       /* shade with the last spatial pass's expected contribution over
                                     its selection instead of the selected sample's F W: colour
-                                    noise reduction, seed 001 Fig. 5 (true; restir.h) */
+                                    noise reduction, [ReSTIR PT Enhanced Fig. 5] (true; restir.h) */
     bool footprint;              /* dual footprint threshold (eq. 5) vs near-field distance */
     float footprint_c;           /* c of eq. 5 (0.02) */
     float near_distance;         /* without footprint: minimum segment length, fraction of the
@@ -57,7 +58,7 @@ uint32_t restir_pt_nee_by_scene(const struct scene *scene);
 /* ERR_INVALID naming the parameter (where = "/params/<name>") when out of range. */
 bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err);
 
-/* Frame statistics: per-pass times as seed 001 Table 1, and the reuse counters. */
+/* Frame statistics: per-pass times as [ReSTIR PT Enhanced Table 1], and the reuse counters. */
 struct RESTIRD_STORED_IN_BYTES restir_pt_stats {
     double gbuffer_ms, initial_ms, temporal_ms, spatial_ms, shade_ms;
     uint64_t rays_intersect, rays_occluded;   /* G-buffer included */

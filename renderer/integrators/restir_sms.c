@@ -1,8 +1,8 @@
 /* restir_sms.c — method `restir_sms` (see restir_sms.h): the receivers, candidates from the
  * sms_ssp (or sms) sampler at them, the manifold shift, and the frame. The reuse passes are restir.c's; the rest
  * of the image is reference_pt_radiance_sms's.
- * Refs: seed 002 §5.2 (eqs. 10-13, the manifold shift), §5.3 (5 Newton steps per shift walk);
- * METHODS.md §0, §3. */
+ * Refs: [SMS-SSP §5.2] (eqs. 10-13, the manifold shift), §5.3 (5 Newton steps per shift walk);
+ * docs/methods.md (restir_sms). */
 #include "integrators/restir_sms.h"
 
 #include <math.h>
@@ -638,7 +638,7 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     pp->st = st;
     pp->out = out;
     camera_init(&pp->camera, f->camera, st->width, st->height);
-    /* The prior pass (seed 002 §4.1) under this frame's scene and camera. */
+    /* The prior pass ([SMS-SSP §4.1]) under this frame's scene and camera. */
     struct ray_counters prc = {0, 0};
     const bool ssp = params->sampler == RESTIR_SMS_SAMPLER_SSP;
     /* The walks kept from earlier frames describe this one while nothing moved (sms_ssp.h). */
@@ -725,7 +725,7 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
     if (params->spatial_neighbors > 0) {
         /* The target is a luminance, so one selected sample per pixel carries one sample's colour:
          * under lights of different colours most of its noise is colour, which the expectation
-         * over the pass's candidates leaves out (seed 001 Fig. 5). */
+         * over the pass's candidates leaves out ([ReSTIR PT Enhanced Fig. 5]). */
         pp.estimated = params->expected_shading;
         r.estimate = pp.estimated ? out->pixels : NULL;  /* adds to the path-traced rest */
         for (uint32_t l = 0; l < layers; l++)

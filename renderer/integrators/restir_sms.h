@@ -1,5 +1,5 @@
 /* restir_sms.h — method `restir_sms`: spatiotemporal resampling (ReSTIR) of specular manifold
- * samples (seed 002 §5).
+ * samples ([SMS-SSP §5]).
  *
  * Domain and integrand (§5.2, eqs. 12-13). A pixel's receiver x1 is the first diffuse or glossy
  * vertex of its camera path when the delta vertices before it all take their canonical lobe
@@ -19,7 +19,7 @@
  * (Lin et al. 2022) only needs each input's W to be an unbiased contribution weight
  * (E[f(X) W_X] = ∫ f), so resampling with the estimated inverse pdf stays unbiased — as long as
  * the trials are uncapped (bernoulli_cap 0); with a cap, solutions past it are lost exactly as in
- * `sms` (seed 002 Fig. 7), a bias the frame counters report (`capped`).
+ * `sms` ([SMS-SSP Fig. 7]), a bias the frame counters report (`capped`).
  *
  * The manifold shift (§5.2). T(caster, x_n, x̄*) = (caster, x_n, x̄*'): x_n is kept (rebuilt from
  * its point code in the target frame's scene) and the chain is walked from the base chain x̄* to
@@ -33,9 +33,10 @@
  * (surface_area_ratio; 1 for a static or rigidly moving light).
  *
  * Reuse: restir.c's temporal pass (generalized balance heuristic, confidence cap, default 20)
- * and spatial pass (pairwise MIS; default 1 neighbour in a 30-pixel radius, as seed 002 Fig. 4),
- * by default with paired neighbours (restir.h, seed 001): the neighbour relation is symmetric,
- * so a pair's two manifold shifts serve both of its pixels, one shift per pixel instead of two.
+ * and spatial pass (pairwise MIS; default 1 neighbour in a 30-pixel radius, as [SMS-SSP Fig. 4]),
+ * by default with paired neighbours (restir.h, [ReSTIR PT Enhanced]): the neighbour relation is
+ * symmetric, so a pair's two manifold shifts serve both of its pixels, one shift per pixel instead
+ * of two.
  *
  * Reservoirs per light (`light_reservoirs` n > 1). One selected path carries one light's colour,
  * so under lights of different colours most of a frame's error is that colour (docs/benchmarks.md,
@@ -57,7 +58,7 @@
  * the receivers only, and partitioning without it draws rare solutions from a 9 / N² share of
  * the seeds, whose weights were most of a frame's error (docs/benchmarks.md).
  * The state is allocated once per session; a steady-state frame allocates nothing.
- * Refs: seed 002 §5, eqs. 10-13; design METHODS.md §0, §3. */
+ * Refs: [SMS-SSP §5, eqs. 10-13]; docs/methods.md (restir_sms). */
 #ifndef RESTIRD_RESTIR_SMS_H
 #define RESTIRD_RESTIR_SMS_H
 
@@ -71,7 +72,7 @@
 #include "scene/scene.h"
 #include "integrators/sms_ssp.h"
 
-/* The candidates' sampler: seed 002's sample-space partitioning with the per-frame prior (`ssp`,
+/* The candidates' sampler: [SMS-SSP]'s sample-space partitioning with the per-frame prior (`ssp`,
  * the paper's), or plain SMS (`sms`, Zeltner et al. 2020: seeds over the caster's bounding box,
  * no prior), whose estimates have a lighter tail on our scenes (docs/benchmarks.md). The SMS
  * estimates at the pt path's later vertices use the same sampler. */

@@ -1,7 +1,8 @@
 /* restir_sss.c — method `restir_sss` (see restir_sss.h): candidate generation by BSSRDF
  * importance sampling, the reconnection / delayed reconnection / hybrid shifts, and the frame.
  * The reuse passes are restir.c's; the rest of the image is reference_pt_radiance's.
- * Refs: seed 004 §3.1 (eq. 10, Algorithm 3), §3.2 (eq. 11), §4.1, §5.1; METHODS.md §0, §4. */
+ * Refs: [ReSTIR SSS §3.1] (eq. 10, Algorithm 3), §3.2 (eq. 11), §4.1, §5.1;
+ * docs/methods.md (restir_sss). */
 #include "integrators/restir_sss.h"
 
 #include <math.h>
@@ -42,8 +43,8 @@ struct sss_sample {
 };
 _Static_assert(sizeof(struct sss_sample) == RESTIR_SSS_RESERVOIR_BYTES, "reservoir element size");
 
-/* The target p̂ of an RGB contribution F (seed 004 §3: p̂ = f; an RGB f needs a scalar): F_channel
- * for a reservoir of the per_channel target, else the luminance. With one reservoir each
+/* The target p̂ of an RGB contribution F ([ReSTIR SSS §3]: p̂ = f; an RGB f needs a scalar):
+ * F_channel for a reservoir of the per_channel target, else the luminance. With one reservoir each
  * channel of the shaded pixel carries F_c / p̂, so a strongly coloured sample is amplified in its
  * channel: luminance weighs blue by 0.0722. The largest channel bounds every F_c / p̂ by 1 and
  * lowered the RMSE on the translucent region (hybrid 0.0695 -> 0.0642 after 16 frames), but the

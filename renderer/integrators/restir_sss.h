@@ -1,4 +1,4 @@
-/* restir_sss.h — method `restir_sss`: ReSTIR for subsurface scattering (seed 004).
+/* restir_sss.h — method `restir_sss`: ReSTIR for subsurface scattering ([ReSTIR SSS]).
  * At pixels whose primary hit x1 is on a translucent material, each frame resamples paths
  * x0 -> x1 -> x2 -> x3: an entry point x2 on the same shape from BSSRDF importance sampling
  * (every probe hit is a candidate, eq. 10) and a light point x3, then reuses them temporally and
@@ -21,7 +21,7 @@
  * pixel and frame from the same primary ray (reference_pt_radiance without the entry points'
  * direct light), so the image estimates exactly what `pt` does.
  * The state is allocated once per session; a steady-state frame allocates nothing.
- * Refs: seed 004 §3–5; design METHODS.md §0, §4. */
+ * Refs: [ReSTIR SSS §3–5]; docs/methods.md (restir_sss). */
 #ifndef RESTIRD_RESTIR_SSS_H
 #define RESTIRD_RESTIR_SSS_H
 
@@ -67,9 +67,9 @@ struct RESTIRD_STORED_IN_BYTES restir_sss_params {
     bool index_shortcut;          /* sequential only: the slightly biased intersection-index
                                      shortcut of §4.3 instead of the exact mode (false) */
     bool paired_spatial;          /* symmetric neighbour pairs whose two shifts serve both pixels
-                                     (restir.h, seed 001 Table 1), half the shifts (true) */
+                                     (restir.h, [ReSTIR PT Enhanced Table 1]), half the shifts (true) */
     bool expected_shading;        /* shade with the last spatial pass's expected contribution over
-                                     its selection (restir.h; seed 001 Fig. 5) (true) */
+                                     its selection (restir.h; [ReSTIR PT Enhanced Fig. 5]) (true) */
     enum restir_sss_target target; /* (luminance) */
 };
 

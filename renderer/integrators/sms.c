@@ -1,5 +1,5 @@
 /* sms.c — specular manifold sampling inside the path tracer (see sms.h).
- * Refs: Zeltner et al. 2020 §4-5 (seeds, Bernoulli trials for 1/P); seed 002 §3.1 eqs. 1-2,
+ * Refs: Zeltner et al. 2020 §4-5 (seeds, Bernoulli trials for 1/P); [SMS-SSP §3.1 eqs. 1-2],
  * §5.2 eqs. 12-13 (the integrand over light points); Booth 2007 (unbiased reciprocal). */
 #include "integrators/sms.h"
 
@@ -211,6 +211,22 @@ double sms_now_ms(void)
     return (double)t.tv_sec * 1e3 + (double)t.tv_nsec * 1e-6;
 }
 
+/* A Bernoulli trial of sms_sample: a uniform seed of the caster's seed map, walked. */
+struct sms_trial {
+    const struct scene *scene;
+    const struct sms_caster *cs;
+    const struct manifold_ends *e;
+    const struct sms_params *p;
+};
+
+static bool sms_trial(const void *ctx, struct rng *rng, struct manifold_vertex *w, struct sms_counters *c,
+                      struct ray_counters *rc)
+{
+    const struct sms_trial *t = ctx;
+    float a = rng_next_float(rng), b = rng_next_float(rng);
+    return sms_walk_seed(t->scene, t->cs, t->e, t->p, a, b, w, &c->newton_trials, rc);
+}
+
 bool sms_sample(const struct scene *scene, const struct sms_scene *ss, const struct sms_params *p,
                 const struct surface *s, const struct material *m, struct vec3 wo, uint32_t max_chain,
                 struct rng *rng, struct sms_solution *out, struct sms_counters *c, struct ray_counters *rc)
@@ -230,32 +246,16 @@ bool sms_sample(const struct scene *scene, const struct sms_scene *ss, const str
         goto out;
     const struct material *lm = &scene->materials[scene->shapes[ls.shape].material];
     struct manifold_ends e = {.x1 = s->p, .ng1 = s->ng, .xe = ls.p, .nge = ls.n};
-    struct manifold_vertex *v = out->v, w[MANIFOLD_MAX_CHAIN];
+    struct manifold_vertex *v = out->v;
     if (!sms_walk_seed(scene, cs, &e, p, s1, s2, v, &c->newton_sample, rc) || !manifold_check(scene, &cs->chain, &e, v, rc))
         goto out;
     struct vec3 value = sms_solution_value(scene, &cs->chain, &e, v, s, m, wo, lm);
     if (vec3_is_zero(value)) goto out;
     /* Bernoulli trials: the number of fresh seeds until one walks to this solution again has
-     * expectation 1 / P(x̄*) (seed 002 §3.1). Same-solution threshold: 1e-4 of |x1 - x2|. */
-    float tol = 1e-4f * vec3_length(vec3_sub(v[0].p, s->p));
-    uint32_t limit = p->bernoulli_cap ? p->bernoulli_cap : SMS_HARD_TRIAL_LIMIT;
-    uint32_t trials = 0;
-    bool found = false;
-    while (trials < limit) {
-        trials++;
-        float a = rng_next_float(rng), b = rng_next_float(rng);
-        if (sms_walk_seed(scene, cs, &e, p, a, b, w, &c->newton_trials, rc) &&
-            manifold_same(w, v, cs->chain.length, tol)) {
-            found = true;
-            break;
-        }
-    }
-    c->trials += trials;
-    if (!found) {
-        c->capped++;
-        goto out;
-    }
-    c->solutions++;
+     * expectation 1 / P(x̄*) ([SMS-SSP §3.1]). */
+    const struct sms_trial trial = {scene, cs, &e, p};
+    uint32_t trials = sms_bernoulli(p, v, cs->chain.length, s->p, sms_trial, &trial, rng, c, rc);
+    if (!trials) goto out;
     out->caster = ci;
     out->light = ls;
     out->value = value;

@@ -1,4 +1,4 @@
-/* sms.h — specular manifold sampling (Zeltner et al. 2020; seed 002 §3.1) as an estimator
+/* sms.h — specular manifold sampling (Zeltner et al. 2020; [SMS-SSP §3.1]) as an estimator
  * inside the path tracer (method `sms`), and the split of light transport it needs so that
  * nothing is counted twice.
  *
@@ -20,7 +20,7 @@
  *     f(x1) |cos θ1| T(x̄*) G(x1 ↔ x_n) L_e · C / p(x_n) · W,
  * with T the specular throughput, G the generalized geometry term |dω1/dA(x_n)| and W the
  * number of Bernoulli trials (fresh seeds walked until one reaches the same solution again),
- * whose expectation is 1 / P(x̄*) (Booth 2007; seed 002 eq. 2). With a cap, a solution whose
+ * whose expectation is 1 / P(x̄*) (Booth 2007; [SMS-SSP eq. 2]). With a cap, a solution whose
  * trials exceed it contributes 0 (biased: energy lost, counted); cap 0 = uncapped.
  *
  * The seed map: u picks a point on the surface of the caster's world bounding box (a face by
@@ -53,12 +53,12 @@ enum pt_subset { PT_SUBSET_ALL, PT_SUBSET_CAUSTIC, PT_SUBSET_REST };
 
 struct sms_params {
     uint32_t bernoulli_cap;    /* max Bernoulli trials per solution; 0 = uncapped (default 128,
-                                  as seed 002 §6) */
+                                  as [SMS-SSP §6]) */
     uint32_t max_iterations;   /* Newton steps per walk (default 20) */
     bool caustics_only;        /* render only the SMS estimate (no path-traced rest) */
 };
 
-/* Table 1 of seed 002 (manifold sampling columns). */
+/* Table 1 of [SMS-SSP] (manifold sampling columns). */
 struct sms_counters {
     uint64_t samples;          /* SMS estimates attempted (one per x1) */
     uint64_t solutions;        /* of those, a valid solution with a non-zero contribution */
@@ -127,6 +127,40 @@ struct vec3 sms_solution_value(const struct scene *scene, const struct manifold_
                                const struct manifold_ends *e, const struct manifold_vertex *v, const struct surface *s,
                                const struct material *m, struct vec3 wo, const struct material *light);
 double sms_now_ms(void);
+
+/* One Bernoulli trial: a fresh seed drawn from rng, walked to a solution in w (false: none). */
+typedef bool sms_trial_fn(const void *ctx, struct rng *rng, struct manifold_vertex *w, struct sms_counters *c,
+                          struct ray_counters *rc);
+/* Bernoulli trials (Booth 2007; [SMS-SSP §3.1]): how many fresh seeds, each drawn and walked by
+ * `trial`, it takes until one reaches the solution v (chain length n, from x1) again — the same
+ * solution within 1e-4 of |x1 - x2| — whose expectation is 1 / P(v) (the seed distribution's).
+ * 0 when p->bernoulli_cap trials (0: SMS_HARD_TRIAL_LIMIT) do not find it: that solution's
+ * energy is lost. Counts the trials, and the solution as found or capped. Inline, so that the
+ * sampler's trial is a direct call. */
+static inline uint32_t sms_bernoulli(const struct sms_params *p, const struct manifold_vertex *v, uint32_t n,
+                                     struct vec3 x1, sms_trial_fn *trial, const void *ctx, struct rng *rng,
+                                     struct sms_counters *c, struct ray_counters *rc)
+{
+    float tol = 1e-4f * vec3_length(vec3_sub(v[0].p, x1));
+    uint32_t limit = p->bernoulli_cap ? p->bernoulli_cap : SMS_HARD_TRIAL_LIMIT;
+    struct manifold_vertex w[MANIFOLD_MAX_CHAIN];
+    uint32_t trials = 0;
+    bool found = false;
+    while (trials < limit) {
+        trials++;
+        if (trial(ctx, rng, w, c, rc) && manifold_same(w, v, n, tol)) {
+            found = true;
+            break;
+        }
+    }
+    c->trials += trials;
+    if (!found) {
+        c->capped++;
+        return 0;
+    }
+    c->solutions++;
+    return trials;
+}
 
 /* restir_sms's receivers (restir_sms.h): the first diffuse or glossy vertex of a camera path
  * whose delta vertices before it (at most SMS_RECEIVER_MAX_PREFIX) all took their material's

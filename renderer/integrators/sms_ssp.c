@@ -1,5 +1,5 @@
 /* sms_ssp.c — sample-space partitioning and per-frame priors for SMS (see sms_ssp.h).
- * Refs: seed 002 §3.3 (trust regions, conditional sample space, eqs. 4-5), §4.1 (prior,
+ * Refs: [SMS-SSP §3.3] (trust regions, conditional sample space, eqs. 4-5), §4.1 (prior,
  * eqs. 7-9). */
 #include "integrators/sms_ssp.h"
 
@@ -369,6 +369,31 @@ bool ssp_prior_build(struct ssp_prior *pr, const struct scene *scene, const stru
     return true;
 }
 
+/* A Bernoulli trial of ssp_sample, drawn in the conditional space C(u*) (eq. 9): a tile of I ∩ C
+ * with probability alpha_c, else one of C's nine, a point in it, walked inside its trust region. */
+struct ssp_trial {
+    const struct scene *scene;
+    const struct sms_caster *cs;
+    const struct manifold_ends *e;
+    const struct ssp_cone *k;
+    uint32_t n, max_it;
+    double alpha_c;
+    const uint32_t *ic, *ctile;
+    uint32_t nic;
+};
+
+static bool ssp_trial(const void *ctx, struct rng *rng, struct manifold_vertex *w, struct sms_counters *c,
+                      struct ray_counters *rc)
+{
+    const struct ssp_trial *tr = ctx;
+    const uint32_t n = tr->n;
+    float a = rng_next_float(rng), b1 = rng_next_float(rng), b2 = rng_next_float(rng);
+    uint32_t t = a < tr->alpha_c ? tr->ic[(uint32_t)(a / tr->alpha_c * (float)tr->nic) % tr->nic]
+                                 : tr->ctile[(uint32_t)((a - tr->alpha_c) / (1.0 - tr->alpha_c) * 9.0) % 9];
+    float t1 = ((float)(t / n) + b1) / (float)n, t2 = ((float)(t % n) + b2) / (float)n;
+    return ssp_walk(tr->scene, tr->cs, tr->e, tr->k, n, t1, t2, tr->max_it, w, &c->newton_trials, rc);
+}
+
 bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const struct ssp_params *p,
                 const struct ssp_prior *pr, uint32_t px, uint32_t py, const struct surface *s, const struct material *m,
                 struct vec3 wo, uint32_t max_chain, struct rng *rng, struct sms_solution *out, struct sms_counters *c,
@@ -404,7 +429,7 @@ bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const str
         u1 = ((float)(t / n) + s1) / (float)n;
         u2 = ((float)(t % n) + s2) / (float)n;
     }
-    struct manifold_vertex *v = out->v, w[MANIFOLD_MAX_CHAIN];
+    struct manifold_vertex *v = out->v;
     if (!ssp_walk(scene, cs, &e, &k, n, u1, u2, p->sms.max_iterations, v, &c->newton_sample, rc) ||
         !manifold_check(scene, &cs->chain, &e, v, rc))
         goto out;
@@ -423,28 +448,9 @@ bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const str
     double mass_i = alpha > 0.0f ? (double)alpha * nic / I->count : 0.0;
     double pc = mass_i + (1.0 - alpha) * 9.0 / (double)n2;
     double alpha_c = mass_i / pc;
-    float tol = 1e-4f * vec3_length(vec3_sub(v[0].p, s->p));
-    uint32_t limit = p->sms.bernoulli_cap ? p->sms.bernoulli_cap : SMS_HARD_TRIAL_LIMIT;
-    uint32_t trials = 0;
-    bool found = false;
-    while (trials < limit) {
-        trials++;
-        float a = rng_next_float(rng), b1 = rng_next_float(rng), b2 = rng_next_float(rng);
-        uint32_t t = a < alpha_c ? ic[(uint32_t)(a / alpha_c * (float)nic) % nic]
-                                 : ctile[(uint32_t)((a - alpha_c) / (1.0 - alpha_c) * 9.0) % 9];
-        float t1 = ((float)(t / n) + b1) / (float)n, t2 = ((float)(t % n) + b2) / (float)n;
-        if (ssp_walk(scene, cs, &e, &k, n, t1, t2, p->sms.max_iterations, w, &c->newton_trials, rc) &&
-            manifold_same(w, v, cs->chain.length, tol)) {
-            found = true;
-            break;
-        }
-    }
-    c->trials += trials;
-    if (!found) {
-        c->capped++;
-        goto out;
-    }
-    c->solutions++;
+    const struct ssp_trial trial = {scene, cs, &e, &k, n, p->sms.max_iterations, alpha_c, ic, ctile, nic};
+    uint32_t trials = sms_bernoulli(&p->sms, v, cs->chain.length, s->p, ssp_trial, &trial, rng, c, rc);
+    if (!trials) goto out;
     out->caster = ci;
     out->light = ls;
     out->value = value;

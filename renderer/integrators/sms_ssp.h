@@ -1,5 +1,5 @@
 /* sms_ssp.h — specular manifold sampling with sample-space partitioning and per-frame priors
- * (method `sms_ssp`, seed 002 §3-4). It owns the same caustic paths as `sms` (sms.h) and only
+ * (method `sms_ssp`, [SMS-SSP §3-4]). It owns the same caustic paths as `sms` (sms.h) and only
  * changes how the estimate at a vertex x1 is made:
  *
  * Seed space (§3.1). u in [0,1)^2 is a direction from x1 inside a cone that holds the caster
@@ -76,7 +76,7 @@ struct ssp_entry {
     uint64_t bits[SSP_MAX_TILES * SSP_MAX_TILES / 64];
 };
 
-/* Prior construction counters (seed 002 Table 1, first columns). */
+/* Prior construction counters ([SMS-SSP Table 1], first columns). */
 struct RESTIRD_STORED_IN_BYTES ssp_prior_counters {
     uint64_t samples, solutions, newton, dropped_pairs;
     double ms;

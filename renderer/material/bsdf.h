@@ -30,7 +30,7 @@ float bsdf_dielectric_pdf_lobe(const struct material *m, int lobe, struct vec3 w
 bool bsdf_dielectric_sample(const struct material *m, struct vec3 wo, float u_lobe, float u1,
                             float u2, enum transport_mode mode, struct bsdf_sample *out);
 
-/* Translucent: the local stand-in for the BSSRDF at vertices after the primary hit (seed 004
+/* Translucent: the local stand-in for the BSSRDF at vertices after the primary hit ([ReSTIR SSS]
  * §2.1): f = albedo (1 - F(wo)) (1 - F(wi)) / (sss_c pi), Burley's diffusion integrated over a
  * flat, uniformly lit surface; two-sided like the diffuse BRDF, cosine-weighted sampling. */
 struct vec3 bsdf_translucent_eval(const struct material *m, struct vec3 wo, struct vec3 wi);

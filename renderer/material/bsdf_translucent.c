@@ -1,5 +1,5 @@
 /* bsdf_translucent.c — the translucent material as a BSDF: the stand-in used wherever the
- * BSSRDF is not sampled (every vertex after the primary hit, seed 004 §2.1). It is Burley's
+ * BSSRDF is not sampled (every vertex after the primary hit, [ReSTIR SSS §2.1]). It is Burley's
  * diffusion (bssrdf.h) with the entry point taken at the exit point: integrating the profile over
  * a flat plane leaves albedo (1 - F(wo)) (1 - F(wi)) / (c pi), reciprocal and energy-conserving
  * (its directional albedo is albedo (1 - F(wo)) <= albedo). Two-sided, cosine-weighted sampling.

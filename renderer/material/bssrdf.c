@@ -1,7 +1,7 @@
 /* bssrdf.c — Burley's normalized diffusion, its radius sampling, the probe-ray construction and
  * the 9-technique MIS pdf of BSSRDF importance sampling (see bssrdf.h for the model).
  * Must not trace rays (callers do, through accel.h) nor allocate.
- * Refs: seed 004 §2.1 eqs. 2–4, §3.1 eq. 10, Algorithm 4; Christensen 2015 (profile, scaling);
+ * Refs: [ReSTIR SSS §2.1 eqs. 2–4, §3.1 eq. 10, Algorithm 4]; Christensen 2015 (profile, scaling);
  * King et al. 2013 (axis/channel MIS). */
 #include "material/bssrdf.h"
 

@@ -1,7 +1,7 @@
 /* bssrdf.h — the translucent material's subsurface scattering: Burley's normalized diffusion
  * profile behind a smooth dielectric boundary, and BSSRDF importance sampling by probe rays.
  *
- *   S(x1, wo, x2, wi) = (1 - F(wo)) R(|x2 - x1|) (1 - F(wi)) / (c pi)           (seed 004 eq. 2)
+ *   S(x1, wo, x2, wi) = (1 - F(wo)) R(|x2 - x1|) (1 - F(wi)) / (c pi)   ([ReSTIR SSS eq. 2])
  *   R_k(r) = A_k p_k(r) / P_k(r_max,k) for r < r_max,k, else 0                      (eq. 3)
  *   p(r) = (e^{-r/d} + e^{-r/3d}) / (8 pi d r),  P(r) = 1 - e^{-r/d}/4 - 3 e^{-r/3d}/4  (eq. 4)
  *
@@ -14,7 +14,7 @@
  * The profile is cut at r_max = P^-1(0.999) and renormalised, so each channel's profile is zero
  * where its own sampling technique cannot reach.
  *
- * Sampling (King et al. 2013; seed 004 §2.1, §3.1): a technique is a projection axis of the
+ * Sampling (King et al. 2013; [ReSTIR SSS §2.1, §3.1]): a technique is a projection axis of the
  * frame at x1 (normal 1/2, tangent 1/4, bitangent 1/4) and a channel (1/3 each); a radius r is
  * drawn by inverting P on [0, 0.999) and an angle uniformly, giving a point on the disk through
  * x1 perpendicular to the axis; a probe segment along the axis through it, inside the sphere of
@@ -91,7 +91,7 @@ float bssrdf_pdf_a(const struct material *m, struct vec3 p1, const struct frame 
 float bssrdf_pdf_a_and(const struct material *m, struct vec3 p1, const struct frame *f1, struct vec3 p2, struct vec3 n2,
                        int axis, int channel, float *pdf_t);
 
-/* Probabilistic inversion of the disk sampling for a fixed technique (seed 004 Algorithm 4,
+/* Probabilistic inversion of the disk sampling for a fixed technique ([ReSTIR SSS Algorithm 4],
  * lines 2–9): the radius and angle numbers that put the disk point of (axis, channel) under
  * x2. False when x2 is out of that technique's reach. */
 bool bssrdf_invert(const struct material *m, struct vec3 p1, const struct frame *f1, int axis, int channel,

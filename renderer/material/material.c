@@ -3,7 +3,8 @@
  * bsdf_translucent.c.
  * This is the only switch on material kind in the renderer; the BSDF mathematics lives in the
  * bsdf_*.c files, microfacet.c and fresnel.h, never here.
- * Refs: seed 001 §1 (lobe-indexed paths: sampling reports the lobe; eval/pdf per lobe). */
+ * Refs: [ReSTIR PT Enhanced §1] (lobe-indexed paths: sampling reports the lobe; eval/pdf per
+ * lobe). */
 #include "material/material.h"
 
 #include "material/bsdf.h"

@@ -81,8 +81,8 @@ struct vec3 material_eval(const struct material *m, struct vec3 wo, struct vec3 
 /* Solid-angle pdf that material_sample returns wi given wo, summed over non-delta lobes with
  * their selection probabilities. The reverse pdf is material_pdf(m, wi, wo). */
 float material_pdf(const struct material *m, struct vec3 wo, struct vec3 wi);
-/* The same restricted to one lobe (lobe-indexed paths, seed 001 §1): eval of that lobe alone
- * and pdf of sampling wi *through* that lobe, including its selection probability. */
+/* The same restricted to one lobe (lobe-indexed paths, [ReSTIR PT Enhanced §1]): eval of that lobe
+ * alone and pdf of sampling wi *through* that lobe, including its selection probability. */
 struct vec3 material_eval_lobe(const struct material *m, int lobe, struct vec3 wo, struct vec3 wi,
                                enum transport_mode mode);
 float material_pdf_lobe(const struct material *m, int lobe, struct vec3 wo, struct vec3 wi);

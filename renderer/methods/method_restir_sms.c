@@ -94,7 +94,7 @@ static void rsms_size_hint(const void *params, const struct scene *scene, char *
 static const struct method_stat rsms_stats[] = {
     METHOD_PASS_STATS(T, RSMS_INITIAL),
     METHOD_PRIOR_STATS(T, prior.),
-    /* The resampling column of seed 002 Table 1: the shifts' Newton steps (both walks) and the
+    /* The resampling column of [SMS-SSP Table 1]: the shifts' Newton steps (both walks) and the
      * walks back that missed the base chain. */
     {"manifold_shift", NULL, METHOD_STAT_BEGIN, 0, 0},
     {"newton", NULL, METHOD_STAT_U64, offsetof(T, shift_newton), 0},

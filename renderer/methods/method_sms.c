@@ -134,7 +134,7 @@ static bool ssp_render(void *state, const void *params, const struct method_fram
     const struct ssp_method_params *sp = params;
     struct ssp_state *st = state;
     struct ssp_prior_counters *prior = (struct ssp_prior_counters *)(void *)stats->counters;
-    /* The prior pass (seed 002 §4.1) before the frame, under this frame's scene and camera. */
+    /* The prior pass ([SMS-SSP §4.1]) before the frame, under this frame's scene and camera. */
     struct camera cam;
     struct ray_counters prc = {0, 0};
     struct sms_scene ss;

@@ -1,4 +1,4 @@
-/* prior_stats.h — the statistics lines of a per-frame manifold sampling prior (seed 002 Table 1,
+/* prior_stats.h — the statistics lines of a per-frame manifold sampling prior ([SMS-SSP Table 1],
  * prior construction), shared by sms_ssp and restir_sms. MEMBER: the path of the prior's
  * counters in the method's counters struct, with a trailing '.', or empty. */
 #ifndef RESTIRD_PRIOR_STATS_H

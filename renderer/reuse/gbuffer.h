@@ -12,8 +12,8 @@
  * The previous position accounts for camera motion and for shapes that moved between the two
  * frames' scenes (derived scenes keep shape indices). Visibility in the previous frame is not
  * checked here: a temporal shift validates its own vertices.
- * Refs: design ARCHITECTURE.md ("gbuffer pass"); METHODS.md §1 (temporal reuse evaluates the
- * previous domain with the previous camera and scene). */
+ * Refs: docs/architecture.md (the G-buffer pass); docs/methods.md, "Reuse shared by the methods"
+ * (temporal reuse evaluates the previous domain with the previous camera and scene). */
 #ifndef RESTIRD_GBUFFER_H
 #define RESTIRD_GBUFFER_H
 

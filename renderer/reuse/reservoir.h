@@ -2,12 +2,13 @@
  * ReSTIR method keeps per pixel. The sample itself is the technique's own payload (a path, a
  * light vertex, a manifold solution): a reservoir records only the numbers resampling needs,
  * and reservoir_stream_offer tells the caller when to copy the candidate's payload.
- * Fields keep one meaning each (design ARCHITECTURE.md): `w_sum` exists only while streaming,
+ * Fields keep one meaning each (docs/architecture.md): `w_sum` exists only while streaming,
  * `W` is the unbiased contribution weight of the selected sample, `M` the confidence,
  * `target` the target function p̂ of the selected sample in the pixel it belongs to.
  * Header-only, allocation-free, thread-safe (no shared state).
  * Refs: Lin et al. 2022 (GRIS, §4–5: resampling weights m_i p̂(T(X_i)) W_i |J_i|, W = w_sum / p̂(Y));
- * design METHODS.md §0 (double w_sum, non-finite weights rejected and counted). */
+ * docs/methods.md, "Reuse shared by the methods" (double w_sum, non-finite weights rejected
+ * and counted). */
 #ifndef RESTIRD_RESERVOIR_H
 #define RESTIRD_RESERVOIR_H
 

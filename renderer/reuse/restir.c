@@ -140,7 +140,7 @@ static void restir_temporal_pixel(const struct restir_pass *p, uint32_t pixel, s
     hc->M = restir_clamp_m(res.M);
 }
 
-/* Spatial reuse of one pixel with defensive pairwise MIS (Bitterli 2022, GRIS §6.2): the
+/* Spatial reuse of one pixel with defensive pairwise MIS (Bitterli 2021, GRIS §6.2): the
  * canonical sample keeps weight (1 + sum_n (1 - t_n)) / (k + 1), neighbour n's sample
  * M_n p̂_n / (M_n p̂_n + (M_c / k) p̂_c(T(X_n)) |J|) / (k + 1); k counts the neighbours that
  * can produce samples, chosen before any sample is looked at. */
@@ -231,10 +231,10 @@ static void restir_spatial_pixel(const struct restir_pass *p, uint32_t pixel, st
  * Pairwise MIS needs, for a canonical pixel c and a neighbour n, two shifts: n's sample into c
  * (the candidate) and c's sample into n (c's canonical weight). When n also takes c as a
  * neighbour it needs the very same two shifts, so a symmetric neighbour relation halves the
- * shifts of a round (seed 001, Table 1, "paired spatial reuse"). Each of the round's `neighbors`
- * pairings is an involution on the pixels: the image is cut into B x B blocks (B the largest
- * power of two <= radius, the block grid shifted at random per pairing) and inside a block pixel
- * (x, y) pairs with (x ^ a, y ^ b) for a random non-zero mask (a, b) per block. Partners are
+ * shifts of a round ([ReSTIR PT Enhanced Table 1], "paired spatial reuse"). Each of the round's
+ * `neighbors` pairings is an involution on the pixels: the image is cut into B x B blocks (B the
+ * largest power of two <= radius, the block grid shifted at random per pairing) and inside a block
+ * pixel (x, y) pairs with (x ^ a, y ^ b) for a random non-zero mask (a, b) per block. Partners are
  * therefore within B - 1 pixels on each axis, drawn independently of any sample; the pairing's
  * owner (the smaller pixel index) computes both shifts and updates both reservoirs, which no
  * other pair of the same pairing touches. */

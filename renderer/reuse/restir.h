@@ -6,8 +6,9 @@
  * never look inside a payload; a technique's initial and shade passes live in its own file.
  * Deterministic for a seed: every random decision comes from a per-(frame, pixel, pass) stream.
  * Allocation-free per frame (the element scratch of a shift is on the stack).
- * Refs: Lin et al. 2022 (GRIS) eq. 9 and §6.2; design ARCHITECTURE.md (pass pipeline),
- * METHODS.md §0 (caps, null samples, neighbours that can never produce a sample). */
+ * Refs: Lin et al. 2022 (GRIS) eq. 9 and §6.2; docs/architecture.md (pass pipeline);
+ * docs/methods.md, "Reuse shared by the methods" (caps, null samples, neighbours that can never
+ * produce a sample). */
 #ifndef RESTIRD_RESTIR_H
 #define RESTIRD_RESTIR_H
 
@@ -99,9 +100,10 @@ struct restir_reuse {
     /* Spatial: when set (and ops->value is), the pass adds to estimate[pixel] the expectation of
      * F(Y) W over its own final selection, sum_i w_i F(Y_i) / p̂(Y_i) = sum_i m_i W_i |J_i| F(Y_i)
      * over every candidate it resampled: the same unbiased estimate without the selection's noise,
-     * which for a luminance target is mostly colour noise (seed 001 Fig. 5: "the vectorized form
-     * of the resampling weight"). For a frame's last spatial pass; the selected sample still goes
-     * on as the next frame's history. Pixels the pass leaves as they were add F(Y) W. */
+     * which for a luminance target is mostly colour noise ([ReSTIR PT Enhanced Fig. 5]: "the
+     * vectorized form of the resampling weight"). For a frame's last spatial pass; the selected
+     * sample still goes on as the next frame's history. Pixels the pass leaves as they were add
+     * F(Y) W. */
     struct vec3 *estimate;
 };
 

@@ -5,7 +5,7 @@
  * of the shift that brought it there, so all values of one sum share one measure.
  * Pure functions: no state, thread-safe.
  * Refs: Lin et al. 2022 (GRIS) eq. 9 (generalized balance heuristic) and §6.2 (pairwise MIS,
- * after Bitterli 2022); design METHODS.md §0. */
+ * after Bitterli 2021); docs/methods.md, "Reuse shared by the methods". */
 #ifndef RESTIRD_REUSE_MIS_H
 #define RESTIRD_REUSE_MIS_H
 

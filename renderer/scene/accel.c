@@ -3,7 +3,7 @@
  * occlusion queries.
  * Must not know about materials or lights. Counts every query in caller-owned counters.
  * Refs: Embree 3 API (rtcore.h); instancing keeps per-frame transform updates to a top-level
- * re-commit (ARCHITECTURE.md "accel"). */
+ * re-commit (docs/architecture.md, "accel"). */
 #include "scene/accel.h"
 
 #include <embree3/rtcore.h>

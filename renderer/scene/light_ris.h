@@ -4,8 +4,8 @@
  * unbiased contribution weight W (solid angle), so f * Le * |cos| * V * W estimates direct
  * light without bias for any M >= 1 (M = 1 is plain NEE). One shadow ray, whatever M.
  * Allocation-free, thread-safe.
- * Refs: seed 001 §5 (RIS-based NEE; its MIS weight against BSDF sampling is
- * M p_light / (M p_light + p_bsdf)); Talbot et al. 2005 (RIS); design METHODS.md §1. */
+ * Refs: [ReSTIR PT Enhanced §5] (RIS-based NEE; its MIS weight against BSDF sampling is
+ * M p_light / (M p_light + p_bsdf)); Talbot et al. 2005 (RIS); docs/methods.md (restir_pt). */
 #ifndef RESTIRD_LIGHT_RIS_H
 #define RESTIRD_LIGHT_RIS_H
 

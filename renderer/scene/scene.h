@@ -3,7 +3,7 @@
  * Shapes are either triangle meshes (quad, box, disk and mesh files all become meshes at load)
  * or analytic spheres, each with its own object-to-world transform. A committed scene is
  * immutable and shared by sessions through a reference count.
- * Refs: shared design SCENES.md; docs/scene-format.md documents the JSON. */
+ * Refs: docs/scene-format.md documents the JSON. */
 #ifndef RESTIRD_SCENE_H
 #define RESTIRD_SCENE_H
 

@@ -69,7 +69,7 @@ def write_obj(path, verts, norms, faces, header):
 
 
 # How bumpy the two casters are: a scale of the wave numbers of `bumps`. At 1 (the library's) the
-# casters undulate gently: one SMS seed in three (slab) or two (plane) finds a solution. Seed 002
+# casters undulate gently: one SMS seed in three (slab) or two (plane) finds a solution. [SMS-SSP]
 # measures its method where SMS struggles (its Table 1: 9.4 % and 8.1 %); bench/sms.py renders
 # copies at larger scales to show that regime (docs/benchmarks.md, "Near-square tiles, and how
 # bumpy the casters are").

@@ -20,6 +20,7 @@
 #include "scene/scene.h"
 #include "session_buffers.h"
 #include "test.h"
+#include "scene_fixture.h"
 #include "session/view.h"
 
 #include "bdpt_paths.h"
@@ -168,24 +169,11 @@ static void test_params(void)
     CHECK(strcmp(bdpt_heuristic_name(BDPT_HEURISTIC_BALANCE), "balance") == 0);
 }
 
-static struct scene *load(const char *path)
-{
-    struct err err = {0};
-    struct scene *s = scene_load_file(path, &err);
-    CHECK_MSG(s != NULL, "%s: %s", path, err.message);
-    if (s && !scene_commit(s, &err)) {
-        CHECK_MSG(false, "%s", err.message);
-        scene_release(s);
-        return NULL;
-    }
-    return s;
-}
-
 /* The memory budget reserves what a session will allocate: planned bytes = allocated bytes,
  * for the default and for a given N_L and cache size. */
 static void test_session_bytes_planned_match_allocated(void)
 {
-    struct scene *sc = load("scenes/lamp-in-glass/scene.json");
+    struct scene *sc = fixture_load("scenes/lamp-in-glass/scene.json");
     if (!sc) return;
     for (int k = 0; k < 2; k++) {
         struct err err = {0};
@@ -208,7 +196,7 @@ static void test_session_bytes_planned_match_allocated(void)
  * scene with environment light is refused at creation. */
 static void test_frames_and_stats(void)
 {
-    struct scene *sc = load("scenes/caustic-sphere/scene.json");
+    struct scene *sc = fixture_load("scenes/caustic-sphere/scene.json");
     if (!sc) return;
     struct err err = {0};
     struct view_params vp = view_params_defaults(method_find("bdpt"), 24, 16);
@@ -225,7 +213,7 @@ static void test_frames_and_stats(void)
     view_destroy(&v);
     scene_release(sc);
 
-    struct scene *env = load("scenes/furnace/scene.json");
+    struct scene *env = fixture_load("scenes/furnace/scene.json");
     if (!env) return;
     CHECK(!view_init(&v, env, &vp, 1, &err) && err.code == ERR_INVALID && strstr(err.message, "environment"));
     scene_release(env);

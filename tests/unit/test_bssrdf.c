@@ -14,7 +14,7 @@
  * - probe hits come back ordered by distance on the one shape asked for, and the single
  *   filtered traversal returns what the repeated closest-hit queries it replaced returned, over
  *   24 000 random rays (every difference is one of the documented rounding-level cases);
- * - probabilistic inversion (seed 004 Algorithm 4) round trips, and it picks techniques in
+ * - probabilistic inversion ([ReSTIR SSS Algorithm 4]) round trips, and it picks techniques in
  *   proportion to P(t) p_t(x2);
  * - the translucent stand-in BSDF is reciprocal and its directional albedo is albedo (1 - F). */
 #include <math.h>
@@ -29,6 +29,7 @@
 #include "scene/scene.h"
 #include "scene/surface.h"
 #include "test.h"
+#include "scene_fixture.h"
 
 static struct material test_material(struct vec3 albedo, struct vec3 mfp, float ior)
 {
@@ -104,18 +105,6 @@ static void test_radius_chi2(void)
 
 /* ---- flat plane ---- */
 
-static struct scene *load_scene(const char *json)
-{
-    struct err err = {0};
-    struct scene *s = scene_load_json(json, strlen(json), ".", &err);
-    if (!s || !scene_commit(s, &err)) {
-        fprintf(stderr, "scene: %s at %s\n", err.message, err.where);
-        if (s) scene_release(s);
-        return NULL;
-    }
-    return s;
-}
-
 /* mfp with albedo 0.8 (s = 1.1): d = (0.04545, 0.02273, 0.01136), r_max ~ (0.91, 0.45, 0.23). */
 #define TEST_MAT "\"sss\": {\"type\": \"translucent\", \"albedo\": [0.8, 0.8, 0.8], \"mfp\": [0.05, 0.025, 0.0125], \"ior\": 1.4}"
 
@@ -175,7 +164,7 @@ static struct probe_stats run_probes(const struct scene *sc, uint32_t shape, str
 
 static void test_mis_pdf_flat_plane(void)
 {
-    struct scene *sc = load_scene(plane_json);
+    struct scene *sc = fixture_load_json(plane_json, ".");
     CHECK(sc != NULL);
     if (!sc) return;
     const struct material *m = &sc->materials[0];
@@ -247,7 +236,7 @@ static void sphere_quadrature(const struct material *m, struct vec3 p1, const st
 
 static void test_mis_pdf_curved_surface(void)
 {
-    struct scene *sc = load_scene(sphere_json);
+    struct scene *sc = fixture_load_json(sphere_json, ".");
     CHECK(sc != NULL);
     if (!sc) return;
     const struct material *m = &sc->materials[0];
@@ -274,7 +263,7 @@ static void test_mis_pdf_curved_surface(void)
 
 static void test_probe_hits_ordered_on_one_shape(void)
 {
-    struct scene *sc = load_scene(sphere_json);
+    struct scene *sc = fixture_load_json(sphere_json, ".");
     CHECK(sc != NULL);
     if (!sc) return;
     struct ray_counters rc = {0, 0};

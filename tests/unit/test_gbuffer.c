@@ -14,19 +14,7 @@
 #include "scene/scene.h"
 #include "scene/surface.h"
 #include "test.h"
-
-static struct scene *load_cornell(void)
-{
-    struct err err = {0};
-    struct scene *s = scene_load_file("scenes/cornell-box/scene.json", &err);
-    CHECK_MSG(s != NULL, "%s", err.message);
-    if (s && !scene_commit(s, &err)) {
-        CHECK_MSG(false, "%s", err.message);
-        scene_release(s);
-        return NULL;
-    }
-    return s;
-}
+#include "scene_fixture.h"
 
 static void test_camera_project_round_trip(void)
 {
@@ -98,7 +86,7 @@ static double check_motion(const struct gbuffer *g, const struct scene *cur, con
 
 static void test_motion_vectors(void)
 {
-    struct scene *s = load_cornell();
+    struct scene *s = fixture_load("scenes/cornell-box/scene.json");
     if (!s) return;
     struct gbuffer g;
     struct err err = {0};
@@ -163,7 +151,7 @@ static void test_motion_vectors(void)
  * different from one frame to the next. */
 static void test_jitter_deterministic(void)
 {
-    struct scene *s = load_cornell();
+    struct scene *s = fixture_load("scenes/cornell-box/scene.json");
     if (!s) return;
     struct gbuffer a, b;
     struct err err = {0};
@@ -202,7 +190,7 @@ static double jitter_chi2(const float *x, const float *y, uint32_t n)
  * clamped at the pixel's edges instead of reflected pile up there and fail the same test. */
 static void test_jitter_walk(void)
 {
-    struct scene *s = load_cornell();
+    struct scene *s = fixture_load("scenes/cornell-box/scene.json");
     if (!s) return;
     enum { W = 64, H = 64, N = W * H, FRAMES = 64 };
     /* Larger than restir_sms's 0.1: the walk mixes in fewer frames and the clamped control piles
@@ -289,7 +277,7 @@ static uint32_t check_kept_surfaces(const struct gbuffer *g, const struct scene 
  * coordinates and on a moved one. */
 static void test_kept_surfaces(void)
 {
-    struct scene *s = load_cornell();
+    struct scene *s = fixture_load("scenes/cornell-box/scene.json");
     if (!s) return;
     struct gbuffer g;
     struct err err = {0};

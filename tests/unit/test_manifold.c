@@ -15,16 +15,7 @@
 #include "scene/scene.h"
 #include "scene/surface.h"
 #include "test.h"
-
-static struct scene *load(const char *json)
-{
-    struct err err = {0};
-    struct scene *s = scene_load_json(json, strlen(json), NULL, &err);
-    CHECK_MSG(s != NULL, "%s at %s", err.message, err.where);
-    if (!s) return NULL;
-    CHECK_MSG(scene_commit(s, &err), "%s", err.message);
-    return s;
-}
+#include "scene_fixture.h"
 
 #define SCENE_HEAD "{\"camera\": {\"position\": [0, 5, 5], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0], \"fov_deg\": 40}, "
 
@@ -86,7 +77,7 @@ static int walk_from_perturbed(const struct scene *s, const struct manifold_chai
 
 static void test_flat_mirror(void)
 {
-    struct scene *s = load(mirror_json);
+    struct scene *s = fixture_load_json(mirror_json, NULL);
     if (!s) return;
     struct manifold_chain ch = {.shape = 0, .length = 1, .events = {MANIFOLD_REFLECT}};
     struct manifold_ends e = {.x1 = vec3_make(-0.5f, 1.0f, 0.1f), .ng1 = vec3_make(0, 1, 0),
@@ -131,7 +122,7 @@ static struct vec3 snell_point(struct vec3 a, float ha, double na, struct vec3 b
 
 static void test_flat_interface(void)
 {
-    struct scene *s = load(interface_json);
+    struct scene *s = fixture_load_json(interface_json, NULL);
     if (!s) return;
     struct manifold_chain ch = {.shape = 0, .length = 1, .events = {MANIFOLD_REFRACT}, .ior = 1.5f};
     struct manifold_ends e = {.x1 = vec3_make(-0.3f, -1.0f, 0.2f), .ng1 = vec3_make(0, 1, 0),
@@ -193,7 +184,7 @@ static void slab_points(struct vec3 x1, struct vec3 xe, struct vec3 out[2])
 
 static void test_flat_slab(void)
 {
-    struct scene *s = load(slab_json);
+    struct scene *s = fixture_load_json(slab_json, NULL);
     if (!s) return;
     struct manifold_chain ch = {.shape = 0, .length = 2, .events = {MANIFOLD_REFRACT, MANIFOLD_REFRACT}, .ior = 1.5f};
     struct manifold_ends e = {.x1 = vec3_make(-0.3f, -1.0f, 0.2f), .ng1 = vec3_make(0, 1, 0),
@@ -327,7 +318,7 @@ static void test_curved(void)
     /* Analytic spheres: Embree intersects them in float, and the hit is re-projected radially,
      * which moves path tracing's own hit off the ray by up to ~4e-5 of the radius: the re-traced
      * path is only that accurate, while the walk solves the exact sphere in double. */
-    s = load(spheres_json);
+    s = fixture_load_json(spheres_json, NULL);
     if (!s) return;
     struct manifold_chain glass = {.shape = 0, .length = 2, .events = {MANIFOLD_REFRACT, MANIFOLD_REFRACT}, .ior = 1.5f};
     struct manifold_ends eg = {.x1 = vec3_make(0.2f, -2.5f, 0.1f), .ng1 = vec3_make(0, 1, 0),
@@ -344,7 +335,7 @@ static void test_curved(void)
  * to the original x1 must give the original solution. */
 static void test_shift_inverts(void)
 {
-    struct scene *s = load(spheres_json);
+    struct scene *s = fixture_load_json(spheres_json, NULL);
     if (!s) return;
     struct manifold_chain ch = {.shape = 0, .length = 2, .events = {MANIFOLD_REFRACT, MANIFOLD_REFRACT}, .ior = 1.5f};
     struct manifold_ends e = {.x1 = vec3_make(0.2f, -2.5f, 0.1f), .ng1 = vec3_make(0, 1, 0),
@@ -427,7 +418,7 @@ static void constraint_linear_across(const struct scene *s, const struct manifol
 
 static void test_constraint_is_continuous(void)
 {
-    struct scene *m = load(mirror_json);
+    struct scene *m = fixture_load_json(mirror_json, NULL);
     if (m) {
         struct manifold_chain ch = {.shape = 0, .length = 1, .events = {MANIFOLD_REFLECT}};
         struct manifold_ends e = {.x1 = vec3_make(-0.5f, 1.0f, 0.1f), .ng1 = vec3_make(0, 1, 0),
@@ -437,7 +428,7 @@ static void test_constraint_is_continuous(void)
         constraint_linear_across(m, &ch, &e, &expect, "mirror");
         scene_release(m);
     }
-    struct scene *g = load(interface_json);
+    struct scene *g = fixture_load_json(interface_json, NULL);
     if (g) {
         struct manifold_chain ch = {.shape = 0, .length = 1, .events = {MANIFOLD_REFRACT}, .ior = 1.5f};
         struct vec3 a = vec3_make(-0.6f, 1.2f, 0.2f), b = vec3_make(0.5f, -0.9f, -0.4f);

@@ -1,7 +1,7 @@
 /* test_metrics.c — MAPE / RMSE / relMSE against values computed by hand on tiny images,
  * size mismatch errors, NaN/Inf exclusion and counting, and the JSON formatting (null for
  * non-finite, never a bare nan).
- * Refs: metrics.h for the definitions; ReSTIR BDPT paper footnote 3 for MAPE. */
+ * Refs: metrics.h for the definitions; [ReSTIR BDPT footnote 3] for MAPE. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>

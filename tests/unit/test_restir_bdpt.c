@@ -35,6 +35,7 @@
 #include "core/rng.h"
 #include "session_buffers.h"
 #include "test.h"
+#include "scene_fixture.h"
 #include "session/view.h"
 
 /* The statistical tests render thousands of frames: skipped in the sanitizer builds (ASan and
@@ -357,19 +358,6 @@ static void test_mis_reconnect(void)
     CHECK(wrong_suffix_differs > wrong_suffix_cases / 2);
 }
 
-static struct scene *load(const char *path)
-{
-    struct err err = {0};
-    struct scene *s = scene_load_file(path, &err);
-    CHECK_MSG(s != NULL, "%s: %s", path, err.message);
-    if (s && !scene_commit(s, &err)) {
-        CHECK_MSG(false, "%s", err.message);
-        scene_release(s);
-        return NULL;
-    }
-    return s;
-}
-
 static void test_params(void)
 {
     struct err err = {0};
@@ -396,7 +384,7 @@ static void test_params(void)
     p.max_depth = RESTIR_BDPT_MAX_DEPTH + 1;
     CHECK(!restir_bdpt_params_valid(&p, &err) && strcmp(err.where, "/params/max_depth") == 0);
 
-    struct scene *sc = load("scenes/caustic-sphere/scene.json");
+    struct scene *sc = fixture_load("scenes/caustic-sphere/scene.json");
     if (!sc) return;
     p = restir_bdpt_defaults();
     p.light_paths = 1000;
@@ -501,7 +489,7 @@ static void compare(const char *scene_path, const struct camera_desc *crop, uint
                     uint32_t light_paths)
 {
     SKIP_IF_SANITIZED();
-    struct scene *sc = load(scene_path);
+    struct scene *sc = fixture_load(scene_path);
     if (!sc) return;
     const struct camera_desc *cam = crop ? crop : &sc->camera;
     const uint32_t w = 32, h = 32;
@@ -547,7 +535,7 @@ static void test_matches_bdpt_lamp_in_glass(void)
  * Jacobian in primary sample space is 1 by construction). */
 static void test_caustic_replay_round_trip(void)
 {
-    struct scene *sc = load("scenes/caustic-sphere/scene.json");
+    struct scene *sc = fixture_load("scenes/caustic-sphere/scene.json");
     if (!sc) return;
     struct err err = {0};
     struct restir_bdpt_params p = restir_bdpt_defaults();
@@ -599,7 +587,7 @@ static void test_caustic_replay_round_trip(void)
 static void shift_round_trips(const char *path, struct camera_desc cam, uint32_t light_paths, const uint32_t need[5],
                               const char *light_name, bool copy_mis, bool full)
 {
-    struct scene *sc = load(path);
+    struct scene *sc = fixture_load(path);
     if (!sc) return;
     struct err err = {0};
     struct restir_bdpt_params p = restir_bdpt_defaults();
@@ -708,7 +696,7 @@ static void test_shift_round_trips(void)
  * unshifted ones. */
 static void test_full_reconnect_mis(void)
 {
-    struct scene *sc = load("scenes/lamp-in-glass/scene.json");
+    struct scene *sc = fixture_load("scenes/lamp-in-glass/scene.json");
     if (!sc) return;
     struct err err = {0};
     const struct camera_desc *cam = &LAMP_CROP;
@@ -762,7 +750,7 @@ static void test_full_reconnect_mis(void)
  * rays (else the cache would never be hit). */
 static void x2_cache_case(enum restir_bdpt_variant variant)
 {
-    struct scene *sc = load("scenes/lamp-in-glass/scene.json");
+    struct scene *sc = fixture_load("scenes/lamp-in-glass/scene.json");
     if (!sc) return;
     struct err err = {0};
     struct restir_bdpt_params p = restir_bdpt_defaults();
@@ -814,7 +802,7 @@ static void caustic_temporal_paired(bool moving)
 {
     SKIP_IF_SANITIZED();
     enum { FRAMES = 8 };
-    struct scene *base = load("scenes/caustic-sphere/scene.json");
+    struct scene *base = fixture_load("scenes/caustic-sphere/scene.json");
     if (!base) return;
     struct err err = {0};
     struct scene *scenes[FRAMES];
@@ -901,7 +889,7 @@ static uint32_t max_caustic_m(const struct restir_bdpt_state *st)
  * a frame whose light moved, and grows again from there once the scene is still. */
 static void test_moving_cap(void)
 {
-    struct scene *base = load("scenes/caustic-sphere/scene.json");
+    struct scene *base = fixture_load("scenes/caustic-sphere/scene.json");
     if (!base) return;
     struct err err = {0};
     int light = scene_find_shape(base, "light");
@@ -942,7 +930,7 @@ static void test_moving_cap(void)
 
 static void test_thread_determinism(void)
 {
-    struct scene *sc = load("scenes/caustic-sphere/scene.json");
+    struct scene *sc = fixture_load("scenes/caustic-sphere/scene.json");
     if (!sc) return;
     struct err err = {0};
     struct restir_bdpt_params p = restir_bdpt_defaults();
@@ -972,7 +960,7 @@ static void test_thread_determinism(void)
  * the buffers by name, the frame counters; environment light and translucent scenes refused. */
 static void test_view_method(void)
 {
-    struct scene *sc = load("scenes/caustic-sphere/scene.json");
+    struct scene *sc = fixture_load("scenes/caustic-sphere/scene.json");
     if (!sc) return;
     struct err err = {0};
     for (int k = 0; k < 5; k++) {
@@ -1014,7 +1002,7 @@ static void test_view_method(void)
     const char *refused[] = {"scenes/furnace/scene.json", "scenes/translucent/scene.json"};
     const char *why[] = {"environment", "subsurface"};
     for (int k = 0; k < 2; k++) {
-        struct scene *bad = load(refused[k]);
+        struct scene *bad = fixture_load(refused[k]);
         if (!bad) continue;
         CHECK_MSG(!view_init(&v, bad, &vp, 1, &err) && err.code == ERR_INVALID && strcmp(err.where, "/method") == 0 &&
                       strstr(err.message, why[k]),

@@ -1,4 +1,4 @@
-/* test_restir_pt.c — the hybrid shift of restir_pt as round trips (design TESTING.md tier 3):
+/* test_restir_pt.c — the hybrid shift of restir_pt as round trips (tests/README.md, unit tests):
  * for paths sampled by the initial pass on cornell-glossy and door-ajar, a shift to another
  * domain and back returns the same path and contribution (T^-1(T(x)) = x) and the two Jacobians
  * multiply to 1 (J * J^-1 = 1 to 1e-4), for each kind of shift: pure random replay (no
@@ -15,20 +15,8 @@
 #include "scene/scene.h"
 #include "session_buffers.h"
 #include "test.h"
+#include "scene_fixture.h"
 #include "session/view.h"
-
-static struct scene *load(const char *path)
-{
-    struct err err = {0};
-    struct scene *s = scene_load_file(path, &err);
-    CHECK_MSG(s != NULL, "%s: %s", path, err.message);
-    if (s && !scene_commit(s, &err)) {
-        CHECK_MSG(false, "%s", err.message);
-        scene_release(s);
-        return NULL;
-    }
-    return s;
-}
 
 enum { KIND_REPLAY, KIND_RECONNECT, KIND_HYBRID, KIND_COUNT };
 static const char *const kind_names[KIND_COUNT] = {"replay", "reconnection", "hybrid"};
@@ -106,7 +94,7 @@ static void report(const char *what, const struct tally *t, unsigned kinds)
 static void spatial_case(const char *path, const struct restir_pt_params *p, uint32_t frames, unsigned kinds,
                          const char *what)
 {
-    struct scene *sc = load(path);
+    struct scene *sc = fixture_load(path);
     if (!sc) return;
     struct err err = {0};
     struct restir_pt_state st;
@@ -163,7 +151,7 @@ static void test_spatial_round_trips_classic(void)
  * gold sphere moves too, so paths through it are re-traced in the other frame's scene. */
 static void temporal_case(bool move_shape)
 {
-    struct scene *sc = load("scenes/cornell-glossy/scene.json");
+    struct scene *sc = fixture_load("scenes/cornell-glossy/scene.json");
     if (!sc) return;
     struct err err = {0};
     struct scene *moved = sc;
@@ -229,7 +217,7 @@ static void test_temporal_round_trips_moving_shape(void) { temporal_case(true); 
  * by several per cent (7 % on one sample here before). What remains is float rounding. */
 static void test_identity_shift_reproduces_initial_contribution(void)
 {
-    struct scene *sc = load("scenes/cornell-glossy/scene.json");
+    struct scene *sc = fixture_load("scenes/cornell-glossy/scene.json");
     if (!sc) return;
     struct err err = {0};
     struct restir_pt_params p = restir_pt_defaults();
@@ -280,7 +268,7 @@ static void test_reservoir_is_compact(void)
  * without is refused naming the parameter. */
 static void test_session_bytes_planned_match_allocated(void)
 {
-    struct scene *sc = load("scenes/cornell-glossy/scene.json");
+    struct scene *sc = fixture_load("scenes/cornell-glossy/scene.json");
     if (!sc) return;
     struct err err = {0};
     for (int paired = 0; paired < 2; paired++) {

@@ -1,7 +1,7 @@
-/* test_restir_sms.c — the manifold shift of restir_sms as round trips (design TESTING.md tier 3,
- * METHODS.md §0): for samples drawn by the initial pass (the sms_ssp sampler) on
- * refractive-slab (a two-interface chain through a glass slab) and reflective-plane (one
- * reflection), a shift to a pixel a few pixels away (and to the previous frame's pixel with the
+/* test_restir_sms.c — the manifold shift of restir_sms as round trips (tests/README.md, unit
+ * tests; docs/methods.md, restir_sms): for samples drawn by the initial pass (the sms_ssp
+ * sampler) on refractive-slab (a two-interface chain through a glass slab) and reflective-plane
+ * (one reflection), a shift to a pixel a few pixels away (and to the previous frame's pixel with the
  * camera moved) that succeeds is undone by the shift back: the same chain vertices (within 1e-4
  * of |x1 − x2|), the same light point, the same contribution, and Jacobians whose product is 1
  * within 1e-4. A shift to the sample's own pixel reproduces the stored chain and contribution.
@@ -15,20 +15,8 @@
 #include "scene/scene.h"
 #include "session_buffers.h"
 #include "test.h"
+#include "scene_fixture.h"
 #include "session/view.h"
-
-static struct scene *load(const char *path)
-{
-    struct err err = {0};
-    struct scene *s = scene_load_file(path, &err);
-    CHECK_MSG(s != NULL, "%s: %s", path, err.message);
-    if (s && !scene_commit(s, &err)) {
-        CHECK_MSG(false, "%s", err.message);
-        scene_release(s);
-        return NULL;
-    }
-    return s;
-}
 
 struct tally {
     int tried, forward_ok, round_trips, failures, nontrivial_j;
@@ -83,7 +71,7 @@ static void round_trip(const void *ctx, const uint8_t *elem, struct restir_domai
 
 static void shift_case(const char *scene_path, bool temporal, int offset, bool expect_success, bool scale_light)
 {
-    struct scene *base = load(scene_path);
+    struct scene *base = fixture_load(scene_path);
     if (!base) return;
     struct scene *sc = base;
     if (scale_light) {
@@ -231,8 +219,8 @@ static void test_params(void)
  * one), each light's paths in the reservoir of its rank; an explicit count is kept. */
 static void test_light_reservoirs(void)
 {
-    struct scene *slab = load("scenes/refractive-slab/scene.json");
-    struct scene *plane = load("scenes/reflective-plane/scene.json");
+    struct scene *slab = fixture_load("scenes/refractive-slab/scene.json");
+    struct scene *plane = fixture_load("scenes/reflective-plane/scene.json");
     if (!slab || !plane) {
         if (slab) scene_release(slab);
         if (plane) scene_release(plane);
@@ -297,7 +285,7 @@ static void test_light_reservoirs(void)
  * sampler, the pair scratch only for paired spatial reuse. */
 static void test_session_bytes_planned_match_allocated(void)
 {
-    struct scene *sc = load("scenes/refractive-slab/scene.json");
+    struct scene *sc = fixture_load("scenes/refractive-slab/scene.json");
     if (!sc) return;
     for (int variant = 0; variant < 4; variant++) {
         struct view_params vp = view_params_defaults(method_find("restir_sms"), 37, 23);
@@ -349,7 +337,7 @@ static void test_session_bytes_planned_match_allocated(void)
  * position every frame); after a reset the walk starts afresh. */
 static void test_jitter_walk_reaches_the_gbuffer(void)
 {
-    struct scene *sc = load("scenes/reflective-plane/scene.json");
+    struct scene *sc = fixture_load("scenes/reflective-plane/scene.json");
     if (!sc) return;
     enum { W = 16, H = 16, N = W * H };
     for (int walk = 0; walk < 2; walk++) {

@@ -1,4 +1,4 @@
-/* test_restir_sss.c — the shifts of restir_sss as round trips (design TESTING.md tier 3): for
+/* test_restir_sss.c — the shifts of restir_sss as round trips (tests/README.md, unit tests): for
  * samples drawn by the initial pass on the scene `translucent`, a shift to a neighbouring pixel
  * and back returns the same entry point x2 and contribution (T^-1(T(x)) = x) and the Jacobians
  * multiply to 1 (J * J^-1 = 1 to 1e-4), for the reconnection, delayed reconnection and hybrid
@@ -16,20 +16,8 @@
 #include "scene/scene.h"
 #include "session_buffers.h"
 #include "test.h"
+#include "scene_fixture.h"
 #include "session/view.h"
-
-static struct scene *load(const char *path)
-{
-    struct err err = {0};
-    struct scene *s = scene_load_file(path, &err);
-    CHECK_MSG(s != NULL, "%s: %s", path, err.message);
-    if (s && !scene_commit(s, &err)) {
-        CHECK_MSG(false, "%s", err.message);
-        scene_release(s);
-        return NULL;
-    }
-    return s;
-}
 
 struct tally {
     int tried, forward_ok, round_trips, nontrivial_jacobians, failures, moved_u;
@@ -232,7 +220,7 @@ static void test_params(void)
  * asking for pairs the session lacks is refused naming the parameter. */
 static void test_session_bytes_planned_match_allocated(void)
 {
-    struct scene *sc = load("scenes/translucent/scene.json");
+    struct scene *sc = fixture_load("scenes/translucent/scene.json");
     if (!sc) return;
     struct err err = {0};
     for (int variant = 0; variant < 3; variant++) {

@@ -111,7 +111,7 @@ static void test_seed_map_covers_the_box(void)
     scene_release(s);
 }
 
-/* The prior's walks start at the block's shading points (seed 002 §4.1): a pixel seen through
+/* The prior's walks start at the block's shading points ([SMS-SSP §4.1]): a pixel seen through
  * the slab shades the floor behind it, so a block whose every primary hit is glass still gets a
  * prior, built from the floor points it sees (before, primary hits alone gave it none). Every
  * walk that finds a solution marks a tile of its (light, caster) pair. */

@@ -1,9 +1,9 @@
-// Browser tests of the preview page (TESTING.md tier 6): the real daemon on an ephemeral
-// loopback port, Debian's chromium driven headless by playwright-core. Each step checks what
-// the page shows against what the daemon says: canvas pixels before and after a change, the
-// hovered float value against OpenImageIO's reading of the same EXR, the chart's last point
-// against GET …/metrics, a 422's message against the daemon's problem. The steps share one
-// page and run in order. Screenshots and the daemon's log go to $WEB_TEST_OUT (build/web-test).
+// Browser tests of the preview page (the browser tier, tests/README.md): the real daemon on an
+// ephemeral loopback port, Debian's chromium driven headless by playwright-core. Each step checks
+// what the page shows against what the daemon says: canvas pixels before and after a change, the
+// hovered float value against OpenImageIO's reading of the same EXR, the chart's last point against
+// GET …/metrics, a 422's message against the daemon's problem. The steps share one page and run in
+// order. Screenshots and the daemon's log go to $WEB_TEST_OUT (build/web-test).
 import assert from 'node:assert/strict';
 import { execFileSync, spawn } from 'node:child_process';
 import { createHash } from 'node:crypto';
