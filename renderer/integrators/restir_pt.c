@@ -978,23 +978,13 @@ bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, const
                        (unsigned long long)total);
     }
     size_t n = (size_t)width * height;
-    for (int i = 0; i < 2; i++) {
-        if (!gbuffer_init(&st->gbuf[i], width, height, err) || !gbuffer_keep_surfaces(&st->gbuf[i], err)) {
-            restir_pt_destroy(st);
-            return false;
-        }
-        st->res[i] = restir_buffer_alloc(n, sizeof(struct pt_sample));
-        if (!st->res[i]) {
-            restir_pt_destroy(st);
-            return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
-        }
-    }
-    if (pt_uses_pairs(params)) {
-        st->pair_scratch = restir_buffer_alloc(1, restir_pair_scratch_bytes(width, height));
-        if (!st->pair_scratch) {
-            restir_pt_destroy(st);
-            return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u spatial pairs", width, height);
-        }
+    bool ok = restir_gbuffers_init(st->gbuf, width, height, true, err);
+    for (int i = 0; ok && i < 2; i++)
+        if (!(st->res[i] = restir_buffer_alloc(n, sizeof(struct pt_sample))))
+            ok = err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
+    if (!ok || !restir_pairs_alloc(&st->pair_scratch, pt_uses_pairs(params), width, height, err)) {
+        restir_pt_destroy(st);
+        return false;
     }
     return true;
 }
@@ -1022,7 +1012,7 @@ size_t restir_pt_reservoir_bytes(const struct restir_pt_state *st)
 
 size_t restir_pt_gbuffer_bytes(const struct restir_pt_state *st)
 {
-    return gbuffer_bytes(&st->gbuf[0]) + gbuffer_bytes(&st->gbuf[1]);
+    return restir_gbuffers_bytes(st->gbuf);
 }
 
 size_t restir_pt_hit_bytes(const struct restir_pt_state *st)
@@ -1130,7 +1120,7 @@ static bool pt_run(struct pt_pass *pp, unsigned threads, parallel_job_fn *fn, st
 /* G-buffer and initial pass; the context is bound into `c`. */
 static bool pt_begin(struct restir_pt_state *st, const struct restir_pt_params *params, const struct method_frame *f,
                      struct pt_ctx *c, struct pt_pass *pp, struct image *out, unsigned threads,
-                     struct restir_pt_stats *stats, struct err *err)
+                     struct restir_pass_stats *stats, struct err *err)
 {
     if (!restir_pt_params_valid(params, err)) return false;
     if (f->scene->shape_count != st->shape_count)
@@ -1157,22 +1147,13 @@ static bool pt_begin(struct restir_pt_state *st, const struct restir_pt_params *
     return true;
 }
 
-static void pt_add_counters(struct restir_pt_stats *stats, const struct restir_counters *c)
-{
-    stats->rays_intersect += c->rays.intersect;
-    stats->rays_occluded += c->rays.occluded;
-    stats->shifts += c->shifts;
-    stats->shift_failures += c->shift_failures;
-    stats->rejected += c->rejected;
-}
-
 bool restir_pt_initial_only(struct restir_pt_state *st, const struct restir_pt_params *params,
                             const struct method_frame *f, struct err *err)
 {
     struct pt_ctx c;
     struct pt_pass *pp = malloc(sizeof *pp);
     if (!pp) return err_set(err, ERR_NOMEM, NULL, "out of memory");
-    struct restir_pt_stats stats = {0};
+    struct restir_pass_stats stats = {0};
     const unsigned threads = parallel_threads(f->threads, RESTIR_MAX_WORKERS);
     bool ok = pt_begin(st, params, f, &c, pp, NULL, threads, &stats, err);
     free(pp);
@@ -1180,22 +1161,18 @@ bool restir_pt_initial_only(struct restir_pt_state *st, const struct restir_pt_p
 }
 
 bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params *params,
-                      const struct method_frame *f, struct image *out, struct restir_pt_stats *stats,
+                      const struct method_frame *f, struct image *out, struct restir_pass_stats *stats,
                       struct err *err)
 {
-    if (out->width != st->width || out->height != st->height)
-        return err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the session %ux%u", out->width, out->height,
-                       st->width, st->height);
-    struct restir_pt_stats local;
-    if (!stats) stats = &local;
-    memset(stats, 0, sizeof *stats);
+    struct restir_pass_stats local;
+    if (!(stats = restir_frame_begin(out, st->width, st->height, stats, &local, sizeof local, err))) return false;
     const unsigned threads = parallel_threads(f->threads, RESTIR_MAX_WORKERS);
     /* On the stack (~50 KiB of per-worker counters): a frame allocates nothing. */
     struct pt_ctx c;
     struct pt_pass pp;
     const bool history = st->has_history && f->prev_scene && params->temporal;
     if (!pt_begin(st, params, f, &c, &pp, out, threads, stats, err)) return false;
-    for (unsigned i = 0; i < threads; i++) pt_add_counters(stats, &pp.counters[i]);
+    for (unsigned i = 0; i < threads; i++) restir_pass_stats_add(stats, &pp.counters[i]);
 
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
@@ -1228,7 +1205,7 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
         st->res[1] = tmp;
     }
     stats->spatial_ms = parallel_lap_ms(&t0);
-    pt_add_counters(stats, &rc);
+    restir_pass_stats_add(stats, &rc);
 
     memset(pp.nonfinite, 0, sizeof pp.nonfinite);
     if (!pt_run(&pp, threads, pt_shade_rows, err)) return false;

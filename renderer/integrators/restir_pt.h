@@ -58,14 +58,6 @@ uint32_t restir_pt_nee_by_scene(const struct scene *scene);
 /* ERR_INVALID naming the parameter (where = "/params/<name>") when out of range. */
 bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err);
 
-/* Frame statistics: per-pass times as [ReSTIR PT Enhanced Table 1], and the reuse counters. */
-struct RESTIRD_STORED_IN_BYTES restir_pt_stats {
-    double gbuffer_ms, initial_ms, temporal_ms, spatial_ms, shade_ms;
-    uint64_t rays_intersect, rays_occluded;   /* G-buffer included */
-    uint64_t shifts, shift_failures, rejected;
-    uint64_t nonfinite;   /* pixels whose shaded value was not finite (written as 0) */
-};
-
 /* Per-session state: two G-buffers (current, previous), each keeping its primary surfaces
  * (gbuffer_keep_surfaces: the initial pass and every shift read x_1 from there), and two
  * reservoir buffers (the frame's working buffer and the history the next frame reuses). */
@@ -103,7 +95,7 @@ uint64_t restir_pt_bytes_planned(const struct restir_pt_params *params, uint32_t
 
 /* Renders one frame into `out` (width x height) and makes it the history of the next. */
 bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params *params,
-                      const struct method_frame *f, struct image *out, struct restir_pt_stats *stats,
+                      const struct method_frame *f, struct image *out, struct restir_pass_stats *stats,
                       struct err *err);
 
 /* For tests of the shift: the G-buffers and initial reservoirs of a frame (no reuse), then the

@@ -433,28 +433,17 @@ bool restir_sms_init(struct restir_sms_state *st, const struct scene *scene, con
     st->height = height;
     st->layers = restir_sms_layers(params, scene);
     size_t n = (size_t)width * height;
-    for (int i = 0; i < 2; i++) {
-        if (!gbuffer_init(&st->gbuf[i], width, height, err)) {
-            restir_sms_destroy(st);
-            return false;
-        }
+    bool ok = restir_gbuffers_init(st->gbuf, width, height, false, err);
+    for (int i = 0; ok && i < 2; i++) {
         st->res[i] = calloc(n * st->layers, sizeof(struct sms_sample));
         st->recv[i] = calloc(n, sizeof(struct restir_sms_receiver));
-        if (!st->res[i] || !st->recv[i]) {
-            restir_sms_destroy(st);
-            return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
-        }
+        if (!st->res[i] || !st->recv[i])
+            ok = err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
     }
-    if (sms_uses_prior(params) && !ssp_prior_init(&st->prior, width, height, params->ssp.prior_frames, err)) {
+    ok = ok && (!sms_uses_prior(params) || ssp_prior_init(&st->prior, width, height, params->ssp.prior_frames, err));
+    if (!ok || !restir_pairs_alloc(&st->pair_scratch, sms_uses_pairs(params), width, height, err)) {
         restir_sms_destroy(st);
         return false;
-    }
-    if (sms_uses_pairs(params)) {
-        st->pair_scratch = restir_buffer_alloc(1, restir_pair_scratch_bytes(width, height));
-        if (!st->pair_scratch) {
-            restir_sms_destroy(st);
-            return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u spatial pairs", width, height);
-        }
     }
     return true;
 }
@@ -480,7 +469,7 @@ size_t restir_sms_reservoir_bytes(const struct restir_sms_state *st)
 
 size_t restir_sms_gbuffer_bytes(const struct restir_sms_state *st)
 {
-    return gbuffer_bytes(&st->gbuf[0]) + gbuffer_bytes(&st->gbuf[1]);
+    return restir_gbuffers_bytes(st->gbuf);
 }
 
 size_t restir_sms_receiver_bytes(const struct restir_sms_state *st)
@@ -629,8 +618,8 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
                                .jitter_walk = params->jitter_walk};
     uint64_t grays = 0;
     if (!restir_gbuffer_next(st->gbuf, &st->cur, &st->has_history, gf, &grays, err)) return false;
-    stats->gbuffer_ms = parallel_lap_ms(&t0);
-    stats->rays_intersect += grays;
+    stats->pass.gbuffer_ms = parallel_lap_ms(&t0);
+    stats->pass.rays_intersect += grays;
 
     if (!sms_bind(st, params, f, c, err)) return false;
     memset(pp, 0, sizeof *pp);
@@ -647,8 +636,8 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     if (ssp && !ssp_prior_build(&st->prior, f->scene, &c->ss, &params->ssp, &pp->camera, f->seed, f->frame, still,
                                 threads, &stats->prior, &prc, err))
         return false;
-    stats->rays_intersect += prc.intersect;
-    stats->rays_occluded += prc.occluded;
+    stats->pass.rays_intersect += prc.intersect;
+    stats->pass.rays_occluded += prc.occluded;
     stats->prior_ms = parallel_lap_ms(&t0);
     pp->pt = reference_pt_defaults(st->width, st->height);
     pp->pt.max_depth = params->max_depth;
@@ -660,11 +649,11 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     pp->pt.sms = &params->ssp.sms;
     if (!sms_run(pp, threads, sms_initial_rows, err)) return false;
     for (unsigned i = 0; i < threads; i++) {
-        stats->rays_intersect += pp->rays[i].intersect;
-        stats->rays_occluded += pp->rays[i].occluded;
+        stats->pass.rays_intersect += pp->rays[i].intersect;
+        stats->pass.rays_occluded += pp->rays[i].occluded;
         sms_counters_add(&stats->sms, &pp->sms[i]);
     }
-    stats->initial_ms = parallel_lap_ms(&t0);
+    stats->pass.initial_ms = parallel_lap_ms(&t0);
     return true;
 }
 
@@ -690,12 +679,8 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
                        const struct method_frame *f, struct image *out, struct restir_sms_stats *stats,
                        struct err *err)
 {
-    if (out->width != st->width || out->height != st->height)
-        return err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the session %ux%u", out->width, out->height,
-                       st->width, st->height);
     struct restir_sms_stats local;
-    if (!stats) stats = &local;
-    memset(stats, 0, sizeof *stats);
+    if (!(stats = restir_frame_begin(out, st->width, st->height, stats, &local, sizeof local, err))) return false;
     unsigned threads = sms_threads(f);
     /* The context holds the frame's casters (~7 KiB) and the pass its per-worker counters; both
      * on the heap would be a per-frame malloc, the stack is fine. */
@@ -721,7 +706,7 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
         r.history = history ? st->res[1] + l * layer_bytes : NULL;
         if (!restir_temporal_pass(&r, st->res[0] + l * layer_bytes, &rc, err)) return false;
     }
-    stats->temporal_ms = parallel_lap_ms(&t0);
+    stats->pass.temporal_ms = parallel_lap_ms(&t0);
     if (params->spatial_neighbors > 0) {
         /* The target is a luminance, so one selected sample per pixel carries one sample's colour:
          * under lights of different colours most of its noise is colour, which the expectation
@@ -736,19 +721,19 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
         st->res[0] = st->res[1];
         st->res[1] = tmp;
     }
-    stats->spatial_ms = parallel_lap_ms(&t0);
-    stats->rays_intersect += rc.rays.intersect;
-    stats->rays_occluded += rc.rays.occluded;
-    stats->shifts += rc.shifts;
-    stats->shift_failures += rc.shift_failures;
-    stats->rejected += rc.rejected;
+    stats->pass.spatial_ms = parallel_lap_ms(&t0);
+    stats->pass.rays_intersect += rc.rays.intersect;
+    stats->pass.rays_occluded += rc.rays.occluded;
+    stats->pass.shifts += rc.shifts;
+    stats->pass.shift_failures += rc.shift_failures;
+    stats->pass.rejected += rc.rejected;
     stats->shift_newton = atomic_load(&c.shared->newton);
     stats->shift_not_invertible = atomic_load(&c.shared->not_invertible);
 
     memset(pp.nonfinite, 0, sizeof pp.nonfinite);
     if (!sms_run(&pp, threads, sms_shade_rows, err)) return false;
-    for (unsigned i = 0; i < threads; i++) stats->nonfinite += pp.nonfinite[i];
-    stats->shade_ms = parallel_lap_ms(&t0);
+    for (unsigned i = 0; i < threads; i++) stats->pass.nonfinite += pp.nonfinite[i];
+    stats->pass.shade_ms = parallel_lap_ms(&t0);
     st->has_history = true;
     return true;
 }

@@ -112,12 +112,10 @@ bool restir_sms_sampler_parse(const char *name, enum restir_sms_sampler *out);
 const char *restir_sms_sampler_name(enum restir_sms_sampler s);
 
 struct RESTIRD_STORED_IN_BYTES restir_sms_stats {
-    double gbuffer_ms, prior_ms, initial_ms, temporal_ms, spatial_ms, shade_ms;
-    uint64_t rays_intersect, rays_occluded;
-    uint64_t shifts, shift_failures, rejected;
+    struct restir_pass_stats pass;
+    double prior_ms;                /* the prior pass (the ssp sampler's), before the candidates */
     uint64_t shift_newton;          /* Newton steps of the shifts' walks (forward and back) */
     uint64_t shift_not_invertible;  /* shifts whose walk back missed the base chain */
-    uint64_t nonfinite;
     struct sms_counters sms;        /* the candidates and the SMS estimates at later vertices */
     struct ssp_prior_counters prior;
 };

@@ -560,23 +560,13 @@ bool restir_sss_init(struct restir_sss_state *st, const struct restir_sss_params
     st->height = height;
     st->layers = restir_sss_layers(params);
     size_t n = (size_t)width * height * st->layers;
-    for (int i = 0; i < 2; i++) {
-        if (!gbuffer_init(&st->gbuf[i], width, height, err) || !gbuffer_keep_surfaces(&st->gbuf[i], err)) {
-            restir_sss_destroy(st);
-            return false;
-        }
-        st->res[i] = calloc(n, sizeof(struct sss_sample));
-        if (!st->res[i]) {
-            restir_sss_destroy(st);
-            return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
-        }
-    }
-    if (sss_uses_pairs(params)) {
-        st->pair_scratch = restir_buffer_alloc(1, restir_pair_scratch_bytes(width, height));
-        if (!st->pair_scratch) {
-            restir_sss_destroy(st);
-            return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u spatial pairs", width, height);
-        }
+    bool ok = restir_gbuffers_init(st->gbuf, width, height, true, err);
+    for (int i = 0; ok && i < 2; i++)
+        if (!(st->res[i] = calloc(n, sizeof(struct sss_sample))))
+            ok = err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
+    if (!ok || !restir_pairs_alloc(&st->pair_scratch, sss_uses_pairs(params), width, height, err)) {
+        restir_sss_destroy(st);
+        return false;
     }
     return true;
 }
@@ -600,7 +590,7 @@ size_t restir_sss_reservoir_bytes(const struct restir_sss_state *st)
 
 size_t restir_sss_gbuffer_bytes(const struct restir_sss_state *st)
 {
-    return gbuffer_bytes(&st->gbuf[0]) + gbuffer_bytes(&st->gbuf[1]);
+    return restir_gbuffers_bytes(st->gbuf);
 }
 
 size_t restir_sss_hit_bytes(const struct restir_sss_state *st)
@@ -734,8 +724,8 @@ static bool sss_begin(struct restir_sss_state *st, const struct restir_sss_param
                                .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame, .threads = threads};
     uint64_t grays = 0;
     if (!restir_gbuffer_next(st->gbuf, &st->cur, &st->has_history, gf, &grays, err)) return false;
-    stats->gbuffer_ms = parallel_lap_ms(&t0);
-    stats->rays_intersect += grays;
+    stats->pass.gbuffer_ms = parallel_lap_ms(&t0);
+    stats->pass.rays_intersect += grays;
 
     restir_sss_bind(st, params, f, c);
     memset(pp, 0, sizeof *pp);
@@ -748,17 +738,8 @@ static bool sss_begin(struct restir_sss_state *st, const struct restir_sss_param
     pp->pt.rr_depth = params->rr_depth;
     pp->pt.nee = true;
     if (!sss_run(pp, threads, sss_initial_rows, err)) return false;
-    stats->initial_ms = parallel_lap_ms(&t0);
+    stats->pass.initial_ms = parallel_lap_ms(&t0);
     return true;
-}
-
-static void sss_add_counters(struct restir_sss_stats *stats, const struct restir_counters *c)
-{
-    stats->rays_intersect += c->rays.intersect;
-    stats->rays_occluded += c->rays.occluded;
-    stats->shifts += c->shifts;
-    stats->shift_failures += c->shift_failures;
-    stats->rejected += c->rejected;
 }
 
 /* The automatic spatial radius (§5.1): 2 max(d) of the translucent materials seen, projected at
@@ -800,19 +781,15 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
                        const struct method_frame *f, struct image *out, struct restir_sss_stats *stats,
                        struct err *err)
 {
-    if (out->width != st->width || out->height != st->height)
-        return err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the session %ux%u", out->width, out->height,
-                       st->width, st->height);
     struct restir_sss_stats local;
-    if (!stats) stats = &local;
-    memset(stats, 0, sizeof *stats);
+    if (!(stats = restir_frame_begin(out, st->width, st->height, stats, &local, sizeof local, err))) return false;
     const unsigned threads = parallel_threads(f->threads, RESTIR_MAX_WORKERS);
     struct sss_ctx c;
     /* ~50 KiB of per-worker counters: on the heap would be a per-frame malloc; the stack is fine. */
     struct sss_pass pp;
     const bool history = st->has_history && f->prev_scene && params->temporal;
     if (!sss_begin(st, params, f, &c, &pp, out, threads, stats, err)) return false;
-    for (unsigned i = 0; i < threads; i++) sss_add_counters(stats, &pp.counters[i]);
+    for (unsigned i = 0; i < threads; i++) restir_pass_stats_add(&stats->pass, &pp.counters[i]);
 
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
@@ -838,7 +815,7 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
     struct restir_counters rc = {0};
     for (uint32_t l = 0; l < layers; l++)
         if (!restir_temporal_pass(&r[l], st->res[0] + l * layer_bytes, &rc, err)) return false;
-    stats->temporal_ms = parallel_lap_ms(&t0);
+    stats->pass.temporal_ms = parallel_lap_ms(&t0);
     if (params->spatial_neighbors > 0 && params->shift == RESTIR_SSS_SEQUENTIAL) {
         /* §4.3, §5.1: half the neighbours with reconnection, then half with delayed
          * reconnection (its own neighbour stream), ending in res[1]. */
@@ -870,13 +847,13 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
         st->res[0] = st->res[1];
         st->res[1] = tmp;
     }
-    stats->spatial_ms = parallel_lap_ms(&t0);
-    sss_add_counters(stats, &rc);
+    stats->pass.spatial_ms = parallel_lap_ms(&t0);
+    restir_pass_stats_add(&stats->pass, &rc);
 
     memset(pp.nonfinite, 0, sizeof pp.nonfinite);
     if (!sss_run(&pp, threads, sss_shade_rows, err)) return false;
-    for (unsigned i = 0; i < threads; i++) stats->nonfinite += pp.nonfinite[i];
-    stats->shade_ms = parallel_lap_ms(&t0);
+    for (unsigned i = 0; i < threads; i++) stats->pass.nonfinite += pp.nonfinite[i];
+    stats->pass.shade_ms = parallel_lap_ms(&t0);
     st->has_history = true;
     return true;
 }

@@ -84,10 +84,7 @@ const char *restir_sss_target_name(enum restir_sss_target t);
 uint32_t restir_sss_layers(const struct restir_sss_params *p);
 
 struct RESTIRD_STORED_IN_BYTES restir_sss_stats {
-    double gbuffer_ms, initial_ms, temporal_ms, spatial_ms, shade_ms;
-    uint64_t rays_intersect, rays_occluded;
-    uint64_t shifts, shift_failures, rejected;
-    uint64_t nonfinite;
+    struct restir_pass_stats pass;
     float spatial_radius;          /* the radius used (pixels) */
 };
 

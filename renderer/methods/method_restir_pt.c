@@ -8,7 +8,7 @@
 #include "methods/passes.h"
 
 METHOD_FITS(struct restir_pt_params, METHOD_PARAMS_BYTES);
-METHOD_FITS(struct restir_pt_stats, METHOD_COUNTERS_BYTES);
+METHOD_FITS(struct restir_pass_stats, METHOD_COUNTERS_BYTES);
 
 static void rpt_defaults(void *params)
 {
@@ -43,9 +43,9 @@ static void rpt_destroy(void *state)
 static bool rpt_render(void *state, const void *params, const struct method_frame *f, struct image *out,
                        struct frame_stats *stats, parallel_progress_fn *progress, void *progress_ctx, struct err *err)
 {
-    struct restir_pt_stats *c = (struct restir_pt_stats *)(void *)stats->counters;
+    struct restir_pass_stats *c = (struct restir_pass_stats *)(void *)stats->counters;
     if (!restir_pt_render(state, params, f, out, c, err)) return false;
-    stats->render = METHOD_PASS_RENDER_STATS(out, f->threads, c, 0.0);
+    stats->render = method_pass_render_stats(out, f->threads, c, 0.0);
     if (progress) progress(progress_ctx, 1, 1);
     return true;
 }
@@ -75,7 +75,7 @@ static uint32_t rpt_buffers(const void *state, const void *params, struct view_b
 }
 
 static const struct method_stat rpt_stats[] = {
-    METHOD_PASS_STATS(struct restir_pt_stats, METHOD_PASS_INITIAL(struct restir_pt_stats)),
+    METHOD_PASS_STATS(struct restir_pass_stats, , METHOD_PASS_INITIAL(struct restir_pass_stats, )),
 };
 
 #define P(key, kind, lo, hi, help) METHOD_PARAM(struct restir_pt_params, key, kind, lo, hi, help)

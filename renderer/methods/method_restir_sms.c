@@ -49,7 +49,7 @@ static bool rsms_render(void *state, const void *params, const struct method_fra
     struct restir_sms_stats *c = (struct restir_sms_stats *)(void *)stats->counters;
     if (!restir_sms_render(state, params, f, out, c, err)) return false;
     /* The prior pass counts as part of the initial pass (it only serves the candidates). */
-    stats->render = METHOD_PASS_RENDER_STATS(out, f->threads, c, c->prior_ms);
+    stats->render = method_pass_render_stats(out, f->threads, &c->pass, c->prior_ms);
     stats->render.sms = c->sms;
     if (progress) progress(progress_ctx, 1, 1);
     return true;
@@ -90,17 +90,17 @@ static void rsms_size_hint(const void *params, const struct scene *scene, char *
 
 #define T struct restir_sms_stats
 /* The prior pass counts as part of the initial pass (it only serves the candidates). */
-#define RSMS_INITIAL {"initial_ms", NULL, METHOD_STAT_MS_SUM, offsetof(T, prior_ms), offsetof(T, initial_ms)}
+#define RSMS_INITIAL {"initial_ms", NULL, METHOD_STAT_MS_SUM, offsetof(T, prior_ms), offsetof(T, pass.initial_ms)}
 static const struct method_stat rsms_stats[] = {
-    METHOD_PASS_STATS(T, RSMS_INITIAL),
+    METHOD_PASS_STATS(T, pass., RSMS_INITIAL),
     METHOD_PRIOR_STATS(T, prior.),
     /* The resampling column of [SMS-SSP Table 1]: the shifts' Newton steps (both walks) and the
      * walks back that missed the base chain. */
     {"manifold_shift", NULL, METHOD_STAT_BEGIN, 0, 0},
     {"newton", NULL, METHOD_STAT_U64, offsetof(T, shift_newton), 0},
-    {"newtons_per_shift", "", METHOD_STAT_RATIO, offsetof(T, shift_newton), offsetof(T, shifts)},
+    {"newtons_per_shift", "", METHOD_STAT_RATIO, offsetof(T, shift_newton), offsetof(T, pass.shifts)},
     {"not_invertible", NULL, METHOD_STAT_U64, offsetof(T, shift_not_invertible), 0},
-    {"success_rate", "", METHOD_STAT_SUCCESS, offsetof(T, shift_failures), offsetof(T, shifts)},
+    {"success_rate", "", METHOD_STAT_SUCCESS, offsetof(T, pass.shift_failures), offsetof(T, pass.shifts)},
     {"manifold_shift", NULL, METHOD_STAT_END, 0, 0},
 };
 #undef RSMS_INITIAL

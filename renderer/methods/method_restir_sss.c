@@ -43,7 +43,7 @@ static bool sss_render(void *state, const void *params, const struct method_fram
 {
     struct restir_sss_stats *c = (struct restir_sss_stats *)(void *)stats->counters;
     if (!restir_sss_render(state, params, f, out, c, err)) return false;
-    stats->render = METHOD_PASS_RENDER_STATS(out, f->threads, c, 0.0);
+    stats->render = method_pass_render_stats(out, f->threads, &c->pass, 0.0);
     if (progress) progress(progress_ctx, 1, 1);
     return true;
 }
@@ -73,7 +73,7 @@ static uint32_t sss_buffers(const void *state, const void *params, struct view_b
 }
 
 static const struct method_stat sss_stats[] = {
-    METHOD_PASS_STATS(struct restir_sss_stats, METHOD_PASS_INITIAL(struct restir_sss_stats)),
+    METHOD_PASS_STATS(struct restir_sss_stats, pass., METHOD_PASS_INITIAL(struct restir_sss_stats, pass.)),
 };
 
 static const char *const sss_shifts[] = {"reconnection", "delayed", "hybrid", "sequential", NULL};

@@ -273,6 +273,51 @@ void *restir_buffer_alloc(size_t count, size_t stride)
     return buf;
 }
 
+void restir_pass_stats_add(struct restir_pass_stats *s, const struct restir_counters *c)
+{
+    s->rays_intersect += c->rays.intersect;
+    s->rays_occluded += c->rays.occluded;
+    s->shifts += c->shifts;
+    s->shift_failures += c->shift_failures;
+    s->rejected += c->rejected;
+}
+
+void *restir_frame_begin(const struct image *out, uint32_t width, uint32_t height, void *stats, void *local,
+                         size_t stats_bytes, struct err *err)
+{
+    if (out->width != width || out->height != height) {
+        err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the session %ux%u", out->width, out->height, width,
+                height);
+        return NULL;
+    }
+    if (!stats) stats = local;
+    memset(stats, 0, stats_bytes);
+    return stats;
+}
+
+bool restir_gbuffers_init(struct gbuffer gbuf[2], uint32_t width, uint32_t height, bool keep_surfaces,
+                          struct err *err)
+{
+    for (int i = 0; i < 2; i++)
+        if (!gbuffer_init(&gbuf[i], width, height, err) || (keep_surfaces && !gbuffer_keep_surfaces(&gbuf[i], err)))
+            return false;
+    return true;
+}
+
+size_t restir_gbuffers_bytes(const struct gbuffer gbuf[2])
+{
+    return gbuffer_bytes(&gbuf[0]) + gbuffer_bytes(&gbuf[1]);
+}
+
+bool restir_pairs_alloc(void **scratch, bool needed, uint32_t width, uint32_t height, struct err *err)
+{
+    *scratch = NULL;
+    if (!needed) return true;
+    *scratch = restir_buffer_alloc(1, restir_pair_scratch_bytes(width, height));
+    if (!*scratch) return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u spatial pairs", width, height);
+    return true;
+}
+
 /* log2 of the block size B: the largest power of two <= radius (at least 2, at most 256). */
 static uint32_t restir_pair_log2(float radius)
 {

@@ -16,7 +16,9 @@
 #include <stdint.h>
 
 #include "scene/accel.h"
+#include "core/alias.h"
 #include "core/err.h"
+#include "image/image.h"
 #include "reuse/gbuffer.h"
 
 /* First bytes of every reservoir element. W is the unbiased contribution weight of the sample
@@ -117,6 +119,31 @@ static inline bool restir_pairs_needed(bool paired, uint32_t neighbors) { return
  * prefetcher follows: a 64-byte element of an aligned array is one cache line, of an unaligned
  * one it straddles two. */
 void *restir_buffer_alloc(size_t count, size_t stride);
+
+/* The per-pass times and the reuse counters every ReSTIR method reports for a frame (as the
+ * per-pass tables of [ReSTIR PT Enhanced Table 1]); a method's own counters struct starts with
+ * one. */
+struct RESTIRD_STORED_IN_BYTES restir_pass_stats {
+    double gbuffer_ms, initial_ms, temporal_ms, spatial_ms, shade_ms;
+    uint64_t rays_intersect, rays_occluded;   /* G-buffer included */
+    uint64_t shifts, shift_failures, rejected;
+    uint64_t nonfinite;   /* pixels whose shaded value was not finite (written as 0) */
+};
+/* Adds a reuse pass's (or a worker's) rays and shift counters. */
+void restir_pass_stats_add(struct restir_pass_stats *s, const struct restir_counters *c);
+
+/* What every ReSTIR method's session state starts a frame and its life with. */
+/* The frame's output must have the session's size; the method's counters start at zero (`stats`
+ * may be NULL, then `local` is used and returned). */
+void *restir_frame_begin(const struct image *out, uint32_t width, uint32_t height, void *stats, void *local,
+                         size_t stats_bytes, struct err *err);
+/* The two G-buffers a session alternates between (keep_surfaces: the hit points too, for methods
+ * that rebuild them in another frame's scene); false with an error after freeing nothing. */
+bool restir_gbuffers_init(struct gbuffer gbuf[2], uint32_t width, uint32_t height, bool keep_surfaces,
+                          struct err *err);
+size_t restir_gbuffers_bytes(const struct gbuffer gbuf[2]);
+/* The paired spatial reuse's scratch, when `needed` (else *scratch stays NULL). */
+bool restir_pairs_alloc(void **scratch, bool needed, uint32_t width, uint32_t height, struct err *err);
 /* The partner of `pixel` in pairing m (< 64) of the round r->frame names (false: off the image);
  * for tests: the pairing is an involution. */
 bool restir_pair_partner(const struct restir_reuse *r, uint32_t m, uint32_t pixel, uint32_t *partner);

@@ -306,7 +306,7 @@ static void test_session_bytes_planned_match_allocated(void)
         CHECK(view_render(&v, NULL, &fs, NULL, NULL, &err));
         CHECK(view_render(&v, NULL, &fs, NULL, NULL, &err));
         const struct restir_sms_stats *ms = (const struct restir_sms_stats *)(const void *)fs.counters;
-        CHECK(ms->shifts > 0 && ms->shift_newton > 0 && fs.render.sms.samples > 0);
+        CHECK(ms->pass.shifts > 0 && ms->shift_newton > 0 && fs.render.sms.samples > 0);
         view_destroy(&v);
     }
     /* A render asking for what the session was not made for is refused, naming the parameter. */
