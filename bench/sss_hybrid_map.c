@@ -43,9 +43,9 @@ int main(int argc, char **argv)
     unsigned long counts[4] = {0, 0, 0, 0};
     const size_t stride = restir_sss_ops.stride;
     for (uint32_t i = 0; i < w * h; i++) {
-        const unsigned char *elem = st.res[0] + (size_t)i * stride;
+        const unsigned char *elem = st.rs.res[0] + (size_t)i * stride;
         const struct restir_head *head = (const struct restir_head *)elem;
-        const struct gbuffer_pixel *g = &st.gbuf[st.cur].px[i];
+        const struct gbuffer_pixel *g = &st.rs.gbuf[st.rs.cur].px[i];
         bool translucent = isfinite(g->t) &&
                            sc->materials[sc->shapes[g->shape].material].kind == MATERIAL_TRANSLUCENT;
         int cls = 0;

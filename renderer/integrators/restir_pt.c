@@ -960,8 +960,6 @@ bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, const
     if (scene_has_translucent(scene))
         return err_set(err, ERR_INVALID, "/method",
                        "restir_pt does not sample subsurface scattering (the scene has translucent materials)");
-    st->width = width;
-    st->height = height;
     st->nee_by_scene = restir_pt_nee_by_scene(scene);
     st->shape_count = scene->shape_count;
     st->prim_first = malloc(((size_t)scene->shape_count + 1) * sizeof *st->prim_first);
@@ -977,12 +975,7 @@ bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, const
         return err_set(err, ERR_LIMIT, NULL, "the scene has %llu primitives; restir_pt stores at most 2^32 - 1",
                        (unsigned long long)total);
     }
-    size_t n = (size_t)width * height;
-    bool ok = restir_gbuffers_init(st->gbuf, width, height, true, err);
-    for (int i = 0; ok && i < 2; i++)
-        if (!(st->res[i] = restir_buffer_alloc(n, sizeof(struct pt_sample))))
-            ok = err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
-    if (!ok || !restir_pairs_alloc(&st->pair_scratch, pt_uses_pairs(params), width, height, err)) {
+    if (!restir_session_init(&st->rs, width, height, 1, sizeof(struct pt_sample), true, pt_uses_pairs(params), err)) {
         restir_pt_destroy(st);
         return false;
     }
@@ -991,38 +984,9 @@ bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, const
 
 void restir_pt_destroy(struct restir_pt_state *st)
 {
-    for (int i = 0; i < 2; i++) {
-        gbuffer_destroy(&st->gbuf[i]);
-        free(st->res[i]);
-    }
+    restir_session_destroy(&st->rs);
     free(st->prim_first);
-    free(st->pair_scratch);
     memset(st, 0, sizeof *st);
-}
-
-void restir_pt_reset(struct restir_pt_state *st)
-{
-    st->has_history = false;
-}
-
-size_t restir_pt_reservoir_bytes(const struct restir_pt_state *st)
-{
-    return 2 * (size_t)st->width * st->height * sizeof(struct pt_sample);
-}
-
-size_t restir_pt_gbuffer_bytes(const struct restir_pt_state *st)
-{
-    return restir_gbuffers_bytes(st->gbuf);
-}
-
-size_t restir_pt_hit_bytes(const struct restir_pt_state *st)
-{
-    return gbuffer_surface_bytes(&st->gbuf[0]) + gbuffer_surface_bytes(&st->gbuf[1]);
-}
-
-size_t restir_pt_pair_bytes(const struct restir_pt_state *st)
-{
-    return st->pair_scratch ? restir_pair_scratch_bytes(st->width, st->height) : 0;
 }
 
 uint64_t restir_pt_bytes_planned(const struct restir_pt_params *params, uint32_t width, uint32_t height,
@@ -1051,9 +1015,9 @@ static void pt_initial_rows(void *ctx, uint32_t job, unsigned worker)
     const struct pt_ctx *c = pp->c;
     struct restir_counters cnt = {0};  /* job-local: see restir_counters_add */
     struct pt_thread t = {.c = c, .cnt = &cnt};
-    uint32_t w = pp->st->width, h = pp->st->height;
+    uint32_t w = pp->st->rs.width, h = pp->st->rs.height;
     uint32_t y1 = (job + 1) * PT_ROWS_PER_JOB < h ? (job + 1) * PT_ROWS_PER_JOB : h;
-    struct pt_sample *res = (struct pt_sample *)pp->st->res[0];
+    struct pt_sample *res = (struct pt_sample *)pp->st->rs.res[0];
     for (uint32_t y = job * PT_ROWS_PER_JOB; y < y1; y++) {
         for (uint32_t x = 0; x < w; x++) {
             uint32_t pixel = y * w + x;
@@ -1069,9 +1033,9 @@ static void pt_initial_rows(void *ctx, uint32_t job, unsigned worker)
 static void pt_shade_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct pt_pass *pp = ctx;
-    uint32_t w = pp->st->width, h = pp->st->height;
+    uint32_t w = pp->st->rs.width, h = pp->st->rs.height;
     uint32_t y1 = (job + 1) * PT_ROWS_PER_JOB < h ? (job + 1) * PT_ROWS_PER_JOB : h;
-    const struct pt_sample *res = (const struct pt_sample *)pp->st->res[1];
+    const struct pt_sample *res = (const struct pt_sample *)pp->st->rs.res[1];
     for (uint32_t y = job * PT_ROWS_PER_JOB; y < y1; y++) {
         for (uint32_t x = 0; x < w; x++) {
             uint32_t pixel = y * w + x;
@@ -1100,8 +1064,8 @@ void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *p
     c->scene[RESTIR_PREVIOUS] = f->prev_scene ? f->prev_scene : f->scene;
     c->eye[RESTIR_CURRENT] = f->camera->position;
     c->eye[RESTIR_PREVIOUS] = f->prev_camera ? f->prev_camera->position : f->camera->position;
-    c->gbuf[RESTIR_CURRENT] = &st->gbuf[st->cur];
-    c->gbuf[RESTIR_PREVIOUS] = &st->gbuf[st->cur ^ 1u];
+    c->gbuf[RESTIR_CURRENT] = &st->rs.gbuf[st->rs.cur];
+    c->gbuf[RESTIR_PREVIOUS] = &st->rs.gbuf[st->rs.cur ^ 1u];
     c->seed = f->seed;
     c->frame = f->frame;
     c->nee_m = params->nee_candidates == RESTIR_PT_NEE_BY_SCENE ? st->nee_by_scene : params->nee_candidates;
@@ -1113,7 +1077,7 @@ void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *p
 
 static bool pt_run(struct pt_pass *pp, unsigned threads, parallel_job_fn *fn, struct err *err)
 {
-    uint32_t jobs = (pp->st->height + PT_ROWS_PER_JOB - 1) / PT_ROWS_PER_JOB;
+    uint32_t jobs = (pp->st->rs.height + PT_ROWS_PER_JOB - 1) / PT_ROWS_PER_JOB;
     return parallel_run(threads, jobs, fn, pp, NULL, NULL, err);
 }
 
@@ -1126,14 +1090,14 @@ static bool pt_begin(struct restir_pt_state *st, const struct restir_pt_params *
     if (f->scene->shape_count != st->shape_count)
         return err_set(err, ERR_INVALID, NULL, "the scene has %u shapes, the session %u", f->scene->shape_count,
                        st->shape_count);
-    if (pt_uses_pairs(params) && !st->pair_scratch)
+    if (pt_uses_pairs(params) && !st->rs.pair_scratch)
         return err_set(err, ERR_INVALID, "/params/paired_spatial", "the session was made without paired spatial reuse");
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
     struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,
                                .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame, .threads = threads};
     uint64_t grays = 0;
-    if (!restir_gbuffer_next(st->gbuf, &st->cur, &st->has_history, gf, &grays, err)) return false;
+    if (!restir_gbuffer_next(st->rs.gbuf, &st->rs.cur, &st->rs.has_history, gf, &grays, err)) return false;
     stats->gbuffer_ms = parallel_lap_ms(&t0);
     stats->rays_intersect += grays;
 
@@ -1165,25 +1129,25 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
                       struct err *err)
 {
     struct restir_pass_stats local;
-    if (!(stats = restir_frame_begin(out, st->width, st->height, stats, &local, sizeof local, err))) return false;
+    if (!(stats = restir_frame_begin(out, &st->rs, stats, &local, sizeof local, err))) return false;
     const unsigned threads = parallel_threads(f->threads, RESTIR_MAX_WORKERS);
     /* On the stack (~50 KiB of per-worker counters): a frame allocates nothing. */
     struct pt_ctx c;
     struct pt_pass pp;
-    const bool history = st->has_history && f->prev_scene && params->temporal;
+    const bool history = st->rs.has_history && f->prev_scene && params->temporal;
     if (!pt_begin(st, params, f, &c, &pp, out, threads, stats, err)) return false;
     for (unsigned i = 0; i < threads; i++) restir_pass_stats_add(stats, &pp.counters[i]);
 
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
-    struct restir_reuse r = {.ops = &restir_pt_ops, .ctx = &c, .width = st->width, .height = st->height,
+    struct restir_reuse r = {.ops = &restir_pt_ops, .ctx = &c, .width = st->rs.width, .height = st->rs.height,
                              .seed = f->seed, .frame = f->frame, .threads = threads,
-                             .gbuf = &st->gbuf[st->cur], .history = history ? st->res[1] : NULL,
+                             .gbuf = &st->rs.gbuf[st->rs.cur], .history = history ? st->rs.res[1] : NULL,
                              .temporal_cap = params->temporal_cap, .neighbors = params->spatial_neighbors,
                              .radius = params->spatial_radius, .paired = params->paired_spatial,
-                             .pair_scratch = st->pair_scratch};
+                             .pair_scratch = st->rs.pair_scratch};
     struct restir_counters rc = {0};
-    if (!restir_temporal_pass(&r, st->res[0], &rc, err)) return false;
+    if (!restir_temporal_pass(&r, st->rs.res[0], &rc, err)) return false;
     stats->temporal_ms = parallel_lap_ms(&t0);
 
     /* Spatial rounds ping-pong between the two buffers and end in res[1], the history. */
@@ -1192,17 +1156,17 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
             r.frame = f->frame * 8u + round;  /* a distinct neighbour stream per round */
             pp.estimated = params->expected_shading && round + 1 == params->spatial_rounds;
             r.estimate = pp.estimated ? out->pixels : NULL;  /* adds to the light outside the reservoir */
-            if (!restir_spatial_pass(&r, st->res[0], st->res[1], &rc, err)) return false;
+            if (!restir_spatial_pass(&r, st->rs.res[0], st->rs.res[1], &rc, err)) return false;
             if (round + 1 < params->spatial_rounds) {
-                uint8_t *tmp = st->res[0];
-                st->res[0] = st->res[1];
-                st->res[1] = tmp;
+                uint8_t *tmp = st->rs.res[0];
+                st->rs.res[0] = st->rs.res[1];
+                st->rs.res[1] = tmp;
             }
         }
     } else {
-        uint8_t *tmp = st->res[0];
-        st->res[0] = st->res[1];
-        st->res[1] = tmp;
+        uint8_t *tmp = st->rs.res[0];
+        st->rs.res[0] = st->rs.res[1];
+        st->rs.res[1] = tmp;
     }
     stats->spatial_ms = parallel_lap_ms(&t0);
     restir_pass_stats_add(stats, &rc);
@@ -1211,6 +1175,6 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
     if (!pt_run(&pp, threads, pt_shade_rows, err)) return false;
     for (unsigned i = 0; i < threads; i++) stats->nonfinite += pp.nonfinite[i];
     stats->shade_ms = parallel_lap_ms(&t0);
-    st->has_history = true;
+    st->rs.has_history = true;
     return true;
 }

@@ -62,14 +62,9 @@ bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err);
  * (gbuffer_keep_surfaces: the initial pass and every shift read x_1 from there), and two
  * reservoir buffers (the frame's working buffer and the history the next frame reuses). */
 struct restir_pt_state {
-    uint32_t width, height;
-    struct gbuffer gbuf[2];
-    uint32_t cur;              /* index of the current G-buffer */
-    uint8_t *res[2];           /* [0] working (initial + temporal), [1] history (final) */
-    bool has_history;
+    struct restir_session rs;  /* G-buffers with hit points, one reservoir per pixel, pairs */
     uint32_t shape_count;
     uint32_t *prim_first;      /* shape -> first scene-wide primitive id (shape_count + 1) */
-    void *pair_scratch;        /* paired spatial reuse: restir_pair_scratch_bytes() */
     uint32_t nee_by_scene;     /* restir_pt_nee_by_scene of the scene at init: fixed for the session,
                                   as the integrand's MIS weights must not change between frames */
 };
@@ -82,12 +77,6 @@ struct restir_pt_state {
 bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, const struct restir_pt_params *params,
                     uint32_t width, uint32_t height, struct err *err);
 void restir_pt_destroy(struct restir_pt_state *st);
-/* Forgets the history (the next frame has no temporal predecessor). */
-void restir_pt_reset(struct restir_pt_state *st);
-size_t restir_pt_reservoir_bytes(const struct restir_pt_state *st);
-size_t restir_pt_gbuffer_bytes(const struct restir_pt_state *st);
-size_t restir_pt_pair_bytes(const struct restir_pt_state *st);  /* 0 without paired spatial reuse */
-size_t restir_pt_hit_bytes(const struct restir_pt_state *st);
 /* What restir_pt_init allocates for these parameters, size and shape count (before allocating it). */
 uint64_t restir_pt_bytes_planned(const struct restir_pt_params *params, uint32_t width, uint32_t height,
                                  uint32_t shape_count);

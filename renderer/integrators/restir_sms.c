@@ -429,62 +429,33 @@ bool restir_sms_init(struct restir_sms_state *st, const struct scene *scene, con
                      uint32_t width, uint32_t height, struct err *err)
 {
     memset(st, 0, sizeof *st);
-    st->width = width;
-    st->height = height;
-    st->layers = restir_sms_layers(params, scene);
     size_t n = (size_t)width * height;
-    bool ok = restir_gbuffers_init(st->gbuf, width, height, false, err);
-    for (int i = 0; ok && i < 2; i++) {
-        st->res[i] = calloc(n * st->layers, sizeof(struct sms_sample));
-        st->recv[i] = calloc(n, sizeof(struct restir_sms_receiver));
-        if (!st->res[i] || !st->recv[i])
-            ok = err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
-    }
+    bool ok = restir_session_init(&st->rs, width, height, restir_sms_layers(params, scene), sizeof(struct sms_sample),
+                                  false, sms_uses_pairs(params), err);
+    for (int i = 0; ok && i < 2; i++)
+        if (!(st->recv[i] = calloc(n, sizeof(struct restir_sms_receiver))))
+            ok = err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u receivers", width, height);
     ok = ok && (!sms_uses_prior(params) || ssp_prior_init(&st->prior, width, height, params->ssp.prior_frames, err));
-    if (!ok || !restir_pairs_alloc(&st->pair_scratch, sms_uses_pairs(params), width, height, err)) {
-        restir_sms_destroy(st);
-        return false;
-    }
-    return true;
+    if (!ok) restir_sms_destroy(st);
+    return ok;
 }
 
 void restir_sms_destroy(struct restir_sms_state *st)
 {
-    for (int i = 0; i < 2; i++) {
-        gbuffer_destroy(&st->gbuf[i]);
-        free(st->res[i]);
-        free(st->recv[i]);
-    }
+    restir_session_destroy(&st->rs);
+    for (int i = 0; i < 2; i++) free(st->recv[i]);
     ssp_prior_destroy(&st->prior);
-    free(st->pair_scratch);
     memset(st, 0, sizeof *st);
-}
-
-void restir_sms_reset(struct restir_sms_state *st) { st->has_history = false; }
-
-size_t restir_sms_reservoir_bytes(const struct restir_sms_state *st)
-{
-    return 2 * (size_t)st->width * st->height * st->layers * sizeof(struct sms_sample);
-}
-
-size_t restir_sms_gbuffer_bytes(const struct restir_sms_state *st)
-{
-    return restir_gbuffers_bytes(st->gbuf);
 }
 
 size_t restir_sms_receiver_bytes(const struct restir_sms_state *st)
 {
-    return 2 * (size_t)st->width * st->height * sizeof(struct restir_sms_receiver);
+    return 2 * (size_t)st->rs.width * st->rs.height * sizeof(struct restir_sms_receiver);
 }
 
 size_t restir_sms_prior_bytes(const struct restir_sms_state *st)
 {
-    return st->prior.entries ? ssp_prior_bytes(st->width, st->height, st->prior.frames) : 0;
-}
-
-size_t restir_sms_pair_bytes(const struct restir_sms_state *st)
-{
-    return st->pair_scratch ? restir_pair_scratch_bytes(st->width, st->height) : 0;
+    return st->prior.entries ? ssp_prior_bytes(st->rs.width, st->rs.height, st->prior.frames) : 0;
 }
 
 uint64_t restir_sms_bytes_planned(const struct restir_sms_params *params, const struct scene *scene, uint32_t width,
@@ -515,14 +486,14 @@ static void sms_initial_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct sms_pass *pp = ctx;
     const struct sms_ctx *c = pp->c;
-    uint32_t w = pp->st->width, h = pp->st->height;
+    uint32_t w = pp->st->rs.width, h = pp->st->rs.height;
     uint32_t y1 = (job + 1) * SMS_ROWS_PER_JOB < h ? (job + 1) * SMS_ROWS_PER_JOB : h;
-    struct sms_sample *res = (struct sms_sample *)pp->st->res[0];
+    struct sms_sample *res = (struct sms_sample *)pp->st->rs.res[0];
     struct ray_counters rays = {0, 0};  /* job-local (see sms_counters_add) */
     struct sms_counters sms = {0};
     struct ray_counters *rc = &rays;
     struct sms_counters *sc = &sms;
-    struct restir_sms_receiver *recv = pp->st->recv[pp->st->cur];
+    struct restir_sms_receiver *recv = pp->st->recv[pp->st->rs.cur];
     for (uint32_t y = job * SMS_ROWS_PER_JOB; y < y1; y++) {
         for (uint32_t x = 0; x < w; x++) {
             uint32_t pixel = y * w + x;
@@ -533,7 +504,7 @@ static void sms_initial_rows(void *ctx, uint32_t job, unsigned worker)
             const struct hit *primary = gbuffer_hit(c->scene[RESTIR_CURRENT], g, &first);
             sms_find_receiver(c->scene[RESTIR_CURRENT], c->max_depth, pp->camera.position, dir, primary, &recv[pixel],
                               rc);
-            sms_initial_pixel(c, pixel, pp->st->layers, (size_t)w * h, res, sc, rc);
+            sms_initial_pixel(c, pixel, pp->st->rs.layers, (size_t)w * h, res, sc, rc);
             if (!pp->out) continue;
             struct rng rng = rng_make(c->seed, c->frame, pixel, SMS_PT_STREAM);
             struct rng srng = rng_make(c->seed, c->frame, pixel, SMS_PT_SMS_STREAM);
@@ -549,15 +520,15 @@ static void sms_initial_rows(void *ctx, uint32_t job, unsigned worker)
 static void sms_shade_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct sms_pass *pp = ctx;
-    uint32_t w = pp->st->width, h = pp->st->height;
+    uint32_t w = pp->st->rs.width, h = pp->st->rs.height;
     uint32_t y1 = (job + 1) * SMS_ROWS_PER_JOB < h ? (job + 1) * SMS_ROWS_PER_JOB : h;
-    const struct sms_sample *res = (const struct sms_sample *)pp->st->res[1];
+    const struct sms_sample *res = (const struct sms_sample *)pp->st->rs.res[1];
     const size_t n = (size_t)w * h;
     for (uint32_t y = job * SMS_ROWS_PER_JOB; y < y1; y++) {
         for (uint32_t x = 0; x < w; x++) {
             uint32_t pixel = y * w + x;
             struct vec3 L = pp->out->pixels[pixel];
-            for (uint32_t l = 0; l < pp->st->layers && !pp->estimated; l++) {
+            for (uint32_t l = 0; l < pp->st->rs.layers && !pp->estimated; l++) {
                 const struct sms_sample *s = &res[l * n + pixel];
                 if (s->head.W > 0.0f) L = vec3_add(L, vec3_scale(vec3_make(s->F[0], s->F[1], s->F[2]), s->head.W));
             }
@@ -577,14 +548,14 @@ static bool sms_bind(struct restir_sms_state *st, const struct restir_sms_params
     c->p = params;
     c->scene[RESTIR_CURRENT] = f->scene;
     c->scene[RESTIR_PREVIOUS] = f->prev_scene ? f->prev_scene : f->scene;
-    c->gbuf[RESTIR_CURRENT] = &st->gbuf[st->cur];
-    c->gbuf[RESTIR_PREVIOUS] = &st->gbuf[st->cur ^ 1u];
-    c->recv[RESTIR_CURRENT] = st->recv[st->cur];
-    c->recv[RESTIR_PREVIOUS] = st->recv[st->cur ^ 1u];
+    c->gbuf[RESTIR_CURRENT] = &st->rs.gbuf[st->rs.cur];
+    c->gbuf[RESTIR_PREVIOUS] = &st->rs.gbuf[st->rs.cur ^ 1u];
+    c->recv[RESTIR_CURRENT] = st->recv[st->rs.cur];
+    c->recv[RESTIR_PREVIOUS] = st->recv[st->rs.cur ^ 1u];
     c->prior = &st->prior;
     c->seed = f->seed;
     c->frame = f->frame;
-    c->width = st->width;
+    c->width = st->rs.width;
     c->max_depth = params->max_depth;
     c->shared = &c->shared_storage;
     return sms_scene_init(f->scene, &c->ss, err);
@@ -592,7 +563,7 @@ static bool sms_bind(struct restir_sms_state *st, const struct restir_sms_params
 
 static bool sms_run(struct sms_pass *pp, unsigned threads, parallel_job_fn *fn, struct err *err)
 {
-    uint32_t jobs = (pp->st->height + SMS_ROWS_PER_JOB - 1) / SMS_ROWS_PER_JOB;
+    uint32_t jobs = (pp->st->rs.height + SMS_ROWS_PER_JOB - 1) / SMS_ROWS_PER_JOB;
     return parallel_run(threads, jobs, fn, pp, NULL, NULL, err);
 }
 
@@ -601,15 +572,15 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
                       unsigned threads, struct restir_sms_stats *stats, struct err *err)
 {
     if (!restir_sms_params_valid(params, err)) return false;
-    if (restir_sms_layers(params, f->scene) != st->layers)
+    if (restir_sms_layers(params, f->scene) != st->rs.layers)
         return err_set(err, ERR_INVALID, "/params/light_reservoirs", "the session has %u reservoirs per pixel, not %u",
-                       st->layers, restir_sms_layers(params, f->scene));
+                       st->rs.layers, restir_sms_layers(params, f->scene));
     if (sms_uses_prior(params) && !st->prior.entries)
         return err_set(err, ERR_INVALID, "/params/sampler", "the session was made for the sms sampler (no prior)");
     if (sms_uses_prior(params) && st->prior.frames != params->ssp.prior_frames)
         return err_set(err, ERR_INVALID, "/params/prior_frames", "the session keeps %u frames of prior walks, not %u",
                        st->prior.frames, params->ssp.prior_frames);
-    if (sms_uses_pairs(params) && !st->pair_scratch)
+    if (sms_uses_pairs(params) && !st->rs.pair_scratch)
         return err_set(err, ERR_INVALID, "/params/paired_spatial", "the session was made without paired spatial reuse");
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
@@ -617,7 +588,7 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
                                .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame, .threads = threads,
                                .jitter_walk = params->jitter_walk};
     uint64_t grays = 0;
-    if (!restir_gbuffer_next(st->gbuf, &st->cur, &st->has_history, gf, &grays, err)) return false;
+    if (!restir_gbuffer_next(st->rs.gbuf, &st->rs.cur, &st->rs.has_history, gf, &grays, err)) return false;
     stats->pass.gbuffer_ms = parallel_lap_ms(&t0);
     stats->pass.rays_intersect += grays;
 
@@ -626,12 +597,12 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     pp->c = c;
     pp->st = st;
     pp->out = out;
-    camera_init(&pp->camera, f->camera, st->width, st->height);
+    camera_init(&pp->camera, f->camera, st->rs.width, st->rs.height);
     /* The prior pass ([SMS-SSP §4.1]) under this frame's scene and camera. */
     struct ray_counters prc = {0, 0};
     const bool ssp = params->sampler == RESTIR_SMS_SAMPLER_SSP;
     /* The walks kept from earlier frames describe this one while nothing moved (sms_ssp.h). */
-    const bool still = st->has_history && f->prev_scene && f->prev_camera &&
+    const bool still = st->rs.has_history && f->prev_scene && f->prev_camera &&
                        memcmp(f->camera, f->prev_camera, sizeof *f->camera) == 0 && !scene_moved(f->prev_scene, f->scene);
     if (ssp && !ssp_prior_build(&st->prior, f->scene, &c->ss, &params->ssp, &pp->camera, f->seed, f->frame, still,
                                 threads, &stats->prior, &prc, err))
@@ -639,7 +610,7 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     stats->pass.rays_intersect += prc.intersect;
     stats->pass.rays_occluded += prc.occluded;
     stats->prior_ms = parallel_lap_ms(&t0);
-    pp->pt = reference_pt_defaults(st->width, st->height);
+    pp->pt = reference_pt_defaults(st->rs.width, st->rs.height);
     pp->pt.max_depth = params->max_depth;
     pp->pt.rr_depth = params->rr_depth;
     pp->pt.nee = true;
@@ -671,7 +642,7 @@ bool restir_sms_initial_only(struct restir_sms_state *st, const struct restir_sm
     memset(&stats, 0, sizeof stats);
     bool ok = sms_begin(st, params, f, ctx, pp, NULL, sms_threads(f), &stats, err);
     free(pp);
-    if (ok) st->has_history = true;
+    if (ok) st->rs.has_history = true;
     return ok;
 }
 
@@ -680,31 +651,31 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
                        struct err *err)
 {
     struct restir_sms_stats local;
-    if (!(stats = restir_frame_begin(out, st->width, st->height, stats, &local, sizeof local, err))) return false;
+    if (!(stats = restir_frame_begin(out, &st->rs, stats, &local, sizeof local, err))) return false;
     unsigned threads = sms_threads(f);
     /* The context holds the frame's casters (~7 KiB) and the pass its per-worker counters; both
      * on the heap would be a per-frame malloc, the stack is fine. */
     struct sms_ctx c;
     struct sms_pass pp;
-    const bool history = st->has_history && f->prev_scene && params->temporal;
+    const bool history = st->rs.has_history && f->prev_scene && params->temporal;
     if (!sms_begin(st, params, f, &c, &pp, out, threads, stats, err)) return false;
 
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
     /* One reuse per reservoir layer, each over its own share of the lights; they share the
      * G-buffers, the receivers, the pair scratch (one pass at a time) and the neighbour pairings. */
-    const uint32_t layers = st->layers;
-    const size_t layer_bytes = (size_t)st->width * st->height * sizeof(struct sms_sample);
-    struct restir_reuse r = {.ops = &restir_sms_ops, .ctx = &c, .width = st->width, .height = st->height,
+    const uint32_t layers = st->rs.layers;
+    const size_t layer_bytes = (size_t)st->rs.width * st->rs.height * sizeof(struct sms_sample);
+    struct restir_reuse r = {.ops = &restir_sms_ops, .ctx = &c, .width = st->rs.width, .height = st->rs.height,
                              .seed = f->seed, .frame = f->frame, .threads = threads,
-                             .gbuf = &st->gbuf[st->cur], .history = NULL,
+                             .gbuf = &st->rs.gbuf[st->rs.cur], .history = NULL,
                              .temporal_cap = params->temporal_cap, .neighbors = params->spatial_neighbors,
                              .radius = params->spatial_radius, .paired = params->paired_spatial,
-                             .pair_scratch = st->pair_scratch};
+                             .pair_scratch = st->rs.pair_scratch};
     struct restir_counters rc = {0};
     for (uint32_t l = 0; l < layers; l++) {
-        r.history = history ? st->res[1] + l * layer_bytes : NULL;
-        if (!restir_temporal_pass(&r, st->res[0] + l * layer_bytes, &rc, err)) return false;
+        r.history = history ? st->rs.res[1] + l * layer_bytes : NULL;
+        if (!restir_temporal_pass(&r, st->rs.res[0] + l * layer_bytes, &rc, err)) return false;
     }
     stats->pass.temporal_ms = parallel_lap_ms(&t0);
     if (params->spatial_neighbors > 0) {
@@ -714,12 +685,12 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
         pp.estimated = params->expected_shading;
         r.estimate = pp.estimated ? out->pixels : NULL;  /* adds to the path-traced rest */
         for (uint32_t l = 0; l < layers; l++)
-            if (!restir_spatial_pass(&r, st->res[0] + l * layer_bytes, st->res[1] + l * layer_bytes, &rc, err))
+            if (!restir_spatial_pass(&r, st->rs.res[0] + l * layer_bytes, st->rs.res[1] + l * layer_bytes, &rc, err))
                 return false;
     } else {
-        uint8_t *tmp = st->res[0];
-        st->res[0] = st->res[1];
-        st->res[1] = tmp;
+        uint8_t *tmp = st->rs.res[0];
+        st->rs.res[0] = st->rs.res[1];
+        st->rs.res[1] = tmp;
     }
     stats->pass.spatial_ms = parallel_lap_ms(&t0);
     stats->pass.rays_intersect += rc.rays.intersect;
@@ -734,6 +705,6 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
     if (!sms_run(&pp, threads, sms_shade_rows, err)) return false;
     for (unsigned i = 0; i < threads; i++) stats->pass.nonfinite += pp.nonfinite[i];
     stats->pass.shade_ms = parallel_lap_ms(&t0);
-    st->has_history = true;
+    st->rs.has_history = true;
     return true;
 }

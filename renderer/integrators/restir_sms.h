@@ -133,15 +133,9 @@ struct restir_sms_receiver {
 };
 
 struct restir_sms_state {
-    uint32_t width, height;
-    struct gbuffer gbuf[2];
-    uint32_t cur;
-    struct restir_sms_receiver *recv[2];   /* with gbuf[cur] and gbuf[cur ^ 1] */
-    uint32_t layers;   /* reservoirs per pixel (restir_sms_layers) */
-    uint8_t *res[2];   /* [0] working, [1] history (final); layer l's at l * width * height */
-    bool has_history;
+    struct restir_session rs;              /* restir_sms_layers reservoirs per pixel */
+    struct restir_sms_receiver *recv[2];   /* with rs.gbuf[rs.cur] and rs.gbuf[rs.cur ^ 1] */
     struct ssp_prior prior;   /* the ssp sampler's; no entries with the sms sampler */
-    void *pair_scratch;       /* paired spatial reuse: restir_pair_scratch_bytes(); else NULL */
 };
 
 #define RESTIR_SMS_RESERVOIR_BYTES 64u   /* per reservoir; a pixel has light_reservoirs of them */
@@ -161,12 +155,8 @@ uint32_t restir_sms_layers(const struct restir_sms_params *p, const struct scene
 bool restir_sms_init(struct restir_sms_state *st, const struct scene *scene, const struct restir_sms_params *params,
                      uint32_t width, uint32_t height, struct err *err);
 void restir_sms_destroy(struct restir_sms_state *st);
-void restir_sms_reset(struct restir_sms_state *st);
-size_t restir_sms_reservoir_bytes(const struct restir_sms_state *st);
-size_t restir_sms_gbuffer_bytes(const struct restir_sms_state *st);
 size_t restir_sms_receiver_bytes(const struct restir_sms_state *st);
 size_t restir_sms_prior_bytes(const struct restir_sms_state *st);  /* 0 with the sms sampler */
-size_t restir_sms_pair_bytes(const struct restir_sms_state *st);   /* 0 without paired spatial reuse */
 uint64_t restir_sms_bytes_planned(const struct restir_sms_params *params, const struct scene *scene, uint32_t width,
                                   uint32_t height);
 

@@ -556,51 +556,13 @@ bool restir_sss_init(struct restir_sss_state *st, const struct restir_sss_params
                      uint32_t height, struct err *err)
 {
     memset(st, 0, sizeof *st);
-    st->width = width;
-    st->height = height;
-    st->layers = restir_sss_layers(params);
-    size_t n = (size_t)width * height * st->layers;
-    bool ok = restir_gbuffers_init(st->gbuf, width, height, true, err);
-    for (int i = 0; ok && i < 2; i++)
-        if (!(st->res[i] = calloc(n, sizeof(struct sss_sample))))
-            ok = err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
-    if (!ok || !restir_pairs_alloc(&st->pair_scratch, sss_uses_pairs(params), width, height, err)) {
-        restir_sss_destroy(st);
-        return false;
-    }
-    return true;
+    return restir_session_init(&st->rs, width, height, restir_sss_layers(params), sizeof(struct sss_sample), true,
+                               sss_uses_pairs(params), err);
 }
 
 void restir_sss_destroy(struct restir_sss_state *st)
 {
-    for (int i = 0; i < 2; i++) {
-        gbuffer_destroy(&st->gbuf[i]);
-        free(st->res[i]);
-    }
-    free(st->pair_scratch);
-    memset(st, 0, sizeof *st);
-}
-
-void restir_sss_reset(struct restir_sss_state *st) { st->has_history = false; }
-
-size_t restir_sss_reservoir_bytes(const struct restir_sss_state *st)
-{
-    return 2 * (size_t)st->width * st->height * st->layers * sizeof(struct sss_sample);
-}
-
-size_t restir_sss_gbuffer_bytes(const struct restir_sss_state *st)
-{
-    return restir_gbuffers_bytes(st->gbuf);
-}
-
-size_t restir_sss_hit_bytes(const struct restir_sss_state *st)
-{
-    return gbuffer_surface_bytes(&st->gbuf[0]) + gbuffer_surface_bytes(&st->gbuf[1]);
-}
-
-size_t restir_sss_pair_bytes(const struct restir_sss_state *st)
-{
-    return st->pair_scratch ? restir_pair_scratch_bytes(st->width, st->height) : 0;
+    restir_session_destroy(&st->rs);
 }
 
 uint64_t restir_sss_bytes_planned(const struct restir_sss_params *params, uint32_t width, uint32_t height)
@@ -628,10 +590,10 @@ static void sss_initial_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct sss_pass *pp = ctx;
     const struct sss_ctx *c = pp->c;
-    uint32_t w = pp->st->width, h = pp->st->height;
+    uint32_t w = pp->st->rs.width, h = pp->st->rs.height;
     uint32_t y1 = (job + 1) * SSS_ROWS_PER_JOB < h ? (job + 1) * SSS_ROWS_PER_JOB : h;
-    struct sss_sample *res = (struct sss_sample *)pp->st->res[0];
-    const uint32_t layers = pp->st->layers;
+    struct sss_sample *res = (struct sss_sample *)pp->st->rs.res[0];
+    const uint32_t layers = pp->st->rs.layers;
     const size_t n = (size_t)w * h;
     struct ray_counters rays = {0, 0};  /* job-local (see restir_counters_add) */
     struct ray_counters *rc = &rays;
@@ -659,10 +621,10 @@ static void sss_initial_rows(void *ctx, uint32_t job, unsigned worker)
 static void sss_shade_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct sss_pass *pp = ctx;
-    uint32_t w = pp->st->width, h = pp->st->height;
+    uint32_t w = pp->st->rs.width, h = pp->st->rs.height;
     uint32_t y1 = (job + 1) * SSS_ROWS_PER_JOB < h ? (job + 1) * SSS_ROWS_PER_JOB : h;
-    const struct sss_sample *res = (const struct sss_sample *)pp->st->res[1];
-    const uint32_t layers = pp->st->layers;
+    const struct sss_sample *res = (const struct sss_sample *)pp->st->rs.res[1];
+    const uint32_t layers = pp->st->rs.layers;
     const size_t n = (size_t)w * h;
     for (uint32_t y = job * SSS_ROWS_PER_JOB; y < y1; y++) {
         for (uint32_t x = 0; x < w; x++) {
@@ -693,8 +655,8 @@ void restir_sss_bind(struct restir_sss_state *st, const struct restir_sss_params
     c->scene[RESTIR_PREVIOUS] = f->prev_scene ? f->prev_scene : f->scene;
     c->eye[RESTIR_CURRENT] = f->camera->position;
     c->eye[RESTIR_PREVIOUS] = f->prev_camera ? f->prev_camera->position : f->camera->position;
-    c->gbuf[RESTIR_CURRENT] = &st->gbuf[st->cur];
-    c->gbuf[RESTIR_PREVIOUS] = &st->gbuf[st->cur ^ 1u];
+    c->gbuf[RESTIR_CURRENT] = &st->rs.gbuf[st->rs.cur];
+    c->gbuf[RESTIR_PREVIOUS] = &st->rs.gbuf[st->rs.cur ^ 1u];
     c->seed = f->seed;
     c->frame = f->frame;
     /* The sequential shift starts with reconnection (temporal and first spatial pass). */
@@ -705,7 +667,7 @@ void restir_sss_bind(struct restir_sss_state *st, const struct restir_sss_params
 
 static bool sss_run(struct sss_pass *pp, unsigned threads, parallel_job_fn *fn, struct err *err)
 {
-    uint32_t jobs = (pp->st->height + SSS_ROWS_PER_JOB - 1) / SSS_ROWS_PER_JOB;
+    uint32_t jobs = (pp->st->rs.height + SSS_ROWS_PER_JOB - 1) / SSS_ROWS_PER_JOB;
     return parallel_run(threads, jobs, fn, pp, NULL, NULL, err);
 }
 
@@ -714,16 +676,16 @@ static bool sss_begin(struct restir_sss_state *st, const struct restir_sss_param
                       unsigned threads, struct restir_sss_stats *stats, struct err *err)
 {
     if (!restir_sss_params_valid(params, err)) return false;
-    if (restir_sss_layers(params) != st->layers)
+    if (restir_sss_layers(params) != st->rs.layers)
         return err_set(err, ERR_INVALID, "/params/target", "the session's reservoirs were made for the other target");
-    if (sss_uses_pairs(params) && !st->pair_scratch)
+    if (sss_uses_pairs(params) && !st->rs.pair_scratch)
         return err_set(err, ERR_INVALID, "/params/paired_spatial", "the session was made without paired spatial reuse");
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
     struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,
                                .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame, .threads = threads};
     uint64_t grays = 0;
-    if (!restir_gbuffer_next(st->gbuf, &st->cur, &st->has_history, gf, &grays, err)) return false;
+    if (!restir_gbuffer_next(st->rs.gbuf, &st->rs.cur, &st->rs.has_history, gf, &grays, err)) return false;
     stats->pass.gbuffer_ms = parallel_lap_ms(&t0);
     stats->pass.rays_intersect += grays;
 
@@ -732,8 +694,8 @@ static bool sss_begin(struct restir_sss_state *st, const struct restir_sss_param
     pp->c = c;
     pp->st = st;
     pp->out = out;
-    camera_init(&pp->camera, f->camera, st->width, st->height);
-    pp->pt = reference_pt_defaults(st->width, st->height);
+    camera_init(&pp->camera, f->camera, st->rs.width, st->rs.height);
+    pp->pt = reference_pt_defaults(st->rs.width, st->rs.height);
     pp->pt.max_depth = params->max_depth;
     pp->pt.rr_depth = params->rr_depth;
     pp->pt.nee = true;
@@ -782,46 +744,46 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
                        struct err *err)
 {
     struct restir_sss_stats local;
-    if (!(stats = restir_frame_begin(out, st->width, st->height, stats, &local, sizeof local, err))) return false;
+    if (!(stats = restir_frame_begin(out, &st->rs, stats, &local, sizeof local, err))) return false;
     const unsigned threads = parallel_threads(f->threads, RESTIR_MAX_WORKERS);
     struct sss_ctx c;
     /* ~50 KiB of per-worker counters: on the heap would be a per-frame malloc; the stack is fine. */
     struct sss_pass pp;
-    const bool history = st->has_history && f->prev_scene && params->temporal;
+    const bool history = st->rs.has_history && f->prev_scene && params->temporal;
     if (!sss_begin(st, params, f, &c, &pp, out, threads, stats, err)) return false;
     for (unsigned i = 0; i < threads; i++) restir_pass_stats_add(&stats->pass, &pp.counters[i]);
 
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
     float radius = params->spatial_radius > 0.0f ? params->spatial_radius
-                                                 : sss_auto_radius(&c, f->camera, st->width, st->height);
+                                                 : sss_auto_radius(&c, f->camera, st->rs.width, st->rs.height);
     stats->spatial_radius = radius;
     /* One reuse per layer, each with its own target (the ctx's channel) and reservoirs; they share
      * the G-buffers, the pair scratch (one pass at a time) and the neighbour pairings. */
-    const uint32_t layers = st->layers;
-    const size_t layer_bytes = (size_t)st->width * st->height * sizeof(struct sss_sample);
+    const uint32_t layers = st->rs.layers;
+    const size_t layer_bytes = (size_t)st->rs.width * st->rs.height * sizeof(struct sss_sample);
     struct sss_ctx lc[3];
     struct restir_reuse r[3];
     for (uint32_t l = 0; l < layers; l++) {
         lc[l] = c;
         lc[l].channel = layers > 1 ? (int)l : -1;
-        r[l] = (struct restir_reuse){.ops = &restir_sss_ops, .ctx = &lc[l], .width = st->width, .height = st->height,
+        r[l] = (struct restir_reuse){.ops = &restir_sss_ops, .ctx = &lc[l], .width = st->rs.width, .height = st->rs.height,
                                      .seed = f->seed, .frame = f->frame, .threads = threads,
-                                     .gbuf = &st->gbuf[st->cur], .history = history ? st->res[1] + l * layer_bytes : NULL,
+                                     .gbuf = &st->rs.gbuf[st->rs.cur], .history = history ? st->rs.res[1] + l * layer_bytes : NULL,
                                      .temporal_cap = params->temporal_cap, .neighbors = params->spatial_neighbors,
                                      .radius = radius, .paired = params->paired_spatial,
-                                     .pair_scratch = st->pair_scratch};
+                                     .pair_scratch = st->rs.pair_scratch};
     }
     struct restir_counters rc = {0};
     for (uint32_t l = 0; l < layers; l++)
-        if (!restir_temporal_pass(&r[l], st->res[0] + l * layer_bytes, &rc, err)) return false;
+        if (!restir_temporal_pass(&r[l], st->rs.res[0] + l * layer_bytes, &rc, err)) return false;
     stats->pass.temporal_ms = parallel_lap_ms(&t0);
     if (params->spatial_neighbors > 0 && params->shift == RESTIR_SSS_SEQUENTIAL) {
         /* §4.3, §5.1: half the neighbours with reconnection, then half with delayed
          * reconnection (its own neighbour stream), ending in res[1]. */
         for (uint32_t l = 0; l < layers; l++) {
             r[l].neighbors = params->spatial_neighbors / 2;
-            if (!restir_spatial_pass(&r[l], st->res[0] + l * layer_bytes, st->res[1] + l * layer_bytes, &rc, err))
+            if (!restir_spatial_pass(&r[l], st->rs.res[0] + l * layer_bytes, st->rs.res[1] + l * layer_bytes, &rc, err))
                 return false;
         }
         pp.estimated = params->expected_shading;
@@ -829,23 +791,23 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
             lc[l].pass_shift = RESTIR_SSS_DELAYED;
             r[l].frame = f->frame * 8u + 1u;
             r[l].estimate = pp.estimated ? out->pixels : NULL;  /* adds to the path-traced rest */
-            if (!restir_spatial_pass(&r[l], st->res[1] + l * layer_bytes, st->res[0] + l * layer_bytes, &rc, err))
+            if (!restir_spatial_pass(&r[l], st->rs.res[1] + l * layer_bytes, st->rs.res[0] + l * layer_bytes, &rc, err))
                 return false;
         }
-        uint8_t *tmp = st->res[0];
-        st->res[0] = st->res[1];
-        st->res[1] = tmp;
+        uint8_t *tmp = st->rs.res[0];
+        st->rs.res[0] = st->rs.res[1];
+        st->rs.res[1] = tmp;
     } else if (params->spatial_neighbors > 0) {
         pp.estimated = params->expected_shading;
         for (uint32_t l = 0; l < layers; l++) {
             r[l].estimate = pp.estimated ? out->pixels : NULL;  /* adds to the path-traced rest */
-            if (!restir_spatial_pass(&r[l], st->res[0] + l * layer_bytes, st->res[1] + l * layer_bytes, &rc, err))
+            if (!restir_spatial_pass(&r[l], st->rs.res[0] + l * layer_bytes, st->rs.res[1] + l * layer_bytes, &rc, err))
                 return false;
         }
     } else {
-        uint8_t *tmp = st->res[0];
-        st->res[0] = st->res[1];
-        st->res[1] = tmp;
+        uint8_t *tmp = st->rs.res[0];
+        st->rs.res[0] = st->rs.res[1];
+        st->rs.res[1] = tmp;
     }
     stats->pass.spatial_ms = parallel_lap_ms(&t0);
     restir_pass_stats_add(&stats->pass, &rc);
@@ -854,6 +816,6 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
     if (!sss_run(&pp, threads, sss_shade_rows, err)) return false;
     for (unsigned i = 0; i < threads; i++) stats->pass.nonfinite += pp.nonfinite[i];
     stats->pass.shade_ms = parallel_lap_ms(&t0);
-    st->has_history = true;
+    st->rs.has_history = true;
     return true;
 }

@@ -89,13 +89,7 @@ struct RESTIRD_STORED_IN_BYTES restir_sss_stats {
 };
 
 struct restir_sss_state {
-    uint32_t width, height;
-    struct gbuffer gbuf[2];           /* with their primary surfaces (gbuffer_keep_surfaces) */
-    uint32_t cur;
-    uint32_t layers;                  /* reservoirs per pixel (restir_sss_layers) */
-    uint8_t *res[2];   /* [0] working, [1] history (final); layer l's at l * width * height */
-    void *pair_scratch;               /* paired spatial reuse (restir_pair_scratch_bytes) */
-    bool has_history;
+    struct restir_session rs;  /* G-buffers with their primary surfaces, restir_sss_layers reservoirs */
 };
 
 #define RESTIR_SSS_RESERVOIR_BYTES 60u   /* per reservoir; a pixel has restir_sss_layers of them */
@@ -105,11 +99,6 @@ struct restir_sss_state {
 bool restir_sss_init(struct restir_sss_state *st, const struct restir_sss_params *params, uint32_t width,
                      uint32_t height, struct err *err);
 void restir_sss_destroy(struct restir_sss_state *st);
-void restir_sss_reset(struct restir_sss_state *st);
-size_t restir_sss_reservoir_bytes(const struct restir_sss_state *st);
-size_t restir_sss_gbuffer_bytes(const struct restir_sss_state *st);
-size_t restir_sss_hit_bytes(const struct restir_sss_state *st);
-size_t restir_sss_pair_bytes(const struct restir_sss_state *st);  /* 0 without paired spatial reuse */
 uint64_t restir_sss_bytes_planned(const struct restir_sss_params *params, uint32_t width, uint32_t height);
 
 

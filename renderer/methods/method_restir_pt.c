@@ -32,7 +32,7 @@ static bool rpt_init(void *state, const struct scene *scene, void *params, uint3
 
 static void rpt_reset(void *state)
 {
-    restir_pt_reset(state);
+    restir_session_reset(&((struct restir_pt_state *)state)->rs);
 }
 
 static void rpt_destroy(void *state)
@@ -66,11 +66,11 @@ static uint32_t rpt_buffers(const void *state, const void *params, struct view_b
     (void)params;
     const struct restir_pt_state *st = state;
     uint32_t n = 0;
-    out[n++] = (struct view_buffer_bytes){"reservoirs", restir_pt_reservoir_bytes(st)};
-    out[n++] = (struct view_buffer_bytes){"gbuffers", restir_pt_gbuffer_bytes(st)};
+    out[n++] = (struct view_buffer_bytes){"reservoirs", restir_session_reservoir_bytes(&st->rs)};
+    out[n++] = (struct view_buffer_bytes){"gbuffers", restir_session_gbuffer_bytes(&st->rs)};
     out[n++] = (struct view_buffer_bytes){"primitive_table", ((size_t)st->shape_count + 1) * sizeof *st->prim_first};
-    if (st->pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_pt_pair_bytes(st)};
-    out[n++] = (struct view_buffer_bytes){"primary_hits", restir_pt_hit_bytes(st)};
+    if (st->rs.pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_session_pair_bytes(&st->rs)};
+    out[n++] = (struct view_buffer_bytes){"primary_hits", restir_session_hit_bytes(&st->rs)};
     return n;
 }
 

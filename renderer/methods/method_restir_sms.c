@@ -29,13 +29,13 @@ static bool rsms_init(void *state, const struct scene *scene, void *params, uint
     struct sms_scene ss;
     if (!sms_scene_init(scene, &ss, err) || !restir_sms_init(state, scene, p, width, height, err)) return false;
     /* The session reports the reservoirs per pixel it uses. */
-    p->light_reservoirs = ((struct restir_sms_state *)state)->layers;
+    p->light_reservoirs = ((struct restir_sms_state *)state)->rs.layers;
     return true;
 }
 
 static void rsms_reset(void *state)
 {
-    restir_sms_reset(state);
+    restir_session_reset(&((struct restir_sms_state *)state)->rs);
 }
 
 static void rsms_destroy(void *state)
@@ -72,11 +72,11 @@ static uint32_t rsms_buffers(const void *state, const void *params, struct view_
     (void)params;
     const struct restir_sms_state *st = state;
     uint32_t n = 0;
-    out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sms_reservoir_bytes(st)};
-    out[n++] = (struct view_buffer_bytes){"gbuffers", restir_sms_gbuffer_bytes(st)};
+    out[n++] = (struct view_buffer_bytes){"reservoirs", restir_session_reservoir_bytes(&st->rs)};
+    out[n++] = (struct view_buffer_bytes){"gbuffers", restir_session_gbuffer_bytes(&st->rs)};
     out[n++] = (struct view_buffer_bytes){"receivers", restir_sms_receiver_bytes(st)};
     if (st->prior.entries) out[n++] = (struct view_buffer_bytes){"prior", restir_sms_prior_bytes(st)};
-    if (st->pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_sms_pair_bytes(st)};
+    if (st->rs.pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_session_pair_bytes(&st->rs)};
     return n;
 }
 

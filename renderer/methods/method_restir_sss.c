@@ -30,7 +30,7 @@ static bool sss_init(void *state, const struct scene *scene, void *params, uint3
 
 static void sss_reset(void *state)
 {
-    restir_sss_reset(state);
+    restir_session_reset(&((struct restir_sss_state *)state)->rs);
 }
 
 static void sss_destroy(void *state)
@@ -65,10 +65,10 @@ static uint32_t sss_buffers(const void *state, const void *params, struct view_b
     (void)params;
     const struct restir_sss_state *st = state;
     uint32_t n = 0;
-    out[n++] = (struct view_buffer_bytes){"reservoirs", restir_sss_reservoir_bytes(st)};
-    out[n++] = (struct view_buffer_bytes){"gbuffers", restir_sss_gbuffer_bytes(st)};
-    out[n++] = (struct view_buffer_bytes){"primary_hits", restir_sss_hit_bytes(st)};
-    if (st->pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_sss_pair_bytes(st)};
+    out[n++] = (struct view_buffer_bytes){"reservoirs", restir_session_reservoir_bytes(&st->rs)};
+    out[n++] = (struct view_buffer_bytes){"gbuffers", restir_session_gbuffer_bytes(&st->rs)};
+    out[n++] = (struct view_buffer_bytes){"primary_hits", restir_session_hit_bytes(&st->rs)};
+    if (st->rs.pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_session_pair_bytes(&st->rs)};
     return n;
 }
 

@@ -282,12 +282,12 @@ void restir_pass_stats_add(struct restir_pass_stats *s, const struct restir_coun
     s->rejected += c->rejected;
 }
 
-void *restir_frame_begin(const struct image *out, uint32_t width, uint32_t height, void *stats, void *local,
+void *restir_frame_begin(const struct image *out, const struct restir_session *s, void *stats, void *local,
                          size_t stats_bytes, struct err *err)
 {
-    if (out->width != width || out->height != height) {
-        err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the session %ux%u", out->width, out->height, width,
-                height);
+    if (out->width != s->width || out->height != s->height) {
+        err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the session %ux%u", out->width, out->height,
+                s->width, s->height);
         return NULL;
     }
     if (!stats) stats = local;
@@ -295,27 +295,54 @@ void *restir_frame_begin(const struct image *out, uint32_t width, uint32_t heigh
     return stats;
 }
 
-bool restir_gbuffers_init(struct gbuffer gbuf[2], uint32_t width, uint32_t height, bool keep_surfaces,
-                          struct err *err)
+bool restir_session_init(struct restir_session *s, uint32_t width, uint32_t height, uint32_t layers,
+                         size_t sample_bytes, bool keep_surfaces, bool pairs, struct err *err)
 {
-    for (int i = 0; i < 2; i++)
-        if (!gbuffer_init(&gbuf[i], width, height, err) || (keep_surfaces && !gbuffer_keep_surfaces(&gbuf[i], err)))
-            return false;
-    return true;
+    memset(s, 0, sizeof *s);
+    s->width = width;
+    s->height = height;
+    s->layers = layers;
+    s->sample_bytes = sample_bytes;
+    bool ok = true;
+    for (int i = 0; ok && i < 2; i++)
+        ok = gbuffer_init(&s->gbuf[i], width, height, err) && (!keep_surfaces || gbuffer_keep_surfaces(&s->gbuf[i], err));
+    for (int i = 0; ok && i < 2; i++)
+        if (!(s->res[i] = restir_buffer_alloc((size_t)width * height * layers, sample_bytes)))
+            ok = err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u reservoirs", width, height);
+    if (ok && pairs && !(s->pair_scratch = restir_buffer_alloc(1, restir_pair_scratch_bytes(width, height))))
+        ok = err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u spatial pairs", width, height);
+    if (!ok) restir_session_destroy(s);
+    return ok;
 }
 
-size_t restir_gbuffers_bytes(const struct gbuffer gbuf[2])
+void restir_session_destroy(struct restir_session *s)
 {
-    return gbuffer_bytes(&gbuf[0]) + gbuffer_bytes(&gbuf[1]);
+    for (int i = 0; i < 2; i++) {
+        gbuffer_destroy(&s->gbuf[i]);
+        free(s->res[i]);
+    }
+    free(s->pair_scratch);
+    memset(s, 0, sizeof *s);
 }
 
-bool restir_pairs_alloc(void **scratch, bool needed, uint32_t width, uint32_t height, struct err *err)
+size_t restir_session_reservoir_bytes(const struct restir_session *s)
 {
-    *scratch = NULL;
-    if (!needed) return true;
-    *scratch = restir_buffer_alloc(1, restir_pair_scratch_bytes(width, height));
-    if (!*scratch) return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u spatial pairs", width, height);
-    return true;
+    return 2 * (size_t)s->width * s->height * s->layers * s->sample_bytes;
+}
+
+size_t restir_session_gbuffer_bytes(const struct restir_session *s)
+{
+    return gbuffer_bytes(&s->gbuf[0]) + gbuffer_bytes(&s->gbuf[1]);
+}
+
+size_t restir_session_hit_bytes(const struct restir_session *s)
+{
+    return gbuffer_surface_bytes(&s->gbuf[0]) + gbuffer_surface_bytes(&s->gbuf[1]);
+}
+
+size_t restir_session_pair_bytes(const struct restir_session *s)
+{
+    return s->pair_scratch ? restir_pair_scratch_bytes(s->width, s->height) : 0;
 }
 
 /* log2 of the block size B: the largest power of two <= radius (at least 2, at most 256). */

@@ -132,18 +132,39 @@ struct RESTIRD_STORED_IN_BYTES restir_pass_stats {
 /* Adds a reuse pass's (or a worker's) rays and shift counters. */
 void restir_pass_stats_add(struct restir_pass_stats *s, const struct restir_counters *c);
 
-/* What every ReSTIR method's session state starts a frame and its life with. */
+/* What every ReSTIR method keeps between the frames of a session: two G-buffers (the current
+ * one is gbuf[cur], the other the previous frame's), two reservoir buffers of `layers`
+ * reservoirs per pixel, the paired spatial reuse's scratch, and whether a history exists. A
+ * method's state embeds one. */
+struct restir_session {
+    uint32_t width, height;
+    struct gbuffer gbuf[2];
+    uint32_t cur;                /* index of the current G-buffer */
+    uint32_t layers;             /* reservoirs per pixel; layer l's at l * width * height */
+    size_t sample_bytes;         /* one reservoir */
+    uint8_t *res[2];             /* [0] working (initial + temporal), [1] history (final) */
+    void *pair_scratch;          /* paired spatial reuse: restir_pair_scratch_bytes(); else NULL */
+    bool has_history;
+};
+
+/* Allocates the buffers (keep_surfaces: the G-buffers keep their primary hit points too, for
+ * methods that rebuild them in another frame's scene; pairs: the paired spatial reuse's scratch).
+ * On failure everything is freed and *s zeroed. */
+bool restir_session_init(struct restir_session *s, uint32_t width, uint32_t height, uint32_t layers,
+                         size_t sample_bytes, bool keep_surfaces, bool pairs, struct err *err);
+void restir_session_destroy(struct restir_session *s);
+/* Forgets the history (the next frame has no temporal predecessor). */
+static inline void restir_session_reset(struct restir_session *s) { s->has_history = false; }
+/* Bytes of the reservoir buffers, the G-buffers, their kept hit points, the pair scratch. */
+size_t restir_session_reservoir_bytes(const struct restir_session *s);
+size_t restir_session_gbuffer_bytes(const struct restir_session *s);
+size_t restir_session_hit_bytes(const struct restir_session *s);
+size_t restir_session_pair_bytes(const struct restir_session *s);
+
 /* The frame's output must have the session's size; the method's counters start at zero (`stats`
  * may be NULL, then `local` is used and returned). */
-void *restir_frame_begin(const struct image *out, uint32_t width, uint32_t height, void *stats, void *local,
+void *restir_frame_begin(const struct image *out, const struct restir_session *s, void *stats, void *local,
                          size_t stats_bytes, struct err *err);
-/* The two G-buffers a session alternates between (keep_surfaces: the hit points too, for methods
- * that rebuild them in another frame's scene); false with an error after freeing nothing. */
-bool restir_gbuffers_init(struct gbuffer gbuf[2], uint32_t width, uint32_t height, bool keep_surfaces,
-                          struct err *err);
-size_t restir_gbuffers_bytes(const struct gbuffer gbuf[2]);
-/* The paired spatial reuse's scratch, when `needed` (else *scratch stays NULL). */
-bool restir_pairs_alloc(void **scratch, bool needed, uint32_t width, uint32_t height, struct err *err);
 /* The partner of `pixel` in pairing m (< 64) of the round r->frame names (false: off the image);
  * for tests: the pairing is an involution. */
 bool restir_pair_partner(const struct restir_reuse *r, uint32_t m, uint32_t pixel, uint32_t *partner);

@@ -109,7 +109,7 @@ static void spatial_case(const char *path, const struct restir_pt_params *p, uin
         _Alignas(16) uint8_t ctx[RESTIR_PT_CTX_BYTES];
         restir_pt_bind(&st, p, &f, ctx);
         for (uint32_t px = 0; px < SIZE * SIZE; px++) {
-            const uint8_t *e = st.res[0] + (size_t)px * restir_pt_ops.stride;
+            const uint8_t *e = st.rs.res[0] + (size_t)px * restir_pt_ops.stride;
             if (!(((const struct restir_head *)e)->W > 0.0f)) continue;
             int qx = (int)(px % SIZE) + (int)(rng_next_float(&r) * 41.0f) - 20;
             int qy = (int)(px / SIZE) + (int)(rng_next_float(&r) * 41.0f) - 20;
@@ -185,16 +185,16 @@ static void temporal_case(bool move_shape)
     _Alignas(16) uint8_t ctx[RESTIR_PT_CTX_BYTES];
     restir_pt_bind(&st, &p, &f1, ctx);
     struct tally t = {0};
-    const struct gbuffer *g = &st.gbuf[st.cur];
+    const struct gbuffer *g = &st.rs.gbuf[st.rs.cur];
     for (uint32_t px = 0; px < SIZE * SIZE; px++) {
         const struct gbuffer_pixel *gp = &g->px[px];
         if (!(gp->prev_x >= 0.0f && gp->prev_y >= 0.0f && gp->prev_x < SIZE && gp->prev_y < SIZE)) continue;
         uint32_t q = (uint32_t)gp->prev_y * SIZE + (uint32_t)gp->prev_x;
         struct restir_domain cur = {px, RESTIR_CURRENT}, prev = {q, RESTIR_PREVIOUS};
         if (!restir_pt_ops.domain_valid(ctx, prev) || !restir_pt_ops.domain_valid(ctx, cur)) continue;
-        const uint8_t *e = st.res[0] + (size_t)px * restir_pt_ops.stride;
+        const uint8_t *e = st.rs.res[0] + (size_t)px * restir_pt_ops.stride;
         if (((const struct restir_head *)e)->W > 0.0f) round_trip(ctx, e, cur, prev, &t);
-        const uint8_t *h = st.res[1] + (size_t)q * restir_pt_ops.stride;
+        const uint8_t *h = st.rs.res[1] + (size_t)q * restir_pt_ops.stride;
         if (((const struct restir_head *)h)->W > 0.0f) round_trip(ctx, h, prev, cur, &t);
     }
     /* With the sphere moved, paths re-traced past x_k (and NEE ends inside them) mostly fail:
@@ -230,7 +230,7 @@ static void test_identity_shift_reproduces_initial_contribution(void)
     int checked = 0, bad = 0;
     double worst = 0.0;
     for (uint32_t px = 0; px < SIZE * SIZE; px++) {
-        const uint8_t *e = st.res[0] + (size_t)px * restir_pt_ops.stride;
+        const uint8_t *e = st.rs.res[0] + (size_t)px * restir_pt_ops.stride;
         if (!(((const struct restir_head *)e)->W > 0.0f)) continue;
         _Alignas(16) uint8_t y[RESTIR_MAX_STRIDE];
         float tgt, jac;

@@ -107,21 +107,21 @@ static void shift_case(const char *scene_path, bool temporal, int offset, bool e
                                       .frame = 1, .threads = 2};
         CHECK(restir_sms_initial_only(&st, &p, &f, ctx, &err));
     }
-    const struct restir_sms_receiver *recv = st.recv[st.cur];
+    const struct restir_sms_receiver *recv = st.recv[st.rs.cur];
     int through_glass = 0;
     struct tally t = {0};
     int identity_ok = 0, identity_tried = 0;
     const size_t stride = restir_sms_ops.stride;
     /* Every reservoir layer's rows in turn (one per light on the slab). */
-    for (uint32_t row = 0; row < H * st.layers; row++) {
+    for (uint32_t row = 0; row < H * st.rs.layers; row++) {
         const uint32_t y = row % H, layer = row / H;
         for (uint32_t x = 0; x < W; x++) {
             uint32_t pixel = y * W + x;
-            const uint8_t *elem = st.res[0] + ((size_t)layer * W * H + pixel) * stride;
+            const uint8_t *elem = st.rs.res[0] + ((size_t)layer * W * H + pixel) * stride;
             if (!(((const struct restir_head *)elem)->W > 0.0f)) continue;
             struct restir_sms_info li;
             restir_sms_info(ctx, elem, &li);
-            CHECK(restir_sms_light_reservoir(temporal ? sc : base, li.light_shape, st.layers) == layer);
+            CHECK(restir_sms_light_reservoir(temporal ? sc : base, li.light_shape, st.rs.layers) == layer);
             struct restir_domain from = {pixel, RESTIR_CURRENT};
             struct surface s1;
             surface_at(sc, recv[pixel].shape, recv[pixel].prim, recv[pixel].b1, recv[pixel].b2, &s1);
@@ -354,7 +354,7 @@ static void test_jitter_walk_reaches_the_gbuffer(void)
             struct method_frame f = {.scene = sc, .camera = &sc->camera, .prev_scene = t ? sc : NULL,
                                          .prev_camera = &sc->camera, .seed = 4, .frame = t, .threads = 1};
             CHECK_MSG(restir_sms_render(&st, &p, &f, &out, NULL, &err), "%s", err.message);
-            const struct gbuffer_pixel *px = st.gbuf[st.cur].px;
+            const struct gbuffer_pixel *px = st.rs.gbuf[st.rs.cur].px;
             for (uint32_t i = 0; i < N; i++) {
                 if (t) worst = fmaxf(worst, fmaxf(fabsf(px[i].jx - jx[i]), fabsf(px[i].jy - jy[i])));
                 jx[i] = px[i].jx, jy[i] = px[i].jy;
@@ -363,12 +363,12 @@ static void test_jitter_walk_reaches_the_gbuffer(void)
         if (walk) CHECK_MSG(worst <= 0.1f * (1.0f + 1e-6f), "walk 0.1: largest move %g", worst);
         else CHECK_MSG(worst > 0.5f, "no walk: largest move only %g", worst);
         /* After a reset the first frame has no history: its positions are drawn afresh. */
-        restir_sms_reset(&st);
+        restir_session_reset(&st.rs);
         struct method_frame f = {.scene = sc, .camera = &sc->camera, .prev_scene = sc, .prev_camera = &sc->camera,
                                      .seed = 4, .frame = 3, .threads = 1};
         CHECK(restir_sms_render(&st, &p, &f, &out, NULL, &err));
         float moved = 0.0f;
-        for (uint32_t i = 0; i < N; i++) moved = fmaxf(moved, fabsf(st.gbuf[st.cur].px[i].jx - jx[i]));
+        for (uint32_t i = 0; i < N; i++) moved = fmaxf(moved, fabsf(st.rs.gbuf[st.rs.cur].px[i].jx - jx[i]));
         CHECK_MSG(moved > 0.5f, "after a reset: largest move only %g", moved);
         image_destroy(&out);
         restir_sms_destroy(&st);

@@ -116,7 +116,7 @@ static void shift_case(enum restir_sss_shift shift, bool temporal)
     struct method_frame f = f0;
     if (temporal) {
         /* The history must exist for the previous G-buffer to be kept. */
-        st.has_history = true;
+        st.rs.has_history = true;
         f = (struct method_frame){.scene = sc, .camera = &cam1, .prev_scene = sc, .prev_camera = &cam0,
                                       .seed = 5, .frame = 1, .threads = 2};
         CHECK(restir_sss_initial_only(&st, &p, &f, &err));
@@ -129,7 +129,7 @@ static void shift_case(enum restir_sss_shift shift, bool temporal)
     for (uint32_t y = 0; y < H; y++) {
         for (uint32_t x = 0; x < W; x++) {
             uint32_t pixel = y * W + x;
-            const uint8_t *elem = st.res[0] + (size_t)pixel * stride;
+            const uint8_t *elem = st.rs.res[0] + (size_t)pixel * stride;
             if (!(((const struct restir_head *)elem)->W > 0.0f)) continue;
             struct restir_domain from = {pixel, RESTIR_CURRENT};
             /* Identity: the stored contribution comes back. */
