@@ -3,9 +3,22 @@
  * the registry itself (GET /v1/methods). Nothing here names a method. */
 #include <inttypes.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "protocol.h"
+
+/* A float parameter as the shortest decimal that reads back as the same float (0.02, not the
+ * double 0.019999999552965164 the float holds). */
+static void method_json_float(struct jsonw *w, float f)
+{
+    char text[32];
+    for (int digits = 6; digits <= 9; digits++) {
+        snprintf(text, sizeof text, "%.*g", digits, (double)f);
+        if ((float)strtod(text, NULL) == f) break;
+    }
+    jsonw_double(w, strtod(text, NULL));
+}
 
 /* The value of a parameter, as a session create request would send it. */
 static void method_json_param_value(struct jsonw *w, const struct method_param *mp, const void *params)
@@ -27,7 +40,7 @@ static void method_json_param_value(struct jsonw *w, const struct method_param *
     case METHOD_PARAM_FLOAT: {
         float f;
         memcpy(&f, at, sizeof f);
-        jsonw_double(w, f);
+        method_json_float(w, f);
         break;
     }
     case METHOD_PARAM_ENUM: {

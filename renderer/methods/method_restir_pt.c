@@ -96,10 +96,12 @@ static const struct method_param rpt_params[] = {
     P(expected_shading, METHOD_PARAM_BOOL, 0, 1,
       "shade with the last spatial pass's expected contribution over its selection"),
     P(footprint, METHOD_PARAM_BOOL, 0, 1, "dual ray-footprint threshold for reconnection (else a near-field distance)"),
-    P(footprint_c, METHOD_PARAM_FLOAT, 0, 100, "c of the footprint threshold"),
+    {.key = "footprint_c", .kind = METHOD_PARAM_FLOAT, .offset = offsetof(struct restir_pt_params, footprint_c), .min = 0,
+     .min_open = true, .max = 100, .help = "c of the footprint threshold"},
     P(near_distance, METHOD_PARAM_FLOAT, 0, 1, "without footprint: minimum segment length, fraction of the scene"),
     P(pdf_connect, METHOD_PARAM_BOOL, 0, 1, "PDF-based connectability (else lobe roughness)"),
-    P(roughness_min, METHOD_PARAM_FLOAT, 0, 1, "alpha_min of both connectability tests"),
+    {.key = "roughness_min", .kind = METHOD_PARAM_FLOAT, .offset = offsetof(struct restir_pt_params, roughness_min),
+     .min = 0, .min_open = true, .max = 1, .help = "alpha_min of both connectability tests"},
 };
 #undef P
 

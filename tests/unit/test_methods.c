@@ -1,0 +1,120 @@
+/* test_methods.c — the method registry's descriptors keep their promises: every name is found
+ * again, defaults pass the method's own validation, the parameter table never advertises a value
+ * the method refuses (both ends of every range are accepted), keys are unique, spp is a parameter
+ * exactly of the methods that say they take it, and every statistics table closes the objects it
+ * opens. A descriptor whose table drifts from its validation fails here. */
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "methods/method.h"
+#include "test.h"
+
+/* A copy of the method's defaults with one parameter set to `value` (uint or float kinds). */
+static void with_value(const struct method_desc *m, const struct method_param *p, double value,
+                       unsigned char params[METHOD_PARAMS_BYTES])
+{
+    memset(params, 0, METHOD_PARAMS_BYTES);
+    m->defaults(params);
+    if (p->kind == METHOD_PARAM_UINT) {
+        uint32_t u = (uint32_t)value;
+        memcpy(params + p->offset, &u, sizeof u);
+    } else {
+        float f = (float)value;
+        memcpy(params + p->offset, &f, sizeof f);
+    }
+}
+
+static void test_names_and_defaults(void)
+{
+    CHECK(method_count() == 8);
+    CHECK(method_default() == method_at(0) && strcmp(method_default()->name, "pt") == 0);
+    for (uint32_t i = 0; i < method_count(); i++) {
+        const struct method_desc *m = method_at(i);
+        CHECK_MSG(method_find(m->name) == m, "%s", m->name);
+        CHECK(m->summary && m->summary[0] && m->defaults && m->validate && m->init && m->destroy && m->render);
+        _Alignas(8) unsigned char params[METHOD_PARAMS_BYTES] = {0};
+        m->defaults(params);
+        struct err err = {0};
+        CHECK_MSG(m->validate(params, &err), "%s defaults: %s", m->name, err.message);
+    }
+    CHECK(method_find("nope") == NULL);
+    char names[256];
+    method_names(names, sizeof names, ", ");
+    CHECK(strcmp(names, "pt, restir_pt, bdpt, sms, restir_sss, sms_ssp, restir_bdpt, restir_sms") == 0);
+}
+
+static void test_parameter_tables(void)
+{
+    for (uint32_t i = 0; i < method_count(); i++) {
+        const struct method_desc *m = method_at(i);
+        CHECK_MSG(((m->caps & METHOD_TAKES_SPP) != 0) == (method_param_find(m, "spp") != NULL), "%s", m->name);
+        for (uint32_t k = 0; k < m->param_count; k++) {
+            const struct method_param *p = &m->params[k];
+            CHECK_MSG(p->help && p->help[0], "%s.%s has no help", m->name, p->key);
+            CHECK_MSG(method_param_find(m, p->key) == p, "%s.%s appears twice", m->name, p->key);
+            if (p->kind == METHOD_PARAM_ENUM) {
+                int n = 0;
+                while (p->choices[n]) n++;
+                _Alignas(8) unsigned char params[METHOD_PARAMS_BYTES] = {0};
+                m->defaults(params);
+                int e;
+                memcpy(&e, params + p->offset, sizeof e);
+                CHECK_MSG(n >= 2 && e >= 0 && e < n, "%s.%s default %d of %d choices", m->name, p->key, e, n);
+                continue;
+            }
+            if (p->kind != METHOD_PARAM_UINT && p->kind != METHOD_PARAM_FLOAT) continue;
+            CHECK_MSG(p->min <= p->max, "%s.%s", m->name, p->key);
+            /* The ends the table accepts (an open end: the nearest float inside it). */
+            double lo = p->min_open ? nextafterf((float)p->min, INFINITY) : p->min;
+            double hi = p->max_open ? nextafterf((float)p->max, -INFINITY) : p->max;
+            if (p->flags & METHOD_PARAM_SPP_LIMIT) hi = 65536;   /* the daemon's default max_spp */
+            const double ends[2] = {lo, hi};
+            for (int e = 0; e < 2; e++) {
+                _Alignas(8) unsigned char params[METHOD_PARAMS_BYTES];
+                with_value(m, p, ends[e], params);
+                struct err err = {0};
+                CHECK_MSG(m->validate(params, &err), "%s.%s = %g is in the table's range but refused: %s", m->name,
+                          p->key, ends[e], err.message);
+            }
+            /* The default is within the range, unless the scene chooses it. */
+            if (!(p->flags & METHOD_PARAM_SCENE_DEFAULT)) {
+                _Alignas(8) unsigned char params[METHOD_PARAMS_BYTES] = {0};
+                m->defaults(params);
+                double v;
+                if (p->kind == METHOD_PARAM_UINT) {
+                    uint32_t u;
+                    memcpy(&u, params + p->offset, sizeof u);
+                    v = u;
+                } else {
+                    float f;
+                    memcpy(&f, params + p->offset, sizeof f);
+                    v = f;
+                }
+                CHECK_MSG(v >= lo && v <= (p->flags & METHOD_PARAM_SPP_LIMIT ? p->max : hi), "%s.%s default %g",
+                          m->name, p->key, v);
+            }
+        }
+    }
+}
+
+static void test_statistics_tables(void)
+{
+    for (uint32_t i = 0; i < method_count(); i++) {
+        const struct method_desc *m = method_at(i);
+        int depth = 0;
+        for (uint32_t k = 0; k < m->stat_count; k++) {
+            const struct method_stat *s = &m->stats[k];
+            CHECK_MSG(s->key || s->cli_key, "%s line %u names nothing", m->name, k);
+            if (s->kind == METHOD_STAT_BEGIN) depth++;
+            if (s->kind == METHOD_STAT_END) depth--;
+            CHECK_MSG(depth >= 0, "%s closes an object it did not open", m->name);
+            CHECK_MSG(s->off < METHOD_COUNTERS_BYTES && s->off2 < METHOD_COUNTERS_BYTES, "%s.%s", m->name, s->key);
+        }
+        CHECK_MSG(depth == 0, "%s leaves %d objects open", m->name, depth);
+        /* A method that keeps history across frames must be able to forget it (a session reset). */
+        CHECK_MSG(!(m->caps & METHOD_REUSES_FRAMES) || m->reset, "%s reuses frames but cannot reset", m->name);
+    }
+}
+
+TEST_MAIN(TEST(test_names_and_defaults), TEST(test_parameter_tables), TEST(test_statistics_tables))
