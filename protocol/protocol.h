@@ -200,6 +200,8 @@ char *protocol_problem_json(const struct protocol_problem *p, size_t *len);
 const char *protocol_problem_title(const char *slug);
 /* Writes the problem's members into an object the caller opened (and closes, after adding
  * members of its own such as "job"): job errors and error events are problems too. */
+void protocol_problem_members(struct jsonw *w, const struct protocol_problem *p);
+
 /* Methods as JSON, from their descriptors (method_json.c). A session's params object; the frame's
  * method counters as members of the frame object being written (the daemon's form); the same
  * counters as the CLI's --json prints them, each member preceded by a comma, with the session's
@@ -211,7 +213,5 @@ void protocol_print_method_counters(FILE *out, const struct method_desc *m, cons
                                     size_t session_bytes, uint32_t reservoir_bytes_per_pixel);
 void protocol_write_method(struct jsonw *w, const struct method_desc *m, const struct protocol_limits *limits);
 void protocol_write_methods(struct jsonw *w, const struct protocol_limits *limits);
-
-void protocol_problem_members(struct jsonw *w, const struct protocol_problem *p);
 
 #endif

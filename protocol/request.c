@@ -569,18 +569,22 @@ static bool request_method_params(const cJSON *pv, const char *ptr, const struct
         const struct method_param *mp = &m->params[i];
         const cJSON *v = request_member(pv, ptr, mp->key, p);
         if (!v) continue;
-        char *at = (char *)params + mp->offset;
+        unsigned char *at = (unsigned char *)params + mp->offset;
         switch (mp->kind) {
         case METHOD_PARAM_UINT: {
             bool spp = mp->flags & METHOD_PARAM_SPP_LIMIT;
             double hi = spp && limits->max_spp < mp->max ? limits->max_spp : mp->max;
-            if (!request_uint32(v, p, (uint32_t)mp->min, (uint32_t)hi, spp ? "max_spp" : NULL, (uint32_t *)at, err))
-                return false;
+            uint32_t u = 0;
+            if (!request_uint32(v, p, (uint32_t)mp->min, (uint32_t)hi, spp ? "max_spp" : NULL, &u, err)) return false;
+            memcpy(at, &u, sizeof u);
             break;
         }
-        case METHOD_PARAM_BOOL:
-            if (!json_bool(v, p, (bool *)at, err)) return false;
+        case METHOD_PARAM_BOOL: {
+            bool b = false;
+            if (!json_bool(v, p, &b, err)) return false;
+            memcpy(at, &b, sizeof b);
             break;
+        }
         case METHOD_PARAM_FLOAT: {
             float x;
             if (!request_float(v, p, &x, err)) return false;
@@ -589,7 +593,7 @@ static bool request_method_params(const cJSON *pv, const char *ptr, const struct
             if (low || high)
                 return err_set(err, ERR_INVALID, p, "%s must be in %c%g, %g%c, got %g", mp->key,
                                mp->min_open ? '(' : '[', mp->min, mp->max, mp->max_open ? ')' : ']', (double)x);
-            *(float *)at = x;
+            memcpy(at, &x, sizeof x);
             break;
         }
         case METHOD_PARAM_ENUM: {
@@ -605,7 +609,7 @@ static bool request_method_params(const cJSON *pv, const char *ptr, const struct
                 if (n < sizeof list) n += (size_t)snprintf(list + n, sizeof list - n, "%s%s", sep, mp->choices[k]);
             }
             if (found < 0) return err_set(err, ERR_INVALID, p, "unknown %s \"%.64s\" (%s)", mp->key, name, list);
-            *(int *)at = found;
+            memcpy(at, &found, sizeof found);
             break;
         }
         }

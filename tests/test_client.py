@@ -330,6 +330,9 @@ def test_spp_rule_follows_the_registry():
     a = restir.build_parser().parse_args(["frame", "s", "-o", "x", "--method", "restir_pt"])
     assert restir._session_params(a, _registry(("restir_pt", False))) == {}
     assert restir._session_params(a, _registry(("restir_pt", True))) == {"spp": 4}
+    # With --spp the registry is not needed (nor asked for: a daemon without it still works).
+    a = restir.build_parser().parse_args(["frame", "s", "-o", "x", "--method", "restir_pt", "--spp", "2"])
+    assert restir._session_params(a, lambda: pytest.fail("fetched the registry")) == {"spp": 2}
 
 
 def test_other_commands_arguments():

@@ -342,8 +342,17 @@ def test_methods_registry(daemon):
         doc = schemas[schema_of[m["name"]]]["properties"]
         assert set(doc) == set(params), (m["name"], set(doc) ^ set(params))
         for name, p in params.items():
-            if p["default"] is not None:
-                assert doc[name].get("default") == pytest.approx(p["default"]), (m["name"], name)
+            d, where = doc[name], (m["name"], name)
+            assert d.get("default") == (pytest.approx(p["default"]) if p["default"] is not None else None), where
+            if p["type"] in ("integer", "number"):
+                lo = d.get("exclusiveMinimum", d.get("minimum"))
+                hi = d.get("exclusiveMaximum", d.get("maximum"))
+                assert lo == pytest.approx(p["minimum"]) and ("exclusiveMinimum" in d) == bool(p.get("exclusive_minimum")), where
+                if name != "spp":   # openapi gives the default max_spp, the registry this daemon's
+                    assert hi == pytest.approx(p["maximum"]), where
+                assert ("exclusiveMaximum" in d) == bool(p.get("exclusive_maximum")), where
+            if p["type"] == "string":
+                assert sorted(d["enum"]) == sorted(p["choices"]), where
         sent = {n: p["default"] for n, p in params.items() if p["default"] is not None}
         r = daemon.req("POST", "/v1/scenes/refractive-slab/sessions",
                        json_body={"method": m["name"], "width": 8, "height": 8, "params": sent})

@@ -965,10 +965,13 @@ def _write(path, data):
 
 def _session_params(args, methods):
     """The session's params: --spp as given (the daemon names it if the method refuses it), else
-    the command's default for the methods whose registry entry (`methods`, Client.methods) says
-    they take spp, else none (the method's defaults)."""
+    the command's default for the methods whose registry entry says they take spp, else none
+    (the method's defaults). `methods`: the registry by name (Client.methods()), or a callable
+    that returns it, called only when --spp is not given."""
     if args.spp is not None:
         return {"spp": args.spp}
+    if callable(methods):
+        methods = methods()
     method = methods.get(args.method)
     takes_spp = bool(method and method.get("capabilities", {}).get("takes_spp"))
     return {"spp": args.spp_default} if takes_spp else {}
@@ -977,7 +980,7 @@ def _session_params(args, methods):
 def _make_session(client, args):
     w, h = args.size
     return client.create_session(args.scene, method=args.method, width=w, height=h, seed=args.seed,
-                                 params=_session_params(args, client.methods()))
+                                 params=_session_params(args, client.methods))
 
 
 def cmd_health(client, args, out, prog):
@@ -1012,7 +1015,7 @@ def cmd_frame(client, args, out, prog):
     accept, query = _image_query(args)
     s = _make_session(client, args)
     try:
-        spp = _session_params(args, client.methods()).get("spp", 1)
+        spp = _session_params(args, client.methods).get("spp", 1)
         prog.update("session %s: rendering %dx%d, %d spp" % (s.id, args.size[0], args.size[1], spp))
         data = client.frame(s, accept=accept, **query)
         hdr = client.last_response.headers

@@ -44,3 +44,12 @@ const char *err_format(const struct err *err, char *buf, unsigned long size)
         snprintf(buf, size, "%s", err->message);
     return buf;
 }
+
+bool err_under(struct err *err, const char *base)
+{
+    if (!err || !err->where[0] || err->where[0] == '/') return false;
+    char where[sizeof err->where];
+    snprintf(where, sizeof where, "%s/%s", base, err->where);
+    memcpy(err->where, where, sizeof where);
+    return false;
+}

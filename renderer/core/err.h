@@ -32,6 +32,9 @@ struct err {
 bool err_set(struct err *err, enum err_code code, const char *where, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
 const char *err_code_name(enum err_code code);
+/* Puts a relative `where` ("tiles") under `base` ("/params" -> "/params/tiles"); an absolute or
+ * empty one is left as it is. Returns false, for `return err_under(err, "/params");`. */
+bool err_under(struct err *err, const char *base);
 /* "where: message" (or just the message) into buf; returns buf. */
 const char *err_format(const struct err *err, char *buf, unsigned long size);
 

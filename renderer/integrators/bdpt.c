@@ -70,13 +70,6 @@ const char *bdpt_heuristic_name(enum bdpt_heuristic h)
     return NULL;
 }
 
-bool bdpt_heuristic_parse(const char *name, enum bdpt_heuristic *out)
-{
-    if (strcmp(name, "power") == 0) { *out = BDPT_HEURISTIC_POWER; return true; }
-    if (strcmp(name, "balance") == 0) { *out = BDPT_HEURISTIC_BALANCE; return true; }
-    return false;
-}
-
 /* ---- sizes -------------------------------------------------------------------------------- */
 
 static uint32_t bdpt_light_count(const struct bdpt_params *p, uint32_t width, uint32_t height)

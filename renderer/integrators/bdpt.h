@@ -91,7 +91,6 @@ struct bdpt_params bdpt_defaults(void);
 /* Ranges; errors name /params/<key>. */
 bool bdpt_params_valid(const struct bdpt_params *p, struct err *err);
 const char *bdpt_heuristic_name(enum bdpt_heuristic h);
-bool bdpt_heuristic_parse(const char *name, enum bdpt_heuristic *out);
 
 /* Allocates the LVC for width x height and the parameters' N_L; ERR_INVALID for a scene with
  * environment light (not supported). */

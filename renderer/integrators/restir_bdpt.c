@@ -190,14 +190,6 @@ const char *restir_bdpt_variant_name(enum restir_bdpt_variant v)
     return v == RESTIR_BDPT_FULL ? "full" : "lightweight";
 }
 
-bool restir_bdpt_variant_parse(const char *name, enum restir_bdpt_variant *out)
-{
-    if (strcmp(name, "lightweight") == 0) *out = RESTIR_BDPT_LIGHTWEIGHT;
-    else if (strcmp(name, "full") == 0) *out = RESTIR_BDPT_FULL;
-    else return false;
-    return true;
-}
-
 struct rbdpt_sizes {
     uint32_t light_paths, blocks, region, lvc_region;
     uint64_t lt, pixels, blocks_b, res, lvc, pairs, x2c;

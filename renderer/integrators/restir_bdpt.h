@@ -86,7 +86,6 @@
 
 enum restir_bdpt_variant { RESTIR_BDPT_LIGHTWEIGHT, RESTIR_BDPT_FULL };
 const char *restir_bdpt_variant_name(enum restir_bdpt_variant v);
-bool restir_bdpt_variant_parse(const char *name, enum restir_bdpt_variant *out);
 
 struct RESTIRD_STORED_IN_BYTES restir_bdpt_params {
     enum restir_bdpt_variant variant;  /* lightweight (default) or full */

@@ -46,33 +46,12 @@ struct restir_sms_params restir_sms_defaults(void)
     return p;
 }
 
-bool restir_sms_sampler_parse(const char *name, enum restir_sms_sampler *out)
-{
-    if (strcmp(name, "ssp") == 0) *out = RESTIR_SMS_SAMPLER_SSP;
-    else if (strcmp(name, "sms") == 0) *out = RESTIR_SMS_SAMPLER_SMS;
-    else return false;
-    return true;
-}
-
-const char *restir_sms_sampler_name(enum restir_sms_sampler s)
-{
-    return s == RESTIR_SMS_SAMPLER_SMS ? "sms" : s == RESTIR_SMS_SAMPLER_SSP ? "ssp" : "?";
-}
-
 bool restir_sms_params_valid(const struct restir_sms_params *p, struct err *err)
 {
     if ((unsigned)p->sampler > RESTIR_SMS_SAMPLER_SMS)
         return err_set(err, ERR_INVALID, "/params/sampler", "unknown sampler");
-    if (!ssp_params_valid(&p->ssp, err)) {
-        /* ssp names its parameters bare; the session's are under /params. */
-        size_t n = strnlen(err->where, sizeof err->where - 9);
-        if (n && err->where[0] != '/') {
-            memmove(err->where + 8, err->where, n);
-            memcpy(err->where, "/params/", 8);
-            err->where[n + 8] = '\0';
-        }
-        return false;
-    }
+    /* ssp names its parameters bare; the session's are under /params. */
+    if (!ssp_params_valid(&p->ssp, err)) return err_under(err, "/params");
     if (p->shift_iterations < 1 || p->shift_iterations > MANIFOLD_MAX_ITERATIONS)
         return err_set(err, ERR_INVALID, "/params/shift_iterations", "must be in [1, %d], got %u",
                        MANIFOLD_MAX_ITERATIONS, p->shift_iterations);

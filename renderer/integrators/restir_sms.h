@@ -108,8 +108,6 @@ struct RESTIRD_STORED_IN_BYTES restir_sms_params {
 struct restir_sms_params restir_sms_defaults(void);
 /* ERR_INVALID naming the parameter (where = "/params/<name>"). */
 bool restir_sms_params_valid(const struct restir_sms_params *p, struct err *err);
-bool restir_sms_sampler_parse(const char *name, enum restir_sms_sampler *out);
-const char *restir_sms_sampler_name(enum restir_sms_sampler s);
 
 struct RESTIRD_STORED_IN_BYTES restir_sms_stats {
     struct restir_pass_stats pass;

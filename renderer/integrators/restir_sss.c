@@ -77,38 +77,10 @@ struct restir_sss_params restir_sss_defaults(void)
 }
 
 static const char *const sss_shift_names[] = {"reconnection", "delayed", "hybrid", "sequential"};
-static const char *const sss_target_names[] = {"luminance", "per_channel"};
-
-/* The index of `name` in names[0..n), or -1. */
-static int sss_name_index(const char *const *names, int n, const char *name)
-{
-    for (int i = 0; i < n; i++)
-        if (strcmp(name, names[i]) == 0) return i;
-    return -1;
-}
-
-bool restir_sss_shift_parse(const char *name, enum restir_sss_shift *out)
-{
-    int i = sss_name_index(sss_shift_names, 4, name);
-    if (i >= 0) *out = (enum restir_sss_shift)i;
-    return i >= 0;
-}
 
 const char *restir_sss_shift_name(enum restir_sss_shift s)
 {
     return (unsigned)s < 4u ? sss_shift_names[s] : "?";
-}
-
-bool restir_sss_target_parse(const char *name, enum restir_sss_target *out)
-{
-    int i = sss_name_index(sss_target_names, 2, name);
-    if (i >= 0) *out = (enum restir_sss_target)i;
-    return i >= 0;
-}
-
-const char *restir_sss_target_name(enum restir_sss_target t)
-{
-    return (unsigned)t < 2u ? sss_target_names[t] : "?";
 }
 
 uint32_t restir_sss_layers(const struct restir_sss_params *p)

@@ -76,10 +76,7 @@ struct RESTIRD_STORED_IN_BYTES restir_sss_params {
 struct restir_sss_params restir_sss_defaults(void);
 /* ERR_INVALID naming the parameter (where = "/params/<name>"). */
 bool restir_sss_params_valid(const struct restir_sss_params *p, struct err *err);
-bool restir_sss_shift_parse(const char *name, enum restir_sss_shift *out);
 const char *restir_sss_shift_name(enum restir_sss_shift s);
-bool restir_sss_target_parse(const char *name, enum restir_sss_target *out);
-const char *restir_sss_target_name(enum restir_sss_target t);
 /* Reservoirs per pixel and buffer: 1, or 3 for the per_channel target. */
 uint32_t restir_sss_layers(const struct restir_sss_params *p);
 

@@ -35,6 +35,7 @@
 
 #include <stdint.h>
 
+#include "core/alias.h"
 #include "scene/light_sampler.h"
 #include "integrators/manifold.h"
 #include "material/material.h"
@@ -51,7 +52,7 @@ struct scene;
 /* Which part of the light transport a path-traced image contains (see above). */
 enum pt_subset { PT_SUBSET_ALL, PT_SUBSET_CAUSTIC, PT_SUBSET_REST };
 
-struct sms_params {
+struct RESTIRD_STORED_IN_BYTES sms_params {
     uint32_t bernoulli_cap;    /* max Bernoulli trials per solution; 0 = uncapped (default 128,
                                   as [SMS-SSP §6]) */
     uint32_t max_iterations;   /* Newton steps per walk (default 20) */
@@ -59,7 +60,7 @@ struct sms_params {
 };
 
 /* Table 1 of [SMS-SSP] (manifold sampling columns). */
-struct sms_counters {
+struct RESTIRD_STORED_IN_BYTES sms_counters {
     uint64_t samples;          /* SMS estimates attempted (one per x1) */
     uint64_t solutions;        /* of those, a valid solution with a non-zero contribution */
     uint64_t newton_sample;    /* Newton steps of the sampling walks */

@@ -60,7 +60,7 @@
 #define SSP_MAX_PRIOR_FRAMES 16u  /* prior_frames <= 16 */
 #define SSP_PRIOR_WORKERS 64u     /* the prior pass's workers at most (per-worker counters) */
 
-struct ssp_params {
+struct RESTIRD_STORED_IN_BYTES ssp_params {
     struct sms_params sms;        /* bernoulli_cap, max_iterations, caustics_only */
     uint32_t tiles;               /* N (default 16) */
     bool prior;                   /* build and use the per-frame prior (default true) */

@@ -24,6 +24,8 @@
 #define METHOD_PARAMS_BYTES 256
 #define METHOD_COUNTERS_BYTES 256
 #define METHOD_FITS(type, room) _Static_assert(sizeof(type) <= (room), #type " does not fit " #room)
+/* An enum parameter is read and written as an int (its choice's index). */
+#define METHOD_ENUM_IS_INT(type) _Static_assert(sizeof(type) == sizeof(int), #type " is not int-sized")
 
 /* Capabilities (struct method_desc.caps). */
 enum {
@@ -83,7 +85,16 @@ struct view_buffer_bytes {
     const char *name;                  /* "accumulation", "reservoirs", "gbuffer", ... */
     size_t bytes;
 };
-#define VIEW_MAX_BUFFERS 12
+#define VIEW_MAX_BUFFERS 16
+
+/* Adds a buffer to a method's list of `room` entries (method_desc.buffers); past the room the
+ * entry is counted but not written, and the caller sees the count exceed the room. */
+static inline void method_buffer(struct view_buffer_bytes *out, uint32_t room, uint32_t *n, const char *name,
+                                 size_t bytes)
+{
+    if (*n < room) out[*n] = (struct view_buffer_bytes){name, bytes};
+    (*n)++;
+}
 
 /* The statistics of one frame: what every method counts, and the method's own counters (its
  * descriptor's `stats` table describes them). */
@@ -112,7 +123,8 @@ struct method_desc {
     bool (*validate)(const void *params, struct err *err);
     /* Allocates the state for a width x height session on `scene` (state: state_bytes, zeroed,
      * owned by the session). May resolve scene-dependent defaults in params (what the session
-     * then reports). */
+     * then reports). On failure it frees what it allocated itself: the caller then frees the
+     * state's memory without calling destroy. */
     size_t state_bytes;
     bool (*init)(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
                  struct err *err);
@@ -123,10 +135,10 @@ struct method_desc {
     bool (*render)(void *state, const void *params, const struct method_frame *f, struct image *out,
                    struct frame_stats *stats, parallel_progress_fn *progress, void *progress_ctx, struct err *err);
     /* Bytes init would allocate; bytes of one pixel's reservoirs (NULL: none); the buffers by
-     * name (returns how many were written, at most VIEW_MAX_BUFFERS - 3). */
+     * name, at most `room` of them (method_buffer; returns how many the method has). */
     uint64_t (*bytes_planned)(const void *params, const struct scene *scene, uint32_t width, uint32_t height);
     uint32_t (*reservoir_bytes_per_pixel)(const void *params, const struct scene *scene);
-    uint32_t (*buffers)(const void *state, const void *params, struct view_buffer_bytes *out);
+    uint32_t (*buffers)(const void *state, const void *params, struct view_buffer_bytes *out, uint32_t room);
     /* Appends to a "session too large" error how to ask for a smaller one, where the method's
      * buffers grow with the scene ("; ..."; NULL or nothing written: no hint). */
     void (*size_hint)(const void *params, const struct scene *scene, char *out, size_t size);

@@ -11,6 +11,8 @@ METHOD_FITS(struct bdpt_params, METHOD_PARAMS_BYTES);
 METHOD_FITS(struct bdpt_stats, METHOD_COUNTERS_BYTES);
 METHOD_FITS(struct restir_bdpt_params, METHOD_PARAMS_BYTES);
 METHOD_FITS(struct restir_bdpt_stats, METHOD_COUNTERS_BYTES);
+METHOD_ENUM_IS_INT(enum bdpt_heuristic);
+METHOD_ENUM_IS_INT(enum restir_bdpt_variant);
 
 static const char *const bdpt_heuristics[] = {"power", "balance", NULL};
 #define BDPT_REFUSES "environment light, and translucent materials (bidirectional subsurface sampling is not implemented)"
@@ -56,12 +58,13 @@ static uint64_t bdpt_bytes_planned_op(const void *params, const struct scene *sc
     return bdpt_bytes_planned(params, width, height);
 }
 
-static uint32_t bdpt_buffers(const void *state, const void *params, struct view_buffer_bytes *out)
+static uint32_t bdpt_buffers(const void *state, const void *params, struct view_buffer_bytes *out, uint32_t room)
 {
     (void)params;
-    out[0] = (struct view_buffer_bytes){"light_vertex_cache", bdpt_lvc_bytes(state)};
-    out[1] = (struct view_buffer_bytes){"lvc_blocks", bdpt_block_bytes(state)};
-    return 2;
+    uint32_t n = 0;
+    method_buffer(out, room, &n, "light_vertex_cache", bdpt_lvc_bytes(state));
+    method_buffer(out, room, &n, "lvc_blocks", bdpt_block_bytes(state));
+    return n;
 }
 
 #define T struct bdpt_stats
@@ -161,20 +164,20 @@ static uint32_t rbdpt_reservoir_bytes(const void *params, const struct scene *sc
     return RESTIR_BDPT_PATH_BYTES;
 }
 
-static uint32_t rbdpt_buffers(const void *state, const void *params, struct view_buffer_bytes *out)
+static uint32_t rbdpt_buffers(const void *state, const void *params, struct view_buffer_bytes *out, uint32_t room)
 {
     (void)params;
     const struct restir_bdpt_state *st = state;
     uint32_t n = 0;
-    out[n++] = (struct view_buffer_bytes){"reservoirs", restir_bdpt_reservoir_bytes(st)};
-    out[n++] = (struct view_buffer_bytes){"light_traced_samples", restir_bdpt_lt_bytes(st)};
-    out[n++] = (struct view_buffer_bytes){"caustic_shifts", restir_bdpt_shift_bytes(st)};
-    out[n++] = (struct view_buffer_bytes){"pixel_buckets", restir_bdpt_bucket_bytes(st)};
-    out[n++] = (struct view_buffer_bytes){"light_blocks", restir_bdpt_block_bytes(st)};
-    if (st->lvc) out[n++] = (struct view_buffer_bytes){"light_vertex_cache", restir_bdpt_lvc_bytes(st)};
-    if (st->gbuf.px) out[n++] = (struct view_buffer_bytes){"gbuffer", gbuffer_bytes(&st->gbuf)};
-    if (st->pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_bdpt_pair_bytes(st)};
-    if (st->x2c) out[n++] = (struct view_buffer_bytes){"light_x2_cache", restir_bdpt_x2_bytes(st)};
+    method_buffer(out, room, &n, "reservoirs", restir_bdpt_reservoir_bytes(st));
+    method_buffer(out, room, &n, "light_traced_samples", restir_bdpt_lt_bytes(st));
+    method_buffer(out, room, &n, "caustic_shifts", restir_bdpt_shift_bytes(st));
+    method_buffer(out, room, &n, "pixel_buckets", restir_bdpt_bucket_bytes(st));
+    method_buffer(out, room, &n, "light_blocks", restir_bdpt_block_bytes(st));
+    if (st->lvc) method_buffer(out, room, &n, "light_vertex_cache", restir_bdpt_lvc_bytes(st));
+    if (st->gbuf.px) method_buffer(out, room, &n, "gbuffer", gbuffer_bytes(&st->gbuf));
+    if (st->pair_scratch) method_buffer(out, room, &n, "spatial_pairs", restir_bdpt_pair_bytes(st));
+    if (st->x2c) method_buffer(out, room, &n, "light_x2_cache", restir_bdpt_x2_bytes(st));
     return n;
 }
 

@@ -9,6 +9,7 @@
 #include "methods/path_params.h"
 
 METHOD_FITS(struct pt_method_params, METHOD_PARAMS_BYTES);
+METHOD_ENUM_IS_INT(enum pt_subset);
 
 /* Depths of every path method: the same bound as the CLI's --max-depth. */
 #define PATH_MAX_DEPTH 1024

@@ -61,16 +61,16 @@ static uint32_t rpt_reservoir_bytes(const void *params, const struct scene *scen
     return RESTIR_PT_RESERVOIR_BYTES;
 }
 
-static uint32_t rpt_buffers(const void *state, const void *params, struct view_buffer_bytes *out)
+static uint32_t rpt_buffers(const void *state, const void *params, struct view_buffer_bytes *out, uint32_t room)
 {
     (void)params;
     const struct restir_pt_state *st = state;
     uint32_t n = 0;
-    out[n++] = (struct view_buffer_bytes){"reservoirs", restir_session_reservoir_bytes(&st->rs)};
-    out[n++] = (struct view_buffer_bytes){"gbuffers", restir_session_gbuffer_bytes(&st->rs)};
-    out[n++] = (struct view_buffer_bytes){"primitive_table", ((size_t)st->shape_count + 1) * sizeof *st->prim_first};
-    if (st->rs.pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_session_pair_bytes(&st->rs)};
-    out[n++] = (struct view_buffer_bytes){"primary_hits", restir_session_hit_bytes(&st->rs)};
+    method_buffer(out, room, &n, "reservoirs", restir_session_reservoir_bytes(&st->rs));
+    method_buffer(out, room, &n, "gbuffers", restir_session_gbuffer_bytes(&st->rs));
+    method_buffer(out, room, &n, "primitive_table", ((size_t)st->shape_count + 1) * sizeof *st->prim_first);
+    if (st->rs.pair_scratch) method_buffer(out, room, &n, "spatial_pairs", restir_session_pair_bytes(&st->rs));
+    method_buffer(out, room, &n, "primary_hits", restir_session_hit_bytes(&st->rs));
     return n;
 }
 

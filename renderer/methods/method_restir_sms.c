@@ -11,6 +11,7 @@
 
 METHOD_FITS(struct restir_sms_params, METHOD_PARAMS_BYTES);
 METHOD_FITS(struct restir_sms_stats, METHOD_COUNTERS_BYTES);
+METHOD_ENUM_IS_INT(enum restir_sms_sampler);
 
 static void rsms_defaults(void *params)
 {
@@ -67,16 +68,16 @@ static uint32_t rsms_reservoir_bytes(const void *params, const struct scene *sce
     return RESTIR_SMS_RESERVOIR_BYTES * (scene ? restir_sms_layers(p, scene) : p->light_reservoirs);
 }
 
-static uint32_t rsms_buffers(const void *state, const void *params, struct view_buffer_bytes *out)
+static uint32_t rsms_buffers(const void *state, const void *params, struct view_buffer_bytes *out, uint32_t room)
 {
     (void)params;
     const struct restir_sms_state *st = state;
     uint32_t n = 0;
-    out[n++] = (struct view_buffer_bytes){"reservoirs", restir_session_reservoir_bytes(&st->rs)};
-    out[n++] = (struct view_buffer_bytes){"gbuffers", restir_session_gbuffer_bytes(&st->rs)};
-    out[n++] = (struct view_buffer_bytes){"receivers", restir_sms_receiver_bytes(st)};
-    if (st->prior.entries) out[n++] = (struct view_buffer_bytes){"prior", restir_sms_prior_bytes(st)};
-    if (st->rs.pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_session_pair_bytes(&st->rs)};
+    method_buffer(out, room, &n, "reservoirs", restir_session_reservoir_bytes(&st->rs));
+    method_buffer(out, room, &n, "gbuffers", restir_session_gbuffer_bytes(&st->rs));
+    method_buffer(out, room, &n, "receivers", restir_sms_receiver_bytes(st));
+    if (st->prior.entries) method_buffer(out, room, &n, "prior", restir_sms_prior_bytes(st));
+    if (st->rs.pair_scratch) method_buffer(out, room, &n, "spatial_pairs", restir_session_pair_bytes(&st->rs));
     return n;
 }
 

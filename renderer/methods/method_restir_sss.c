@@ -10,6 +10,8 @@
 
 METHOD_FITS(struct restir_sss_params, METHOD_PARAMS_BYTES);
 METHOD_FITS(struct restir_sss_stats, METHOD_COUNTERS_BYTES);
+METHOD_ENUM_IS_INT(enum restir_sss_shift);
+METHOD_ENUM_IS_INT(enum restir_sss_target);
 
 static void sss_defaults(void *params)
 {
@@ -60,15 +62,15 @@ static uint32_t sss_reservoir_bytes(const void *params, const struct scene *scen
     return RESTIR_SSS_RESERVOIR_BYTES * restir_sss_layers(params);
 }
 
-static uint32_t sss_buffers(const void *state, const void *params, struct view_buffer_bytes *out)
+static uint32_t sss_buffers(const void *state, const void *params, struct view_buffer_bytes *out, uint32_t room)
 {
     (void)params;
     const struct restir_sss_state *st = state;
     uint32_t n = 0;
-    out[n++] = (struct view_buffer_bytes){"reservoirs", restir_session_reservoir_bytes(&st->rs)};
-    out[n++] = (struct view_buffer_bytes){"gbuffers", restir_session_gbuffer_bytes(&st->rs)};
-    out[n++] = (struct view_buffer_bytes){"primary_hits", restir_session_hit_bytes(&st->rs)};
-    if (st->rs.pair_scratch) out[n++] = (struct view_buffer_bytes){"spatial_pairs", restir_session_pair_bytes(&st->rs)};
+    method_buffer(out, room, &n, "reservoirs", restir_session_reservoir_bytes(&st->rs));
+    method_buffer(out, room, &n, "gbuffers", restir_session_gbuffer_bytes(&st->rs));
+    method_buffer(out, room, &n, "primary_hits", restir_session_hit_bytes(&st->rs));
+    if (st->rs.pair_scratch) method_buffer(out, room, &n, "spatial_pairs", restir_session_pair_bytes(&st->rs));
     return n;
 }
 

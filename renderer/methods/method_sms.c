@@ -29,7 +29,8 @@ static void sms_defaults_op(void *params)
 static bool sms_validate(const void *params, struct err *err)
 {
     const struct sms_method_params *p = params;
-    return pt_method_params_valid(&p->pt, err) && sms_params_valid(&p->sms, err);
+    /* sms names its parameters bare; the session's are under /params. */
+    return pt_method_params_valid(&p->pt, err) && (sms_params_valid(&p->sms, err) || err_under(err, "/params"));
 }
 
 /* Both methods refuse a scene whose casters sms_scene_init cannot hold. */
@@ -104,7 +105,8 @@ static void ssp_defaults_op(void *params)
 static bool ssp_validate(const void *params, struct err *err)
 {
     const struct ssp_method_params *p = params;
-    return pt_method_params_valid(&p->pt, err) && sms_params_valid(&p->ssp.sms, err) && ssp_params_valid(&p->ssp, err);
+    return pt_method_params_valid(&p->pt, err) &&
+           ((sms_params_valid(&p->ssp.sms, err) && ssp_params_valid(&p->ssp, err)) || err_under(err, "/params"));
 }
 
 /* The prior, and the image size it was made for (its blocks follow the frame). */
@@ -160,12 +162,13 @@ static uint64_t ssp_bytes_planned(const void *params, const struct scene *scene,
     return ssp_prior_bytes(width, height, ((const struct ssp_method_params *)params)->ssp.prior_frames);
 }
 
-static uint32_t ssp_buffers(const void *state, const void *params, struct view_buffer_bytes *out)
+static uint32_t ssp_buffers(const void *state, const void *params, struct view_buffer_bytes *out, uint32_t room)
 {
     (void)params;
     const struct ssp_state *st = state;
-    out[0] = (struct view_buffer_bytes){"prior", ssp_prior_bytes(st->width, st->height, st->prior.frames)};
-    return 1;
+    uint32_t n = 0;
+    method_buffer(out, room, &n, "prior", ssp_prior_bytes(st->width, st->height, st->prior.frames));
+    return n;
 }
 
 static const struct method_stat ssp_stats[] = {METHOD_PRIOR_STATS(struct ssp_prior_counters, )};

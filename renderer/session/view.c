@@ -313,7 +313,12 @@ uint32_t view_bytes(const struct view *v, struct view_buffer_bytes out[VIEW_MAX_
     out[n++] = (struct view_buffer_bytes){"accumulation", (size_t)v->accum.width * v->accum.height * sizeof *v->accum.pixels};
     out[n++] = (struct view_buffer_bytes){"shape_changes", (size_t)(v->base->shape_count ? v->base->shape_count : 1) * sizeof *v->changes};
     const struct method_desc *m = v->params.method;
-    if (m->buffers) n += m->buffers(v->state, v->params.method_params, out + n);
+    /* A method with more buffers than the room would be listed short (never overrun): the list
+     * is a report, the memory budget counts view_bytes_planned. */
+    if (m->buffers) {
+        uint32_t room = VIEW_MAX_BUFFERS - n, k = m->buffers(v->state, v->params.method_params, out + n, room);
+        n += k < room ? k : room;
+    }
     size_t sum = 0;
     for (uint32_t i = 0; i < n; i++) sum += out[i].bytes;
     if (total) *total = sum;

@@ -162,11 +162,6 @@ static void test_params(void)
     p = bdpt_defaults();
     p.max_depth = 0;
     CHECK(!bdpt_params_valid(&p, &err) && strcmp(err.where, "/params/max_depth") == 0);
-    enum bdpt_heuristic h;
-    CHECK(bdpt_heuristic_parse("balance", &h) && h == BDPT_HEURISTIC_BALANCE);
-    CHECK(bdpt_heuristic_parse("power", &h) && h == BDPT_HEURISTIC_POWER);
-    CHECK(!bdpt_heuristic_parse("Power", &h));
-    CHECK(strcmp(bdpt_heuristic_name(BDPT_HEURISTIC_BALANCE), "balance") == 0);
 }
 
 /* The memory budget reserves what a session will allocate: planned bytes = allocated bytes,

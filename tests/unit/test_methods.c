@@ -7,6 +7,11 @@
 #include <stdio.h>
 #include <string.h>
 
+#include "integrators/bdpt.h"
+#include "integrators/restir_bdpt.h"
+#include "integrators/restir_sms.h"
+#include "integrators/restir_sss.h"
+#include "integrators/sms.h"
 #include "methods/method.h"
 #include "test.h"
 
@@ -49,6 +54,8 @@ static void test_parameter_tables(void)
     for (uint32_t i = 0; i < method_count(); i++) {
         const struct method_desc *m = method_at(i);
         CHECK_MSG(((m->caps & METHOD_TAKES_SPP) != 0) == (method_param_find(m, "spp") != NULL), "%s", m->name);
+        /* The strict key check (input/json_read.h) tracks at most 32 keys. */
+        CHECK_MSG(m->param_count <= 32, "%s has %u parameters", m->name, m->param_count);
         for (uint32_t k = 0; k < m->param_count; k++) {
             const struct method_param *p = &m->params[k];
             CHECK_MSG(p->help && p->help[0], "%s.%s has no help", m->name, p->key);
@@ -117,4 +124,43 @@ static void test_statistics_tables(void)
     }
 }
 
-TEST_MAIN(TEST(test_names_and_defaults), TEST(test_parameter_tables), TEST(test_statistics_tables))
+/* The request parser stores the index of a choice as the parameter's enum value: each table's
+ * choices must be in the order of the integrator's enum. */
+static void test_enum_choices_follow_the_enums(void)
+{
+    static const struct {
+        const char *method, *key, *name;
+        int value;
+    } cases[] = {
+        {"pt", "subset", "all", PT_SUBSET_ALL},
+        {"pt", "subset", "caustic", PT_SUBSET_CAUSTIC},
+        {"pt", "subset", "rest", PT_SUBSET_REST},
+        {"bdpt", "heuristic", "power", BDPT_HEURISTIC_POWER},
+        {"bdpt", "heuristic", "balance", BDPT_HEURISTIC_BALANCE},
+        {"restir_bdpt", "heuristic", "balance", BDPT_HEURISTIC_BALANCE},
+        {"restir_bdpt", "variant", "lightweight", RESTIR_BDPT_LIGHTWEIGHT},
+        {"restir_bdpt", "variant", "full", RESTIR_BDPT_FULL},
+        {"restir_sss", "shift", "reconnection", RESTIR_SSS_RECONNECTION},
+        {"restir_sss", "shift", "delayed", RESTIR_SSS_DELAYED},
+        {"restir_sss", "shift", "hybrid", RESTIR_SSS_HYBRID},
+        {"restir_sss", "shift", "sequential", RESTIR_SSS_SEQUENTIAL},
+        {"restir_sss", "target", "luminance", RESTIR_SSS_TARGET_LUMINANCE},
+        {"restir_sss", "target", "per_channel", RESTIR_SSS_TARGET_PER_CHANNEL},
+        {"restir_sms", "sampler", "ssp", RESTIR_SMS_SAMPLER_SSP},
+        {"restir_sms", "sampler", "sms", RESTIR_SMS_SAMPLER_SMS},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        const struct method_param *p = method_param_find(method_find(cases[i].method), cases[i].key);
+        CHECK_MSG(p && p->kind == METHOD_PARAM_ENUM, "%s.%s", cases[i].method, cases[i].key);
+        if (p) CHECK_MSG(strcmp(p->choices[cases[i].value], cases[i].name) == 0, "%s.%s[%d] is %s, not %s",
+                         cases[i].method, cases[i].key, cases[i].value, p->choices[cases[i].value], cases[i].name);
+    }
+    /* Every enum parameter of the registry is covered above. */
+    uint32_t enums = 0;
+    for (uint32_t m = 0; m < method_count(); m++)
+        for (uint32_t k = 0; k < method_at(m)->param_count; k++) enums += method_at(m)->params[k].kind == METHOD_PARAM_ENUM;
+    CHECK_MSG(enums == 7, "%u enum parameters: add the new one's values above", enums);
+}
+
+TEST_MAIN(TEST(test_names_and_defaults), TEST(test_parameter_tables), TEST(test_statistics_tables),
+          TEST(test_enum_choices_follow_the_enums))

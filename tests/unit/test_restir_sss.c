@@ -203,13 +203,6 @@ static void test_params(void)
     p = restir_sss_defaults();
     p.candidates = 0;
     CHECK(!restir_sss_params_valid(&p, &err) && strcmp(err.where, "/params/candidates") == 0);
-    enum restir_sss_shift s;
-    CHECK(restir_sss_shift_parse("delayed", &s) && s == RESTIR_SSS_DELAYED);
-    CHECK(!restir_sss_shift_parse("teleport", &s));
-    enum restir_sss_target t;
-    CHECK(restir_sss_target_parse("per_channel", &t) && t == RESTIR_SSS_TARGET_PER_CHANNEL);
-    CHECK(restir_sss_target_parse("luminance", &t) && t == RESTIR_SSS_TARGET_LUMINANCE);
-    CHECK(!restir_sss_target_parse("rgb", &t));
     p = restir_sss_defaults();
     p.target = (enum restir_sss_target)7;
     CHECK(!restir_sss_params_valid(&p, &err) && strcmp(err.where, "/params/target") == 0);

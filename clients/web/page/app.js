@@ -696,12 +696,13 @@ async function start() {
   $('view').dataset.mode = viewer.mode;
   updateControls();
   try {
-    state.methods = await loadMethods();
-    setOptions($('method'), [...state.methods.keys()].map((name) => [name, name]), 'pt');
-    buildParams();
     const health = await fetch('/healthz', { cache: 'no-store' });
     $('daemon').textContent = `daemon ${health.headers.get('X-Served-By') ?? ''}: ${health.ok ? 'ok' : health.status}`;
     $('daemon').dataset.state = health.ok ? 'ok' : 'down';
+    state.methods = await loadMethods();
+    // The registry's first method is the daemon's default.
+    setOptions($('method'), [...state.methods.keys()].map((name) => [name, name]), state.methods.keys().next().value);
+    buildParams();
     const { scenes } = await getJson('/v1/scenes');
     setOptions($('scene'), scenes.map((s) => [s.id, s.id]), 'cornell-box');
     await listExisting();
