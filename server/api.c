@@ -773,6 +773,14 @@ void api_reject(void *ctx, const struct http_request *req, struct http_response 
         api_problem_limit(&c, 413, "body-too-large", NULL, (double)limit, "the body is over the limit of %zu bytes", limit);
 }
 
+void api_reject_framing(void *ctx, const struct http_request *req, struct http_response *resp, const char *header,
+                        const char *why)
+{
+    struct api_call c = {.d = ctx, .req = req, .resp = resp};
+    resp->route = "refused";
+    api_problem(&c, 400, "bad-header", header, "%s", why);
+}
+
 static bool api_valid_frame_ref(const char *s)
 {
     if (strcmp(s, "latest") == 0) return true;
@@ -795,10 +803,13 @@ void api_handle(void *ctx, const struct http_request *req, struct http_response 
     resp->route = r->pattern;
     int m = -1;
     char allow[64] = "";
+    /* HEAD is GET without the body (the HTTP layer leaves the body out). */
+    const char *method = strcmp(req->method, "HEAD") == 0 ? "GET" : req->method;
     for (int i = 0; i < 3 && r->methods[i]; i++) {
-        if (strcmp(r->methods[i], req->method) == 0) m = i;
+        if (strcmp(r->methods[i], method) == 0) m = i;
         strncat(allow, i ? ", " : "", sizeof allow - strlen(allow) - 1);
         strncat(allow, r->methods[i], sizeof allow - strlen(allow) - 1);
+        if (strcmp(r->methods[i], "GET") == 0) strncat(allow, ", HEAD", sizeof allow - strlen(allow) - 1);
     }
     if (m < 0) {
         http_response_header(resp, "Allow", "%s", allow);
@@ -821,7 +832,7 @@ void api_handle(void *ctx, const struct http_request *req, struct http_response 
         }
     }
     if (r->produces && !api_negotiate(&c, r->produces)) return;
-    if (atomic_load(&c.d->draining) && strcmp(req->method, "GET") != 0) {
+    if (atomic_load(&c.d->draining) && strcmp(method, "GET") != 0) {
         api_problem(&c, 503, "draining", NULL, "the daemon is shutting down");
         return;
     }
@@ -838,5 +849,14 @@ void api_completed(void *ctx, const char *method, const char *path, const char *
     struct tm tm;
     gmtime_r(&now, &tm);
     strftime(stamp, sizeof stamp, "%Y-%m-%dT%H:%M:%SZ", &tm);
-    fprintf(stderr, "%s %s %s %d %llu %.1f %s\n", stamp, method, path, status, (unsigned long long)bytes, ms, request_id);
+    /* The path is percent-decoded: a control byte (or a space, or a byte over 0x7e) in it is
+     * written %XX again, so that a request cannot forge or split a line of the log. */
+    char safe[3 * 512 + 1];
+    size_t n = 0;
+    for (const unsigned char *p = (const unsigned char *)path; *p && n + 4 < sizeof safe; p++) {
+        if (*p <= ' ' || *p >= 0x7f || *p == '%') n += (size_t)snprintf(safe + n, sizeof safe - n, "%%%02X", *p);
+        else safe[n++] = (char)*p;
+    }
+    safe[n] = '\0';
+    fprintf(stderr, "%s %s %s %d %llu %.1f %s\n", stamp, method, safe, status, (unsigned long long)bytes, ms, request_id);
 }

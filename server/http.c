@@ -40,6 +40,7 @@ struct http_conn {
     bool responded;            /* a response was queued (possibly before the body was read) */
     int reject_status;         /* refused from the headers; the body is being discarded */
     bool discard;              /* a body nobody asked for, being dropped */
+    bool close;                /* answer with Connection: close (the framing was refused) */
     size_t reject_limit;
     char *body;
     size_t body_len, body_cap;
@@ -167,6 +168,13 @@ static enum MHD_Result http_send(struct http *h, struct MHD_Connection *c, struc
 {
     struct MHD_Response *r;
     bool no_body = resp->status == 204 || resp->status == 304;
+    /* HEAD: a buffered body gives its Content-Length and MHD leaves the bytes out; a stream
+     * (an event stream) is not started at all. */
+    if (strcmp(hc->method, "HEAD") == 0 && resp->stream) {
+        if (resp->stream_free) resp->stream_free(resp->stream_ctx);
+        resp->stream = NULL;
+        resp->stream_free = NULL;
+    }
     if (resp->stream && !no_body) {
         struct http_stream_box *box = calloc(1, sizeof *box);
         if (!box) {
@@ -198,6 +206,7 @@ static enum MHD_Result http_send(struct http *h, struct MHD_Connection *c, struc
     if (resp->content_type && !no_body) MHD_add_response_header(r, MHD_HTTP_HEADER_CONTENT_TYPE, resp->content_type);
     MHD_add_response_header(r, "X-Request-Id", hc->request_id);
     if (h->app.served_by) MHD_add_response_header(r, "X-Served-By", h->app.served_by);
+    if (hc->close) MHD_add_response_header(r, MHD_HTTP_HEADER_CONNECTION, "close");
     for (int i = 0; i < resp->header_count; i++) MHD_add_response_header(r, resp->headers[i].name, resp->headers[i].value);
     hc->status = resp->status;
     hc->bytes = resp->stream ? 0 : resp->body_len;
@@ -208,11 +217,53 @@ static enum MHD_Result http_send(struct http *h, struct MHD_Connection *c, struc
     return ret;
 }
 
+/* What the request's framing headers say, counted over every header line (MHD's lookup sees
+ * only the first of a repeated header, and frames the body by it). */
+struct http_framing {
+    int content_length, transfer_encoding, host;
+};
+
+static enum MHD_Result http_framing_each(void *cls, enum MHD_ValueKind kind, const char *key, const char *value)
+{
+    (void)kind;
+    (void)value;
+    struct http_framing *f = cls;
+    if (strcasecmp(key, MHD_HTTP_HEADER_CONTENT_LENGTH) == 0) f->content_length++;
+    else if (strcasecmp(key, MHD_HTTP_HEADER_TRANSFER_ENCODING) == 0) f->transfer_encoding++;
+    else if (strcasecmp(key, MHD_HTTP_HEADER_HOST) == 0) f->host++;
+    return MHD_YES;
+}
+
+/* The framing problem of a request, or NULL: a body must be framed one way only (RFC 9112
+ * §6.3: a repeated Content-Length, Transfer-Encoding beside Content-Length, or a transfer coding
+ * other than chunked would let a proxy and this server see different requests), and an HTTP/1.1
+ * request names its Host exactly once. */
+static const char *http_framing_problem(struct MHD_Connection *c, const char *version, bool *chunked,
+                                        const char **header)
+{
+    struct http_framing f = {0};
+    MHD_get_connection_values(c, MHD_HEADER_KIND, http_framing_each, &f);
+    *chunked = false;
+    *header = MHD_HTTP_HEADER_CONTENT_LENGTH;
+    if (f.content_length > 1) return "the request has more than one Content-Length header";
+    *header = MHD_HTTP_HEADER_TRANSFER_ENCODING;
+    if (f.transfer_encoding > 1) return "the request has more than one Transfer-Encoding header";
+    if (f.transfer_encoding && f.content_length) return "the request has both Transfer-Encoding and Content-Length";
+    if (f.transfer_encoding) {
+        const char *te = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_TRANSFER_ENCODING);
+        if (!te || strcasecmp(te, "chunked") != 0) return "the only Transfer-Encoding accepted is chunked";
+        *chunked = true;
+    }
+    *header = MHD_HTTP_HEADER_HOST;
+    if (f.host > 1) return "the request has more than one Host header";
+    if (f.host == 0 && version && strcmp(version, MHD_HTTP_VERSION_1_1) == 0) return "an HTTP/1.1 request needs a Host header";
+    return NULL;
+}
+
 static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const char *url, const char *method,
                                    const char *version, const char *upload_data, size_t *upload_data_size,
                                    void **con_cls)
 {
-    (void)version;
     struct http *h = cls;
     struct http_conn *hc = *con_cls;
     struct http_request req = {.method = method, .path = url, .internal = c};
@@ -234,10 +285,18 @@ static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const ch
                      (unsigned long long)atomic_fetch_add(&h->next_id, 1));
         req.request_id = hc->request_id;
 
+        bool chunked = false;
+        const char *header = NULL;
+        const char *bad = http_framing_problem(c, version, &chunked, &header);
+        if (bad) {
+            /* The connection closes after the answer: where its body ends is not known. */
+            h->app.reject_framing(h->app.ctx, &req, &resp, header, bad);
+            hc->close = true;
+            return http_send(h, c, hc, &resp);
+        }
         size_t max_body = 0;
         bool required = false;
         h->app.body_policy(h->app.ctx, method, url, &max_body, &required);
-        const char *te = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_TRANSFER_ENCODING);
         const char *cl = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_LENGTH);
         unsigned long long length = 0;
         if (cl) {
@@ -247,7 +306,7 @@ static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const ch
         }
         /* 411: a chunked body (its length is unknown, so no limit can be decided up front), or
          * no length where a body is required. */
-        if ((te && strcasecmp(te, "identity") != 0) || (!cl && required)) {
+        if (chunked || (!cl && required)) {
             h->app.reject(h->app.ctx, &req, &resp, 411, max_body);
             return http_send(h, c, hc, &resp);
         }
@@ -302,8 +361,10 @@ static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const ch
     if (*upload_data_size > 0) {
         size_t n = *upload_data_size;
         if (n > hc->body_cap - hc->body_len) n = hc->body_cap - hc->body_len;  /* MHD enforces the length */
-        memcpy(hc->body + hc->body_len, upload_data, n);
-        hc->body_len += n;
+        if (n > 0) {
+            memcpy(hc->body + hc->body_len, upload_data, n);
+            hc->body_len += n;
+        }
         *upload_data_size = 0;
         return MHD_YES;
     }

@@ -65,6 +65,10 @@ struct http_app {
     void (*handle)(void *ctx, const struct http_request *req, struct http_response *resp);
     /* Fill resp with the problem for a request the HTTP layer refused (411, 413). */
     void (*reject)(void *ctx, const struct http_request *req, struct http_response *resp, int status, size_t limit);
+    /* Fill resp with the 400 for a request whose framing is refused: the header at fault and
+     * why. */
+    void (*reject_framing)(void *ctx, const struct http_request *req, struct http_response *resp, const char *header,
+                           const char *why);
     /* After every response: one access-log line and the request counters. */
     void (*completed)(void *ctx, const char *method, const char *path, const char *route, int status,
                       uint64_t bytes, double ms, const char *request_id);

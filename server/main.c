@@ -245,6 +245,7 @@ int main(int argc, char **argv)
     struct http_options ho = {.host = cfg->host, .port = cfg->port, .connection_limit = cfg->connection_limit,
                               .per_ip_limit = cfg->per_ip_limit, .timeout_s = cfg->timeout_s};
     struct http_app app = {.ctx = &d, .body_policy = api_body_policy, .handle = api_handle, .reject = api_reject,
+                           .reject_framing = api_reject_framing,
                            .completed = api_completed, .served_by = cfg->id};
     http = http_start(&ho, &app, &port, &e);
     if (!http) {

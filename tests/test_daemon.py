@@ -311,7 +311,7 @@ def test_preview_page_is_read_only(daemon):
     for method, path in (("POST", "/"), ("PUT", "/ui/app.js"), ("DELETE", "/ui/index.html")):
         r = daemon.raw(method, path)
         assert_problem(r, 405, "method-not-allowed", where=path)
-        assert r.header("Allow") == "GET"
+        assert r.header("Allow") == "GET, HEAD"
 
 
 def preview_page_methods():
