@@ -145,3 +145,10 @@ def test_control_characters_cannot_forge_a_log_line(daemon):
     assert len(mine) == 1, lines[-5:]
     assert " /v1/x%0A2026-01-01T00:00:00Z%20GET%20/v1/forged%20200%200%200.1%20x%0D%1B[31m 404 " in mine[0], mine
 
+
+def test_sphere_radius_out_of_float_range_names_its_field(daemon):
+    scene = dict(SPHERE, shapes=[dict(SPHERE["shapes"][0], radius=3e38)])
+    r = daemon.req("PUT", "/v1/scenes/huge-sphere", json_body=scene)
+    body = assert_problem(r, 422, "invalid-scene", "/shapes/0/radius")
+    assert "32-bit float range" in body["detail"], body
+
