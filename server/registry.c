@@ -230,12 +230,17 @@ static enum err_code registry_io_code(int e)
     return e == ENOSPC || e == EDQUOT || e == EFBIG ? ERR_STORAGE : ERR_IO;
 }
 
-static bool registry_mkdir(const char *path, struct err *err)
+/* follow: whether an existing symbolic link to a folder will do. The path to the data directory
+ * may have them (the operator's choice); the folders inside it are the daemon's own and never
+ * are links: a link planted there would have scenes written and deleted through it. */
+static bool registry_mkdir_at(const char *path, bool follow, struct err *err)
 {
     if (mkdir(path, 0755) != 0) {
         int e = errno;
         struct stat st;
-        if (e == EEXIST && stat(path, &st) == 0 && S_ISDIR(st.st_mode)) return true;
+        if (e == EEXIST && (follow ? stat(path, &st) : lstat(path, &st)) == 0 && S_ISDIR(st.st_mode)) return true;
+        if (e == EEXIST && lstat(path, &st) == 0 && S_ISLNK(st.st_mode))
+            return err_set(err, ERR_IO, NULL, "'%s' is a symbolic link, and the data directory's folders may not be", path);
         return err_set(err, registry_io_code(e), NULL, "cannot create folder '%s': %s", path, strerror(e));
     }
     char parent[PATH_MAX];
@@ -247,6 +252,22 @@ static bool registry_mkdir(const char *path, struct err *err)
     return registry_fsync_dir(parent, err);
 }
 
+/* A folder of the daemon's own, inside the data directory: never through a symbolic link. */
+static bool registry_mkdir(const char *path, struct err *err)
+{
+    return registry_mkdir_at(path, false, err);
+}
+
+/* A scene's folder as it is now: false (with the error) when it is a symbolic link or not a
+ * folder; true when it is a folder or absent. */
+static bool registry_own_dir(const char *path, struct err *err)
+{
+    struct stat st;
+    if (lstat(path, &st) != 0 || S_ISDIR(st.st_mode)) return true;
+    return err_set(err, ERR_IO, NULL, "'%s' is %s, and the data directory's folders may not be", path,
+                   S_ISLNK(st.st_mode) ? "a symbolic link" : "not a folder");
+}
+
 static bool registry_mkdir_p(const char *path, struct err *err)
 {
     char buf[PATH_MAX];
@@ -254,11 +275,11 @@ static bool registry_mkdir_p(const char *path, struct err *err)
     for (char *p = buf + 1; *p; p++) {
         if (*p != '/') continue;
         *p = '\0';
-        bool ok = registry_mkdir(buf, err);
+        bool ok = registry_mkdir_at(buf, true, err);
         *p = '/';
         if (!ok) return false;
     }
-    return registry_mkdir(buf, err);
+    return registry_mkdir_at(buf, true, err);
 }
 
 /* Writes `data` to a new temporary file in `dir` and syncs it; *tmp receives its path. The
@@ -805,6 +826,7 @@ static bool registry_put_scene_locked(struct registry *r, const char *id, const 
     char scene_dir[PATH_MAX], assets_dir[PATH_MAX];
     if (!registry_path(scene_dir, sizeof scene_dir, err, "%s/%s", r->scenes_dir, id) ||
         !registry_path(assets_dir, sizeof assets_dir, err, "%s/assets", scene_dir) ||
+        !registry_own_dir(scene_dir, err) || !registry_own_dir(assets_dir, err) ||
         !registry_hash_content(json, len, assets_dir, &hash, &assets, err))
         return false;
     if (exists && hash == old_hash) {
@@ -909,6 +931,7 @@ static bool registry_put_asset_locked(struct registry *r, const char *id, const 
         !registry_path(path, sizeof path, err, "%s/%s", assets_dir, name) ||
         !registry_path(json_path, sizeof json_path, err, "%s/scene.json", scene_dir))
         return false;
+    if (!registry_own_dir(scene_dir, err) || !registry_own_dir(assets_dir, err)) return false;
     struct stat st;
     *created = lstat(path, &st) != 0;
     if (!*created && registry_file_equals(path, data, len)) return true;  /* nothing changes */
@@ -1049,6 +1072,8 @@ bool registry_delete(struct registry *r, const char *id, bool force, struct err 
     } else if (r->entries[pos]->info.sessions > 0 && !force) {
         ok = err_set(err, ERR_CONFLICT, "id", "scene '%s' has %u live session(s); delete them or use force", id,
                      r->entries[pos]->info.sessions);
+    } else if (!registry_own_dir(scene_dir, err)) {
+        ok = false;
     } else if (unlink(json_path) != 0 && errno != ENOENT) {
         /* The one file operation under `lock`: the live-session check and the removal must be
          * atomic with respect to registry_session_added, and scene.json going is what makes the

@@ -152,3 +152,34 @@ def test_sphere_radius_out_of_float_range_names_its_field(daemon):
     body = assert_problem(r, 422, "invalid-scene", "/shapes/0/radius")
     assert "32-bit float range" in body["detail"], body
 
+
+def test_symlinked_folders_in_the_data_directory_are_not_followed(tmp_path):
+    d = Daemon(tmp_path / "data", "--threads", "1")
+    try:
+        outside = tmp_path / "outside"
+        outside.mkdir()
+        scenes = tmp_path / "data" / "scenes"
+        # A link planted where a new scene's folder would go: nothing is written through it.
+        (scenes / "planted").symlink_to(outside, target_is_directory=True)
+        r = d.req("PUT", "/v1/scenes/planted", json_body=SPHERE)
+        body = assert_problem(r, 500, "internal")
+        assert "is a symbolic link" in body["detail"], body
+        r = d.req("PUT", "/v1/scenes/planted/assets/m.ply", body=TETRA_PLY, headers={"Content-Type": "model/ply"})
+        assert_problem(r, 500, "internal")
+        assert list(outside.iterdir()) == []
+        # A scene's folder swapped for a link while the daemon runs: nothing is deleted through it.
+        assert d.req("PUT", "/v1/scenes/victim", json_body=SPHERE).status == 201
+        (outside / "scene.json").write_text("{}")
+        victim = scenes / "victim"
+        (victim / "scene.json").unlink()
+        victim.rmdir()
+        victim.symlink_to(outside, target_is_directory=True)
+        r = d.req("DELETE", "/v1/scenes/victim")
+        assert_problem(r, 500, "internal")
+        assert (outside / "scene.json").read_text() == "{}"
+        r = d.req("PUT", "/v1/scenes/victim", json_body=dict(SPHERE, environment={"radiance": [2, 2, 2]}))
+        assert_problem(r, 500, "internal")
+        assert sorted(p.name for p in outside.iterdir()) == ["scene.json"]
+    finally:
+        rc, _ = d.stop()
+        assert rc == 0, d.stderr()[-3000:]
