@@ -131,9 +131,10 @@ static bool api_content_type_is(const char *ct, const char *want)
     return strncasecmp(ct, want, n) == 0 && (ct[n] == '\0' || ct[n] == ';' || ct[n] == ' ');
 }
 
+/* Every body route requires its media type even when the body is empty: a cross-site page can
+ * send an empty POST without a preflight, but not one that declares application/json. */
 bool api_require_json(struct api_call *c)
 {
-    if (c->req->body_len == 0) return true;
     const char *ct = http_header(c->req, "Content-Type");
     if (api_content_type_is(ct, "application/json")) return true;
     api_problem(c, 415, "unsupported-media-type", NULL, "the body must be application/json, got %s", ct ? ct : "no Content-Type");
@@ -791,9 +792,128 @@ static bool api_valid_frame_ref(const char *s)
     return strtoull(s, NULL, 10) <= UINT32_MAX;
 }
 
+/* ---- who may ask ---- */
+
+/* The host name of a Host header or of an Origin's authority, without the port and the
+ * brackets of an IPv6 address, lower-cased into out; false when it is malformed. */
+static bool api_host_name(const char *s, size_t len, char *out, size_t size)
+{
+    const char *end = s + len;
+    if (len > 0 && s[0] == '[') {
+        const char *close = memchr(s, ']', len);
+        if (!close || (close + 1 != end && close[1] != ':')) return false;
+        s++;
+        end = close;
+    } else {
+        const char *colon = memchr(s, ':', len);
+        if (colon) {
+            if (memchr(colon + 1, ':', (size_t)(end - colon - 1))) return false;
+            end = colon;
+        }
+    }
+    size_t n = (size_t)(end - s);
+    if (n == 0 || n >= size) return false;
+    for (size_t i = 0; i < n; i++) {
+        unsigned char ch = (unsigned char)s[i];
+        if (ch <= ' ' || ch >= 0x7f || ch == '/' || ch == '@') return false;
+        out[i] = (char)tolower(ch);
+    }
+    out[n] = '\0';
+    return true;
+}
+
+static bool api_host_allowed(const struct daemon_config *cfg, const char *name)
+{
+    static const char *const loopback[] = {"localhost", "127.0.0.1", "::1"};
+    for (size_t i = 0; i < sizeof loopback / sizeof loopback[0]; i++)
+        if (strcmp(name, loopback[i]) == 0) return true;
+    bool unspecified = strcmp(cfg->host, "0.0.0.0") == 0 || strcmp(cfg->host, "::") == 0;
+    if (!unspecified && strcasecmp(name, cfg->host) == 0) return true;
+    for (unsigned i = 0; i < cfg->allow_host_count; i++)
+        if (strcmp(cfg->allow_hosts[i], "*") == 0 || strcasecmp(name, cfg->allow_hosts[i]) == 0) return true;
+    return false;
+}
+
+/* Compares without an early exit, so the time taken does not tell how much of a guess was
+ * right. */
+static bool api_token_equal(const char *given, size_t n, const char *token)
+{
+    size_t m = strlen(token);
+    unsigned diff = (unsigned)(n ^ m);
+    for (size_t i = 0; i < n; i++) diff |= (unsigned char)given[i] ^ (unsigned char)token[m ? i % m : 0];
+    return diff == 0 && m > 0;
+}
+
+/* The checks every request passes before its route runs (docs/deploy.md, "Who can reach the
+ * daemon"): a Host this daemon is known by (against DNS rebinding), the bearer token when one
+ * is configured, and for a request that changes state, an Origin (when the browser sends one)
+ * of this daemon (against cross-site requests). The health checks are always open; the page's
+ * own files are open so a browser can load it and be given the token. */
+static bool api_guard(struct api_call *c, const char *method, const char *path)
+{
+    const struct daemon_config *cfg = &c->d->cfg;
+    if (strcmp(path, "/healthz") == 0 || strcmp(path, "/readyz") == 0) return true;
+    char name[256];
+    const char *host = http_header(c->req, "Host");
+    if (host && (!api_host_name(host, strlen(host), name, sizeof name) || !api_host_allowed(cfg, name))) {
+        c->resp->route = "refused";
+        api_problem(c, 403, "forbidden", "Host",
+                    "this daemon is not '%s' (it answers to its loopback names and listen address; "
+                    "--allow-host adds names)", host);
+        return false;
+    }
+    bool page = strcmp(path, "/") == 0 || strncmp(path, "/ui/", 4) == 0;
+    bool open = page || (strcmp(path, "/metrics") == 0 && cfg->metrics_open);
+    if (cfg->auth_token[0] && !open) {
+        const char *auth = http_header(c->req, "Authorization");
+        bool ok = auth && strncasecmp(auth, "Bearer ", 7) == 0;
+        if (ok) {
+            const char *t = auth + 7;
+            while (*t == ' ') t++;
+            size_t n = strlen(t);
+            while (n > 0 && t[n - 1] == ' ') n--;
+            ok = api_token_equal(t, n, cfg->auth_token);
+        }
+        /* A browser's EventSource cannot send headers: an event stream may carry the token as
+         * the access_token query parameter (RFC 6750 §2.3), and nothing else may. */
+        size_t pl = strlen(path);
+        const char *qt = http_query(c->req, "access_token");
+        if (!auth && qt && strcmp(method, "GET") == 0 && pl > 7 && strcmp(path + pl - 7, "/events") == 0)
+            ok = api_token_equal(qt, strlen(qt), cfg->auth_token);
+        if (!ok) {
+            c->resp->route = "refused";
+            http_response_header(c->resp, "WWW-Authenticate", "Bearer realm=\"restird\"");
+            api_problem(c, 401, "unauthorized", "Authorization", "%s",
+                        auth ? "the bearer token is not this daemon's"
+                             : "this daemon needs 'Authorization: Bearer TOKEN' (its --auth-token-file or "
+                               "RESTIRD_AUTH_TOKEN)");
+            return false;
+        }
+    }
+    bool safe = strcmp(method, "GET") == 0 || strcmp(method, "HEAD") == 0 || strcmp(method, "OPTIONS") == 0;
+    const char *origin = http_header(c->req, "Origin");
+    if (!safe && origin) {
+        const char *authority = strstr(origin, "://");
+        bool ok = authority && (strncasecmp(origin, "http://", 7) == 0 || strncasecmp(origin, "https://", 8) == 0);
+        if (ok) {
+            authority += 3;
+            size_t n = strcspn(authority, "/");
+            ok = authority[n] == '\0' && api_host_name(authority, n, name, sizeof name) && api_host_allowed(cfg, name);
+        }
+        if (!ok) {
+            c->resp->route = "refused";
+            api_problem(c, 403, "forbidden", "Origin",
+                        "%s %s from the page of another site ('%s') is refused", method, path, origin);
+            return false;
+        }
+    }
+    return true;
+}
+
 void api_handle(void *ctx, const struct http_request *req, struct http_response *resp)
 {
     struct api_call c = {.d = ctx, .req = req, .resp = resp};
+    if (!api_guard(&c, req->method, req->path)) return;
     const struct api_route *r = api_find(&c, req->path);
     if (!r) {
         resp->route = "unmatched";

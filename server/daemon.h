@@ -33,6 +33,14 @@ struct daemon_config {
     unsigned connection_limit, per_ip_limit, timeout_s;
     unsigned threads;                   /* render threads, 0 = all cores */
     char default_scene[65];             /* "" = no default session */
+    /* Who may ask: Host names accepted besides the loopback names and the listen address
+     * (--allow-host; "*" = any), the bearer token ("" = none) and whether /metrics is open
+     * without it. */
+#define DAEMON_MAX_ALLOW_HOSTS 16
+    char allow_hosts[DAEMON_MAX_ALLOW_HOSTS][256];
+    unsigned allow_host_count;
+    char auth_token[256];
+    bool metrics_open;
 };
 
 struct daemon {

@@ -24,8 +24,11 @@
     "               [--render-slots N] [--render-queue N] [--job-queue N] [--job-workers N]\n"    \
     "               [--connection-limit N] [--per-ip-limit N] [--timeout-s N]\n"                   \
     "               [--memory-budget BYTES] [--max-session-bytes BYTES]\n"                          \
+    "               [--allow-host NAME]... [--auth-token-file PATH] [--metrics-auth required|open]\n" \
     "defaults: --listen 127.0.0.1:8080, --data-dir $XDG_STATE_HOME/restird (~/.local/state/restird),\n" \
     "--scenes: the scenes/ folder next to the build folder; limits as GET /v1/limits lists them.\n" \
+    "The bearer token is read from --auth-token-file, else from $RESTIRD_AUTH_TOKEN; it is required\n" \
+    "to listen on any address but loopback.\n"                                                        \
     "Port 0 picks a free port; the first line on stdout names the address.\n"
 
 static int main_usage(const char *fmt, const char *arg)
@@ -90,6 +93,37 @@ static void main_default_data_dir(char *out, size_t size)
     if (xdg && xdg[0] == '/') snprintf(out, size, "%s/restird", xdg);
     else if (home && home[0] == '/') snprintf(out, size, "%s/.local/state/restird", home);
     else snprintf(out, size, "restird-data");
+}
+
+/* A token is 16 to 255 printable characters without spaces; a file's trailing line end (and
+ * spaces) are not part of it. Returns NULL or what is wrong. */
+static const char *main_set_token(struct daemon_config *cfg, const char *s, size_t n)
+{
+    while (n > 0 && (s[n - 1] == '\n' || s[n - 1] == '\r' || s[n - 1] == ' ' || s[n - 1] == '\t')) n--;
+    if (n < 16) return "is shorter than 16 characters";
+    if (n >= sizeof cfg->auth_token) return "is longer than 255 characters";
+    for (size_t i = 0; i < n; i++)
+        if ((unsigned char)s[i] <= ' ' || (unsigned char)s[i] >= 0x7f) return "has a character that is not printable ASCII";
+    memcpy(cfg->auth_token, s, n);
+    cfg->auth_token[n] = '\0';
+    return NULL;
+}
+
+static const char *main_read_token(struct daemon_config *cfg, const char *path)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f) return strerror(errno);
+    char buf[512];
+    size_t n = fread(buf, 1, sizeof buf, f);
+    fclose(f);
+    if (n == sizeof buf) return "is longer than 255 characters";
+    return main_set_token(cfg, buf, n);
+}
+
+/* Loopback: 127.0.0.0/8 and ::1. Anything else can be reached from other hosts. */
+static bool main_loopback(const char *host)
+{
+    return strncmp(host, "127.", 4) == 0 || strcmp(host, "::1") == 0;
 }
 
 static void main_warn(void *ctx, const char *message)
@@ -166,6 +200,7 @@ int main(int argc, char **argv)
         N("--timeout-s", timeout_s, 1, 86400),
 #undef N
     };
+    const char *token_file = NULL;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
@@ -186,6 +221,17 @@ int main(int argc, char **argv)
         } else if (strcmp(a, "--id") == 0) {
             if (!*v || strlen(v) >= sizeof cfg->id || strpbrk(v, "\r\n")) return main_usage("--id: bad name '%s'", v);
             snprintf(cfg->id, sizeof cfg->id, "%s", v);
+        } else if (strcmp(a, "--allow-host") == 0) {
+            if (cfg->allow_host_count == DAEMON_MAX_ALLOW_HOSTS) return main_usage("--allow-host: more than 16 names%s", "");
+            if (!*v || strlen(v) >= sizeof cfg->allow_hosts[0] || strpbrk(v, " :/[]@\t\r\n"))
+                return main_usage("--allow-host: '%s' is not a host name (no port, no brackets)", v);
+            snprintf(cfg->allow_hosts[cfg->allow_host_count++], sizeof cfg->allow_hosts[0], "%s", v);
+        } else if (strcmp(a, "--auth-token-file") == 0) {
+            token_file = v;
+        } else if (strcmp(a, "--metrics-auth") == 0) {
+            if (strcmp(v, "required") != 0 && strcmp(v, "open") != 0)
+                return main_usage("--metrics-auth: expected required or open, got '%s'", v);
+            cfg->metrics_open = strcmp(v, "open") == 0;
         } else if (strcmp(a, "--default-session") == 0) {
             if (!protocol_valid_id(v, strlen(v))) return main_usage("--default-session: '%s' is not a scene id", v);
             snprintf(cfg->default_scene, sizeof cfg->default_scene, "%s", v);
@@ -201,6 +247,27 @@ int main(int argc, char **argv)
             else if (nums[k].size == 4) *(uint32_t *)field = (uint32_t)x;
             else *(uint64_t *)field = x;
         }
+    }
+
+    const char *env_token = getenv("RESTIRD_AUTH_TOKEN");
+    if (token_file) {
+        const char *bad = main_read_token(cfg, token_file);
+        if (bad) {
+            fprintf(stderr, "restird: --auth-token-file %s: %s\n", token_file, bad);
+            return 1;
+        }
+    } else if (env_token && *env_token) {
+        const char *bad = main_set_token(cfg, env_token, strlen(env_token));
+        if (bad) {
+            fprintf(stderr, "restird: RESTIRD_AUTH_TOKEN %s\n", bad);
+            return 1;
+        }
+    }
+    if (!cfg->auth_token[0] && !main_loopback(cfg->host)) {
+        fprintf(stderr, "restird: listening on %s (beyond loopback) needs a bearer token: give "
+                        "--auth-token-file PATH or set RESTIRD_AUTH_TOKEN (16 to 255 printable characters)\n",
+                cfg->host);
+        return 1;
     }
 
     /* Signals are taken by sigwait in this thread; every thread started from here on
@@ -259,7 +326,7 @@ int main(int argc, char **argv)
         char href[256];
         if (api_default_session(&d, cfg->default_scene, href, sizeof href)) {
             printf("default session ready; fetch a frame as EXR with:\n"
-                   "  curl -sf -X POST -o frame.exr http://%s%s%s:%u%s/frames\n",
+                   "  curl -sf -X POST -H 'Content-Type: application/json' -o frame.exr http://%s%s%s:%u%s/frames\n",
                    bracket_l, cfg->host, bracket_r, port, href);
         }
     }

@@ -90,6 +90,10 @@ class Daemon:
         if json_body is not None:
             body = json.dumps(json_body).encode()
             headers.setdefault("Content-Type", "application/json")
+        elif body is None and method in ("POST", "PUT"):
+            # As the Python client does: an empty JSON body still declares its type (the daemon
+            # requires it of every body route).
+            headers.setdefault("Content-Type", "application/json")
         conn = http.client.HTTPConnection("127.0.0.1", self.port, timeout=timeout)
         try:
             conn.request(method, path, body=body, headers=headers)

@@ -45,8 +45,9 @@ class Raw:
         return f"HTTP {self.status} {dict(self.headers)} {self.body[:400]!r} closed={self.closed}"
 
 
-def send_raw(d, data, method="GET", timeout=10):
-    """Sends `data` exactly and reads one answer (None when the daemon closed without one)."""
+def send_raw(d, data, method="GET", timeout=10, check_closed=False):
+    """Sends `data` exactly and reads one answer (None when the daemon closed without one); with
+    check_closed, waits up to 2 s for the daemon to close the connection after it."""
     sock = socket.create_connection(("127.0.0.1", d.port), timeout=timeout)
     try:
         sock.sendall(data)
@@ -56,10 +57,13 @@ def send_raw(d, data, method="GET", timeout=10):
         except http.client.RemoteDisconnected:
             return None
         body = r.read()
-        try:
-            closed = sock.recv(1) == b""
-        except socket.timeout:
-            closed = False
+        closed = None
+        if check_closed:
+            sock.settimeout(2)
+            try:
+                closed = sock.recv(1) == b""
+            except socket.timeout:
+                closed = False
         return Raw(r.status, r.headers, body, closed)
     finally:
         sock.close()
@@ -76,7 +80,7 @@ def test_two_content_lengths_refused_and_nothing_smuggled(daemon):
     for lengths in ((2, 2 + len(smuggled)), (2 + len(smuggled), 2), (2, 2)):
         head = (f"POST {CORNELL}/sessions HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
                 f"Content-Length: {lengths[0]}\r\nContent-Length: {lengths[1]}\r\n\r\n").encode()
-        r = send_raw(daemon, head + b"{}" + smuggled, "POST")
+        r = send_raw(daemon, head + b"{}" + smuggled, "POST", check_closed=True)
         assert r is not None, lengths
         body = assert_problem(r, 400, "bad-header", "Content-Length", str(lengths))
         assert body["detail"] == "the request has more than one Content-Length header"
@@ -98,7 +102,8 @@ def test_conflicting_transfer_encoding_refused(daemon, te, extra, why):
     lines = [f"POST {CORNELL}/sessions HTTP/1.1", "Host: 127.0.0.1", "Content-Type: application/json"]
     lines += [f"Transfer-Encoding: {v}" for v in te] + extra
     t0 = time.monotonic()
-    r = send_raw(daemon, ("\r\n".join(lines) + "\r\n\r\n").encode() + b"2\r\n{}\r\n0\r\n\r\n", "POST")
+    r = send_raw(daemon, ("\r\n".join(lines) + "\r\n\r\n").encode() + b"2\r\n{}\r\n0\r\n\r\n", "POST",
+                 check_closed=True)
     assert r is not None and time.monotonic() - t0 < 5, (te, extra)
     body = assert_problem(r, 400, "bad-header", "Transfer-Encoding", repr(te))
     assert body["detail"] == why
@@ -183,3 +188,179 @@ def test_symlinked_folders_in_the_data_directory_are_not_followed(tmp_path):
     finally:
         rc, _ = d.stop()
         assert rc == 0, d.stderr()[-3000:]
+
+
+# ---- Host and Origin ----
+
+def test_foreign_host_refused_loopback_names_served(daemon):
+    evil = {"Host": f"attacker.example:{daemon.port}"}
+    r = daemon.req("PUT", "/v1/scenes/rebound", json_body=SPHERE, headers=evil)
+    body = assert_problem(r, 403, "forbidden", "Host")
+    assert "attacker.example" in body["detail"], body
+    assert_problem(daemon.req("DELETE", "/v1/scenes/cornell-box", headers=evil), 403, "forbidden", "Host")
+    assert_problem(daemon.req("GET", "/v1/scenes", headers=evil), 403, "forbidden", "Host")
+    assert_problem(daemon.req("GET", "/", headers=evil), 403, "forbidden", "Host")
+    for bad in ("127.0.0.1.attacker.example", "localhost@evil", "[::1", "a:b:c", ""):
+        assert_problem(daemon.req("GET", "/v1/limits", headers={"Host": bad}), 403, "forbidden", "Host", bad)
+    assert daemon.req("GET", "/v1/scenes/rebound").status == 404
+    # The health checks answer whoever asks (a load balancer's probe names what it likes).
+    assert daemon.req("GET", "/healthz", headers=evil).status == 200
+    assert daemon.req("GET", "/readyz", headers=evil).status == 200
+    for host in ("127.0.0.1", f"127.0.0.1:{daemon.port}", f"localhost:{daemon.port}", "LOCALHOST", f"[::1]:{daemon.port}"):
+        assert daemon.req("GET", "/v1/limits", headers={"Host": host}).status == 200, host
+
+
+def test_allow_host_adds_names(tmp_path):
+    d = Daemon(tmp_path / "data", "--threads", "1", "--allow-host", "render.example", "--allow-host", "10.1.2.3")
+    try:
+        for host in ("render.example", "Render.Example:8080", "10.1.2.3:80", "localhost"):
+            assert d.req("GET", "/v1/limits", headers={"Host": host}).status == 200, host
+        assert_problem(d.req("GET", "/v1/limits", headers={"Host": "other.example"}), 403, "forbidden", "Host")
+        r = d.req("PUT", "/v1/scenes/s", json_body=SPHERE, headers={"Host": "render.example",
+                                                                     "Origin": "http://render.example:8080"})
+        assert r.status == 201, repr(r)
+    finally:
+        assert d.stop()[0] == 0
+
+
+def test_foreign_origin_refused_for_state_changes(daemon):
+    own = f"http://127.0.0.1:{daemon.port}"
+    for origin in ("http://evil.example", "null", "http://127.0.0.1.evil.example", "file://", "http://localhost@evil"):
+        for method, path in (("POST", f"{CORNELL}/sessions"), ("PUT", "/v1/scenes/evil"),
+                             ("DELETE", "/v1/scenes/cornell-box"), ("POST", f"{CORNELL}/sessions/x/references/evil")):
+            head = (f"{method} {path} HTTP/1.1\r\nHost: 127.0.0.1:{daemon.port}\r\nOrigin: {origin}\r\n"
+                    "Content-Type: application/json\r\nContent-Length: 0\r\n\r\n").encode()
+            r = send_raw(daemon, head, method)
+            body = assert_problem(r, 403, "forbidden", "Origin", f"{origin} {method} {path}")
+            assert origin in body["detail"], body
+    assert daemon.req("GET", f"{CORNELL}/sessions").json()["sessions"] == []
+    # Reading is not refused (the browser keeps the answer from the other site's page), and the
+    # daemon's own page may change state.
+    assert daemon.req("GET", "/v1/limits", headers={"Origin": "http://evil.example"}).status == 200
+    r = daemon.req("POST", f"{CORNELL}/sessions", json_body={"width": 4, "height": 4}, headers={"Origin": own})
+    assert r.status == 201, repr(r)
+    assert daemon.req("DELETE", r.json()["href"], headers={"Origin": own}).status == 204
+
+
+def test_empty_post_must_declare_json(daemon):
+    s = daemon.req("POST", f"{CORNELL}/sessions", json_body={"width": 4, "height": 4}).json()
+    try:
+        for path in (f"{CORNELL}/sessions", s["href"] + "/frames", s["href"] + "/reset",
+                     s["href"] + "/renders", s["href"] + "/references/r"):
+            for ctype in (None, "text/plain", "application/x-www-form-urlencoded", "multipart/form-data; boundary=x"):
+                headers = {"Content-Type": ctype} if ctype else {}
+                r = daemon.raw("POST", path, headers, b"")
+                body = assert_problem(r, 415, "unsupported-media-type", None, f"{path} {ctype}")
+                assert body["detail"] == f"the body must be application/json, got {ctype or 'no Content-Type'}"
+            assert daemon.raw("POST", path, {"Content-Type": "text/plain"}, b"{}").status == 415
+        assert daemon.raw("POST", s["href"] + "/reset", J, b"").status == 204
+        assert daemon.req("GET", s["href"]).json()["frames_rendered"] == 0
+        assert len(daemon.req("GET", f"{CORNELL}/sessions").json()["sessions"]) == 1
+    finally:
+        daemon.req("DELETE", s["href"])
+
+
+# ---- the bearer token ----
+
+TOKEN = "t0ken-of-the-test-daemon-0123456789"
+
+
+@pytest.fixture(scope="module")
+def guarded(tmp_path_factory):
+    d = Daemon(tmp_path_factory.mktemp("guarded") / "data", "--threads", "1",
+               env_extra={"RESTIRD_AUTH_TOKEN": TOKEN})
+    yield d
+    assert d.stop()[0] == 0, d.stderr()[-3000:]
+
+
+def bearer(token=TOKEN):
+    return {"Authorization": f"Bearer {token}"}
+
+
+def test_token_required_except_health_and_page(guarded):
+    for method, path in (("GET", "/v1/scenes"), ("GET", "/v1/limits"), ("GET", "/metrics"),
+                         ("PUT", "/v1/scenes/x"), ("POST", f"{CORNELL}/sessions"), ("DELETE", "/v1/scenes/x"),
+                         ("GET", "/v1/nowhere")):
+        for headers, detail in (({}, "this daemon needs 'Authorization: Bearer TOKEN' (its --auth-token-file "
+                                     "or RESTIRD_AUTH_TOKEN)"),
+                                (bearer("wrong-token-wrong-token"), "the bearer token is not this daemon's"),
+                                (bearer(TOKEN + "x"), "the bearer token is not this daemon's"),
+                                (bearer(TOKEN[:-1]), "the bearer token is not this daemon's"),
+                                ({"Authorization": f"Basic {TOKEN}"}, "the bearer token is not this daemon's")):
+            r = guarded.req(method, path, json_body={} if method != "GET" else None, headers=headers)
+            body = assert_problem(r, 401, "unauthorized", "Authorization", f"{method} {path} {headers}")
+            assert body["detail"] == detail
+            assert r.header("WWW-Authenticate") == 'Bearer realm="restird"', repr(r)
+    assert guarded.req("GET", "/v1/scenes/x", headers=bearer()).status == 404
+    assert guarded.req("PUT", "/v1/scenes/x", json_body=SPHERE, headers=bearer()).status == 201
+    assert guarded.req("GET", "/v1/limits", headers={"Authorization": f"bearer  {TOKEN} "}).status == 200
+    for path in ("/healthz", "/readyz", "/", "/ui/app.js"):
+        assert guarded.req("GET", path).status == 200, path
+    # A query token is for event streams only.
+    assert guarded.req("GET", f"/v1/scenes?access_token={TOKEN}").status == 401
+
+
+def test_event_stream_takes_the_token_as_a_query_parameter(guarded):
+    r = guarded.req("POST", f"{CORNELL}/sessions", json_body={"width": 4, "height": 4}, headers=bearer())
+    href = r.json()["href"]
+    try:
+        assert_problem(guarded.req("GET", href + "/events?access_token=nope", timeout=10), 401, "unauthorized")
+        sock = socket.create_connection(("127.0.0.1", guarded.port), timeout=10)
+        try:
+            sock.sendall(f"GET {href}/events?access_token={TOKEN} HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                         "Accept: text/event-stream\r\n\r\n".encode())
+            assert sock.recv(1024).startswith(b"HTTP/1.1 200")
+        finally:
+            sock.close()
+    finally:
+        guarded.req("DELETE", href, headers=bearer())
+
+
+def test_metrics_open_when_configured_and_token_from_file(tmp_path):
+    f = tmp_path / "token"
+    f.write_text(TOKEN + "\n")
+    d = Daemon(tmp_path / "data", "--threads", "1", "--auth-token-file", f, "--metrics-auth", "open",
+               env_extra={"RESTIRD_AUTH_TOKEN": "another-token-from-the-environment"})
+    try:
+        assert d.req("GET", "/metrics").status == 200
+        assert d.req("GET", "/v1/limits").status == 401
+        assert d.req("GET", "/v1/limits", headers=bearer()).status == 200   # the file wins
+    finally:
+        assert d.stop()[0] == 0
+
+
+def run_daemon(tmp_path, *args, env=None, timeout=20):
+    import subprocess
+    from daemon import BIN
+    return subprocess.run([BIN, "--data-dir", str(tmp_path / "data"), *map(str, args)], capture_output=True,
+                          text=True, timeout=timeout, env={**os.environ, **(env or {})}, stdin=subprocess.DEVNULL)
+
+
+def test_beyond_loopback_needs_a_token(tmp_path):
+    env = {"RESTIRD_AUTH_TOKEN": ""}
+    for listen in ("0.0.0.0:0", "[::]:0", "192.0.2.1:0"):
+        res = run_daemon(tmp_path, "--listen", listen, env=env)
+        assert res.returncode == 1, res
+        host = listen.rsplit(":", 1)[0].strip("[]")
+        assert res.stderr == (f"restird: listening on {host} (beyond loopback) needs a bearer token: give "
+                              "--auth-token-file PATH or set RESTIRD_AUTH_TOKEN (16 to 255 printable characters)\n")
+        assert res.stdout == ""
+    short = tmp_path / "short"
+    short.write_text("too-short\n")
+    res = run_daemon(tmp_path, "--listen", "127.0.0.1:0", "--auth-token-file", short)
+    assert (res.returncode, res.stderr) == (1, f"restird: --auth-token-file {short}: is shorter than 16 characters\n")
+    res = run_daemon(tmp_path, "--listen", "127.0.0.1:0", env={"RESTIRD_AUTH_TOKEN": "has a space in it, so no"})
+    assert (res.returncode, res.stderr) == (1, "restird: RESTIRD_AUTH_TOKEN has a character that is not printable ASCII\n")
+
+
+def test_python_client_sends_the_token(guarded):
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "clients" / "python"))
+    import restir
+    c = restir.Client(f"http://127.0.0.1:{guarded.port}", token=TOKEN, retries=0)
+    assert c.request("GET", "/v1/limits").status == 200
+    with pytest.raises(restir.RestirError) as e:
+        restir.Client(f"http://127.0.0.1:{guarded.port}", token="not-the-token-at-all", retries=0).request(
+            "GET", "/v1/limits")
+    assert (e.value.status, e.value.slug, e.value.field) == (401, "unauthorized", "Authorization")
