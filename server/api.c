@@ -109,6 +109,27 @@ void api_budget_error(struct api_call *c, const struct err *e)
         api_error(c, e);
 }
 
+bool api_client_gone(void *call)
+{
+    return http_client_gone(((struct api_call *)call)->req);
+}
+
+uint64_t api_frame_samples(const struct view_params *p)
+{
+    bool spp = p->method == RENDER_METHOD_PT || p->method == RENDER_METHOD_SMS || p->method == RENDER_METHOD_SMS_SSP;
+    return (uint64_t)p->width * p->height * (spp ? p->pt.spp : 1u);
+}
+
+bool api_check_work(struct api_call *c, uint64_t samples, const char *field, const char *what)
+{
+    uint64_t max = c->d->cfg.max_work;
+    if (samples <= max) return true;
+    api_problem_limit(c, 422, "limit-exceeded", field, (double)max,
+                      "%s takes %llu samples (pixels x spp), over max_work (%llu): fewer pixels or samples, "
+                      "or more frames of fewer samples", what, (unsigned long long)samples, (unsigned long long)max);
+    return false;
+}
+
 void api_json(struct api_call *c, int status, struct jsonw *w)
 {
     size_t len = 0;
@@ -363,6 +384,7 @@ static void api_limits(struct api_call *c)
     jsonw_key(&w, "connection_timeout_s"); jsonw_uint(&w, cfg->timeout_s);
     jsonw_key(&w, "memory_budget"); jsonw_uint(&w, cfg->memory_budget);
     jsonw_key(&w, "max_session_bytes"); jsonw_uint(&w, cfg->max_session_bytes);
+    jsonw_key(&w, "max_work"); jsonw_uint(&w, cfg->max_work);
     /* What the budget holds now, so a client can tell how far it is from a refusal. */
     jsonw_key(&w, "memory_used");
     jsonw_object_begin(&w);

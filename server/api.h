@@ -30,6 +30,16 @@ struct api_call {
     char buf[1024];                     /* segment storage */
 };
 
+/* True when the client of the call (a struct api_call *) has closed its connection: a long
+ * render polls it to give up a frame nobody will read. */
+bool api_client_gone(void *call);
+
+/* The samples (pixels x samples per pixel) one frame of a session with these params takes. */
+uint64_t api_frame_samples(const struct view_params *p);
+/* True when `samples` is within max_work; else answers 422 limit-exceeded at `field` with the
+ * limit, naming `what` and the value. */
+bool api_check_work(struct api_call *c, uint64_t samples, const char *field, const char *what);
+
 /* Problem response; `field` may be NULL; detail is printf-formatted. */
 void api_problem(struct api_call *c, int status, const char *slug, const char *field, const char *fmt, ...)
     __attribute__((format(printf, 5, 6)));

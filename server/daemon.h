@@ -32,6 +32,7 @@ struct daemon_config {
     unsigned render_slots, render_queue, job_queue, job_workers;
     unsigned connection_limit, per_ip_limit, timeout_s;
     unsigned threads;                   /* render threads, 0 = all cores */
+    uint64_t max_work;                  /* samples (pixels x spp) one frame or reference may take */
     char default_scene[65];             /* "" = no default session */
     /* Who may ask: Host names accepted besides the loopback names and the listen address
      * (--allow-host; "*" = any), the bearer token ("" = none) and whether /metrics is open

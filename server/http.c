@@ -5,6 +5,8 @@
 #include "http.h"
 
 #include <arpa/inet.h>
+#include <errno.h>
+#include <poll.h>
 #include <microhttpd.h>
 #include <netinet/in.h>
 #include <stdatomic.h>
@@ -62,6 +64,21 @@ const char *http_query(const struct http_request *r, const char *key)
 const char *http_header(const struct http_request *r, const char *name)
 {
     return MHD_lookup_connection_value(r->internal, MHD_HEADER_KIND, name);
+}
+
+bool http_client_gone(const struct http_request *r)
+{
+    const union MHD_ConnectionInfo *ci = MHD_get_connection_info(r->internal, MHD_CONNECTION_INFO_CONNECTION_FD);
+    if (!ci) return false;
+    struct pollfd p = {.fd = ci->connect_fd, .events = POLLIN};
+    if (poll(&p, 1, 0) <= 0) return false;
+    if (p.revents & (POLLHUP | POLLERR)) return true;
+    if (!(p.revents & POLLIN)) return false;
+    /* Readable: either the next pipelined request (the client is there) or the end of the
+     * stream (it closed). MHD reads nothing while this connection's handler runs. */
+    char b;
+    ssize_t n = recv(ci->connect_fd, &b, 1, MSG_PEEK | MSG_DONTWAIT);
+    return n == 0 || (n < 0 && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR);
 }
 
 struct http_query_buf { char *buf; size_t size, len; bool overflow; };

@@ -35,6 +35,10 @@ const char *http_header(const struct http_request *r, const char *name);
  * when it does not fit (buf then holds ""). For redirects that must keep the query. */
 bool http_query_string(const struct http_request *r, char *buf, size_t size);
 
+/* True when the client has closed its side of the connection (or reset it) while its request
+ * is being handled; cheap (a poll with no wait), for a long handler to call now and then. */
+bool http_client_gone(const struct http_request *r);
+
 /* Streaming body (server-sent events): returns bytes written into buf (> 0), or
  * HTTP_STREAM_END. May block (its own connection thread). */
 #define HTTP_STREAM_END ((ssize_t)-1)

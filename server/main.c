@@ -22,7 +22,7 @@
     "               [--max-side N] [--max-pixels N] [--max-spp N] [--max-frames N] [--max-keys N]\n" \
     "               [--max-json-body BYTES] [--max-asset-body BYTES] [--max-reference-body BYTES]\n" \
     "               [--render-slots N] [--render-queue N] [--job-queue N] [--job-workers N]\n"    \
-    "               [--connection-limit N] [--per-ip-limit N] [--timeout-s N]\n"                   \
+    "               [--connection-limit N] [--per-ip-limit N] [--timeout-s N] [--max-work SAMPLES]\n" \
     "               [--memory-budget BYTES] [--max-session-bytes BYTES]\n"                          \
     "               [--allow-host NAME]... [--auth-token-file PATH] [--metrics-auth required|open]\n" \
     "defaults: --listen 127.0.0.1:8080, --data-dir $XDG_STATE_HOME/restird (~/.local/state/restird),\n" \
@@ -175,6 +175,7 @@ int main(int argc, char **argv)
     cfg->connection_limit = 256;
     cfg->per_ip_limit = 64;
     cfg->timeout_s = 60;
+    cfg->max_work = 1ull << 32;
 
     static const struct { const char *name; size_t offset; uint64_t min, max; int size; } nums[] = {
 #define N(opt, field, lo, hi) {opt, offsetof(struct daemon_config, field), lo, hi, (int)sizeof(((struct daemon_config *)0)->field)}
@@ -198,6 +199,7 @@ int main(int argc, char **argv)
         N("--connection-limit", connection_limit, 1, 100000),
         N("--per-ip-limit", per_ip_limit, 1, 100000),
         N("--timeout-s", timeout_s, 1, 86400),
+        N("--max-work", max_work, 1, 1ull << 50),
 #undef N
     };
     const char *token_file = NULL;

@@ -364,3 +364,85 @@ def test_python_client_sends_the_token(guarded):
         restir.Client(f"http://127.0.0.1:{guarded.port}", token="not-the-token-at-all", retries=0).request(
             "GET", "/v1/limits")
     assert (e.value.status, e.value.slug, e.value.field) == (401, "unauthorized", "Authorization")
+
+
+# ---- cancellable, bounded work ----
+
+SLOW = {"width": 64, "height": 64, "params": {"spp": 65536}}   # minutes of work on one thread
+
+
+def frame_request(href):
+    return (f"POST {href}/frames HTTP/1.1\r\nHost: 127.0.0.1\r\nAccept: application/json\r\n"
+            "Content-Type: application/json\r\nContent-Length: 0\r\n\r\n").encode()
+
+
+@pytest.fixture
+def one_thread(tmp_path):
+    d = Daemon(tmp_path / "data", "--threads", "1")
+    yield d
+    rc, took = d.stop()
+    assert rc == 0 and took < 10, (rc, took, d.stderr()[-3000:])
+
+
+def test_frame_given_up_when_its_client_hangs_up(one_thread):
+    d = one_thread
+    slow = d.req("POST", f"{CORNELL}/sessions", json_body=SLOW).json()
+    quick = d.req("POST", f"{CORNELL}/sessions", json_body={"width": 8, "height": 8}).json()
+    sock = socket.create_connection(("127.0.0.1", d.port), timeout=10)
+    sock.sendall(frame_request(slow["href"]))
+    time.sleep(1.0)
+    sock.close()
+    # The render slot is free again at once: the next session's frame does not wait for it.
+    t0 = time.monotonic()
+    r = d.req("POST", quick["href"] + "/frames", headers={"Accept": "application/json"}, timeout=15)
+    assert r.status == 200 and time.monotonic() - t0 < 5, (time.monotonic() - t0, r)
+    time.sleep(0.2)
+    line = [x for x in log_lines(d) if f" POST {slow['href']}/frames " in x]
+    assert len(line) == 1 and " 409 " in line[0], line
+    s = d.req("GET", slow["href"]).json()
+    assert s["frames_rendered"] == 0, s
+
+
+def test_queued_frame_dropped_when_its_client_hangs_up(one_thread):
+    d = one_thread
+    slow = d.req("POST", f"{CORNELL}/sessions", json_body=SLOW).json()
+    queued = d.req("POST", f"{CORNELL}/sessions", json_body={"width": 8, "height": 8}).json()
+    first = socket.create_connection(("127.0.0.1", d.port), timeout=10)
+    first.sendall(frame_request(slow["href"]))
+    time.sleep(0.5)
+    second = socket.create_connection(("127.0.0.1", d.port), timeout=10)
+    second.sendall(frame_request(queued["href"]))     # waits for the only render slot
+    time.sleep(0.5)
+    second.close()
+    first.close()
+    deadline = time.monotonic() + 5
+    lines = []
+    while time.monotonic() < deadline and len(lines) < 2:
+        time.sleep(0.1)
+        lines = [x for x in log_lines(d) if "/frames " in x and " POST " in x]
+    assert len(lines) == 2 and all(" 409 " in x for x in lines), lines
+    assert d.req("GET", queued["href"]).json()["frames_rendered"] == 0
+
+
+def test_frame_given_up_when_its_session_is_deleted(one_thread):
+    d = one_thread
+    slow = d.req("POST", f"{CORNELL}/sessions", json_body=SLOW).json()
+    quick = d.req("POST", f"{CORNELL}/sessions", json_body={"width": 8, "height": 8}).json()
+    result = {}
+
+    def render():
+        result["r"] = d.req("POST", slow["href"] + "/frames", headers={"Accept": "application/json"}, timeout=30)
+
+    import threading
+    t = threading.Thread(target=render)
+    t.start()
+    time.sleep(1.0)
+    t0 = time.monotonic()
+    assert d.req("DELETE", slow["href"]).status == 204
+    t.join(timeout=10)
+    assert not t.is_alive(), "the frame of the deleted session is still rendering"
+    assert time.monotonic() - t0 < 5
+    body = assert_problem(result["r"], 404, "not-found")
+    assert body["detail"] == "the session was deleted while its frame rendered"
+    r = d.req("POST", quick["href"] + "/frames", headers={"Accept": "application/json"}, timeout=15)
+    assert r.status == 200, repr(r)
