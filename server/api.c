@@ -385,6 +385,8 @@ static void api_limits(struct api_call *c)
     jsonw_key(&w, "memory_budget"); jsonw_uint(&w, cfg->memory_budget);
     jsonw_key(&w, "max_session_bytes"); jsonw_uint(&w, cfg->max_session_bytes);
     jsonw_key(&w, "max_work"); jsonw_uint(&w, cfg->max_work);
+    jsonw_key(&w, "head_timeout_s"); jsonw_uint(&w, cfg->head_timeout_s);
+    jsonw_key(&w, "min_body_rate"); jsonw_uint(&w, cfg->min_body_rate);
     /* What the budget holds now, so a client can tell how far it is from a refusal. */
     jsonw_key(&w, "memory_used");
     jsonw_object_begin(&w);
@@ -979,6 +981,31 @@ void api_handle(void *ctx, const struct http_request *req, struct http_response 
         return;
     }
     r->fn[m](&c);
+}
+
+void api_health_body_policy(void *ctx, const char *method, const char *path, size_t *max_body, bool *required)
+{
+    (void)ctx;
+    (void)method;
+    (void)path;
+    *max_body = 0;
+    *required = false;
+}
+
+void api_handle_health(void *ctx, const struct http_request *req, struct http_response *resp)
+{
+    struct api_call c = {.d = ctx, .req = req, .resp = resp};
+    bool get = strcmp(req->method, "GET") == 0 || strcmp(req->method, "HEAD") == 0;
+    if (get && strcmp(req->path, "/healthz") == 0) {
+        resp->route = "/healthz";
+        api_healthz(&c);
+    } else if (get && strcmp(req->path, "/readyz") == 0) {
+        resp->route = "/readyz";
+        api_readyz(&c);
+    } else {
+        resp->route = "unmatched";
+        api_problem(&c, 404, "not-found", NULL, "the health listener answers GET /healthz and GET /readyz only");
+    }
 }
 
 void api_completed(void *ctx, const char *method, const char *path, const char *route, int status, uint64_t bytes,

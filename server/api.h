@@ -14,6 +14,9 @@ void api_handle(void *ctx, const struct http_request *req, struct http_response 
 void api_reject(void *ctx, const struct http_request *req, struct http_response *resp, int status, size_t limit);
 void api_reject_framing(void *ctx, const struct http_request *req, struct http_response *resp, const char *header,
                         const char *why);
+/* The health listener's callbacks (--health-listen): GET /healthz and /readyz, nothing else. */
+void api_health_body_policy(void *ctx, const char *method, const char *path, size_t *max_body, bool *required);
+void api_handle_health(void *ctx, const struct http_request *req, struct http_response *resp);
 void api_completed(void *ctx, const char *method, const char *path, const char *route, int status, uint64_t bytes,
                    double ms, const char *request_id);
 

@@ -31,6 +31,9 @@ struct daemon_config {
     size_t max_json_body, max_asset_body, max_reference_body;
     unsigned render_slots, render_queue, job_queue, job_workers;
     unsigned connection_limit, per_ip_limit, timeout_s;
+    unsigned head_timeout_s, min_body_rate;  /* slow clients (http.h, struct http_options) */
+    char health_host[64];                    /* --health-listen: a listener for the health checks */
+    uint16_t health_port;                    /* only; "" = none */
     unsigned threads;                   /* render threads, 0 = all cores */
     uint64_t max_work;                  /* samples (pixels x spp) one frame or reference may take */
     char default_scene[65];             /* "" = no default session */

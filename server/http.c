@@ -9,6 +9,7 @@
 #include <poll.h>
 #include <microhttpd.h>
 #include <netinet/in.h>
+#include <pthread.h>
 #include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -22,12 +23,33 @@
  * 413; larger ones get the answer at once and the connection closes. */
 #define HTTP_DISCARD_MAX ((unsigned long long)64 << 20)
 
+/* One open connection, as the watchdog sees it (MHD's socket context). A connection is always
+ * in one of three phases: waiting for a request's line and headers (since it opened or since
+ * its previous answer), receiving a body, or busy (a handler runs or an answer is being sent). */
+enum http_phase { HTTP_HEAD, HTTP_BODY, HTTP_BUSY };
+
+struct http_sock {
+    struct http_sock *prev, *next;
+    int fd;
+    enum http_phase phase;
+    struct timespec since;     /* when the phase began */
+    uint64_t body_bytes;       /* received in HTTP_BODY */
+    bool cut;                  /* shut down by the watchdog */
+};
+
 struct http {
     struct MHD_Daemon *mhd;
     struct http_app app;
     char served_by[192];       /* app.served_by points here; written before the first request */
     atomic_uint_fast64_t next_id;
     uint32_t boot;             /* start time, so request ids differ across restarts */
+    /* The watchdog: slow clients (see http.h, struct http_options). */
+    unsigned head_timeout_s, min_body_rate;
+    pthread_mutex_t socks_lock;
+    pthread_cond_t socks_wake;
+    struct http_sock *socks;   /* open connections */
+    bool watchdog_running, watchdog_stop;
+    pthread_t watchdog;
 };
 
 /* Per-request state, MHD's con_cls. */
@@ -47,7 +69,99 @@ struct http_conn {
     char *body;
     size_t body_len, body_cap;
     struct http *http;
+    struct http_sock *sock;    /* the connection's watchdog entry, or NULL */
 };
+
+static double http_since_s(const struct timespec *t0, const struct timespec *now)
+{
+    return (double)(now->tv_sec - t0->tv_sec) + (double)(now->tv_nsec - t0->tv_nsec) * 1e-9;
+}
+
+static void http_phase(struct http *h, struct http_sock *s, enum http_phase phase)
+{
+    if (!s) return;
+    pthread_mutex_lock(&h->socks_lock);
+    if (s->phase != phase) {
+        s->phase = phase;
+        s->body_bytes = 0;
+        clock_gettime(CLOCK_MONOTONIC, &s->since);
+    }
+    pthread_mutex_unlock(&h->socks_lock);
+}
+
+static void http_body_bytes(struct http *h, struct http_sock *s, size_t n)
+{
+    if (!s) return;
+    pthread_mutex_lock(&h->socks_lock);
+    s->body_bytes += n;
+    pthread_mutex_unlock(&h->socks_lock);
+}
+
+static void http_notify_connection(void *cls, struct MHD_Connection *c, void **socket_context,
+                                   enum MHD_ConnectionNotificationCode code)
+{
+    struct http *h = cls;
+    if (code == MHD_CONNECTION_NOTIFY_STARTED) {
+        const union MHD_ConnectionInfo *ci = MHD_get_connection_info(c, MHD_CONNECTION_INFO_CONNECTION_FD);
+        struct http_sock *s = ci ? calloc(1, sizeof *s) : NULL;
+        *socket_context = s;
+        if (!s) return;  /* not watched: only the idle timeout applies */
+        s->fd = ci->connect_fd;
+        s->phase = HTTP_HEAD;
+        clock_gettime(CLOCK_MONOTONIC, &s->since);
+        pthread_mutex_lock(&h->socks_lock);
+        s->next = h->socks;
+        if (h->socks) h->socks->prev = s;
+        h->socks = s;
+        pthread_mutex_unlock(&h->socks_lock);
+        return;
+    }
+    /* Closed: MHD closes the socket after this returns, so the watchdog, which shuts sockets
+     * down under the same lock, never touches a descriptor that was reused. */
+    struct http_sock *s = *socket_context;
+    if (!s) return;
+    pthread_mutex_lock(&h->socks_lock);
+    if (s->prev) s->prev->next = s->next;
+    else h->socks = s->next;
+    if (s->next) s->next->prev = s->prev;
+    pthread_mutex_unlock(&h->socks_lock);
+    free(s);
+    *socket_context = NULL;
+}
+
+/* Every 200 ms: a connection that has not delivered a request's line and headers within
+ * head_timeout_s of opening (or of its previous answer), or whose body, after the same grace,
+ * arrives slower than min_body_rate bytes/s on average, is shut down. Its thread then sees the
+ * end of the stream and MHD closes it: the connection slot is free again. */
+static void *http_watchdog(void *arg)
+{
+    struct http *h = arg;
+    pthread_mutex_lock(&h->socks_lock);
+    while (!h->watchdog_stop) {
+        struct timespec now;
+        clock_gettime(CLOCK_MONOTONIC, &now);
+        for (struct http_sock *s = h->socks; s; s = s->next) {
+            if (s->cut || s->phase == HTTP_BUSY) continue;
+            double t = http_since_s(&s->since, &now);
+            bool slow_head = s->phase == HTTP_HEAD && h->head_timeout_s && t > h->head_timeout_s;
+            bool slow_body = s->phase == HTTP_BODY && h->min_body_rate && t > h->head_timeout_s &&
+                             (double)s->body_bytes < (double)h->min_body_rate * t;
+            if (!slow_head && !slow_body) continue;
+            shutdown(s->fd, SHUT_RDWR);
+            s->cut = true;
+        }
+        struct timespec until = now;
+        until.tv_nsec += 200 * 1000 * 1000;
+        if (until.tv_nsec >= 1000000000L) {
+            until.tv_sec++;
+            until.tv_nsec -= 1000000000L;
+        }
+        pthread_cond_timedwait(&h->socks_wake, &h->socks_lock, &until);
+    }
+    pthread_mutex_unlock(&h->socks_lock);
+    return NULL;
+}
+
 
 struct http_stream_box {
     http_stream_fn *fn;
@@ -229,6 +343,7 @@ static enum MHD_Result http_send(struct http *h, struct MHD_Connection *c, struc
     hc->bytes = resp->stream ? 0 : resp->body_len;
     hc->route = resp->route;
     hc->responded = true;
+    http_phase(h, hc->sock, HTTP_BUSY);
     enum MHD_Result ret = MHD_queue_response(c, (unsigned)resp->status, r);
     MHD_destroy_response(r);
     return ret;
@@ -291,6 +406,9 @@ static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const ch
         if (!hc) return MHD_NO;
         *con_cls = hc;
         hc->http = h;
+        const union MHD_ConnectionInfo *si = MHD_get_connection_info(c, MHD_CONNECTION_INFO_SOCKET_CONTEXT);
+        hc->sock = si ? si->socket_context : NULL;
+        http_phase(h, hc->sock, HTTP_BODY);
         clock_gettime(CLOCK_MONOTONIC, &hc->start);
         snprintf(hc->method, sizeof hc->method, "%s", method);
         snprintf(hc->path, sizeof hc->path, "%s", url);
@@ -358,6 +476,7 @@ static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const ch
         return MHD_YES;
     }
     req.request_id = hc->request_id;
+    http_body_bytes(h, hc->sock, *upload_data_size);
     if (hc->responded) {
         /* The response went out before the body; discard what still arrives. */
         *upload_data_size = 0;
@@ -387,6 +506,7 @@ static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const ch
     }
     req.body = hc->body;
     req.body_len = hc->body_len;
+    http_phase(h, hc->sock, HTTP_BUSY);
     h->app.handle(h->app.ctx, &req, &resp);
     return http_send(h, c, hc, &resp);
 }
@@ -403,6 +523,7 @@ static void http_completed(void *cls, struct MHD_Connection *c, void **con_cls, 
     double ms = (double)(now.tv_sec - hc->start.tv_sec) * 1e3 + (double)(now.tv_nsec - hc->start.tv_nsec) * 1e-6;
     if (h->app.completed)
         h->app.completed(h->app.ctx, hc->method, hc->path, hc->route, hc->status, hc->bytes, ms, hc->request_id);
+    http_phase(h, hc->sock, HTTP_HEAD);  /* the next request's head is due from now */
     free(hc->body);
     free(hc);
     *con_cls = NULL;
@@ -486,6 +607,14 @@ struct http *http_start(const struct http_options *opts, const struct http_app *
         return err_set(err, ERR_NOMEM, NULL, "out of memory"), NULL;
     }
     h->app = *app;
+    h->head_timeout_s = opts->head_timeout_s;
+    h->min_body_rate = opts->min_body_rate;
+    pthread_mutex_init(&h->socks_lock, NULL);
+    pthread_condattr_t ca;
+    pthread_condattr_init(&ca);
+    pthread_condattr_setclock(&ca, CLOCK_MONOTONIC);
+    pthread_cond_init(&h->socks_wake, &ca);
+    pthread_condattr_destroy(&ca);
     bool v6 = ss.ss_family == AF_INET6;
     if (app->served_by && app->served_by[0])
         snprintf(h->served_by, sizeof h->served_by, "%s", app->served_by);
@@ -502,13 +631,18 @@ struct http *http_start(const struct http_options *opts, const struct http_app *
                               MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)opts->timeout_s,
                               MHD_OPTION_CONNECTION_MEMORY_LIMIT, (size_t)(64 * 1024),
                               MHD_OPTION_NOTIFY_COMPLETED, http_completed, h,
+                              MHD_OPTION_NOTIFY_CONNECTION, http_notify_connection, h,
                               MHD_OPTION_UNESCAPE_CALLBACK, http_unescape, NULL,
                               MHD_OPTION_END);
     if (!h->mhd) {
         close(fd);
+        pthread_cond_destroy(&h->socks_wake);
+        pthread_mutex_destroy(&h->socks_lock);
         free(h);
         return err_set(err, ERR_IO, "--listen", "cannot serve on %s port %u", opts->host, port), NULL;
     }
+    if ((h->head_timeout_s || h->min_body_rate) && pthread_create(&h->watchdog, NULL, http_watchdog, h) == 0)
+        h->watchdog_running = true;
     if (bound_port) *bound_port = port;
     return h;
 }
@@ -523,6 +657,15 @@ void http_quiesce(struct http *h)
 void http_stop(struct http *h)
 {
     if (!h) return;
+    if (h->watchdog_running) {
+        pthread_mutex_lock(&h->socks_lock);
+        h->watchdog_stop = true;
+        pthread_cond_signal(&h->socks_wake);
+        pthread_mutex_unlock(&h->socks_lock);
+        pthread_join(h->watchdog, NULL);
+    }
     if (h->mhd) MHD_stop_daemon(h->mhd);
+    pthread_cond_destroy(&h->socks_wake);
+    pthread_mutex_destroy(&h->socks_lock);
     free(h);
 }

@@ -84,6 +84,11 @@ struct http_options {
     const char *host;          /* numeric IPv4 or IPv6 address */
     uint16_t port;             /* 0 = any free port */
     unsigned connection_limit, per_ip_limit, timeout_s;
+    /* Slow clients: a request's line and headers must arrive within head_timeout_s of the
+     * connection opening or of its previous answer; a body must arrive at min_body_rate
+     * bytes/s on average once it has had head_timeout_s. A connection that falls behind is
+     * shut down. 0 = no such check (the idle timeout, timeout_s, still applies). */
+    unsigned head_timeout_s, min_body_rate;
 };
 
 struct http;

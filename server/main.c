@@ -24,6 +24,7 @@
     "               [--render-slots N] [--render-queue N] [--job-queue N] [--job-workers N]\n"    \
     "               [--connection-limit N] [--per-ip-limit N] [--timeout-s N] [--max-work SAMPLES]\n" \
     "               [--memory-budget BYTES] [--max-session-bytes BYTES]\n"                          \
+    "               [--head-timeout-s N] [--min-body-rate BYTES] [--health-listen HOST:PORT]\n"  \
     "               [--allow-host NAME]... [--auth-token-file PATH] [--metrics-auth required|open]\n" \
     "defaults: --listen 127.0.0.1:8080, --data-dir $XDG_STATE_HOME/restird (~/.local/state/restird),\n" \
     "--scenes: the scenes/ folder next to the build folder; limits as GET /v1/limits lists them.\n" \
@@ -50,18 +51,18 @@ static bool main_parse_u64(const char *s, uint64_t min, uint64_t max, uint64_t *
     return true;
 }
 
-static bool main_parse_listen(const char *s, struct daemon_config *cfg)
+static bool main_parse_listen(const char *s, char *out_host, size_t host_size, uint16_t *out_port)
 {
     const char *colon = strrchr(s, ':');
-    if (!colon || colon == s || (size_t)(colon - s) >= sizeof cfg->host) return false;
+    if (!colon || colon == s || (size_t)(colon - s) >= host_size) return false;
     const char *host = s;
     size_t hl = (size_t)(colon - s);
     if (host[0] == '[' && host[hl - 1] == ']') host++, hl -= 2;  /* [::1]:8080 */
-    memcpy(cfg->host, host, hl);
-    cfg->host[hl] = '\0';
+    memcpy(out_host, host, hl);
+    out_host[hl] = '\0';
     uint64_t port;
     if (!main_parse_u64(colon + 1, 0, 65535, &port)) return false;
-    cfg->port = (uint16_t)port;
+    *out_port = (uint16_t)port;
     return true;
 }
 
@@ -176,6 +177,8 @@ int main(int argc, char **argv)
     cfg->per_ip_limit = 64;
     cfg->timeout_s = 60;
     cfg->max_work = 1ull << 32;
+    cfg->head_timeout_s = 10;
+    cfg->min_body_rate = 1024;
 
     static const struct { const char *name; size_t offset; uint64_t min, max; int size; } nums[] = {
 #define N(opt, field, lo, hi) {opt, offsetof(struct daemon_config, field), lo, hi, (int)sizeof(((struct daemon_config *)0)->field)}
@@ -200,6 +203,8 @@ int main(int argc, char **argv)
         N("--per-ip-limit", per_ip_limit, 1, 100000),
         N("--timeout-s", timeout_s, 1, 86400),
         N("--max-work", max_work, 1, 1ull << 50),
+        N("--head-timeout-s", head_timeout_s, 0, 86400),
+        N("--min-body-rate", min_body_rate, 0, 1u << 30),
 #undef N
     };
     const char *token_file = NULL;
@@ -213,7 +218,11 @@ int main(int argc, char **argv)
         if (!v) return main_usage("option %s needs a value (or is unknown)", a);
         i++;
         if (strcmp(a, "--listen") == 0) {
-            if (!main_parse_listen(v, cfg)) return main_usage("--listen: expected HOST:PORT, got '%s'", v);
+            if (!main_parse_listen(v, cfg->host, sizeof cfg->host, &cfg->port))
+                return main_usage("--listen: expected HOST:PORT, got '%s'", v);
+        } else if (strcmp(a, "--health-listen") == 0) {
+            if (!main_parse_listen(v, cfg->health_host, sizeof cfg->health_host, &cfg->health_port))
+                return main_usage("--health-listen: expected HOST:PORT, got '%s'", v);
         } else if (strcmp(a, "--data-dir") == 0) {
             if (!*v || strlen(v) >= sizeof cfg->data_dir) return main_usage("--data-dir: bad path '%s'", v);
             snprintf(cfg->data_dir, sizeof cfg->data_dir, "%s", v);
@@ -304,15 +313,16 @@ int main(int argc, char **argv)
     atomic_init(&d.draining, false);
     d.jobs = d.sessions && d.refs ? jobs_new(cfg->job_workers, cfg->job_queue, &d.gate, d.refs, main_on_frame, &d, &e) : NULL;
     int status = 1;
-    struct http *http = NULL;
+    struct http *http = NULL, *health_http = NULL;
     if (!d.sessions || !d.refs || !d.jobs) {
         fprintf(stderr, "restird: cannot start: %s\n", e.message[0] ? e.message : "out of memory");
         goto done;
     }
 
-    uint16_t port = 0;
+    uint16_t port = 0, health_port = 0;
     struct http_options ho = {.host = cfg->host, .port = cfg->port, .connection_limit = cfg->connection_limit,
-                              .per_ip_limit = cfg->per_ip_limit, .timeout_s = cfg->timeout_s};
+                              .per_ip_limit = cfg->per_ip_limit, .timeout_s = cfg->timeout_s,
+                              .head_timeout_s = cfg->head_timeout_s, .min_body_rate = cfg->min_body_rate};
     struct http_app app = {.ctx = &d, .body_policy = api_body_policy, .handle = api_handle, .reject = api_reject,
                            .reject_framing = api_reject_framing,
                            .completed = api_completed, .served_by = cfg->id};
@@ -321,9 +331,28 @@ int main(int argc, char **argv)
         fprintf(stderr, "restird: %s\n", err_format(&e, msg, sizeof msg));
         goto done;
     }
+    /* The health listener: its own connections, so /healthz answers while slow or hostile
+     * clients hold every connection the main port allows (docs/reliability.md). */
+    char health[128] = "";
+    if (cfg->health_host[0]) {
+        struct http_options hh = {.host = cfg->health_host, .port = cfg->health_port, .connection_limit = 16,
+                                  .per_ip_limit = 16, .timeout_s = 10, .head_timeout_s = cfg->head_timeout_s,
+                                  .min_body_rate = cfg->min_body_rate};
+        struct http_app happ = app;
+        happ.body_policy = api_health_body_policy;
+        happ.handle = api_handle_health;
+        health_http = http_start(&hh, &happ, &health_port, &e);
+        if (!health_http) {
+            fprintf(stderr, "restird: --health-listen: %s\n", err_format(&e, msg, sizeof msg));
+            goto done;
+        }
+        bool v6 = strchr(cfg->health_host, ':') != NULL;
+        snprintf(health, sizeof health, "health http://%s%s%s:%u, ", v6 ? "[" : "", cfg->health_host, v6 ? "]" : "",
+                 health_port);
+    }
     const char *bracket_l = strchr(cfg->host, ':') ? "[" : "", *bracket_r = strchr(cfg->host, ':') ? "]" : "";
-    printf("restird listening on http://%s%s%s:%u (data %s, %zu scenes)\n", bracket_l, cfg->host, bracket_r, port,
-           cfg->data_dir, registry_list(d.registry, NULL, 0));
+    printf("restird listening on http://%s%s%s:%u (%sdata %s, %zu scenes)\n", bracket_l, cfg->host, bracket_r, port,
+           health, cfg->data_dir, registry_list(d.registry, NULL, 0));
     if (cfg->default_scene[0]) {
         char href[256];
         if (api_default_session(&d, cfg->default_scene, href, sizeof href)) {
@@ -338,6 +367,7 @@ int main(int argc, char **argv)
     sigwait(&sigs, &sig);
     fprintf(stderr, "restird: %s: shutting down\n", sig == SIGINT ? "SIGINT" : "SIGTERM");
     http_quiesce(http);                  /* no new connections */
+    http_quiesce(health_http);
     atomic_store(&d.draining, true);     /* new work on open connections gets 503 draining */
     sessions_remove_all(d.sessions);     /* cancels jobs between frames, ends event streams */
     jobs_stop(d.jobs);                   /* waits for the frame each worker is rendering */
@@ -345,9 +375,12 @@ int main(int argc, char **argv)
     gate_close(&d.gate);
     http_stop(http);                     /* waits for requests in flight (a frame finishes) */
     http = NULL;
+    http_stop(health_http);
+    health_http = NULL;
     status = 0;
 done:
     http_stop(http);
+    http_stop(health_http);
     jobs_stop(d.jobs);
     if (d.sessions) sessions_remove_all(d.sessions);
     sessions_free(d.sessions);

@@ -35,7 +35,7 @@ J = {"Content-Type": "application/json"}
 LIMIT_KEYS = ["max_side", "max_pixels", "max_spp", "max_frames", "max_keys", "max_sessions", "frames_kept",
               "max_json_body", "max_asset_body", "max_reference_body", "render_slots", "render_queue",
               "job_queue", "connection_limit", "per_ip_connection_limit", "connection_timeout_s", "memory_budget",
-              "max_session_bytes", "max_work"]
+              "max_session_bytes", "max_work", "head_timeout_s", "min_body_rate"]
 
 # Limits of the shared daemon (small where a test needs to cross them cheaply).
 MAX_JSON_BODY = 16384

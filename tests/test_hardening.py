@@ -446,3 +446,114 @@ def test_frame_given_up_when_its_session_is_deleted(one_thread):
     assert body["detail"] == "the session was deleted while its frame rendered"
     r = d.req("POST", quick["href"] + "/frames", headers={"Accept": "application/json"}, timeout=15)
     assert r.status == 200, repr(r)
+
+
+# ---- slow clients ----
+
+def closed_within(sock, seconds):
+    """Seconds until the daemon closed `sock` (EOF or reset), or None if it stayed open that long;
+    sends a byte every 0.5 s meanwhile, as a slow-loris client does."""
+    t0 = time.monotonic()
+    sock.settimeout(0.5)
+    while time.monotonic() - t0 < seconds:
+        try:
+            if sock.recv(4096) == b"":
+                return time.monotonic() - t0
+        except socket.timeout:
+            pass
+        except ConnectionResetError:
+            return time.monotonic() - t0
+        try:
+            sock.sendall(b"X")
+        except (BrokenPipeError, ConnectionResetError):
+            return time.monotonic() - t0
+    return None
+
+
+@pytest.fixture
+def strict(tmp_path):
+    d = Daemon(tmp_path / "data", "--threads", "1", "--head-timeout-s", 2, "--min-body-rate", 1000,
+               "--per-ip-limit", 8, "--health-listen", "127.0.0.1:0")
+    yield d
+    rc, took = d.stop()
+    assert rc == 0 and took < 10, (rc, took, d.stderr()[-3000:])
+
+
+@pytest.mark.parametrize("start", [b"GET /v1/lim", b"\x00\xff\xfe GARBAGE", b"GET /v1/limits HTTP/1.1\r\nHost: 1",
+                                   b""])
+def test_slow_request_head_cut_at_its_deadline(strict, start):
+    sock = socket.create_connection(("127.0.0.1", strict.port), timeout=10)
+    try:
+        sock.sendall(start)
+        took = closed_within(sock, 8)
+        assert took is not None and 1.5 < took < 4, took
+    finally:
+        sock.close()
+
+
+def test_idle_keep_alive_connection_closed_after_the_head_deadline(strict):
+    sock = socket.create_connection(("127.0.0.1", strict.port), timeout=10)
+    try:
+        sock.sendall(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+        assert sock.recv(4096).startswith(b"HTTP/1.1 200")
+        sock.settimeout(6)
+        t0 = time.monotonic()
+        assert sock.recv(1) == b""
+        assert 1.5 < time.monotonic() - t0 < 4
+    finally:
+        sock.close()
+
+
+def test_slow_body_cut_fast_body_accepted(strict):
+    body = b'{"width": 4, "height": 4' + b" " * 6000 + b"}"
+    head = (f"POST {CORNELL}/sessions HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
+            f"Content-Length: {len(body)}\r\n\r\n").encode()
+    sock = socket.create_connection(("127.0.0.1", strict.port), timeout=10)
+    try:
+        sock.sendall(head + body[:10])   # then a byte every 0.5 s: 2 bytes/s, under 1000
+        took = closed_within(sock, 8)
+        assert took is not None and 1.5 < took < 4, took
+    finally:
+        sock.close()
+    # 1000 bytes/s is an average: a body that pauses, then catches up, is fine.
+    sock = socket.create_connection(("127.0.0.1", strict.port), timeout=10)
+    try:
+        sock.sendall(head + body[:3000])
+        time.sleep(1.5)
+        sock.sendall(body[3000:])
+        r = http.client.HTTPResponse(sock, method="POST")
+        r.begin()
+        assert r.status == 201, r.read()
+    finally:
+        sock.close()
+
+
+def test_health_listener_answers_while_the_main_port_is_held(strict):
+    import re
+    port = int(re.search(rb"health http://127\.0\.0\.1:(\d+)", strict.out_path.read_bytes()).group(1))
+    held = []
+    try:
+        for _ in range(8):   # the per-IP limit: no other connection from 127.0.0.1 is accepted
+            s = socket.create_connection(("127.0.0.1", strict.port), timeout=10)
+            s.sendall(b"GET /v1/li")
+            held.append(s)
+        time.sleep(0.3)
+        with pytest.raises((ConnectionError, http.client.HTTPException, socket.timeout)):
+            strict.req("GET", "/healthz", timeout=1)
+        for path in ("/healthz", "/readyz"):
+            conn = http.client.HTTPConnection("127.0.0.1", port, timeout=2)
+            conn.request("GET", path)
+            r = conn.getresponse()
+            assert r.status == 200, r.read()
+            conn.close()
+        conn = http.client.HTTPConnection("127.0.0.1", port, timeout=2)
+        conn.request("GET", "/v1/limits")
+        r = conn.getresponse()
+        assert r.status == 404 and b"answers GET /healthz and GET /readyz only" in r.read()
+        conn.close()
+        # The held connections are cut at their deadline: the main port serves again.
+        time.sleep(3)
+        assert strict.req("GET", "/healthz", timeout=2).status == 200
+    finally:
+        for s in held:
+            s.close()
