@@ -393,6 +393,7 @@ static void api_limits(struct api_call *c)
     jsonw_key(&w, "sessions"); jsonw_uint(&w, budget_used(&c->d->budget, BUDGET_SESSIONS));
     jsonw_key(&w, "scenes"); jsonw_uint(&w, budget_used(&c->d->budget, BUDGET_SCENES));
     jsonw_key(&w, "references"); jsonw_uint(&w, budget_used(&c->d->budget, BUDGET_REFERENCES));
+    jsonw_key(&w, "uploads"); jsonw_uint(&w, budget_used(&c->d->budget, BUDGET_UPLOADS));
     jsonw_object_end(&w);
     jsonw_object_end(&w);
     api_json(c, 200, &w);
@@ -652,7 +653,23 @@ static void api_reference_put(struct api_call *c)
     }
     struct image img;
     struct err e = {0};
-    if (!exrio_read_mem(c->req->body ? c->req->body : "", c->req->body_len, "reference", &img, &e)) {
+    /* The decoded image is reserved from the budget, as its header gives its size, before a
+     * pixel is decoded: a small compressed file can ask for gigabytes. */
+    struct exrio_info info;
+    const char *data = c->req->body ? c->req->body : "";
+    if (!exrio_probe_mem(data, c->req->body_len, "reference", &info, &e)) {
+        api_problem(c, 422, "invalid-reference", NULL, "%s", e.message);
+        return;
+    }
+    uint64_t decoded = info.width > 0 && info.height > 0
+                           ? (uint64_t)info.width * (uint64_t)info.height * sizeof(struct vec3) : 0;
+    if (!budget_reserve(&c->d->budget, BUDGET_UPLOADS, decoded, &e)) {
+        api_budget_error(c, &e);
+        return;
+    }
+    bool read = exrio_read_mem(data, c->req->body_len, "reference", &img, &e);
+    budget_release(&c->d->budget, BUDGET_UPLOADS, decoded);  /* refstore_put reserves the image itself */
+    if (!read) {
         if (e.code == ERR_NOMEM) api_error(c, &e);
         else api_problem(c, 422, "invalid-reference", NULL, "%s", e.message);
         return;
@@ -792,10 +809,25 @@ void api_reject(void *ctx, const struct http_request *req, struct http_response 
     resp->route = "refused";
     if (status == 411)
         api_problem(&c, 411, "length-required", NULL, "this request needs a Content-Length (chunked bodies are not accepted)");
+    else if (status == 503)
+        api_problem_limit(&c, 503, "memory-budget", NULL, (double)c.d->cfg.memory_budget,
+                          "the memory budget has no room for the rest of this %zu-byte body", limit);
     else if (limit == 0)
         api_problem_limit(&c, 413, "body-too-large", NULL, 0, "%s %s takes no body", req->method, req->path);
     else
         api_problem_limit(&c, 413, "body-too-large", NULL, (double)limit, "the body is over the limit of %zu bytes", limit);
+}
+
+bool api_body_charge(void *ctx, size_t bytes)
+{
+    struct daemon *d = ctx;
+    return budget_reserve(&d->budget, BUDGET_UPLOADS, bytes, NULL);
+}
+
+void api_body_release(void *ctx, size_t bytes)
+{
+    struct daemon *d = ctx;
+    budget_release(&d->budget, BUDGET_UPLOADS, bytes);
 }
 
 void api_reject_framing(void *ctx, const struct http_request *req, struct http_response *resp, const char *header,

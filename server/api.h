@@ -12,6 +12,9 @@
 void api_body_policy(void *ctx, const char *method, const char *path, size_t *max_body, bool *required);
 void api_handle(void *ctx, const struct http_request *req, struct http_response *resp);
 void api_reject(void *ctx, const struct http_request *req, struct http_response *resp, int status, size_t limit);
+/* The memory budget's side of request bodies (BUDGET_UPLOADS). */
+bool api_body_charge(void *ctx, size_t bytes);
+void api_body_release(void *ctx, size_t bytes);
 void api_reject_framing(void *ctx, const struct http_request *req, struct http_response *resp, const char *header,
                         const char *why);
 /* The health listener's callbacks (--health-listen): GET /healthz and /readyz, nothing else. */

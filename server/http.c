@@ -22,6 +22,8 @@
 /* Bodies over the limit up to this size are read and discarded so that the client reads the
  * 413; larger ones get the answer at once and the connection closes. */
 #define HTTP_DISCARD_MAX ((unsigned long long)64 << 20)
+/* A body's buffer starts at this size and doubles as the body arrives. */
+#define HTTP_BODY_FIRST ((size_t)64 << 10)
 
 /* One open connection, as the watchdog sees it (MHD's socket context). A connection is always
  * in one of three phases: waiting for a request's line and headers (since it opened or since
@@ -68,6 +70,8 @@ struct http_conn {
     size_t reject_limit;
     char *body;
     size_t body_len, body_cap;
+    size_t body_want;          /* Content-Length: the buffer grows to it as the body arrives */
+    size_t body_charged;       /* bytes of the buffer charged to the app (body_charge) */
     struct http *http;
     struct http_sock *sock;    /* the connection's watchdog entry, or NULL */
 };
@@ -465,14 +469,10 @@ static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const ch
             hc->reject_limit = max_body;
             return MHD_YES;
         }
-        if (length > 0) {
-            hc->body = malloc(length);
-            if (!hc->body) {
-                h->app.reject(h->app.ctx, &req, &resp, 413, max_body);
-                return http_send(h, c, hc, &resp);
-            }
-            hc->body_cap = length;
-        }
+        /* The buffer grows as the body arrives (http_body_append), each step charged to the app
+         * first: a client that announces a large body and sends it slowly holds only what it
+         * sent, and the memory budget sees it. */
+        hc->body_want = (size_t)length;
         return MHD_YES;
     }
     req.request_id = hc->request_id;
@@ -496,12 +496,39 @@ static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const ch
     }
     if (*upload_data_size > 0) {
         size_t n = *upload_data_size;
-        if (n > hc->body_cap - hc->body_len) n = hc->body_cap - hc->body_len;  /* MHD enforces the length */
-        if (n > 0) {
-            memcpy(hc->body + hc->body_len, upload_data, n);
-            hc->body_len += n;
-        }
+        if (n > hc->body_want - hc->body_len) n = hc->body_want - hc->body_len;  /* MHD enforces the length */
         *upload_data_size = 0;
+        if (n == 0) return MHD_YES;
+        if (hc->body_len + n > hc->body_cap) {
+            size_t cap = hc->body_cap ? hc->body_cap : HTTP_BODY_FIRST;
+            while (cap < hc->body_len + n) cap = cap > SIZE_MAX / 2 ? SIZE_MAX : cap * 2;
+            if (cap > hc->body_want) cap = hc->body_want;
+            /* The first HTTP_BODY_FIRST bytes of a body are not charged (at most that much per
+             * connection): a full budget still lets small JSON requests through. */
+            size_t free_part = hc->body_cap > HTTP_BODY_FIRST ? hc->body_cap : HTTP_BODY_FIRST;
+            size_t more = cap > free_part ? cap - free_part : 0;
+            char *grown = NULL;
+            bool charged = more == 0 || !h->app.body_charge || h->app.body_charge(h->app.ctx, more);
+            if (charged) grown = realloc(hc->body, cap);
+            if (!grown) {
+                if (charged && more && h->app.body_release) h->app.body_release(h->app.ctx, more);
+                /* The budget (or malloc) refused: what was received is freed now, the rest is
+                 * read and dropped (as for a 413), and the answer is a 503. */
+                free(hc->body);
+                hc->body = NULL;
+                hc->body_len = hc->body_cap = 0;
+                if (hc->body_charged && h->app.body_release) h->app.body_release(h->app.ctx, hc->body_charged);
+                hc->body_charged = 0;
+                hc->reject_status = 503;
+                hc->reject_limit = hc->body_want;
+                return MHD_YES;
+            }
+            hc->body = grown;
+            hc->body_cap = cap;
+            hc->body_charged += more;
+        }
+        memcpy(hc->body + hc->body_len, upload_data, n);
+        hc->body_len += n;
         return MHD_YES;
     }
     req.body = hc->body;
@@ -525,6 +552,7 @@ static void http_completed(void *cls, struct MHD_Connection *c, void **con_cls, 
         h->app.completed(h->app.ctx, hc->method, hc->path, hc->route, hc->status, hc->bytes, ms, hc->request_id);
     http_phase(h, hc->sock, HTTP_HEAD);  /* the next request's head is due from now */
     free(hc->body);
+    if (hc->body_charged && h->app.body_release) h->app.body_release(h->app.ctx, hc->body_charged);
     free(hc);
     *con_cls = NULL;
 }

@@ -5,7 +5,8 @@
  * without delaying any other connection: /healthz is answered on its own thread.
  * Bodies: the route's body limit is looked up from the method and path before a byte is read;
  * over the limit → 413 at once, no Content-Length on a route that needs a body or a chunked
- * body → 411. The body is then buffered whole (it is at most the limit) and handed over. */
+ * body → 411. The body is then buffered whole (it is at most the limit), in a buffer that grows
+ * as it arrives and is charged to the app (body_charge) before each step, and handed over. */
 #ifndef RESTIRD_HTTP_H
 #define RESTIRD_HTTP_H
 
@@ -67,7 +68,14 @@ struct http_app {
      * required (PUT) so that a missing Content-Length is a 411. */
     void (*body_policy)(void *ctx, const char *method, const char *path, size_t *max_body, bool *required);
     void (*handle)(void *ctx, const struct http_request *req, struct http_response *resp);
-    /* Fill resp with the problem for a request the HTTP layer refused (411, 413). */
+    /* A request body's buffer is about to grow by `bytes` past its first 64 KiB (which are not
+     * charged): false refuses (what was received is freed, the rest is read and dropped, and
+     * the request gets a 503 from reject). Every byte charged is given back with body_release
+     * by the end of the request. Both may be NULL. */
+    bool (*body_charge)(void *ctx, size_t bytes);
+    void (*body_release)(void *ctx, size_t bytes);
+    /* Fill resp with the problem for a request the HTTP layer refused (411, 413; 503 when
+     * body_charge refused, `limit` then the announced body size). */
     void (*reject)(void *ctx, const struct http_request *req, struct http_response *resp, int status, size_t limit);
     /* Fill resp with the 400 for a request whose framing is refused: the header at fault and
      * why. */

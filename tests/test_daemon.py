@@ -234,7 +234,7 @@ def test_limits_reflect_options(daemon):
     assert lim["max_side"] == 4096 and lim["max_pixels"] == 16777216 and lim["max_spp"] == 65536
     assert lim["max_frames"] == 10000 and lim["max_sessions"] == 64 and lim["frames_kept"] == 16
     assert lim["memory_budget"] == 8 << 30 and lim["max_session_bytes"] == 2 << 30
-    assert set(lim["memory_used"]) == {"sessions", "scenes", "references"}, lim
+    assert set(lim["memory_used"]) == {"sessions", "scenes", "references", "uploads"}, lim
 
 
 def test_openapi_document(daemon):

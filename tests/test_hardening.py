@@ -557,3 +557,81 @@ def test_health_listener_answers_while_the_main_port_is_held(strict):
     finally:
         for s in held:
             s.close()
+
+
+# ---- memory charged before it is used ----
+
+def memory_used(d):
+    return d.req("GET", "/v1/limits").json()["memory_used"]
+
+
+def test_upload_bodies_charged_as_they_arrive(tmp_path):
+    budget, announced = 3_000_000, 8_000_000
+    d = Daemon(tmp_path / "data", "--threads", "1", "--memory-budget", budget, "--max-asset-body", announced)
+    head = (f"PUT /v1/scenes/big/assets/m.ply HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: model/ply\r\n"
+            f"Content-Length: {announced}\r\n\r\n").encode()
+    first = socket.create_connection(("127.0.0.1", d.port), timeout=15)
+    second = socket.create_connection(("127.0.0.1", d.port), timeout=15)
+    try:
+        assert memory_used(d)["uploads"] == 0
+        first.sendall(head + b"x" * 2_000_000)   # and then holds the rest back
+        deadline = time.monotonic() + 5
+        while memory_used(d)["uploads"] < 2_000_000 - 65536 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        held = memory_used(d)["uploads"]
+        # What arrived is charged (the buffer at most doubles ahead of it), not what was announced.
+        assert 2_000_000 - 65536 <= held <= 2 * 2_000_000, held
+        # The second upload does not fit beside it: refused with the budget, its bytes given back.
+        second.sendall(head + b"x" * announced)
+        r = http.client.HTTPResponse(second, method="PUT")
+        r.begin()
+        body = r.read()
+        assert r.status == 503, body
+        import json
+        problem = json.loads(body)
+        assert (problem["type"], problem["limit"]) == (P + "memory-budget", budget), problem
+        assert problem["detail"] == f"the memory budget has no room for the rest of this {announced}-byte body"
+        assert memory_used(d)["uploads"] == held
+        first.close()
+        deadline = time.monotonic() + 5
+        while memory_used(d)["uploads"] and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert memory_used(d)["uploads"] == 0
+        # The first 64 KiB of a body are not charged: small JSON requests are not refused by it.
+        assert d.req("POST", f"{CORNELL}/sessions", json_body={"width": 4, "height": 4}).status == 201
+    finally:
+        first.close()
+        second.close()
+        assert d.stop()[0] == 0, d.stderr()[-3000:]
+
+
+def peak_rss_kib(d):
+    for line in open(f"/proc/{d.proc.pid}/status"):
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1])
+    raise AssertionError("no VmHWM")
+
+
+def test_reference_reserved_from_its_header_before_decoding(tmp_path):
+    import numpy as np
+    from test_daemon import write_exr
+    side = 2048                                    # 48 MiB decoded, a few KiB compressed
+    exr = write_exr(tmp_path / "big.exr", np.full((side, side, 3), 0.25, dtype="float32"), "zip")
+    assert len(exr) < 1 << 20
+    budget = 10_000_000
+    d = Daemon(tmp_path / "data", "--threads", "1", "--memory-budget", budget)
+    try:
+        before = peak_rss_kib(d)
+        answers = [d.raw("PUT", f"{CORNELL}/references/big", {"Content-Type": "image/x-exr"}, exr) for _ in range(3)]
+        grew = peak_rss_kib(d) - before
+        assert grew < 16 << 10, f"peak RSS grew by {grew} KiB: the image was decoded"
+        for r in answers:
+            body = assert_problem(r, 503, "memory-budget")
+            assert body["limit"] == budget
+            assert f"uploads need {side * side * 12} more" in body["detail"], body
+        assert memory_used(d) == {"sessions": 0, "scenes": 0, "references": 0, "uploads": 0}
+        small = write_exr(tmp_path / "small.exr", np.full((16, 16, 3), 0.25, dtype="float32"), "zip")
+        assert d.raw("PUT", f"{CORNELL}/references/small", {"Content-Type": "image/x-exr"}, small).status == 201
+        assert memory_used(d)["references"] == 16 * 16 * 12
+    finally:
+        assert d.stop()[0] == 0, d.stderr()[-3000:]

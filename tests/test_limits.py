@@ -195,7 +195,7 @@ def test_memory_budget_refuses_and_gives_back(tmp_path):
     try:
         a, _ = new_session(d, width=16, height=16), new_session(d, width=16, height=16)
         used = d.req("GET", "/v1/limits").json()["memory_used"]
-        assert used == {"sessions": 2 * planned, "scenes": 0, "references": 0}, used
+        assert used == {"sessions": 2 * planned, "scenes": 0, "references": 0, "uploads": 0}, used
         # Sessions, scenes and references all draw on the one budget.
         r = create(d, width=16, height=16)
         refused(r, 503, "memory-budget", None, budget)
