@@ -302,6 +302,7 @@ static const struct { const char *slug, *title; } protocol_titles[] = {
     {"insufficient-storage", "Insufficient storage"},
     {"busy", "Busy"},
     {"draining", "Shutting down"},
+    {"loading", "Loading stored scenes"},
     {"internal", "Internal error"},
 };
 

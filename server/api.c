@@ -324,6 +324,10 @@ static void api_readyz(struct api_call *c)
         api_problem(c, 503, "draining", NULL, "the daemon is shutting down");
         return;
     }
+    if (!atomic_load(&c->d->loaded)) {
+        api_problem(c, 503, "loading", NULL, "the daemon is loading its stored scenes");
+        return;
+    }
     struct jsonw w;
     jsonw_init(&w);
     jsonw_object_begin(&w);

@@ -57,6 +57,8 @@ struct daemon {
     struct budget budget;
     struct prom prom;
     atomic_bool draining;
+    atomic_bool loaded;                 /* the stored scenes are loaded (/readyz) */
+    atomic_bool stop_loading;
 };
 
 #endif

@@ -127,6 +127,20 @@ static bool main_loopback(const char *host)
     return strncmp(host, "127.", 4) == 0 || strcmp(host, "::1") == 0;
 }
 
+/* The stored (uploaded) scenes, loaded on a thread of their own once the daemon listens: its
+ * health checks answer meanwhile, and /readyz says "loading" until they are in. */
+static void *main_load_stored(void *arg)
+{
+    struct daemon *d = arg;
+    struct err e = {0};
+    if (!registry_load_stored(d->registry, &d->stop_loading, &e)) {
+        char msg[1024];
+        fprintf(stderr, "restird: warning: stored scenes not loaded: %s\n", err_format(&e, msg, sizeof msg));
+    }
+    atomic_store(&d->loaded, true);
+    return NULL;
+}
+
 static void main_warn(void *ctx, const char *message)
 {
     (void)ctx;
@@ -299,18 +313,22 @@ int main(int argc, char **argv)
         fprintf(stderr, "restird: cannot create the data directory %s: %s\n", cfg->data_dir, strerror(errno));
         return 1;
     }
-    d.registry = registry_new(cfg->library_dir, cfg->data_dir, main_warn, NULL, &e);
+    d.registry = registry_new_deferred(cfg->library_dir, cfg->data_dir, main_warn, NULL, &e);
     if (!d.registry) {
         fprintf(stderr, "restird: %s\n", err_format(&e, msg, sizeof msg));
         return 1;
     }
     budget_init(&d.budget, cfg->memory_budget);
-    registry_set_budget(d.registry, &d.budget);  /* charges the uploads reloaded above */
+    registry_set_budget(d.registry, &d.budget);  /* the uploads, loaded later, are charged as they come */
     d.sessions = sessions_new(cfg->max_sessions);
     d.refs = refstore_new(&d.budget);
     gate_init(&d.gate, cfg->render_slots, cfg->render_queue);
     prom_init(&d.prom);
     atomic_init(&d.draining, false);
+    atomic_init(&d.loaded, false);
+    atomic_init(&d.stop_loading, false);
+    pthread_t loader;
+    bool loading = false;
     d.jobs = d.sessions && d.refs ? jobs_new(cfg->job_workers, cfg->job_queue, &d.gate, d.refs, main_on_frame, &d, &e) : NULL;
     int status = 1;
     struct http *http = NULL, *health_http = NULL;
@@ -352,9 +370,17 @@ int main(int argc, char **argv)
                  health_port);
     }
     const char *bracket_l = strchr(cfg->host, ':') ? "[" : "", *bracket_r = strchr(cfg->host, ':') ? "]" : "";
-    printf("restird listening on http://%s%s%s:%u (%sdata %s, %zu scenes)\n", bracket_l, cfg->host, bracket_r, port,
-           health, cfg->data_dir, registry_list(d.registry, NULL, 0));
+    printf("restird listening on http://%s%s%s:%u (%sdata %s, %zu built-in scenes; loading the stored ones)\n",
+           bracket_l, cfg->host, bracket_r, port, health, cfg->data_dir, registry_list(d.registry, NULL, 0));
+    fflush(stdout);
+    loading = pthread_create(&loader, NULL, main_load_stored, &d) == 0;
+    if (!loading) main_load_stored(&d);
     if (cfg->default_scene[0]) {
+        /* The default session may be of a stored scene: wait for them. */
+        if (loading) {
+            pthread_join(loader, NULL);
+            loading = false;
+        }
         char href[256];
         if (api_default_session(&d, cfg->default_scene, href, sizeof href)) {
             printf("default session ready; fetch a frame as EXR with:\n"
@@ -367,6 +393,9 @@ int main(int argc, char **argv)
     int sig = 0;
     sigwait(&sigs, &sig);
     fprintf(stderr, "restird: %s: shutting down\n", sig == SIGINT ? "SIGINT" : "SIGTERM");
+    atomic_store(&d.stop_loading, true); /* between two stored scenes */
+    if (loading) pthread_join(loader, NULL);
+    loading = false;
     http_quiesce(http);                  /* no new connections */
     http_quiesce(health_http);
     atomic_store(&d.draining, true);     /* new work on open connections gets 503 draining */
@@ -380,6 +409,8 @@ int main(int argc, char **argv)
     health_http = NULL;
     status = 0;
 done:
+    atomic_store(&d.stop_loading, true);
+    if (loading) pthread_join(loader, NULL);
     http_stop(http);
     http_stop(health_http);
     jobs_stop(d.jobs);

@@ -706,16 +706,22 @@ static void registry_load_upload(struct registry *r, const char *id)
     uint32_t assets = 0;
     bool exists, builtin;
     registry_peek(r, id, &exists, &builtin, &hash);
-    if (exists) {
+    if (exists && builtin) {
         registry_warn(r, "registry: skipping uploaded scene '%s' (%s): a built-in scene has this id; its files are kept",
                       id, path);
         return;
     }
+    if (exists) return;  /* loading after the start: a PUT of this id came first, and wrote it */
     bool ok = fileio_read_all(path, "scene file", path, REGISTRY_JSON_MAX_BYTES, &json, &len, &err) &&
               registry_hash_content(json, len, assets_dir, &hash, &assets, &err) &&
               (scene = registry_load(json, len, assets_dir, id, &err)) != NULL &&
               registry_insert(r, id, false, scene, hash, assets, &err);
     free(json);
+    if (ok && r->budget) {
+        /* Loaded after registry_set_budget: charged as those before it were (it is held). */
+        struct registry_info info;
+        if (registry_info(r, id, &info)) budget_charge(r->budget, BUDGET_SCENES, info.scene_bytes);
+    }
     if (!ok) {
         char msg[800];
         registry_warn(r, "registry: skipping uploaded scene '%s' (%s, kept on disk): %s: %s", id, path,
@@ -724,27 +730,37 @@ static void registry_load_upload(struct registry *r, const char *id)
     }
 }
 
-static bool registry_load_uploads(struct registry *r, struct err *err)
+/* Each scene is loaded under write_lock, as a PUT is, so that loading while requests are
+ * served cannot interleave with a PUT or DELETE of the same id. `stop` (may be NULL) is read
+ * between scenes. */
+static bool registry_load_uploads(struct registry *r, atomic_bool *stop, struct err *err)
 {
     struct registry_names ids;
     if (!registry_list_dir(r->scenes_dir, S_IFDIR, false, &ids, NULL, err)) {
         if (err) err->code = ERR_IO;
         return false;
     }
-    for (size_t i = 0; i < ids.n; i++) {
+    for (size_t i = 0; i < ids.n && !(stop && atomic_load(stop)); i++) {
         if (ids.v[i][0] == '.') continue;
         if (!registry_id_valid(ids.v[i])) {
             registry_warn(r, "registry: skipping '%s/%s': not a valid scene id", r->scenes_dir, ids.v[i]);
             continue;
         }
+        pthread_mutex_lock(&r->write_lock);
         registry_load_upload(r, ids.v[i]);
+        pthread_mutex_unlock(&r->write_lock);
     }
     registry_names_free(&ids);
     return true;
 }
 
-struct registry *registry_new(const char *library_dir, const char *data_dir, registry_warn_fn *warn, void *warn_ctx,
-                              struct err *err)
+bool registry_load_stored(struct registry *r, atomic_bool *stop, struct err *err)
+{
+    return registry_load_uploads(r, stop, err);
+}
+
+static struct registry *registry_create(const char *library_dir, const char *data_dir, registry_warn_fn *warn,
+                                        void *warn_ctx, bool stored, struct err *err)
 {
     if (!data_dir || !data_dir[0]) {
         err_set(err, ERR_INVALID, NULL, "no data directory");
@@ -772,11 +788,23 @@ struct registry *registry_new(const char *library_dir, const char *data_dir, reg
         return NULL;
     }
     if (library_dir) registry_load_library(r, library_dir);
-    if (!registry_load_uploads(r, err)) {
+    if (stored && !registry_load_uploads(r, NULL, err)) {
         registry_free(r);
         return NULL;
     }
     return r;
+}
+
+struct registry *registry_new(const char *library_dir, const char *data_dir, registry_warn_fn *warn, void *warn_ctx,
+                              struct err *err)
+{
+    return registry_create(library_dir, data_dir, warn, warn_ctx, true, err);
+}
+
+struct registry *registry_new_deferred(const char *library_dir, const char *data_dir, registry_warn_fn *warn,
+                                       void *warn_ctx, struct err *err)
+{
+    return registry_create(library_dir, data_dir, warn, warn_ctx, false, err);
 }
 
 void registry_set_budget(struct registry *r, struct budget *budget)

@@ -673,3 +673,50 @@ def test_face_size_bounded(daemon):
     r = daemon.req("PUT", "/v1/scenes/poly/assets/huge.obj", body=huge, headers=obj, timeout=10)
     assert_problem(r, 422, "limit-exceeded")
     assert time.monotonic() - t0 < 2
+
+
+def grid_ply(n):
+    """A binary PLY of an n x n grid of quads (2 n^2 triangles): slow enough to load to watch."""
+    import numpy as np
+    xs = np.linspace(-1, 1, n + 1, dtype=np.float32)
+    x, y = np.meshgrid(xs, xs)
+    verts = np.stack([x.ravel(), y.ravel(), np.zeros(x.size, np.float32)], 1).astype("<f4")
+    idx = np.arange((n + 1) * (n + 1)).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    tris = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    faces = np.zeros(len(tris), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    faces["n"] = 3
+    faces["i"] = tris
+    head = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(verts)}\nproperty float x\n"
+            f"property float y\nproperty float z\nelement face {len(tris)}\nproperty list uchar int vertex_indices\n"
+            "end_header\n")
+    return head.encode() + verts.tobytes() + faces.tobytes()
+
+
+def test_stored_scenes_load_after_the_daemon_listens(tmp_path):
+    scene = dict(SPHERE, shapes=[{"type": "mesh", "material": "w", "file": "grid.ply"}])
+    d = Daemon(tmp_path / "data", "--threads", "1")
+    try:
+        r = d.req("PUT", "/v1/scenes/grid/assets/grid.ply", body=grid_ply(700),
+                  headers={"Content-Type": "application/octet-stream"})
+        assert r.status == 201, repr(r)
+        assert d.req("PUT", "/v1/scenes/grid", json_body=scene).status == 201
+        scene_bytes = d.req("GET", "/v1/scenes/grid").json()["scene_bytes"]
+    finally:
+        assert d.stop()[0] == 0
+    d = Daemon(tmp_path / "data", "--threads", "1", wait_ready=False)
+    try:
+        # Listening, healthy, not yet ready: the 980,000-triangle scene takes about 1.5 s to load.
+        assert d.req("GET", "/healthz", timeout=2).status == 200
+        r = d.req("GET", "/readyz", timeout=2)
+        body = assert_problem(r, 503, "loading")
+        assert body["detail"] == "the daemon is loading its stored scenes"
+        assert r.header("Retry-After") == "1"
+        deadline = time.monotonic() + 30
+        while d.req("GET", "/readyz").status != 200:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        assert d.req("GET", "/v1/scenes/grid").json()["scene_bytes"] == scene_bytes
+        assert memory_used(d)["scenes"] == scene_bytes
+    finally:
+        assert d.stop()[0] == 0, d.stderr()[-3000:]

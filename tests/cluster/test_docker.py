@@ -180,7 +180,7 @@ def test_compose_and_haproxy_agree(stages):
     # The server addresses default to the compose services, on the daemons' port.
     servers = re.findall(r'^\s*server (\S+) "\$\{(\w+)-([^}]+)\}"', cfg, re.M)
     assert [(n, addr) for n, _, addr in servers] == [(d, f"{d}:{port}") for d in daemons], servers
-    for directive in ("balance uri depth 3", "hash-type consistent", "option httpchk GET /healthz"):
+    for directive in ("balance uri depth 3", "hash-type consistent", "option httpchk GET /readyz"):
         assert re.search(rf"^\s*{re.escape(directive)}\s*$", cfg, re.M), directive
     bind = re.search(r'^\s*bind "\$\{\w+-:(\d+)\}"', cfg, re.M)
     proxy = services["haproxy"]
