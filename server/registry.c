@@ -2,9 +2,11 @@
  * uploads persisted under <data>/scenes/<id>/. Owns the data directory's layout and its crash
  * safety (temporary name, fsync, rename, fsync of the folder). It must not parse JSON or meshes
  * itself: an upload is validated by the same scene loader and mesh_io as a library scene.
- * Locks: `lock` guards the table only; `write_lock` lets one writer at a time change the data
- * directory. Loading, committing and file I/O run with only `write_lock` held, so lookups
- * (acquire, info, list, session counts) never wait for a slow upload. */
+ * Locks: `lock` guards the table only; a write lock lets one writer at a time change one
+ * scene's entry and folder. Loading, committing and file I/O run with only the scene's write
+ * lock held, so lookups (acquire, info, list, session counts) never wait for a slow upload, and
+ * an upload to one scene never waits for a slow upload to another (unless their ids share one
+ * of the REGISTRY_WRITE_STRIPES locks). */
 #include "registry.h"
 
 #include <dirent.h>
@@ -51,9 +53,13 @@ struct registry_entry {
     uint64_t hash;
 };
 
+#define REGISTRY_WRITE_STRIPES 16
+
 struct registry {
     pthread_mutex_t lock;         /* guards entries, count, cap and every entry */
-    pthread_mutex_t write_lock;   /* serialises put/delete (taken before `lock`, never after) */
+    /* Serialise put/delete/load of one id (taken before `lock`, never after; one at a time,
+     * except registry_set_budget, which takes them all in order). */
+    pthread_mutex_t write_locks[REGISTRY_WRITE_STRIPES];
     struct registry_entry **entries;  /* sorted by id */
     size_t count, cap;
     char *scenes_dir;             /* <data>/scenes */
@@ -61,6 +67,14 @@ struct registry {
     void *warn_ctx;
     struct budget *budget;        /* uploaded scenes' bytes are reserved from it; NULL = none */
 };
+
+/* The write lock of scene `id` (FNV-1a of the id picks the stripe). */
+static pthread_mutex_t *registry_write_lock(struct registry *r, const char *id)
+{
+    uint32_t h = 2166136261u;
+    for (const unsigned char *p = (const unsigned char *)id; *p; p++) h = (h ^ *p) * 16777619u;
+    return &r->write_locks[h % REGISTRY_WRITE_STRIPES];
+}
 
 struct registry_names {
     char **v;
@@ -495,7 +509,8 @@ static size_t registry_scene_bytes(const struct scene *scene, uint64_t *triangle
 }
 
 /* An uploaded scene about to enter the table reserves its bytes (ERR_BUSY when the budget is
- * full); the scene it replaces or that leaves gives them back. Called with write_lock held. */
+ * full); the scene it replaces or that leaves gives them back. Called with the scene's write
+ * lock held. */
 static bool registry_budget_reserve(struct registry *r, const struct scene *scene, struct err *err)
 {
     return !r->budget || budget_reserve(r->budget, BUDGET_SCENES, registry_scene_bytes(scene, NULL), err);
@@ -586,7 +601,7 @@ static struct scene *registry_replace(struct registry *r, const char *id, struct
         old = r->entries[pos]->scene;
         registry_entry_set(r->entries[pos], scene, hash, assets);
     } else {
-        old = scene;  /* cannot happen while write_lock is held; never leak the scene */
+        old = scene;  /* cannot happen under the scene's write lock; never leak the scene */
     }
     pthread_mutex_unlock(&r->lock);
     return old;
@@ -730,7 +745,7 @@ static void registry_load_upload(struct registry *r, const char *id)
     }
 }
 
-/* Each scene is loaded under write_lock, as a PUT is, so that loading while requests are
+/* Each scene is loaded under its write lock, as a PUT is, so that loading while requests are
  * served cannot interleave with a PUT or DELETE of the same id. `stop` (may be NULL) is read
  * between scenes. */
 static bool registry_load_uploads(struct registry *r, atomic_bool *stop, struct err *err)
@@ -746,9 +761,10 @@ static bool registry_load_uploads(struct registry *r, atomic_bool *stop, struct 
             registry_warn(r, "registry: skipping '%s/%s': not a valid scene id", r->scenes_dir, ids.v[i]);
             continue;
         }
-        pthread_mutex_lock(&r->write_lock);
+        pthread_mutex_t *wl = registry_write_lock(r, ids.v[i]);
+        pthread_mutex_lock(wl);
         registry_load_upload(r, ids.v[i]);
-        pthread_mutex_unlock(&r->write_lock);
+        pthread_mutex_unlock(wl);
     }
     registry_names_free(&ids);
     return true;
@@ -772,7 +788,7 @@ static struct registry *registry_create(const char *library_dir, const char *dat
         return NULL;
     }
     pthread_mutex_init(&r->lock, NULL);
-    pthread_mutex_init(&r->write_lock, NULL);
+    for (int i = 0; i < REGISTRY_WRITE_STRIPES; i++) pthread_mutex_init(&r->write_locks[i], NULL);
     r->warn = warn;
     r->warn_ctx = warn_ctx;
     size_t n = strlen(data_dir) + sizeof "/scenes";
@@ -809,13 +825,13 @@ struct registry *registry_new_deferred(const char *library_dir, const char *data
 
 void registry_set_budget(struct registry *r, struct budget *budget)
 {
-    pthread_mutex_lock(&r->write_lock);
+    for (int i = 0; i < REGISTRY_WRITE_STRIPES; i++) pthread_mutex_lock(&r->write_locks[i]);
     pthread_mutex_lock(&r->lock);
     r->budget = budget;
     for (size_t i = 0; budget && i < r->count; i++)
         if (!r->entries[i]->info.builtin) budget_charge(budget, BUDGET_SCENES, r->entries[i]->info.scene_bytes);
     pthread_mutex_unlock(&r->lock);
-    pthread_mutex_unlock(&r->write_lock);
+    for (int i = REGISTRY_WRITE_STRIPES - 1; i >= 0; i--) pthread_mutex_unlock(&r->write_locks[i]);
 }
 
 void registry_free(struct registry *r)
@@ -828,7 +844,7 @@ void registry_free(struct registry *r)
     free(r->entries);
     free(r->scenes_dir);
     pthread_mutex_destroy(&r->lock);
-    pthread_mutex_destroy(&r->write_lock);
+    for (int i = 0; i < REGISTRY_WRITE_STRIPES; i++) pthread_mutex_destroy(&r->write_locks[i]);
     free(r);
 }
 
@@ -897,9 +913,10 @@ bool registry_put_scene(struct registry *r, const char *id, const char *json, si
     if (!result) result = &dummy;
     if (!registry_id_valid(id)) return err_set(err, ERR_INVALID, "id", "scene id must match [A-Za-z0-9_-]{1,64}");
     if (!json && len) return err_set(err, ERR_INVALID, "", "no JSON text");
-    pthread_mutex_lock(&r->write_lock);
+    pthread_mutex_t *wl = registry_write_lock(r, id);
+    pthread_mutex_lock(wl);
     bool ok = registry_put_scene_locked(r, id, json, len, result, err);
-    pthread_mutex_unlock(&r->write_lock);
+    pthread_mutex_unlock(wl);
     return ok;
 }
 
@@ -975,7 +992,7 @@ static bool registry_put_asset_locked(struct registry *r, const char *id, const 
     if (exists) {
         /* The scene is reloaded against the new asset set before the asset takes its final
          * name, so a failure leaves the old asset and the old scene in place. The JSON is read
-         * back from disk (this registry wrote it; write_lock keeps it stable) instead of being
+         * back from disk (this registry wrote it; the write lock keeps it stable) instead of being
          * kept in memory for every scene. Every asset change reloads the scene, used or not:
          * telling whether the JSON names the asset would need the JSON parser. */
         char stage[PATH_MAX], *json = NULL;
@@ -1029,13 +1046,14 @@ bool registry_put_asset(struct registry *r, const char *id, const char *name, co
         return err_set(err, ERR_LIMIT, "name", "asset '%s' is %zu bytes, more than the limit of %u", name, len,
                        MESH_IO_MAX_FILE_BYTES);
     if (!data && len) return err_set(err, ERR_INVALID, "name", "no asset bytes");
-    /* Decoding is the expensive check and touches no state: done before taking write_lock. */
+    /* Decoding is the expensive check and touches no state: done before taking the write lock. */
     struct mesh mesh = {0};
     if (!mesh_io_load_memory(data ? data : "", len, name, mesh_io_format_of(name), &mesh, err)) return false;
     mesh_io_destroy(&mesh);
-    pthread_mutex_lock(&r->write_lock);
+    pthread_mutex_t *wl = registry_write_lock(r, id);
+    pthread_mutex_lock(wl);
     bool ok = registry_put_asset_locked(r, id, name, data ? data : "", len, created, err);
-    pthread_mutex_unlock(&r->write_lock);
+    pthread_mutex_unlock(wl);
     if (!ok) *created = false;
     return ok;
 }
@@ -1088,7 +1106,8 @@ bool registry_delete(struct registry *r, const char *id, bool force, struct err 
     if (!registry_path(scene_dir, sizeof scene_dir, err, "%s/%s", r->scenes_dir, id) ||
         !registry_path(json_path, sizeof json_path, err, "%s/scene.json", scene_dir))
         return false;
-    pthread_mutex_lock(&r->write_lock);
+    pthread_mutex_t *wl = registry_write_lock(r, id);
+    pthread_mutex_lock(wl);
     pthread_mutex_lock(&r->lock);
     size_t pos;
     struct registry_entry *e = NULL;
@@ -1122,7 +1141,7 @@ bool registry_delete(struct registry *r, const char *id, bool force, struct err 
         scene_release(e->scene);  /* sessions keep their own references */
         free(e);
     }
-    pthread_mutex_unlock(&r->write_lock);
+    pthread_mutex_unlock(wl);
     return ok;
 }
 

@@ -720,3 +720,32 @@ def test_stored_scenes_load_after_the_daemon_listens(tmp_path):
         assert memory_used(d)["scenes"] == scene_bytes
     finally:
         assert d.stop()[0] == 0, d.stderr()[-3000:]
+
+
+def test_upload_to_one_scene_does_not_wait_for_another(tmp_path):
+    import threading
+    d = Daemon(tmp_path / "data", "--threads", "1")
+    try:
+        r = d.req("PUT", "/v1/scenes/big/assets/grid.ply", body=grid_ply(800),
+                  headers={"Content-Type": "application/octet-stream"})
+        assert r.status == 201, repr(r)
+        result = {}
+
+        def put_big():
+            t0 = time.monotonic()
+            result["r"] = d.req("PUT", "/v1/scenes/big", json_body=dict(
+                SPHERE, shapes=[{"type": "mesh", "material": "w", "file": "grid.ply"}]))
+            result["s"] = time.monotonic() - t0
+
+        t = threading.Thread(target=put_big)
+        t.start()
+        time.sleep(0.3)      # the 1,280,000-triangle scene is loading (about 2 s)
+        t0 = time.monotonic()
+        r = d.req("PUT", "/v1/scenes/small", json_body=SPHERE)
+        took = time.monotonic() - t0
+        busy = t.is_alive()
+        t.join(timeout=60)
+        assert r.status == 201 and result["r"].status == 201, (r, result)
+        assert busy and took < 0.5 < result["s"], (took, result["s"])
+    finally:
+        assert d.stop()[0] == 0, d.stderr()[-3000:]
