@@ -384,6 +384,7 @@ def one_thread(tmp_path):
     assert rc == 0 and took < 10, (rc, took, d.stderr()[-3000:])
 
 
+@pytest.mark.concurrency
 def test_frame_given_up_when_its_client_hangs_up(one_thread):
     d = one_thread
     slow = d.req("POST", f"{CORNELL}/sessions", json_body=SLOW).json()
@@ -403,6 +404,7 @@ def test_frame_given_up_when_its_client_hangs_up(one_thread):
     assert s["frames_rendered"] == 0, s
 
 
+@pytest.mark.concurrency
 def test_queued_frame_dropped_when_its_client_hangs_up(one_thread):
     d = one_thread
     slow = d.req("POST", f"{CORNELL}/sessions", json_body=SLOW).json()
@@ -424,6 +426,7 @@ def test_queued_frame_dropped_when_its_client_hangs_up(one_thread):
     assert d.req("GET", queued["href"]).json()["frames_rendered"] == 0
 
 
+@pytest.mark.concurrency
 def test_frame_given_up_when_its_session_is_deleted(one_thread):
     d = one_thread
     slow = d.req("POST", f"{CORNELL}/sessions", json_body=SLOW).json()
@@ -528,6 +531,7 @@ def test_slow_body_cut_fast_body_accepted(strict):
         sock.close()
 
 
+@pytest.mark.concurrency
 def test_health_listener_answers_while_the_main_port_is_held(strict):
     import re
     port = int(re.search(rb"health http://127\.0\.0\.1:(\d+)", strict.out_path.read_bytes()).group(1))
@@ -565,6 +569,7 @@ def memory_used(d):
     return d.req("GET", "/v1/limits").json()["memory_used"]
 
 
+@pytest.mark.concurrency
 def test_upload_bodies_charged_as_they_arrive(tmp_path):
     budget, announced = 3_000_000, 8_000_000
     d = Daemon(tmp_path / "data", "--threads", "1", "--memory-budget", budget, "--max-asset-body", announced)
@@ -693,6 +698,7 @@ def grid_ply(n):
     return head.encode() + verts.tobytes() + faces.tobytes()
 
 
+@pytest.mark.concurrency
 def test_stored_scenes_load_after_the_daemon_listens(tmp_path):
     scene = dict(SPHERE, shapes=[{"type": "mesh", "material": "w", "file": "grid.ply"}])
     d = Daemon(tmp_path / "data", "--threads", "1")
@@ -722,6 +728,7 @@ def test_stored_scenes_load_after_the_daemon_listens(tmp_path):
         assert d.stop()[0] == 0, d.stderr()[-3000:]
 
 
+@pytest.mark.concurrency
 def test_upload_to_one_scene_does_not_wait_for_another(tmp_path):
     import threading
     d = Daemon(tmp_path / "data", "--threads", "1")
