@@ -1063,5 +1063,6 @@ void api_completed(void *ctx, const char *method, const char *path, const char *
         else safe[n++] = (char)*p;
     }
     safe[n] = '\0';
-    fprintf(stderr, "%s %s %s %d %llu %.1f %s\n", stamp, method, safe, status, (unsigned long long)bytes, ms, request_id);
+    fprintf(stderr, "%s %s %s %d %llu %.1f %s\n", stamp, method, safe, status, (unsigned long long)bytes, ms,
+            request_id);
 }

@@ -1,7 +1,8 @@
 /* budget.h — the daemon's memory budget: one byte count shared by sessions (their buffers and
  * kept frames, as planned at creation), uploaded scenes (registry scene_bytes), references
- * (their pixels) and request bodies being received. Admission reserves before the memory stays in use, so a full budget refuses
- * the request (ERR_BUSY → 503 + Retry-After) instead of growing without bound; what is already
+ * (their pixels) and request bodies being received. Admission reserves before the memory stays
+ * in use, so a full budget refuses the request (ERR_BUSY → 503 + Retry-After) instead of
+ * growing without bound; what is already
  * held is charged without refusal (uploads reloaded at start). Figures are planning estimates,
  * not an allocator account. Thread-safe. */
 #ifndef RESTIRD_BUDGET_H

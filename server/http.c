@@ -392,7 +392,8 @@ static const char *http_framing_problem(struct MHD_Connection *c, const char *ve
     }
     *header = MHD_HTTP_HEADER_HOST;
     if (f.host > 1) return "the request has more than one Host header";
-    if (f.host == 0 && version && strcmp(version, MHD_HTTP_VERSION_1_1) == 0) return "an HTTP/1.1 request needs a Host header";
+    if (f.host == 0 && version && strcmp(version, MHD_HTTP_VERSION_1_1) == 0)
+        return "an HTTP/1.1 request needs a Host header";
     return NULL;
 }
 

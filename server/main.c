@@ -104,7 +104,8 @@ static const char *main_set_token(struct daemon_config *cfg, const char *s, size
     if (n < 16) return "is shorter than 16 characters";
     if (n >= sizeof cfg->auth_token) return "is longer than 255 characters";
     for (size_t i = 0; i < n; i++)
-        if ((unsigned char)s[i] <= ' ' || (unsigned char)s[i] >= 0x7f) return "has a character that is not printable ASCII";
+        if ((unsigned char)s[i] <= ' ' || (unsigned char)s[i] >= 0x7f)
+            return "has a character that is not printable ASCII";
     memcpy(cfg->auth_token, s, n);
     cfg->auth_token[n] = '\0';
     return NULL;
@@ -247,7 +248,8 @@ int main(int argc, char **argv)
             if (!*v || strlen(v) >= sizeof cfg->id || strpbrk(v, "\r\n")) return main_usage("--id: bad name '%s'", v);
             snprintf(cfg->id, sizeof cfg->id, "%s", v);
         } else if (strcmp(a, "--allow-host") == 0) {
-            if (cfg->allow_host_count == DAEMON_MAX_ALLOW_HOSTS) return main_usage("--allow-host: more than 16 names%s", "");
+            if (cfg->allow_host_count == DAEMON_MAX_ALLOW_HOSTS)
+                return main_usage("--allow-host: more than 16 names%s", "");
             if (!*v || strlen(v) >= sizeof cfg->allow_hosts[0] || strpbrk(v, " :/[]@\t\r\n"))
                 return main_usage("--allow-host: '%s' is not a host name (no port, no brackets)", v);
             snprintf(cfg->allow_hosts[cfg->allow_host_count++], sizeof cfg->allow_hosts[0], "%s", v);

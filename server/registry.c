@@ -254,7 +254,8 @@ static bool registry_mkdir_at(const char *path, bool follow, struct err *err)
         struct stat st;
         if (e == EEXIST && (follow ? stat(path, &st) : lstat(path, &st)) == 0 && S_ISDIR(st.st_mode)) return true;
         if (e == EEXIST && lstat(path, &st) == 0 && S_ISLNK(st.st_mode))
-            return err_set(err, ERR_IO, NULL, "'%s' is a symbolic link, and the data directory's folders may not be", path);
+            return err_set(err, ERR_IO, NULL, "'%s' is a symbolic link, and the data directory's folders may not be",
+                           path);
         return err_set(err, registry_io_code(e), NULL, "cannot create folder '%s': %s", path, strerror(e));
     }
     char parent[PATH_MAX];

@@ -124,7 +124,8 @@ def test_client_gone_mid_response(tmp_path):
             abort_connection(sock)
         # An event stream dropped while it is open.
         sock = socket.create_connection(("127.0.0.1", d.port), timeout=10)
-        sock.sendall(f"GET {s['href']}/events HTTP/1.1\r\nHost: 127.0.0.1\r\nAccept: text/event-stream\r\n\r\n".encode())
+        sock.sendall(f"GET {s['href']}/events HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                     "Accept: text/event-stream\r\n\r\n".encode())
         assert sock.recv(1024).startswith(b"HTTP/1.1 200")
         abort_connection(sock)
         time.sleep(0.3)

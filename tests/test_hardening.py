@@ -206,7 +206,8 @@ def test_foreign_host_refused_loopback_names_served(daemon):
     # The health checks answer whoever asks (a load balancer's probe names what it likes).
     assert daemon.req("GET", "/healthz", headers=evil).status == 200
     assert daemon.req("GET", "/readyz", headers=evil).status == 200
-    for host in ("127.0.0.1", f"127.0.0.1:{daemon.port}", f"localhost:{daemon.port}", "LOCALHOST", f"[::1]:{daemon.port}"):
+    port = daemon.port
+    for host in ("127.0.0.1", f"127.0.0.1:{port}", f"localhost:{port}", "LOCALHOST", f"[::1]:{port}"):
         assert daemon.req("GET", "/v1/limits", headers={"Host": host}).status == 200, host
 
 
@@ -350,7 +351,8 @@ def test_beyond_loopback_needs_a_token(tmp_path):
     res = run_daemon(tmp_path, "--listen", "127.0.0.1:0", "--auth-token-file", short)
     assert (res.returncode, res.stderr) == (1, f"restird: --auth-token-file {short}: is shorter than 16 characters\n")
     res = run_daemon(tmp_path, "--listen", "127.0.0.1:0", env={"RESTIRD_AUTH_TOKEN": "has a space in it, so no"})
-    assert (res.returncode, res.stderr) == (1, "restird: RESTIRD_AUTH_TOKEN has a character that is not printable ASCII\n")
+    assert (res.returncode, res.stderr) == (1, "restird: RESTIRD_AUTH_TOKEN has a character that is not printable "
+                                               "ASCII\n")
 
 
 def test_python_client_sends_the_token(guarded):
