@@ -385,9 +385,11 @@ int main(int argc, char **argv)
         }
         char href[256];
         if (api_default_session(&d, cfg->default_scene, href, sizeof href)) {
+            /* The token itself is not printed: the output may end up in a log. */
             printf("default session ready; fetch a frame as EXR with:\n"
-                   "  curl -sf -X POST -H 'Content-Type: application/json' -o frame.exr http://%s%s%s:%u%s/frames\n",
-                   bracket_l, cfg->host, bracket_r, port, href);
+                   "  curl -sf -X POST -H 'Content-Type: application/json'%s -o frame.exr http://%s%s%s:%u%s/frames\n",
+                   cfg->auth_token[0] ? " -H \"Authorization: Bearer $TOKEN\"" : "", bracket_l, cfg->host, bracket_r,
+                   port, href);
         }
     }
     fflush(stdout);
