@@ -822,6 +822,11 @@ void api_reject(void *ctx, const struct http_request *req, struct http_response 
         api_problem_limit(&c, 413, "body-too-large", NULL, (double)limit, "the body is over the limit of %zu bytes", limit);
 }
 
+void api_cut(void *ctx, bool head)
+{
+    prom_count_cut(&((struct daemon *)ctx)->prom, head);
+}
+
 bool api_body_charge(void *ctx, size_t bytes)
 {
     struct daemon *d = ctx;

@@ -12,6 +12,8 @@
 void api_body_policy(void *ctx, const char *method, const char *path, size_t *max_body, bool *required);
 void api_handle(void *ctx, const struct http_request *req, struct http_response *resp);
 void api_reject(void *ctx, const struct http_request *req, struct http_response *resp, int status, size_t limit);
+/* Counts a connection the HTTP layer closed for slowness (in /metrics). */
+void api_cut(void *ctx, bool head);
 /* The memory budget's side of request bodies (BUDGET_UPLOADS). */
 bool api_body_charge(void *ctx, size_t bytes);
 void api_body_release(void *ctx, size_t bytes);

@@ -153,6 +153,7 @@ static void *http_watchdog(void *arg)
             if (!slow_head && !slow_body) continue;
             shutdown(s->fd, SHUT_RDWR);
             s->cut = true;
+            if (h->app.cut) h->app.cut(h->app.ctx, slow_head);
         }
         struct timespec until = now;
         until.tv_nsec += 200 * 1000 * 1000;

@@ -84,6 +84,9 @@ struct http_app {
     /* After every response: one access-log line and the request counters. */
     void (*completed)(void *ctx, const char *method, const char *path, const char *route, int status,
                       uint64_t bytes, double ms, const char *request_id);
+    /* A connection was shut down for a slow request head (head) or body (!head); may be NULL.
+     * Called from the watchdog thread with its lock held: must not block. */
+    void (*cut)(void *ctx, bool head);
     /* X-Served-By, added to every response; NULL or "" = "host:port" of the bound socket. */
     const char *served_by;
 };

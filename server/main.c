@@ -345,7 +345,7 @@ int main(int argc, char **argv)
                               .head_timeout_s = cfg->head_timeout_s, .min_body_rate = cfg->min_body_rate};
     struct http_app app = {.ctx = &d, .body_policy = api_body_policy, .handle = api_handle, .reject = api_reject,
                            .reject_framing = api_reject_framing,
-                           .body_charge = api_body_charge, .body_release = api_body_release,
+                           .body_charge = api_body_charge, .body_release = api_body_release, .cut = api_cut,
                            .completed = api_completed, .served_by = cfg->id};
     http = http_start(&ho, &app, &port, &e);
     if (!http) {

@@ -494,6 +494,9 @@ def test_slow_request_head_cut_at_its_deadline(strict, start):
         assert took is not None and 1.5 < took < 4, took
     finally:
         sock.close()
+    metrics = strict.req("GET", "/metrics").body.decode()
+    assert 'restird_connections_cut_total{phase="head"} 1\n' in metrics, metrics
+    assert 'restird_connections_cut_total{phase="body"} 0\n' in metrics, metrics
 
 
 def test_idle_keep_alive_connection_closed_after_the_head_deadline(strict):
@@ -520,6 +523,7 @@ def test_slow_body_cut_fast_body_accepted(strict):
         assert took is not None and 1.5 < took < 4, took
     finally:
         sock.close()
+    assert 'restird_connections_cut_total{phase="body"} 1\n' in strict.req("GET", "/metrics").body.decode()
     # 1000 bytes/s is an average: a body that pauses, then catches up, is fine.
     sock = socket.create_connection(("127.0.0.1", strict.port), timeout=10)
     try:
