@@ -28,6 +28,7 @@ class Daemon:
         data = None
         if body is not None:
             data = body if isinstance(body, bytes) else json.dumps(body).encode()
+        if body is not None or method in ("POST", "PUT"):
             headers["Content-Type"] = content_type
         self.conn.request(method, path, body=data, headers=headers)
         r = self.conn.getresponse()

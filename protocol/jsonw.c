@@ -262,6 +262,8 @@ static const struct { const char *slug, *title; } protocol_titles[] = {
     {"bad-query", "Bad query parameter"},
     {"bad-id", "Bad identifier"},
     {"bad-header", "Bad header"},
+    {"unauthorized", "Unauthorized"},
+    {"forbidden", "Forbidden"},
     {"not-found", "Not found"},
     {"scene-not-loaded", "Scene not loaded on this daemon"},
     {"method-not-allowed", "Method not allowed"},
@@ -283,6 +285,7 @@ static const struct { const char *slug, *title; } protocol_titles[] = {
     {"insufficient-storage", "Insufficient storage"},
     {"busy", "Busy"},
     {"draining", "Shutting down"},
+    {"loading", "Loading stored scenes"},
     {"internal", "Internal error"},
 };
 

@@ -109,6 +109,27 @@ void api_budget_error(struct api_call *c, const struct err *e)
         api_error(c, e);
 }
 
+bool api_client_gone(void *call)
+{
+    return http_client_gone(((struct api_call *)call)->req);
+}
+
+uint64_t api_frame_samples(const struct view_params *p)
+{
+    bool spp = p->method == RENDER_METHOD_PT || p->method == RENDER_METHOD_SMS || p->method == RENDER_METHOD_SMS_SSP;
+    return (uint64_t)p->width * p->height * (spp ? p->pt.spp : 1u);
+}
+
+bool api_check_work(struct api_call *c, uint64_t samples, const char *field, const char *what)
+{
+    uint64_t max = c->d->cfg.max_work;
+    if (samples <= max) return true;
+    api_problem_limit(c, 422, "limit-exceeded", field, (double)max,
+                      "%s takes %llu samples (pixels x spp), over max_work (%llu): fewer pixels or samples, "
+                      "or more frames of fewer samples", what, (unsigned long long)samples, (unsigned long long)max);
+    return false;
+}
+
 void api_json(struct api_call *c, int status, struct jsonw *w)
 {
     size_t len = 0;
@@ -131,9 +152,10 @@ static bool api_content_type_is(const char *ct, const char *want)
     return strncasecmp(ct, want, n) == 0 && (ct[n] == '\0' || ct[n] == ';' || ct[n] == ' ');
 }
 
+/* Every body route requires its media type even when the body is empty: a cross-site page can
+ * send an empty POST without a preflight, but not one that declares application/json. */
 bool api_require_json(struct api_call *c)
 {
-    if (c->req->body_len == 0) return true;
     const char *ct = http_header(c->req, "Content-Type");
     if (api_content_type_is(ct, "application/json")) return true;
     api_problem(c, 415, "unsupported-media-type", NULL, "the body must be application/json, got %s", ct ? ct : "no Content-Type");
@@ -302,6 +324,10 @@ static void api_readyz(struct api_call *c)
         api_problem(c, 503, "draining", NULL, "the daemon is shutting down");
         return;
     }
+    if (!atomic_load(&c->d->loaded)) {
+        api_problem(c, 503, "loading", NULL, "the daemon is loading its stored scenes");
+        return;
+    }
     struct jsonw w;
     jsonw_init(&w);
     jsonw_object_begin(&w);
@@ -372,12 +398,16 @@ static void api_limits(struct api_call *c)
     jsonw_key(&w, "connection_timeout_s"); jsonw_uint(&w, cfg->timeout_s);
     jsonw_key(&w, "memory_budget"); jsonw_uint(&w, cfg->memory_budget);
     jsonw_key(&w, "max_session_bytes"); jsonw_uint(&w, cfg->max_session_bytes);
+    jsonw_key(&w, "max_work"); jsonw_uint(&w, cfg->max_work);
+    jsonw_key(&w, "head_timeout_s"); jsonw_uint(&w, cfg->head_timeout_s);
+    jsonw_key(&w, "min_body_rate"); jsonw_uint(&w, cfg->min_body_rate);
     /* What the budget holds now, so a client can tell how far it is from a refusal. */
     jsonw_key(&w, "memory_used");
     jsonw_object_begin(&w);
     jsonw_key(&w, "sessions"); jsonw_uint(&w, budget_used(&c->d->budget, BUDGET_SESSIONS));
     jsonw_key(&w, "scenes"); jsonw_uint(&w, budget_used(&c->d->budget, BUDGET_SCENES));
     jsonw_key(&w, "references"); jsonw_uint(&w, budget_used(&c->d->budget, BUDGET_REFERENCES));
+    jsonw_key(&w, "uploads"); jsonw_uint(&w, budget_used(&c->d->budget, BUDGET_UPLOADS));
     jsonw_object_end(&w);
     jsonw_object_end(&w);
     api_json(c, 200, &w);
@@ -637,7 +667,23 @@ static void api_reference_put(struct api_call *c)
     }
     struct image img;
     struct err e = {0};
-    if (!exrio_read_mem(c->req->body ? c->req->body : "", c->req->body_len, "reference", &img, &e)) {
+    /* The decoded image is reserved from the budget, as its header gives its size, before a
+     * pixel is decoded: a small compressed file can ask for gigabytes. */
+    struct exrio_info info;
+    const char *data = c->req->body ? c->req->body : "";
+    if (!exrio_probe_mem(data, c->req->body_len, "reference", &info, &e)) {
+        api_problem(c, 422, "invalid-reference", NULL, "%s", e.message);
+        return;
+    }
+    uint64_t decoded = info.width > 0 && info.height > 0
+                           ? (uint64_t)info.width * (uint64_t)info.height * sizeof(struct vec3) : 0;
+    if (!budget_reserve(&c->d->budget, BUDGET_UPLOADS, decoded, &e)) {
+        api_budget_error(c, &e);
+        return;
+    }
+    bool read = exrio_read_mem(data, c->req->body_len, "reference", &img, &e);
+    budget_release(&c->d->budget, BUDGET_UPLOADS, decoded);  /* refstore_put reserves the image itself */
+    if (!read) {
         if (e.code == ERR_NOMEM) api_error(c, &e);
         else api_problem(c, 422, "invalid-reference", NULL, "%s", e.message);
         return;
@@ -778,10 +824,38 @@ void api_reject(void *ctx, const struct http_request *req, struct http_response 
     resp->route = "refused";
     if (status == 411)
         api_problem(&c, 411, "length-required", NULL, "this request needs a Content-Length (chunked bodies are not accepted)");
+    else if (status == 503)
+        api_problem_limit(&c, 503, "memory-budget", NULL, (double)c.d->cfg.memory_budget,
+                          "the memory budget has no room for the rest of this %zu-byte body", limit);
     else if (limit == 0)
         api_problem_limit(&c, 413, "body-too-large", NULL, 0, "%s %s takes no body", req->method, req->path);
     else
         api_problem_limit(&c, 413, "body-too-large", NULL, (double)limit, "the body is over the limit of %zu bytes", limit);
+}
+
+void api_cut(void *ctx, bool head)
+{
+    prom_count_cut(&((struct daemon *)ctx)->prom, head);
+}
+
+bool api_body_charge(void *ctx, size_t bytes)
+{
+    struct daemon *d = ctx;
+    return budget_reserve(&d->budget, BUDGET_UPLOADS, bytes, NULL);
+}
+
+void api_body_release(void *ctx, size_t bytes)
+{
+    struct daemon *d = ctx;
+    budget_release(&d->budget, BUDGET_UPLOADS, bytes);
+}
+
+void api_reject_framing(void *ctx, const struct http_request *req, struct http_response *resp, const char *header,
+                        const char *why)
+{
+    struct api_call c = {.d = ctx, .req = req, .resp = resp};
+    resp->route = "refused";
+    api_problem(&c, 400, "bad-header", header, "%s", why);
 }
 
 static bool api_valid_frame_ref(const char *s)
@@ -794,9 +868,128 @@ static bool api_valid_frame_ref(const char *s)
     return strtoull(s, NULL, 10) <= UINT32_MAX;
 }
 
+/* ---- who may ask ---- */
+
+/* The host name of a Host header or of an Origin's authority, without the port and the
+ * brackets of an IPv6 address, lower-cased into out; false when it is malformed. */
+static bool api_host_name(const char *s, size_t len, char *out, size_t size)
+{
+    const char *end = s + len;
+    if (len > 0 && s[0] == '[') {
+        const char *close = memchr(s, ']', len);
+        if (!close || (close + 1 != end && close[1] != ':')) return false;
+        s++;
+        end = close;
+    } else {
+        const char *colon = memchr(s, ':', len);
+        if (colon) {
+            if (memchr(colon + 1, ':', (size_t)(end - colon - 1))) return false;
+            end = colon;
+        }
+    }
+    size_t n = (size_t)(end - s);
+    if (n == 0 || n >= size) return false;
+    for (size_t i = 0; i < n; i++) {
+        unsigned char ch = (unsigned char)s[i];
+        if (ch <= ' ' || ch >= 0x7f || ch == '/' || ch == '@') return false;
+        out[i] = (char)tolower(ch);
+    }
+    out[n] = '\0';
+    return true;
+}
+
+static bool api_host_allowed(const struct daemon_config *cfg, const char *name)
+{
+    static const char *const loopback[] = {"localhost", "127.0.0.1", "::1"};
+    for (size_t i = 0; i < sizeof loopback / sizeof loopback[0]; i++)
+        if (strcmp(name, loopback[i]) == 0) return true;
+    bool unspecified = strcmp(cfg->host, "0.0.0.0") == 0 || strcmp(cfg->host, "::") == 0;
+    if (!unspecified && strcasecmp(name, cfg->host) == 0) return true;
+    for (unsigned i = 0; i < cfg->allow_host_count; i++)
+        if (strcmp(cfg->allow_hosts[i], "*") == 0 || strcasecmp(name, cfg->allow_hosts[i]) == 0) return true;
+    return false;
+}
+
+/* Compares without an early exit, so the time taken does not tell how much of a guess was
+ * right. */
+static bool api_token_equal(const char *given, size_t n, const char *token)
+{
+    size_t m = strlen(token);
+    unsigned diff = (unsigned)(n ^ m);
+    for (size_t i = 0; i < n; i++) diff |= (unsigned char)given[i] ^ (unsigned char)token[m ? i % m : 0];
+    return diff == 0 && m > 0;
+}
+
+/* The checks every request passes before its route runs (docs/deploy.md, "Who can reach the
+ * daemon"): a Host this daemon is known by (against DNS rebinding), the bearer token when one
+ * is configured, and for a request that changes state, an Origin (when the browser sends one)
+ * of this daemon (against cross-site requests). The health checks are always open; the page's
+ * own files are open so a browser can load it and be given the token. */
+static bool api_guard(struct api_call *c, const char *method, const char *path)
+{
+    const struct daemon_config *cfg = &c->d->cfg;
+    if (strcmp(path, "/healthz") == 0 || strcmp(path, "/readyz") == 0) return true;
+    char name[256];
+    const char *host = http_header(c->req, "Host");
+    if (host && (!api_host_name(host, strlen(host), name, sizeof name) || !api_host_allowed(cfg, name))) {
+        c->resp->route = "refused";
+        api_problem(c, 403, "forbidden", "Host",
+                    "this daemon is not '%s' (it answers to its loopback names and listen address; "
+                    "--allow-host adds names)", host);
+        return false;
+    }
+    bool page = strcmp(path, "/") == 0 || strncmp(path, "/ui/", 4) == 0;
+    bool open = page || (strcmp(path, "/metrics") == 0 && cfg->metrics_open);
+    if (cfg->auth_token[0] && !open) {
+        const char *auth = http_header(c->req, "Authorization");
+        bool ok = auth && strncasecmp(auth, "Bearer ", 7) == 0;
+        if (ok) {
+            const char *t = auth + 7;
+            while (*t == ' ') t++;
+            size_t n = strlen(t);
+            while (n > 0 && t[n - 1] == ' ') n--;
+            ok = api_token_equal(t, n, cfg->auth_token);
+        }
+        /* A browser's EventSource cannot send headers: an event stream may carry the token as
+         * the access_token query parameter (RFC 6750 §2.3), and nothing else may. */
+        size_t pl = strlen(path);
+        const char *qt = http_query(c->req, "access_token");
+        if (!auth && qt && strcmp(method, "GET") == 0 && pl > 7 && strcmp(path + pl - 7, "/events") == 0)
+            ok = api_token_equal(qt, strlen(qt), cfg->auth_token);
+        if (!ok) {
+            c->resp->route = "refused";
+            http_response_header(c->resp, "WWW-Authenticate", "Bearer realm=\"restird\"");
+            api_problem(c, 401, "unauthorized", "Authorization", "%s",
+                        auth ? "the bearer token is not this daemon's"
+                             : "this daemon needs 'Authorization: Bearer TOKEN' (its --auth-token-file or "
+                               "RESTIRD_AUTH_TOKEN)");
+            return false;
+        }
+    }
+    bool safe = strcmp(method, "GET") == 0 || strcmp(method, "HEAD") == 0 || strcmp(method, "OPTIONS") == 0;
+    const char *origin = http_header(c->req, "Origin");
+    if (!safe && origin) {
+        const char *authority = strstr(origin, "://");
+        bool ok = authority && (strncasecmp(origin, "http://", 7) == 0 || strncasecmp(origin, "https://", 8) == 0);
+        if (ok) {
+            authority += 3;
+            size_t n = strcspn(authority, "/");
+            ok = authority[n] == '\0' && api_host_name(authority, n, name, sizeof name) && api_host_allowed(cfg, name);
+        }
+        if (!ok) {
+            c->resp->route = "refused";
+            api_problem(c, 403, "forbidden", "Origin",
+                        "%s %s from the page of another site ('%s') is refused", method, path, origin);
+            return false;
+        }
+    }
+    return true;
+}
+
 void api_handle(void *ctx, const struct http_request *req, struct http_response *resp)
 {
     struct api_call c = {.d = ctx, .req = req, .resp = resp};
+    if (!api_guard(&c, req->method, req->path)) return;
     const struct api_route *r = api_find(&c, req->path);
     if (!r) {
         resp->route = "unmatched";
@@ -806,10 +999,13 @@ void api_handle(void *ctx, const struct http_request *req, struct http_response 
     resp->route = r->pattern;
     int m = -1;
     char allow[64] = "";
+    /* HEAD is GET without the body (the HTTP layer leaves the body out). */
+    const char *method = strcmp(req->method, "HEAD") == 0 ? "GET" : req->method;
     for (int i = 0; i < 3 && r->methods[i]; i++) {
-        if (strcmp(r->methods[i], req->method) == 0) m = i;
+        if (strcmp(r->methods[i], method) == 0) m = i;
         strncat(allow, i ? ", " : "", sizeof allow - strlen(allow) - 1);
         strncat(allow, r->methods[i], sizeof allow - strlen(allow) - 1);
+        if (strcmp(r->methods[i], "GET") == 0) strncat(allow, ", HEAD", sizeof allow - strlen(allow) - 1);
     }
     if (m < 0) {
         http_response_header(resp, "Allow", "%s", allow);
@@ -832,11 +1028,36 @@ void api_handle(void *ctx, const struct http_request *req, struct http_response 
         }
     }
     if (r->produces && !api_negotiate(&c, r->produces)) return;
-    if (atomic_load(&c.d->draining) && strcmp(req->method, "GET") != 0) {
+    if (atomic_load(&c.d->draining) && strcmp(method, "GET") != 0) {
         api_problem(&c, 503, "draining", NULL, "the daemon is shutting down");
         return;
     }
     r->fn[m](&c);
+}
+
+void api_health_body_policy(void *ctx, const char *method, const char *path, size_t *max_body, bool *required)
+{
+    (void)ctx;
+    (void)method;
+    (void)path;
+    *max_body = 0;
+    *required = false;
+}
+
+void api_handle_health(void *ctx, const struct http_request *req, struct http_response *resp)
+{
+    struct api_call c = {.d = ctx, .req = req, .resp = resp};
+    bool get = strcmp(req->method, "GET") == 0 || strcmp(req->method, "HEAD") == 0;
+    if (get && strcmp(req->path, "/healthz") == 0) {
+        resp->route = "/healthz";
+        api_healthz(&c);
+    } else if (get && strcmp(req->path, "/readyz") == 0) {
+        resp->route = "/readyz";
+        api_readyz(&c);
+    } else {
+        resp->route = "unmatched";
+        api_problem(&c, 404, "not-found", NULL, "the health listener answers GET /healthz and GET /readyz only");
+    }
 }
 
 void api_completed(void *ctx, const char *method, const char *path, const char *route, int status, uint64_t bytes,
@@ -849,5 +1070,15 @@ void api_completed(void *ctx, const char *method, const char *path, const char *
     struct tm tm;
     gmtime_r(&now, &tm);
     strftime(stamp, sizeof stamp, "%Y-%m-%dT%H:%M:%SZ", &tm);
-    fprintf(stderr, "%s %s %s %d %llu %.1f %s\n", stamp, method, path, status, (unsigned long long)bytes, ms, request_id);
+    /* The path is percent-decoded: a control byte (or a space, or a byte over 0x7e) in it is
+     * written %XX again, so that a request cannot forge or split a line of the log. */
+    char safe[3 * 512 + 1];
+    size_t n = 0;
+    for (const unsigned char *p = (const unsigned char *)path; *p && n + 4 < sizeof safe; p++) {
+        if (*p <= ' ' || *p >= 0x7f || *p == '%') n += (size_t)snprintf(safe + n, sizeof safe - n, "%%%02X", *p);
+        else safe[n++] = (char)*p;
+    }
+    safe[n] = '\0';
+    fprintf(stderr, "%s %s %s %d %llu %.1f %s\n", stamp, method, safe, status, (unsigned long long)bytes, ms,
+            request_id);
 }

@@ -12,6 +12,16 @@
 void api_body_policy(void *ctx, const char *method, const char *path, size_t *max_body, bool *required);
 void api_handle(void *ctx, const struct http_request *req, struct http_response *resp);
 void api_reject(void *ctx, const struct http_request *req, struct http_response *resp, int status, size_t limit);
+/* Counts a connection the HTTP layer closed for slowness (in /metrics). */
+void api_cut(void *ctx, bool head);
+/* The memory budget's side of request bodies (BUDGET_UPLOADS). */
+bool api_body_charge(void *ctx, size_t bytes);
+void api_body_release(void *ctx, size_t bytes);
+void api_reject_framing(void *ctx, const struct http_request *req, struct http_response *resp, const char *header,
+                        const char *why);
+/* The health listener's callbacks (--health-listen): GET /healthz and /readyz, nothing else. */
+void api_health_body_policy(void *ctx, const char *method, const char *path, size_t *max_body, bool *required);
+void api_handle_health(void *ctx, const struct http_request *req, struct http_response *resp);
 void api_completed(void *ctx, const char *method, const char *path, const char *route, int status, uint64_t bytes,
                    double ms, const char *request_id);
 
@@ -27,6 +37,16 @@ struct api_call {
     int nseg;
     char buf[1024];                     /* segment storage */
 };
+
+/* True when the client of the call (a struct api_call *) has closed its connection: a long
+ * render polls it to give up a frame nobody will read. */
+bool api_client_gone(void *call);
+
+/* The samples (pixels x samples per pixel) one frame of a session with these params takes. */
+uint64_t api_frame_samples(const struct view_params *p);
+/* True when `samples` is within max_work; else answers 422 limit-exceeded at `field` with the
+ * limit, naming `what` and the value. */
+bool api_check_work(struct api_call *c, uint64_t samples, const char *field, const char *what);
 
 /* Problem response; `field` may be NULL; detail is printf-formatted. */
 void api_problem(struct api_call *c, int status, const char *slug, const char *field, const char *fmt, ...)

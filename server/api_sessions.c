@@ -135,6 +135,10 @@ void api_sessions_post(struct api_call *c)
         api_error(c, &e);
         return;
     }
+    if (!api_check_work(c, api_frame_samples(&params), "/params/spp", "a frame of this session")) {
+        scene_release(scene);
+        return;
+    }
     if (!registry_session_added(c->d->registry, c->seg[2], &e)) {
         scene_release(scene);
         api_scene_exists(c, c->seg[2]);
@@ -411,7 +415,7 @@ void api_frames_post(struct api_call *c)
     uint32_t n = 0;
     struct frame_stats stats;
     if (ok) {
-        ok = session_render(s, &c->d->gate, true, &change, NULL, &n, &stats, &e);
+        ok = session_render(s, &c->d->gate, true, &change, NULL, &n, &stats, api_client_gone, c, &e);
         if (ok) prom_observe_frame(&c->d->prom, stats.render.render_ms * 1e-3);
         else api_error(c, &e);
     }
@@ -905,6 +909,11 @@ void api_session_reference_post(struct api_call *c)
     if (!api_idempotency_key(c, &key)) return;
     struct session *s = api_session(c);
     if (!s) return;
+    if (!api_check_work(c, (uint64_t)s->view.params.width * s->view.params.height * req.spp, "/spp",
+                        "this reference")) {
+        session_release(s);
+        return;
+    }
     /* Snapshot the session's current scene and camera: the reference shows what the next
      * frame would show. */
     if (!session_claim(s, &e)) {

@@ -2,7 +2,7 @@
  * are rare next to renders, so contention does not matter. */
 #include "budget.h"
 
-static const char *const budget_names[BUDGET_KINDS] = {"sessions", "scenes", "references"};
+static const char *const budget_names[BUDGET_KINDS] = {"sessions", "scenes", "references", "uploads"};
 
 void budget_init(struct budget *b, uint64_t limit)
 {

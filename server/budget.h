@@ -1,7 +1,8 @@
 /* budget.h — the daemon's memory budget: one byte count shared by sessions (their buffers and
- * kept frames, as planned at creation), uploaded scenes (registry scene_bytes) and references
- * (their pixels). Admission reserves before the memory stays in use, so a full budget refuses
- * the request (ERR_BUSY → 503 + Retry-After) instead of growing without bound; what is already
+ * kept frames, as planned at creation), uploaded scenes (registry scene_bytes), references
+ * (their pixels) and request bodies being received. Admission reserves before the memory stays
+ * in use, so a full budget refuses the request (ERR_BUSY → 503 + Retry-After) instead of
+ * growing without bound; what is already
  * held is charged without refusal (uploads reloaded at start). Figures are planning estimates,
  * not an allocator account. Thread-safe. */
 #ifndef RESTIRD_BUDGET_H
@@ -13,7 +14,8 @@
 
 #include "core/err.h"
 
-enum budget_kind { BUDGET_SESSIONS, BUDGET_SCENES, BUDGET_REFERENCES, BUDGET_KINDS };
+/* BUDGET_UPLOADS: request bodies as they arrive, and reference images while they decode. */
+enum budget_kind { BUDGET_SESSIONS, BUDGET_SCENES, BUDGET_REFERENCES, BUDGET_UPLOADS, BUDGET_KINDS };
 
 struct budget {
     pthread_mutex_t lock;

@@ -31,8 +31,20 @@ struct daemon_config {
     size_t max_json_body, max_asset_body, max_reference_body;
     unsigned render_slots, render_queue, job_queue, job_workers;
     unsigned connection_limit, per_ip_limit, timeout_s;
+    unsigned head_timeout_s, min_body_rate;  /* slow clients (http.h, struct http_options) */
+    char health_host[64];                    /* --health-listen: a listener for the health checks */
+    uint16_t health_port;                    /* only; "" = none */
     unsigned threads;                   /* render threads, 0 = all cores */
+    uint64_t max_work;                  /* samples (pixels x spp) one frame or reference may take */
     char default_scene[65];             /* "" = no default session */
+    /* Who may ask: Host names accepted besides the loopback names and the listen address
+     * (--allow-host; "*" = any), the bearer token ("" = none) and whether /metrics is open
+     * without it. */
+#define DAEMON_MAX_ALLOW_HOSTS 16
+    char allow_hosts[DAEMON_MAX_ALLOW_HOSTS][256];
+    unsigned allow_host_count;
+    char auth_token[256];
+    bool metrics_open;
 };
 
 struct daemon {
@@ -45,6 +57,8 @@ struct daemon {
     struct budget budget;
     struct prom prom;
     atomic_bool draining;
+    atomic_bool loaded;                 /* the stored scenes are loaded (/readyz) */
+    atomic_bool stop_loading;
 };
 
 #endif

@@ -5,8 +5,11 @@
 #include "http.h"
 
 #include <arpa/inet.h>
+#include <errno.h>
+#include <poll.h>
 #include <microhttpd.h>
 #include <netinet/in.h>
+#include <pthread.h>
 #include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -19,6 +22,22 @@
 /* Bodies over the limit up to this size are read and discarded so that the client reads the
  * 413; larger ones get the answer at once and the connection closes. */
 #define HTTP_DISCARD_MAX ((unsigned long long)64 << 20)
+/* A body's buffer starts at this size and doubles as the body arrives. */
+#define HTTP_BODY_FIRST ((size_t)64 << 10)
+
+/* One open connection, as the watchdog sees it (MHD's socket context). A connection is always
+ * in one of three phases: waiting for a request's line and headers (since it opened or since
+ * its previous answer), receiving a body, or busy (a handler runs or an answer is being sent). */
+enum http_phase { HTTP_HEAD, HTTP_BODY, HTTP_BUSY };
+
+struct http_sock {
+    struct http_sock *prev, *next;
+    int fd;
+    enum http_phase phase;
+    struct timespec since;     /* when the phase began */
+    uint64_t body_bytes;       /* received in HTTP_BODY */
+    bool cut;                  /* shut down by the watchdog */
+};
 
 struct http {
     struct MHD_Daemon *mhd;
@@ -26,6 +45,13 @@ struct http {
     char served_by[192];       /* app.served_by points here; written before the first request */
     atomic_uint_fast64_t next_id;
     uint32_t boot;             /* start time, so request ids differ across restarts */
+    /* The watchdog: slow clients (see http.h, struct http_options). */
+    unsigned head_timeout_s, min_body_rate;
+    pthread_mutex_t socks_lock;
+    pthread_cond_t socks_wake;
+    struct http_sock *socks;   /* open connections */
+    bool watchdog_running, watchdog_stop;
+    pthread_t watchdog;
 };
 
 /* Per-request state, MHD's con_cls. */
@@ -40,11 +66,107 @@ struct http_conn {
     bool responded;            /* a response was queued (possibly before the body was read) */
     int reject_status;         /* refused from the headers; the body is being discarded */
     bool discard;              /* a body nobody asked for, being dropped */
+    bool close;                /* answer with Connection: close (the framing was refused) */
     size_t reject_limit;
     char *body;
     size_t body_len, body_cap;
+    size_t body_want;          /* Content-Length: the buffer grows to it as the body arrives */
+    size_t body_charged;       /* bytes of the buffer charged to the app (body_charge) */
     struct http *http;
+    struct http_sock *sock;    /* the connection's watchdog entry, or NULL */
 };
+
+static double http_since_s(const struct timespec *t0, const struct timespec *now)
+{
+    return (double)(now->tv_sec - t0->tv_sec) + (double)(now->tv_nsec - t0->tv_nsec) * 1e-9;
+}
+
+static void http_phase(struct http *h, struct http_sock *s, enum http_phase phase)
+{
+    if (!s) return;
+    pthread_mutex_lock(&h->socks_lock);
+    if (s->phase != phase) {
+        s->phase = phase;
+        s->body_bytes = 0;
+        clock_gettime(CLOCK_MONOTONIC, &s->since);
+    }
+    pthread_mutex_unlock(&h->socks_lock);
+}
+
+static void http_body_bytes(struct http *h, struct http_sock *s, size_t n)
+{
+    if (!s) return;
+    pthread_mutex_lock(&h->socks_lock);
+    s->body_bytes += n;
+    pthread_mutex_unlock(&h->socks_lock);
+}
+
+static void http_notify_connection(void *cls, struct MHD_Connection *c, void **socket_context,
+                                   enum MHD_ConnectionNotificationCode code)
+{
+    struct http *h = cls;
+    if (code == MHD_CONNECTION_NOTIFY_STARTED) {
+        const union MHD_ConnectionInfo *ci = MHD_get_connection_info(c, MHD_CONNECTION_INFO_CONNECTION_FD);
+        struct http_sock *s = ci ? calloc(1, sizeof *s) : NULL;
+        *socket_context = s;
+        if (!s) return;  /* not watched: only the idle timeout applies */
+        s->fd = ci->connect_fd;
+        s->phase = HTTP_HEAD;
+        clock_gettime(CLOCK_MONOTONIC, &s->since);
+        pthread_mutex_lock(&h->socks_lock);
+        s->next = h->socks;
+        if (h->socks) h->socks->prev = s;
+        h->socks = s;
+        pthread_mutex_unlock(&h->socks_lock);
+        return;
+    }
+    /* Closed: MHD closes the socket after this returns, so the watchdog, which shuts sockets
+     * down under the same lock, never touches a descriptor that was reused. */
+    struct http_sock *s = *socket_context;
+    if (!s) return;
+    pthread_mutex_lock(&h->socks_lock);
+    if (s->prev) s->prev->next = s->next;
+    else h->socks = s->next;
+    if (s->next) s->next->prev = s->prev;
+    pthread_mutex_unlock(&h->socks_lock);
+    free(s);
+    *socket_context = NULL;
+}
+
+/* Every 200 ms: a connection that has not delivered a request's line and headers within
+ * head_timeout_s of opening (or of its previous answer), or whose body, after the same grace,
+ * arrives slower than min_body_rate bytes/s on average, is shut down. Its thread then sees the
+ * end of the stream and MHD closes it: the connection slot is free again. */
+static void *http_watchdog(void *arg)
+{
+    struct http *h = arg;
+    pthread_mutex_lock(&h->socks_lock);
+    while (!h->watchdog_stop) {
+        struct timespec now;
+        clock_gettime(CLOCK_MONOTONIC, &now);
+        for (struct http_sock *s = h->socks; s; s = s->next) {
+            if (s->cut || s->phase == HTTP_BUSY) continue;
+            double t = http_since_s(&s->since, &now);
+            bool slow_head = s->phase == HTTP_HEAD && h->head_timeout_s && t > h->head_timeout_s;
+            bool slow_body = s->phase == HTTP_BODY && h->min_body_rate && t > h->head_timeout_s &&
+                             (double)s->body_bytes < (double)h->min_body_rate * t;
+            if (!slow_head && !slow_body) continue;
+            shutdown(s->fd, SHUT_RDWR);
+            s->cut = true;
+            if (h->app.cut) h->app.cut(h->app.ctx, slow_head);
+        }
+        struct timespec until = now;
+        until.tv_nsec += 200 * 1000 * 1000;
+        if (until.tv_nsec >= 1000000000L) {
+            until.tv_sec++;
+            until.tv_nsec -= 1000000000L;
+        }
+        pthread_cond_timedwait(&h->socks_wake, &h->socks_lock, &until);
+    }
+    pthread_mutex_unlock(&h->socks_lock);
+    return NULL;
+}
+
 
 struct http_stream_box {
     http_stream_fn *fn;
@@ -61,6 +183,21 @@ const char *http_query(const struct http_request *r, const char *key)
 const char *http_header(const struct http_request *r, const char *name)
 {
     return MHD_lookup_connection_value(r->internal, MHD_HEADER_KIND, name);
+}
+
+bool http_client_gone(const struct http_request *r)
+{
+    const union MHD_ConnectionInfo *ci = MHD_get_connection_info(r->internal, MHD_CONNECTION_INFO_CONNECTION_FD);
+    if (!ci) return false;
+    struct pollfd p = {.fd = ci->connect_fd, .events = POLLIN};
+    if (poll(&p, 1, 0) <= 0) return false;
+    if (p.revents & (POLLHUP | POLLERR)) return true;
+    if (!(p.revents & POLLIN)) return false;
+    /* Readable: either the next pipelined request (the client is there) or the end of the
+     * stream (it closed). MHD reads nothing while this connection's handler runs. */
+    char b;
+    ssize_t n = recv(ci->connect_fd, &b, 1, MSG_PEEK | MSG_DONTWAIT);
+    return n == 0 || (n < 0 && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR);
 }
 
 struct http_query_buf { char *buf; size_t size, len; bool overflow; };
@@ -167,6 +304,13 @@ static enum MHD_Result http_send(struct http *h, struct MHD_Connection *c, struc
 {
     struct MHD_Response *r;
     bool no_body = resp->status == 204 || resp->status == 304;
+    /* HEAD: a buffered body gives its Content-Length and MHD leaves the bytes out; a stream
+     * (an event stream) is not started at all. */
+    if (strcmp(hc->method, "HEAD") == 0 && resp->stream) {
+        if (resp->stream_free) resp->stream_free(resp->stream_ctx);
+        resp->stream = NULL;
+        resp->stream_free = NULL;
+    }
     if (resp->stream && !no_body) {
         struct http_stream_box *box = calloc(1, sizeof *box);
         if (!box) {
@@ -198,21 +342,66 @@ static enum MHD_Result http_send(struct http *h, struct MHD_Connection *c, struc
     if (resp->content_type && !no_body) MHD_add_response_header(r, MHD_HTTP_HEADER_CONTENT_TYPE, resp->content_type);
     MHD_add_response_header(r, "X-Request-Id", hc->request_id);
     if (h->app.served_by) MHD_add_response_header(r, "X-Served-By", h->app.served_by);
+    if (hc->close) MHD_add_response_header(r, MHD_HTTP_HEADER_CONNECTION, "close");
     for (int i = 0; i < resp->header_count; i++) MHD_add_response_header(r, resp->headers[i].name, resp->headers[i].value);
     hc->status = resp->status;
     hc->bytes = resp->stream ? 0 : resp->body_len;
     hc->route = resp->route;
     hc->responded = true;
+    http_phase(h, hc->sock, HTTP_BUSY);
     enum MHD_Result ret = MHD_queue_response(c, (unsigned)resp->status, r);
     MHD_destroy_response(r);
     return ret;
+}
+
+/* What the request's framing headers say, counted over every header line (MHD's lookup sees
+ * only the first of a repeated header, and frames the body by it). */
+struct http_framing {
+    int content_length, transfer_encoding, host;
+};
+
+static enum MHD_Result http_framing_each(void *cls, enum MHD_ValueKind kind, const char *key, const char *value)
+{
+    (void)kind;
+    (void)value;
+    struct http_framing *f = cls;
+    if (strcasecmp(key, MHD_HTTP_HEADER_CONTENT_LENGTH) == 0) f->content_length++;
+    else if (strcasecmp(key, MHD_HTTP_HEADER_TRANSFER_ENCODING) == 0) f->transfer_encoding++;
+    else if (strcasecmp(key, MHD_HTTP_HEADER_HOST) == 0) f->host++;
+    return MHD_YES;
+}
+
+/* The framing problem of a request, or NULL: a body must be framed one way only (RFC 9112
+ * §6.3: a repeated Content-Length, Transfer-Encoding beside Content-Length, or a transfer coding
+ * other than chunked would let a proxy and this server see different requests), and an HTTP/1.1
+ * request names its Host exactly once. */
+static const char *http_framing_problem(struct MHD_Connection *c, const char *version, bool *chunked,
+                                        const char **header)
+{
+    struct http_framing f = {0};
+    MHD_get_connection_values(c, MHD_HEADER_KIND, http_framing_each, &f);
+    *chunked = false;
+    *header = MHD_HTTP_HEADER_CONTENT_LENGTH;
+    if (f.content_length > 1) return "the request has more than one Content-Length header";
+    *header = MHD_HTTP_HEADER_TRANSFER_ENCODING;
+    if (f.transfer_encoding > 1) return "the request has more than one Transfer-Encoding header";
+    if (f.transfer_encoding && f.content_length) return "the request has both Transfer-Encoding and Content-Length";
+    if (f.transfer_encoding) {
+        const char *te = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_TRANSFER_ENCODING);
+        if (!te || strcasecmp(te, "chunked") != 0) return "the only Transfer-Encoding accepted is chunked";
+        *chunked = true;
+    }
+    *header = MHD_HTTP_HEADER_HOST;
+    if (f.host > 1) return "the request has more than one Host header";
+    if (f.host == 0 && version && strcmp(version, MHD_HTTP_VERSION_1_1) == 0)
+        return "an HTTP/1.1 request needs a Host header";
+    return NULL;
 }
 
 static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const char *url, const char *method,
                                    const char *version, const char *upload_data, size_t *upload_data_size,
                                    void **con_cls)
 {
-    (void)version;
     struct http *h = cls;
     struct http_conn *hc = *con_cls;
     struct http_request req = {.method = method, .path = url, .internal = c};
@@ -223,6 +412,9 @@ static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const ch
         if (!hc) return MHD_NO;
         *con_cls = hc;
         hc->http = h;
+        const union MHD_ConnectionInfo *si = MHD_get_connection_info(c, MHD_CONNECTION_INFO_SOCKET_CONTEXT);
+        hc->sock = si ? si->socket_context : NULL;
+        http_phase(h, hc->sock, HTTP_BODY);
         clock_gettime(CLOCK_MONOTONIC, &hc->start);
         snprintf(hc->method, sizeof hc->method, "%s", method);
         snprintf(hc->path, sizeof hc->path, "%s", url);
@@ -234,10 +426,18 @@ static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const ch
                      (unsigned long long)atomic_fetch_add(&h->next_id, 1));
         req.request_id = hc->request_id;
 
+        bool chunked = false;
+        const char *header = NULL;
+        const char *bad = http_framing_problem(c, version, &chunked, &header);
+        if (bad) {
+            /* The connection closes after the answer: where its body ends is not known. */
+            h->app.reject_framing(h->app.ctx, &req, &resp, header, bad);
+            hc->close = true;
+            return http_send(h, c, hc, &resp);
+        }
         size_t max_body = 0;
         bool required = false;
         h->app.body_policy(h->app.ctx, method, url, &max_body, &required);
-        const char *te = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_TRANSFER_ENCODING);
         const char *cl = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_LENGTH);
         unsigned long long length = 0;
         if (cl) {
@@ -247,7 +447,7 @@ static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const ch
         }
         /* 411: a chunked body (its length is unknown, so no limit can be decided up front), or
          * no length where a body is required. */
-        if ((te && strcasecmp(te, "identity") != 0) || (!cl && required)) {
+        if (chunked || (!cl && required)) {
             h->app.reject(h->app.ctx, &req, &resp, 411, max_body);
             return http_send(h, c, hc, &resp);
         }
@@ -271,17 +471,14 @@ static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const ch
             hc->reject_limit = max_body;
             return MHD_YES;
         }
-        if (length > 0) {
-            hc->body = malloc(length);
-            if (!hc->body) {
-                h->app.reject(h->app.ctx, &req, &resp, 413, max_body);
-                return http_send(h, c, hc, &resp);
-            }
-            hc->body_cap = length;
-        }
+        /* The buffer grows as the body arrives (http_body_append), each step charged to the app
+         * first: a client that announces a large body and sends it slowly holds only what it
+         * sent, and the memory budget sees it. */
+        hc->body_want = (size_t)length;
         return MHD_YES;
     }
     req.request_id = hc->request_id;
+    http_body_bytes(h, hc->sock, *upload_data_size);
     if (hc->responded) {
         /* The response went out before the body; discard what still arrives. */
         *upload_data_size = 0;
@@ -301,14 +498,44 @@ static enum MHD_Result http_access(void *cls, struct MHD_Connection *c, const ch
     }
     if (*upload_data_size > 0) {
         size_t n = *upload_data_size;
-        if (n > hc->body_cap - hc->body_len) n = hc->body_cap - hc->body_len;  /* MHD enforces the length */
+        if (n > hc->body_want - hc->body_len) n = hc->body_want - hc->body_len;  /* MHD enforces the length */
+        *upload_data_size = 0;
+        if (n == 0) return MHD_YES;
+        if (hc->body_len + n > hc->body_cap) {
+            size_t cap = hc->body_cap ? hc->body_cap : HTTP_BODY_FIRST;
+            while (cap < hc->body_len + n) cap = cap > SIZE_MAX / 2 ? SIZE_MAX : cap * 2;
+            if (cap > hc->body_want) cap = hc->body_want;
+            /* The first HTTP_BODY_FIRST bytes of a body are not charged (at most that much per
+             * connection): a full budget still lets small JSON requests through. */
+            size_t free_part = hc->body_cap > HTTP_BODY_FIRST ? hc->body_cap : HTTP_BODY_FIRST;
+            size_t more = cap > free_part ? cap - free_part : 0;
+            char *grown = NULL;
+            bool charged = more == 0 || !h->app.body_charge || h->app.body_charge(h->app.ctx, more);
+            if (charged) grown = realloc(hc->body, cap);
+            if (!grown) {
+                if (charged && more && h->app.body_release) h->app.body_release(h->app.ctx, more);
+                /* The budget (or malloc) refused: what was received is freed now, the rest is
+                 * read and dropped (as for a 413), and the answer is a 503. */
+                free(hc->body);
+                hc->body = NULL;
+                hc->body_len = hc->body_cap = 0;
+                if (hc->body_charged && h->app.body_release) h->app.body_release(h->app.ctx, hc->body_charged);
+                hc->body_charged = 0;
+                hc->reject_status = 503;
+                hc->reject_limit = hc->body_want;
+                return MHD_YES;
+            }
+            hc->body = grown;
+            hc->body_cap = cap;
+            hc->body_charged += more;
+        }
         memcpy(hc->body + hc->body_len, upload_data, n);
         hc->body_len += n;
-        *upload_data_size = 0;
         return MHD_YES;
     }
     req.body = hc->body;
     req.body_len = hc->body_len;
+    http_phase(h, hc->sock, HTTP_BUSY);
     h->app.handle(h->app.ctx, &req, &resp);
     return http_send(h, c, hc, &resp);
 }
@@ -325,7 +552,9 @@ static void http_completed(void *cls, struct MHD_Connection *c, void **con_cls, 
     double ms = (double)(now.tv_sec - hc->start.tv_sec) * 1e3 + (double)(now.tv_nsec - hc->start.tv_nsec) * 1e-6;
     if (h->app.completed)
         h->app.completed(h->app.ctx, hc->method, hc->path, hc->route, hc->status, hc->bytes, ms, hc->request_id);
+    http_phase(h, hc->sock, HTTP_HEAD);  /* the next request's head is due from now */
     free(hc->body);
+    if (hc->body_charged && h->app.body_release) h->app.body_release(h->app.ctx, hc->body_charged);
     free(hc);
     *con_cls = NULL;
 }
@@ -408,6 +637,14 @@ struct http *http_start(const struct http_options *opts, const struct http_app *
         return err_set(err, ERR_NOMEM, NULL, "out of memory"), NULL;
     }
     h->app = *app;
+    h->head_timeout_s = opts->head_timeout_s;
+    h->min_body_rate = opts->min_body_rate;
+    pthread_mutex_init(&h->socks_lock, NULL);
+    pthread_condattr_t ca;
+    pthread_condattr_init(&ca);
+    pthread_condattr_setclock(&ca, CLOCK_MONOTONIC);
+    pthread_cond_init(&h->socks_wake, &ca);
+    pthread_condattr_destroy(&ca);
     bool v6 = ss.ss_family == AF_INET6;
     if (app->served_by && app->served_by[0])
         snprintf(h->served_by, sizeof h->served_by, "%s", app->served_by);
@@ -424,13 +661,18 @@ struct http *http_start(const struct http_options *opts, const struct http_app *
                               MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)opts->timeout_s,
                               MHD_OPTION_CONNECTION_MEMORY_LIMIT, (size_t)(64 * 1024),
                               MHD_OPTION_NOTIFY_COMPLETED, http_completed, h,
+                              MHD_OPTION_NOTIFY_CONNECTION, http_notify_connection, h,
                               MHD_OPTION_UNESCAPE_CALLBACK, http_unescape, NULL,
                               MHD_OPTION_END);
     if (!h->mhd) {
         close(fd);
+        pthread_cond_destroy(&h->socks_wake);
+        pthread_mutex_destroy(&h->socks_lock);
         free(h);
         return err_set(err, ERR_IO, "--listen", "cannot serve on %s port %u", opts->host, port), NULL;
     }
+    if ((h->head_timeout_s || h->min_body_rate) && pthread_create(&h->watchdog, NULL, http_watchdog, h) == 0)
+        h->watchdog_running = true;
     if (bound_port) *bound_port = port;
     return h;
 }
@@ -445,6 +687,15 @@ void http_quiesce(struct http *h)
 void http_stop(struct http *h)
 {
     if (!h) return;
+    if (h->watchdog_running) {
+        pthread_mutex_lock(&h->socks_lock);
+        h->watchdog_stop = true;
+        pthread_cond_signal(&h->socks_wake);
+        pthread_mutex_unlock(&h->socks_lock);
+        pthread_join(h->watchdog, NULL);
+    }
     if (h->mhd) MHD_stop_daemon(h->mhd);
+    pthread_cond_destroy(&h->socks_wake);
+    pthread_mutex_destroy(&h->socks_lock);
     free(h);
 }

@@ -5,7 +5,8 @@
  * without delaying any other connection: /healthz is answered on its own thread.
  * Bodies: the route's body limit is looked up from the method and path before a byte is read;
  * over the limit → 413 at once, no Content-Length on a route that needs a body or a chunked
- * body → 411. The body is then buffered whole (it is at most the limit) and handed over. */
+ * body → 411. The body is then buffered whole (it is at most the limit), in a buffer that grows
+ * as it arrives and is charged to the app (body_charge) before each step, and handed over. */
 #ifndef RESTIRD_HTTP_H
 #define RESTIRD_HTTP_H
 
@@ -35,6 +36,10 @@ const char *http_header(const struct http_request *r, const char *name);
  * when it does not fit (buf then holds ""). For redirects that must keep the query. */
 bool http_query_string(const struct http_request *r, char *buf, size_t size);
 
+/* True when the client has closed its side of the connection (or reset it) while its request
+ * is being handled; cheap (a poll with no wait), for a long handler to call now and then. */
+bool http_client_gone(const struct http_request *r);
+
 /* Streaming body (server-sent events): returns bytes written into buf (> 0), or
  * HTTP_STREAM_END. May block (its own connection thread). */
 #define HTTP_STREAM_END ((ssize_t)-1)
@@ -63,11 +68,25 @@ struct http_app {
      * required (PUT) so that a missing Content-Length is a 411. */
     void (*body_policy)(void *ctx, const char *method, const char *path, size_t *max_body, bool *required);
     void (*handle)(void *ctx, const struct http_request *req, struct http_response *resp);
-    /* Fill resp with the problem for a request the HTTP layer refused (411, 413). */
+    /* A request body's buffer is about to grow by `bytes` past its first 64 KiB (which are not
+     * charged): false refuses (what was received is freed, the rest is read and dropped, and
+     * the request gets a 503 from reject). Every byte charged is given back with body_release
+     * by the end of the request. Both may be NULL. */
+    bool (*body_charge)(void *ctx, size_t bytes);
+    void (*body_release)(void *ctx, size_t bytes);
+    /* Fill resp with the problem for a request the HTTP layer refused (411, 413; 503 when
+     * body_charge refused, `limit` then the announced body size). */
     void (*reject)(void *ctx, const struct http_request *req, struct http_response *resp, int status, size_t limit);
+    /* Fill resp with the 400 for a request whose framing is refused: the header at fault and
+     * why. */
+    void (*reject_framing)(void *ctx, const struct http_request *req, struct http_response *resp, const char *header,
+                           const char *why);
     /* After every response: one access-log line and the request counters. */
     void (*completed)(void *ctx, const char *method, const char *path, const char *route, int status,
                       uint64_t bytes, double ms, const char *request_id);
+    /* A connection was shut down for a slow request head (head) or body (!head); may be NULL.
+     * Called from the watchdog thread with its lock held: must not block. */
+    void (*cut)(void *ctx, bool head);
     /* X-Served-By, added to every response; NULL or "" = "host:port" of the bound socket. */
     const char *served_by;
 };
@@ -76,6 +95,11 @@ struct http_options {
     const char *host;          /* numeric IPv4 or IPv6 address */
     uint16_t port;             /* 0 = any free port */
     unsigned connection_limit, per_ip_limit, timeout_s;
+    /* Slow clients: a request's line and headers must arrive within head_timeout_s of the
+     * connection opening or of its previous answer; a body must arrive at min_body_rate
+     * bytes/s on average once it has had head_timeout_s. A connection that falls behind is
+     * shut down. 0 = no such check (the idle timeout, timeout_s, still applies). */
+    unsigned head_timeout_s, min_body_rate;
 };
 
 struct http;

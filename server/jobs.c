@@ -93,7 +93,7 @@ static void jobs_run_animation(struct jobs *q, struct job *j)
 
         uint32_t n;
         struct frame_stats stats;
-        if (!session_render(s, q->gate, false, &change, j, &n, &stats, &j->error)) {
+        if (!session_render(s, q->gate, false, &change, j, &n, &stats, NULL, NULL, &j->error)) {
             if (j->error.code == ERR_BUSY) {
                 jobs_set_status(j, JOB_CANCELLED);  /* the gate closed: shutting down */
                 return;

@@ -48,6 +48,14 @@ void prom_observe_frame(struct prom *p, double seconds)
     pthread_mutex_unlock(&p->lock);
 }
 
+void prom_count_cut(struct prom *p, bool head)
+{
+    pthread_mutex_lock(&p->lock);
+    if (head) p->cut_head++;
+    else p->cut_body++;
+    pthread_mutex_unlock(&p->lock);
+}
+
 struct prom_buf { char *s; size_t len, cap; bool failed; };
 
 static void prom_printf(struct prom_buf *b, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
@@ -90,6 +98,11 @@ char *prom_format(struct prom *p, const struct prom_gauges *g, size_t *len)
     prom_printf(&b, "restird_frame_render_seconds_bucket{le=\"+Inf\"} %llu\n", (unsigned long long)p->frame_count);
     prom_printf(&b, "restird_frame_render_seconds_sum %.9g\n", p->frame_sum_s);
     prom_printf(&b, "restird_frame_render_seconds_count %llu\n", (unsigned long long)p->frame_count);
+    prom_printf(&b, "# HELP restird_connections_cut_total Connections closed for sending a request head or body too "
+                    "slowly.\n# TYPE restird_connections_cut_total counter\n"
+                    "restird_connections_cut_total{phase=\"head\"} %llu\n"
+                    "restird_connections_cut_total{phase=\"body\"} %llu\n",
+                (unsigned long long)p->cut_head, (unsigned long long)p->cut_body);
     pthread_mutex_unlock(&p->lock);
     prom_printf(&b, "# HELP restird_sessions Live sessions.\n# TYPE restird_sessions gauge\nrestird_sessions %u\n", g->sessions);
     prom_printf(&b, "# HELP restird_scenes Scenes held.\n# TYPE restird_scenes gauge\nrestird_scenes %u\n", g->scenes);

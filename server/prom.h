@@ -4,6 +4,7 @@
 #define RESTIRD_PROM_H
 
 #include <pthread.h>
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -17,6 +18,7 @@ struct prom {
     uint64_t frame_buckets[PROM_BUCKETS];   /* cumulative at exposition, counts per bucket here */
     uint64_t frame_count;
     double frame_sum_s;
+    uint64_t cut_head, cut_body;            /* connections closed for a slow head or body */
 };
 
 /* Gauges read at scrape time. */
@@ -31,6 +33,8 @@ void prom_destroy(struct prom *p);
 /* `route` must be a string with static storage (a route template). */
 void prom_count_request(struct prom *p, const char *route, int code);
 void prom_observe_frame(struct prom *p, double seconds);
+/* A connection closed for a slow request head (head) or a slow body (!head). */
+void prom_count_cut(struct prom *p, bool head);
 /* The exposition text, malloc'd (caller frees); NULL on allocation failure. */
 char *prom_format(struct prom *p, const struct prom_gauges *g, size_t *len);
 

@@ -2,9 +2,11 @@
  * uploads persisted under <data>/scenes/<id>/. Owns the data directory's layout and its crash
  * safety (temporary name, fsync, rename, fsync of the folder). It must not parse JSON or meshes
  * itself: an upload is validated by the same scene loader and mesh_io as a library scene.
- * Locks: `lock` guards the table only; `write_lock` lets one writer at a time change the data
- * directory. Loading, committing and file I/O run with only `write_lock` held, so lookups
- * (acquire, info, list, session counts) never wait for a slow upload. */
+ * Locks: `lock` guards the table only; a write lock lets one writer at a time change one
+ * scene's entry and folder. Loading, committing and file I/O run with only the scene's write
+ * lock held, so lookups (acquire, info, list, session counts) never wait for a slow upload, and
+ * an upload to one scene never waits for a slow upload to another (unless their ids share one
+ * of the REGISTRY_WRITE_STRIPES locks). */
 #include "registry.h"
 
 #include <dirent.h>
@@ -51,9 +53,13 @@ struct registry_entry {
     uint64_t hash;
 };
 
+#define REGISTRY_WRITE_STRIPES 16
+
 struct registry {
     pthread_mutex_t lock;         /* guards entries, count, cap and every entry */
-    pthread_mutex_t write_lock;   /* serialises put/delete (taken before `lock`, never after) */
+    /* Serialise put/delete/load of one id (taken before `lock`, never after; one at a time,
+     * except registry_set_budget, which takes them all in order). */
+    pthread_mutex_t write_locks[REGISTRY_WRITE_STRIPES];
     struct registry_entry **entries;  /* sorted by id */
     size_t count, cap;
     char *scenes_dir;             /* <data>/scenes */
@@ -61,6 +67,14 @@ struct registry {
     void *warn_ctx;
     struct budget *budget;        /* uploaded scenes' bytes are reserved from it; NULL = none */
 };
+
+/* The write lock of scene `id` (FNV-1a of the id picks the stripe). */
+static pthread_mutex_t *registry_write_lock(struct registry *r, const char *id)
+{
+    uint32_t h = 2166136261u;
+    for (const unsigned char *p = (const unsigned char *)id; *p; p++) h = (h ^ *p) * 16777619u;
+    return &r->write_locks[h % REGISTRY_WRITE_STRIPES];
+}
 
 struct registry_names {
     char **v;
@@ -230,12 +244,18 @@ static enum err_code registry_io_code(int e)
     return e == ENOSPC || e == EDQUOT || e == EFBIG ? ERR_STORAGE : ERR_IO;
 }
 
-static bool registry_mkdir(const char *path, struct err *err)
+/* follow: whether an existing symbolic link to a folder will do. The path to the data directory
+ * may have them (the operator's choice); the folders inside it are the daemon's own and never
+ * are links: a link planted there would have scenes written and deleted through it. */
+static bool registry_mkdir_at(const char *path, bool follow, struct err *err)
 {
     if (mkdir(path, 0755) != 0) {
         int e = errno;
         struct stat st;
-        if (e == EEXIST && stat(path, &st) == 0 && S_ISDIR(st.st_mode)) return true;
+        if (e == EEXIST && (follow ? stat(path, &st) : lstat(path, &st)) == 0 && S_ISDIR(st.st_mode)) return true;
+        if (e == EEXIST && lstat(path, &st) == 0 && S_ISLNK(st.st_mode))
+            return err_set(err, ERR_IO, NULL, "'%s' is a symbolic link, and the data directory's folders may not be",
+                           path);
         return err_set(err, registry_io_code(e), NULL, "cannot create folder '%s': %s", path, strerror(e));
     }
     char parent[PATH_MAX];
@@ -247,6 +267,22 @@ static bool registry_mkdir(const char *path, struct err *err)
     return registry_fsync_dir(parent, err);
 }
 
+/* A folder of the daemon's own, inside the data directory: never through a symbolic link. */
+static bool registry_mkdir(const char *path, struct err *err)
+{
+    return registry_mkdir_at(path, false, err);
+}
+
+/* A scene's folder as it is now: false (with the error) when it is a symbolic link or not a
+ * folder; true when it is a folder or absent. */
+static bool registry_own_dir(const char *path, struct err *err)
+{
+    struct stat st;
+    if (lstat(path, &st) != 0 || S_ISDIR(st.st_mode)) return true;
+    return err_set(err, ERR_IO, NULL, "'%s' is %s, and the data directory's folders may not be", path,
+                   S_ISLNK(st.st_mode) ? "a symbolic link" : "not a folder");
+}
+
 static bool registry_mkdir_p(const char *path, struct err *err)
 {
     char buf[PATH_MAX];
@@ -254,11 +290,11 @@ static bool registry_mkdir_p(const char *path, struct err *err)
     for (char *p = buf + 1; *p; p++) {
         if (*p != '/') continue;
         *p = '\0';
-        bool ok = registry_mkdir(buf, err);
+        bool ok = registry_mkdir_at(buf, true, err);
         *p = '/';
         if (!ok) return false;
     }
-    return registry_mkdir(buf, err);
+    return registry_mkdir_at(buf, true, err);
 }
 
 /* Writes `data` to a new temporary file in `dir` and syncs it; *tmp receives its path. The
@@ -474,7 +510,8 @@ static size_t registry_scene_bytes(const struct scene *scene, uint64_t *triangle
 }
 
 /* An uploaded scene about to enter the table reserves its bytes (ERR_BUSY when the budget is
- * full); the scene it replaces or that leaves gives them back. Called with write_lock held. */
+ * full); the scene it replaces or that leaves gives them back. Called with the scene's write
+ * lock held. */
 static bool registry_budget_reserve(struct registry *r, const struct scene *scene, struct err *err)
 {
     return !r->budget || budget_reserve(r->budget, BUDGET_SCENES, registry_scene_bytes(scene, NULL), err);
@@ -565,7 +602,7 @@ static struct scene *registry_replace(struct registry *r, const char *id, struct
         old = r->entries[pos]->scene;
         registry_entry_set(r->entries[pos], scene, hash, assets);
     } else {
-        old = scene;  /* cannot happen while write_lock is held; never leak the scene */
+        old = scene;  /* cannot happen under the scene's write lock; never leak the scene */
     }
     pthread_mutex_unlock(&r->lock);
     return old;
@@ -685,16 +722,22 @@ static void registry_load_upload(struct registry *r, const char *id)
     uint32_t assets = 0;
     bool exists, builtin;
     registry_peek(r, id, &exists, &builtin, &hash);
-    if (exists) {
+    if (exists && builtin) {
         registry_warn(r, "registry: skipping uploaded scene '%s' (%s): a built-in scene has this id; its files are kept",
                       id, path);
         return;
     }
+    if (exists) return;  /* loading after the start: a PUT of this id came first, and wrote it */
     bool ok = fileio_read_all(path, "scene file", path, REGISTRY_JSON_MAX_BYTES, &json, &len, &err) &&
               registry_hash_content(json, len, assets_dir, &hash, &assets, &err) &&
               (scene = registry_load(json, len, assets_dir, id, &err)) != NULL &&
               registry_insert(r, id, false, scene, hash, assets, &err);
     free(json);
+    if (ok && r->budget) {
+        /* Loaded after registry_set_budget: charged as those before it were (it is held). */
+        struct registry_info info;
+        if (registry_info(r, id, &info)) budget_charge(r->budget, BUDGET_SCENES, info.scene_bytes);
+    }
     if (!ok) {
         char msg[800];
         registry_warn(r, "registry: skipping uploaded scene '%s' (%s, kept on disk): %s: %s", id, path,
@@ -703,27 +746,38 @@ static void registry_load_upload(struct registry *r, const char *id)
     }
 }
 
-static bool registry_load_uploads(struct registry *r, struct err *err)
+/* Each scene is loaded under its write lock, as a PUT is, so that loading while requests are
+ * served cannot interleave with a PUT or DELETE of the same id. `stop` (may be NULL) is read
+ * between scenes. */
+static bool registry_load_uploads(struct registry *r, atomic_bool *stop, struct err *err)
 {
     struct registry_names ids;
     if (!registry_list_dir(r->scenes_dir, S_IFDIR, false, &ids, NULL, err)) {
         if (err) err->code = ERR_IO;
         return false;
     }
-    for (size_t i = 0; i < ids.n; i++) {
+    for (size_t i = 0; i < ids.n && !(stop && atomic_load(stop)); i++) {
         if (ids.v[i][0] == '.') continue;
         if (!registry_id_valid(ids.v[i])) {
             registry_warn(r, "registry: skipping '%s/%s': not a valid scene id", r->scenes_dir, ids.v[i]);
             continue;
         }
+        pthread_mutex_t *wl = registry_write_lock(r, ids.v[i]);
+        pthread_mutex_lock(wl);
         registry_load_upload(r, ids.v[i]);
+        pthread_mutex_unlock(wl);
     }
     registry_names_free(&ids);
     return true;
 }
 
-struct registry *registry_new(const char *library_dir, const char *data_dir, registry_warn_fn *warn, void *warn_ctx,
-                              struct err *err)
+bool registry_load_stored(struct registry *r, atomic_bool *stop, struct err *err)
+{
+    return registry_load_uploads(r, stop, err);
+}
+
+static struct registry *registry_create(const char *library_dir, const char *data_dir, registry_warn_fn *warn,
+                                        void *warn_ctx, bool stored, struct err *err)
 {
     if (!data_dir || !data_dir[0]) {
         err_set(err, ERR_INVALID, NULL, "no data directory");
@@ -735,7 +789,7 @@ struct registry *registry_new(const char *library_dir, const char *data_dir, reg
         return NULL;
     }
     pthread_mutex_init(&r->lock, NULL);
-    pthread_mutex_init(&r->write_lock, NULL);
+    for (int i = 0; i < REGISTRY_WRITE_STRIPES; i++) pthread_mutex_init(&r->write_locks[i], NULL);
     r->warn = warn;
     r->warn_ctx = warn_ctx;
     size_t n = strlen(data_dir) + sizeof "/scenes";
@@ -751,22 +805,34 @@ struct registry *registry_new(const char *library_dir, const char *data_dir, reg
         return NULL;
     }
     if (library_dir) registry_load_library(r, library_dir);
-    if (!registry_load_uploads(r, err)) {
+    if (stored && !registry_load_uploads(r, NULL, err)) {
         registry_free(r);
         return NULL;
     }
     return r;
 }
 
+struct registry *registry_new(const char *library_dir, const char *data_dir, registry_warn_fn *warn, void *warn_ctx,
+                              struct err *err)
+{
+    return registry_create(library_dir, data_dir, warn, warn_ctx, true, err);
+}
+
+struct registry *registry_new_deferred(const char *library_dir, const char *data_dir, registry_warn_fn *warn,
+                                       void *warn_ctx, struct err *err)
+{
+    return registry_create(library_dir, data_dir, warn, warn_ctx, false, err);
+}
+
 void registry_set_budget(struct registry *r, struct budget *budget)
 {
-    pthread_mutex_lock(&r->write_lock);
+    for (int i = 0; i < REGISTRY_WRITE_STRIPES; i++) pthread_mutex_lock(&r->write_locks[i]);
     pthread_mutex_lock(&r->lock);
     r->budget = budget;
     for (size_t i = 0; budget && i < r->count; i++)
         if (!r->entries[i]->info.builtin) budget_charge(budget, BUDGET_SCENES, r->entries[i]->info.scene_bytes);
     pthread_mutex_unlock(&r->lock);
-    pthread_mutex_unlock(&r->write_lock);
+    for (int i = REGISTRY_WRITE_STRIPES - 1; i >= 0; i--) pthread_mutex_unlock(&r->write_locks[i]);
 }
 
 void registry_free(struct registry *r)
@@ -779,7 +845,7 @@ void registry_free(struct registry *r)
     free(r->entries);
     free(r->scenes_dir);
     pthread_mutex_destroy(&r->lock);
-    pthread_mutex_destroy(&r->write_lock);
+    for (int i = 0; i < REGISTRY_WRITE_STRIPES; i++) pthread_mutex_destroy(&r->write_locks[i]);
     free(r);
 }
 
@@ -805,6 +871,7 @@ static bool registry_put_scene_locked(struct registry *r, const char *id, const 
     char scene_dir[PATH_MAX], assets_dir[PATH_MAX];
     if (!registry_path(scene_dir, sizeof scene_dir, err, "%s/%s", r->scenes_dir, id) ||
         !registry_path(assets_dir, sizeof assets_dir, err, "%s/assets", scene_dir) ||
+        !registry_own_dir(scene_dir, err) || !registry_own_dir(assets_dir, err) ||
         !registry_hash_content(json, len, assets_dir, &hash, &assets, err))
         return false;
     if (exists && hash == old_hash) {
@@ -847,9 +914,10 @@ bool registry_put_scene(struct registry *r, const char *id, const char *json, si
     if (!result) result = &dummy;
     if (!registry_id_valid(id)) return err_set(err, ERR_INVALID, "id", "scene id must match [A-Za-z0-9_-]{1,64}");
     if (!json && len) return err_set(err, ERR_INVALID, "", "no JSON text");
-    pthread_mutex_lock(&r->write_lock);
+    pthread_mutex_t *wl = registry_write_lock(r, id);
+    pthread_mutex_lock(wl);
     bool ok = registry_put_scene_locked(r, id, json, len, result, err);
-    pthread_mutex_unlock(&r->write_lock);
+    pthread_mutex_unlock(wl);
     return ok;
 }
 
@@ -909,6 +977,7 @@ static bool registry_put_asset_locked(struct registry *r, const char *id, const 
         !registry_path(path, sizeof path, err, "%s/%s", assets_dir, name) ||
         !registry_path(json_path, sizeof json_path, err, "%s/scene.json", scene_dir))
         return false;
+    if (!registry_own_dir(scene_dir, err) || !registry_own_dir(assets_dir, err)) return false;
     struct stat st;
     *created = lstat(path, &st) != 0;
     if (!*created && registry_file_equals(path, data, len)) return true;  /* nothing changes */
@@ -924,7 +993,7 @@ static bool registry_put_asset_locked(struct registry *r, const char *id, const 
     if (exists) {
         /* The scene is reloaded against the new asset set before the asset takes its final
          * name, so a failure leaves the old asset and the old scene in place. The JSON is read
-         * back from disk (this registry wrote it; write_lock keeps it stable) instead of being
+         * back from disk (this registry wrote it; the write lock keeps it stable) instead of being
          * kept in memory for every scene. Every asset change reloads the scene, used or not:
          * telling whether the JSON names the asset would need the JSON parser. */
         char stage[PATH_MAX], *json = NULL;
@@ -978,13 +1047,14 @@ bool registry_put_asset(struct registry *r, const char *id, const char *name, co
         return err_set(err, ERR_LIMIT, "name", "asset '%s' is %zu bytes, more than the limit of %u", name, len,
                        MESH_IO_MAX_FILE_BYTES);
     if (!data && len) return err_set(err, ERR_INVALID, "name", "no asset bytes");
-    /* Decoding is the expensive check and touches no state: done before taking write_lock. */
+    /* Decoding is the expensive check and touches no state: done before taking the write lock. */
     struct mesh mesh = {0};
     if (!mesh_io_load_memory(data ? data : "", len, name, mesh_io_format_of(name), &mesh, err)) return false;
     mesh_io_destroy(&mesh);
-    pthread_mutex_lock(&r->write_lock);
+    pthread_mutex_t *wl = registry_write_lock(r, id);
+    pthread_mutex_lock(wl);
     bool ok = registry_put_asset_locked(r, id, name, data ? data : "", len, created, err);
-    pthread_mutex_unlock(&r->write_lock);
+    pthread_mutex_unlock(wl);
     if (!ok) *created = false;
     return ok;
 }
@@ -1037,7 +1107,8 @@ bool registry_delete(struct registry *r, const char *id, bool force, struct err 
     if (!registry_path(scene_dir, sizeof scene_dir, err, "%s/%s", r->scenes_dir, id) ||
         !registry_path(json_path, sizeof json_path, err, "%s/scene.json", scene_dir))
         return false;
-    pthread_mutex_lock(&r->write_lock);
+    pthread_mutex_t *wl = registry_write_lock(r, id);
+    pthread_mutex_lock(wl);
     pthread_mutex_lock(&r->lock);
     size_t pos;
     struct registry_entry *e = NULL;
@@ -1049,6 +1120,8 @@ bool registry_delete(struct registry *r, const char *id, bool force, struct err 
     } else if (r->entries[pos]->info.sessions > 0 && !force) {
         ok = err_set(err, ERR_CONFLICT, "id", "scene '%s' has %u live session(s); delete them or use force", id,
                      r->entries[pos]->info.sessions);
+    } else if (!registry_own_dir(scene_dir, err)) {
+        ok = false;
     } else if (unlink(json_path) != 0 && errno != ENOENT) {
         /* The one file operation under `lock`: the live-session check and the removal must be
          * atomic with respect to registry_session_added, and scene.json going is what makes the
@@ -1069,7 +1142,7 @@ bool registry_delete(struct registry *r, const char *id, bool force, struct err 
         scene_release(e->scene);  /* sessions keep their own references */
         free(e);
     }
-    pthread_mutex_unlock(&r->write_lock);
+    pthread_mutex_unlock(wl);
     return ok;
 }
 

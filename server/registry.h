@@ -15,6 +15,7 @@
 #ifndef RESTIRD_REGISTRY_H
 #define RESTIRD_REGISTRY_H
 
+#include <stdatomic.h>
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
@@ -46,6 +47,15 @@ struct registry_info {
 typedef void registry_warn_fn(void *ctx, const char *message);
 struct registry *registry_new(const char *library_dir, const char *data_dir, registry_warn_fn *warn, void *warn_ctx,
                               struct err *err);
+/* The same without the uploaded scenes, which registry_load_stored then loads (the daemon
+ * does so after it starts listening, so that its health checks answer meanwhile). */
+struct registry *registry_new_deferred(const char *library_dir, const char *data_dir, registry_warn_fn *warn,
+                                       void *warn_ctx, struct err *err);
+/* Loads the uploaded scenes of the data directory, as registry_new does, while the registry is
+ * in use: a scene a PUT created meanwhile is kept (the PUT wrote its files), one loaded after
+ * registry_set_budget is charged to the budget. Stops between scenes once *stop (may be NULL)
+ * is true. Errors: ERR_IO when the data directory cannot be read. */
+bool registry_load_stored(struct registry *r, atomic_bool *stop, struct err *err);
 /* From now on an uploaded scene reserves its scene_bytes from `budget` (BUDGET_SCENES) before it
  * enters the table, and a put that does not fit fails with ERR_BUSY (nothing written); the
  * uploads already loaded are charged without a check, so none is dropped. Built-ins are not

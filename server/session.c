@@ -278,13 +278,64 @@ void session_post_event(struct session *s, const char *type, const char *json)
     pthread_mutex_unlock(&s->lock);
 }
 
-bool session_render(struct session *s, struct gate *gate, bool bounded, const struct view_frame_change *change,
-                    struct job *job, uint32_t *n, struct frame_stats *stats, struct err *err)
+/* Whether the frame being rendered is still wanted: its session not deleted, its requester
+ * (the `stop` callback: a client that hung up) still there. A job's own cancel takes effect
+ * between frames, as before. */
+struct session_watch {
+    struct session *s;
+    bool (*stop)(void *ctx);
+    void *stop_ctx;
+    bool stopped;
+    enum err_code code;
+    const char *why;
+};
+
+static bool session_watch_stop(struct session_watch *w)
 {
+    if (w->stopped) return true;
+    pthread_mutex_lock(&w->s->lock);
+    bool deleted = w->s->deleted;
+    pthread_mutex_unlock(&w->s->lock);
+    if (deleted) {
+        w->code = ERR_NOT_FOUND;
+        w->why = "the session was deleted while its frame rendered";
+    } else if (w->stop && w->stop(w->stop_ctx)) {
+        w->code = ERR_CONFLICT;
+        w->why = "the client went away while its frame rendered";
+    }
+    w->stopped = w->why != NULL;
+    return w->stopped;
+}
+
+/* The renderer's progress callback (about every 20 ms, on the rendering thread). */
+static void session_watch_progress(void *ctx, uint32_t done, uint32_t total)
+{
+    (void)done;
+    (void)total;
+    if (session_watch_stop(ctx)) parallel_stop();
+}
+
+bool session_render(struct session *s, struct gate *gate, bool bounded, const struct view_frame_change *change,
+                    struct job *job, uint32_t *n, struct frame_stats *stats, bool (*stop)(void *ctx), void *stop_ctx,
+                    struct err *err)
+{
+    struct session_watch watch = {.s = s, .stop = stop, .stop_ctx = stop_ctx};
     if (!gate_enter(gate, bounded, err)) return false;
-    bool ok = view_render(&s->view, change, stats, NULL, NULL, err);
+    /* A frame that waited in the queue for a client that has gone is not rendered. */
+    if (session_watch_stop(&watch)) {
+        gate_leave(gate);
+        return err_set(err, watch.code, NULL, "%s", watch.why);
+    }
+    bool ok = view_render(&s->view, change, stats, session_watch_progress, &watch, err);
     gate_leave(gate);
     if (!ok) return false;
+    if (watch.stopped) {
+        /* The renderer skipped the rest of the frame: what it left in the view's accumulation
+         * and history is not a frame. The sequence starts over, as after a reset. */
+        session_reset(s);
+        return err_set(err, watch.code, NULL, "%s%s", watch.why,
+                       watch.code == ERR_NOT_FOUND ? "" : " (the session's frames start over)");
+    }
 
     /* Kept frames live in slots allocated on first use and reused: a session in its steady
      * state allocates nothing per frame. */

@@ -148,9 +148,14 @@ void session_unclaim(struct session *s);
 /* Renders the next frame of a claimed session through the gate (bounded = a synchronous
  * request, which may be refused with ERR_BUSY when the queue is full), keeps it, and posts a
  * `frame` event. *n gets the frame number. `job` may be NULL. The image stays in the ring:
- * use session_frame_copy to read it. */
+ * use session_frame_copy to read it.
+ * The frame is given up, nothing kept, when the session is deleted (ERR_NOT_FOUND) or `stop`
+ * (may be NULL; polled about every 20 ms) says its requester has gone (ERR_CONFLICT):
+ * before it starts when it waited in the queue, and mid-frame for the methods that render in
+ * samples per pixel (pt, sms, sms_ssp), after which the session's sequence starts over. */
 bool session_render(struct session *s, struct gate *gate, bool bounded, const struct view_frame_change *change,
-                    struct job *job, uint32_t *n, struct frame_stats *stats, struct err *err);
+                    struct job *job, uint32_t *n, struct frame_stats *stats, bool (*stop)(void *ctx), void *stop_ctx,
+                    struct err *err);
 
 /* Copies kept frame n (image and stats). ERR_NOT_FOUND when never rendered in this sequence,
  * ERR_LIMIT when rendered but evicted. `out` is initialised on success. */

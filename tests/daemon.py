@@ -38,7 +38,7 @@ class Resp:
 class Daemon:
     _starts = 0
 
-    def __init__(self, data_dir, *extra, binary=BIN, env_extra=None, preexec_fn=None):
+    def __init__(self, data_dir, *extra, binary=BIN, env_extra=None, preexec_fn=None, wait_ready=True):
         Daemon._starts += 1
         self.data_dir = Path(data_dir)
         self.data_dir.mkdir(parents=True, exist_ok=True)
@@ -65,6 +65,14 @@ class Daemon:
             self.proc.kill()
             self.proc.wait()
             raise AssertionError(f"restird did not start: {self.args}\n{self.stderr()}")
+        # It listens before its stored scenes are loaded; /readyz says when they are.
+        while wait_ready and time.monotonic() < deadline and self.proc.poll() is None:
+            try:
+                if self.req("GET", "/readyz", timeout=5).status == 200:
+                    break
+            except OSError:
+                pass
+            time.sleep(0.02)
 
     def stderr(self):
         return self.err_path.read_text(errors="replace")
@@ -89,6 +97,10 @@ class Daemon:
         headers = dict(headers or {})
         if json_body is not None:
             body = json.dumps(json_body).encode()
+            headers.setdefault("Content-Type", "application/json")
+        elif body is None and method in ("POST", "PUT"):
+            # As the Python client does: an empty JSON body still declares its type (the daemon
+            # requires it of every body route).
             headers.setdefault("Content-Type", "application/json")
         conn = http.client.HTTPConnection("127.0.0.1", self.port, timeout=timeout)
         try:

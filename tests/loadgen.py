@@ -28,7 +28,8 @@ function init(args)
   statuses = {}
 end
 function request()
-  return wrk.format("POST", path, {["Accept"] = "application/json", ["Content-Length"] = "0"})
+  return wrk.format("POST", path, {["Accept"] = "application/json", ["Content-Type"] = "application/json",
+                                   ["Content-Length"] = "0"})
 end
 function response(status, headers, body)
   statuses[status] = (statuses[status] or 0) + 1
@@ -100,7 +101,8 @@ def request(conn, method, path, body=None, headers=None):
     data = None
     if body is not None:
         data = json.dumps(body).encode()
-        hdrs["Content-Type"] = "application/json"
+    if body is not None or method in ("POST", "PUT"):
+        hdrs["Content-Type"] = "application/json"   # an empty body declares its type too
     conn.request(method, path, body=data, headers=hdrs)
     r = conn.getresponse()
     return r.status, r.headers, r.read()

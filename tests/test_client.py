@@ -640,3 +640,21 @@ def test_cli_metrics_writes_csv(fake, tmp_path, method):
     assert kinds == ["reference", "animation"]
     ref, anim = fake.jobs.values()
     assert ref["_req"] == {"spp": 64, "method": method} and anim["_req"]["reference"] == ref["reference"]
+
+
+def test_token_sent_from_argument_environment_and_token_file(fake, tmp_path, monkeypatch):
+    monkeypatch.delenv("RESTIRD_AUTH_TOKEN", raising=False)
+    client_for(fake).limits()
+    assert "Authorization" not in fake.log[-1][2]
+    client_for(fake, token="given-token-0123456789").limits()
+    assert fake.log[-1][2]["Authorization"] == "Bearer given-token-0123456789"
+    monkeypatch.setenv("RESTIRD_AUTH_TOKEN", "env-token-0123456789")
+    client_for(fake).limits()
+    assert fake.log[-1][2]["Authorization"] == "Bearer env-token-0123456789"
+    f = tmp_path / "token"
+    f.write_text("file-token-0123456789\n")
+    code, _, err = run_cli(fake, "--token-file", str(f), "health")
+    assert code == 0, err
+    assert {h["Authorization"] for _, p, h, _ in fake.log[-3:]} == {"Bearer file-token-0123456789"}
+    code, _, err = run_cli(fake, "--token-file", str(tmp_path / "missing"), "health")
+    assert code == 2 and err.startswith("restir.py: --token-file: "), err

@@ -35,7 +35,7 @@ J = {"Content-Type": "application/json"}
 LIMIT_KEYS = ["max_side", "max_pixels", "max_spp", "max_frames", "max_keys", "max_sessions", "frames_kept",
               "max_json_body", "max_asset_body", "max_reference_body", "render_slots", "render_queue",
               "job_queue", "connection_limit", "per_ip_connection_limit", "connection_timeout_s", "memory_budget",
-              "max_session_bytes"]
+              "max_session_bytes", "max_work", "head_timeout_s", "min_body_rate"]
 
 # Limits of the shared daemon (small where a test needs to cross them cheaply).
 MAX_JSON_BODY = 16384
@@ -234,7 +234,7 @@ def test_limits_reflect_options(daemon):
     assert lim["max_side"] == 4096 and lim["max_pixels"] == 16777216 and lim["max_spp"] == 65536
     assert lim["max_frames"] == 10000 and lim["max_sessions"] == 64 and lim["frames_kept"] == 16
     assert lim["memory_budget"] == 8 << 30 and lim["max_session_bytes"] == 2 << 30
-    assert set(lim["memory_used"]) == {"sessions", "scenes", "references"}, lim
+    assert set(lim["memory_used"]) == {"sessions", "scenes", "references", "uploads"}, lim
 
 
 def test_openapi_document(daemon):
@@ -311,7 +311,7 @@ def test_preview_page_is_read_only(daemon):
     for method, path in (("POST", "/"), ("PUT", "/ui/app.js"), ("DELETE", "/ui/index.html")):
         r = daemon.raw(method, path)
         assert_problem(r, 405, "method-not-allowed", where=path)
-        assert r.header("Allow") == "GET"
+        assert r.header("Allow") == "GET, HEAD"
 
 
 def test_methods_registry(daemon):

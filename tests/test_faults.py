@@ -89,7 +89,7 @@ def test_client_gone_mid_upload(tmp_path):
         for method, path, ctype, body in cases:
             for cut, reset in ((len(body) // 2, False), (len(body) // 3, True), (0, True)):
                 sock = socket.create_connection(("127.0.0.1", d.port), timeout=10)
-                sock.sendall(f"{method} {path} HTTP/1.1\r\nHost: x\r\nContent-Type: {ctype}\r\n"
+                sock.sendall(f"{method} {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: {ctype}\r\n"
                              f"Content-Length: {len(body)}\r\n\r\n".encode() + body[:cut])
                 if reset:
                     abort_connection(sock)
@@ -118,13 +118,14 @@ def test_client_gone_mid_response(tmp_path):
         for i in range(4):
             sock = socket.create_connection(("127.0.0.1", d.port), timeout=60)
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-            sock.sendall(f"POST {s['href']}/frames HTTP/1.1\r\nHost: x\r\nAccept: image/x-exr\r\n"
-                         "Content-Length: 0\r\n\r\n".encode())
+            sock.sendall(f"POST {s['href']}/frames HTTP/1.1\r\nHost: 127.0.0.1\r\nAccept: image/x-exr\r\n"
+                         "Content-Type: application/json\r\nContent-Length: 0\r\n\r\n".encode())
             assert sock.recv(1024).startswith(b"HTTP/1.1 200"), "no answer started"
             abort_connection(sock)
         # An event stream dropped while it is open.
         sock = socket.create_connection(("127.0.0.1", d.port), timeout=10)
-        sock.sendall(f"GET {s['href']}/events HTTP/1.1\r\nHost: x\r\nAccept: text/event-stream\r\n\r\n".encode())
+        sock.sendall(f"GET {s['href']}/events HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                     "Accept: text/event-stream\r\n\r\n".encode())
         assert sock.recv(1024).startswith(b"HTTP/1.1 200")
         abort_connection(sock)
         time.sleep(0.3)

@@ -10,13 +10,14 @@ from test_daemon import (CORNELL, J, TETRA_PLY, Daemon, assert_problem, cornell_
 
 SIDE, PIXELS, SPP, FRAMES, KEYS, SESSIONS = 64, 2048, 8, 5, 3, 4
 JSON_BODY, ASSET_BODY, REFERENCE_BODY, KEPT = 4096, 2048, 4096, 2
+WORK = 2 * PIXELS   # samples of one frame or reference: a full-size image at 2 spp
 
 
 def limits_args(**over):
     opts = {"--max-side": SIDE, "--max-pixels": PIXELS, "--max-spp": SPP, "--max-frames": FRAMES,
             "--max-keys": KEYS, "--max-sessions": SESSIONS, "--max-json-body": JSON_BODY,
             "--max-asset-body": ASSET_BODY, "--max-reference-body": REFERENCE_BODY, "--frames-kept": KEPT,
-            "--threads": 1}
+            "--max-work": WORK, "--threads": 1}
     opts.update(over)
     return [str(x) for kv in opts.items() for x in kv]
 
@@ -48,8 +49,8 @@ def test_limits_listed(small):
     lim = small.req("GET", "/v1/limits").json()
     assert (lim["max_side"], lim["max_pixels"], lim["max_spp"], lim["max_frames"], lim["max_keys"],
             lim["max_sessions"], lim["max_json_body"], lim["max_asset_body"], lim["max_reference_body"],
-            lim["frames_kept"]) == (SIDE, PIXELS, SPP, FRAMES, KEYS, SESSIONS, JSON_BODY, ASSET_BODY,
-                                    REFERENCE_BODY, KEPT)
+            lim["frames_kept"], lim["max_work"]) == (SIDE, PIXELS, SPP, FRAMES, KEYS, SESSIONS, JSON_BODY,
+                                                     ASSET_BODY, REFERENCE_BODY, KEPT, WORK)
 
 
 def test_resolution_and_spp_boundaries(small):
@@ -83,6 +84,28 @@ def test_frames_keys_and_reference_spp_boundaries(small):
         assert r.status == 202, repr(r)
     finally:
         assert small.req("DELETE", s["href"]).status == 204
+
+
+def test_work_boundary(small):
+    """max_work bounds the samples of one request (pixels x spp): a frame of a session, a
+    reference. At the limit it is accepted; past it 422 names the value and the limit."""
+    try:
+        s = new_session(small, width=SIDE, height=PIXELS // SIDE, params={"spp": 2})   # exactly WORK
+        r = small.req("POST", s["href"] + "/frames", headers={"Accept": "application/json"})
+        assert r.status == 200, repr(r)
+        body = refused(create(small, width=SIDE, height=PIXELS // SIDE, params={"spp": 3}), 422, "limit-exceeded",
+                       "/params/spp", WORK)
+        assert body["detail"] == (f"a frame of this session takes {3 * PIXELS} samples (pixels x spp), over max_work "
+                                  f"({WORK}): fewer pixels or samples, or more frames of fewer samples")
+        # restir_pt renders one sample per pixel per frame.
+        assert create(small, method="restir_pt", width=SIDE, height=PIXELS // SIDE).status == 201
+        r = small.req("POST", s["href"] + "/references/at-limit", json_body={"spp": 2})
+        assert r.status == 202, repr(r)
+        body = refused(small.req("POST", s["href"] + "/references/over", json_body={"spp": 3}), 422,
+                       "limit-exceeded", "/spp", WORK)
+        assert body["detail"].startswith(f"this reference takes {3 * PIXELS} samples (pixels x spp), over max_work")
+    finally:
+        delete_all_sessions(small)
 
 
 def test_sessions_boundary(small):
@@ -172,7 +195,7 @@ def test_memory_budget_refuses_and_gives_back(tmp_path):
     try:
         a, _ = new_session(d, width=16, height=16), new_session(d, width=16, height=16)
         used = d.req("GET", "/v1/limits").json()["memory_used"]
-        assert used == {"sessions": 2 * planned, "scenes": 0, "references": 0}, used
+        assert used == {"sessions": 2 * planned, "scenes": 0, "references": 0, "uploads": 0}, used
         # Sessions, scenes and references all draw on the one budget.
         r = create(d, width=16, height=16)
         refused(r, 503, "memory-budget", None, budget)

@@ -39,7 +39,7 @@ def call(port, method, path, body=None, accept="application/json", ctype="applic
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=120)
     data = json.dumps(body).encode() if body is not None else None
     headers = {"Accept": accept}
-    if data is not None:
+    if data is not None or method in ("POST", "PUT"):
         headers["Content-Type"] = ctype
     conn.request(method, path, body=data, headers=headers)
     r = conn.getresponse()

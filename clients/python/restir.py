@@ -231,8 +231,11 @@ class Client:
     """A restird client. One instance may be shared by threads only for independent calls."""
 
     def __init__(self, server=DEFAULT_SERVER, timeout=600.0, retries=5, max_retry_wait=30.0,
-                 retry_budget=120.0, recover=True, log=None):
+                 retry_budget=120.0, recover=True, log=None, token=None):
         self.server = server.rstrip("/")
+        # The daemon's bearer token (its --auth-token-file or RESTIRD_AUTH_TOKEN), sent with
+        # every call when given; by default the same environment variable the daemon reads.
+        self.token = token if token is not None else os.environ.get("RESTIRD_AUTH_TOKEN") or None
         self.timeout = timeout
         self.retries = retries                  # 429/503 retries per call
         self.max_retry_wait = max_retry_wait    # cap on one Retry-After sleep
@@ -293,6 +296,8 @@ class Client:
             hdrs["Content-Type"] = "application/json"
         if accept:
             hdrs["Accept"] = ACCEPT.get(accept, accept)
+        if self.token:
+            hdrs["Authorization"] = "Bearer " + self.token
         hdrs.update(headers or {})
         url = self._url(path, query)
         if stream:
@@ -870,6 +875,8 @@ def build_parser():
                    help="daemon or proxy URL (default $RESTIRD_URL or http://127.0.0.1:8080)")
     p.add_argument("--timeout", type=finite_float, default=600.0,
                    help="seconds to wait for one answer (default 600)")
+    p.add_argument("--token-file", default=None,
+                   help="file holding the daemon's bearer token (default $RESTIRD_AUTH_TOKEN, if set)")
     p.add_argument("--wait", type=finite_float, default=None,
                    help="seconds to wait for a background job (default: no limit)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
@@ -1218,7 +1225,15 @@ def main(argv=None, out=None, err=None):
     parser = build_parser()
     args = parser.parse_args(argv)   # exits 2 on a usage error
     prog = Progress(args.quiet, err)
-    client = Client(args.server, timeout=args.timeout, log=lambda t: prog.line("note: " + t))
+    token = None
+    if args.token_file:
+        try:
+            with open(args.token_file, encoding="utf-8") as f:
+                token = f.read().strip()
+        except OSError as e:
+            print("restir.py: --token-file: %s" % e, file=err)
+            return 2
+    client = Client(args.server, timeout=args.timeout, log=lambda t: prog.line("note: " + t), token=token)
     try:
         return COMMANDS[args.command](client, args, out, prog)
     except UsageError as e:

@@ -47,16 +47,45 @@ struct parallel_batch {
     uint32_t job_count;
     _Atomic uint64_t next;
     _Atomic uint32_t done; /* jobs finished, for progress only */
+    _Atomic bool stop;     /* parallel_stop was called: running jobs may end early */
 };
+
+/* The batch whose job this thread is running (NULL outside a job), for parallel_stopped. */
+static _Thread_local struct parallel_batch *parallel_current;
+
+/* Set by parallel_stop from a progress callback; read by the parallel_run on the same thread. */
+static _Thread_local bool parallel_stopping;
+
+void parallel_stop(void)
+{
+    parallel_stopping = true;
+}
+
+/* After a progress call: when it asked to stop, no job not yet claimed will start (storing
+ * job_count makes every later claim fail; a claim already made runs to its end). */
+static void parallel_check_stop(struct parallel_batch *b)
+{
+    if (!parallel_stopping) return;
+    atomic_store_explicit(&b->stop, true, memory_order_relaxed);
+    atomic_store_explicit(&b->next, (uint64_t)b->job_count, memory_order_relaxed);
+}
+
+bool parallel_stopped(void)
+{
+    return parallel_current && atomic_load_explicit(&parallel_current->stop, memory_order_relaxed);
+}
 
 static void parallel_batch_work(struct parallel_batch *b, unsigned worker)
 {
+    struct parallel_batch *outer = parallel_current;  /* a job may run a parallel_run of its own */
+    parallel_current = b;
     for (;;) {
         uint64_t job = atomic_fetch_add_explicit(&b->next, 1, memory_order_relaxed);
         if (job >= b->job_count) break;
         b->fn(b->ctx, (uint32_t)job, worker);
         atomic_fetch_add_explicit(&b->done, 1, memory_order_release);
     }
+    parallel_current = outer;
 }
 
 static void parallel_sleep_tick(void)
@@ -118,9 +147,10 @@ static bool parallel_run_spawned(struct parallel_batch *b, unsigned helpers, uns
         parallel_batch_work(b, 0);
     } else if (progress) {
         uint32_t done;
-        while ((done = atomic_load_explicit(&b->done, memory_order_acquire)) < b->job_count) {
+        while (!parallel_stopping && (done = atomic_load_explicit(&b->done, memory_order_acquire)) < b->job_count) {
             progress(progress_ctx, done, b->job_count);
-            parallel_sleep_tick();
+            parallel_check_stop(b);
+            if (!parallel_stopping) parallel_sleep_tick();
         }
     }
     for (unsigned i = 0; i < started; i++) pthread_join(w[i].tid, NULL);
@@ -215,6 +245,8 @@ bool parallel_run(unsigned threads, uint32_t job_count, parallel_job_fn *fn, voi
     struct parallel_batch b = {.fn = fn, .ctx = ctx, .job_count = job_count};
     atomic_init(&b.next, 0);
     atomic_init(&b.done, 0);
+    atomic_init(&b.stop, false);
+    parallel_stopping = false;
 
     /* Without a progress callback the caller is worker 0 and takes jobs as well. */
     unsigned base = progress ? 0u : 1u;
@@ -267,6 +299,7 @@ bool parallel_run(unsigned threads, uint32_t job_count, parallel_job_fn *fn, voi
         while (pool.running > 0) {
             pthread_mutex_unlock(&pool.mu);
             progress(progress_ctx, atomic_load_explicit(&b.done, memory_order_acquire), job_count);
+            parallel_check_stop(&b);
             struct timespec deadline;
             clock_gettime(CLOCK_MONOTONIC, &deadline);
             deadline.tv_nsec += PARALLEL_PROGRESS_NS;

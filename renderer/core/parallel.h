@@ -31,6 +31,14 @@ double parallel_lap_ms(struct timespec *t0);
  * Returns false only when a fallback path runs out of memory. */
 bool parallel_run(unsigned threads, uint32_t job_count, parallel_job_fn *fn, void *ctx,
                   parallel_progress_fn *progress, void *progress_ctx, struct err *err);
+/* Called from a progress callback: the jobs of that parallel_run that have not started are
+ * skipped (those running finish), and parallel_run returns true as usual, with the work
+ * incomplete: the caller that asked knows its output is not to be used. Later calls of the
+ * callback in the same run do nothing more; the next parallel_run starts afresh. */
+void parallel_stop(void);
+/* Inside a job: true once parallel_stop was called for its parallel_run, so a long job can
+ * return early (its output is discarded). Cheap enough to call once per pixel. */
+bool parallel_stopped(void);
 /* Joins the pool's threads and frees it, so a program can exit with nothing allocated.
  * Idempotent; a later parallel_run creates the pool again. Waits for a parallel_run in progress
  * on the pool; must not be called from inside a job or a progress callback. */

@@ -323,6 +323,9 @@ static bool mesh_io_ply_list_length(const struct mesh_io_ply_prop *pr, uint64_t 
 {
     if (pr->role == PLY_INDICES && items == 0)
         return err_set(err, ERR_INVALID, where, "face %llu has no vertices", (unsigned long long)row);
+    if (pr->role == PLY_INDICES && items > MESH_IO_MAX_FACE_VERTICES)
+        return err_set(err, ERR_LIMIT, where, "face %llu has %llu vertices, more than %u", (unsigned long long)row,
+                       (unsigned long long)items, MESH_IO_MAX_FACE_VERTICES);
     return true;
 }
 
@@ -505,7 +508,10 @@ static bool mesh_io_obj_prescan(const char *data, size_t len, const char *name, 
         if (mesh_io_token_is(tb, te, "v")) { seen++; continue; }
         if (!mesh_io_token_is(tb, te, "f")) continue;
         snprintf(where, sizeof where, "%s:%u", name, it.number);
+        uint64_t corners = 0;
         while (mesh_io_next_token(&p, e, &tb, &te)) {
+            if (++corners > MESH_IO_MAX_FACE_VERTICES)
+                return err_set(err, ERR_LIMIT, where, "face has more than %u vertices", MESH_IO_MAX_FACE_VERTICES);
             const char *c = tb;
             bool neg = c < te && *c == '-';
             if (neg) c++;

@@ -16,6 +16,9 @@
 #define MESH_IO_MAX_FILE_BYTES (512u << 20)   /* 512 MiB */
 #define MESH_IO_MAX_TRIANGLES (16u << 20)     /* 16,777,216 after triangulation */
 #define MESH_IO_MAX_VERTICES (3u * MESH_IO_MAX_TRIANGLES)
+/* Vertices of one polygon (OBJ `f` line, PLY face list): assimp's triangulation takes time
+ * quadratic in it (a 200,000-vertex face: 83 s), so larger ones are refused. */
+#define MESH_IO_MAX_FACE_VERTICES 256u
 
 /* An indexed triangle mesh in the file's own coordinates. Front face = counter-clockwise
  * winding as stored in the file (no reordering). normals is NULL unless the file gives a

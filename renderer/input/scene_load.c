@@ -626,6 +626,16 @@ static bool scene_load_check_world(const struct shape *s, const char *ptr, bool 
             if (!vec3_is_finite(xform_point(&s->to_world, vec3_madd(s->center, o, s->radius))))
                 return err_set(err, ERR_INVALID, p, "the sphere leaves the 32-bit float range in world space");
         }
+        /* Its area (4 pi r^2, in world space) must be a float too: light sampling divides by it. */
+        struct vec3 a = xform_point(&s->to_world, vec3_madd(s->center, vec3_make(1, 1, 1), s->radius));
+        struct vec3 b = xform_point(&s->to_world, vec3_madd(s->center, vec3_make(-1, -1, -1), s->radius));
+        double dx = (double)a.x - b.x, dy = (double)a.y - b.y, dz = (double)a.z - b.z;
+        double r2 = (dx * dx + dy * dy + dz * dz) / 12.0;  /* the half diagonal / sqrt(3), squared */
+        if (!(4.0 * 3.14159265358979323846 * r2 < (double)FLT_MAX)) {
+            if (!has_transform) scene_load_ptr_key(p, ptr, "radius");
+            return err_set(err, ERR_INVALID, p,
+                           "the sphere's surface area leaves the 32-bit float range in world space");
+        }
     }
     return true;
 }

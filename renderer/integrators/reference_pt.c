@@ -408,6 +408,7 @@ static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
     uint32_t y1 = y0 + PT_TILE < p->crop_y1 ? y0 + PT_TILE : p->crop_y1;
     for (uint32_t y = y0; y < y1; y++) {
         for (uint32_t x = x0; x < x1; x++) {
+            if (parallel_stopped()) break;  /* the frame was given up: its pixels are not used */
             uint64_t pixel = (uint64_t)y * p->width + x;
             double acc[3] = {0, 0, 0};
             for (uint32_t s = 0; s < p->spp; s++) {

@@ -160,6 +160,13 @@ def test_runtime_stage_runs_the_daemon_as_laid_out(built, tmp_path):
     res = subprocess.run(check, capture_output=True, text=True, timeout=30)
     assert res.returncode != 0, "the health check passed with the daemon stopped"
 
+    # Started as the image starts it (0.0.0.0) without a token, it refuses before binding.
+    env = {k: v for k, v in os.environ.items() if k != "RESTIRD_AUTH_TOKEN"}
+    res = subprocess.run([str(image / entry[0].lstrip("/")), *entry[1:], "--data-dir", str(tmp_path / "refused")],
+                         env=env, capture_output=True, text=True, timeout=30, stdin=subprocess.DEVNULL)
+    assert res.returncode == 1 and "0.0.0.0 (beyond loopback) needs a bearer token" in res.stderr, res
+    assert not (tmp_path / "refused").exists()
+
 
 def test_compose_and_haproxy_agree(stages):
     runtime = stages[-1]
@@ -174,13 +181,15 @@ def test_compose_and_haproxy_agree(stages):
         s = services[name]
         assert (DOCKER / s["build"]["context"]).resolve() == ROOT and s["build"]["dockerfile"] == "docker/Dockerfile"
         assert s["command"] == ["--id", name], s
+        # They listen on 0.0.0.0: compose passes them the token, and refuses to start without one.
+        assert s["environment"]["RESTIRD_AUTH_TOKEN"].startswith("${RESTIRD_AUTH_TOKEN:?"), s
         assert [v.split(":", 1)[1] for v in s["volumes"]] == [data_dir], s
 
     cfg = (DOCKER / "haproxy.cfg").read_text()
     # The server addresses default to the compose services, on the daemons' port.
     servers = re.findall(r'^\s*server (\S+) "\$\{(\w+)-([^}]+)\}"', cfg, re.M)
     assert [(n, addr) for n, _, addr in servers] == [(d, f"{d}:{port}") for d in daemons], servers
-    for directive in ("balance uri depth 3", "hash-type consistent", "option httpchk GET /healthz"):
+    for directive in ("balance uri depth 3", "hash-type consistent", "option httpchk GET /readyz"):
         assert re.search(rf"^\s*{re.escape(directive)}\s*$", cfg, re.M), directive
     bind = re.search(r'^\s*bind "\$\{\w+-:(\d+)\}"', cfg, re.M)
     proxy = services["haproxy"]

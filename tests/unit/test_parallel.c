@@ -153,6 +153,59 @@ static void test_progress_during_and_at_end(void)
     CHECK(log.last_done == 120 && log.last_total == 120);
 }
 
+/* A job of 1 ms per "pixel" for 200 pixels that gives up between pixels once its run is
+ * stopped; counts the pixels it did. */
+struct stop_ctx {
+    _Atomic uint32_t started, pixels, progress_calls;
+};
+
+static void stoppable_job(void *vctx, uint32_t job, unsigned worker)
+{
+    (void)job;
+    (void)worker;
+    struct stop_ctx *c = vctx;
+    atomic_fetch_add(&c->started, 1);
+    for (int i = 0; i < 200; i++) {
+        if (parallel_stopped()) return;
+        struct timespec ts = {0, 1000 * 1000};
+        nanosleep(&ts, NULL);
+        atomic_fetch_add(&c->pixels, 1);
+    }
+}
+
+static void stop_after_two_calls(void *vctx, uint32_t done, uint32_t total)
+{
+    (void)done;
+    (void)total;
+    struct stop_ctx *c = vctx;
+    if (atomic_fetch_add(&c->progress_calls, 1) >= 1) parallel_stop();
+}
+
+static void test_stop_from_progress(void)
+{
+    /* 64 jobs of 200 ms on 2 threads would take 6.4 s; stopped at the second progress call
+     * (~20 ms), the running jobs end at their next pixel and no other job starts. */
+    for (int round = 0; round < 2; round++) {
+        struct stop_ctx c = {0};
+        struct err err = {0};
+        struct timespec t0, t1;
+        clock_gettime(CLOCK_MONOTONIC, &t0);
+        CHECK(parallel_run(2, 64, stoppable_job, &c, stop_after_two_calls, &c, &err));
+        clock_gettime(CLOCK_MONOTONIC, &t1);
+        double s = (double)(t1.tv_sec - t0.tv_sec) + (double)(t1.tv_nsec - t0.tv_nsec) * 1e-9;
+        CHECK_MSG(s < 1.0, "stopped run took %.3f s", s);
+        CHECK_MSG(atomic_load(&c.started) <= 4, "%u jobs started", atomic_load(&c.started));
+        CHECK_MSG(atomic_load(&c.pixels) < 200, "%u pixels done", atomic_load(&c.pixels));
+        CHECK(!parallel_stopped());  /* outside a job */
+    }
+    /* The next run, without a stop, runs everything. */
+    _Atomic uint32_t count = 0;
+    struct progress_log log = {.caller = pthread_self()};
+    struct err err = {0};
+    CHECK(parallel_run(2, 120, slow_job, &count, record_progress, &log, &err));
+    CHECK(atomic_load(&count) == 120);
+}
+
 struct caller_arg {
     unsigned threads;
     bool with_progress;
@@ -306,4 +359,5 @@ static void test_many_small_runs_are_fast(void)
 TEST_MAIN(TEST(test_every_job_runs_once), TEST(test_more_threads_than_default_and_clamp),
           TEST(test_progress_during_and_at_end), TEST(test_concurrent_callers),
           TEST(test_nested_call_does_not_deadlock), TEST(test_shutdown_then_run),
-          TEST(test_shutdown_while_others_run), TEST(test_many_small_runs_are_fast))
+          TEST(test_shutdown_while_others_run), TEST(test_many_small_runs_are_fast),
+          TEST(test_stop_from_progress))

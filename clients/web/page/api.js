@@ -32,14 +32,50 @@ async function problemOf(response) {
   });
 }
 
+// The daemon's bearer token, when it has one (docs/deploy.md): given once in the page's address
+// as #token=..., it is kept for this tab (sessionStorage) and taken out of the address bar.
+const TOKEN_KEY = 'restird.token';
+function takeTokenFromAddress() {
+  const m = /(?:^#|&)token=([^&]+)/.exec(window.location.hash);
+  if (!m) return;
+  try {
+    window.sessionStorage.setItem(TOKEN_KEY, decodeURIComponent(m[1]));
+  } catch {
+    // storage refused (private mode): the token is not kept
+  }
+  window.history.replaceState(null, '', window.location.pathname + window.location.search);
+}
+takeTokenFromAddress();
+
+export function authToken() {
+  try {
+    return window.sessionStorage.getItem(TOKEN_KEY) || '';
+  } catch {
+    return '';
+  }
+}
+
+// An event stream's address: EventSource cannot send headers, so the token goes as the
+// access_token query parameter (which the daemon accepts on event streams only).
+export function eventsUrl(path) {
+  const token = authToken();
+  return token ? `${path}?access_token=${encodeURIComponent(token)}` : path;
+}
+
 // fetch() with the daemon's error contract; resolves to the Response when it is 2xx.
 export async function request(method, path, { json, accept } = {}) {
   const headers = {};
   if (accept) headers.Accept = accept;
+  const token = authToken();
+  if (token) headers.Authorization = `Bearer ${token}`;
   let body;
   if (json !== undefined) {
     headers['Content-Type'] = 'application/json';
     body = JSON.stringify(json);
+  } else if (method === 'POST' || method === 'PUT') {
+    // The daemon requires the declared type of every body route, an empty body included.
+    headers['Content-Type'] = 'application/json';
+    body = '';
   }
   let response;
   try {

@@ -3,7 +3,7 @@
 // (GET …/events): every new frame, whether this page or another client asked for it, updates
 // the session's stats, its image when shown as A or B, and its MAPE point when a reference fits.
 // Every failure ends up in #messages as the daemon's own words (title, detail, field).
-import { ApiError, getExrBytes, getJson, request, sendJson } from './api.js';
+import { ApiError, eventsUrl, getExrBytes, getJson, request, sendJson } from './api.js';
 import { orbitAnimation, stillAnimation } from './animation.js';
 import { MapeChart } from './chart.js';
 import { decodeExr } from './exr.js';
@@ -251,7 +251,7 @@ function showStats() {
 // ---- events and frames ----
 
 function openEvents(s) {
-  const events = new EventSource(`${s.href}/events`);
+  const events = new EventSource(eventsUrl(`${s.href}/events`));
   const parse = (handler) => (e) => handler(s, JSON.parse(e.data));
   events.addEventListener('frame', parse(onFrame));
   events.addEventListener('progress', parse(onProgress));

@@ -7,7 +7,7 @@
 import assert from 'node:assert/strict';
 import { execFileSync, spawn } from 'node:child_process';
 import { createHash } from 'node:crypto';
-import { mkdirSync, mkdtempSync, openSync, rmSync, writeFileSync } from 'node:fs';
+import { mkdirSync, mkdtempSync, openSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import path from 'node:path';
 import { after, before, test } from 'node:test';
@@ -28,10 +28,14 @@ let browser;
 let page;
 const consoleErrors = [];
 
-function startDaemon() {
-  dataDir = mkdtempSync(path.join(tmpdir(), 'restird-web-'));
-  const log = openSync(path.join(OUT, 'daemon.log'), 'w');
-  const proc = spawn(BIN, ['--listen', '127.0.0.1:0', '--data-dir', dataDir], { stdio: ['ignore', 'pipe', log] });
+function startDaemon({ logName = 'daemon.log', env = {} } = {}) {
+  const dir = mkdtempSync(path.join(tmpdir(), 'restird-web-'));
+  if (!dataDir) dataDir = dir;
+  const log = openSync(path.join(OUT, logName), 'w');
+  const proc = spawn(BIN, ['--listen', '127.0.0.1:0', '--data-dir', dir], {
+    stdio: ['ignore', 'pipe', log],
+    env: { ...process.env, ...env },
+  });
   return new Promise((resolve, reject) => {
     let text = '';
     const timer = setTimeout(() => reject(new Error(`restird did not start: ${text}`)), 30000);
@@ -40,7 +44,7 @@ function startDaemon() {
       const m = /restird listening on http:\/\/127\.0\.0\.1:(\d+)/.exec(text);
       if (m) {
         clearTimeout(timer);
-        resolve({ proc, port: Number(m[1]) });
+        resolve({ proc, port: Number(m[1]), dir });
       }
     });
     proc.on('exit', (code) => reject(new Error(`restird exited with ${code}: ${text}`)));
@@ -403,6 +407,41 @@ test('a page whose scripts cannot load says so', async () => {
   } finally {
     await broken.close();
   }
+});
+
+test('a daemon with a token: the page takes it from its address, keeps it out of it, and sends it', async () => {
+  const token = 'web-test-token-0123456789abcdef';
+  const guarded = await startDaemon({ logName: 'guarded.log', env: { RESTIRD_AUTH_TOKEN: token } });
+  const gbase = `http://127.0.0.1:${guarded.port}`;
+  const p = await browser.newPage({ viewport: { width: 1280, height: 1000 } });
+  p.setDefaultTimeout(20000);
+  try {
+    assert.equal((await fetch(`${gbase}/v1/scenes`)).status, 401, 'the daemon wants the token');
+    await p.goto(`${gbase}/#token=${token}`);
+    await p.waitForSelector('body[data-ready="true"]');
+    assert.equal(await p.$eval('#daemon', (el) => el.dataset.state), 'ok');
+    assert.equal(new URL(p.url()).hash, '', 'the token left the address bar');
+    assert.ok((await p.$$eval('#scene option', (os) => os.length)) > 0, 'the scenes were listed with the token');
+    await p.fill('#width', '16');
+    await p.fill('#height', '16');
+    await p.click('#create-session');
+    await p.waitForFunction(() => document.getElementById('session-a').value !== '');
+    await p.click('#render-frame');
+    await p.waitForFunction(() => document.querySelector('#view')?.dataset.aFrame === '0');
+    await p.reload();   // the token is kept for the tab
+    await p.waitForSelector('body[data-ready="true"]');
+    assert.equal(await p.$eval('#daemon', (el) => el.dataset.state), 'ok');
+  } finally {
+    await p.close();
+    const exited = new Promise((resolve) => guarded.proc.on('exit', (code) => resolve(code)));
+    guarded.proc.kill('SIGTERM');
+    assert.equal(await exited, 0, 'the guarded daemon stops cleanly');
+    rmSync(guarded.dir, { recursive: true, force: true });
+  }
+  // The event stream went with the token in its query (EventSource sends no headers).
+  const log = readFileSync(path.join(OUT, 'guarded.log'), 'utf8');
+  assert.match(log, / GET \/v1\/scenes\/cornell-box\/sessions\/[^ ]+\/events 200 /);
+  assert.doesNotMatch(log, /\/events 401 /);
 });
 
 test('the page logged no errors of its own', () => {
