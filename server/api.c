@@ -116,8 +116,10 @@ bool api_client_gone(void *call)
 
 uint64_t api_frame_samples(const struct view_params *p)
 {
-    bool spp = p->method == RENDER_METHOD_PT || p->method == RENDER_METHOD_SMS || p->method == RENDER_METHOD_SMS_SSP;
-    return (uint64_t)p->width * p->height * (spp ? p->pt.spp : 1u);
+    /* Methods that take spp trace that many paths per pixel; the others one. */
+    uint32_t spp = 1;
+    if (p->method->caps & METHOD_TAKES_SPP) view_params_get_uint(p, "spp", &spp);
+    return (uint64_t)p->width * p->height * spp;
 }
 
 bool api_check_work(struct api_call *c, uint64_t samples, const char *field, const char *what)

@@ -632,7 +632,7 @@ static bool scene_load_check_world(const struct shape *s, const char *ptr, bool 
         double dx = (double)a.x - b.x, dy = (double)a.y - b.y, dz = (double)a.z - b.z;
         double r2 = (dx * dx + dy * dy + dz * dz) / 12.0;  /* the half diagonal / sqrt(3), squared */
         if (!(4.0 * 3.14159265358979323846 * r2 < (double)FLT_MAX)) {
-            if (!has_transform) scene_load_ptr_key(p, ptr, "radius");
+            if (!has_transform) json_pointer_key(p, SCENE_LOAD_PTR, ptr, "radius");
             return err_set(err, ERR_INVALID, p,
                            "the sphere's surface area leaves the 32-bit float range in world space");
         }
