@@ -1077,8 +1077,7 @@ void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *p
 
 static bool pt_run(struct pt_pass *pp, unsigned threads, parallel_job_fn *fn, struct err *err)
 {
-    uint32_t jobs = (pp->st->rs.height + PT_ROWS_PER_JOB - 1) / PT_ROWS_PER_JOB;
-    return parallel_run(threads, jobs, fn, pp, NULL, NULL, err);
+    return restir_run_rows(pp->st->rs.height, PT_ROWS_PER_JOB, threads, fn, pp, err);
 }
 
 /* G-buffer and initial pass; the context is bound into `c`. */
@@ -1115,13 +1114,9 @@ bool restir_pt_initial_only(struct restir_pt_state *st, const struct restir_pt_p
                             const struct method_frame *f, struct err *err)
 {
     struct pt_ctx c;
-    struct pt_pass *pp = malloc(sizeof *pp);
-    if (!pp) return err_set(err, ERR_NOMEM, NULL, "out of memory");
+    struct pt_pass pp;   /* on the stack, as in a frame */
     struct restir_pass_stats stats = {0};
-    const unsigned threads = parallel_threads(f->threads, RESTIR_MAX_WORKERS);
-    bool ok = pt_begin(st, params, f, &c, pp, NULL, threads, &stats, err);
-    free(pp);
-    return ok;
+    return pt_begin(st, params, f, &c, &pp, NULL, restir_threads(f->threads), &stats, err);
 }
 
 bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params *params,
@@ -1130,7 +1125,7 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
 {
     struct restir_pass_stats local;
     if (!(stats = restir_frame_begin(out, &st->rs, stats, &local, sizeof local, err))) return false;
-    const unsigned threads = parallel_threads(f->threads, RESTIR_MAX_WORKERS);
+    const unsigned threads = restir_threads(f->threads);
     /* On the stack (~50 KiB of per-worker counters): a frame allocates nothing. */
     struct pt_ctx c;
     struct pt_pass pp;

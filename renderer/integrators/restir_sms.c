@@ -542,8 +542,7 @@ static bool sms_bind(struct restir_sms_state *st, const struct restir_sms_params
 
 static bool sms_run(struct sms_pass *pp, unsigned threads, parallel_job_fn *fn, struct err *err)
 {
-    uint32_t jobs = (pp->st->rs.height + SMS_ROWS_PER_JOB - 1) / SMS_ROWS_PER_JOB;
-    return parallel_run(threads, jobs, fn, pp, NULL, NULL, err);
+    return restir_run_rows(pp->st->rs.height, SMS_ROWS_PER_JOB, threads, fn, pp, err);
 }
 
 static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_params *params,
@@ -607,20 +606,13 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     return true;
 }
 
-static unsigned sms_threads(const struct method_frame *f)
-{
-    return parallel_threads(f->threads, RESTIR_MAX_WORKERS);
-}
-
 bool restir_sms_initial_only(struct restir_sms_state *st, const struct restir_sms_params *params,
                              const struct method_frame *f, void *ctx, struct err *err)
 {
-    struct sms_pass *pp = malloc(sizeof *pp);
-    if (!pp) return err_set(err, ERR_NOMEM, NULL, "out of memory");
+    struct sms_pass pp;   /* on the stack, as in a frame */
     struct restir_sms_stats stats;
     memset(&stats, 0, sizeof stats);
-    bool ok = sms_begin(st, params, f, ctx, pp, NULL, sms_threads(f), &stats, err);
-    free(pp);
+    bool ok = sms_begin(st, params, f, ctx, &pp, NULL, restir_threads(f->threads), &stats, err);
     if (ok) st->rs.has_history = true;
     return ok;
 }
@@ -631,7 +623,7 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
 {
     struct restir_sms_stats local;
     if (!(stats = restir_frame_begin(out, &st->rs, stats, &local, sizeof local, err))) return false;
-    unsigned threads = sms_threads(f);
+    unsigned threads = restir_threads(f->threads);
     /* The context holds the frame's casters (~7 KiB) and the pass its per-worker counters; both
      * on the heap would be a per-frame malloc, the stack is fine. */
     struct sms_ctx c;

@@ -639,8 +639,7 @@ void restir_sss_bind(struct restir_sss_state *st, const struct restir_sss_params
 
 static bool sss_run(struct sss_pass *pp, unsigned threads, parallel_job_fn *fn, struct err *err)
 {
-    uint32_t jobs = (pp->st->rs.height + SSS_ROWS_PER_JOB - 1) / SSS_ROWS_PER_JOB;
-    return parallel_run(threads, jobs, fn, pp, NULL, NULL, err);
+    return restir_run_rows(pp->st->rs.height, SSS_ROWS_PER_JOB, threads, fn, pp, err);
 }
 
 static bool sss_begin(struct restir_sss_state *st, const struct restir_sss_params *params,
@@ -702,13 +701,9 @@ bool restir_sss_initial_only(struct restir_sss_state *st, const struct restir_ss
                              const struct method_frame *f, struct err *err)
 {
     struct sss_ctx c;
-    struct sss_pass *pp = malloc(sizeof *pp);
-    if (!pp) return err_set(err, ERR_NOMEM, NULL, "out of memory");
+    struct sss_pass pp;   /* on the stack, as in a frame */
     struct restir_sss_stats stats = {0};
-    const unsigned threads = parallel_threads(f->threads, RESTIR_MAX_WORKERS);
-    bool ok = sss_begin(st, params, f, &c, pp, NULL, threads, &stats, err);
-    free(pp);
-    return ok;
+    return sss_begin(st, params, f, &c, &pp, NULL, restir_threads(f->threads), &stats, err);
 }
 
 bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_params *params,
@@ -717,7 +712,7 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
 {
     struct restir_sss_stats local;
     if (!(stats = restir_frame_begin(out, &st->rs, stats, &local, sizeof local, err))) return false;
-    const unsigned threads = parallel_threads(f->threads, RESTIR_MAX_WORKERS);
+    const unsigned threads = restir_threads(f->threads);
     struct sss_ctx c;
     /* ~50 KiB of per-worker counters: on the heap would be a per-frame malloc; the stack is fine. */
     struct sss_pass pp;

@@ -18,6 +18,7 @@
 #include "scene/accel.h"
 #include "core/alias.h"
 #include "core/err.h"
+#include "core/parallel.h"
 #include "image/image.h"
 #include "reuse/gbuffer.h"
 
@@ -170,6 +171,14 @@ void *restir_frame_begin(const struct image *out, const struct restir_session *s
 bool restir_pair_partner(const struct restir_reuse *r, uint32_t m, uint32_t pixel, uint32_t *partner);
 
 #define RESTIR_MAX_WORKERS 1024u
+/* Runs fn(ctx, job) over an image's rows in jobs of rows_per_job rows on `threads` workers. */
+static inline bool restir_run_rows(uint32_t height, uint32_t rows_per_job, unsigned threads, parallel_job_fn *fn,
+                                   void *ctx, struct err *err)
+{
+    return parallel_run(threads, (height + rows_per_job - 1) / rows_per_job, fn, ctx, NULL, NULL, err);
+}
+/* The worker threads of a frame's passes for a session's thread setting (0 = all cores). */
+static inline unsigned restir_threads(unsigned threads) { return parallel_threads(threads, RESTIR_MAX_WORKERS); }
 
 /* Temporal reuse in place: `cur` holds each pixel's initial reservoir and receives the merge
  * with the history's reservoir at the pixel the motion vector points to. Counters are summed
