@@ -338,12 +338,12 @@ static void bdpt_light_block(void *ctx, uint32_t block, unsigned worker)
             }
             if (depth >= p->max_depth) break;
             struct vec3 wo = frame_to_local(&s.frame, wo_world);
-            float ulobe = rng_next_float(&rng), v1 = rng_next_float(&rng), v2 = rng_next_float(&rng);
             struct bsdf_sample bs;
-            if (!material_sample(m, wo, ulobe, v1, v2, TRANSPORT_IMPORTANCE, &bs)) break;
-            struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
-            float cos_i_ng = vec3_dot(wi_world, s.ng), cos_o_ng = vec3_dot(wo_world, s.ng);
-            if (cos_i_ng * bs.wi.z <= 0.0f || cos_o_ng == 0.0f) break;
+            struct vec3 wi_world;
+            float cos_i_ng, cos_o_ng = vec3_dot(wo_world, s.ng);
+            if (!material_sample_at(m, &s.frame, s.ng, wo, &rng, TRANSPORT_IMPORTANCE, &bs, &wi_world, &cos_i_ng) ||
+                cos_o_ng == 0.0f)
+                break;
             /* Adjoint shading-normal correction (Veach eq. 5.19): f |wo.ns| |wi.ng| / (|wo.ng| pdf). */
             struct vec3 weight = vec3_scale(bs.f, fabsf(wo.z) * fabsf(cos_i_ng) / (fabsf(cos_o_ng) * bs.pdf_w));
             beta = vec3_mul(beta, weight);
@@ -515,12 +515,10 @@ static struct vec3 bdpt_camera_path(struct bdpt_ctx *c, struct vec3 dir, struct 
         }
 
         /* Continue by BSDF sampling. */
-        float ulobe = rng_next_float(rng), v1 = rng_next_float(rng), v2 = rng_next_float(rng);
         struct bsdf_sample bs;
-        if (!material_sample(m, wo, ulobe, v1, v2, TRANSPORT_RADIANCE, &bs)) break;
-        struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
-        float cos_i_ng = vec3_dot(wi_world, s.ng);
-        if (cos_i_ng * bs.wi.z <= 0.0f) break;
+        struct vec3 wi_world;
+        float cos_i_ng;
+        if (!material_sample_at(m, &s.frame, s.ng, wo, rng, TRANSPORT_RADIANCE, &bs, &wi_world, &cos_i_ng)) break;
         beta = vec3_mul(beta, vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w));
         if (bs.flags & BSDF_TRANSMISSION) rr_scale /= material_radiance_scale(m, wo, bs.wi);
         bdpt_mis_scatter(&mis, cos_i_ng, bs.pdf_w, bs.pdf_rev_w, (bs.flags & BSDF_DELTA) != 0, c->power);

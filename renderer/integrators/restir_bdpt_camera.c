@@ -313,12 +313,10 @@ void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdpt_view 
                 }
             }
         }
-        float ulobe = rng_next_float(rng), v1 = rng_next_float(rng), v2 = rng_next_float(rng);
         struct bsdf_sample bs;
-        if (!material_sample(m, wo, ulobe, v1, v2, TRANSPORT_RADIANCE, &bs)) break;
-        struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
-        float cos_i_ng = vec3_dot(wi_world, s.ng);
-        if (cos_i_ng * bs.wi.z <= 0.0f) break;
+        struct vec3 wi_world;
+        float cos_i_ng;
+        if (!material_sample_at(m, &s.frame, s.ng, wo, rng, TRANSPORT_RADIANCE, &bs, &wi_world, &cos_i_ng)) break;
         prev_beta = beta;
         prev_mis = mis;
         if (rc_k.k == depth + 1) {

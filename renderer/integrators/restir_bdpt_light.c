@@ -138,12 +138,12 @@ bool rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view *v, ui
         }
         if (depth >= last && !x2_out) return true;
         struct vec3 wo = frame_to_local(&s.frame, wo_world);
-        float ulobe = rng_next_float(&rng), v1 = rng_next_float(&rng), v2 = rng_next_float(&rng);
         struct bsdf_sample bs;
-        if (!material_sample(m, wo, ulobe, v1, v2, TRANSPORT_IMPORTANCE, &bs)) return false;
-        struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
-        float cos_i_ng = vec3_dot(wi_world, s.ng), cos_o_ng = vec3_dot(wo_world, s.ng);
-        if (cos_i_ng * bs.wi.z <= 0.0f || cos_o_ng == 0.0f) return false;
+        struct vec3 wi_world;
+        float cos_i_ng, cos_o_ng = vec3_dot(wo_world, s.ng);
+        if (!material_sample_at(m, &s.frame, s.ng, wo, &rng, TRANSPORT_IMPORTANCE, &bs, &wi_world, &cos_i_ng) ||
+            cos_o_ng == 0.0f)
+            return false;
         if (track || x2_out) {
             x2 = (struct rbdpt_x2){.s = s, .m = m, .wo_world = wo_world, .beta = beta, .rr_beta = rr_beta,
                                    .mis = mis, .dir = wi_world, .depth = depth};

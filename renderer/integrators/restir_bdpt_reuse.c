@@ -81,12 +81,10 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
         if (j + 1 == k) break;
         for (uint32_t n = 0; n < draws - 4u; n++) rng_next_float(&rng);   /* the light sample's (and vertex choice) */
         struct vec3 wo = frame_to_local(&s.frame, vec3_neg(dir));
-        float ulobe = rng_next_float(&rng), v1 = rng_next_float(&rng), v2 = rng_next_float(&rng);
         struct bsdf_sample bs;
-        if (!material_sample(m, wo, ulobe, v1, v2, TRANSPORT_RADIANCE, &bs)) return false;
-        struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
-        float cos_i_ng = vec3_dot(wi_world, s.ng);
-        if (cos_i_ng * bs.wi.z <= 0.0f) return false;
+        struct vec3 wi_world;
+        float cos_i_ng;
+        if (!material_sample_at(m, &s.frame, s.ng, wo, &rng, TRANSPORT_RADIANCE, &bs, &wi_world, &cos_i_ng)) return false;
         beta = vec3_mul(beta, vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w));
         restir_bdpt_mis_scatter(&mis, cos_i_ng, bs.pdf_w, bs.pdf_rev_w, (bs.flags & BSDF_DELTA) != 0, c->power);
         rng_next_float(&rng);   /* the roulette's: survival is certain in a shift */

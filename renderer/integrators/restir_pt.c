@@ -1089,16 +1089,8 @@ static bool pt_begin(struct restir_pt_state *st, const struct restir_pt_params *
     if (f->scene->shape_count != st->shape_count)
         return err_set(err, ERR_INVALID, NULL, "the scene has %u shapes, the session %u", f->scene->shape_count,
                        st->shape_count);
-    if (pt_uses_pairs(params) && !st->rs.pair_scratch)
-        return err_set(err, ERR_INVALID, "/params/paired_spatial", "the session was made without paired spatial reuse");
     struct timespec t0;
-    clock_gettime(CLOCK_MONOTONIC, &t0);
-    struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,
-                               .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame, .threads = threads};
-    uint64_t grays = 0;
-    if (!restir_gbuffer_next(st->rs.gbuf, &st->rs.cur, &st->rs.has_history, gf, &grays, err)) return false;
-    stats->gbuffer_ms = parallel_lap_ms(&t0);
-    stats->rays_intersect += grays;
+    if (!restir_session_begin(&st->rs, f, threads, 0.0f, pt_uses_pairs(params), stats, &t0, err)) return false;
 
     restir_pt_bind(st, params, f, c);
     memset(pp, 0, sizeof *pp);

@@ -558,17 +558,9 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     if (sms_uses_prior(params) && st->prior.frames != params->ssp.prior_frames)
         return err_set(err, ERR_INVALID, "/params/prior_frames", "the session keeps %u frames of prior walks, not %u",
                        st->prior.frames, params->ssp.prior_frames);
-    if (sms_uses_pairs(params) && !st->rs.pair_scratch)
-        return err_set(err, ERR_INVALID, "/params/paired_spatial", "the session was made without paired spatial reuse");
     struct timespec t0;
-    clock_gettime(CLOCK_MONOTONIC, &t0);
-    struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,
-                               .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame, .threads = threads,
-                               .jitter_walk = params->jitter_walk};
-    uint64_t grays = 0;
-    if (!restir_gbuffer_next(st->rs.gbuf, &st->rs.cur, &st->rs.has_history, gf, &grays, err)) return false;
-    stats->pass.gbuffer_ms = parallel_lap_ms(&t0);
-    stats->pass.rays_intersect += grays;
+    if (!restir_session_begin(&st->rs, f, threads, params->jitter_walk, sms_uses_pairs(params), &stats->pass, &t0, err))
+        return false;
 
     if (!sms_bind(st, params, f, c, err)) return false;
     memset(pp, 0, sizeof *pp);

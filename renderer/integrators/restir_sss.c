@@ -649,16 +649,8 @@ static bool sss_begin(struct restir_sss_state *st, const struct restir_sss_param
     if (!restir_sss_params_valid(params, err)) return false;
     if (restir_sss_layers(params) != st->rs.layers)
         return err_set(err, ERR_INVALID, "/params/target", "the session's reservoirs were made for the other target");
-    if (sss_uses_pairs(params) && !st->rs.pair_scratch)
-        return err_set(err, ERR_INVALID, "/params/paired_spatial", "the session was made without paired spatial reuse");
     struct timespec t0;
-    clock_gettime(CLOCK_MONOTONIC, &t0);
-    struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,
-                               .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame, .threads = threads};
-    uint64_t grays = 0;
-    if (!restir_gbuffer_next(st->rs.gbuf, &st->rs.cur, &st->rs.has_history, gf, &grays, err)) return false;
-    stats->pass.gbuffer_ms = parallel_lap_ms(&t0);
-    stats->pass.rays_intersect += grays;
+    if (!restir_session_begin(&st->rs, f, threads, 0.0f, sss_uses_pairs(params), &stats->pass, &t0, err)) return false;
 
     restir_sss_bind(st, params, f, c);
     memset(pp, 0, sizeof *pp);

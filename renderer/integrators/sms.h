@@ -37,6 +37,7 @@
 
 #include "core/alias.h"
 #include "scene/light_sampler.h"
+#include "scene/scene.h"
 #include "integrators/manifold.h"
 #include "material/material.h"
 #include "core/rng.h"
@@ -107,6 +108,18 @@ bool sms_params_valid(const struct sms_params *p, struct err *err);
 bool sms_chain_of(const struct scene *scene, uint32_t shape, struct manifold_chain *out);
 /* Collects the casters (at most SMS_MAX_CASTERS; ERR_LIMIT beyond). */
 bool sms_scene_init(const struct scene *scene, struct sms_scene *out, struct err *err);
+
+/* The caster (its index) and the light point of one manifold sample, from uc (the caster,
+ * uniformly) and ul, l1, l2 (the light): false when the caster's chain is longer than max_chain or no finite light
+ * point with a positive density was sampled. ss holds at least one caster. */
+static inline bool sms_pick(const struct scene *scene, const struct sms_scene *ss, float uc, float ul, float l1,
+                            float l2, uint32_t max_chain, uint32_t *ci, struct light_sample *ls)
+{
+    *ci = (uint32_t)(uc * (float)ss->count);
+    if (*ci >= ss->count) *ci = ss->count - 1;
+    return ss->casters[*ci].chain.length <= max_chain && light_sampler_sample(scene->lights, ul, l1, l2, ls) &&
+           !ls->is_env && ls->pdf_a > 0.0f;
+}
 /* The seed target for u in [0,1)^2 on caster c. */
 struct vec3 sms_seed_point(const struct sms_caster *c, float u1, float u2);
 

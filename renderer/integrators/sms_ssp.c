@@ -406,13 +406,11 @@ bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const str
     double t0 = sms_now_ms();
     c->samples++;
     const uint32_t n = p->tiles, n2 = n * n;
-    uint32_t ci = (uint32_t)(uc * (float)ss->count);
-    if (ci >= ss->count) ci = ss->count - 1;
-    const struct sms_caster *cs = &ss->casters[ci];
+    uint32_t ci;
     struct light_sample ls;
-    if (cs->chain.length > max_chain || !light_sampler_sample(scene->lights, ul, l1, l2, &ls) || ls.is_env ||
-        !(ls.pdf_a > 0.0f))
-        goto out;
+    const bool picked = sms_pick(scene, ss, uc, ul, l1, l2, max_chain, &ci, &ls);
+    const struct sms_caster *cs = &ss->casters[ci];
+    if (!picked) goto out;
     const struct material *lm = &scene->materials[scene->shapes[ls.shape].material];
     struct manifold_ends e = {.x1 = s->p, .ng1 = s->ng, .xe = ls.p, .nge = ls.n};
     struct ssp_cone k;

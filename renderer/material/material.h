@@ -10,6 +10,7 @@
 
 #include <stdbool.h>
 
+#include "core/rng.h"
 #include "core/vec.h"
 
 enum material_kind {
@@ -96,6 +97,22 @@ float material_pdf_lobe(const struct material *m, int lobe, struct vec3 wo, stru
  * f_radiance(wi, wo)). */
 bool material_sample(const struct material *m, struct vec3 wo, float u_lobe, float u1, float u2,
                      enum transport_mode mode, struct bsdf_sample *out);
+/* A path's continuation by BSDF sampling at a surface with shading frame `fr` and geometric
+ * normal ng (wo in the frame): the lobe and the direction from the next three numbers of rng,
+ * the direction in world space and its cosine with ng. False when nothing was sampled, or the
+ * direction leaves through the other side of the geometric surface than of the shading frame (a
+ * light leak of shading normals, which every integrator ends there). */
+static inline bool material_sample_at(const struct material *m, const struct frame *fr, struct vec3 ng, struct vec3 wo,
+                                      struct rng *rng, enum transport_mode mode, struct bsdf_sample *bs,
+                                      struct vec3 *wi_world, float *cos_i_ng)
+{
+    float ulobe = rng_next_float(rng), v1 = rng_next_float(rng), v2 = rng_next_float(rng);
+    if (!material_sample(m, wo, ulobe, v1, v2, mode, bs)) return false;
+    *wi_world = frame_to_world(fr, bs->wi);
+    *cos_i_ng = vec3_dot(*wi_world, ng);
+    return *cos_i_ng * bs->wi.z > 0.0f;
+}
+
 /* The factor (eta_wo / eta_wi)^2 that TRANSPORT_RADIANCE puts into a refraction from wo to wi
  * through a dielectric (wo and wi on opposite sides); 1 for every other scattering. A camera
  * path's throughput carries the product of these factors, which cancels when the path leaves

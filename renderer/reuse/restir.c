@@ -617,3 +617,19 @@ bool restir_gbuffer_next(struct gbuffer gbuf[2], uint32_t *cur, bool *has_histor
     if (!history) *has_history = false;
     return true;
 }
+
+bool restir_session_begin(struct restir_session *s, const struct method_frame *f, unsigned threads, float jitter_walk,
+                          bool pairs, struct restir_pass_stats *stats, struct timespec *t0, struct err *err)
+{
+    if (pairs && !s->pair_scratch)
+        return err_set(err, ERR_INVALID, "/params/paired_spatial", "the session was made without paired spatial reuse");
+    clock_gettime(CLOCK_MONOTONIC, t0);
+    struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,
+                               .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame, .threads = threads,
+                               .jitter_walk = jitter_walk};
+    uint64_t grays = 0;
+    if (!restir_gbuffer_next(s->gbuf, &s->cur, &s->has_history, gf, &grays, err)) return false;
+    stats->gbuffer_ms = parallel_lap_ms(t0);
+    stats->rays_intersect += grays;
+    return true;
+}

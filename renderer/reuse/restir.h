@@ -14,12 +14,14 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <time.h>
 
 #include "scene/accel.h"
 #include "core/alias.h"
 #include "core/err.h"
 #include "core/parallel.h"
 #include "image/image.h"
+#include "integrators/frame.h"
 #include "reuse/gbuffer.h"
 
 /* First bytes of every reservoir element. W is the unbiased contribution weight of the sample
@@ -194,5 +196,11 @@ bool restir_spatial_pass(const struct restir_reuse *r, const uint8_t *in, uint8_
  * positions; otherwise the history is dropped and the positions are drawn afresh. */
 bool restir_gbuffer_next(struct gbuffer gbuf[2], uint32_t *cur, bool *has_history, struct gbuffer_frame gf,
                          uint64_t *rays, struct err *err);
+
+/* The start of a ReSTIR frame after the method's own checks: refuses paired spatial reuse (pairs)
+ * in a session made without its scratch, starts the clock *t0 and renders the G-buffer pass
+ * (restir_gbuffer_next; jitter_walk as gbuffer_frame's), whose time and rays go to stats. */
+bool restir_session_begin(struct restir_session *s, const struct method_frame *f, unsigned threads, float jitter_walk,
+                          bool pairs, struct restir_pass_stats *stats, struct timespec *t0, struct err *err);
 
 #endif
