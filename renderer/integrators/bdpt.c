@@ -337,15 +337,10 @@ static void bdpt_light_block(void *ctx, uint32_t block, unsigned worker)
                 }
             }
             if (depth >= p->max_depth) break;
-            struct vec3 wo = frame_to_local(&s.frame, wo_world);
             struct bsdf_sample bs;
-            struct vec3 wi_world;
-            float cos_i_ng, cos_o_ng = vec3_dot(wo_world, s.ng);
-            if (!material_sample_at(m, &s.frame, s.ng, wo, &rng, TRANSPORT_IMPORTANCE, &bs, &wi_world, &cos_i_ng) ||
-                cos_o_ng == 0.0f)
-                break;
-            /* Adjoint shading-normal correction (Veach eq. 5.19): f |wo.ns| |wi.ng| / (|wo.ng| pdf). */
-            struct vec3 weight = vec3_scale(bs.f, fabsf(wo.z) * fabsf(cos_i_ng) / (fabsf(cos_o_ng) * bs.pdf_w));
+            struct vec3 wi_world, weight;
+            float cos_i_ng;
+            if (!material_sample_importance(m, &s.frame, s.ng, wo_world, &rng, &bs, &wi_world, &cos_i_ng, &weight)) break;
             beta = vec3_mul(beta, weight);
             rr_beta = vec3_mul(rr_beta, weight);
             bdpt_mis_scatter(&mis, cos_i_ng, bs.pdf_w, bs.pdf_rev_w, (bs.flags & BSDF_DELTA) != 0, c->power);

@@ -137,19 +137,16 @@ bool rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view *v, ui
             }
         }
         if (depth >= last && !x2_out) return true;
-        struct vec3 wo = frame_to_local(&s.frame, wo_world);
         struct bsdf_sample bs;
-        struct vec3 wi_world;
-        float cos_i_ng, cos_o_ng = vec3_dot(wo_world, s.ng);
-        if (!material_sample_at(m, &s.frame, s.ng, wo, &rng, TRANSPORT_IMPORTANCE, &bs, &wi_world, &cos_i_ng) ||
-            cos_o_ng == 0.0f)
+        struct vec3 wi_world, weight;
+        float cos_i_ng;
+        if (!material_sample_importance(m, &s.frame, s.ng, wo_world, &rng, &bs, &wi_world, &cos_i_ng, &weight))
             return false;
         if (track || x2_out) {
             x2 = (struct rbdpt_x2){.s = s, .m = m, .wo_world = wo_world, .beta = beta, .rr_beta = rr_beta,
                                    .mis = mis, .dir = wi_world, .depth = depth};
             x2_rough = rbdpt_rough(m);
         }
-        struct vec3 weight = vec3_scale(bs.f, fabsf(wo.z) * fabsf(cos_i_ng) / (fabsf(cos_o_ng) * bs.pdf_w));
         beta = vec3_mul(beta, weight);
         rr_beta = vec3_mul(rr_beta, weight);
         bool delta = (bs.flags & BSDF_DELTA) != 0;

@@ -8,6 +8,7 @@
 #ifndef RESTIRD_MATERIAL_H
 #define RESTIRD_MATERIAL_H
 
+#include <math.h>
 #include <stdbool.h>
 
 #include "core/rng.h"
@@ -111,6 +112,21 @@ static inline bool material_sample_at(const struct material *m, const struct fra
     *wi_world = frame_to_world(fr, bs->wi);
     *cos_i_ng = vec3_dot(*wi_world, ng);
     return *cos_i_ng * bs->wi.z > 0.0f;
+}
+
+/* A light subpath's continuation (importance transport) from wo_world: material_sample_at, and
+ * the throughput weight with the adjoint shading-normal correction (Veach 1997 eq. 5.19),
+ * f |wo.ns| |wi.ng| / (|wo.ng| pdf). False also when wo_world lies in the geometric surface. */
+static inline bool material_sample_importance(const struct material *m, const struct frame *fr, struct vec3 ng,
+                                              struct vec3 wo_world, struct rng *rng, struct bsdf_sample *bs,
+                                              struct vec3 *wi_world, float *cos_i_ng, struct vec3 *weight)
+{
+    struct vec3 wo = frame_to_local(fr, wo_world);
+    float cos_o_ng = vec3_dot(wo_world, ng);
+    if (!material_sample_at(m, fr, ng, wo, rng, TRANSPORT_IMPORTANCE, bs, wi_world, cos_i_ng) || cos_o_ng == 0.0f)
+        return false;
+    *weight = vec3_scale(bs->f, fabsf(wo.z) * fabsf(*cos_i_ng) / (fabsf(cos_o_ng) * bs->pdf_w));
+    return true;
 }
 
 /* The factor (eta_wo / eta_wi)^2 that TRANSPORT_RADIANCE puts into a refraction from wo to wi
