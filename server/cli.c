@@ -7,6 +7,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -14,6 +15,7 @@
 #include "image/exrio.h"
 #include "input/fileio.h"
 #include "image/metrics.h"
+#include "image/tonemap.h"
 #include "integrators/reference_pt.h"
 #include "scene/scene.h"
 #include "session/view.h"
@@ -28,7 +30,7 @@
     "                [--seed S] [--frame F]\n" \
     "                [--threads T] [--max-depth D] [--rr-depth R] [--no-nee] [--crop X0,Y0,X1,Y1]\n"    \
     "                [--frames F] [--average-last N] [--animation FILE.json] [--params JSON]\n"       \
-    "                [--half] [--json] -o OUT.exr\n"                                              \
+    "                [--half] [--json] -o OUT.exr|OUT.png   (.png: an 8-bit preview, exposure 0, clamp)\n" \
     "  restir compare A.exr B.exr      (B is the reference; prints one JSON object)\n"             \
     "  restir methods [--json]         (the methods, their capabilities and parameters)\n"        \
     "defaults: --method pt --spp 16 --size 256x256 --seed 0 --max-depth 64 --rr-depth 3 (Russian\n"         \
@@ -68,10 +70,22 @@ static int cli_usage_error(const char *fmt, const char *arg)
     return 2;
 }
 
+/* --help or -h among a command's arguments. */
+static bool cli_wants_help(int argc, char **argv)
+{
+    for (int i = 0; i < argc; i++)
+        if (strcmp(argv[i], "--help") == 0 || strcmp(argv[i], "-h") == 0) return true;
+    return false;
+}
+
 /* The registry: one line per method, or with --json the body of the daemon's GET /v1/methods
  * (spp ranges within the CLI's own limit). */
 static int cli_methods(int argc, char **argv)
 {
+    if (cli_wants_help(argc, argv)) {
+        cli_usage(stdout);
+        return 0;
+    }
     bool json = argc == 1 && strcmp(argv[0], "--json") == 0;
     if (argc > 1 || (argc == 1 && !json)) return cli_usage_error("%s", "methods takes only --json");
     if (!json) {
@@ -95,6 +109,58 @@ static int cli_methods(int argc, char **argv)
     printf("%s\n", text);
     free(text);
     return 0;
+}
+
+/* The output's format, from its file name: .exr, or .png (an 8-bit preview through the
+ * daemon's tone mapper: exposure 0, clamp). */
+enum cli_format { CLI_EXR, CLI_PNG };
+static bool cli_output_format(const char *path, enum cli_format *out)
+{
+    const char *dot = strrchr(path, '.');
+    if (dot && strchr(dot, '/') == NULL) {
+        if (strcasecmp(dot, ".exr") == 0) return *out = CLI_EXR, true;
+        if (strcasecmp(dot, ".png") == 0) return *out = CLI_PNG, true;
+    }
+    return false;
+}
+
+/* The folder `path` would be written into exists: checked before a render, so a long render is
+ * not lost to a typo in -o. */
+static bool cli_output_folder_exists(const char *path)
+{
+    char dir[4096];
+    const char *slash = strrchr(path, '/');
+    if (!slash) return true;
+    size_t n = slash == path ? 1 : (size_t)(slash - path);
+    if (n >= sizeof dir) return false;
+    memcpy(dir, path, n);
+    dir[n] = '\0';
+    struct stat sb;
+    return stat(dir, &sb) == 0 && S_ISDIR(sb.st_mode);
+}
+
+/* Writes the image in the format its name says; false with a message on stderr. */
+static bool cli_write_image(const char *path, enum cli_format format, const struct image *img, bool half)
+{
+    struct err err = {0};
+    char msg[1024];
+    bool ok;
+    if (format == CLI_EXR) {
+        struct exrio_write_opts wo = {.pixel = half ? EXRIO_HALF : EXRIO_FLOAT, .compression = EXRIO_ZIP};
+        ok = exrio_write_file(path, img, &wo, &err);
+    } else {
+        unsigned char *png = NULL;
+        size_t size = 0;
+        const struct tonemap_opts to = {.exposure_ev = 0.0f, .curve = TONEMAP_CLAMP};
+        ok = tonemap_png(img, &to, &png, &size, &err);
+        FILE *f = ok ? fopen(path, "wb") : NULL;
+        if (ok && !f) ok = err_set(&err, ERR_IO, NULL, "%s", strerror(errno));
+        if (f && fwrite(png, 1, size, f) != size) ok = err_set(&err, ERR_IO, NULL, "%s", strerror(errno));
+        if (f && fclose(f) != 0 && ok) ok = err_set(&err, ERR_IO, NULL, "%s", strerror(errno));
+        free(png);
+    }
+    if (!ok) fprintf(stderr, "restir: cannot write %s: %s\n", path, err_format(&err, msg, sizeof msg));
+    return ok;
 }
 
 static bool cli_parse_u64(const char *s, uint64_t max, uint64_t *out)
@@ -271,6 +337,10 @@ static int cli_render(int argc, char **argv)
     for (int i = 0; i < argc; i++) {
         const char *a = argv[i];
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+        if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
+            cli_usage(stdout);
+            return 0;
+        }
         if (strcmp(a, "--half") == 0) { half = true; continue; }
         if (strcmp(a, "--json") == 0) { json = true; continue; }
         if (strcmp(a, "--no-nee") == 0) { p.nee = false; continue; }
@@ -320,6 +390,16 @@ static int cli_render(int argc, char **argv)
     }
     if (!scene_path) return cli_usage_error("%s", "render needs a scene file");
     if (!out_path) return cli_usage_error("%s", "render needs -o OUT.exr");
+    enum cli_format format;
+    if (!cli_output_format(out_path, &format))
+        return cli_usage_error("-o: '%s' names no format: end it in .exr, or .png for an 8-bit preview", out_path);
+    if (format == CLI_PNG && half) return cli_usage_error("%s", "--half is a pixel type of EXR output, not of .png");
+    if (average_last && !frames && !anim_path)
+        return cli_usage_error("%s", "--average-last averages a sequence's last frames: it needs --frames or --animation");
+    if (!cli_output_folder_exists(out_path)) {
+        fprintf(stderr, "restir: cannot write %s: its folder does not exist\n", out_path);
+        return 1;
+    }
     const struct method_desc *rm = method_find(method);
     if (!rm) {
         char msg[400], names[256];
@@ -399,9 +479,12 @@ static int cli_render(int argc, char **argv)
         scene_release(scene);
         return 1;
     }
-    struct exrio_write_opts wo = {.pixel = half ? EXRIO_HALF : EXRIO_FLOAT, .compression = EXRIO_ZIP};
-    bool wrote = exrio_write_file(out_path, &img, &wo, &err);
-    if (!wrote) fprintf(stderr, "restir: cannot write %s: %s\n", out_path, err_format(&err, msg, sizeof msg));
+    /* A failed write ends here: no summary says the render succeeded. */
+    if (!cli_write_image(out_path, format, &img, half)) {
+        image_destroy(&img);
+        scene_release(scene);
+        return 1;
+    }
 
     double mean[3];
     metrics_image_mean(&img, mean);
@@ -434,11 +517,15 @@ static int cli_render(int argc, char **argv)
     }
     image_destroy(&img);
     scene_release(scene);
-    return wrote ? 0 : 1;
+    return 0;
 }
 
 static int cli_compare(int argc, char **argv)
 {
+    if (cli_wants_help(argc, argv)) {
+        cli_usage(stdout);
+        return 0;
+    }
     if (argc != 2) return cli_usage_error("%s", "compare needs exactly two EXR files");
     struct err err = {0};
     char msg[1024];

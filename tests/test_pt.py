@@ -248,11 +248,35 @@ def test_cli_usage_errors(tmp_path, scenes):
         (("render", scenes / "translucent", "--method", "bdpt", "-o", tmp_path / "x.exr"), 1,
          "/method: bdpt does not sample subsurface scattering"),
         (("compare", tmp_path / "nope.exr", tmp_path / "nope2.exr"), 1, "nope.exr"),
+        # The output's extension names its format; nothing is rendered for a name that names none,
+        # nor into a folder that does not exist.
+        (("render", sc, "-o", tmp_path / "x.jpg"), 2, "-o: '%s' names no format" % (tmp_path / "x.jpg")),
+        (("render", sc, "--half", "-o", tmp_path / "x.png"), 2, "--half is a pixel type of EXR"),
+        (("render", sc, "-o", tmp_path / "missing" / "x.exr"), 1, "its folder does not exist"),
+        (("render", sc, "--average-last", "2", "-o", tmp_path / "x.exr"), 2, "it needs --frames or --animation"),
     ]
     for args, code, text in cases:
         res = run_cli(*args)
         assert res.returncode == code, (args, res.stderr)
         assert text in res.stderr, (args, res.stderr)
+
+
+def test_cli_help_png_and_failed_writes(tmp_path, scenes):
+    """--help on every command prints the usage (exit 0, with the registry's methods); -o x.png
+    writes the 8-bit preview; a write that fails after the render exits 1 with no summary line."""
+    for cmd in (["--help"], ["render", "--help"], ["compare", "-h"], ["methods", "--help"]):
+        res = run_cli(*cmd)
+        assert res.returncode == 0 and "usage:" in res.stdout and "restir_sms " in res.stdout, (cmd, res.stderr)
+    sc = scenes / "cornell-box"
+    res = run_cli("render", sc, "--size", "16x8", "--spp", "2", "-o", tmp_path / "x.PNG")
+    assert res.returncode == 0, res.stderr
+    png = (tmp_path / "x.PNG").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and int.from_bytes(png[16:20], "big") == 16 and int.from_bytes(png[20:24], "big") == 8
+    (tmp_path / "taken.exr").mkdir()   # a folder where the file should go: the write fails
+    res = run_cli("render", sc, "--size", "8x8", "--spp", "1", "-o", tmp_path / "taken.exr")
+    assert res.returncode == 1 and "cannot write" in res.stderr and "Mrays/s" not in res.stderr, res.stderr
+    res = run_cli("render", sc, "--size", "8x8", "--spp", "1", "--json", "-o", tmp_path / "taken.exr")
+    assert res.returncode == 1 and res.stdout == "", res.stdout
 
 
 def test_cli_renders_a_scene_folder(tmp_path, scenes):
