@@ -56,21 +56,26 @@ static void view_drop_history(struct view *v)
     if (v->accum.pixels) memset(v->accum.pixels, 0, (size_t)v->accum.width * v->accum.height * sizeof *v->accum.pixels);
 }
 
+static bool view_has_environment(const struct scene *scene)
+{
+    return !vec3_is_zero(scene->env_radiance);
+}
+
 /* Refuses a scene with a feature the method refuses (method.h's METHOD_NO_*), naming the
  * methods that render it. */
 static bool view_scene_supported(const struct method_desc *m, const struct scene *scene, struct err *err)
 {
     static const struct {
         unsigned cap;
+        bool (*has)(const struct scene *scene);
         const char *what;
     } features[] = {
-        {METHOD_NO_ENVIRONMENT, "does not support environment light (the scene has env_radiance)"},
-        {METHOD_NO_TRANSLUCENT, "does not sample subsurface scattering (the scene has translucent materials)"},
+        {METHOD_NO_ENVIRONMENT, view_has_environment, "does not support environment light (the scene has env_radiance)"},
+        {METHOD_NO_TRANSLUCENT, scene_has_translucent,
+         "does not sample subsurface scattering (the scene has translucent materials)"},
     };
     for (size_t f = 0; f < sizeof features / sizeof features[0]; f++) {
-        bool has = features[f].cap == METHOD_NO_ENVIRONMENT ? !vec3_is_zero(scene->env_radiance)
-                                                            : scene_has_translucent(scene);
-        if (!has || !(m->caps & features[f].cap)) continue;
+        if (!(m->caps & features[f].cap) || !features[f].has(scene)) continue;
         char others[256] = "";
         size_t n = 0;
         for (uint32_t i = 0; i < method_count() && n < sizeof others; i++)
