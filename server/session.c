@@ -286,6 +286,7 @@ struct session_watch {
     bool (*stop)(void *ctx);
     void *stop_ctx;
     bool stopped;
+    bool cut;                      /* the renderer was stopped with work left: the frame is not whole */
     enum err_code code;
     const char *why;
 };
@@ -307,12 +308,16 @@ static bool session_watch_stop(struct session_watch *w)
     return w->stopped;
 }
 
-/* The renderer's progress callback (about every 20 ms, on the rendering thread). */
+/* The renderer's progress callback (about every 20 ms, on the rendering thread). Once every
+ * job is done there is nothing left to skip: a frame whose client leaves then is whole, and the
+ * session keeps it (and its reuse history) as any other. */
 static void session_watch_progress(void *ctx, uint32_t done, uint32_t total)
 {
-    (void)done;
-    (void)total;
-    if (session_watch_stop(ctx)) parallel_stop();
+    struct session_watch *w = ctx;
+    if (done < total && session_watch_stop(w)) {
+        w->cut = true;
+        parallel_stop();
+    }
 }
 
 bool session_render(struct session *s, struct gate *gate, bool bounded, const struct view_frame_change *change,
@@ -329,7 +334,7 @@ bool session_render(struct session *s, struct gate *gate, bool bounded, const st
     bool ok = view_render(&s->view, change, stats, session_watch_progress, &watch, err);
     gate_leave(gate);
     if (!ok) return false;
-    if (watch.stopped) {
+    if (watch.cut) {
         /* The renderer skipped the rest of the frame: what it left in the view's accumulation
          * and history is not a frame. The sequence starts over, as after a reset. */
         session_reset(s);

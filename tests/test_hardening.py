@@ -407,6 +407,27 @@ def test_frame_given_up_when_its_client_hangs_up(one_thread):
 
 
 @pytest.mark.concurrency
+def test_whole_frame_kept_when_its_client_hangs_up(one_thread):
+    """A frame the renderer finished is whole even if its client left while it rendered: the
+    session keeps it and its history (a reuse method reports progress only at a frame's end, so
+    a client gone then must not reset the session's sequence)."""
+    d = one_thread
+    s = d.req("POST", f"{CORNELL}/sessions", json_body={"method": "restir_pt", "width": 160, "height": 160}).json()
+    for _ in range(2):
+        assert d.req("POST", s["href"] + "/frames", headers={"Accept": "application/json"}).status == 200
+    for _ in range(5):
+        sock = socket.create_connection(("127.0.0.1", d.port), timeout=10)
+        sock.sendall(frame_request(s["href"]))
+        time.sleep(0.02)   # the frame has started: a restir_pt frame of this size takes ~100 ms on one thread
+        sock.close()
+        time.sleep(0.5)
+    # Each left frame was either dropped before it started (409, nothing rendered) or rendered
+    # whole and kept: the count never falls back to 0.
+    rendered = d.req("GET", s["href"]).json()["frames_rendered"]
+    assert rendered >= 2, rendered
+
+
+@pytest.mark.concurrency
 def test_queued_frame_dropped_when_its_client_hangs_up(one_thread):
     d = one_thread
     slow = d.req("POST", f"{CORNELL}/sessions", json_body=SLOW).json()
