@@ -33,32 +33,40 @@
     "                [--half] [--json] -o OUT.exr|OUT.png   (.png: an 8-bit preview, exposure 0, clamp)\n" \
     "  restir compare A.exr B.exr      (B is the reference; prints one JSON object)\n"             \
     "  restir methods [--json]         (the methods, their capabilities and parameters)\n"        \
-    "defaults: --method pt --spp 16 --size 256x256 --seed 0 --max-depth 64 --rr-depth 3 (Russian\n"         \
-    "roulette after R bounces, restir_pt's initial paths after 1 unless given; R >= max depth\n"   \
-    "turns it off), next-event estimation with MIS\n"                                              \
-    "(--no-nee: BSDF sampling only), all cores, float EXR.\n"                                    \
+    "defaults: --spp 16 --size 256x256 --seed 0 --max-depth 64 --rr-depth 3 (Russian roulette\n"  \
+    "after R bounces; a method whose own rr_depth differs keeps it unless --rr-depth is given;\n" \
+    "R >= max depth turns it off), next-event estimation with MIS (--no-nee: BSDF sampling\n"     \
+    "only), all cores, float EXR; --method: the first method below.\n"                           \
     "--frames F renders F consecutive frames in one session (seeds per frame, as the daemon's\n"   \
-    "sessions) and writes the last; --animation FILE.json takes camera and light keys from a file\n" \
-    "holding the body of a daemon animation job ({\"animation\": {...}}, protocol/API.md) and\n"   \
-    "its frame count unless --frames is given.\n"                                                  \
-    "--method restir_pt (or restir_sss, restir_sms) renders a session of --frames frames (default 1) with temporal and spatial\n" \
-    "reuse; --params sets the method's parameters as the daemon's session \"params\" object\n"    \
-    "(protocol/API.md; keys it leaves out take their defaults, not the other options' values),\n" \
-    "e.g. --params '{\"spatial_neighbors\": 0}'. --average-last N writes the mean of the last N\n"  \
-    "frames instead of the last one\n"                                                         \
-    "--method bdpt renders frames of bidirectional path tracing (one camera path per pixel and\n" \
-    "N_L light subpaths per frame; --params '{\"heuristic\": \"balance\"}', see protocol/API.md)\n" \
-    "--method restir_bdpt renders a session of ReSTIR BDPT frames (lightweight variant: s = 0, s = 1,\n" \
-    "t = 1 resampled per pixel, caustic reservoirs reused temporally; --params '{\"variant\": \"full\"}'\n" \
-    "adds bdpt's vertex connections; see protocol/API.md)\n"
+    "sessions) and writes the last; --average-last N writes the mean of the last N instead.\n"    \
+    "--animation FILE.json takes camera and light keys from a file holding the body of a daemon\n" \
+    "animation job ({\"animation\": {...}}, protocol/API.md) and its frame count unless --frames\n" \
+    "is given. A method that takes no spp traces one path per pixel and frame: render more frames.\n" \
+    "--params sets the method's parameters as the daemon's session \"params\" object (keys it\n"  \
+    "leaves out take their defaults, not the other options' values), e.g.\n"                     \
+    "--params '{\"spatial_neighbors\": 0}'; restir methods lists every method's parameters.\n"
 
 /* The usage text, then the methods --method takes, from the registry. */
 static void cli_usage(FILE *out)
 {
     fputs(CLI_USAGE, out);
-    fputs("methods (restir methods --json gives their parameters, defaults and ranges):\n", out);
+    fputs("methods (restir methods --json gives their parameters, defaults and ranges; --crop and\n"
+          "--frame are options of a still image of the methods marked *):\n", out);
     for (uint32_t i = 0; i < method_count(); i++)
-        fprintf(out, "  %-12s %s\n", method_at(i)->name, method_at(i)->summary);
+        fprintf(out, "  %-12s%s %s\n", method_at(i)->name, method_at(i)->caps & METHOD_STILL_CROP ? "*" : " ",
+                method_at(i)->summary);
+}
+
+/* The methods that render a still image in one go (METHOD_STILL_CROP), for messages. */
+static const char *cli_still_methods(void)
+{
+    static char names[128];
+    size_t n = 0;
+    names[0] = '\0';
+    for (uint32_t i = 0; i < method_count() && n < sizeof names; i++)
+        if (method_at(i)->caps & METHOD_STILL_CROP)
+            n += (size_t)snprintf(names + n, sizeof names - n, "%s%s", n ? ", " : "", method_at(i)->name);
+    return names;
 }
 
 static int cli_usage_error(const char *fmt, const char *arg)
@@ -293,14 +301,7 @@ static bool cli_render_sequence(struct scene *scene, const struct view_params *v
         st->nonfinite += fs.render.nonfinite;
         st->render_ms += fs.render.render_ms + fs.scene_update_ms;
         st->threads = fs.render.threads;
-        st->sms.samples += fs.render.sms.samples;
-        st->sms.solutions += fs.render.sms.solutions;
-        st->sms.newton_sample += fs.render.sms.newton_sample;
-        st->sms.trials += fs.render.sms.trials;
-        st->sms.newton_trials += fs.render.sms.newton_trials;
-        st->sms.capped += fs.render.sms.capped;
-        st->sms.with_prior += fs.render.sms.with_prior;
-        st->sms.sample_ms += fs.render.sms.sample_ms;
+        sms_counters_add(&st->sms, &fs.render.sms);
         *last = fs;
         if (i + average_last >= frames) {
             size_t n = (size_t)img->width * img->height;
@@ -408,7 +409,7 @@ static int cli_render(int argc, char **argv)
         return cli_usage_error("%s", msg);
     }
     if (!(rm->caps & METHOD_STILL_CROP) && (has_crop || has_frame))
-        return cli_usage_error("%s", "--crop and --frame are options of --method pt");
+        return cli_usage_error("--crop and --frame are options of a still image of %s", cli_still_methods());
     p.width = width;
     p.height = height;
     if (has_crop) {
@@ -442,8 +443,8 @@ static int cli_render(int argc, char **argv)
     size_t session_bytes = 0;
     bool tty = isatty(STDERR_FILENO) && !json;
     uint32_t rendered = 1;
-    /* Samples per pixel and frame as rendered: --params may set a pt, sms or sms_ssp frame's own
-     * spp; the reuse methods and bdpt trace one camera path per pixel and frame. */
+    /* Samples per pixel and frame as rendered: --params may set the spp of a method that takes
+     * it; the others trace one camera path per pixel and frame. */
     uint32_t frame_spp = p.spp;
     uint32_t reservoir_bytes = 0;   /* per pixel and reservoir buffer */
     if (frames || anim_path || !(rm->caps & METHOD_STILL_CROP)) {
@@ -473,7 +474,7 @@ static int cli_render(int argc, char **argv)
         }
     } else if (params_json) {
         scene_release(scene);
-        return cli_usage_error("%s", "--params needs --frames, --animation or a method other than pt");
+        return cli_usage_error("--params needs --frames, --animation or a method other than %s", cli_still_methods());
     } else if (!reference_pt_render(scene, &p, &img, &st, tty ? cli_progress : NULL, NULL, &err)) {
         fprintf(stderr, "restir: render failed: %s\n", err_format(&err, msg, sizeof msg));
         scene_release(scene);
