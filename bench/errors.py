@@ -1,0 +1,79 @@
+"""bench/errors.py — the error of an image against a reference, and the error of the reference
+itself, for the report (bench/report.py) and its unit test (tests/test_reference_error.py).
+
+The metrics are those of `restir compare` (renderer/image/metrics.c), computed here in numpy so
+that hundreds of images can be scored again whenever their reference gets longer; the test checks
+that the two agree.
+
+A reference's own error. A reference R is rendered as two independent halves A and B (same
+method, same sample count, different seeds) and R = (A + B) / 2. Per pixel, with T the true
+value and a = A - T, b = B - T independent and identically distributed with a symmetric
+distribution (the mean of many samples is close to normal), a + b and a - b have the same
+distribution; so R - T = (a + b) / 2 is distributed as (a - b) / 2 = A - R. Any metric of A against R is therefore an estimate of the same metric of R against the
+truth: the reference's own error. (MAPE and relMSE divide by the reference, which here is R
+where the truth would be T; while a half's relative noise per pixel is small that changes
+little: at 10 % the estimate is within 2 % of the actual error, at 20 % relMSE reads 4 % high.)
+That is "half against half, scaled to the full reference" with the scale built in (MAPE and
+RMSE scale with |A - B| / 2, relMSE with its square). Two things break it, and the test shows
+each would be caught: halves that share random numbers (A - R then underestimates R's error) and
+scoring a half against the other half (twice the MAPE and RMSE, four times the relMSE).
+
+How a row's error relates to it: for independent image X and reference, the expected squared
+error against R is that against T plus R's own (E[(X-R)^2] = E[(X-T)^2] + E[(R-T)^2]); a row
+whose measured error is less than NOISE_FACTOR times the reference's own error cannot be told
+from a better one by this reference."""
+import math
+
+import numpy as np
+
+# renderer/image/metrics.h: METRICS_MAPE_MEAN_FRACTION and METRICS_RELMSE_EPS.
+MAPE_MEAN_FRACTION = 0.01
+RELMSE_EPS = 1e-2
+# A row measured at less than this multiple of the reference's own error (in the same metric)
+# is "within reference noise": not ranked against another row.
+NOISE_FACTOR = 3.0
+# A reference is long enough when its own relMSE times this is at most the best row's.
+REFERENCE_DIVISOR = 3.0
+KEYS = ("mape", "rmse", "relmse")
+
+
+def metrics(img, ref):
+    """MAPE, RMSE and relMSE of img against ref (H x W x >=3 arrays; RGB used), as
+    metrics_compare() computes them: pixels with a non-finite channel in either image are left
+    out; MAPE's denominator is the reference plus 1 % of its mean; relMSE's adds RELMSE_EPS to
+    the reference squared."""
+    a = np.asarray(img, dtype=np.float64)[..., :3]
+    r = np.asarray(ref, dtype=np.float64)[..., :3]
+    if a.shape != r.shape:
+        raise ValueError(f"image is {a.shape[1]}x{a.shape[0]} but reference is {r.shape[1]}x{r.shape[0]}")
+    ok = np.isfinite(a).all(axis=-1) & np.isfinite(r).all(axis=-1)
+    a, r = a[ok], r[ok]
+    if a.size == 0:
+        return {k: math.nan for k in KEYS}
+    mean = float(r.mean())
+    d = a - r
+    sq = d * d
+    return {"mape": float(np.mean(np.abs(d) / (r + MAPE_MEAN_FRACTION * mean))) if mean > 0 else math.nan,
+            "rmse": float(math.sqrt(sq.mean())),
+            "relmse": float(np.mean(sq / (r * r + RELMSE_EPS)))}
+
+
+def combine(half_a, half_b):
+    """The full reference of two halves rendered with the same number of samples."""
+    return (np.asarray(half_a, dtype=np.float64) + np.asarray(half_b, dtype=np.float64)) / 2.0
+
+
+def reference_error(half_a, half_b):
+    """The estimated MAPE, RMSE and relMSE of combine(half_a, half_b) against the truth: a half
+    against the full reference (the module's text says why that is the scale)."""
+    return metrics(half_a, combine(half_a, half_b))
+
+
+def within_noise(row, own):
+    """Per metric: is the row's error (dict) less than NOISE_FACTOR times the reference's own?"""
+    return {k: bool(row[k] < NOISE_FACTOR * own[k]) for k in KEYS if k in row and k in own}
+
+
+def long_enough(own, best_row_relmse):
+    """Is the reference's own relMSE at most 1 / REFERENCE_DIVISOR of the best row it judges?"""
+    return own["relmse"] * REFERENCE_DIVISOR <= best_row_relmse

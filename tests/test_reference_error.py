@@ -1,0 +1,115 @@
+"""The report's reference-error estimate (bench/errors.py) on synthetic images whose truth and
+noise are known, and its metrics against `restir compare`'s.
+
+A reference is the mean of two independent halves; the estimate of its own error is a half
+scored against the full reference. Here the truth is known, so the estimate can be held against
+the reference's actual error, over many independent draws. The same check must reject the two
+ways the estimate goes wrong: halves that share part of their noise, and a half scored against
+the other half instead of against the full reference."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "bench"))
+import errors  # noqa: E402
+from conftest import BIN, read_exr  # noqa: E402
+
+SIDE, DRAWS = 64, 24
+# The estimate's ratio to the actual error, averaged over DRAWS images of SIDE^2 x 3 values,
+# has a standard error well under 1 %; a correct estimate lands within 4 %, while correlated
+# halves (rho = 0.2: ratio (1 - rho) / (1 + rho) = 0.67 for relMSE, its root for RMSE) or the wrong
+# scale (2x MAPE and RMSE, 4x relMSE) land far outside.
+TOLERANCE = 0.04
+
+
+def truth():
+    """A positive image with a range of values like a render's: dark corners, a bright band."""
+    y, x = np.mgrid[0:SIDE, 0:SIDE] / SIDE
+    base = 0.02 + 0.6 * np.exp(-((x - 0.6) ** 2 + (y - 0.4) ** 2) / 0.05) + 0.1 * x
+    return np.stack([base, 0.8 * base, 1.2 * base], axis=-1)
+
+
+def halves(rng, t, rho=0.0, skewed=False):
+    """Two noisy halves of t, noise 10 % of t (as a Monte Carlo mean's roughly is), with
+    correlation rho between them. skewed: each half's noise is a mean of 8 exponentials
+    (skewness 0.7), as a mean of few light samples' is."""
+    sigma = 0.1 * t
+    if skewed:
+        def draw():
+            return (rng.exponential(1.0, size=(8, *t.shape)).mean(axis=0) - 1.0) * np.sqrt(8)
+        n1, n2 = draw(), draw()
+    else:
+        n1, n2 = rng.standard_normal(t.shape), rng.standard_normal(t.shape)
+    return t + sigma * n1, t + sigma * (rho * n1 + np.sqrt(1.0 - rho * rho) * n2)
+
+
+def ratios(estimate, rho=0.0, skewed=False, seed=1):
+    """Mean estimated error over the mean actual error of the full reference, per metric."""
+    rng = np.random.default_rng(seed)
+    t = truth()
+    est, act = {k: 0.0 for k in errors.KEYS}, {k: 0.0 for k in errors.KEYS}
+    for _ in range(DRAWS):
+        a, b = halves(rng, t, rho, skewed)
+        e, x = estimate(a, b), errors.metrics(errors.combine(a, b), t)
+        for k in errors.KEYS:
+            est[k] += e[k]
+            act[k] += x[k]
+    return {k: est[k] / act[k] for k in errors.KEYS}
+
+
+def agrees(r, keys=errors.KEYS):
+    return all(abs(r[k] - 1.0) <= TOLERANCE for k in keys)
+
+
+def test_the_estimate_matches_the_references_actual_error():
+    r = ratios(errors.reference_error)
+    assert agrees(r), r
+
+
+def test_the_squared_metrics_need_no_symmetry():
+    # E[(a+b)^2] = E[(a-b)^2] for any independent zero-mean a, b: RMSE and relMSE hold for
+    # skewed noise too (MAPE, a mean absolute value, leans on the symmetry).
+    r = ratios(errors.reference_error, skewed=True)
+    assert agrees(r, ("rmse", "relmse")), r
+
+
+def test_correlated_halves_are_caught():
+    r = ratios(errors.reference_error, rho=0.2)
+    assert not agrees(r), r
+    assert r["relmse"] < 0.75, r
+
+
+def test_a_half_against_the_other_half_is_caught():
+    r = ratios(lambda a, b: errors.metrics(a, b))
+    assert not agrees(r), r
+    assert abs(r["mape"] - 2.0) < 0.1 and abs(r["relmse"] - 4.0) < 0.3, r
+
+
+def test_flags_follow_the_factor():
+    own = {"mape": 0.1, "rmse": 0.01, "relmse": 0.02}
+    assert errors.within_noise({"mape": 0.29, "rmse": 0.031, "relmse": 0.06}, own) == \
+        {"mape": True, "rmse": False, "relmse": False}
+    assert errors.long_enough({"relmse": 0.01}, 0.03) and not errors.long_enough({"relmse": 0.011}, 0.03)
+
+
+def test_metrics_are_restir_compares(tmp_path):
+    scene = ROOT / "scenes" / "cornell-box" / "scene.json"
+    paths = []
+    for seed in (1, 2):
+        out = tmp_path / f"s{seed}.exr"
+        res = subprocess.run([BIN, "render", str(scene), "--spp", "2", "--size", "24x24", "--seed", str(seed),
+                              "-o", str(out)], capture_output=True, text=True, timeout=120)
+        assert res.returncode == 0, res.stderr
+        paths.append(out)
+    res = subprocess.run([BIN, "compare", str(paths[0]), str(paths[1]), "--json"], capture_output=True, text=True,
+                         timeout=60)
+    if res.returncode != 0 and "--json" in res.stderr:
+        res = subprocess.run([BIN, "compare", str(paths[0]), str(paths[1])], capture_output=True, text=True, timeout=60)
+    c = json.loads(res.stdout)
+    ours = errors.metrics(read_exr(paths[0]), read_exr(paths[1]))
+    for k in errors.KEYS:
+        assert abs(ours[k] - c[k]) <= 1e-6 * abs(c[k]), (k, ours[k], c[k])
