@@ -1,5 +1,6 @@
 """bench/exrimage.py — the benches' one reader of the renderer's EXR output (OpenImageIO):
-read_rgb(path) is the image's first three channels as float64, H x W x 3."""
+read_rgb(path) is the image's first three channels as float64, H x W x 3; write_rgb(path, img)
+writes such an image as a float RGB EXR."""
 import numpy as np
 import OpenImageIO as oiio
 
@@ -13,3 +14,11 @@ def read_rgb(path):
     finally:
         inp.close()
     return np.asarray(px, dtype=np.float64)[..., :3]
+
+
+def write_rgb(path, img):
+    out = oiio.ImageOutput.create(str(path))
+    if out is None or not out.open(str(path), oiio.ImageSpec(img.shape[1], img.shape[0], 3, oiio.FLOAT)):
+        raise SystemExit(f"bench: cannot write {path}: {oiio.geterror()}")
+    out.write_image(np.ascontiguousarray(img, dtype=np.float32))
+    out.close()

@@ -1,0 +1,121 @@
+"""bench/references.py — the report's references: each the mean of two independent halves, so
+that its own error is known (bench/errors.py), lengthened until that error is small beside the
+rows it judges.
+
+A reference is built from chunks, each one render of the scene file by `restir render` with its
+own seed: chunk j goes to half A when j is even, to half B when odd; n pairs of chunks make
+halves of n chunks each. Lengthening adds pairs (doubling them each time), so the chunks already
+rendered stay in use. Chunks are cached in build/refs/ under the hash of the scene text (with
+any camera override), the size, the method and the chunk's samples, with their render time
+beside them; a later run with more chunks cached starts from all of them."""
+import hashlib
+import json
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import errors
+from exrimage import read_rgb, write_rgb
+
+ROOT = Path(__file__).resolve().parent.parent
+BIN = str(ROOT / "build" / "restir")
+REFS = ROOT / "build" / "refs"
+FIRST_SEED = 1000003
+
+
+def log(msg):
+    print(f"report: {msg}", file=sys.stderr, flush=True)
+
+
+# How a chunk of `n` samples is rendered by each unbiased reference method: pt at n spp; sms at n
+# spp without a Bernoulli cap (the cap is what makes sms biased); bdpt as the mean of n frames.
+HOW = {"pt": lambda n: ["--spp", n],
+       "sms": lambda n: ["--method", "sms", "--params", json.dumps({"spp": n, "bernoulli_cap": 0})],
+       "bdpt": lambda n: ["--method", "bdpt", "--frames", n, "--average-last", n]}
+UNIT = {"pt": "spp", "sms": "spp", "bdpt": "frames"}
+
+
+class Reference:
+    """A scene's reference at one size: halves A and B, the full image R, its own error."""
+
+    def __init__(self, scene_path, side, method, chunk, work, camera=None):
+        self.scene_path, self.side, self.method, self.chunk = Path(scene_path), side, method, chunk
+        self.work, self.camera = Path(work), camera
+        text = self.scene_path.read_text()
+        if camera:
+            sj = json.loads(text)
+            sj["camera"] = camera
+            text = json.dumps(sj)
+        self.text = text
+        self.key = hashlib.sha256(text.encode()).hexdigest()[:16]
+        REFS.mkdir(parents=True, exist_ok=True)
+        self.chunks = 0
+        while self._path(self.chunks).exists() and self._path(self.chunks + 1).exists():
+            self.chunks += 2
+        if self.chunks == 0:
+            self._render_upto(2)
+        self._load()
+
+    def _path(self, j):
+        return REFS / f"ref-{self.key}-{self.side}-{self.method}-{self.chunk}-c{j}.exr"
+
+    def _source(self):
+        """The scene file to render: the original, or with the camera override a copy in a folder
+        of its own with the mesh files it names."""
+        if not self.camera:
+            return self.scene_path
+        folder = self.work / f"ref-{self.key}"
+        folder.mkdir(parents=True, exist_ok=True)
+        for shape in json.loads(self.text)["shapes"]:
+            if "file" in shape:
+                shutil.copy(self.scene_path.parent / shape["file"], folder / shape["file"])
+        src = folder / "scene.json"
+        src.write_text(self.text)
+        return src
+
+    def _render_upto(self, count):
+        src = self._source()
+        for j in range(self.chunks, count):
+            path = self._path(j)
+            log(f"reference chunk {j + 1}/{count} of {self.scene_path.parent.name} ({self.side}x{self.side}, "
+                f"{self.method}, {self.chunk} {UNIT[self.method]})")
+            tmp = path.with_suffix(".tmp.exr")
+            cmd = [BIN, "render", str(src), "--size", f"{self.side}x{self.side}", *map(str, HOW[self.method](self.chunk)),
+                   "--seed", str(FIRST_SEED + j), "--json", "-o", str(tmp)]
+            t0 = time.monotonic()
+            res = subprocess.run(cmd, capture_output=True, text=True)
+            if res.returncode != 0:
+                raise SystemExit(f"report: {' '.join(cmd)}: {res.stderr.strip()}")
+            st = json.loads(res.stdout)
+            path.with_suffix(".json").write_text(json.dumps({"time_ms": st.get("time_ms"),
+                                                             "wall_s": time.monotonic() - t0}) + "\n")
+            tmp.rename(path)
+        self.chunks = max(self.chunks, count)
+
+    def _load(self):
+        a = [read_rgb(self._path(j)) for j in range(0, self.chunks, 2)]
+        b = [read_rgb(self._path(j)) for j in range(1, self.chunks, 2)]
+        self.half_a, self.half_b = np.mean(a, axis=0), np.mean(b, axis=0)
+        self.image = errors.combine(self.half_a, self.half_b)
+        self.own = errors.reference_error(self.half_a, self.half_b)
+        self.seconds = sum(json.loads(self._path(j).with_suffix(".json").read_text())["time_ms"] or 0.0
+                           for j in range(self.chunks)) / 1000.0
+        self.path = self.work / f"ref-{self.key}-{self.side}-{self.method}.exr"
+        write_rgb(self.path, self.image)
+
+    @property
+    def samples(self):
+        return self.chunks * self.chunk
+
+    def grow(self):
+        """Twice the chunks: half the variance, so half the relMSE."""
+        self._render_upto(2 * self.chunks)
+        self._load()
+
+    def describe(self):
+        return {"method": self.method, "samples": self.samples, "unit": UNIT[self.method], "chunks": self.chunks,
+                "seconds": self.seconds, "own": self.own}
