@@ -51,8 +51,12 @@ LADDER = {"pt": ("spp", SPP_LADDER), "sms": ("spp", SMS_LADDER), "sms_ssp": ("sp
           "bdpt": ("light_paths", ["1x", "2x", "4x", "8x"]), "restir_bdpt": ("light_paths", ["1x", "2x", "4x", "8x"]),
           "restir_pt": ("spatial_neighbors", [3, 6, 12, 24]), "restir_sss": ("candidates", [1, 2, 4, 8]),
           "restir_sms": ("spatial_neighbors", [1, 2, 4, 8])}
+# Temporal reuse off, and nothing else carried from frame to frame: restir_sms's primary rays
+# otherwise walk from the previous frame's positions (jitter_walk) and its prior unites the walks
+# of prior_frames frames, either of which would correlate its frames.
 TEMPORAL_OFF = {"restir_pt": {"temporal": False}, "restir_sss": {"temporal": False},
-                "restir_sms": {"temporal": False}, "restir_bdpt": {"caustic_temporal": False}}
+                "restir_sms": {"temporal": False, "jitter_walk": 0, "prior_frames": 1},
+                "restir_bdpt": {"caustic_temporal": False}}
 
 
 def log(msg):
