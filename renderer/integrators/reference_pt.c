@@ -78,7 +78,7 @@ static bool pt_light_toward(const struct scene *scene, const struct light_sample
  * ends; otherwise updates beta, the next ray and the vertex it leaves from. With sss_direct false
  * the NEE at the entry points is left out (restir_sss resamples that part) and so is the
  * continuation's emission that would duplicate it. */
-static bool pt_sss_primary(const struct scene *scene, const struct pt_params *params, const struct material *m,
+__attribute__((noinline, cold)) static bool pt_sss_primary(const struct scene *scene, const struct pt_params *params, const struct material *m,
                            const struct surface *s, struct vec3 wo_world, struct vec3 *beta, struct vec3 *L,
                            struct rng *rng, struct ray_counters *rc, struct vec3 *org, struct vec3 *dir,
                            struct vec3 *prev_p, bool *skip_emission, bool sss_direct)
@@ -171,10 +171,44 @@ struct pt_split {
     const struct hit *primary;
 };
 
-static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
-                               struct vec3 dir, struct rng *rng, struct ray_counters *rc, const struct pt_split *split,
-                               bool sss_direct)
+/* Specular manifold sampling's estimate at a vertex (methods sms and restir_sms only): kept out
+ * of the path loop, which is flattened (see pt_radiance), so that plain path tracing does not
+ * carry the solver inlined. */
+__attribute__((noinline)) static struct vec3 pt_sms_at(const struct scene *scene, const struct pt_params *params,
+                                                       const struct pt_split *split, bool receiver,
+                                                       const struct surface *s, const struct material *m,
+                                                       struct vec3 wo, uint32_t room, struct ray_counters *rc)
 {
+    if (params->ssp)
+        return ssp_estimate(scene, split->ss, params->ssp, receiver ? params->ssp_prior : NULL, split->px, split->py, s,
+                            m, wo, room, split->sms_rng, split->sc, rc);
+    return sms_estimate(scene, split->ss, params->sms, s, m, wo, room, split->sms_rng, split->sc, rc);
+}
+
+/* What pt_sss_primary updates, copied in and out so that the path loop's own copies stay
+ * registers (see pt_radiance). */
+struct pt_sss_io {
+    struct surface s;
+    struct vec3 beta, L, org, dir, prev_p;
+    struct rng rng;
+    struct ray_counters rc;
+    bool skip_emission;
+};
+
+__attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
+                               struct vec3 dir, struct rng *rng_io, struct ray_counters *rc_io,
+                               const struct pt_split *split, bool sss_direct)
+{
+    /* The random stream and the ray counters live in locals whose address never leaves this
+     * function (pt_sss_primary gets copies): state behind the callers' pointers could be
+     * changed by any Embree call as far as the compiler knows, so it would be stored and
+     * reloaded around every ray. */
+    struct rng rng_local = *rng_io, *rng = &rng_local;
+    struct ray_counters rc_local = {0, 0}, *rc = &rc_local;
+    /* Read once, for the same reason. */
+    const bool part_owned = split->owned, part_rest = split->rest, tracked = split->tracked;
+    const struct sms_scene *ss = split->ss;
+    const struct material *materials = scene->materials;
     const struct light_sampler *lights = scene->lights;
     const struct accel *accel = scene->accel;
     const bool mis = params->nee;
@@ -195,7 +229,7 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
     bool skip_emission = false;  /* after subsurface scattering with NEE (pt_sss_primary) */
     /* Every vertex so far delta and through its canonical lobe (sms.h): the next non-delta
      * vertex is the pixel's receiver, restir_sms's and the one sms_ssp's prior was built at. */
-    bool canonical = split->ss && (split->sms_after_primary || params->ssp);
+    bool canonical = ss && (split->sms_after_primary || params->ssp);
 
     for (uint32_t depth = 0;; depth++) {
         struct hit hit;
@@ -207,7 +241,7 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
             found = accel_intersect(accel, org, dir, 0.0f, INFINITY, &hit, rc);
         }
         if (!found) {
-            if (split->rest && !vec3_is_zero(scene->env_radiance) && !skip_emission) {
+            if (part_rest && !vec3_is_zero(scene->env_radiance) && !skip_emission) {
                 float w = 1.0f;
                 if (!prev_delta && mis) w = sampling_power_heuristic(prev_pdf_w, light_sampler_env_pdf_w(lights));
                 L = vec3_add(L, vec3_scale(vec3_mul(beta, scene->env_radiance), w));
@@ -216,10 +250,10 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         }
         struct surface s;
         surface_from_hit(scene, &hit, org, dir, &s);
-        const struct material *m = &scene->materials[s.material];
+        const struct material *m = &materials[s.material];
 
-        bool owned = split->tracked && sms_track_owned(scene, &track);
-        if (material_is_emissive(m) && (owned ? split->owned : split->rest) && !skip_emission) {
+        bool owned = tracked && sms_track_owned(scene, &track);
+        if (material_is_emissive(m) && (owned ? part_owned : part_rest) && !skip_emission) {
             struct vec3 Le = light_sampler_emitted(m, -vec3_dot(dir, s.ng));
             if (!vec3_is_zero(Le)) {
                 float w = 1.0f;
@@ -241,14 +275,24 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
              * max_depth 1 (the direct-lighting case of [ReSTIR SSS §3], which its evaluation uses)
              * nothing is left to add once NEE at the entry points is someone else's, and no
              * continuation ray needs tracing. */
-            const bool direct_here = sss_direct && split->rest;
+            const bool direct_here = sss_direct && part_rest;
             if (nee && !direct_here && depth + 1 >= max_depth) break;
             /* Direct light at the entry points belongs to the rest of the light transport; the
              * track stays where it was, so no path through subsurface scattering counts as owned
              * by specular manifold sampling (which does not sample from entry points). */
-            if (!pt_sss_primary(scene, params, m, &s, vec3_neg(dir), &beta, &L, rng, rc, &org, &dir, &prev_p,
-                                &skip_emission, direct_here))
-                break;
+            struct pt_sss_io io = {.s = s, .beta = beta, .L = L, .rng = rng_local, .rc = rc_local, .org = org,
+                                   .dir = dir, .prev_p = prev_p, .skip_emission = skip_emission};
+            bool more = pt_sss_primary(scene, params, m, &io.s, vec3_neg(dir), &io.beta, &io.L, &io.rng, &io.rc,
+                                       &io.org, &io.dir, &io.prev_p, &io.skip_emission, direct_here);
+            beta = io.beta;
+            L = io.L;
+            rng_local = io.rng;
+            rc_local = io.rc;
+            org = io.org;
+            dir = io.dir;
+            prev_p = io.prev_p;
+            skip_emission = io.skip_emission;
+            if (!more) break;
             if (skip_emission && depth + 1 >= max_depth) break;
             canonical = false;
             /* A cosine-sampled direction: emission it reaches is MIS-weighted like a diffuse
@@ -266,27 +310,30 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         }
 
         struct vec3 wo_world = vec3_neg(dir);
-        struct vec3 wo = frame_to_local(&s.frame, wo_world);
-        unsigned flags = material_flags(m);
+        /* Lambertian vertices, most of them in most scenes, skip the material dispatch (and,
+         * without SMS, the local frame's first two axes): material_diffuse_* give the same
+         * bits. */
+        const bool diffuse = m->kind == MATERIAL_DIFFUSE;
+        struct vec3 wo = diffuse && !ss ? vec3_make(0.0f, 0.0f, vec3_dot(wo_world, s.frame.n))
+                                        : frame_to_local(&s.frame, wo_world);
+        unsigned flags = diffuse ? BSDF_REFLECTION | BSDF_DIFFUSE : material_flags(m);
         /* Offset origin of the shadow ray, and which side of ng it is on (-1: none traced). */
         struct vec3 shadow_org = s.p;
         int shadow_side = -1;
 
         /* Specular manifold sampling owns the caustic chains that start here (sms.h). */
         const bool receiver = canonical && depth <= SMS_RECEIVER_MAX_PREFIX && m->kind != MATERIAL_TRANSLUCENT;
-        if (split->ss && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY)) && !(receiver && split->sms_after_primary)) {
+        if (ss && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY)) && !(receiver && split->sms_after_primary)) {
             uint32_t room = max_depth > depth + 1 ? max_depth - depth - 1 : 0;
             /* The block's prior describes its receivers' solutions; seen from any other vertex
              * its tiles are arbitrary, and a solution outside them would carry the uniform
              * share's weight, N² / (9 (1 − α)). Elsewhere seeds come from plain partitioning. */
-            struct vec3 c = params->ssp ? ssp_estimate(scene, split->ss, params->ssp, receiver ? params->ssp_prior : NULL,
-                                                       split->px, split->py, &s, m, wo, room, split->sms_rng, split->sc, rc)
-                                        : sms_estimate(scene, split->ss, params->sms, &s, m, wo, room, split->sms_rng,
-                                                       split->sc, rc);
-            L = vec3_add(L, vec3_mul(beta, c));
+            struct pt_sss_io io = {.s = s, .rc = rc_local};  /* copies, as for pt_sss_primary */
+            L = vec3_add(L, vec3_mul(beta, pt_sms_at(scene, params, split, receiver, &io.s, m, wo, room, &io.rc)));
+            rc_local = io.rc;
         }
         /* Next-event estimation: one light sample, MIS-weighted against BSDF sampling. */
-        if (nee && split->rest && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
+        if (nee && part_rest && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
             float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
             struct light_sample ls;
             if (light_sampler_sample(lights, ul, u1, u2, &ls)) {
@@ -296,12 +343,15 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
                 /* The cheap rejections first (back of a one-sided emitter, zero pdf), before the
                  * frame conversion and the BSDF. */
                 if (ok && !vec3_is_zero(Le)) {
-                    struct vec3 wi = frame_to_local(&s.frame, wi_world);
+                    /* A diffuse BRDF needs only the cosine with the shading normal. */
+                    struct vec3 wi = diffuse ? vec3_make(0.0f, 0.0f, vec3_dot(wi_world, s.frame.n))
+                                             : frame_to_local(&s.frame, wi_world);
                     /* Reject directions on different sides of the geometric and shading normals:
                      * they would leak light through the surface. */
                     float cos_ng = vec3_dot(wi_world, s.ng);
                     if (cos_ng * wi.z > 0.0f) {
-                        struct vec3 f = material_eval(m, wo, wi, TRANSPORT_RADIANCE);
+                        struct vec3 f = diffuse ? material_diffuse_f(m, wo.z, wi.z)
+                                                : material_eval(m, wo, wi, TRANSPORT_RADIANCE);
                         if (!vec3_is_zero(f)) {
                             shadow_side = cos_ng < 0.0f;
                             shadow_org = surface_offset_along(s.p, shadow_side ? vec3_neg(s.ng) : s.ng);
@@ -321,7 +371,7 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
                                 tmax = len * (1.0f - 1e-4f);
                             }
                             if (tmax > 0.0f && !accel_occluded(accel, shadow_org, sdir, 0.0f, tmax, rc)) {
-                                float pdf_bsdf_w = material_pdf(m, wo, wi);
+                                float pdf_bsdf_w = diffuse ? material_diffuse_pdf(wo.z, wi.z) : material_pdf(m, wo, wi);
                                 float w = sampling_power_heuristic(pdf_light_w, pdf_bsdf_w);
                                 struct vec3 c = vec3_scale(vec3_mul(f, Le), fabsf(wi.z) * w / pdf_light_w);
                                 L = vec3_add(L, vec3_mul(beta, c));
@@ -340,13 +390,21 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         /* BSDF sampling continues the path. */
         float u_lobe = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
         struct bsdf_sample bs;
-        if (!material_sample(m, wo, u_lobe, u1, u2, TRANSPORT_RADIANCE, &bs)) break;  /* pdf_w > 0 then */
+        struct vec3 weight;  /* f |cos wi| / pdf_w */
+        if (diffuse) {
+            if (!material_diffuse_sample(m, wo.z, u1, u2, &bs.wi, &bs.pdf_w, &weight)) break;
+            bs.flags = BSDF_REFLECTION | BSDF_DIFFUSE;
+            bs.lobe = 0;
+        } else {
+            if (!material_sample(m, wo, u_lobe, u1, u2, TRANSPORT_RADIANCE, &bs)) break;  /* pdf_w > 0 then */
+            weight = vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w);
+        }
         struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
         float cos_ng = vec3_dot(wi_world, s.ng);
         if (cos_ng * bs.wi.z <= 0.0f) break;
-        beta = vec3_mul(beta, vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w));
+        beta = vec3_mul(beta, weight);
         if (bs.flags & BSDF_TRANSMISSION) rr_scale /= material_radiance_scale(m, wo, bs.wi);
-        if (split->tracked) sms_track_scatter(scene, &track, &s, bs.flags);
+        if (tracked) sms_track_scatter(scene, &track, &s, bs.flags);
         if (canonical) {
             struct bsdf_sample cb;
             canonical = (bs.flags & BSDF_DELTA) && sms_canonical_lobe(m, wo, &cb) && cb.lobe == bs.lobe;
@@ -368,6 +426,9 @@ static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params
         org = side == shadow_side ? shadow_org : surface_offset_along(s.p, side ? vec3_neg(s.ng) : s.ng);
         dir = wi_world;
     }
+    *rng_io = rng_local;
+    rc_io->intersect += rc_local.intersect;
+    rc_io->occluded += rc_local.occluded;
     return L;
 }
 
@@ -390,7 +451,7 @@ struct vec3 reference_pt_radiance_sms(const struct scene *scene, const struct pt
     return pt_radiance(scene, params, org, dir, rng, rc, &split, true);
 }
 
-static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
+__attribute__((flatten)) static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
 {
     struct pt_job *job = ctx;
     const struct pt_params *p = job->params;
@@ -416,9 +477,13 @@ static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
                 float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
                 struct vec3 dir = camera_ray_dir(&job->camera, (float)x + jx, (float)y + jy);
                 /* SMS draws from its own stream, so the path-traced part of `sms` is the same
-                 * sample as pt's PT_SUBSET_REST image. */
-                struct rng sms_rng = rng_make(p->seed, p->frame, pixel, ((uint64_t)1 << 40) | s);
-                split.sms_rng = &sms_rng;
+                 * sample as pt's PT_SUBSET_REST image; without SMS nothing draws from it, and
+                 * hashing it would cost every sample two rng_make. */
+                struct rng sms_rng;
+                if (split.ss) {
+                    sms_rng = rng_make(p->seed, p->frame, pixel, ((uint64_t)1 << 40) | s);
+                    split.sms_rng = &sms_rng;
+                }
                 split.px = x;
                 split.py = y;
                 struct vec3 L = pt_radiance(job->scene, p, job->camera.position, dir, &rng, &rc, &split, true);

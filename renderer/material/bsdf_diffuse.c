@@ -7,23 +7,19 @@
 
 struct vec3 bsdf_diffuse_eval(const struct material *m, struct vec3 wo, struct vec3 wi)
 {
-    if (!(wo.z * wi.z > 0.0f)) return vec3_splat(0.0f);
-    return vec3_scale(m->albedo, INV_PI_F);
+    return material_diffuse_f(m, wo.z, wi.z);
 }
 
 float bsdf_diffuse_pdf(struct vec3 wo, struct vec3 wi)
 {
-    if (!(wo.z * wi.z > 0.0f)) return 0.0f;
-    return sampling_cosine_hemisphere_pdf_w(fabsf(wi.z));
+    return material_diffuse_pdf(wo.z, wi.z);
 }
 
 bool bsdf_diffuse_sample(const struct material *m, struct vec3 wo, float u1, float u2,
                          struct bsdf_sample *out)
 {
-    if (wo.z == 0.0f) return false;
-    struct vec3 wi = sampling_cosine_hemisphere(u1, u2);
-    if (wo.z < 0.0f) wi.z = -wi.z;
-    if (wi.z == 0.0f) return false;  /* on the disk rim: zero pdf, the path would carry 0 */
+    struct vec3 wi;
+    if (!material_diffuse_direction(wo.z, u1, u2, &wi)) return false;  /* the rim: zero pdf */
     out->wi = wi;
     out->f = bsdf_diffuse_eval(m, wo, wi);
     out->pdf_w = bsdf_diffuse_pdf(wo, wi);

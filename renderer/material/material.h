@@ -4,7 +4,8 @@
  * BSDF without the cosine factor. Opaque materials (diffuse, conductor) are two-sided: they
  * shade the side that wo is on and return 0 for wi in the other hemisphere. Dielectrics
  * treat +z as outside (ior is inside/outside).
- * material.c holds the only switch on material kind. Thread-safe: pure functions. */
+ * material.c holds the only switch on material kind; the Lambertian pieces below are inline so
+ * that a path loop can take them without the dispatch. Thread-safe: pure functions. */
 #ifndef RESTIRD_MATERIAL_H
 #define RESTIRD_MATERIAL_H
 
@@ -12,6 +13,7 @@
 #include <stdbool.h>
 
 #include "core/rng.h"
+#include "core/sampling.h"
 #include "core/vec.h"
 
 enum material_kind {
@@ -98,6 +100,43 @@ float material_pdf_lobe(const struct material *m, int lobe, struct vec3 wo, stru
  * f_radiance(wi, wo)). */
 bool material_sample(const struct material *m, struct vec3 wo, float u_lobe, float u1, float u2,
                      enum transport_mode mode, struct bsdf_sample *out);
+/* The Lambertian BRDF (MATERIAL_DIFFUSE, and bsdf_diffuse.c builds on these) needs only the
+ * cosines of wo and wi with the shading normal, not the whole local directions: f = albedo / pi
+ * when both are on the same side, and the cosine-weighted pdf of wi. Bit for bit what
+ * material_eval and material_pdf return for a diffuse material. */
+static inline struct vec3 material_diffuse_f(const struct material *m, float cos_o, float cos_i)
+{
+    if (!(cos_o * cos_i > 0.0f)) return vec3_splat(0.0f);
+    return vec3_scale(m->albedo, INV_PI_F);
+}
+static inline float material_diffuse_pdf(float cos_o, float cos_i)
+{
+    if (!(cos_o * cos_i > 0.0f)) return 0.0f;
+    return sampling_cosine_hemisphere_pdf_w(fabsf(cos_i));
+}
+/* The local direction a diffuse material samples for (u1, u2): cosine-weighted on the side of
+ * cos_o. False on the disk rim (zero pdf) and for wo in the surface. */
+static inline bool material_diffuse_direction(float cos_o, float u1, float u2, struct vec3 *wi)
+{
+    if (cos_o == 0.0f) return false;
+    *wi = sampling_cosine_hemisphere(u1, u2);
+    if (cos_o < 0.0f) wi->z = -wi->z;
+    return wi->z != 0.0f;
+}
+/* material_sample for a diffuse material, reduced to what a path needs: the direction, its pdf
+ * and the weight f |cos wi| / pdf_w, the same bits as from material_sample's f and pdf_w. The
+ * checks material_sample adds for degenerate samples cannot fail here: albedo is in [0, 1]
+ * (the scene loader's range), |wi.z| <= 1. */
+static inline bool material_diffuse_sample(const struct material *m, float cos_o, float u1, float u2, struct vec3 *wi,
+                                           float *pdf_w, struct vec3 *weight)
+{
+    if (!material_diffuse_direction(cos_o, u1, u2, wi)) return false;
+    *pdf_w = material_diffuse_pdf(cos_o, wi->z);
+    if (!(*pdf_w > 0.0f)) return false;
+    *weight = vec3_scale(material_diffuse_f(m, cos_o, wi->z), fabsf(wi->z) / *pdf_w);
+    return true;
+}
+
 /* A path's continuation by BSDF sampling at a surface with shading frame `fr` and geometric
  * normal ng (wo in the frame): the lobe and the direction from the next three numbers of rng,
  * the direction in world space and its cosine with ng. False when nothing was sampled, or the
