@@ -17,10 +17,17 @@ static inline uint64_t rng_mix64(uint64_t z)
     return z ^ (z >> 31);
 }
 
+/* Advances the stream by one number without computing it: a draw whose value is not needed
+ * (a lobe choice at a one-lobe material), so that later draws stay where they were. */
+static inline void rng_skip(struct rng *r)
+{
+    r->state = r->state * 6364136223846793005ull + r->inc;
+}
+
 static inline uint32_t rng_next_u32(struct rng *r)
 {
     uint64_t old = r->state;
-    r->state = old * 6364136223846793005ull + r->inc;
+    rng_skip(r);
     uint32_t xorshifted = (uint32_t)(((old >> 18u) ^ old) >> 27u);
     uint32_t rot = (uint32_t)(old >> 59u);
     return (xorshifted >> rot) | (xorshifted << ((-rot) & 31));

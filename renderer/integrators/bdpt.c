@@ -192,7 +192,7 @@ bool bdpt_light_start(const struct scene *scene, const float u[6], struct bdpt_l
 {
     struct light_sample *ls = &out->ls;
     if (!light_sampler_sample(scene->lights, u[0], u[1], u[2], ls) || ls->is_env) return false;
-    const struct material *lm = &scene->materials[scene->shapes[ls->shape].material];
+    const struct material *lm = ls->material;
     out->n = ls->n;
     if (lm->two_sided_emission && u[3] < 0.5f) out->n = vec3_neg(out->n);
     struct vec3 local = sampling_cosine_hemisphere(u[4], u[5]);
@@ -479,7 +479,7 @@ static struct vec3 bdpt_camera_path(struct bdpt_ctx *c, struct vec3 dir, struct 
                 float dist = sqrtf(d2);
                 struct vec3 wi_world = vec3_scale(d, 1.0f / dist);
                 float cos_l = -vec3_dot(wi_world, ls.n);
-                const struct material *lm = &scene->materials[scene->shapes[ls.shape].material];
+                const struct material *lm = ls.material;
                 struct vec3 Le = light_sampler_emitted(lm, cos_l);
                 float direct_pdf_w = sampling_area_to_solid_angle(ls.pdf_a, d2, cos_l);
                 struct vec3 wi = frame_to_local(&s.frame, wi_world);

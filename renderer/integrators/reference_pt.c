@@ -61,7 +61,7 @@ static bool pt_light_toward(const struct scene *scene, const struct light_sample
     if (!(d2 > 0.0f)) return false;
     *wi_world = vec3_scale(d, 1.0f / sqrtf(d2));
     float cos_l = -vec3_dot(*wi_world, ls->n);
-    *Le = light_sampler_emitted(&scene->materials[scene->shapes[ls->shape].material], cos_l);
+    *Le = light_sampler_emitted(ls->material, cos_l);
     *pdf_light_w = sampling_area_to_solid_angle(ls->pdf_a, d2, cos_l);
     return *pdf_light_w > 0.0f;
 }
@@ -382,20 +382,22 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             }
         } else {
             /* Keep the random stream aligned whether or not NEE ran. */
-            rng_next_float(rng);
-            rng_next_float(rng);
-            rng_next_float(rng);
+            rng_skip(rng);
+            rng_skip(rng);
+            rng_skip(rng);
         }
 
         /* BSDF sampling continues the path. */
-        float u_lobe = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
         struct bsdf_sample bs;
         struct vec3 weight;  /* f |cos wi| / pdf_w */
         if (diffuse) {
+            rng_skip(rng);  /* the lobe choice: one lobe */
+            float u1 = rng_next_float(rng), u2 = rng_next_float(rng);
             if (!material_diffuse_sample(m, wo.z, u1, u2, &bs.wi, &bs.pdf_w, &weight)) break;
             bs.flags = BSDF_REFLECTION | BSDF_DIFFUSE;
             bs.lobe = 0;
         } else {
+            float u_lobe = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
             if (!material_sample(m, wo, u_lobe, u1, u2, TRANSPORT_RADIANCE, &bs)) break;  /* pdf_w > 0 then */
             weight = vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w);
         }

@@ -242,7 +242,7 @@ bool sms_sample(const struct scene *scene, const struct sms_scene *ss, const str
     const bool picked = sms_pick(scene, ss, uc, ul, l1, l2, max_chain, &ci, &ls);
     const struct sms_caster *cs = &ss->casters[ci];
     if (!picked) goto out;
-    const struct material *lm = &scene->materials[scene->shapes[ls.shape].material];
+    const struct material *lm = ls.material;
     struct manifold_ends e = {.x1 = s->p, .ng1 = s->ng, .xe = ls.p, .nge = ls.n};
     struct manifold_vertex *v = out->v;
     if (!sms_walk_seed(scene, cs, &e, p, s1, s2, v, &c->newton_sample, rc) || !manifold_check(scene, &cs->chain, &e, v, rc))

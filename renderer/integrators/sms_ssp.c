@@ -411,7 +411,7 @@ bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const str
     const bool picked = sms_pick(scene, ss, uc, ul, l1, l2, max_chain, &ci, &ls);
     const struct sms_caster *cs = &ss->casters[ci];
     if (!picked) goto out;
-    const struct material *lm = &scene->materials[scene->shapes[ls.shape].material];
+    const struct material *lm = ls.material;
     struct manifold_ends e = {.x1 = s->p, .ng1 = s->ng, .xe = ls.p, .nge = ls.n};
     struct ssp_cone k;
     ssp_cone_at(cs, s->p, &k);

@@ -253,25 +253,24 @@ void accel_free(struct accel *a)
     free(a);
 }
 
-/* A single ray over [tmin, tmax] with no hit yet. */
-static struct RTCRayHit accel_ray_hit(struct vec3 org, struct vec3 dir, float tmin, float tmax)
+/* A single ray over [tmin, tmax] with no hit yet, written in place (returned by value, the
+ * 80-byte struct was built in a temporary and copied). */
+static void accel_ray_hit(struct RTCRayHit *out, struct vec3 org, struct vec3 dir, float tmin, float tmax)
 {
-    struct RTCRayHit rh;
-    rh.ray.org_x = org.x;
-    rh.ray.org_y = org.y;
-    rh.ray.org_z = org.z;
-    rh.ray.dir_x = dir.x;
-    rh.ray.dir_y = dir.y;
-    rh.ray.dir_z = dir.z;
-    rh.ray.tnear = tmin;
-    rh.ray.tfar = tmax;
-    rh.ray.time = 0.0f;
-    rh.ray.mask = 0xFFFFFFFFu;
-    rh.ray.id = 0;
-    rh.ray.flags = 0;
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    return rh;
+    out->ray.org_x = org.x;
+    out->ray.org_y = org.y;
+    out->ray.org_z = org.z;
+    out->ray.dir_x = dir.x;
+    out->ray.dir_y = dir.y;
+    out->ray.dir_z = dir.z;
+    out->ray.tnear = tmin;
+    out->ray.tfar = tmax;
+    out->ray.time = 0.0f;
+    out->ray.mask = 0xFFFFFFFFu;
+    out->ray.id = 0;
+    out->ray.flags = 0;
+    out->hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    out->hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
 }
 
 bool accel_intersect(const struct accel *a, struct vec3 org, struct vec3 dir, float tmin, float tmax,
@@ -279,7 +278,8 @@ bool accel_intersect(const struct accel *a, struct vec3 org, struct vec3 dir, fl
 {
     struct RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
-    struct RTCRayHit rh = accel_ray_hit(org, dir, tmin, tmax);
+    struct RTCRayHit rh;
+    accel_ray_hit(&rh, org, dir, tmin, tmax);
     rtcIntersect1(a->top, &ctx, &rh);
     counters->intersect++;
     if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
@@ -420,7 +420,8 @@ uint32_t accel_intersect_shape_all(const struct accel *a, uint32_t shape, struct
     c.shape = shape;
     c.n = 0;
     c.instanced = false;
-    struct RTCRayHit rh = accel_ray_hit(org, dir, tmin, tmax);
+    struct RTCRayHit rh;
+    accel_ray_hit(&rh, org, dir, tmin, tmax);
     rtcIntersect1(a->top, &c.rtc, &rh);
     counters->intersect++;
 

@@ -26,7 +26,7 @@ static bool light_ris_candidate(const struct scene *scene, const struct surface 
         c->dist = sqrtf(d2);
         c->wi_world = vec3_scale(d, 1.0f / c->dist);
         float cos_l = -vec3_dot(c->wi_world, ls.n);
-        c->Le = light_sampler_emitted(&scene->materials[scene->shapes[ls.shape].material], cos_l);
+        c->Le = light_sampler_emitted(ls.material, cos_l);
         c->pdf_light_w = sampling_area_to_solid_angle(ls.pdf_a, d2, cos_l);
     }
     if (!(c->pdf_light_w > 0.0f) || vec3_is_zero(c->Le)) return false;

@@ -19,6 +19,7 @@ struct light_entry {
     struct vec3 p0, e1, e2;  /* triangle: p0 + b1 e1 + b2 e2; sphere: p0 = centre, e1.x = radius */
     struct vec3 n;           /* triangle: unit front normal */
     float area;
+    const struct material *material;  /* surfaces: the emitter's (its emission) */
 };
 
 struct light_sampler {
@@ -81,6 +82,7 @@ struct light_sampler *light_sampler_new(const struct scene *scene, struct err *e
                 struct vec3 b = light_sampler_world(s, s->indices[3 * t + 1]);
                 struct vec3 c = light_sampler_world(s, s->indices[3 * t + 2]);
                 e->kind = LIGHT_TRIANGLE;
+                e->material = m;
                 e->shape = i;
                 e->prim = t;
                 e->p0 = a;
@@ -94,6 +96,7 @@ struct light_sampler *light_sampler_new(const struct scene *scene, struct err *e
         } else {
             struct light_entry *e = &ls->entries[k];
             e->kind = LIGHT_SPHERE;
+            e->material = m;
             e->shape = i;
             e->prim = 0;
             e->p0 = xform_point(&s->to_world, s->center);
@@ -154,7 +157,8 @@ bool light_sampler_sample(const struct light_sampler *ls, float u_pick, float u1
     float pmf;
     uint32_t i = distrib_sample(&ls->dist, u_pick, &pmf);
     const struct light_entry *e = &ls->entries[i];
-    *out = (struct light_sample){.shape = e->shape, .prim = e->prim};  /* every field defined */
+    /* Every field defined. */
+    *out = (struct light_sample){.shape = e->shape, .prim = e->prim, .material = e->material};
     switch (e->kind) {
     case LIGHT_TRIANGLE: {
         sampling_uniform_triangle(u1, u2, &out->b1, &out->b2);

@@ -18,6 +18,9 @@ struct light_sample {
     struct vec3 p, n;   /* point on the emitter and its geometric normal (front side) */
     struct vec3 dir;    /* environment: direction towards the environment */
     uint32_t shape, prim;
+    /* Surfaces: the emitter's material, &scene->materials[scene->shapes[shape].material], kept
+     * in the sampler so that next-event estimation does not chase it per shadow ray. */
+    const struct material *material;
     float b1, b2;       /* triangles: barycentrics of p (the point code surface_at takes) */
     float pdf_a;        /* area pdf of p including the emitter choice (surfaces) */
     float pdf_w;        /* solid-angle pdf of dir including the emitter choice (environment) */
