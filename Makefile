@@ -14,8 +14,9 @@ else ifeq ($(TSAN),1)
   OPT   := -O1 -g -fsanitize=thread -fno-omit-frame-pointer
   OUT   := $(BUILD)/tsan
 else
-  # Link-time optimisation inlines the small per-file kernels (material, surface, lights) into
-  # the path loop: 7 % fewer instructions per ray on the Cornell box (callgrind).
+  # Link-time optimisation lets the small per-file kernels (material, surface, lights, accel) be
+  # inlined into the path loop across files; pt's loop asks for it with `flatten`
+  # (reference_pt.c), since LTO's own size heuristics stopped doing it once the loop grew.
   OPT   := -O3 -g -fno-math-errno -flto=auto
   OUT   := $(BUILD)
 endif
@@ -47,7 +48,7 @@ WEB_PAGE     := $(wildcard $(WEB)/page/*)
 WEB_NPM      := $(WEB)/node_modules/.package-lock.json
 WEB_VENDOR   := $(WEB)/node_modules/uplot/dist/uPlot.esm.js $(WEB)/node_modules/uplot/dist/uPlot.min.css
 
-.PHONY: all deps test test-unit test-py test-cluster test-web test-fuzz test-tsan fuzz load run bench bench-report clean help
+.PHONY: all deps test test-unit test-py test-perf test-cluster test-web test-fuzz test-tsan fuzz load run bench bench-report clean help
 .SECONDARY:
 all: $(OUT)/restir $(OUT)/restird
 
@@ -55,6 +56,7 @@ help:
 	@echo "make            build build/restir (offline CLI) and build/restird (the daemon)"
 	@echo "make test       unit, fuzz smoke, statistical, end-to-end, cluster and browser tests (SAN=1 for ASan/UBSan)"
 	@echo "make test-cluster  the image and three daemons behind HAProxy (part of make test)"
+	@echo "make test-perf  instructions per ray of pt under callgrind against tests/perf/instr_budget.json (part of make test)"
 	@echo "make test-web   the preview page in headless chromium alone (screenshots: build/web-test/)"
 	@echo "make test-tsan  the threaded unit tests and the daemon's concurrency tests under ThreadSanitizer"
 	@echo "make run        start the daemon on 127.0.0.1:8080 with a default session on cornell-box;"
@@ -134,13 +136,26 @@ $(OBJ)/tests/unit/%.o: tests/unit/%.c Makefile | $(DEPS_OK)
 # The fuzz smoke runs in the plain build only: its targets are built with their own sanitizers
 # (build/fuzz/), so SAN=1 would repeat the same run.
 ifeq ($(SAN),1)
-test: test-unit test-py test-cluster test-web
+test: test-unit test-py test-perf test-cluster test-web
 else
-test: test-unit test-fuzz test-py test-cluster test-web
+test: test-unit test-fuzz test-py test-perf test-cluster test-web
 endif
 
 test-unit: $(UNIT_BIN)
 	@fail=0; for t in $(UNIT_BIN); do echo "== $$t"; ./$$t || fail=1; done; exit $$fail
+
+# The path tracer's instructions per ray under callgrind against tests/perf/instr_budget.json
+# (about 15 s). Plain build only: a sanitizer build's counts measure the sanitizers.
+ifeq ($(SAN),1)
+test-perf:
+	@echo "test-perf: skipped under SAN=1 (instruction counts of an instrumented build say nothing about the plain one)"
+else ifeq ($(TSAN),1)
+test-perf:
+	@echo "test-perf: skipped under TSAN=1 (instruction counts of an instrumented build say nothing about the plain one)"
+else
+test-perf: $(OUT)/restir
+	RESTIR_BIN=$(abspath $(OUT)/restir) bash tests/perf/instr_guard.sh
+endif
 
 # The sanitizer run leaves out the long statistical comparisons (tests/conftest.py, `statistical`):
 # they test statistics, which the plain run does; the code they run is exercised under the

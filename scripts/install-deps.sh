@@ -14,6 +14,7 @@ packages=(
   libassimp-dev          # PLY / OBJ mesh loading
   python3-pytest python3-numpy python3-openimageio openimageio-tools  # tests
   embree-tools           # the benchmark peer (Embree's pathtracer tutorial)
+  valgrind               # callgrind: instructions per ray (make test-perf, bench/instr_per_ray.sh)
   wrk                    # HTTP load for the server benchmark (bench/server.sh) and make load
   haproxy                # the consistent-hash router of the cluster test (make test-cluster)
   shellcheck python3-yaml  # the Dockerfile linter's shell checks; compose.yaml in the cluster test
