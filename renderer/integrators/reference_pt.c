@@ -185,6 +185,14 @@ __attribute__((noinline)) static struct vec3 pt_sms_at(const struct scene *scene
     return sms_estimate(scene, split->ss, params->sms, s, m, wo, room, split->sms_rng, split->sc, rc);
 }
 
+/* The path's throughput and radiance on four SSE lanes (GCC/Clang vector extensions): the
+ * same IEEE operations lane by lane as vec3's, so the same bits, but one instruction per
+ * operation, and one store and one load each when they are kept across an Embree call (which
+ * preserves no SSE register) instead of three. */
+typedef float pt_v4 __attribute__((vector_size(16)));
+static inline pt_v4 pt_pack(struct vec3 a) { return (pt_v4){a.x, a.y, a.z, 0.0f}; }
+static inline struct vec3 pt_unpack(pt_v4 a) { return vec3_make(a[0], a[1], a[2]); }
+
 /* What pt_sss_primary updates, copied in and out so that the path loop's own copies stay
  * registers (see pt_radiance). */
 struct pt_sss_io {
@@ -214,7 +222,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
     const bool mis = params->nee;
     const bool nee = params->nee && light_sampler_count(lights) > 0;
     const uint32_t max_depth = params->max_depth, rr_depth = params->rr_depth;
-    struct vec3 L = vec3_splat(0.0f), beta = vec3_splat(1.0f);
+    pt_v4 L = {0.0f, 0.0f, 0.0f, 0.0f}, beta = {1.0f, 1.0f, 1.0f, 0.0f};
     /* The product of 1 / material_radiance_scale over the path's refractions: beta times this
      * is the throughput the path will have outside the glass it is in, which is what Russian
      * roulette weighs. Weighing beta itself, which inside glass of ior 1.5 is 1 / 2.25 of that,
@@ -244,7 +252,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             if (part_rest && !vec3_is_zero(scene->env_radiance) && !skip_emission) {
                 float w = 1.0f;
                 if (!prev_delta && mis) w = sampling_power_heuristic(prev_pdf_w, light_sampler_env_pdf_w(lights));
-                L = vec3_add(L, vec3_scale(vec3_mul(beta, scene->env_radiance), w));
+                L = L + beta * pt_pack(scene->env_radiance) * w;
             }
             break;
         }
@@ -263,7 +271,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
                                                                      vec3_dot(dir, s.ng));
                     w = sampling_power_heuristic(prev_pdf_w, pdf_light_w);
                 }
-                L = vec3_add(L, vec3_scale(vec3_mul(beta, Le), w));
+                L = L + beta * pt_pack(Le) * w;
             }
         }
         if (depth >= max_depth) break;
@@ -280,12 +288,12 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             /* Direct light at the entry points belongs to the rest of the light transport; the
              * track stays where it was, so no path through subsurface scattering counts as owned
              * by specular manifold sampling (which does not sample from entry points). */
-            struct pt_sss_io io = {.s = s, .beta = beta, .L = L, .rng = rng_local, .rc = rc_local, .org = org,
+            struct pt_sss_io io = {.s = s, .beta = pt_unpack(beta), .L = pt_unpack(L), .rng = rng_local, .rc = rc_local, .org = org,
                                    .dir = dir, .prev_p = prev_p, .skip_emission = skip_emission};
             bool more = pt_sss_primary(scene, params, m, &io.s, vec3_neg(dir), &io.beta, &io.L, &io.rng, &io.rc,
                                        &io.org, &io.dir, &io.prev_p, &io.skip_emission, direct_here);
-            beta = io.beta;
-            L = io.L;
+            beta = pt_pack(io.beta);
+            L = pt_pack(io.L);
             rng_local = io.rng;
             rc_local = io.rc;
             org = io.org;
@@ -301,10 +309,10 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             prev_pdf_w = 0.0f;
             float u_rr = rng_next_float(rng);
             if (depth + 1 >= rr_depth) {
-                float mx = vec3_max_comp(beta);
+                float mx = vec3_max_comp(pt_unpack(beta));
                 float q = mx < 0.95f ? mx : 0.95f;
                 if (!(q > 0.0f) || u_rr >= q) break;
-                beta = vec3_scale(beta, 1.0f / q);
+                beta = beta * (1.0f / q);
             }
             continue;
         }
@@ -329,7 +337,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
              * its tiles are arbitrary, and a solution outside them would carry the uniform
              * share's weight, N² / (9 (1 − α)). Elsewhere seeds come from plain partitioning. */
             struct pt_sss_io io = {.s = s, .rc = rc_local};  /* copies, as for pt_sss_primary */
-            L = vec3_add(L, vec3_mul(beta, pt_sms_at(scene, params, split, receiver, &io.s, m, wo, room, &io.rc)));
+            L = L + beta * pt_pack(pt_sms_at(scene, params, split, receiver, &io.s, m, wo, room, &io.rc));
             rc_local = io.rc;
         }
         /* Next-event estimation: one light sample, MIS-weighted against BSDF sampling. */
@@ -363,18 +371,18 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
                             float tmax = INFINITY;
                             if (!ls.is_env) {
                                 struct vec3 end = surface_offset_along(ls.p, pt_emitter_side(ls.n, wi_world));
-                                struct vec3 seg = vec3_sub(end, shadow_org);
-                                float len = vec3_length(seg);
-                                sdir = vec3_scale(seg, 1.0f / len);
+                                /* The segment itself as the direction (Embree's occlusion query
+                                 * takes any length): t in [0, 1) spans it, no normalisation. */
+                                sdir = vec3_sub(end, shadow_org);
                                 /* Also a relative margin: near the origin the end's offset is an
                                  * absolute 1/65536, below a long ray's intersection error. */
-                                tmax = len * (1.0f - 1e-4f);
+                                tmax = vec3_is_zero(sdir) ? 0.0f : 1.0f - 1e-4f;
                             }
                             if (tmax > 0.0f && !accel_occluded(accel, shadow_org, sdir, 0.0f, tmax, rc)) {
                                 float pdf_bsdf_w = diffuse ? material_diffuse_pdf(wo.z, wi.z) : material_pdf(m, wo, wi);
                                 float w = sampling_power_heuristic(pdf_light_w, pdf_bsdf_w);
                                 struct vec3 c = vec3_scale(vec3_mul(f, Le), fabsf(wi.z) * w / pdf_light_w);
-                                L = vec3_add(L, vec3_mul(beta, c));
+                                L = L + beta * pt_pack(c);
                             }
                         }
                     }
@@ -404,7 +412,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
         float cos_ng = vec3_dot(wi_world, s.ng);
         if (cos_ng * bs.wi.z <= 0.0f) break;
-        beta = vec3_mul(beta, weight);
+        beta = beta * pt_pack(weight);
         if (bs.flags & BSDF_TRANSMISSION) rr_scale /= material_radiance_scale(m, wo, bs.wi);
         if (tracked) sms_track_scatter(scene, &track, &s, bs.flags);
         if (canonical) {
@@ -419,10 +427,10 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         if (depth + 1 >= rr_depth) {
             /* fminf(0.95f, max) spelled out: fminf is a libm call at -O2 (NaN rules), and a NaN
              * max gives 0.95 either way. */
-            float mx = vec3_max_comp(beta) * rr_scale;
+            float mx = vec3_max_comp(pt_unpack(beta)) * rr_scale;
             float q = mx < 0.95f ? mx : 0.95f;
             if (!(q > 0.0f) || u_rr >= q) break;
-            beta = vec3_scale(beta, 1.0f / q);
+            beta = beta * (1.0f / q);
         }
         int side = cos_ng < 0.0f;
         org = side == shadow_side ? shadow_org : surface_offset_along(s.p, side ? vec3_neg(s.ng) : s.ng);
@@ -431,7 +439,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
     *rng_io = rng_local;
     rc_io->intersect += rc_local.intersect;
     rc_io->occluded += rc_local.occluded;
-    return L;
+    return pt_unpack(L);
 }
 
 struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,

@@ -40,7 +40,8 @@ bool accel_intersect(const struct accel *accel, struct vec3 org, struct vec3 dir
 uint32_t accel_intersect_shape_all(const struct accel *accel, uint32_t shape, struct vec3 org, struct vec3 dir,
                                    float tmin, float tmax, struct hit *hits, uint32_t max_hits,
                                    struct ray_counters *counters);
-/* True when anything blocks (tmin, tmax). */
+/* True when anything blocks (tmin, tmax), t in units of |dir| (any length but zero): a segment
+ * can be passed as it is, with tmax 1. */
 bool accel_occluded(const struct accel *accel, struct vec3 org, struct vec3 dir, float tmin, float tmax,
                     struct ray_counters *counters);
 /* Moves a shape that was declared movable; false otherwise. Takes effect after
