@@ -193,6 +193,12 @@ typedef float pt_v4 __attribute__((vector_size(16)));
 static inline pt_v4 pt_pack(struct vec3 a) { return (pt_v4){a.x, a.y, a.z, 0.0f}; }
 static inline struct vec3 pt_unpack(pt_v4 a) { return vec3_make(a[0], a[1], a[2]); }
 
+/* vec3_max_comp of the first three lanes without its two libm calls (fmaxf: a call in the loop
+ * also costs the reload of every SSE register), with fmaxf's results: a NaN gives the other
+ * value, equal values (+0, -0) the second, as glibc's maxss-based fmaxf. */
+static inline float pt_fmax(float a, float b) { return a > b || b != b ? a : b; }
+static inline float pt_max3(pt_v4 a) { return pt_fmax(a[0], pt_fmax(a[1], a[2])); }
+
 /* What pt_sss_primary updates, copied in and out so that the path loop's own copies stay
  * registers (see pt_radiance). */
 struct pt_sss_io {
@@ -309,7 +315,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             prev_pdf_w = 0.0f;
             float u_rr = rng_next_float(rng);
             if (depth + 1 >= rr_depth) {
-                float mx = vec3_max_comp(pt_unpack(beta));
+                float mx = pt_max3(beta);
                 float q = mx < 0.95f ? mx : 0.95f;
                 if (!(q > 0.0f) || u_rr >= q) break;
                 beta = beta * (1.0f / q);
@@ -427,7 +433,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         if (depth + 1 >= rr_depth) {
             /* fminf(0.95f, max) spelled out: fminf is a libm call at -O2 (NaN rules), and a NaN
              * max gives 0.95 either way. */
-            float mx = vec3_max_comp(pt_unpack(beta)) * rr_scale;
+            float mx = pt_max3(beta) * rr_scale;
             float q = mx < 0.95f ? mx : 0.95f;
             if (!(q > 0.0f) || u_rr >= q) break;
             beta = beta * (1.0f / q);
