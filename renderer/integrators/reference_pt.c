@@ -77,11 +77,13 @@ static bool pt_light_toward(const struct scene *scene, const struct light_sample
  * (weight N, the number of hits) with a cosine-sampled direction. Returns false when the path
  * ends; otherwise updates beta, the next ray and the vertex it leaves from. With sss_direct false
  * the NEE at the entry points is left out (restir_sss resamples that part) and so is the
- * continuation's emission that would duplicate it. */
-__attribute__((noinline, cold)) static bool pt_sss_primary(const struct scene *scene, const struct pt_params *params, const struct material *m,
-                           const struct surface *s, struct vec3 wo_world, struct vec3 *beta, struct vec3 *L,
-                           struct rng *rng, struct ray_counters *rc, struct vec3 *org, struct vec3 *dir,
-                           struct vec3 *prev_p, bool *skip_emission, bool sss_direct)
+ * continuation's emission that would duplicate it. Out of line: at most once per path, and inlined
+ * into the flattened path loop (pt_radiance) it would only crowd it. */
+__attribute__((noinline, cold)) static bool
+pt_sss_primary(const struct scene *scene, const struct pt_params *params, const struct material *m,
+               const struct surface *s, struct vec3 wo_world, struct vec3 *beta, struct vec3 *L, struct rng *rng,
+               struct ray_counters *rc, struct vec3 *org, struct vec3 *dir, struct vec3 *prev_p, bool *skip_emission,
+               bool sss_direct)
 {
     const struct light_sampler *lights = scene->lights;
     const bool nee = params->nee && light_sampler_count(lights) > 0;
@@ -151,11 +153,6 @@ __attribute__((noinline, cold)) static bool pt_sss_primary(const struct scene *s
     return true;
 }
 
-/* Radiance along one camera ray. The per-vertex work around the two ray queries is most of
- * what a ray costs besides Embree's traversal (docs/benchmarks.md, instructions per ray), so the
- * loop keeps it lean: parameters are read into locals once (every Embree call is opaque to the
- * compiler, so values behind pointers would be reloaded after each ray), and the offset origin
- * of the shadow ray is reused by the continuation ray when both leave on the same side. */
 /* What pt_radiance adds (sms.h explains the split): emission of SMS-owned paths, everything
  * else path tracing does, and SMS estimates. */
 struct pt_split {
@@ -209,9 +206,19 @@ struct pt_sss_io {
     bool skip_emission;
 };
 
-__attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
-                               struct vec3 dir, struct rng *rng_io, struct ray_counters *rc_io,
-                               const struct pt_split *split, bool sss_direct)
+/* Radiance along one camera ray. The per-vertex work around the two ray queries is most of
+ * what a ray costs besides Embree's traversal (docs/benchmarks.md, instructions per ray; `make
+ * test-perf` keeps it from growing), so the loop keeps it lean: parameters are read into locals
+ * once (every Embree call is opaque to the compiler, so values behind pointers would be reloaded
+ * after each ray), and the offset origin of the shadow ray is reused by the continuation ray
+ * when both leave on the same side. `flatten` inlines every helper it calls (material, surface,
+ * accel, light sampler, from their own files through link-time optimisation), except the
+ * out-of-line SMS and subsurface branches: left to its heuristics, link-time optimisation stopped
+ * inlining them once this function grew, which cost about 100 instructions per ray. */
+__attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params,
+                                                        struct vec3 org, struct vec3 dir, struct rng *rng_io,
+                                                        struct ray_counters *rc_io, const struct pt_split *split,
+                                                        bool sss_direct)
 {
     /* The random stream and the ray counters live in locals whose address never leaves this
      * function (pt_sss_primary gets copies): state behind the callers' pointers could be
@@ -294,8 +301,9 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             /* Direct light at the entry points belongs to the rest of the light transport; the
              * track stays where it was, so no path through subsurface scattering counts as owned
              * by specular manifold sampling (which does not sample from entry points). */
-            struct pt_sss_io io = {.s = s, .beta = pt_unpack(beta), .L = pt_unpack(L), .rng = rng_local, .rc = rc_local, .org = org,
-                                   .dir = dir, .prev_p = prev_p, .skip_emission = skip_emission};
+            struct pt_sss_io io = {.s = s, .beta = pt_unpack(beta), .L = pt_unpack(L), .rng = rng_local,
+                                   .rc = rc_local, .org = org, .dir = dir, .prev_p = prev_p,
+                                   .skip_emission = skip_emission};
             bool more = pt_sss_primary(scene, params, m, &io.s, vec3_neg(dir), &io.beta, &io.L, &io.rng, &io.rc,
                                        &io.org, &io.dir, &io.prev_p, &io.skip_emission, direct_here);
             beta = pt_pack(io.beta);
@@ -467,6 +475,7 @@ struct vec3 reference_pt_radiance_sms(const struct scene *scene, const struct pt
     return pt_radiance(scene, params, org, dir, rng, rc, &split, true);
 }
 
+/* Flattened for the same reason as pt_radiance, which it takes in with the camera ray. */
 __attribute__((flatten)) static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
 {
     struct pt_job *job = ctx;
