@@ -173,6 +173,7 @@ test-cluster: $(OUT)/restir $(OUT)/restird $(DOCKERLINT)
 # The preview page in Debian's chromium, driven by playwright-core (node's test runner);
 # screenshots and the daemon's log go to $(OUT)/web-test/.
 test-web: $(OUT)/restird $(WEB_NPM)
+	rm -rf $(OUT)/web-test
 	RESTIRD_BIN=$(abspath $(OUT)/restird) WEB_TEST_OUT=$(abspath $(OUT)/web-test) PYTHON=$(PYTHON) \
 		node --test --test-reporter=spec $(WEB)/test/
 
