@@ -19,6 +19,7 @@
 #include "integrators/reference_pt.h"
 #include "scene/scene.h"
 #include "session/view.h"
+#include "version.h"
 
 /* The most samples per pixel and frame the CLI takes (--spp and --params). */
 #define CLI_MAX_SPP (1u << 24)
@@ -33,6 +34,7 @@
     "                [--half] [--json] -o OUT.exr|OUT.png   (.png: an 8-bit preview, exposure 0, clamp)\n" \
     "  restir compare A.exr B.exr      (B is the reference; prints one JSON object)\n"             \
     "  restir methods [--json]         (the methods, their capabilities and parameters)\n"        \
+    "  restir --version                (the version and the commit it was built from)\n"         \
     "defaults: --spp 16 --size 256x256 --seed 0 --max-depth 64 --rr-depth 3 (Russian roulette\n"  \
     "after R bounces; a method whose own rr_depth differs keeps it unless --rr-depth is given;\n" \
     "R >= max depth turns it off), next-event estimation with MIS (--no-nee: BSDF sampling\n"     \
@@ -559,6 +561,10 @@ int main(int argc, char **argv)
     if (argc < 2 || strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0) {
         cli_usage(argc < 2 ? stderr : stdout);
         return argc < 2 ? 2 : 0;
+    }
+    if (strcmp(argv[1], "--version") == 0) {
+        printf("restir %s (commit %s)\n", RESTIRD_VERSION, restird_commit);
+        return 0;
     }
     if (strcmp(argv[1], "render") == 0) {
         int status = cli_render(argc - 2, argv + 2);
