@@ -1,9 +1,12 @@
 /* cli.c — `build/restir`, the offline command line: render a scene file to EXR, or compare two
  * EXR images. A thin front end over renderer/: it parses arguments strictly, reports progress
  * on a terminal, and prints one summary (or one JSON object with --json). Exit status: 0 done,
- * 1 the work failed (the message says why), 2 the command line is wrong. */
+ * 1 the work failed (the message says why), 2 the command line is wrong; compare's is its
+ * verdict for CI instead: 0 pass, 1 warn, 2 fail, 3 could not compare (its command line too). */
 #include <errno.h>
 #include <inttypes.h>
+#include <math.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -34,7 +37,12 @@
     "                [--threads T] [--max-depth D] [--rr-depth R] [--no-nee] [--crop X0,Y0,X1,Y1]\n"    \
     "                [--frames F] [--average-last N] [--animation FILE.json] [--params JSON]\n"       \
     "                [--half] [--json] -o OUT.exr|OUT.png   (.png: an 8-bit preview, exposure 0, clamp)\n" \
-    "  restir compare A.exr B.exr      (B is the reference; prints one JSON object)\n"             \
+    "  restir compare A.exr B.exr [--fail-mape X] [--fail-relmse X] [--fail-rmse X]\n"           \
+    "                [--warn-mape X] [--warn-relmse X] [--warn-rmse X] [--diff OUT.exr|OUT.png]\n" \
+    "                [--fail-percent P --pixel-threshold T] [--json]\n"                           \
+    "                (B is the reference; prints one JSON object with or without --json, and a\n" \
+    "                verdict line on stderr; exit 0 pass, 1 warn, 2 fail, 3 could not compare,\n" \
+    "                a wrong compare command line included)\n"                                   \
     "  restir methods [--json]         (the methods, their capabilities and parameters)\n"        \
     "  restir --version                (the version and the commit it was built from)\n"         \
     "defaults: --spp 16 --size 256x256 --seed 0 --max-depth 64 --rr-depth 3 (Russian roulette\n"  \
@@ -48,6 +56,10 @@
     "--animation FILE.json takes camera and light keys from a file holding the body of a daemon\n" \
     "animation job ({\"animation\": {...}}, protocol/API.md) and its frame count unless --frames\n" \
     "is given. A method that takes no spp traces one path per pixel and frame: render more frames.\n" \
+    "compare: a metric above its --fail- level fails, above its --warn- level warns (one that is\n" \
+    "not a number trips any level set); --fail-percent P --pixel-threshold T fails when more than\n" \
+    "P % of the pixels have a relative error (MAPE's per-pixel term) above T; --diff writes that\n" \
+    "error per pixel (.exr: float; .png: 8-bit, white at 1 and above).\n"                          \
     "--params sets the method's parameters as the daemon's session \"params\" object (keys it\n"  \
     "leaves out take the options given, else the method's defaults; an option and a key that\n" \
     "set the same parameter are refused), e.g. --params '{\"spatial_neighbors\": 0}'; restir methods\n" \
@@ -637,37 +649,189 @@ static int cli_render(int argc, char **argv)
     return 0;
 }
 
+/* restir compare's exit statuses: a verdict for CI. A wrong command line is "could not
+ * compare" too (3), not the other commands' 2, which here means fail. */
+enum cli_verdict { CLI_PASS = 0, CLI_WARN = 1, CLI_FAIL = 2, CLI_CANNOT_COMPARE = 3 };
+static const char *const cli_verdict_names[] = {"pass", "warn", "fail"};
+
+/* A metric's thresholds: it trips a level when it is above it, or not a number (an image with
+ * no finite pixels, or MAPE of an all-black reference: no evidence that it is close). NAN: the
+ * level is not set. */
+struct cli_limit {
+    const char *metric;
+    double value, fail, warn;
+};
+
+static bool cli_parse_level(const char *s, double *out)
+{
+    if (!s || !*s) return false;
+    errno = 0;
+    char *end;
+    double v = strtod(s, &end);
+    if (errno || *end || !isfinite(v) || v < 0.0) return false;
+    *out = v;
+    return true;
+}
+
+static enum cli_verdict cli_limit_level(const struct cli_limit *l)
+{
+    bool bad_fail = !isnan(l->fail) && (isnan(l->value) || l->value > l->fail);
+    bool bad_warn = !isnan(l->warn) && (isnan(l->value) || l->value > l->warn);
+    return bad_fail ? CLI_FAIL : bad_warn ? CLI_WARN : CLI_PASS;
+}
+
+/* Appends to buf at *used (never past size). */
+static void cli_append(char *buf, size_t size, size_t *used, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+static void cli_append(char *buf, size_t size, size_t *used, const char *fmt, ...)
+{
+    if (*used >= size) return;
+    va_list ap;
+    va_start(ap, fmt);
+    int n = vsnprintf(buf + *used, size - *used, fmt, ap);
+    va_end(ap);
+    if (n > 0) *used = *used + (size_t)n < size ? *used + (size_t)n : size;
+}
+
+/* A JSON number, or null for what JSON cannot hold. */
+static void cli_append_number(char *buf, size_t size, size_t *used, double v)
+{
+    if (isfinite(v)) cli_append(buf, size, used, "%.9g", v);
+    else cli_append(buf, size, used, "null");
+}
+
+static int cli_compare_usage_error(const char *fmt, const char *arg)
+{
+    cli_usage_error(fmt, arg);
+    return CLI_CANNOT_COMPARE;
+}
+
 static int cli_compare(int argc, char **argv)
 {
     if (cli_wants_help(argc, argv)) {
         cli_usage(stdout);
         return 0;
     }
-    if (argc != 2) return cli_usage_error("%s", "compare needs exactly two EXR files");
+    struct cli_limit limits[3] = {{"mape", NAN, NAN, NAN}, {"relmse", NAN, NAN, NAN}, {"rmse", NAN, NAN, NAN}};
+    const char *paths[2] = {NULL, NULL}, *diff_path = NULL;
+    double fail_percent = NAN, pixel_threshold = NAN;
+    size_t path_count = 0;
+    for (int i = 0; i < argc; i++) {
+        const char *a = argv[i];
+        const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+        if (strcmp(a, "--json") == 0) continue; /* the JSON object is the output either way */
+        if (a[0] != '-') {
+            if (path_count == 2) return cli_compare_usage_error("compare: unexpected argument '%s'", a);
+            paths[path_count++] = a;
+            continue;
+        }
+        if (!v) return cli_compare_usage_error("option %s needs a value", a);
+        i++;
+        double *level = NULL;
+        for (size_t k = 0; k < 3 && !level; k++) {
+            if (strncmp(a, "--fail-", 7) == 0 && strcmp(a + 7, limits[k].metric) == 0) level = &limits[k].fail;
+            if (strncmp(a, "--warn-", 7) == 0 && strcmp(a + 7, limits[k].metric) == 0) level = &limits[k].warn;
+        }
+        if (strcmp(a, "--fail-percent") == 0) level = &fail_percent;
+        if (strcmp(a, "--pixel-threshold") == 0) level = &pixel_threshold;
+        if (level) {
+            if (!isnan(*level)) return cli_compare_usage_error("%s is given twice: give it once", a);
+            char m[160];
+            snprintf(m, sizeof m, "%s: expected a number >= 0, got '%.64s'", a, v);
+            if (!cli_parse_level(v, level)) return cli_compare_usage_error("%s", m);
+        } else if (strcmp(a, "--diff") == 0) {
+            if (diff_path) return cli_compare_usage_error("%s is given twice: give it once", a);
+            diff_path = v;
+        } else {
+            return cli_compare_usage_error("unknown option '%s'", a);
+        }
+    }
+    if (path_count != 2) return cli_compare_usage_error("%s", "compare needs exactly two EXR files");
+    if (isnan(fail_percent) != isnan(pixel_threshold))
+        return cli_compare_usage_error("%s", "--fail-percent P and --pixel-threshold T go together: fail when more "
+                                             "than P % of the pixels have a relative error above T");
+    if (!isnan(fail_percent) && fail_percent > 100.0)
+        return cli_compare_usage_error("%s", "--fail-percent: expected a percentage, 0..100");
+    for (size_t k = 0; k < 3; k++) {
+        if (limits[k].warn > limits[k].fail) {
+            char m[200];
+            snprintf(m, sizeof m, "--warn-%s %g is above --fail-%s %g: a warning level sits below the failing one",
+                     limits[k].metric, limits[k].warn, limits[k].metric, limits[k].fail);
+            return cli_compare_usage_error("%s", m);
+        }
+    }
+    enum cli_format diff_format = CLI_EXR;
+    if (diff_path && !cli_output_format(diff_path, &diff_format))
+        return cli_compare_usage_error("--diff: '%s' names no format: end it in .exr, or .png for an 8-bit view",
+                                       diff_path);
+    if (diff_path && !cli_output_folder_exists(diff_path)) {
+        fprintf(stderr, "restir: cannot write %s: its folder does not exist\n", diff_path);
+        return CLI_CANNOT_COMPARE;
+    }
+
     struct err err = {0};
     char msg[1024];
-    struct image a, b;
-    if (!exrio_read_file(argv[0], &a, &err)) {
-        fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
-        return 1;
-    }
-    if (!exrio_read_file(argv[1], &b, &err)) {
-        fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
-        image_destroy(&a);
-        return 1;
-    }
+    struct image a = {0}, b = {0}, errors = {0};
     struct metrics m = {0};
-    bool ok = metrics_compare(&a, &b, &m, &err);
-    char json[2048];
-    if (ok) ok = metrics_format_json(&m, json, sizeof json, &err);
-    if (ok) {
-        printf("%s\n", json);
-    } else {
-        fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
-    }
+    char json[METRICS_JSON_MAX + 1024];
+    bool ok = exrio_read_file(paths[0], &a, &err) && exrio_read_file(paths[1], &b, &err) &&
+              metrics_compare(&a, &b, &m, &err) && metrics_format_json(&m, json, METRICS_JSON_MAX, &err);
+    /* The error image serves --diff and the pixel rule. */
+    bool need_errors = diff_path || !isnan(fail_percent);
+    if (ok && need_errors)
+        ok = image_init(&errors, a.width, a.height, &err) && metrics_error_image(&a, &b, &m, &errors, &err);
+    if (!ok) fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
+    double percent_above = NAN;
+    if (ok && !isnan(fail_percent)) percent_above = 100.0 * metrics_fraction_above(&errors, pixel_threshold);
+    if (ok && diff_path) ok = cli_write_image(diff_path, diff_format, &errors, false);
     image_destroy(&a);
     image_destroy(&b);
-    return ok ? 0 : 1;
+    image_destroy(&errors);
+    if (!ok) return CLI_CANNOT_COMPARE;
+
+    limits[0].value = m.mape;
+    limits[1].value = m.relmse;
+    limits[2].value = m.rmse;
+    enum cli_verdict verdict = CLI_PASS;
+    char tripped[1024], human[1024];
+    size_t tn = 0, hn = 0;
+    for (size_t k = 0; k < 3; k++) {
+        enum cli_verdict level = cli_limit_level(&limits[k]);
+        if (level == CLI_PASS) continue;
+        double at = level == CLI_FAIL ? limits[k].fail : limits[k].warn;
+        cli_append(tripped, sizeof tripped, &tn, "%s{\"metric\":\"%s\",\"level\":\"%s\",\"value\":", tn ? "," : "",
+                   limits[k].metric, cli_verdict_names[level]);
+        cli_append_number(tripped, sizeof tripped, &tn, limits[k].value);
+        cli_append(tripped, sizeof tripped, &tn, ",\"threshold\":%.9g}", at);
+        cli_append(human, sizeof human, &hn, "%s%s %.6g > %s level %g", hn ? "; " : "", limits[k].metric,
+                   limits[k].value, cli_verdict_names[level], at);
+        if (level > verdict) verdict = level;
+    }
+    if (!isnan(fail_percent) && (isnan(percent_above) || percent_above > fail_percent)) {
+        cli_append(tripped, sizeof tripped, &tn,
+                   "%s{\"metric\":\"percent_above\",\"level\":\"fail\",\"value\":", tn ? "," : "");
+        cli_append_number(tripped, sizeof tripped, &tn, percent_above);
+        cli_append(tripped, sizeof tripped, &tn, ",\"threshold\":%.9g,\"pixel_threshold\":%.9g}", fail_percent,
+                   pixel_threshold);
+        cli_append(human, sizeof human, &hn, "%s%.6g %% of the pixels have a relative error above %g > fail level %g %%",
+                   hn ? "; " : "", percent_above, pixel_threshold, fail_percent);
+        verdict = CLI_FAIL;
+    }
+    /* The metrics' object, then the verdict and what tripped it. */
+    size_t jn = strlen(json) - 1; /* drops the closing brace */
+    if (!isnan(fail_percent)) {
+        cli_append(json, sizeof json, &jn, ",\"percent_above\":");
+        cli_append_number(json, sizeof json, &jn, percent_above);
+        cli_append(json, sizeof json, &jn, ",\"pixel_threshold\":%.9g", pixel_threshold);
+    }
+    cli_append(json, sizeof json, &jn, ",\"verdict\":\"%s\",\"tripped\":[%.*s]}", cli_verdict_names[verdict], (int)tn,
+               tripped);
+    printf("%s\n", json);
+    if (verdict == CLI_PASS)
+        fprintf(stderr, "restir compare: pass (mape %.6g, relmse %.6g, rmse %.6g)\n", m.mape, m.relmse, m.rmse);
+    else
+        fprintf(stderr, "restir compare: %s (%s)\n", cli_verdict_names[verdict], human);
+    return verdict;
 }
 
 int main(int argc, char **argv)

@@ -123,3 +123,118 @@ def test_version_names_the_commit():
     res = run_cli("--version")
     assert res.returncode == 0, res.stderr
     assert re.fullmatch(r"restir \d+\.\d+\.\d+ \(commit ([0-9a-f]{7,40}|unknown)\)\n", res.stdout), res.stdout
+
+
+# ---- restir compare ------------------------------------------------------------------------------
+
+# A 4x1 reference of ones (mean 1, so MAPE's denominator is R + 0.01) and an image whose pixels'
+# relative errors are 0, 0.1, 0.5 and 1: MAPE 0.4.
+REF = np.ones((1, 4, 3), dtype=np.float32)
+IMG = np.array([1.0, 1.101, 1.505, 2.01], dtype=np.float32)[None, :, None].repeat(3, axis=2)
+REL = [0.0, 0.1, 0.5, 1.0]
+
+
+@pytest.fixture
+def pair(tmp_path):
+    from test_daemon import write_exr
+    write_exr(tmp_path / "img.exr", IMG)
+    write_exr(tmp_path / "ref.exr", REF)
+    return tmp_path / "img.exr", tmp_path / "ref.exr"
+
+
+def compare(*args):
+    res = run_cli("compare", *args)
+    return res, (json.loads(res.stdout) if res.stdout else None)
+
+
+def test_compare_passes_an_image_against_itself(pair):
+    res, out = compare(pair[1], pair[1], "--fail-mape", "0", "--fail-rmse", "0", "--fail-relmse", "0",
+                       "--fail-percent", "0", "--pixel-threshold", "0")
+    assert res.returncode == 0, res.stderr
+    assert out["verdict"] == "pass" and out["tripped"] == [] and out["percent_above"] == 0
+    assert res.stderr == "restir compare: pass (mape 0, relmse 0, rmse 0)\n"
+
+
+def test_compare_warns_between_the_levels(pair):
+    res, out = compare(*pair, "--warn-mape", "0.3", "--fail-mape", "0.5", "--json")
+    assert res.returncode == 1, res.stderr
+    assert out["mape"] == pytest.approx(0.4, abs=1e-6)
+    assert out["verdict"] == "warn"
+    assert [(t["metric"], t["level"], t["threshold"]) for t in out["tripped"]] == [("mape", "warn", 0.3)]
+    assert res.stderr == "restir compare: warn (mape 0.4 > warn level 0.3)\n"
+    # Above both levels it fails; under both it passes.
+    assert compare(*pair, "--warn-mape", "0.1", "--fail-mape", "0.35")[0].returncode == 2
+    assert compare(*pair, "--warn-mape", "0.41", "--fail-mape", "0.5")[0].returncode == 0
+
+
+def test_compare_fails_on_any_metric_or_the_pixel_rule(pair):
+    rmse = float(np.sqrt(np.mean((IMG.astype(np.float64) - 1.0) ** 2)))
+    res, out = compare(*pair, "--fail-rmse", "0.5", "--warn-relmse", "0.01")
+    assert res.returncode == 2, res.stderr
+    assert out["rmse"] == pytest.approx(rmse, rel=1e-6)
+    assert out["verdict"] == "fail"
+    assert [(t["metric"], t["level"]) for t in out["tripped"]] == [("relmse", "warn"), ("rmse", "fail")]
+    # One pixel in four (25 %) has a relative error above 0.6: more than 20 % fails, 25 % does not.
+    res, out = compare(*pair, "--fail-percent", "20", "--pixel-threshold", "0.6")
+    assert res.returncode == 2 and out["percent_above"] == 25, res.stderr
+    assert out["tripped"] == [{"metric": "percent_above", "level": "fail", "value": 25, "threshold": 20,
+                               "pixel_threshold": 0.6}]
+    assert res.stderr == ("restir compare: fail (25 % of the pixels have a relative error above 0.6 > fail "
+                          "level 20 %)\n")
+    assert compare(*pair, "--fail-percent", "25", "--pixel-threshold", "0.6")[0].returncode == 0
+    assert compare(*pair, "--fail-percent", "25", "--pixel-threshold", "0.45")[1]["percent_above"] == 50
+
+
+def test_compare_fails_a_metric_that_is_not_a_number(tmp_path, pair):
+    # An image of NaN leaves no pixel to compare: no evidence that it is close, so a level set fails.
+    from test_daemon import write_exr
+    write_exr(tmp_path / "nan.exr", np.full((1, 4, 3), np.nan, dtype=np.float32))
+    res, out = compare(tmp_path / "nan.exr", pair[1], "--fail-mape", "1")
+    assert res.returncode == 2, res.stderr
+    assert out["mape"] is None and out["nan"]["a"] == 4 and out["verdict"] == "fail"
+
+
+def test_compare_could_not_compare(tmp_path, pair):
+    from test_daemon import write_exr
+    write_exr(tmp_path / "small.exr", np.ones((1, 2, 3), dtype=np.float32))
+    (tmp_path / "text.exr").write_text("not an image")
+    cases = [((pair[0], tmp_path / "small.exr"), "restir: image is 4x1 but reference is 2x1"),
+             ((pair[0], tmp_path / "missing.exr"), f"restir: {tmp_path}/missing.exr: cannot open: No such file or directory"),
+             ((pair[0], tmp_path / "text.exr"), f"restir: {tmp_path}/text.exr: not an OpenEXR file (bad magic number or too short)"),
+             ((pair[0],), "restir: compare needs exactly two EXR files"),
+             ((*pair, "--fail-mape", "x"), "restir: --fail-mape: expected a number >= 0, got 'x'"),
+             ((*pair, "--fail-mape", "0.1", "--fail-mape", "0.2"), "restir: --fail-mape is given twice: give it once"),
+             ((*pair, "--warn-rmse", "0.2", "--fail-rmse", "0.1"),
+              "restir: --warn-rmse 0.2 is above --fail-rmse 0.1: a warning level sits below the failing one"),
+             ((*pair, "--fail-percent", "5"), "restir: --fail-percent P and --pixel-threshold T go together: fail "
+              "when more than P % of the pixels have a relative error above T"),
+             ((*pair, "--fail-percent", "101", "--pixel-threshold", "1"),
+              "restir: --fail-percent: expected a percentage, 0..100"),
+             ((*pair, "--diff", tmp_path / "d.jpg"),
+              f"restir: --diff: '{tmp_path}/d.jpg' names no format: end it in .exr, or .png for an 8-bit view"),
+             ((*pair, "--diff", tmp_path / "no" / "d.exr"), f"restir: cannot write {tmp_path}/no/d.exr: its folder does not exist"),
+             ((*pair, "--frobnicate", "1"), "restir: unknown option '--frobnicate'")]
+    for args, message in cases:
+        res, _ = compare(*args)
+        assert res.returncode == 3, (args, res.stderr)
+        assert first_line(res) == message, (args, res.stderr)
+        assert "verdict" not in res.stdout
+    assert not (tmp_path / "d.jpg").exists()
+
+
+def test_compare_diff_writes_the_relative_error_per_pixel(tmp_path, pair):
+    res, _ = compare(*pair, "--diff", tmp_path / "d.exr")
+    assert res.returncode == 0, res.stderr
+    d = read_exr(tmp_path / "d.exr")
+    assert d.shape == (1, 4, 3)
+    np.testing.assert_allclose(d[0, :, 0], REL, atol=1e-6)
+    assert np.array_equal(d[..., 0], d[..., 1]) and np.array_equal(d[..., 0], d[..., 2])
+    # Their mean is the MAPE the JSON reports.
+    assert float(d[..., 0].mean()) == pytest.approx(json.loads(res.stdout)["mape"], rel=1e-6)
+    # .png: 8 bits through the preview's tone mapper: black at 0, white at 1 and above.
+    res, _ = compare(*pair, "--diff", tmp_path / "d.png")
+    assert res.returncode == 0, res.stderr
+    png = read_exr(tmp_path / "d.png")
+    assert png.shape[:2] == (1, 4)
+    assert png[0, 0, :3].tolist() == [0, 0, 0] and png[0, 3, :3].tolist() == [1, 1, 1]
+    assert 0 < png[0, 1, 0] < png[0, 2, 0] < 1

@@ -247,7 +247,7 @@ def test_cli_usage_errors(tmp_path, scenes):
          "/method: restir_pt does not sample subsurface scattering"),
         (("render", scenes / "translucent", "--method", "bdpt", "-o", tmp_path / "x.exr"), 1,
          "/method: bdpt does not sample subsurface scattering"),
-        (("compare", tmp_path / "nope.exr", tmp_path / "nope2.exr"), 1, "nope.exr"),
+        (("compare", tmp_path / "nope.exr", tmp_path / "nope2.exr"), 3, "nope.exr"),
         # The output's extension names its format; nothing is rendered for a name that names none,
         # nor into a folder that does not exist.
         (("render", sc, "-o", tmp_path / "x.jpg"), 2, "-o: '%s' names no format" % (tmp_path / "x.jpg")),
@@ -319,4 +319,4 @@ def test_compare_metrics(tmp_path, scenes):
     assert m["mape"] == pytest.approx(mape, rel=1e-5)
     render(sc, tmp_path / "small.exr", spp=1, size="16x16")
     bad = run_cli("compare", tmp_path / "a.exr", tmp_path / "small.exr")
-    assert bad.returncode == 1 and "32x32" in bad.stderr and "16x16" in bad.stderr
+    assert bad.returncode == 3 and "32x32" in bad.stderr and "16x16" in bad.stderr
