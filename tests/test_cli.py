@@ -3,11 +3,13 @@ a usage error that says why and what to use instead; `restir --version`; and `re
 CI gate (exit 0 pass, 1 warn, 2 fail, 3 could not compare, --diff's per-pixel error image)."""
 import json
 import re
+import subprocess
 
 import numpy as np
 import pytest
 
 from conftest import read_exr, run_cli
+from daemon import BIN as DAEMON_BIN
 
 METHODS = json.loads(run_cli("methods", "--json").stdout)["methods"]
 PARAMS = {m["name"]: {p["name"] for p in m["params"]} for m in METHODS}
@@ -120,9 +122,13 @@ def test_other_silent_cases_are_refused(tmp_path, scenes):
 
 
 def test_version_names_the_commit():
-    res = run_cli("--version")
-    assert res.returncode == 0, res.stderr
-    assert re.fullmatch(r"restir \d+\.\d+\.\d+ \(commit ([0-9a-f]{7,40}|unknown)\)\n", res.stdout), res.stdout
+    # Both programs, one version and one commit (the build's).
+    cli = run_cli("--version")
+    daemon = subprocess.run([DAEMON_BIN, "--version"], capture_output=True, text=True, timeout=30)
+    assert cli.returncode == 0 and daemon.returncode == 0, (cli.stderr, daemon.stderr)
+    m = re.fullmatch(r"restir (\d+\.\d+\.\d+) \(commit ([0-9a-f]{7,40}|unknown)\)\n", cli.stdout)
+    assert m, cli.stdout
+    assert daemon.stdout == f"restird {m[1]} (commit {m[2]})\n"
 
 
 # ---- restir compare ------------------------------------------------------------------------------
