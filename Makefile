@@ -47,7 +47,7 @@ WEB_PAGE     := $(wildcard $(WEB)/page/*)
 WEB_NPM      := $(WEB)/node_modules/.package-lock.json
 WEB_VENDOR   := $(WEB)/node_modules/uplot/dist/uPlot.esm.js $(WEB)/node_modules/uplot/dist/uPlot.min.css
 
-.PHONY: all deps test test-unit test-py test-cluster test-web test-fuzz test-tsan fuzz load run bench bench-report clean help
+.PHONY: FORCE all deps test test-unit test-py test-cluster test-web test-fuzz test-tsan fuzz load run bench bench-report clean help
 .SECONDARY:
 all: $(OUT)/restir $(OUT)/restird
 
@@ -83,6 +83,19 @@ $(OBJ)/protocol/%.o: protocol/%.c Makefile | $(DEPS_OK)
 $(OBJ)/server/%.o: server/%.c Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) -Irenderer -Iprotocol -Iserver -c $< -o $@
+
+# The commit the binaries are built from (server/version.h). The stamp file holds it and is
+# rewritten only when it changes, so a new HEAD recompiles server/version.c and nothing else.
+COMMIT       := $(or $(shell git rev-parse --short HEAD 2>/dev/null),unknown)
+COMMIT_STAMP := $(OBJ)/commit-stamp
+FORCE:
+$(COMMIT_STAMP): FORCE
+	@mkdir -p $(dir $@)
+	@echo '$(COMMIT)' | cmp -s - $@ || echo '$(COMMIT)' > $@
+
+$(OBJ)/server/version.o: server/version.c $(COMMIT_STAMP) Makefile | $(DEPS_OK)
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -DRESTIRD_COMMIT='"$(COMMIT)"' -Iserver -c $< -o $@
 
 $(OBJ)/librenderer.a: $(RENDERER_OBJ)
 	@rm -f $@

@@ -15,6 +15,7 @@
 
 #include "api.h"
 #include "http.h"
+#include "version.h"
 
 #define MAIN_USAGE                                                                                  \
     "usage: restird [--listen HOST:PORT] [--data-dir DIR] [--scenes DIR] [--id NAME]\n"             \
@@ -30,7 +31,8 @@
     "--scenes: the scenes/ folder next to the build folder; limits as GET /v1/limits lists them.\n" \
     "The bearer token is read from --auth-token-file, else from $RESTIRD_AUTH_TOKEN; it is required\n" \
     "to listen on any address but loopback.\n"                                                        \
-    "Port 0 picks a free port; the first line on stdout names the address.\n"
+    "Port 0 picks a free port; the first line on stdout names the address.\n"                   \
+    "--version prints the version and the commit it was built from.\n"
 
 static int main_usage(const char *fmt, const char *arg)
 {
@@ -227,6 +229,10 @@ int main(int argc, char **argv)
         const char *a = argv[i];
         if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             fputs(MAIN_USAGE, stdout);
+            return 0;
+        }
+        if (strcmp(a, "--version") == 0) {
+            printf("restird %s (commit %s)\n", RESTIRD_VERSION, restird_commit);
             return 0;
         }
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
