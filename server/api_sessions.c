@@ -813,6 +813,12 @@ void api_render_delete(struct api_call *c)
     session_release(s);
 }
 
+/* Which image a row's converge figure scores (struct job_row). */
+static const char *api_converge_image(const struct job_row *row)
+{
+    return row->conv_frames ? "accumulation" : "frame";
+}
+
 void api_render_metrics(struct api_call *c)
 {
     static const char *const types[] = {"application/json", "text/csv", NULL};
@@ -840,7 +846,7 @@ void api_render_metrics(struct api_call *c)
         for (uint32_t i = 0; i < n; i++) {
             struct image img;
             struct err e;
-            rows[i].has_metrics = false;
+            rows[i].has_metrics = rows[i].has_conv = false;  /* accumulations are not kept */
             if (session_frame_copy(s, rows[i].frame, &img, NULL, &e)) {
                 rows[i].has_metrics = metrics_compare(&img, &other->img, &rows[i].m, &e);
                 image_destroy(&img);
@@ -848,21 +854,28 @@ void api_render_metrics(struct api_call *c)
         }
     }
     if (strcmp(type, "text/csv") == 0) {
-        size_t cap = 64 + (size_t)n * 128, len = 0;
+        size_t cap = 128 + (size_t)n * 256, len = 0;
         char *csv = malloc(cap);
         if (!csv) {
             free(rows);
             api_problem(c, 503, "busy", NULL, "out of memory");
             goto out;
         }
-        len += (size_t)snprintf(csv + len, cap - len, "frame,time_s,render_ms,mape,rmse,relmse\n");
+        len += (size_t)snprintf(csv + len, cap - len,
+                                "frame,time_s,render_ms,mape,rmse,relmse,converge_image,converge_frames,"
+                                "converge_mape,converge_rmse,converge_relmse\n");
         for (uint32_t i = 0; i < n; i++) {
+            len += (size_t)snprintf(csv + len, cap - len, "%u,%.9g,%.6g", rows[i].frame, rows[i].time_s, rows[i].render_ms);
             if (rows[i].has_metrics)
-                len += (size_t)snprintf(csv + len, cap - len, "%u,%.9g,%.6g,%.9g,%.9g,%.9g\n", rows[i].frame, rows[i].time_s,
-                                        rows[i].render_ms, rows[i].m.mape, rows[i].m.rmse, rows[i].m.relmse);
+                len += (size_t)snprintf(csv + len, cap - len, ",%.9g,%.9g,%.9g", rows[i].m.mape, rows[i].m.rmse,
+                                        rows[i].m.relmse);
             else
-                len += (size_t)snprintf(csv + len, cap - len, "%u,%.9g,%.6g,,,\n", rows[i].frame, rows[i].time_s,
-                                        rows[i].render_ms);
+                len += (size_t)snprintf(csv + len, cap - len, ",,,");
+            if (rows[i].has_conv)
+                len += (size_t)snprintf(csv + len, cap - len, ",%s,%u,%.9g,%.9g,%.9g\n", api_converge_image(&rows[i]),
+                                        rows[i].conv_frames, rows[i].conv.mape, rows[i].conv.rmse, rows[i].conv.relmse);
+            else
+                len += (size_t)snprintf(csv + len, cap - len, ",,,,,\n");
         }
         c->resp->status = 200;
         c->resp->content_type = "text/csv; charset=utf-8";
@@ -884,6 +897,18 @@ void api_render_metrics(struct api_call *c)
             jsonw_key(&w, "mape"); if (rows[i].has_metrics) jsonw_double(&w, rows[i].m.mape); else jsonw_null(&w);
             jsonw_key(&w, "rmse"); if (rows[i].has_metrics) jsonw_double(&w, rows[i].m.rmse); else jsonw_null(&w);
             jsonw_key(&w, "relmse"); if (rows[i].has_metrics) jsonw_double(&w, rows[i].m.relmse); else jsonw_null(&w);
+            jsonw_key(&w, "converge");
+            if (rows[i].has_conv) {
+                jsonw_object_begin(&w);
+                jsonw_key(&w, "image"); jsonw_string(&w, api_converge_image(&rows[i]));
+                jsonw_key(&w, "frames"); jsonw_uint(&w, rows[i].conv_frames);
+                jsonw_key(&w, "mape"); jsonw_double(&w, rows[i].conv.mape);
+                jsonw_key(&w, "rmse"); jsonw_double(&w, rows[i].conv.rmse);
+                jsonw_key(&w, "relmse"); jsonw_double(&w, rows[i].conv.relmse);
+                jsonw_object_end(&w);
+            } else {
+                jsonw_null(&w);
+            }
             jsonw_object_end(&w);
         }
         jsonw_array_end(&w);

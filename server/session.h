@@ -30,11 +30,18 @@
 enum job_kind { JOB_ANIMATION, JOB_REFERENCE };
 enum job_status { JOB_QUEUED, JOB_RUNNING, JOB_DONE, JOB_CANCELLED, JOB_FAILED };
 
+/* One frame of an animation job. `m` is the frame's own error (the real-time figure); `conv`
+ * is the error of the image a user keeping a still view would keep after this frame (the
+ * converge figure): the session's accumulation (`conv_frames` frames since the last change) for
+ * a method whose frames are independent, the frame itself (`conv_frames` 0) for one that
+ * reuses earlier frames, whose history already is its accumulation and whose correlated frames
+ * are never averaged (docs/benchmarks.md, "Two regimes"). */
 struct job_row {
     uint32_t frame;
     double time_s, render_ms;
-    bool has_metrics;
-    struct metrics m;
+    bool has_metrics, has_conv;
+    uint32_t conv_frames;
+    struct metrics m, conv;
 };
 
 struct session;
