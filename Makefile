@@ -57,7 +57,7 @@ help:
 	@echo "make test-cluster  the image and three daemons behind HAProxy (part of make test)"
 	@echo "make test-web   the preview page in headless chromium alone (screenshots: build/web-test/)"
 	@echo "make test-tsan  the threaded unit tests and the daemon's concurrency tests under ThreadSanitizer"
-	@echo "make run        start the daemon on 127.0.0.1:8080 with a default session on cornell-box;"
+	@echo "make run        start the daemon on 127.0.0.1:8080 (PORT=N: another port) with a default session on cornell-box;"
 	@echo "                the preview page is at http://127.0.0.1:8080/"
 	@echo "make bench      benchmarks (not tests): see docs/benchmarks.md"
 	@echo "make bench-report  speed against accuracy, stability, Cycles: docs/report/ (QUICK=1: minutes)"
@@ -205,10 +205,11 @@ test-tsan:
 	$(MAKE) TSAN=1 test-tsan
 endif
 
-# The daemon on 127.0.0.1:8080 with a ready session on the Cornell box; it prints the curl line
+# The daemon on 127.0.0.1:8080 (or PORT) with a ready session on the Cornell box; it prints the curl line
 # that fetches a frame. Ctrl-C stops it cleanly.
+PORT ?= 8080
 run: $(OUT)/restird
-	./$(OUT)/restird --listen 127.0.0.1:8080 --default-session cornell-box
+	./$(OUT)/restird --listen 127.0.0.1:$(PORT) --default-session cornell-box
 
 bench: $(OUT)/restir $(OUT)/restird $(OBJ)/librenderer.a
 	bash bench/run.sh
