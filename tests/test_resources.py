@@ -1,7 +1,7 @@
 """References and jobs as resources (protocol/API.md, "References" and "Animation jobs"): listing,
 fetching and deleting references, Idempotency-Key on reference renders, listing a session's
-jobs and which of a finished job's frames are still kept; and that openapi.yaml documents
-exactly the daemon's routes.
+jobs and which of a finished job's frames are still kept; the process and build lines of
+GET /metrics; and that openapi.yaml documents exactly the daemon's routes.
 
 One daemon with a short frame ring (--frames-kept 3) serves the file; images are 8x8."""
 import re
@@ -161,6 +161,37 @@ def test_renders_list_and_evicted_frames(daemon):
 def test_renders_list_of_unknown_session(daemon):
     body = assert_problem(daemon.req("GET", f"{CORNELL}/sessions/nope/renders"), 404, "not-found")
     assert body["detail"] == "scene 'cornell-box' has no session 'nope'"
+
+
+# ---- /metrics ----
+
+def metric(text, name):
+    m = re.search(rf"^{name} (\S+)$", text, re.M)
+    assert m, f"no {name} in\n{text}"
+    assert f"# TYPE {name} " in text
+    return float(m.group(1))
+
+
+def test_metrics_process_and_build_info(daemon):
+    text = daemon.req("GET", "/metrics").body.decode()
+    pid = daemon.proc.pid
+    status = Path(f"/proc/{pid}/status").read_text()
+    rss_kb = int(re.search(r"VmRSS:\s+(\d+) kB", status).group(1))
+    vm_kb = int(re.search(r"VmSize:\s+(\d+) kB", status).group(1))
+    rss = metric(text, "process_resident_memory_bytes")
+    assert 0.5 * rss_kb * 1024 < rss < 2 * rss_kb * 1024, (rss, rss_kb)
+    assert metric(text, "process_virtual_memory_bytes") == pytest.approx(vm_kb * 1024, rel=0.2)
+    started = metric(text, "process_start_time_seconds")
+    assert started == pytest.approx(Path(f"/proc/{pid}").stat().st_mtime, abs=600)
+    assert time.time() - 3600 < started <= time.time() + 1
+    assert metric(text, "process_cpu_seconds_total") > 0
+    fds = metric(text, "process_open_fds")
+    assert 3 <= fds <= len(list(Path(f"/proc/{pid}/fd").iterdir())) + 8, fds
+    assert metric(text, "process_max_fds") >= fds
+    info = re.findall(r'^restird_build_info\{version="([^"]+)",commit="([^"]+)"\} 1$', text, re.M)
+    header = (ROOT / "server" / "version.h").read_text()
+    version = re.search(r'#define RESTIRD_VERSION "([^"]+)"', header).group(1)
+    assert len(info) == 1 and info[0][0] == version and info[0][1], text
 
 
 # ---- the API description ----
