@@ -17,6 +17,7 @@ packages=(
   wrk                    # HTTP load for the server benchmark (bench/server.sh) and make load
   haproxy                # the consistent-hash router of the cluster test (make test-cluster)
   shellcheck python3-yaml  # the Dockerfile linter's shell checks; compose.yaml in the cluster test
+  python3-pip python3-setuptools python3-wheel  # the Python client installed offline (tests/test_client.py)
   nodejs chromium        # the preview page: npm packages at build time, browser tests (make test-web)
   clang libclang-rt-14-dev  # libFuzzer targets (make fuzz, the smoke in make test)
 )

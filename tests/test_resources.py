@@ -5,6 +5,8 @@ GET /metrics; and that openapi.yaml documents exactly the daemon's routes.
 
 One daemon with a short frame ring (--frames-kept 3) serves the file; images are 8x8."""
 import re
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -161,6 +163,25 @@ def test_renders_list_and_evicted_frames(daemon):
 def test_renders_list_of_unknown_session(daemon):
     body = assert_problem(daemon.req("GET", f"{CORNELL}/sessions/nope/renders"), 404, "not-found")
     assert body["detail"] == "scene 'cornell-box' has no session 'nope'"
+
+
+# ---- the Python client ----
+
+def test_client_metrics_leaves_no_reference_and_takes_host_port(daemon, tmp_path):
+    """restir.py metrics against the real daemon, named as host:port without a scheme: the CSV
+    has a row per frame, and neither the reference it rendered nor its session is left."""
+    out = tmp_path / "m.csv"
+    before = set(listed(daemon))
+    sessions = len(daemon.req("GET", f"{CORNELL}/sessions").json()["sessions"])
+    run = subprocess.run([sys.executable, str(ROOT / "clients" / "python" / "restir.py"), "-q",
+                          "--server", f"127.0.0.1:{daemon.port}", "metrics", "cornell-box", "--size", "8x8",
+                          "--reference-spp", "16", "--frames", "2", "-o", str(out)],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert out.read_text().splitlines()[0] == "frame,time_s,render_ms,mape,rmse,relmse"
+    assert len(out.read_text().splitlines()) == 3
+    assert set(listed(daemon)) == before
+    assert len(daemon.req("GET", f"{CORNELL}/sessions").json()["sessions"]) == sessions
 
 
 # ---- /metrics ----
