@@ -58,6 +58,13 @@ class FakeDaemon:
     def calls(self, method=None):
         return [(m, p, h, b) for (m, p, h, b) in self.log if method is None or m == method]
 
+    def job_view(self, sess, job):
+        """The job as the daemon shows it: only the frames the session still keeps."""
+        numbers = [int(h.rsplit("/", 1)[1]) for h in job["frames"]]
+        kept = [n for n in numbers if n >= sess["frames"] - self.frames_kept]
+        return dict(job, frames=[h for h in job["frames"] if int(h.rsplit("/", 1)[1]) in kept],
+                    frames_kept=[kept[0], kept[-1]] if kept else None, frames_evicted=len(numbers) - len(kept))
+
     def _id(self, prefix):
         self.next_id += 1
         return "%s%d" % (prefix, self.next_id)
@@ -199,7 +206,7 @@ class FakeDaemon:
                 if job is None:
                     return self.problem(404, "not-found", "no such job", path)
                 if len(tail) == 2:
-                    return self.ok(200, job)
+                    return self.ok(200, self.job_view(sess, job))
                 if tail[2:] == ["metrics"]:
                     rows = [{"frame": i, "time_s": i / 30, "render_ms": 1.0, "mape": 0.5 / (i + 1),
                              "rmse": 0.1, "relmse": 0.2} for i in range(len(job["frames"]))]
@@ -639,6 +646,21 @@ def test_cli_orbit_submits_one_job_and_downloads_every_frame(fake, tmp_path):
     anim = job["_req"]["animation"]
     assert anim["frames"] == 5 and len(anim["camera_keys"]) == 5
     assert anim["camera_keys"][0]["position"] == CAMERA["position"]
+
+
+def test_cli_orbit_names_frames_by_number_and_fails_on_evicted_ones(fake, tmp_path):
+    """Polling offers only the frames still kept: each is saved under its own number, and the
+    frames gone before they were fetched make the command fail with frame-evicted."""
+    fake.frames_kept = 2
+    code, out, err = run_cli(fake, "orbit", "lib-box", "--frames", "5", "-o", str(tmp_path / "o"))
+    assert code == 1
+    assert "frame-evicted" in err and "frame 0 was evicted before it was downloaded" in err, err
+    assert not (tmp_path / "o").exists() or not list((tmp_path / "o").iterdir())
+    fake.frames_kept = 5
+    code, out, err = run_cli(fake, "orbit", "lib-box", "--frames", "5", "-o", str(tmp_path / "p"))
+    assert code == 0, err
+    assert sorted(p.name for p in (tmp_path / "p").iterdir()) == ["frame_%04d.exr" % i for i in range(5)]
+    assert (tmp_path / "p" / "frame_0003.exr").read_bytes().endswith(b":3")
 
 
 @pytest.mark.parametrize("method", ["pt", "sms"])

@@ -1113,6 +1113,12 @@ def cmd_orbit(client, args, out, prog):
         prog.update("job %s: %d frames queued (session %s)" % (rid, args.frames, s.id))
         saved = {}
 
+        def evicted(index, detail):
+            return (detail or "") + (
+                " (frame %d was evicted before it was downloaded: the daemon keeps the "
+                "last %s frames of a session; render fewer frames per job or raise "
+                "restird --frames-kept)" % (index, s.info.get("frames_kept", "?")))
+
         def fetch(index, href):
             if index in saved:
                 return
@@ -1120,10 +1126,7 @@ def cmd_orbit(client, args, out, prog):
                 data = client.frame_by_href(href, accept=accept, **query)
             except RestirError as e:
                 if e.slug == "frame-evicted":
-                    e.detail = (e.detail or "") + (
-                        " (frame %d was evicted before it was downloaded: the daemon keeps the "
-                        "last %s frames of a session; render fewer frames per job or raise "
-                        "restird --frames-kept)" % (index, s.info.get("frames_kept", "?")))
+                    e.detail = evicted(index, e.detail)
                 raise
             path = os.path.join(args.output, "frame_%04d.%s" % (index, ext))
             _write(path, data)
@@ -1144,8 +1147,15 @@ def cmd_orbit(client, args, out, prog):
             if name in ("done", "error") or time.monotonic() - last_poll > 1.0 or name is None:
                 state = client.job(s, rid)
                 last_poll = time.monotonic()
+                # A job offers only the frames still kept, the last ones, from frames_kept[0].
+                # (A daemon without frames_kept offers every frame.)
+                kept = state.get("frames_kept", [0])
+                first = kept[0] if kept else pr_done(state)
+                lost = [i for i in range(first) if i not in saved]
+                if lost:
+                    raise RestirError(410, type=PROBLEM_PREFIX + "frame-evicted", detail=evicted(lost[0], None).strip())
                 for i, href in enumerate(state.get("frames") or []):
-                    fetch(i, href)
+                    fetch(first + i, href)
                 pr = state.get("progress") or {}
                 prog.update("job %s: %s, %s/%s frames rendered, %d saved" % (
                     rid, state.get("status"), pr.get("frames_done", "?"), pr.get("frames_total", "?"),
@@ -1159,6 +1169,11 @@ def cmd_orbit(client, args, out, prog):
         return 0 if state.get("status") == "done" else 1
     finally:
         client.delete_session(s, missing_ok=True)
+
+
+def pr_done(job):
+    """Frames a job has rendered (its progress)."""
+    return (job.get("progress") or {}).get("frames_done") or 0
 
 
 def cmd_metrics(client, args, out, prog):
