@@ -50,6 +50,7 @@ def listed(d, scene="cornell-box"):
 def test_references_list_get_delete_credit_the_budget(daemon, tmp_path):
     """A built-in scene's references are listed with their size, how they were made, their bytes
     and an href that fetches them; DELETE removes one (204, then 404) and gives its bytes back."""
+    assert daemon.req("GET", CORNELL).json()["builtin"] is True
     before = references_used(daemon)
     upload_reference(daemon, tmp_path, "up8")
     s = new_session(daemon, width=8, height=8, params={"spp": 1})
