@@ -1,7 +1,7 @@
 /* refstore.h — reference images by (scene, name): rendered by the server (`pt`, or `pt` with
  * specular manifold sampling) or uploaded as EXR. Immutable once stored and shared by reference
  * count, so a metrics computation keeps its reference alive while another request replaces it.
- * In memory for the daemon's lifetime. Thread-safe. */
+ * In memory until deleted, or until their scene is. Thread-safe. */
 #ifndef RESTIRD_REFSTORE_H
 #define RESTIRD_REFSTORE_H
 
