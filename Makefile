@@ -28,7 +28,10 @@ SERVER_LDLIBS := -lmicrohttpd
 # pkg-config and OpenEXR on a fresh machine, not when the Makefile is read.
 OPENEXR_CFLAGS = $(shell pkg-config --cflags OpenEXR 2>/dev/null)
 PYTHON  := /usr/bin/python3
-DEPS_OK := $(BUILD)/.deps-ok
+# DEPS=build: install only what building needs (the image's build stage); the stamp names the
+# set, so a tree built that way still installs the test packages before its first test run.
+DEPS    ?= all
+DEPS_OK := $(BUILD)/.deps-ok$(if $(filter build,$(DEPS)),-build)
 
 RENDERER_SRC := $(wildcard renderer/*/*.c)
 RENDERER_OBJ := $(RENDERER_SRC:%.c=$(OBJ)/%.o)
@@ -67,7 +70,7 @@ help:
 
 deps: $(DEPS_OK)
 $(DEPS_OK): scripts/install-deps.sh
-	@bash scripts/install-deps.sh
+	@bash scripts/install-deps.sh $(if $(filter build,$(DEPS)),--build)
 	@mkdir -p $(BUILD) && touch $@
 
 # Include paths follow the layers: renderer/ sees only itself, protocol/ sees the renderer,

@@ -95,6 +95,7 @@ void api_frame_get(struct api_call *c);
 void api_frame_metrics(struct api_call *c);
 void api_frame_error_png(struct api_call *c);
 void api_accumulation_get(struct api_call *c);
+void api_renders_list(struct api_call *c);
 void api_renders_post(struct api_call *c);
 void api_render_get(struct api_call *c);
 void api_render_delete(struct api_call *c);

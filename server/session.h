@@ -49,6 +49,7 @@ struct session;
 struct job {
     char id[24];
     char idempotency_key[65];
+    uint64_t request_hash;           /* what the keyed request asked for (see api_job_replay) */
     enum job_kind kind;
     enum job_status status;          /* under the session lock */
     atomic_bool cancel;
@@ -168,6 +169,9 @@ bool session_render(struct session *s, struct gate *gate, bool bounded, const st
  * ERR_LIMIT when rendered but evicted. `out` is initialised on success. */
 bool session_frame_copy(struct session *s, uint32_t n, struct image *out, struct frame_stats *stats,
                         struct err *err);
+
+/* Whether frame n of sequence `epoch` is still kept. Call with s->lock held. */
+bool session_frame_kept_locked(const struct session *s, uint32_t epoch, uint32_t n);
 
 /* Appends an event (type and JSON data, copied) and wakes readers. */
 void session_post_event(struct session *s, const char *type, const char *json);

@@ -1,6 +1,6 @@
 /* version.h — the one place the release version is written, and the commit the binaries were
  * built from (baked in at build time: the Makefile generates the header that defines it), for
- * `restir --version`, `restird --version` and anything else that reports the build. */
+ * `restir --version`, `restird --version` and GET /metrics (restird_build_info). */
 #ifndef RESTIRD_VERSION_H
 #define RESTIRD_VERSION_H
 
