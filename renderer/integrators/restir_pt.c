@@ -1066,31 +1066,10 @@ void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *p
     c->pdf_max = 1.0f / sqrtf(params->roughness_min);
 }
 
-/* Opens the frame, renders the G-buffer and the initial pass (all of an initial-only frame, out
- * NULL); the context is bound into `c`. */
-static bool pt_begin(struct restir_pt_state *st, const struct restir_pt_params *params, const struct method_frame *f,
-                     struct pt_ctx *c, struct pt_pass *pp, struct image *out, struct restir_pass_stats *stats,
-                     struct restir_pass_stats *local, struct err *err)
-{
-    memset(pp, 0, sizeof *pp);
-    if (!restir_frame_open(&pp->fr, &st->rs, f, out, params->temporal, stats, local, sizeof *local, err)) return false;
-    if (!restir_pt_params_valid(params, err)) return false;
-    if (f->scene->shape_count != st->shape_count)
-        return err_set(err, ERR_INVALID, NULL, "the scene has %u shapes, the session %u", f->scene->shape_count,
-                       st->shape_count);
-    if (!restir_frame_gbuffer(&pp->fr, 0.0f, pt_uses_pairs(params), err)) return false;
-    restir_pt_bind(st, params, f, c);
-    pp->c = c;
-    return restir_frame_initial(&pp->fr, pt_initial_rows, pp, err);
-}
-
 bool restir_pt_initial_only(struct restir_pt_state *st, const struct restir_pt_params *params,
                             const struct method_frame *f, struct err *err)
 {
-    struct pt_ctx c;
-    struct pt_pass pp;   /* on the stack, as in a frame */
-    struct restir_pass_stats stats;
-    return pt_begin(st, params, f, &c, &pp, NULL, NULL, &stats, err);
+    return restir_pt_render(st, params, f, NULL, NULL, err);
 }
 
 bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params *params,
@@ -1100,7 +1079,17 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
     struct pt_ctx c;
     struct pt_pass pp;   /* on the stack (restir_frame): a frame allocates nothing */
     struct restir_pass_stats local;
-    if (!pt_begin(st, params, f, &c, &pp, out, stats, &local, err)) return false;
+    if (!restir_frame_open(&pp.fr, sizeof pp, &st->rs, f, out, params->temporal, stats, &local, sizeof local, err) ||
+        !restir_pt_params_valid(params, err))
+        return false;
+    if (f->scene->shape_count != st->shape_count)
+        return err_set(err, ERR_INVALID, NULL, "the scene has %u shapes, the session %u", f->scene->shape_count,
+                       st->shape_count);
+    if (!restir_frame_gbuffer(&pp.fr, 0.0f, pt_uses_pairs(params), err)) return false;
+    restir_pt_bind(st, params, f, &c);
+    pp.c = &c;
+    if (!restir_frame_initial(&pp.fr, pt_initial_rows, &pp, err)) return false;
+    if (!out) return true;   /* restir_pt_initial_only */
     struct restir_reuse *r = restir_frame_reuse(&pp.fr, &restir_pt_ops, &c, 0, params->temporal_cap,
                                                 params->spatial_neighbors, params->spatial_radius,
                                                 params->paired_spatial);

@@ -533,16 +533,19 @@ static bool sms_bind(struct restir_sms_state *st, const struct restir_sms_params
     return sms_scene_init(f->scene, &c->ss, err);
 }
 
-/* Opens the frame, renders the G-buffer, the prior pass and the initial pass (all of an
- * initial-only frame, out NULL); the context is bound into `c`. */
-static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_params *params,
-                      const struct method_frame *f, struct sms_ctx *c, struct sms_pass *pp, struct image *out,
-                      struct restir_sms_stats *stats, struct restir_sms_stats *local, struct err *err)
+/* A frame with the context in `c`; without an output, its G-buffer, prior and initial passes only
+ * (restir_sms_initial_only). */
+static bool sms_frame(struct restir_sms_state *st, const struct restir_sms_params *params,
+                      const struct method_frame *f, struct sms_ctx *c, struct image *out,
+                      struct restir_sms_stats *stats, struct err *err)
 {
-    memset(pp, 0, sizeof *pp);
-    if (!(stats = restir_frame_open(&pp->fr, &st->rs, f, out, params->temporal, stats, local, sizeof *local, err)))
+    /* The pass's per-worker counters on the heap would be a per-frame malloc; the stack is fine. */
+    struct sms_pass pp;
+    struct restir_sms_stats local;
+    if (!(stats = restir_frame_open(&pp.fr, sizeof pp, &st->rs, f, out, params->temporal, stats, &local, sizeof local,
+                                    err)) ||
+        !restir_sms_params_valid(params, err))
         return false;
-    if (!restir_sms_params_valid(params, err)) return false;
     if (restir_sms_layers(params, f->scene) != st->rs.layers)
         return err_set(err, ERR_INVALID, "/params/light_reservoirs", "the session has %u reservoirs per pixel, not %u",
                        st->rs.layers, restir_sms_layers(params, f->scene));
@@ -551,58 +554,36 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     if (sms_uses_prior(params) && st->prior.frames != params->ssp.prior_frames)
         return err_set(err, ERR_INVALID, "/params/prior_frames", "the session keeps %u frames of prior walks, not %u",
                        st->prior.frames, params->ssp.prior_frames);
-    if (!restir_frame_gbuffer(&pp->fr, params->jitter_walk, sms_uses_pairs(params), err)) return false;
+    if (!restir_frame_gbuffer(&pp.fr, params->jitter_walk, sms_uses_pairs(params), err)) return false;
 
     if (!sms_bind(st, params, f, c, err)) return false;
-    pp->c = c;
-    pp->recv = st->recv[st->rs.cur];
+    pp.c = c;
+    pp.recv = st->recv[st->rs.cur];
     /* The prior pass ([SMS-SSP §4.1]) under this frame's scene and camera. */
     struct ray_counters prc = {0, 0};
     const bool ssp = params->sampler == RESTIR_SMS_SAMPLER_SSP;
     /* The walks kept from earlier frames describe this one while nothing moved (sms_ssp.h). */
     const bool still = st->rs.has_history && f->prev_scene && f->prev_camera &&
                        memcmp(f->camera, f->prev_camera, sizeof *f->camera) == 0 && !scene_moved(f->prev_scene, f->scene);
-    if (ssp && !ssp_prior_build(&st->prior, f->scene, &c->ss, &params->ssp, &pp->fr.camera, f->seed, f->frame, still,
-                                pp->fr.threads, &stats->prior, &prc, err))
+    if (ssp && !ssp_prior_build(&st->prior, f->scene, &c->ss, &params->ssp, &pp.fr.camera, f->seed, f->frame, still,
+                                pp.fr.threads, &stats->prior, &prc, err))
         return false;
     stats->pass.rays_intersect += prc.intersect;
     stats->pass.rays_occluded += prc.occluded;
-    stats->prior_ms = parallel_lap_ms(&pp->fr.t0);
-    pp->pt = reference_pt_rest(st->rs.width, st->rs.height, params->max_depth, params->rr_depth);
+    stats->prior_ms = parallel_lap_ms(&pp.fr.t0);
+    pp.pt = reference_pt_rest(st->rs.width, st->rs.height, params->max_depth, params->rr_depth);
     /* The rest's SMS estimates, at every non-delta vertex but the receiver, are plain SMS with
      * either sampler: the prior describes receivers only, and without it partitioning has more
      * variance than SMS's seeds over the whole caster (restir_sms.h). */
-    pp->pt.sms = &params->ssp.sms;
-    if (!restir_frame_initial(&pp->fr, sms_initial_rows, pp, err)) return false;
-    for (unsigned i = 0; i < pp->fr.threads; i++) sms_counters_add(&stats->sms, &pp->sms[i]);
-    return true;
-}
+    pp.pt.sms = &params->ssp.sms;
+    if (!restir_frame_initial(&pp.fr, sms_initial_rows, &pp, err)) return false;
+    for (unsigned i = 0; i < pp.fr.threads; i++) sms_counters_add(&stats->sms, &pp.sms[i]);
+    if (!out) return true;
 
-bool restir_sms_initial_only(struct restir_sms_state *st, const struct restir_sms_params *params,
-                             const struct method_frame *f, void *ctx, struct err *err)
-{
-    struct sms_pass pp;   /* on the stack, as in a frame */
-    struct restir_sms_stats stats;
-    bool ok = sms_begin(st, params, f, ctx, &pp, NULL, NULL, &stats, err);
-    if (ok) st->rs.has_history = true;
-    return ok;
-}
-
-bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_params *params,
-                       const struct method_frame *f, struct image *out, struct restir_sms_stats *stats,
-                       struct err *err)
-{
-    /* The context holds the frame's casters (~7 KiB) and the pass its per-worker counters; both
-     * on the heap would be a per-frame malloc, the stack is fine. */
-    struct sms_ctx c;
-    struct sms_pass pp;
-    struct restir_sms_stats local;
-    if (!sms_begin(st, params, f, &c, &pp, out, stats, &local, err)) return false;
-    stats = (struct restir_sms_stats *)pp.fr.stats;
     /* One reuse per reservoir layer, each over its own share of the lights; they share the
      * context, the G-buffers, the receivers, the pair scratch (one pass at a time) and the
      * neighbour pairings. */
-    restir_frame_reuse(&pp.fr, &restir_sms_ops, &c, 0, params->temporal_cap, params->spatial_neighbors,
+    restir_frame_reuse(&pp.fr, &restir_sms_ops, c, 0, params->temporal_cap, params->spatial_neighbors,
                        params->spatial_radius, params->paired_spatial);
     if (!restir_frame_temporal(&pp.fr, err)) return false;
     if (params->spatial_neighbors > 0) {
@@ -614,7 +595,23 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
         restir_session_swap(&st->rs);
     }
     restir_frame_reused(&pp.fr);
-    stats->shift_newton = atomic_load(&c.shared->newton);
-    stats->shift_not_invertible = atomic_load(&c.shared->not_invertible);
+    stats->shift_newton = atomic_load(&c->shared->newton);
+    stats->shift_not_invertible = atomic_load(&c->shared->not_invertible);
     return restir_frame_shade(&pp.fr, sms_shade_rows, &pp, err);
+}
+
+bool restir_sms_initial_only(struct restir_sms_state *st, const struct restir_sms_params *params,
+                             const struct method_frame *f, void *ctx, struct err *err)
+{
+    bool ok = sms_frame(st, params, f, ctx, NULL, NULL, err);
+    if (ok) st->rs.has_history = true;
+    return ok;
+}
+
+bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_params *params,
+                       const struct method_frame *f, struct image *out, struct restir_sms_stats *stats,
+                       struct err *err)
+{
+    struct sms_ctx c;   /* the frame's casters (~7 KiB): on the stack, as the pass */
+    return sms_frame(st, params, f, &c, out, stats, err);
 }

@@ -627,24 +627,6 @@ void restir_sss_bind(struct restir_sss_state *st, const struct restir_sss_params
     if (restir_sss_layers(params) > 1) c->channel = 0;
 }
 
-/* Opens the frame, renders the G-buffer and the initial pass (all of an initial-only frame, out
- * NULL); the context is bound into `c`. */
-static bool sss_begin(struct restir_sss_state *st, const struct restir_sss_params *params,
-                      const struct method_frame *f, struct sss_ctx *c, struct sss_pass *pp, struct image *out,
-                      struct restir_sss_stats *stats, struct restir_sss_stats *local, struct err *err)
-{
-    memset(pp, 0, sizeof *pp);
-    if (!restir_frame_open(&pp->fr, &st->rs, f, out, params->temporal, stats, local, sizeof *local, err)) return false;
-    if (!restir_sss_params_valid(params, err)) return false;
-    if (restir_sss_layers(params) != st->rs.layers)
-        return err_set(err, ERR_INVALID, "/params/target", "the session's reservoirs were made for the other target");
-    if (!restir_frame_gbuffer(&pp->fr, 0.0f, sss_uses_pairs(params), err)) return false;
-    restir_sss_bind(st, params, f, c);
-    pp->c = c;
-    pp->pt = reference_pt_rest(st->rs.width, st->rs.height, params->max_depth, params->rr_depth);
-    return restir_frame_initial(&pp->fr, sss_initial_rows, pp, err);
-}
-
 /* The automatic spatial radius (§5.1): 2 max(d) of the translucent materials seen, projected at
  * the mean distance of the translucent primary hits, clamped to [5, 30] pixels. */
 static float sss_auto_radius(const struct sss_ctx *c, const struct camera_desc *cam, uint32_t width, uint32_t height)
@@ -670,10 +652,7 @@ static float sss_auto_radius(const struct sss_ctx *c, const struct camera_desc *
 bool restir_sss_initial_only(struct restir_sss_state *st, const struct restir_sss_params *params,
                              const struct method_frame *f, struct err *err)
 {
-    struct sss_ctx c;
-    struct sss_pass pp;   /* on the stack, as in a frame */
-    struct restir_sss_stats stats;
-    return sss_begin(st, params, f, &c, &pp, NULL, NULL, &stats, err);
+    return restir_sss_render(st, params, f, NULL, NULL, err);
 }
 
 bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_params *params,
@@ -683,8 +662,18 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
     struct sss_ctx c;
     struct sss_pass pp;   /* on the stack (restir_frame): a frame allocates nothing */
     struct restir_sss_stats local;
-    if (!sss_begin(st, params, f, &c, &pp, out, stats, &local, err)) return false;
-    stats = (struct restir_sss_stats *)pp.fr.stats;
+    if (!(stats = restir_frame_open(&pp.fr, sizeof pp, &st->rs, f, out, params->temporal, stats, &local, sizeof local,
+                                    err)) ||
+        !restir_sss_params_valid(params, err))
+        return false;
+    if (restir_sss_layers(params) != st->rs.layers)
+        return err_set(err, ERR_INVALID, "/params/target", "the session's reservoirs were made for the other target");
+    if (!restir_frame_gbuffer(&pp.fr, 0.0f, sss_uses_pairs(params), err)) return false;
+    restir_sss_bind(st, params, f, &c);
+    pp.c = &c;
+    pp.pt = reference_pt_rest(st->rs.width, st->rs.height, params->max_depth, params->rr_depth);
+    if (!restir_frame_initial(&pp.fr, sss_initial_rows, &pp, err)) return false;
+    if (!out) return true;   /* restir_sss_initial_only */
     float radius = params->spatial_radius > 0.0f ? params->spatial_radius
                                                  : sss_auto_radius(&c, f->camera, st->rs.width, st->rs.height);
     stats->spatial_radius = radius;

@@ -605,10 +605,11 @@ bool restir_gbuffer_next(struct gbuffer gbuf[2], uint32_t *cur, bool *has_histor
     return true;
 }
 
-void *restir_frame_open(struct restir_frame *fr, struct restir_session *s, const struct method_frame *f,
-                        struct image *out, bool temporal, void *stats, void *local, size_t stats_bytes,
-                        struct err *err)
+void *restir_frame_open(struct restir_frame *fr, size_t pass_bytes, struct restir_session *s,
+                        const struct method_frame *f, struct image *out, bool temporal, void *stats, void *local,
+                        size_t stats_bytes, struct err *err)
 {
+    memset(fr, 0, pass_bytes);
     if (out && (out->width != s->width || out->height != s->height)) {
         err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the session %ux%u", out->width, out->height,
                 s->width, s->height);

@@ -223,13 +223,13 @@ struct restir_frame {
     uint64_t nonfinite[RESTIR_MAX_WORKERS];              /* the shade pass's, one per worker */
 };
 
-/* Opens a frame in *fr (zeroed by the caller with the pass struct around it): the output, when
- * there is one, must have the session's size; the method's counters start at zero (`stats` may be
- * NULL, then `local` is used and returned; NULL on failure). `temporal`: the method's parameters
- * ask for temporal reuse. */
-void *restir_frame_open(struct restir_frame *fr, struct restir_session *s, const struct method_frame *f,
-                        struct image *out, bool temporal, void *stats, void *local, size_t stats_bytes,
-                        struct err *err);
+/* Opens a frame in *fr, the start of the method's pass struct of pass_bytes (all zeroed here):
+ * the output, when there is one, must have the session's size; the method's counters start at
+ * zero (`stats` may be NULL, then `local` is used and returned; NULL on failure). `temporal`: the
+ * method's parameters ask for temporal reuse. */
+void *restir_frame_open(struct restir_frame *fr, size_t pass_bytes, struct restir_session *s,
+                        const struct method_frame *f, struct image *out, bool temporal, void *stats, void *local,
+                        size_t stats_bytes, struct err *err);
 /* After the method's own checks: refuses paired spatial reuse (pairs) in a session made without
  * its scratch, starts the clock and renders the G-buffer pass (restir_gbuffer_next; jitter_walk as
  * gbuffer_frame's), whose time and rays go to the stats. */
