@@ -1000,6 +1000,7 @@ uint64_t restir_pt_bytes_planned(const struct restir_pt_params *params, uint32_t
 struct pt_pass {
     struct restir_frame fr;   /* first: the driver's rows reach it through the pass */
     const struct pt_ctx *c;
+    struct restir_pass_stats local;   /* the counters of a frame whose caller keeps none */
 };
 
 /* Initial pass: one path per pixel into the working buffer; the image gets what the reservoir
@@ -1066,20 +1067,14 @@ void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *p
     c->pdf_max = 1.0f / sqrtf(params->roughness_min);
 }
 
-bool restir_pt_initial_only(struct restir_pt_state *st, const struct restir_pt_params *params,
-                            const struct method_frame *f, struct err *err)
-{
-    return restir_pt_render(st, params, f, NULL, NULL, err);
-}
-
 bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params *params,
                       const struct method_frame *f, struct image *out, struct restir_pass_stats *stats,
                       struct err *err)
 {
     struct pt_ctx c;
     struct pt_pass pp;   /* on the stack (restir_frame): a frame allocates nothing */
-    struct restir_pass_stats local;
-    if (!restir_frame_open(&pp.fr, sizeof pp, &st->rs, f, out, params->temporal, stats, &local, sizeof local, err) ||
+    if (!restir_frame_open(&pp.fr, sizeof pp, &st->rs, f, out, params->temporal, stats, &pp.local, sizeof pp.local,
+                           err) ||
         !restir_pt_params_valid(params, err))
         return false;
     if (f->scene->shape_count != st->shape_count)
@@ -1104,4 +1099,10 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
     if (params->spatial_neighbors == 0) restir_session_swap(&st->rs);
     restir_frame_reused(&pp.fr);
     return restir_frame_shade(&pp.fr, pt_shade_rows, &pp, err);
+}
+
+bool restir_pt_initial_only(struct restir_pt_state *st, const struct restir_pt_params *params,
+                            const struct method_frame *f, struct err *err)
+{
+    return restir_pt_render(st, params, f, NULL, NULL, err);
 }

@@ -452,6 +452,7 @@ struct sms_pass {
     struct restir_sms_receiver *recv;   /* this frame's, which the initial pass finds */
     struct pt_params pt;
     struct sms_counters sms[RESTIR_MAX_WORKERS];
+    struct restir_sms_stats local;   /* the counters of a frame whose caller keeps none */
 };
 
 /* Initial pass: the candidate into the working buffer, and the sms_ssp path for the rest of the
@@ -541,9 +542,8 @@ static bool sms_frame(struct restir_sms_state *st, const struct restir_sms_param
 {
     /* The pass's per-worker counters on the heap would be a per-frame malloc; the stack is fine. */
     struct sms_pass pp;
-    struct restir_sms_stats local;
-    if (!(stats = restir_frame_open(&pp.fr, sizeof pp, &st->rs, f, out, params->temporal, stats, &local, sizeof local,
-                                    err)) ||
+    if (!(stats = restir_frame_open(&pp.fr, sizeof pp, &st->rs, f, out, params->temporal, stats, &pp.local,
+                                    sizeof pp.local, err)) ||
         !restir_sms_params_valid(params, err))
         return false;
     if (restir_sms_layers(params, f->scene) != st->rs.layers)

@@ -548,6 +548,7 @@ struct sss_pass {
     struct restir_frame fr;   /* first: the driver's rows reach it through the pass */
     const struct sss_ctx *c;
     struct pt_params pt;
+    struct restir_sss_stats local;   /* the counters of a frame whose caller keeps none */
 };
 
 /* Initial pass: candidates into the working buffer, and the pt path for the rest of the image
@@ -649,21 +650,14 @@ static float sss_auto_radius(const struct sss_ctx *c, const struct camera_desc *
     return (float)fmin(30.0, fmax(5.0, px));
 }
 
-bool restir_sss_initial_only(struct restir_sss_state *st, const struct restir_sss_params *params,
-                             const struct method_frame *f, struct err *err)
-{
-    return restir_sss_render(st, params, f, NULL, NULL, err);
-}
-
 bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_params *params,
                        const struct method_frame *f, struct image *out, struct restir_sss_stats *stats,
                        struct err *err)
 {
     struct sss_ctx c;
     struct sss_pass pp;   /* on the stack (restir_frame): a frame allocates nothing */
-    struct restir_sss_stats local;
-    if (!(stats = restir_frame_open(&pp.fr, sizeof pp, &st->rs, f, out, params->temporal, stats, &local, sizeof local,
-                                    err)) ||
+    if (!(stats = restir_frame_open(&pp.fr, sizeof pp, &st->rs, f, out, params->temporal, stats, &pp.local,
+                                    sizeof pp.local, err)) ||
         !restir_sss_params_valid(params, err))
         return false;
     if (restir_sss_layers(params) != st->rs.layers)
@@ -705,4 +699,10 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
     }
     restir_frame_reused(&pp.fr);
     return restir_frame_shade(&pp.fr, sss_shade_rows, &pp, err);
+}
+
+bool restir_sss_initial_only(struct restir_sss_state *st, const struct restir_sss_params *params,
+                             const struct method_frame *f, struct err *err)
+{
+    return restir_sss_render(st, params, f, NULL, NULL, err);
 }

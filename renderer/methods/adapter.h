@@ -15,12 +15,19 @@
 #define METHOD_COUNTERS(type, frame_stats) ((type *)(void *)(frame_stats)->counters)
 
 /* Operations that call the integrator's function with the method's own parameter or state type:
- * `defaults` from fn(void), `validate` from fn(const params *, err), and a state operation
- * (destroy, reset) from fn(state *). */
+ * `defaults` from fn(void), `validate` from fn(const params *, err), `init` from fn(state *,
+ * scene, const params *, width, height, err), and a state operation (destroy, reset) from
+ * fn(state *). */
 #define METHOD_DEFAULTS_OP(name, params_type, fn) \
     static void name(void *params) { *(params_type *)params = fn(); }
 #define METHOD_VALIDATE_OP(name, params_type, fn) \
     static bool name(const void *params, struct err *err) { return fn((const params_type *)params, err); }
+#define METHOD_INIT_OP(name, state_type, params_type, fn)                                                  \
+    static bool name(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height, \
+                     struct err *err)                                                                     \
+    {                                                                                                     \
+        return fn((state_type *)state, scene, (const params_type *)params, width, height, err);           \
+    }
 #define METHOD_STATE_OP(name, state_type, fn) \
     static void name(void *state) { fn((state_type *)state); }
 

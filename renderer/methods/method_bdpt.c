@@ -22,13 +22,8 @@ static const char *const bdpt_heuristics[] = {"power", "balance", NULL};
 
 METHOD_DEFAULTS_OP(bdpt_defaults_op, struct bdpt_params, bdpt_defaults)
 METHOD_VALIDATE_OP(bdpt_validate, struct bdpt_params, bdpt_params_valid)
+METHOD_INIT_OP(bdpt_init_op, struct bdpt_state, struct bdpt_params, bdpt_init)
 METHOD_STATE_OP(bdpt_destroy_op, struct bdpt_state, bdpt_destroy)
-
-static bool bdpt_init_op(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
-                         struct err *err)
-{
-    return bdpt_init(state, scene, params, width, height, err);
-}
 
 static bool bdpt_render_op(void *state, const void *params, const struct method_frame *f, struct image *out,
                            struct frame_stats *stats, parallel_progress_fn *progress, void *progress_ctx,
@@ -104,14 +99,9 @@ const struct method_desc method_bdpt = {
 
 METHOD_DEFAULTS_OP(rbdpt_defaults, struct restir_bdpt_params, restir_bdpt_defaults)
 METHOD_VALIDATE_OP(rbdpt_validate, struct restir_bdpt_params, restir_bdpt_params_valid)
+METHOD_INIT_OP(rbdpt_init, struct restir_bdpt_state, struct restir_bdpt_params, restir_bdpt_init)
 METHOD_STATE_OP(rbdpt_reset, struct restir_bdpt_state, restir_bdpt_reset)
 METHOD_STATE_OP(rbdpt_destroy, struct restir_bdpt_state, restir_bdpt_destroy)
-
-static bool rbdpt_init(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
-                       struct err *err)
-{
-    return restir_bdpt_init(state, scene, params, width, height, err);
-}
 
 static bool rbdpt_render(void *state, const void *params, const struct method_frame *f, struct image *out,
                          struct frame_stats *stats, parallel_progress_fn *progress, void *progress_ctx,
