@@ -1052,12 +1052,7 @@ void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *p
     memset(c, 0, sizeof *c);
     c->p = params;
     c->st = st;
-    c->scene[RESTIR_CURRENT] = f->scene;
-    c->scene[RESTIR_PREVIOUS] = f->prev_scene ? f->prev_scene : f->scene;
-    c->eye[RESTIR_CURRENT] = f->camera->position;
-    c->eye[RESTIR_PREVIOUS] = f->prev_camera ? f->prev_camera->position : f->camera->position;
-    c->gbuf[RESTIR_CURRENT] = &st->rs.gbuf[st->rs.cur];
-    c->gbuf[RESTIR_PREVIOUS] = &st->rs.gbuf[st->rs.cur ^ 1u];
+    restir_frame_domains(&st->rs, f, c->scene, c->eye, c->gbuf);
     c->seed = f->seed;
     c->frame = f->frame;
     c->nee_m = params->nee_candidates == RESTIR_PT_NEE_BY_SCENE ? st->nee_by_scene : params->nee_candidates;

@@ -519,10 +519,7 @@ static bool sms_bind(struct restir_sms_state *st, const struct restir_sms_params
 {
     memset(c, 0, sizeof *c);
     c->p = params;
-    c->scene[RESTIR_CURRENT] = f->scene;
-    c->scene[RESTIR_PREVIOUS] = f->prev_scene ? f->prev_scene : f->scene;
-    c->gbuf[RESTIR_CURRENT] = &st->rs.gbuf[st->rs.cur];
-    c->gbuf[RESTIR_PREVIOUS] = &st->rs.gbuf[st->rs.cur ^ 1u];
+    restir_frame_domains(&st->rs, f, c->scene, NULL, c->gbuf);
     c->recv[RESTIR_CURRENT] = st->recv[st->rs.cur];
     c->recv[RESTIR_PREVIOUS] = st->recv[st->rs.cur ^ 1u];
     c->prior = &st->prior;

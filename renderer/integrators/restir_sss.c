@@ -614,12 +614,7 @@ void restir_sss_bind(struct restir_sss_state *st, const struct restir_sss_params
     struct sss_ctx *c = ctx;
     memset(c, 0, sizeof *c);
     c->p = params;
-    c->scene[RESTIR_CURRENT] = f->scene;
-    c->scene[RESTIR_PREVIOUS] = f->prev_scene ? f->prev_scene : f->scene;
-    c->eye[RESTIR_CURRENT] = f->camera->position;
-    c->eye[RESTIR_PREVIOUS] = f->prev_camera ? f->prev_camera->position : f->camera->position;
-    c->gbuf[RESTIR_CURRENT] = &st->rs.gbuf[st->rs.cur];
-    c->gbuf[RESTIR_PREVIOUS] = &st->rs.gbuf[st->rs.cur ^ 1u];
+    restir_frame_domains(&st->rs, f, c->scene, c->eye, c->gbuf);
     c->seed = f->seed;
     c->frame = f->frame;
     /* The sequential shift starts with reconnection (temporal and first spatial pass). */

@@ -649,6 +649,19 @@ bool restir_frame_gbuffer(struct restir_frame *fr, float jitter_walk, bool pairs
     return true;
 }
 
+void restir_frame_domains(const struct restir_session *s, const struct method_frame *f, const struct scene *scene[2],
+                          struct vec3 eye[2], const struct gbuffer *gbuf[2])
+{
+    scene[RESTIR_CURRENT] = f->scene;
+    scene[RESTIR_PREVIOUS] = f->prev_scene ? f->prev_scene : f->scene;
+    if (eye) {
+        eye[RESTIR_CURRENT] = f->camera->position;
+        eye[RESTIR_PREVIOUS] = f->prev_camera ? f->prev_camera->position : f->camera->position;
+    }
+    gbuf[RESTIR_CURRENT] = &s->gbuf[s->cur];
+    gbuf[RESTIR_PREVIOUS] = &s->gbuf[s->cur ^ 1u];
+}
+
 static bool restir_frame_run(struct restir_frame *fr, parallel_job_fn *fn, void *pass, struct err *err)
 {
     return restir_run_rows(fr->s->height, RESTIR_FRAME_ROWS, fr->threads, fn, pass, err);

@@ -261,6 +261,12 @@ void restir_frame_reused(struct restir_frame *fr);
  * non-finite count and its time go to the stats, and the session has a history. */
 bool restir_frame_shade(struct restir_frame *fr, parallel_job_fn *fn, void *pass, struct err *err);
 
+/* What a method's shift context holds of the frame's two domains (RESTIR_CURRENT,
+ * RESTIR_PREVIOUS): their scenes and G-buffers and, where eye is not NULL, their camera positions;
+ * a frame without a previous scene or camera uses the current one in its place. */
+void restir_frame_domains(const struct restir_session *s, const struct method_frame *f, const struct scene *scene[2],
+                          struct vec3 eye[2], const struct gbuffer *gbuf[2]);
+
 /* The rows [*y0, *y1) of a job. */
 static inline void restir_frame_rows(const struct restir_frame *fr, uint32_t job, uint32_t *y0, uint32_t *y1)
 {
