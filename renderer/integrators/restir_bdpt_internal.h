@@ -20,7 +20,7 @@
 #include "core/sampling.h"
 #include "scene/surface.h"
 
-#define RBDPT_BLOCK_PATHS 256u
+#define RBDPT_BLOCK_PATHS BDPT_BLOCK_PATHS   /* the light pass's blocks are bdpt's (struct bdpt_blocks) */
 #define RBDPT_TILE 16u
 #define RBDPT_MAX_WORKERS 1024u
 /* Stream tags: light subpaths, camera subpaths (pixel index below 2^28), reservoir choices. */
