@@ -218,6 +218,7 @@ bench: $(OUT)/restir $(OUT)/restird $(OBJ)/librenderer.a
 	bash bench/run.sh
 	bash bench/instr_per_ray.sh | tee $(BUILD)/bench/instr.json
 	$(PYTHON) bench/server_bench.py | tee $(BUILD)/bench/server.json
+	$(PYTHON) bench/exr_delivery.py | tee $(BUILD)/bench/exr_delivery.md
 	$(PYTHON) bench/restir_pt.py | tee $(BUILD)/bench/restir_pt.md
 	$(PYTHON) bench/restir_sss.py | tee $(BUILD)/bench/restir_sss.md
 	BENCH_SSS_MAX_DEPTH=1 $(PYTHON) bench/restir_sss.py | tee $(BUILD)/bench/restir_sss_depth1.md

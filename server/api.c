@@ -210,11 +210,32 @@ static bool api_parse_double(const char *s, double *out)
     return *end == '\0' && isfinite(*out);
 }
 
+/* An EXR's compression as a request names it (?compression=). */
+static bool api_exr_compression(const char *name, enum exrio_compression *out)
+{
+    static const struct {
+        const char *name;
+        enum exrio_compression c;
+    } names[] = {{"none", EXRIO_NONE}, {"zip", EXRIO_ZIP}, {"piz", EXRIO_PIZ}};
+    for (size_t i = 0; i < sizeof names / sizeof names[0]; i++)
+        if (strcmp(name, names[i].name) == 0) {
+            *out = names[i].c;
+            return true;
+        }
+    return false;
+}
+
 bool api_check_image_query(struct api_call *c)
 {
     const char *px = http_query(c->req, "pixel");
     if (px && strcmp(px, "float") != 0 && strcmp(px, "half") != 0) {
         api_problem(c, 400, "bad-query", "?pixel", "pixel must be 'float' or 'half', got '%s'", px);
+        return false;
+    }
+    const char *cz = http_query(c->req, "compression");
+    enum exrio_compression comp;
+    if (cz && !api_exr_compression(cz, &comp)) {
+        api_problem(c, 400, "bad-query", "?compression", "compression must be 'none', 'zip' or 'piz', got '%s'", cz);
         return false;
     }
     const char *ex = http_query(c->req, "exposure");
@@ -268,8 +289,10 @@ void api_send_image(struct api_call *c, const char *type, const struct image *im
         ok = tonemap_png(img, &o, &data, &size, &e);
     } else {
         const char *px = http_query(c->req, "pixel");
+        const char *cz = http_query(c->req, "compression");
         struct exrio_write_opts o = {.pixel = (px && strcmp(px, "half") == 0) ? EXRIO_HALF : EXRIO_FLOAT,
-                                     .compression = EXRIO_ZIP};
+                                     .compression = API_EXR_COMPRESSION};
+        if (cz) api_exr_compression(cz, &o.compression);  /* checked by api_check_image_query */
         ok = exrio_write_mem(img, &o, &data, &size, &e);
     }
     if (!ok) {

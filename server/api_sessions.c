@@ -338,7 +338,9 @@ static void api_frame_etag(char *out, size_t size, struct session *s, uint32_t e
     const char *tm = http_query(c->req, "tonemap");
     const char *ref = http_query(c->req, "reference");
     char variant[160];
-    if (strcmp(type, "image/x-exr") == 0) snprintf(variant, sizeof variant, "exr-%s", px ? px : "float");
+    const char *cz = http_query(c->req, "compression");
+    if (strcmp(type, "image/x-exr") == 0)
+        snprintf(variant, sizeof variant, "exr-%s-%s", px ? px : "float", cz ? cz : API_EXR_COMPRESSION_NAME);
     else if (strcmp(type, "image/png") == 0) snprintf(variant, sizeof variant, "png-%s-%s", ex ? ex : "0", tm ? tm : "clamp");
     else snprintf(variant, sizeof variant, "json-%s", ref ? ref : "");
     snprintf(out, size, "\"%s-%u-%u-%s\"", s->id, epoch, n, variant);

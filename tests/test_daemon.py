@@ -849,6 +849,31 @@ def test_sms_reference_finds_the_caustics_pt_misses(daemon, tmp_path):
     assert daemon.req("DELETE", "/v1/scenes/many-casters").status == 204
 
 
+def test_frame_exr_compression_per_request(daemon):
+    """?compression= picks the EXR codec (none by default: docs/benchmarks.md measures it the
+    fastest to deliver); every codec holds the same pixels, and each is a cache variant of its
+    own."""
+    s = new_session(daemon, width=24, height=16, params={"spp": 1})
+    assert daemon.req("POST", s["href"] + "/frames", headers={"Accept": "application/json"}).status == 200
+    seen, etags = {}, set()
+    for q in ("", "?compression=none", "?compression=zip", "?compression=piz", "?compression=zip&pixel=half"):
+        r = daemon.req("GET", s["href"] + "/frames/0" + q)
+        assert r.status == 200 and r.header("Content-Type") == "image/x-exr", repr(r)
+        img, spec = decode_image(r.body, ".exr")
+        seen[q] = (spec.get_string_attribute("compression"), img)
+        etags.add(r.header("ETag"))
+    assert {q: c for q, (c, _) in seen.items()} == {"": "none", "?compression=none": "none", "?compression=zip": "zip",
+                                                     "?compression=piz": "piz", "?compression=zip&pixel=half": "zip"}
+    assert len(etags) == 4  # "" and "?compression=none" are the same representation
+    for q in ("?compression=zip", "?compression=piz"):
+        assert np.array_equal(seen[q][1], seen[""][1]), q
+    assert np.allclose(seen["?compression=zip&pixel=half"][1], seen[""][1], rtol=1e-3, atol=1e-4)
+    r = daemon.req("GET", s["href"] + "/frames/0?compression=dwaa")
+    assert_problem(r, 400, "bad-query", "?compression")
+    assert r.json()["detail"] == "compression must be 'none', 'zip' or 'piz', got 'dwaa'"
+    assert daemon.req("DELETE", s["href"]).status == 204
+
+
 def test_metrics_series_gives_both_regimes(daemon, tmp_path):
     """A job's series scores each frame (real time) and the image a user keeping the still view
     would keep (converge): the accumulation for pt, whose frames are independent; the frame
