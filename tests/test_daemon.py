@@ -11,6 +11,7 @@ two minutes on two cores."""
 import http.client
 import json
 import os
+import sys
 import re
 import socket
 import tempfile
@@ -868,6 +869,12 @@ def test_frame_exr_compression_per_request(daemon):
     for q in ("?compression=zip", "?compression=piz"):
         assert np.array_equal(seen[q][1], seen[""][1]), q
     assert np.allclose(seen["?compression=zip&pixel=half"][1], seen[""][1], rtol=1e-3, atol=1e-4)
+    # The Python client passes it through.
+    sys.path.insert(0, str(ROOT / "clients" / "python"))
+    import restir
+    client = restir.Client(f"http://127.0.0.1:{daemon.port}")
+    body = client.get_frame(s["id"], 0, compression="zip", scene="cornell-box")
+    assert decode_image(body, ".exr")[1].get_string_attribute("compression") == "zip"
     r = daemon.req("GET", s["href"] + "/frames/0?compression=dwaa")
     assert_problem(r, 400, "bad-query", "?compression")
     assert r.json()["detail"] == "compression must be 'none', 'zip' or 'piz', got 'dwaa'"

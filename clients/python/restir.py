@@ -557,8 +557,9 @@ class Client:
     # ---- frames ----
 
     def frame(self, session, camera=None, lights=None, time_s=None, accept="exr", pixel=None,
-              exposure=None, tonemap=None, reference=None, scene=None):
-        """Renders the next frame. Returns bytes (EXR/PNG) or a dict (accept="json").
+              exposure=None, tonemap=None, reference=None, scene=None, compression=None):
+        """Renders the next frame. Returns bytes (EXR/PNG) or a dict (accept="json"); EXR as
+        pixel="float"|"half" and compression="none"|"zip"|"piz" (the daemon's defaults: float, none).
         The answer's headers (X-Frame, X-Render-Ms, ETag, ...) are in client.last_response."""
         body = {}
         if camera is not None:
@@ -567,7 +568,8 @@ class Client:
             body["lights"] = lights
         if time_s is not None:
             body["time_s"] = time_s
-        query = {"pixel": pixel, "exposure": exposure, "tonemap": tonemap, "reference": reference}
+        query = {"pixel": pixel, "compression": compression, "exposure": exposure, "tonemap": tonemap,
+                 "reference": reference}
         s = self._session(session, scene)
         generation = s.recreated
 
@@ -581,9 +583,10 @@ class Client:
         return _body(resp)
 
     def get_frame(self, session, n="latest", accept="exr", pixel=None, exposure=None, tonemap=None,
-                  reference=None, scene=None):
+                  reference=None, scene=None, compression=None):
         """A kept frame (n = number or "latest"): bytes or dict as for frame()."""
-        query = {"pixel": pixel, "exposure": exposure, "tonemap": tonemap, "reference": reference}
+        query = {"pixel": pixel, "compression": compression, "exposure": exposure, "tonemap": tonemap,
+                 "reference": reference}
         _, resp = self._session_call(session, "GET", "/frames/%s" % _q(n), scene=scene,
                                      accept=accept, query=query)
         return _body(resp)
