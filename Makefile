@@ -29,7 +29,10 @@ SERVER_LDLIBS := -lmicrohttpd
 # pkg-config and OpenEXR on a fresh machine, not when the Makefile is read.
 OPENEXR_CFLAGS = $(shell pkg-config --cflags OpenEXR 2>/dev/null)
 PYTHON  := /usr/bin/python3
-DEPS_OK := $(BUILD)/.deps-ok
+# DEPS=build: install only what building needs (the image's build stage); the stamp names the
+# set, so a tree built that way still installs the test packages before its first test run.
+DEPS    ?= all
+DEPS_OK := $(BUILD)/.deps-ok$(if $(filter build,$(DEPS)),-build)
 
 RENDERER_SRC := $(wildcard renderer/*/*.c)
 RENDERER_OBJ := $(RENDERER_SRC:%.c=$(OBJ)/%.o)
@@ -48,7 +51,7 @@ WEB_PAGE     := $(wildcard $(WEB)/page/*)
 WEB_NPM      := $(WEB)/node_modules/.package-lock.json
 WEB_VENDOR   := $(WEB)/node_modules/uplot/dist/uPlot.esm.js $(WEB)/node_modules/uplot/dist/uPlot.min.css
 
-.PHONY: all deps test test-unit test-py test-perf test-cluster test-web test-fuzz test-tsan fuzz load run bench bench-report clean help
+.PHONY: FORCE all deps test test-unit test-py test-perf test-cluster test-web test-fuzz test-tsan fuzz load run bench bench-report clean help
 .SECONDARY:
 all: $(OUT)/restir $(OUT)/restird
 
@@ -59,7 +62,7 @@ help:
 	@echo "make test-perf  instructions per ray of pt under callgrind against tests/perf/instr_budget.json (part of make test)"
 	@echo "make test-web   the preview page in headless chromium alone (screenshots: build/web-test/)"
 	@echo "make test-tsan  the threaded unit tests and the daemon's concurrency tests under ThreadSanitizer"
-	@echo "make run        start the daemon on 127.0.0.1:8080 with a default session on cornell-box;"
+	@echo "make run        start the daemon on 127.0.0.1:8080 (PORT=N: another port) with a default session on cornell-box;"
 	@echo "                the preview page is at http://127.0.0.1:8080/"
 	@echo "make bench      benchmarks (not tests): see docs/benchmarks.md"
 	@echo "make bench-report  speed against accuracy, stability, Cycles: docs/report/ (QUICK=1: minutes)"
@@ -69,7 +72,7 @@ help:
 
 deps: $(DEPS_OK)
 $(DEPS_OK): scripts/install-deps.sh
-	@bash scripts/install-deps.sh
+	@bash scripts/install-deps.sh $(if $(filter build,$(DEPS)),--build)
 	@mkdir -p $(BUILD) && touch $@
 
 # Include paths follow the layers: renderer/ sees only itself, protocol/ sees the renderer,
@@ -85,6 +88,19 @@ $(OBJ)/protocol/%.o: protocol/%.c Makefile | $(DEPS_OK)
 $(OBJ)/server/%.o: server/%.c Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) -Irenderer -Iprotocol -Iserver -c $< -o $@
+
+# The commit the binaries are built from (server/version.h). The stamp file holds it and is
+# rewritten only when it changes, so a new HEAD recompiles server/version.c and nothing else.
+COMMIT       := $(or $(shell git rev-parse --short HEAD 2>/dev/null),unknown)
+COMMIT_STAMP := $(OBJ)/commit-stamp
+FORCE:
+$(COMMIT_STAMP): FORCE
+	@mkdir -p $(dir $@)
+	@echo '$(COMMIT)' | cmp -s - $@ || echo '$(COMMIT)' > $@
+
+$(OBJ)/server/version.o: server/version.c $(COMMIT_STAMP) Makefile | $(DEPS_OK)
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -DRESTIRD_COMMIT='"$(COMMIT)"' -Iserver -c $< -o $@
 
 $(OBJ)/librenderer.a: $(RENDERER_OBJ)
 	@rm -f $@
@@ -188,6 +204,7 @@ test-cluster: $(OUT)/restir $(OUT)/restird $(DOCKERLINT)
 # The preview page in Debian's chromium, driven by playwright-core (node's test runner);
 # screenshots and the daemon's log go to $(OUT)/web-test/.
 test-web: $(OUT)/restird $(WEB_NPM)
+	rm -rf $(OUT)/web-test
 	RESTIRD_BIN=$(abspath $(OUT)/restird) WEB_TEST_OUT=$(abspath $(OUT)/web-test) PYTHON=$(PYTHON) \
 		node --test --test-reporter=spec $(WEB)/test/
 
@@ -206,15 +223,17 @@ test-tsan:
 	$(MAKE) TSAN=1 test-tsan
 endif
 
-# The daemon on 127.0.0.1:8080 with a ready session on the Cornell box; it prints the curl line
+# The daemon on 127.0.0.1:8080 (or PORT) with a ready session on the Cornell box; it prints the curl line
 # that fetches a frame. Ctrl-C stops it cleanly.
+PORT ?= 8080
 run: $(OUT)/restird
-	./$(OUT)/restird --listen 127.0.0.1:8080 --default-session cornell-box
+	./$(OUT)/restird --listen 127.0.0.1:$(PORT) --default-session cornell-box
 
 bench: $(OUT)/restir $(OUT)/restird $(OBJ)/librenderer.a
 	bash bench/run.sh
 	bash bench/instr_per_ray.sh | tee $(BUILD)/bench/instr.json
 	$(PYTHON) bench/server_bench.py | tee $(BUILD)/bench/server.json
+	$(PYTHON) bench/exr_delivery.py | tee $(BUILD)/bench/exr_delivery.md
 	$(PYTHON) bench/restir_pt.py | tee $(BUILD)/bench/restir_pt.md
 	$(PYTHON) bench/restir_sss.py | tee $(BUILD)/bench/restir_sss.md
 	BENCH_SSS_MAX_DEPTH=1 $(PYTHON) bench/restir_sss.py | tee $(BUILD)/bench/restir_sss_depth1.md

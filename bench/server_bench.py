@@ -4,7 +4,7 @@ Starts build/restird on a free loopback port and measures, in one run:
   1. per-request overhead: N synchronous 16x16 1-spp frame requests (Accept: application/json)
      on one keep-alive connection; overhead = client round trip - the render_ms the daemon
      reports for that frame (parsing, session bookkeeping, the frame copy, JSON, HTTP);
-     and the same for EXR answers (adds the float ZIP encode of the 16x16 frame);
+     and the same for EXR answers (adds the EXR encode of the 16x16 frame, uncompressed by default);
   2. /healthz latency while a 256x256 64-spp frame renders on another connection;
   3. /healthz throughput with wrk (loopback, WRK_CONNECTIONS connections, WRK_SECONDS s).
 Prints one JSON object (medians and percentiles) on stdout; progress on stderr.

@@ -39,6 +39,11 @@ struct protocol_limits {
     uint32_t max_keys;              /* keys per camera track and per shape track */
 };
 
+/* The JSON gate every body passes before it is parsed: text[0..len) is one RFC 8259 value,
+ * nested at most PROTOCOL_MAX_DEPTH deep. Positions in its errors count from text's first byte,
+ * so a value a caller embeds in a larger body (the CLI's --params) can be checked as written. */
+bool protocol_check_json(const char *text, size_t len, struct err *err);
+
 /* True when s[0..len) is a valid id. */
 bool protocol_valid_id(const char *s, size_t len);
 

@@ -275,6 +275,11 @@ static bool request_scan_all(const char *text, size_t len, struct err *err)
     }
 }
 
+bool protocol_check_json(const char *text, size_t len, struct err *err)
+{
+    return request_scan_all(text, len, err);
+}
+
 /* Parses a request body into *root (an object). An empty body is {} (every request's members
  * are optional or reported missing by name). */
 static bool request_parse(const char *body, size_t len, cJSON **root, struct err *err)

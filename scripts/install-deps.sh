@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
 # Installs every Debian package restird needs to build, test and benchmark, and the optional
 # packages named as arguments (make bench-report: blender, the report's peer, ~300 MB).
+# `--build` first installs only what `make` needs to build build/restir and build/restird (the
+# image's build stage: no browser, fuzzer, load tools or test libraries).
 # Idempotent: does nothing (and needs no network) when all packages are present.
 set -euo pipefail
 
-packages=(
+build_packages=(
   build-essential pkg-config
   libembree-dev          # ray tracing backend (Embree 3)
   libopenexr-dev         # EXR I/O through the C API (openexr.h)
@@ -12,15 +14,26 @@ packages=(
   libmicrohttpd-dev      # HTTP daemon
   libcjson-dev           # JSON
   libassimp-dev          # PLY / OBJ mesh loading
+  python3                # scripts/embed_web.py builds the preview page into the daemon
+  nodejs                 # npm ci of the page's packages (uPlot is built into the daemon)
+)
+test_packages=(
   python3-pytest python3-numpy python3-openimageio openimageio-tools  # tests
   embree-tools           # the benchmark peer (Embree's pathtracer tutorial)
   valgrind               # callgrind: instructions per ray (make test-perf, bench/instr_per_ray.sh)
   wrk                    # HTTP load for the server benchmark (bench/server.sh) and make load
   haproxy                # the consistent-hash router of the cluster test (make test-cluster)
   shellcheck python3-yaml  # the Dockerfile linter's shell checks; compose.yaml in the cluster test
-  nodejs chromium        # the preview page: npm packages at build time, browser tests (make test-web)
+  python3-pip python3-setuptools python3-wheel  # the Python client installed offline (tests/test_client.py)
+  chromium               # browser tests of the preview page (make test-web)
   clang libclang-rt-14-dev  # libFuzzer targets (make fuzz, the smoke in make test)
 )
+packages=("${build_packages[@]}")
+if [ "${1:-}" = --build ]; then
+  shift
+else
+  packages+=("${test_packages[@]}")
+fi
 # npm comes with some builds of nodejs and as Debian's own package with others.
 command -v npm >/dev/null || packages+=(npm)
 packages+=("$@")

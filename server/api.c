@@ -210,11 +210,32 @@ static bool api_parse_double(const char *s, double *out)
     return *end == '\0' && isfinite(*out);
 }
 
+/* An EXR's compression as a request names it (?compression=). */
+static bool api_exr_compression(const char *name, enum exrio_compression *out)
+{
+    static const struct {
+        const char *name;
+        enum exrio_compression c;
+    } names[] = {{"none", EXRIO_NONE}, {"zip", EXRIO_ZIP}, {"piz", EXRIO_PIZ}};
+    for (size_t i = 0; i < sizeof names / sizeof names[0]; i++)
+        if (strcmp(name, names[i].name) == 0) {
+            *out = names[i].c;
+            return true;
+        }
+    return false;
+}
+
 bool api_check_image_query(struct api_call *c)
 {
     const char *px = http_query(c->req, "pixel");
     if (px && strcmp(px, "float") != 0 && strcmp(px, "half") != 0) {
         api_problem(c, 400, "bad-query", "?pixel", "pixel must be 'float' or 'half', got '%s'", px);
+        return false;
+    }
+    const char *cz = http_query(c->req, "compression");
+    enum exrio_compression comp;
+    if (cz && !api_exr_compression(cz, &comp)) {
+        api_problem(c, 400, "bad-query", "?compression", "compression must be 'none', 'zip' or 'piz', got '%s'", cz);
         return false;
     }
     const char *ex = http_query(c->req, "exposure");
@@ -268,8 +289,10 @@ void api_send_image(struct api_call *c, const char *type, const struct image *im
         ok = tonemap_png(img, &o, &data, &size, &e);
     } else {
         const char *px = http_query(c->req, "pixel");
+        const char *cz = http_query(c->req, "compression");
         struct exrio_write_opts o = {.pixel = (px && strcmp(px, "half") == 0) ? EXRIO_HALF : EXRIO_FLOAT,
-                                     .compression = EXRIO_ZIP};
+                                     .compression = API_EXR_COMPRESSION};
+        if (cz) api_exr_compression(cz, &o.compression);  /* checked by api_check_image_query */
         ok = exrio_write_mem(img, &o, &data, &size, &e);
     }
     if (!ok) {
@@ -658,6 +681,67 @@ static void api_reference_get(struct api_call *c)
     ref_image_release(r);
 }
 
+static void api_write_ref_info(struct jsonw *w, const char *scene, const struct ref_info *r)
+{
+    char href[160], created[32];
+    snprintf(href, sizeof href, "/v1/scenes/%s/references/%s", scene, r->name);
+    struct tm tm;
+    gmtime_r(&r->created, &tm);
+    strftime(created, sizeof created, "%Y-%m-%dT%H:%M:%SZ", &tm);
+    jsonw_object_begin(w);
+    jsonw_key(w, "name"); jsonw_string(w, r->name);
+    jsonw_key(w, "width"); jsonw_uint(w, r->width);
+    jsonw_key(w, "height"); jsonw_uint(w, r->height);
+    jsonw_key(w, "spp"); jsonw_uint(w, r->spp);
+    jsonw_key(w, "method");
+    if (r->method) jsonw_string(w, r->method);
+    else jsonw_null(w);
+    jsonw_key(w, "bytes"); jsonw_uint(w, r->bytes);
+    jsonw_key(w, "created"); jsonw_string(w, created);
+    jsonw_key(w, "href"); jsonw_string(w, href);
+    jsonw_object_end(w);
+}
+
+static void api_references_list(struct api_call *c)
+{
+    if (!api_scene_exists(c, c->seg[2])) return;
+    /* A reference may be stored between counting and copying: ask again with room for it. */
+    struct ref_info *list = NULL;
+    size_t n = refstore_list(c->d->refs, c->seg[2], NULL, 0), got;
+    for (;;) {
+        struct ref_info *grown = realloc(list, (n ? n : 1) * sizeof *list);
+        if (!grown) {
+            free(list);
+            api_problem(c, 503, "busy", NULL, "out of memory");
+            return;
+        }
+        list = grown;
+        got = refstore_list(c->d->refs, c->seg[2], list, n);
+        if (got <= n) break;
+        n = got;
+    }
+    struct jsonw w;
+    jsonw_init(&w);
+    jsonw_object_begin(&w);
+    jsonw_key(&w, "references");
+    jsonw_array_begin(&w);
+    for (size_t i = 0; i < got; i++) api_write_ref_info(&w, c->seg[2], &list[i]);
+    jsonw_array_end(&w);
+    jsonw_object_end(&w);
+    free(list);
+    api_json(c, 200, &w);
+}
+
+static void api_reference_delete(struct api_call *c)
+{
+    if (!api_scene_exists(c, c->seg[2])) return;
+    if (!refstore_delete(c->d->refs, c->seg[2], c->seg[4])) {
+        api_problem(c, 404, "not-found", NULL, "scene '%s' has no reference '%s'", c->seg[2], c->seg[4]);
+        return;
+    }
+    c->resp->status = 204;
+}
+
 static void api_reference_put(struct api_call *c)
 {
     if (!api_scene_exists(c, c->seg[2])) return;
@@ -738,7 +822,9 @@ static const struct api_route api_routes[] = {
     {"/v1/scenes/*", {"GET", "PUT", "DELETE"}, {api_scene_get, api_scene_put, api_scene_delete}, {0, BODY_JSON, 0},
      api_json_only},
     {"/v1/scenes/*/assets/@", {"PUT"}, {api_asset_put}, {BODY_ASSET}, api_json_only},
-    {"/v1/scenes/*/references/*", {"GET", "PUT"}, {api_reference_get, api_reference_put}, {0, BODY_REFERENCE}, NULL},
+    {"/v1/scenes/*/references", {"GET"}, {api_references_list}, {0}, api_json_only},
+    {"/v1/scenes/*/references/*", {"GET", "PUT", "DELETE"}, {api_reference_get, api_reference_put, api_reference_delete},
+     {0, BODY_REFERENCE, 0}, NULL},
     {"/v1/scenes/*/sessions", {"GET", "POST"}, {api_sessions_list, api_sessions_post}, {0, BODY_JSON}, api_json_only},
     {"/v1/scenes/*/sessions/*", {"GET", "DELETE"}, {api_session_get, api_session_delete}, {0}, api_json_only},
     {"/v1/scenes/*/sessions/*/reset", {"POST"}, {api_session_reset}, {BODY_JSON}, api_json_only},
@@ -747,7 +833,8 @@ static const struct api_route api_routes[] = {
     {"/v1/scenes/*/sessions/*/frames/#/metrics", {"GET"}, {api_frame_metrics}, {0}, api_json_only},
     {"/v1/scenes/*/sessions/*/frames/#/error.png", {"GET"}, {api_frame_error_png}, {0}, api_png_only},
     {"/v1/scenes/*/sessions/*/accumulation", {"GET"}, {api_accumulation_get}, {0}, NULL},
-    {"/v1/scenes/*/sessions/*/renders", {"POST"}, {api_renders_post}, {BODY_JSON}, api_json_only},
+    {"/v1/scenes/*/sessions/*/renders", {"GET", "POST"}, {api_renders_list, api_renders_post}, {0, BODY_JSON},
+     api_json_only},
     {"/v1/scenes/*/sessions/*/renders/*", {"GET", "DELETE"}, {api_render_get, api_render_delete}, {0}, api_json_only},
     {"/v1/scenes/*/sessions/*/renders/*/metrics", {"GET"}, {api_render_metrics}, {0}, NULL},
     {"/v1/scenes/*/sessions/*/references/*", {"POST"}, {api_session_reference_post}, {BODY_JSON}, api_json_only},

@@ -78,6 +78,11 @@ void api_send_image(struct api_call *c, const char *type, const struct image *im
 /* Validates the image query parameters before any work is done (400 bad-query). */
 bool api_check_image_query(struct api_call *c);
 
+/* The EXR compression when a request names none (?compression=none|zip|piz): measured in
+ * docs/benchmarks.md, "EXR frames: which compression". */
+#define API_EXR_COMPRESSION EXRIO_NONE
+#define API_EXR_COMPRESSION_NAME "none"
+
 /* Writes a metrics object {"reference","mape","rmse","relmse","pixels","nonfinite"}. */
 void api_write_metrics(struct jsonw *w, const char *reference, const struct metrics *m);
 
@@ -95,6 +100,7 @@ void api_frame_get(struct api_call *c);
 void api_frame_metrics(struct api_call *c);
 void api_frame_error_png(struct api_call *c);
 void api_accumulation_get(struct api_call *c);
+void api_renders_list(struct api_call *c);
 void api_renders_post(struct api_call *c);
 void api_render_get(struct api_call *c);
 void api_render_delete(struct api_call *c);

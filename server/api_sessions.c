@@ -338,7 +338,9 @@ static void api_frame_etag(char *out, size_t size, struct session *s, uint32_t e
     const char *tm = http_query(c->req, "tonemap");
     const char *ref = http_query(c->req, "reference");
     char variant[160];
-    if (strcmp(type, "image/x-exr") == 0) snprintf(variant, sizeof variant, "exr-%s", px ? px : "float");
+    const char *cz = http_query(c->req, "compression");
+    if (strcmp(type, "image/x-exr") == 0)
+        snprintf(variant, sizeof variant, "exr-%s-%s", px ? px : "float", cz ? cz : API_EXR_COMPRESSION_NAME);
     else if (strcmp(type, "image/png") == 0) snprintf(variant, sizeof variant, "png-%s-%s", ex ? ex : "0", tm ? tm : "clamp");
     else snprintf(variant, sizeof variant, "json-%s", ref ? ref : "");
     snprintf(out, size, "\"%s-%u-%u-%s\"", s->id, epoch, n, variant);
@@ -631,8 +633,13 @@ static void api_write_job(struct jsonw *w, struct session *s, const struct job *
 {
     char base[192];
     snprintf(base, sizeof base, "/v1/scenes/%s/sessions/%s", s->scene_id, s->id);
+    /* The job's own path is "location" (as the Location of its POST): "href" of a reference
+     * job has long named the reference it makes. */
+    char location[256];
+    snprintf(location, sizeof location, "%s/renders/%s", base, j->id);
     jsonw_object_begin(w);
     jsonw_key(w, "id"); jsonw_string(w, j->id);
+    jsonw_key(w, "location"); jsonw_string(w, location);
     jsonw_key(w, "kind"); jsonw_string(w, j->kind == JOB_ANIMATION ? "animation" : "reference");
     jsonw_key(w, "status"); jsonw_string(w, api_job_status(j->status));
     jsonw_key(w, "progress");
@@ -640,15 +647,29 @@ static void api_write_job(struct jsonw *w, struct session *s, const struct job *
     jsonw_key(w, "frames_done"); jsonw_uint(w, j->frames_done);
     jsonw_key(w, "frames_total"); jsonw_uint(w, j->frames_total);
     jsonw_object_end(w);
+    /* The session keeps only its last frames_kept frames (and none after a reset): a job's
+     * frames still kept are the newest of them, and only those are offered. */
+    uint32_t first_kept = j->frames_done;
+    if (j->kind == JOB_ANIMATION)
+        while (first_kept > 0 && session_frame_kept_locked(s, j->epoch, j->frames[first_kept - 1])) first_kept--;
     jsonw_key(w, "frames");
     jsonw_array_begin(w);
-    if (j->kind == JOB_ANIMATION)
-        for (uint32_t i = 0; i < j->frames_done; i++) {
-            char href[256];
-            snprintf(href, sizeof href, "%s/frames/%u", base, j->frames[i]);
-            jsonw_string(w, href);
-        }
+    for (uint32_t i = first_kept; i < j->frames_done; i++) {
+        char href[256];
+        snprintf(href, sizeof href, "%s/frames/%u", base, j->frames[i]);
+        jsonw_string(w, href);
+    }
     jsonw_array_end(w);
+    jsonw_key(w, "frames_kept");
+    if (first_kept < j->frames_done) {
+        jsonw_array_begin(w);
+        jsonw_uint(w, j->frames[first_kept]);
+        jsonw_uint(w, j->frames[j->frames_done - 1]);
+        jsonw_array_end(w);
+    } else {
+        jsonw_null(w);
+    }
+    jsonw_key(w, "frames_evicted"); jsonw_uint(w, j->kind == JOB_ANIMATION ? first_kept : 0);
     jsonw_key(w, "reference");
     if (j->kind == JOB_REFERENCE) jsonw_string(w, j->ref_name);
     else if (j->reference) jsonw_string(w, j->reference->name);
@@ -662,11 +683,9 @@ static void api_write_job(struct jsonw *w, struct session *s, const struct job *
     }
     jsonw_key(w, "error");
     if (j->status == JOB_FAILED) {
-        char instance[256];
-        snprintf(instance, sizeof instance, "%s/renders/%s", base, j->id);
         const struct protocol_problem p = {.status = j->error_status, .slug = j->error_slug,
                                            .title = protocol_problem_title(j->error_slug),
-                                           .detail = j->error.message, .instance = instance};
+                                           .detail = j->error.message, .instance = location};
         jsonw_object_begin(w);
         protocol_problem_members(w, &p);
         jsonw_object_end(w);
@@ -686,6 +705,56 @@ static void api_job_answer(struct api_call *c, struct session *s, struct job *j,
     if (status == 202)
         http_response_header(c->resp, "Location", "/v1/scenes/%s/sessions/%s/renders/%s", s->scene_id, s->id, j->id);
     api_json(c, status, &w);
+}
+
+void api_renders_list(struct api_call *c)
+{
+    struct session *s = api_session(c);
+    if (!s) return;
+    struct jsonw w;
+    jsonw_init(&w);
+    jsonw_object_begin(&w);
+    jsonw_key(&w, "renders");
+    jsonw_array_begin(&w);
+    pthread_mutex_lock(&s->lock);
+    for (uint32_t i = 0; i < s->job_count; i++) api_write_job(&w, s, s->jobs[i]);
+    pthread_mutex_unlock(&s->lock);
+    jsonw_array_end(&w);
+    jsonw_object_end(&w);
+    session_release(s);
+    api_json(c, 200, &w);
+}
+
+/* What a keyed job request asks for: its kind, the name in its path (a reference's) and its
+ * body, as FNV-1a, so a retry can be told from a different request under the same key. */
+static uint64_t api_request_hash(enum job_kind kind, const char *name, const char *body, size_t len)
+{
+    uint64_t h = 1469598103934665603ull;
+    const unsigned char k = (unsigned char)kind;
+    const struct { const void *p; size_t n; } parts[] = {{&k, 1}, {name, strlen(name) + 1}, {body ? body : "", body ? len : 0}};
+    for (size_t i = 0; i < sizeof parts / sizeof parts[0]; i++)
+        for (size_t b = 0; b < parts[i].n; b++) h = (h ^ ((const unsigned char *)parts[i].p)[b]) * 1099511628211ull;
+    return h;
+}
+
+/* A POST that carries an Idempotency-Key already used on this session: the same request gets
+ * the job it made the first time (202 again, nothing new is rendered), another one a 409.
+ * Returns true when it answered. */
+static bool api_job_replay(struct api_call *c, struct session *s, const char *key, uint64_t hash)
+{
+    if (!key) return false;
+    pthread_mutex_lock(&s->lock);
+    struct job *prev = session_job_find_key(s, key);
+    bool same = prev && prev->request_hash == hash;
+    char id[24] = "";
+    if (prev) snprintf(id, sizeof id, "%s", prev->id);
+    pthread_mutex_unlock(&s->lock);
+    if (!prev) return false;
+    if (same) api_job_answer(c, s, prev, 202);
+    else
+        api_problem(c, 409, "conflict", "Idempotency-Key",
+                    "Idempotency-Key '%s' was sent with another request, which made job '%s'; use a new key", key, id);
+    return true;
 }
 
 /* Idempotency-Key: NULL when absent; answers 400 and returns false when malformed. */
@@ -716,15 +785,8 @@ void api_renders_post(struct api_call *c)
         protocol_render_request_destroy(&rq);
         return;
     }
-    if (key) {
-        pthread_mutex_lock(&s->lock);
-        struct job *prev = session_job_find_key(s, key);
-        pthread_mutex_unlock(&s->lock);
-        if (prev) {
-            api_job_answer(c, s, prev, 202);
-            goto out;
-        }
-    }
+    uint64_t hash = api_request_hash(JOB_ANIMATION, "", c->req->body, c->req->body_len);
+    if (api_job_replay(c, s, key, hash)) goto out;
     struct ref_image *ref = NULL;
     if (rq.reference[0]) {
         ref = refstore_get(c->d->refs, s->scene_id, rq.reference);
@@ -751,6 +813,7 @@ void api_renders_post(struct api_call *c)
         api_error(c, &e);
         goto out;
     }
+    j->request_hash = hash;
     j->reference = ref;
     j->fps = rq.fps;
     j->frames_total = rq.frames;
@@ -813,6 +876,12 @@ void api_render_delete(struct api_call *c)
     session_release(s);
 }
 
+/* Which image a row's converge figure scores (struct job_row). */
+static const char *api_converge_image(const struct job_row *row)
+{
+    return row->conv_frames ? "accumulation" : "frame";
+}
+
 void api_render_metrics(struct api_call *c)
 {
     static const char *const types[] = {"application/json", "text/csv", NULL};
@@ -840,7 +909,7 @@ void api_render_metrics(struct api_call *c)
         for (uint32_t i = 0; i < n; i++) {
             struct image img;
             struct err e;
-            rows[i].has_metrics = false;
+            rows[i].has_metrics = rows[i].has_conv = false;  /* accumulations are not kept */
             if (session_frame_copy(s, rows[i].frame, &img, NULL, &e)) {
                 rows[i].has_metrics = metrics_compare(&img, &other->img, &rows[i].m, &e);
                 image_destroy(&img);
@@ -848,21 +917,28 @@ void api_render_metrics(struct api_call *c)
         }
     }
     if (strcmp(type, "text/csv") == 0) {
-        size_t cap = 64 + (size_t)n * 128, len = 0;
+        size_t cap = 128 + (size_t)n * 256, len = 0;
         char *csv = malloc(cap);
         if (!csv) {
             free(rows);
             api_problem(c, 503, "busy", NULL, "out of memory");
             goto out;
         }
-        len += (size_t)snprintf(csv + len, cap - len, "frame,time_s,render_ms,mape,rmse,relmse\n");
+        len += (size_t)snprintf(csv + len, cap - len,
+                                "frame,time_s,render_ms,mape,rmse,relmse,converge_image,converge_frames,"
+                                "converge_mape,converge_rmse,converge_relmse\n");
         for (uint32_t i = 0; i < n; i++) {
+            len += (size_t)snprintf(csv + len, cap - len, "%u,%.9g,%.6g", rows[i].frame, rows[i].time_s, rows[i].render_ms);
             if (rows[i].has_metrics)
-                len += (size_t)snprintf(csv + len, cap - len, "%u,%.9g,%.6g,%.9g,%.9g,%.9g\n", rows[i].frame, rows[i].time_s,
-                                        rows[i].render_ms, rows[i].m.mape, rows[i].m.rmse, rows[i].m.relmse);
+                len += (size_t)snprintf(csv + len, cap - len, ",%.9g,%.9g,%.9g", rows[i].m.mape, rows[i].m.rmse,
+                                        rows[i].m.relmse);
             else
-                len += (size_t)snprintf(csv + len, cap - len, "%u,%.9g,%.6g,,,\n", rows[i].frame, rows[i].time_s,
-                                        rows[i].render_ms);
+                len += (size_t)snprintf(csv + len, cap - len, ",,,");
+            if (rows[i].has_conv)
+                len += (size_t)snprintf(csv + len, cap - len, ",%s,%u,%.9g,%.9g,%.9g\n", api_converge_image(&rows[i]),
+                                        rows[i].conv_frames, rows[i].conv.mape, rows[i].conv.rmse, rows[i].conv.relmse);
+            else
+                len += (size_t)snprintf(csv + len, cap - len, ",,,,,\n");
         }
         c->resp->status = 200;
         c->resp->content_type = "text/csv; charset=utf-8";
@@ -884,6 +960,18 @@ void api_render_metrics(struct api_call *c)
             jsonw_key(&w, "mape"); if (rows[i].has_metrics) jsonw_double(&w, rows[i].m.mape); else jsonw_null(&w);
             jsonw_key(&w, "rmse"); if (rows[i].has_metrics) jsonw_double(&w, rows[i].m.rmse); else jsonw_null(&w);
             jsonw_key(&w, "relmse"); if (rows[i].has_metrics) jsonw_double(&w, rows[i].m.relmse); else jsonw_null(&w);
+            jsonw_key(&w, "converge");
+            if (rows[i].has_conv) {
+                jsonw_object_begin(&w);
+                jsonw_key(&w, "image"); jsonw_string(&w, api_converge_image(&rows[i]));
+                jsonw_key(&w, "frames"); jsonw_uint(&w, rows[i].conv_frames);
+                jsonw_key(&w, "mape"); jsonw_double(&w, rows[i].conv.mape);
+                jsonw_key(&w, "rmse"); jsonw_double(&w, rows[i].conv.rmse);
+                jsonw_key(&w, "relmse"); jsonw_double(&w, rows[i].conv.relmse);
+                jsonw_object_end(&w);
+            } else {
+                jsonw_null(&w);
+            }
             jsonw_object_end(&w);
         }
         jsonw_array_end(&w);
@@ -909,7 +997,9 @@ void api_session_reference_post(struct api_call *c)
     if (!api_idempotency_key(c, &key)) return;
     struct session *s = api_session(c);
     if (!s) return;
-    if (!api_check_work(c, (uint64_t)s->view.params.width * s->view.params.height * req.spp, "/spp",
+    uint64_t hash = api_request_hash(JOB_REFERENCE, c->seg[6], c->req->body, c->req->body_len);
+    if (api_job_replay(c, s, key, hash) ||
+        !api_check_work(c, (uint64_t)s->view.params.width * s->view.params.height * req.spp, "/spp",
                         "this reference")) {
         session_release(s);
         return;
@@ -944,6 +1034,7 @@ void api_session_reference_post(struct api_call *c)
         session_release(s);
         return;
     }
+    j->request_hash = hash;
     j->ref_scene = scene;
     j->ref_camera = cam;
     snprintf(j->ref_name, sizeof j->ref_name, "%s", c->seg[6]);

@@ -1,9 +1,12 @@
 /* cli.c — `build/restir`, the offline command line: render a scene file to EXR, or compare two
  * EXR images. A thin front end over renderer/: it parses arguments strictly, reports progress
  * on a terminal, and prints one summary (or one JSON object with --json). Exit status: 0 done,
- * 1 the work failed (the message says why), 2 the command line is wrong. */
+ * 1 the work failed (the message says why), 2 the command line is wrong; compare's is its
+ * verdict for CI instead: 0 pass, 1 warn, 2 fail, 3 could not compare (its command line too). */
 #include <errno.h>
 #include <inttypes.h>
+#include <math.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -19,6 +22,9 @@
 #include "integrators/reference_pt.h"
 #include "scene/scene.h"
 #include "session/view.h"
+#include "version.h"
+
+#include <cjson/cJSON.h>
 
 /* The most samples per pixel and frame the CLI takes (--spp and --params). */
 #define CLI_MAX_SPP (1u << 24)
@@ -31,20 +37,33 @@
     "                [--threads T] [--max-depth D] [--rr-depth R] [--no-nee] [--crop X0,Y0,X1,Y1]\n"    \
     "                [--frames F] [--average-last N] [--animation FILE.json] [--params JSON]\n"       \
     "                [--half] [--json] -o OUT.exr|OUT.png   (.png: an 8-bit preview, exposure 0, clamp)\n" \
-    "  restir compare A.exr B.exr      (B is the reference; prints one JSON object)\n"             \
+    "  restir compare A.exr B.exr [--fail-mape X] [--fail-relmse X] [--fail-rmse X]\n"           \
+    "                [--warn-mape X] [--warn-relmse X] [--warn-rmse X] [--diff OUT.exr|OUT.png]\n" \
+    "                [--fail-percent P --pixel-threshold T] [--json]\n"                           \
+    "                (B is the reference; prints one JSON object with or without --json, and a\n" \
+    "                verdict line on stderr; exit 0 pass, 1 warn, 2 fail, 3 could not compare,\n" \
+    "                a wrong compare command line included)\n"                                   \
     "  restir methods [--json]         (the methods, their capabilities and parameters)\n"        \
+    "  restir --version                (the version and the commit it was built from)\n"         \
     "defaults: --spp 16 --size 256x256 --seed 0 --max-depth 64 --rr-depth 3 (Russian roulette\n"  \
     "after R bounces; a method whose own rr_depth differs keeps it unless --rr-depth is given;\n" \
     "R >= max depth turns it off), next-event estimation with MIS (--no-nee: BSDF sampling\n"     \
     "only), all cores, float EXR; --method: the first method below.\n"                           \
+    "--spp, --max-depth, --rr-depth and --no-nee set the method's parameter of that name (spp,\n" \
+    "max_depth, rr_depth; nee or nee_candidates): a method without it refuses the option.\n"     \
     "--frames F renders F consecutive frames in one session (seeds per frame, as the daemon's\n"   \
     "sessions) and writes the last; --average-last N writes the mean of the last N instead.\n"    \
     "--animation FILE.json takes camera and light keys from a file holding the body of a daemon\n" \
     "animation job ({\"animation\": {...}}, protocol/API.md) and its frame count unless --frames\n" \
     "is given. A method that takes no spp traces one path per pixel and frame: render more frames.\n" \
+    "compare: a metric above its --fail- level fails, above its --warn- level warns (one that is\n" \
+    "not a number trips any level set); --fail-percent P --pixel-threshold T fails when more than\n" \
+    "P % of the pixels have a relative error (MAPE's per-pixel term) above T; --diff writes that\n" \
+    "error per pixel (.exr: float; .png: 8-bit, white at 1 and above).\n"                          \
     "--params sets the method's parameters as the daemon's session \"params\" object (keys it\n"  \
-    "leaves out take their defaults, not the other options' values), e.g.\n"                     \
-    "--params '{\"spatial_neighbors\": 0}'; restir methods lists every method's parameters.\n"
+    "leaves out take the options given, else the method's defaults; an option and a key that\n" \
+    "set the same parameter are refused), e.g. --params '{\"spatial_neighbors\": 0}'; restir methods\n" \
+    "lists every method's parameters.\n"
 
 /* The usage text, then the methods --method takes, from the registry. */
 static void cli_usage(FILE *out)
@@ -232,6 +251,71 @@ static bool cli_method_params(const char *params_json, struct view_params *vp, s
     return true;
 }
 
+/* The methods with a parameter named `key`, for messages. */
+static const char *cli_methods_with(const char *key, const char *or_key)
+{
+    static char names[128];
+    size_t n = 0;
+    names[0] = '\0';
+    for (uint32_t i = 0; i < method_count() && n < sizeof names; i++) {
+        const struct method_desc *m = method_at(i);
+        if (method_param_find(m, key) || (or_key && method_param_find(m, or_key)))
+            n += (size_t)snprintf(names + n, sizeof names - n, "%s%s", n ? ", " : "", m->name);
+    }
+    return names;
+}
+
+/* An option that sets one of the method's parameters: given or not, and the parameter's key in
+ * the registry (NULL when the method has none such). */
+struct cli_param_option {
+    const char *option;
+    const char *key;
+    bool given;
+    uint32_t value;                    /* a uint parameter's value, checked against its range */
+};
+
+/* Each option given must set a parameter the method has, and --params must not set the same
+ * one: the usage message, or NULL when the options hold. `params` is the parsed --params (or
+ * NULL). */
+static const char *cli_check_param_options(const struct method_desc *rm, const struct cli_param_option *opts,
+                                           size_t count, const cJSON *params, char *msg, size_t size)
+{
+    for (size_t i = 0; i < count; i++) {
+        const struct cli_param_option *o = &opts[i];
+        if (!o->given) continue;
+        if (strcmp(o->option, "--spp") == 0 && !(rm->caps & METHOD_TAKES_SPP)) {
+            snprintf(msg, size,
+                     "--spp: %s takes no spp, it traces one path per pixel and frame: render N frames with "
+                     "--frames N and write their mean with --average-last N",
+                     rm->name);
+            return msg;
+        }
+        if (strcmp(o->option, "--no-nee") == 0 && !o->key) {
+            snprintf(msg, size, "--no-nee: %s has no next-event estimation switch (the methods with one: %s)", rm->name,
+                     cli_methods_with("nee", "nee_candidates"));
+            return msg;
+        }
+        if (!o->key || !method_param_find(rm, o->key)) {
+            snprintf(msg, size, "%s: %s has no %s parameter (restir methods lists its parameters)", o->option,
+                     rm->name, o->key ? o->key : o->option + 2);
+            return msg;
+        }
+        const struct method_param *mp = method_param_find(rm, o->key);
+        double max = mp->flags & METHOD_PARAM_SPP_LIMIT ? CLI_MAX_SPP : mp->max;
+        if (mp->kind == METHOD_PARAM_UINT && (o->value < mp->min || o->value > max)) {
+            snprintf(msg, size, "%s: %s's %s must be in %.0f..%.0f, got %u", o->option, rm->name, o->key, mp->min, max,
+                     o->value);
+            return msg;
+        }
+        if (params && cJSON_GetObjectItemCaseSensitive(params, o->key)) {
+            snprintf(msg, size, "%s and \"%s\" in --params both set %s's %s: give it once", o->option, o->key,
+                     rm->name, o->key);
+            return msg;
+        }
+    }
+    return NULL;
+}
+
 static void cli_progress(void *ctx, uint32_t done, uint32_t total)
 {
     (void)ctx;
@@ -243,8 +327,9 @@ static void cli_progress(void *ctx, uint32_t done, uint32_t total)
 }
 
 /* --frames / --animation: F frames of one view (the daemon's session state, without the
- * server), writing the last. *st sums the frames' ray counts and times. */
-static bool cli_render_sequence(struct scene *scene, const struct view_params *vp, unsigned threads, uint32_t frames,
+ * server), writing the last. *st sums the frames' ray counts and times. Returns the exit
+ * status: 0 rendered, 1 failed, 2 the options do not fit the animation. */
+static int cli_render_sequence(struct scene *scene, const struct view_params *vp, unsigned threads, uint32_t frames,
                                 uint32_t average_last, const char *anim_path, bool tty, struct image *img,
                                 struct render_stats *st, uint32_t *rendered, struct frame_stats *last,
                                 size_t *session_bytes)
@@ -259,7 +344,7 @@ static bool cli_render_sequence(struct scene *scene, const struct view_params *v
         size_t len = 0;
         if (!fileio_read_all(anim_path, "animation file", NULL, 16u << 20, &text, &len, &err)) {
             fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
-            return false;
+            return 1;
         }
         const struct protocol_limits limits = {.max_side = 16384, .max_pixels = 16384ull * 16384ull,
                                                .max_spp = CLI_MAX_SPP, .max_frames = 1000000, .max_keys = 100000};
@@ -270,7 +355,7 @@ static bool cli_render_sequence(struct scene *scene, const struct view_params *v
         if (!ok) {
             protocol_render_request_destroy(&rq);
             fprintf(stderr, "restir: %s: %s\n", anim_path, err_format(&err, msg, sizeof msg));
-            return false;
+            return 1;
         }
         if (!frames) frames = rq.frames;
         fps = rq.fps;
@@ -278,16 +363,20 @@ static bool cli_render_sequence(struct scene *scene, const struct view_params *v
         has_anim = true;
     }
     if (!frames) frames = 1;
+    if (average_last > frames) {
+        fprintf(stderr, "restir: --average-last %u is more frames than %s's %u\n", average_last, anim_path, frames);
+        animate_destroy(&anim);
+        return 2;
+    }
     struct view v;
     if (!view_init(&v, scene, vp, threads, &err)) {
         fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
         animate_destroy(&anim);
-        return false;
+        return 1;
     }
     struct view_shape_change shapes[anim.track_count ? anim.track_count : 1];
     memset(st, 0, sizeof *st);
     bool ok = image_init(img, v.output.width, v.output.height, &err);
-    if (average_last > frames) average_last = frames;
     if (average_last == 0) average_last = 1;
     for (uint32_t i = 0; ok && i < frames; i++) {
         struct view_frame_change change;
@@ -320,7 +409,7 @@ static bool cli_render_sequence(struct scene *scene, const struct view_params *v
     *rendered = frames;
     view_destroy(&v);
     animate_destroy(&anim);
-    return ok;
+    return ok ? 0 : 1;
 }
 
 static int cli_render(int argc, char **argv)
@@ -334,6 +423,10 @@ static int cli_render(int argc, char **argv)
     uint32_t frames = 0;
     const char *anim_path = NULL, *params_json = NULL;
     uint32_t average_last = 0;
+    bool has_spp = false;
+    /* Each option once: a second value would silently replace the first. */
+    const char *seen[32];
+    size_t seen_count = 0;
 
     for (int i = 0; i < argc; i++) {
         const char *a = argv[i];
@@ -341,6 +434,11 @@ static int cli_render(int argc, char **argv)
         if (strcmp(a, "--help") == 0 || strcmp(a, "-h") == 0) {
             cli_usage(stdout);
             return 0;
+        }
+        if (a[0] == '-') {
+            for (size_t k = 0; k < seen_count; k++)
+                if (strcmp(seen[k], a) == 0) return cli_usage_error("%s is given twice: give it once", a);
+            if (seen_count < sizeof seen / sizeof seen[0]) seen[seen_count++] = a;
         }
         if (strcmp(a, "--half") == 0) { half = true; continue; }
         if (strcmp(a, "--json") == 0) { json = true; continue; }
@@ -357,6 +455,7 @@ static int cli_render(int argc, char **argv)
         else if (strcmp(a, "--method") == 0) method = v;
         else if (strcmp(a, "--spp") == 0) {
             if (!cli_parse_u32(v, CLI_MAX_SPP, &p.spp) || p.spp == 0) return cli_usage_error("--spp: expected 1..16777216, got '%s'", v);
+            has_spp = true;
         } else if (strcmp(a, "--size") == 0) {
             if (!cli_parse_size(v, &width, &height)) return cli_usage_error("--size: expected WxH with sides 1..16384, got '%s'", v);
         } else if (strcmp(a, "--seed") == 0) {
@@ -397,6 +496,11 @@ static int cli_render(int argc, char **argv)
     if (format == CLI_PNG && half) return cli_usage_error("%s", "--half is a pixel type of EXR output, not of .png");
     if (average_last && !frames && !anim_path)
         return cli_usage_error("%s", "--average-last averages a sequence's last frames: it needs --frames or --animation");
+    if (frames && average_last > frames) {
+        char m[128];
+        snprintf(m, sizeof m, "--average-last %u is more frames than --frames %u renders", average_last, frames);
+        return cli_usage_error("%s", m);
+    }
     if (!cli_output_folder_exists(out_path)) {
         fprintf(stderr, "restir: cannot write %s: its folder does not exist\n", out_path);
         return 1;
@@ -410,6 +514,35 @@ static int cli_render(int argc, char **argv)
     }
     if (!(rm->caps & METHOD_STILL_CROP) && (has_crop || has_frame))
         return cli_usage_error("--crop and --frame are options of a still image of %s", cli_still_methods());
+    /* A still image of the reference path tracer, or a sequence of the method's frames. */
+    const bool sequence = frames || anim_path || !(rm->caps & METHOD_STILL_CROP);
+    if (sequence && (has_crop || has_frame))
+        return cli_usage_error("%s", "--crop and --frame do not combine with --frames or --animation");
+    if (!sequence && params_json)
+        return cli_usage_error("--params needs --frames, --animation or a method other than %s", cli_still_methods());
+    cJSON *params_tree = NULL;
+    if (params_json) {
+        /* Checked on its own first, so a syntax error's position is within the argument. */
+        struct err perr = {0};
+        char pmsg[1024];
+        if (!protocol_check_json(params_json, strlen(params_json), &perr))
+            return cli_usage_error("--params: %s", err_format(&perr, pmsg, sizeof pmsg));
+        params_tree = cJSON_Parse(params_json);
+    }
+    const char *nee_key = method_param_find(rm, "nee")              ? "nee"
+                          : method_param_find(rm, "nee_candidates") ? "nee_candidates"
+                                                                    : NULL;
+    /* --no-nee sets nee (a bool) or nee_candidates to 0. */
+    const struct cli_param_option param_opts[] = {{"--spp", "spp", has_spp, p.spp},
+                                                  {"--max-depth", "max_depth", has_max_depth, p.max_depth},
+                                                  {"--rr-depth", "rr_depth", has_rr_depth, p.rr_depth},
+                                                  {"--no-nee", nee_key, !p.nee, 0}};
+    char refusal[512];
+    const char *refused = cli_check_param_options(rm, param_opts, sizeof param_opts / sizeof param_opts[0],
+                                                  cJSON_IsObject(params_tree) ? params_tree : NULL, refusal,
+                                                  sizeof refusal);
+    cJSON_Delete(params_tree);
+    if (refused) return cli_usage_error("%s", refused);
     p.width = width;
     p.height = height;
     if (has_crop) {
@@ -447,34 +580,29 @@ static int cli_render(int argc, char **argv)
      * it; the others trace one camera path per pixel and frame. */
     uint32_t frame_spp = p.spp;
     uint32_t reservoir_bytes = 0;   /* per pixel and reservoir buffer */
-    if (frames || anim_path || !(rm->caps & METHOD_STILL_CROP)) {
-        if (has_crop || has_frame) {
-            scene_release(scene);
-            return cli_usage_error("%s", "--crop and --frame do not combine with --frames or --animation");
-        }
+    if (sequence) {
         struct view_params vp = view_params_defaults(rm, width, height);
         vp.seed = p.seed;
-        /* The common options, for the methods that have them (--params then replaces all). */
-        view_params_set_uint(&vp, "spp", p.spp);
-        if (has_max_depth) view_params_set_uint(&vp, "max_depth", p.max_depth);
-        if (has_rr_depth) view_params_set_uint(&vp, "rr_depth", p.rr_depth);
-        if (!p.nee && !view_params_set_bool(&vp, "nee", false)) view_params_set_uint(&vp, "nee_candidates", 0);
         if (params_json && !cli_method_params(params_json, &vp, &err)) {
             fprintf(stderr, "restir: --params: %s\n", err_format(&err, msg, sizeof msg));
             scene_release(scene);
             return 2;
         }
+        /* The options given, on top: --params sets none of their parameters (checked above).
+         * Without --params the CLI's own spp default (16) holds too. */
+        if (has_spp || !params_json) view_params_set_uint(&vp, "spp", p.spp);
+        if (has_max_depth) view_params_set_uint(&vp, "max_depth", p.max_depth);
+        if (has_rr_depth) view_params_set_uint(&vp, "rr_depth", p.rr_depth);
+        if (!p.nee && !view_params_set_bool(&vp, "nee", false)) view_params_set_uint(&vp, "nee_candidates", 0);
         frame_spp = 1;
         if (rm->caps & METHOD_TAKES_SPP) view_params_get_uint(&vp, "spp", &frame_spp);
         reservoir_bytes = view_reservoir_bytes_per_pixel(&vp, scene);
-        if (!cli_render_sequence(scene, &vp, p.threads, frames, average_last, anim_path, tty, &img, &st, &rendered,
-                                 &last, &session_bytes)) {
+        int status = cli_render_sequence(scene, &vp, p.threads, frames, average_last, anim_path, tty, &img, &st,
+                                         &rendered, &last, &session_bytes);
+        if (status != 0) {
             scene_release(scene);
-            return 1;
+            return status;
         }
-    } else if (params_json) {
-        scene_release(scene);
-        return cli_usage_error("--params needs --frames, --animation or a method other than %s", cli_still_methods());
     } else if (!reference_pt_render(scene, &p, &img, &st, tty ? cli_progress : NULL, NULL, &err)) {
         fprintf(stderr, "restir: render failed: %s\n", err_format(&err, msg, sizeof msg));
         scene_release(scene);
@@ -521,37 +649,189 @@ static int cli_render(int argc, char **argv)
     return 0;
 }
 
+/* restir compare's exit statuses: a verdict for CI. A wrong command line is "could not
+ * compare" too (3), not the other commands' 2, which here means fail. */
+enum cli_verdict { CLI_PASS = 0, CLI_WARN = 1, CLI_FAIL = 2, CLI_CANNOT_COMPARE = 3 };
+static const char *const cli_verdict_names[] = {"pass", "warn", "fail"};
+
+/* A metric's thresholds: it trips a level when it is above it, or not a number (an image with
+ * no finite pixels, or MAPE of an all-black reference: no evidence that it is close). NAN: the
+ * level is not set. */
+struct cli_limit {
+    const char *metric;
+    double value, fail, warn;
+};
+
+static bool cli_parse_level(const char *s, double *out)
+{
+    if (!s || !*s) return false;
+    errno = 0;
+    char *end;
+    double v = strtod(s, &end);
+    if (errno || *end || !isfinite(v) || v < 0.0) return false;
+    *out = v;
+    return true;
+}
+
+static enum cli_verdict cli_limit_level(const struct cli_limit *l)
+{
+    bool bad_fail = !isnan(l->fail) && (isnan(l->value) || l->value > l->fail);
+    bool bad_warn = !isnan(l->warn) && (isnan(l->value) || l->value > l->warn);
+    return bad_fail ? CLI_FAIL : bad_warn ? CLI_WARN : CLI_PASS;
+}
+
+/* Appends to buf at *used (never past size). */
+static void cli_append(char *buf, size_t size, size_t *used, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+static void cli_append(char *buf, size_t size, size_t *used, const char *fmt, ...)
+{
+    if (*used >= size) return;
+    va_list ap;
+    va_start(ap, fmt);
+    int n = vsnprintf(buf + *used, size - *used, fmt, ap);
+    va_end(ap);
+    if (n > 0) *used = *used + (size_t)n < size ? *used + (size_t)n : size;
+}
+
+/* A JSON number, or null for what JSON cannot hold. */
+static void cli_append_number(char *buf, size_t size, size_t *used, double v)
+{
+    if (isfinite(v)) cli_append(buf, size, used, "%.9g", v);
+    else cli_append(buf, size, used, "null");
+}
+
+static int cli_compare_usage_error(const char *fmt, const char *arg)
+{
+    cli_usage_error(fmt, arg);
+    return CLI_CANNOT_COMPARE;
+}
+
 static int cli_compare(int argc, char **argv)
 {
     if (cli_wants_help(argc, argv)) {
         cli_usage(stdout);
         return 0;
     }
-    if (argc != 2) return cli_usage_error("%s", "compare needs exactly two EXR files");
+    struct cli_limit limits[3] = {{"mape", NAN, NAN, NAN}, {"relmse", NAN, NAN, NAN}, {"rmse", NAN, NAN, NAN}};
+    const char *paths[2] = {NULL, NULL}, *diff_path = NULL;
+    double fail_percent = NAN, pixel_threshold = NAN;
+    size_t path_count = 0;
+    for (int i = 0; i < argc; i++) {
+        const char *a = argv[i];
+        const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+        if (strcmp(a, "--json") == 0) continue; /* the JSON object is the output either way */
+        if (a[0] != '-') {
+            if (path_count == 2) return cli_compare_usage_error("compare: unexpected argument '%s'", a);
+            paths[path_count++] = a;
+            continue;
+        }
+        if (!v) return cli_compare_usage_error("option %s needs a value", a);
+        i++;
+        double *level = NULL;
+        for (size_t k = 0; k < 3 && !level; k++) {
+            if (strncmp(a, "--fail-", 7) == 0 && strcmp(a + 7, limits[k].metric) == 0) level = &limits[k].fail;
+            if (strncmp(a, "--warn-", 7) == 0 && strcmp(a + 7, limits[k].metric) == 0) level = &limits[k].warn;
+        }
+        if (strcmp(a, "--fail-percent") == 0) level = &fail_percent;
+        if (strcmp(a, "--pixel-threshold") == 0) level = &pixel_threshold;
+        if (level) {
+            if (!isnan(*level)) return cli_compare_usage_error("%s is given twice: give it once", a);
+            char m[160];
+            snprintf(m, sizeof m, "%s: expected a number >= 0, got '%.64s'", a, v);
+            if (!cli_parse_level(v, level)) return cli_compare_usage_error("%s", m);
+        } else if (strcmp(a, "--diff") == 0) {
+            if (diff_path) return cli_compare_usage_error("%s is given twice: give it once", a);
+            diff_path = v;
+        } else {
+            return cli_compare_usage_error("unknown option '%s'", a);
+        }
+    }
+    if (path_count != 2) return cli_compare_usage_error("%s", "compare needs exactly two EXR files");
+    if (isnan(fail_percent) != isnan(pixel_threshold))
+        return cli_compare_usage_error("%s", "--fail-percent P and --pixel-threshold T go together: fail when more "
+                                             "than P % of the pixels have a relative error above T");
+    if (!isnan(fail_percent) && fail_percent > 100.0)
+        return cli_compare_usage_error("%s", "--fail-percent: expected a percentage, 0..100");
+    for (size_t k = 0; k < 3; k++) {
+        if (limits[k].warn > limits[k].fail) {
+            char m[200];
+            snprintf(m, sizeof m, "--warn-%s %g is above --fail-%s %g: a warning level sits below the failing one",
+                     limits[k].metric, limits[k].warn, limits[k].metric, limits[k].fail);
+            return cli_compare_usage_error("%s", m);
+        }
+    }
+    enum cli_format diff_format = CLI_EXR;
+    if (diff_path && !cli_output_format(diff_path, &diff_format))
+        return cli_compare_usage_error("--diff: '%s' names no format: end it in .exr, or .png for an 8-bit view",
+                                       diff_path);
+    if (diff_path && !cli_output_folder_exists(diff_path)) {
+        fprintf(stderr, "restir: cannot write %s: its folder does not exist\n", diff_path);
+        return CLI_CANNOT_COMPARE;
+    }
+
     struct err err = {0};
     char msg[1024];
-    struct image a, b;
-    if (!exrio_read_file(argv[0], &a, &err)) {
-        fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
-        return 1;
-    }
-    if (!exrio_read_file(argv[1], &b, &err)) {
-        fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
-        image_destroy(&a);
-        return 1;
-    }
+    struct image a = {0}, b = {0}, errors = {0};
     struct metrics m = {0};
-    bool ok = metrics_compare(&a, &b, &m, &err);
-    char json[2048];
-    if (ok) ok = metrics_format_json(&m, json, sizeof json, &err);
-    if (ok) {
-        printf("%s\n", json);
-    } else {
-        fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
-    }
+    char json[METRICS_JSON_MAX + 1024];
+    bool ok = exrio_read_file(paths[0], &a, &err) && exrio_read_file(paths[1], &b, &err) &&
+              metrics_compare(&a, &b, &m, &err) && metrics_format_json(&m, json, METRICS_JSON_MAX, &err);
+    /* The error image serves --diff and the pixel rule. */
+    bool need_errors = diff_path || !isnan(fail_percent);
+    if (ok && need_errors)
+        ok = image_init(&errors, a.width, a.height, &err) && metrics_error_image(&a, &b, &m, &errors, &err);
+    if (!ok) fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
+    double percent_above = NAN;
+    if (ok && !isnan(fail_percent)) percent_above = 100.0 * metrics_fraction_above(&errors, pixel_threshold);
+    if (ok && diff_path) ok = cli_write_image(diff_path, diff_format, &errors, false);
     image_destroy(&a);
     image_destroy(&b);
-    return ok ? 0 : 1;
+    image_destroy(&errors);
+    if (!ok) return CLI_CANNOT_COMPARE;
+
+    limits[0].value = m.mape;
+    limits[1].value = m.relmse;
+    limits[2].value = m.rmse;
+    enum cli_verdict verdict = CLI_PASS;
+    char tripped[1024], human[1024];
+    size_t tn = 0, hn = 0;
+    for (size_t k = 0; k < 3; k++) {
+        enum cli_verdict level = cli_limit_level(&limits[k]);
+        if (level == CLI_PASS) continue;
+        double at = level == CLI_FAIL ? limits[k].fail : limits[k].warn;
+        cli_append(tripped, sizeof tripped, &tn, "%s{\"metric\":\"%s\",\"level\":\"%s\",\"value\":", tn ? "," : "",
+                   limits[k].metric, cli_verdict_names[level]);
+        cli_append_number(tripped, sizeof tripped, &tn, limits[k].value);
+        cli_append(tripped, sizeof tripped, &tn, ",\"threshold\":%.9g}", at);
+        cli_append(human, sizeof human, &hn, "%s%s %.6g > %s level %g", hn ? "; " : "", limits[k].metric,
+                   limits[k].value, cli_verdict_names[level], at);
+        if (level > verdict) verdict = level;
+    }
+    if (!isnan(fail_percent) && (isnan(percent_above) || percent_above > fail_percent)) {
+        cli_append(tripped, sizeof tripped, &tn,
+                   "%s{\"metric\":\"percent_above\",\"level\":\"fail\",\"value\":", tn ? "," : "");
+        cli_append_number(tripped, sizeof tripped, &tn, percent_above);
+        cli_append(tripped, sizeof tripped, &tn, ",\"threshold\":%.9g,\"pixel_threshold\":%.9g}", fail_percent,
+                   pixel_threshold);
+        cli_append(human, sizeof human, &hn, "%s%.6g %% of the pixels have a relative error above %g > fail level %g %%",
+                   hn ? "; " : "", percent_above, pixel_threshold, fail_percent);
+        verdict = CLI_FAIL;
+    }
+    /* The metrics' object, then the verdict and what tripped it. */
+    size_t jn = strlen(json) - 1; /* drops the closing brace */
+    if (!isnan(fail_percent)) {
+        cli_append(json, sizeof json, &jn, ",\"percent_above\":");
+        cli_append_number(json, sizeof json, &jn, percent_above);
+        cli_append(json, sizeof json, &jn, ",\"pixel_threshold\":%.9g", pixel_threshold);
+    }
+    cli_append(json, sizeof json, &jn, ",\"verdict\":\"%s\",\"tripped\":[%.*s]}", cli_verdict_names[verdict], (int)tn,
+               tripped);
+    printf("%s\n", json);
+    if (verdict == CLI_PASS)
+        fprintf(stderr, "restir compare: pass (mape %.6g, relmse %.6g, rmse %.6g)\n", m.mape, m.relmse, m.rmse);
+    else
+        fprintf(stderr, "restir compare: %s (%s)\n", cli_verdict_names[verdict], human);
+    return verdict;
 }
 
 int main(int argc, char **argv)
@@ -559,6 +839,10 @@ int main(int argc, char **argv)
     if (argc < 2 || strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0) {
         cli_usage(argc < 2 ? stderr : stdout);
         return argc < 2 ? 2 : 0;
+    }
+    if (strcmp(argv[1], "--version") == 0) {
+        printf("restir %s (commit %s)\n", RESTIRD_VERSION, restird_commit);
+        return 0;
     }
     if (strcmp(argv[1], "render") == 0) {
         int status = cli_render(argc - 2, argv + 2);

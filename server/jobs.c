@@ -75,6 +75,26 @@ static void jobs_fail(struct job *j, int status, const char *slug)
     jobs_post(j, "error");
 }
 
+/* The row's converge figure (struct job_row): the frame's own for a method that reuses earlier
+ * frames, else the accumulation's. An animation job holds the session's claim for its whole run
+ * (jobs_run), so the accumulation is read here between its frames without claiming again. */
+static void jobs_converge_metrics(struct session *s, const struct image *ref, struct job_row *row)
+{
+    if (s->view.params.method->caps & METHOD_REUSES_FRAMES) {
+        row->has_conv = row->has_metrics;
+        row->conv = row->m;
+        row->conv_frames = 0;
+        return;
+    }
+    struct err e = {0};
+    struct image acc;
+    uint32_t count = 0;
+    if (!view_accumulated(&s->view, &acc, &count, &e)) return;
+    row->has_conv = metrics_compare(&acc, ref, &row->conv, &e);
+    row->conv_frames = count;
+    image_destroy(&acc);
+}
+
 static void jobs_run_animation(struct jobs *q, struct job *j)
 {
     struct session *s = j->session;
@@ -110,6 +130,7 @@ static void jobs_run_animation(struct jobs *q, struct job *j)
                 row.has_metrics = metrics_compare(&img, &j->reference->img, &row.m, &e);
                 image_destroy(&img);
             }
+            jobs_converge_metrics(s, &j->reference->img, &row);
         }
         pthread_mutex_lock(&s->lock);
         j->frames[j->frames_done] = n;

@@ -3,8 +3,10 @@
  * then shuts down in order: stop accepting, refuse new work, cancel jobs between frames, let
  * frames in flight finish, close connections, free everything. The only file that may exit.
  * Exit status: 0 after a clean shutdown, 1 when start-up fails, 2 for a wrong command line. */
+#include <arpa/inet.h>
 #include <errno.h>
 #include <limits.h>
+#include <netdb.h>
 #include <signal.h>
 #include <stddef.h>
 #include <stdio.h>
@@ -15,6 +17,7 @@
 
 #include "api.h"
 #include "http.h"
+#include "version.h"
 
 #define MAIN_USAGE                                                                                  \
     "usage: restird [--listen HOST:PORT] [--data-dir DIR] [--scenes DIR] [--id NAME]\n"             \
@@ -30,7 +33,9 @@
     "--scenes: the scenes/ folder next to the build folder; limits as GET /v1/limits lists them.\n" \
     "The bearer token is read from --auth-token-file, else from $RESTIRD_AUTH_TOKEN; it is required\n" \
     "to listen on any address but loopback.\n"                                                        \
-    "Port 0 picks a free port; the first line on stdout names the address.\n"
+    "HOST is a numeric address or a name (localhost); port 0 picks a free port; the first line\n"   \
+    "on stdout names the address listened on.\n"                   \
+    "--version prints the version and the commit it was built from.\n"
 
 static int main_usage(const char *fmt, const char *arg)
 {
@@ -49,6 +54,40 @@ static bool main_parse_u64(const char *s, uint64_t min, uint64_t max, uint64_t *
     if (errno || *end || v < min || v > max) return false;
     *out = v;
     return true;
+}
+
+/* A host name given to --listen becomes the numeric address it resolves to (the first IPv4 one,
+ * else the first IPv6 one: "localhost" is 127.0.0.1), so the loopback check and the bind see the
+ * address actually listened on. NULL on success, else why not. */
+static const char *main_resolve_host(char *host, size_t host_size)
+{
+    unsigned char probe[sizeof(struct in6_addr)];
+    if (inet_pton(AF_INET, host, probe) == 1 || inet_pton(AF_INET6, host, probe) == 1) return NULL;
+    struct addrinfo hints = {.ai_family = AF_UNSPEC, .ai_socktype = SOCK_STREAM}, *res = NULL;
+    int rc = getaddrinfo(host, NULL, &hints, &res);
+    if (rc != 0) return gai_strerror(rc);
+    const struct addrinfo *pick = NULL;
+    for (const struct addrinfo *a = res; a; a = a->ai_next)
+        if (a->ai_family == AF_INET || (a->ai_family == AF_INET6 && !pick)) {
+            pick = a;
+            if (a->ai_family == AF_INET) break;
+        }
+    const char *why = "no IPv4 or IPv6 address";
+    if (pick) {
+        const void *addr = pick->ai_family == AF_INET ? (const void *)&((struct sockaddr_in *)pick->ai_addr)->sin_addr
+                                                      : (const void *)&((struct sockaddr_in6 *)pick->ai_addr)->sin6_addr;
+        why = inet_ntop(pick->ai_family, addr, host, (socklen_t)host_size) ? NULL : "address too long";
+    }
+    freeaddrinfo(res);
+    return why;
+}
+
+/* "'HOST': why" for a usage message (one static buffer: the usage ends the run). */
+static const char *main_why(const char *host, const char *why)
+{
+    static char buf[160];
+    snprintf(buf, sizeof buf, "'%s': %s", host, why);
+    return buf;
 }
 
 static bool main_parse_listen(const char *s, char *out_host, size_t host_size, uint16_t *out_port)
@@ -229,15 +268,24 @@ int main(int argc, char **argv)
             fputs(MAIN_USAGE, stdout);
             return 0;
         }
+        if (strcmp(a, "--version") == 0) {
+            printf("restird %s (commit %s)\n", RESTIRD_VERSION, restird_commit);
+            return 0;
+        }
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
         if (!v) return main_usage("option %s needs a value (or is unknown)", a);
         i++;
+        const char *why;
         if (strcmp(a, "--listen") == 0) {
             if (!main_parse_listen(v, cfg->host, sizeof cfg->host, &cfg->port))
                 return main_usage("--listen: expected HOST:PORT, got '%s'", v);
+            if ((why = main_resolve_host(cfg->host, sizeof cfg->host)))
+                return main_usage("--listen: cannot resolve %s", main_why(cfg->host, why));
         } else if (strcmp(a, "--health-listen") == 0) {
             if (!main_parse_listen(v, cfg->health_host, sizeof cfg->health_host, &cfg->health_port))
                 return main_usage("--health-listen: expected HOST:PORT, got '%s'", v);
+            if ((why = main_resolve_host(cfg->health_host, sizeof cfg->health_host)))
+                return main_usage("--health-listen: cannot resolve %s", main_why(cfg->health_host, why));
         } else if (strcmp(a, "--data-dir") == 0) {
             if (!*v || strlen(v) >= sizeof cfg->data_dir) return main_usage("--data-dir: bad path '%s'", v);
             snprintf(cfg->data_dir, sizeof cfg->data_dir, "%s", v);

@@ -80,6 +80,7 @@ bool refstore_put(struct refstore *rs, const char *scene, const char *name, stru
     snprintf(r->name, sizeof r->name, "%s", name);
     r->spp = spp;
     r->method = method;
+    r->created = time(NULL);
     r->img = *img;
     img->pixels = NULL;
     img->width = img->height = 0;
@@ -87,6 +88,7 @@ bool refstore_put(struct refstore *rs, const char *scene, const char *name, stru
     pthread_mutex_lock(&rs->lock);
     long i = refstore_find(rs, scene, name);
     if (i >= 0) {
+        /* A replacement keeps its predecessor's place in listings. */
         refstore_drop(rs, rs->items[i]);
         rs->items[i] = r;
         *replaced = true;
@@ -116,6 +118,42 @@ struct ref_image *refstore_get(struct refstore *rs, const char *scene, const cha
     if (r) __atomic_add_fetch(&r->refcount, 1, __ATOMIC_RELAXED);
     pthread_mutex_unlock(&rs->lock);
     return r;
+}
+
+bool refstore_delete(struct refstore *rs, const char *scene, const char *name)
+{
+    pthread_mutex_lock(&rs->lock);
+    long i = refstore_find(rs, scene, name);
+    if (i >= 0) {
+        refstore_drop(rs, rs->items[i]);
+        memmove(&rs->items[i], &rs->items[i + 1], (rs->count - (size_t)i - 1) * sizeof *rs->items);
+        rs->count--;
+    }
+    pthread_mutex_unlock(&rs->lock);
+    return i >= 0;
+}
+
+size_t refstore_list(struct refstore *rs, const char *scene, struct ref_info *out, size_t max)
+{
+    size_t n = 0;
+    pthread_mutex_lock(&rs->lock);
+    for (size_t i = 0; i < rs->count; i++) {
+        const struct ref_image *r = rs->items[i];
+        if (strcmp(r->scene, scene) != 0) continue;
+        if (n < max) {
+            struct ref_info *o = &out[n];
+            snprintf(o->name, sizeof o->name, "%s", r->name);
+            o->width = r->img.width;
+            o->height = r->img.height;
+            o->spp = r->spp;
+            o->method = r->method;
+            o->bytes = refstore_image_bytes(&r->img);
+            o->created = r->created;
+        }
+        n++;
+    }
+    pthread_mutex_unlock(&rs->lock);
+    return n;
 }
 
 void refstore_drop_scene(struct refstore *rs, const char *scene)

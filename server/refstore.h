@@ -1,13 +1,14 @@
 /* refstore.h — reference images by (scene, name): rendered by the server (`pt`, or `pt` with
  * specular manifold sampling) or uploaded as EXR. Immutable once stored and shared by reference
  * count, so a metrics computation keeps its reference alive while another request replaces it.
- * In memory for the daemon's lifetime. Thread-safe. */
+ * In memory until deleted, or until their scene is. Thread-safe. */
 #ifndef RESTIRD_REFSTORE_H
 #define RESTIRD_REFSTORE_H
 
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <time.h>
 
 #include "budget.h"
 #include "core/err.h"
@@ -18,7 +19,17 @@ struct ref_image {
     char scene[65], name[65];
     uint32_t spp;                /* 0 = uploaded */
     const char *method;          /* static: "pt" or "sms"; NULL = uploaded */
+    time_t created;              /* when it was stored */
     struct image img;
+};
+
+/* What a listing tells of a reference, copied out so the listing holds no pixels. */
+struct ref_info {
+    char name[65];
+    uint32_t width, height, spp;
+    const char *method;
+    uint64_t bytes;
+    time_t created;
 };
 
 struct refstore;
@@ -33,6 +44,12 @@ bool refstore_put(struct refstore *rs, const char *scene, const char *name, stru
 /* Retained reference or NULL; ref_image_release when done. */
 struct ref_image *refstore_get(struct refstore *rs, const char *scene, const char *name);
 void ref_image_release(struct ref_image *r);
+/* Removes one reference; false when the scene has none of that name. Its bytes go back to the
+ * budget at once; a request or job that retained it keeps the pixels until it releases them. */
+bool refstore_delete(struct refstore *rs, const char *scene, const char *name);
+/* The references of a scene, in the order they were first stored, into out[max]; returns how
+ * many the scene has (more than max when out was too small). */
+size_t refstore_list(struct refstore *rs, const char *scene, struct ref_info *out, size_t max);
 /* Forgets every reference of a scene (the scene was deleted). */
 void refstore_drop_scene(struct refstore *rs, const char *scene);
 /* Bytes of pixels held. */

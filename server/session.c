@@ -414,6 +414,12 @@ bool session_frame_copy(struct session *s, uint32_t n, struct image *out, struct
     return ok;
 }
 
+bool session_frame_kept_locked(const struct session *s, uint32_t epoch, uint32_t n)
+{
+    const struct session_frame *slot = &s->ring[n % s->frames_kept];
+    return epoch == s->epoch && n < s->frames_done && slot->valid && slot->n == n;
+}
+
 struct job *session_job_new(struct session *s, enum job_kind kind, const char *idempotency_key, struct err *err)
 {
     struct job *j = calloc(1, sizeof *j);

@@ -30,11 +30,18 @@
 enum job_kind { JOB_ANIMATION, JOB_REFERENCE };
 enum job_status { JOB_QUEUED, JOB_RUNNING, JOB_DONE, JOB_CANCELLED, JOB_FAILED };
 
+/* One frame of an animation job. `m` is the frame's own error (the real-time figure); `conv`
+ * is the error of the image a user keeping a still view would keep after this frame (the
+ * converge figure): the session's accumulation (`conv_frames` frames since the last change) for
+ * a method whose frames are independent, the frame itself (`conv_frames` 0) for one that
+ * reuses earlier frames, whose history already is its accumulation and whose correlated frames
+ * are never averaged (docs/benchmarks.md, "Two regimes"). */
 struct job_row {
     uint32_t frame;
     double time_s, render_ms;
-    bool has_metrics;
-    struct metrics m;
+    bool has_metrics, has_conv;
+    uint32_t conv_frames;
+    struct metrics m, conv;
 };
 
 struct session;
@@ -42,6 +49,7 @@ struct session;
 struct job {
     char id[24];
     char idempotency_key[65];
+    uint64_t request_hash;           /* what the keyed request asked for (see api_job_replay) */
     enum job_kind kind;
     enum job_status status;          /* under the session lock */
     atomic_bool cancel;
@@ -161,6 +169,9 @@ bool session_render(struct session *s, struct gate *gate, bool bounded, const st
  * ERR_LIMIT when rendered but evicted. `out` is initialised on success. */
 bool session_frame_copy(struct session *s, uint32_t n, struct image *out, struct frame_stats *stats,
                         struct err *err);
+
+/* Whether frame n of sequence `epoch` is still kept. Call with s->lock held. */
+bool session_frame_kept_locked(const struct session *s, uint32_t epoch, uint32_t n);
 
 /* Appends an event (type and JSON data, copied) and wakes readers. */
 void session_post_event(struct session *s, const char *type, const char *json);

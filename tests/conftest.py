@@ -2,6 +2,7 @@
 
 Run through `make test` (which builds build/restir first) with Debian's /usr/bin/python3 so that
 numpy and OpenImageIO are importable."""
+import functools
 import json
 import os
 import subprocess
@@ -36,9 +37,24 @@ def read_exr(path):
     return np.asarray(pixels, dtype=np.float64)
 
 
+@functools.cache
+def methods_taking_spp():
+    """The registry's methods that take spp (the rest refuse --spp), and the default method."""
+    res = subprocess.run([BIN, "methods", "--json"], capture_output=True, text=True, timeout=60, check=True)
+    methods = json.loads(res.stdout)["methods"]
+    return {m["name"] for m in methods if m["capabilities"]["takes_spp"]}, methods[0]["name"]
+
+
 def render(scene, out, *, spp=4, size="32x32", seed=0, extra=()):
-    """Runs `restir render --json` and returns (image RGB, stats dict)."""
-    cmd = [BIN, "render", str(scene), "--spp", str(spp), "--size", size, "--seed", str(seed),
+    """Runs `restir render --json` and returns (image RGB, stats dict). `spp` goes to a method
+    that takes it, unless --params in `extra` sets spp itself: the CLI refuses --spp for the
+    others (they trace one path per pixel and frame) and an spp given twice."""
+    extra = [str(x) for x in extra]
+    taking, default = methods_taking_spp()
+    method = extra[extra.index("--method") + 1] if "--method" in extra else default
+    params = json.loads(extra[extra.index("--params") + 1]) if "--params" in extra else {}
+    spp_args = ["--spp", str(spp)] if method in taking and "spp" not in params else []
+    cmd = [BIN, "render", str(scene), *spp_args, "--size", size, "--seed", str(seed),
            "--json", "-o", str(out), *extra]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, f"{cmd}: {res.stderr}"

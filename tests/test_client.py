@@ -5,7 +5,10 @@ client uses."""
 import io
 import json
 import math
+import os
 import re
+import shutil
+import subprocess
 import sys
 import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -13,7 +16,8 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "clients" / "python"))
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "clients" / "python"))
 import restir  # noqa: E402
 
 CAMERA = {"position": [278.0, 273.0, -800.0], "look_at": [278.0, 273.0, 0.0], "up": [0.0, 1.0, 0.0],
@@ -53,6 +57,13 @@ class FakeDaemon:
 
     def calls(self, method=None):
         return [(m, p, h, b) for (m, p, h, b) in self.log if method is None or m == method]
+
+    def job_view(self, sess, job):
+        """The job as the daemon shows it: only the frames the session still keeps."""
+        numbers = [int(h.rsplit("/", 1)[1]) for h in job["frames"]]
+        kept = [n for n in numbers if n >= sess["frames"] - self.frames_kept]
+        return dict(job, frames=[h for h in job["frames"] if int(h.rsplit("/", 1)[1]) in kept],
+                    frames_kept=[kept[0], kept[-1]] if kept else None, frames_evicted=len(numbers) - len(kept))
 
     def _id(self, prefix):
         self.next_id += 1
@@ -132,6 +143,11 @@ class FakeDaemon:
             return 201, {}, b""
         if scene not in self.scenes and scene not in self.BUILTIN:
             return self.problem(404, "scene-not-loaded", "this daemon does not hold scene " + scene, path)
+        if len(rest) == 2 and rest[0] == "references" and method == "DELETE":
+            if rest[1] not in self.refs:
+                return self.problem(404, "not-found", "no such reference", path)
+            self.refs.discard(rest[1])
+            return 204, {}, b""
         if rest == ["sessions"] and method == "POST":
             req = json.loads(body or b"{}")
             sid = self._id("s")
@@ -190,7 +206,7 @@ class FakeDaemon:
                 if job is None:
                     return self.problem(404, "not-found", "no such job", path)
                 if len(tail) == 2:
-                    return self.ok(200, job)
+                    return self.ok(200, self.job_view(sess, job))
                 if tail[2:] == ["metrics"]:
                     rows = [{"frame": i, "time_s": i / 30, "render_ms": 1.0, "mape": 0.5 / (i + 1),
                              "rmse": 0.1, "relmse": 0.2} for i in range(len(job["frames"]))]
@@ -578,8 +594,12 @@ def test_failed_job_raises_its_problem(fake):
 # ---- command line against the fake ----
 
 def run_cli(fake, *argv):
+    return run_cli_at(fake.url, *argv)
+
+
+def run_cli_at(server, *argv):
     out, err = io.StringIO(), io.StringIO()
-    code = restir.main(["--server", fake.url, *argv], out=out, err=err)
+    code = restir.main(["--server", server, *argv], out=out, err=err)
     return code, out.getvalue(), err.getvalue()
 
 
@@ -628,6 +648,21 @@ def test_cli_orbit_submits_one_job_and_downloads_every_frame(fake, tmp_path):
     assert anim["camera_keys"][0]["position"] == CAMERA["position"]
 
 
+def test_cli_orbit_names_frames_by_number_and_fails_on_evicted_ones(fake, tmp_path):
+    """Polling offers only the frames still kept: each is saved under its own number, and the
+    frames gone before they were fetched make the command fail with frame-evicted."""
+    fake.frames_kept = 2
+    code, out, err = run_cli(fake, "orbit", "lib-box", "--frames", "5", "-o", str(tmp_path / "o"))
+    assert code == 1
+    assert "frame-evicted" in err and "frame 0 was evicted before it was downloaded" in err, err
+    assert not (tmp_path / "o").exists() or not list((tmp_path / "o").iterdir())
+    fake.frames_kept = 5
+    code, out, err = run_cli(fake, "orbit", "lib-box", "--frames", "5", "-o", str(tmp_path / "p"))
+    assert code == 0, err
+    assert sorted(p.name for p in (tmp_path / "p").iterdir()) == ["frame_%04d.exr" % i for i in range(5)]
+    assert (tmp_path / "p" / "frame_0003.exr").read_bytes().endswith(b":3")
+
+
 @pytest.mark.parametrize("method", ["pt", "sms"])
 def test_cli_metrics_writes_csv(fake, tmp_path, method):
     out_file = tmp_path / "m.csv"
@@ -640,6 +675,40 @@ def test_cli_metrics_writes_csv(fake, tmp_path, method):
     assert kinds == ["reference", "animation"]
     ref, anim = fake.jobs.values()
     assert ref["_req"] == {"spp": 64, "method": method} and anim["_req"]["reference"] == ref["reference"]
+    # The reference it named after its session is deleted after the session.
+    deletes = [p for m, p, _, _ in fake.log if m == "DELETE"]
+    assert re.fullmatch(r"/v1/scenes/lib-box/sessions/(s\d+)", deletes[0]), deletes
+    assert deletes[1:] == ["/v1/scenes/lib-box/references/ref-" + deletes[0].rsplit("/", 1)[1]]
+    assert ref["reference"] == "ref-" + deletes[0].rsplit("/", 1)[1] and not fake.refs
+
+
+def test_cli_metrics_keeps_a_reference_it_was_told_to_name(fake, tmp_path):
+    code, _, err = run_cli(fake, "metrics", "lib-box", "--reference", "mine", "--frames", "2",
+                           "-o", str(tmp_path / "m.csv"))
+    assert code == 0, err
+    assert fake.refs == {"mine"} and not [p for m, p, _, _ in fake.log if m == "DELETE" and "/references/" in p]
+
+
+def test_cli_metrics_deletes_its_reference_when_the_job_fails(fake, tmp_path):
+    fake.busy[("POST", r".*/renders$")] = 99
+    code, _, err = run_cli(fake, "--timeout", "5", "metrics", "lib-box", "--frames", "2", "-o", str(tmp_path / "m.csv"))
+    assert code == 1, err
+    assert not fake.refs and not fake.sessions
+
+
+@pytest.mark.parametrize("given, url", [
+    ("127.0.0.1:8080", "http://127.0.0.1:8080"), ("localhost:9/", "http://localhost:9"),
+    ("http://h:1", "http://h:1"), ("https://h:1/", "https://h:1"), ("[::1]:8080", "http://[::1]:8080"),
+])
+def test_server_without_a_scheme_is_http(given, url):
+    assert restir.Client(given).server == url
+
+
+def test_cli_server_without_a_scheme(fake):
+    code, out, err = run_cli_at(fake.url[len("http://"):], "health")
+    assert code == 0, err
+    info = json.loads(out)
+    assert info["ready"] == "ready" and info["served_by"] == "fake:0", out
 
 
 def test_token_sent_from_argument_environment_and_token_file(fake, tmp_path, monkeypatch):
@@ -658,3 +727,26 @@ def test_token_sent_from_argument_environment_and_token_file(fake, tmp_path, mon
     assert {h["Authorization"] for _, p, h, _ in fake.log[-3:]} == {"Bearer file-token-0123456789"}
     code, _, err = run_cli(fake, "--token-file", str(tmp_path / "missing"), "health")
     assert code == 2 and err.startswith("restir.py: --token-file: "), err
+
+
+# ---- the package ----
+
+def test_pip_installs_the_client_with_its_command(fake, tmp_path):
+    """clients/python is a package pip installs offline (setuptools from the system, no index):
+    the module, and a `restir-client` command that runs the client's main."""
+    src = tmp_path / "src"
+    shutil.copytree(ROOT / "clients" / "python", src, ignore=shutil.ignore_patterns("__pycache__"))
+    site = tmp_path / "site"
+    env = {**os.environ, "PIP_DISABLE_PIP_VERSION_CHECK": "1", "PIP_NO_INDEX": "1"}
+    run = subprocess.run(["/usr/bin/python3", "-m", "pip", "install", "--no-index", "--no-build-isolation",
+                          "--target", str(site), str(src)], capture_output=True, text=True, env=env, timeout=300)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert (site / "restir.py").read_bytes() == (ROOT / "clients" / "python" / "restir.py").read_bytes()
+    (info,) = site.glob("restir_client-*.dist-info")
+    assert "restir-client = restir:main" in (info / "entry_points.txt").read_text()
+    assert "Requires-Dist" not in (info / "METADATA").read_text()       # standard library only
+    command = site / "bin" / "restir-client"
+    run = subprocess.run([str(command), "--server", fake.url[len("http://"):], "health"], capture_output=True,
+                         text=True, env={**env, "PYTHONPATH": str(site)}, timeout=60)
+    assert run.returncode == 0, run.stderr
+    assert json.loads(run.stdout)["served_by"] == "fake:0"

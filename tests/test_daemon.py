@@ -11,6 +11,7 @@ two minutes on two cores."""
 import http.client
 import json
 import os
+import sys
 import re
 import socket
 import tempfile
@@ -849,6 +850,77 @@ def test_sms_reference_finds_the_caustics_pt_misses(daemon, tmp_path):
     assert daemon.req("DELETE", "/v1/scenes/many-casters").status == 204
 
 
+def test_frame_exr_compression_per_request(daemon):
+    """?compression= picks the EXR codec (none by default: docs/benchmarks.md measures it the
+    fastest to deliver); every codec holds the same pixels, and each is a cache variant of its
+    own."""
+    s = new_session(daemon, width=24, height=16, params={"spp": 1})
+    assert daemon.req("POST", s["href"] + "/frames", headers={"Accept": "application/json"}).status == 200
+    seen, etags = {}, set()
+    for q in ("", "?compression=none", "?compression=zip", "?compression=piz", "?compression=zip&pixel=half"):
+        r = daemon.req("GET", s["href"] + "/frames/0" + q)
+        assert r.status == 200 and r.header("Content-Type") == "image/x-exr", repr(r)
+        img, spec = decode_image(r.body, ".exr")
+        seen[q] = (spec.get_string_attribute("compression"), img)
+        etags.add(r.header("ETag"))
+    assert {q: c for q, (c, _) in seen.items()} == {"": "none", "?compression=none": "none", "?compression=zip": "zip",
+                                                     "?compression=piz": "piz", "?compression=zip&pixel=half": "zip"}
+    assert len(etags) == 4  # "" and "?compression=none" are the same representation
+    for q in ("?compression=zip", "?compression=piz"):
+        assert np.array_equal(seen[q][1], seen[""][1]), q
+    assert np.allclose(seen["?compression=zip&pixel=half"][1], seen[""][1], rtol=1e-3, atol=1e-4)
+    # The Python client passes it through.
+    sys.path.insert(0, str(ROOT / "clients" / "python"))
+    import restir
+    client = restir.Client(f"http://127.0.0.1:{daemon.port}")
+    body = client.get_frame(s["id"], 0, compression="zip", scene="cornell-box")
+    assert decode_image(body, ".exr")[1].get_string_attribute("compression") == "zip"
+    r = daemon.req("GET", s["href"] + "/frames/0?compression=dwaa")
+    assert_problem(r, 400, "bad-query", "?compression")
+    assert r.json()["detail"] == "compression must be 'none', 'zip' or 'piz', got 'dwaa'"
+    assert daemon.req("DELETE", s["href"]).status == 204
+
+
+def test_metrics_series_gives_both_regimes(daemon, tmp_path):
+    """A job's series scores each frame (real time) and the image a user keeping the still view
+    would keep (converge): the accumulation for pt, whose frames are independent; the frame
+    itself for restir_pt, whose correlated frames are never averaged."""
+    const = np.full((16, 16, 3), 0.2, np.float32)
+    r = daemon.req("PUT", f"{CORNELL}/references/regimes-ref", body=write_exr(tmp_path / "c.exr", const),
+                   headers={"Content-Type": "image/x-exr"})
+    assert r.status == 201, repr(r)
+    nframes = 4
+    for method, params in (("pt", {"spp": 1}), ("restir_pt", {})):
+        s = new_session(daemon, method=method, width=16, height=16, seed=3, params=params)
+        r = daemon.req("POST", s["href"] + "/renders",
+                       json_body={"animation": {"fps": 10, "frames": nframes}, "reference": "regimes-ref"})
+        assert r.status == 202, repr(r)
+        loc = r.header("Location")
+        job = wait_job(daemon, loc)
+        imgs = [exr_rgb(daemon.req("GET", href).body) for href in job["frames"]]
+        series = daemon.req("GET", loc + "/metrics").json()["series"]
+        for i, row in enumerate(series):
+            conv = row["converge"]
+            if method == "pt":
+                want = np.mean(imgs[:i + 1], axis=0)
+                assert conv["image"] == "accumulation" and conv["frames"] == i + 1, row
+            else:
+                want = imgs[i]
+                assert conv["image"] == "frame" and conv["frames"] == 0, row
+                assert conv["rmse"] == row["rmse"] and conv["mape"] == row["mape"], row
+            assert conv["rmse"] == pytest.approx(np.sqrt(np.mean((want - const) ** 2)), rel=1e-4), (method, i)
+        if method == "pt":  # four frames' mean is closer than one frame
+            assert series[-1]["converge"]["relmse"] < series[-1]["relmse"]
+        lines = daemon.req("GET", loc + "/metrics", headers={"Accept": "text/csv"}).body.decode().strip().splitlines()
+        assert lines[0].split(",")[6:] == ["converge_image", "converge_frames", "converge_mape", "converge_rmse",
+                                           "converge_relmse"]
+        assert float(lines[-1].split(",")[9]) == pytest.approx(series[-1]["converge"]["rmse"], rel=1e-6)
+        # Scored against another reference later, only the kept frames can be: no converge figure.
+        other = daemon.req("GET", loc + "/metrics?reference=regimes-ref").json()["series"]
+        assert [row["converge"] for row in other] == [None] * nframes
+        assert daemon.req("DELETE", s["href"]).status == 204
+
+
 @pytest.mark.concurrency
 def test_animation_job_idempotency_metrics(daemon, tmp_path):
     s = new_session(daemon, width=16, height=16, seed=8, params={"spp": 1})
@@ -898,7 +970,7 @@ def test_animation_job_idempotency_metrics(daemon, tmp_path):
     r = daemon.req("GET", loc + "/metrics", headers={"Accept": "text/csv"})
     assert r.status == 200 and r.header("Content-Type").startswith("text/csv"), repr(r)
     lines = r.body.decode().strip().splitlines()
-    assert lines[0] == "frame,time_s,render_ms,mape,rmse,relmse" and len(lines) == nframes + 1
+    assert lines[0].startswith("frame,time_s,render_ms,mape,rmse,relmse,") and len(lines) == nframes + 1
     assert [int(x.split(",")[0]) for x in lines[1:]] == list(range(nframes))
     assert float(lines[-1].split(",")[4]) == pytest.approx(series[-1]["rmse"], rel=1e-4)
     r = daemon.req("GET", loc + "/metrics?reference=anim-ref2")
@@ -914,7 +986,7 @@ def test_animation_job_idempotency_metrics(daemon, tmp_path):
     body = daemon.req("GET", r.header("Location") + "/metrics").json()
     assert body["reference"] is None and [row["mape"] for row in body["series"]] == [None, None]
     csv = daemon.req("GET", r.header("Location") + "/metrics", headers={"Accept": "text/csv"}).body.decode()
-    assert [line.split(",")[3:] for line in csv.strip().splitlines()[1:]] == [["", "", ""]] * 2, csv
+    assert [line.split(",")[3:] for line in csv.strip().splitlines()[1:]] == [[""] * 8] * 2, csv
     assert daemon.req("DELETE", s["href"]).status == 204
 
 
@@ -935,7 +1007,9 @@ def test_cancel_running_job(daemon):
     assert r.status == 202, repr(r)
     job = wait_job(daemon, loc, done=("cancelled", "done", "failed"), timeout=30)
     assert job["status"] == "cancelled", job
-    assert job["progress"]["frames_done"] < 5000 and len(job["frames"]) == job["progress"]["frames_done"]
+    done = job["progress"]["frames_done"]
+    # The session keeps its last 16 frames: the job offers those and counts the rest evicted.
+    assert done < 5000 and len(job["frames"]) == min(done, 16) and job["frames_evicted"] == done - len(job["frames"])
     assert daemon.req("GET", s["href"]).json()["busy"] is False
     # Deleting a session cancels its running job first.
     r = daemon.req("POST", s["href"] + "/renders", json_body={"animation": {"fps": 30, "frames": 5000}})

@@ -6,12 +6,16 @@ Every request goes to 127.0.0.1; every test bounds its own time (socket timeouts
 import http.client
 import os
 import socket
+import subprocess
 import time
+from pathlib import Path
 
 import pytest
 
-from daemon import Daemon
+from daemon import BIN, Daemon
 from test_daemon import CORNELL, J, P, TETRA_PLY, assert_problem
+
+ROOT = Path(__file__).resolve().parent.parent
 
 SPHERE = {"camera": {"position": [0, 0, 5], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov_deg": 30},
           "materials": {"w": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
@@ -795,3 +799,26 @@ def test_upload_to_one_scene_does_not_wait_for_another(tmp_path):
         assert busy and took < 0.5 < result["s"], (took, result["s"])
     finally:
         assert d.stop()[0] == 0, d.stderr()[-3000:]
+
+
+def test_listen_takes_a_host_name(tmp_path):
+    """--listen localhost:PORT listens on the address the name resolves to (loopback, so no token
+    is needed); a name that does not resolve is refused with the name and the resolver's reason."""
+    proc = subprocess.Popen([BIN, "--listen", "localhost:0", "--data-dir", str(tmp_path / "d")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        first = proc.stdout.readline()
+        assert first.startswith("restird listening on http://127.0.0.1:"), first
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+    res = subprocess.run([BIN, "--listen", "no-such-host.invalid:8080", "--data-dir", str(tmp_path / "e")],
+                         capture_output=True, text=True, timeout=30)
+    assert res.returncode == 2
+    assert res.stderr.startswith("restird: --listen: cannot resolve 'no-such-host.invalid': "), res.stderr
+
+
+def test_make_run_takes_a_port():
+    res = subprocess.run(["make", "-n", "run", "PORT=9123"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+    assert "--listen 127.0.0.1:9123 --default-session cornell-box" in res.stdout, res.stdout

@@ -169,9 +169,12 @@ CLI = os.environ.get("RESTIR_BIN", str(ROOT / "build" / "restir"))
 
 
 def cli_render(tmp_path, *args):
+    """`restir render` of the Cornell box: pt at 2 spp, or the --method in args (the methods
+    other than pt here take no spp and refuse --spp)."""
     out = tmp_path / "cli.exr"
+    spp = [] if "--method" in args else ["--spp", "2"]
     res = subprocess.run([CLI, "render", str(ROOT / "scenes" / "cornell-box" / "scene.json"), "--size", "24x24",
-                          "--spp", "2", "--seed", "7", "--threads", "2", "-o", str(out), *map(str, args)],
+                          *spp, "--seed", "7", "--threads", "2", "-o", str(out), *map(str, args)],
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     return exr_pixels(out.read_bytes())

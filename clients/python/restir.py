@@ -166,6 +166,14 @@ class _NoRedirect(urllib.request.HTTPRedirectHandler):
         return None
 
 
+def server_url(server):
+    """The daemon's base URL: `host:port` without a scheme is taken as http://host:port."""
+    server = server.strip().rstrip("/")
+    if "://" not in server:
+        server = "http://" + server
+    return server
+
+
 def _q(segment):
     return urllib.parse.quote(str(segment), safe="")
 
@@ -232,7 +240,7 @@ class Client:
 
     def __init__(self, server=DEFAULT_SERVER, timeout=600.0, retries=5, max_retry_wait=30.0,
                  retry_budget=120.0, recover=True, log=None, token=None):
-        self.server = server.rstrip("/")
+        self.server = server_url(server)
         # The daemon's bearer token (its --auth-token-file or RESTIRD_AUTH_TOKEN), sent with
         # every call when given; by default the same environment variable the daemon reads.
         self.token = token if token is not None else os.environ.get("RESTIRD_AUTH_TOKEN") or None
@@ -492,6 +500,19 @@ class Client:
         resp = self._scoped(scene, lambda: self.request("GET", path, accept=accept, query=query))
         return _body(resp)
 
+    def references(self, scene):
+        """The scene's references: [{"name", "width", "height", "spp", "method", "bytes", "created", "href"}]."""
+        path = "/v1/scenes/%s/references" % _q(scene)
+        return self._scoped(scene, lambda: self.request("GET", path)).json()["references"]
+
+    def delete_reference(self, scene, name, missing_ok=False):
+        path = "/v1/scenes/%s/references/%s" % (_q(scene), _q(name))
+        try:
+            self.request("DELETE", path)
+        except RestirError as e:
+            if not (missing_ok and e.status == 404):
+                raise
+
     # ---- sessions ----
 
     def create_session(self, scene, method=None, width=None, height=None, seed=None, params=None):
@@ -536,8 +557,9 @@ class Client:
     # ---- frames ----
 
     def frame(self, session, camera=None, lights=None, time_s=None, accept="exr", pixel=None,
-              exposure=None, tonemap=None, reference=None, scene=None):
-        """Renders the next frame. Returns bytes (EXR/PNG) or a dict (accept="json").
+              exposure=None, tonemap=None, reference=None, scene=None, compression=None):
+        """Renders the next frame. Returns bytes (EXR/PNG) or a dict (accept="json"); EXR as
+        pixel="float"|"half" and compression="none"|"zip"|"piz" (the daemon's defaults: float, none).
         The answer's headers (X-Frame, X-Render-Ms, ETag, ...) are in client.last_response."""
         body = {}
         if camera is not None:
@@ -546,7 +568,8 @@ class Client:
             body["lights"] = lights
         if time_s is not None:
             body["time_s"] = time_s
-        query = {"pixel": pixel, "exposure": exposure, "tonemap": tonemap, "reference": reference}
+        query = {"pixel": pixel, "compression": compression, "exposure": exposure, "tonemap": tonemap,
+                 "reference": reference}
         s = self._session(session, scene)
         generation = s.recreated
 
@@ -560,9 +583,10 @@ class Client:
         return _body(resp)
 
     def get_frame(self, session, n="latest", accept="exr", pixel=None, exposure=None, tonemap=None,
-                  reference=None, scene=None):
+                  reference=None, scene=None, compression=None):
         """A kept frame (n = number or "latest"): bytes or dict as for frame()."""
-        query = {"pixel": pixel, "exposure": exposure, "tonemap": tonemap, "reference": reference}
+        query = {"pixel": pixel, "compression": compression, "exposure": exposure, "tonemap": tonemap,
+                 "reference": reference}
         _, resp = self._session_call(session, "GET", "/frames/%s" % _q(n), scene=scene,
                                      accept=accept, query=query)
         return _body(resp)
@@ -599,15 +623,22 @@ class Client:
                                      headers={"Idempotency-Key": key})
         return self._job_answer(s, resp)
 
-    def create_reference(self, session, name, spp=None, scene=None, method=None):
+    def create_reference(self, session, name, spp=None, scene=None, method=None, idempotency_key=None):
         """Renders a reference of the session's view on the server (method "pt", the default, or
-        "sms": specular manifold sampling for the caustics); returns the job object."""
+        "sms": specular manifold sampling for the caustics); returns the job object. Retries
+        carry the same Idempotency-Key, so they never start a second render."""
         body = {} if spp is None else {"spp": spp}
         if method is not None:
             body["method"] = method
+        key = idempotency_key or uuid.uuid4().hex
         s, resp = self._session_call(session, "POST", "/references/%s" % _q(name), scene=scene,
-                                     json_body=body)
+                                     json_body=body, headers={"Idempotency-Key": key})
         return self._job_answer(s, resp)
+
+    def jobs(self, session, scene=None):
+        """The session's jobs (animation and reference), oldest first."""
+        s, resp = self._session_call(session, "GET", "/renders", scene=scene)
+        return resp.json()["renders"]
 
     def _job_answer(self, s, resp):
         job = resp.json() or {}
@@ -872,7 +903,8 @@ def build_parser():
     p = argparse.ArgumentParser(
         prog="restir.py", description="Client for the restird render server (protocol/API.md).")
     p.add_argument("--server", default=DEFAULT_SERVER,
-                   help="daemon or proxy URL (default $RESTIRD_URL or http://127.0.0.1:8080)")
+                   help="daemon or proxy URL; host:port alone means http:// (default $RESTIRD_URL or "
+                        "http://127.0.0.1:8080)")
     p.add_argument("--timeout", type=finite_float, default=600.0,
                    help="seconds to wait for one answer (default 600)")
     p.add_argument("--token-file", default=None,
@@ -915,7 +947,8 @@ def build_parser():
     sp.add_argument("--reference-method", choices=("pt", "sms"), default="pt",
                     help="how the server estimates the reference: pt, or sms for the caustics of "
                          "scenes with caustic casters (default pt)")
-    sp.add_argument("--reference", default=None, help="reference name (default: made from the session id)")
+    sp.add_argument("--reference", default=None,
+                    help="reference name, kept when done (default: ref-<session id>, deleted when done)")
     sp.add_argument("--frames", type=positive_int, default=16, help="frames (default 16)")
     sp.add_argument("--fps", type=finite_float, default=30.0, help="frames per second (default 30)")
     sp.add_argument("-o", "--output", required=True, help="CSV file (- = stdout)")
@@ -1083,6 +1116,12 @@ def cmd_orbit(client, args, out, prog):
         prog.update("job %s: %d frames queued (session %s)" % (rid, args.frames, s.id))
         saved = {}
 
+        def evicted(index, detail):
+            return (detail or "") + (
+                " (frame %d was evicted before it was downloaded: the daemon keeps the "
+                "last %s frames of a session; render fewer frames per job or raise "
+                "restird --frames-kept)" % (index, s.info.get("frames_kept", "?")))
+
         def fetch(index, href):
             if index in saved:
                 return
@@ -1090,10 +1129,7 @@ def cmd_orbit(client, args, out, prog):
                 data = client.frame_by_href(href, accept=accept, **query)
             except RestirError as e:
                 if e.slug == "frame-evicted":
-                    e.detail = (e.detail or "") + (
-                        " (frame %d was evicted before it was downloaded: the daemon keeps the "
-                        "last %s frames of a session; render fewer frames per job or raise "
-                        "restird --frames-kept)" % (index, s.info.get("frames_kept", "?")))
+                    e.detail = evicted(index, e.detail)
                 raise
             path = os.path.join(args.output, "frame_%04d.%s" % (index, ext))
             _write(path, data)
@@ -1114,8 +1150,15 @@ def cmd_orbit(client, args, out, prog):
             if name in ("done", "error") or time.monotonic() - last_poll > 1.0 or name is None:
                 state = client.job(s, rid)
                 last_poll = time.monotonic()
+                # A job offers only the frames still kept, the last ones, from frames_kept[0].
+                # (A daemon without frames_kept offers every frame.)
+                kept = state.get("frames_kept", [0])
+                first = kept[0] if kept else pr_done(state)
+                lost = [i for i in range(first) if i not in saved]
+                if lost:
+                    raise RestirError(410, type=PROBLEM_PREFIX + "frame-evicted", detail=evicted(lost[0], None).strip())
                 for i, href in enumerate(state.get("frames") or []):
-                    fetch(i, href)
+                    fetch(first + i, href)
                 pr = state.get("progress") or {}
                 prog.update("job %s: %s, %s/%s frames rendered, %d saved" % (
                     rid, state.get("status"), pr.get("frames_done", "?"), pr.get("frames_total", "?"),
@@ -1131,10 +1174,17 @@ def cmd_orbit(client, args, out, prog):
         client.delete_session(s, missing_ok=True)
 
 
+def pr_done(job):
+    """Frames a job has rendered (its progress)."""
+    return (job.get("progress") or {}).get("frames_done") or 0
+
+
 def cmd_metrics(client, args, out, prog):
     s = _make_session(client, args)
+    # A reference named for this run's session is this run's alone: it goes when the run ends,
+    # however it ends. One named with --reference is the caller's and stays.
+    name = args.reference or ("ref-%s" % s.id)[:64]
     try:
-        name = args.reference or ("ref-%s" % s.id)[:64]
         prog.update("session %s: rendering reference %s at %d spp (%s)" % (s.id, name, args.reference_spp,
                                                                           args.reference_method))
         ref_job = client.create_reference(s, name, spp=args.reference_spp, method=args.reference_method)
@@ -1164,7 +1214,11 @@ def cmd_metrics(client, args, out, prog):
                 len(rows), last.get("mape"), last.get("rmse"), last.get("relmse"), args.output))
         return 0
     finally:
+        # The session first: deleting it cancels a reference job still running, which could
+        # otherwise store the reference after it was deleted.
         client.delete_session(s, missing_ok=True)
+        if not args.reference:
+            client.delete_reference(s.scene, name, missing_ok=True)
 
 
 def _scene_meshes(doc):

@@ -12,6 +12,19 @@ static bool metrics_pixel_finite(struct vec3 p)
     return isfinite(p.x) && isfinite(p.y) && isfinite(p.z);
 }
 
+/* One pixel's MAPE terms summed over R, G, B: |I - R| / (R + offset) per channel, offset being
+ * METRICS_MAPE_MEAN_FRACTION * ref_mean. The error image and MAPE share it, so a pixel's error
+ * there is exactly its share of MAPE. */
+static double metrics_abs_rel_sum(struct vec3 a, struct vec3 b, double offset)
+{
+    double sum = 0.0;
+    for (int c = 0; c < 3; c++) {
+        double vr = vec3_comp(b, c);
+        sum += fabs(vec3_comp(a, c) - vr) / (vr + offset);
+    }
+    return sum;
+}
+
 static bool metrics_pixel_has_nan(struct vec3 p) { return isnan(p.x) || isnan(p.y) || isnan(p.z); }
 static bool metrics_pixel_has_inf(struct vec3 p) { return isinf(p.x) || isinf(p.y) || isinf(p.z); }
 
@@ -59,10 +72,10 @@ bool metrics_compare(const struct image *image, const struct image *ref, struct 
         for (size_t i = y * w; i < (y + 1) * w; i++) {
             struct vec3 a = image->pixels[i], b = ref->pixels[i];
             if (!metrics_pixel_finite(a) || !metrics_pixel_finite(b)) continue;
+            row_abs_rel += metrics_abs_rel_sum(a, b, mape_offset);
             for (int c = 0; c < 3; c++) {
                 double va = vec3_comp(a, c), vr = vec3_comp(b, c);
                 double d = va - vr;
-                row_abs_rel += fabs(d) / (vr + mape_offset);
                 row_sq += d * d;
                 row_rel_sq += d * d / (vr * vr + METRICS_RELMSE_EPS);
             }
@@ -77,6 +90,40 @@ bool metrics_compare(const struct image *image, const struct image *ref, struct 
     m.relmse = rel_sq / ns;
     *out = m;
     return true;
+}
+
+bool metrics_error_image(const struct image *image, const struct image *ref, const struct metrics *m,
+                         struct image *out, struct err *err)
+{
+    if (!image || !ref || !m || !out || !image->pixels || !ref->pixels || !out->pixels)
+        return err_set(err, ERR_INVALID, NULL, "the error image needs two images, their metrics and an output");
+    if (image->width != ref->width || image->height != ref->height || out->width != image->width ||
+        out->height != image->height)
+        return err_set(err, ERR_INVALID, NULL, "image is %ux%u, reference %ux%u, error image %ux%u", image->width,
+                       image->height, ref->width, ref->height, out->width, out->height);
+    const double offset = METRICS_MAPE_MEAN_FRACTION * m->ref_mean;
+    const bool defined = m->ref_mean > 0.0;
+    const size_t n = (size_t)image->width * image->height;
+    for (size_t i = 0; i < n; i++) {
+        struct vec3 a = image->pixels[i], b = ref->pixels[i];
+        float e = NAN;
+        if (defined && metrics_pixel_finite(a) && metrics_pixel_finite(b)) e = (float)(metrics_abs_rel_sum(a, b, offset) / 3.0);
+        out->pixels[i] = (struct vec3){e, e, e};
+    }
+    return true;
+}
+
+double metrics_fraction_above(const struct image *errors, double threshold)
+{
+    uint64_t counted = 0, above = 0;
+    const size_t n = (size_t)errors->width * errors->height;
+    for (size_t i = 0; i < n; i++) {
+        double e = errors->pixels[i].x;
+        if (!isfinite(e)) continue;
+        counted++;
+        above += e > threshold;
+    }
+    return counted ? (double)above / (double)counted : NAN;
 }
 
 /* Appends a JSON number or null; JSON has no NaN/Infinity literals. */

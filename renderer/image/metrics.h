@@ -43,6 +43,20 @@ struct metrics {
 bool metrics_compare(const struct image *image, const struct image *ref, struct metrics *out,
                      struct err *err);
 
+/* Each pixel's relative error as MAPE counts it: the mean over R, G, B of
+ *   |I - R| / (R + METRICS_MAPE_MEAN_FRACTION * m->ref_mean),
+ * so the mean of the error image over the used pixels is m->mape. `m` is metrics_compare's
+ * answer for the same pair. A pixel left out of the sums (a non-finite channel in either
+ * image) is NaN, and so is every pixel when MAPE is (ref_mean <= 0). The three channels of
+ * `out` (the images' size, allocated by the caller) hold the same value. ERR_INVALID when a
+ * size differs. */
+bool metrics_error_image(const struct image *image, const struct image *ref, const struct metrics *m,
+                         struct image *out, struct err *err);
+
+/* The fraction of an error image's finite pixels (metrics_error_image) whose error is above
+ * `threshold`; NaN when none is finite. */
+double metrics_fraction_above(const struct image *errors, double threshold);
+
 /* Per-channel mean over the image's finite pixels, accumulated in double; returns how many
  * pixels were left out because a channel was NaN or Inf. An empty image gives means of 0. */
 uint64_t metrics_image_mean(const struct image *img, double mean[3]);

@@ -72,74 +72,104 @@ const char *bdpt_heuristic_name(enum bdpt_heuristic h)
 
 /* ---- sizes -------------------------------------------------------------------------------- */
 
-static uint32_t bdpt_light_count(const struct bdpt_params *p, uint32_t width, uint32_t height)
+struct bdpt_blocks bdpt_blocks_of(uint32_t light_paths, uint32_t slots, uint32_t rays_per_block, uint32_t width,
+                                  uint32_t height)
 {
-    uint64_t n = p->light_paths ? p->light_paths : (uint64_t)width * height;
-    return (uint32_t)n;
+    struct bdpt_blocks b = {.rays_per_block = rays_per_block};
+    b.light_paths = light_paths ? light_paths : (uint32_t)((uint64_t)width * height);
+    b.blocks = (b.light_paths + BDPT_BLOCK_PATHS - 1) / BDPT_BLOCK_PATHS;
+    b.region = BDPT_BLOCK_PATHS * slots;
+    return b;
 }
 
-struct bdpt_sizes {
-    uint32_t light_paths, blocks, region;
-    uint64_t lvc_bytes, block_bytes;
-};
-
-static struct bdpt_sizes bdpt_sizes_of(const struct bdpt_params *p, uint32_t width, uint32_t height)
+bool bdpt_blocks_init(struct bdpt_blocks *b, const struct scene *scene, const char *method, uint32_t light_paths,
+                      uint32_t slots, uint32_t rays_per_block, uint32_t width, uint32_t height, struct err *err)
 {
-    struct bdpt_sizes z;
-    z.light_paths = bdpt_light_count(p, width, height);
-    z.blocks = (z.light_paths + BDPT_BLOCK_PATHS - 1) / BDPT_BLOCK_PATHS;
-    z.region = BDPT_BLOCK_PATHS * p->lvc_capacity;
-    z.lvc_bytes = (uint64_t)z.blocks * z.region * (sizeof(struct bdpt_light_vertex) + sizeof(struct bdpt_splat));
-    z.block_bytes = (uint64_t)z.blocks * (2 * sizeof(uint32_t) + 2 * sizeof(uint64_t)) + ((uint64_t)z.blocks + 1) * sizeof(uint64_t);
-    return z;
+    if (!vec3_is_zero(scene->env_radiance))
+        return err_set(err, ERR_INVALID, "/method",
+                       "%s does not support environment light (the scene has env_radiance)", method);
+    if (scene_has_translucent(scene))
+        return err_set(err, ERR_INVALID, "/method",
+                       "%s does not sample subsurface scattering (the scene has translucent materials)", method);
+    *b = bdpt_blocks_of(light_paths, slots, rays_per_block, width, height);
+    if (b->light_paths == 0) return err_set(err, ERR_INVALID, "/params/light_paths", "no light subpaths");
+    b->count = calloc(b->blocks, sizeof *b->count);
+    b->dropped = calloc(b->blocks, sizeof *b->dropped);
+    b->rays = calloc((size_t)rays_per_block * b->blocks, sizeof *b->rays);
+    return true;
+}
+
+uint64_t bdpt_blocks_bytes(const struct bdpt_blocks *b)
+{
+    return (uint64_t)b->blocks * (sizeof *b->count + sizeof *b->dropped + b->rays_per_block * sizeof *b->rays);
+}
+
+void bdpt_blocks_destroy(struct bdpt_blocks *b)
+{
+    free(b->count);
+    free(b->dropped);
+    free(b->rays);
+    memset(b, 0, sizeof *b);
+}
+
+bool bdpt_frame_valid(const struct method_frame *f, const char *method, const struct image *out, uint32_t width,
+                      uint32_t height, struct err *err)
+{
+    if (!f->scene->accel || !f->scene->lights) return err_set(err, ERR_INVALID, NULL, "scene is not committed");
+    if (!vec3_is_zero(f->scene->env_radiance))
+        return err_set(err, ERR_INVALID, NULL, "%s does not support environment light", method);
+    if (out->width != width || out->height != height || !out->pixels)
+        return err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the state %ux%u", out->width, out->height,
+                       width, height);
+    return true;
+}
+
+/* The blocks of bdpt's light pass: LVC slots, two ray counters per block. */
+static struct bdpt_blocks bdpt_blocks_for(const struct bdpt_params *p, uint32_t width, uint32_t height)
+{
+    return bdpt_blocks_of(p->light_paths, p->lvc_capacity, 2, width, height);
+}
+
+/* The LVC with its splats, and the prefix sums of the blocks' counts. */
+static uint64_t bdpt_lvc_bytes_of(const struct bdpt_blocks *b)
+{
+    return (uint64_t)b->blocks * b->region * (sizeof(struct bdpt_light_vertex) + sizeof(struct bdpt_splat));
 }
 
 uint64_t bdpt_bytes_planned(const struct bdpt_params *p, uint32_t width, uint32_t height)
 {
-    struct bdpt_sizes z = bdpt_sizes_of(p, width, height);
-    return z.lvc_bytes + z.block_bytes;
+    struct bdpt_blocks b = bdpt_blocks_for(p, width, height);
+    return bdpt_lvc_bytes_of(&b) + bdpt_blocks_bytes(&b) + ((uint64_t)b.blocks + 1) * sizeof(uint64_t);
 }
 
 size_t bdpt_lvc_bytes(const struct bdpt_state *st)
 {
-    return (size_t)st->blocks * st->region * (sizeof *st->lvc + sizeof *st->splat);
+    return (size_t)bdpt_lvc_bytes_of(&st->lb);
 }
 
 size_t bdpt_block_bytes(const struct bdpt_state *st)
 {
-    return (size_t)st->blocks * (sizeof *st->block_count + sizeof *st->block_dropped + 2 * sizeof *st->block_rays) +
-           ((size_t)st->blocks + 1) * sizeof *st->block_first;
+    return (size_t)bdpt_blocks_bytes(&st->lb) + ((size_t)st->lb.blocks + 1) * sizeof *st->block_first;
 }
 
 bool bdpt_init(struct bdpt_state *st, const struct scene *scene, const struct bdpt_params *p, uint32_t width,
                uint32_t height, struct err *err)
 {
     memset(st, 0, sizeof *st);
-    if (!bdpt_params_valid(p, err)) return false;
-    if (!vec3_is_zero(scene->env_radiance))
-        return err_set(err, ERR_INVALID, "/method",
-                       "bdpt does not support environment light (the scene has env_radiance)");
-    if (scene_has_translucent(scene))
-        return err_set(err, ERR_INVALID, "/method",
-                       "bdpt does not sample subsurface scattering (the scene has translucent materials)");
-    struct bdpt_sizes z = bdpt_sizes_of(p, width, height);
-    if (z.light_paths == 0) return err_set(err, ERR_INVALID, "/params/light_paths", "no light subpaths");
+    if (!bdpt_params_valid(p, err) ||
+        !bdpt_blocks_init(&st->lb, scene, "bdpt", p->light_paths, p->lvc_capacity, 2, width, height, err))
+        return false;
     st->width = width;
     st->height = height;
-    st->light_paths = z.light_paths;
-    st->blocks = z.blocks;
-    st->region = z.region;
-    size_t slots = (size_t)z.blocks * z.region;
+    size_t slots = (size_t)st->lb.blocks * st->lb.region;
     st->lvc = malloc(slots * sizeof *st->lvc);
     st->splat = malloc(slots * sizeof *st->splat);
-    st->block_count = calloc(z.blocks, sizeof *st->block_count);
-    st->block_dropped = calloc(z.blocks, sizeof *st->block_dropped);
-    st->block_rays = calloc(2 * (size_t)z.blocks, sizeof *st->block_rays);
-    st->block_first = calloc((size_t)z.blocks + 1, sizeof *st->block_first);
-    if (!st->lvc || !st->splat || !st->block_count || !st->block_dropped || !st->block_rays || !st->block_first) {
+    st->block_first = calloc((size_t)st->lb.blocks + 1, sizeof *st->block_first);
+    if (!st->lvc || !st->splat || !bdpt_blocks_allocated(&st->lb) || !st->block_first) {
+        uint64_t bytes = bdpt_lvc_bytes_of(&st->lb);
         bdpt_destroy(st);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for the light vertex cache (%llu bytes)",
-                       (unsigned long long)z.lvc_bytes);
+                       (unsigned long long)bytes);
     }
     return true;
 }
@@ -148,9 +178,7 @@ void bdpt_destroy(struct bdpt_state *st)
 {
     free(st->lvc);
     free(st->splat);
-    free(st->block_count);
-    free(st->block_dropped);
-    free(st->block_rays);
+    bdpt_blocks_destroy(&st->lb);
     free(st->block_first);
     memset(st, 0, sizeof *st);
 }
@@ -294,11 +322,11 @@ static void bdpt_light_block(void *ctx, uint32_t block, unsigned worker)
     const struct scene *scene = c->scene;
     const struct bdpt_params *p = c->p;
     struct ray_counters rc = {0, 0};
-    struct bdpt_light_vertex *region = &st->lvc[(size_t)block * st->region];
-    struct bdpt_splat *splats = &st->splat[(size_t)block * st->region];
+    struct bdpt_light_vertex *region = &st->lvc[(size_t)block * st->lb.region];
+    struct bdpt_splat *splats = &st->splat[(size_t)block * st->lb.region];
     uint32_t stored = 0, dropped = 0;
     uint32_t first = block * BDPT_BLOCK_PATHS;
-    uint32_t last = first + BDPT_BLOCK_PATHS < st->light_paths ? first + BDPT_BLOCK_PATHS : st->light_paths;
+    uint32_t last = first + BDPT_BLOCK_PATHS < st->lb.light_paths ? first + BDPT_BLOCK_PATHS : st->lb.light_paths;
 
     for (uint32_t i = first; i < last; i++) {
         struct rng rng = rng_make(c->seed, c->frame, BDPT_LIGHT_STREAM + i, 1);
@@ -323,7 +351,7 @@ static void bdpt_light_block(void *ctx, uint32_t block, unsigned worker)
             struct vec3 wo_world = vec3_neg(dir);
             if (flags & (BSDF_DIFFUSE | BSDF_GLOSSY)) {
                 /* A connectable vertex: into the cache, and seen by the camera (t = 1). */
-                if (stored < st->region) {
+                if (stored < st->lb.region) {
                     struct bdpt_splat *sp = &splats[stored];
                     region[stored++] = bdpt_light_vertex_make(scene, &hit, &s, wo_world, beta, &mis, depth);
                     *sp = (struct bdpt_splat){vec3_splat(0.0f), BDPT_NO_PIXEL};
@@ -357,10 +385,10 @@ static void bdpt_light_block(void *ctx, uint32_t block, unsigned worker)
             dir = wi_world;
         }
     }
-    st->block_count[block] = stored;
-    st->block_dropped[block] = dropped;
-    st->block_rays[2 * block] = rc.intersect;
-    st->block_rays[2 * block + 1] = rc.occluded;
+    st->lb.count[block] = stored;
+    st->lb.dropped[block] = dropped;
+    st->lb.rays[2 * block] = rc.intersect;
+    st->lb.rays[2 * block + 1] = rc.occluded;
 }
 
 /* ---- camera pass -------------------------------------------------------------------------- */
@@ -567,15 +595,8 @@ static double bdpt_ms_since(const struct timespec *t0)
 bool bdpt_render(struct bdpt_state *st, const struct bdpt_params *p, const struct method_frame *f, struct image *out,
                  struct bdpt_stats *stats, struct err *err)
 {
-    if (!bdpt_params_valid(p, err)) return false;
-    if (!f->scene->accel || !f->scene->lights) return err_set(err, ERR_INVALID, NULL, "scene is not committed");
-    if (!vec3_is_zero(f->scene->env_radiance))
-        return err_set(err, ERR_INVALID, NULL, "bdpt does not support environment light");
-    if (out->width != st->width || out->height != st->height || !out->pixels)
-        return err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the state %ux%u", out->width, out->height,
-                       st->width, st->height);
-    if (bdpt_light_count(p, st->width, st->height) != st->light_paths ||
-        st->region != BDPT_BLOCK_PATHS * p->lvc_capacity)
+    if (!bdpt_params_valid(p, err) || !bdpt_frame_valid(f, "bdpt", out, st->width, st->height, err)) return false;
+    if (!bdpt_blocks_same(&st->lb, bdpt_blocks_for(p, st->width, st->height)))
         return err_set(err, ERR_INVALID, NULL, "the parameters changed the light vertex cache's size since init");
     unsigned threads = f->threads ? f->threads : parallel_default_threads();
     if (threads > BDPT_MAX_WORKERS) threads = BDPT_MAX_WORKERS;
@@ -590,7 +611,7 @@ bool bdpt_render(struct bdpt_state *st, const struct bdpt_params *p, const struc
     camera_init(&c->cam, f->camera, st->width, st->height);
     float plane = (float)st->height / (2.0f * c->cam.tan_half_fov_y);
     c->plane_dist2 = plane * plane;
-    c->n_light = (float)st->light_paths;
+    c->n_light = (float)st->lb.light_paths;
     c->seed = f->seed;
     c->frame = f->frame;
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;
@@ -600,27 +621,27 @@ bool bdpt_render(struct bdpt_state *st, const struct bdpt_params *p, const struc
     struct bdpt_stats s = {0};
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
-    if (!parallel_run(threads, st->blocks, bdpt_light_block, c, NULL, NULL, err)) return false;
+    if (!parallel_run(threads, st->lb.blocks, bdpt_light_block, c, NULL, NULL, err)) return false;
     s.light_ms = bdpt_ms_since(&t0);
 
     /* Canonical LVC order and the light-tracing contributions, in one thread in block order so
      * that the sums do not depend on the thread count. */
     clock_gettime(CLOCK_MONOTONIC, &t0);
     st->block_first[0] = 0;
-    for (uint32_t b = 0; b < st->blocks; b++) {
-        st->block_first[b + 1] = st->block_first[b] + st->block_count[b];
-        s.lvc_dropped += st->block_dropped[b];
-        s.rays_intersect += st->block_rays[2 * b];
-        s.rays_occluded += st->block_rays[2 * b + 1];
-        const struct bdpt_splat *sp = &st->splat[(size_t)b * st->region];
-        for (uint32_t j = 0; j < st->block_count[b]; j++) {
+    for (uint32_t b = 0; b < st->lb.blocks; b++) {
+        st->block_first[b + 1] = st->block_first[b] + st->lb.count[b];
+        s.lvc_dropped += st->lb.dropped[b];
+        s.rays_intersect += st->lb.rays[2 * b];
+        s.rays_occluded += st->lb.rays[2 * b + 1];
+        const struct bdpt_splat *sp = &st->splat[(size_t)b * st->lb.region];
+        for (uint32_t j = 0; j < st->lb.count[b]; j++) {
             if (sp[j].pixel == BDPT_NO_PIXEL) continue;
             out->pixels[sp[j].pixel] = vec3_add(out->pixels[sp[j].pixel], sp[j].value);
             s.light_traced++;
         }
     }
-    c->lvc = (struct bdpt_lvc_view){st->lvc, st->block_first, st->blocks, st->region, st->block_first[st->blocks],
-                                    (float)((double)st->block_first[st->blocks] / (double)st->light_paths)};
+    c->lvc = (struct bdpt_lvc_view){st->lvc, st->block_first, st->lb.blocks, st->lb.region, st->block_first[st->lb.blocks],
+                                    (float)((double)st->block_first[st->lb.blocks] / (double)st->lb.light_paths)};
     s.splat_ms = bdpt_ms_since(&t0);
 
     clock_gettime(CLOCK_MONOTONIC, &t0);
@@ -635,7 +656,7 @@ bool bdpt_render(struct bdpt_state *st, const struct bdpt_params *p, const struc
         s.connections += c->worker[i].connections;
         s.nonfinite += c->worker[i].nonfinite;
     }
-    s.light_subpaths = st->light_paths;
+    s.light_subpaths = st->lb.light_paths;
     s.lvc_vertices = c->lvc.total;
     if (stats) *stats = s;
     return true;

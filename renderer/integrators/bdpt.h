@@ -61,17 +61,48 @@ struct bdpt_splat {
     uint32_t pixel;            /* UINT32_MAX when none */
 };
 
-struct bdpt_state {
-    uint32_t width, height;
+/* A frame's light subpaths in blocks of BDPT_BLOCK_PATHS (a block is one job and fills its own
+ * region of `region` slots of the method's per-block cache), with each block's counters: the
+ * layout bdpt and restir_bdpt share. */
+struct bdpt_blocks {
     uint32_t light_paths;      /* N_L resolved */
     uint32_t blocks;           /* ceil(N_L / BDPT_BLOCK_PATHS) */
-    uint32_t region;           /* LVC vertices per block */
-    struct bdpt_light_vertex *lvc;   /* blocks * region */
-    struct bdpt_splat *splat;        /* blocks * region, the same slots */
-    uint32_t *block_count;     /* vertices stored per block */
-    uint64_t *block_first;     /* prefix sums of block_count (blocks + 1) */
-    uint32_t *block_dropped;   /* vertices dropped per block (region full) */
-    uint64_t *block_rays;      /* per block: rays traced (intersect, occluded) */
+    uint32_t region;           /* cache slots per block */
+    uint32_t rays_per_block;   /* counters per block in `rays` */
+    uint32_t *count;           /* slots stored per block */
+    uint32_t *dropped;         /* entries dropped per block (region full) */
+    uint64_t *rays;            /* per block: rays traced (intersect, occluded), then the method's own */
+};
+/* The layout of light_paths subpaths (0: one per pixel) with `slots` cache slots each; no
+ * allocation. */
+struct bdpt_blocks bdpt_blocks_of(uint32_t light_paths, uint32_t slots, uint32_t rays_per_block, uint32_t width,
+                                  uint32_t height);
+/* The start of both methods' init once their parameters are valid: refuses environment light and
+ * translucent materials (the messages name `method`) and a frame without light subpaths, then
+ * lays out *b and allocates its counters (bdpt_blocks_allocated says whether that worked; the
+ * caller reports it with its own buffers). */
+bool bdpt_blocks_init(struct bdpt_blocks *b, const struct scene *scene, const char *method, uint32_t light_paths,
+                      uint32_t slots, uint32_t rays_per_block, uint32_t width, uint32_t height, struct err *err);
+static inline bool bdpt_blocks_allocated(const struct bdpt_blocks *b) { return b->count && b->dropped && b->rays; }
+/* Whether the parameters of a frame still lay out the session's blocks. */
+static inline bool bdpt_blocks_same(const struct bdpt_blocks *b, struct bdpt_blocks want)
+{
+    return want.light_paths == b->light_paths && want.region == b->region;
+}
+/* The checks both methods' render start with once their parameters are valid: a committed scene
+ * without environment light (the message names `method`) and an output of the session's size. */
+bool bdpt_frame_valid(const struct method_frame *f, const char *method, const struct image *out, uint32_t width,
+                      uint32_t height, struct err *err);
+/* Bytes of the counters. */
+uint64_t bdpt_blocks_bytes(const struct bdpt_blocks *b);
+void bdpt_blocks_destroy(struct bdpt_blocks *b);
+
+struct bdpt_state {
+    uint32_t width, height;
+    struct bdpt_blocks lb;           /* region: LVC vertices per block */
+    struct bdpt_light_vertex *lvc;   /* lb.blocks * lb.region */
+    struct bdpt_splat *splat;        /* lb.blocks * lb.region, the same slots */
+    uint64_t *block_first;     /* prefix sums of lb.count (lb.blocks + 1) */
 };
 
 struct RESTIRD_STORED_IN_BYTES bdpt_stats {

@@ -39,6 +39,15 @@ struct pt_params reference_pt_defaults(uint32_t width, uint32_t height)
     return (struct pt_params){.width = width, .height = height, .spp = 16, .max_depth = 64, .rr_depth = 3, .nee = true};
 }
 
+struct pt_params reference_pt_rest(uint32_t width, uint32_t height, uint32_t max_depth, uint32_t rr_depth)
+{
+    struct pt_params p = reference_pt_defaults(width, height);
+    p.max_depth = max_depth;
+    p.rr_depth = rr_depth;
+    p.nee = true;
+    return p;
+}
+
 /* The emitter normal on the side that direction `wi` (towards the emitter) arrives from. */
 static inline struct vec3 pt_emitter_side(struct vec3 n, struct vec3 wi)
 {

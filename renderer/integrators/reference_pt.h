@@ -42,6 +42,9 @@ struct pt_params {
 
 /* Defaults: 16 spp, max_depth 64, rr_depth 3, NEE on, seed 0, all cores, whole image. */
 struct pt_params reference_pt_defaults(uint32_t width, uint32_t height);
+/* The paths a ReSTIR method traces for the light its reservoirs do not carry, one per pixel from
+ * the G-buffer's primary ray: the defaults with the method's depths, NEE on. */
+struct pt_params reference_pt_rest(uint32_t width, uint32_t height, uint32_t max_depth, uint32_t rr_depth);
 
 /* Renders into `out` (initialised here to width x height; pixels outside a crop stay 0). */
 bool reference_pt_render(const struct scene *scene, const struct pt_params *params, struct image *out,

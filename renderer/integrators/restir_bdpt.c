@@ -191,7 +191,8 @@ const char *restir_bdpt_variant_name(enum restir_bdpt_variant v)
 }
 
 struct rbdpt_sizes {
-    uint32_t light_paths, blocks, region, lvc_region;
+    struct bdpt_blocks lb;   /* no counters allocated */
+    uint32_t lvc_region;
     uint64_t lt, pixels, blocks_b, res, lvc, pairs, x2c;
 };
 
@@ -199,12 +200,11 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
 {
     struct rbdpt_sizes z;
     uint64_t n = (uint64_t)width * height;
-    z.light_paths = p->light_paths ? p->light_paths : (uint32_t)n;
-    z.blocks = (z.light_paths + RBDPT_BLOCK_PATHS - 1) / RBDPT_BLOCK_PATHS;
-    z.region = RBDPT_BLOCK_PATHS * p->lt_capacity;
-    z.lt = 2 * (uint64_t)z.blocks * z.region * sizeof(struct restir_bdpt_lt_sample);
+    z.lb = bdpt_blocks_of(p->light_paths, p->lt_capacity, 3, width, height);
+    const uint64_t blocks = z.lb.blocks;
+    z.lt = 2 * blocks * z.lb.region * sizeof(struct restir_bdpt_lt_sample);
     z.pixels = (n + 1) * sizeof(uint32_t);
-    z.blocks_b = (uint64_t)z.blocks * (2 * sizeof(uint32_t) + 3 * sizeof(uint64_t));
+    z.blocks_b = bdpt_blocks_bytes(&z.lb);
     z.res = (p->reuse ? 3 : 1) * n * sizeof(struct restir_bdpt_path) + 2 * n * sizeof(struct restir_bdpt_reservoir) +
             2 * n * sizeof(struct restir_bdpt_shifted) +
             (n + 1) * sizeof(uint32_t) + (p->reuse ? n * sizeof(struct gbuffer_pixel) : 0);
@@ -214,9 +214,8 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
     z.x2c = p->reuse ? n * sizeof(struct rbdpt_x2_entry) : 0;
     bool full = p->variant == RESTIR_BDPT_FULL;
     z.lvc_region = full ? RBDPT_BLOCK_PATHS * p->lvc_capacity : 0;
-    z.lvc = full ? (uint64_t)z.blocks * z.lvc_region *
-                           (sizeof(struct bdpt_light_vertex) + (p->reuse ? sizeof(uint32_t) : 0)) +
-                       (uint64_t)z.blocks * 2 * sizeof(uint32_t) + ((uint64_t)z.blocks + 1) * sizeof(uint64_t)
+    z.lvc = full ? blocks * z.lvc_region * (sizeof(struct bdpt_light_vertex) + (p->reuse ? sizeof(uint32_t) : 0)) +
+                       blocks * 2 * sizeof(uint32_t) + (blocks + 1) * sizeof(uint64_t)
                  : 0;
     return z;
 }
@@ -240,9 +239,9 @@ size_t restir_bdpt_pair_bytes(const struct restir_bdpt_state *st)
 size_t restir_bdpt_lvc_bytes(const struct restir_bdpt_state *st)
 {
     if (!st->lvc) return 0;
-    return (size_t)st->blocks * st->lvc_region * (sizeof *st->lvc + (st->lvc_path ? sizeof *st->lvc_path : 0)) +
-           (size_t)st->blocks * (sizeof *st->lvc_count + sizeof *st->lvc_dropped) +
-           ((size_t)st->blocks + 1) * sizeof *st->lvc_first;
+    return (size_t)st->lb.blocks * st->lvc_region * (sizeof *st->lvc + (st->lvc_path ? sizeof *st->lvc_path : 0)) +
+           (size_t)st->lb.blocks * (sizeof *st->lvc_count + sizeof *st->lvc_dropped) +
+           ((size_t)st->lb.blocks + 1) * sizeof *st->lvc_first;
 }
 
 size_t restir_bdpt_reservoir_bytes(const struct restir_bdpt_state *st)
@@ -253,7 +252,7 @@ size_t restir_bdpt_reservoir_bytes(const struct restir_bdpt_state *st)
 
 size_t restir_bdpt_lt_bytes(const struct restir_bdpt_state *st)
 {
-    return 2 * (size_t)st->blocks * st->region * sizeof *st->lt;
+    return 2 * (size_t)st->lb.blocks * st->lb.region * sizeof *st->lt;
 }
 
 size_t restir_bdpt_shift_bytes(const struct restir_bdpt_state *st)
@@ -269,7 +268,7 @@ size_t restir_bdpt_bucket_bytes(const struct restir_bdpt_state *st)
 
 size_t restir_bdpt_block_bytes(const struct restir_bdpt_state *st)
 {
-    return (size_t)st->blocks * (sizeof *st->block_count + sizeof *st->block_dropped + 3 * sizeof *st->block_rays);
+    return (size_t)bdpt_blocks_bytes(&st->lb);
 }
 
 size_t restir_bdpt_bytes(const struct restir_bdpt_state *st)
@@ -283,28 +282,17 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
                       uint32_t width, uint32_t height, struct err *err)
 {
     memset(st, 0, sizeof *st);
-    if (!restir_bdpt_params_valid(p, err)) return false;
-    if (!vec3_is_zero(scene->env_radiance))
-        return err_set(err, ERR_INVALID, "/method",
-                       "restir_bdpt does not support environment light (the scene has env_radiance)");
-    if (scene_has_translucent(scene))
-        return err_set(err, ERR_INVALID, "/method",
-                       "restir_bdpt does not sample subsurface scattering (the scene has translucent materials)");
+    if (!restir_bdpt_params_valid(p, err) ||
+        !bdpt_blocks_init(&st->lb, scene, "restir_bdpt", p->light_paths, p->lt_capacity, 3, width, height, err))
+        return false;
     struct rbdpt_sizes z = rbdpt_sizes_of(p, width, height);
-    if (z.light_paths == 0) return err_set(err, ERR_INVALID, "/params/light_paths", "no light subpaths");
     size_t n = (size_t)width * height;
     st->width = width;
     st->height = height;
-    st->light_paths = z.light_paths;
-    st->blocks = z.blocks;
-    st->region = z.region;
-    size_t lt_n = (size_t)z.blocks * z.region;
+    size_t lt_n = (size_t)st->lb.blocks * st->lb.region;
     st->lt = malloc(lt_n * sizeof *st->lt);
     st->lt_sorted = malloc(lt_n * sizeof *st->lt_sorted);
     st->pixel_first = calloc(n + 1, sizeof *st->pixel_first);
-    st->block_count = calloc(z.blocks, sizeof *st->block_count);
-    st->block_dropped = calloc(z.blocks, sizeof *st->block_dropped);
-    st->block_rays = calloc(3 * (size_t)z.blocks, sizeof *st->block_rays);
     st->res = calloc(n, sizeof *st->res);
     st->caustic = calloc(n, sizeof *st->caustic);
     st->caustic_prev = calloc(n, sizeof *st->caustic_prev);
@@ -323,13 +311,13 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
     }
     if (p->variant == RESTIR_BDPT_FULL) {
         st->lvc_region = z.lvc_region;
-        st->lvc = malloc((size_t)z.blocks * z.lvc_region * sizeof *st->lvc);
-        st->lvc_count = calloc(z.blocks, sizeof *st->lvc_count);
-        st->lvc_dropped = calloc(z.blocks, sizeof *st->lvc_dropped);
-        st->lvc_first = calloc((size_t)z.blocks + 1, sizeof *st->lvc_first);
-        if (p->reuse) st->lvc_path = malloc((size_t)z.blocks * z.lvc_region * sizeof *st->lvc_path);
+        st->lvc = malloc((size_t)z.lb.blocks * z.lvc_region * sizeof *st->lvc);
+        st->lvc_count = calloc(z.lb.blocks, sizeof *st->lvc_count);
+        st->lvc_dropped = calloc(z.lb.blocks, sizeof *st->lvc_dropped);
+        st->lvc_first = calloc((size_t)z.lb.blocks + 1, sizeof *st->lvc_first);
+        if (p->reuse) st->lvc_path = malloc((size_t)z.lb.blocks * z.lvc_region * sizeof *st->lvc_path);
     }
-    if (!st->lt || !st->lt_sorted || !st->pixel_first || !st->block_count || !st->block_dropped || !st->block_rays ||
+    if (!st->lt || !st->lt_sorted || !st->pixel_first || !bdpt_blocks_allocated(&st->lb) ||
         !st->res || !st->caustic || !st->caustic_prev || !st->shifted || !st->shifted_sorted || !st->shift_first ||
         (p->reuse && (!st->res_prev || !st->res_spatial || !st->x2c || (p->paired_spatial && !st->pair_scratch))) ||
         (p->variant == RESTIR_BDPT_FULL && (!st->lvc || !st->lvc_count || !st->lvc_dropped || !st->lvc_first ||
@@ -346,9 +334,7 @@ void restir_bdpt_destroy(struct restir_bdpt_state *st)
     free(st->lt);
     free(st->lt_sorted);
     free(st->pixel_first);
-    free(st->block_count);
-    free(st->block_dropped);
-    free(st->block_rays);
+    bdpt_blocks_destroy(&st->lb);
     free(st->res);
     free(st->caustic);
     free(st->caustic_prev);
@@ -384,15 +370,10 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
                         const struct method_frame *f, struct image *out, struct restir_bdpt_stats *stats,
                         struct err *err)
 {
-    if (!restir_bdpt_params_valid(p, err)) return false;
-    if (!f->scene->accel || !f->scene->lights) return err_set(err, ERR_INVALID, NULL, "scene is not committed");
-    if (!vec3_is_zero(f->scene->env_radiance))
-        return err_set(err, ERR_INVALID, NULL, "restir_bdpt does not support environment light");
-    if (out->width != st->width || out->height != st->height || !out->pixels)
-        return err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the state %ux%u", out->width, out->height,
-                       st->width, st->height);
+    if (!restir_bdpt_params_valid(p, err) || !bdpt_frame_valid(f, "restir_bdpt", out, st->width, st->height, err))
+        return false;
     struct rbdpt_sizes z = rbdpt_sizes_of(p, st->width, st->height);
-    if (z.light_paths != st->light_paths || z.region != st->region || z.lvc_region != st->lvc_region)
+    if (!bdpt_blocks_same(&st->lb, z.lb) || z.lvc_region != st->lvc_region)
         return err_set(err, ERR_INVALID, NULL, "the parameters changed the buffers' sizes since init");
     unsigned threads = f->threads ? f->threads : parallel_default_threads();
     if (threads > RBDPT_MAX_WORKERS) threads = RBDPT_MAX_WORKERS;
@@ -424,7 +405,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     c->static_scene = c->has_prev && !moved;
     _Atomic uint64_t reconnections = 0;
     c->reconnections = &reconnections;
-    c->n_light = (float)st->light_paths;
+    c->n_light = (float)st->lb.light_paths;
     c->seed = f->seed;
     c->frame = f->frame;
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;
@@ -434,16 +415,16 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     struct restir_bdpt_stats s = {0};
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
-    if (!parallel_run(threads, st->blocks, rbdpt_light_block, c, NULL, NULL, err)) return false;
+    if (!parallel_run(threads, st->lb.blocks, rbdpt_light_block, c, NULL, NULL, err)) return false;
     if (c->full) {
         /* The cache's canonical order: blocks in order, each block's vertices in order. */
         st->lvc_first[0] = 0;
-        for (uint32_t b = 0; b < st->blocks; b++) {
+        for (uint32_t b = 0; b < st->lb.blocks; b++) {
             st->lvc_first[b + 1] = st->lvc_first[b] + st->lvc_count[b];
             s.lvc_dropped += st->lvc_dropped[b];
         }
-        c->lvc = (struct bdpt_lvc_view){st->lvc, st->lvc_first, st->blocks, st->lvc_region, st->lvc_first[st->blocks],
-                                        (float)((double)st->lvc_first[st->blocks] / (double)st->light_paths)};
+        c->lvc = (struct bdpt_lvc_view){st->lvc, st->lvc_first, st->lb.blocks, st->lvc_region, st->lvc_first[st->lb.blocks],
+                                        (float)((double)st->lvc_first[st->lb.blocks] / (double)st->lb.light_paths)};
     }
     s.light_ms = rbdpt_ms_since(&t0);
 
@@ -452,18 +433,18 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     clock_gettime(CLOCK_MONOTONIC, &t0);
     uint32_t npix = st->width * st->height;
     memset(st->pixel_first, 0, ((size_t)npix + 1) * sizeof *st->pixel_first);
-    for (uint32_t b = 0; b < st->blocks; b++) {
-        const struct restir_bdpt_lt_sample *v = &st->lt[(size_t)b * st->region];
-        for (uint32_t j = 0; j < st->block_count[b]; j++) st->pixel_first[v[j].pixel + 1]++;
-        s.lt_dropped += st->block_dropped[b];
-        s.rays_intersect += st->block_rays[3 * b];
-        s.rays_occluded += st->block_rays[3 * b + 1];
-        s.light_vertices += st->block_rays[3 * b + 2];
+    for (uint32_t b = 0; b < st->lb.blocks; b++) {
+        const struct restir_bdpt_lt_sample *v = &st->lt[(size_t)b * st->lb.region];
+        for (uint32_t j = 0; j < st->lb.count[b]; j++) st->pixel_first[v[j].pixel + 1]++;
+        s.lt_dropped += st->lb.dropped[b];
+        s.rays_intersect += st->lb.rays[3 * b];
+        s.rays_occluded += st->lb.rays[3 * b + 1];
+        s.light_vertices += st->lb.rays[3 * b + 2];
     }
     for (uint32_t i = 0; i < npix; i++) st->pixel_first[i + 1] += st->pixel_first[i];
-    for (uint32_t b = 0; b < st->blocks; b++) {
-        const struct restir_bdpt_lt_sample *v = &st->lt[(size_t)b * st->region];
-        for (uint32_t j = 0; j < st->block_count[b]; j++) {
+    for (uint32_t b = 0; b < st->lb.blocks; b++) {
+        const struct restir_bdpt_lt_sample *v = &st->lt[(size_t)b * st->lb.region];
+        for (uint32_t j = 0; j < st->lb.count[b]; j++) {
             /* pixel_first[pixel] is advanced as a cursor and restored below. */
             st->lt_sorted[st->pixel_first[v[j].pixel]++] = v[j];
             s.light_traced++;
@@ -554,7 +535,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     st->caustic_prev = st->caustic;
     st->caustic = tmp;
     st->has_history = true;
-    s.light_subpaths = st->light_paths;
+    s.light_subpaths = st->lb.light_paths;
     s.reservoir_bytes = restir_bdpt_reservoir_bytes(st);
     if (stats) *stats = s;
     return true;
@@ -572,7 +553,7 @@ static struct rbdpt_ctx *rbdpt_test_ctx(struct restir_bdpt_state *st, const stru
     camera_init(&c->view[0].cam, f->camera, st->width, st->height);
     float plane = (float)st->height / (2.0f * c->view[0].cam.tan_half_fov_y);
     c->view[0].plane_dist2 = plane * plane;
-    c->n_light = (float)st->light_paths;
+    c->n_light = (float)st->lb.light_paths;
     c->seed = f->seed;
     c->frame = f->frame;
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;

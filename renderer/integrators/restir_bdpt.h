@@ -206,12 +206,11 @@ struct restir_bdpt_shifted {
 
 struct restir_bdpt_state {
     uint32_t width, height;
-    uint32_t light_paths, blocks, region;
-    struct restir_bdpt_lt_sample *lt;        /* blocks * region, per-block regions */
-    struct restir_bdpt_lt_sample *lt_sorted; /* blocks * region, by pixel */
+    struct bdpt_blocks lb;                   /* region: light tracing samples per block; rays: 3 per
+                                              * block (intersect, occluded rays, light vertices) */
+    struct restir_bdpt_lt_sample *lt;        /* lb.blocks * lb.region, per-block regions */
+    struct restir_bdpt_lt_sample *lt_sorted; /* lb.blocks * lb.region, by pixel */
     uint32_t *pixel_first;                   /* width * height + 1 (prefix sums) */
-    uint32_t *block_count, *block_dropped;
-    uint64_t *block_rays;                    /* 3 per block: intersect, occluded rays, light vertices */
     struct restir_bdpt_path *res;            /* width * height, non-caustic */
     struct restir_bdpt_reservoir *caustic;   /* width * height, caustic (this frame's) */
     struct restir_bdpt_reservoir *caustic_prev; /* width * height, the previous frame's */

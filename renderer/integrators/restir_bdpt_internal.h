@@ -20,7 +20,7 @@
 #include "core/sampling.h"
 #include "scene/surface.h"
 
-#define RBDPT_BLOCK_PATHS 256u
+#define RBDPT_BLOCK_PATHS BDPT_BLOCK_PATHS   /* the light pass's blocks are bdpt's (struct bdpt_blocks) */
 #define RBDPT_TILE 16u
 #define RBDPT_MAX_WORKERS 1024u
 /* Stream tags: light subpaths, camera subpaths (pixel index below 2^28), reservoir choices. */
@@ -169,7 +169,7 @@ static inline bool rbdpt_nee_sample(const struct scene *scene, struct vec3 p, fl
     if (!(d2 > 0.0f)) return false;
     out->wi_world = vec3_scale(d, 1.0f / sqrtf(d2));
     out->cos_l = -vec3_dot(out->wi_world, out->ls.n);
-    const struct material *lm = &scene->materials[scene->shapes[out->ls.shape].material];
+    const struct material *lm = out->ls.material;
     out->Le = light_sampler_emitted(lm, out->cos_l);
     out->direct_pdf_w = sampling_area_to_solid_angle(out->ls.pdf_a, d2, out->cos_l);
     if (!(out->direct_pdf_w > 0.0f) || vec3_is_zero(out->Le)) return false;

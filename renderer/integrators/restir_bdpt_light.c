@@ -182,26 +182,26 @@ void rbdpt_light_block(void *ctx, uint32_t block, unsigned worker)
     struct rbdpt_ctx *c = ctx;
     struct restir_bdpt_state *st = c->st;
     struct ray_counters rc = {0, 0};
-    struct restir_bdpt_lt_sample *region = &st->lt[(size_t)block * st->region];
+    struct restir_bdpt_lt_sample *region = &st->lt[(size_t)block * st->lb.region];
     uint32_t stored = 0, dropped = 0;
     uint64_t vertices = 0;
     uint32_t first = block * RBDPT_BLOCK_PATHS;
-    uint32_t last = first + RBDPT_BLOCK_PATHS < st->light_paths ? first + RBDPT_BLOCK_PATHS : st->light_paths;
+    uint32_t last = first + RBDPT_BLOCK_PATHS < st->lb.light_paths ? first + RBDPT_BLOCK_PATHS : st->lb.light_paths;
     const size_t lvc_at = (size_t)block * st->lvc_region;
     struct rbdpt_lvc_block lvc = {st->lvc ? &st->lvc[lvc_at] : NULL, st->lvc_path ? &st->lvc_path[lvc_at] : NULL,
                                   st->lvc_region, 0, 0};
     for (uint32_t i = first; i < last; i++)
-        rbdpt_trace_light(c, &c->view[0], c->frame, i, 0, region, st->region, &stored, &dropped, &vertices,
+        rbdpt_trace_light(c, &c->view[0], c->frame, i, 0, region, st->lb.region, &stored, &dropped, &vertices,
                           st->lvc ? &lvc : NULL, NULL, &rc);
     if (st->lvc) {
         st->lvc_count[block] = lvc.count;
         st->lvc_dropped[block] = lvc.dropped;
     }
-    st->block_count[block] = stored;
-    st->block_dropped[block] = dropped;
-    st->block_rays[3 * block] = rc.intersect;
-    st->block_rays[3 * block + 1] = rc.occluded;
-    st->block_rays[3 * block + 2] = vertices;
+    st->lb.count[block] = stored;
+    st->lb.dropped[block] = dropped;
+    st->lb.rays[3 * block] = rc.intersect;
+    st->lb.rays[3 * block + 1] = rc.occluded;
+    st->lb.rays[3 * block + 2] = vertices;
 }
 
 /* The light side of a connection's shift (s >= 2; [ReSTIR BDPT §5]: the light subpath shifts by

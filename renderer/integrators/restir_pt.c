@@ -59,7 +59,6 @@
 #define PT_MAX_RC 63u                           /* reconnection index fits 6 bits */
 #define PT_MAX_LENGTH 127u                      /* path length fits 7 bits */
 #define PT_ENV_PRIM UINT32_MAX                  /* rc_prim of an environment light sample */
-#define PT_ROWS_PER_JOB 2u
 
 /* head.bits: length d (7 bits), reconnection index k (6), NEE technique (1), lobe at x_{k-1}
  * (1), lobe at x_k (1). */
@@ -999,12 +998,9 @@ uint64_t restir_pt_bytes_planned(const struct restir_pt_params *params, uint32_t
 }
 
 struct pt_pass {
+    struct restir_frame fr;   /* first: the driver's rows reach it through the pass */
     const struct pt_ctx *c;
-    struct restir_pt_state *st;
-    struct image *out;
-    bool estimated;    /* the last spatial pass added its expected contribution to out */
-    struct restir_counters counters[RESTIR_MAX_WORKERS];
-    uint64_t nonfinite[RESTIR_MAX_WORKERS];
+    struct restir_pass_stats local;   /* the counters of a frame whose caller keeps none */
 };
 
 /* Initial pass: one path per pixel into the working buffer; the image gets what the reservoir
@@ -1015,40 +1011,36 @@ static void pt_initial_rows(void *ctx, uint32_t job, unsigned worker)
     const struct pt_ctx *c = pp->c;
     struct restir_counters cnt = {0};  /* job-local: see restir_counters_add */
     struct pt_thread t = {.c = c, .cnt = &cnt};
-    uint32_t w = pp->st->rs.width, h = pp->st->rs.height;
-    uint32_t y1 = (job + 1) * PT_ROWS_PER_JOB < h ? (job + 1) * PT_ROWS_PER_JOB : h;
-    struct pt_sample *res = (struct pt_sample *)pp->st->rs.res[0];
-    for (uint32_t y = job * PT_ROWS_PER_JOB; y < y1; y++) {
+    uint32_t w = pp->fr.s->width, y0, y1;
+    restir_frame_rows(&pp->fr, job, &y0, &y1);
+    struct pt_sample *res = (struct pt_sample *)pp->fr.s->res[0];
+    for (uint32_t y = y0; y < y1; y++) {
         for (uint32_t x = 0; x < w; x++) {
             uint32_t pixel = y * w + x;
             struct vec3 direct;
             pt_initial_pixel(&t, pixel, &res[pixel], &direct);
-            if (pp->out) pp->out->pixels[pixel] = direct;
+            if (pp->fr.out) pp->fr.out->pixels[pixel] = direct;
         }
     }
-    restir_counters_add(&pp->counters[worker], &cnt);
+    restir_counters_add(&pp->fr.counters[worker], &cnt);
 }
 
 /* Shade pass: F(Y) W of the final reservoir added to the image. */
 static void pt_shade_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct pt_pass *pp = ctx;
-    uint32_t w = pp->st->rs.width, h = pp->st->rs.height;
-    uint32_t y1 = (job + 1) * PT_ROWS_PER_JOB < h ? (job + 1) * PT_ROWS_PER_JOB : h;
-    const struct pt_sample *res = (const struct pt_sample *)pp->st->rs.res[1];
-    for (uint32_t y = job * PT_ROWS_PER_JOB; y < y1; y++) {
+    uint32_t w = pp->fr.s->width, y0, y1;
+    restir_frame_rows(&pp->fr, job, &y0, &y1);
+    const struct pt_sample *res = (const struct pt_sample *)pp->fr.s->res[1];
+    for (uint32_t y = y0; y < y1; y++) {
         for (uint32_t x = 0; x < w; x++) {
             uint32_t pixel = y * w + x;
             const struct pt_sample *s = &res[pixel];
-            struct vec3 L = pp->out->pixels[pixel];
+            struct vec3 L = pp->fr.out->pixels[pixel];
             /* Unless the last spatial pass already added its expected contribution. */
-            if (!pp->estimated && s->head.W > 0.0f)
+            if (!pp->fr.estimated && s->head.W > 0.0f)
                 L = vec3_add(L, vec3_scale(vec3_make(s->F[0], s->F[1], s->F[2]), s->head.W));
-            if (!vec3_is_finite(L)) {
-                pp->nonfinite[worker]++;
-                L = vec3_splat(0.0f);
-            }
-            pp->out->pixels[pixel] = L;
+            restir_frame_store(&pp->fr, worker, pixel, L);
         }
     }
 }
@@ -1060,12 +1052,7 @@ void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *p
     memset(c, 0, sizeof *c);
     c->p = params;
     c->st = st;
-    c->scene[RESTIR_CURRENT] = f->scene;
-    c->scene[RESTIR_PREVIOUS] = f->prev_scene ? f->prev_scene : f->scene;
-    c->eye[RESTIR_CURRENT] = f->camera->position;
-    c->eye[RESTIR_PREVIOUS] = f->prev_camera ? f->prev_camera->position : f->camera->position;
-    c->gbuf[RESTIR_CURRENT] = &st->rs.gbuf[st->rs.cur];
-    c->gbuf[RESTIR_PREVIOUS] = &st->rs.gbuf[st->rs.cur ^ 1u];
+    restir_frame_domains(&st->rs, f, c->scene, c->eye, c->gbuf);
     c->seed = f->seed;
     c->frame = f->frame;
     c->nee_m = params->nee_candidates == RESTIR_PT_NEE_BY_SCENE ? st->nee_by_scene : params->nee_candidates;
@@ -1075,93 +1062,42 @@ void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *p
     c->pdf_max = 1.0f / sqrtf(params->roughness_min);
 }
 
-static bool pt_run(struct pt_pass *pp, unsigned threads, parallel_job_fn *fn, struct err *err)
+bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params *params,
+                      const struct method_frame *f, struct image *out, struct restir_pass_stats *stats,
+                      struct err *err)
 {
-    return restir_run_rows(pp->st->rs.height, PT_ROWS_PER_JOB, threads, fn, pp, err);
-}
-
-/* G-buffer and initial pass; the context is bound into `c`. */
-static bool pt_begin(struct restir_pt_state *st, const struct restir_pt_params *params, const struct method_frame *f,
-                     struct pt_ctx *c, struct pt_pass *pp, struct image *out, unsigned threads,
-                     struct restir_pass_stats *stats, struct err *err)
-{
-    if (!restir_pt_params_valid(params, err)) return false;
+    struct pt_ctx c;
+    struct pt_pass pp;   /* on the stack (restir_frame): a frame allocates nothing */
+    if (!restir_frame_open(&pp.fr, sizeof pp, &st->rs, f, out, params->temporal, stats, &pp.local, sizeof pp.local,
+                           err) ||
+        !restir_pt_params_valid(params, err))
+        return false;
     if (f->scene->shape_count != st->shape_count)
         return err_set(err, ERR_INVALID, NULL, "the scene has %u shapes, the session %u", f->scene->shape_count,
                        st->shape_count);
-    struct timespec t0;
-    if (!restir_session_begin(&st->rs, f, threads, 0.0f, pt_uses_pairs(params), stats, &t0, err)) return false;
-
-    restir_pt_bind(st, params, f, c);
-    memset(pp, 0, sizeof *pp);
-    pp->c = c;
-    pp->st = st;
-    pp->out = out;
-    if (!pt_run(pp, threads, pt_initial_rows, err)) return false;
-    stats->initial_ms = parallel_lap_ms(&t0);
-    return true;
+    if (!restir_frame_gbuffer(&pp.fr, 0.0f, pt_uses_pairs(params), err)) return false;
+    restir_pt_bind(st, params, f, &c);
+    pp.c = &c;
+    if (!restir_frame_initial(&pp.fr, pt_initial_rows, &pp, err)) return false;
+    if (!out) return true;   /* restir_pt_initial_only */
+    struct restir_reuse *r = restir_frame_reuse(&pp.fr, &restir_pt_ops, &c, 0, params->temporal_cap,
+                                                params->spatial_neighbors, params->spatial_radius,
+                                                params->paired_spatial);
+    if (!restir_frame_temporal(&pp.fr, err)) return false;
+    /* Spatial rounds ping-pong between the two buffers and end in res[1], the history. */
+    const uint32_t rounds = params->spatial_neighbors > 0 ? params->spatial_rounds : 0;
+    for (uint32_t round = 0; round < rounds; round++) {
+        r->frame = f->frame * 8u + round;  /* a distinct neighbour stream per round */
+        const bool last = round + 1 == rounds;
+        if (!restir_frame_spatial(&pp.fr, params->expected_shading && last, last, err)) return false;
+    }
+    if (params->spatial_neighbors == 0) restir_session_swap(&st->rs);
+    restir_frame_reused(&pp.fr);
+    return restir_frame_shade(&pp.fr, pt_shade_rows, &pp, err);
 }
 
 bool restir_pt_initial_only(struct restir_pt_state *st, const struct restir_pt_params *params,
                             const struct method_frame *f, struct err *err)
 {
-    struct pt_ctx c;
-    struct pt_pass pp;   /* on the stack, as in a frame */
-    struct restir_pass_stats stats = {0};
-    return pt_begin(st, params, f, &c, &pp, NULL, restir_threads(f->threads), &stats, err);
-}
-
-bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params *params,
-                      const struct method_frame *f, struct image *out, struct restir_pass_stats *stats,
-                      struct err *err)
-{
-    struct restir_pass_stats local;
-    if (!(stats = restir_frame_begin(out, &st->rs, stats, &local, sizeof local, err))) return false;
-    const unsigned threads = restir_threads(f->threads);
-    /* On the stack (~50 KiB of per-worker counters): a frame allocates nothing. */
-    struct pt_ctx c;
-    struct pt_pass pp;
-    const bool history = st->rs.has_history && f->prev_scene && params->temporal;
-    if (!pt_begin(st, params, f, &c, &pp, out, threads, stats, err)) return false;
-    for (unsigned i = 0; i < threads; i++) restir_pass_stats_add(stats, &pp.counters[i]);
-
-    struct timespec t0;
-    clock_gettime(CLOCK_MONOTONIC, &t0);
-    struct restir_reuse r = {.ops = &restir_pt_ops, .ctx = &c, .width = st->rs.width, .height = st->rs.height,
-                             .seed = f->seed, .frame = f->frame, .threads = threads,
-                             .gbuf = &st->rs.gbuf[st->rs.cur], .history = history ? st->rs.res[1] : NULL,
-                             .temporal_cap = params->temporal_cap, .neighbors = params->spatial_neighbors,
-                             .radius = params->spatial_radius, .paired = params->paired_spatial,
-                             .pair_scratch = st->rs.pair_scratch};
-    struct restir_counters rc = {0};
-    if (!restir_temporal_pass(&r, st->rs.res[0], &rc, err)) return false;
-    stats->temporal_ms = parallel_lap_ms(&t0);
-
-    /* Spatial rounds ping-pong between the two buffers and end in res[1], the history. */
-    if (params->spatial_neighbors > 0) {
-        for (uint32_t round = 0; round < params->spatial_rounds; round++) {
-            r.frame = f->frame * 8u + round;  /* a distinct neighbour stream per round */
-            pp.estimated = params->expected_shading && round + 1 == params->spatial_rounds;
-            r.estimate = pp.estimated ? out->pixels : NULL;  /* adds to the light outside the reservoir */
-            if (!restir_spatial_pass(&r, st->rs.res[0], st->rs.res[1], &rc, err)) return false;
-            if (round + 1 < params->spatial_rounds) {
-                uint8_t *tmp = st->rs.res[0];
-                st->rs.res[0] = st->rs.res[1];
-                st->rs.res[1] = tmp;
-            }
-        }
-    } else {
-        uint8_t *tmp = st->rs.res[0];
-        st->rs.res[0] = st->rs.res[1];
-        st->rs.res[1] = tmp;
-    }
-    stats->spatial_ms = parallel_lap_ms(&t0);
-    restir_pass_stats_add(stats, &rc);
-
-    memset(pp.nonfinite, 0, sizeof pp.nonfinite);
-    if (!pt_run(&pp, threads, pt_shade_rows, err)) return false;
-    for (unsigned i = 0; i < threads; i++) stats->nonfinite += pp.nonfinite[i];
-    stats->shade_ms = parallel_lap_ms(&t0);
-    st->rs.has_history = true;
-    return true;
+    return restir_pt_render(st, params, f, NULL, NULL, err);
 }

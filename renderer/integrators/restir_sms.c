@@ -21,7 +21,6 @@
 #define SMS_STREAM 0x736d73ull        /* candidate generation */
 #define SMS_PT_STREAM 0x736d70ull     /* the pt path of the rest of the image */
 #define SMS_PT_SMS_STREAM 0x736d71ull /* the SMS estimates at that path's later vertices */
-#define SMS_ROWS_PER_JOB 2u
 
 /* The reservoir element: the light point x_n and the chain's vertices as point codes (shape-
  * local, so they follow moving shapes between frames), the caster's shape, and the sample's
@@ -448,15 +447,12 @@ uint64_t restir_sms_bytes_planned(const struct restir_sms_params *params, const 
 }
 
 struct sms_pass {
+    struct restir_frame fr;   /* first: the driver's rows reach it through the pass */
     const struct sms_ctx *c;
-    struct restir_sms_state *st;
-    struct image *out;
-    struct camera camera;
+    struct restir_sms_receiver *recv;   /* this frame's, which the initial pass finds */
     struct pt_params pt;
-    struct ray_counters rays[RESTIR_MAX_WORKERS];
     struct sms_counters sms[RESTIR_MAX_WORKERS];
-    uint64_t nonfinite[RESTIR_MAX_WORKERS];
-    bool estimated;  /* the spatial pass added its expected contribution to out */
+    struct restir_sms_stats local;   /* the counters of a frame whose caller keeps none */
 };
 
 /* Initial pass: the candidate into the working buffer, and the sms_ssp path for the rest of the
@@ -465,57 +461,55 @@ static void sms_initial_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct sms_pass *pp = ctx;
     const struct sms_ctx *c = pp->c;
-    uint32_t w = pp->st->rs.width, h = pp->st->rs.height;
-    uint32_t y1 = (job + 1) * SMS_ROWS_PER_JOB < h ? (job + 1) * SMS_ROWS_PER_JOB : h;
-    struct sms_sample *res = (struct sms_sample *)pp->st->rs.res[0];
+    const struct restir_session *rs = pp->fr.s;
+    const struct camera *cam = &pp->fr.camera;
+    uint32_t w = rs->width, y0, y1;
+    restir_frame_rows(&pp->fr, job, &y0, &y1);
+    struct sms_sample *res = (struct sms_sample *)rs->res[0];
     struct ray_counters rays = {0, 0};  /* job-local (see sms_counters_add) */
     struct sms_counters sms = {0};
     struct ray_counters *rc = &rays;
     struct sms_counters *sc = &sms;
-    struct restir_sms_receiver *recv = pp->st->recv[pp->st->rs.cur];
-    for (uint32_t y = job * SMS_ROWS_PER_JOB; y < y1; y++) {
+    struct restir_sms_receiver *recv = pp->recv;
+    for (uint32_t y = y0; y < y1; y++) {
         for (uint32_t x = 0; x < w; x++) {
             uint32_t pixel = y * w + x;
             const struct gbuffer_pixel *g = &c->gbuf[RESTIR_CURRENT]->px[pixel];
-            struct vec3 dir = camera_ray_dir(&pp->camera, (float)x + g->jx, (float)y + g->jy);
+            struct vec3 dir = camera_ray_dir(cam, (float)x + g->jx, (float)y + g->jy);
             /* The G-buffer pass traced this ray already: its hit starts both walks along it. */
             struct hit first;
             const struct hit *primary = gbuffer_hit(c->scene[RESTIR_CURRENT], g, &first);
-            sms_find_receiver(c->scene[RESTIR_CURRENT], c->max_depth, pp->camera.position, dir, primary, &recv[pixel],
-                              rc);
-            sms_initial_pixel(c, pixel, pp->st->rs.layers, (size_t)w * h, res, sc, rc);
-            if (!pp->out) continue;
+            sms_find_receiver(c->scene[RESTIR_CURRENT], c->max_depth, cam->position, dir, primary, &recv[pixel], rc);
+            sms_initial_pixel(c, pixel, rs->layers, (size_t)w * rs->height, res, sc, rc);
+            if (!pp->fr.out) continue;
             struct rng rng = rng_make(c->seed, c->frame, pixel, SMS_PT_STREAM);
             struct rng srng = rng_make(c->seed, c->frame, pixel, SMS_PT_SMS_STREAM);
-            pp->out->pixels[pixel] = reference_pt_radiance_sms(c->scene[RESTIR_CURRENT], &pp->pt, &c->ss, x, y,
-                                                               pp->camera.position, dir, primary, &rng, &srng, sc, rc);
+            pp->fr.out->pixels[pixel] = reference_pt_radiance_sms(c->scene[RESTIR_CURRENT], &pp->pt, &c->ss, x, y,
+                                                                  cam->position, dir, primary, &rng, &srng, sc, rc);
         }
     }
-    pp->rays[worker].intersect += rays.intersect;
-    pp->rays[worker].occluded += rays.occluded;
+    pp->fr.counters[worker].rays.intersect += rays.intersect;
+    pp->fr.counters[worker].rays.occluded += rays.occluded;
     sms_counters_add(&pp->sms[worker], &sms);
 }
 
 static void sms_shade_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct sms_pass *pp = ctx;
-    uint32_t w = pp->st->rs.width, h = pp->st->rs.height;
-    uint32_t y1 = (job + 1) * SMS_ROWS_PER_JOB < h ? (job + 1) * SMS_ROWS_PER_JOB : h;
-    const struct sms_sample *res = (const struct sms_sample *)pp->st->rs.res[1];
-    const size_t n = (size_t)w * h;
-    for (uint32_t y = job * SMS_ROWS_PER_JOB; y < y1; y++) {
+    const struct restir_session *rs = pp->fr.s;
+    uint32_t w = rs->width, y0, y1;
+    restir_frame_rows(&pp->fr, job, &y0, &y1);
+    const struct sms_sample *res = (const struct sms_sample *)rs->res[1];
+    const size_t n = (size_t)w * rs->height;
+    for (uint32_t y = y0; y < y1; y++) {
         for (uint32_t x = 0; x < w; x++) {
             uint32_t pixel = y * w + x;
-            struct vec3 L = pp->out->pixels[pixel];
-            for (uint32_t l = 0; l < pp->st->rs.layers && !pp->estimated; l++) {
+            struct vec3 L = pp->fr.out->pixels[pixel];
+            for (uint32_t l = 0; l < rs->layers && !pp->fr.estimated; l++) {
                 const struct sms_sample *s = &res[l * n + pixel];
                 if (s->head.W > 0.0f) L = vec3_add(L, vec3_scale(vec3_make(s->F[0], s->F[1], s->F[2]), s->head.W));
             }
-            if (!vec3_is_finite(L)) {
-                pp->nonfinite[worker]++;
-                L = vec3_splat(0.0f);
-            }
-            pp->out->pixels[pixel] = L;
+            restir_frame_store(&pp->fr, worker, pixel, L);
         }
     }
 }
@@ -525,10 +519,7 @@ static bool sms_bind(struct restir_sms_state *st, const struct restir_sms_params
 {
     memset(c, 0, sizeof *c);
     c->p = params;
-    c->scene[RESTIR_CURRENT] = f->scene;
-    c->scene[RESTIR_PREVIOUS] = f->prev_scene ? f->prev_scene : f->scene;
-    c->gbuf[RESTIR_CURRENT] = &st->rs.gbuf[st->rs.cur];
-    c->gbuf[RESTIR_PREVIOUS] = &st->rs.gbuf[st->rs.cur ^ 1u];
+    restir_frame_domains(&st->rs, f, c->scene, NULL, c->gbuf);
     c->recv[RESTIR_CURRENT] = st->recv[st->rs.cur];
     c->recv[RESTIR_PREVIOUS] = st->recv[st->rs.cur ^ 1u];
     c->prior = &st->prior;
@@ -540,16 +531,18 @@ static bool sms_bind(struct restir_sms_state *st, const struct restir_sms_params
     return sms_scene_init(f->scene, &c->ss, err);
 }
 
-static bool sms_run(struct sms_pass *pp, unsigned threads, parallel_job_fn *fn, struct err *err)
+/* A frame with the context in `c`; without an output, its G-buffer, prior and initial passes only
+ * (restir_sms_initial_only). */
+static bool sms_frame(struct restir_sms_state *st, const struct restir_sms_params *params,
+                      const struct method_frame *f, struct sms_ctx *c, struct image *out,
+                      struct restir_sms_stats *stats, struct err *err)
 {
-    return restir_run_rows(pp->st->rs.height, SMS_ROWS_PER_JOB, threads, fn, pp, err);
-}
-
-static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_params *params,
-                      const struct method_frame *f, struct sms_ctx *c, struct sms_pass *pp, struct image *out,
-                      unsigned threads, struct restir_sms_stats *stats, struct err *err)
-{
-    if (!restir_sms_params_valid(params, err)) return false;
+    /* The pass's per-worker counters on the heap would be a per-frame malloc; the stack is fine. */
+    struct sms_pass pp;
+    if (!(stats = restir_frame_open(&pp.fr, sizeof pp, &st->rs, f, out, params->temporal, stats, &pp.local,
+                                    sizeof pp.local, err)) ||
+        !restir_sms_params_valid(params, err))
+        return false;
     if (restir_sms_layers(params, f->scene) != st->rs.layers)
         return err_set(err, ERR_INVALID, "/params/light_reservoirs", "the session has %u reservoirs per pixel, not %u",
                        st->rs.layers, restir_sms_layers(params, f->scene));
@@ -558,53 +551,56 @@ static bool sms_begin(struct restir_sms_state *st, const struct restir_sms_param
     if (sms_uses_prior(params) && st->prior.frames != params->ssp.prior_frames)
         return err_set(err, ERR_INVALID, "/params/prior_frames", "the session keeps %u frames of prior walks, not %u",
                        st->prior.frames, params->ssp.prior_frames);
-    struct timespec t0;
-    if (!restir_session_begin(&st->rs, f, threads, params->jitter_walk, sms_uses_pairs(params), &stats->pass, &t0, err))
-        return false;
+    if (!restir_frame_gbuffer(&pp.fr, params->jitter_walk, sms_uses_pairs(params), err)) return false;
 
     if (!sms_bind(st, params, f, c, err)) return false;
-    memset(pp, 0, sizeof *pp);
-    pp->c = c;
-    pp->st = st;
-    pp->out = out;
-    camera_init(&pp->camera, f->camera, st->rs.width, st->rs.height);
+    pp.c = c;
+    pp.recv = st->recv[st->rs.cur];
     /* The prior pass ([SMS-SSP §4.1]) under this frame's scene and camera. */
     struct ray_counters prc = {0, 0};
     const bool ssp = params->sampler == RESTIR_SMS_SAMPLER_SSP;
     /* The walks kept from earlier frames describe this one while nothing moved (sms_ssp.h). */
     const bool still = st->rs.has_history && f->prev_scene && f->prev_camera &&
                        memcmp(f->camera, f->prev_camera, sizeof *f->camera) == 0 && !scene_moved(f->prev_scene, f->scene);
-    if (ssp && !ssp_prior_build(&st->prior, f->scene, &c->ss, &params->ssp, &pp->camera, f->seed, f->frame, still,
-                                threads, &stats->prior, &prc, err))
+    if (ssp && !ssp_prior_build(&st->prior, f->scene, &c->ss, &params->ssp, &pp.fr.camera, f->seed, f->frame, still,
+                                pp.fr.threads, &stats->prior, &prc, err))
         return false;
     stats->pass.rays_intersect += prc.intersect;
     stats->pass.rays_occluded += prc.occluded;
-    stats->prior_ms = parallel_lap_ms(&t0);
-    pp->pt = reference_pt_defaults(st->rs.width, st->rs.height);
-    pp->pt.max_depth = params->max_depth;
-    pp->pt.rr_depth = params->rr_depth;
-    pp->pt.nee = true;
+    stats->prior_ms = parallel_lap_ms(&pp.fr.t0);
+    pp.pt = reference_pt_rest(st->rs.width, st->rs.height, params->max_depth, params->rr_depth);
     /* The rest's SMS estimates, at every non-delta vertex but the receiver, are plain SMS with
      * either sampler: the prior describes receivers only, and without it partitioning has more
      * variance than SMS's seeds over the whole caster (restir_sms.h). */
-    pp->pt.sms = &params->ssp.sms;
-    if (!sms_run(pp, threads, sms_initial_rows, err)) return false;
-    for (unsigned i = 0; i < threads; i++) {
-        stats->pass.rays_intersect += pp->rays[i].intersect;
-        stats->pass.rays_occluded += pp->rays[i].occluded;
-        sms_counters_add(&stats->sms, &pp->sms[i]);
+    pp.pt.sms = &params->ssp.sms;
+    if (!restir_frame_initial(&pp.fr, sms_initial_rows, &pp, err)) return false;
+    for (unsigned i = 0; i < pp.fr.threads; i++) sms_counters_add(&stats->sms, &pp.sms[i]);
+    if (!out) return true;
+
+    /* One reuse per reservoir layer, each over its own share of the lights; they share the
+     * context, the G-buffers, the receivers, the pair scratch (one pass at a time) and the
+     * neighbour pairings. */
+    restir_frame_reuse(&pp.fr, &restir_sms_ops, c, 0, params->temporal_cap, params->spatial_neighbors,
+                       params->spatial_radius, params->paired_spatial);
+    if (!restir_frame_temporal(&pp.fr, err)) return false;
+    if (params->spatial_neighbors > 0) {
+        /* The target is a luminance, so one selected sample per pixel carries one sample's colour:
+         * under lights of different colours most of its noise is colour, which the expectation
+         * over the pass's candidates leaves out ([ReSTIR PT Enhanced Fig. 5]). */
+        if (!restir_frame_spatial(&pp.fr, params->expected_shading, true, err)) return false;
+    } else {
+        restir_session_swap(&st->rs);
     }
-    stats->pass.initial_ms = parallel_lap_ms(&t0);
-    return true;
+    restir_frame_reused(&pp.fr);
+    stats->shift_newton = atomic_load(&c->shared->newton);
+    stats->shift_not_invertible = atomic_load(&c->shared->not_invertible);
+    return restir_frame_shade(&pp.fr, sms_shade_rows, &pp, err);
 }
 
 bool restir_sms_initial_only(struct restir_sms_state *st, const struct restir_sms_params *params,
                              const struct method_frame *f, void *ctx, struct err *err)
 {
-    struct sms_pass pp;   /* on the stack, as in a frame */
-    struct restir_sms_stats stats;
-    memset(&stats, 0, sizeof stats);
-    bool ok = sms_begin(st, params, f, ctx, &pp, NULL, restir_threads(f->threads), &stats, err);
+    bool ok = sms_frame(st, params, f, ctx, NULL, NULL, err);
     if (ok) st->rs.has_history = true;
     return ok;
 }
@@ -613,61 +609,6 @@ bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_para
                        const struct method_frame *f, struct image *out, struct restir_sms_stats *stats,
                        struct err *err)
 {
-    struct restir_sms_stats local;
-    if (!(stats = restir_frame_begin(out, &st->rs, stats, &local, sizeof local, err))) return false;
-    unsigned threads = restir_threads(f->threads);
-    /* The context holds the frame's casters (~7 KiB) and the pass its per-worker counters; both
-     * on the heap would be a per-frame malloc, the stack is fine. */
-    struct sms_ctx c;
-    struct sms_pass pp;
-    const bool history = st->rs.has_history && f->prev_scene && params->temporal;
-    if (!sms_begin(st, params, f, &c, &pp, out, threads, stats, err)) return false;
-
-    struct timespec t0;
-    clock_gettime(CLOCK_MONOTONIC, &t0);
-    /* One reuse per reservoir layer, each over its own share of the lights; they share the
-     * G-buffers, the receivers, the pair scratch (one pass at a time) and the neighbour pairings. */
-    const uint32_t layers = st->rs.layers;
-    const size_t layer_bytes = (size_t)st->rs.width * st->rs.height * sizeof(struct sms_sample);
-    struct restir_reuse r = {.ops = &restir_sms_ops, .ctx = &c, .width = st->rs.width, .height = st->rs.height,
-                             .seed = f->seed, .frame = f->frame, .threads = threads,
-                             .gbuf = &st->rs.gbuf[st->rs.cur], .history = NULL,
-                             .temporal_cap = params->temporal_cap, .neighbors = params->spatial_neighbors,
-                             .radius = params->spatial_radius, .paired = params->paired_spatial,
-                             .pair_scratch = st->rs.pair_scratch};
-    struct restir_counters rc = {0};
-    for (uint32_t l = 0; l < layers; l++) {
-        r.history = history ? st->rs.res[1] + l * layer_bytes : NULL;
-        if (!restir_temporal_pass(&r, st->rs.res[0] + l * layer_bytes, &rc, err)) return false;
-    }
-    stats->pass.temporal_ms = parallel_lap_ms(&t0);
-    if (params->spatial_neighbors > 0) {
-        /* The target is a luminance, so one selected sample per pixel carries one sample's colour:
-         * under lights of different colours most of its noise is colour, which the expectation
-         * over the pass's candidates leaves out ([ReSTIR PT Enhanced Fig. 5]). */
-        pp.estimated = params->expected_shading;
-        r.estimate = pp.estimated ? out->pixels : NULL;  /* adds to the path-traced rest */
-        for (uint32_t l = 0; l < layers; l++)
-            if (!restir_spatial_pass(&r, st->rs.res[0] + l * layer_bytes, st->rs.res[1] + l * layer_bytes, &rc, err))
-                return false;
-    } else {
-        uint8_t *tmp = st->rs.res[0];
-        st->rs.res[0] = st->rs.res[1];
-        st->rs.res[1] = tmp;
-    }
-    stats->pass.spatial_ms = parallel_lap_ms(&t0);
-    stats->pass.rays_intersect += rc.rays.intersect;
-    stats->pass.rays_occluded += rc.rays.occluded;
-    stats->pass.shifts += rc.shifts;
-    stats->pass.shift_failures += rc.shift_failures;
-    stats->pass.rejected += rc.rejected;
-    stats->shift_newton = atomic_load(&c.shared->newton);
-    stats->shift_not_invertible = atomic_load(&c.shared->not_invertible);
-
-    memset(pp.nonfinite, 0, sizeof pp.nonfinite);
-    if (!sms_run(&pp, threads, sms_shade_rows, err)) return false;
-    for (unsigned i = 0; i < threads; i++) stats->pass.nonfinite += pp.nonfinite[i];
-    stats->pass.shade_ms = parallel_lap_ms(&t0);
-    st->rs.has_history = true;
-    return true;
+    struct sms_ctx c;   /* the frame's casters (~7 KiB): on the stack, as the pass */
+    return sms_frame(st, params, f, &c, out, stats, err);
 }

@@ -23,7 +23,6 @@
 #define SSS_STREAM 0x737373ull        /* candidate generation */
 #define SSS_PT_STREAM 0x737370ull     /* the pt path of the rest of the image */
 #define SSS_ENV_SHAPE UINT32_MAX      /* x3 is a direction to the environment */
-#define SSS_ROWS_PER_JOB 2u
 #define SSS_HIT_UNKNOWN 15u           /* sequential shortcut: the index was not found (§4.3) */
 #define SSS_PICK_STREAM 0x737369ull   /* the shortcut's random pick of an unknown index */
 #define SSS_LAYER_STREAM 0x73736cull  /* per_channel: the selections of layers 1 and 2 */
@@ -546,14 +545,10 @@ uint64_t restir_sss_bytes_planned(const struct restir_sss_params *params, uint32
 }
 
 struct sss_pass {
+    struct restir_frame fr;   /* first: the driver's rows reach it through the pass */
     const struct sss_ctx *c;
-    struct restir_sss_state *st;
-    struct image *out;
-    struct camera camera;
     struct pt_params pt;
-    bool estimated;    /* the last spatial pass added its expected contribution to out */
-    struct restir_counters counters[RESTIR_MAX_WORKERS];
-    uint64_t nonfinite[RESTIR_MAX_WORKERS];
+    struct restir_sss_stats local;   /* the counters of a frame whose caller keeps none */
 };
 
 /* Initial pass: candidates into the working buffer, and the pt path for the rest of the image
@@ -562,57 +557,53 @@ static void sss_initial_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct sss_pass *pp = ctx;
     const struct sss_ctx *c = pp->c;
-    uint32_t w = pp->st->rs.width, h = pp->st->rs.height;
-    uint32_t y1 = (job + 1) * SSS_ROWS_PER_JOB < h ? (job + 1) * SSS_ROWS_PER_JOB : h;
-    struct sss_sample *res = (struct sss_sample *)pp->st->rs.res[0];
-    const uint32_t layers = pp->st->rs.layers;
-    const size_t n = (size_t)w * h;
+    uint32_t w = pp->fr.s->width, y0, y1;
+    restir_frame_rows(&pp->fr, job, &y0, &y1);
+    struct sss_sample *res = (struct sss_sample *)pp->fr.s->res[0];
+    const uint32_t layers = pp->fr.s->layers;
+    const size_t n = (size_t)w * pp->fr.s->height;
     struct ray_counters rays = {0, 0};  /* job-local (see restir_counters_add) */
     struct ray_counters *rc = &rays;
-    for (uint32_t y = job * SSS_ROWS_PER_JOB; y < y1; y++) {
+    for (uint32_t y = y0; y < y1; y++) {
         for (uint32_t x = 0; x < w; x++) {
             uint32_t pixel = y * w + x;
             struct sss_sample *out[3];
             for (uint32_t l = 0; l < layers; l++) out[l] = &res[l * n + pixel];
             sss_initial_pixel(c, pixel, layers, out, rc);
-            if (!pp->out) continue;
+            if (!pp->fr.out) continue;
             const struct gbuffer_pixel *g = &c->gbuf[RESTIR_CURRENT]->px[pixel];
-            struct vec3 dir = camera_ray_dir(&pp->camera, (float)x + g->jx, (float)y + g->jy);
+            struct vec3 dir = camera_ray_dir(&pp->fr.camera, (float)x + g->jx, (float)y + g->jy);
             struct rng rng = rng_make(c->seed, c->frame, pixel, SSS_PT_STREAM);
             /* The G-buffer pass traced this ray already: its hit starts the path. */
             struct hit first;
             const struct hit *primary = gbuffer_hit(c->scene[RESTIR_CURRENT], g, &first);
-            pp->out->pixels[pixel] =
-                reference_pt_radiance(c->scene[RESTIR_CURRENT], &pp->pt, pp->camera.position, dir, primary, &rng, false, rc);
+            pp->fr.out->pixels[pixel] = reference_pt_radiance(c->scene[RESTIR_CURRENT], &pp->pt,
+                                                              pp->fr.camera.position, dir, primary, &rng, false, rc);
         }
     }
-    pp->counters[worker].rays.intersect += rays.intersect;
-    pp->counters[worker].rays.occluded += rays.occluded;
+    pp->fr.counters[worker].rays.intersect += rays.intersect;
+    pp->fr.counters[worker].rays.occluded += rays.occluded;
 }
 
 static void sss_shade_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct sss_pass *pp = ctx;
-    uint32_t w = pp->st->rs.width, h = pp->st->rs.height;
-    uint32_t y1 = (job + 1) * SSS_ROWS_PER_JOB < h ? (job + 1) * SSS_ROWS_PER_JOB : h;
-    const struct sss_sample *res = (const struct sss_sample *)pp->st->rs.res[1];
-    const uint32_t layers = pp->st->rs.layers;
-    const size_t n = (size_t)w * h;
-    for (uint32_t y = job * SSS_ROWS_PER_JOB; y < y1; y++) {
+    uint32_t w = pp->fr.s->width, y0, y1;
+    restir_frame_rows(&pp->fr, job, &y0, &y1);
+    const struct sss_sample *res = (const struct sss_sample *)pp->fr.s->res[1];
+    const uint32_t layers = pp->fr.s->layers;
+    const size_t n = (size_t)w * pp->fr.s->height;
+    for (uint32_t y = y0; y < y1; y++) {
         for (uint32_t x = 0; x < w; x++) {
             uint32_t pixel = y * w + x;
-            struct vec3 L = pp->out->pixels[pixel];
+            struct vec3 L = pp->fr.out->pixels[pixel];
             /* Unless the last spatial pass already added its expected contribution. */
-            for (uint32_t l = 0; l < layers && !pp->estimated; l++) {
+            for (uint32_t l = 0; l < layers && !pp->fr.estimated; l++) {
                 const struct sss_sample *s = &res[l * n + pixel];
                 if (s->head.W > 0.0f)
                     L = vec3_add(L, vec3_scale(sss_value_of(layers > 1 ? (int)l : -1, s), s->head.W));
             }
-            if (!vec3_is_finite(L)) {
-                pp->nonfinite[worker]++;
-                L = vec3_splat(0.0f);
-            }
-            pp->out->pixels[pixel] = L;
+            restir_frame_store(&pp->fr, worker, pixel, L);
         }
     }
 }
@@ -623,48 +614,13 @@ void restir_sss_bind(struct restir_sss_state *st, const struct restir_sss_params
     struct sss_ctx *c = ctx;
     memset(c, 0, sizeof *c);
     c->p = params;
-    c->scene[RESTIR_CURRENT] = f->scene;
-    c->scene[RESTIR_PREVIOUS] = f->prev_scene ? f->prev_scene : f->scene;
-    c->eye[RESTIR_CURRENT] = f->camera->position;
-    c->eye[RESTIR_PREVIOUS] = f->prev_camera ? f->prev_camera->position : f->camera->position;
-    c->gbuf[RESTIR_CURRENT] = &st->rs.gbuf[st->rs.cur];
-    c->gbuf[RESTIR_PREVIOUS] = &st->rs.gbuf[st->rs.cur ^ 1u];
+    restir_frame_domains(&st->rs, f, c->scene, c->eye, c->gbuf);
     c->seed = f->seed;
     c->frame = f->frame;
     /* The sequential shift starts with reconnection (temporal and first spatial pass). */
     c->pass_shift = params->shift == RESTIR_SSS_SEQUENTIAL ? RESTIR_SSS_RECONNECTION : params->shift;
     c->channel = -1;   /* the luminance target, or layer 0's channel: restir_sss_render sets it per layer */
     if (restir_sss_layers(params) > 1) c->channel = 0;
-}
-
-static bool sss_run(struct sss_pass *pp, unsigned threads, parallel_job_fn *fn, struct err *err)
-{
-    return restir_run_rows(pp->st->rs.height, SSS_ROWS_PER_JOB, threads, fn, pp, err);
-}
-
-static bool sss_begin(struct restir_sss_state *st, const struct restir_sss_params *params,
-                      const struct method_frame *f, struct sss_ctx *c, struct sss_pass *pp, struct image *out,
-                      unsigned threads, struct restir_sss_stats *stats, struct err *err)
-{
-    if (!restir_sss_params_valid(params, err)) return false;
-    if (restir_sss_layers(params) != st->rs.layers)
-        return err_set(err, ERR_INVALID, "/params/target", "the session's reservoirs were made for the other target");
-    struct timespec t0;
-    if (!restir_session_begin(&st->rs, f, threads, 0.0f, sss_uses_pairs(params), &stats->pass, &t0, err)) return false;
-
-    restir_sss_bind(st, params, f, c);
-    memset(pp, 0, sizeof *pp);
-    pp->c = c;
-    pp->st = st;
-    pp->out = out;
-    camera_init(&pp->camera, f->camera, st->rs.width, st->rs.height);
-    pp->pt = reference_pt_defaults(st->rs.width, st->rs.height);
-    pp->pt.max_depth = params->max_depth;
-    pp->pt.rr_depth = params->rr_depth;
-    pp->pt.nee = true;
-    if (!sss_run(pp, threads, sss_initial_rows, err)) return false;
-    stats->pass.initial_ms = parallel_lap_ms(&t0);
-    return true;
 }
 
 /* The automatic spatial radius (§5.1): 2 max(d) of the translucent materials seen, projected at
@@ -689,92 +645,59 @@ static float sss_auto_radius(const struct sss_ctx *c, const struct camera_desc *
     return (float)fmin(30.0, fmax(5.0, px));
 }
 
-bool restir_sss_initial_only(struct restir_sss_state *st, const struct restir_sss_params *params,
-                             const struct method_frame *f, struct err *err)
-{
-    struct sss_ctx c;
-    struct sss_pass pp;   /* on the stack, as in a frame */
-    struct restir_sss_stats stats = {0};
-    return sss_begin(st, params, f, &c, &pp, NULL, restir_threads(f->threads), &stats, err);
-}
-
 bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_params *params,
                        const struct method_frame *f, struct image *out, struct restir_sss_stats *stats,
                        struct err *err)
 {
-    struct restir_sss_stats local;
-    if (!(stats = restir_frame_begin(out, &st->rs, stats, &local, sizeof local, err))) return false;
-    const unsigned threads = restir_threads(f->threads);
     struct sss_ctx c;
-    /* ~50 KiB of per-worker counters: on the heap would be a per-frame malloc; the stack is fine. */
-    struct sss_pass pp;
-    const bool history = st->rs.has_history && f->prev_scene && params->temporal;
-    if (!sss_begin(st, params, f, &c, &pp, out, threads, stats, err)) return false;
-    for (unsigned i = 0; i < threads; i++) restir_pass_stats_add(&stats->pass, &pp.counters[i]);
-
-    struct timespec t0;
-    clock_gettime(CLOCK_MONOTONIC, &t0);
+    struct sss_pass pp;   /* on the stack (restir_frame): a frame allocates nothing */
+    if (!(stats = restir_frame_open(&pp.fr, sizeof pp, &st->rs, f, out, params->temporal, stats, &pp.local,
+                                    sizeof pp.local, err)) ||
+        !restir_sss_params_valid(params, err))
+        return false;
+    if (restir_sss_layers(params) != st->rs.layers)
+        return err_set(err, ERR_INVALID, "/params/target", "the session's reservoirs were made for the other target");
+    if (!restir_frame_gbuffer(&pp.fr, 0.0f, sss_uses_pairs(params), err)) return false;
+    restir_sss_bind(st, params, f, &c);
+    pp.c = &c;
+    pp.pt = reference_pt_rest(st->rs.width, st->rs.height, params->max_depth, params->rr_depth);
+    if (!restir_frame_initial(&pp.fr, sss_initial_rows, &pp, err)) return false;
+    if (!out) return true;   /* restir_sss_initial_only */
     float radius = params->spatial_radius > 0.0f ? params->spatial_radius
                                                  : sss_auto_radius(&c, f->camera, st->rs.width, st->rs.height);
     stats->spatial_radius = radius;
     /* One reuse per layer, each with its own target (the ctx's channel) and reservoirs; they share
      * the G-buffers, the pair scratch (one pass at a time) and the neighbour pairings. */
     const uint32_t layers = st->rs.layers;
-    const size_t layer_bytes = (size_t)st->rs.width * st->rs.height * sizeof(struct sss_sample);
     struct sss_ctx lc[3];
-    struct restir_reuse r[3];
     for (uint32_t l = 0; l < layers; l++) {
         lc[l] = c;
         lc[l].channel = layers > 1 ? (int)l : -1;
-        r[l] = (struct restir_reuse){.ops = &restir_sss_ops, .ctx = &lc[l], .width = st->rs.width, .height = st->rs.height,
-                                     .seed = f->seed, .frame = f->frame, .threads = threads,
-                                     .gbuf = &st->rs.gbuf[st->rs.cur], .history = history ? st->rs.res[1] + l * layer_bytes : NULL,
-                                     .temporal_cap = params->temporal_cap, .neighbors = params->spatial_neighbors,
-                                     .radius = radius, .paired = params->paired_spatial,
-                                     .pair_scratch = st->rs.pair_scratch};
     }
-    struct restir_counters rc = {0};
-    for (uint32_t l = 0; l < layers; l++)
-        if (!restir_temporal_pass(&r[l], st->rs.res[0] + l * layer_bytes, &rc, err)) return false;
-    stats->pass.temporal_ms = parallel_lap_ms(&t0);
+    struct restir_reuse *r = restir_frame_reuse(&pp.fr, &restir_sss_ops, lc, sizeof lc[0], params->temporal_cap,
+                                                params->spatial_neighbors, radius, params->paired_spatial);
+    if (!restir_frame_temporal(&pp.fr, err)) return false;
     if (params->spatial_neighbors > 0 && params->shift == RESTIR_SSS_SEQUENTIAL) {
         /* §4.3, §5.1: half the neighbours with reconnection, then half with delayed
          * reconnection (its own neighbour stream), ending in res[1]. */
-        for (uint32_t l = 0; l < layers; l++) {
-            r[l].neighbors = params->spatial_neighbors / 2;
-            if (!restir_spatial_pass(&r[l], st->rs.res[0] + l * layer_bytes, st->rs.res[1] + l * layer_bytes, &rc, err))
-                return false;
-        }
-        pp.estimated = params->expected_shading;
+        for (uint32_t l = 0; l < layers; l++) r[l].neighbors = params->spatial_neighbors / 2;
+        if (!restir_frame_spatial(&pp.fr, false, false, err)) return false;
         for (uint32_t l = 0; l < layers; l++) {
             lc[l].pass_shift = RESTIR_SSS_DELAYED;
             r[l].frame = f->frame * 8u + 1u;
-            r[l].estimate = pp.estimated ? out->pixels : NULL;  /* adds to the path-traced rest */
-            if (!restir_spatial_pass(&r[l], st->rs.res[1] + l * layer_bytes, st->rs.res[0] + l * layer_bytes, &rc, err))
-                return false;
         }
-        uint8_t *tmp = st->rs.res[0];
-        st->rs.res[0] = st->rs.res[1];
-        st->rs.res[1] = tmp;
+        if (!restir_frame_spatial(&pp.fr, params->expected_shading, true, err)) return false;
     } else if (params->spatial_neighbors > 0) {
-        pp.estimated = params->expected_shading;
-        for (uint32_t l = 0; l < layers; l++) {
-            r[l].estimate = pp.estimated ? out->pixels : NULL;  /* adds to the path-traced rest */
-            if (!restir_spatial_pass(&r[l], st->rs.res[0] + l * layer_bytes, st->rs.res[1] + l * layer_bytes, &rc, err))
-                return false;
-        }
+        if (!restir_frame_spatial(&pp.fr, params->expected_shading, true, err)) return false;
     } else {
-        uint8_t *tmp = st->rs.res[0];
-        st->rs.res[0] = st->rs.res[1];
-        st->rs.res[1] = tmp;
+        restir_session_swap(&st->rs);
     }
-    stats->pass.spatial_ms = parallel_lap_ms(&t0);
-    restir_pass_stats_add(&stats->pass, &rc);
+    restir_frame_reused(&pp.fr);
+    return restir_frame_shade(&pp.fr, sss_shade_rows, &pp, err);
+}
 
-    memset(pp.nonfinite, 0, sizeof pp.nonfinite);
-    if (!sss_run(&pp, threads, sss_shade_rows, err)) return false;
-    for (unsigned i = 0; i < threads; i++) stats->pass.nonfinite += pp.nonfinite[i];
-    stats->pass.shade_ms = parallel_lap_ms(&t0);
-    st->rs.has_history = true;
-    return true;
+bool restir_sss_initial_only(struct restir_sss_state *st, const struct restir_sss_params *params,
+                             const struct method_frame *f, struct err *err)
+{
+    return restir_sss_render(st, params, f, NULL, NULL, err);
 }

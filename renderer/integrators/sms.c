@@ -227,6 +227,19 @@ static bool sms_trial(const void *ctx, struct rng *rng, struct manifold_vertex *
     return sms_walk_seed(t->scene, t->cs, t->e, t->p, a, b, w, &c->newton_trials, rc);
 }
 
+bool sms_draw_begin(const struct scene *scene, const struct sms_scene *ss, float uc, float ul, float l1, float l2,
+                    uint32_t max_chain, const struct surface *s, struct sms_counters *c, struct sms_draw *d)
+{
+    d->t0 = sms_now_ms();
+    c->samples++;
+    const bool picked = sms_pick(scene, ss, uc, ul, l1, l2, max_chain, &d->ci, &d->ls);
+    d->cs = &ss->casters[d->ci];
+    if (!picked) return false;
+    d->light = d->ls.material;
+    d->e = (struct manifold_ends){.x1 = s->p, .ng1 = s->ng, .xe = d->ls.p, .nge = d->ls.n};
+    return true;
+}
+
 bool sms_sample(const struct scene *scene, const struct sms_scene *ss, const struct sms_params *p,
                 const struct surface *s, const struct material *m, struct vec3 wo, uint32_t max_chain,
                 struct rng *rng, struct sms_solution *out, struct sms_counters *c, struct ray_counters *rc)
@@ -235,33 +248,24 @@ bool sms_sample(const struct scene *scene, const struct sms_scene *ss, const str
     float uc = rng_next_float(rng), ul = rng_next_float(rng), l1 = rng_next_float(rng), l2 = rng_next_float(rng);
     float s1 = rng_next_float(rng), s2 = rng_next_float(rng);
     if (ss->count == 0) return false;
-    double t0 = sms_now_ms();
-    c->samples++;
-    uint32_t ci;
-    struct light_sample ls;
-    const bool picked = sms_pick(scene, ss, uc, ul, l1, l2, max_chain, &ci, &ls);
-    const struct sms_caster *cs = &ss->casters[ci];
-    if (!picked) goto out;
-    const struct material *lm = ls.material;
-    struct manifold_ends e = {.x1 = s->p, .ng1 = s->ng, .xe = ls.p, .nge = ls.n};
+    struct sms_draw d;
+    if (!sms_draw_begin(scene, ss, uc, ul, l1, l2, max_chain, s, c, &d)) goto out;
     struct manifold_vertex *v = out->v;
-    if (!sms_walk_seed(scene, cs, &e, p, s1, s2, v, &c->newton_sample, rc) || !manifold_check(scene, &cs->chain, &e, v, rc))
+    if (!sms_walk_seed(scene, d.cs, &d.e, p, s1, s2, v, &c->newton_sample, rc) ||
+        !manifold_check(scene, &d.cs->chain, &d.e, v, rc))
         goto out;
-    struct vec3 value = sms_solution_value(scene, &cs->chain, &e, v, s, m, wo, lm);
+    struct vec3 value = sms_solution_value(scene, &d.cs->chain, &d.e, v, s, m, wo, d.light);
     if (vec3_is_zero(value)) goto out;
     /* Bernoulli trials: the number of fresh seeds until one walks to this solution again has
      * expectation 1 / P(x̄*) ([SMS-SSP §3.1]). */
-    const struct sms_trial trial = {scene, cs, &e, p};
-    uint32_t trials = sms_bernoulli(p, v, cs->chain.length, s->p, sms_trial, &trial, rng, c, rc);
+    const struct sms_trial trial = {scene, d.cs, &d.e, p};
+    uint32_t trials = sms_bernoulli(p, v, d.cs->chain.length, s->p, sms_trial, &trial, rng, c, rc);
     if (!trials) goto out;
-    out->caster = ci;
-    out->light = ls;
-    out->value = value;
+    sms_draw_keep(&d, value, out);
     /* The float product the estimate has always used (its images stay bit-identical). */
-    out->W = (double)((float)trials * (float)ss->count / ls.pdf_a);
+    out->W = (double)((float)trials * (float)ss->count / d.ls.pdf_a);
 out:
-    c->sample_ms += sms_now_ms() - t0;
-    return out->W > 0.0;
+    return sms_draw_end(&d, out, c);
 }
 
 struct vec3 sms_estimate(const struct scene *scene, const struct sms_scene *ss, const struct sms_params *p,

@@ -209,6 +209,35 @@ struct sms_solution {
     struct vec3 value;
     double W;
 };
+/* The start both manifold samplers (sms_sample, ssp_sample) share: the caster (ci, cs) and light
+ * point (ls) sms_pick chose, the light's material, the walk's two ends (x1 the shading point, xe
+ * the light point) and the sample's clock (its time goes to sms_counters.sample_ms). */
+struct sms_draw {
+    uint32_t ci;
+    const struct sms_caster *cs;
+    struct light_sample ls;
+    const struct material *light;
+    struct manifold_ends e;
+    double t0;
+};
+/* Counts the sample, starts its clock and picks its caster and light point from uc, ul, l1, l2
+ * (sms_pick); false when nothing was picked (the sample has no weight). ss holds a caster. */
+bool sms_draw_begin(const struct scene *scene, const struct sms_scene *ss, float uc, float ul, float l1, float l2,
+                    uint32_t max_chain, const struct surface *s, struct sms_counters *c, struct sms_draw *d);
+/* A solution's caster, light point and value, from the draw that found it. */
+static inline void sms_draw_keep(const struct sms_draw *d, struct vec3 value, struct sms_solution *out)
+{
+    out->caster = d->ci;
+    out->light = d->ls;
+    out->value = value;
+}
+/* The sample's end: its time goes to sample_ms; true when it has a weight. */
+static inline bool sms_draw_end(const struct sms_draw *d, const struct sms_solution *out, struct sms_counters *c)
+{
+    c->sample_ms += sms_now_ms() - d->t0;
+    return out->W > 0.0;
+}
+
 /* sms_estimate's sampling half (same random numbers): W = trials · C / p(x_n). */
 bool sms_sample(const struct scene *scene, const struct sms_scene *ss, const struct sms_params *p,
                 const struct surface *s, const struct material *m, struct vec3 wo, uint32_t max_chain,

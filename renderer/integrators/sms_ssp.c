@@ -403,21 +403,15 @@ bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const str
     float uc = rng_next_float(rng), ul = rng_next_float(rng), l1 = rng_next_float(rng), l2 = rng_next_float(rng);
     float us = rng_next_float(rng), s1 = rng_next_float(rng), s2 = rng_next_float(rng);
     if (ss->count == 0) return false;
-    double t0 = sms_now_ms();
-    c->samples++;
+    struct sms_draw d;
+    if (!sms_draw_begin(scene, ss, uc, ul, l1, l2, max_chain, s, c, &d)) goto out;
     const uint32_t n = p->tiles, n2 = n * n;
-    uint32_t ci;
-    struct light_sample ls;
-    const bool picked = sms_pick(scene, ss, uc, ul, l1, l2, max_chain, &ci, &ls);
-    const struct sms_caster *cs = &ss->casters[ci];
-    if (!picked) goto out;
-    const struct material *lm = ls.material;
-    struct manifold_ends e = {.x1 = s->p, .ng1 = s->ng, .xe = ls.p, .nge = ls.n};
+    const struct sms_caster *cs = d.cs;
     struct ssp_cone k;
     ssp_cone_at(cs, s->p, &k);
     /* The prior of this pixel's block for the pair, or none (fallback: alpha = 0). */
     uint32_t block = pr ? (py / SSP_BLOCK) * pr->blocks_x + px / SSP_BLOCK : 0;
-    const struct ssp_entry *I = p->prior && pr ? ssp_find(pr, block, ls.shape, ci) : NULL;
+    const struct ssp_entry *I = p->prior && pr ? ssp_find(pr, block, d.ls.shape, d.ci) : NULL;
     float alpha = I && I->count && ssp_covers(I, s->p) ? p->alpha : 0.0f;
     if (alpha > 0.0f) c->with_prior++;
     /* Seed from eq. 7: a tile of I with probability alpha, else anywhere. */
@@ -428,12 +422,12 @@ bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const str
         u2 = ((float)(t % n) + s2) / (float)n;
     }
     struct manifold_vertex *v = out->v;
-    if (!ssp_walk(scene, cs, &e, &k, n, u1, u2, p->sms.max_iterations, v, &c->newton_sample, rc) ||
-        !manifold_check(scene, &cs->chain, &e, v, rc))
+    if (!ssp_walk(scene, cs, &d.e, &k, n, u1, u2, p->sms.max_iterations, v, &c->newton_sample, rc) ||
+        !manifold_check(scene, &cs->chain, &d.e, v, rc))
         goto out;
     uint32_t ti, tj;
     if (!ssp_tile_of(&k, n, v[0].p, &ti, &tj)) goto out;
-    struct vec3 value = sms_solution_value(scene, &cs->chain, &e, v, s, m, wo, lm);
+    struct vec3 value = sms_solution_value(scene, &cs->chain, &d.e, v, s, m, wo, d.light);
     if (vec3_is_zero(value)) goto out;
     /* C(u*): the 3 x 3 tiles around u*'s (periodic). Eq. 8 and eq. 9. */
     uint32_t ctile[9], ic[9], nic = 0;
@@ -446,17 +440,14 @@ bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const str
     double mass_i = alpha > 0.0f ? (double)alpha * nic / I->count : 0.0;
     double pc = mass_i + (1.0 - alpha) * 9.0 / (double)n2;
     double alpha_c = mass_i / pc;
-    const struct ssp_trial trial = {scene, cs, &e, &k, n, p->sms.max_iterations, alpha_c, ic, ctile, nic};
+    const struct ssp_trial trial = {scene, cs, &d.e, &k, n, p->sms.max_iterations, alpha_c, ic, ctile, nic};
     uint32_t trials = sms_bernoulli(&p->sms, v, cs->chain.length, s->p, ssp_trial, &trial, rng, c, rc);
     if (!trials) goto out;
-    out->caster = ci;
-    out->light = ls;
-    out->value = value;
+    sms_draw_keep(&d, value, out);
     /* The same float product sms_ssp's estimate has always used (its images stay bit-identical). */
-    out->W = (double)((float)((double)trials / pc) * (float)ss->count / ls.pdf_a);
+    out->W = (double)((float)((double)trials / pc) * (float)ss->count / d.ls.pdf_a);
 out:
-    c->sample_ms += sms_now_ms() - t0;
-    return out->W > 0.0;
+    return sms_draw_end(&d, out, c);
 }
 
 struct vec3 ssp_estimate(const struct scene *scene, const struct sms_scene *ss, const struct ssp_params *p,

@@ -5,6 +5,7 @@
 
 #include "integrators/bdpt.h"
 #include "integrators/restir_bdpt.h"
+#include "methods/adapter.h"
 #include "methods/method.h"
 
 METHOD_FITS(struct bdpt_params, METHOD_PARAMS_BYTES);
@@ -19,37 +20,21 @@ static const char *const bdpt_heuristics[] = {"power", "balance", NULL};
 
 /* ---- bdpt ---- */
 
-static void bdpt_defaults_op(void *params)
-{
-    *(struct bdpt_params *)params = bdpt_defaults();
-}
-
-static bool bdpt_validate(const void *params, struct err *err)
-{
-    return bdpt_params_valid(params, err);
-}
-
-static bool bdpt_init_op(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
-                         struct err *err)
-{
-    return bdpt_init(state, scene, params, width, height, err);
-}
-
-static void bdpt_destroy_op(void *state)
-{
-    bdpt_destroy(state);
-}
+METHOD_DEFAULTS_OP(bdpt_defaults_op, struct bdpt_params, bdpt_defaults)
+METHOD_VALIDATE_OP(bdpt_validate, struct bdpt_params, bdpt_params_valid)
+METHOD_INIT_OP(bdpt_init_op, struct bdpt_state, struct bdpt_params, bdpt_init)
+METHOD_STATE_OP(bdpt_destroy_op, struct bdpt_state, bdpt_destroy)
 
 static bool bdpt_render_op(void *state, const void *params, const struct method_frame *f, struct image *out,
                            struct frame_stats *stats, parallel_progress_fn *progress, void *progress_ctx,
                            struct err *err)
 {
-    struct bdpt_stats *c = (struct bdpt_stats *)(void *)stats->counters;
+    struct bdpt_stats *c = METHOD_COUNTERS(struct bdpt_stats, stats);
     if (!bdpt_render(state, params, f, out, c, err)) return false;
-    stats->render = method_frame_render_stats(out, f->threads, c->rays_intersect, c->rays_occluded, c->nonfinite,
-                                              c->light_ms + c->splat_ms + c->camera_ms);
-    if (progress) progress(progress_ctx, 1, 1);
-    return true;
+    const double ms = c->light_ms + c->splat_ms + c->camera_ms;
+    return method_frame_done(
+        stats, method_frame_render_stats(out, f->threads, c->rays_intersect, c->rays_occluded, c->nonfinite, ms),
+        progress, progress_ctx);
 }
 
 static uint64_t bdpt_bytes_planned_op(const void *params, const struct scene *scene, uint32_t width, uint32_t height)
@@ -98,10 +83,8 @@ const struct method_desc method_bdpt = {
     .summary = "bidirectional path tracing with a light vertex cache and recursive MIS",
     .caps = METHOD_NO_ENVIRONMENT | METHOD_NO_TRANSLUCENT,
     .refuses = BDPT_REFUSES,
-    .params = bdpt_params_table,
-    .param_count = sizeof bdpt_params_table / sizeof bdpt_params_table[0],
-    .stats = bdpt_stats_table,
-    .stat_count = sizeof bdpt_stats_table / sizeof bdpt_stats_table[0],
+    METHOD_PARAM_TABLE(bdpt_params_table),
+    METHOD_STAT_TABLE(bdpt_stats_table),
     .defaults = bdpt_defaults_op,
     .validate = bdpt_validate,
     .state_bytes = sizeof(struct bdpt_state),
@@ -114,42 +97,22 @@ const struct method_desc method_bdpt = {
 
 /* ---- restir_bdpt ---- */
 
-static void rbdpt_defaults(void *params)
-{
-    *(struct restir_bdpt_params *)params = restir_bdpt_defaults();
-}
-
-static bool rbdpt_validate(const void *params, struct err *err)
-{
-    return restir_bdpt_params_valid(params, err);
-}
-
-static bool rbdpt_init(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
-                       struct err *err)
-{
-    return restir_bdpt_init(state, scene, params, width, height, err);
-}
-
-static void rbdpt_reset(void *state)
-{
-    restir_bdpt_reset(state);
-}
-
-static void rbdpt_destroy(void *state)
-{
-    restir_bdpt_destroy(state);
-}
+METHOD_DEFAULTS_OP(rbdpt_defaults, struct restir_bdpt_params, restir_bdpt_defaults)
+METHOD_VALIDATE_OP(rbdpt_validate, struct restir_bdpt_params, restir_bdpt_params_valid)
+METHOD_INIT_OP(rbdpt_init, struct restir_bdpt_state, struct restir_bdpt_params, restir_bdpt_init)
+METHOD_STATE_OP(rbdpt_reset, struct restir_bdpt_state, restir_bdpt_reset)
+METHOD_STATE_OP(rbdpt_destroy, struct restir_bdpt_state, restir_bdpt_destroy)
 
 static bool rbdpt_render(void *state, const void *params, const struct method_frame *f, struct image *out,
                          struct frame_stats *stats, parallel_progress_fn *progress, void *progress_ctx,
                          struct err *err)
 {
-    struct restir_bdpt_stats *c = (struct restir_bdpt_stats *)(void *)stats->counters;
+    struct restir_bdpt_stats *c = METHOD_COUNTERS(struct restir_bdpt_stats, stats);
     if (!restir_bdpt_render(state, params, f, out, c, err)) return false;
-    stats->render = method_frame_render_stats(out, f->threads, c->rays_intersect, c->rays_occluded, c->rejected,
-                                              c->light_ms + c->sort_ms + c->camera_ms + c->reuse_ms);
-    if (progress) progress(progress_ctx, 1, 1);
-    return true;
+    const double ms = c->light_ms + c->sort_ms + c->camera_ms + c->reuse_ms;
+    return method_frame_done(
+        stats, method_frame_render_stats(out, f->threads, c->rays_intersect, c->rays_occluded, c->rejected, ms),
+        progress, progress_ctx);
 }
 
 static uint64_t rbdpt_bytes_planned(const void *params, const struct scene *scene, uint32_t width, uint32_t height)
@@ -245,10 +208,8 @@ const struct method_desc method_restir_bdpt = {
     .summary = "ReSTIR BDPT: resampled bidirectional paths with caustic reservoirs reused across frames",
     .caps = METHOD_REUSES_FRAMES | METHOD_NO_ENVIRONMENT | METHOD_NO_TRANSLUCENT,
     .refuses = BDPT_REFUSES,
-    .params = rbdpt_params,
-    .param_count = sizeof rbdpt_params / sizeof rbdpt_params[0],
-    .stats = rbdpt_stats,
-    .stat_count = sizeof rbdpt_stats / sizeof rbdpt_stats[0],
+    METHOD_PARAM_TABLE(rbdpt_params),
+    METHOD_STAT_TABLE(rbdpt_stats),
     .defaults = rbdpt_defaults,
     .validate = rbdpt_validate,
     .state_bytes = sizeof(struct restir_bdpt_state),

@@ -5,6 +5,7 @@
 #include <string.h>
 
 #include "integrators/reference_pt.h"
+#include "methods/adapter.h"
 #include "methods/method.h"
 #include "methods/path_params.h"
 
@@ -25,27 +26,8 @@ bool pt_method_params_valid(const struct pt_method_params *p, struct err *err)
     return true;
 }
 
-static void pt_defaults(void *params)
-{
-    *(struct pt_method_params *)params = pt_method_defaults();
-}
-
-static bool pt_validate(const void *params, struct err *err)
-{
-    return pt_method_params_valid(params, err);
-}
-
-static bool pt_init(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
-                    struct err *err)
-{
-    (void)state, (void)scene, (void)params, (void)width, (void)height, (void)err;
-    return true;
-}
-
-static void pt_destroy(void *state)
-{
-    (void)state;
-}
+METHOD_DEFAULTS_OP(pt_defaults, struct pt_method_params, pt_method_defaults)
+METHOD_VALIDATE_OP(pt_validate, struct pt_method_params, pt_method_params_valid)
 
 struct pt_params pt_method_frame_params(const struct pt_method_params *pp, const struct method_frame *f,
                                         const struct image *out)
@@ -90,11 +72,10 @@ const struct method_desc method_pt = {
     .name = "pt",
     .summary = "reference path tracer: unidirectional, next-event estimation with MIS, Russian roulette",
     .caps = METHOD_TAKES_SPP | METHOD_STILL_CROP,
-    .params = pt_params_table,
-    .param_count = sizeof pt_params_table / sizeof pt_params_table[0],
+    METHOD_PARAM_TABLE(pt_params_table),
     .defaults = pt_defaults,
     .validate = pt_validate,
-    .init = pt_init,
-    .destroy = pt_destroy,
+    .init = method_stateless_init,
+    .destroy = method_stateless_destroy,
     .render = pt_render,
 };

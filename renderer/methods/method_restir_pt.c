@@ -4,21 +4,17 @@
 #include <stddef.h>
 
 #include "integrators/restir_pt.h"
+#include "methods/adapter.h"
 #include "methods/method.h"
 #include "methods/passes.h"
 
 METHOD_FITS(struct restir_pt_params, METHOD_PARAMS_BYTES);
 METHOD_FITS(struct restir_pass_stats, METHOD_COUNTERS_BYTES);
 
-static void rpt_defaults(void *params)
-{
-    *(struct restir_pt_params *)params = restir_pt_defaults();
-}
-
-static bool rpt_validate(const void *params, struct err *err)
-{
-    return restir_pt_params_valid(params, err);
-}
+METHOD_DEFAULTS_OP(rpt_defaults, struct restir_pt_params, restir_pt_defaults)
+METHOD_VALIDATE_OP(rpt_validate, struct restir_pt_params, restir_pt_params_valid)
+METHOD_SESSION_RESET_OP(rpt_reset, struct restir_pt_state)
+METHOD_STATE_OP(rpt_destroy, struct restir_pt_state, restir_pt_destroy)
 
 static bool rpt_init(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
                      struct err *err)
@@ -30,24 +26,12 @@ static bool rpt_init(void *state, const struct scene *scene, void *params, uint3
     return true;
 }
 
-static void rpt_reset(void *state)
-{
-    restir_session_reset(&((struct restir_pt_state *)state)->rs);
-}
-
-static void rpt_destroy(void *state)
-{
-    restir_pt_destroy(state);
-}
-
 static bool rpt_render(void *state, const void *params, const struct method_frame *f, struct image *out,
                        struct frame_stats *stats, parallel_progress_fn *progress, void *progress_ctx, struct err *err)
 {
-    struct restir_pass_stats *c = (struct restir_pass_stats *)(void *)stats->counters;
-    if (!restir_pt_render(state, params, f, out, c, err)) return false;
-    stats->render = method_pass_render_stats(out, f->threads, c, 0.0);
-    if (progress) progress(progress_ctx, 1, 1);
-    return true;
+    struct restir_pass_stats *c = METHOD_COUNTERS(struct restir_pass_stats, stats);
+    return restir_pt_render(state, params, f, out, c, err) &&
+           method_frame_done(stats, method_pass_render_stats(out, f->threads, c, 0.0), progress, progress_ctx);
 }
 
 static uint64_t rpt_bytes_planned(const void *params, const struct scene *scene, uint32_t width, uint32_t height)
@@ -110,10 +94,8 @@ const struct method_desc method_restir_pt = {
     .summary = "ReSTIR path tracing (Enhanced): temporal and spatial reuse of whole paths through the hybrid shift",
     .caps = METHOD_REUSES_FRAMES | METHOD_REUSES_PIXELS | METHOD_NO_TRANSLUCENT,
     .refuses = "translucent materials (subsurface scattering is not sampled)",
-    .params = rpt_params,
-    .param_count = sizeof rpt_params / sizeof rpt_params[0],
-    .stats = rpt_stats,
-    .stat_count = sizeof rpt_stats / sizeof rpt_stats[0],
+    METHOD_PARAM_TABLE(rpt_params),
+    METHOD_STAT_TABLE(rpt_stats),
     .defaults = rpt_defaults,
     .validate = rpt_validate,
     .state_bytes = sizeof(struct restir_pt_state),

@@ -5,6 +5,7 @@
 #include <stdio.h>
 
 #include "integrators/restir_sms.h"
+#include "methods/adapter.h"
 #include "methods/method.h"
 #include "methods/passes.h"
 #include "methods/prior_stats.h"
@@ -13,15 +14,10 @@ METHOD_FITS(struct restir_sms_params, METHOD_PARAMS_BYTES);
 METHOD_FITS(struct restir_sms_stats, METHOD_COUNTERS_BYTES);
 METHOD_ENUM_IS_INT(enum restir_sms_sampler);
 
-static void rsms_defaults(void *params)
-{
-    *(struct restir_sms_params *)params = restir_sms_defaults();
-}
-
-static bool rsms_validate(const void *params, struct err *err)
-{
-    return restir_sms_params_valid(params, err);
-}
+METHOD_DEFAULTS_OP(rsms_defaults, struct restir_sms_params, restir_sms_defaults)
+METHOD_VALIDATE_OP(rsms_validate, struct restir_sms_params, restir_sms_params_valid)
+METHOD_SESSION_RESET_OP(rsms_reset, struct restir_sms_state)
+METHOD_STATE_OP(rsms_destroy, struct restir_sms_state, restir_sms_destroy)
 
 static bool rsms_init(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
                       struct err *err)
@@ -34,26 +30,15 @@ static bool rsms_init(void *state, const struct scene *scene, void *params, uint
     return true;
 }
 
-static void rsms_reset(void *state)
-{
-    restir_session_reset(&((struct restir_sms_state *)state)->rs);
-}
-
-static void rsms_destroy(void *state)
-{
-    restir_sms_destroy(state);
-}
-
 static bool rsms_render(void *state, const void *params, const struct method_frame *f, struct image *out,
                         struct frame_stats *stats, parallel_progress_fn *progress, void *progress_ctx, struct err *err)
 {
-    struct restir_sms_stats *c = (struct restir_sms_stats *)(void *)stats->counters;
+    struct restir_sms_stats *c = METHOD_COUNTERS(struct restir_sms_stats, stats);
     if (!restir_sms_render(state, params, f, out, c, err)) return false;
     /* The prior pass counts as part of the initial pass (it only serves the candidates). */
-    stats->render = method_pass_render_stats(out, f->threads, &c->pass, c->prior_ms);
-    stats->render.sms = c->sms;
-    if (progress) progress(progress_ctx, 1, 1);
-    return true;
+    struct render_stats r = method_pass_render_stats(out, f->threads, &c->pass, c->prior_ms);
+    r.sms = c->sms;
+    return method_frame_done(stats, r, progress, progress_ctx);
 }
 
 static uint64_t rsms_bytes_planned(const void *params, const struct scene *scene, uint32_t width, uint32_t height)
@@ -147,10 +132,8 @@ const struct method_desc method_restir_sms = {
     .summary = "ReSTIR over specular manifold samples: caustic paths reused through the manifold shift",
     .caps = METHOD_REUSES_FRAMES | METHOD_REUSES_PIXELS | METHOD_MANIFOLD_COUNTERS,
     .refuses = "scenes with more casters than manifold sampling can hold",
-    .params = rsms_params,
-    .param_count = sizeof rsms_params / sizeof rsms_params[0],
-    .stats = rsms_stats,
-    .stat_count = sizeof rsms_stats / sizeof rsms_stats[0],
+    METHOD_PARAM_TABLE(rsms_params),
+    METHOD_STAT_TABLE(rsms_stats),
     .defaults = rsms_defaults,
     .validate = rsms_validate,
     .state_bytes = sizeof(struct restir_sms_state),

@@ -5,6 +5,7 @@
 #include <stddef.h>
 
 #include "integrators/restir_sss.h"
+#include "methods/adapter.h"
 #include "methods/method.h"
 #include "methods/passes.h"
 
@@ -13,15 +14,10 @@ METHOD_FITS(struct restir_sss_stats, METHOD_COUNTERS_BYTES);
 METHOD_ENUM_IS_INT(enum restir_sss_shift);
 METHOD_ENUM_IS_INT(enum restir_sss_target);
 
-static void sss_defaults(void *params)
-{
-    *(struct restir_sss_params *)params = restir_sss_defaults();
-}
-
-static bool sss_validate(const void *params, struct err *err)
-{
-    return restir_sss_params_valid(params, err);
-}
+METHOD_DEFAULTS_OP(sss_defaults, struct restir_sss_params, restir_sss_defaults)
+METHOD_VALIDATE_OP(sss_validate, struct restir_sss_params, restir_sss_params_valid)
+METHOD_SESSION_RESET_OP(sss_reset, struct restir_sss_state)
+METHOD_STATE_OP(sss_destroy, struct restir_sss_state, restir_sss_destroy)
 
 static bool sss_init(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
                      struct err *err)
@@ -30,24 +26,12 @@ static bool sss_init(void *state, const struct scene *scene, void *params, uint3
     return restir_sss_init(state, params, width, height, err);
 }
 
-static void sss_reset(void *state)
-{
-    restir_session_reset(&((struct restir_sss_state *)state)->rs);
-}
-
-static void sss_destroy(void *state)
-{
-    restir_sss_destroy(state);
-}
-
 static bool sss_render(void *state, const void *params, const struct method_frame *f, struct image *out,
                        struct frame_stats *stats, parallel_progress_fn *progress, void *progress_ctx, struct err *err)
 {
-    struct restir_sss_stats *c = (struct restir_sss_stats *)(void *)stats->counters;
-    if (!restir_sss_render(state, params, f, out, c, err)) return false;
-    stats->render = method_pass_render_stats(out, f->threads, &c->pass, 0.0);
-    if (progress) progress(progress_ctx, 1, 1);
-    return true;
+    struct restir_sss_stats *c = METHOD_COUNTERS(struct restir_sss_stats, stats);
+    return restir_sss_render(state, params, f, out, c, err) &&
+           method_frame_done(stats, method_pass_render_stats(out, f->threads, &c->pass, 0.0), progress, progress_ctx);
 }
 
 static uint64_t sss_bytes_planned(const void *params, const struct scene *scene, uint32_t width, uint32_t height)
@@ -106,10 +90,8 @@ const struct method_desc method_restir_sss = {
     .name = "restir_sss",
     .summary = "ReSTIR subsurface scattering: reuse of BSSRDF probe samples across pixels and frames",
     .caps = METHOD_REUSES_FRAMES | METHOD_REUSES_PIXELS,
-    .params = sss_params,
-    .param_count = sizeof sss_params / sizeof sss_params[0],
-    .stats = sss_stats,
-    .stat_count = sizeof sss_stats / sizeof sss_stats[0],
+    METHOD_PARAM_TABLE(sss_params),
+    METHOD_STAT_TABLE(sss_stats),
     .defaults = sss_defaults,
     .validate = sss_validate,
     .state_bytes = sizeof(struct restir_sss_state),

@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "integrators/reference_pt.h"
+#include "methods/adapter.h"
 #include "methods/method.h"
 #include "methods/path_params.h"
 #include "methods/prior_stats.h"
@@ -40,11 +41,6 @@ static bool sms_init(void *state, const struct scene *scene, void *params, uint3
     (void)state, (void)params, (void)width, (void)height;
     struct sms_scene ss;
     return sms_scene_init(scene, &ss, err);
-}
-
-static void sms_destroy(void *state)
-{
-    (void)state;
 }
 
 static bool sms_render(void *state, const void *params, const struct method_frame *f, struct image *out,
@@ -84,12 +80,11 @@ const struct method_desc method_sms = {
     .summary = "path tracing with specular manifold sampling for caustics through the scene's casters",
     .caps = METHOD_TAKES_SPP | METHOD_MANIFOLD_COUNTERS,
     .refuses = "scenes with more casters than manifold sampling can hold",
-    .params = sms_params_table,
-    .param_count = sizeof sms_params_table / sizeof sms_params_table[0],
+    METHOD_PARAM_TABLE(sms_params_table),
     .defaults = sms_defaults_op,
     .validate = sms_validate,
     .init = sms_init,
-    .destroy = sms_destroy,
+    .destroy = method_stateless_destroy,
     .render = sms_render,
 };
 
@@ -135,7 +130,7 @@ static bool ssp_render(void *state, const void *params, const struct method_fram
 {
     const struct ssp_method_params *sp = params;
     struct ssp_state *st = state;
-    struct ssp_prior_counters *prior = (struct ssp_prior_counters *)(void *)stats->counters;
+    struct ssp_prior_counters *prior = METHOD_COUNTERS(struct ssp_prior_counters, stats);
     /* The prior pass ([SMS-SSP §4.1]) before the frame, under this frame's scene and camera. */
     struct camera cam;
     struct ray_counters prc = {0, 0};
@@ -193,10 +188,8 @@ const struct method_desc method_sms_ssp = {
     .summary = "specular manifold sampling with sample-space partitioning and a per-frame prior",
     .caps = METHOD_TAKES_SPP | METHOD_MANIFOLD_COUNTERS,
     .refuses = "scenes with more casters than manifold sampling can hold",
-    .params = ssp_params_table,
-    .param_count = sizeof ssp_params_table / sizeof ssp_params_table[0],
-    .stats = ssp_stats,
-    .stat_count = sizeof ssp_stats / sizeof ssp_stats[0],
+    METHOD_PARAM_TABLE(ssp_params_table),
+    METHOD_STAT_TABLE(ssp_stats),
     .defaults = ssp_defaults_op,
     .validate = ssp_validate,
     .state_bytes = sizeof(struct ssp_state),

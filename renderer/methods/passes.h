@@ -9,6 +9,7 @@
 
 #include <stddef.h>
 
+#include "methods/adapter.h"
 #include "methods/method.h"
 #include "reuse/restir.h"
 
@@ -35,5 +36,9 @@ static inline struct render_stats method_pass_render_stats(const struct image *o
                                      c->gbuffer_ms + extra_ms + c->initial_ms + c->temporal_ms + c->spatial_ms +
                                          c->shade_ms);
 }
+
+/* A ReSTIR method's reset: its session forgets the history. */
+#define METHOD_SESSION_RESET_OP(name, state_type) \
+    static void name(void *state) { restir_session_reset(&((state_type *)state)->rs); }
 
 #endif

@@ -282,19 +282,6 @@ void restir_pass_stats_add(struct restir_pass_stats *s, const struct restir_coun
     s->rejected += c->rejected;
 }
 
-void *restir_frame_begin(const struct image *out, const struct restir_session *s, void *stats, void *local,
-                         size_t stats_bytes, struct err *err)
-{
-    if (out->width != s->width || out->height != s->height) {
-        err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the session %ux%u", out->width, out->height,
-                s->width, s->height);
-        return NULL;
-    }
-    if (!stats) stats = local;
-    memset(stats, 0, stats_bytes);
-    return stats;
-}
-
 bool restir_session_init(struct restir_session *s, uint32_t width, uint32_t height, uint32_t layers,
                          size_t sample_bytes, bool keep_surfaces, bool pairs, struct err *err)
 {
@@ -618,18 +605,138 @@ bool restir_gbuffer_next(struct gbuffer gbuf[2], uint32_t *cur, bool *has_histor
     return true;
 }
 
-bool restir_session_begin(struct restir_session *s, const struct method_frame *f, unsigned threads, float jitter_walk,
-                          bool pairs, struct restir_pass_stats *stats, struct timespec *t0, struct err *err)
+void *restir_frame_open(struct restir_frame *fr, size_t pass_bytes, struct restir_session *s,
+                        const struct method_frame *f, struct image *out, bool temporal, void *stats, void *local,
+                        size_t stats_bytes, struct err *err)
 {
+    memset(fr, 0, pass_bytes);
+    if (out && (out->width != s->width || out->height != s->height)) {
+        err_set(err, ERR_INVALID, NULL, "the output image is %ux%u, the session %ux%u", out->width, out->height,
+                s->width, s->height);
+        return NULL;
+    }
+    if (s->layers > RESTIR_MAX_LAYERS) {
+        err_set(err, ERR_INTERNAL, NULL, "%u reservoirs per pixel, at most %u", s->layers, RESTIR_MAX_LAYERS);
+        return NULL;
+    }
+    if (!stats) stats = local;
+    memset(stats, 0, stats_bytes);
+    fr->s = s;
+    fr->f = f;
+    fr->out = out;
+    fr->stats = stats;
+    camera_init(&fr->camera, f->camera, s->width, s->height);
+    fr->threads = restir_threads(f->threads);
+    /* Before the G-buffer pass, which drops a history the frame cannot use. */
+    fr->history = s->has_history && f->prev_scene && temporal;
+    return stats;
+}
+
+bool restir_frame_gbuffer(struct restir_frame *fr, float jitter_walk, bool pairs, struct err *err)
+{
+    struct restir_session *s = fr->s;
+    const struct method_frame *f = fr->f;
     if (pairs && !s->pair_scratch)
         return err_set(err, ERR_INVALID, "/params/paired_spatial", "the session was made without paired spatial reuse");
-    clock_gettime(CLOCK_MONOTONIC, t0);
+    clock_gettime(CLOCK_MONOTONIC, &fr->t0);
     struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,
-                               .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame, .threads = threads,
-                               .jitter_walk = jitter_walk};
+                               .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame,
+                               .threads = fr->threads, .jitter_walk = jitter_walk};
     uint64_t grays = 0;
     if (!restir_gbuffer_next(s->gbuf, &s->cur, &s->has_history, gf, &grays, err)) return false;
-    stats->gbuffer_ms = parallel_lap_ms(t0);
-    stats->rays_intersect += grays;
+    fr->stats->gbuffer_ms = parallel_lap_ms(&fr->t0);
+    fr->stats->rays_intersect += grays;
+    return true;
+}
+
+void restir_frame_domains(const struct restir_session *s, const struct method_frame *f, const struct scene *scene[2],
+                          struct vec3 eye[2], const struct gbuffer *gbuf[2])
+{
+    scene[RESTIR_CURRENT] = f->scene;
+    scene[RESTIR_PREVIOUS] = f->prev_scene ? f->prev_scene : f->scene;
+    if (eye) {
+        eye[RESTIR_CURRENT] = f->camera->position;
+        eye[RESTIR_PREVIOUS] = f->prev_camera ? f->prev_camera->position : f->camera->position;
+    }
+    gbuf[RESTIR_CURRENT] = &s->gbuf[s->cur];
+    gbuf[RESTIR_PREVIOUS] = &s->gbuf[s->cur ^ 1u];
+}
+
+static bool restir_frame_run(struct restir_frame *fr, parallel_job_fn *fn, void *pass, struct err *err)
+{
+    return restir_run_rows(fr->s->height, RESTIR_FRAME_ROWS, fr->threads, fn, pass, err);
+}
+
+bool restir_frame_initial(struct restir_frame *fr, parallel_job_fn *fn, void *pass, struct err *err)
+{
+    if (!restir_frame_run(fr, fn, pass, err)) return false;
+    fr->stats->initial_ms = parallel_lap_ms(&fr->t0);
+    for (unsigned i = 0; i < fr->threads; i++) restir_pass_stats_add(fr->stats, &fr->counters[i]);
+    clock_gettime(CLOCK_MONOTONIC, &fr->t0);
+    return true;
+}
+
+struct restir_reuse *restir_frame_reuse(struct restir_frame *fr, const struct restir_ops *ops, const void *ctx,
+                                        size_t ctx_stride, uint32_t temporal_cap, uint32_t neighbors, float radius,
+                                        bool paired)
+{
+    const struct restir_session *s = fr->s;
+    for (uint32_t l = 0; l < s->layers; l++)
+        fr->reuse[l] = (struct restir_reuse){.ops = ops, .ctx = (const uint8_t *)ctx + l * ctx_stride,
+                                             .width = s->width, .height = s->height, .seed = fr->f->seed,
+                                             .frame = fr->f->frame, .threads = fr->threads,
+                                             .gbuf = &s->gbuf[s->cur], .temporal_cap = temporal_cap,
+                                             .neighbors = neighbors, .radius = radius, .paired = paired,
+                                             .pair_scratch = s->pair_scratch};
+    return fr->reuse;
+}
+
+/* The bytes of one layer of a reservoir buffer. */
+static size_t restir_layer_bytes(const struct restir_session *s)
+{
+    return (size_t)s->width * s->height * s->sample_bytes;
+}
+
+bool restir_frame_temporal(struct restir_frame *fr, struct err *err)
+{
+    const struct restir_session *s = fr->s;
+    const size_t layer_bytes = restir_layer_bytes(s);
+    for (uint32_t l = 0; l < s->layers; l++) {
+        fr->reuse[l].history = fr->history ? s->res[1] + l * layer_bytes : NULL;
+        if (!restir_temporal_pass(&fr->reuse[l], s->res[0] + l * layer_bytes, &fr->reuse_counters, err))
+            return false;
+    }
+    fr->stats->temporal_ms = parallel_lap_ms(&fr->t0);
+    return true;
+}
+
+bool restir_frame_spatial(struct restir_frame *fr, bool estimate, bool last, struct err *err)
+{
+    struct restir_session *s = fr->s;
+    const size_t layer_bytes = restir_layer_bytes(s);
+    fr->estimated = estimate;
+    for (uint32_t l = 0; l < s->layers; l++) {
+        fr->reuse[l].estimate = estimate ? fr->out->pixels : NULL;  /* adds to the light outside the reservoirs */
+        if (!restir_spatial_pass(&fr->reuse[l], s->res[0] + l * layer_bytes, s->res[1] + l * layer_bytes,
+                                 &fr->reuse_counters, err))
+            return false;
+    }
+    if (!last) restir_session_swap(s);
+    return true;
+}
+
+void restir_frame_reused(struct restir_frame *fr)
+{
+    fr->stats->spatial_ms = parallel_lap_ms(&fr->t0);
+    restir_pass_stats_add(fr->stats, &fr->reuse_counters);
+}
+
+bool restir_frame_shade(struct restir_frame *fr, parallel_job_fn *fn, void *pass, struct err *err)
+{
+    memset(fr->nonfinite, 0, sizeof fr->nonfinite);
+    if (!restir_frame_run(fr, fn, pass, err)) return false;
+    for (unsigned i = 0; i < fr->threads; i++) fr->stats->nonfinite += fr->nonfinite[i];
+    fr->stats->shade_ms = parallel_lap_ms(&fr->t0);
+    fr->s->has_history = true;
     return true;
 }

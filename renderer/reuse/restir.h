@@ -17,6 +17,7 @@
 #include <time.h>
 
 #include "scene/accel.h"
+#include "scene/camera.h"
 #include "core/alias.h"
 #include "core/err.h"
 #include "core/parallel.h"
@@ -164,10 +165,6 @@ size_t restir_session_gbuffer_bytes(const struct restir_session *s);
 size_t restir_session_hit_bytes(const struct restir_session *s);
 size_t restir_session_pair_bytes(const struct restir_session *s);
 
-/* The frame's output must have the session's size; the method's counters start at zero (`stats`
- * may be NULL, then `local` is used and returned). */
-void *restir_frame_begin(const struct image *out, const struct restir_session *s, void *stats, void *local,
-                         size_t stats_bytes, struct err *err);
 /* The partner of `pixel` in pairing m (< 64) of the round r->frame names (false: off the image);
  * for tests: the pairing is an involution. */
 bool restir_pair_partner(const struct restir_reuse *r, uint32_t m, uint32_t pixel, uint32_t *partner);
@@ -197,10 +194,94 @@ bool restir_spatial_pass(const struct restir_reuse *r, const uint8_t *in, uint8_
 bool restir_gbuffer_next(struct gbuffer gbuf[2], uint32_t *cur, bool *has_history, struct gbuffer_frame gf,
                          uint64_t *rays, struct err *err);
 
-/* The start of a ReSTIR frame after the method's own checks: refuses paired spatial reuse (pairs)
- * in a session made without its scratch, starts the clock *t0 and renders the G-buffer pass
- * (restir_gbuffer_next; jitter_walk as gbuffer_frame's), whose time and rays go to stats. */
-bool restir_session_begin(struct restir_session *s, const struct method_frame *f, unsigned threads, float jitter_walk,
-                          bool pairs, struct restir_pass_stats *stats, struct timespec *t0, struct err *err);
+/* ---- the frame driver ----------------------------------------------------------------------
+ * Every ReSTIR method's frame runs the same passes: the G-buffer, the method's initial pass
+ * (candidates into the working reservoirs res[0], and the light they do not carry straight into
+ * the image), temporal reuse of every reservoir layer, spatial rounds that end in res[1] (next
+ * frame's history), and the shade pass that adds F(Y) W of the final reservoirs. The driver owns
+ * the order, the clocks, the counters and the buffer swaps; a method supplies its checks, its
+ * context and two row functions (initial, shade), each called once per job of
+ * RESTIR_FRAME_ROWS rows. A method's pass struct starts with a `struct restir_frame`, and that
+ * pass struct is the row functions' job context. On the stack (~90 KiB with the per-worker
+ * counters): a frame allocates nothing. */
+#define RESTIR_FRAME_ROWS 2u
+#define RESTIR_MAX_LAYERS 8u   /* reservoirs per pixel a frame reuses (restir_sms: one per light group) */
+
+struct restir_frame {
+    struct restir_session *s;
+    const struct method_frame *f;
+    struct image *out;                 /* NULL: the initial pass alone (a method's initial_only) */
+    struct restir_pass_stats *stats;   /* the method's counters, which start with these */
+    struct camera camera;              /* f->camera at the session's size */
+    unsigned threads;
+    bool history;                      /* temporal reuse has the previous frame's reservoirs */
+    bool estimated;                    /* the last spatial round added its expected contribution to out */
+    struct timespec t0;                /* the clock of the pass that runs */
+    struct restir_reuse reuse[RESTIR_MAX_LAYERS];  /* one per reservoir layer (restir_frame_reuse) */
+    struct restir_counters reuse_counters;          /* the temporal and spatial passes' */
+    struct restir_counters counters[RESTIR_MAX_WORKERS];  /* the initial pass's, one per worker */
+    uint64_t nonfinite[RESTIR_MAX_WORKERS];              /* the shade pass's, one per worker */
+};
+
+/* Opens a frame in *fr, the start of the method's pass struct of pass_bytes (all zeroed here):
+ * the output, when there is one, must have the session's size; the method's counters start at
+ * zero (`stats` may be NULL, then `local` is used and returned; NULL on failure). `temporal`: the
+ * method's parameters ask for temporal reuse. */
+void *restir_frame_open(struct restir_frame *fr, size_t pass_bytes, struct restir_session *s,
+                        const struct method_frame *f, struct image *out, bool temporal, void *stats, void *local,
+                        size_t stats_bytes, struct err *err);
+/* After the method's own checks: refuses paired spatial reuse (pairs) in a session made without
+ * its scratch, starts the clock and renders the G-buffer pass (restir_gbuffer_next; jitter_walk as
+ * gbuffer_frame's), whose time and rays go to the stats. */
+bool restir_frame_gbuffer(struct restir_frame *fr, float jitter_walk, bool pairs, struct err *err);
+/* The initial pass: fn(pass, job) over the rows; then its time and the workers' `counters` go to
+ * the stats, and the clock restarts for the reuse passes. */
+bool restir_frame_initial(struct restir_frame *fr, parallel_job_fn *fn, void *pass, struct err *err);
+/* The reuse of every layer: the same ops and parameters, layer l's context at ctx + l * ctx_stride
+ * bytes (0: one context for all). Returns fr->reuse, for a method that changes a round's fields. */
+struct restir_reuse *restir_frame_reuse(struct restir_frame *fr, const struct restir_ops *ops, const void *ctx,
+                                        size_t ctx_stride, uint32_t temporal_cap, uint32_t neighbors, float radius,
+                                        bool paired);
+/* Temporal reuse of every layer in res[0], from res[1] when there is history. */
+bool restir_frame_temporal(struct restir_frame *fr, struct err *err);
+/* One spatial round of every layer from res[0] into res[1]; `estimate`: the round adds its
+ * expected contribution to the image (restir_reuse.estimate), which the shade pass then leaves
+ * out; `last`: else the buffers swap, so the next round reads this one's output. */
+bool restir_frame_spatial(struct restir_frame *fr, bool estimate, bool last, struct err *err);
+/* The working reservoirs become the history (a frame without spatial reuse). */
+static inline void restir_session_swap(struct restir_session *s)
+{
+    uint8_t *tmp = s->res[0];
+    s->res[0] = s->res[1];
+    s->res[1] = tmp;
+}
+/* Closes the reuse: the spatial rounds' time and the reuse counters go to the stats. */
+void restir_frame_reused(struct restir_frame *fr);
+/* The shade pass: fn(pass, job) over the rows (restir_frame_store per pixel); then the
+ * non-finite count and its time go to the stats, and the session has a history. */
+bool restir_frame_shade(struct restir_frame *fr, parallel_job_fn *fn, void *pass, struct err *err);
+
+/* What a method's shift context holds of the frame's two domains (RESTIR_CURRENT,
+ * RESTIR_PREVIOUS): their scenes and G-buffers and, where eye is not NULL, their camera positions;
+ * a frame without a previous scene or camera uses the current one in its place. */
+void restir_frame_domains(const struct restir_session *s, const struct method_frame *f, const struct scene *scene[2],
+                          struct vec3 eye[2], const struct gbuffer *gbuf[2]);
+
+/* The rows [*y0, *y1) of a job. */
+static inline void restir_frame_rows(const struct restir_frame *fr, uint32_t job, uint32_t *y0, uint32_t *y1)
+{
+    const uint32_t h = fr->s->height;
+    *y0 = job * RESTIR_FRAME_ROWS;
+    *y1 = (job + 1) * RESTIR_FRAME_ROWS < h ? (job + 1) * RESTIR_FRAME_ROWS : h;
+}
+/* The shade pass's write of a pixel: a value that is not finite is counted and written as 0. */
+static inline void restir_frame_store(struct restir_frame *fr, unsigned worker, uint32_t pixel, struct vec3 L)
+{
+    if (!vec3_is_finite(L)) {
+        fr->nonfinite[worker]++;
+        L = vec3_splat(0.0f);
+    }
+    fr->out->pixels[pixel] = L;
+}
 
 #endif

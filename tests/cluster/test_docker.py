@@ -81,17 +81,30 @@ def test_build_stage_is_the_developer_build(built):
     assert build.last("WORKDIR").args == "/src"
     assert [c.args for c in build.all("COPY")] == [". ."]
     commands = [c.strip() for run in build.all("RUN") for c in run.args.split("&&")]
-    assert commands[0] == "bash scripts/install-deps.sh", commands
-    assert re.fullmatch(r'make( -j"\$\(nproc\)")?', commands[1]), commands
+    assert commands[0] == "bash scripts/install-deps.sh --build", commands
+    assert re.fullmatch(r'make( -j"\$\(nproc\)")? DEPS=build', commands[1]), commands
     # Idempotent: with every package present it does nothing, and needs no network.
-    again = subprocess.run(["bash", "scripts/install-deps.sh"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    again = subprocess.run(["bash", "scripts/install-deps.sh", "--build"], cwd=ROOT, capture_output=True, text=True,
+                           timeout=120)
     assert again.returncode == 0 and not again.stdout and not again.stderr, again
-    # The .dockerignore keeps the host's build folder out, so that make starts from scratch.
-    assert "build" in (ROOT / ".dockerignore").read_text().split()
+    # The .dockerignore keeps the host's build folder and npm's packages out, so that make
+    # starts from scratch and npm ci installs from the lockfile.
+    ignored = (ROOT / ".dockerignore").read_text().split()
+    assert "build" in ignored and "**/node_modules" in ignored, ignored
     copied = [(src, dest) for stage, src, dest in runtime.copies() if stage == build.name]
     assert copied
     for src, dest in copied:
         assert (ROOT / Path(src).relative_to("/src")).exists(), (src, dest)
+
+
+def test_build_stage_installs_only_what_building_needs():
+    """install-deps.sh --build names the compiler and the libraries the daemon links, and none
+    of the tools that only tests and benchmarks use."""
+    script = (ROOT / "scripts" / "install-deps.sh").read_text()
+    build = re.search(r"^build_packages=\((.*?)^\)", script, re.S | re.M).group(1)
+    names = set(re.sub(r"#[^\n]*", "", build).split())
+    assert {"build-essential", "libembree-dev", "libmicrohttpd-dev", "nodejs"} <= names, names
+    assert not names & {"chromium", "clang", "haproxy", "wrk", "embree-tools", "python3-pytest"}, names
 
 
 def test_runtime_packages_hold_every_library_the_daemon_links(built):

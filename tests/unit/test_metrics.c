@@ -179,5 +179,44 @@ static void test_image_mean(void)
     image_destroy(&img);
 }
 
-TEST_MAIN(TEST(test_image_mean), TEST(test_hand_computed_2x1), TEST(test_identical_is_zero), TEST(test_large_constant_error),
+/* The error image holds MAPE's per-pixel terms: on the 2x1 pair above, pixel 0 is
+ * (0.5/1.035)/3 and pixel 1 (1/6.035)/3, their mean is MAPE; a third pixel with a NaN is NaN
+ * and left out of the fraction above a threshold. */
+static void test_error_image(void)
+{
+    struct vec3 r[3] = {{1, 2, 3}, {4, 5, 6}, {1, 1, 1}}, a[3] = {{1.5f, 2, 3}, {4, 5, 7}, {NAN, 1, 1}};
+    struct image ref = make(3, 1, r), img = make(3, 1, a), out = make(3, 1, NULL), small = make(2, 1, NULL);
+    struct metrics m;
+    struct err err = {0};
+    CHECK(metrics_compare(&img, &ref, &m, &err));
+    CHECK(metrics_error_image(&img, &ref, &m, &out, &err));
+    /* ref_mean over the used pixels is 3.5 as above: the NaN pixel is out of every sum. */
+    CHECK_NEAR(m.ref_mean, 3.5, 0.0);
+    CHECK_NEAR(out.pixels[0].x, 0.5 / 1.035 / 3.0, 1e-7);
+    CHECK_NEAR(out.pixels[1].x, 1.0 / 6.035 / 3.0, 1e-7);
+    CHECK(out.pixels[0].y == out.pixels[0].x && out.pixels[1].z == out.pixels[1].x);
+    CHECK(isnan(out.pixels[2].x));
+    CHECK_NEAR((out.pixels[0].x + out.pixels[1].x) / 2.0, m.mape, 1e-7);
+    /* Pixel 0's error is 0.161, pixel 1's 0.055: the fraction counts the finite pixels only. */
+    CHECK(metrics_fraction_above(&out, 0.1) == 0.5);
+    CHECK(metrics_fraction_above(&out, 0.01) == 1.0);
+    CHECK(metrics_fraction_above(&out, 0.2) == 0.0);
+    /* Strictly above: an error equal to the threshold passes. */
+    CHECK(metrics_fraction_above(&out, out.pixels[0].x) == 0.0);
+    CHECK(!metrics_error_image(&img, &ref, &m, &small, &err) && err.code == ERR_INVALID);
+    CHECK_MSG(strstr(err.message, "3x1") && strstr(err.message, "2x1"), "%s", err.message);
+    /* An all-black reference leaves MAPE undefined: every pixel is NaN, and so is the fraction. */
+    struct vec3 z[3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}};
+    struct image black = make(3, 1, z);
+    CHECK(metrics_compare(&ref, &black, &m, &err) && isnan(m.mape));
+    CHECK(metrics_error_image(&ref, &black, &m, &out, &err));
+    CHECK(isnan(out.pixels[0].x) && isnan(metrics_fraction_above(&out, 0.1)));
+    image_destroy(&ref);
+    image_destroy(&img);
+    image_destroy(&out);
+    image_destroy(&small);
+    image_destroy(&black);
+}
+
+TEST_MAIN(TEST(test_image_mean), TEST(test_error_image), TEST(test_hand_computed_2x1), TEST(test_identical_is_zero), TEST(test_large_constant_error),
           TEST(test_size_mismatch), TEST(test_nonfinite_excluded), TEST(test_json))

@@ -586,6 +586,24 @@ action('follow-session', 'Follow session', async () => {
   await showAsA(await follow(info));
 });
 
+// The daemon's default session (`restird --default-session SCENE`, as `make run` starts it) is
+// the one session whose id the daemon did not make up: "default". The page opens on it, with a
+// first frame rendered if it has none yet, so a fresh `make run` shows its scene at once.
+async function showDefaultSession(scenes) {
+  for (const scene of scenes.filter((sc) => sc.sessions > 0)) {
+    const { sessions } = await getJson(`${sceneHref(scene.id)}/sessions`);
+    const info = sessions.find((s) => s.id === 'default');
+    if (!info) continue;
+    $('scene').value = scene.id;
+    await listExisting();
+    $('existing').value = info.id;
+    const s = await follow(info);
+    await showAsA(s);
+    if (info.frames_rendered === 0) onFrame(s, await sendJson('POST', `${s.href}/frames`, {}));
+    return;
+  }
+}
+
 action('render-frame', 'Render a frame', async () => {
   const s = sessionA();
   onFrame(s, await sendJson('POST', `${s.href}/frames`, {}));
@@ -682,7 +700,10 @@ $('exposure').addEventListener('input', () => {
   viewer.set({ exposure: ev });
 });
 $('tonemap').addEventListener('change', () => viewer.set({ curve: $('tonemap').value }));
-$('zoom').addEventListener('change', () => viewer.set({ zoom: Number($('zoom').value) }));
+$('zoom').addEventListener('change', () => {
+  const zoom = $('zoom').value;
+  viewer.set({ zoom: zoom === 'fit' ? 'fit' : Number(zoom) });
+});
 $('split').addEventListener('input', () => viewer.set({ split: Number($('split').value) }));
 
 $('image').addEventListener('mousemove', (e) => {
@@ -706,6 +727,7 @@ async function start() {
     const { scenes } = await getJson('/v1/scenes');
     setOptions($('scene'), scenes.map((s) => [s.id, s.id]), 'cornell-box');
     await listExisting();
+    await showDefaultSession(scenes).catch((err) => showProblem('Default session', err));
   } catch (err) {
     $('daemon').textContent = 'daemon not reachable';
     $('daemon').dataset.state = 'down';

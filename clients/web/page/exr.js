@@ -1,6 +1,6 @@
 // exr.js — decodes the OpenEXR images the daemon sends into linear RGB floats: single-part
 // scanline files with compression NONE, ZIPS or ZIP and HALF or FLOAT channels R, G, B (the
-// daemon writes ZIP FLOAT by default, ?pixel=half gives HALF). Anything else (tiles, deep data,
+// daemon writes NONE FLOAT by default, ?compression=zip ZIP, ?pixel=half HALF). Anything else (tiles, deep data,
 // several parts, other codecs, subsampled channels) is refused with a message rather than shown
 // wrong. Written from the OpenEXR file layout; inflate is the browser's DecompressionStream.
 

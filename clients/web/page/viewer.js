@@ -1,7 +1,8 @@
 // viewer.js — the HDR image view: linear RGB floats shown through an exposure (stops), a tone
 // curve and the sRGB transfer function, zoomed by whole factors with square pixels, with the
-// float values under the pointer. It shows image A, image B, a swipe (A left of the split, B
-// right of it) or an 8-bit false-colour error map.
+// float values under the pointer; the default zoom, 'fit', is the largest factor (whole or not)
+// at which the image fits the view's area, kept as that area changes size. It shows image A,
+// image B, a swipe (A left of the split, B right of it) or an 8-bit false-colour error map.
 // The curves are those of the daemon's PNG previews (renderer/image/tonemap.c), so ?tonemap= and this
 // view agree: clamp, Reinhard x/(1+x), and Narkowicz's ACES fit clipped at 1.
 
@@ -30,9 +31,37 @@ export class HdrViewer {
     this.mode = 'a';
     this.exposure = 0;
     this.curve = 'clamp';
-    this.zoom = 4;
+    this.zoom = 'fit';
     this.split = 0.5;
     this.draws = 0;
+    // The area the image is fitted to is the canvas's scrolling box; a fitted image follows it
+    // when the window (or the page's layout) resizes it.
+    this.area = canvas.parentElement;
+    new ResizeObserver(() => {
+      if (this.zoom === 'fit') this.place();
+    }).observe(this.area);
+  }
+
+  // The screen pixels per image pixel now: the chosen factor, or the fitted one.
+  scale() {
+    if (this.zoom !== 'fit') return this.zoom;
+    const { clientWidth, clientHeight } = this.area;
+    const fit = Math.min(clientWidth / this.canvas.width, clientHeight / this.canvas.height);
+    return Number.isFinite(fit) && fit > 0 ? fit : 1;
+  }
+
+  // Sizes the canvas and the split line on screen (the pixels stay as they are).
+  place() {
+    const scale = this.scale();
+    // A fitted image is never scrolled: a scroll bar would shrink the area it was fitted to.
+    this.area.dataset.fit = String(this.zoom === 'fit');
+    const width = Math.floor(this.canvas.width * scale);
+    const height = Math.floor(this.canvas.height * scale);
+    this.canvas.style.width = `${width}px`;
+    this.canvas.style.height = `${height}px`;
+    this.canvas.dataset.scale = String(scale);
+    this.splitLine.style.left = `${Math.round(this.split * this.canvas.width) * scale}px`;
+    this.splitLine.style.height = `${height}px`;
   }
 
   set(changes) {
@@ -58,8 +87,6 @@ export class HdrViewer {
       this.canvas.width = width;
       this.canvas.height = height;
     }
-    this.canvas.style.width = `${width * this.zoom}px`;
-    this.canvas.style.height = `${height * this.zoom}px`;
     if (shown === 'none') {
       this.ctx.clearRect(0, 0, width, height);
     } else if (shown === 'error') {
@@ -69,8 +96,7 @@ export class HdrViewer {
       this.ctx.putImageData(this.tonemap(this.a, this.b, splitX, shown === 'b' ? this.b : this.a), 0, 0);
     }
     this.splitLine.hidden = shown !== 'swipe';
-    this.splitLine.style.left = `${Math.round(this.split * width) * this.zoom}px`;
-    this.splitLine.style.height = `${height * this.zoom}px`;
+    this.place();
     this.draws++;
     this.canvas.dataset.shown = shown;
     this.canvas.dataset.draws = String(this.draws);

@@ -3,22 +3,17 @@
 // what the page shows against what the daemon says: canvas pixels before and after a change, the
 // hovered float value against OpenImageIO's reading of the same EXR, the chart's last point against
 // GET …/metrics, a 422's message against the daemon's problem. The steps share one page and run in
-// order. Screenshots and the daemon's log go to $WEB_TEST_OUT (build/web-test).
+// order. Screenshots and the daemon's log go to $WEB_TEST_OUT (build/web-test, emptied by make).
 import assert from 'node:assert/strict';
-import { execFileSync, spawn } from 'node:child_process';
+import { execFileSync } from 'node:child_process';
 import { createHash } from 'node:crypto';
-import { mkdirSync, mkdtempSync, openSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
-import { tmpdir } from 'node:os';
+import { mkdirSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
 import path from 'node:path';
 import { after, before, test } from 'node:test';
-import { fileURLToPath } from 'node:url';
-import { chromium } from 'playwright-core';
+import * as harness from '../harness.mjs';
+import { OUT, launchBrowser, stopDaemon } from '../harness.mjs';
 
-const ROOT = path.resolve(path.dirname(fileURLToPath(import.meta.url)), '../../..');
-const BIN = process.env.RESTIRD_BIN ?? path.join(ROOT, 'build/restird');
-const OUT = process.env.WEB_TEST_OUT ?? path.join(ROOT, 'build/web-test');
 const PYTHON = process.env.PYTHON ?? '/usr/bin/python3';
-const CHROMIUM = process.env.CHROMIUM ?? '/usr/bin/chromium';
 const SIDE = 64;
 
 let daemon;
@@ -28,26 +23,10 @@ let browser;
 let page;
 const consoleErrors = [];
 
-function startDaemon({ logName = 'daemon.log', env = {} } = {}) {
-  const dir = mkdtempSync(path.join(tmpdir(), 'restird-web-'));
-  if (!dataDir) dataDir = dir;
-  const log = openSync(path.join(OUT, logName), 'w');
-  const proc = spawn(BIN, ['--listen', '127.0.0.1:0', '--data-dir', dir], {
-    stdio: ['ignore', 'pipe', log],
-    env: { ...process.env, ...env },
-  });
-  return new Promise((resolve, reject) => {
-    let text = '';
-    const timer = setTimeout(() => reject(new Error(`restird did not start: ${text}`)), 30000);
-    proc.stdout.on('data', (chunk) => {
-      text += chunk;
-      const m = /restird listening on http:\/\/127\.0\.0\.1:(\d+)/.exec(text);
-      if (m) {
-        clearTimeout(timer);
-        resolve({ proc, port: Number(m[1]), dir });
-      }
-    });
-    proc.on('exit', (code) => reject(new Error(`restird exited with ${code}: ${text}`)));
+function startDaemon(options) {
+  return harness.startDaemon(options).then((d) => {
+    if (!dataDir) dataDir = d.dir;
+    return d;
   });
 }
 
@@ -92,14 +71,10 @@ print(json.dumps([float(v) for v in px[y, x, :3]]))`;
 }
 
 before(async () => {
-  rmSync(OUT, { recursive: true, force: true });
   mkdirSync(OUT, { recursive: true });
   daemon = await startDaemon();
   base = `http://127.0.0.1:${daemon.port}`;
-  browser = await chromium.launch({
-    executablePath: CHROMIUM,
-    args: ['--no-sandbox', '--disable-gpu', '--disable-background-networking'],
-  });
+  browser = await launchBrowser();
   page = await browser.newPage({ viewport: { width: 1280, height: 1000 } });
   page.setDefaultTimeout(20000);
   page.on('console', (msg) => {
@@ -112,9 +87,7 @@ before(async () => {
 after(async () => {
   await browser?.close();
   if (daemon) {
-    const exited = new Promise((resolve) => daemon.proc.on('exit', (code) => resolve(code)));
-    daemon.proc.kill('SIGTERM');
-    assert.equal(await exited, 0, 'the daemon stops cleanly');
+    assert.equal(await stopDaemon(daemon), 0, 'the daemon stops cleanly');
   }
   if (dataDir) rmSync(dataDir, { recursive: true, force: true });
 });
@@ -212,7 +185,7 @@ test('hovering shows the float value the daemon sent, at any zoom', async () => 
   const exrPath = path.join(OUT, 'frame1.exr');
   writeFileSync(exrPath, exr);
   assert.deepEqual(JSON.parse(shown.a), oiioPixel(exrPath, x, y));
-  await page.selectOption('#zoom', '4');
+  await page.selectOption('#zoom', 'fit');
 });
 
 // The daemon's PNG preview of the same frame, decoded by the browser, as RGBA bytes.
@@ -433,9 +406,7 @@ test('a daemon with a token: the page takes it from its address, keeps it out of
     assert.equal(await p.$eval('#daemon', (el) => el.dataset.state), 'ok');
   } finally {
     await p.close();
-    const exited = new Promise((resolve) => guarded.proc.on('exit', (code) => resolve(code)));
-    guarded.proc.kill('SIGTERM');
-    assert.equal(await exited, 0, 'the guarded daemon stops cleanly');
+    assert.equal(await stopDaemon(guarded), 0, 'the guarded daemon stops cleanly');
     rmSync(guarded.dir, { recursive: true, force: true });
   }
   // The event stream went with the token in its query (EventSource sends no headers).

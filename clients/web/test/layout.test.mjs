@@ -1,0 +1,143 @@
+// The preview page's layout at common window sizes, and the session it opens on. The daemon is
+// started as `make run` starts it, with a default session on cornell-box. Screenshots go to
+// $WEB_TEST_OUT (build/web-test) as layout-WxH.png.
+import assert from 'node:assert/strict';
+import { mkdirSync, rmSync } from 'node:fs';
+import path from 'node:path';
+import { after, before, test } from 'node:test';
+import { OUT, launchBrowser, startDaemon, stopDaemon } from '../harness.mjs';
+
+const SIZES = [[1280, 800], [1920, 1080]];
+const DEFAULT = '/v1/scenes/cornell-box/sessions/default';
+let daemon;
+let base;
+let browser;
+
+async function api(method, href, json) {
+  const response = await fetch(base + href, {
+    method,
+    headers: json === undefined ? {} : { 'Content-Type': 'application/json' },
+    body: json === undefined ? undefined : JSON.stringify(json),
+  });
+  assert.ok(response.ok, `${method} ${href}: ${response.status} ${await response.clone().text()}`);
+  return response.json();
+}
+
+async function open([width, height]) {
+  const page = await browser.newPage({ viewport: { width, height } });
+  page.setDefaultTimeout(20000);
+  await page.goto(`${base}/`);
+  await page.waitForSelector('body[data-ready="true"]');
+  return page;
+}
+
+before(async () => {
+  mkdirSync(OUT, { recursive: true });
+  daemon = await startDaemon({ logName: 'layout-daemon.log', args: ['--default-session', 'cornell-box'] });
+  base = `http://127.0.0.1:${daemon.port}`;
+  browser = await launchBrowser();
+});
+
+after(async () => {
+  await browser?.close();
+  if (daemon) {
+    assert.equal(await stopDaemon(daemon), 0, 'the daemon stops cleanly');
+    rmSync(daemon.dir, { recursive: true, force: true });
+  }
+});
+
+test('on load the page follows the daemon\'s default session as A and shows its frame', async () => {
+  assert.equal((await api('GET', DEFAULT)).frames_rendered, 0, 'a fresh default session has no frame');
+  const page = await open(SIZES[0]);
+  await page.waitForFunction(() => document.getElementById('image').dataset.shown === 'a');
+  assert.equal(await page.$eval('#session-a', (s) => s.value), 'default');
+  assert.equal(await page.$eval('#scene', (s) => s.value), 'cornell-box');
+  assert.equal(await page.$eval('#existing', (s) => s.value), 'default');
+  assert.equal(await page.$$eval('#sessions tbody tr', (rows) => rows.map((r) => r.dataset.session).join()), 'default');
+  const canvas = await page.$eval('#image', (c) => {
+    const px = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+    let sum = 0;
+    for (let i = 0; i < px.length; i += 4) sum += px[i] + px[i + 1] + px[i + 2];
+    return { width: c.width, height: c.height, mean: sum / (px.length * 0.75) };
+  });
+  assert.deepEqual([canvas.width, canvas.height], [256, 256], 'the default session\'s size');
+  assert.ok(canvas.mean > 5, `the frame is not black (mean ${canvas.mean})`);
+  assert.equal((await api('GET', DEFAULT)).frames_rendered, 1, 'the page rendered its first frame');
+  await page.close();
+});
+
+test('zoom "fit" fills the viewer\'s area with the whole image; 1× and 2× are still there', async () => {
+  const page = await open(SIZES[0]);
+  await page.waitForFunction(() => document.getElementById('image').dataset.shown === 'a');
+  assert.equal(await page.$eval('#zoom', (s) => s.value), 'fit');
+  const fit = await page.$eval('#canvas-wrap', (wrap) => {
+    const c = document.getElementById('image');
+    return { areaW: wrap.clientWidth, areaH: wrap.clientHeight, w: c.offsetWidth, h: c.offsetHeight };
+  });
+  assert.ok(fit.w <= fit.areaW && fit.h <= fit.areaH, `the image fits its area: ${JSON.stringify(fit)}`);
+  assert.ok(fit.w >= fit.areaW - 1 || fit.h >= fit.areaH - 1, `and fills it along one side: ${JSON.stringify(fit)}`);
+  for (const zoom of ['1', '2']) {
+    await page.selectOption('#zoom', zoom);
+    assert.equal(await page.$eval('#image', (c) => c.offsetWidth), 256 * Number(zoom));
+  }
+  await page.close();
+});
+
+// Every visible button, input, select and textarea, and the error map's legend: its box in page
+// coordinates, and whether the element at the box's centre is the control (or inside it).
+function layoutOf(page) {
+  return page.evaluate(() => {
+    const controls = [...document.querySelectorAll('button, input, select, textarea, #error-legend')].filter(
+      (el) => el.getClientRects().length > 0 && getComputedStyle(el).visibility !== 'hidden',
+    );
+    return controls.map((el) => {
+      el.scrollIntoView({ block: 'center', inline: 'center' });
+      const r = el.getBoundingClientRect();
+      const hit = document.elementFromPoint(r.left + r.width / 2, r.top + r.height / 2);
+      const name = el.id || `${el.tagName.toLowerCase()}[${el.name || el.textContent.trim()}]${el.value ? '=' + el.value : ''}`;
+      return {
+        name,
+        x: r.left + scrollX, y: r.top + scrollY, w: r.width, h: r.height,
+        own: hit !== null && (hit === el || el.contains(hit)),
+        hit: hit ? hit.id || hit.tagName : null,
+      };
+    });
+  });
+}
+
+for (const size of SIZES) {
+  test(`at ${size[0]}×${size[1]} every visible control is inside the page, overlaps no other and takes its own clicks`, async () => {
+    const page = await open(size);
+    await page.waitForFunction(() => document.getElementById('image').dataset.shown === 'a');
+    // Everything on show at once: a reference, the error map and its legend, the swipe's split.
+    await page.fill('#ref-spp', '16');
+    await page.click('#render-reference');
+    await page.waitForFunction(() => document.getElementById('ref-status').dataset.state === 'ready');
+    await page.check('input[name="mode"][value="error"]');
+    await page.waitForFunction(() => document.getElementById('image').dataset.shown === 'error');
+    await page.screenshot({ path: path.join(OUT, `layout-${size[0]}x${size[1]}.png`) });
+    await page.screenshot({ path: path.join(OUT, `layout-${size[0]}x${size[1]}-full.png`), fullPage: true });
+
+    const { scrollWidth, innerWidth } = await page.evaluate(() => ({
+      scrollWidth: document.documentElement.scrollWidth, innerWidth: window.innerWidth,
+    }));
+    assert.ok(scrollWidth <= innerWidth, `no sideways scrolling: the page is ${scrollWidth} px wide`);
+    const boxes = await layoutOf(page);
+    assert.ok(boxes.some((b) => b.name === 'error-legend'), 'the legend is on show');
+    assert.ok(boxes.some((b) => b.name === 'create-session'));
+    for (const b of boxes) {
+      assert.ok(b.w > 0 && b.h > 0, `${b.name} has a box: ${JSON.stringify(b)}`);
+      assert.ok(b.x >= 0 && b.y >= 0 && b.x + b.w <= innerWidth, `${b.name} lies inside the page: ${JSON.stringify(b)}`);
+      assert.ok(b.own, `a click at the centre of ${b.name} reaches it, not ${b.hit}`);
+    }
+    for (let i = 0; i < boxes.length; i++) {
+      for (let j = i + 1; j < boxes.length; j++) {
+        const [a, b] = [boxes[i], boxes[j]];
+        const overlapX = Math.min(a.x + a.w, b.x + b.w) - Math.max(a.x, b.x);
+        const overlapY = Math.min(a.y + a.h, b.y + b.h) - Math.max(a.y, b.y);
+        assert.ok(overlapX < 0.5 || overlapY < 0.5, `${a.name} and ${b.name} overlap: ${JSON.stringify([a, b])}`);
+      }
+    }
+    await page.close();
+  });
+}

@@ -1,0 +1,162 @@
+"""Every fenced code block of the user-facing documents runs verbatim.
+
+The rule, by the language named after the opening fence:
+
+  sh, bash  run by bash, line by line as written
+  console   the lines that start with "$ " run by bash (the other lines are the output shown)
+  python    run by python3
+  json, text, yaml, csv, http, c, mjs  shown, never run (bodies, output, listings, synopses)
+
+A block with no language, or one not listed, fails the test: each block says which kind it is.
+
+The blocks of one document run in order as one bash script (`set -eo pipefail`; a python block is
+fed to `python3 -` inside it), in one temporary directory that mirrors the checkout (symlinks to
+its top-level entries; build/restir and build/restird are the binaries under test), so a block
+sees the variables and files of the blocks before it and writes nothing into the checkout. A
+block fails the test when a command in it exits non-zero; every curl in a run block must carry
+-f, so an HTTP error answer fails it too rather than landing in an output file.
+
+The daemon runs as `make run` starts it, on 127.0.0.1:8080 with a default session on
+cornell-box (its data directory in the temporary directory), because that is the address the
+documents give. When 8080 is taken the test is skipped with that reason, or fails when $CI is
+set: a CI machine has the port free.
+
+Blocks that would run more than an example are left out, whole, for the reason in SKIP."""
+import os
+import re
+import socket
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from daemon import Daemon, ROOT
+
+DOCUMENTS = ["README.md", "protocol/API.md", "clients/python/README.md"]
+RUN = {"sh", "bash", "console", "python"}
+SHOWN = {"json", "text", "yaml", "csv", "http", "c", "mjs"}
+# A block holding one of these commands is not run: (command at the start of a line, reason).
+SKIP = [
+    ("make run", "starts the daemon on 8080, which this test has started already"),
+    ("make test", "runs the whole test suite, of which this test is part"),
+    ("make bench", "benchmarks take minutes to hours"),
+]
+PORT = 8080
+FENCE = re.compile(r"^(\s*)(`{3,})(.*)$")
+
+
+def blocks(path):
+    """[(line number of the opening fence, language, text)] of the Markdown file, in order."""
+    out, lines, i = [], path.read_text().splitlines(), 0
+    while i < len(lines):
+        m = FENCE.match(lines[i])
+        if not m:
+            i += 1
+            continue
+        indent, ticks, info = m.group(1), m.group(2), m.group(3).strip()
+        start, body, i = i + 1, [], i + 1
+        while i < len(lines) and not (lines[i].strip().startswith(ticks) and lines[i].strip().strip("`") == ""):
+            body.append(lines[i][len(indent):] if lines[i].startswith(indent) else lines[i].lstrip())
+            i += 1
+        out.append((start, info.split()[0] if info else "", "\n".join(body) + "\n"))
+        i += 1
+    return out
+
+
+def skip_reason(text):
+    for line in text.splitlines():
+        cmd = line.strip().removeprefix("$ ")
+        for prefix, reason in SKIP:
+            if cmd == prefix or cmd.startswith(prefix + " "):
+                return f"{prefix}: {reason}"
+    return None
+
+
+def curls_without_f(text):
+    """The curl command lines of a block that do not fail on an HTTP error (-f / --fail)."""
+    bad = []
+    for line in text.replace("\\\n", " ").splitlines():
+        for cmd in re.findall(r"\bcurl\b([^|;&)]*)", line):
+            if not re.search(r"(?:^|\s)(?:--fail(?:-with-body)?|-[a-zA-Z]*f[a-zA-Z]*)(?=\s|$)", cmd):
+                bad.append(("curl" + cmd).strip())
+    return bad
+
+
+def script(doc):
+    """The bash script that runs doc's blocks in order, and the blocks it leaves out."""
+    parts, skipped = ["set -eo pipefail"], []
+    for line, lang, text in blocks(ROOT / doc):
+        where = f"{doc}:{line}"
+        assert lang in RUN | SHOWN, f"{where}: a fenced block needs a language, one of {sorted(RUN | SHOWN)}"
+        if lang not in RUN:
+            continue
+        reason = skip_reason(text)
+        if reason:
+            skipped.append(f"{where}: {reason}")
+            continue
+        assert not curls_without_f(text), f"{where}: curl without -f: {curls_without_f(text)}"
+        parts.append(f"echo '=== {where} ({lang})' >&2")
+        if lang == "python":
+            parts.append(f"python3 - <<'__EXAMPLE_END__'\n{text}__EXAMPLE_END__")
+        elif lang == "console":
+            parts.append("\n".join(l[2:] for l in text.splitlines() if l.startswith("$ ")))
+        else:
+            parts.append(text)
+    return "\n".join(parts) + "\n", skipped
+
+
+def test_every_document_block_is_labelled_and_curl_fails_on_http_errors():
+    """Runs without a daemon, so a missing label or -f is reported even where 8080 is taken."""
+    for doc in DOCUMENTS:
+        script(doc)
+
+
+def test_skip_rule_and_curl_rule_judge():
+    assert skip_reason("make run   # starts it\n") .startswith("make run:")
+    assert skip_reason("make -j2\nbuild/restir --help\n") is None
+    assert curls_without_f("X=$(curl -s -o x http://h/ | jq)\n") == ["curl -s -o x http://h/"]
+    assert curls_without_f("curl -fsS -X POST \\\n  http://h/\ncurl --fail http://h/\n") == []
+
+
+@pytest.fixture(scope="module")
+def daemon(tmp_path_factory):
+    with socket.socket() as s:
+        # As the daemon binds: connections of an earlier run waiting out TIME_WAIT do not count.
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("127.0.0.1", PORT))
+        except OSError as e:
+            message = f"127.0.0.1:{PORT} is taken ({e}); the documented examples need the daemon there"
+            if os.environ.get("CI"):
+                pytest.fail(message)
+            pytest.skip(message)
+    d = Daemon(tmp_path_factory.mktemp("examples") / "data", "--listen", f"127.0.0.1:{PORT}",
+               "--default-session", "cornell-box")
+    yield d
+    d.stop()
+
+
+def mirror(tmp_path):
+    """A directory that looks like the checkout: its top-level entries linked, build/ holding
+    the binaries under test."""
+    for entry in ROOT.iterdir():
+        if entry.name not in ("build", ".git"):
+            (tmp_path / entry.name).symlink_to(entry)
+    (tmp_path / "build").mkdir()
+    for name, env in (("restir", "RESTIR_BIN"), ("restird", "RESTIRD_BIN")):
+        (tmp_path / "build" / name).symlink_to(os.environ.get(env, str(ROOT / "build" / name)))
+    return tmp_path
+
+
+@pytest.mark.parametrize("doc", DOCUMENTS)
+def test_examples_run_verbatim(doc, daemon, tmp_path):
+    text, skipped = script(doc)
+    print("left out:", *skipped, sep="\n  ")
+    env = {**os.environ, "PATH": "/usr/bin:" + os.environ.get("PATH", "")}
+    for var in ("RESTIRD_URL", "RESTIRD_AUTH_TOKEN"):
+        env.pop(var, None)
+    res = subprocess.run(["bash", "-c", text], cwd=mirror(tmp_path), env=env, capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 0, (f"{doc}: the example after the last '===' line failed (exit "
+                                 f"{res.returncode})\n{res.stderr[-4000:]}\n{res.stdout[-2000:]}")
+    assert daemon.alive(), daemon.stderr()
