@@ -750,3 +750,7 @@ def test_pip_installs_the_client_with_its_command(fake, tmp_path):
                          text=True, env={**env, "PYTHONPATH": str(site)}, timeout=60)
     assert run.returncode == 0, run.stderr
     assert json.loads(run.stdout)["served_by"] == "fake:0"
+    # Its usage and messages name the command it was run as.
+    bad = subprocess.run([str(command), "--no-such-option"], capture_output=True, text=True,
+                         env={**env, "PYTHONPATH": str(site)}, timeout=60)
+    assert bad.returncode == 2 and bad.stderr.startswith("usage: restir-client "), bad.stderr

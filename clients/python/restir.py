@@ -901,7 +901,7 @@ def _image_args(p):
 
 def build_parser():
     p = argparse.ArgumentParser(
-        prog="restir.py", description="Client for the restird render server (protocol/API.md).")
+        prog=prog_name(), description="Client for the restird render server (protocol/API.md).")
     p.add_argument("--server", default=DEFAULT_SERVER,
                    help="daemon or proxy URL; host:port alone means http:// (default $RESTIRD_URL or "
                         "http://127.0.0.1:8080)")
@@ -1273,6 +1273,12 @@ COMMANDS = {"health": cmd_health, "scenes": cmd_scenes, "frame": cmd_frame, "orb
             "metrics": cmd_metrics, "upload": cmd_upload}
 
 
+def prog_name():
+    """The command's name in usage and messages: restir-client when installed (pyproject.toml),
+    else restir.py."""
+    return "restir-client" if os.path.basename(sys.argv[0] if sys.argv else "") == "restir-client" else "restir.py"
+
+
 def main(argv=None, out=None, err=None):
     out = out or sys.stdout
     err = err or sys.stderr
@@ -1285,27 +1291,27 @@ def main(argv=None, out=None, err=None):
             with open(args.token_file, encoding="utf-8") as f:
                 token = f.read().strip()
         except OSError as e:
-            print("restir.py: --token-file: %s" % e, file=err)
+            print("%s: --token-file: %s" % (prog_name(), e), file=err)
             return 2
     client = Client(args.server, timeout=args.timeout, log=lambda t: prog.line("note: " + t), token=token)
     try:
         return COMMANDS[args.command](client, args, out, prog)
     except UsageError as e:
-        err.write("restir.py: %s\n" % e)
+        err.write("%s: %s\n" % (prog_name(), e))
         return 2
     except RestirError as e:
         prog.line("")
-        err.write("restir.py: %s\n" % e)
+        err.write("%s: %s\n" % (prog_name(), e))
         if e.field is not None:
             err.write("  field: %s\n" % (json.dumps(e.field) if e.field == "" else e.field))
         if e.request_id:
             err.write("  request id: %s (served by %s)\n" % (e.request_id, e.served_by or "?"))
         return 1
     except (TimeoutError, ValueError, OSError) as e:
-        err.write("restir.py: %s\n" % e)
+        err.write("%s: %s\n" % (prog_name(), e))
         return 1
     except KeyboardInterrupt:
-        err.write("restir.py: interrupted\n")
+        err.write("%s: interrupted\n" % prog_name())
         return 130
 
 
