@@ -7,22 +7,26 @@ own seed: chunk j goes to half A when j is even, to half B when odd; n pairs of 
 halves of n chunks each. Lengthening adds pairs (doubling them each time), so the chunks already
 rendered stay in use. Chunks are cached in build/refs/ under the hash of the scene text (with
 any camera override), the size, the method and the chunk's samples, with their render time
-beside them; a later run with more chunks cached starts from all of them."""
+beside them; a later run with more chunks cached starts from all of them. The cache key holds
+everything a chunk's pixels depend on: the scene text (with any camera override) and the mesh
+files it names, the size, the method, the chunk's samples and the command that renders it, and
+the renderer's sources (their git tree, or the binary's hash outside a checkout), so a changed
+renderer never mixes old chunks with new ones in one reference."""
+import functools
 import hashlib
 import json
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 import errors
 from exrimage import read_rgb, write_rgb
+from restir_pt import BIN, run
 
 ROOT = Path(__file__).resolve().parent.parent
-BIN = str(ROOT / "build" / "restir")
 REFS = ROOT / "build" / "refs"
 FIRST_SEED = 1000003
 
@@ -39,6 +43,17 @@ HOW = {"pt": lambda n: ["--spp", n],
 UNIT = {"pt": "spp", "sms": "spp", "bdpt": "frames"}
 
 
+@functools.lru_cache(maxsize=None)
+def renderer_version():
+    """What the renderer's output depends on: the git tree of renderer/ (unchanged by commits
+    elsewhere), else the hash of the binary."""
+    res = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD:renderer"], capture_output=True, text=True)
+    dirty = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "renderer"], capture_output=True, text=True)
+    if res.returncode == 0 and not dirty.stdout.strip():
+        return res.stdout.strip()
+    return hashlib.sha256(Path(BIN).read_bytes()).hexdigest()
+
+
 class Reference:
     """A scene's reference at one size: halves A and B, the full image R, its own error."""
 
@@ -51,7 +66,12 @@ class Reference:
             sj["camera"] = camera
             text = json.dumps(sj)
         self.text = text
-        self.key = hashlib.sha256(text.encode()).hexdigest()[:16]
+        h = hashlib.sha256(text.encode())
+        for f in self._mesh_files():
+            h.update(f.encode() + b"\0" + (self.scene_path.parent / f).read_bytes())
+        h.update(json.dumps([side, method, chunk, FIRST_SEED, [str(a) for a in HOW[method](chunk)],
+                             renderer_version()]).encode())
+        self.key = h.hexdigest()[:16]
         REFS.mkdir(parents=True, exist_ok=True)
         self.chunks = 0
         while self._path(self.chunks).exists() and self._path(self.chunks + 1).exists():
@@ -59,6 +79,9 @@ class Reference:
         if self.chunks == 0:
             self._render_upto(2)
         self._load()
+
+    def _mesh_files(self):
+        return [sh["file"] for sh in json.loads(self.text)["shapes"] if "file" in sh]
 
     def _path(self, j):
         return REFS / f"ref-{self.key}-{self.side}-{self.method}-{self.chunk}-c{j}.exr"
@@ -70,9 +93,9 @@ class Reference:
             return self.scene_path
         folder = self.work / f"ref-{self.key}"
         folder.mkdir(parents=True, exist_ok=True)
-        for shape in json.loads(self.text)["shapes"]:
-            if "file" in shape:
-                shutil.copy(self.scene_path.parent / shape["file"], folder / shape["file"])
+        for f in self._mesh_files():
+            (folder / f).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(self.scene_path.parent / f, folder / f)
         src = folder / "scene.json"
         src.write_text(self.text)
         return src
@@ -84,15 +107,9 @@ class Reference:
             log(f"reference chunk {j + 1}/{count} of {self.scene_path.parent.name} ({self.side}x{self.side}, "
                 f"{self.method}, {self.chunk} {UNIT[self.method]})")
             tmp = path.with_suffix(".tmp.exr")
-            cmd = [BIN, "render", str(src), "--size", f"{self.side}x{self.side}", *map(str, HOW[self.method](self.chunk)),
-                   "--seed", str(FIRST_SEED + j), "--json", "-o", str(tmp)]
-            t0 = time.monotonic()
-            res = subprocess.run(cmd, capture_output=True, text=True)
-            if res.returncode != 0:
-                raise SystemExit(f"report: {' '.join(cmd)}: {res.stderr.strip()}")
-            st = json.loads(res.stdout)
-            path.with_suffix(".json").write_text(json.dumps({"time_ms": st.get("time_ms"),
-                                                             "wall_s": time.monotonic() - t0}) + "\n")
+            st = run([str(a) for a in ["render", src, "--size", f"{self.side}x{self.side}",
+                                       *HOW[self.method](self.chunk), "--seed", FIRST_SEED + j, "--json", "-o", tmp]])
+            path.with_suffix(".json").write_text(json.dumps({"time_ms": st.get("time_ms")}) + "\n")
             tmp.rename(path)
         self.chunks = max(self.chunks, count)
 
