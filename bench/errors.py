@@ -29,11 +29,16 @@ import numpy as np
 # renderer/image/metrics.h: METRICS_MAPE_MEAN_FRACTION and METRICS_RELMSE_EPS.
 MAPE_MEAN_FRACTION = 0.01
 RELMSE_EPS = 1e-2
-# A row measured at less than this multiple of the reference's own error (in the same metric)
-# is "within reference noise": not ranked against another row.
+# A row measured at less than this multiple of the reference's own error is "within reference
+# noise" and is not ranked against another row. The factor is for the metrics in the image's
+# units (MAPE, RMSE); relMSE is a squared error, so its factor is the square: a row's measured
+# squared error is its own plus the reference's (module text), and RMSE < 3 x own is the same
+# statement as MSE < 9 x own's.
 NOISE_FACTOR = 3.0
-# A reference is long enough when its own relMSE times this is at most the best row's.
-REFERENCE_DIVISOR = 3.0
+# A reference is long enough when, in every metric, its own error is at most the best row's over
+# this divisor (squared for relMSE, as above).
+REFERENCE_DIVISOR = 3.0 ** 0.5
+SQUARED = {"relmse"}
 KEYS = ("mape", "rmse", "relmse")
 
 
@@ -69,11 +74,17 @@ def reference_error(half_a, half_b):
     return metrics(half_a, combine(half_a, half_b))
 
 
+def factor(key, f):
+    """A factor for the linear metrics, applied to `key`: squared for a squared metric."""
+    return f * f if key in SQUARED else f
+
+
 def within_noise(row, own):
-    """Per metric: is the row's error (dict) less than NOISE_FACTOR times the reference's own?"""
-    return {k: bool(row[k] < NOISE_FACTOR * own[k]) for k in KEYS if k in row and k in own}
+    """Per metric: is the row's error (dict) below NOISE_FACTOR times the reference's own?"""
+    return {k: bool(row[k] < factor(k, NOISE_FACTOR) * own[k]) for k in KEYS if k in row and k in own}
 
 
-def long_enough(own, best_row_relmse):
-    """Is the reference's own relMSE at most 1 / REFERENCE_DIVISOR of the best row it judges?"""
-    return own["relmse"] * REFERENCE_DIVISOR <= best_row_relmse
+def long_enough(own, best):
+    """Is the reference's own error, in every metric, at most the best row's (dict of the
+    lowest row value per metric) over REFERENCE_DIVISOR?"""
+    return all(own[k] * factor(k, REFERENCE_DIVISOR) <= best[k] for k in KEYS)

@@ -14,7 +14,9 @@ them while the history behind them moved.
 
 Converge: the user wants one still image as fast as possible. The figure is the error of the
 image the user would keep against the total time spent since the session began: pt, sms and
-sms_ssp one frame at a higher spp (the same as averaging frames of fewer); bdpt the mean of its
+sms_ssp the first frame of a session at a higher spp (its time includes the session's first-frame
+set-up, as every converge time does; real-time frames of these come after sms_ssp's prior has
+gathered its prior_frames); bdpt the mean of its
 first k frames (independent); a method with temporal reuse either with temporal reuse off, the
 mean of its first k frames (independent draws), or with it on, its k-th frame alone (its history
 is its accumulation; averaging its correlated frames would be neither regime).
@@ -36,6 +38,8 @@ QUICK = os.environ.get("QUICK") == "1"
 WARMUP = 8 if QUICK else 32
 MEASURED = [0, 8] if QUICK else [0, 8, 16]
 PERIOD = 16
+# The measured frames are at rest (moving_bodies): every offset a multiple of half the period.
+assert WARMUP % (PERIOD // 2) == 0 and all(o % (PERIOD // 2) == 0 for o in MEASURED)
 CAMERA_SLIDE = 0.05  # of the camera's distance to its look-at point, at the crest
 LIGHT_SLIDE = 0.02   # of the same distance; lamp-in-glass's filament has 3.5 cm of room in its bulb
 LIGHT_SLIDE_ABS = {"lamp-in-glass": 0.02}
@@ -87,6 +91,15 @@ class Session:
         Path(path).write_bytes(r.body)
         return path
 
+    def next(self, body=None):
+        """The next frame as an array (H x W x 3)."""
+        r = self.d.req("POST", self.href + "/frames", headers={"Accept": "image/x-exr"}, json_body=body)
+        if r.status != 200:
+            raise SystemExit(f"report: frame: {r!r}")
+        path = self.work / "frame.exr"
+        path.write_bytes(r.body)
+        return read_rgb(path)
+
     def close(self):
         self.d.req("DELETE", self.href)
 
@@ -94,10 +107,6 @@ class Session:
 def frame_passes(st):
     """A daemon frame's per-pass times: every `*_ms` member of its method's statistics object."""
     return {k: v for obj in st.values() if isinstance(obj, dict) for k, v in obj.items() if k.endswith("_ms")}
-
-
-def scene_camera(scene_path):
-    return json.loads(Path(scene_path).read_text())["camera"]
 
 
 def moving_bodies(scene, scene_path):
@@ -146,33 +155,47 @@ def median_passes(ps):
     return {k: statistics.median(p[k] for p in ps) for k in ps[0]} if ps else None
 
 
-def measure_method(d, scene, scene_path, method, caps, seeds, side, work):
-    """Every row of one method on one scene, both regimes (images on disk, metrics later)."""
+def param_default(desc, name, fallback):
+    """A parameter's default from the method's registry entry (GET /v1/methods)."""
+    return next((p.get("default") for p in desc["params"] if p["name"] == name), fallback)
+
+
+def measure_method(d, scene, scene_path, desc, seeds, side, work):
+    """Every row of one method on one scene, both regimes (images on disk, metrics later).
+    desc: the method's entry of GET /v1/methods."""
     work = Path(work)
     work.mkdir(parents=True, exist_ok=True)
+    method, caps = desc["name"], desc["capabilities"]
     tag = f"{scene}-{method}"
     key, values = LADDER[method]
     rows = []
     stateful = caps.get("reuses_frames", False)
     if caps.get("takes_spp"):
-        # One frame per spp value: the real-time frame and the converged image are the same
-        # estimator. Frame 0 of each session is skipped (first-frame set-up).
+        # Per spp value: a fresh session's first frame is the converged image of a user who
+        # asked for one still image at that spp (its time includes the first frame's set-up,
+        # as every other method's converge time does); the real-time frames come after the
+        # frames a method's per-frame prior unites (sms_ssp's prior_frames; 1 for the others).
+        start = max(1, param_default(desc, "prior_frames", 1) or 1)
         for spp in values:
-            ms, imgs, mem, passes = [], [], None, []
+            ms, conv_ms, imgs, conv_imgs, mem = [], [], [], [], None
             for seed in range(seeds):
                 s = Session(d, scene, method, {"spp": spp}, seed, side, work)
                 mem = s.memory
-                s.frame()
+                st = s.frame()
+                conv_ms.append(st["render_ms"])
+                conv_imgs.append(s.image(st, work / f"{tag}-{spp}-{seed}-first.exr"))
                 per = []
-                for o in range(len(MEASURED)):
+                for i in range(1, start + len(MEASURED)):
                     st = s.frame()
-                    per.append(st["render_ms"])
-                    imgs.append(s.image(st, work / f"{tag}-{spp}-{seed}-{o}.exr"))
+                    if i >= start:
+                        per.append(st["render_ms"])
+                        imgs.append(s.image(st, work / f"{tag}-{spp}-{seed}-{i}.exr"))
                 s.close()
                 ms.append(statistics.median(per))
-            for regime in ("real-time", "converge"):
-                rows.append(row(scene, method, regime, "", spp, "spp", statistics.median(ms), imgs, mem))
-            log(f"{scene} {method} {spp} spp: {statistics.median(ms):.1f} ms")
+            rows.append(row(scene, method, "real-time", "", spp, "spp", statistics.median(ms), imgs, mem))
+            rows.append(row(scene, method, "converge", "", spp, "spp", statistics.median(conv_ms), conv_imgs, mem))
+            log(f"{scene} {method} {spp} spp: {statistics.median(ms):.1f} ms a frame, {statistics.median(conv_ms):.1f} ms "
+                "the first")
         return rows
     # Real time, still: each ladder value; the default value's sessions also give the converge
     # rows with temporal reuse on (frame k alone, k <= WARMUP).

@@ -120,24 +120,29 @@ def score(rows, ref):
         r["noise"] = errors.within_noise(r, ref.own)
 
 
-def scene_results(d, scene, methods, caps, extra=()):
+def best_of(rows):
+    """The lowest value of each metric over the rows."""
+    return {k: min(r[k] for r in rows) for k in errors.KEYS}
+
+
+def scene_results(d, scene, methods, descs, extra=()):
     """Every row of a scene in both regimes, scored against a reference lengthened until its own
-    relMSE is a third of the best row's, or REF_BUDGET_S is spent."""
+    error is small beside the best row's in every metric (errors.long_enough), or REF_BUDGET_S
+    is spent."""
     path = ROOT / "scenes" / scene / "scene.json"
     method, chunk = REF_BY.get(scene, ("pt", REF_SPP // 2))
     ref = Reference(path, SIDE, method, chunk, WORK)
-    rows = [r for m in methods for r in regimes.measure_method(d, scene, path, m, caps[m], SEEDS, SIDE, WORK / scene)]
+    rows = [r for m in methods for r in regimes.measure_method(d, scene, path, descs[m], SEEDS, SIDE, WORK / scene)]
     rows += list(extra)
     while True:
         score(rows, ref)
-        best = min(r["relmse"] for r in rows)
-        log(f"{scene}: reference {ref.samples} {method} samples, own relMSE {ref.own['relmse']:.3g}; best row {best:.3g}")
-        if errors.long_enough(ref.own, best) or 2 * ref.seconds > REF_BUDGET_S:
+        log(f"{scene}: reference {ref.samples} {method} samples, own {ref.own}; best rows {best_of(rows)}")
+        if errors.long_enough(ref.own, best_of(rows)) or 2 * ref.seconds > REF_BUDGET_S:
             break
         ref.grow()
     black = errors.metrics(np.zeros_like(ref.image), ref.image)
     return {"rows": rows, "ref": ref.describe(), "black": black,
-            "ref_long_enough": errors.long_enough(ref.own, min(r["relmse"] for r in rows)), "reference": ref}
+            "ref_long_enough": errors.long_enough(ref.own, best_of(rows)), "reference": ref}
 
 
 def curves(rows, regime):
@@ -163,8 +168,9 @@ def budgets(rows, regime):
 
 
 def winners(res, regime):
-    """Per budget: the winner by relMSE and by MAPE, the next best and the factor; a winner whose
-    error is within NOISE_FACTOR of the reference's own is marked, and not ranked."""
+    """Per budget and metric (relMSE, MAPE): the curves read at pt's time, those within the
+    reference's own noise set apart (not ranked), the winner among the rest, the next best and
+    the factor between them; `alone` when only one curve reaches that time."""
     rows, own = res["rows"], res["ref"]["own"]
     out = []
     for spp, ms in budgets(rows, regime):
@@ -172,15 +178,17 @@ def winners(res, regime):
         for key in ("relmse", "mape"):
             cands = sorted((v, label) for label, rs in curves(rows, regime).items()
                            if (v := at_time(rs, ms, key)) is not None)
-            if not cands:
-                continue
-            win = {"winner": cands[0][1], "value": cands[0][0],
-                   "noise": cands[0][0] < errors.NOISE_FACTOR * own[key]}
-            if len(cands) > 1:
-                win.update(next=cands[1][1], next_value=cands[1][0], factor=cands[1][0] / cands[0][0])
+            limit = errors.factor(key, errors.NOISE_FACTOR) * own[key]
+            noisy = [label for v, label in cands if v < limit]
+            ranked = [(v, label) for v, label in cands if v >= limit]
+            win = {"noisy": noisy, "alone": len(cands) == 1}
+            if ranked:
+                win.update(winner=ranked[0][1], value=ranked[0][0])
+                if len(ranked) > 1:
+                    win.update(next=ranked[1][1], factor=ranked[1][0] / ranked[0][0])
             line[key] = win
-        if "relmse" in line and "mape" in line:
-            line["agree"] = line["relmse"]["winner"] == line["mape"]["winner"]
+        w = [line[k].get("winner") for k in ("relmse", "mape")]
+        line["agree"] = None in w or w[0] == w[1]
         out.append(line)
     return out
 
@@ -192,31 +200,13 @@ TELEPORT_CAMERA = {"position": [60, 480, 60], "look_at": [380, 100, 380], "up": 
 
 
 def np_mape(img, ref):
-    import numpy as np
-    return float(np.mean(np.abs(img - ref) / (ref + 0.01 * ref.mean())))
+    return errors.metrics(img, ref)["mape"]
 
 
-class Frames:
-    """One daemon session whose frames come back as arrays."""
-
-    def __init__(self, d, scene, method, seed, side, params=None):
-        if params is None:
-            params = {"spp": 1} if method == "pt" else {}
-        r = d.req("POST", f"/v1/scenes/{scene}/sessions",
-                  json_body={"method": method, "width": side, "height": side, "seed": seed, "params": params})
-        if r.status != 201:
-            raise SystemExit(f"report: session: {r!r}")
-        self.d, self.href, self.path = d, r.json()["href"], WORK / "frame.exr"
-
-    def next(self, body=None):
-        r = self.d.req("POST", self.href + "/frames", headers={"Accept": "image/x-exr"}, json_body=body)
-        if r.status != 200:
-            raise SystemExit(f"report: frame: {r!r}")
-        self.path.write_bytes(r.body)
-        return read_rgb(self.path)
-
-    def close(self):
-        self.d.req("DELETE", self.href)
+def frames_session(d, scene, method, seed, side, params=None):
+    """One daemon session whose frames come back as arrays (regimes.Session.next)."""
+    return regimes.Session(d, scene, method, {"spp": 1} if params is None and method == "pt" else params or {},
+                           seed, side, WORK)
 
 
 def glass_lamp_scene():
@@ -232,7 +222,6 @@ def glass_lamp_scene():
 
 
 def stability():
-    import numpy as np
     from test_stability import SWEEP, SWEEP_FRAMES, swept_camera
     side = STAB_SIDE
     frames = 24 if QUICK else 40
@@ -257,20 +246,20 @@ def stability():
         half = frames // 2
         for m in methods:
             log(f"stability: {m}")
-            s = Frames(d, "cornell-box", m, 1, side)
+            s = frames_session(d, "cornell-box", m, 1, side)
             still = [s.next() for _ in range(frames)]
             s.close()
             flicker = [float(np.mean(np.abs(b - a) / (ref_a + 0.01 * ref_a.mean()))) for a, b in zip(still, still[1:])]
-            s = Frames(d, "cornell-box", m, 2, side)
+            s = frames_session(d, "cornell-box", m, 2, side)
             tele = [np_mape(s.next(), ref_a) for _ in range(half)]
             tele += [np_mape(s.next({"camera": TELEPORT_CAMERA} if i == 0 else None), ref_b) for i in range(frames - half)]
             s.close()
-            s = Frames(d, "cornell-box", m, 6, side)
+            s = frames_session(d, "cornell-box", m, 6, side)
             sweep = [np_mape(s.next(), ref_a) for _ in range(half)]
             sweep += [np_mape(s.next({"camera": c}), r) for c, r in zip(sweep_cams, sweep_refs)]
             sweep += [np_mape(s.next(), sweep_refs[-1]) for _ in range(frames - half - SWEEP_FRAMES)]
             s.close()
-            s = Frames(d, "cornell-box", m, 3, side)
+            s = frames_session(d, "cornell-box", m, 3, side)
             light, off_max = [], 0.0
             for i in range(frames):
                 body = ({"lights": {"ceiling_light": {"emission": [0, 0, 0]}}} if i == half - 4 else
@@ -282,16 +271,16 @@ def stability():
                 else:
                     light.append(np_mape(img, ref_a))
             s.close()
-            s = Frames(d, "glass-lamp", m, 4, side)
+            s = frames_session(d, "glass-lamp", m, 4, side)
             glass = [np_mape(s.next(), ref_lamp) for _ in range(frames)]
             s.close()
             # Correlation: mean of 8 consecutive frames vs the same frame of 8 independent sessions.
-            s = Frames(d, "cornell-box", m, 5, side)
+            s = frames_session(d, "cornell-box", m, 5, side)
             seq = [s.next() for _ in range(16)]
             s.close()
             ind = []
             for k in range(8):
-                s = Frames(d, "cornell-box", m, 100 + k, side)
+                s = frames_session(d, "cornell-box", m, 100 + k, side)
                 ind.append([s.next() for _ in range(9)][-1])
                 s.close()
             ratio = np_mape(np.mean(seq[8:], axis=0), ref_a) / np_mape(np.mean(ind, axis=0), ref_a)
@@ -318,7 +307,6 @@ def failure_cases():
     light-traced samples per light subpath and its light pass's share of the frame, per scene.
     Shadow boundaries for ReSTIR SSS's hybrid shift ([ReSTIR SSS Fig. 5]): per shift, the RMSE per
     frame on the wax sphere's shadow-boundary band, and on its lit and shadowed parts."""
-    import numpy as np
     from test_failure_cases import boundary_masks
     out = {"light_tracing": {}, "sss": {}}
     for scene, ms in ALL_SCENES.items():
@@ -343,10 +331,10 @@ def failure_cases():
             log(f"failure cases: translucent, {name}")
             per_seed = []
             for seed in range(SEEDS):
-                s = Frames(d, "translucent", method, 40 + seed, side, params)
+                s = frames_session(d, "translucent", method, 40 + seed, side, params)
                 imgs = [s.next() for _ in range(frames)]
                 s.close()
-                per_seed.append({k: [float(np.sqrt(np.mean((im[m] - ref[m]) ** 2))) for im in imgs]
+                per_seed.append({k: [errors.metrics(im[m], ref[m])["rmse"] for im in imgs]
                                  for k, m in regions.items()})
             out["sss"]["series"][name] = {k: [statistics.median(ps[k][i] for ps in per_seed) for i in range(frames)]
                                           for k in regions}
@@ -378,7 +366,7 @@ def prior_misses_a_light(side):
     manifold walks' success rate. sms and sms_ssp at PRIOR_SPP spp; restir_sms the last frame of
     a PRIOR_FRAMES-frame session (its reservoirs carry the history)."""
     scene = ROOT / "scenes" / "refractive-slab" / "scene.json"
-    ref = reference(scene, side, REF_BY["refractive-slab"][1], method="sms")
+    ref = Reference(scene, side, "sms", REF_BY["refractive-slab"][1], WORK).path
     rows = {}
     for name, method, params in PRIOR_CASES:
         log(f"failure cases: refractive-slab, {name}")
@@ -466,11 +454,13 @@ def flags(r):
     return "within reference noise: " + ", ".join(noisy) if noisy else ""
 
 
-def fmt_win(w, key):
-    if not w:
-        return "— | — | —"
-    name = f"{w['winner']}" + (" (within reference noise)" if w["noise"] else "")
+def fmt_win(w):
+    if "winner" not in w:
+        return "— | — | —" + (f" (within reference noise: {', '.join(w['noisy'])})" if w["noisy"] else "")
+    name = w["winner"] + (" (the only curve here)" if w["alone"] else "")
     nxt = f"{w['next']} ({w['factor']:.2f}×)" if "next" in w else "—"
+    if w["noisy"]:
+        nxt += f"; within reference noise, not ranked: {', '.join(w['noisy'])}"
     return f"{name} | {w['value']:.4g} | {nxt}"
 
 
@@ -487,7 +477,7 @@ def write_csv(results):
                             " ".join(k for k, v in r["noise"].items() if v), r["session_bytes"] or "",
                             *[f"{p[k]:.3f}" if k in p else "" for k in PASSES]])
     refs = {scene: {**res["ref"], "black_image": res["black"], "long_enough": res["ref_long_enough"],
-                    "best_row_relmse": min(r["relmse"] for r in res["rows"])} for scene, res in results.items()}
+                    "best_rows": best_of(res["rows"])} for scene, res in results.items()}
     (OUT / "references.json").write_text(json.dumps(refs, indent=1) + "\n")
 
 
@@ -499,7 +489,9 @@ def write(results, stab, peer, fail, started, elapsed):
     md = ["# Speed against accuracy: the report", "",
           f"Generated by `{'QUICK=1 ' if QUICK else ''}make bench-report` on {started} UTC in {elapsed / 60:.1f} minutes "
           f"({os.cpu_count()} cores, {THREADS} threads; load average {LOAD_AT_START:.1f} at the start, "
-          f"{os.getloadavg()[0]:.1f} at the end: other jobs shared the machine when these are above ~0.5). Every number and chart below comes from that run; the data "
+          f"{os.getloadavg()[0]:.1f} at the end: other jobs shared the machine when these are above ~0.5). Every row, chart and "
+          "reference error below comes from that run, against reference chunks cached in build/refs/ (a reference's render "
+          "time is that of the run that rendered its chunks); the data "
           "are in [error_vs_time.csv](error_vs_time.csv), [references.json](references.json) and "
           "[stability.json](stability.json).", "",
           f"Images {SIZE}, medians over {SEEDS} seed(s). Two regimes ([docs/benchmarks.md](../benchmarks.md#two-regimes)):",
@@ -510,22 +502,24 @@ def write(results, stab, peer, fail, started, elapsed):
           "(bdpt, restir_bdpt: 1, 2, 4, 8 × the pixel count), spatial neighbours (restir_pt: 3, 6, 12, 24; restir_sms: "
           "1, 2, 4, 8), BSSRDF candidates (restir_sss: 1, 2, 4, 8). Also with the camera sliding and a light moving (below).",
           "- **Converge**: the error of the image a user keeps against the total time since the session began: pt, sms "
-          "and sms_ssp one frame at more spp; bdpt the mean of its first k frames; a method with temporal reuse either "
+          "and sms_ssp the first frame of a session at more spp; bdpt the mean of its first k frames; a method with temporal reuse either "
           "with it off (the mean of its first k frames, independent draws) or on (its k-th frame alone; its correlated "
           "frames are never averaged).", "",
           "Errors against each scene's reference: MAPE as [ReSTIR BDPT footnote 3], relMSE (squared error over the "
           "reference squared plus 0.01) and RMSE, as `restir compare` computes them. Each reference is the mean of two "
           "independent halves; its own error is a half against the whole (bench/errors.py), and a row whose error is "
-          f"less than {errors.NOISE_FACTOR:g}× the reference's own, in that metric, is marked *within reference noise* "
-          "and not ranked. An all-black image scores MAPE ≈ 1: a row near or above that line is noise.", "",
+          f"less than {errors.NOISE_FACTOR:g}× the reference's own in MAPE or RMSE, or {errors.NOISE_FACTOR ** 2:g}× in "
+          "relMSE (a squared error), is marked *within reference noise* and not ranked. An all-black image scores MAPE ≈ 1: a row near or above that line is noise.", "",
           "## The references", "",
-          "| scene | method | samples | render time | own MAPE | own relMSE | own RMSE | best row's relMSE | long enough (own relMSE ≤ ⅓ best row's) | black image MAPE |",
+          "| scene | method | samples | render time | own MAPE | own relMSE | own RMSE | best rows' MAPE, relMSE, RMSE | "
+          f"long enough (own ≤ best ÷ {errors.REFERENCE_DIVISOR:.3g}, relMSE ÷ {errors.REFERENCE_DIVISOR ** 2:.3g}) | black image MAPE |",
           "|---|---|---|---|---|---|---|---|---|---|"]
     for scene, res in results.items():
         ref, own = res["ref"], res["ref"]["own"]
-        best = min(r["relmse"] for r in res["rows"])
+        best = best_of(res["rows"])
         md.append(f"| {scene} | {ref['method']} | {ref['samples']} {ref['unit']} (2 × {ref['chunks'] // 2} chunks) | "
-                  f"{ref['seconds']:.0f} s | {own['mape']:.4f} | {own['relmse']:.3g} | {own['rmse']:.3g} | {best:.3g} | "
+                  f"{ref['seconds']:.0f} s | {own['mape']:.4f} | {own['relmse']:.3g} | {own['rmse']:.3g} | "
+                  f"{best['mape']:.4f}, {best['relmse']:.3g}, {best['rmse']:.3g} | "
                   f"{'yes' if res['ref_long_enough'] else 'no: time budget spent'} | {res['black']['mape']:.3f} |")
     md += ["", "## Which method wins each scene", "",
            "At three time budgets (real time: pt's frame at 1, 4 and 16 spp; converge: pt's image at "
@@ -537,8 +531,8 @@ def write(results, stab, peer, fail, started, elapsed):
                "|---|---|---|---|---|---|---|---|---|"]
         for scene, res in results.items():
             for line in winners(res, regime):
-                md.append(f"| {scene} | {line['ms']:.0f} ms (pt {line['spp']} spp) | {fmt_win(line.get('relmse'), 'relmse')} | "
-                          f"{fmt_win(line.get('mape'), 'mape')} | {'' if line.get('agree', True) else 'disagree'} |")
+                md.append(f"| {scene} | {line['ms']:.0f} ms (pt {line['spp']} spp) | {fmt_win(line['relmse'])} | "
+                          f"{fmt_win(line['mape'])} | {'' if line['agree'] else 'disagree'} |")
         md.append("")
     md += ["## Error against time", ""]
     for scene, res in results.items():
@@ -553,7 +547,9 @@ def write(results, stab, peer, fail, started, elapsed):
                     series.append(("black image", [(min(xs), black["mape"]), (max(xs), black["mape"])], "line"))
                 own = res["ref"]["own"][key]
                 if xs:
-                    series.append(("reference's own × 3", [(min(xs), 3 * own), (max(xs), 3 * own)], "line"))
+                    lim = errors.factor(key, errors.NOISE_FACTOR) * own
+                    series.append((f"reference's own × {errors.factor(key, errors.NOISE_FACTOR):g}",
+                                   [(min(xs), lim), (max(xs), lim)], "line"))
                 svgplot.loglog(OUT / f"{scene}_{regime}_{key}.svg", f"{scene}, {regime}: {name} against time ({SIZE})",
                                xl, name, series)
                 md += [f"![{regime} {name}]({scene}_{regime}_{key}.svg)", ""]
@@ -566,7 +562,7 @@ def write(results, stab, peer, fail, started, elapsed):
            f"The methods that keep state across frames, default parameters, {regimes.WARMUP} warm-up frames: still; the "
            f"camera sliding sideways by up to {100 * regimes.CAMERA_SLIDE:g} % of its viewing distance and back, period "
            f"{regimes.PERIOD} frames; one light moving by up to {100 * regimes.LIGHT_SLIDE:g} % of that distance "
-           "(lamp-in-glass's filament 2 cm, inside its bulb). Both are at rest in the measured frames, so the still "
+           f"(lamp-in-glass's filament {100 * regimes.LIGHT_SLIDE_ABS['lamp-in-glass']:g} cm, inside its bulb). Both are at rest in the measured frames, so the still "
            "reference judges them while the history behind them moved.", "",
            "| scene | method | still MAPE | still relMSE | moving camera MAPE | relMSE | moving light MAPE | relMSE |",
            "|---|---|---|---|---|---|---|---|"]
@@ -577,7 +573,8 @@ def write(results, stab, peer, fail, started, elapsed):
                 by.setdefault(r["method"], {})[r["regime"]] = r
         for m, mv in by.items():
             still = next(r for r in res["rows"] if r["method"] == m and r["regime"] == "real-time")
-            cells = [f"{x['mape']:.4f} | {x['relmse']:.4g}" for x in (still, mv.get("moving camera"), mv.get("moving light")) if x]
+            cells = [f"{x['mape']:.4f} | {x['relmse']:.4g}" if x else "— | —"
+                     for x in (still, mv.get("moving camera"), mv.get("moving light"))]
             md.append(f"| {scene} | {m} | " + " | ".join(cells) + " |")
     md += ["", "## Where a frame's time goes, and memory", "",
            "One real-time frame of each method at its default setting, per pass, and each session's memory "
@@ -712,10 +709,10 @@ def main():
     d = test_daemon.Daemon(Path(tempfile.mkdtemp(dir=WORK)) / "data", "--threads", THREADS, "--frames-kept", "2")
     try:
         r = d.req("GET", "/v1/methods")
-        caps = {m["name"]: m["capabilities"] for m in r.json()["methods"]}
+        descs = {m["name"]: m for m in r.json()["methods"]}
         for scene, methods in SCENES.items():
             extra = peer["rows"] if peer and scene == "cornell-box" else []
-            results[scene] = scene_results(d, scene, methods, caps, extra)
+            results[scene] = scene_results(d, scene, methods, descs, extra)
     finally:
         d.stop()
     if peer:
