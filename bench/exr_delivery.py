@@ -10,38 +10,33 @@ size / bandwidth to each figure.
 
   /usr/bin/python3 bench/exr_delivery.py            # 256x256 (60 rounds) and 1024x1024 (15)
 Environment: RESTIRD_BIN (build/restird), BENCH_THREADS (2)."""
-import http.client
 import os
 import statistics
 import sys
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, os.path.join(ROOT, "tests"))
-from daemon import Daemon  # noqa: E402
+sys.path.insert(0, os.path.join(ROOT, "bench"))
+from daemon import Daemon  # noqa: E402  (bench/daemon.py: a daemon and one keep-alive connection)
 
 VARIANTS = [(c, p) for c in ("none", "zip", "piz") for p in ("float", "half")]
 
 
 def measure(d, side, reps):
-    r = d.req("POST", "/v1/scenes/cornell-box/sessions",
-              json_body={"method": "pt", "width": side, "height": side, "params": {"spp": 1}})
-    href = r.json()["href"]
-    d.req("POST", href + "/frames", headers={"Accept": "application/json"})
-    conn = http.client.HTTPConnection("127.0.0.1", d.port, timeout=120)
+    session = d.session("cornell-box", "pt", side, side, {"spp": 1})
+    d.frame(session)
     times, sizes = {v: [] for v in VARIANTS}, {}
     for _ in range(reps):
         for c, p in VARIANTS:  # interleaved: a slow minute of the machine hits every variant
             t0 = time.perf_counter()
-            conn.request("GET", f"{href}/frames/0?compression={c}&pixel={p}", headers={"Accept": "image/x-exr"})
-            resp = conn.getresponse()
+            d.conn.request("GET", f"{session}/frames/0?compression={c}&pixel={p}", headers={"Accept": "image/x-exr"})
+            resp = d.conn.getresponse()
             body = resp.read()
             times[(c, p)].append((time.perf_counter() - t0) * 1000.0)
             if resp.status != 200:
                 raise SystemExit(f"exr_delivery: {c} {p}: {resp.status} {body[:200]!r}")
             sizes[(c, p)] = len(body)
-    conn.close()
-    d.req("DELETE", href)
+    d.delete(session)
     raw = side * side * 3 * 4
     for v in VARIANTS:
         print(f"| {side}×{side} | {v[0]} | {v[1]} | {statistics.median(times[v]):.2f} | "
@@ -49,7 +44,8 @@ def measure(d, side, reps):
 
 
 def main():
-    d = Daemon(os.path.join(ROOT, "build", "bench", "exr_delivery"), "--threads", os.environ.get("BENCH_THREADS", "2"))
+    d = Daemon(os.environ.get("RESTIRD_BIN", os.path.join(ROOT, "build", "restird")),
+               os.environ.get("BENCH_THREADS", "2"))
     try:
         print(f"load average {os.getloadavg()[0]:.1f}")
         print("| frame | compression | pixel | median ms | q1 ms | bytes | of raw float |")
@@ -57,7 +53,7 @@ def main():
         measure(d, 256, 60)
         measure(d, 1024, 15)
     finally:
-        d.stop()
+        d.close()
 
 
 if __name__ == "__main__":

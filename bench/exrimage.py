@@ -20,5 +20,7 @@ def write_rgb(path, img):
     out = oiio.ImageOutput.create(str(path))
     if out is None or not out.open(str(path), oiio.ImageSpec(img.shape[1], img.shape[0], 3, oiio.FLOAT)):
         raise SystemExit(f"bench: cannot write {path}: {oiio.geterror()}")
-    out.write_image(np.ascontiguousarray(img, dtype=np.float32))
-    out.close()
+    ok = out.write_image(np.ascontiguousarray(img, dtype=np.float32))
+    ok = out.close() and ok
+    if not ok:
+        raise SystemExit(f"bench: cannot write {path}: {oiio.geterror()}")

@@ -14,6 +14,10 @@ run, on lamp-in-glass and caustic-sphere (BENCH_RBDPT_SCENES) at 256x256 (BENCH_
      1, 2, 4 ... spp, and for `bdpt`, `restir_pt` and each restir_bdpt run the mean of a
      session's first 1, 2, 4 ... frames (time: the sum of
      those frames' render times, as the CLI reports it);
+     For the methods with temporal reuse (restir_pt, restir_bdpt) such a mean averages correlated
+     frames, which is neither of the report's regimes (docs/benchmarks.md, "Two regimes"): these
+     curves and the equal-time ratios below are a record, not a ranking; `make bench-report`
+     compares the methods;
   3. equal time: each compared restir_bdpt variant's MAPE over restir_pt's interpolated (log-log) at the same time,
      at restir_bdpt's longest point; the single frame after WARMUP frames of each reusing method
      (its MAPE) and the frame cost, the mean frame time of that session, as the ratio
@@ -296,7 +300,8 @@ def main():
         w = r["after_warmup"]
         print(f"| {scene} | " + " | ".join(f"{w[m]['frame_ms']:.1f} / {w[m]['mape']:.3f} / {w[m]['caustic_mape']:.3f}"
                                            for m in reusing) + " |")
-    print(f"\nAgainst restir_pt: MAPE ratio at equal time (at the variant's {COUNTS[-1]} frames) and frame cost ratio\n")
+    print(f"\nAgainst restir_pt: MAPE ratio at equal time (at the variant's {COUNTS[-1]} frames) and frame cost ratio "
+          "(means of correlated frames: a record, not a ranking; make bench-report ranks the methods)\n")
     print("| scene | " + " | ".join(f"{m}: equal-time MAPE / frame cost" for m in COMPARED) + " |")
     print("|---|" + "---|" * len(COMPARED))
     for scene, r in results["scenes"].items():

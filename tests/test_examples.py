@@ -26,7 +26,6 @@ import os
 import re
 import socket
 import subprocess
-from pathlib import Path
 
 import pytest
 
