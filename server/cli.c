@@ -39,7 +39,7 @@
     "                [--half] [--json] -o OUT.exr|OUT.png   (.png: an 8-bit preview, exposure 0, clamp)\n" \
     "  restir compare A.exr B.exr [--fail-mape X] [--fail-relmse X] [--fail-rmse X]\n"           \
     "                [--warn-mape X] [--warn-relmse X] [--warn-rmse X] [--diff OUT.exr|OUT.png]\n" \
-    "                [--fail-percent P --pixel-threshold T] [--json]\n"                           \
+    "                [--fail-percent P --pixel-threshold T] [--fail-nonfinite N] [--json]\n"      \
     "                (B is the reference; prints one JSON object with or without --json, and a\n" \
     "                verdict line on stderr; exit 0 pass, 1 warn, 2 fail, 3 could not compare,\n" \
     "                a wrong compare command line included)\n"                                   \
@@ -59,7 +59,9 @@
     "compare: a metric above its --fail- level fails, above its --warn- level warns (one that is\n" \
     "not a number trips any level set); --fail-percent P --pixel-threshold T fails when more than\n" \
     "P % of the pixels have a relative error (MAPE's per-pixel term) above T; --diff writes that\n" \
-    "error per pixel (.exr: float; .png: 8-bit, white at 1 and above).\n"                          \
+    "error per pixel (.exr: float; .png: 8-bit, white at 1 and above). A pixel of A with a NaN or\n" \
+    "Inf channel has an infinite error (above any T), and more than N of them fail\n"             \
+    "(--fail-nonfinite, default 0).\n"                                                             \
     "--params sets the method's parameters as the daemon's session \"params\" object (keys it\n"  \
     "leaves out take the options given, else the method's defaults; an option and a key that\n" \
     "set the same parameter are refused), e.g. --params '{\"spatial_neighbors\": 0}'; restir methods\n" \
@@ -714,7 +716,7 @@ static int cli_compare(int argc, char **argv)
     }
     struct cli_limit limits[3] = {{"mape", NAN, NAN, NAN}, {"relmse", NAN, NAN, NAN}, {"rmse", NAN, NAN, NAN}};
     const char *paths[2] = {NULL, NULL}, *diff_path = NULL;
-    double fail_percent = NAN, pixel_threshold = NAN;
+    double fail_percent = NAN, pixel_threshold = NAN, fail_nonfinite = NAN;
     size_t path_count = 0;
     for (int i = 0; i < argc; i++) {
         const char *a = argv[i];
@@ -734,6 +736,7 @@ static int cli_compare(int argc, char **argv)
         }
         if (strcmp(a, "--fail-percent") == 0) level = &fail_percent;
         if (strcmp(a, "--pixel-threshold") == 0) level = &pixel_threshold;
+        if (strcmp(a, "--fail-nonfinite") == 0) level = &fail_nonfinite;
         if (level) {
             if (!isnan(*level)) return cli_compare_usage_error("%s is given twice: give it once", a);
             char m[160];
@@ -752,6 +755,11 @@ static int cli_compare(int argc, char **argv)
                                              "than P % of the pixels have a relative error above T");
     if (!isnan(fail_percent) && fail_percent > 100.0)
         return cli_compare_usage_error("%s", "--fail-percent: expected a percentage, 0..100");
+    if (!isnan(fail_nonfinite) && floor(fail_nonfinite) != fail_nonfinite)
+        return cli_compare_usage_error("%s", "--fail-nonfinite: expected a whole number of pixels >= 0");
+    /* A NaN or Inf in the candidate is a broken render whatever the metrics of the pixels left
+     * say, so it fails unless a number of them is allowed. */
+    if (isnan(fail_nonfinite)) fail_nonfinite = 0.0;
     for (size_t k = 0; k < 3; k++) {
         if (limits[k].warn > limits[k].fail) {
             char m[200];
@@ -815,6 +823,14 @@ static int cli_compare(int argc, char **argv)
                    pixel_threshold);
         cli_append(human, sizeof human, &hn, "%s%.6g %% of the pixels have a relative error above %g > fail level %g %%",
                    hn ? "; " : "", percent_above, pixel_threshold, fail_percent);
+        verdict = CLI_FAIL;
+    }
+    if ((double)m.nonfinite_image > fail_nonfinite) {
+        cli_append(tripped, sizeof tripped, &tn,
+                   "%s{\"metric\":\"nonfinite\",\"level\":\"fail\",\"value\":%" PRIu64 ",\"threshold\":%.9g}",
+                   tn ? "," : "", m.nonfinite_image, fail_nonfinite);
+        cli_append(human, sizeof human, &hn, "%sNaN or Inf pixels in %s: %" PRIu64 " > fail level %g", hn ? "; " : "",
+                   paths[0], m.nonfinite_image, fail_nonfinite);
         verdict = CLI_FAIL;
     }
     /* The metrics' object, then the verdict and what tripped it. */

@@ -200,6 +200,27 @@ def test_compare_fails_a_metric_that_is_not_a_number(tmp_path, pair):
     assert out["mape"] is None and out["nan"]["a"] == 4 and out["verdict"] == "fail"
 
 
+def test_compare_fails_an_image_with_a_nan_pixel_by_default(tmp_path, pair):
+    # One NaN pixel against a clean reference, and no level given: the three pixels left are
+    # identical, so only the NaN can fail it. Its error is infinite: above any pixel threshold,
+    # and +Inf in --diff. --fail-nonfinite 1 allows it.
+    from test_daemon import write_exr
+    img = REF.copy()
+    img[0, 1, 0] = np.nan
+    write_exr(tmp_path / "one-nan.exr", img)
+    res, out = compare(tmp_path / "one-nan.exr", pair[1], "--diff", tmp_path / "d.exr")
+    assert res.returncode == 2, res.stderr
+    assert out["mape"] == 0 and out["nonfinite"] == {"a": 1, "b": 0}
+    assert out["tripped"] == [{"metric": "nonfinite", "level": "fail", "value": 1, "threshold": 0}]
+    assert res.stderr == f"restir compare: fail (NaN or Inf pixels in {tmp_path}/one-nan.exr: 1 > fail level 0)\n"
+    assert read_exr(tmp_path / "d.exr")[0, :, 0].tolist() == [0, np.inf, 0, 0]
+    res, out = compare(tmp_path / "one-nan.exr", pair[1], "--fail-nonfinite", "1", "--fail-percent", "20",
+                       "--pixel-threshold", "1e30")
+    assert res.returncode == 2 and out["percent_above"] == 25, res.stderr
+    assert [t["metric"] for t in out["tripped"]] == ["percent_above"]
+    assert compare(tmp_path / "one-nan.exr", pair[1], "--fail-nonfinite", "1")[0].returncode == 0
+
+
 def test_compare_could_not_compare(tmp_path, pair):
     from test_daemon import write_exr
     write_exr(tmp_path / "small.exr", np.ones((1, 2, 3), dtype=np.float32))
@@ -216,6 +237,7 @@ def test_compare_could_not_compare(tmp_path, pair):
               "when more than P % of the pixels have a relative error above T"),
              ((*pair, "--fail-percent", "101", "--pixel-threshold", "1"),
               "restir: --fail-percent: expected a percentage, 0..100"),
+             ((*pair, "--fail-nonfinite", "1.5"), "restir: --fail-nonfinite: expected a whole number of pixels >= 0"),
              ((*pair, "--diff", tmp_path / "d.jpg"),
               f"restir: --diff: '{tmp_path}/d.jpg' names no format: end it in .exr, or .png for an 8-bit view"),
              ((*pair, "--diff", tmp_path / "no" / "d.exr"), f"restir: cannot write {tmp_path}/no/d.exr: its folder does not exist"),

@@ -12,15 +12,17 @@ static bool metrics_pixel_finite(struct vec3 p)
     return isfinite(p.x) && isfinite(p.y) && isfinite(p.z);
 }
 
-/* One pixel's MAPE terms summed over R, G, B: |I - R| / (R + offset) per channel, offset being
- * METRICS_MAPE_MEAN_FRACTION * ref_mean. The error image and MAPE share it, so a pixel's error
- * there is exactly its share of MAPE. */
+/* One pixel's MAPE terms summed over R, G, B: |I - R| / (max(R, 0) + offset) per channel, offset
+ * being METRICS_MAPE_MEAN_FRACTION * ref_mean (> 0 whenever MAPE is defined). The error image and
+ * MAPE share it, so a pixel's error there is exactly its share of MAPE. A negative R is no
+ * radiance: taken as is it could bring the denominator to 0 or below and a term to +-huge; as 0
+ * every term stays >= 0 and finite. */
 static double metrics_abs_rel_sum(struct vec3 a, struct vec3 b, double offset)
 {
     double sum = 0.0;
     for (int c = 0; c < 3; c++) {
         double vr = vec3_comp(b, c);
-        sum += fabs(vec3_comp(a, c) - vr) / (vr + offset);
+        sum += fabs(vec3_comp(a, c) - vr) / (fmax(vr, 0.0) + offset);
     }
     return sum;
 }
@@ -51,6 +53,8 @@ bool metrics_compare(const struct image *image, const struct image *ref, struct 
             m.inf_image += metrics_pixel_has_inf(a);
             m.nan_ref += metrics_pixel_has_nan(b);
             m.inf_ref += metrics_pixel_has_inf(b);
+            m.nonfinite_image += !metrics_pixel_finite(a);
+            m.nonfinite_ref += !metrics_pixel_finite(b);
             if (!metrics_pixel_finite(a) || !metrics_pixel_finite(b)) continue;
             m.pixels_used++;
             row_sum += (double)b.x + (double)b.y + (double)b.z;
@@ -107,7 +111,8 @@ bool metrics_error_image(const struct image *image, const struct image *ref, con
     for (size_t i = 0; i < n; i++) {
         struct vec3 a = image->pixels[i], b = ref->pixels[i];
         float e = NAN;
-        if (defined && metrics_pixel_finite(a) && metrics_pixel_finite(b)) e = (float)(metrics_abs_rel_sum(a, b, offset) / 3.0);
+        if (defined && metrics_pixel_finite(b))
+            e = metrics_pixel_finite(a) ? (float)(metrics_abs_rel_sum(a, b, offset) / 3.0) : INFINITY;
         out->pixels[i] = (struct vec3){e, e, e};
     }
     return true;
@@ -119,7 +124,7 @@ double metrics_fraction_above(const struct image *errors, double threshold)
     const size_t n = (size_t)errors->width * errors->height;
     for (size_t i = 0; i < n; i++) {
         double e = errors->pixels[i].x;
-        if (!isfinite(e)) continue;
+        if (isnan(e)) continue; /* +Inf (a non-finite image pixel) is above any threshold */
         counted++;
         above += e > threshold;
     }
@@ -156,9 +161,11 @@ bool metrics_format_json(const struct metrics *m, char *buf, size_t size, struct
     METRICS_PUT(snprintf(buf + used, size - used, ",\"ref_mean\":"));
     METRICS_PUT(metrics_json_number(buf + used, size - used, m->ref_mean));
     METRICS_PUT(snprintf(buf + used, size - used,
-                         ",\"nan\":{\"a\":%llu,\"b\":%llu},\"inf\":{\"a\":%llu,\"b\":%llu}}",
+                         ",\"nan\":{\"a\":%llu,\"b\":%llu},\"inf\":{\"a\":%llu,\"b\":%llu},"
+                         "\"nonfinite\":{\"a\":%llu,\"b\":%llu}}",
                          (unsigned long long)m->nan_image, (unsigned long long)m->nan_ref,
-                         (unsigned long long)m->inf_image, (unsigned long long)m->inf_ref));
+                         (unsigned long long)m->inf_image, (unsigned long long)m->inf_ref,
+                         (unsigned long long)m->nonfinite_image, (unsigned long long)m->nonfinite_ref));
 #undef METRICS_PUT
     return true;
 }
