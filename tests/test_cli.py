@@ -133,11 +133,11 @@ def test_version_names_the_commit():
 
 # ---- restir compare ------------------------------------------------------------------------------
 
-# A 4x1 reference of ones (mean 1, so MAPE's denominator is R + 0.01) and an image whose pixels'
-# relative errors are 0, 0.1, 0.5 and 1: MAPE 0.4.
-REF = np.ones((1, 4, 3), dtype=np.float32)
-IMG = np.array([1.0, 1.101, 1.505, 2.01], dtype=np.float32)[None, :, None].repeat(3, axis=2)
+# A 4x1 reference of fives (mean 5, so MAPE's denominator is R + 0.01 * 5 = 5.05; R + 0.01 would
+# be 5.01) and an image whose pixels' relative errors are 0, 0.1, 0.5 and 1: MAPE 0.4.
+REF = np.full((1, 4, 3), 5.0, dtype=np.float32)
 REL = [0.0, 0.1, 0.5, 1.0]
+IMG = (5.0 + 5.05 * np.array(REL, dtype=np.float32))[None, :, None].repeat(3, axis=2)
 
 
 @pytest.fixture
@@ -174,7 +174,7 @@ def test_compare_warns_between_the_levels(pair):
 
 
 def test_compare_fails_on_any_metric_or_the_pixel_rule(pair):
-    rmse = float(np.sqrt(np.mean((IMG.astype(np.float64) - 1.0) ** 2)))
+    rmse = float(np.sqrt(np.mean((IMG.astype(np.float64) - 5.0) ** 2)))
     res, out = compare(*pair, "--fail-rmse", "0.5", "--warn-relmse", "0.01")
     assert res.returncode == 2, res.stderr
     assert out["rmse"] == pytest.approx(rmse, rel=1e-6)

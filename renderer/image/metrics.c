@@ -4,6 +4,7 @@
  * Refs: [ReSTIR BDPT footnote 3] (MAPE definition). */
 #include "image/metrics.h"
 
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 
@@ -111,8 +112,10 @@ bool metrics_error_image(const struct image *image, const struct image *ref, con
     for (size_t i = 0; i < n; i++) {
         struct vec3 a = image->pixels[i], b = ref->pixels[i];
         float e = NAN;
+        /* A finite pair's error stays finite (at most FLT_MAX, for a tiny ref_mean): +Inf is kept
+         * for an image pixel that is not finite. */
         if (defined && metrics_pixel_finite(b))
-            e = metrics_pixel_finite(a) ? (float)(metrics_abs_rel_sum(a, b, offset) / 3.0) : INFINITY;
+            e = metrics_pixel_finite(a) ? (float)fmin(metrics_abs_rel_sum(a, b, offset) / 3.0, FLT_MAX) : INFINITY;
         out->pixels[i] = (struct vec3){e, e, e};
     }
     return true;
