@@ -3,12 +3,13 @@ a usage error that says why and what to use instead; `restir --version`; and `re
 CI gate (exit 0 pass, 1 warn, 2 fail, 3 could not compare, --diff's per-pixel error image)."""
 import json
 import re
+import shlex
 import subprocess
 
 import numpy as np
 import pytest
 
-from conftest import read_exr, run_cli
+from conftest import ROOT, read_exr, run_cli
 from daemon import BIN as DAEMON_BIN
 
 METHODS = json.loads(run_cli("methods", "--json").stdout)["methods"]
@@ -191,6 +192,19 @@ def test_compare_fails_on_any_metric_or_the_pixel_rule(pair):
     assert compare(*pair, "--fail-percent", "25", "--pixel-threshold", "0.45")[1]["percent_above"] == 50
 
 
+def test_compare_gates_the_difference_of_the_means(pair):
+    # IMG's mean is 5 + 5.05 * 0.4 = 7.02 in every channel against REF's 5: off by 0.404.
+    res, out = compare(*pair, "--warn-mean", "0.3", "--fail-mean", "0.5")
+    assert res.returncode == 1, res.stderr
+    assert out["mean"]["b"] == [5, 5, 5] and out["mean"]["a"] == pytest.approx([7.02] * 3, rel=1e-6)
+    assert out["mean_rel_diff"] == pytest.approx([0.404] * 3, rel=1e-5)
+    assert out["mean_rel_diff_max"] == pytest.approx(0.404, rel=1e-5)
+    assert [(t["metric"], t["level"], t["threshold"]) for t in out["tripped"]] == [("mean", "warn", 0.3)]
+    assert res.stderr == "restir compare: warn (|mean A / mean B - 1| (largest channel) 0.404 > warn level 0.3)\n"
+    assert compare(*pair, "--fail-mean", "0.4")[0].returncode == 2
+    assert compare(*pair, "--fail-mean", "0.41")[0].returncode == 0
+
+
 def test_compare_fails_a_metric_that_is_not_a_number(tmp_path, pair):
     # An image of NaN leaves no pixel to compare: no evidence that it is close, so a level set fails.
     from test_daemon import write_exr
@@ -266,3 +280,41 @@ def test_compare_diff_writes_the_relative_error_per_pixel(tmp_path, pair):
     assert png.shape[:2] == (1, 4)
     assert png[0, 0, :3].tolist() == [0, 0, 0] and png[0, 3, :3].tolist() == [1, 1, 1]
     assert 0 < png[0, 1, 0] < png[0, 2, 0] < 1
+
+
+def readme_recipe():
+    """README.md's CI recipe: the golden image's render options (between `render` and `-o`) and
+    the job's compare options (without --diff), as the README shows them."""
+    block = (ROOT / "README.md").read_text().split("## CI recipe")[1].split("```sh\n")[1].split("```")[0]
+    lines = block.replace("\\\n", " ").splitlines()
+    render = shlex.split(next(line for line in lines if line.endswith("-o out/golden.exr")))
+    gate = shlex.split(next(line for line in lines if line.startswith("build/restir compare out/candidate.exr")))
+    gate = gate[4:gate.index("||")]
+    i = gate.index("--diff")
+    return render[2:render.index("-o")], gate[:i] + gate[i + 2:]
+
+
+def test_the_readme_ci_gate_fails_a_biased_image_and_passes_another_seed(tmp_path):
+    # A bias of the whole image by 10 or 20 % hides in the per-pixel noise: the gate's per-pixel
+    # levels alone pass it, its mean levels fail it. Another seed is noise only: it passes.
+    render, gate = readme_recipe()
+    assert "--fail-mean" in gate, gate
+    paths = {}
+    for seed in ("1", "2"):
+        args = list(render)
+        args[args.index("--seed") + 1] = seed
+        paths[seed] = tmp_path / f"seed-{seed}.exr"
+        res = run_cli("render", *[ROOT / a if a.startswith("scenes/") else a for a in args], "-o", paths[seed])
+        assert res.returncode == 0, res.stderr
+    golden = paths["1"]
+    res, out = compare(paths["2"], golden, *gate)
+    assert res.returncode == 0, res.stderr
+    from test_daemon import write_exr
+    per_pixel = [a for i, a in enumerate(gate) if "-mean" not in a and "-mean" not in gate[i - 1]]
+    for scale in (1.1, 1.2):
+        write_exr(tmp_path / "biased.exr", (read_exr(golden)[..., :3] * scale).astype(np.float32))
+        res, out = compare(tmp_path / "biased.exr", golden, *gate)
+        assert res.returncode == 2, (scale, res.stderr)
+        assert out["mean_rel_diff_max"] == pytest.approx(scale - 1, rel=1e-5)
+        assert [t["metric"] for t in out["tripped"]] == ["mean"], out["tripped"]
+        assert compare(tmp_path / "biased.exr", golden, *per_pixel)[0].returncode == 0, scale

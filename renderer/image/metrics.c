@@ -45,9 +45,9 @@ bool metrics_compare(const struct image *image, const struct image *ref, struct 
     const size_t w = image->width;
     /* Sums are formed per row, then rows are added: with up to 64 Mi pixels a single running
      * sum would lose ~n*eps relative accuracy, per-row partials keep it near (w + h)*eps. */
-    double ref_sum = 0.0;
+    double ref_sum[3] = {0, 0, 0}, image_sum[3] = {0, 0, 0};
     for (size_t y = 0; y < image->height; y++) {
-        double row_sum = 0.0;
+        double row_ref[3] = {0, 0, 0}, row_image[3] = {0, 0, 0};
         for (size_t i = y * w; i < (y + 1) * w; i++) {
             struct vec3 a = image->pixels[i], b = ref->pixels[i];
             m.nan_image += metrics_pixel_has_nan(a);
@@ -58,17 +58,31 @@ bool metrics_compare(const struct image *image, const struct image *ref, struct 
             m.nonfinite_ref += !metrics_pixel_finite(b);
             if (!metrics_pixel_finite(a) || !metrics_pixel_finite(b)) continue;
             m.pixels_used++;
-            row_sum += (double)b.x + (double)b.y + (double)b.z;
+            for (int c = 0; c < 3; c++) {
+                row_ref[c] += vec3_comp(b, c);
+                row_image[c] += vec3_comp(a, c);
+            }
         }
-        ref_sum += row_sum;
+        for (int c = 0; c < 3; c++) {
+            ref_sum[c] += row_ref[c];
+            image_sum[c] += row_image[c];
+        }
     }
     m.samples = 3 * m.pixels_used;
     if (m.samples == 0) {
-        m.mape = m.rmse = m.relmse = m.ref_mean = NAN;
+        m.mape = m.rmse = m.relmse = m.ref_mean = m.mean_rel_diff_max = NAN;
+        for (int c = 0; c < 3; c++) m.mean_image[c] = m.mean_ref[c] = m.mean_rel_diff[c] = NAN;
         *out = m;
         return true;
     }
-    m.ref_mean = ref_sum / (double)m.samples;
+    m.ref_mean = (ref_sum[0] + ref_sum[1] + ref_sum[2]) / (double)m.samples;
+    for (int c = 0; c < 3; c++) {
+        m.mean_image[c] = image_sum[c] / (double)m.pixels_used;
+        m.mean_ref[c] = ref_sum[c] / (double)m.pixels_used;
+        double d = m.mean_image[c] == m.mean_ref[c] ? 0.0 : fabs(m.mean_image[c] / m.mean_ref[c] - 1.0);
+        m.mean_rel_diff[c] = d;
+        m.mean_rel_diff_max = c == 0 || d > m.mean_rel_diff_max ? d : m.mean_rel_diff_max;
+    }
 
     const double mape_offset = METRICS_MAPE_MEAN_FRACTION * m.ref_mean;
     double abs_rel = 0.0, sq = 0.0, rel_sq = 0.0;
@@ -165,10 +179,23 @@ bool metrics_format_json(const struct metrics *m, char *buf, size_t size, struct
     METRICS_PUT(metrics_json_number(buf + used, size - used, m->ref_mean));
     METRICS_PUT(snprintf(buf + used, size - used,
                          ",\"nan\":{\"a\":%llu,\"b\":%llu},\"inf\":{\"a\":%llu,\"b\":%llu},"
-                         "\"nonfinite\":{\"a\":%llu,\"b\":%llu}}",
+                         "\"nonfinite\":{\"a\":%llu,\"b\":%llu}",
                          (unsigned long long)m->nan_image, (unsigned long long)m->nan_ref,
                          (unsigned long long)m->inf_image, (unsigned long long)m->inf_ref,
                          (unsigned long long)m->nonfinite_image, (unsigned long long)m->nonfinite_ref));
+    /* The two means, then their relative differences: three arrays of three numbers. */
+    const double *const arrays[3] = {m->mean_image, m->mean_ref, m->mean_rel_diff};
+    static const char *const before[3] = {",\"mean\":{\"a\":[", "],\"b\":[", "]},\"mean_rel_diff\":["};
+    for (int k = 0; k < 3; k++) {
+        METRICS_PUT(snprintf(buf + used, size - used, "%s", before[k]));
+        for (int c = 0; c < 3; c++) {
+            if (c) METRICS_PUT(snprintf(buf + used, size - used, ","));
+            METRICS_PUT(metrics_json_number(buf + used, size - used, arrays[k][c]));
+        }
+    }
+    METRICS_PUT(snprintf(buf + used, size - used, "],\"mean_rel_diff_max\":"));
+    METRICS_PUT(metrics_json_number(buf + used, size - used, m->mean_rel_diff_max));
+    METRICS_PUT(snprintf(buf + used, size - used, "}"));
 #undef METRICS_PUT
     return true;
 }

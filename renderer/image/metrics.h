@@ -26,6 +26,11 @@
  *   rmse     = sqrt(mean (I - R)^2)
  *   relmse   = mean (I - R)^2 / (R^2 + METRICS_RELMSE_EPS)
  *   ref_mean = mean R  (the reference mean used by MAPE, over used samples only)
+ *   mean_image[c], mean_ref[c] = per-channel means of I and R over the used pixels
+ *   mean_rel_diff[c] = |mean_image[c] / mean_ref[c] - 1|  (0 when both means are 0, +Inf when
+ *              only the reference's is), and mean_rel_diff_max the largest of the three: a
+ *              bias of the whole image, which per-pixel noise hides from the metrics above but
+ *              the means average away
  * With no used pixels every metric is NaN. MAPE is NaN when ref_mean <= 0 (an all-black or
  * negative reference leaves the paper's formula undefined). A negative reference sample (no
  * radiance image has one) counts as 0 in MAPE's denominator, so every term is >= 0 and finite;
@@ -35,6 +40,7 @@ struct metrics {
     uint64_t pixels_used;          /* pixels in the sums */
     uint64_t samples;              /* 3 * pixels_used */
     double mape, rmse, relmse, ref_mean;
+    double mean_image[3], mean_ref[3], mean_rel_diff[3], mean_rel_diff_max;
     uint64_t nan_image, nan_ref;   /* pixels with at least one NaN channel */
     uint64_t inf_image, inf_ref;   /* pixels with at least one +-Inf channel */
     uint64_t nonfinite_image, nonfinite_ref; /* pixels with a NaN or +-Inf channel, each once */
@@ -67,10 +73,11 @@ uint64_t metrics_image_mean(const struct image *img, double mean[3]);
 
 /* One JSON object, no newline, numbers as %.9g and non-finite values as null:
  *   {"width":W,"height":H,"pixels_used":N,"samples":S,"mape":x,"rmse":x,"relmse":x,
- *    "ref_mean":x,"nan":{"a":n,"b":n},"inf":{"a":n,"b":n},"nonfinite":{"a":n,"b":n}}
+ *    "ref_mean":x,"nan":{"a":n,"b":n},"inf":{"a":n,"b":n},"nonfinite":{"a":n,"b":n},
+ *    "mean":{"a":[r,g,b],"b":[r,g,b]},"mean_rel_diff":[r,g,b],"mean_rel_diff_max":x}
  * where "a" is the image and "b" the reference. Fits in METRICS_JSON_MAX bytes; false with
  * ERR_LIMIT if `size` is too small (buf then holds a truncated, unusable string). */
-#define METRICS_JSON_MAX 512
+#define METRICS_JSON_MAX 1024
 bool metrics_format_json(const struct metrics *m, char *buf, size_t size, struct err *err);
 
 #endif

@@ -21,7 +21,8 @@ static struct image make(uint32_t w, uint32_t h, const struct vec3 *px)
  * image differs by +0.5 at ref 1 and +1 at ref 6:
  *   MAPE   = (0.5/1.035 + 1/6.035) / 6
  *   RMSE   = sqrt((0.25 + 1) / 6)
- *   relMSE = (0.25/(1 + 0.01) + 1/(36 + 0.01)) / 6 */
+ *   relMSE = (0.25/(1 + 0.01) + 1/(36 + 0.01)) / 6
+ * channel means: ref (2.5, 3.5, 4.5), image (2.75, 3.5, 5): relative differences 0.1, 0, 1/9. */
 static void test_hand_computed_2x1(void)
 {
     struct vec3 r[2] = {{1, 2, 3}, {4, 5, 6}}, a[2] = {{1.5f, 2, 3}, {4, 5, 7}};
@@ -36,6 +37,12 @@ static void test_hand_computed_2x1(void)
     CHECK_NEAR(m.ref_mean, 3.5, 0.0);
     CHECK(m.width == 2 && m.height == 1 && m.pixels_used == 2 && m.samples == 6);
     CHECK(m.nan_image == 0 && m.nan_ref == 0 && m.inf_image == 0 && m.inf_ref == 0);
+    CHECK(m.mean_ref[0] == 2.5 && m.mean_ref[1] == 3.5 && m.mean_ref[2] == 4.5);
+    CHECK(m.mean_image[0] == 2.75 && m.mean_image[1] == 3.5 && m.mean_image[2] == 5.0);
+    CHECK_NEAR(m.mean_rel_diff[0], 0.1, 1e-15);
+    CHECK(m.mean_rel_diff[1] == 0.0);
+    CHECK_NEAR(m.mean_rel_diff[2], 1.0 / 9.0, 1e-15);
+    CHECK(m.mean_rel_diff_max == m.mean_rel_diff[2]);
 
     /* The metric is not symmetric: swapping the roles changes the denominators. */
     struct metrics s;
@@ -124,7 +131,9 @@ static void test_json(void)
     CHECK(metrics_format_json(&m, buf, sizeof buf, &err));
     CHECK_MSG(strcmp(buf, "{\"width\":2,\"height\":1,\"pixels_used\":2,\"samples\":6,\"mape\":0,"
                           "\"rmse\":0,\"relmse\":0,\"ref_mean\":3.5,\"nan\":{\"a\":0,\"b\":0},"
-                          "\"inf\":{\"a\":0,\"b\":0},\"nonfinite\":{\"a\":0,\"b\":0}}") == 0, "%s", buf);
+                          "\"inf\":{\"a\":0,\"b\":0},\"nonfinite\":{\"a\":0,\"b\":0},"
+                          "\"mean\":{\"a\":[2.5,3.5,4.5],\"b\":[2.5,3.5,4.5]},\"mean_rel_diff\":[0,0,0],"
+                          "\"mean_rel_diff_max\":0}") == 0, "%s", buf);
 
     /* %.9g for real values. */
     struct vec3 a[2] = {{1.5f, 2, 3}, {4, 5, 7}};
@@ -142,13 +151,20 @@ static void test_json(void)
     CHECK_MSG(strstr(buf, "\"mape\":null,\"rmse\":") && !strstr(buf, ":nan") && !strstr(buf, ":-nan") &&
                   !strstr(buf, ":inf"),
               "%s", buf);
+    /* Means of 0 in the reference: an image mean above it is infinitely off (null), 0 is not. */
+    CHECK(isinf(m.mean_rel_diff_max));
+    CHECK_MSG(strstr(buf, "\"mean_rel_diff\":[null,null,null],\"mean_rel_diff_max\":null}"), "%s", buf);
+    struct metrics mb;
+    CHECK(metrics_compare(&black, &black, &mb, NULL) && mb.mean_rel_diff_max == 0.0);
     struct vec3 n[2] = {{NAN, 0, 0}, {0, INFINITY, 0}};
     struct image bad = make(2, 1, n);
     CHECK(metrics_compare(&bad, &ref, &m, NULL));
     CHECK(m.pixels_used == 0);
     CHECK(metrics_format_json(&m, buf, sizeof buf, &err));
     CHECK_MSG(strstr(buf, "\"mape\":null,\"rmse\":null,\"relmse\":null,\"ref_mean\":null,"
-                          "\"nan\":{\"a\":1,\"b\":0},\"inf\":{\"a\":1,\"b\":0},\"nonfinite\":{\"a\":2,\"b\":0}}"),
+                          "\"nan\":{\"a\":1,\"b\":0},\"inf\":{\"a\":1,\"b\":0},\"nonfinite\":{\"a\":2,\"b\":0},"
+                          "\"mean\":{\"a\":[null,null,null],\"b\":[null,null,null]},"
+                          "\"mean_rel_diff\":[null,null,null],\"mean_rel_diff_max\":null}"),
               "%s", buf);
 
     /* Too small a buffer is an error, not a silently cut object. */
