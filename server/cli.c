@@ -37,9 +37,10 @@
     "                [--threads T] [--max-depth D] [--rr-depth R] [--no-nee] [--crop X0,Y0,X1,Y1]\n"    \
     "                [--frames F] [--average-last N] [--animation FILE.json] [--params JSON]\n"       \
     "                [--half] [--json] -o OUT.exr|OUT.png   (.png: an 8-bit preview, exposure 0, clamp)\n" \
-    "  restir compare A.exr B.exr [--fail-mape X] [--fail-relmse X] [--fail-rmse X]\n"           \
-    "                [--warn-mape X] [--warn-relmse X] [--warn-rmse X] [--diff OUT.exr|OUT.png]\n" \
-    "                [--fail-percent P --pixel-threshold T] [--json]\n"                           \
+    "  restir compare A.exr B.exr [--fail-mape X] [--fail-relmse X] [--fail-rmse X] [--fail-mean X]\n" \
+    "                [--warn-mape X] [--warn-relmse X] [--warn-rmse X] [--warn-mean X]\n"       \
+    "                [--diff OUT.exr|OUT.png] [--fail-percent P --pixel-threshold T]\n"          \
+    "                [--fail-nonfinite N] [--json]\n"                                              \
     "                (B is the reference; prints one JSON object with or without --json, and a\n" \
     "                verdict line on stderr; exit 0 pass, 1 warn, 2 fail, 3 could not compare,\n" \
     "                a wrong compare command line included)\n"                                   \
@@ -57,9 +58,12 @@
     "animation job ({\"animation\": {...}}, protocol/API.md) and its frame count unless --frames\n" \
     "is given. A method that takes no spp traces one path per pixel and frame: render more frames.\n" \
     "compare: a metric above its --fail- level fails, above its --warn- level warns (one that is\n" \
-    "not a number trips any level set); --fail-percent P --pixel-threshold T fails when more than\n" \
+    "not a number trips any level set); \"mean\" is |mean A / mean B - 1| of the channel where it\n" \
+    "is largest, a bias of the whole image; --fail-percent P --pixel-threshold T fails when more than\n" \
     "P % of the pixels have a relative error (MAPE's per-pixel term) above T; --diff writes that\n" \
-    "error per pixel (.exr: float; .png: 8-bit, white at 1 and above).\n"                          \
+    "error per pixel (.exr: float; .png: 8-bit, white at 1 and above). A pixel of A with a NaN or\n" \
+    "Inf channel has an infinite error (above any T), and more than N of them fail\n"             \
+    "(--fail-nonfinite, default 0).\n"                                                             \
     "--params sets the method's parameters as the daemon's session \"params\" object (keys it\n"  \
     "leaves out take the options given, else the method's defaults; an option and a key that\n" \
     "set the same parameter are refused), e.g. --params '{\"spatial_neighbors\": 0}'; restir methods\n" \
@@ -658,7 +662,8 @@ static const char *const cli_verdict_names[] = {"pass", "warn", "fail"};
  * no finite pixels, or MAPE of an all-black reference: no evidence that it is close). NAN: the
  * level is not set. */
 struct cli_limit {
-    const char *metric;
+    const char *metric; /* the options' suffix and the name in "tripped" */
+    const char *label;  /* the name in the verdict line */
     double value, fail, warn;
 };
 
@@ -712,9 +717,13 @@ static int cli_compare(int argc, char **argv)
         cli_usage(stdout);
         return 0;
     }
-    struct cli_limit limits[3] = {{"mape", NAN, NAN, NAN}, {"relmse", NAN, NAN, NAN}, {"rmse", NAN, NAN, NAN}};
+    struct cli_limit limits[] = {{"mape", "mape", NAN, NAN, NAN},
+                                 {"relmse", "relmse", NAN, NAN, NAN},
+                                 {"rmse", "rmse", NAN, NAN, NAN},
+                                 {"mean", "|mean A / mean B - 1| (largest channel)", NAN, NAN, NAN}};
+    const size_t nlimits = sizeof limits / sizeof limits[0];
     const char *paths[2] = {NULL, NULL}, *diff_path = NULL;
-    double fail_percent = NAN, pixel_threshold = NAN;
+    double fail_percent = NAN, pixel_threshold = NAN, fail_nonfinite = NAN;
     size_t path_count = 0;
     for (int i = 0; i < argc; i++) {
         const char *a = argv[i];
@@ -728,12 +737,13 @@ static int cli_compare(int argc, char **argv)
         if (!v) return cli_compare_usage_error("option %s needs a value", a);
         i++;
         double *level = NULL;
-        for (size_t k = 0; k < 3 && !level; k++) {
+        for (size_t k = 0; k < nlimits && !level; k++) {
             if (strncmp(a, "--fail-", 7) == 0 && strcmp(a + 7, limits[k].metric) == 0) level = &limits[k].fail;
             if (strncmp(a, "--warn-", 7) == 0 && strcmp(a + 7, limits[k].metric) == 0) level = &limits[k].warn;
         }
         if (strcmp(a, "--fail-percent") == 0) level = &fail_percent;
         if (strcmp(a, "--pixel-threshold") == 0) level = &pixel_threshold;
+        if (strcmp(a, "--fail-nonfinite") == 0) level = &fail_nonfinite;
         if (level) {
             if (!isnan(*level)) return cli_compare_usage_error("%s is given twice: give it once", a);
             char m[160];
@@ -752,7 +762,12 @@ static int cli_compare(int argc, char **argv)
                                              "than P % of the pixels have a relative error above T");
     if (!isnan(fail_percent) && fail_percent > 100.0)
         return cli_compare_usage_error("%s", "--fail-percent: expected a percentage, 0..100");
-    for (size_t k = 0; k < 3; k++) {
+    if (!isnan(fail_nonfinite) && floor(fail_nonfinite) != fail_nonfinite)
+        return cli_compare_usage_error("%s", "--fail-nonfinite: expected a whole number of pixels >= 0");
+    /* A NaN or Inf in the candidate is a broken render whatever the metrics of the pixels left
+     * say, so it fails unless a number of them is allowed. */
+    if (isnan(fail_nonfinite)) fail_nonfinite = 0.0;
+    for (size_t k = 0; k < nlimits; k++) {
         if (limits[k].warn > limits[k].fail) {
             char m[200];
             snprintf(m, sizeof m, "--warn-%s %g is above --fail-%s %g: a warning level sits below the failing one",
@@ -792,10 +807,11 @@ static int cli_compare(int argc, char **argv)
     limits[0].value = m.mape;
     limits[1].value = m.relmse;
     limits[2].value = m.rmse;
+    limits[3].value = m.mean_rel_diff_max;
     enum cli_verdict verdict = CLI_PASS;
     char tripped[1024], human[1024];
     size_t tn = 0, hn = 0;
-    for (size_t k = 0; k < 3; k++) {
+    for (size_t k = 0; k < nlimits; k++) {
         enum cli_verdict level = cli_limit_level(&limits[k]);
         if (level == CLI_PASS) continue;
         double at = level == CLI_FAIL ? limits[k].fail : limits[k].warn;
@@ -803,7 +819,7 @@ static int cli_compare(int argc, char **argv)
                    limits[k].metric, cli_verdict_names[level]);
         cli_append_number(tripped, sizeof tripped, &tn, limits[k].value);
         cli_append(tripped, sizeof tripped, &tn, ",\"threshold\":%.9g}", at);
-        cli_append(human, sizeof human, &hn, "%s%s %.6g > %s level %g", hn ? "; " : "", limits[k].metric,
+        cli_append(human, sizeof human, &hn, "%s%s %.6g > %s level %g", hn ? "; " : "", limits[k].label,
                    limits[k].value, cli_verdict_names[level], at);
         if (level > verdict) verdict = level;
     }
@@ -815,6 +831,14 @@ static int cli_compare(int argc, char **argv)
                    pixel_threshold);
         cli_append(human, sizeof human, &hn, "%s%.6g %% of the pixels have a relative error above %g > fail level %g %%",
                    hn ? "; " : "", percent_above, pixel_threshold, fail_percent);
+        verdict = CLI_FAIL;
+    }
+    if ((double)m.nonfinite_image > fail_nonfinite) {
+        cli_append(tripped, sizeof tripped, &tn,
+                   "%s{\"metric\":\"nonfinite\",\"level\":\"fail\",\"value\":%" PRIu64 ",\"threshold\":%.9g}",
+                   tn ? "," : "", m.nonfinite_image, fail_nonfinite);
+        cli_append(human, sizeof human, &hn, "%sNaN or Inf pixels in %s: %" PRIu64 " > fail level %g", hn ? "; " : "",
+                   paths[0], m.nonfinite_image, fail_nonfinite);
         verdict = CLI_FAIL;
     }
     /* The metrics' object, then the verdict and what tripped it. */

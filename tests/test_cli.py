@@ -3,12 +3,13 @@ a usage error that says why and what to use instead; `restir --version`; and `re
 CI gate (exit 0 pass, 1 warn, 2 fail, 3 could not compare, --diff's per-pixel error image)."""
 import json
 import re
+import shlex
 import subprocess
 
 import numpy as np
 import pytest
 
-from conftest import read_exr, run_cli
+from conftest import ROOT, read_exr, run_cli
 from daemon import BIN as DAEMON_BIN
 
 METHODS = json.loads(run_cli("methods", "--json").stdout)["methods"]
@@ -133,11 +134,11 @@ def test_version_names_the_commit():
 
 # ---- restir compare ------------------------------------------------------------------------------
 
-# A 4x1 reference of ones (mean 1, so MAPE's denominator is R + 0.01) and an image whose pixels'
-# relative errors are 0, 0.1, 0.5 and 1: MAPE 0.4.
-REF = np.ones((1, 4, 3), dtype=np.float32)
-IMG = np.array([1.0, 1.101, 1.505, 2.01], dtype=np.float32)[None, :, None].repeat(3, axis=2)
+# A 4x1 reference of fives (mean 5, so MAPE's denominator is R + 0.01 * 5 = 5.05; R + 0.01 would
+# be 5.01) and an image whose pixels' relative errors are 0, 0.1, 0.5 and 1: MAPE 0.4.
+REF = np.full((1, 4, 3), 5.0, dtype=np.float32)
 REL = [0.0, 0.1, 0.5, 1.0]
+IMG = (5.0 + 5.05 * np.array(REL, dtype=np.float32))[None, :, None].repeat(3, axis=2)
 
 
 @pytest.fixture
@@ -174,7 +175,7 @@ def test_compare_warns_between_the_levels(pair):
 
 
 def test_compare_fails_on_any_metric_or_the_pixel_rule(pair):
-    rmse = float(np.sqrt(np.mean((IMG.astype(np.float64) - 1.0) ** 2)))
+    rmse = float(np.sqrt(np.mean((IMG.astype(np.float64) - 5.0) ** 2)))
     res, out = compare(*pair, "--fail-rmse", "0.5", "--warn-relmse", "0.01")
     assert res.returncode == 2, res.stderr
     assert out["rmse"] == pytest.approx(rmse, rel=1e-6)
@@ -191,6 +192,19 @@ def test_compare_fails_on_any_metric_or_the_pixel_rule(pair):
     assert compare(*pair, "--fail-percent", "25", "--pixel-threshold", "0.45")[1]["percent_above"] == 50
 
 
+def test_compare_gates_the_difference_of_the_means(pair):
+    # IMG's mean is 5 + 5.05 * 0.4 = 7.02 in every channel against REF's 5: off by 0.404.
+    res, out = compare(*pair, "--warn-mean", "0.3", "--fail-mean", "0.5")
+    assert res.returncode == 1, res.stderr
+    assert out["mean"]["b"] == [5, 5, 5] and out["mean"]["a"] == pytest.approx([7.02] * 3, rel=1e-6)
+    assert out["mean_rel_diff"] == pytest.approx([0.404] * 3, rel=1e-5)
+    assert out["mean_rel_diff_max"] == pytest.approx(0.404, rel=1e-5)
+    assert [(t["metric"], t["level"], t["threshold"]) for t in out["tripped"]] == [("mean", "warn", 0.3)]
+    assert res.stderr == "restir compare: warn (|mean A / mean B - 1| (largest channel) 0.404 > warn level 0.3)\n"
+    assert compare(*pair, "--fail-mean", "0.4")[0].returncode == 2
+    assert compare(*pair, "--fail-mean", "0.41")[0].returncode == 0
+
+
 def test_compare_fails_a_metric_that_is_not_a_number(tmp_path, pair):
     # An image of NaN leaves no pixel to compare: no evidence that it is close, so a level set fails.
     from test_daemon import write_exr
@@ -198,6 +212,27 @@ def test_compare_fails_a_metric_that_is_not_a_number(tmp_path, pair):
     res, out = compare(tmp_path / "nan.exr", pair[1], "--fail-mape", "1")
     assert res.returncode == 2, res.stderr
     assert out["mape"] is None and out["nan"]["a"] == 4 and out["verdict"] == "fail"
+
+
+def test_compare_fails_an_image_with_a_nan_pixel_by_default(tmp_path, pair):
+    # One NaN pixel against a clean reference, and no level given: the three pixels left are
+    # identical, so only the NaN can fail it. Its error is infinite: above any pixel threshold,
+    # and +Inf in --diff. --fail-nonfinite 1 allows it.
+    from test_daemon import write_exr
+    img = REF.copy()
+    img[0, 1, 0] = np.nan
+    write_exr(tmp_path / "one-nan.exr", img)
+    res, out = compare(tmp_path / "one-nan.exr", pair[1], "--diff", tmp_path / "d.exr")
+    assert res.returncode == 2, res.stderr
+    assert out["mape"] == 0 and out["nonfinite"] == {"a": 1, "b": 0}
+    assert out["tripped"] == [{"metric": "nonfinite", "level": "fail", "value": 1, "threshold": 0}]
+    assert res.stderr == f"restir compare: fail (NaN or Inf pixels in {tmp_path}/one-nan.exr: 1 > fail level 0)\n"
+    assert read_exr(tmp_path / "d.exr")[0, :, 0].tolist() == [0, np.inf, 0, 0]
+    res, out = compare(tmp_path / "one-nan.exr", pair[1], "--fail-nonfinite", "1", "--fail-percent", "20",
+                       "--pixel-threshold", "1e30")
+    assert res.returncode == 2 and out["percent_above"] == 25, res.stderr
+    assert [t["metric"] for t in out["tripped"]] == ["percent_above"]
+    assert compare(tmp_path / "one-nan.exr", pair[1], "--fail-nonfinite", "1")[0].returncode == 0
 
 
 def test_compare_could_not_compare(tmp_path, pair):
@@ -216,6 +251,7 @@ def test_compare_could_not_compare(tmp_path, pair):
               "when more than P % of the pixels have a relative error above T"),
              ((*pair, "--fail-percent", "101", "--pixel-threshold", "1"),
               "restir: --fail-percent: expected a percentage, 0..100"),
+             ((*pair, "--fail-nonfinite", "1.5"), "restir: --fail-nonfinite: expected a whole number of pixels >= 0"),
              ((*pair, "--diff", tmp_path / "d.jpg"),
               f"restir: --diff: '{tmp_path}/d.jpg' names no format: end it in .exr, or .png for an 8-bit view"),
              ((*pair, "--diff", tmp_path / "no" / "d.exr"), f"restir: cannot write {tmp_path}/no/d.exr: its folder does not exist"),
@@ -244,3 +280,41 @@ def test_compare_diff_writes_the_relative_error_per_pixel(tmp_path, pair):
     assert png.shape[:2] == (1, 4)
     assert png[0, 0, :3].tolist() == [0, 0, 0] and png[0, 3, :3].tolist() == [1, 1, 1]
     assert 0 < png[0, 1, 0] < png[0, 2, 0] < 1
+
+
+def readme_recipe():
+    """README.md's CI recipe: the golden image's render options (between `render` and `-o`) and
+    the job's compare options (without --diff), as the README shows them."""
+    block = (ROOT / "README.md").read_text().split("## CI recipe")[1].split("```sh\n")[1].split("```")[0]
+    lines = block.replace("\\\n", " ").splitlines()
+    render = shlex.split(next(line for line in lines if line.endswith("-o out/golden.exr")))
+    gate = shlex.split(next(line for line in lines if line.startswith("build/restir compare out/candidate.exr")))
+    gate = gate[4:gate.index("||")]
+    i = gate.index("--diff")
+    return render[2:render.index("-o")], gate[:i] + gate[i + 2:]
+
+
+def test_the_readme_ci_gate_fails_a_biased_image_and_passes_another_seed(tmp_path):
+    # A bias of the whole image by 10 or 20 % hides in the per-pixel noise: the gate's per-pixel
+    # levels alone pass it, its mean levels fail it. Another seed is noise only: it passes.
+    render, gate = readme_recipe()
+    assert "--fail-mean" in gate, gate
+    paths = {}
+    for seed in ("1", "2"):
+        args = list(render)
+        args[args.index("--seed") + 1] = seed
+        paths[seed] = tmp_path / f"seed-{seed}.exr"
+        res = run_cli("render", *[ROOT / a if a.startswith("scenes/") else a for a in args], "-o", paths[seed])
+        assert res.returncode == 0, res.stderr
+    golden = paths["1"]
+    res, out = compare(paths["2"], golden, *gate)
+    assert res.returncode == 0, res.stderr
+    from test_daemon import write_exr
+    per_pixel = [a for i, a in enumerate(gate) if "-mean" not in a and "-mean" not in gate[i - 1]]
+    for scale in (1.1, 1.2):
+        write_exr(tmp_path / "biased.exr", (read_exr(golden)[..., :3] * scale).astype(np.float32))
+        res, out = compare(tmp_path / "biased.exr", golden, *gate)
+        assert res.returncode == 2, (scale, res.stderr)
+        assert out["mean_rel_diff_max"] == pytest.approx(scale - 1, rel=1e-5)
+        assert [t["metric"] for t in out["tripped"]] == ["mean"], out["tripped"]
+        assert compare(tmp_path / "biased.exr", golden, *per_pixel)[0].returncode == 0, scale

@@ -749,7 +749,15 @@ def test_references_render_upload_metrics_error_map(daemon, tmp_path):
     assert r.json()["metrics"]["reference"] == "ref32" and r.json()["metrics"]["pixels"] == 1024, repr(r)
     r = daemon.req("GET", s["href"] + "/frames/0/error.png?reference=ref32")
     assert r.status == 200 and r.header("Content-Type") == "image/png" and r.body[:8] == b"\x89PNG\r\n\x1a\n", repr(r)
-    assert float(r.header("X-Error-Scale")) > 0
+    # The map's default scale is the 99th percentile (nearest rank) of MAPE's per-pixel terms,
+    # the values `restir compare --diff` writes: the reference's mean (about 0.12, not 1) is in
+    # the denominator, and r + 0.01 would give a scale far from it.
+    def p99(offset):
+        e = np.sort((np.abs(frame - ref) / (ref + offset)).mean(axis=2).astype(np.float32).ravel())
+        return float(e[int(np.ceil(0.99 * e.size)) - 1])
+    mape_scale, fixed_scale = p99(0.01 * ref.mean()), p99(0.01)
+    assert abs(mape_scale / fixed_scale - 1) > 0.05, (mape_scale, fixed_scale)
+    assert float(r.header("X-Error-Scale")) == pytest.approx(mape_scale, rel=1e-5), (mape_scale, fixed_scale)
     emap, espec = decode_image(r.body, ".png")
     assert (espec.width, espec.height) == (32, 32)
     r = daemon.req("GET", s["href"] + "/frames/0/error.png?reference=ref32&scale=0.5")

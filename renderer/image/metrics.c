@@ -4,6 +4,7 @@
  * Refs: [ReSTIR BDPT footnote 3] (MAPE definition). */
 #include "image/metrics.h"
 
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 
@@ -12,15 +13,17 @@ static bool metrics_pixel_finite(struct vec3 p)
     return isfinite(p.x) && isfinite(p.y) && isfinite(p.z);
 }
 
-/* One pixel's MAPE terms summed over R, G, B: |I - R| / (R + offset) per channel, offset being
- * METRICS_MAPE_MEAN_FRACTION * ref_mean. The error image and MAPE share it, so a pixel's error
- * there is exactly its share of MAPE. */
+/* One pixel's MAPE terms summed over R, G, B: |I - R| / (max(R, 0) + offset) per channel, offset
+ * being METRICS_MAPE_MEAN_FRACTION * ref_mean (> 0 whenever MAPE is defined). The error image and
+ * MAPE share it, so a pixel's error there is exactly its share of MAPE. A negative R is no
+ * radiance: taken as is it could bring the denominator to 0 or below and a term to +-huge; as 0
+ * every term stays >= 0 and finite. */
 static double metrics_abs_rel_sum(struct vec3 a, struct vec3 b, double offset)
 {
     double sum = 0.0;
     for (int c = 0; c < 3; c++) {
         double vr = vec3_comp(b, c);
-        sum += fabs(vec3_comp(a, c) - vr) / (vr + offset);
+        sum += fabs(vec3_comp(a, c) - vr) / (fmax(vr, 0.0) + offset);
     }
     return sum;
 }
@@ -42,28 +45,44 @@ bool metrics_compare(const struct image *image, const struct image *ref, struct 
     const size_t w = image->width;
     /* Sums are formed per row, then rows are added: with up to 64 Mi pixels a single running
      * sum would lose ~n*eps relative accuracy, per-row partials keep it near (w + h)*eps. */
-    double ref_sum = 0.0;
+    double ref_sum[3] = {0, 0, 0}, image_sum[3] = {0, 0, 0};
     for (size_t y = 0; y < image->height; y++) {
-        double row_sum = 0.0;
+        double row_ref[3] = {0, 0, 0}, row_image[3] = {0, 0, 0};
         for (size_t i = y * w; i < (y + 1) * w; i++) {
             struct vec3 a = image->pixels[i], b = ref->pixels[i];
             m.nan_image += metrics_pixel_has_nan(a);
             m.inf_image += metrics_pixel_has_inf(a);
             m.nan_ref += metrics_pixel_has_nan(b);
             m.inf_ref += metrics_pixel_has_inf(b);
+            m.nonfinite_image += !metrics_pixel_finite(a);
+            m.nonfinite_ref += !metrics_pixel_finite(b);
             if (!metrics_pixel_finite(a) || !metrics_pixel_finite(b)) continue;
             m.pixels_used++;
-            row_sum += (double)b.x + (double)b.y + (double)b.z;
+            for (int c = 0; c < 3; c++) {
+                row_ref[c] += vec3_comp(b, c);
+                row_image[c] += vec3_comp(a, c);
+            }
         }
-        ref_sum += row_sum;
+        for (int c = 0; c < 3; c++) {
+            ref_sum[c] += row_ref[c];
+            image_sum[c] += row_image[c];
+        }
     }
     m.samples = 3 * m.pixels_used;
     if (m.samples == 0) {
-        m.mape = m.rmse = m.relmse = m.ref_mean = NAN;
+        m.mape = m.rmse = m.relmse = m.ref_mean = m.mean_rel_diff_max = NAN;
+        for (int c = 0; c < 3; c++) m.mean_image[c] = m.mean_ref[c] = m.mean_rel_diff[c] = NAN;
         *out = m;
         return true;
     }
-    m.ref_mean = ref_sum / (double)m.samples;
+    m.ref_mean = (ref_sum[0] + ref_sum[1] + ref_sum[2]) / (double)m.samples;
+    for (int c = 0; c < 3; c++) {
+        m.mean_image[c] = image_sum[c] / (double)m.pixels_used;
+        m.mean_ref[c] = ref_sum[c] / (double)m.pixels_used;
+        double d = m.mean_image[c] == m.mean_ref[c] ? 0.0 : fabs(m.mean_image[c] / m.mean_ref[c] - 1.0);
+        m.mean_rel_diff[c] = d;
+        m.mean_rel_diff_max = c == 0 || d > m.mean_rel_diff_max ? d : m.mean_rel_diff_max;
+    }
 
     const double mape_offset = METRICS_MAPE_MEAN_FRACTION * m.ref_mean;
     double abs_rel = 0.0, sq = 0.0, rel_sq = 0.0;
@@ -107,7 +126,10 @@ bool metrics_error_image(const struct image *image, const struct image *ref, con
     for (size_t i = 0; i < n; i++) {
         struct vec3 a = image->pixels[i], b = ref->pixels[i];
         float e = NAN;
-        if (defined && metrics_pixel_finite(a) && metrics_pixel_finite(b)) e = (float)(metrics_abs_rel_sum(a, b, offset) / 3.0);
+        /* A finite pair's error stays finite (at most FLT_MAX, for a tiny ref_mean): +Inf is kept
+         * for an image pixel that is not finite. */
+        if (defined && metrics_pixel_finite(b))
+            e = metrics_pixel_finite(a) ? (float)fmin(metrics_abs_rel_sum(a, b, offset) / 3.0, FLT_MAX) : INFINITY;
         out->pixels[i] = (struct vec3){e, e, e};
     }
     return true;
@@ -119,7 +141,7 @@ double metrics_fraction_above(const struct image *errors, double threshold)
     const size_t n = (size_t)errors->width * errors->height;
     for (size_t i = 0; i < n; i++) {
         double e = errors->pixels[i].x;
-        if (!isfinite(e)) continue;
+        if (isnan(e)) continue; /* +Inf (a non-finite image pixel) is above any threshold */
         counted++;
         above += e > threshold;
     }
@@ -156,9 +178,24 @@ bool metrics_format_json(const struct metrics *m, char *buf, size_t size, struct
     METRICS_PUT(snprintf(buf + used, size - used, ",\"ref_mean\":"));
     METRICS_PUT(metrics_json_number(buf + used, size - used, m->ref_mean));
     METRICS_PUT(snprintf(buf + used, size - used,
-                         ",\"nan\":{\"a\":%llu,\"b\":%llu},\"inf\":{\"a\":%llu,\"b\":%llu}}",
+                         ",\"nan\":{\"a\":%llu,\"b\":%llu},\"inf\":{\"a\":%llu,\"b\":%llu},"
+                         "\"nonfinite\":{\"a\":%llu,\"b\":%llu}",
                          (unsigned long long)m->nan_image, (unsigned long long)m->nan_ref,
-                         (unsigned long long)m->inf_image, (unsigned long long)m->inf_ref));
+                         (unsigned long long)m->inf_image, (unsigned long long)m->inf_ref,
+                         (unsigned long long)m->nonfinite_image, (unsigned long long)m->nonfinite_ref));
+    /* The two means, then their relative differences: three arrays of three numbers. */
+    const double *const arrays[3] = {m->mean_image, m->mean_ref, m->mean_rel_diff};
+    static const char *const before[3] = {",\"mean\":{\"a\":[", "],\"b\":[", "]},\"mean_rel_diff\":["};
+    for (int k = 0; k < 3; k++) {
+        METRICS_PUT(snprintf(buf + used, size - used, "%s", before[k]));
+        for (int c = 0; c < 3; c++) {
+            if (c) METRICS_PUT(snprintf(buf + used, size - used, ","));
+            METRICS_PUT(metrics_json_number(buf + used, size - used, arrays[k][c]));
+        }
+    }
+    METRICS_PUT(snprintf(buf + used, size - used, "],\"mean_rel_diff_max\":"));
+    METRICS_PUT(metrics_json_number(buf + used, size - used, m->mean_rel_diff_max));
+    METRICS_PUT(snprintf(buf + used, size - used, "}"));
 #undef METRICS_PUT
     return true;
 }

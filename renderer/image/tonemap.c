@@ -7,13 +7,13 @@
  * Narkowicz 2016, "ACES Filmic Tone Mapping Curve" (the rational fit of the ACES RRT + ODT). */
 #include "image/tonemap.h"
 
-#include <float.h>
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "image/deflate.h"
+#include "image/metrics.h"
 
 /* Image sides accepted, as image_init allows: keeps every size computation far from
  * overflow and the raw PNG data (< 805 MB) addressable. */
@@ -320,23 +320,10 @@ static const unsigned char tonemap_ramp[TONEMAP_RAMP_N][3] = {
     {252, 240, 134}, /* 1: pale yellow (scale_max and above) */
 };
 
-/* MAPE's per-pixel term (tonemap.h), or NaN for a pixel with a non-finite channel in either
- * image. Accumulated in double so a finite pair cannot overflow; the reference is clamped at 0
- * in the denominator, which changes nothing for radiance and keeps every error non-negative
- * (the percentile search relies on that) for any input. */
-static float tonemap_rel_error(struct vec3 a, struct vec3 r)
-{
-    if (!vec3_is_finite(a) || !vec3_is_finite(r)) return NAN;
-    double s = 0.0;
-    for (int c = 0; c < 3; c++) {
-        double ra = vec3_comp(r, c);
-        s += fabs((double)vec3_comp(a, c) - ra) / ((ra > 0.0 ? ra : 0.0) + 0.01);
-    }
-    return (float)tonemap_min(s / 3.0, (double)FLT_MAX);
-}
-
+/* The errors are metrics_error_image's (one value per pixel in every channel; .x is read):
+ * >= 0 where compared, +Inf or NaN where not. */
 struct tonemap_errmap {
-    const float *err;  /* per pixel, NaN where non-finite */
+    const struct vec3 *err;
     uint32_t width;
     double inv_scale;
 };
@@ -344,13 +331,13 @@ struct tonemap_errmap {
 static void tonemap_error_row(const void *ctx, uint32_t y, unsigned char *rgb)
 {
     const struct tonemap_errmap *em = ctx;
-    const float *e = em->err + (size_t)y * em->width;
+    const struct vec3 *e = em->err + (size_t)y * em->width;
     for (uint32_t x = 0; x < em->width; x++, rgb += 3) {
-        if (isnan(e[x])) {
+        if (!isfinite(e[x].x)) {
             memcpy(rgb, tonemap_magenta, 3);
             continue;
         }
-        double u = tonemap_min((double)e[x] * em->inv_scale, 1.0) * (TONEMAP_RAMP_N - 1);
+        double u = tonemap_min((double)e[x].x * em->inv_scale, 1.0) * (TONEMAP_RAMP_N - 1);
         int k = (int)u;
         if (k > TONEMAP_RAMP_N - 2) k = TONEMAP_RAMP_N - 2;
         double f = u - k;
@@ -361,17 +348,17 @@ static void tonemap_error_row(const void *ctx, uint32_t y, unsigned char *rgb)
     }
 }
 
-/* One pass of the radix selection: counts, among the non-NaN errors whose bits match `prefix`
+/* One pass of the radix selection: counts, among the finite errors whose bits match `prefix`
  * under `mask`, the digit (bits >> shift) & (bins - 1). Returns the errors counted. */
-static uint64_t tonemap_error_histogram(const float *err, size_t n, uint32_t mask, uint32_t prefix, int shift,
+static uint64_t tonemap_error_histogram(const struct vec3 *err, size_t n, uint32_t mask, uint32_t prefix, int shift,
                                         uint32_t *hist, uint32_t bins)
 {
     memset(hist, 0, bins * sizeof *hist);
     uint64_t counted = 0;
     for (size_t i = 0; i < n; i++) {
-        if (isnan(err[i])) continue;
+        if (!isfinite(err[i].x)) continue;
         uint32_t bits;
-        memcpy(&bits, &err[i], sizeof bits);
+        memcpy(&bits, &err[i].x, sizeof bits);
         if ((bits & mask) != prefix) continue;
         hist[(bits >> shift) & (bins - 1)]++;
         counted++;
@@ -387,11 +374,11 @@ static uint32_t tonemap_select_digit(const uint32_t *hist, uint32_t bins, uint64
     return d;
 }
 
-/* The 99th percentile (nearest rank: the ceil(0.99 m)-th smallest of the m non-NaN errors),
+/* The 99th percentile (nearest rank: the ceil(0.99 m)-th smallest of the m finite errors),
  * 0 when there are none. Exact and O(n) without sorting or reordering: non-negative floats
- * order like their bit patterns, so three histogram passes over 11 + 11 + 10 bits pick the
- * value digit by digit. */
-static float tonemap_error_p99(const float *err, size_t n)
+ * (metrics_error_image's are) order like their bit patterns, so three histogram passes over
+ * 11 + 11 + 10 bits pick the value digit by digit. */
+static float tonemap_error_p99(const struct vec3 *err, size_t n)
 {
     uint32_t hist[2048];
     uint64_t m = tonemap_error_histogram(err, n, 0, 0, 21, hist, 2048);
@@ -420,15 +407,20 @@ bool tonemap_error_png(const struct image *img, const struct image *ref, float s
     if (img->width != ref->width || img->height != ref->height)
         return err_set(err, ERR_INVALID, NULL, "image %ux%u and reference %ux%u differ in size", img->width,
                        img->height, ref->width, ref->height);
-    /* The errors are computed once: the percentile passes and the colouring read them. */
-    size_t n = (size_t)img->width * img->height;
-    float *e = malloc(n * sizeof *e);
-    if (!e) return err_set(err, ERR_NOMEM, NULL, "out of memory for a %ux%u error map", img->width, img->height);
-    for (size_t i = 0; i < n; i++) e[i] = tonemap_rel_error(img->pixels[i], ref->pixels[i]);
-    float scale = scale_max > 0.0f ? scale_max : fmaxf(tonemap_error_p99(e, n), 1e-6f);
-    if (used_scale) *used_scale = scale;
-    struct tonemap_errmap em = {e, img->width, 1.0 / (double)scale};
-    bool ok = tonemap_encode(img->width, img->height, tonemap_error_row, &em, png, size, err);
-    free(e);
+    /* The errors are computed once, by metrics_error_image, so the map shows the values MAPE
+     * averages and `restir compare --diff` writes; the percentile passes and the colouring
+     * read them. */
+    struct metrics m = {0};
+    struct image e = {0};
+    bool ok = metrics_compare(img, ref, &m, err) && image_init(&e, img->width, img->height, err) &&
+              metrics_error_image(img, ref, &m, &e, err);
+    if (ok) {
+        size_t n = (size_t)img->width * img->height;
+        float scale = scale_max > 0.0f ? scale_max : fmaxf(tonemap_error_p99(e.pixels, n), 1e-6f);
+        if (used_scale) *used_scale = scale;
+        struct tonemap_errmap em = {e.pixels, img->width, 1.0 / (double)scale};
+        ok = tonemap_encode(img->width, img->height, tonemap_error_row, &em, png, size, err);
+    }
+    image_destroy(&e);
     return ok;
 }

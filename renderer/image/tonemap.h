@@ -36,15 +36,16 @@ const char *tonemap_curve_name(enum tonemap_curve curve);
 bool tonemap_png(const struct image *img, const struct tonemap_opts *opts, unsigned char **png, size_t *size,
                  struct err *err);
 
-/* False-colour map of the per-pixel relative error |img - ref| / (ref + 0.01), averaged over
- * the three channels (the per-pixel term of MAPE, [ReSTIR BDPT footnote 3]; a negative ref counts
- * as 0 in the denominator), mapped from 0 to `scale_max` through a perceptually ordered colour
- * ramp (lightness rising from dark indigo at 0 through blue, teal and green to pale yellow at
- * scale_max and above; the anchors are listed in tonemap.c); scale_max <= 0 picks the 99th
- * percentile (nearest rank) of the finite pixels' errors, at least 1e-6. *used_scale (may be
- * NULL) returns the scale used (for a legend). A pixel with a non-finite channel in either
- * image is magenta. Errors: ERR_INVALID (sizes differ, missing image, non-finite scale_max),
- * ERR_LIMIT (a side over 16384), ERR_NOMEM. */
+/* False-colour map of each pixel's relative error as metrics_error_image gives it (MAPE's
+ * per-pixel term, [ReSTIR BDPT footnote 3]: the mean over the three channels of
+ * |img - ref| / (max(ref, 0) + 0.01 * mean(ref)), the mean over the pixels compared), mapped
+ * from 0 to `scale_max` through a perceptually ordered colour ramp (lightness rising from dark
+ * indigo at 0 through blue, teal and green to pale yellow at scale_max and above; the anchors
+ * are listed in tonemap.c); scale_max <= 0 picks the 99th percentile (nearest rank) of the
+ * compared pixels' errors, at least 1e-6. *used_scale (may be NULL) returns the scale used (for
+ * a legend). A pixel with a non-finite channel in either image is magenta, and so is every
+ * pixel when the reference's mean is 0 or below (MAPE undefined). Errors: ERR_INVALID (sizes
+ * differ, missing image, non-finite scale_max), ERR_LIMIT (a side over 16384), ERR_NOMEM. */
 bool tonemap_error_png(const struct image *img, const struct image *ref, float scale_max, float *used_scale,
                        unsigned char **png, size_t *size, struct err *err);
 

@@ -21,7 +21,8 @@ static struct image make(uint32_t w, uint32_t h, const struct vec3 *px)
  * image differs by +0.5 at ref 1 and +1 at ref 6:
  *   MAPE   = (0.5/1.035 + 1/6.035) / 6
  *   RMSE   = sqrt((0.25 + 1) / 6)
- *   relMSE = (0.25/(1 + 0.01) + 1/(36 + 0.01)) / 6 */
+ *   relMSE = (0.25/(1 + 0.01) + 1/(36 + 0.01)) / 6
+ * channel means: ref (2.5, 3.5, 4.5), image (2.75, 3.5, 5): relative differences 0.1, 0, 1/9. */
 static void test_hand_computed_2x1(void)
 {
     struct vec3 r[2] = {{1, 2, 3}, {4, 5, 6}}, a[2] = {{1.5f, 2, 3}, {4, 5, 7}};
@@ -36,6 +37,12 @@ static void test_hand_computed_2x1(void)
     CHECK_NEAR(m.ref_mean, 3.5, 0.0);
     CHECK(m.width == 2 && m.height == 1 && m.pixels_used == 2 && m.samples == 6);
     CHECK(m.nan_image == 0 && m.nan_ref == 0 && m.inf_image == 0 && m.inf_ref == 0);
+    CHECK(m.mean_ref[0] == 2.5 && m.mean_ref[1] == 3.5 && m.mean_ref[2] == 4.5);
+    CHECK(m.mean_image[0] == 2.75 && m.mean_image[1] == 3.5 && m.mean_image[2] == 5.0);
+    CHECK_NEAR(m.mean_rel_diff[0], 0.1, 1e-15);
+    CHECK(m.mean_rel_diff[1] == 0.0);
+    CHECK_NEAR(m.mean_rel_diff[2], 1.0 / 9.0, 1e-15);
+    CHECK(m.mean_rel_diff_max == m.mean_rel_diff[2]);
 
     /* The metric is not symmetric: swapping the roles changes the denominators. */
     struct metrics s;
@@ -102,6 +109,8 @@ static void test_nonfinite_excluded(void)
     CHECK(metrics_compare(&img, &ref, &m, NULL));
     CHECK(m.pixels_used == 1 && m.samples == 3);
     CHECK(m.nan_image == 2 && m.inf_image == 1 && m.nan_ref == 0 && m.inf_ref == 1);
+    /* Pixel 3 is in both counts above but is one non-finite pixel. */
+    CHECK(m.nonfinite_image == 2 && m.nonfinite_ref == 1);
     CHECK_NEAR(m.ref_mean, 2.0, 0.0);
     CHECK_NEAR(m.mape, (1.0 / 2.02) / 3.0, 1e-15);
     CHECK_NEAR(m.rmse, sqrt(1.0 / 3.0), 1e-15);
@@ -122,7 +131,9 @@ static void test_json(void)
     CHECK(metrics_format_json(&m, buf, sizeof buf, &err));
     CHECK_MSG(strcmp(buf, "{\"width\":2,\"height\":1,\"pixels_used\":2,\"samples\":6,\"mape\":0,"
                           "\"rmse\":0,\"relmse\":0,\"ref_mean\":3.5,\"nan\":{\"a\":0,\"b\":0},"
-                          "\"inf\":{\"a\":0,\"b\":0}}") == 0, "%s", buf);
+                          "\"inf\":{\"a\":0,\"b\":0},\"nonfinite\":{\"a\":0,\"b\":0},"
+                          "\"mean\":{\"a\":[2.5,3.5,4.5],\"b\":[2.5,3.5,4.5]},\"mean_rel_diff\":[0,0,0],"
+                          "\"mean_rel_diff_max\":0}") == 0, "%s", buf);
 
     /* %.9g for real values. */
     struct vec3 a[2] = {{1.5f, 2, 3}, {4, 5, 7}};
@@ -140,13 +151,21 @@ static void test_json(void)
     CHECK_MSG(strstr(buf, "\"mape\":null,\"rmse\":") && !strstr(buf, ":nan") && !strstr(buf, ":-nan") &&
                   !strstr(buf, ":inf"),
               "%s", buf);
+    /* Means of 0 in the reference: an image mean above it is infinitely off (null), 0 is not. */
+    CHECK(isinf(m.mean_rel_diff_max));
+    CHECK_MSG(strstr(buf, "\"mean_rel_diff\":[null,null,null],\"mean_rel_diff_max\":null}"), "%s", buf);
+    struct metrics mb;
+    CHECK(metrics_compare(&black, &black, &mb, NULL) && mb.mean_rel_diff_max == 0.0);
     struct vec3 n[2] = {{NAN, 0, 0}, {0, INFINITY, 0}};
     struct image bad = make(2, 1, n);
     CHECK(metrics_compare(&bad, &ref, &m, NULL));
     CHECK(m.pixels_used == 0);
     CHECK(metrics_format_json(&m, buf, sizeof buf, &err));
     CHECK_MSG(strstr(buf, "\"mape\":null,\"rmse\":null,\"relmse\":null,\"ref_mean\":null,"
-                          "\"nan\":{\"a\":1,\"b\":0},\"inf\":{\"a\":1,\"b\":0}}"), "%s", buf);
+                          "\"nan\":{\"a\":1,\"b\":0},\"inf\":{\"a\":1,\"b\":0},\"nonfinite\":{\"a\":2,\"b\":0},"
+                          "\"mean\":{\"a\":[null,null,null],\"b\":[null,null,null]},"
+                          "\"mean_rel_diff\":[null,null,null],\"mean_rel_diff_max\":null}"),
+              "%s", buf);
 
     /* Too small a buffer is an error, not a silently cut object. */
     char tiny[40];
@@ -180,34 +199,38 @@ static void test_image_mean(void)
 }
 
 /* The error image holds MAPE's per-pixel terms: on the 2x1 pair above, pixel 0 is
- * (0.5/1.035)/3 and pixel 1 (1/6.035)/3, their mean is MAPE; a third pixel with a NaN is NaN
- * and left out of the fraction above a threshold. */
+ * (0.5/1.035)/3 and pixel 1 (1/6.035)/3, their mean is MAPE. A third pixel with a NaN in the
+ * image has an infinite error, above every threshold; a fourth with an Inf in the reference
+ * has nothing to be compared with: NaN, left out of the fraction. */
 static void test_error_image(void)
 {
-    struct vec3 r[3] = {{1, 2, 3}, {4, 5, 6}, {1, 1, 1}}, a[3] = {{1.5f, 2, 3}, {4, 5, 7}, {NAN, 1, 1}};
-    struct image ref = make(3, 1, r), img = make(3, 1, a), out = make(3, 1, NULL), small = make(2, 1, NULL);
+    struct vec3 r[4] = {{1, 2, 3}, {4, 5, 6}, {1, 1, 1}, {INFINITY, 1, 1}};
+    struct vec3 a[4] = {{1.5f, 2, 3}, {4, 5, 7}, {NAN, 1, 1}, {1, 1, 1}};
+    struct image ref = make(4, 1, r), img = make(4, 1, a), out = make(4, 1, NULL), small = make(2, 1, NULL);
     struct metrics m;
     struct err err = {0};
     CHECK(metrics_compare(&img, &ref, &m, &err));
     CHECK(metrics_error_image(&img, &ref, &m, &out, &err));
-    /* ref_mean over the used pixels is 3.5 as above: the NaN pixel is out of every sum. */
+    /* ref_mean over the used pixels is 3.5 as above: the non-finite pixels are out of every sum. */
     CHECK_NEAR(m.ref_mean, 3.5, 0.0);
     CHECK_NEAR(out.pixels[0].x, 0.5 / 1.035 / 3.0, 1e-7);
     CHECK_NEAR(out.pixels[1].x, 1.0 / 6.035 / 3.0, 1e-7);
     CHECK(out.pixels[0].y == out.pixels[0].x && out.pixels[1].z == out.pixels[1].x);
-    CHECK(isnan(out.pixels[2].x));
+    CHECK(out.pixels[2].x == INFINITY && isnan(out.pixels[3].x));
     CHECK_NEAR((out.pixels[0].x + out.pixels[1].x) / 2.0, m.mape, 1e-7);
-    /* Pixel 0's error is 0.161, pixel 1's 0.055: the fraction counts the finite pixels only. */
-    CHECK(metrics_fraction_above(&out, 0.1) == 0.5);
+    /* Pixel 0's error is 0.161, pixel 1's 0.055, pixel 2's infinite: the fraction is over those
+     * three. */
+    CHECK(metrics_fraction_above(&out, 0.1) == 2.0 / 3.0);
     CHECK(metrics_fraction_above(&out, 0.01) == 1.0);
-    CHECK(metrics_fraction_above(&out, 0.2) == 0.0);
+    CHECK(metrics_fraction_above(&out, 0.2) == 1.0 / 3.0);
+    CHECK(metrics_fraction_above(&out, 1e30) == 1.0 / 3.0);
     /* Strictly above: an error equal to the threshold passes. */
-    CHECK(metrics_fraction_above(&out, out.pixels[0].x) == 0.0);
+    CHECK(metrics_fraction_above(&out, out.pixels[0].x) == 1.0 / 3.0);
     CHECK(!metrics_error_image(&img, &ref, &m, &small, &err) && err.code == ERR_INVALID);
-    CHECK_MSG(strstr(err.message, "3x1") && strstr(err.message, "2x1"), "%s", err.message);
+    CHECK_MSG(strstr(err.message, "4x1") && strstr(err.message, "2x1"), "%s", err.message);
     /* An all-black reference leaves MAPE undefined: every pixel is NaN, and so is the fraction. */
-    struct vec3 z[3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}};
-    struct image black = make(3, 1, z);
+    struct vec3 z[4] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}, {0, 0, 0}};
+    struct image black = make(4, 1, z);
     CHECK(metrics_compare(&ref, &black, &m, &err) && isnan(m.mape));
     CHECK(metrics_error_image(&ref, &black, &m, &out, &err));
     CHECK(isnan(out.pixels[0].x) && isnan(metrics_fraction_above(&out, 0.1)));
@@ -218,5 +241,24 @@ static void test_error_image(void)
     image_destroy(&black);
 }
 
-TEST_MAIN(TEST(test_image_mean), TEST(test_error_image), TEST(test_hand_computed_2x1), TEST(test_identical_is_zero), TEST(test_large_constant_error),
+/* A negative reference sample counts as 0 in MAPE's denominator, in MAPE and in the error
+ * image alike: ref (-0.5, 1, 1), (1, 1, 1) has mean 0.75, offset 0.0075, and an image off by 1
+ * in that sample has the term 1 / 0.0075 there, never the negative 1 / (-0.5 + 0.0075). */
+static void test_negative_reference(void)
+{
+    struct vec3 r[2] = {{-0.5f, 1, 1}, {1, 1, 1}}, a[2] = {{0.5f, 1, 1}, {1, 1, 1}};
+    struct image ref = make(2, 1, r), img = make(2, 1, a), out = make(2, 1, NULL);
+    struct metrics m;
+    struct err err = {0};
+    CHECK(metrics_compare(&img, &ref, &m, &err) && metrics_error_image(&img, &ref, &m, &out, &err));
+    CHECK_NEAR(m.ref_mean, 0.75, 0.0);
+    CHECK_NEAR(m.mape, 1.0 / 0.0075 / 6.0, 1e-9);
+    CHECK_NEAR(out.pixels[0].x, 1.0 / 0.0075 / 3.0, 1e-4);
+    CHECK(out.pixels[1].x == 0.0f);
+    image_destroy(&ref);
+    image_destroy(&img);
+    image_destroy(&out);
+}
+
+TEST_MAIN(TEST(test_image_mean), TEST(test_error_image), TEST(test_negative_reference), TEST(test_hand_computed_2x1), TEST(test_identical_is_zero), TEST(test_large_constant_error),
           TEST(test_size_mismatch), TEST(test_nonfinite_excluded), TEST(test_json))

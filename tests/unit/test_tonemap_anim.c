@@ -12,6 +12,7 @@
 
 #include "scene/animation.h"
 #include "image/deflate.h"
+#include "image/metrics.h"
 #include "core/rng.h"
 #include "test.h"
 #include "image/tonemap.h"
@@ -686,13 +687,19 @@ static void test_error_map_errors(void)
     image_destroy(&b);
 }
 
-/* The error of img value v against a black reference, exactly as the header defines it,
- * rounded to float as the map stores it. */
-static float err_vs_black(float v)
+/* The error of img value v against a reference of ones (mean 1), exactly as the header
+ * defines it: |v - 1| / (1 + 0.01 * 1) per channel, in double, rounded to float as the map
+ * stores it. */
+static float err_vs_ones(float v)
 {
     double s = 0.0;
-    for (int c = 0; c < 3; c++) s += fabs((double)v) / 0.01;
+    for (int c = 0; c < 3; c++) s += fabs((double)v - 1.0) / (1.0 + 0.01);
     return (float)(s / 3.0);
+}
+
+static void fill_ones(struct image *img)
+{
+    for (size_t i = 0; i < (size_t)img->width * img->height; i++) img->pixels[i] = vec3_splat(1.0f);
 }
 
 static int cmp_float(const void *a, const void *b)
@@ -708,13 +715,14 @@ static void test_error_map_percentile_and_colours(void)
     uint32_t w = 50, h = 21;
     struct image img = make(w, h, NULL), ref = make(w, h, NULL);
     if (!img.pixels || !ref.pixels) { CHECK(0); return; }
+    fill_ones(&ref);
     float *errs = malloc(sizeof(float) * w * h);
     size_t m = 0;
     for (size_t i = 0; i < (size_t)w * h; i++) {
-        float v = (float)(rnd_unit() * rnd_unit() * 3.0);  /* skewed: a long tail */
+        float v = 1.0f + (float)(rnd_unit() * rnd_unit() * 3.0);  /* skewed: a long tail */
         img.pixels[i] = vec3_splat(v);
         if (i % 21 != 5) {
-            errs[m++] = err_vs_black(v);
+            errs[m++] = err_vs_ones(v);
             continue;
         }
         switch ((i / 21) % 3) {
@@ -747,11 +755,12 @@ static void test_error_map_percentile_and_colours(void)
     }
     free(errs);
 
-    /* A given scale: error 0 -> first anchor, scale / 2 -> middle anchor, >= scale -> last. */
-    struct vec3 px[4] = {{0, 0, 0}, {0.02f, 0.02f, 0.02f}, {0.04f, 0.04f, 0.04f}, {5, 5, 5}};
-    struct vec3 zero[4] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}, {0, 0, 0}};
-    struct image a = make(4, 1, px), z = make(4, 1, zero);
-    CHECK(err_vs_black(0.02f) == 2.0f);
+    /* A given scale: error 0 -> first anchor, scale / 2 -> middle anchor, >= scale -> last
+     * (errors 0, 2, 4 and 7 against ones, to float rounding, which the 8-bit colours hide). */
+    struct vec3 px[4] = {{1, 1, 1}, {3.02f, 3.02f, 3.02f}, {5.04f, 5.04f, 5.04f}, {8.07f, 8.07f, 8.07f}};
+    struct image a = make(4, 1, px), z = make(4, 1, NULL);
+    fill_ones(&z);
+    CHECK(fabsf(err_vs_ones(3.02f) - 2.0f) < 1e-6f && fabsf(err_vs_ones(5.04f) - 4.0f) < 1e-6f);
     if (error_map(&a, &z, 4.0f, &used, &p)) {
         CHECK(used == 4.0f);
         CHECK(memcmp(png_px(&p, 0, 0), ramp_first, 3) == 0);
@@ -773,8 +782,9 @@ static void test_error_map_ramp_lightness(void)
     uint32_t n = 65;
     struct image img = make(n, 1, NULL), ref = make(n, 1, NULL);
     if (!img.pixels || !ref.pixels) { CHECK(0); return; }
-    for (uint32_t i = 0; i < n; i++) img.pixels[i] = vec3_splat(0.01f * (float)i / (float)(n - 1));
-    float scale = err_vs_black(0.01f);
+    fill_ones(&ref);
+    for (uint32_t i = 0; i < n; i++) img.pixels[i] = vec3_splat(1.0f + 0.01f * (float)i / (float)(n - 1));
+    float scale = err_vs_ones(1.01f);
     struct png p;
     if (error_map(&img, &ref, scale, NULL, &p)) {
         CHECK(memcmp(p.rgb, ramp_first, 3) == 0 && memcmp(png_px(&p, n - 1, 0), ramp_last, 3) == 0);
@@ -790,10 +800,41 @@ static void test_error_map_ramp_lightness(void)
     image_destroy(&ref);
 }
 
+/* The map shows metrics_error_image's values, MAPE's per-pixel terms: on a reference whose
+ * mean is 15 the denominator is r + 0.15, so an image 0.15 above a black reference pixel has
+ * error 1 (r + 0.01 would make it 15). With one error of 1 and one of 0, the 99th percentile
+ * the map picks as its scale is that error, bit for bit; an all-black reference leaves MAPE
+ * undefined and the whole map magenta. */
+static void test_error_map_is_mapes_term(void)
+{
+    struct vec3 r[2] = {{0, 0, 0}, {30, 30, 30}}, a[2] = {{0.15f, 0.15f, 0.15f}, {30, 30, 30}};
+    struct image ref = make(2, 1, r), img = make(2, 1, a), errs = make(2, 1, NULL);
+    struct metrics m = {0};
+    struct err err = {0};
+    CHECK(metrics_compare(&img, &ref, &m, &err) && metrics_error_image(&img, &ref, &m, &errs, &err));
+    CHECK_NEAR(errs.pixels[0].x, 1.0, 1e-6);
+    struct png p;
+    float used = 0;
+    if (error_map(&img, &ref, 0.0f, &used, &p)) {
+        CHECK_MSG(used == errs.pixels[0].x, "scale %.9g, error %.9g", (double)used, (double)errs.pixels[0].x);
+        CHECK(memcmp(png_px(&p, 0, 0), ramp_last, 3) == 0 && memcmp(png_px(&p, 1, 0), ramp_first, 3) == 0);
+        free(p.rgb);
+    }
+    struct image black = make(2, 1, NULL);
+    if (error_map(&img, &black, 1.0f, NULL, &p)) {
+        CHECK(px_is(png_px(&p, 0, 0), 255, 0, 255) && px_is(png_px(&p, 1, 0), 255, 0, 255));
+        free(p.rgb);
+    }
+    image_destroy(&ref);
+    image_destroy(&img);
+    image_destroy(&errs);
+    image_destroy(&black);
+}
+
 TEST_MAIN(TEST(test_deflate_crc_and_round_trip), TEST(test_anim_values_at_keys_exact),
           TEST(test_anim_two_keys_catmull_rom_is_linear), TEST(test_anim_clamps_outside_keys),
           TEST(test_anim_channels_independent), TEST(test_anim_catmull_rom_c1), TEST(test_anim_up_renormalised),
           TEST(test_anim_overshoot_clamps), TEST(test_curve_names), TEST(test_png_known_pixels),
           TEST(test_png_curves_match_formulas), TEST(test_png_large_multi_idat), TEST(test_png_errors),
           TEST(test_error_map_identical), TEST(test_error_map_errors), TEST(test_error_map_percentile_and_colours),
-          TEST(test_error_map_ramp_lightness))
+          TEST(test_error_map_ramp_lightness), TEST(test_error_map_is_mapes_term))
