@@ -319,7 +319,7 @@ void api_write_metrics(struct jsonw *w, const char *reference, const struct metr
     jsonw_key(w, "pixels");
     jsonw_uint(w, m->pixels_used);
     jsonw_key(w, "nonfinite");
-    jsonw_uint(w, m->nan_image + m->inf_image);
+    jsonw_uint(w, m->nonfinite_image);
     jsonw_object_end(w);
 }
 
