@@ -24,10 +24,13 @@
 #include "session/view.h"
 #include "version.h"
 
-#include <cjson/cJSON.h>
-
 /* The most samples per pixel and frame the CLI takes (--spp and --params). */
 #define CLI_MAX_SPP (1u << 24)
+
+/* What the CLI accepts in --params and --animation: the daemon's parsers, with limits that
+ * only the options' own ranges bound. */
+static const struct protocol_limits cli_limits = {.max_side = 16384, .max_pixels = 16384ull * 16384ull,
+                                                  .max_spp = CLI_MAX_SPP, .max_frames = 1000000, .max_keys = 100000};
 
 #define CLI_USAGE                                                                                  \
     "usage:\n"                                                                                     \
@@ -123,10 +126,9 @@ static int cli_methods(int argc, char **argv)
         }
         return 0;
     }
-    const struct protocol_limits limits = {.max_spp = CLI_MAX_SPP};
     struct jsonw w;
     jsonw_init(&w);
-    protocol_write_methods(&w, &limits);
+    protocol_write_methods(&w, &cli_limits);
     size_t len = 0;
     char *text = jsonw_finish(&w, &len);
     if (!text) {
@@ -233,24 +235,6 @@ static bool cli_parse_crop(const char *s, uint32_t v[4])
     return tok == NULL;
 }
 
-/* --params: the method's parameters, parsed and checked as the daemon parses a session's. */
-static bool cli_method_params(const char *params_json, struct view_params *vp, struct err *err)
-{
-    size_t len = strlen(params_json) + 256;
-    char *body = malloc(len);
-    if (!body) return err_set(err, ERR_NOMEM, NULL, "out of memory");
-    snprintf(body, len, "{\"method\":\"%s\",\"width\":%u,\"height\":%u,\"params\":%s}",
-             vp->method->name, vp->width, vp->height, params_json);
-    const struct protocol_limits limits = {.max_side = 16384, .max_pixels = 16384ull * 16384ull, .max_spp = CLI_MAX_SPP,
-                                           .max_frames = 1000000, .max_keys = 100000};
-    struct view_params parsed;
-    bool ok = protocol_parse_session_create(body, strlen(body), &limits, &parsed, err);
-    free(body);
-    if (!ok) return false;
-    memcpy(vp->method_params, parsed.method_params, sizeof vp->method_params);
-    return true;
-}
-
 /* The methods with a parameter named `key`, for messages. */
 static const char *cli_methods_with(const char *key, const char *or_key)
 {
@@ -275,10 +259,10 @@ struct cli_param_option {
 };
 
 /* Each option given must set a parameter the method has, and --params must not set the same
- * one: the usage message, or NULL when the options hold. `params` is the parsed --params (or
- * NULL). */
+ * one: the usage message, or NULL when the options hold. `params_given` has bit i set when
+ * --params names rm->params[i] (protocol_parse_method_params). */
 static const char *cli_check_param_options(const struct method_desc *rm, const struct cli_param_option *opts,
-                                           size_t count, const cJSON *params, char *msg, size_t size)
+                                           size_t count, uint32_t params_given, char *msg, size_t size)
 {
     for (size_t i = 0; i < count; i++) {
         const struct cli_param_option *o = &opts[i];
@@ -307,7 +291,7 @@ static const char *cli_check_param_options(const struct method_desc *rm, const s
                      o->value);
             return msg;
         }
-        if (params && cJSON_GetObjectItemCaseSensitive(params, o->key)) {
+        if (params_given & (1u << (mp - rm->params))) {
             snprintf(msg, size, "%s and \"%s\" in --params both set %s's %s: give it once", o->option, o->key,
                      rm->name, o->key);
             return msg;
@@ -346,10 +330,8 @@ static int cli_render_sequence(struct scene *scene, const struct view_params *vp
             fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
             return 1;
         }
-        const struct protocol_limits limits = {.max_side = 16384, .max_pixels = 16384ull * 16384ull,
-                                               .max_spp = CLI_MAX_SPP, .max_frames = 1000000, .max_keys = 100000};
         struct protocol_render_request rq;
-        bool ok = protocol_parse_render_request(text, len, &limits, &rq, &err) &&
+        bool ok = protocol_parse_render_request(text, len, &cli_limits, &rq, &err) &&
                   animate_resolve(&rq, scene, &scene->camera, &anim, &err);
         free(text);
         if (!ok) {
@@ -520,14 +502,15 @@ static int cli_render(int argc, char **argv)
         return cli_usage_error("%s", "--crop and --frame do not combine with --frames or --animation");
     if (!sequence && params_json)
         return cli_usage_error("--params needs --frames, --animation or a method other than %s", cli_still_methods());
-    cJSON *params_tree = NULL;
+    /* A sequence's parameters: the method's defaults, --params over them (read as the daemon
+     * reads a session's), then the options below over the keys --params leaves out. */
+    struct view_params vp = view_params_defaults(rm, width, height);
+    uint32_t params_given = 0;
     if (params_json) {
-        /* Checked on its own first, so a syntax error's position is within the argument. */
         struct err perr = {0};
         char pmsg[1024];
-        if (!protocol_check_json(params_json, strlen(params_json), &perr))
+        if (!protocol_parse_method_params(params_json, strlen(params_json), &cli_limits, &vp, &params_given, &perr))
             return cli_usage_error("--params: %s", err_format(&perr, pmsg, sizeof pmsg));
-        params_tree = cJSON_Parse(params_json);
     }
     const char *nee_key = method_param_find(rm, "nee")              ? "nee"
                           : method_param_find(rm, "nee_candidates") ? "nee_candidates"
@@ -539,9 +522,7 @@ static int cli_render(int argc, char **argv)
                                                   {"--no-nee", nee_key, !p.nee, 0}};
     char refusal[512];
     const char *refused = cli_check_param_options(rm, param_opts, sizeof param_opts / sizeof param_opts[0],
-                                                  cJSON_IsObject(params_tree) ? params_tree : NULL, refusal,
-                                                  sizeof refusal);
-    cJSON_Delete(params_tree);
+                                                  params_given, refusal, sizeof refusal);
     if (refused) return cli_usage_error("%s", refused);
     p.width = width;
     p.height = height;
@@ -581,13 +562,7 @@ static int cli_render(int argc, char **argv)
     uint32_t frame_spp = p.spp;
     uint32_t reservoir_bytes = 0;   /* per pixel and reservoir buffer */
     if (sequence) {
-        struct view_params vp = view_params_defaults(rm, width, height);
         vp.seed = p.seed;
-        if (params_json && !cli_method_params(params_json, &vp, &err)) {
-            fprintf(stderr, "restir: --params: %s\n", err_format(&err, msg, sizeof msg));
-            scene_release(scene);
-            return 2;
-        }
         /* The options given, on top: --params sets none of their parameters (checked above).
          * Without --params the CLI's own spp default (16) holds too. */
         if (has_spp || !params_json) view_params_set_uint(&vp, "spp", p.spp);
