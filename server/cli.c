@@ -64,9 +64,9 @@ static const struct protocol_limits cli_limits = {.max_side = 16384, .max_pixels
     "P % of the pixels have a relative error (MAPE's per-pixel term) above T; --diff writes that\n" \
     "error per pixel (.exr: float; .png: 8-bit, white at 1 and above).\n"                          \
     "--params sets the method's parameters as the daemon's session \"params\" object (keys it\n"  \
-    "leaves out take the options given, else the method's defaults; an option and a key that\n" \
-    "set the same parameter are refused), e.g. --params '{\"spatial_neighbors\": 0}'; restir methods\n" \
-    "lists every method's parameters.\n"
+    "leaves out take the options given, else their defaults: spp --spp's 16, the others the\n"  \
+    "method's own; an option and a key that set the same parameter are refused), e.g.\n"           \
+    "--params '{\"spatial_neighbors\": 0}'; restir methods lists every method's parameters.\n"
 
 /* The usage text, then the methods --method takes, from the registry. */
 static void cli_usage(FILE *out)
@@ -258,9 +258,16 @@ struct cli_param_option {
     uint32_t value;                    /* a uint parameter's value, checked against its range */
 };
 
+/* --params names the method's parameter `key`: `params_given` has bit i set when it names
+ * rm->params[i] (protocol_parse_method_params). */
+static bool cli_params_name(const struct method_desc *rm, uint32_t params_given, const char *key)
+{
+    const struct method_param *mp = method_param_find(rm, key);
+    return mp && (params_given & (1u << (mp - rm->params)));
+}
+
 /* Each option given must set a parameter the method has, and --params must not set the same
- * one: the usage message, or NULL when the options hold. `params_given` has bit i set when
- * --params names rm->params[i] (protocol_parse_method_params). */
+ * one: the usage message, or NULL when the options hold. */
 static const char *cli_check_param_options(const struct method_desc *rm, const struct cli_param_option *opts,
                                            size_t count, uint32_t params_given, char *msg, size_t size)
 {
@@ -291,7 +298,7 @@ static const char *cli_check_param_options(const struct method_desc *rm, const s
                      o->value);
             return msg;
         }
-        if (params_given & (1u << (mp - rm->params))) {
+        if (cli_params_name(rm, params_given, o->key)) {
             snprintf(msg, size, "%s and \"%s\" in --params both set %s's %s: give it once", o->option, o->key,
                      rm->name, o->key);
             return msg;
@@ -564,8 +571,9 @@ static int cli_render(int argc, char **argv)
     if (sequence) {
         vp.seed = p.seed;
         /* The options given, on top: --params sets none of their parameters (checked above).
-         * Without --params the CLI's own spp default (16) holds too. */
-        if (has_spp || !params_json) view_params_set_uint(&vp, "spp", p.spp);
+         * The CLI's own spp default (16) holds too unless --params names spp, so adding
+         * --params for another key does not change the samples per frame. */
+        if (!cli_params_name(rm, params_given, "spp")) view_params_set_uint(&vp, "spp", p.spp);
         if (has_max_depth) view_params_set_uint(&vp, "max_depth", p.max_depth);
         if (has_rr_depth) view_params_set_uint(&vp, "rr_depth", p.rr_depth);
         if (!p.nee && !view_params_set_bool(&vp, "nee", false)) view_params_set_uint(&vp, "nee_candidates", 0);

@@ -1,7 +1,8 @@
 """`restir render` beside --params: the options' defaults and the JSON library's one home."""
+import json
 import re
 
-from conftest import ROOT
+from conftest import ROOT, run_cli
 
 # cJSON is read through renderer/input/json_read.c by the two readers of untrusted JSON
 # (docs/architecture.md): no other source names it, the CLI's --params included.
@@ -13,3 +14,17 @@ def test_cjson_has_one_home():
     users = {str(p.relative_to(ROOT)) for layer in ("renderer", "protocol", "server")
              for p in (ROOT / layer).rglob("*.[ch]") if re.search(r"\bcJSON|cjson/", p.read_text())}
     assert users == CJSON_HOMES
+
+
+def test_the_spp_default_holds_beside_params_that_leave_spp_out(tmp_path, scenes):
+    # The CLI's default (16) is the spp of every method that takes one, --params or not; --params
+    # naming spp sets it.
+    def spp(*args):
+        res = run_cli("render", scenes / "refractive-slab", "--size", "4x4", "--frames", "1", "--json", *args,
+                      "-o", tmp_path / "x.exr")
+        assert res.returncode == 0, (args, res.stderr)
+        return json.loads(res.stdout)["spp"]
+    assert spp("--method", "sms") == 16
+    assert spp("--method", "sms", "--params", '{"max_depth": 8}') == 16
+    assert spp("--method", "pt", "--params", '{"nee": false}') == 16
+    assert spp("--method", "sms_ssp", "--params", '{"spp": 2, "max_depth": 8}') == 2
