@@ -66,7 +66,9 @@ static const struct protocol_limits cli_limits = {.max_side = 16384, .max_pixels
     "--params sets the method's parameters as the daemon's session \"params\" object (keys it\n"  \
     "leaves out take the options given, else their defaults: spp --spp's 16, the others the\n"  \
     "method's own; an option and a key that set the same parameter are refused), e.g.\n"           \
-    "--params '{\"spatial_neighbors\": 0}'; restir methods lists every method's parameters.\n"
+    "--params '{\"spatial_neighbors\": 0}'; restir methods lists every method's parameters. A still\n" \
+    "image of pt (the one --crop and --frame take) is not a session's frame and takes no --params:\n" \
+    "give --frames 1 beside --params.\n"
 
 /* The usage text, then the methods --method takes, from the registry. */
 static void cli_usage(FILE *out)

@@ -28,3 +28,19 @@ def test_the_spp_default_holds_beside_params_that_leave_spp_out(tmp_path, scenes
     assert spp("--method", "sms", "--params", '{"max_depth": 8}') == 16
     assert spp("--method", "pt", "--params", '{"nee": false}') == 16
     assert spp("--method", "sms_ssp", "--params", '{"spp": 2, "max_depth": 8}') == 2
+
+
+def test_params_with_a_still_pt_image_is_refused_as_documented(tmp_path, scenes):
+    # The still image of pt is the path tracer alone (what --crop and --frame take), not a
+    # session's frame: --params needs --frames, and the help and the documents say so.
+    def render(*args):
+        return run_cli("render", scenes / "cornell-box", "--size", "4x4", "--params", '{"nee": false}', *args,
+                       "-o", tmp_path / "x.exr")
+    res = render()
+    assert res.returncode == 2
+    assert res.stderr.splitlines()[0] == "restir: --params needs --frames, --animation or a method other than pt"
+    assert render("--frames", "1").returncode == 0
+    docs = {"--help": run_cli("--help").stdout, "README.md": (ROOT / "README.md").read_text(),
+            "docs/methods.md": (ROOT / "docs" / "methods.md").read_text()}
+    for name, text in docs.items():
+        assert re.search(r"takes\s+no\s+`?--params`?[^.]*--frames 1", text), name
