@@ -38,9 +38,9 @@ RENDERER_SRC := $(wildcard renderer/*/*.c)
 RENDERER_OBJ := $(RENDERER_SRC:%.c=$(OBJ)/%.o)
 PROTOCOL_SRC := $(wildcard protocol/*.c)
 PROTOCOL_OBJ := $(PROTOCOL_SRC:%.c=$(OBJ)/%.o)
-# The daemon's modules as a library (everything but the two programs' main files), so unit
-# tests can link the registry and the HTTP-free parts of the server.
-SERVER_SRC   := $(filter-out server/main.c server/cli.c,$(wildcard server/*.c))
+# The daemon's modules as a library (everything but the two programs' main files and the build's
+# commit), so unit tests can link the registry and the HTTP-free parts of the server.
+SERVER_SRC   := $(filter-out server/main.c server/cli.c server/version.c,$(wildcard server/*.c))
 SERVER_OBJ   := $(SERVER_SRC:%.c=$(OBJ)/%.o)
 UNIT_SRC     := $(wildcard tests/unit/test_*.c)
 UNIT_BIN     := $(UNIT_SRC:tests/unit/%.c=$(OUT)/tests/%)
@@ -89,18 +89,23 @@ $(OBJ)/server/%.o: server/%.c Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) -Irenderer -Iprotocol -Iserver -c $< -o $@
 
-# The commit the binaries are built from (server/version.h). The stamp file holds it and is
-# rewritten only when it changes, so a new HEAD recompiles server/version.c and nothing else.
-COMMIT       := $(or $(shell git rev-parse --short HEAD 2>/dev/null),unknown)
+# The commit the binaries are built from (server/version.h): COMMIT=abc1234 (on the command line
+# or in the environment) where the tree is no git checkout, as in the image's build, which
+# .dockerignore keeps .git out of (docker build --build-arg COMMIT=...); else HEAD. The stamp
+# file holds it and is rewritten only when it changes, so a new commit recompiles
+# server/version.c and relinks the two programs, the only ones that link it (not libserver.a,
+# which every unit test links).
+BUILD_COMMIT := $(or $(COMMIT),$(shell git rev-parse --short HEAD 2>/dev/null),unknown)
 COMMIT_STAMP := $(OBJ)/commit-stamp
+VERSION_OBJ  := $(OBJ)/server/version.o
 FORCE:
 $(COMMIT_STAMP): FORCE
 	@mkdir -p $(dir $@)
-	@echo '$(COMMIT)' | cmp -s - $@ || echo '$(COMMIT)' > $@
+	@echo '$(BUILD_COMMIT)' | cmp -s - $@ || echo '$(BUILD_COMMIT)' > $@
 
-$(OBJ)/server/version.o: server/version.c $(COMMIT_STAMP) Makefile | $(DEPS_OK)
+$(VERSION_OBJ): server/version.c $(COMMIT_STAMP) Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
-	$(CC) $(CFLAGS) -DRESTIRD_COMMIT='"$(COMMIT)"' -Iserver -c $< -o $@
+	$(CC) $(CFLAGS) -DRESTIRD_COMMIT='"$(BUILD_COMMIT)"' -Iserver -c $< -o $@
 
 $(OBJ)/librenderer.a: $(RENDERER_OBJ)
 	@rm -f $@
@@ -135,10 +140,10 @@ $(OBJ)/webui_files.c: $(WEB_PAGE) $(WEB_NPM) scripts/embed_web.py Makefile
 $(OBJ)/webui_files.o: $(OBJ)/webui_files.c server/webui.h
 	$(CC) $(CFLAGS) -Iserver -c $< -o $@
 
-$(OUT)/restir: $(OBJ)/server/cli.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
+$(OUT)/restir: $(OBJ)/server/cli.o $(VERSION_OBJ) $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
 	$(CC) $(CFLAGS) $^ $(LDLIBS) -o $@
 
-$(OUT)/restird: $(OBJ)/server/main.o $(OBJ)/openapi.o $(OBJ)/webui_files.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
+$(OUT)/restird: $(OBJ)/server/main.o $(VERSION_OBJ) $(OBJ)/openapi.o $(OBJ)/webui_files.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
 	$(CC) $(CFLAGS) $^ $(SERVER_LDLIBS) $(LDLIBS) -o $@
 
 $(OUT)/tests/%: $(OBJ)/tests/unit/%.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
@@ -327,4 +332,4 @@ clean:
 	       $(WEB)/node_modules
 
 -include $(wildcard $(FUZZ_OBJ)/*/*.d $(FUZZ_OBJ)/*/*/*.d)
--include $(RENDERER_OBJ:.o=.d) $(PROTOCOL_OBJ:.o=.d) $(SERVER_OBJ:.o=.d) $(OBJ)/server/cli.d $(OBJ)/server/main.d $(UNIT_SRC:tests/unit/%.c=$(OBJ)/tests/unit/%.d)
+-include $(RENDERER_OBJ:.o=.d) $(PROTOCOL_OBJ:.o=.d) $(SERVER_OBJ:.o=.d) $(OBJ)/server/cli.d $(OBJ)/server/main.d $(VERSION_OBJ:.o=.d) $(UNIT_SRC:tests/unit/%.c=$(OBJ)/tests/unit/%.d)

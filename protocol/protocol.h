@@ -58,6 +58,16 @@ bool protocol_valid_id(const char *s, size_t len);
 bool protocol_parse_session_create(const char *body, size_t len, const struct protocol_limits *limits,
                                    struct view_params *out, struct err *err);
 
+/* A session's "params" object on its own, text[0..len) (the CLI's --params), read exactly as
+ * protocol_parse_session_create reads it for vp->method, over the values already in
+ * vp->method_params (the method's defaults). Bit i of *given is set when the object names
+ * vp->method->params[i] (a table has at most 32 parameters, json_check_keys' limit), so a
+ * caller can put its own values under the keys left out. Positions in syntax errors count from
+ * text's first byte; pointers name /params/<key> as in a session's body. *vp and *given are
+ * written only on success. */
+bool protocol_parse_method_params(const char *text, size_t len, const struct protocol_limits *limits,
+                                  struct view_params *vp, uint32_t *given, struct err *err);
+
 /* A partial camera: only the members present in the request are set. up must be non-zero;
  * position != look_at is checked when both are in the same object, and up not parallel to the
  * view direction when all three are (the server checks the camera it completes). */

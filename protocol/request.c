@@ -280,21 +280,28 @@ bool protocol_check_json(const char *text, size_t len, struct err *err)
     return request_scan_all(text, len, err);
 }
 
+/* Parses one JSON value (any type) past the gate into *root. */
+static bool request_parse_value(const char *text, size_t len, cJSON **root, struct err *err)
+{
+    *root = NULL;
+    if (!text && len) return err_set(err, ERR_INVALID, "", "no body text");
+    if (!request_scan_all(text, len, err)) return false;
+    const char *end = NULL;
+    *root = cJSON_ParseWithLengthOpts(text, len, &end, false);
+    /* The gate accepted the text, so a failure here is cJSON running out of memory. */
+    return *root ? true : err_set(err, ERR_NOMEM, "", "out of memory parsing the body");
+}
+
 /* Parses a request body into *root (an object). An empty body is {} (every request's members
  * are optional or reported missing by name). */
 static bool request_parse(const char *body, size_t len, cJSON **root, struct err *err)
 {
     *root = NULL;
-    if (!body && len) return err_set(err, ERR_INVALID, "", "no body text");
     if (len == 0) {
         *root = cJSON_CreateObject();
         return *root ? true : err_set(err, ERR_NOMEM, "", "out of memory parsing the body");
     }
-    if (!request_scan_all(body, len, err)) return false;
-    const char *end = NULL;
-    *root = cJSON_ParseWithLengthOpts(body, len, &end, false);
-    /* The gate accepted the text, so a failure here is cJSON running out of memory. */
-    if (!*root) return err_set(err, ERR_NOMEM, "", "out of memory parsing the body");
+    if (!request_parse_value(body, len, root, err)) return false;
     if (!cJSON_IsObject(*root)) {
         const char *what = cJSON_IsArray(*root) ? "an array" : cJSON_IsString(*root) ? "a string"
                          : cJSON_IsNumber(*root) ? "a number" : cJSON_IsBool(*root) ? "a boolean" : "null";
@@ -561,7 +568,8 @@ static bool request_key_time(const cJSON *key, const char *ptr, double prev, dou
  * max_spp too); then the method's own validation checks what the table cannot (its pointers name
  * /params/<key>). */
 static bool request_method_params(const cJSON *pv, const char *ptr, const struct method_desc *m,
-                                  const struct protocol_limits *limits, void *params, struct err *err)
+                                  const struct protocol_limits *limits, void *params, uint32_t *given,
+                                  struct err *err)
 {
     char context[64];
     snprintf(context, sizeof context, " in %s params", m->name);
@@ -574,6 +582,7 @@ static bool request_method_params(const cJSON *pv, const char *ptr, const struct
         const struct method_param *mp = &m->params[i];
         const cJSON *v = request_member(pv, ptr, mp->key, p);
         if (!v) continue;
+        *given |= 1u << i;
         unsigned char *at = (unsigned char *)params + mp->offset;
         switch (mp->kind) {
         case METHOD_PARAM_UINT: {
@@ -620,6 +629,26 @@ static bool request_method_params(const cJSON *pv, const char *ptr, const struct
         }
     }
     return m->validate(params, err);
+}
+
+/* A default within a parameter's range may still be over a configured limit. */
+static bool request_defaults_within_limits(const struct view_params *vp, const struct protocol_limits *limits,
+                                           struct err *err)
+{
+    const struct method_desc *method = vp->method;
+    for (uint32_t i = 0; i < method->param_count; i++) {
+        const struct method_param *mp = &method->params[i];
+        uint32_t value;
+        if (!(mp->flags & METHOD_PARAM_SPP_LIMIT)) continue;
+        memcpy(&value, vp->method_params + mp->offset, sizeof value);
+        if (value > limits->max_spp) {
+            char at[REQUEST_PTR];
+            json_pointer_key(at, sizeof at, "/params", mp->key);
+            return err_set(err, ERR_LIMIT, at, "the default %s %u is over the limit max_spp = %u (send params.%s)",
+                           mp->key, value, limits->max_spp, mp->key);
+        }
+    }
+    return true;
 }
 
 /* A side: given (1..max_side) or the default, which must be within the limit too. */
@@ -672,22 +701,26 @@ bool protocol_parse_session_create(const char *body, size_t len, const struct pr
         vp.seed = ok ? (uint64_t)seed : 0;
     }
     const cJSON *pv = request_member(root, "", "params", p);
-    if (ok && pv) ok = request_method_params(pv, p, method, limits, vp.method_params, err);
-    /* A default within a parameter's range may still be over a configured limit. */
-    for (uint32_t i = 0; ok && i < method->param_count; i++) {
-        const struct method_param *mp = &method->params[i];
-        uint32_t value;
-        if (!(mp->flags & METHOD_PARAM_SPP_LIMIT)) continue;
-        memcpy(&value, vp.method_params + mp->offset, sizeof value);
-        if (value > limits->max_spp) {
-            char at[REQUEST_PTR];
-            json_pointer_key(at, sizeof at, "/params", mp->key);
-            ok = err_set(err, ERR_LIMIT, at, "the default %s %u is over the limit max_spp = %u (send params.%s)",
-                         mp->key, value, limits->max_spp, mp->key);
-        }
-    }
+    uint32_t given = 0;
+    if (ok && pv) ok = request_method_params(pv, p, method, limits, vp.method_params, &given, err);
+    ok = ok && request_defaults_within_limits(&vp, limits, err);
     cJSON_Delete(root);
     if (ok) *out = vp;
+    return ok;
+}
+
+bool protocol_parse_method_params(const char *text, size_t len, const struct protocol_limits *limits,
+                                  struct view_params *vp, uint32_t *given, struct err *err)
+{
+    if (!vp || !vp->method || !limits || !given) return err_set(err, ERR_INVALID, "", "no parameters or limits given");
+    cJSON *root;
+    if (!request_parse_value(text, len, &root, err)) return false;
+    struct view_params parsed = *vp;
+    uint32_t set = 0;
+    bool ok = request_method_params(root, "/params", vp->method, limits, parsed.method_params, &set, err) &&
+              request_defaults_within_limits(&parsed, limits, err);
+    cJSON_Delete(root);
+    if (ok) *vp = parsed, *given = set;
     return ok;
 }
 

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Installs every Debian package restird needs to build, test and benchmark, and the optional
 # packages named as arguments (make bench-report: blender, the report's peer, ~300 MB).
-# `--build` first installs only what `make` needs to build build/restir and build/restird (the
-# image's build stage: no browser, fuzzer, load tools or test libraries).
+# `--build`, anywhere among the arguments, installs only what `make` needs to build build/restir
+# and build/restird (the image's build stage: no browser, fuzzer, load tools or test libraries).
 # Idempotent: does nothing (and needs no network) when all packages are present.
 set -euo pipefail
 
@@ -28,15 +28,22 @@ test_packages=(
   chromium               # browser tests of the preview page (make test-web)
   clang libclang-rt-14-dev  # libFuzzer targets (make fuzz, the smoke in make test)
 )
+# --build may stand anywhere among the package names (`install-deps.sh blender --build`); any
+# other option is refused, so that apt never receives one as a package name.
+build_only=0
+extra=()
+for arg in "$@"; do
+  case "$arg" in
+    --build) build_only=1 ;;
+    -*) echo "install-deps: unknown option '$arg' (usage: install-deps.sh [--build] [PACKAGE...])" >&2; exit 2 ;;
+    *) extra+=("$arg") ;;
+  esac
+done
 packages=("${build_packages[@]}")
-if [ "${1:-}" = --build ]; then
-  shift
-else
-  packages+=("${test_packages[@]}")
-fi
+[ "$build_only" -eq 1 ] || packages+=("${test_packages[@]}")
 # npm comes with some builds of nodejs and as Debian's own package with others.
 command -v npm >/dev/null || packages+=(npm)
-packages+=("$@")
+packages+=("${extra[@]}")
 
 missing=()
 for p in "${packages[@]}"; do

@@ -24,10 +24,13 @@
 #include "session/view.h"
 #include "version.h"
 
-#include <cjson/cJSON.h>
-
 /* The most samples per pixel and frame the CLI takes (--spp and --params). */
 #define CLI_MAX_SPP (1u << 24)
+
+/* What the CLI accepts in --params and --animation: the daemon's parsers, with limits that
+ * only the options' own ranges bound. */
+static const struct protocol_limits cli_limits = {.max_side = 16384, .max_pixels = 16384ull * 16384ull,
+                                                  .max_spp = CLI_MAX_SPP, .max_frames = 1000000, .max_keys = 100000};
 
 #define CLI_USAGE                                                                                  \
     "usage:\n"                                                                                     \
@@ -65,9 +68,11 @@
     "Inf channel has an infinite error (above any T), and more than N of them fail\n"             \
     "(--fail-nonfinite, default 0).\n"                                                             \
     "--params sets the method's parameters as the daemon's session \"params\" object (keys it\n"  \
-    "leaves out take the options given, else the method's defaults; an option and a key that\n" \
-    "set the same parameter are refused), e.g. --params '{\"spatial_neighbors\": 0}'; restir methods\n" \
-    "lists every method's parameters.\n"
+    "leaves out take the options given, else their defaults: spp --spp's 16, the others the\n"  \
+    "method's own; an option and a key that set the same parameter are refused), e.g.\n"           \
+    "--params '{\"spatial_neighbors\": 0}'; restir methods lists every method's parameters. A still\n" \
+    "image of pt (the one --crop and --frame take) is not a session's frame and takes no --params:\n" \
+    "give --frames 1 beside --params.\n"
 
 /* The usage text, then the methods --method takes, from the registry. */
 static void cli_usage(FILE *out)
@@ -127,10 +132,9 @@ static int cli_methods(int argc, char **argv)
         }
         return 0;
     }
-    const struct protocol_limits limits = {.max_spp = CLI_MAX_SPP};
     struct jsonw w;
     jsonw_init(&w);
-    protocol_write_methods(&w, &limits);
+    protocol_write_methods(&w, &cli_limits);
     size_t len = 0;
     char *text = jsonw_finish(&w, &len);
     if (!text) {
@@ -237,24 +241,6 @@ static bool cli_parse_crop(const char *s, uint32_t v[4])
     return tok == NULL;
 }
 
-/* --params: the method's parameters, parsed and checked as the daemon parses a session's. */
-static bool cli_method_params(const char *params_json, struct view_params *vp, struct err *err)
-{
-    size_t len = strlen(params_json) + 256;
-    char *body = malloc(len);
-    if (!body) return err_set(err, ERR_NOMEM, NULL, "out of memory");
-    snprintf(body, len, "{\"method\":\"%s\",\"width\":%u,\"height\":%u,\"params\":%s}",
-             vp->method->name, vp->width, vp->height, params_json);
-    const struct protocol_limits limits = {.max_side = 16384, .max_pixels = 16384ull * 16384ull, .max_spp = CLI_MAX_SPP,
-                                           .max_frames = 1000000, .max_keys = 100000};
-    struct view_params parsed;
-    bool ok = protocol_parse_session_create(body, strlen(body), &limits, &parsed, err);
-    free(body);
-    if (!ok) return false;
-    memcpy(vp->method_params, parsed.method_params, sizeof vp->method_params);
-    return true;
-}
-
 /* The methods with a parameter named `key`, for messages. */
 static const char *cli_methods_with(const char *key, const char *or_key)
 {
@@ -278,11 +264,18 @@ struct cli_param_option {
     uint32_t value;                    /* a uint parameter's value, checked against its range */
 };
 
+/* --params names the method's parameter `key`: `params_given` has bit i set when it names
+ * rm->params[i] (protocol_parse_method_params). */
+static bool cli_params_name(const struct method_desc *rm, uint32_t params_given, const char *key)
+{
+    const struct method_param *mp = method_param_find(rm, key);
+    return mp && (params_given & (1u << (mp - rm->params)));
+}
+
 /* Each option given must set a parameter the method has, and --params must not set the same
- * one: the usage message, or NULL when the options hold. `params` is the parsed --params (or
- * NULL). */
+ * one: the usage message, or NULL when the options hold. */
 static const char *cli_check_param_options(const struct method_desc *rm, const struct cli_param_option *opts,
-                                           size_t count, const cJSON *params, char *msg, size_t size)
+                                           size_t count, uint32_t params_given, char *msg, size_t size)
 {
     for (size_t i = 0; i < count; i++) {
         const struct cli_param_option *o = &opts[i];
@@ -311,7 +304,7 @@ static const char *cli_check_param_options(const struct method_desc *rm, const s
                      o->value);
             return msg;
         }
-        if (params && cJSON_GetObjectItemCaseSensitive(params, o->key)) {
+        if (cli_params_name(rm, params_given, o->key)) {
             snprintf(msg, size, "%s and \"%s\" in --params both set %s's %s: give it once", o->option, o->key,
                      rm->name, o->key);
             return msg;
@@ -350,10 +343,8 @@ static int cli_render_sequence(struct scene *scene, const struct view_params *vp
             fprintf(stderr, "restir: %s\n", err_format(&err, msg, sizeof msg));
             return 1;
         }
-        const struct protocol_limits limits = {.max_side = 16384, .max_pixels = 16384ull * 16384ull,
-                                               .max_spp = CLI_MAX_SPP, .max_frames = 1000000, .max_keys = 100000};
         struct protocol_render_request rq;
-        bool ok = protocol_parse_render_request(text, len, &limits, &rq, &err) &&
+        bool ok = protocol_parse_render_request(text, len, &cli_limits, &rq, &err) &&
                   animate_resolve(&rq, scene, &scene->camera, &anim, &err);
         free(text);
         if (!ok) {
@@ -524,14 +515,15 @@ static int cli_render(int argc, char **argv)
         return cli_usage_error("%s", "--crop and --frame do not combine with --frames or --animation");
     if (!sequence && params_json)
         return cli_usage_error("--params needs --frames, --animation or a method other than %s", cli_still_methods());
-    cJSON *params_tree = NULL;
+    /* A sequence's parameters: the method's defaults, --params over them (read as the daemon
+     * reads a session's), then the options below over the keys --params leaves out. */
+    struct view_params vp = view_params_defaults(rm, width, height);
+    uint32_t params_given = 0;
     if (params_json) {
-        /* Checked on its own first, so a syntax error's position is within the argument. */
         struct err perr = {0};
         char pmsg[1024];
-        if (!protocol_check_json(params_json, strlen(params_json), &perr))
+        if (!protocol_parse_method_params(params_json, strlen(params_json), &cli_limits, &vp, &params_given, &perr))
             return cli_usage_error("--params: %s", err_format(&perr, pmsg, sizeof pmsg));
-        params_tree = cJSON_Parse(params_json);
     }
     const char *nee_key = method_param_find(rm, "nee")              ? "nee"
                           : method_param_find(rm, "nee_candidates") ? "nee_candidates"
@@ -543,9 +535,7 @@ static int cli_render(int argc, char **argv)
                                                   {"--no-nee", nee_key, !p.nee, 0}};
     char refusal[512];
     const char *refused = cli_check_param_options(rm, param_opts, sizeof param_opts / sizeof param_opts[0],
-                                                  cJSON_IsObject(params_tree) ? params_tree : NULL, refusal,
-                                                  sizeof refusal);
-    cJSON_Delete(params_tree);
+                                                  params_given, refusal, sizeof refusal);
     if (refused) return cli_usage_error("%s", refused);
     p.width = width;
     p.height = height;
@@ -585,16 +575,11 @@ static int cli_render(int argc, char **argv)
     uint32_t frame_spp = p.spp;
     uint32_t reservoir_bytes = 0;   /* per pixel and reservoir buffer */
     if (sequence) {
-        struct view_params vp = view_params_defaults(rm, width, height);
         vp.seed = p.seed;
-        if (params_json && !cli_method_params(params_json, &vp, &err)) {
-            fprintf(stderr, "restir: --params: %s\n", err_format(&err, msg, sizeof msg));
-            scene_release(scene);
-            return 2;
-        }
         /* The options given, on top: --params sets none of their parameters (checked above).
-         * Without --params the CLI's own spp default (16) holds too. */
-        if (has_spp || !params_json) view_params_set_uint(&vp, "spp", p.spp);
+         * The CLI's own spp default (16) holds too unless --params names spp, so adding
+         * --params for another key does not change the samples per frame. */
+        if (!cli_params_name(rm, params_given, "spp")) view_params_set_uint(&vp, "spp", p.spp);
         if (has_max_depth) view_params_set_uint(&vp, "max_depth", p.max_depth);
         if (has_rr_depth) view_params_set_uint(&vp, "rr_depth", p.rr_depth);
         if (!p.nee && !view_params_set_bool(&vp, "nee", false)) view_params_set_uint(&vp, "nee_candidates", 0);

@@ -77,3 +77,15 @@ def run_cli(*args, timeout=120):
 @pytest.fixture
 def scenes():
     return ROOT / "scenes"
+
+
+def build_commit(binary):
+    """The commit a binary this Makefile built must report: the one in the stamp make wrote
+    beside its objects (build/obj/commit-stamp, which follows HEAD or COMMIT= at every make, so
+    a tree that moved on since its build still agrees), else HEAD of this checkout, else
+    "unknown" (a tree without git and no COMMIT=)."""
+    stamp = Path(binary).resolve().parent / "obj" / "commit-stamp"
+    if stamp.exists():
+        return stamp.read_text().strip()
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+    return head.stdout.strip() if head.returncode == 0 else "unknown"

@@ -5,11 +5,12 @@ import json
 import re
 import shlex
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import ROOT, read_exr, run_cli
+from conftest import BIN, ROOT, build_commit, read_exr, run_cli
 from daemon import BIN as DAEMON_BIN
 
 METHODS = json.loads(run_cli("methods", "--json").stdout)["methods"]
@@ -123,13 +124,19 @@ def test_other_silent_cases_are_refused(tmp_path, scenes):
 
 
 def test_version_names_the_commit():
-    # Both programs, one version and one commit (the build's).
+    # Both programs, one version and one commit: the build's (conftest.build_commit).
     cli = run_cli("--version")
     daemon = subprocess.run([DAEMON_BIN, "--version"], capture_output=True, text=True, timeout=30)
     assert cli.returncode == 0 and daemon.returncode == 0, (cli.stderr, daemon.stderr)
     m = re.fullmatch(r"restir (\d+\.\d+\.\d+) \(commit ([0-9a-f]{7,40}|unknown)\)\n", cli.stdout)
-    assert m, cli.stdout
+    assert m and m[2] == build_commit(BIN), (cli.stdout, build_commit(BIN))
     assert daemon.stdout == f"restird {m[1]} (commit {m[2]})\n"
+    # The commit is linked into the two programs alone: the server library, which every unit
+    # test links, holds none, so a new commit relinks no test.
+    members = subprocess.run(["gcc-ar", "t", Path(BIN).resolve().parent / "obj" / "libserver.a"],
+                             capture_output=True, text=True, timeout=30)
+    assert members.returncode == 0 and "prom.o" in members.stdout.split(), members
+    assert "version.o" not in members.stdout.split(), members.stdout
 
 
 # ---- restir compare ------------------------------------------------------------------------------

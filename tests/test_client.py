@@ -742,7 +742,7 @@ def test_pip_installs_the_client_with_its_command(fake, tmp_path):
                           "--target", str(site), str(src)], capture_output=True, text=True, env=env, timeout=300)
     assert run.returncode == 0, run.stdout + run.stderr
     assert (site / "restir.py").read_bytes() == (ROOT / "clients" / "python" / "restir.py").read_bytes()
-    (info,) = site.glob("restir_client-*.dist-info")
+    (info,) = site.glob(f"restir_client-{restir.__version__}.dist-info")   # pyproject.toml reads it
     assert "restir-client = restir:main" in (info / "entry_points.txt").read_text()
     assert "Requires-Dist" not in (info / "METADATA").read_text()       # standard library only
     command = site / "bin" / "restir-client"

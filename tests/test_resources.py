@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from daemon import Daemon
+from conftest import build_commit
+from daemon import BIN as DAEMON_BIN, Daemon
 from test_daemon import assert_problem, new_session, wait_job, write_exr
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -213,7 +214,10 @@ def test_metrics_process_and_build_info(daemon):
     info = re.findall(r'^restird_build_info\{version="([^"]+)",commit="([^"]+)"\} 1$', text, re.M)
     header = (ROOT / "server" / "version.h").read_text()
     version = re.search(r'#define RESTIRD_VERSION "([^"]+)"', header).group(1)
-    assert len(info) == 1 and info[0][0] == version and info[0][1], text
+    assert info == [(version, build_commit(DAEMON_BIN))], text
+    # The Python client carries the same release (its package's version is this __version__).
+    client = (ROOT / "clients" / "python" / "restir.py").read_text()
+    assert re.findall(r'^__version__ = "([^"]+)"$', client, re.M) == [version]
 
 
 # ---- the API description ----

@@ -43,6 +43,9 @@ import uuid
 
 __all__ = ["Client", "Session", "RestirError", "orbit_keys", "parse_sse", "merge_frame_change", "main"]
 
+# The release of restird this client goes with (server/version.h's RESTIRD_VERSION; the package's
+# version in pyproject.toml is read from here).
+__version__ = "0.1.0"
 DEFAULT_SERVER = os.environ.get("RESTIRD_URL", "http://127.0.0.1:8080")
 PROBLEM_PREFIX = "urn:restird:problem:"
 

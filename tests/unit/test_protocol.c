@@ -149,6 +149,31 @@ static void test_session_valid(void)
     CHECK(err.code == ERR_LIMIT && strcmp(err.where, "/width") == 0 && strstr(err.message, "default"));
 }
 
+/* A params object on its own: the keys it names are reported, the others keep their values. */
+static void test_method_params_alone(void)
+{
+    const struct method_desc *pt = method_find("pt");
+    struct view_params vp = view_params_defaults(pt, 8, 8);
+    const uint32_t default_spp = PT(vp)->spp;
+    uint32_t given = 0;
+    struct err err;
+    const char *text = "{\"max_depth\": 3, \"nee\": false}";
+    CHECK(protocol_parse_method_params(text, strlen(text), &LIMITS, &vp, &given, &err));
+    CHECK(PT(vp)->max_depth == 3 && !PT(vp)->nee && PT(vp)->spp == default_spp);
+    uint32_t expect = 0;
+    for (uint32_t i = 0; i < pt->param_count; i++)
+        if (strcmp(pt->params[i].key, "max_depth") == 0 || strcmp(pt->params[i].key, "nee") == 0) expect |= 1u << i;
+    CHECK(given == expect);
+    /* Errors: positions within the text, pointers as in a session's body; nothing written. */
+    text = "{\"spp\": 0}";
+    CHECK(!protocol_parse_method_params(text, strlen(text), &LIMITS, &vp, &given, &err));
+    CHECK(strcmp(err.where, "/params/spp") == 0 && given == expect);
+    CHECK(!protocol_parse_method_params("{bad", 4, &LIMITS, &vp, &given, &err));
+    CHECK(err.code == ERR_PARSE && strstr(err.message, "at byte 1"));
+    CHECK(!protocol_parse_method_params("[]", 2, &LIMITS, &vp, &given, &err));
+    CHECK(strcmp(err.where, "/params") == 0);
+}
+
 static void test_frame_valid(void)
 {
     const char *body =
@@ -797,7 +822,8 @@ static void test_problem_json(void)
     free(text);
 }
 
-TEST_MAIN(TEST(test_valid_id), TEST(test_pointer_key), TEST(test_session_valid), TEST(test_frame_valid),
+TEST_MAIN(TEST(test_valid_id), TEST(test_pointer_key), TEST(test_session_valid), TEST(test_method_params_alone),
+          TEST(test_frame_valid),
           TEST(test_render_valid), TEST(test_reference_valid), TEST(test_malformed_table), TEST(test_malformed_built),
           TEST(test_render_failure_frees), TEST(test_mutations_never_crash),
           TEST(test_jsonw_round_trip), TEST(test_jsonw_failures),
