@@ -198,13 +198,23 @@ static void jobs_run_reference(struct jobs *q, struct job *j)
         return;
     }
     image_scale(&sum, 1.0f / (float)passes);
-    bool replaced;
-    if (!refstore_put(q->refs, s->scene_id, j->ref_name, &sum, spp_pass * passes,
-                      protocol_reference_method_name(j->ref_method), &replaced, &j->error)) {
-        jobs_fail(j, 503, j->error.code == ERR_BUSY ? "memory-budget" : "busy");
-        return;
+    /* Cancelled during its last pass (the job deleted, or its session, which a client deletes
+     * before the reference when it cleans up): nothing is stored. The check and the store are
+     * one step under the session lock, so once a DELETE of the session has answered, the
+     * reference is either stored already or never will be. */
+    pthread_mutex_lock(&s->lock);
+    bool cancelled = atomic_load(&j->cancel) || s->deleted;
+    bool replaced, stored = false;
+    if (cancelled) {
+        image_destroy(&sum);
+        j->status = JOB_CANCELLED;
+    } else {
+        stored = refstore_put(q->refs, s->scene_id, j->ref_name, &sum, spp_pass * passes,
+                              protocol_reference_method_name(j->ref_method), &replaced, &j->error);
+        if (stored) j->status = JOB_DONE;
     }
-    jobs_set_status(j, JOB_DONE);
+    pthread_mutex_unlock(&s->lock);
+    if (!cancelled && !stored) jobs_fail(j, 503, j->error.code == ERR_BUSY ? "memory-budget" : "busy");
 }
 
 static void *jobs_worker(void *arg)

@@ -104,6 +104,33 @@ def test_a_job_keeps_its_reference_after_delete(daemon, tmp_path):
     assert daemon.req("DELETE", s["href"]).status == 204
 
 
+def sessions_used(d):
+    return d.req("GET", "/v1/limits").json()["memory_used"]["sessions"]
+
+
+def test_a_reference_job_cancelled_in_its_last_pass_stores_nothing(daemon):
+    """Deleting the session while its reference job renders the last pass cancels the job: the
+    reference is never stored, so a client that deletes the session and then the reference
+    leaves nothing behind. (The session's bytes go back when the job lets go of it.)"""
+    sessions_before, refs_before = sessions_used(daemon), references_used(daemon)
+    s = new_session(daemon, width=8, height=8, params={"spp": 1})
+    r = daemon.req("POST", s["href"] + "/references/late", json_body={"spp": 65536})
+    assert r.status == 202, repr(r)
+    while True:
+        job = daemon.req("GET", r.header("Location")).json()
+        assert job["status"] in ("queued", "running"), job
+        if job["progress"]["frames_done"] == job["progress"]["frames_total"] - 1:
+            break
+        time.sleep(0.002)
+    assert daemon.req("DELETE", s["href"]).status == 204
+    deadline = time.monotonic() + 60
+    while sessions_used(daemon) != sessions_before:
+        assert time.monotonic() < deadline, "the reference job never let go of its session"
+        time.sleep(0.02)
+    assert "late" not in listed(daemon)
+    assert references_used(daemon) == refs_before
+
+
 def test_reference_post_idempotency_key(daemon):
     """The same key and body give the first job again and render nothing more; the same key
     with another body (or another name) is a 409, as for animation jobs."""
