@@ -49,7 +49,7 @@ struct session;
 struct job {
     char id[24];
     char idempotency_key[65];
-    uint64_t request_hash;           /* what the keyed request asked for (see api_job_replay) */
+    uint64_t request_hash;           /* what the keyed request asked for (see api_job_replay); set at creation */
     enum job_kind kind;
     enum job_status status;          /* under the session lock */
     atomic_bool cancel;
@@ -176,9 +176,15 @@ bool session_frame_kept_locked(const struct session *s, uint32_t epoch, uint32_t
 /* Appends an event (type and JSON data, copied) and wakes readers. */
 void session_post_event(struct session *s, const char *type, const char *json);
 
-/* Jobs. A job is created QUEUED with the session claimed for it (animation) and stays claimed
- * until it ends. Returns the job, or NULL (ERR_CONFLICT/ERR_NOMEM). */
-struct job *session_job_new(struct session *s, enum job_kind kind, const char *idempotency_key, struct err *err);
+/* Jobs. A new job (QUEUED, its key and `request_hash` set; NULL on ERR_NOMEM) is filled in by
+ * its caller, then added to the session; job_destroy frees one that was not added. */
+struct job *job_new(struct session *s, enum job_kind kind, const char *idempotency_key, uint64_t request_hash,
+                    struct err *err);
+/* Adds j and gives it its id, and with `claim` claims the session for it (an animation, which
+ * stays claimed until it ends). When a job of the session already has j's idempotency key,
+ * nothing is added or claimed: false with *exists set. Other errors: ERR_CONFLICT/ERR_NOT_FOUND
+ * (the session is busy or deleted), ERR_BUSY (too many unfinished jobs). */
+bool session_job_add(struct session *s, struct job *j, bool claim, bool *exists, struct err *err);
 struct job *session_job_find(struct session *s, const char *rid);
 struct job *session_job_find_key(struct session *s, const char *key);
 void job_destroy(struct job *j);

@@ -4,9 +4,12 @@ jobs and which of a finished job's frames are still kept; the process and build 
 GET /metrics; and that openapi.yaml documents exactly the daemon's routes.
 
 One daemon with a short frame ring (--frames-kept 3) serves the file; images are 8x8."""
+import http.client
+import json
 import re
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -153,6 +156,42 @@ def test_reference_post_idempotency_key(daemon):
     wait_job(daemon, first.header("Location"))
     assert len(daemon.req("GET", s["href"] + "/renders").json()["renders"]) == 1
     assert daemon.req("DELETE", f"{CORNELL}/references/idem").status == 204
+    assert daemon.req("DELETE", s["href"]).status == 204
+
+
+def post_at_once(d, path, body, headers, n):
+    """n POSTs sent back to back on connections opened beforehand, so they overlap in the
+    daemon; their answers in order."""
+    conns = [http.client.HTTPConnection("127.0.0.1", d.port, timeout=60) for _ in range(n)]
+    data = json.dumps(body).encode()
+    try:
+        for c in conns:
+            c.connect()
+        for c in conns:
+            c.request("POST", path, body=data, headers={"Content-Type": "application/json", **headers})
+        return [(r.status, json.loads(r.read())) for r in (c.getresponse() for c in conns)]
+    finally:
+        for c in conns:
+            c.close()
+
+
+@pytest.mark.concurrency
+@pytest.mark.parametrize("path, body", [("/references/together", {"spp": 16}),
+                                        ("/renders", {"animation": {"fps": 10, "frames": 2}})])
+def test_requests_sent_at_once_with_one_key_make_one_job(daemon, path, body):
+    """Requests under one Idempotency-Key that arrive together all get the same job: one of them
+    makes it, the others are answered with it, none gets a 409."""
+    s = new_session(daemon, width=8, height=8, params={"spp": 1})
+    rounds = 10
+    for round in range(rounds):
+        key = f"together-{round}-{time.monotonic_ns()}"
+        answers = post_at_once(daemon, s["href"] + path, body, {"Idempotency-Key": key}, 6)
+        assert [status for status, _ in answers] == [202] * 6, answers
+        assert len({job["id"] for _, job in answers}) == 1, answers
+        wait_job(daemon, answers[0][1]["location"])
+    assert len(daemon.req("GET", s["href"] + "/renders").json()["renders"]) == rounds
+    if path.startswith("/references/"):
+        assert daemon.req("DELETE", f"{CORNELL}{path}").status == 204
     assert daemon.req("DELETE", s["href"]).status == 204
 
 
