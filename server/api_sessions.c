@@ -671,8 +671,7 @@ static void api_write_job(struct jsonw *w, struct session *s, const struct job *
     }
     jsonw_key(w, "frames_evicted"); jsonw_uint(w, j->kind == JOB_ANIMATION ? first_kept : 0);
     jsonw_key(w, "reference");
-    if (j->kind == JOB_REFERENCE) jsonw_string(w, j->ref_name);
-    else if (j->reference) jsonw_string(w, j->reference->name);
+    if (j->ref_name[0]) jsonw_string(w, j->ref_name);
     else jsonw_null(w);
     if (j->kind == JOB_REFERENCE) {
         char href[256];
@@ -830,6 +829,7 @@ void api_renders_post(struct api_call *c)
         goto out;
     }
     j->reference = ref;
+    if (ref) snprintf(j->ref_name, sizeof j->ref_name, "%s", ref->name);
     j->fps = rq.fps;
     j->frames_total = rq.frames;
     j->frames = calloc(rq.frames, sizeof *j->frames);
@@ -921,7 +921,8 @@ void api_render_metrics(struct api_call *c)
     uint32_t n = j->frames_done;
     struct job_row *rows = malloc((n ? n : 1) * sizeof *rows);
     if (rows) memcpy(rows, j->rows, n * sizeof *rows);
-    const char *ref_name = other ? other->name : (j->reference ? j->reference->name : NULL);
+    char ref_name[sizeof j->ref_name];
+    snprintf(ref_name, sizeof ref_name, "%s", other ? other->name : j->ref_name);
     pthread_mutex_unlock(&s->lock);
     if (!rows) {
         api_problem(c, 503, "busy", NULL, "out of memory");
@@ -971,7 +972,7 @@ void api_render_metrics(struct api_call *c)
         jsonw_init(&w);
         jsonw_object_begin(&w);
         jsonw_key(&w, "reference");
-        if (ref_name) jsonw_string(&w, ref_name); else jsonw_null(&w);
+        if (ref_name[0]) jsonw_string(&w, ref_name); else jsonw_null(&w);
         jsonw_key(&w, "series");
         jsonw_array_begin(&w);
         for (uint32_t i = 0; i < n; i++) {

@@ -62,8 +62,8 @@ struct job {
     /* animation */
     double fps;
     struct view_animation anim;      /* arrays owned by the job */
-    struct ref_image *reference;     /* retained, or NULL */
-    /* reference */
+    struct ref_image *reference;     /* retained while the job runs, or NULL */
+    /* reference (an animation's: the name of the one it is measured against, or "") */
     char ref_name[65];
     uint32_t ref_spp;
     enum protocol_reference_method ref_method;

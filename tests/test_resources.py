@@ -93,7 +93,9 @@ def test_references_of_an_unknown_scene(daemon):
 
 def test_a_job_keeps_its_reference_after_delete(daemon, tmp_path):
     """An animation retains its reference from submission: deleting the reference while the job
-    runs takes it out of the listing, and every frame is still measured against it."""
+    runs takes it out of the listing, and every frame is still measured against it. Its bytes
+    stay in the budget while the job holds the pixels, and go back when the job ends."""
+    before = references_used(daemon)
     upload_reference(daemon, tmp_path, "held", value=0.5)
     s = new_session(daemon, width=8, height=8, params={"spp": 256})
     r = daemon.req("POST", s["href"] + "/renders", json_body={"animation": {"fps": 10, "frames": 100}, "reference": "held"})
@@ -102,7 +104,9 @@ def test_a_job_keeps_its_reference_after_delete(daemon, tmp_path):
     job = daemon.req("GET", r.header("Location")).json()
     assert job["status"] in ("queued", "running") and job["progress"]["frames_done"] < 100, job
     assert "held" not in listed(daemon)
+    assert references_used(daemon) == before + 768
     job = wait_job(daemon, r.header("Location"))
+    assert references_used(daemon) == before
     assert job["reference"] == "held"
     series = daemon.req("GET", r.header("Location") + "/metrics").json()["series"]
     assert len(series) == 100 and all(row["rmse"] is not None and row["rmse"] > 0 for row in series), series
