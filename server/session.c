@@ -314,7 +314,8 @@ static bool session_watch_stop(struct session_watch *w)
 
 /* The renderer's progress callback (about every 20 ms, on the rendering thread). Once every
  * job is done there is nothing left to skip: a frame whose client leaves then is whole, and the
- * session keeps it (and its reuse history) as any other. */
+ * session keeps it (and its reuse history) as any other; one whose session was deleted is
+ * dropped by session_render. */
 static void session_watch_progress(void *ctx, uint32_t done, uint32_t total)
 {
     struct session_watch *w = ctx;
@@ -350,6 +351,13 @@ bool session_render(struct session *s, struct gate *gate, bool bounded, const st
      * state allocates nothing per frame. */
     const struct image *img = &s->view.output;
     pthread_mutex_lock(&s->lock);
+    if (s->deleted) {
+        /* Deleted while a frame rendered that was not cut: a method that reports progress only
+         * at a frame's end, or a frame near its end. Nobody can fetch it, and its request must
+         * not answer as if the session still were. */
+        pthread_mutex_unlock(&s->lock);
+        return err_set(err, ERR_NOT_FOUND, NULL, "the session was deleted while its frame rendered");
+    }
     uint32_t frame = stats->frame;
     struct session_frame *slot = &s->ring[frame % s->frames_kept];
     if (!slot->img.pixels && !image_init(&slot->img, img->width, img->height, err)) {

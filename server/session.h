@@ -160,7 +160,8 @@ void session_unclaim(struct session *s);
  * The frame is given up, nothing kept, when the session is deleted (ERR_NOT_FOUND) or `stop`
  * (may be NULL; polled about every 20 ms) says its requester has gone (ERR_CONFLICT):
  * before it starts when it waited in the queue, and mid-frame for the methods that render in
- * samples per pixel (the methods that take spp), after which the session's sequence starts over. */
+ * samples per pixel (the methods that take spp), after which the session's sequence starts over.
+ * A whole frame is kept when its requester has gone, not when its session was deleted. */
 bool session_render(struct session *s, struct gate *gate, bool bounded, const struct view_frame_change *change,
                     struct job *job, uint32_t *n, struct frame_stats *stats, bool (*stop)(void *ctx), void *stop_ctx,
                     struct err *err);
