@@ -426,9 +426,9 @@ def test_whole_frame_kept_when_its_client_hangs_up(one_thread):
         sock.close()
         time.sleep(0.5)
     # Each left frame was either dropped before it started (409, nothing rendered) or rendered
-    # whole and kept: the count never falls back to 0.
+    # whole and kept: the count never falls back to 0, and the frames that started show in it.
     rendered = d.req("GET", s["href"]).json()["frames_rendered"]
-    assert rendered >= 2, rendered
+    assert rendered > 2, rendered
 
 
 @pytest.mark.concurrency
