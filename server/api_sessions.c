@@ -940,33 +940,33 @@ void api_render_metrics(struct api_call *c)
         }
     }
     if (strcmp(type, "text/csv") == 0) {
-        size_t cap = 128 + (size_t)n * 256, len = 0;
-        char *csv = malloc(cap);
-        if (!csv) {
+        struct prom_buf csv = {.cap = 256 + (size_t)n * 192};
+        csv.s = malloc(csv.cap);
+        if (csv.s)
+            prom_printf(&csv, "frame,time_s,render_ms,mape,rmse,relmse,converge_image,converge_frames,"
+                              "converge_mape,converge_rmse,converge_relmse\n");
+        for (uint32_t i = 0; csv.s && i < n; i++) {
+            prom_printf(&csv, "%u,%.9g,%.6g", rows[i].frame, rows[i].time_s, rows[i].render_ms);
+            if (rows[i].has_metrics)
+                prom_printf(&csv, ",%.9g,%.9g,%.9g", rows[i].m.mape, rows[i].m.rmse, rows[i].m.relmse);
+            else
+                prom_printf(&csv, ",,,");
+            if (rows[i].has_conv)
+                prom_printf(&csv, ",%s,%u,%.9g,%.9g,%.9g\n", api_converge_image(&rows[i]), rows[i].conv_frames,
+                            rows[i].conv.mape, rows[i].conv.rmse, rows[i].conv.relmse);
+            else
+                prom_printf(&csv, ",,,,,\n");
+        }
+        if (!csv.s || csv.failed) {
+            free(csv.s);
             free(rows);
             api_problem(c, 503, "busy", NULL, "out of memory");
             goto out;
         }
-        len += (size_t)snprintf(csv + len, cap - len,
-                                "frame,time_s,render_ms,mape,rmse,relmse,converge_image,converge_frames,"
-                                "converge_mape,converge_rmse,converge_relmse\n");
-        for (uint32_t i = 0; i < n; i++) {
-            len += (size_t)snprintf(csv + len, cap - len, "%u,%.9g,%.6g", rows[i].frame, rows[i].time_s, rows[i].render_ms);
-            if (rows[i].has_metrics)
-                len += (size_t)snprintf(csv + len, cap - len, ",%.9g,%.9g,%.9g", rows[i].m.mape, rows[i].m.rmse,
-                                        rows[i].m.relmse);
-            else
-                len += (size_t)snprintf(csv + len, cap - len, ",,,");
-            if (rows[i].has_conv)
-                len += (size_t)snprintf(csv + len, cap - len, ",%s,%u,%.9g,%.9g,%.9g\n", api_converge_image(&rows[i]),
-                                        rows[i].conv_frames, rows[i].conv.mape, rows[i].conv.rmse, rows[i].conv.relmse);
-            else
-                len += (size_t)snprintf(csv + len, cap - len, ",,,,,\n");
-        }
         c->resp->status = 200;
         c->resp->content_type = "text/csv; charset=utf-8";
-        c->resp->body = csv;
-        c->resp->body_len = len;
+        c->resp->body = csv.s;
+        c->resp->body_len = csv.len;
     } else {
         struct jsonw w;
         jsonw_init(&w);
