@@ -339,8 +339,10 @@ static void api_frame_etag(char *out, size_t size, struct session *s, uint32_t e
     const char *ref = http_query(c->req, "reference");
     char variant[160];
     const char *cz = http_query(c->req, "compression");
+    enum exrio_compression comp = API_EXR_COMPRESSION;
+    if (cz) api_exr_compression(cz, &comp);  /* checked by api_check_image_query */
     if (strcmp(type, "image/x-exr") == 0)
-        snprintf(variant, sizeof variant, "exr-%s-%s", px ? px : "float", cz ? cz : API_EXR_COMPRESSION_NAME);
+        snprintf(variant, sizeof variant, "exr-%s-%s", px ? px : "float", exrio_compression_name(comp));
     else if (strcmp(type, "image/png") == 0) snprintf(variant, sizeof variant, "png-%s-%s", ex ? ex : "0", tm ? tm : "clamp");
     else snprintf(variant, sizeof variant, "json-%s", ref ? ref : "");
     snprintf(out, size, "\"%s-%u-%u-%s\"", s->id, epoch, n, variant);
