@@ -903,7 +903,7 @@ void api_render_delete(struct api_call *c)
 /* Which image a row's converge figure scores (struct job_row). */
 static const char *api_converge_image(const struct job_row *row)
 {
-    return row->conv_frames ? "accumulation" : "frame";
+    return row->conv_is_frame ? "frame" : "accumulation";
 }
 
 void api_render_metrics(struct api_call *c)

@@ -94,6 +94,7 @@ static void jobs_converge_metrics(struct session *s, const struct image *ref, st
 {
     if (s->view.params.method->caps & METHOD_REUSES_FRAMES) {
         row->has_conv = row->has_metrics;
+        row->conv_is_frame = true;
         row->conv = row->m;
         row->conv_frames = 0;
         return;

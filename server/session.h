@@ -40,6 +40,7 @@ struct job_row {
     uint32_t frame;
     double time_s, render_ms;
     bool has_metrics, has_conv;
+    bool conv_is_frame;              /* `conv` scores the frame (a method that reuses frames), not an accumulation */
     uint32_t conv_frames;
     struct metrics m, conv;
 };
