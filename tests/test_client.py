@@ -47,6 +47,7 @@ class FakeDaemon:
         self.next_id = 0
         self.busy = {}              # (method, path regex) -> remaining 503 answers
         self.frames_kept = 16
+        self.frames_before = 0      # frames a new session has rendered before a job's
 
     def fail_over(self):
         with self.lock:
@@ -151,7 +152,7 @@ class FakeDaemon:
         if rest == ["sessions"] and method == "POST":
             req = json.loads(body or b"{}")
             sid = self._id("s")
-            self.sessions[sid] = {"scene": scene, "body": req, "frames": 0}
+            self.sessions[sid] = {"scene": scene, "body": req, "frames": self.frames_before}
             return self.ok(201, self.session_obj(sid), {"Location": "/v1/scenes/%s/sessions/%s" % (scene, sid)})
         if len(rest) >= 2 and rest[0] == "sessions":
             sid = rest[1]
@@ -661,6 +662,14 @@ def test_cli_orbit_names_frames_by_number_and_fails_on_evicted_ones(fake, tmp_pa
     assert code == 0, err
     assert sorted(p.name for p in (tmp_path / "p").iterdir()) == ["frame_%04d.exr" % i for i in range(5)]
     assert (tmp_path / "p" / "frame_0003.exr").read_bytes().endswith(b":3")
+    # Frames are named by their index in the job, not by the session's frame number: a session
+    # that had rendered frames before the job numbers the job's frames from there.
+    fake.frames_before = 3
+    code, out, err = run_cli(fake, "orbit", "lib-box", "--frames", "5", "-o", str(tmp_path / "q"))
+    assert code == 0, err
+    assert sorted(p.name for p in (tmp_path / "q").iterdir()) == ["frame_%04d.exr" % i for i in range(5)]
+    assert (tmp_path / "q" / "frame_0000.exr").read_bytes().endswith(b":3")
+    assert (tmp_path / "q" / "frame_0004.exr").read_bytes().endswith(b":7")
 
 
 @pytest.mark.parametrize("method", ["pt", "sms"])

@@ -1135,25 +1135,32 @@ def cmd_orbit(client, args, out, prog):
             _write(path, data)
             saved[index] = path
 
-        state, last_poll = job, 0.0
+        # Events and the job name session frame numbers; files are named by the job's frame
+        # index. The job's frames are consecutive, from session frame `base`, which a poll
+        # tells once a frame of the job is kept (frames_kept[0] less frames_evicted).
+        state, last_poll, base = job, 0.0, None
         while True:
             try:
                 name, data = q.get(timeout=0.5)
             except queue.Empty:
                 name, data = None, None
             if name == "frame" and isinstance(data, dict) and data.get("job") == rid and data.get("href"):
-                # the session is new, so its frame numbers are the job's frame indices
-                fetch(int(data["frame"]), data["href"])
+                if base is None:
+                    last_poll = 0.0     # poll now: it tells base, and offers the frame too
+                else:
+                    fetch(int(data["frame"]) - base, data["href"])
                 ms = data.get("render_ms")
                 prog.update("job %s: frame %d/%d (%s ms)" % (
                     rid, len(saved), args.frames, "%.1f" % ms if isinstance(ms, (int, float)) else "?"))
             if name in ("done", "error") or time.monotonic() - last_poll > 1.0 or name is None:
                 state = client.job(s, rid)
                 last_poll = time.monotonic()
-                # A job offers only the frames still kept, the last ones, from frames_kept[0].
-                # (A daemon without frames_kept offers every frame.)
-                kept = state.get("frames_kept", [0])
-                first = kept[0] if kept else pr_done(state)
+                # A job offers only the frames still kept, its last ones: the first
+                # frames_evicted of them are gone. (A daemon without it offers every frame.)
+                first = int(state.get("frames_evicted") or 0)
+                kept = state.get("frames_kept")
+                if kept:
+                    base = kept[0] - first
                 lost = [i for i in range(first) if i not in saved]
                 if lost:
                     raise RestirError(410, type=PROBLEM_PREFIX + "frame-evicted", detail=evicted(lost[0], None).strip())
@@ -1172,11 +1179,6 @@ def cmd_orbit(client, args, out, prog):
         return 0 if state.get("status") == "done" else 1
     finally:
         client.delete_session(s, missing_ok=True)
-
-
-def pr_done(job):
-    """Frames a job has rendered (its progress)."""
-    return (job.get("progress") or {}).get("frames_done") or 0
 
 
 def cmd_metrics(client, args, out, prog):
