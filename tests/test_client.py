@@ -46,6 +46,7 @@ class FakeDaemon:
         self.refs = set()
         self.next_id = 0
         self.busy = {}              # (method, path regex) -> remaining 503 answers
+        self.refuse = {}            # (method, path regex) -> (status, slug, detail), always
         self.frames_kept = 16
         self.frames_before = 0      # frames a new session has rendered before a job's
 
@@ -109,6 +110,9 @@ class FakeDaemon:
                 if m == method and re.fullmatch(rx, path.split("?")[0]) and left > 0:
                     self.busy[(m, rx)] = left - 1
                     return self.problem(503, "busy", "render queue full", path, headers={"Retry-After": "0"})
+            for (m, rx), (status, slug, detail) in self.refuse.items():
+                if m == method and re.fullmatch(rx, path.split("?")[0]):
+                    return self.problem(status, slug, detail, path)
             return self._route(method, path, headers, body)
 
     def _route(self, method, full, headers, body):
@@ -703,6 +707,20 @@ def test_cli_metrics_deletes_its_reference_when_the_job_fails(fake, tmp_path):
     code, _, err = run_cli(fake, "--timeout", "5", "metrics", "lib-box", "--frames", "2", "-o", str(tmp_path / "m.csv"))
     assert code == 1, err
     assert not fake.refs and not fake.sessions
+
+
+def test_cli_metrics_cleans_up_all_and_reports_the_run_error(fake, tmp_path):
+    """Deleting the session fails: the reference is deleted all the same, and the error the run
+    ended with is the one reported; after a run that succeeded, the failed deletion is."""
+    fake.refuse[("DELETE", r".*/sessions/[^/]+")] = (500, "internal", "the session would not go")
+    fake.refuse[("GET", r".*/metrics")] = (422, "invalid-field", "no series for this job")
+    code, _, err = run_cli(fake, "metrics", "lib-box", "--frames", "2", "-o", str(tmp_path / "m.csv"))
+    assert code == 1 and "no series for this job" in err, err
+    assert not fake.refs
+    del fake.refuse[("GET", r".*/metrics")]
+    code, _, err = run_cli(fake, "metrics", "lib-box", "--frames", "2", "-o", str(tmp_path / "m.csv"))
+    assert code == 1 and "the session would not go" in err, err
+    assert not fake.refs
 
 
 @pytest.mark.parametrize("given, url", [

@@ -1186,6 +1186,7 @@ def cmd_metrics(client, args, out, prog):
     # A reference named for this run's session is this run's alone: it goes when the run ends,
     # however it ends. One named with --reference is the caller's and stays.
     name = args.reference or ("ref-%s" % s.id)[:64]
+    finished = False
     try:
         prog.update("session %s: rendering reference %s at %d spp (%s)" % (s.id, name, args.reference_spp,
                                                                           args.reference_method))
@@ -1214,13 +1215,23 @@ def cmd_metrics(client, args, out, prog):
             last = rows[-1]
             prog.line("%d frames; last frame: mape %s rmse %s relmse %s -> %s" % (
                 len(rows), last.get("mape"), last.get("rmse"), last.get("relmse"), args.output))
+        finished = True
         return 0
     finally:
         # The session first: deleting it cancels a reference job still running, which could
-        # otherwise store the reference after it was deleted.
-        client.delete_session(s, missing_ok=True)
-        if not args.reference:
-            client.delete_reference(s.scene, name, missing_ok=True)
+        # otherwise store the reference after it was deleted. The reference is deleted even
+        # when deleting the session fails; a failed deletion is the run's error only when the
+        # run itself succeeded (otherwise the error it ended with is the one to report).
+        try:
+            try:
+                client.delete_session(s, missing_ok=True)
+            finally:
+                if not args.reference:
+                    client.delete_reference(s.scene, name, missing_ok=True)
+        except RestirError as e:
+            if finished:
+                raise
+            prog.line("metrics: cleaning up failed too: %s" % e)
 
 
 def _scene_meshes(doc):
