@@ -11,7 +11,6 @@
 #include <time.h>
 #include <math.h>
 
-#include "image/exrio.h"
 #include "scene/light_sampler.h"
 #include "image/tonemap.h"
 #include "webui.h"
@@ -210,18 +209,19 @@ static bool api_parse_double(const char *s, double *out)
     return *end == '\0' && isfinite(*out);
 }
 
-/* An EXR's compression as a request names it (?compression=). */
-static bool api_exr_compression(const char *name, enum exrio_compression *out)
+bool api_exr_compression(const char *name, enum exrio_compression *out)
 {
-    static const struct {
-        const char *name;
-        enum exrio_compression c;
-    } names[] = {{"none", EXRIO_NONE}, {"zip", EXRIO_ZIP}, {"piz", EXRIO_PIZ}};
-    for (size_t i = 0; i < sizeof names / sizeof names[0]; i++)
-        if (strcmp(name, names[i].name) == 0) {
-            *out = names[i].c;
+    /* The codecs a frame may be written with, named as exrio names them, in lower case. */
+    static const enum exrio_compression offered[] = {EXRIO_NONE, EXRIO_ZIP, EXRIO_PIZ};
+    for (size_t i = 0; i < sizeof offered / sizeof offered[0]; i++) {
+        const char *n = exrio_compression_name(offered[i]);
+        size_t k = 0;
+        while (n[k] && name[k] == tolower((unsigned char)n[k])) k++;
+        if (!n[k] && !name[k]) {
+            *out = offered[i];
             return true;
         }
+    }
     return false;
 }
 

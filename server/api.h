@@ -7,6 +7,7 @@
 
 #include "daemon.h"
 #include "http.h"
+#include "image/exrio.h"
 
 /* The http_app callbacks; ctx is the struct daemon. */
 void api_body_policy(void *ctx, const char *method, const char *path, size_t *max_body, bool *required);
@@ -81,7 +82,9 @@ bool api_check_image_query(struct api_call *c);
 /* The EXR compression when a request names none (?compression=none|zip|piz): measured in
  * docs/benchmarks.md, "EXR frames: which compression". */
 #define API_EXR_COMPRESSION EXRIO_NONE
-#define API_EXR_COMPRESSION_NAME "none"
+/* The compression a request names (exrio_compression_name in lower case); false when it names
+ * none a frame may be written with. */
+bool api_exr_compression(const char *name, enum exrio_compression *out);
 
 /* Writes a metrics object {"reference","mape","rmse","relmse","pixels","nonfinite"}. */
 void api_write_metrics(struct jsonw *w, const char *reference, const struct metrics *m);

@@ -339,8 +339,10 @@ static void api_frame_etag(char *out, size_t size, struct session *s, uint32_t e
     const char *ref = http_query(c->req, "reference");
     char variant[160];
     const char *cz = http_query(c->req, "compression");
+    enum exrio_compression comp = API_EXR_COMPRESSION;
+    if (cz) api_exr_compression(cz, &comp);  /* checked by api_check_image_query */
     if (strcmp(type, "image/x-exr") == 0)
-        snprintf(variant, sizeof variant, "exr-%s-%s", px ? px : "float", cz ? cz : API_EXR_COMPRESSION_NAME);
+        snprintf(variant, sizeof variant, "exr-%s-%s", px ? px : "float", exrio_compression_name(comp));
     else if (strcmp(type, "image/png") == 0) snprintf(variant, sizeof variant, "png-%s-%s", ex ? ex : "0", tm ? tm : "clamp");
     else snprintf(variant, sizeof variant, "json-%s", ref ? ref : "");
     snprintf(out, size, "\"%s-%u-%u-%s\"", s->id, epoch, n, variant);
@@ -671,8 +673,7 @@ static void api_write_job(struct jsonw *w, struct session *s, const struct job *
     }
     jsonw_key(w, "frames_evicted"); jsonw_uint(w, j->kind == JOB_ANIMATION ? first_kept : 0);
     jsonw_key(w, "reference");
-    if (j->kind == JOB_REFERENCE) jsonw_string(w, j->ref_name);
-    else if (j->reference) jsonw_string(w, j->reference->name);
+    if (j->ref_name[0]) jsonw_string(w, j->ref_name);
     else jsonw_null(w);
     if (j->kind == JOB_REFERENCE) {
         char href[256];
@@ -695,16 +696,22 @@ static void api_write_job(struct jsonw *w, struct session *s, const struct job *
     jsonw_object_end(w);
 }
 
-static void api_job_answer(struct api_call *c, struct session *s, struct job *j, int status)
+/* Call with s->lock held: the job is read whole, and cannot be forgotten meanwhile. */
+static void api_job_answer_locked(struct api_call *c, struct session *s, struct job *j, int status)
 {
     struct jsonw w;
     jsonw_init(&w);
-    pthread_mutex_lock(&s->lock);
     api_write_job(&w, s, j);
-    pthread_mutex_unlock(&s->lock);
     if (status == 202)
         http_response_header(c->resp, "Location", "/v1/scenes/%s/sessions/%s/renders/%s", s->scene_id, s->id, j->id);
     api_json(c, status, &w);
+}
+
+static void api_job_answer(struct api_call *c, struct session *s, struct job *j, int status)
+{
+    pthread_mutex_lock(&s->lock);
+    api_job_answer_locked(c, s, j, status);
+    pthread_mutex_unlock(&s->lock);
 }
 
 void api_renders_list(struct api_call *c)
@@ -745,16 +752,31 @@ static bool api_job_replay(struct api_call *c, struct session *s, const char *ke
     if (!key) return false;
     pthread_mutex_lock(&s->lock);
     struct job *prev = session_job_find_key(s, key);
-    bool same = prev && prev->request_hash == hash;
+    if (prev && prev->request_hash == hash) api_job_answer_locked(c, s, prev, 202);
     char id[24] = "";
     if (prev) snprintf(id, sizeof id, "%s", prev->id);
+    bool other = prev && prev->request_hash != hash;
     pthread_mutex_unlock(&s->lock);
-    if (!prev) return false;
-    if (same) api_job_answer(c, s, prev, 202);
-    else
+    if (other)
         api_problem(c, 409, "conflict", "Idempotency-Key",
                     "Idempotency-Key '%s' was sent with another request, which made job '%s'; use a new key", key, id);
-    return true;
+    return prev != NULL;
+}
+
+/* Adds j to the session, or answers for the job a request under the same key added meanwhile:
+ * requests sent at once with one key all pass the first api_job_replay, and session_job_add
+ * lets one of them add its job. (A job found there whose submission then failed is gone again
+ * when the replay looks: the loop adds j after all.) false when j was not added: *answered
+ * tells whether a replay answered, else *e says why. */
+static bool api_job_add(struct api_call *c, struct session *s, struct job *j, bool claim, bool *answered,
+                        struct err *e)
+{
+    for (;;) {
+        bool exists;
+        if (session_job_add(s, j, claim, &exists, e)) return true;
+        *answered = exists && api_job_replay(c, s, j->idempotency_key, j->request_hash);
+        if (!exists || *answered) return false;
+    }
 }
 
 /* Idempotency-Key: NULL when absent; answers 400 and returns false when malformed. */
@@ -801,28 +823,29 @@ void api_renders_post(struct api_call *c)
             goto out;
         }
     }
-    if (!session_claim(s, &e)) {
-        ref_image_release(ref);
-        api_error(c, &e);
-        goto out;
-    }
-    struct job *j = session_job_new(s, JOB_ANIMATION, key, &e);
+    /* Filled in before it is added: a request under the same key may show it from then on. */
+    struct job *j = job_new(s, JOB_ANIMATION, key, hash, &e);
     if (!j) {
-        session_unclaim(s);
         ref_image_release(ref);
         api_error(c, &e);
         goto out;
     }
-    j->request_hash = hash;
     j->reference = ref;
+    if (ref) snprintf(j->ref_name, sizeof j->ref_name, "%s", ref->name);
     j->fps = rq.fps;
     j->frames_total = rq.frames;
     j->frames = calloc(rq.frames, sizeof *j->frames);
     j->rows = calloc(rq.frames, sizeof *j->rows);
-    bool ok = j->frames && j->rows;
-    if (!ok) api_problem(c, 503, "busy", NULL, "out of memory for the job");
+    bool answered = false;
+    if (!j->frames || !j->rows || !api_job_add(c, s, j, true, &answered, &e)) {
+        if (!j->frames || !j->rows) api_problem(c, 503, "busy", NULL, "out of memory for the job");
+        else if (!answered) api_error(c, &e);
+        job_destroy(j);
+        goto out;
+    }
+    bool ok = true;
     /* The session's camera is stable while it is claimed: it is where the animation starts. */
-    if (ok && !animate_resolve(&rq, s->view.base, &s->view.camera, &j->anim, &e)) {
+    if (!animate_resolve(&rq, s->view.base, &s->view.camera, &j->anim, &e)) {
         if (e.code == ERR_NOMEM) api_error(c, &e);
         else api_problem(c, 422, "invalid-field", e.where, "%s", e.message);
         ok = false;
@@ -851,9 +874,10 @@ static struct job *api_job(struct api_call *c, struct session *s)
     return j;
 }
 
-/* Jobs are only freed by session_job_new (oldest finished, when a new one is made) and with
- * the session, so a job found above stays valid while the caller holds the session, except
- * against a concurrent submission evicting it; requests read jobs under the session lock. */
+/* Jobs are only freed by session_job_add (oldest finished, when a new one is added), by
+ * session_job_forget (one whose submission failed) and with the session, so a job found above
+ * stays valid while the caller holds the session, except against a concurrent submission;
+ * requests read jobs under the session lock. */
 void api_render_get(struct api_call *c)
 {
     struct session *s = api_session(c);
@@ -879,7 +903,7 @@ void api_render_delete(struct api_call *c)
 /* Which image a row's converge figure scores (struct job_row). */
 static const char *api_converge_image(const struct job_row *row)
 {
-    return row->conv_frames ? "accumulation" : "frame";
+    return row->conv_is_frame ? "frame" : "accumulation";
 }
 
 void api_render_metrics(struct api_call *c)
@@ -899,7 +923,8 @@ void api_render_metrics(struct api_call *c)
     uint32_t n = j->frames_done;
     struct job_row *rows = malloc((n ? n : 1) * sizeof *rows);
     if (rows) memcpy(rows, j->rows, n * sizeof *rows);
-    const char *ref_name = other ? other->name : (j->reference ? j->reference->name : NULL);
+    char ref_name[sizeof j->ref_name];
+    snprintf(ref_name, sizeof ref_name, "%s", other ? other->name : j->ref_name);
     pthread_mutex_unlock(&s->lock);
     if (!rows) {
         api_problem(c, 503, "busy", NULL, "out of memory");
@@ -917,39 +942,39 @@ void api_render_metrics(struct api_call *c)
         }
     }
     if (strcmp(type, "text/csv") == 0) {
-        size_t cap = 128 + (size_t)n * 256, len = 0;
-        char *csv = malloc(cap);
-        if (!csv) {
+        struct prom_buf csv = {.cap = 256 + (size_t)n * 192};
+        csv.s = malloc(csv.cap);
+        if (csv.s)
+            prom_printf(&csv, "frame,time_s,render_ms,mape,rmse,relmse,converge_image,converge_frames,"
+                              "converge_mape,converge_rmse,converge_relmse\n");
+        for (uint32_t i = 0; csv.s && i < n; i++) {
+            prom_printf(&csv, "%u,%.9g,%.6g", rows[i].frame, rows[i].time_s, rows[i].render_ms);
+            if (rows[i].has_metrics)
+                prom_printf(&csv, ",%.9g,%.9g,%.9g", rows[i].m.mape, rows[i].m.rmse, rows[i].m.relmse);
+            else
+                prom_printf(&csv, ",,,");
+            if (rows[i].has_conv)
+                prom_printf(&csv, ",%s,%u,%.9g,%.9g,%.9g\n", api_converge_image(&rows[i]), rows[i].conv_frames,
+                            rows[i].conv.mape, rows[i].conv.rmse, rows[i].conv.relmse);
+            else
+                prom_printf(&csv, ",,,,,\n");
+        }
+        if (!csv.s || csv.failed) {
+            free(csv.s);
             free(rows);
             api_problem(c, 503, "busy", NULL, "out of memory");
             goto out;
         }
-        len += (size_t)snprintf(csv + len, cap - len,
-                                "frame,time_s,render_ms,mape,rmse,relmse,converge_image,converge_frames,"
-                                "converge_mape,converge_rmse,converge_relmse\n");
-        for (uint32_t i = 0; i < n; i++) {
-            len += (size_t)snprintf(csv + len, cap - len, "%u,%.9g,%.6g", rows[i].frame, rows[i].time_s, rows[i].render_ms);
-            if (rows[i].has_metrics)
-                len += (size_t)snprintf(csv + len, cap - len, ",%.9g,%.9g,%.9g", rows[i].m.mape, rows[i].m.rmse,
-                                        rows[i].m.relmse);
-            else
-                len += (size_t)snprintf(csv + len, cap - len, ",,,");
-            if (rows[i].has_conv)
-                len += (size_t)snprintf(csv + len, cap - len, ",%s,%u,%.9g,%.9g,%.9g\n", api_converge_image(&rows[i]),
-                                        rows[i].conv_frames, rows[i].conv.mape, rows[i].conv.rmse, rows[i].conv.relmse);
-            else
-                len += (size_t)snprintf(csv + len, cap - len, ",,,,,\n");
-        }
         c->resp->status = 200;
         c->resp->content_type = "text/csv; charset=utf-8";
-        c->resp->body = csv;
-        c->resp->body_len = len;
+        c->resp->body = csv.s;
+        c->resp->body_len = csv.len;
     } else {
         struct jsonw w;
         jsonw_init(&w);
         jsonw_object_begin(&w);
         jsonw_key(&w, "reference");
-        if (ref_name) jsonw_string(&w, ref_name); else jsonw_null(&w);
+        if (ref_name[0]) jsonw_string(&w, ref_name); else jsonw_null(&w);
         jsonw_key(&w, "series");
         jsonw_array_begin(&w);
         for (uint32_t i = 0; i < n; i++) {
@@ -1004,43 +1029,42 @@ void api_session_reference_post(struct api_call *c)
         session_release(s);
         return;
     }
-    /* Snapshot the session's current scene and camera: the reference shows what the next
-     * frame would show. */
-    if (!session_claim(s, &e)) {
+    /* Filled in before it is added: a request under the same key may show it from then on. */
+    struct job *j = job_new(s, JOB_REFERENCE, key, hash, &e);
+    if (!j) {
         api_error(c, &e);
         session_release(s);
         return;
     }
-    struct scene *scene = s->view.scene;
-    scene_retain(scene);
-    struct camera_desc cam = s->view.camera;
+    snprintf(j->ref_name, sizeof j->ref_name, "%s", c->seg[6]);
+    j->frames_total = req.spp < JOBS_REFERENCE_PASSES ? req.spp : JOBS_REFERENCE_PASSES;
+    j->ref_spp = req.spp / j->frames_total * j->frames_total;
+    j->ref_method = req.method;
+    /* Added with the session claimed, to snapshot its current scene and camera: the reference
+     * shows what the next frame would show. */
+    bool answered = false;
+    if (!api_job_add(c, s, j, true, &answered, &e)) {
+        if (!answered) api_error(c, &e);
+        job_destroy(j);
+        session_release(s);
+        return;
+    }
+    j->ref_scene = s->view.scene;
+    scene_retain(j->ref_scene);
+    j->ref_camera = s->view.camera;
     session_unclaim(s);
     /* The casters SMS would walk on, checked now: past the job's start a failure would only
      * read as a failed job. */
     if (req.method == PROTOCOL_REFERENCE_SMS) {
         struct sms_scene ss;  /* ~6 KiB */
-        if (!sms_scene_init(scene, &ss, &e)) {
+        if (!sms_scene_init(j->ref_scene, &ss, &e)) {
             if (!e.where[0]) snprintf(e.where, sizeof e.where, "/method");
-            scene_release(scene);
             api_error(c, &e);
+            session_job_forget(s, j);
             session_release(s);
             return;
         }
     }
-    struct job *j = session_job_new(s, JOB_REFERENCE, key, &e);
-    if (!j) {
-        scene_release(scene);
-        api_error(c, &e);
-        session_release(s);
-        return;
-    }
-    j->request_hash = hash;
-    j->ref_scene = scene;
-    j->ref_camera = cam;
-    snprintf(j->ref_name, sizeof j->ref_name, "%s", c->seg[6]);
-    j->frames_total = req.spp < JOBS_REFERENCE_PASSES ? req.spp : JOBS_REFERENCE_PASSES;
-    j->ref_spp = req.spp / j->frames_total * j->frames_total;
-    j->ref_method = req.method;
     if (!jobs_submit(c->d->jobs, j, &e)) {
         api_problem(c, 429, "queue-full", NULL, "%s", e.message);
         session_job_forget(s, j);

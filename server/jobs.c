@@ -28,10 +28,22 @@ static const char *jobs_status_name(enum job_status s)
     return names[s];
 }
 
+/* Call with the session lock held. A reference an animation is measured against (its pixels,
+ * and its bytes in the memory budget once it has been deleted) is held while the job runs, not
+ * while its record is kept: it is let go before the job is seen to end. */
+static void jobs_set_status_locked(struct job *j, enum job_status st)
+{
+    if (st >= JOB_DONE) {
+        ref_image_release(j->reference);
+        j->reference = NULL;
+    }
+    j->status = st;
+}
+
 static void jobs_set_status(struct job *j, enum job_status st)
 {
     pthread_mutex_lock(&j->session->lock);
-    j->status = st;
+    jobs_set_status_locked(j, st);
     pthread_mutex_unlock(&j->session->lock);
 }
 
@@ -68,7 +80,7 @@ static void jobs_post(struct job *j, const char *type)
 static void jobs_fail(struct job *j, int status, const char *slug)
 {
     pthread_mutex_lock(&j->session->lock);
-    j->status = JOB_FAILED;
+    jobs_set_status_locked(j, JOB_FAILED);
     j->error_status = status;
     snprintf(j->error_slug, sizeof j->error_slug, "%s", slug);
     pthread_mutex_unlock(&j->session->lock);
@@ -82,6 +94,7 @@ static void jobs_converge_metrics(struct session *s, const struct image *ref, st
 {
     if (s->view.params.method->caps & METHOD_REUSES_FRAMES) {
         row->has_conv = row->has_metrics;
+        row->conv_is_frame = true;
         row->conv = row->m;
         row->conv_frames = 0;
         return;
@@ -198,13 +211,23 @@ static void jobs_run_reference(struct jobs *q, struct job *j)
         return;
     }
     image_scale(&sum, 1.0f / (float)passes);
-    bool replaced;
-    if (!refstore_put(q->refs, s->scene_id, j->ref_name, &sum, spp_pass * passes,
-                      protocol_reference_method_name(j->ref_method), &replaced, &j->error)) {
-        jobs_fail(j, 503, j->error.code == ERR_BUSY ? "memory-budget" : "busy");
-        return;
+    /* Cancelled during its last pass (the job deleted, or its session, which a client deletes
+     * before the reference when it cleans up): nothing is stored. The check and the store are
+     * one step under the session lock, so once a DELETE of the session has answered, the
+     * reference is either stored already or never will be. */
+    pthread_mutex_lock(&s->lock);
+    bool cancelled = atomic_load(&j->cancel) || s->deleted;
+    bool replaced, stored = false;
+    if (cancelled) {
+        image_destroy(&sum);
+        jobs_set_status_locked(j, JOB_CANCELLED);
+    } else {
+        stored = refstore_put(q->refs, s->scene_id, j->ref_name, &sum, spp_pass * passes,
+                              protocol_reference_method_name(j->ref_method), &replaced, &j->error);
+        if (stored) jobs_set_status_locked(j, JOB_DONE);
     }
-    jobs_set_status(j, JOB_DONE);
+    pthread_mutex_unlock(&s->lock);
+    if (!cancelled && !stored) jobs_fail(j, 503, j->error.code == ERR_BUSY ? "memory-budget" : "busy");
 }
 
 static void *jobs_worker(void *arg)

@@ -19,7 +19,7 @@ typedef void jobs_frame_fn(void *ctx, double render_ms);
 
 struct jobs *jobs_new(unsigned workers, unsigned queue, struct gate *gate, struct refstore *refs,
                       jobs_frame_fn *on_frame, void *on_frame_ctx, struct err *err);
-/* Queues j (QUEUED, created by session_job_new; an animation's session already claimed).
+/* Queues j (QUEUED, added by session_job_add; an animation's session already claimed).
  * Retains the session until the job ends. ERR_BUSY when the queue is full, ERR_BUSY after
  * jobs_stop began. */
 bool jobs_submit(struct jobs *q, struct job *j, struct err *err);

@@ -60,10 +60,7 @@ void prom_count_cut(struct prom *p, bool head)
     pthread_mutex_unlock(&p->lock);
 }
 
-struct prom_buf { char *s; size_t len, cap; bool failed; };
-
-static void prom_printf(struct prom_buf *b, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static void prom_printf(struct prom_buf *b, const char *fmt, ...)
+void prom_printf(struct prom_buf *b, const char *fmt, ...)
 {
     if (b->failed) return;
     for (;;) {

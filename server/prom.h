@@ -35,6 +35,11 @@ void prom_count_request(struct prom *p, const char *route, int code);
 void prom_observe_frame(struct prom *p, double seconds);
 /* A connection closed for a slow request head (head) or a slow body (!head). */
 void prom_count_cut(struct prom *p, bool head);
+/* A text buffer that grows as it is written: `s` starts malloc'd with `cap` bytes. prom_printf
+ * appends; after a failed allocation it appends nothing more and sets `failed` (`s` is still
+ * the caller's to free). Also for other text answers (a job's metrics as CSV). */
+struct prom_buf { char *s; size_t len, cap; bool failed; };
+void prom_printf(struct prom_buf *b, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 /* The exposition text, malloc'd (caller frees); NULL on allocation failure. */
 char *prom_format(struct prom *p, const struct prom_gauges *g, size_t *len);
 

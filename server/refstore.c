@@ -28,17 +28,14 @@ static uint64_t refstore_image_bytes(const struct image *img)
     return (uint64_t)img->width * img->height * sizeof(struct vec3);
 }
 
-/* A reference leaving the store gives its bytes back, though a metrics computation may still
- * hold it for a moment. */
-static void refstore_drop(struct refstore *rs, struct ref_image *r)
-{
-    if (rs->budget) budget_release(rs->budget, BUDGET_REFERENCES, refstore_image_bytes(&r->img));
-    ref_image_release(r);
-}
-
+/* The bytes a reference holds go back to the budget with its pixels, when its last holder lets
+ * go: the store, or an animation job or metrics request that retained it before it was
+ * deleted or replaced. Crediting them at the deletion would let a new reference take the same
+ * bytes while the old pixels are still in memory. */
 void ref_image_release(struct ref_image *r)
 {
     if (r && __atomic_sub_fetch(&r->refcount, 1, __ATOMIC_ACQ_REL) == 0) {
+        if (r->budget) budget_release(r->budget, BUDGET_REFERENCES, refstore_image_bytes(&r->img));
         image_destroy(&r->img);
         free(r);
     }
@@ -76,6 +73,7 @@ bool refstore_put(struct refstore *rs, const char *scene, const char *name, stru
         return err_set(err, ERR_NOMEM, NULL, "out of memory for a reference");
     }
     r->refcount = 1;
+    r->budget = rs->budget;  /* from here on the last release gives the bytes back */
     snprintf(r->scene, sizeof r->scene, "%s", scene);
     snprintf(r->name, sizeof r->name, "%s", name);
     r->spp = spp;
@@ -89,7 +87,7 @@ bool refstore_put(struct refstore *rs, const char *scene, const char *name, stru
     long i = refstore_find(rs, scene, name);
     if (i >= 0) {
         /* A replacement keeps its predecessor's place in listings. */
-        refstore_drop(rs, rs->items[i]);
+        ref_image_release(rs->items[i]);
         rs->items[i] = r;
         *replaced = true;
     } else {
@@ -98,7 +96,7 @@ bool refstore_put(struct refstore *rs, const char *scene, const char *name, stru
             struct ref_image **items = realloc(rs->items, cap * sizeof *items);
             if (!items) {
                 pthread_mutex_unlock(&rs->lock);
-                refstore_drop(rs, r);
+                ref_image_release(r);
                 return err_set(err, ERR_NOMEM, NULL, "out of memory for a reference");
             }
             rs->items = items;
@@ -125,7 +123,7 @@ bool refstore_delete(struct refstore *rs, const char *scene, const char *name)
     pthread_mutex_lock(&rs->lock);
     long i = refstore_find(rs, scene, name);
     if (i >= 0) {
-        refstore_drop(rs, rs->items[i]);
+        ref_image_release(rs->items[i]);
         memmove(&rs->items[i], &rs->items[i + 1], (rs->count - (size_t)i - 1) * sizeof *rs->items);
         rs->count--;
     }
@@ -162,7 +160,7 @@ void refstore_drop_scene(struct refstore *rs, const char *scene)
     size_t k = 0;
     for (size_t i = 0; i < rs->count; i++) {
         if (strcmp(rs->items[i]->scene, scene) == 0)
-            refstore_drop(rs, rs->items[i]);
+            ref_image_release(rs->items[i]);
         else
             rs->items[k++] = rs->items[i];
     }

@@ -20,6 +20,7 @@ struct ref_image {
     uint32_t spp;                /* 0 = uploaded */
     const char *method;          /* static: "pt" or "sms"; NULL = uploaded */
     time_t created;              /* when it was stored */
+    struct budget *budget;       /* its bytes are reserved from it until the last release; or NULL */
     struct image img;
 };
 
@@ -44,8 +45,9 @@ bool refstore_put(struct refstore *rs, const char *scene, const char *name, stru
 /* Retained reference or NULL; ref_image_release when done. */
 struct ref_image *refstore_get(struct refstore *rs, const char *scene, const char *name);
 void ref_image_release(struct ref_image *r);
-/* Removes one reference; false when the scene has none of that name. Its bytes go back to the
- * budget at once; a request or job that retained it keeps the pixels until it releases them. */
+/* Removes one reference; false when the scene has none of that name. A request or job that
+ * retained it keeps the pixels until it releases them, and its bytes go back to the budget
+ * then, with the pixels (so does a replaced reference's). */
 bool refstore_delete(struct refstore *rs, const char *scene, const char *name);
 /* The references of a scene, in the order they were first stored, into out[max]; returns how
  * many the scene has (more than max when out was too small). */

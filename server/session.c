@@ -244,17 +244,21 @@ size_t session_bytes(struct session *s)
     return total;
 }
 
+static bool session_claim_locked(struct session *s, struct err *err)
+{
+    if (s->busy || s->deleted)
+        return err_set(err, s->deleted ? ERR_NOT_FOUND : ERR_CONFLICT, NULL,
+                       s->deleted ? "the session was deleted" : "the session is rendering (one frame or job at a time)");
+    s->busy = true;
+    return true;
+}
+
 bool session_claim(struct session *s, struct err *err)
 {
     pthread_mutex_lock(&s->lock);
-    bool ok = !s->busy && !s->deleted;
-    if (ok) s->busy = true;
-    bool deleted = s->deleted;
+    bool ok = session_claim_locked(s, err);
     pthread_mutex_unlock(&s->lock);
-    if (!ok)
-        return err_set(err, deleted ? ERR_NOT_FOUND : ERR_CONFLICT, NULL,
-                       deleted ? "the session was deleted" : "the session is rendering (one frame or job at a time)");
-    return true;
+    return ok;
 }
 
 void session_unclaim(struct session *s)
@@ -310,7 +314,8 @@ static bool session_watch_stop(struct session_watch *w)
 
 /* The renderer's progress callback (about every 20 ms, on the rendering thread). Once every
  * job is done there is nothing left to skip: a frame whose client leaves then is whole, and the
- * session keeps it (and its reuse history) as any other. */
+ * session keeps it (and its reuse history) as any other; one whose session was deleted is
+ * dropped by session_render. */
 static void session_watch_progress(void *ctx, uint32_t done, uint32_t total)
 {
     struct session_watch *w = ctx;
@@ -346,6 +351,13 @@ bool session_render(struct session *s, struct gate *gate, bool bounded, const st
      * state allocates nothing per frame. */
     const struct image *img = &s->view.output;
     pthread_mutex_lock(&s->lock);
+    if (s->deleted) {
+        /* Deleted while a frame rendered that was not cut: a method that reports progress only
+         * at a frame's end, or a frame near its end. Nobody can fetch it, and its request must
+         * not answer as if the session still were. */
+        pthread_mutex_unlock(&s->lock);
+        return err_set(err, ERR_NOT_FOUND, NULL, "the session was deleted while its frame rendered");
+    }
     uint32_t frame = stats->frame;
     struct session_frame *slot = &s->ring[frame % s->frames_kept];
     if (!slot->img.pixels && !image_init(&slot->img, img->width, img->height, err)) {
@@ -420,38 +432,47 @@ bool session_frame_kept_locked(const struct session *s, uint32_t epoch, uint32_t
     return epoch == s->epoch && n < s->frames_done && slot->valid && slot->n == n;
 }
 
-struct job *session_job_new(struct session *s, enum job_kind kind, const char *idempotency_key, struct err *err)
+struct job *job_new(struct session *s, enum job_kind kind, const char *idempotency_key, uint64_t request_hash,
+                    struct err *err)
 {
     struct job *j = calloc(1, sizeof *j);
     if (!j) return err_set(err, ERR_NOMEM, NULL, "out of memory for a job"), NULL;
     j->kind = kind;
     j->status = JOB_QUEUED;
     j->session = s;
+    j->request_hash = request_hash;
     atomic_init(&j->cancel, false);
     snprintf(j->idempotency_key, sizeof j->idempotency_key, "%s", idempotency_key ? idempotency_key : "");
-    pthread_mutex_lock(&s->lock);
-    if (s->job_count == SESSION_JOBS) {
-        /* Forget the oldest finished job. */
-        uint32_t k = SESSION_JOBS;
-        for (uint32_t i = 0; i < s->job_count; i++)
-            if (s->jobs[i]->status >= JOB_DONE) {
-                k = i;
-                break;
-            }
-        if (k == SESSION_JOBS) {
-            pthread_mutex_unlock(&s->lock);
-            free(j);
-            return err_set(err, ERR_BUSY, NULL, "the session has %u unfinished jobs", SESSION_JOBS), NULL;
-        }
-        job_destroy(s->jobs[k]);
-        memmove(&s->jobs[k], &s->jobs[k + 1], (s->job_count - k - 1) * sizeof *s->jobs);
-        s->job_count--;
-    }
-    snprintf(j->id, sizeof j->id, "r%llu", (unsigned long long)++s->next_job);
-    j->epoch = s->epoch;
-    s->jobs[s->job_count++] = j;
-    pthread_mutex_unlock(&s->lock);
     return j;
+}
+
+bool session_job_add(struct session *s, struct job *j, bool claim, bool *exists, struct err *err)
+{
+    /* Looking the key up, claiming and inserting are one step: of requests sent at once with
+     * the same key, one adds its job and the others find it. */
+    pthread_mutex_lock(&s->lock);
+    *exists = j->idempotency_key[0] && session_job_find_key(s, j->idempotency_key);
+    bool ok = !*exists;
+    uint32_t k = SESSION_JOBS;
+    if (ok && s->job_count == SESSION_JOBS) {
+        /* Forget the oldest finished job. */
+        for (uint32_t i = 0; i < s->job_count && k == SESSION_JOBS; i++)
+            if (s->jobs[i]->status >= JOB_DONE) k = i;
+        if (k == SESSION_JOBS) ok = err_set(err, ERR_BUSY, NULL, "the session has %u unfinished jobs", SESSION_JOBS);
+    }
+    if (ok && claim) ok = session_claim_locked(s, err);
+    if (ok) {
+        if (k < SESSION_JOBS) {
+            job_destroy(s->jobs[k]);
+            memmove(&s->jobs[k], &s->jobs[k + 1], (s->job_count - k - 1) * sizeof *s->jobs);
+            s->job_count--;
+        }
+        snprintf(j->id, sizeof j->id, "r%llu", (unsigned long long)++s->next_job);
+        j->epoch = s->epoch;
+        s->jobs[s->job_count++] = j;
+    }
+    pthread_mutex_unlock(&s->lock);
+    return ok;
 }
 
 struct job *session_job_find(struct session *s, const char *rid)

@@ -40,6 +40,7 @@ struct job_row {
     uint32_t frame;
     double time_s, render_ms;
     bool has_metrics, has_conv;
+    bool conv_is_frame;              /* `conv` scores the frame (a method that reuses frames), not an accumulation */
     uint32_t conv_frames;
     struct metrics m, conv;
 };
@@ -49,7 +50,7 @@ struct session;
 struct job {
     char id[24];
     char idempotency_key[65];
-    uint64_t request_hash;           /* what the keyed request asked for (see api_job_replay) */
+    uint64_t request_hash;           /* what the keyed request asked for (see api_job_replay); set at creation */
     enum job_kind kind;
     enum job_status status;          /* under the session lock */
     atomic_bool cancel;
@@ -62,8 +63,8 @@ struct job {
     /* animation */
     double fps;
     struct view_animation anim;      /* arrays owned by the job */
-    struct ref_image *reference;     /* retained, or NULL */
-    /* reference */
+    struct ref_image *reference;     /* retained while the job runs, or NULL */
+    /* reference (an animation's: the name of the one it is measured against, or "") */
     char ref_name[65];
     uint32_t ref_spp;
     enum protocol_reference_method ref_method;
@@ -160,7 +161,8 @@ void session_unclaim(struct session *s);
  * The frame is given up, nothing kept, when the session is deleted (ERR_NOT_FOUND) or `stop`
  * (may be NULL; polled about every 20 ms) says its requester has gone (ERR_CONFLICT):
  * before it starts when it waited in the queue, and mid-frame for the methods that render in
- * samples per pixel (the methods that take spp), after which the session's sequence starts over. */
+ * samples per pixel (the methods that take spp), after which the session's sequence starts over.
+ * A whole frame is kept when its requester has gone, not when its session was deleted. */
 bool session_render(struct session *s, struct gate *gate, bool bounded, const struct view_frame_change *change,
                     struct job *job, uint32_t *n, struct frame_stats *stats, bool (*stop)(void *ctx), void *stop_ctx,
                     struct err *err);
@@ -176,9 +178,15 @@ bool session_frame_kept_locked(const struct session *s, uint32_t epoch, uint32_t
 /* Appends an event (type and JSON data, copied) and wakes readers. */
 void session_post_event(struct session *s, const char *type, const char *json);
 
-/* Jobs. A job is created QUEUED with the session claimed for it (animation) and stays claimed
- * until it ends. Returns the job, or NULL (ERR_CONFLICT/ERR_NOMEM). */
-struct job *session_job_new(struct session *s, enum job_kind kind, const char *idempotency_key, struct err *err);
+/* Jobs. A new job (QUEUED, its key and `request_hash` set; NULL on ERR_NOMEM) is filled in by
+ * its caller, then added to the session; job_destroy frees one that was not added. */
+struct job *job_new(struct session *s, enum job_kind kind, const char *idempotency_key, uint64_t request_hash,
+                    struct err *err);
+/* Adds j and gives it its id, and with `claim` claims the session for it (an animation, which
+ * stays claimed until it ends). When a job of the session already has j's idempotency key,
+ * nothing is added or claimed: false with *exists set. Other errors: ERR_CONFLICT/ERR_NOT_FOUND
+ * (the session is busy or deleted), ERR_BUSY (too many unfinished jobs). */
+bool session_job_add(struct session *s, struct job *j, bool claim, bool *exists, struct err *err);
 struct job *session_job_find(struct session *s, const char *rid);
 struct job *session_job_find_key(struct session *s, const char *key);
 void job_destroy(struct job *j);

@@ -46,7 +46,9 @@ class FakeDaemon:
         self.refs = set()
         self.next_id = 0
         self.busy = {}              # (method, path regex) -> remaining 503 answers
+        self.refuse = {}            # (method, path regex) -> (status, slug, detail), always
         self.frames_kept = 16
+        self.frames_before = 0      # frames a new session has rendered before a job's
 
     def fail_over(self):
         with self.lock:
@@ -108,6 +110,9 @@ class FakeDaemon:
                 if m == method and re.fullmatch(rx, path.split("?")[0]) and left > 0:
                     self.busy[(m, rx)] = left - 1
                     return self.problem(503, "busy", "render queue full", path, headers={"Retry-After": "0"})
+            for (m, rx), (status, slug, detail) in self.refuse.items():
+                if m == method and re.fullmatch(rx, path.split("?")[0]):
+                    return self.problem(status, slug, detail, path)
             return self._route(method, path, headers, body)
 
     def _route(self, method, full, headers, body):
@@ -151,7 +156,7 @@ class FakeDaemon:
         if rest == ["sessions"] and method == "POST":
             req = json.loads(body or b"{}")
             sid = self._id("s")
-            self.sessions[sid] = {"scene": scene, "body": req, "frames": 0}
+            self.sessions[sid] = {"scene": scene, "body": req, "frames": self.frames_before}
             return self.ok(201, self.session_obj(sid), {"Location": "/v1/scenes/%s/sessions/%s" % (scene, sid)})
         if len(rest) >= 2 and rest[0] == "sessions":
             sid = rest[1]
@@ -661,6 +666,14 @@ def test_cli_orbit_names_frames_by_number_and_fails_on_evicted_ones(fake, tmp_pa
     assert code == 0, err
     assert sorted(p.name for p in (tmp_path / "p").iterdir()) == ["frame_%04d.exr" % i for i in range(5)]
     assert (tmp_path / "p" / "frame_0003.exr").read_bytes().endswith(b":3")
+    # Frames are named by their index in the job, not by the session's frame number: a session
+    # that had rendered frames before the job numbers the job's frames from there.
+    fake.frames_before = 3
+    code, out, err = run_cli(fake, "orbit", "lib-box", "--frames", "5", "-o", str(tmp_path / "q"))
+    assert code == 0, err
+    assert sorted(p.name for p in (tmp_path / "q").iterdir()) == ["frame_%04d.exr" % i for i in range(5)]
+    assert (tmp_path / "q" / "frame_0000.exr").read_bytes().endswith(b":3")
+    assert (tmp_path / "q" / "frame_0004.exr").read_bytes().endswith(b":7")
 
 
 @pytest.mark.parametrize("method", ["pt", "sms"])
@@ -694,6 +707,20 @@ def test_cli_metrics_deletes_its_reference_when_the_job_fails(fake, tmp_path):
     code, _, err = run_cli(fake, "--timeout", "5", "metrics", "lib-box", "--frames", "2", "-o", str(tmp_path / "m.csv"))
     assert code == 1, err
     assert not fake.refs and not fake.sessions
+
+
+def test_cli_metrics_cleans_up_all_and_reports_the_run_error(fake, tmp_path):
+    """Deleting the session fails: the reference is deleted all the same, and the error the run
+    ended with is the one reported; after a run that succeeded, the failed deletion is."""
+    fake.refuse[("DELETE", r".*/sessions/[^/]+")] = (500, "internal", "the session would not go")
+    fake.refuse[("GET", r".*/metrics")] = (422, "invalid-field", "no series for this job")
+    code, _, err = run_cli(fake, "metrics", "lib-box", "--frames", "2", "-o", str(tmp_path / "m.csv"))
+    assert code == 1 and "no series for this job" in err, err
+    assert not fake.refs
+    del fake.refuse[("GET", r".*/metrics")]
+    code, _, err = run_cli(fake, "metrics", "lib-box", "--frames", "2", "-o", str(tmp_path / "m.csv"))
+    assert code == 1 and "the session would not go" in err, err
+    assert not fake.refs
 
 
 @pytest.mark.parametrize("given, url", [

@@ -886,6 +886,7 @@ def test_frame_exr_compression_per_request(daemon):
     r = daemon.req("GET", s["href"] + "/frames/0?compression=dwaa")
     assert_problem(r, 400, "bad-query", "?compression")
     assert r.json()["detail"] == "compression must be 'none', 'zip' or 'piz', got 'dwaa'"
+    assert_problem(daemon.req("GET", s["href"] + "/frames/0?compression=ZIP"), 400, "bad-query", "?compression")
     assert daemon.req("DELETE", s["href"]).status == 204
 
 

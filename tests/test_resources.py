@@ -4,9 +4,12 @@ jobs and which of a finished job's frames are still kept; the process and build 
 GET /metrics; and that openapi.yaml documents exactly the daemon's routes.
 
 One daemon with a short frame ring (--frames-kept 3) serves the file; images are 8x8."""
+import http.client
+import json
 import re
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -90,19 +93,52 @@ def test_references_of_an_unknown_scene(daemon):
 
 
 def test_a_job_keeps_its_reference_after_delete(daemon, tmp_path):
-    """An animation retains its reference from submission: deleting the reference meanwhile
-    takes it out of the listing and the budget, and every frame is still measured against it."""
+    """An animation retains its reference from submission: deleting the reference while the job
+    runs takes it out of the listing, and every frame is still measured against it. Its bytes
+    stay in the budget while the job holds the pixels, and go back when the job ends."""
+    before = references_used(daemon)
     upload_reference(daemon, tmp_path, "held", value=0.5)
-    s = new_session(daemon, width=8, height=8, params={"spp": 1})
-    r = daemon.req("POST", s["href"] + "/renders", json_body={"animation": {"fps": 10, "frames": 4}, "reference": "held"})
+    s = new_session(daemon, width=8, height=8, params={"spp": 256})
+    r = daemon.req("POST", s["href"] + "/renders", json_body={"animation": {"fps": 10, "frames": 100}, "reference": "held"})
     assert r.status == 202, repr(r)
     assert daemon.req("DELETE", f"{CORNELL}/references/held").status == 204
+    job = daemon.req("GET", r.header("Location")).json()
+    assert job["status"] in ("queued", "running") and job["progress"]["frames_done"] < 100, job
     assert "held" not in listed(daemon)
+    assert references_used(daemon) == before + 768
     job = wait_job(daemon, r.header("Location"))
+    assert references_used(daemon) == before
     assert job["reference"] == "held"
     series = daemon.req("GET", r.header("Location") + "/metrics").json()["series"]
-    assert len(series) == 4 and all(row["rmse"] is not None and row["rmse"] > 0 for row in series), series
+    assert len(series) == 100 and all(row["rmse"] is not None and row["rmse"] > 0 for row in series), series
     assert daemon.req("DELETE", s["href"]).status == 204
+
+
+def sessions_used(d):
+    return d.req("GET", "/v1/limits").json()["memory_used"]["sessions"]
+
+
+def test_a_reference_job_cancelled_in_its_last_pass_stores_nothing(daemon):
+    """Deleting the session while its reference job renders the last pass cancels the job: the
+    reference is never stored, so a client that deletes the session and then the reference
+    leaves nothing behind. (The session's bytes go back when the job lets go of it.)"""
+    sessions_before, refs_before = sessions_used(daemon), references_used(daemon)
+    s = new_session(daemon, width=8, height=8, params={"spp": 1})
+    r = daemon.req("POST", s["href"] + "/references/late", json_body={"spp": 65536})
+    assert r.status == 202, repr(r)
+    while True:
+        job = daemon.req("GET", r.header("Location")).json()
+        assert job["status"] in ("queued", "running"), job
+        if job["progress"]["frames_done"] == job["progress"]["frames_total"] - 1:
+            break
+        time.sleep(0.002)
+    assert daemon.req("DELETE", s["href"]).status == 204
+    deadline = time.monotonic() + 60
+    while sessions_used(daemon) != sessions_before:
+        assert time.monotonic() < deadline, "the reference job never let go of its session"
+        time.sleep(0.02)
+    assert "late" not in listed(daemon)
+    assert references_used(daemon) == refs_before
 
 
 def test_reference_post_idempotency_key(daemon):
@@ -127,6 +163,42 @@ def test_reference_post_idempotency_key(daemon):
     wait_job(daemon, first.header("Location"))
     assert len(daemon.req("GET", s["href"] + "/renders").json()["renders"]) == 1
     assert daemon.req("DELETE", f"{CORNELL}/references/idem").status == 204
+    assert daemon.req("DELETE", s["href"]).status == 204
+
+
+def post_at_once(d, path, body, headers, n):
+    """n POSTs sent back to back on connections opened beforehand, so they overlap in the
+    daemon; their answers in order."""
+    conns = [http.client.HTTPConnection("127.0.0.1", d.port, timeout=60) for _ in range(n)]
+    data = json.dumps(body).encode()
+    try:
+        for c in conns:
+            c.connect()
+        for c in conns:
+            c.request("POST", path, body=data, headers={"Content-Type": "application/json", **headers})
+        return [(r.status, json.loads(r.read())) for r in (c.getresponse() for c in conns)]
+    finally:
+        for c in conns:
+            c.close()
+
+
+@pytest.mark.concurrency
+@pytest.mark.parametrize("path, body", [("/references/together", {"spp": 16}),
+                                        ("/renders", {"animation": {"fps": 10, "frames": 2}})])
+def test_requests_sent_at_once_with_one_key_make_one_job(daemon, path, body):
+    """Requests under one Idempotency-Key that arrive together all get the same job: one of them
+    makes it, the others are answered with it, none gets a 409."""
+    s = new_session(daemon, width=8, height=8, params={"spp": 1})
+    rounds = 10
+    for round in range(rounds):
+        key = f"together-{round}-{time.monotonic_ns()}"
+        answers = post_at_once(daemon, s["href"] + path, body, {"Idempotency-Key": key}, 6)
+        assert [status for status, _ in answers] == [202] * 6, answers
+        assert len({job["id"] for _, job in answers}) == 1, answers
+        wait_job(daemon, answers[0][1]["location"])
+    assert len(daemon.req("GET", s["href"] + "/renders").json()["renders"]) == rounds
+    if path.startswith("/references/"):
+        assert daemon.req("DELETE", f"{CORNELL}{path}").status == 204
     assert daemon.req("DELETE", s["href"]).status == 204
 
 

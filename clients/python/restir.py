@@ -1138,25 +1138,32 @@ def cmd_orbit(client, args, out, prog):
             _write(path, data)
             saved[index] = path
 
-        state, last_poll = job, 0.0
+        # Events and the job name session frame numbers; files are named by the job's frame
+        # index. The job's frames are consecutive, from session frame `base`, which a poll
+        # tells once a frame of the job is kept (frames_kept[0] less frames_evicted).
+        state, last_poll, base = job, 0.0, None
         while True:
             try:
                 name, data = q.get(timeout=0.5)
             except queue.Empty:
                 name, data = None, None
             if name == "frame" and isinstance(data, dict) and data.get("job") == rid and data.get("href"):
-                # the session is new, so its frame numbers are the job's frame indices
-                fetch(int(data["frame"]), data["href"])
+                if base is None:
+                    last_poll = 0.0     # poll now: it tells base, and offers the frame too
+                else:
+                    fetch(int(data["frame"]) - base, data["href"])
                 ms = data.get("render_ms")
                 prog.update("job %s: frame %d/%d (%s ms)" % (
                     rid, len(saved), args.frames, "%.1f" % ms if isinstance(ms, (int, float)) else "?"))
             if name in ("done", "error") or time.monotonic() - last_poll > 1.0 or name is None:
                 state = client.job(s, rid)
                 last_poll = time.monotonic()
-                # A job offers only the frames still kept, the last ones, from frames_kept[0].
-                # (A daemon without frames_kept offers every frame.)
-                kept = state.get("frames_kept", [0])
-                first = kept[0] if kept else pr_done(state)
+                # A job offers only the frames still kept, its last ones: the first
+                # frames_evicted of them are gone. (A daemon without it offers every frame.)
+                first = int(state.get("frames_evicted") or 0)
+                kept = state.get("frames_kept")
+                if kept:
+                    base = kept[0] - first
                 lost = [i for i in range(first) if i not in saved]
                 if lost:
                     raise RestirError(410, type=PROBLEM_PREFIX + "frame-evicted", detail=evicted(lost[0], None).strip())
@@ -1177,16 +1184,12 @@ def cmd_orbit(client, args, out, prog):
         client.delete_session(s, missing_ok=True)
 
 
-def pr_done(job):
-    """Frames a job has rendered (its progress)."""
-    return (job.get("progress") or {}).get("frames_done") or 0
-
-
 def cmd_metrics(client, args, out, prog):
     s = _make_session(client, args)
     # A reference named for this run's session is this run's alone: it goes when the run ends,
     # however it ends. One named with --reference is the caller's and stays.
     name = args.reference or ("ref-%s" % s.id)[:64]
+    finished = False
     try:
         prog.update("session %s: rendering reference %s at %d spp (%s)" % (s.id, name, args.reference_spp,
                                                                           args.reference_method))
@@ -1215,13 +1218,23 @@ def cmd_metrics(client, args, out, prog):
             last = rows[-1]
             prog.line("%d frames; last frame: mape %s rmse %s relmse %s -> %s" % (
                 len(rows), last.get("mape"), last.get("rmse"), last.get("relmse"), args.output))
+        finished = True
         return 0
     finally:
         # The session first: deleting it cancels a reference job still running, which could
-        # otherwise store the reference after it was deleted.
-        client.delete_session(s, missing_ok=True)
-        if not args.reference:
-            client.delete_reference(s.scene, name, missing_ok=True)
+        # otherwise store the reference after it was deleted. The reference is deleted even
+        # when deleting the session fails; a failed deletion is the run's error only when the
+        # run itself succeeded (otherwise the error it ended with is the one to report).
+        try:
+            try:
+                client.delete_session(s, missing_ok=True)
+            finally:
+                if not args.reference:
+                    client.delete_reference(s.scene, name, missing_ok=True)
+        except RestirError as e:
+            if finished:
+                raise
+            prog.line("metrics: cleaning up failed too: %s" % e)
 
 
 def _scene_meshes(doc):
