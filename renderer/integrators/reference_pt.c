@@ -344,10 +344,10 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         /* Lambertian vertices, most of them in most scenes, skip the material dispatch (and,
          * without SMS, the local frame's first two axes): material_diffuse_* give the same
          * bits. */
-        const bool diffuse = m->kind == MATERIAL_DIFFUSE;
+        const bool diffuse = material_diffuse_path(m);
         struct vec3 wo = diffuse && !ss ? vec3_make(0.0f, 0.0f, vec3_dot(wo_world, s.frame.n))
                                         : frame_to_local(&s.frame, wo_world);
-        unsigned flags = diffuse ? BSDF_REFLECTION | BSDF_DIFFUSE : material_flags(m);
+        unsigned flags = diffuse ? material_diffuse_flags() : material_flags(m);
         /* Offset origin of the shadow ray, and which side of ng it is on (-1: none traced). */
         struct vec3 shadow_org = s.p;
         int shadow_side = -1;
@@ -425,7 +425,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             rng_skip(rng);  /* the lobe choice: one lobe */
             float u1 = rng_next_float(rng), u2 = rng_next_float(rng);
             if (!material_diffuse_sample(m, wo.z, u1, u2, &bs.wi, &bs.pdf_w, &weight)) break;
-            bs.flags = BSDF_REFLECTION | BSDF_DIFFUSE;
+            bs.flags = material_diffuse_flags();
             bs.lobe = 0;
         } else {
             float u_lobe = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
