@@ -191,8 +191,10 @@ __attribute__((noinline)) static struct vec3 pt_sms_at(const struct scene *scene
     return sms_estimate(scene, split->ss, params->sms, s, m, wo, room, split->sms_rng, split->sc, rc);
 }
 
-/* What pt_sss_primary updates, copied in and out so that the path loop's own copies stay
- * registers (see pt_radiance). */
+/* pt_sss_primary's arguments, copied in and out so that the path loop's own variables stay
+ * registers (see pt_radiance). Every field pt_sss_primary may write (beta, L, rng, rc, org, dir,
+ * prev_p, skip_emission) is copied back after the call, whether the path goes on or not; s is
+ * only read. */
 struct pt_sss_io {
     struct surface s;
     struct vec3 beta, L, org, dir, prev_p;
