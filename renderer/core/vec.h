@@ -199,4 +199,21 @@ static inline bool xform_from_trs(const struct trs *t, struct xform *out)
     return finite;
 }
 
+/* A vec3 on four SSE lanes (GCC/Clang vector extensions), the fourth 0, for loops that carry a
+ * colour across many operations (a path's throughput and radiance): the same IEEE operations
+ * lane by lane as vec3's, so the same bits, but one instruction per operation, and one store
+ * and one load each when kept across an opaque call (which preserves no SSE register) instead
+ * of three. Arithmetic is the extensions' own (+, *, a scalar broadcast). */
+typedef float vec3_v4 __attribute__((vector_size(16)));
+static inline vec3_v4 vec3_v4_pack(struct vec3 a) { return (vec3_v4){a.x, a.y, a.z, 0.0f}; }
+static inline struct vec3 vec3_v4_unpack(vec3_v4 a) { return vec3_make(a[0], a[1], a[2]); }
+
+/* fmaxf without the libm call (in a hot loop the call also costs the reload of every SSE
+ * register), with fmaxf's results (tests/unit/test_core.c): a NaN gives the other value, two
+ * NaNs a NaN; of equal values (+0, -0) the second, as glibc's maxss-based fmaxf (C leaves that
+ * sign open, and GCC may swap fmaxf's operands, so vec3_max_comp can give either). */
+static inline float vec_fmaxf(float a, float b) { return a > b || b != b ? a : b; }
+/* vec3_max_comp of the first three lanes, the same results. */
+static inline float vec3_v4_max_comp(vec3_v4 a) { return vec_fmaxf(a[0], vec_fmaxf(a[1], a[2])); }
+
 #endif

@@ -191,22 +191,10 @@ __attribute__((noinline)) static struct vec3 pt_sms_at(const struct scene *scene
     return sms_estimate(scene, split->ss, params->sms, s, m, wo, room, split->sms_rng, split->sc, rc);
 }
 
-/* The path's throughput and radiance on four SSE lanes (GCC/Clang vector extensions): the
- * same IEEE operations lane by lane as vec3's, so the same bits, but one instruction per
- * operation, and one store and one load each when they are kept across an Embree call (which
- * preserves no SSE register) instead of three. */
-typedef float pt_v4 __attribute__((vector_size(16)));
-static inline pt_v4 pt_pack(struct vec3 a) { return (pt_v4){a.x, a.y, a.z, 0.0f}; }
-static inline struct vec3 pt_unpack(pt_v4 a) { return vec3_make(a[0], a[1], a[2]); }
-
-/* vec3_max_comp of the first three lanes without its two libm calls (fmaxf: a call in the loop
- * also costs the reload of every SSE register), with fmaxf's results: a NaN gives the other
- * value, equal values (+0, -0) the second, as glibc's maxss-based fmaxf. */
-static inline float pt_fmax(float a, float b) { return a > b || b != b ? a : b; }
-static inline float pt_max3(pt_v4 a) { return pt_fmax(a[0], pt_fmax(a[1], a[2])); }
-
-/* What pt_sss_primary updates, copied in and out so that the path loop's own copies stay
- * registers (see pt_radiance). */
+/* pt_sss_primary's arguments, copied in and out so that the path loop's own variables stay
+ * registers (see pt_radiance). Every field pt_sss_primary may write (beta, L, rng, rc, org, dir,
+ * prev_p, skip_emission) is copied back after the call, whether the path goes on or not; s is
+ * only read. */
 struct pt_sss_io {
     struct surface s;
     struct vec3 beta, L, org, dir, prev_p;
@@ -244,7 +232,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
     const bool mis = params->nee;
     const bool nee = params->nee && light_sampler_count(lights) > 0;
     const uint32_t max_depth = params->max_depth, rr_depth = params->rr_depth;
-    pt_v4 L = {0.0f, 0.0f, 0.0f, 0.0f}, beta = {1.0f, 1.0f, 1.0f, 0.0f};
+    vec3_v4 L = {0.0f, 0.0f, 0.0f, 0.0f}, beta = {1.0f, 1.0f, 1.0f, 0.0f};
     /* The product of 1 / material_radiance_scale over the path's refractions: beta times this
      * is the throughput the path will have outside the glass it is in, which is what Russian
      * roulette weighs. Weighing beta itself, which inside glass of ior 1.5 is 1 / 2.25 of that,
@@ -274,7 +262,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             if (part_rest && !vec3_is_zero(scene->env_radiance) && !skip_emission) {
                 float w = 1.0f;
                 if (!prev_delta && mis) w = sampling_power_heuristic(prev_pdf_w, light_sampler_env_pdf_w(lights));
-                L = L + beta * pt_pack(scene->env_radiance) * w;
+                L = L + beta * vec3_v4_pack(scene->env_radiance) * w;
             }
             break;
         }
@@ -293,7 +281,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
                                                                      vec3_dot(dir, s.ng));
                     w = sampling_power_heuristic(prev_pdf_w, pdf_light_w);
                 }
-                L = L + beta * pt_pack(Le) * w;
+                L = L + beta * vec3_v4_pack(Le) * w;
             }
         }
         if (depth >= max_depth) break;
@@ -310,13 +298,13 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             /* Direct light at the entry points belongs to the rest of the light transport; the
              * track stays where it was, so no path through subsurface scattering counts as owned
              * by specular manifold sampling (which does not sample from entry points). */
-            struct pt_sss_io io = {.s = s, .beta = pt_unpack(beta), .L = pt_unpack(L), .rng = rng_local,
+            struct pt_sss_io io = {.s = s, .beta = vec3_v4_unpack(beta), .L = vec3_v4_unpack(L), .rng = rng_local,
                                    .rc = rc_local, .org = org, .dir = dir, .prev_p = prev_p,
                                    .skip_emission = skip_emission};
             bool more = pt_sss_primary(scene, params, m, &io.s, vec3_neg(dir), &io.beta, &io.L, &io.rng, &io.rc,
                                        &io.org, &io.dir, &io.prev_p, &io.skip_emission, direct_here);
-            beta = pt_pack(io.beta);
-            L = pt_pack(io.L);
+            beta = vec3_v4_pack(io.beta);
+            L = vec3_v4_pack(io.L);
             rng_local = io.rng;
             rc_local = io.rc;
             org = io.org;
@@ -332,7 +320,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             prev_pdf_w = 0.0f;
             float u_rr = rng_next_float(rng);
             if (depth + 1 >= rr_depth) {
-                float mx = pt_max3(beta);
+                float mx = vec3_v4_max_comp(beta);
                 float q = mx < 0.95f ? mx : 0.95f;
                 if (!(q > 0.0f) || u_rr >= q) break;
                 beta = beta * (1.0f / q);
@@ -344,10 +332,10 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         /* Lambertian vertices, most of them in most scenes, skip the material dispatch (and,
          * without SMS, the local frame's first two axes): material_diffuse_* give the same
          * bits. */
-        const bool diffuse = m->kind == MATERIAL_DIFFUSE;
+        const bool diffuse = material_diffuse_path(m);
         struct vec3 wo = diffuse && !ss ? vec3_make(0.0f, 0.0f, vec3_dot(wo_world, s.frame.n))
                                         : frame_to_local(&s.frame, wo_world);
-        unsigned flags = diffuse ? BSDF_REFLECTION | BSDF_DIFFUSE : material_flags(m);
+        unsigned flags = diffuse ? material_diffuse_flags() : material_flags(m);
         /* Offset origin of the shadow ray, and which side of ng it is on (-1: none traced). */
         struct vec3 shadow_org = s.p;
         int shadow_side = -1;
@@ -360,7 +348,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
              * its tiles are arbitrary, and a solution outside them would carry the uniform
              * share's weight, N² / (9 (1 − α)). Elsewhere seeds come from plain partitioning. */
             struct pt_sss_io io = {.s = s, .rc = rc_local};  /* copies, as for pt_sss_primary */
-            L = L + beta * pt_pack(pt_sms_at(scene, params, split, receiver, &io.s, m, wo, room, &io.rc));
+            L = L + beta * vec3_v4_pack(pt_sms_at(scene, params, split, receiver, &io.s, m, wo, room, &io.rc));
             rc_local = io.rc;
         }
         /* Next-event estimation: one light sample, MIS-weighted against BSDF sampling. */
@@ -405,7 +393,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
                                 float pdf_bsdf_w = diffuse ? material_diffuse_pdf(wo.z, wi.z) : material_pdf(m, wo, wi);
                                 float w = sampling_power_heuristic(pdf_light_w, pdf_bsdf_w);
                                 struct vec3 c = vec3_scale(vec3_mul(f, Le), fabsf(wi.z) * w / pdf_light_w);
-                                L = L + beta * pt_pack(c);
+                                L = L + beta * vec3_v4_pack(c);
                             }
                         }
                     }
@@ -425,7 +413,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             rng_skip(rng);  /* the lobe choice: one lobe */
             float u1 = rng_next_float(rng), u2 = rng_next_float(rng);
             if (!material_diffuse_sample(m, wo.z, u1, u2, &bs.wi, &bs.pdf_w, &weight)) break;
-            bs.flags = BSDF_REFLECTION | BSDF_DIFFUSE;
+            bs.flags = material_diffuse_flags();
             bs.lobe = 0;
         } else {
             float u_lobe = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
@@ -435,7 +423,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         struct vec3 wi_world = frame_to_world(&s.frame, bs.wi);
         float cos_ng = vec3_dot(wi_world, s.ng);
         if (cos_ng * bs.wi.z <= 0.0f) break;
-        beta = beta * pt_pack(weight);
+        beta = beta * vec3_v4_pack(weight);
         if (bs.flags & BSDF_TRANSMISSION) rr_scale /= material_radiance_scale(m, wo, bs.wi);
         if (tracked) sms_track_scatter(scene, &track, &s, bs.flags);
         if (canonical) {
@@ -450,7 +438,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         if (depth + 1 >= rr_depth) {
             /* fminf(0.95f, max) spelled out: fminf is a libm call at -O2 (NaN rules), and a NaN
              * max gives 0.95 either way. */
-            float mx = pt_max3(beta) * rr_scale;
+            float mx = vec3_v4_max_comp(beta) * rr_scale;
             float q = mx < 0.95f ? mx : 0.95f;
             if (!(q > 0.0f) || u_rr >= q) break;
             beta = beta * (1.0f / q);
@@ -462,7 +450,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
     *rng_io = rng_local;
     rc_io->intersect += rc_local.intersect;
     rc_io->occluded += rc_local.occluded;
-    return pt_unpack(L);
+    return vec3_v4_unpack(L);
 }
 
 struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,

@@ -1002,6 +1002,7 @@ struct pt_pass {
     const struct pt_ctx *c;
     struct restir_pass_stats local;   /* the counters of a frame whose caller keeps none */
 };
+RESTIR_FRAME_FIRST(struct pt_pass);
 
 /* Initial pass: one path per pixel into the working buffer; the image gets what the reservoir
  * does not carry. */
@@ -1078,7 +1079,7 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
     if (!restir_frame_gbuffer(&pp.fr, 0.0f, pt_uses_pairs(params), err)) return false;
     restir_pt_bind(st, params, f, &c);
     pp.c = &c;
-    if (!restir_frame_initial(&pp.fr, pt_initial_rows, &pp, err)) return false;
+    if (!restir_frame_initial(&pp.fr, pt_initial_rows, err)) return false;
     if (!out) return true;   /* restir_pt_initial_only */
     struct restir_reuse *r = restir_frame_reuse(&pp.fr, &restir_pt_ops, &c, 0, params->temporal_cap,
                                                 params->spatial_neighbors, params->spatial_radius,
@@ -1093,7 +1094,7 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
     }
     if (params->spatial_neighbors == 0) restir_session_swap(&st->rs);
     restir_frame_reused(&pp.fr);
-    return restir_frame_shade(&pp.fr, pt_shade_rows, &pp, err);
+    return restir_frame_shade(&pp.fr, pt_shade_rows, err);
 }
 
 bool restir_pt_initial_only(struct restir_pt_state *st, const struct restir_pt_params *params,

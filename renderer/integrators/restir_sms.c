@@ -6,6 +6,7 @@
 #include "integrators/restir_sms.h"
 
 #include <math.h>
+#include <stddef.h>
 #include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
@@ -454,6 +455,11 @@ struct sms_pass {
     struct sms_counters sms[RESTIR_MAX_WORKERS];
     struct restir_sms_stats local;   /* the counters of a frame whose caller keeps none */
 };
+RESTIR_FRAME_FIRST(struct sms_pass);
+/* The frame's stats pointer is this struct's `pass`. */
+_Static_assert(offsetof(struct restir_sms_stats, pass) == 0, "restir_sms_stats must begin with its pass stats");
+/* One reuse per light reservoir, in the frame's fixed array. */
+_Static_assert(RESTIR_SMS_MAX_LIGHT_RESERVOIRS <= RESTIR_MAX_LAYERS, "more light reservoirs than a frame reuses");
 
 /* Initial pass: the candidate into the working buffer, and the sms_ssp path for the rest of the
  * image from the same primary ray (the G-buffer's jitter). */
@@ -573,7 +579,7 @@ static bool sms_frame(struct restir_sms_state *st, const struct restir_sms_param
      * either sampler: the prior describes receivers only, and without it partitioning has more
      * variance than SMS's seeds over the whole caster (restir_sms.h). */
     pp.pt.sms = &params->ssp.sms;
-    if (!restir_frame_initial(&pp.fr, sms_initial_rows, &pp, err)) return false;
+    if (!restir_frame_initial(&pp.fr, sms_initial_rows, err)) return false;
     for (unsigned i = 0; i < pp.fr.threads; i++) sms_counters_add(&stats->sms, &pp.sms[i]);
     if (!out) return true;
 
@@ -594,7 +600,7 @@ static bool sms_frame(struct restir_sms_state *st, const struct restir_sms_param
     restir_frame_reused(&pp.fr);
     stats->shift_newton = atomic_load(&c->shared->newton);
     stats->shift_not_invertible = atomic_load(&c->shared->not_invertible);
-    return restir_frame_shade(&pp.fr, sms_shade_rows, &pp, err);
+    return restir_frame_shade(&pp.fr, sms_shade_rows, err);
 }
 
 bool restir_sms_initial_only(struct restir_sms_state *st, const struct restir_sms_params *params,

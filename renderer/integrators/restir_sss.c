@@ -6,6 +6,7 @@
 #include "integrators/restir_sss.h"
 
 #include <math.h>
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -550,6 +551,9 @@ struct sss_pass {
     struct pt_params pt;
     struct restir_sss_stats local;   /* the counters of a frame whose caller keeps none */
 };
+RESTIR_FRAME_FIRST(struct sss_pass);
+/* The frame's stats pointer is this struct's `pass`. */
+_Static_assert(offsetof(struct restir_sss_stats, pass) == 0, "restir_sss_stats must begin with its pass stats");
 
 /* Initial pass: candidates into the working buffer, and the pt path for the rest of the image
  * from the same primary ray (the G-buffer's jitter). */
@@ -661,7 +665,7 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
     restir_sss_bind(st, params, f, &c);
     pp.c = &c;
     pp.pt = reference_pt_rest(st->rs.width, st->rs.height, params->max_depth, params->rr_depth);
-    if (!restir_frame_initial(&pp.fr, sss_initial_rows, &pp, err)) return false;
+    if (!restir_frame_initial(&pp.fr, sss_initial_rows, err)) return false;
     if (!out) return true;   /* restir_sss_initial_only */
     float radius = params->spatial_radius > 0.0f ? params->spatial_radius
                                                  : sss_auto_radius(&c, f->camera, st->rs.width, st->rs.height);
@@ -693,7 +697,7 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
         restir_session_swap(&st->rs);
     }
     restir_frame_reused(&pp.fr);
-    return restir_frame_shade(&pp.fr, sss_shade_rows, &pp, err);
+    return restir_frame_shade(&pp.fr, sss_shade_rows, err);
 }
 
 bool restir_sss_initial_only(struct restir_sss_state *st, const struct restir_sss_params *params,

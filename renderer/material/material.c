@@ -31,7 +31,7 @@ unsigned material_lobe_flags(const struct material *m, int lobe)
     if (!material_lobe_valid(m, lobe)) return 0;
     unsigned spread = microfacet_is_delta(m->roughness) ? BSDF_DELTA : BSDF_GLOSSY;
     switch (m->kind) {
-    case MATERIAL_DIFFUSE: return BSDF_REFLECTION | BSDF_DIFFUSE;
+    case MATERIAL_DIFFUSE: return material_diffuse_flags();
     case MATERIAL_CONDUCTOR: return BSDF_REFLECTION | spread;
     case MATERIAL_DIELECTRIC: return (lobe == 0 ? BSDF_REFLECTION : BSDF_TRANSMISSION) | spread;
     case MATERIAL_TRANSLUCENT: return BSDF_REFLECTION | BSDF_DIFFUSE;
@@ -53,7 +53,7 @@ unsigned material_flags(const struct material *m)
      * vertex. */
     unsigned spread = microfacet_is_delta(m->roughness) ? BSDF_DELTA : BSDF_GLOSSY;
     switch (m->kind) {
-    case MATERIAL_DIFFUSE: return BSDF_REFLECTION | BSDF_DIFFUSE;
+    case MATERIAL_DIFFUSE: return material_diffuse_flags();
     case MATERIAL_CONDUCTOR: return BSDF_REFLECTION | spread;
     case MATERIAL_DIELECTRIC: return BSDF_REFLECTION | BSDF_TRANSMISSION | spread;
     case MATERIAL_TRANSLUCENT: return BSDF_REFLECTION | BSDF_DIFFUSE;

@@ -5,7 +5,8 @@
  * shade the side that wo is on and return 0 for wi in the other hemisphere. Dielectrics
  * treat +z as outside (ior is inside/outside).
  * material.c holds the only switch on material kind; the Lambertian pieces below are inline so
- * that a path loop can take them without the dispatch. Thread-safe: pure functions. */
+ * that a path loop can take them without the dispatch, and material_diffuse_path says where
+ * they apply (the one test of the kind outside material.c). Thread-safe: pure functions. */
 #ifndef RESTIRD_MATERIAL_H
 #define RESTIRD_MATERIAL_H
 
@@ -100,6 +101,11 @@ float material_pdf_lobe(const struct material *m, int lobe, struct vec3 wo, stru
  * f_radiance(wi, wo)). */
 bool material_sample(const struct material *m, struct vec3 wo, float u_lobe, float u1, float u2,
                      enum transport_mode mode, struct bsdf_sample *out);
+/* Whether the material_diffuse_* pieces below stand in for material_eval, material_pdf and
+ * material_sample at m, bit for bit (tests/unit/test_bsdf.c): a path loop's fast path. */
+static inline bool material_diffuse_path(const struct material *m) { return m->kind == MATERIAL_DIFFUSE; }
+/* The flags of that path's one lobe: material_flags(m) and every sample's bsdf_sample.flags. */
+static inline unsigned material_diffuse_flags(void) { return BSDF_REFLECTION | BSDF_DIFFUSE; }
 /* The Lambertian BRDF (MATERIAL_DIFFUSE, and bsdf_diffuse.c builds on these) needs only the
  * cosines of wo and wi with the shading normal, not the whole local directions: f = albedo / pi
  * when both are on the same side, and the cosine-weighted pdf of wi. Bit for bit what

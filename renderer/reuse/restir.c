@@ -662,14 +662,14 @@ void restir_frame_domains(const struct restir_session *s, const struct method_fr
     gbuf[RESTIR_PREVIOUS] = &s->gbuf[s->cur ^ 1u];
 }
 
-static bool restir_frame_run(struct restir_frame *fr, parallel_job_fn *fn, void *pass, struct err *err)
+static bool restir_frame_run(struct restir_frame *fr, parallel_job_fn *fn, struct err *err)
 {
-    return restir_run_rows(fr->s->height, RESTIR_FRAME_ROWS, fr->threads, fn, pass, err);
+    return restir_run_rows(fr->s->height, RESTIR_FRAME_ROWS, fr->threads, fn, fr, err);
 }
 
-bool restir_frame_initial(struct restir_frame *fr, parallel_job_fn *fn, void *pass, struct err *err)
+bool restir_frame_initial(struct restir_frame *fr, parallel_job_fn *fn, struct err *err)
 {
-    if (!restir_frame_run(fr, fn, pass, err)) return false;
+    if (!restir_frame_run(fr, fn, err)) return false;
     fr->stats->initial_ms = parallel_lap_ms(&fr->t0);
     for (unsigned i = 0; i < fr->threads; i++) restir_pass_stats_add(fr->stats, &fr->counters[i]);
     clock_gettime(CLOCK_MONOTONIC, &fr->t0);
@@ -731,10 +731,10 @@ void restir_frame_reused(struct restir_frame *fr)
     restir_pass_stats_add(fr->stats, &fr->reuse_counters);
 }
 
-bool restir_frame_shade(struct restir_frame *fr, parallel_job_fn *fn, void *pass, struct err *err)
+bool restir_frame_shade(struct restir_frame *fr, parallel_job_fn *fn, struct err *err)
 {
     memset(fr->nonfinite, 0, sizeof fr->nonfinite);
-    if (!restir_frame_run(fr, fn, pass, err)) return false;
+    if (!restir_frame_run(fr, fn, err)) return false;
     for (unsigned i = 0; i < fr->threads; i++) fr->stats->nonfinite += fr->nonfinite[i];
     fr->stats->shade_ms = parallel_lap_ms(&fr->t0);
     fr->s->has_history = true;

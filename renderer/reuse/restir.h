@@ -201,17 +201,23 @@ bool restir_gbuffer_next(struct gbuffer gbuf[2], uint32_t *cur, bool *has_histor
  * frame's history), and the shade pass that adds F(Y) W of the final reservoirs. The driver owns
  * the order, the clocks, the counters and the buffer swaps; a method supplies its checks, its
  * context and two row functions (initial, shade), each called once per job of
- * RESTIR_FRAME_ROWS rows. A method's pass struct starts with a `struct restir_frame`, and that
- * pass struct is the row functions' job context. On the stack (~90 KiB with the per-worker
+ * RESTIR_FRAME_ROWS rows. A method's pass struct starts with a `struct restir_frame`
+ * (RESTIR_FRAME_FIRST), so the frame is the row functions' job context and they reach the pass
+ * struct from it. On the stack (~90 KiB with the per-worker
  * counters): a frame allocates nothing. */
 #define RESTIR_FRAME_ROWS 2u
+/* A method's pass struct must begin with its `struct restir_frame fr`: restir_frame_open zeroes
+ * pass_bytes from &fr, and the row functions cast the frame they are given to the pass struct. */
+#define RESTIR_FRAME_FIRST(pass_type) \
+    _Static_assert(offsetof(pass_type, fr) == 0, #pass_type " must begin with its struct restir_frame fr")
 #define RESTIR_MAX_LAYERS 8u   /* reservoirs per pixel a frame reuses (restir_sms: one per light group) */
 
 struct restir_frame {
     struct restir_session *s;
     const struct method_frame *f;
     struct image *out;                 /* NULL: the initial pass alone (a method's initial_only) */
-    struct restir_pass_stats *stats;   /* the method's counters, which start with these */
+    struct restir_pass_stats *stats;   /* the method's counters, which start with these (each method
+                                        * asserts its stats' `pass` at offset 0) */
     struct camera camera;              /* f->camera at the session's size */
     unsigned threads;
     bool history;                      /* temporal reuse has the previous frame's reservoirs */
@@ -234,9 +240,9 @@ void *restir_frame_open(struct restir_frame *fr, size_t pass_bytes, struct resti
  * its scratch, starts the clock and renders the G-buffer pass (restir_gbuffer_next; jitter_walk as
  * gbuffer_frame's), whose time and rays go to the stats. */
 bool restir_frame_gbuffer(struct restir_frame *fr, float jitter_walk, bool pairs, struct err *err);
-/* The initial pass: fn(pass, job) over the rows; then its time and the workers' `counters` go to
- * the stats, and the clock restarts for the reuse passes. */
-bool restir_frame_initial(struct restir_frame *fr, parallel_job_fn *fn, void *pass, struct err *err);
+/* The initial pass: fn(fr, job) over the rows (fr is the start of the pass struct); then its time
+ * and the workers' `counters` go to the stats, and the clock restarts for the reuse passes. */
+bool restir_frame_initial(struct restir_frame *fr, parallel_job_fn *fn, struct err *err);
 /* The reuse of every layer: the same ops and parameters, layer l's context at ctx + l * ctx_stride
  * bytes (0: one context for all). Returns fr->reuse, for a method that changes a round's fields. */
 struct restir_reuse *restir_frame_reuse(struct restir_frame *fr, const struct restir_ops *ops, const void *ctx,
@@ -257,9 +263,9 @@ static inline void restir_session_swap(struct restir_session *s)
 }
 /* Closes the reuse: the spatial rounds' time and the reuse counters go to the stats. */
 void restir_frame_reused(struct restir_frame *fr);
-/* The shade pass: fn(pass, job) over the rows (restir_frame_store per pixel); then the
+/* The shade pass: fn(fr, job) over the rows (restir_frame_store per pixel); then the
  * non-finite count and its time go to the stats, and the session has a history. */
-bool restir_frame_shade(struct restir_frame *fr, parallel_job_fn *fn, void *pass, struct err *err);
+bool restir_frame_shade(struct restir_frame *fr, parallel_job_fn *fn, struct err *err);
 
 /* What a method's shift context holds of the frame's two domains (RESTIR_CURRENT,
  * RESTIR_PREVIOUS): their scenes and G-buffers and, where eye is not NULL, their camera positions;

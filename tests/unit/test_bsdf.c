@@ -524,6 +524,59 @@ static void test_smooth_dielectric_lobe_fractions(void)
 
 /* ---------------------------------------------------------------- tests: deterministic */
 
+/* The diffuse fast path of material.h (material_diffuse_path, material_diffuse_f/pdf/sample and
+ * material_diffuse_flags) gives bit for bit what material_eval/pdf/sample and material_flags
+ * give for a diffuse material, over directions on both sides and the disk's whole square; and
+ * no other kind takes it. */
+static void test_diffuse_path_matches_dispatch(void)
+{
+    const struct material mats[] = {mat_diffuse(0.8f), mat_diffuse(1.0f), mat_diffuse(0.0f)};
+    const double thetas[] = {0.0, 1e-3, 30.0, 60.0, 89.9, 90.0};
+    const float us[] = {0.0f, 1e-7f, 0.25f, 0.5f, 0.7071f, 0.999f, 0x1.fffffep-1f};
+    uint32_t compared = 0, sampled = 0;
+    for (size_t k = 0; k < sizeof mats / sizeof mats[0]; k++) {
+        const struct material *m = &mats[k];
+        CHECK(material_diffuse_path(m));
+        CHECK(material_flags(m) == material_diffuse_flags());
+        for (size_t a = 0; a < 2 * sizeof thetas / sizeof thetas[0]; a++) {
+            const struct vec3 wo = dir_theta(thetas[a / 2], a & 1u);
+            for (size_t b = 0; b < 2 * sizeof thetas / sizeof thetas[0]; b++) {
+                struct vec3 wi = dir_theta(thetas[b / 2], b & 1u);
+                wi = vec3_make(-wi.y, wi.x, wi.z);  /* another azimuth than wo's */
+                const struct vec3 f = material_diffuse_f(m, wo.z, wi.z);
+                const struct vec3 f_ref = material_eval(m, wo, wi, TRANSPORT_RADIANCE);
+                const float pdf = material_diffuse_pdf(wo.z, wi.z), pdf_ref = material_pdf(m, wo, wi);
+                CHECK_MSG(memcmp(&f, &f_ref, sizeof f) == 0 && memcmp(&pdf, &pdf_ref, sizeof pdf) == 0,
+                          "albedo %g, wo.z %g wi.z %g: f %g pdf %g, dispatch f %g pdf %g", m->albedo.x, wo.z, wi.z,
+                          f.x, pdf, f_ref.x, pdf_ref);
+                compared++;
+            }
+            for (size_t i = 0; i < sizeof us / sizeof us[0]; i++)
+                for (size_t j = 0; j < sizeof us / sizeof us[0]; j++) {
+                    struct vec3 wi = {0}, weight = {0};
+                    float pdf_w = 0.0f;
+                    struct bsdf_sample bs;
+                    const bool ok = material_diffuse_sample(m, wo.z, us[i], us[j], &wi, &pdf_w, &weight);
+                    const bool ok_ref = material_sample(m, wo, 0.5f, us[i], us[j], TRANSPORT_RADIANCE, &bs);
+                    CHECK_MSG(ok == ok_ref, "wo.z %g, u (%g, %g): sampled %d, dispatch %d", wo.z, us[i], us[j], ok,
+                              ok_ref);
+                    if (!ok || !ok_ref) continue;
+                    const struct vec3 weight_ref = vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w);
+                    CHECK_MSG(memcmp(&wi, &bs.wi, sizeof wi) == 0 && memcmp(&pdf_w, &bs.pdf_w, sizeof pdf_w) == 0 &&
+                                  memcmp(&weight, &weight_ref, sizeof weight) == 0 &&
+                                  bs.flags == material_diffuse_flags() && bs.lobe == 0,
+                              "wo.z %g, u (%g, %g): wi.z %g pdf %g weight %g, dispatch wi.z %g pdf %g weight %g",
+                              wo.z, us[i], us[j], wi.z, pdf_w, weight.x, bs.wi.z, bs.pdf_w, weight_ref.x);
+                    sampled++;
+                }
+        }
+    }
+    const struct material others[] = {mat_conductor(0.3f), mat_dielectric(1.5f, 0.0f)};
+    for (size_t k = 0; k < sizeof others / sizeof others[0]; k++) CHECK(!material_diffuse_path(&others[k]));
+    printf("  %u evaluations and %u samples alike\n", compared, sampled);
+    CHECK(sampled > 100);
+}
+
 static void test_lobe_structure(void)
 {
     struct material d = mat_diffuse(0.5f);
@@ -991,7 +1044,8 @@ static void test_concentric_disk_round_trip(void)
     CHECK(fabsf(v1 - 0.5f) < 1e-6f && fabsf(v2) < 1e-6f);
 }
 
-TEST_MAIN(TEST(test_lobe_structure), TEST(test_concentric_disk_round_trip), TEST(test_fresnel), TEST(test_microfacet),
+TEST_MAIN(TEST(test_lobe_structure), TEST(test_diffuse_path_matches_dispatch), TEST(test_concentric_disk_round_trip),
+          TEST(test_fresnel), TEST(test_microfacet),
           TEST(test_gamma_q_known_values), TEST(test_pdf_integral), TEST(test_reciprocity),
           TEST(test_refraction_adjoint), TEST(test_sample_consistency), TEST(test_sidedness),
           TEST(test_white_furnace), TEST(test_degenerate_inputs), TEST(test_smooth_dielectric_lobe_fractions),

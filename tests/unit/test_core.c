@@ -1,6 +1,6 @@
 /* test_core.c — unit tests for the renderer's base pieces: RNG streams, alias tables, the
  * Embree backend (hit distances, front-face normals, instancing), ray origin offsets, the
- * light sampler's pdfs and the camera. Scenes are built in code so these tests do not depend
+ * light sampler's pdfs, the camera and vec.h's four-lane vec3. Scenes are built in code so these tests do not depend
  * on the JSON loader. */
 #include <math.h>
 #include <stdlib.h>
@@ -336,7 +336,43 @@ static void test_camera_rays(void)
     CHECK(right.x < 0.0f);
 }
 
-TEST_MAIN(TEST(test_rng_uniform_chi2), TEST(test_rng_streams_differ), TEST(test_rng_keyed_first_numbers_chi2),
-          TEST(test_distrib_chi2),
+/* vec_fmaxf and vec3_v4_max_comp give fmaxf's and vec3_max_comp's results over every pair and
+ * triple of special values: NaN in any lane (the other value; NaN only when all are), ±0 in
+ * either order, ±Inf, and the pack/unpack round trip keeps the bits. The sign of a zero maximum
+ * is left out of the comparison: C leaves fmaxf(+0, -0) to the implementation, and GCC, taking
+ * fmaxf as commutative, may swap the operands of glibc's call (which returns the second), so
+ * vec3_max_comp's sign there depends on the compiler. Equal non-zero floats have equal bits. */
+static bool same_float(float a, float b) { return (a != a && b != b) || a == b; }
+static void test_vec3_v4_max(void)
+{
+    volatile float nan = NAN;  /* not folded: the comparisons run as they do at run time */
+    const float v[] = {nan, -nan, 0.0f, -0.0f, 1.0f, -1.0f, 0.5f, INFINITY, -INFINITY, 1e-45f};
+    const size_t n = sizeof v / sizeof v[0];
+    uint32_t checked = 0;
+    for (size_t i = 0; i < n; i++)
+        for (size_t j = 0; j < n; j++) {
+            CHECK_MSG(same_float(vec_fmaxf(v[i], v[j]), fmaxf(v[i], v[j])), "vec_fmaxf(%g, %g) = %g, fmaxf %g", v[i],
+                      v[j], vec_fmaxf(v[i], v[j]), fmaxf(v[i], v[j]));
+            for (size_t k = 0; k < n; k++) {
+                const struct vec3 a = vec3_make(v[i], v[j], v[k]);
+                const vec3_v4 p = vec3_v4_pack(a);
+                const struct vec3 back = vec3_v4_unpack(p);
+                CHECK(memcmp(&back, &a, sizeof a) == 0 && vec_float_bits(p[3]) == 0);
+                const float got = vec3_v4_max_comp(p), want = vec3_max_comp(a);
+                CHECK_MSG(same_float(got, want), "max of (%g, %g, %g): %g, vec3_max_comp %g", a.x, a.y, a.z, got, want);
+                checked++;
+            }
+        }
+    /* Spelled out: a zero maximum is the second operand, as glibc's maxss-based fmaxf called in
+     * that order; the path loop's Russian roulette only asks whether it is > 0. */
+    CHECK(vec_float_bits(vec_fmaxf(0.0f, -0.0f)) == vec_float_bits(-0.0f));
+    CHECK(vec_float_bits(vec_fmaxf(-0.0f, 0.0f)) == vec_float_bits(0.0f));
+    CHECK(vec_fmaxf(nan, 2.0f) == 2.0f && vec_fmaxf(2.0f, nan) == 2.0f && isnan(vec_fmaxf(nan, nan)));
+    CHECK(vec3_v4_max_comp(vec3_v4_pack(vec3_make(nan, nan, 0.25f))) == 0.25f);
+    printf("  %u triples alike\n", checked);
+}
+
+TEST_MAIN(TEST(test_vec3_v4_max), TEST(test_rng_uniform_chi2), TEST(test_rng_streams_differ),
+          TEST(test_rng_keyed_first_numbers_chi2), TEST(test_distrib_chi2),
           TEST(test_accel_flat_and_two_level), TEST(test_accel_move_instance), TEST(test_offset_avoids_self_hit),
           TEST(test_light_sampler_pdfs), TEST(test_light_sampler_triangle_point_per_shape), TEST(test_camera_rays))

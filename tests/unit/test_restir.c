@@ -3,12 +3,15 @@
  * the pixels' supports differ, so a neighbour's sample is often worth nothing here and the MIS
  * weights decide the result. The shift is the identity (|J| = 1). Over many independent trials
  * (two frames: initial + temporal + spatial reuse) the per-pixel estimates F(Y) W must be
- * unbiased, paired and unpaired; a shift that lies about its Jacobian must be caught. */
+ * unbiased, paired and unpaired; a shift that lies about its Jacobian must be caught. The frame
+ * driver (restir_frame_*) is tested on the same toy: its shade pass's writes and where its
+ * spatial rounds leave the history. */
 #include <math.h>
 #include <stdlib.h>
 
 #include "reuse/restir.h"
 #include "core/rng.h"
+#include "image/image.h"
 #include "test.h"
 
 #define W_PX 16u
@@ -278,5 +281,132 @@ static void test_pairing_is_an_involution(void)
     CHECK(found * 10u >= total * 6u);
 }
 
-TEST_MAIN(TEST(test_pairing_is_an_involution), TEST(test_reuse_unbiased_unpaired), TEST(test_reuse_unbiased_paired),
-          TEST(test_wrong_jacobian_is_caught))
+/* ---- the frame driver, on the toy technique ---- */
+
+struct toy_pass {
+    struct restir_frame fr;
+    uint64_t seed;
+};
+RESTIR_FRAME_FIRST(struct toy_pass);
+
+/* Initial rows: the toy's candidates into the working reservoirs, all of them in job 0 (toy_initial
+ * draws the whole image); the other jobs have nothing to do. */
+static void toy_initial_rows(void *ctx, uint32_t job, unsigned worker)
+{
+    (void)worker;
+    struct toy_pass *tp = ctx;
+    if (job == 0) toy_initial((struct toy_elem *)tp->fr.s->res[0], tp->seed, tp->fr.f->frame);
+}
+
+/* Shade rows: every pixel through restir_frame_store, a NaN at every 5th pixel, +Inf and -Inf at
+ * the ones after it, finite values elsewhere. */
+static struct vec3 toy_shade_value(uint32_t p)
+{
+    switch (p % 5u) {
+    case 0: return vec3_make(1.0f, NAN, 2.0f);
+    case 1: return vec3_splat(INFINITY);
+    case 2: return vec3_make(0.5f, -INFINITY, 0.0f);
+    default: return vec3_make((float)p, 1.0f, 2.0f);
+    }
+}
+static void toy_shade_rows(void *ctx, uint32_t job, unsigned worker)
+{
+    struct toy_pass *tp = ctx;
+    uint32_t y0, y1;
+    restir_frame_rows(&tp->fr, job, &y0, &y1);
+    for (uint32_t p = y0 * W_PX; p < y1 * W_PX; p++) restir_frame_store(&tp->fr, worker, p, toy_shade_value(p));
+}
+
+/* A session with a static camera's G-buffer (as toy_run's) and a frame of the toy opened on it. */
+static bool toy_frame_open(struct restir_session *s, struct toy_pass *tp, const struct method_frame *f,
+                           struct image *out, struct restir_pass_stats *stats, struct err *err)
+{
+    if (!restir_session_init(s, W_PX, H_PX, 1, sizeof(struct toy_elem), false, false, err)) return false;
+    for (int i = 0; i < 2; i++)
+        for (uint32_t p = 0; p < N_PX; p++)
+            s->gbuf[i].px[p] = (struct gbuffer_pixel){.t = 1.0f, .prev_x = (float)(p % W_PX) + 0.5f,
+                                                      .prev_y = (float)(p / W_PX) + 0.5f};
+    struct restir_pass_stats local;
+    if (!restir_frame_open(&tp->fr, sizeof *tp, s, f, out, false, stats, &local, sizeof local, err)) return false;
+    tp->seed = f->seed;
+    return true;
+}
+
+static const struct camera_desc toy_camera = {.look_at = {0.0f, 0.0f, 1.0f}, .up = {0.0f, 1.0f, 0.0f},
+                                              .fov_deg = 45.0f};
+
+/* restir_frame_store: a value that is not finite becomes 0 and is counted, per worker, into the
+ * frame's nonfinite; finite values pass unchanged; the shade pass leaves a history. */
+static void test_frame_store_zeroes_nonfinite(void)
+{
+    struct restir_session s;
+    struct toy_pass tp;
+    struct image out = {0};
+    struct restir_pass_stats stats;
+    struct err err = {0};
+    const struct method_frame f = {.camera = &toy_camera, .seed = 5, .threads = 2};
+    CHECK(image_init(&out, W_PX, H_PX, &err));
+    CHECK_MSG(toy_frame_open(&s, &tp, &f, &out, &stats, &err), "%s", err.message);
+    CHECK(!s.has_history);
+    CHECK_MSG(restir_frame_shade(&tp.fr, toy_shade_rows, &err), "%s", err.message);
+    uint64_t bad = 0;
+    for (uint32_t p = 0; p < N_PX; p++) {
+        const struct vec3 v = toy_shade_value(p), got = out.pixels[p];
+        const bool finite = vec3_is_finite(v);
+        bad += !finite;
+        CHECK_MSG(finite ? memcmp(&got, &v, sizeof v) == 0 : got.x == 0.0f && got.y == 0.0f && got.z == 0.0f,
+                  "pixel %u: (%g, %g, %g)", p, got.x, got.y, got.z);
+    }
+    CHECK_MSG(stats.nonfinite == bad && bad == 3u * ((N_PX + 4u) / 5u) - 1u, "nonfinite %llu of %llu",
+              (unsigned long long)stats.nonfinite, (unsigned long long)bad);
+    CHECK(s.has_history);
+    image_destroy(&out);
+    restir_session_destroy(&s);
+}
+
+/* The driver's spatial rounds end in res[1], the next frame's history: after one round and after
+ * two (which ping-pong through res[0]) it holds exactly what the same rounds run by hand give. */
+static void check_history_after(uint32_t rounds)
+{
+    struct restir_session s;
+    struct toy_pass tp;
+    struct image out = {0};
+    struct restir_pass_stats stats;
+    struct err err = {0};
+    struct toy_ctx ctx = {0};
+    const struct method_frame f = {.camera = &toy_camera, .seed = 11, .frame = 0, .threads = 1};
+    CHECK(image_init(&out, W_PX, H_PX, &err));
+    CHECK_MSG(toy_frame_open(&s, &tp, &f, &out, &stats, &err), "%s", err.message);
+    CHECK_MSG(restir_frame_initial(&tp.fr, toy_initial_rows, &err), "%s", err.message);
+    struct restir_reuse *r = restir_frame_reuse(&tp.fr, &toy_ops, &ctx, 0, 20, 3, 8.0f, false);
+    CHECK_MSG(restir_frame_temporal(&tp.fr, &err), "%s", err.message);
+    for (uint32_t round = 0; round < rounds; round++) {
+        r->frame = round;
+        CHECK_MSG(restir_frame_spatial(&tp.fr, false, round + 1 == rounds, &err), "%s", err.message);
+    }
+    restir_frame_reused(&tp.fr);
+
+    static struct toy_elem want[2][N_PX];
+    struct restir_reuse hand = {.ops = &toy_ops, .ctx = &ctx, .width = W_PX, .height = H_PX, .seed = f.seed,
+                                .threads = 1, .gbuf = &s.gbuf[s.cur], .temporal_cap = 20, .neighbors = 3,
+                                .radius = 8.0f};
+    struct restir_counters c = {0};
+    toy_initial(want[0], f.seed, f.frame);
+    for (uint32_t round = 0; round < rounds; round++) {
+        hand.frame = round;
+        CHECK(restir_spatial_pass(&hand, (const uint8_t *)want[round & 1u], (uint8_t *)want[(round + 1) & 1u], &c,
+                                  &err));
+    }
+    const struct toy_elem *history = (const struct toy_elem *)s.res[1];
+    CHECK_MSG(memcmp(history, want[rounds & 1u], sizeof want[0]) == 0,
+              "%u round(s): the history is not the last round's output", rounds);
+    CHECK_MSG(memcmp(want[0], want[1], sizeof want[0]) != 0, "the rounds changed nothing: the test sees nothing");
+    image_destroy(&out);
+    restir_session_destroy(&s);
+}
+static void test_frame_history_one_round(void) { check_history_after(1); }
+static void test_frame_history_two_rounds(void) { check_history_after(2); }
+
+TEST_MAIN(TEST(test_frame_store_zeroes_nonfinite), TEST(test_frame_history_one_round),
+          TEST(test_frame_history_two_rounds), TEST(test_pairing_is_an_involution), TEST(test_reuse_unbiased_unpaired),
+          TEST(test_reuse_unbiased_paired), TEST(test_wrong_jacobian_is_caught))
