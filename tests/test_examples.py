@@ -11,8 +11,9 @@ A block with no language, or one not listed, fails the test: each block says whi
 
 The blocks of one document run in order as one bash script (`set -eo pipefail`; a python block is
 fed to `python3 -` inside it), in one temporary directory that mirrors the checkout (symlinks to
-its top-level entries; build/restir and build/restird are the binaries under test), so a block
-sees the variables and files of the blocks before it and writes nothing into the checkout. A
+its entries, but a copy of clients/python, where pip builds; build/restir and build/restird are
+the binaries under test), so a block sees the variables and files of the blocks before it and
+writes nothing into the checkout (the files git does not track are compared before and after). A
 block fails the test when a command in it exits non-zero; every curl in a run block must carry
 -f, so an HTTP error answer fails it too rather than landing in an output file.
 
@@ -25,7 +26,9 @@ Blocks that would run more than an example are left out, whole, for the reason i
 import os
 import re
 import socket
+import shutil
 import subprocess
+from pathlib import Path
 
 import pytest
 
@@ -135,21 +138,48 @@ def daemon(tmp_path_factory):
     d.stop()
 
 
-def mirror(tmp_path):
-    """A directory that looks like the checkout: its top-level entries linked, build/ holding
-    the binaries under test."""
-    for entry in ROOT.iterdir():
-        if entry.name not in ("build", ".git"):
-            (tmp_path / entry.name).symlink_to(entry)
-    (tmp_path / "build").mkdir()
-    for name, env in (("restir", "RESTIR_BIN"), ("restird", "RESTIRD_BIN")):
-        (tmp_path / "build" / name).symlink_to(os.environ.get(env, str(ROOT / "build" / name)))
+# Entries of the checkout the examples build in (pip writes build/ and *.egg-info beside the
+# package it installs), so the mirror holds a copy of them rather than a link.
+COPIED = {Path("clients/python")}
+
+
+def mirror(tmp_path, src=ROOT):
+    """A directory that looks like the checkout: its entries linked (the ones in COPIED copied),
+    build/ holding the binaries under test."""
+    for entry in src.iterdir():
+        rel, dst = entry.relative_to(ROOT), tmp_path / entry.name
+        if rel in (Path("build"), Path(".git")):
+            continue
+        if rel in COPIED:
+            shutil.copytree(entry, dst, symlinks=True,
+                            ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
+        elif any(rel in c.parents for c in COPIED):
+            dst.mkdir()
+            mirror(dst, entry)
+        else:
+            dst.symlink_to(entry)
+    if src == ROOT:
+        (tmp_path / "build").mkdir()
+        for name, env in (("restir", "RESTIR_BIN"), ("restird", "RESTIRD_BIN")):
+            (tmp_path / "build" / name).symlink_to(os.environ.get(env, str(ROOT / "build" / name)))
     return tmp_path
+
+
+def checkout_files():
+    """The checkout's files that git does not track (ignored ones too), but for build/, where
+    the binaries and other tests write: None outside a git checkout."""
+    res = subprocess.run(["git", "status", "--porcelain", "--ignored", "--untracked-files=all"],
+                         cwd=ROOT, capture_output=True, text=True)
+    if res.returncode != 0:
+        return None
+    return {line for line in res.stdout.splitlines()
+            if not line[3:].startswith("build/") and "/node_modules/" not in line}
 
 
 @pytest.mark.parametrize("doc", DOCUMENTS)
 def test_examples_run_verbatim(doc, daemon, tmp_path):
     text, skipped = script(doc)
+    before = checkout_files()
     print("left out:", *skipped, sep="\n  ")
     env = {**os.environ, "PATH": "/usr/bin:" + os.environ.get("PATH", "")}
     for var in ("RESTIRD_URL", "RESTIRD_AUTH_TOKEN"):
@@ -159,3 +189,5 @@ def test_examples_run_verbatim(doc, daemon, tmp_path):
     assert res.returncode == 0, (f"{doc}: the example after the last '===' line failed (exit "
                                  f"{res.returncode})\n{res.stderr[-4000:]}\n{res.stdout[-2000:]}")
     assert daemon.alive(), daemon.stderr()
+    after = checkout_files()
+    assert after is None or after <= before, f"{doc}: the examples wrote into the checkout: {sorted(after - before)}"
