@@ -37,11 +37,12 @@ from daemon import Daemon, ROOT
 DOCUMENTS = ["README.md", "protocol/API.md", "clients/python/README.md"]
 RUN = {"sh", "bash", "console", "python"}
 SHOWN = {"json", "text", "yaml", "csv", "http", "c", "mjs"}
-# A block holding one of these commands is not run: (command at the start of a line, reason).
+# A block holding one of these make targets is not run: (target pattern, reason). A block left out
+# must hold nothing else (but comments), or the rest of it would go untested unnoticed.
 SKIP = [
-    ("make run", "starts the daemon on 8080, which this test has started already"),
-    ("make test", "runs the whole test suite, of which this test is part"),
-    ("make bench", "benchmarks take minutes to hours"),
+    (r"run", "starts the daemon on 8080, which this test has started already"),
+    (r"test\S*", "runs a test suite; `make test` runs this test too"),
+    (r"bench\S*", "benchmarks take minutes to hours"),
 ]
 PORT = 8080
 FENCE = re.compile(r"^(\s*)(`{3,})(.*)$")
@@ -65,13 +66,28 @@ def blocks(path):
     return out
 
 
-def skip_reason(text):
-    for line in text.splitlines():
-        cmd = line.strip().removeprefix("$ ")
-        for prefix, reason in SKIP:
-            if cmd == prefix or cmd.startswith(prefix + " "):
-                return f"{prefix}: {reason}"
+def skipped_target(cmd):
+    """'make TARGET: reason' when the command line is a make run of a target in SKIP, else None."""
+    words = cmd.split()
+    if words[:1] != ["make"]:
+        return None
+    for word in words[1:]:
+        if "=" in word or word.startswith("-"):
+            continue  # VAR=value or an option
+        for pattern, why in SKIP:
+            if re.fullmatch(pattern, word):
+                return f"make {word}: {why}"
     return None
+
+
+def skip_reason(text):
+    """Why the block is left out (None: it runs); AssertionError when it holds a target to leave
+    out beside another command."""
+    cmds = [c for c in (line.split("#", 1)[0].strip().removeprefix("$ ") for line in text.splitlines()) if c]
+    reasons = [r for r in map(skipped_target, cmds) if r]
+    others = [c for c in cmds if not skipped_target(c)]
+    assert not (reasons and others), f"a block left out ({reasons[0]}) holds other commands: {others}"
+    return reasons[0] if reasons else None
 
 
 def curls_without_f(text):
@@ -92,7 +108,10 @@ def script(doc):
         assert lang in RUN | SHOWN, f"{where}: a fenced block needs a language, one of {sorted(RUN | SHOWN)}"
         if lang not in RUN:
             continue
-        reason = skip_reason(text)
+        try:
+            reason = skip_reason(text)
+        except AssertionError as e:
+            raise AssertionError(f"{where}: {e}") from None
         if reason:
             skipped.append(f"{where}: {reason}")
             continue
@@ -114,8 +133,13 @@ def test_every_document_block_is_labelled_and_curl_fails_on_http_errors():
 
 
 def test_skip_rule_and_curl_rule_judge():
-    assert skip_reason("make run   # starts it\n") .startswith("make run:")
+    assert skip_reason("make run   # starts it\n").startswith("make run:")
     assert skip_reason("make -j2\nbuild/restir --help\n") is None
+    assert skip_reason("make test-web\n").startswith("make test-web:")
+    assert skip_reason("make SAN=1 test-perf   # under ASan\n").startswith("make test-perf:")
+    assert skip_reason("make bench-report QUICK=1\n").startswith("make bench-report:")
+    with pytest.raises(AssertionError, match="holds other commands"):
+        skip_reason("make run\ncurl -fsS http://h/\n")
     assert curls_without_f("X=$(curl -s -o x http://h/ | jq)\n") == ["curl -s -o x http://h/"]
     assert curls_without_f("curl -fsS -X POST \\\n  http://h/\ncurl --fail http://h/\n") == []
 
