@@ -15,7 +15,10 @@ its entries, but a copy of clients/python, where pip builds; build/restir and bu
 the binaries under test), so a block sees the variables and files of the blocks before it and
 writes nothing into the checkout (the files git does not track are compared before and after). A
 block fails the test when a command in it exits non-zero; every curl in a run block must carry
--f, so an HTTP error answer fails it too rather than landing in an output file.
+-f, so an HTTP error answer fails it too rather than landing in an output file; and a block waits
+only in counted for loops (no while or until), so an example whose wait never ends fails rather
+than hanging. A document's blocks have TIMEOUT seconds together; the failure names the block
+that failed or was running when they ran out.
 
 The daemon runs as `make run` starts it, on 127.0.0.1:8080 with a default session on
 cornell-box (its data directory in the temporary directory), because that is the address the
@@ -27,6 +30,7 @@ import os
 import re
 import socket
 import shutil
+import signal
 import subprocess
 from pathlib import Path
 
@@ -45,6 +49,7 @@ SKIP = [
     (r"bench\S*", "benchmarks take minutes to hours"),
 ]
 PORT = 8080
+TIMEOUT = 120  # seconds a document's blocks may take together
 FENCE = re.compile(r"^(\s*)(`{3,})(.*)$")
 
 
@@ -90,6 +95,12 @@ def skip_reason(text):
     return reasons[0] if reasons else None
 
 
+def unbounded_loops(text):
+    """The while/until lines of a block: an example waits with a counted for loop, so a wait for
+    something that never comes ends the example instead of hanging it."""
+    return [line.strip() for line in text.splitlines() if re.match(r"\s*(?:while|until)\b", line)]
+
+
 def curls_without_f(text):
     """The curl command lines of a block that do not fail on an HTTP error (-f / --fail)."""
     bad = []
@@ -116,6 +127,7 @@ def script(doc):
             skipped.append(f"{where}: {reason}")
             continue
         assert not curls_without_f(text), f"{where}: curl without -f: {curls_without_f(text)}"
+        assert not unbounded_loops(text), f"{where}: a loop with no bound: {unbounded_loops(text)}"
         parts.append(f"echo '=== {where} ({lang})' >&2")
         if lang == "python":
             parts.append(f"python3 - <<'__EXAMPLE_END__'\n{text}__EXAMPLE_END__")
@@ -140,6 +152,8 @@ def test_skip_rule_and_curl_rule_judge():
     assert skip_reason("make bench-report QUICK=1\n").startswith("make bench-report:")
     with pytest.raises(AssertionError, match="holds other commands"):
         skip_reason("make run\ncurl -fsS http://h/\n")
+    assert unbounded_loops("until curl -fsS http://h/; do sleep 1; done\n") == ["until curl -fsS http://h/; do sleep 1; done"]
+    assert unbounded_loops("for i in $(seq 9); do sleep 1; done  # while it runs\n") == []
     assert curls_without_f("X=$(curl -s -o x http://h/ | jq)\n") == ["curl -s -o x http://h/"]
     assert curls_without_f("curl -fsS -X POST \\\n  http://h/\ncurl --fail http://h/\n") == []
 
@@ -200,6 +214,35 @@ def checkout_files():
             if not line[3:].startswith("build/") and "/node_modules/" not in line}
 
 
+def run_script(doc, text, cwd, env, timeout):
+    """Runs a document's script; None when it succeeds, else what failed: the block (the last
+    '===' line it wrote) and the tail of its output."""
+    proc = subprocess.Popen(["bash", "-c", text], cwd=cwd, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        out, err = proc.communicate(timeout=timeout)
+        if proc.returncode == 0:
+            return None
+        what = f"failed (exit {proc.returncode})"
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)  # the block's commands with it, so the pipes close
+        out, err = proc.communicate()
+        what = f"did not end within {timeout} s"
+    started = re.findall(r"^=== (.*)$", err, re.M)
+    block = started[-1] if started else f"{doc}, before its first block"
+    return f"{block}: {what}\n{err[-4000:]}\n{out[-2000:]}"
+
+
+def test_a_failing_or_hanging_block_is_named():
+    env = {"PATH": os.environ.get("PATH", "/usr/bin")}
+    hang = "echo '=== X.md:3 (sh)' >&2; echo waiting >&2; sleep 60\n"
+    failure = run_script("X.md", hang, ROOT, env, 0.5)
+    assert failure.startswith("X.md:3 (sh): did not end within 0.5 s") and "waiting" in failure, failure
+    failure = run_script("X.md", "echo '=== X.md:9 (sh)' >&2; false\n", ROOT, env, 10)
+    assert failure.startswith("X.md:9 (sh): failed (exit 1)"), failure
+    assert run_script("X.md", "true\n", ROOT, env, 10) is None
+
+
 @pytest.mark.parametrize("doc", DOCUMENTS)
 def test_examples_run_verbatim(doc, daemon, tmp_path):
     text, skipped = script(doc)
@@ -208,10 +251,8 @@ def test_examples_run_verbatim(doc, daemon, tmp_path):
     env = {**os.environ, "PATH": "/usr/bin:" + os.environ.get("PATH", "")}
     for var in ("RESTIRD_URL", "RESTIRD_AUTH_TOKEN"):
         env.pop(var, None)
-    res = subprocess.run(["bash", "-c", text], cwd=mirror(tmp_path), env=env, capture_output=True,
-                         text=True, timeout=120)
-    assert res.returncode == 0, (f"{doc}: the example after the last '===' line failed (exit "
-                                 f"{res.returncode})\n{res.stderr[-4000:]}\n{res.stdout[-2000:]}")
+    failure = run_script(doc, text, mirror(tmp_path), env, TIMEOUT)
+    assert failure is None, failure
     assert daemon.alive(), daemon.stderr()
     after = checkout_files()
     assert after is None or after <= before, f"{doc}: the examples wrote into the checkout: {sorted(after - before)}"
