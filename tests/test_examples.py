@@ -3,8 +3,9 @@
 The rule, by the language named after the opening fence:
 
   sh, bash  run by bash, line by line as written
-  console   the lines that start with "$ " run by bash (the other lines are the output shown)
   python    run by python3
+  shell     shell commands for another machine (a Docker host, a daemon on a public address,
+            a cluster): shown, never run here, but held to the curl rule below as run blocks are
   json, text, yaml, csv, http, c, mjs  shown, never run (bodies, output, listings, synopses)
 
 A block with no language, or one not listed, fails the test: each block says which kind it is.
@@ -38,9 +39,9 @@ import pytest
 
 from daemon import Daemon, ROOT
 
-DOCUMENTS = ["README.md", "protocol/API.md", "clients/python/README.md"]
-RUN = {"sh", "bash", "console", "python"}
-SHOWN = {"json", "text", "yaml", "csv", "http", "c", "mjs"}
+DOCUMENTS = ["README.md", "protocol/API.md", "clients/python/README.md", "docs/deploy.md"]
+RUN = {"sh", "bash", "python"}
+SHOWN = {"shell", "json", "text", "yaml", "csv", "http", "c", "mjs"}
 # A block holding one of these make targets is not run: (target pattern, reason). A block left out
 # must hold nothing else (but comments), or the rest of it would go untested unnoticed.
 SKIP = [
@@ -88,7 +89,7 @@ def skipped_target(cmd):
 def skip_reason(text):
     """Why the block is left out (None: it runs); AssertionError when it holds a target to leave
     out beside another command."""
-    cmds = [c for c in (line.split("#", 1)[0].strip().removeprefix("$ ") for line in text.splitlines()) if c]
+    cmds = [c for c in (line.split("#", 1)[0].strip() for line in text.splitlines()) if c]
     reasons = [r for r in map(skipped_target, cmds) if r]
     others = [c for c in cmds if not skipped_target(c)]
     assert not (reasons and others), f"a block left out ({reasons[0]}) holds other commands: {others}"
@@ -117,6 +118,8 @@ def script(doc):
     for line, lang, text in blocks(ROOT / doc):
         where = f"{doc}:{line}"
         assert lang in RUN | SHOWN, f"{where}: a fenced block needs a language, one of {sorted(RUN | SHOWN)}"
+        if lang in RUN | {"shell"}:
+            assert not curls_without_f(text), f"{where}: curl without -f: {curls_without_f(text)}"
         if lang not in RUN:
             continue
         try:
@@ -126,13 +129,10 @@ def script(doc):
         if reason:
             skipped.append(f"{where}: {reason}")
             continue
-        assert not curls_without_f(text), f"{where}: curl without -f: {curls_without_f(text)}"
         assert not unbounded_loops(text), f"{where}: a loop with no bound: {unbounded_loops(text)}"
         parts.append(f"echo '=== {where} ({lang})' >&2")
         if lang == "python":
             parts.append(f"python3 - <<'__EXAMPLE_END__'\n{text}__EXAMPLE_END__")
-        elif lang == "console":
-            parts.append("\n".join(l[2:] for l in text.splitlines() if l.startswith("$ ")))
         else:
             parts.append(text)
     return "\n".join(parts) + "\n", skipped
