@@ -23,8 +23,10 @@ that failed or was running when they ran out.
 
 The daemon runs as `make run` starts it, on 127.0.0.1:8080 with a default session on
 cornell-box (its data directory in the temporary directory), because that is the address the
-documents give. When 8080 is taken the test is skipped with that reason, or fails when $CI is
-set: a CI machine has the port free.
+documents give. Each document has a daemon of its own, started afresh, so the sessions,
+references and uploads one leaves behind are not seen by the next, and a document run alone
+(-k) runs as it does among the others. When 8080 is taken the test is skipped with that
+reason, or fails when $CI is set: a CI machine has the port free.
 
 Blocks that would run more than an example are left out, whole, for the reason in SKIP."""
 import os
@@ -158,8 +160,8 @@ def test_skip_rule_and_curl_rule_judge():
     assert curls_without_f("curl -fsS -X POST \\\n  http://h/\ncurl --fail http://h/\n") == []
 
 
-@pytest.fixture(scope="module")
-def daemon(tmp_path_factory):
+@pytest.fixture
+def daemon(tmp_path):
     with socket.socket() as s:
         # As the daemon binds: connections of an earlier run waiting out TIME_WAIT do not count.
         s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -170,7 +172,7 @@ def daemon(tmp_path_factory):
             if os.environ.get("CI"):
                 pytest.fail(message)
             pytest.skip(message)
-    d = Daemon(tmp_path_factory.mktemp("examples") / "data", "--listen", f"127.0.0.1:{PORT}",
+    d = Daemon(tmp_path / "data", "--listen", f"127.0.0.1:{PORT}",
                "--default-session", "cornell-box")
     yield d
     d.stop()
@@ -184,6 +186,7 @@ COPIED = {Path("clients/python")}
 def mirror(tmp_path, src=ROOT):
     """A directory that looks like the checkout: its entries linked (the ones in COPIED copied),
     build/ holding the binaries under test."""
+    tmp_path.mkdir(exist_ok=True)
     for entry in src.iterdir():
         rel, dst = entry.relative_to(ROOT), tmp_path / entry.name
         if rel in (Path("build"), Path(".git")):
@@ -246,12 +249,16 @@ def test_a_failing_or_hanging_block_is_named():
 @pytest.mark.parametrize("doc", DOCUMENTS)
 def test_examples_run_verbatim(doc, daemon, tmp_path):
     text, skipped = script(doc)
+    # The daemon as `make run` starts it, whatever documents ran before.
+    sessions = daemon.req("GET", "/v1/scenes/cornell-box/sessions").json()["sessions"]
+    references = daemon.req("GET", "/v1/scenes/cornell-box/references").json()["references"]
+    assert ([x["id"] for x in sessions], references) == (["default"], [])
     before = checkout_files()
     print("left out:", *skipped, sep="\n  ")
     env = {**os.environ, "PATH": "/usr/bin:" + os.environ.get("PATH", "")}
     for var in ("RESTIRD_URL", "RESTIRD_AUTH_TOKEN"):
         env.pop(var, None)
-    failure = run_script(doc, text, mirror(tmp_path), env, TIMEOUT)
+    failure = run_script(doc, text, mirror(tmp_path / "checkout"), env, TIMEOUT)
     assert failure is None, failure
     assert daemon.alive(), daemon.stderr()
     after = checkout_files()
