@@ -66,16 +66,42 @@ test('on load the page follows the daemon\'s default session as A and shows its 
   await page.close();
 });
 
-test('zoom "fit" fills the viewer\'s area with the whole image; 1× and 2× are still there', async () => {
+// The fitted image against its area: the image's size on screen, the area's, the factor.
+function fitOf(page) {
+  return page.$eval('#canvas-wrap', (wrap) => {
+    const c = document.getElementById('image');
+    return {
+      areaW: wrap.clientWidth, areaH: wrap.clientHeight, w: c.offsetWidth, h: c.offsetHeight,
+      width: c.width, height: c.height, scale: Number(c.dataset.scale), rendering: getComputedStyle(c).imageRendering,
+    };
+  });
+}
+
+// 'fit' is the largest whole factor (below 1: the largest 1/n) at which the image fits its area.
+function assertFitted(fit) {
+  const what = JSON.stringify(fit);
+  const factors = fit.scale >= 1 ? [fit.scale, fit.scale + 1] : [fit.scale, 1 / (1 / fit.scale - 1)];
+  assert.ok(fit.scale >= 1 ? Number.isInteger(fit.scale) : Number.isInteger(1 / fit.scale), `a whole factor or 1/n: ${what}`);
+  assert.deepEqual([fit.w, fit.h], [Math.floor(fit.width * fit.scale), Math.floor(fit.height * fit.scale)], what);
+  assert.ok(fit.w <= fit.areaW && fit.h <= fit.areaH, `the image fits its area: ${what}`);
+  assert.ok(fit.width * factors[1] > fit.areaW || fit.height * factors[1] > fit.areaH, `the next factor would not: ${what}`);
+  assert.equal(fit.rendering, fit.scale >= 1 ? 'pixelated' : 'auto', `square pixels from 1× up, smoothed below: ${what}`);
+}
+
+test('zoom "fit" is the largest whole factor that fits the viewer\'s area, also after a resize; 1× and 2× are still there', async () => {
   const page = await open(SIZES[0]);
   await page.waitForFunction(() => document.getElementById('image').dataset.shown === 'a');
   assert.equal(await page.$eval('#zoom', (s) => s.value), 'fit');
-  const fit = await page.$eval('#canvas-wrap', (wrap) => {
-    const c = document.getElementById('image');
-    return { areaW: wrap.clientWidth, areaH: wrap.clientHeight, w: c.offsetWidth, h: c.offsetHeight };
-  });
-  assert.ok(fit.w <= fit.areaW && fit.h <= fit.areaH, `the image fits its area: ${JSON.stringify(fit)}`);
-  assert.ok(fit.w >= fit.areaW - 1 || fit.h >= fit.areaH - 1, `and fills it along one side: ${JSON.stringify(fit)}`);
+  const fit = await fitOf(page);
+  assertFitted(fit);
+  assert.ok(fit.scale >= 2, `a 256×256 image at least doubles at ${SIZES[0].join('×')}: ${JSON.stringify(fit)}`);
+  // A window too small for the image at 1×, then a larger one: the factor follows the area.
+  await page.setViewportSize({ width: 800, height: 400 });
+  await page.waitForFunction(() => document.getElementById('image').dataset.scale === '0.5');
+  assertFitted(await fitOf(page));
+  await page.setViewportSize({ width: SIZES[1][0], height: SIZES[1][1] });
+  await page.waitForFunction((s) => Number(document.getElementById('image').dataset.scale) > s, fit.scale);
+  assertFitted(await fitOf(page));
   for (const zoom of ['1', '2']) {
     await page.selectOption('#zoom', zoom);
     assert.equal(await page.$eval('#image', (c) => c.offsetWidth), 256 * Number(zoom));
