@@ -109,11 +109,12 @@ test('zoom "fit" is the largest whole factor that fits the viewer\'s area, also 
   await page.close();
 });
 
-// Every visible button, input, select and textarea, and the error map's legend: its box in page
+// Every visible button, input, select and textarea, the error map's legend and the image's box
+// (a zoomed image scrolls inside it, so it must not grow over the others): its box in page
 // coordinates, and whether the element at the box's centre is the control (or inside it).
 function layoutOf(page) {
   return page.evaluate(() => {
-    const controls = [...document.querySelectorAll('button, input, select, textarea, #error-legend')].filter(
+    const controls = [...document.querySelectorAll('button, input, select, textarea, #error-legend, #canvas-wrap')].filter(
       (el) => el.getClientRects().length > 0 && getComputedStyle(el).visibility !== 'hidden',
     );
     return controls.map((el) => {
@@ -131,8 +132,36 @@ function layoutOf(page) {
   });
 }
 
+// No sideways scrolling, and every box of layoutOf inside the page, clear of the others and
+// taking its own clicks.
+async function assertLaidOut(page, what) {
+  const { scrollWidth, clientWidth, scrollHeight } = await page.evaluate(() => {
+    const { scrollWidth, clientWidth, scrollHeight } = document.documentElement; // the window less its scroll bar
+    return { scrollWidth, clientWidth, scrollHeight };
+  });
+  assert.ok(scrollWidth <= clientWidth, `${what}: no sideways scrolling: the page is ${scrollWidth} px wide, its window ${clientWidth}`);
+  const boxes = await layoutOf(page);
+  for (const name of ['error-legend', 'create-session', 'canvas-wrap'])
+    assert.ok(boxes.some((b) => b.name === name), `${what}: ${name} is on show`);
+  for (const b of boxes) {
+    const box = JSON.stringify(b);
+    assert.ok(b.w > 0 && b.h > 0, `${what}: ${b.name} has a box: ${box}`);
+    assert.ok(b.x >= 0 && b.x + b.w <= clientWidth && b.y >= 0 && b.y + b.h <= scrollHeight,
+      `${what}: ${b.name} lies inside the page (${clientWidth}×${scrollHeight}): ${box}`);
+    assert.ok(b.own, `${what}: a click at the centre of ${b.name} reaches it, not ${b.hit}`);
+  }
+  for (let i = 0; i < boxes.length; i++) {
+    for (let j = i + 1; j < boxes.length; j++) {
+      const [a, b] = [boxes[i], boxes[j]];
+      const overlapX = Math.min(a.x + a.w, b.x + b.w) - Math.max(a.x, b.x);
+      const overlapY = Math.min(a.y + a.h, b.y + b.h) - Math.max(a.y, b.y);
+      assert.ok(overlapX < 0.5 || overlapY < 0.5, `${what}: ${a.name} and ${b.name} overlap: ${JSON.stringify([a, b])}`);
+    }
+  }
+}
+
 for (const size of SIZES) {
-  test(`at ${size[0]}×${size[1]} every visible control is inside the page, overlaps no other and takes its own clicks`, async () => {
+  test(`at ${size[0]}×${size[1]}, fitted and at 32×, every visible control is inside the page, overlaps no other and takes its own clicks`, async () => {
     const page = await open(size);
     await page.waitForFunction(() => document.getElementById('image').dataset.shown === 'a');
     // Everything on show at once: a reference, the error map and its legend, the swipe's split.
@@ -143,27 +172,12 @@ for (const size of SIZES) {
     await page.waitForFunction(() => document.getElementById('image').dataset.shown === 'error');
     await page.screenshot({ path: path.join(OUT, `layout-${size[0]}x${size[1]}.png`) });
     await page.screenshot({ path: path.join(OUT, `layout-${size[0]}x${size[1]}-full.png`), fullPage: true });
-
-    const { scrollWidth, innerWidth } = await page.evaluate(() => ({
-      scrollWidth: document.documentElement.scrollWidth, innerWidth: window.innerWidth,
-    }));
-    assert.ok(scrollWidth <= innerWidth, `no sideways scrolling: the page is ${scrollWidth} px wide`);
-    const boxes = await layoutOf(page);
-    assert.ok(boxes.some((b) => b.name === 'error-legend'), 'the legend is on show');
-    assert.ok(boxes.some((b) => b.name === 'create-session'));
-    for (const b of boxes) {
-      assert.ok(b.w > 0 && b.h > 0, `${b.name} has a box: ${JSON.stringify(b)}`);
-      assert.ok(b.x >= 0 && b.y >= 0 && b.x + b.w <= innerWidth, `${b.name} lies inside the page: ${JSON.stringify(b)}`);
-      assert.ok(b.own, `a click at the centre of ${b.name} reaches it, not ${b.hit}`);
-    }
-    for (let i = 0; i < boxes.length; i++) {
-      for (let j = i + 1; j < boxes.length; j++) {
-        const [a, b] = [boxes[i], boxes[j]];
-        const overlapX = Math.min(a.x + a.w, b.x + b.w) - Math.max(a.x, b.x);
-        const overlapY = Math.min(a.y + a.h, b.y + b.h) - Math.max(a.y, b.y);
-        assert.ok(overlapX < 0.5 || overlapY < 0.5, `${a.name} and ${b.name} overlap: ${JSON.stringify([a, b])}`);
-      }
-    }
+    await assertLaidOut(page, 'fit');
+    // A 256×256 image at 32× is 8192 px square: it scrolls inside its box, which stays as it was.
+    await page.selectOption('#zoom', '32');
+    await page.waitForFunction(() => document.getElementById('image').offsetWidth === 256 * 32);
+    await page.screenshot({ path: path.join(OUT, `layout-${size[0]}x${size[1]}-32x.png`), fullPage: true });
+    await assertLaidOut(page, '32×');
     await page.close();
   });
 }
