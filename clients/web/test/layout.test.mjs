@@ -66,6 +66,39 @@ test('on load the page follows the daemon\'s default session as A and shows its 
   await page.close();
 });
 
+test('a page whose first frame of the default session loses to another page\'s (409) shows that frame, and asks for the sessions once', async () => {
+  const reset = await fetch(`${base}${DEFAULT}/reset`, { method: 'POST', headers: { 'Content-Type': 'application/json' } });
+  assert.equal(reset.status, 204);
+  assert.equal((await api('GET', DEFAULT)).frames_rendered, 0, 'no frame since the reset');
+  const page = await browser.newPage({ viewport: { width: SIZES[0][0], height: SIZES[0][1] } });
+  page.setDefaultTimeout(20000);
+  const listings = [];
+  page.on('request', (r) => {
+    if (r.method() === 'GET' && new URL(r.url()).pathname === '/v1/scenes/cornell-box/sessions') listings.push(r.url());
+  });
+  // As two tabs opened at once on a fresh `make run`: the other one's frame is rendering when
+  // this page asks, so this page gets the daemon's 409, and the other frame follows.
+  let otherFrame;
+  await page.route(`**${DEFAULT}/frames`, async (route) => {
+    if (route.request().method() !== 'POST') return route.continue();
+    await route.fulfill({
+      status: 409,
+      contentType: 'application/problem+json',
+      body: JSON.stringify({ type: 'urn:restird:problem:conflict', title: 'Conflict', status: 409, detail: 'the session is rendering' }),
+    });
+    otherFrame = fetch(`${base}${DEFAULT}/frames`, {
+      method: 'POST', headers: { 'Content-Type': 'application/json', Accept: 'application/json' }, body: '{}',
+    }).then((r) => r.status);
+  });
+  await page.goto(`${base}/`);
+  await page.waitForSelector('body[data-ready="true"]');
+  await page.waitForFunction(() => document.getElementById('image').dataset.shown === 'a');
+  assert.equal(await otherFrame, 200, 'the other page\'s frame');
+  assert.deepEqual(await page.$$eval('.problem', (boxes) => boxes.map((b) => b.textContent)), [], 'no problem is shown');
+  assert.equal(listings.length, 1, `the page lists the scene's sessions once: ${listings}`);
+  await page.close();
+});
+
 // The fitted image against its area: the image's size on screen, the area's, the factor.
 function fitOf(page) {
   return page.$eval('#canvas-wrap', (wrap) => {
