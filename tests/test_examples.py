@@ -3,44 +3,56 @@
 The rule, by the language named after the opening fence:
 
   sh, bash  run by bash, line by line as written
-  console   the lines that start with "$ " run by bash (the other lines are the output shown)
   python    run by python3
+  shell     shell commands for another machine (a Docker host, a daemon on a public address,
+            a cluster): shown, never run here, but held to the curl rule below as run blocks are
   json, text, yaml, csv, http, c, mjs  shown, never run (bodies, output, listings, synopses)
 
 A block with no language, or one not listed, fails the test: each block says which kind it is.
 
 The blocks of one document run in order as one bash script (`set -eo pipefail`; a python block is
 fed to `python3 -` inside it), in one temporary directory that mirrors the checkout (symlinks to
-its top-level entries; build/restir and build/restird are the binaries under test), so a block
-sees the variables and files of the blocks before it and writes nothing into the checkout. A
+its entries, but a copy of clients/python, where pip builds; build/restir and build/restird are
+the binaries under test), so a block sees the variables and files of the blocks before it and
+writes nothing into the checkout (the files git does not track are compared before and after). A
 block fails the test when a command in it exits non-zero; every curl in a run block must carry
--f, so an HTTP error answer fails it too rather than landing in an output file.
+-f, so an HTTP error answer fails it too rather than landing in an output file; and a block waits
+only in counted for loops (no while or until), so an example whose wait never ends fails rather
+than hanging. A document's blocks have TIMEOUT seconds together; the failure names the block
+that failed or was running when they ran out.
 
 The daemon runs as `make run` starts it, on 127.0.0.1:8080 with a default session on
 cornell-box (its data directory in the temporary directory), because that is the address the
-documents give. When 8080 is taken the test is skipped with that reason, or fails when $CI is
-set: a CI machine has the port free.
+documents give. Each document has a daemon of its own, started afresh, so the sessions,
+references and uploads one leaves behind are not seen by the next, and a document run alone
+(-k) runs as it does among the others. When 8080 is taken the test is skipped with that
+reason, or fails when $CI is set: a CI machine has the port free.
 
 Blocks that would run more than an example are left out, whole, for the reason in SKIP."""
 import os
 import re
 import socket
+import shutil
+import signal
 import subprocess
+from pathlib import Path
 
 import pytest
 
 from daemon import Daemon, ROOT
 
-DOCUMENTS = ["README.md", "protocol/API.md", "clients/python/README.md"]
-RUN = {"sh", "bash", "console", "python"}
-SHOWN = {"json", "text", "yaml", "csv", "http", "c", "mjs"}
-# A block holding one of these commands is not run: (command at the start of a line, reason).
+DOCUMENTS = ["README.md", "protocol/API.md", "clients/python/README.md", "docs/deploy.md"]
+RUN = {"sh", "bash", "python"}
+SHOWN = {"shell", "json", "text", "yaml", "csv", "http", "c", "mjs"}
+# A block holding one of these make targets is not run: (target pattern, reason). A block left out
+# must hold nothing else (but comments), or the rest of it would go untested unnoticed.
 SKIP = [
-    ("make run", "starts the daemon on 8080, which this test has started already"),
-    ("make test", "runs the whole test suite, of which this test is part"),
-    ("make bench", "benchmarks take minutes to hours"),
+    (r"run", "starts the daemon on 8080, which this test has started already"),
+    (r"test\S*", "runs a test suite; `make test` runs this test too"),
+    (r"bench\S*", "benchmarks take minutes to hours"),
 ]
 PORT = 8080
+TIMEOUT = 120  # seconds a document's blocks may take together
 FENCE = re.compile(r"^(\s*)(`{3,})(.*)$")
 
 
@@ -62,13 +74,34 @@ def blocks(path):
     return out
 
 
-def skip_reason(text):
-    for line in text.splitlines():
-        cmd = line.strip().removeprefix("$ ")
-        for prefix, reason in SKIP:
-            if cmd == prefix or cmd.startswith(prefix + " "):
-                return f"{prefix}: {reason}"
+def skipped_target(cmd):
+    """'make TARGET: reason' when the command line is a make run of a target in SKIP, else None."""
+    words = cmd.split()
+    if words[:1] != ["make"]:
+        return None
+    for word in words[1:]:
+        if "=" in word or word.startswith("-"):
+            continue  # VAR=value or an option
+        for pattern, why in SKIP:
+            if re.fullmatch(pattern, word):
+                return f"make {word}: {why}"
     return None
+
+
+def skip_reason(text):
+    """Why the block is left out (None: it runs); AssertionError when it holds a target to leave
+    out beside another command."""
+    cmds = [c for c in (line.split("#", 1)[0].strip() for line in text.splitlines()) if c]
+    reasons = [r for r in map(skipped_target, cmds) if r]
+    others = [c for c in cmds if not skipped_target(c)]
+    assert not (reasons and others), f"a block left out ({reasons[0]}) holds other commands: {others}"
+    return reasons[0] if reasons else None
+
+
+def unbounded_loops(text):
+    """The while/until lines of a block: an example waits with a counted for loop, so a wait for
+    something that never comes ends the example instead of hanging it."""
+    return [line.strip() for line in text.splitlines() if re.match(r"\s*(?:while|until)\b", line)]
 
 
 def curls_without_f(text):
@@ -87,18 +120,21 @@ def script(doc):
     for line, lang, text in blocks(ROOT / doc):
         where = f"{doc}:{line}"
         assert lang in RUN | SHOWN, f"{where}: a fenced block needs a language, one of {sorted(RUN | SHOWN)}"
+        if lang in RUN | {"shell"}:
+            assert not curls_without_f(text), f"{where}: curl without -f: {curls_without_f(text)}"
         if lang not in RUN:
             continue
-        reason = skip_reason(text)
+        try:
+            reason = skip_reason(text)
+        except AssertionError as e:
+            raise AssertionError(f"{where}: {e}") from None
         if reason:
             skipped.append(f"{where}: {reason}")
             continue
-        assert not curls_without_f(text), f"{where}: curl without -f: {curls_without_f(text)}"
+        assert not unbounded_loops(text), f"{where}: a loop with no bound: {unbounded_loops(text)}"
         parts.append(f"echo '=== {where} ({lang})' >&2")
         if lang == "python":
             parts.append(f"python3 - <<'__EXAMPLE_END__'\n{text}__EXAMPLE_END__")
-        elif lang == "console":
-            parts.append("\n".join(l[2:] for l in text.splitlines() if l.startswith("$ ")))
         else:
             parts.append(text)
     return "\n".join(parts) + "\n", skipped
@@ -111,14 +147,21 @@ def test_every_document_block_is_labelled_and_curl_fails_on_http_errors():
 
 
 def test_skip_rule_and_curl_rule_judge():
-    assert skip_reason("make run   # starts it\n") .startswith("make run:")
+    assert skip_reason("make run   # starts it\n").startswith("make run:")
     assert skip_reason("make -j2\nbuild/restir --help\n") is None
+    assert skip_reason("make test-web\n").startswith("make test-web:")
+    assert skip_reason("make SAN=1 test-perf   # under ASan\n").startswith("make test-perf:")
+    assert skip_reason("make bench-report QUICK=1\n").startswith("make bench-report:")
+    with pytest.raises(AssertionError, match="holds other commands"):
+        skip_reason("make run\ncurl -fsS http://h/\n")
+    assert unbounded_loops("until curl -fsS http://h/; do sleep 1; done\n") == ["until curl -fsS http://h/; do sleep 1; done"]
+    assert unbounded_loops("for i in $(seq 9); do sleep 1; done  # while it runs\n") == []
     assert curls_without_f("X=$(curl -s -o x http://h/ | jq)\n") == ["curl -s -o x http://h/"]
     assert curls_without_f("curl -fsS -X POST \\\n  http://h/\ncurl --fail http://h/\n") == []
 
 
-@pytest.fixture(scope="module")
-def daemon(tmp_path_factory):
+@pytest.fixture
+def daemon(tmp_path):
     with socket.socket() as s:
         # As the daemon binds: connections of an earlier run waiting out TIME_WAIT do not count.
         s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -129,33 +172,94 @@ def daemon(tmp_path_factory):
             if os.environ.get("CI"):
                 pytest.fail(message)
             pytest.skip(message)
-    d = Daemon(tmp_path_factory.mktemp("examples") / "data", "--listen", f"127.0.0.1:{PORT}",
+    d = Daemon(tmp_path / "data", "--listen", f"127.0.0.1:{PORT}",
                "--default-session", "cornell-box")
     yield d
     d.stop()
 
 
-def mirror(tmp_path):
-    """A directory that looks like the checkout: its top-level entries linked, build/ holding
-    the binaries under test."""
-    for entry in ROOT.iterdir():
-        if entry.name not in ("build", ".git"):
-            (tmp_path / entry.name).symlink_to(entry)
-    (tmp_path / "build").mkdir()
-    for name, env in (("restir", "RESTIR_BIN"), ("restird", "RESTIRD_BIN")):
-        (tmp_path / "build" / name).symlink_to(os.environ.get(env, str(ROOT / "build" / name)))
+# Entries of the checkout the examples build in (pip writes build/ and *.egg-info beside the
+# package it installs), so the mirror holds a copy of them rather than a link.
+COPIED = {Path("clients/python")}
+
+
+def mirror(tmp_path, src=ROOT):
+    """A directory that looks like the checkout: its entries linked (the ones in COPIED copied),
+    build/ holding the binaries under test."""
+    tmp_path.mkdir(exist_ok=True)
+    for entry in src.iterdir():
+        rel, dst = entry.relative_to(ROOT), tmp_path / entry.name
+        if rel in (Path("build"), Path(".git")):
+            continue
+        if rel in COPIED:
+            shutil.copytree(entry, dst, symlinks=True,
+                            ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
+        elif any(rel in c.parents for c in COPIED):
+            dst.mkdir()
+            mirror(dst, entry)
+        else:
+            dst.symlink_to(entry)
+    if src == ROOT:
+        (tmp_path / "build").mkdir()
+        for name, env in (("restir", "RESTIR_BIN"), ("restird", "RESTIRD_BIN")):
+            (tmp_path / "build" / name).symlink_to(os.environ.get(env, str(ROOT / "build" / name)))
     return tmp_path
+
+
+def checkout_files():
+    """The checkout's files that git does not track (ignored ones too), but for build/, where
+    the binaries and other tests write: None outside a git checkout."""
+    res = subprocess.run(["git", "status", "--porcelain", "--ignored", "--untracked-files=all"],
+                         cwd=ROOT, capture_output=True, text=True)
+    if res.returncode != 0:
+        return None
+    return {line for line in res.stdout.splitlines()
+            if not line[3:].startswith("build/") and "/node_modules/" not in line}
+
+
+def run_script(doc, text, cwd, env, timeout):
+    """Runs a document's script; None when it succeeds, else what failed: the block (the last
+    '===' line it wrote) and the tail of its output."""
+    proc = subprocess.Popen(["bash", "-c", text], cwd=cwd, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        out, err = proc.communicate(timeout=timeout)
+        if proc.returncode == 0:
+            return None
+        what = f"failed (exit {proc.returncode})"
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)  # the block's commands with it, so the pipes close
+        out, err = proc.communicate()
+        what = f"did not end within {timeout} s"
+    started = re.findall(r"^=== (.*)$", err, re.M)
+    block = started[-1] if started else f"{doc}, before its first block"
+    return f"{block}: {what}\n{err[-4000:]}\n{out[-2000:]}"
+
+
+def test_a_failing_or_hanging_block_is_named():
+    env = {"PATH": os.environ.get("PATH", "/usr/bin")}
+    hang = "echo '=== X.md:3 (sh)' >&2; echo waiting >&2; sleep 60\n"
+    failure = run_script("X.md", hang, ROOT, env, 0.5)
+    assert failure.startswith("X.md:3 (sh): did not end within 0.5 s") and "waiting" in failure, failure
+    failure = run_script("X.md", "echo '=== X.md:9 (sh)' >&2; false\n", ROOT, env, 10)
+    assert failure.startswith("X.md:9 (sh): failed (exit 1)"), failure
+    assert run_script("X.md", "true\n", ROOT, env, 10) is None
 
 
 @pytest.mark.parametrize("doc", DOCUMENTS)
 def test_examples_run_verbatim(doc, daemon, tmp_path):
     text, skipped = script(doc)
+    # The daemon as `make run` starts it, whatever documents ran before.
+    sessions = daemon.req("GET", "/v1/scenes/cornell-box/sessions").json()["sessions"]
+    references = daemon.req("GET", "/v1/scenes/cornell-box/references").json()["references"]
+    assert ([x["id"] for x in sessions], references) == (["default"], [])
+    before = checkout_files()
     print("left out:", *skipped, sep="\n  ")
     env = {**os.environ, "PATH": "/usr/bin:" + os.environ.get("PATH", "")}
     for var in ("RESTIRD_URL", "RESTIRD_AUTH_TOKEN"):
         env.pop(var, None)
-    res = subprocess.run(["bash", "-c", text], cwd=mirror(tmp_path), env=env, capture_output=True,
-                         text=True, timeout=120)
-    assert res.returncode == 0, (f"{doc}: the example after the last '===' line failed (exit "
-                                 f"{res.returncode})\n{res.stderr[-4000:]}\n{res.stdout[-2000:]}")
+    failure = run_script(doc, text, mirror(tmp_path / "checkout"), env, TIMEOUT)
+    assert failure is None, failure
     assert daemon.alive(), daemon.stderr()
+    after = checkout_files()
+    assert after is None or after <= before, f"{doc}: the examples wrote into the checkout: {sorted(after - before)}"

@@ -555,12 +555,19 @@ function sessionRequest() {
   });
 }
 
-async function listExisting() {
-  const scene = $('scene').value;
-  if (!scene) return;
-  const { sessions } = await getJson(`${sceneHref(scene)}/sessions`);
+// The sessions of the chosen scene, offered to follow.
+function showExisting(sessions) {
   setOptions($('existing'), sessions.map((s) => [s.id, describe(s)]), '');
   $('existing').dataset.sessions = JSON.stringify(sessions);
+}
+
+// Asks for the chosen scene's sessions and offers them; returns them.
+async function listExisting() {
+  const scene = $('scene').value;
+  if (!scene) return [];
+  const { sessions } = await getJson(`${sceneHref(scene)}/sessions`);
+  showExisting(sessions);
+  return sessions;
 }
 
 async function showAsA(s) {
@@ -579,27 +586,42 @@ action('create-session', 'Create session', async () => {
   await listExisting();
 });
 
-action('follow-session', 'Follow session', async () => {
+// Follows the session chosen in the list of existing ones and shows it as A; returns it and
+// what the list said of it.
+async function followChosen() {
   const sessions = JSON.parse($('existing').dataset.sessions || '[]');
   const info = sessions.find((s) => s.id === $('existing').value);
   if (!info) throw new ApiError({ title: 'No session chosen', detail: 'the scene has no session to follow' });
-  await showAsA(await follow(info));
-});
+  const s = await follow(info);
+  await showAsA(s);
+  return { s, info };
+}
+
+action('follow-session', 'Follow session', followChosen);
 
 // The daemon's default session (`restird --default-session SCENE`, as `make run` starts it) is
 // the one session whose id the daemon did not make up: "default". The page opens on it, with a
 // first frame rendered if it has none yet, so a fresh `make run` shows its scene at once.
-async function showDefaultSession(scenes) {
+// `listed` is what listExisting() found for the scene chosen now; other scenes are asked.
+async function showDefaultSession(scenes, listed) {
   for (const scene of scenes.filter((sc) => sc.sessions > 0)) {
-    const { sessions } = await getJson(`${sceneHref(scene.id)}/sessions`);
-    const info = sessions.find((s) => s.id === 'default');
-    if (!info) continue;
-    $('scene').value = scene.id;
-    await listExisting();
-    $('existing').value = info.id;
-    const s = await follow(info);
-    await showAsA(s);
-    if (info.frames_rendered === 0) onFrame(s, await sendJson('POST', `${s.href}/frames`, {}));
+    const chosen = scene.id === $('scene').value;
+    const sessions = chosen ? listed : (await getJson(`${sceneHref(scene.id)}/sessions`)).sessions;
+    if (!sessions.some((s) => s.id === 'default')) continue;
+    if (!chosen) {
+      $('scene').value = scene.id;
+      showExisting(sessions);
+    }
+    $('existing').value = 'default';
+    const { s, info } = await followChosen();
+    if (info.frames_rendered > 0) return;
+    try {
+      onFrame(s, await sendJson('POST', `${s.href}/frames`, {}));
+    } catch (err) {
+      // Another page (a second tab on the same fresh daemon) is rendering the first frame: it
+      // arrives on the event stream follow() opened.
+      if (asProblem(err).status !== 409) throw err;
+    }
     return;
   }
 }
@@ -726,8 +748,8 @@ async function start() {
     buildParams();
     const { scenes } = await getJson('/v1/scenes');
     setOptions($('scene'), scenes.map((s) => [s.id, s.id]), 'cornell-box');
-    await listExisting();
-    await showDefaultSession(scenes).catch((err) => showProblem('Default session', err));
+    const listed = await listExisting();
+    await showDefaultSession(scenes, listed).catch((err) => showProblem('Default session', err));
   } catch (err) {
     $('daemon').textContent = 'daemon not reachable';
     $('daemon').dataset.state = 'down';

@@ -1,7 +1,8 @@
 // viewer.js — the HDR image view: linear RGB floats shown through an exposure (stops), a tone
 // curve and the sRGB transfer function, zoomed by whole factors with square pixels, with the
-// float values under the pointer; the default zoom, 'fit', is the largest factor (whole or not)
-// at which the image fits the view's area, kept as that area changes size. It shows image A,
+// float values under the pointer; the default zoom, 'fit', is the largest whole factor at which
+// the image fits the view's area (an image larger than the area: the largest 1/n, smoothed), kept
+// as that area changes size. It shows image A,
 // image B, a swipe (A left of the split, B right of it) or an 8-bit false-colour error map.
 // The curves are those of the daemon's PNG previews (renderer/image/tonemap.c), so ?tonemap= and this
 // view agree: clamp, Reinhard x/(1+x), and Narkowicz's ACES fit clipped at 1.
@@ -42,12 +43,15 @@ export class HdrViewer {
     }).observe(this.area);
   }
 
-  // The screen pixels per image pixel now: the chosen factor, or the fitted one.
+  // The screen pixels per image pixel now: the chosen factor, or the fitted one. A fitted factor
+  // is whole, as a chosen one is: with pixelated rendering a factor of 2.6 would show pixels as
+  // blocks of 2 and 3. Below 1 it is 1/n, and the canvas is smoothed (see place()).
   scale() {
     if (this.zoom !== 'fit') return this.zoom;
     const { clientWidth, clientHeight } = this.area;
     const fit = Math.min(clientWidth / this.canvas.width, clientHeight / this.canvas.height);
-    return Number.isFinite(fit) && fit > 0 ? fit : 1;
+    if (!Number.isFinite(fit) || fit <= 0) return 1;
+    return fit >= 1 ? Math.floor(fit) : 1 / Math.ceil(1 / fit);
   }
 
   // Sizes the canvas and the split line on screen (the pixels stay as they are).
@@ -60,6 +64,9 @@ export class HdrViewer {
     this.canvas.style.width = `${width}px`;
     this.canvas.style.height = `${height}px`;
     this.canvas.dataset.scale = String(scale);
+    // Below 1× a pixel cannot be a block, and pixelated rendering would drop all but one of each
+    // n × n; smoothing blends them instead (style.css).
+    this.canvas.dataset.smooth = String(scale < 1);
     this.splitLine.style.left = `${Math.round(this.split * this.canvas.width) * scale}px`;
     this.splitLine.style.height = `${height}px`;
   }

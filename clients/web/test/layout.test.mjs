@@ -66,16 +66,75 @@ test('on load the page follows the daemon\'s default session as A and shows its 
   await page.close();
 });
 
-test('zoom "fit" fills the viewer\'s area with the whole image; 1× and 2× are still there', async () => {
+test('a page whose first frame of the default session loses to another page\'s (409) shows that frame, and asks for the sessions once', async () => {
+  const reset = await fetch(`${base}${DEFAULT}/reset`, { method: 'POST', headers: { 'Content-Type': 'application/json' } });
+  assert.equal(reset.status, 204);
+  assert.equal((await api('GET', DEFAULT)).frames_rendered, 0, 'no frame since the reset');
+  const page = await browser.newPage({ viewport: { width: SIZES[0][0], height: SIZES[0][1] } });
+  page.setDefaultTimeout(20000);
+  const listings = [];
+  page.on('request', (r) => {
+    if (r.method() === 'GET' && new URL(r.url()).pathname === '/v1/scenes/cornell-box/sessions') listings.push(r.url());
+  });
+  // As two tabs opened at once on a fresh `make run`: the other one's frame is rendering when
+  // this page asks, so this page gets the daemon's 409, and the other frame follows.
+  let otherFrame;
+  await page.route(`**${DEFAULT}/frames`, async (route) => {
+    if (route.request().method() !== 'POST') return route.continue();
+    await route.fulfill({
+      status: 409,
+      contentType: 'application/problem+json',
+      body: JSON.stringify({ type: 'urn:restird:problem:conflict', title: 'Conflict', status: 409, detail: 'the session is rendering' }),
+    });
+    otherFrame = fetch(`${base}${DEFAULT}/frames`, {
+      method: 'POST', headers: { 'Content-Type': 'application/json', Accept: 'application/json' }, body: '{}',
+    }).then((r) => r.status);
+  });
+  await page.goto(`${base}/`);
+  await page.waitForSelector('body[data-ready="true"]');
+  await page.waitForFunction(() => document.getElementById('image').dataset.shown === 'a');
+  assert.equal(await otherFrame, 200, 'the other page\'s frame');
+  assert.deepEqual(await page.$$eval('.problem', (boxes) => boxes.map((b) => b.textContent)), [], 'no problem is shown');
+  assert.equal(listings.length, 1, `the page lists the scene's sessions once: ${listings}`);
+  await page.close();
+});
+
+// The fitted image against its area: the image's size on screen, the area's, the factor.
+function fitOf(page) {
+  return page.$eval('#canvas-wrap', (wrap) => {
+    const c = document.getElementById('image');
+    return {
+      areaW: wrap.clientWidth, areaH: wrap.clientHeight, w: c.offsetWidth, h: c.offsetHeight,
+      width: c.width, height: c.height, scale: Number(c.dataset.scale), rendering: getComputedStyle(c).imageRendering,
+    };
+  });
+}
+
+// 'fit' is the largest whole factor (below 1: the largest 1/n) at which the image fits its area.
+function assertFitted(fit) {
+  const what = JSON.stringify(fit);
+  const factors = fit.scale >= 1 ? [fit.scale, fit.scale + 1] : [fit.scale, 1 / (1 / fit.scale - 1)];
+  assert.ok(fit.scale >= 1 ? Number.isInteger(fit.scale) : Number.isInteger(1 / fit.scale), `a whole factor or 1/n: ${what}`);
+  assert.deepEqual([fit.w, fit.h], [Math.floor(fit.width * fit.scale), Math.floor(fit.height * fit.scale)], what);
+  assert.ok(fit.w <= fit.areaW && fit.h <= fit.areaH, `the image fits its area: ${what}`);
+  assert.ok(fit.width * factors[1] > fit.areaW || fit.height * factors[1] > fit.areaH, `the next factor would not: ${what}`);
+  assert.equal(fit.rendering, fit.scale >= 1 ? 'pixelated' : 'auto', `square pixels from 1× up, smoothed below: ${what}`);
+}
+
+test('zoom "fit" is the largest whole factor that fits the viewer\'s area, also after a resize; 1× and 2× are still there', async () => {
   const page = await open(SIZES[0]);
   await page.waitForFunction(() => document.getElementById('image').dataset.shown === 'a');
   assert.equal(await page.$eval('#zoom', (s) => s.value), 'fit');
-  const fit = await page.$eval('#canvas-wrap', (wrap) => {
-    const c = document.getElementById('image');
-    return { areaW: wrap.clientWidth, areaH: wrap.clientHeight, w: c.offsetWidth, h: c.offsetHeight };
-  });
-  assert.ok(fit.w <= fit.areaW && fit.h <= fit.areaH, `the image fits its area: ${JSON.stringify(fit)}`);
-  assert.ok(fit.w >= fit.areaW - 1 || fit.h >= fit.areaH - 1, `and fills it along one side: ${JSON.stringify(fit)}`);
+  const fit = await fitOf(page);
+  assertFitted(fit);
+  assert.ok(fit.scale >= 2, `a 256×256 image at least doubles at ${SIZES[0].join('×')}: ${JSON.stringify(fit)}`);
+  // A window too small for the image at 1×, then a larger one: the factor follows the area.
+  await page.setViewportSize({ width: 800, height: 400 });
+  await page.waitForFunction(() => document.getElementById('image').dataset.scale === '0.5');
+  assertFitted(await fitOf(page));
+  await page.setViewportSize({ width: SIZES[1][0], height: SIZES[1][1] });
+  await page.waitForFunction((s) => Number(document.getElementById('image').dataset.scale) > s, fit.scale);
+  assertFitted(await fitOf(page));
   for (const zoom of ['1', '2']) {
     await page.selectOption('#zoom', zoom);
     assert.equal(await page.$eval('#image', (c) => c.offsetWidth), 256 * Number(zoom));
@@ -83,11 +142,12 @@ test('zoom "fit" fills the viewer\'s area with the whole image; 1× and 2× are 
   await page.close();
 });
 
-// Every visible button, input, select and textarea, and the error map's legend: its box in page
+// Every visible button, input, select and textarea, the error map's legend and the image's box
+// (a zoomed image scrolls inside it, so it must not grow over the others): its box in page
 // coordinates, and whether the element at the box's centre is the control (or inside it).
 function layoutOf(page) {
   return page.evaluate(() => {
-    const controls = [...document.querySelectorAll('button, input, select, textarea, #error-legend')].filter(
+    const controls = [...document.querySelectorAll('button, input, select, textarea, #error-legend, #canvas-wrap')].filter(
       (el) => el.getClientRects().length > 0 && getComputedStyle(el).visibility !== 'hidden',
     );
     return controls.map((el) => {
@@ -105,8 +165,36 @@ function layoutOf(page) {
   });
 }
 
+// No sideways scrolling, and every box of layoutOf inside the page, clear of the others and
+// taking its own clicks.
+async function assertLaidOut(page, what) {
+  const { scrollWidth, clientWidth, scrollHeight } = await page.evaluate(() => {
+    const { scrollWidth, clientWidth, scrollHeight } = document.documentElement; // the window less its scroll bar
+    return { scrollWidth, clientWidth, scrollHeight };
+  });
+  assert.ok(scrollWidth <= clientWidth, `${what}: no sideways scrolling: the page is ${scrollWidth} px wide, its window ${clientWidth}`);
+  const boxes = await layoutOf(page);
+  for (const name of ['error-legend', 'create-session', 'canvas-wrap'])
+    assert.ok(boxes.some((b) => b.name === name), `${what}: ${name} is on show`);
+  for (const b of boxes) {
+    const box = JSON.stringify(b);
+    assert.ok(b.w > 0 && b.h > 0, `${what}: ${b.name} has a box: ${box}`);
+    assert.ok(b.x >= 0 && b.x + b.w <= clientWidth && b.y >= 0 && b.y + b.h <= scrollHeight,
+      `${what}: ${b.name} lies inside the page (${clientWidth}×${scrollHeight}): ${box}`);
+    assert.ok(b.own, `${what}: a click at the centre of ${b.name} reaches it, not ${b.hit}`);
+  }
+  for (let i = 0; i < boxes.length; i++) {
+    for (let j = i + 1; j < boxes.length; j++) {
+      const [a, b] = [boxes[i], boxes[j]];
+      const overlapX = Math.min(a.x + a.w, b.x + b.w) - Math.max(a.x, b.x);
+      const overlapY = Math.min(a.y + a.h, b.y + b.h) - Math.max(a.y, b.y);
+      assert.ok(overlapX < 0.5 || overlapY < 0.5, `${what}: ${a.name} and ${b.name} overlap: ${JSON.stringify([a, b])}`);
+    }
+  }
+}
+
 for (const size of SIZES) {
-  test(`at ${size[0]}×${size[1]} every visible control is inside the page, overlaps no other and takes its own clicks`, async () => {
+  test(`at ${size[0]}×${size[1]}, fitted and at 32×, every visible control is inside the page, overlaps no other and takes its own clicks`, async () => {
     const page = await open(size);
     await page.waitForFunction(() => document.getElementById('image').dataset.shown === 'a');
     // Everything on show at once: a reference, the error map and its legend, the swipe's split.
@@ -117,27 +205,12 @@ for (const size of SIZES) {
     await page.waitForFunction(() => document.getElementById('image').dataset.shown === 'error');
     await page.screenshot({ path: path.join(OUT, `layout-${size[0]}x${size[1]}.png`) });
     await page.screenshot({ path: path.join(OUT, `layout-${size[0]}x${size[1]}-full.png`), fullPage: true });
-
-    const { scrollWidth, innerWidth } = await page.evaluate(() => ({
-      scrollWidth: document.documentElement.scrollWidth, innerWidth: window.innerWidth,
-    }));
-    assert.ok(scrollWidth <= innerWidth, `no sideways scrolling: the page is ${scrollWidth} px wide`);
-    const boxes = await layoutOf(page);
-    assert.ok(boxes.some((b) => b.name === 'error-legend'), 'the legend is on show');
-    assert.ok(boxes.some((b) => b.name === 'create-session'));
-    for (const b of boxes) {
-      assert.ok(b.w > 0 && b.h > 0, `${b.name} has a box: ${JSON.stringify(b)}`);
-      assert.ok(b.x >= 0 && b.y >= 0 && b.x + b.w <= innerWidth, `${b.name} lies inside the page: ${JSON.stringify(b)}`);
-      assert.ok(b.own, `a click at the centre of ${b.name} reaches it, not ${b.hit}`);
-    }
-    for (let i = 0; i < boxes.length; i++) {
-      for (let j = i + 1; j < boxes.length; j++) {
-        const [a, b] = [boxes[i], boxes[j]];
-        const overlapX = Math.min(a.x + a.w, b.x + b.w) - Math.max(a.x, b.x);
-        const overlapY = Math.min(a.y + a.h, b.y + b.h) - Math.max(a.y, b.y);
-        assert.ok(overlapX < 0.5 || overlapY < 0.5, `${a.name} and ${b.name} overlap: ${JSON.stringify([a, b])}`);
-      }
-    }
+    await assertLaidOut(page, 'fit');
+    // A 256×256 image at 32× is 8192 px square: it scrolls inside its box, which stays as it was.
+    await page.selectOption('#zoom', '32');
+    await page.waitForFunction(() => document.getElementById('image').offsetWidth === 256 * 32);
+    await page.screenshot({ path: path.join(OUT, `layout-${size[0]}x${size[1]}-32x.png`), fullPage: true });
+    await assertLaidOut(page, '32×');
     await page.close();
   });
 }

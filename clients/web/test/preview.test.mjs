@@ -171,21 +171,33 @@ test('a new session renders frames and each frame updates the image and the stat
   await screenshot('02-frames');
 });
 
-test('hovering shows the float value the daemon sent, at any zoom', async () => {
-  await page.selectOption('#zoom', '8');
+// Moves the pointer to the centre of image pixel (x, y) at the zoom on show, and returns what
+// the readout says.
+async function hover(x, y) {
   const box = await page.locator('#image').boundingBox();
-  assert.equal(Math.round(box.width), SIDE * 8, 'zoom 8 makes one image pixel 8 screen pixels wide');
-  const [x, y] = [21, 37];
-  await page.mouse.move(box.x + (x + 0.5) * 8, box.y + (y + 0.5) * 8);
-  await waitData('#pixel', 'x', String(x));
-  const shown = await dataset('#pixel');
-  assert.equal(shown.y, String(y));
+  const scale = box.width / SIDE;
+  await page.mouse.move(box.x + (x + 0.5) * scale, box.y + (y + 0.5) * scale);
+  await page.waitForFunction(([px, py]) => {
+    const { x: sx, y: sy } = document.getElementById('pixel').dataset;
+    return sx === String(px) && sy === String(py);
+  }, [x, y]);
+  return dataset('#pixel');
+}
 
+test('hovering shows the float value the daemon sent, at 8× and at fit', async () => {
   const exr = Buffer.from(await (await api('GET', `${first.href}/frames/1`, { accept: 'image/x-exr' })).arrayBuffer());
   const exrPath = path.join(OUT, 'frame1.exr');
   writeFileSync(exrPath, exr);
-  assert.deepEqual(JSON.parse(shown.a), oiioPixel(exrPath, x, y));
+
+  await page.selectOption('#zoom', '8');
+  const box = await page.locator('#image').boundingBox();
+  assert.equal(Math.round(box.width), SIDE * 8, 'zoom 8 makes one image pixel 8 screen pixels wide');
+  assert.deepEqual(JSON.parse((await hover(21, 37)).a), oiioPixel(exrPath, 21, 37));
+
   await page.selectOption('#zoom', 'fit');
+  const fit = Number((await dataset('#image')).scale);
+  assert.ok(fit > 1 && fit !== 8, `fit is another zoom here (${fit})`);
+  assert.deepEqual(JSON.parse((await hover(50, 9)).a), oiioPixel(exrPath, 50, 9));
 });
 
 // The daemon's PNG preview of the same frame, decoded by the browser, as RGBA bytes.
