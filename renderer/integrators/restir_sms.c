@@ -606,9 +606,7 @@ static bool sms_frame(struct restir_sms_state *st, const struct restir_sms_param
 bool restir_sms_initial_only(struct restir_sms_state *st, const struct restir_sms_params *params,
                              const struct method_frame *f, void *ctx, struct err *err)
 {
-    bool ok = sms_frame(st, params, f, ctx, NULL, NULL, err);
-    if (ok) st->rs.has_history = true;
-    return ok;
+    return sms_frame(st, params, f, ctx, NULL, NULL, err);
 }
 
 bool restir_sms_render(struct restir_sms_state *st, const struct restir_sms_params *params,

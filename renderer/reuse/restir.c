@@ -670,6 +670,9 @@ static bool restir_frame_run(struct restir_frame *fr, parallel_job_fn *fn, struc
 bool restir_frame_initial(struct restir_frame *fr, parallel_job_fn *fn, struct err *err)
 {
     if (!restir_frame_run(fr, fn, err)) return false;
+    /* The initial pass alone (no output) stops here: res[1] is not this frame's, nor under its
+     * G-buffer, so a following frame must not take it as history. */
+    if (!fr->out) fr->s->has_history = false;
     fr->stats->initial_ms = parallel_lap_ms(&fr->t0);
     for (unsigned i = 0; i < fr->threads; i++) restir_pass_stats_add(fr->stats, &fr->counters[i]);
     clock_gettime(CLOCK_MONOTONIC, &fr->t0);

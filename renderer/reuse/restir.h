@@ -241,7 +241,8 @@ void *restir_frame_open(struct restir_frame *fr, size_t pass_bytes, struct resti
  * gbuffer_frame's), whose time and rays go to the stats. */
 bool restir_frame_gbuffer(struct restir_frame *fr, float jitter_walk, bool pairs, struct err *err);
 /* The initial pass: fn(fr, job) over the rows (fr is the start of the pass struct); then its time
- * and the workers' `counters` go to the stats, and the clock restarts for the reuse passes. */
+ * and the workers' `counters` go to the stats, and the clock restarts for the reuse passes. A frame
+ * without an output ends here and leaves the session without a history. */
 bool restir_frame_initial(struct restir_frame *fr, parallel_job_fn *fn, struct err *err);
 /* The reuse of every layer: the same ops and parameters, layer l's context at ctx + l * ctx_stride
  * bytes (0: one context for all). Returns fr->reuse, for a method that changes a round's fields. */

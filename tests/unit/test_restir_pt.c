@@ -182,6 +182,9 @@ static void temporal_case(bool move_shape)
     struct method_frame f1 = {.scene = moved, .camera = &cam1, .prev_scene = sc, .prev_camera = &cam0, .seed = 3,
                                  .frame = 1, .threads = 1};
     CHECK(restir_pt_initial_only(&st, &p, &f1, &err));
+    /* The full frame before left a history; the initial pass alone ends it (its res[1] is the
+     * frame before's, under another G-buffer). */
+    CHECK(!st.rs.has_history);
     _Alignas(16) uint8_t ctx[RESTIR_PT_CTX_BYTES];
     restir_pt_bind(&st, &p, &f1, ctx);
     struct tally t = {0};

@@ -102,7 +102,11 @@ static void shift_case(const char *scene_path, bool temporal, int offset, bool e
     _Alignas(16) static uint8_t ctx[RESTIR_SMS_CTX_BYTES];
     struct method_frame f = {.scene = base, .camera = &cam0, .seed = 7, .frame = 0, .threads = 2};
     CHECK(restir_sms_initial_only(&st, &p, &f, ctx, &err));
+    /* The initial pass alone leaves no history: its res[1] is not a finished frame's. */
+    CHECK(!st.rs.has_history);
     if (temporal) {
+        /* The history must exist for the previous G-buffer to be kept. */
+        st.rs.has_history = true;
         f = (struct method_frame){.scene = sc, .camera = &cam1, .prev_scene = base, .prev_camera = &cam0, .seed = 7,
                                       .frame = 1, .threads = 2};
         CHECK(restir_sms_initial_only(&st, &p, &f, ctx, &err));
