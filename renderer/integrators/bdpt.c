@@ -82,8 +82,7 @@ struct bdpt_blocks bdpt_blocks_of(uint32_t light_paths, uint32_t slots, uint32_t
     return b;
 }
 
-bool bdpt_blocks_init(struct bdpt_blocks *b, const struct scene *scene, const char *method, uint32_t light_paths,
-                      uint32_t slots, uint32_t rays_per_block, uint32_t width, uint32_t height, struct err *err)
+bool bdpt_scene_supported(const struct scene *scene, const char *method, struct err *err)
 {
     if (!vec3_is_zero(scene->env_radiance))
         return err_set(err, ERR_INVALID, "/method",
@@ -91,11 +90,26 @@ bool bdpt_blocks_init(struct bdpt_blocks *b, const struct scene *scene, const ch
     if (scene_has_translucent(scene))
         return err_set(err, ERR_INVALID, "/method",
                        "%s does not sample subsurface scattering (the scene has translucent materials)", method);
+    return true;
+}
+
+bool bdpt_blocks_alloc(struct bdpt_blocks *b, uint32_t light_paths, uint32_t slots, uint32_t rays_per_block,
+                       uint32_t width, uint32_t height, struct err *err)
+{
     *b = bdpt_blocks_of(light_paths, slots, rays_per_block, width, height);
-    if (b->light_paths == 0) return err_set(err, ERR_INVALID, "/params/light_paths", "no light subpaths");
+    if (b->light_paths == 0) {
+        memset(b, 0, sizeof *b);
+        return err_set(err, ERR_INVALID, "/params/light_paths", "no light subpaths");
+    }
     b->count = calloc(b->blocks, sizeof *b->count);
     b->dropped = calloc(b->blocks, sizeof *b->dropped);
-    b->rays = calloc((size_t)rays_per_block * b->blocks, sizeof *b->rays);
+    if (rays_per_block) b->rays = calloc((size_t)rays_per_block * b->blocks, sizeof *b->rays);
+    if (!b->count || !b->dropped || (rays_per_block && !b->rays)) {
+        uint64_t bytes = bdpt_blocks_bytes(b);
+        bdpt_blocks_destroy(b);
+        return err_set(err, ERR_NOMEM, NULL, "out of memory for the light subpaths' block counters (%llu bytes)",
+                       (unsigned long long)bytes);
+    }
     return true;
 }
 
@@ -156,8 +170,8 @@ bool bdpt_init(struct bdpt_state *st, const struct scene *scene, const struct bd
                uint32_t height, struct err *err)
 {
     memset(st, 0, sizeof *st);
-    if (!bdpt_params_valid(p, err) ||
-        !bdpt_blocks_init(&st->lb, scene, "bdpt", p->light_paths, p->lvc_capacity, 2, width, height, err))
+    if (!bdpt_params_valid(p, err) || !bdpt_scene_supported(scene, "bdpt", err) ||
+        !bdpt_blocks_alloc(&st->lb, p->light_paths, p->lvc_capacity, 2, width, height, err))
         return false;
     st->width = width;
     st->height = height;
@@ -165,7 +179,7 @@ bool bdpt_init(struct bdpt_state *st, const struct scene *scene, const struct bd
     st->lvc = malloc(slots * sizeof *st->lvc);
     st->splat = malloc(slots * sizeof *st->splat);
     st->block_first = calloc((size_t)st->lb.blocks + 1, sizeof *st->block_first);
-    if (!st->lvc || !st->splat || !bdpt_blocks_allocated(&st->lb) || !st->block_first) {
+    if (!st->lvc || !st->splat || !st->block_first) {
         uint64_t bytes = bdpt_lvc_bytes_of(&st->lb);
         bdpt_destroy(st);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for the light vertex cache (%llu bytes)",

@@ -78,12 +78,12 @@ struct bdpt_blocks {
 struct bdpt_blocks bdpt_blocks_of(uint32_t light_paths, uint32_t slots, uint32_t rays_per_block, uint32_t width,
                                   uint32_t height);
 /* The start of both methods' init once their parameters are valid: refuses environment light and
- * translucent materials (the messages name `method`) and a frame without light subpaths, then
- * lays out *b and allocates its counters (bdpt_blocks_allocated says whether that worked; the
- * caller reports it with its own buffers). */
-bool bdpt_blocks_init(struct bdpt_blocks *b, const struct scene *scene, const char *method, uint32_t light_paths,
-                      uint32_t slots, uint32_t rays_per_block, uint32_t width, uint32_t height, struct err *err);
-static inline bool bdpt_blocks_allocated(const struct bdpt_blocks *b) { return b->count && b->dropped && b->rays; }
+ * translucent materials (the messages name `method`). */
+bool bdpt_scene_supported(const struct scene *scene, const char *method, struct err *err);
+/* Lays out *b (bdpt_blocks_of) and allocates its counters (no `rays` when rays_per_block is 0).
+ * False, with *b empty, for a frame without light subpaths or when an allocation fails. */
+bool bdpt_blocks_alloc(struct bdpt_blocks *b, uint32_t light_paths, uint32_t slots, uint32_t rays_per_block,
+                       uint32_t width, uint32_t height, struct err *err);
 /* Whether the parameters of a frame still lay out the session's blocks. */
 static inline bool bdpt_blocks_same(const struct bdpt_blocks *b, struct bdpt_blocks want)
 {

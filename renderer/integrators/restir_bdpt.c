@@ -191,10 +191,15 @@ const char *restir_bdpt_variant_name(enum restir_bdpt_variant v)
 }
 
 struct rbdpt_sizes {
-    struct bdpt_blocks lb;   /* no counters allocated */
-    uint32_t lvc_region;
+    struct bdpt_blocks lb, lvb;   /* no counters allocated; lvb empty but in the full variant */
     uint64_t lt, pixels, blocks_b, res, lvc, pairs, x2c;
 };
+
+/* The full variant's LVC blocks: those of the light pass, lvc_capacity slots per path, no rays. */
+static struct bdpt_blocks rbdpt_lvc_blocks_of(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
+{
+    return bdpt_blocks_of(p->light_paths, p->lvc_capacity, 0, width, height);
+}
 
 static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
 {
@@ -208,14 +213,14 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
     z.res = (p->reuse ? 3 : 1) * n * sizeof(struct restir_bdpt_path) + 2 * n * sizeof(struct restir_bdpt_reservoir) +
             2 * n * sizeof(struct restir_bdpt_shifted) +
             (n + 1) * sizeof(uint32_t) + (p->reuse ? n * sizeof(struct gbuffer_pixel) : 0);
-    /* The full variant's LVC: the vertices, per block its count, its dropped count and its
-     * prefix sum (one more). */
     z.pairs = p->reuse && p->paired_spatial ? restir_pair_scratch_bytes(width, height) : 0;
     z.x2c = p->reuse ? n * sizeof(struct rbdpt_x2_entry) : 0;
+    /* The full variant's LVC: the vertices (and their subpaths with reuse), per block its
+     * counters (lvb, the layout of bdpt's) and its prefix sum (one more). */
     bool full = p->variant == RESTIR_BDPT_FULL;
-    z.lvc_region = full ? RBDPT_BLOCK_PATHS * p->lvc_capacity : 0;
-    z.lvc = full ? blocks * z.lvc_region * (sizeof(struct bdpt_light_vertex) + (p->reuse ? sizeof(uint32_t) : 0)) +
-                       blocks * 2 * sizeof(uint32_t) + (blocks + 1) * sizeof(uint64_t)
+    z.lvb = full ? rbdpt_lvc_blocks_of(p, width, height) : (struct bdpt_blocks){0};
+    z.lvc = full ? blocks * z.lvb.region * (sizeof(struct bdpt_light_vertex) + (p->reuse ? sizeof(uint32_t) : 0)) +
+                       bdpt_blocks_bytes(&z.lvb) + (blocks + 1) * sizeof(uint64_t)
                  : 0;
     return z;
 }
@@ -239,9 +244,8 @@ size_t restir_bdpt_pair_bytes(const struct restir_bdpt_state *st)
 size_t restir_bdpt_lvc_bytes(const struct restir_bdpt_state *st)
 {
     if (!st->lvc) return 0;
-    return (size_t)st->lb.blocks * st->lvc_region * (sizeof *st->lvc + (st->lvc_path ? sizeof *st->lvc_path : 0)) +
-           (size_t)st->lb.blocks * (sizeof *st->lvc_count + sizeof *st->lvc_dropped) +
-           ((size_t)st->lb.blocks + 1) * sizeof *st->lvc_first;
+    return (size_t)st->lb.blocks * st->lvb.region * (sizeof *st->lvc + (st->lvc_path ? sizeof *st->lvc_path : 0)) +
+           (size_t)bdpt_blocks_bytes(&st->lvb) + ((size_t)st->lb.blocks + 1) * sizeof *st->lvc_first;
 }
 
 size_t restir_bdpt_reservoir_bytes(const struct restir_bdpt_state *st)
@@ -282,8 +286,8 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
                       uint32_t width, uint32_t height, struct err *err)
 {
     memset(st, 0, sizeof *st);
-    if (!restir_bdpt_params_valid(p, err) ||
-        !bdpt_blocks_init(&st->lb, scene, "restir_bdpt", p->light_paths, p->lt_capacity, 3, width, height, err))
+    if (!restir_bdpt_params_valid(p, err) || !bdpt_scene_supported(scene, "restir_bdpt", err) ||
+        !bdpt_blocks_alloc(&st->lb, p->light_paths, p->lt_capacity, 3, width, height, err))
         return false;
     struct rbdpt_sizes z = rbdpt_sizes_of(p, width, height);
     size_t n = (size_t)width * height;
@@ -310,17 +314,18 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
         }
     }
     if (p->variant == RESTIR_BDPT_FULL) {
-        st->lvc_region = z.lvc_region;
-        st->lvc = malloc((size_t)z.lb.blocks * z.lvc_region * sizeof *st->lvc);
-        st->lvc_count = calloc(z.lb.blocks, sizeof *st->lvc_count);
-        st->lvc_dropped = calloc(z.lb.blocks, sizeof *st->lvc_dropped);
+        if (!bdpt_blocks_alloc(&st->lvb, p->light_paths, p->lvc_capacity, 0, width, height, err)) {
+            restir_bdpt_destroy(st);
+            return false;
+        }
+        st->lvc = malloc((size_t)z.lb.blocks * z.lvb.region * sizeof *st->lvc);
         st->lvc_first = calloc((size_t)z.lb.blocks + 1, sizeof *st->lvc_first);
-        if (p->reuse) st->lvc_path = malloc((size_t)z.lb.blocks * z.lvc_region * sizeof *st->lvc_path);
+        if (p->reuse) st->lvc_path = malloc((size_t)z.lb.blocks * z.lvb.region * sizeof *st->lvc_path);
     }
-    if (!st->lt || !st->lt_sorted || !st->pixel_first || !bdpt_blocks_allocated(&st->lb) ||
+    if (!st->lt || !st->lt_sorted || !st->pixel_first ||
         !st->res || !st->caustic || !st->caustic_prev || !st->shifted || !st->shifted_sorted || !st->shift_first ||
         (p->reuse && (!st->res_prev || !st->res_spatial || !st->x2c || (p->paired_spatial && !st->pair_scratch))) ||
-        (p->variant == RESTIR_BDPT_FULL && (!st->lvc || !st->lvc_count || !st->lvc_dropped || !st->lvc_first ||
+        (p->variant == RESTIR_BDPT_FULL && (!st->lvc || !st->lvc_first ||
                                              (p->reuse && !st->lvc_path)))) {
         restir_bdpt_destroy(st);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for restir_bdpt (%llu bytes)",
@@ -347,8 +352,7 @@ void restir_bdpt_destroy(struct restir_bdpt_state *st)
     free(st->x2c);
     free(st->lvc);
     free(st->lvc_path);
-    free(st->lvc_count);
-    free(st->lvc_dropped);
+    bdpt_blocks_destroy(&st->lvb);
     free(st->lvc_first);
     gbuffer_destroy(&st->gbuf);
     memset(st, 0, sizeof *st);
@@ -373,7 +377,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     if (!restir_bdpt_params_valid(p, err) || !bdpt_frame_valid(f, "restir_bdpt", out, st->width, st->height, err))
         return false;
     struct rbdpt_sizes z = rbdpt_sizes_of(p, st->width, st->height);
-    if (!bdpt_blocks_same(&st->lb, z.lb) || z.lvc_region != st->lvc_region)
+    if (!bdpt_blocks_same(&st->lb, z.lb) || !bdpt_blocks_same(&st->lvb, z.lvb))
         return err_set(err, ERR_INVALID, NULL, "the parameters changed the buffers' sizes since init");
     unsigned threads = f->threads ? f->threads : parallel_default_threads();
     if (threads > RBDPT_MAX_WORKERS) threads = RBDPT_MAX_WORKERS;
@@ -420,10 +424,10 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
         /* The cache's canonical order: blocks in order, each block's vertices in order. */
         st->lvc_first[0] = 0;
         for (uint32_t b = 0; b < st->lb.blocks; b++) {
-            st->lvc_first[b + 1] = st->lvc_first[b] + st->lvc_count[b];
-            s.lvc_dropped += st->lvc_dropped[b];
+            st->lvc_first[b + 1] = st->lvc_first[b] + st->lvb.count[b];
+            s.lvc_dropped += st->lvb.dropped[b];
         }
-        c->lvc = (struct bdpt_lvc_view){st->lvc, st->lvc_first, st->lb.blocks, st->lvc_region, st->lvc_first[st->lb.blocks],
+        c->lvc = (struct bdpt_lvc_view){st->lvc, st->lvc_first, st->lb.blocks, st->lvb.region, st->lvc_first[st->lb.blocks],
                                         (float)((double)st->lvc_first[st->lb.blocks] / (double)st->lb.light_paths)};
     }
     s.light_ms = rbdpt_ms_since(&t0);

@@ -226,13 +226,13 @@ struct restir_bdpt_state {
     /* With reuse: per pixel the x_2 of its sample of the reverse hybrid shift's class in this
      * frame's scene, so that the shifts of one sample replay its light subpath once (restir_bdpt_reuse.c). */
     struct rbdpt_x2_entry *x2c;
-    /* The full variant's light vertex cache, in bdpt's layout: per block a region of lvc_region
-     * vertices, lvc_count of them used, lvc_first the prefix sums (blocks + 1). NULL otherwise. */
+    /* The full variant's light vertex cache, in bdpt's layout: per block a region of lvb.region
+     * vertices, lvb.count of them used (lvb has no ray counters), lvc_first the prefix sums
+     * (blocks + 1). NULL and empty otherwise. */
     struct bdpt_light_vertex *lvc;
     uint32_t *lvc_path;        /* with reuse: per slot, the light subpath of the vertex (a connection's
                                   shift replays it) */
-    uint32_t lvc_region;
-    uint32_t *lvc_count, *lvc_dropped;
+    struct bdpt_blocks lvb;
     uint64_t *lvc_first;
 };
 

@@ -187,15 +187,15 @@ void rbdpt_light_block(void *ctx, uint32_t block, unsigned worker)
     uint64_t vertices = 0;
     uint32_t first = block * RBDPT_BLOCK_PATHS;
     uint32_t last = first + RBDPT_BLOCK_PATHS < st->lb.light_paths ? first + RBDPT_BLOCK_PATHS : st->lb.light_paths;
-    const size_t lvc_at = (size_t)block * st->lvc_region;
+    const size_t lvc_at = (size_t)block * st->lvb.region;
     struct rbdpt_lvc_block lvc = {st->lvc ? &st->lvc[lvc_at] : NULL, st->lvc_path ? &st->lvc_path[lvc_at] : NULL,
-                                  st->lvc_region, 0, 0};
+                                  st->lvb.region, 0, 0};
     for (uint32_t i = first; i < last; i++)
         rbdpt_trace_light(c, &c->view[0], c->frame, i, 0, region, st->lb.region, &stored, &dropped, &vertices,
                           st->lvc ? &lvc : NULL, NULL, &rc);
     if (st->lvc) {
-        st->lvc_count[block] = lvc.count;
-        st->lvc_dropped[block] = lvc.dropped;
+        st->lvb.count[block] = lvc.count;
+        st->lvb.dropped[block] = lvc.dropped;
     }
     st->lb.count[block] = stored;
     st->lb.dropped[block] = dropped;

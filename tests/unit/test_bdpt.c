@@ -214,5 +214,20 @@ static void test_frames_and_stats(void)
     scene_release(env);
 }
 
+/* A failed allocation of the block counters is an error, and leaves nothing allocated: a huge
+ * counter array (2^32 - 1 per block for 2^24 - 1 blocks) is more than the address space. Skipped
+ * under the sanitizers, whose allocators abort on such a request. */
+static void test_blocks_alloc_fails_cleanly(void)
+{
+#if !defined(__SANITIZE_ADDRESS__) && !defined(__SANITIZE_THREAD__)
+    struct err err = {0};
+    struct bdpt_blocks b;
+    CHECK(!bdpt_blocks_alloc(&b, UINT32_MAX - 255u, 1, UINT32_MAX, 1, 1, &err) && err.code == ERR_NOMEM);
+    CHECK(!b.count && !b.dropped && !b.rays && b.blocks == 0);
+    CHECK(bdpt_blocks_alloc(&b, 1000, 2, 0, 1, 1, &err) && b.count && b.dropped && !b.rays && b.blocks == 4);
+    bdpt_blocks_destroy(&b);
+#endif
+}
+
 TEST_MAIN(TEST(test_mis_power), TEST(test_mis_balance), TEST(test_params), TEST(test_session_bytes_planned_match_allocated),
-          TEST(test_frames_and_stats))
+          TEST(test_frames_and_stats), TEST(test_blocks_alloc_fails_cleanly))
