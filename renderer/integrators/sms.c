@@ -235,7 +235,6 @@ bool sms_draw_begin(const struct scene *scene, const struct sms_scene *ss, float
     const bool picked = sms_pick(scene, ss, uc, ul, l1, l2, max_chain, &d->ci, &d->ls);
     d->cs = &ss->casters[d->ci];
     if (!picked) return false;
-    d->light = d->ls.material;
     d->e = (struct manifold_ends){.x1 = s->p, .ng1 = s->ng, .xe = d->ls.p, .nge = d->ls.n};
     return true;
 }
@@ -254,7 +253,7 @@ bool sms_sample(const struct scene *scene, const struct sms_scene *ss, const str
     if (!sms_walk_seed(scene, d.cs, &d.e, p, s1, s2, v, &c->newton_sample, rc) ||
         !manifold_check(scene, &d.cs->chain, &d.e, v, rc))
         goto out;
-    struct vec3 value = sms_solution_value(scene, &d.cs->chain, &d.e, v, s, m, wo, d.light);
+    struct vec3 value = sms_solution_value(scene, &d.cs->chain, &d.e, v, s, m, wo, d.ls.material);
     if (vec3_is_zero(value)) goto out;
     /* Bernoulli trials: the number of fresh seeds until one walks to this solution again has
      * expectation 1 / P(x̄*) ([SMS-SSP §3.1]). */

@@ -210,13 +210,13 @@ struct sms_solution {
     double W;
 };
 /* The start both manifold samplers (sms_sample, ssp_sample) share: the caster (ci, cs) and light
- * point (ls) sms_pick chose, the light's material, the walk's two ends (x1 the shading point, xe
- * the light point) and the sample's clock (its time goes to sms_counters.sample_ms). */
+ * point (ls, which carries the light's material) sms_pick chose, the walk's two ends (x1 the
+ * shading point, xe the light point) and the sample's clock (its time goes to
+ * sms_counters.sample_ms). */
 struct sms_draw {
     uint32_t ci;
     const struct sms_caster *cs;
     struct light_sample ls;
-    const struct material *light;
     struct manifold_ends e;
     double t0;
 };

@@ -427,7 +427,7 @@ bool ssp_sample(const struct scene *scene, const struct sms_scene *ss, const str
         goto out;
     uint32_t ti, tj;
     if (!ssp_tile_of(&k, n, v[0].p, &ti, &tj)) goto out;
-    struct vec3 value = sms_solution_value(scene, &cs->chain, &d.e, v, s, m, wo, d.light);
+    struct vec3 value = sms_solution_value(scene, &cs->chain, &d.e, v, s, m, wo, d.ls.material);
     if (vec3_is_zero(value)) goto out;
     /* C(u*): the 3 x 3 tiles around u*'s (periodic). Eq. 8 and eq. 9. */
     uint32_t ctile[9], ic[9], nic = 0;
