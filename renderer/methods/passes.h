@@ -9,7 +9,6 @@
 
 #include <stddef.h>
 
-#include "methods/adapter.h"
 #include "methods/method.h"
 #include "reuse/restir.h"
 

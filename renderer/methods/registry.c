@@ -4,7 +4,6 @@
 #include <stdio.h>
 #include <string.h>
 
-#include "methods/adapter.h"
 #include "methods/method.h"
 
 extern const struct method_desc method_pt, method_restir_pt, method_bdpt, method_sms, method_restir_sss,
@@ -49,18 +48,6 @@ void method_names(char *out, size_t size, const char *separator)
     if (size) out[0] = '\0';
     for (uint32_t i = 0; i < method_count() && n < size; i++)
         n += (size_t)snprintf(out + n, size - n, "%s%s", i ? separator : "", methods[i]->name);
-}
-
-bool method_stateless_init(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
-                           struct err *err)
-{
-    (void)state, (void)scene, (void)params, (void)width, (void)height, (void)err;
-    return true;
-}
-
-void method_stateless_destroy(void *state)
-{
-    (void)state;
 }
 
 const struct method_param *method_param_find(const struct method_desc *m, const char *key)
