@@ -63,6 +63,26 @@ TEMPORAL_OFF = {"restir_pt": {"temporal": False}, "restir_sss": {"temporal": Fal
                 "restir_bdpt": {"caustic_temporal": False}}
 
 
+def extra_params(text):
+    """REPORT_PARAMS: {method: {param: value}} given to every session of that method, so that a
+    configuration other than the defaults is measured in both regimes. The ladder's parameter and
+    TEMPORAL_OFF's are given over them (they are what a row measures)."""
+    try:
+        value = json.loads(text)
+    except ValueError as e:
+        raise SystemExit(f"report: REPORT_PARAMS is not JSON: {e}")
+    if not isinstance(value, dict) or not all(isinstance(v, dict) for v in value.values()):
+        raise SystemExit("report: REPORT_PARAMS must be an object of method name to an object of parameters")
+    unknown = sorted(set(value) - set(LADDER))
+    if unknown:
+        raise SystemExit(f"report: REPORT_PARAMS/{unknown[0]}: not a method the report measures "
+                         f"({', '.join(sorted(LADDER))})")
+    return value
+
+
+EXTRA_PARAMS = extra_params(os.environ.get("REPORT_PARAMS", "{}"))
+
+
 def log(msg):
     print(f"report: {msg}", file=sys.stderr, flush=True)
 
@@ -71,6 +91,7 @@ class Session:
     """One daemon session; frames come back with their statistics, images on request."""
 
     def __init__(self, d, scene, method, params, seed, side, work):
+        params = {**EXTRA_PARAMS.get(method, {}), **params}
         r = d.req("POST", f"/v1/scenes/{scene}/sessions",
                   json_body={"method": method, "width": side, "height": side, "seed": seed, "params": params})
         if r.status != 201:

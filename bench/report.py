@@ -29,7 +29,15 @@ Per scene (SCENES) and method:
     cornell-box at several spp, in the converge regime against the same reference, with and
     without its light sampling, and the radiometric agreement of its converged image with ours.
 Environment: QUICK=1, BENCH_THREADS (all cores), REPORT_SCENES (comma list), REPORT_NO_CYCLES=1,
-REF_BUDGET_S (seconds of reference rendering per scene)."""
+REF_BUDGET_S (seconds of reference rendering per scene). To try a configuration without touching
+docs/report: REPORT_OUT (the output folder, relative to the checkout), REPORT_METHODS (comma list:
+only these methods, in every scene that has them), REPORT_SKIP (comma list of stability, failures)
+and REPORT_PARAMS (a JSON object of method name to parameters given to every session of that
+method, under the ladder's own parameter; bench/regimes.py), e.g.
+
+  QUICK=1 REPORT_NO_CYCLES=1 REPORT_SKIP=stability,failures REPORT_OUT=build/try/reuse \
+    REPORT_SCENES=lamp-in-glass REPORT_METHODS=bdpt,restir_bdpt \
+    REPORT_PARAMS='{"restir_bdpt": {"reuse": true}}' make bench-report"""
 import csv
 import json
 import os
@@ -60,7 +68,7 @@ from references import Reference  # noqa: E402
 
 QUICK = os.environ.get("QUICK") == "1"
 BIN = str(ROOT / "build" / "restir")
-OUT = ROOT / "docs" / "report"
+OUT = ROOT / os.environ.get("REPORT_OUT", "docs/report")
 WORK = ROOT / "build" / "report"
 THREADS = os.environ.get("BENCH_THREADS", str(os.cpu_count() or 1))
 SIDE = 64 if QUICK else 256
@@ -78,7 +86,27 @@ ALL_SCENES = {"cornell-box": ["pt", "restir_pt", "bdpt", "restir_bdpt"],
               "caustic-sphere": ["pt", "restir_pt", "bdpt", "restir_bdpt", "sms", "sms_ssp", "restir_sms"],
               "refractive-slab": ["pt", "restir_pt", "sms", "sms_ssp", "restir_sms"],
               "reflective-plane": ["pt", "restir_pt", "sms", "sms_ssp", "restir_sms"], "translucent": ["pt", "restir_sss"]}
-SCENES = {s: ALL_SCENES[s] for s in os.environ.get("REPORT_SCENES", ",".join(ALL_SCENES)).split(",")}
+
+
+def env_list(name, allowed):
+    """A comma list from the environment (None when unset), every item one of `allowed`."""
+    value = os.environ.get(name)
+    if value is None:
+        return None
+    items = [x.strip() for x in value.split(",") if x.strip()]
+    bad = [x for x in items if x not in allowed]
+    if bad or not items:
+        raise SystemExit(f"report: {name}: {', '.join(bad) or 'empty'} is not one of {', '.join(sorted(allowed))}")
+    return items
+
+
+ALL_METHODS = sorted({m for ms in ALL_SCENES.values() for m in ms})
+METHODS = env_list("REPORT_METHODS", ALL_METHODS) or ALL_METHODS
+SCENES = {s: [m for m in ALL_SCENES[s] if m in METHODS] for s in env_list("REPORT_SCENES", ALL_SCENES) or ALL_SCENES}
+SCENES = {s: ms for s, ms in SCENES.items() if ms}
+if not SCENES:
+    raise SystemExit("report: REPORT_METHODS: none of these methods is measured on the REPORT_SCENES")
+SKIP = set(env_list("REPORT_SKIP", ["stability", "failures"]) or [])
 # Each scene's reference method, the unbiased one that finds its light best, and the samples of
 # one chunk (a reference starts as two chunks, one per half): pt, or where pt practically never
 # finds the light bdpt (mean of independent frames) through glass and for point-like caustics,
@@ -481,6 +509,16 @@ def write_csv(results):
     (OUT / "references.json").write_text(json.dumps(refs, indent=1) + "\n")
 
 
+def configuration():
+    """The report's lines naming a configuration other than the full default run, if any."""
+    knobs = [f"{k}={os.environ[k]}" for k in ("REPORT_SCENES", "REPORT_METHODS", "REPORT_SKIP", "REPORT_PARAMS")
+             if os.environ.get(k)]
+    if not knobs:
+        return []
+    return ["Configuration: " + ", ".join(f"`{k}`" for k in knobs) + ": a partial run, or one whose methods in "
+            "REPORT_PARAMS do not run with the defaults they ship with.", ""]
+
+
 def write(results, stab, peer, fail, started, elapsed):
     OUT.mkdir(parents=True, exist_ok=True)
     for old in OUT.glob("*.svg"):
@@ -494,6 +532,7 @@ def write(results, stab, peer, fail, started, elapsed):
           "time is that of the run that rendered its chunks); the data "
           "are in [error_vs_time.csv](error_vs_time.csv), [references.json](references.json) and "
           "[stability.json](stability.json).", "",
+          *configuration(),
           f"Images {SIZE}, medians over {SEEDS} seed(s). Two regimes ([docs/benchmarks.md](../benchmarks.md#two-regimes)):",
           "",
           f"- **Real time**: the error of single frames after {regimes.WARMUP} warm-up frames (frames "
@@ -717,8 +756,8 @@ def main():
         d.stop()
     if peer:
         peer["converged"] = cycles_agreement(peer, results["cornell-box"]["reference"])
-    stab = stability()
-    fail = failure_cases()
+    stab = None if "stability" in SKIP else stability()
+    fail = None if "failures" in SKIP else failure_cases()
     write(results, stab, peer, fail, started, time.monotonic() - t0)
 
 

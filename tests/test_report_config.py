@@ -1,0 +1,83 @@
+"""The report's configuration variables (bench/report.py, bench/regimes.py): a bad value is refused
+naming the variable and the item, a filter measures what it names and nothing else, and the
+parameters REPORT_PARAMS gives a method reach every session of it beneath the row's own."""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def report_module(env, code):
+    """Imports bench/report.py under `env` and runs `code`; (exit status, stdout, stderr)."""
+    full = {k: v for k, v in os.environ.items() if not k.startswith("REPORT_")}
+    full.update(env)
+    r = subprocess.run([sys.executable, "-c", "import report, regimes\n" + code], cwd=ROOT / "bench", env=full,
+                       capture_output=True, text=True, timeout=60)
+    return r.returncode, r.stdout, r.stderr
+
+
+@pytest.mark.parametrize("env, message", [
+    ({"REPORT_METHODS": "pt,foo"}, "report: REPORT_METHODS: foo is not one of bdpt, pt,"),
+    ({"REPORT_SCENES": "cornell"}, "report: REPORT_SCENES: cornell is not one of"),
+    ({"REPORT_SKIP": "stability,cycles"}, "report: REPORT_SKIP: cycles is not one of failures, stability"),
+    ({"REPORT_METHODS": ","}, "report: REPORT_METHODS: empty is not one of"),
+    ({"REPORT_METHODS": "restir_sss", "REPORT_SCENES": "cornell-box"},
+     "report: REPORT_METHODS: none of these methods is measured on the REPORT_SCENES"),
+    ({"REPORT_PARAMS": "{"}, "report: REPORT_PARAMS is not JSON:"),
+    ({"REPORT_PARAMS": '{"restir_pt": 3}'}, "report: REPORT_PARAMS must be an object of method name to an object"),
+    ({"REPORT_PARAMS": '{"restir_ptt": {}}'}, "report: REPORT_PARAMS/restir_ptt: not a method the report measures"),
+])
+def test_bad_configuration_is_refused_by_name(env, message):
+    rc, _, err = report_module(env, "")
+    assert rc == 1 and err.strip().splitlines()[-1].startswith(message), err
+
+
+def test_filters_and_output_folder():
+    rc, out, err = report_module({"REPORT_SCENES": "translucent,cornell-box", "REPORT_METHODS": "restir_sss,pt",
+                                  "REPORT_SKIP": "failures", "REPORT_OUT": "build/try/x"},
+                                 "import json; print(json.dumps([report.SCENES, sorted(report.SKIP), str(report.OUT),"
+                                 " report.configuration()]))")
+    assert rc == 0, err
+    scenes, skip, out_dir, config = json.loads(out)
+    assert scenes == {"translucent": ["pt", "restir_sss"], "cornell-box": ["pt"]}
+    assert skip == ["failures"] and out_dir == str(ROOT / "build" / "try" / "x")
+    assert config[0].startswith("Configuration: `REPORT_SCENES=translucent,cornell-box`, `REPORT_METHODS=restir_sss,pt`")
+
+
+def test_defaults_measure_everything_into_docs_report():
+    rc, out, err = report_module({}, "import json; print(json.dumps([report.SCENES == report.ALL_SCENES,"
+                                     " sorted(report.SKIP), str(report.OUT), report.configuration(), regimes.EXTRA_PARAMS]))")
+    assert rc == 0, err
+    assert json.loads(out) == [True, [], str(ROOT / "docs" / "report"), [], {}]
+
+
+def test_params_reach_every_session_beneath_the_rows_own():
+    """A session's parameters: REPORT_PARAMS's for its method, then the row's (the ladder's value,
+    TEMPORAL_OFF), which win; other methods' sessions are untouched."""
+    code = """
+import json
+class D:
+    def __init__(self): self.bodies = []
+    def req(self, method, path, json_body=None, **kw):
+        self.bodies.append(json_body)
+        class R:
+            status = 201
+            def json(self): return {"href": "/v1/sessions/1", "memory_bytes": 0}
+        return R()
+d = D()
+regimes.Session(d, "cornell-box", "restir_pt", {"spatial_neighbors": 6}, 0, 16, ".")
+regimes.Session(d, "cornell-box", "restir_pt", regimes.TEMPORAL_OFF["restir_pt"], 0, 16, ".")
+regimes.Session(d, "cornell-box", "pt", {"spp": 4}, 0, 16, ".")
+print(json.dumps([b["params"] for b in d.bodies]))
+"""
+    rc, out, err = report_module({"REPORT_PARAMS": json.dumps({"restir_pt": {"spatial_neighbors": 99, "temporal": True,
+                                                                            "spatial_radius": 5}})}, code)
+    assert rc == 0, err
+    assert json.loads(out) == [{"spatial_neighbors": 6, "temporal": True, "spatial_radius": 5},
+                               {"spatial_neighbors": 99, "temporal": False, "spatial_radius": 5},
+                               {"spp": 4}]
