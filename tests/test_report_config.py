@@ -49,6 +49,25 @@ def test_filters_and_output_folder():
     assert config[0].startswith("Configuration: `REPORT_SCENES=translucent,cornell-box`, `REPORT_METHODS=restir_sss,pt`")
 
 
+def test_output_folder_must_be_new_empty_or_a_report(tmp_path):
+    """The report replaces its folder's charts: a folder holding anything but an earlier report is
+    refused, so nothing of it is deleted."""
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "figure.svg").write_text("<svg/>")
+    rc, _, err = report_module({"REPORT_OUT": str(other)}, "")
+    assert rc == 1 and err.strip().splitlines()[-1] == (
+        f"report: REPORT_OUT: {other} holds files that are not a report's; name a new or empty folder"), err
+    assert (other / "figure.svg").exists()
+    earlier = tmp_path / "earlier"
+    earlier.mkdir()
+    (earlier / "README.md").write_text("# Speed against accuracy: the report\n")
+    (earlier / "x_real-time_mape.svg").write_text("<svg/>")
+    for folder in (earlier, tmp_path / "new"):
+        rc, out, err = report_module({"REPORT_OUT": str(folder)}, "print(report.OUT)")
+        assert rc == 0 and out.strip() == str(folder), err
+
+
 def test_defaults_measure_everything_into_docs_report():
     rc, out, err = report_module({}, "import json; print(json.dumps([report.SCENES == report.ALL_SCENES,"
                                      " sorted(report.SKIP), str(report.OUT), report.configuration(), regimes.EXTRA_PARAMS]))")
