@@ -790,6 +790,14 @@ def test_references_render_upload_metrics_error_map(daemon, tmp_path):
     # Metrics against the uploaded constant: mape by API.md's definition.
     m = daemon.req("GET", s["href"] + "/frames/0/metrics?reference=up32").json()
     assert m["mape"] == pytest.approx(np.mean(np.abs(frame - const) / (const + 0.01 * const.mean())), rel=1e-3)
+    # A NaN in the reference leaves its pixel out, counted in nonfinite as API.md says ("either image").
+    holed = const.copy()
+    holed[3, 5, 1] = np.nan
+    r = daemon.req("PUT", f"{CORNELL}/references/holed", body=write_exr(tmp_path / "h.exr", holed),
+                   headers={"Content-Type": "image/x-exr"})
+    assert r.status == 201, repr(r)
+    m = daemon.req("GET", s["href"] + "/frames/0/metrics?reference=holed").json()
+    assert (m["pixels"], m["nonfinite"]) == (32 * 32 - 1, 1), m
     # A reference of another size does not fit the session.
     r = daemon.req("PUT", f"{CORNELL}/references/up16", body=write_exr(tmp_path / "s.exr", const[:16, :16]),
                    headers={"Content-Type": "image/x-exr"})
