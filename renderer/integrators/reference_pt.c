@@ -211,10 +211,10 @@ struct pt_sss_io {
  * when both leave on the same side. `flatten` inlines every helper it calls (material, surface,
  * accel, light sampler, from their own files through link-time optimisation), except the
  * out-of-line SMS and subsurface branches: left to its heuristics, link-time optimisation stopped
- * inlining them once this function grew, which cost about 100 instructions per ray (2026-11-28:
- * 1038.3 against 937.9 on the diffuse Cornell box, 1437.9 against 1327.3 on the glossy one, from
- * `RESTIR_BIN=B bash tests/perf/instr_guard.sh` where B is a build without `flatten` here and on
- * pt_tile). */
+ * inlining them once this function grew. Without `flatten` here and on pt_tile the diffuse Cornell
+ * box costs 1038.3 instructions per ray against 937.9 (glossy: 1437.9 against 1327.3), without it
+ * on pt_tile alone 958.8 (see pt_tile), so this function's own share is about 80 instructions per
+ * ray (2026-11-28, `RESTIR_BIN=B bash tests/perf/instr_guard.sh`, B each build). */
 __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params,
                                                         struct vec3 org, struct vec3 dir, struct rng *rng_io,
                                                         struct ray_counters *rc_io, const struct pt_split *split,
