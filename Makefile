@@ -216,7 +216,7 @@ test-web: $(OUT)/restird $(WEB_NPM)
 # ThreadSanitizer: the unit tests that start threads, then the pytest tests marked
 # `concurrency` against a TSan daemon. Any report fails the run: the daemon exits with 66 on its
 # first report (halt_on_error), which the tests see as a failed stop or a dead daemon.
-TSAN_UNIT := test_parallel test_registry test_restir test_gbuffer test_restir_pt test_restir_sss test_restir_sms \
+TSAN_UNIT := test_parallel test_registry test_jobs test_restir test_gbuffer test_restir_pt test_restir_sss test_restir_sms \
              test_restir_bdpt
 TSAN_ENV  := TSAN_OPTIONS="halt_on_error=1 exitcode=66 second_deadlock_stack=1 suppressions=$(abspath tests/tsan.supp)"
 ifeq ($(TSAN),1)

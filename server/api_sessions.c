@@ -874,7 +874,7 @@ static struct job *api_job(struct api_call *c, struct session *s)
     return j;
 }
 
-/* Jobs are only freed by session_job_add (oldest finished, when a new one is added), by
+/* Jobs are only freed by session_job_add (the oldest released one, when a new one is added), by
  * session_job_forget (one whose submission failed) and with the session, so a job found above
  * stays valid while the caller holds the session, except against a concurrent submission;
  * requests read jobs under the session lock. */

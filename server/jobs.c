@@ -124,7 +124,7 @@ static void jobs_run_animation(struct jobs *q, struct job *j)
             return;
         }
 
-        uint32_t n;
+        uint32_t n = 0;  /* set by a successful session_render; the LTO build cannot tell */
         struct frame_stats stats;
         if (!session_render(s, q->gate, false, &change, j, &n, &stats, NULL, NULL, &j->error)) {
             if (j->error.code == ERR_BUSY) {
@@ -255,8 +255,14 @@ static void *jobs_worker(void *arg)
             else
                 jobs_run_reference(q, j);
         }
+        /* Only this thread writes the status, so it is read here without the lock. */
         if (j->status != JOB_FAILED) jobs_post(j, "done");
-        if (j->kind == JOB_ANIMATION) session_unclaim(s);
+        bool animation = j->kind == JOB_ANIMATION;
+        /* The last touch: once released, a job added to the session may free it at once. */
+        pthread_mutex_lock(&s->lock);
+        j->released = true;
+        pthread_mutex_unlock(&s->lock);
+        if (animation) session_unclaim(s);
         session_release(s);
     }
 }

@@ -20,7 +20,9 @@ typedef void jobs_frame_fn(void *ctx, double render_ms);
 struct jobs *jobs_new(unsigned workers, unsigned queue, struct gate *gate, struct refstore *refs,
                       jobs_frame_fn *on_frame, void *on_frame_ctx, struct err *err);
 /* Queues j (QUEUED, added by session_job_add; an animation's session already claimed).
- * Retains the session until the job ends. ERR_BUSY when the queue is full, ERR_BUSY after
+ * Retains the session until the job ends. The record stays the session's: a worker reads it
+ * until it sets j->released, its last step with every job it takes, cancelled ones included,
+ * and the session forgets no job before that. ERR_BUSY when the queue is full, ERR_BUSY after
  * jobs_stop began. */
 bool jobs_submit(struct jobs *q, struct job *j, struct err *err);
 /* Cancels queued and running jobs, waits for the workers, frees the pool. */

@@ -455,9 +455,9 @@ bool session_job_add(struct session *s, struct job *j, bool claim, bool *exists,
     bool ok = !*exists;
     uint32_t k = SESSION_JOBS;
     if (ok && s->job_count == SESSION_JOBS) {
-        /* Forget the oldest finished job. */
+        /* Forget the oldest finished job its worker has let go of. */
         for (uint32_t i = 0; i < s->job_count && k == SESSION_JOBS; i++)
-            if (s->jobs[i]->status >= JOB_DONE) k = i;
+            if (s->jobs[i]->released) k = i;
         if (k == SESSION_JOBS) ok = err_set(err, ERR_BUSY, NULL, "the session has %u unfinished jobs", SESSION_JOBS);
     }
     if (ok && claim) ok = session_claim_locked(s, err);

@@ -25,7 +25,7 @@
 #include "session/view.h"
 
 #define SESSION_EVENTS 64          /* events kept for SSE readers that fall behind */
-#define SESSION_JOBS 16            /* jobs remembered per session (oldest finished dropped) */
+#define SESSION_JOBS 16            /* jobs remembered per session (oldest released dropped) */
 
 enum job_kind { JOB_ANIMATION, JOB_REFERENCE };
 enum job_status { JOB_QUEUED, JOB_RUNNING, JOB_DONE, JOB_CANCELLED, JOB_FAILED };
@@ -53,6 +53,8 @@ struct job {
     uint64_t request_hash;           /* what the keyed request asked for (see api_job_replay); set at creation */
     enum job_kind kind;
     enum job_status status;          /* under the session lock */
+    bool released;                   /* under the session lock: its worker has let go of it, so
+                                        the session may forget it (session_job_add) */
     atomic_bool cancel;
     struct session *session;         /* not retained: the session outlives its jobs' records,
                                         and a queued job holds a session reference itself */
@@ -183,7 +185,9 @@ void session_post_event(struct session *s, const char *type, const char *json);
 struct job *job_new(struct session *s, enum job_kind kind, const char *idempotency_key, uint64_t request_hash,
                     struct err *err);
 /* Adds j and gives it its id, and with `claim` claims the session for it (an animation, which
- * stays claimed until it ends). When a job of the session already has j's idempotency key,
+ * stays claimed until it ends). A full list first forgets (frees) its oldest job that is
+ * released: finished, and let go of by its worker, which still reads a finished job while it
+ * posts the job's last event. When a job of the session already has j's idempotency key,
  * nothing is added or claimed: false with *exists set. Other errors: ERR_CONFLICT/ERR_NOT_FOUND
  * (the session is busy or deleted), ERR_BUSY (too many unfinished jobs). */
 bool session_job_add(struct session *s, struct job *j, bool claim, bool *exists, struct err *err);

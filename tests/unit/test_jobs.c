@@ -1,0 +1,120 @@
+/* test_jobs.c — the job workers (server/jobs.c) against a session's job records
+ * (server/session.c), driven directly: the records a session forgets to make room for new jobs
+ * are never ones a worker still uses. A use after free here shows under the sanitizers
+ * (make SAN=1, make test-tsan); the plain build checks the events the workers post. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "jobs.h"
+#include "scene_fixture.h"
+#include "session.h"
+#include "test.h"
+
+struct fixture {
+    struct scene *scene;
+    struct gate gate;
+    struct refstore *refs;
+    struct sessions *table;
+    struct session *s;       /* retained by the test */
+    struct jobs *q;
+};
+
+static bool fixture_open(struct fixture *f, uint32_t side, uint32_t spp)
+{
+    memset(f, 0, sizeof *f);
+    f->scene = fixture_load("scenes/cornell-box/scene.json");
+    if (!f->scene) return false;
+    struct err err = {0};
+    gate_init(&f->gate, 1, 4);
+    f->refs = refstore_new(NULL);
+    f->table = sessions_new(2);
+    struct view_params p = view_params_defaults(method_find("pt"), side, side);
+    CHECK(view_params_set_uint(&p, "spp", spp));
+    f->s = sessions_create(f->table, "cb", NULL, f->scene, &p, 2, 1, NULL, 0, &err);
+    CHECK_MSG(f->s != NULL, "%s", err.message);
+    f->q = f->s ? jobs_new(1, 2 * SESSION_JOBS, &f->gate, f->refs, NULL, NULL, &err) : NULL;
+    CHECK_MSG(!f->s || f->q != NULL, "%s", err.message);
+    return f->q != NULL;
+}
+
+static void fixture_close(struct fixture *f)
+{
+    jobs_stop(f->q);
+    if (f->table) sessions_remove_all(f->table);
+    session_release(f->s);
+    sessions_free(f->table);
+    refstore_free(f->refs);
+    gate_destroy(&f->gate);
+    scene_release(f->scene);
+}
+
+/* Adds and queues a one-pass, one-sample reference job as POST …/references/{name} does;
+ * false when the session's records are all unfinished jobs (ERR_BUSY). */
+static bool add_tiny_reference(struct fixture *f, unsigned i)
+{
+    struct err e = {0};
+    struct job *j = job_new(f->s, JOB_REFERENCE, NULL, 0, &e);
+    if (!j) return false;
+    snprintf(j->ref_name, sizeof j->ref_name, "ref%u", i % 4);
+    j->frames_total = 1;
+    j->ref_spp = 1;
+    j->ref_method = PROTOCOL_REFERENCE_PT;
+    bool exists;
+    if (!session_job_add(f->s, j, true, &exists, &e)) {
+        CHECK_MSG(e.code == ERR_BUSY, "%s", e.message);
+        job_destroy(j);
+        return false;
+    }
+    j->ref_scene = f->s->view.scene;
+    scene_retain(j->ref_scene);
+    j->ref_camera = f->s->view.camera;
+    session_unclaim(f->s);
+    bool queued = jobs_submit(f->q, j, &e);
+    CHECK_MSG(queued, "%s", e.message);
+    if (!queued) session_job_forget(f->s, j);
+    return queued;
+}
+
+/* The session's records fill with queued jobs faster than the one worker ends them, so each
+ * job the worker ends is at once the oldest finished record, which the next add forgets while
+ * the worker may still be posting its `done` event. */
+static void test_finished_jobs_are_forgotten_only_once_their_worker_let_go(void)
+{
+    struct fixture f;
+    if (!fixture_open(&f, 2, 1)) {
+        fixture_close(&f);
+        return;
+    }
+    struct timespec t0, t;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    unsigned added = 0;
+    while (added < 20000) {
+        if (add_tiny_reference(&f, added)) added++;
+        clock_gettime(CLOCK_MONOTONIC, &t);
+        if (t.tv_sec - t0.tv_sec >= 3) break;  /* enough rounds on a slow build */
+    }
+    CHECK_MSG(added > 100, "only %u jobs added", added);
+    jobs_stop(f.q);
+    f.q = NULL;
+    /* Every `done` event names a job by its id and a final status: one read from a record
+     * freed (and reused by the next job) would show another job's or an empty id, or `queued`. */
+    pthread_mutex_lock(&f.s->lock);
+    unsigned dones = 0;
+    for (uint64_t seq = f.s->event_seq > SESSION_EVENTS ? f.s->event_seq - SESSION_EVENTS : 0; seq < f.s->event_seq;
+         seq++) {
+        const struct session_event *ev = &f.s->events[seq % SESSION_EVENTS];
+        if (strcmp(ev->type, "done") != 0 || !ev->data) continue;
+        dones++;
+        CHECK_MSG(strstr(ev->data, "\"job\":\"r") != NULL, "%s", ev->data);
+        CHECK_MSG(strstr(ev->data, "\"status\":\"done\"") || strstr(ev->data, "\"status\":\"cancelled\""), "%s",
+                  ev->data);
+    }
+    CHECK(dones > 0);
+    for (uint32_t i = 0; i < f.s->job_count; i++) CHECK(f.s->jobs[i]->status >= JOB_DONE && f.s->jobs[i]->released);
+    pthread_mutex_unlock(&f.s->lock);
+    fixture_close(&f);
+}
+
+TEST_MAIN(TEST(test_finished_jobs_are_forgotten_only_once_their_worker_let_go))
