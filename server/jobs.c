@@ -127,8 +127,11 @@ static void jobs_run_animation(struct jobs *q, struct job *j)
         uint32_t n = 0;  /* set by a successful session_render; the LTO build cannot tell */
         struct frame_stats stats;
         if (!session_render(s, q->gate, false, &change, j, &n, &stats, NULL, NULL, &j->error)) {
-            if (j->error.code == ERR_BUSY) {
-                jobs_set_status(j, JOB_CANCELLED);  /* the gate closed: shutting down */
+            /* The gate closed (shutting down), or the session was deleted while the frame
+             * rendered (ERR_NOT_FOUND, session_render): the job was cancelled, as between
+             * frames, and nothing failed. */
+            if (j->error.code == ERR_BUSY || j->error.code == ERR_NOT_FOUND) {
+                jobs_set_status(j, JOB_CANCELLED);
                 return;
             }
             jobs_fail(j, j->error.code == ERR_NOMEM ? 503 : 422, j->error.code == ERR_NOMEM ? "busy" : "invalid-field");

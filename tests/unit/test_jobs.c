@@ -1,6 +1,7 @@
 /* test_jobs.c — the job workers (server/jobs.c) against a session's job records
  * (server/session.c), driven directly: the records a session forgets to make room for new jobs
- * are never ones a worker still uses. A use after free here shows under the sanitizers
+ * are never ones a worker still uses, and an animation whose session is deleted mid-frame ends
+ * cancelled. A use after free here shows under the sanitizers
  * (make SAN=1, make test-tsan); the plain build checks the events the workers post. */
 #include <stdio.h>
 #include <stdlib.h>
@@ -48,6 +49,28 @@ static void fixture_close(struct fixture *f)
     refstore_free(f->refs);
     gate_destroy(&f->gate);
     scene_release(f->scene);
+}
+
+static void sleep_ms(long ms)
+{
+    struct timespec ts = {ms / 1000, (ms % 1000) * 1000000L};
+    nanosleep(&ts, NULL);
+}
+
+static enum job_status job_status(struct session *s, const struct job *j)
+{
+    pthread_mutex_lock(&s->lock);
+    enum job_status st = j->status;
+    pthread_mutex_unlock(&s->lock);
+    return st;
+}
+
+static bool gate_rendering(struct gate *g)
+{
+    pthread_mutex_lock(&g->lock);
+    bool busy = g->running > 0;
+    pthread_mutex_unlock(&g->lock);
+    return busy;
 }
 
 /* Adds and queues a one-pass, one-sample reference job as POST …/references/{name} does;
@@ -117,4 +140,50 @@ static void test_finished_jobs_are_forgotten_only_once_their_worker_let_go(void)
     fixture_close(&f);
 }
 
-TEST_MAIN(TEST(test_finished_jobs_are_forgotten_only_once_their_worker_let_go))
+/* An animation whose session is deleted while a frame renders ends cancelled, as a DELETE of
+ * the session promises, not failed. The session is deleted once the frame holds the render
+ * gate, so within the frame (or just before it starts rendering), never between frames, where
+ * the cancel flag the deletion sets ends the job anyway. */
+static void test_animation_ends_cancelled_when_its_session_is_deleted_mid_frame(void)
+{
+    struct fixture f;
+    if (!fixture_open(&f, 32, 4096)) {  /* a frame of seconds, cut within 20 ms of the deletion */
+        fixture_close(&f);
+        return;
+    }
+    struct err e = {0};
+    struct job *j = job_new(f.s, JOB_ANIMATION, NULL, 0, &e);
+    CHECK(j != NULL);
+    if (!j) {
+        fixture_close(&f);
+        return;
+    }
+    j->fps = 30;
+    j->frames_total = 2;
+    j->frames = calloc(2, sizeof *j->frames);
+    j->rows = calloc(2, sizeof *j->rows);
+    bool exists, added = j->frames && j->rows && session_job_add(f.s, j, true, &exists, &e);
+    CHECK_MSG(added, "%s", e.message);
+    if (!added) {
+        job_destroy(j);
+        fixture_close(&f);
+        return;
+    }
+    CHECK_MSG(jobs_submit(f.q, j, &e), "%s", e.message);
+    for (int ms = 0; ms < 10000 && job_status(f.s, j) <= JOB_RUNNING && !gate_rendering(&f.gate); ms++) sleep_ms(1);
+    CHECK(job_status(f.s, j) == JOB_RUNNING);
+    CHECK(sessions_remove(f.table, "cb", f.s->id));
+    jobs_stop(f.q);  /* waits for the worker */
+    f.q = NULL;
+    pthread_mutex_lock(&f.s->lock);
+    CHECK_MSG(j->status == JOB_CANCELLED, "status %d, error %s", (int)j->status, j->error.message);
+    CHECK(j->frames_done == 0);
+    const struct session_event *last = &f.s->events[(f.s->event_seq - 1) % SESSION_EVENTS];
+    CHECK_MSG(strcmp(last->type, "done") == 0 && last->data && strstr(last->data, "\"status\":\"cancelled\""),
+              "%s %s", last->type, last->data ? last->data : "");
+    pthread_mutex_unlock(&f.s->lock);
+    fixture_close(&f);
+}
+
+TEST_MAIN(TEST(test_finished_jobs_are_forgotten_only_once_their_worker_let_go),
+          TEST(test_animation_ends_cancelled_when_its_session_is_deleted_mid_frame))
