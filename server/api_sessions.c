@@ -865,25 +865,36 @@ out:
     session_release(s);
 }
 
-static struct job *api_job(struct api_call *c, struct session *s)
+/* Runs use() on job seg[6] of the session under the session lock (session_job_use), or answers
+ * 404 and returns false when the session has no such job. */
+static bool api_job_use(struct api_call *c, struct session *s,
+                        void (*use)(struct session *s, struct job *j, void *ctx), void *ctx)
 {
-    pthread_mutex_lock(&s->lock);
-    struct job *j = session_job_find(s, c->seg[6]);
-    pthread_mutex_unlock(&s->lock);
-    if (!j) api_problem(c, 404, "not-found", NULL, "session '%s' has no job '%s'", s->id, c->seg[6]);
-    return j;
+    if (session_job_use(s, c->seg[6], use, ctx)) return true;
+    api_problem(c, 404, "not-found", NULL, "session '%s' has no job '%s'", s->id, c->seg[6]);
+    return false;
 }
 
-/* Jobs are only freed by session_job_add (the oldest released one, when a new one is added), by
- * session_job_forget (one whose submission failed) and with the session, so a job found above
- * stays valid while the caller holds the session, except against a concurrent submission;
- * requests read jobs under the session lock. */
+/* session_job_use callbacks: the job object into the writer `ctx` (initialised here); the same
+ * after asking the job to stop. */
+static void api_job_write(struct session *s, struct job *j, void *ctx)
+{
+    jsonw_init(ctx);
+    api_write_job(ctx, s, j);
+}
+
+static void api_job_cancel(struct session *s, struct job *j, void *ctx)
+{
+    atomic_store(&j->cancel, true);
+    api_job_write(s, j, ctx);
+}
+
 void api_render_get(struct api_call *c)
 {
     struct session *s = api_session(c);
     if (!s) return;
-    struct job *j = api_job(c, s);
-    if (j) api_job_answer(c, s, j, 200);
+    struct jsonw w;
+    if (api_job_use(c, s, api_job_write, &w)) api_json(c, 200, &w);
     session_release(s);
 }
 
@@ -891,12 +902,8 @@ void api_render_delete(struct api_call *c)
 {
     struct session *s = api_session(c);
     if (!s) return;
-    struct job *j = api_job(c, s);
-    if (j) {
-        atomic_store(&j->cancel, true);
-        api_job_answer(c, s, j, 200);
-        c->resp->status = 202;
-    }
+    struct jsonw w;
+    if (api_job_use(c, s, api_job_cancel, &w)) api_json(c, 202, &w);
     session_release(s);
 }
 
@@ -906,26 +913,43 @@ static const char *api_converge_image(const struct job_row *row)
     return row->conv_is_frame ? "frame" : "accumulation";
 }
 
+/* What the metrics of a job answer with, copied under the session lock (session_job_use). */
+struct api_job_series {
+    enum job_kind kind;
+    uint32_t n;
+    struct job_row *rows;            /* an animation's n rows (malloc'd, NULL when out of memory) */
+    char ref_name[65];
+};
+
+static void api_job_series_copy(struct session *s, struct job *j, void *ctx)
+{
+    (void)s;
+    struct api_job_series *x = ctx;
+    x->kind = j->kind;
+    snprintf(x->ref_name, sizeof x->ref_name, "%s", j->ref_name);
+    if (j->kind != JOB_ANIMATION) return;
+    x->n = j->frames_done;
+    x->rows = malloc((x->n ? x->n : 1) * sizeof *x->rows);
+    if (x->rows) memcpy(x->rows, j->rows, x->n * sizeof *x->rows);
+}
+
 void api_render_metrics(struct api_call *c)
 {
     static const char *const types[] = {"application/json", "text/csv", NULL};
     struct session *s = api_session(c);
     if (!s) return;
-    struct job *j = api_job(c, s);
-    const char *type = j ? api_negotiate(c, types) : NULL;
+    struct api_job_series x = {0};
+    const char *type = api_job_use(c, s, api_job_series_copy, &x) ? api_negotiate(c, types) : NULL;
     struct ref_image *other = NULL;
+    struct job_row *rows = x.rows;
+    uint32_t n = x.n;
     if (!type || !api_query_reference(c, &s->view.params, &other)) goto out;
-    if (j->kind != JOB_ANIMATION) {
-        api_problem(c, 404, "not-found", NULL, "job '%s' renders a reference and has no frame series", j->id);
+    if (x.kind != JOB_ANIMATION) {
+        api_problem(c, 404, "not-found", NULL, "job '%s' renders a reference and has no frame series", c->seg[6]);
         goto out;
     }
-    pthread_mutex_lock(&s->lock);
-    uint32_t n = j->frames_done;
-    struct job_row *rows = malloc((n ? n : 1) * sizeof *rows);
-    if (rows) memcpy(rows, j->rows, n * sizeof *rows);
-    char ref_name[sizeof j->ref_name];
-    snprintf(ref_name, sizeof ref_name, "%s", other ? other->name : j->ref_name);
-    pthread_mutex_unlock(&s->lock);
+    char ref_name[sizeof x.ref_name];
+    snprintf(ref_name, sizeof ref_name, "%s", other ? other->name : x.ref_name);
     if (!rows) {
         api_problem(c, 503, "busy", NULL, "out of memory");
         goto out;
@@ -961,7 +985,6 @@ void api_render_metrics(struct api_call *c)
         }
         if (!csv.s || csv.failed) {
             free(csv.s);
-            free(rows);
             api_problem(c, 503, "busy", NULL, "out of memory");
             goto out;
         }
@@ -1003,8 +1026,8 @@ void api_render_metrics(struct api_call *c)
         jsonw_object_end(&w);
         api_json(c, 200, &w);
     }
-    free(rows);
 out:
+    free(rows);
     ref_image_release(other);
     session_release(s);
 }

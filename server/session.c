@@ -482,6 +482,16 @@ struct job *session_job_find(struct session *s, const char *rid)
     return NULL;
 }
 
+bool session_job_use(struct session *s, const char *rid, void (*use)(struct session *s, struct job *j, void *ctx),
+                     void *ctx)
+{
+    pthread_mutex_lock(&s->lock);
+    struct job *j = session_job_find(s, rid);
+    if (j) use(s, j, ctx);
+    pthread_mutex_unlock(&s->lock);
+    return j != NULL;
+}
+
 struct job *session_job_find_key(struct session *s, const char *key)
 {
     for (uint32_t i = 0; i < s->job_count; i++)

@@ -191,6 +191,13 @@ struct job *job_new(struct session *s, enum job_kind kind, const char *idempoten
  * nothing is added or claimed: false with *exists set. Other errors: ERR_CONFLICT/ERR_NOT_FOUND
  * (the session is busy or deleted), ERR_BUSY (too many unfinished jobs). */
 bool session_job_add(struct session *s, struct job *j, bool claim, bool *exists, struct err *err);
+/* Calls use(s, j, ctx) on the session's job `rid` with the session lock held, for everything a
+ * request reads or sets of a job: a submission may forget (free) a finished job as soon as the
+ * lock is let go, so a job found under one locked section is not used in another. false, and
+ * use is not called, when the session has no such job. */
+bool session_job_use(struct session *s, const char *rid, void (*use)(struct session *s, struct job *j, void *ctx),
+                     void *ctx);
+/* Both: call with s->lock held. */
 struct job *session_job_find(struct session *s, const char *rid);
 struct job *session_job_find_key(struct session *s, const char *key);
 void job_destroy(struct job *j);

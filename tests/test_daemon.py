@@ -1238,6 +1238,9 @@ CASES = [
     ("unknown-session", "GET", f"{SC}/sessions/nosuch", {}, None, 404, "not-found", None),
     ("unknown-scene", "GET", "/v1/scenes/tbl-nosuch/sessions", {}, None, 404, "scene-not-loaded", None),
     ("unknown-job", "GET", f"{S}/renders/nosuch", {}, None, 404, "not-found", None),
+    ("unknown-job-delete", "DELETE", f"{S}/renders/nosuch", {}, None, 404, "not-found", None),
+    # an unknown job is a 404 whatever the Accept header asks for
+    ("unknown-job-metrics", "GET", f"{S}/renders/nosuch/metrics", {"Accept": "text/html"}, None, 404, "not-found", None),
     ("unknown-reference", "GET", f"{SC}/references/nope", {}, None, 404, "not-found", None),
     ("metrics-unknown-reference", "GET", f"{S}/frames/0/metrics?reference=nope", {}, None, 404, "not-found", None),
     ("metrics-reference-mismatch", "GET", f"{S}/frames/0/metrics?reference=ref8", {}, None, 422, "reference-mismatch", None),

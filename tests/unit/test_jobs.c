@@ -1,8 +1,11 @@
 /* test_jobs.c — the job workers (server/jobs.c) against a session's job records
  * (server/session.c), driven directly: the records a session forgets to make room for new jobs
- * are never ones a worker still uses, and an animation whose session is deleted mid-frame ends
- * cancelled. A use after free here shows under the sanitizers
- * (make SAN=1, make test-tsan); the plain build checks the events the workers post. */
+ * are never ones a worker still uses or a request is reading, and an animation whose session is
+ * deleted mid-frame ends cancelled. A use after free here shows under the sanitizers (make
+ * SAN=1, make test-tsan); the plain build checks the events the workers post and the ids of the
+ * records requests read. */
+#include <pthread.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -100,6 +103,21 @@ static bool add_tiny_reference(struct fixture *f, unsigned i)
     return queued;
 }
 
+/* Adds tiny references, as many as 20000 or as fit in 3 s, each as soon as the session has a
+ * record to spare. */
+static void add_tiny_references(struct fixture *f)
+{
+    struct timespec t0, t;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    unsigned added = 0;
+    while (added < 20000) {
+        if (add_tiny_reference(f, added)) added++;
+        clock_gettime(CLOCK_MONOTONIC, &t);
+        if (t.tv_sec - t0.tv_sec >= 3) break;  /* enough rounds on a slow build */
+    }
+    CHECK_MSG(added > 100, "only %u jobs added", added);
+}
+
 /* The session's records fill with queued jobs faster than the one worker ends them, so each
  * job the worker ends is at once the oldest finished record, which the next add forgets while
  * the worker may still be posting its `done` event. */
@@ -110,15 +128,7 @@ static void test_finished_jobs_are_forgotten_only_once_their_worker_let_go(void)
         fixture_close(&f);
         return;
     }
-    struct timespec t0, t;
-    clock_gettime(CLOCK_MONOTONIC, &t0);
-    unsigned added = 0;
-    while (added < 20000) {
-        if (add_tiny_reference(&f, added)) added++;
-        clock_gettime(CLOCK_MONOTONIC, &t);
-        if (t.tv_sec - t0.tv_sec >= 3) break;  /* enough rounds on a slow build */
-    }
-    CHECK_MSG(added > 100, "only %u jobs added", added);
+    add_tiny_references(&f);
     jobs_stop(f.q);
     f.q = NULL;
     /* Every `done` event names a job by its id and a final status: one read from a record
@@ -137,6 +147,66 @@ static void test_finished_jobs_are_forgotten_only_once_their_worker_let_go(void)
     CHECK(dones > 0);
     for (uint32_t i = 0; i < f.s->job_count; i++) CHECK(f.s->jobs[i]->status >= JOB_DONE && f.s->jobs[i]->released);
     pthread_mutex_unlock(&f.s->lock);
+    fixture_close(&f);
+}
+
+/* A reader that looks jobs up by id as GET/DELETE …/renders/{rid} and its metrics do
+ * (session_job_use), always the session's oldest record: the one the next add forgets. */
+struct job_reader {
+    struct session *s;
+    atomic_bool stop;
+    unsigned looked, found, wrong;   /* read by the test once the reader has ended */
+};
+
+struct job_lookup {
+    char rid[24];
+    bool same;                       /* the record found is job rid's */
+};
+
+static void job_reader_check(struct session *s, struct job *j, void *ctx)
+{
+    (void)s;
+    struct job_lookup *l = ctx;
+    /* A record freed meanwhile (and perhaps reused by the next job) has another or no id. */
+    l->same = strcmp(j->id, l->rid) == 0 && j->kind == JOB_REFERENCE && strncmp(j->ref_name, "ref", 3) == 0;
+}
+
+static void *job_reader_run(void *arg)
+{
+    struct job_reader *r = arg;
+    while (!atomic_load(&r->stop)) {
+        struct job_lookup l = {""};
+        pthread_mutex_lock(&r->s->lock);
+        if (r->s->job_count) snprintf(l.rid, sizeof l.rid, "%s", r->s->jobs[0]->id);
+        pthread_mutex_unlock(&r->s->lock);
+        if (!l.rid[0]) continue;
+        r->looked++;
+        if (session_job_use(r->s, l.rid, job_reader_check, &l)) {
+            r->found++;
+            if (!l.same) r->wrong++;
+        }
+    }
+    return NULL;
+}
+
+/* Requests read a job while submissions to its session forget the oldest finished ones: what
+ * a request reads of a job it found is never a record forgotten meanwhile. */
+static void test_jobs_read_by_id_stay_valid_while_submissions_forget_old_ones(void)
+{
+    struct fixture f;
+    if (!fixture_open(&f, 2, 1)) {
+        fixture_close(&f);
+        return;
+    }
+    struct job_reader r = {.s = f.s};
+    atomic_init(&r.stop, false);
+    pthread_t reader;
+    CHECK(pthread_create(&reader, NULL, job_reader_run, &r) == 0);
+    add_tiny_references(&f);
+    atomic_store(&r.stop, true);
+    pthread_join(reader, NULL);
+    CHECK_MSG(r.found > 100, "%u of %u lookups found their job", r.found, r.looked);
+    CHECK_MSG(r.wrong == 0, "%u of %u jobs found were another job's record", r.wrong, r.found);
     fixture_close(&f);
 }
 
@@ -186,4 +256,5 @@ static void test_animation_ends_cancelled_when_its_session_is_deleted_mid_frame(
 }
 
 TEST_MAIN(TEST(test_finished_jobs_are_forgotten_only_once_their_worker_let_go),
+          TEST(test_jobs_read_by_id_stay_valid_while_submissions_forget_old_ones),
           TEST(test_animation_ends_cancelled_when_its_session_is_deleted_mid_frame))
