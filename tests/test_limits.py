@@ -2,11 +2,15 @@
 limits: the value at the limit is accepted, one past it is refused with the exact status,
 problem type, `field` pointer and `limit`; budgets refuse with 503 + Retry-After and give their
 bytes back when the holder goes."""
+import http.client
+import json
+
 import numpy as np
 import pytest
+import yaml
 
-from test_daemon import (CORNELL, J, TETRA_PLY, Daemon, assert_problem, cornell_scene, new_session, put_mesh_scene,
-                         write_exr)
+from test_daemon import (CORNELL, J, P, ROOT, TETRA_PLY, Daemon, assert_problem, cornell_scene, new_session,
+                         put_mesh_scene, write_exr)
 
 SIDE, PIXELS, SPP, FRAMES, KEYS, SESSIONS = 64, 2048, 8, 5, 3, 4
 JSON_BODY, ASSET_BODY, REFERENCE_BODY, KEPT = 4096, 2048, 4096, 2
@@ -38,6 +42,30 @@ def refused(r, status, slug, field, limit):
 
 def create(d, **body):
     return d.req("POST", f"{CORNELL}/sessions", json_body=body)
+
+
+def session_events(d, session_href, act):
+    """The (type, data) events of the session from before act() runs up to the `done` or
+    `error` event of the job whose id act() returns."""
+    conn = http.client.HTTPConnection("127.0.0.1", d.port, timeout=30)
+    try:
+        conn.request("GET", session_href + "/events", headers={"Accept": "text/event-stream"})
+        resp = conn.getresponse()
+        assert resp.status == 200, resp.status
+        rid, events, fields = act(), [], {}
+        while not events or events[-1][0] not in ("done", "error") or events[-1][1].get("job") != rid:
+            raw = resp.readline()
+            assert raw, f"the event stream ended; events so far: {events}"
+            line = raw.decode().rstrip("\r\n")
+            if line and not line.startswith(":"):
+                k, v = line.split(":", 1)
+                fields[k] = v.lstrip(" ")
+            elif not line and "event" in fields:
+                events.append((fields["event"], json.loads(fields.get("data", "null"))))
+                fields = {}
+        return events
+    finally:
+        conn.close()
 
 
 def delete_all_sessions(d):
@@ -191,7 +219,7 @@ def test_max_session_bytes_names_restir_sms_light_reservoirs(tmp_path):
 def test_memory_budget_refuses_and_gives_back(tmp_path):
     planned = planned_16x16(tmp_path)
     budget = 2 * planned + 1000
-    d = Daemon(tmp_path / "data", *limits_args(**{"--memory-budget": budget}))
+    d = Daemon(tmp_path / "data", *limits_args(**{"--memory-budget": budget, "--job-workers": 1}))
     try:
         a, _ = new_session(d, width=16, height=16), new_session(d, width=16, height=16)
         used = d.req("GET", "/v1/limits").json()["memory_used"]
@@ -206,6 +234,27 @@ def test_memory_budget_refuses_and_gives_back(tmp_path):
         exr = write_exr(tmp_path / "r.exr", np.full((16, 16, 3), 0.5, dtype="float32"), "zip")
         r = d.raw("PUT", f"{CORNELL}/references/r", {"Content-Type": "image/x-exr"}, exr)
         refused(r, 503, "memory-budget", None, budget)
+        # So does a reference job's result: the job fails, and its last event is that problem as
+        # an `error`, with no `done` (so openapi.yaml's DoneEvent never says `failed`). The one job
+        # worker has posted all of it once a second job has ended.
+        def submit(name):
+            r = d.req("POST", f"{a['href']}/references/{name}", json_body={"spp": SPP})
+            assert r.status == 202, repr(r)
+            return r.json()["id"]
+        first = []
+
+        def submit_two():
+            first.append(submit("r-job"))
+            return submit("r-job2")
+        events = session_events(d, a["href"], submit_two)
+        events = [(k, data) for k, data in events if isinstance(data, dict) and data.get("job") == first[0]]
+        kind, data = events[-1]
+        assert kind == "error" and data["type"] == P + "memory-budget" and data["status"] == 503, events
+        assert "done" not in [k for k, _ in events], events
+        job = d.req("GET", f"{a['href']}/renders/{data['job']}").json()
+        assert job["status"] == "failed" and job["error"]["type"] == P + "memory-budget", job
+        done = yaml.safe_load((ROOT / "protocol" / "openapi.yaml").read_text())["components"]["schemas"]["DoneEvent"]
+        assert done["properties"]["status"]["enum"] == ["done", "cancelled"], done
         # A deleted session gives its bytes back: the refused requests now fit.
         assert d.req("DELETE", a["href"]).status == 204
         assert d.req("GET", "/v1/limits").json()["memory_used"]["sessions"] == planned
