@@ -129,6 +129,10 @@ bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err)
         return err_set(err, ERR_INVALID, "/params/spatial_radius", "spatial_radius must be in 1..256 pixels");
     if (p->spatial_rounds < 1 || p->spatial_rounds > 8)
         return err_set(err, ERR_INVALID, "/params/spatial_rounds", "spatial_rounds must be in 1..8");
+    if (!(p->reject_normal_cos >= 0.0f && p->reject_normal_cos <= 1.0f))
+        return err_set(err, ERR_INVALID, "/params/reject_normal_cos", "reject_normal_cos must be in [0, 1]");
+    if (!(p->reject_depth >= 0.0f && p->reject_depth <= 1.0f))
+        return err_set(err, ERR_INVALID, "/params/reject_depth", "reject_depth must be in [0, 1]");
     if (!(p->footprint_c > 0.0f && p->footprint_c <= 100.0f))
         return err_set(err, ERR_INVALID, "/params/footprint_c", "footprint_c must be in (0, 100]");
     if (!(p->near_distance >= 0.0f && p->near_distance <= 1.0f))
@@ -1084,6 +1088,8 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
     struct restir_reuse *r = restir_frame_reuse(&pp.fr, &restir_pt_ops, &c, 0, params->temporal_cap,
                                                 params->spatial_neighbors, params->spatial_radius,
                                                 params->paired_spatial);
+    r->min_normal_cos = params->reject_normal_cos;
+    r->max_depth_rel = params->reject_depth;
     if (!restir_frame_temporal(&pp.fr, err)) return false;
     /* Spatial rounds ping-pong between the two buffers and end in res[1], the history. */
     const uint32_t rounds = params->spatial_neighbors > 0 ? params->spatial_rounds : 0;

@@ -98,6 +98,16 @@ struct restir_reuse {
     /* Spatial: neighbours per round, and the radius in pixels of the disk they are drawn from. */
     uint32_t neighbors;
     float radius;
+    /* Spatial: a neighbour whose primary hit differs too much from the pixel's is not drawn
+     * (restir_similar): its shading normal's cosine with the pixel's below min_normal_cos (0 = no
+     * normal test; needs the G-buffer's surfaces, skipped without them), or its hit distance off
+     * by more than max_depth_rel of the larger of the two (0 = no depth test). The test reads the
+     * G-buffer only, never a sample, and is symmetric, so the pairwise MIS weights of both the
+     * drawn and the paired neighbours still sum to one ([ReSTIR PT] §7: the geometric rejection
+     * of its implementation; there the depth is relative to the centre pixel's, which is not
+     * symmetric). */
+    float min_normal_cos;
+    float max_depth_rel;
     /* Paired spatial reuse (restir.c): the neighbour relation is made symmetric so each pair's
      * two shifts serve both pixels, and neighbours come from B x B blocks, B the largest power of
      * two <= radius. Needs restir_pair_scratch_bytes() of scratch, owned by the technique. */

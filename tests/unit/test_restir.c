@@ -112,7 +112,13 @@ struct toy_stats {
     double total_sum, total_sum2;
     uint32_t trials;
     bool first_component;  /* the estimates are of F's first component (toy_exact_x) */
+    uint64_t shifts;       /* shifts the passes made, over all trials */
 };
+
+/* With depth_rel > 0 the toy's primary hits lie at two depths, the left half of the image at 1 and
+ * the right half at 1.5, and the spatial passes reject neighbours across that step
+ * (restir_reuse.max_depth_rel). */
+static float toy_depth_rel;
 
 /* Runs `trials` independent two-frame sessions and gathers the second frame's estimates: the
  * selected sample's F W, or with `expected` the spatial pass's expected contribution over its
@@ -133,7 +139,7 @@ static void toy_run(bool paired, bool wrong_jacobian, bool expected, uint32_t tr
     static struct vec3 estimate[N_PX];
     static struct gbuffer_pixel px[N_PX];
     for (uint32_t p = 0; p < N_PX; p++)  /* a static camera: each pixel's predecessor is itself */
-        px[p] = (struct gbuffer_pixel){.t = 1.0f, .prev_x = (float)(p % W_PX) + 0.5f, .prev_y = (float)(p / W_PX) + 0.5f};
+        px[p] = (struct gbuffer_pixel){.t = toy_depth_rel > 0.0f && p % W_PX >= W_PX / 2 ? 1.5f : 1.0f, .prev_x = (float)(p % W_PX) + 0.5f, .prev_y = (float)(p / W_PX) + 0.5f};
     struct gbuffer g = {.width = W_PX, .height = H_PX, .px = px};
     void *scratch = malloc(restir_pair_scratch_bytes(W_PX, H_PX));
     CHECK(scratch != NULL);
@@ -141,7 +147,7 @@ static void toy_run(bool paired, bool wrong_jacobian, bool expected, uint32_t tr
     for (uint32_t t = 0; t < trials; t++) {
         struct restir_reuse r = {.ops = &toy_ops, .ctx = &ctx, .width = W_PX, .height = H_PX, .seed = 1000u + t,
                                  .threads = 1, .gbuf = &g, .temporal_cap = 20, .neighbors = 3, .radius = 8.0f,
-                                 .paired = paired, .pair_scratch = scratch};
+                                 .paired = paired, .pair_scratch = scratch, .max_depth_rel = toy_depth_rel};
         struct restir_counters c = {0};
         struct err err = {0};
         for (uint32_t frame = 0; frame < 2; frame++) {
@@ -154,6 +160,7 @@ static void toy_run(bool paired, bool wrong_jacobian, bool expected, uint32_t tr
             CHECK(restir_spatial_pass(&r, (const uint8_t *)a, (uint8_t *)b, &c, &err));
             memcpy(hist, b, sizeof hist);
         }
+        st->shifts += c.shifts;
         double total = 0.0, total_x = 0.0;
         for (uint32_t p = 0; p < N_PX; p++) {
             if (!toy_valid_pixel(p)) continue;
@@ -242,6 +249,31 @@ static void check_unbiased(bool paired)
 
 static void test_reuse_unbiased_unpaired(void) { check_unbiased(false); }
 static void test_reuse_unbiased_paired(void) { check_unbiased(true); }
+
+/* Neighbours rejected by depth (restir_similar): the passes shift fewer samples, across the depth
+ * step none, and the estimate stays unbiased, drawn and paired alike, because the test reads only
+ * the G-buffer and holds from both sides of a pair. */
+static void check_unbiased_with_rejection(bool paired)
+{
+    static struct toy_stats all, rejecting;
+    toy_depth_rel = 0.0f;
+    toy_run(paired, false, false, 1000, &all, NULL);
+    toy_depth_rel = 0.1f;
+    toy_run(paired, false, false, 4000, &rejecting, NULL);
+    toy_depth_rel = 0.0f;
+    uint32_t pass, valid;
+    double z;
+    toy_z(&rejecting, &pass, &valid, &z);
+    const double per_trial_all = (double)all.shifts / all.trials, per_trial = (double)rejecting.shifts / rejecting.trials;
+    printf("  %s, depth step rejected: %u of %u pixels pass, total z = %.2f; %.1f shifts a trial against %.1f\n",
+           paired ? "paired" : "unpaired", pass, valid, z, per_trial, per_trial_all);
+    CHECK_MSG(pass * 1000u >= valid * 995u, "%u of %u pixels", pass, valid);
+    CHECK_MSG(fabs(z) < 3.0, "total z %.2f", z);
+    CHECK_MSG(per_trial < 0.97 * per_trial_all, "%.1f shifts a trial against %.1f: nothing was rejected", per_trial,
+              per_trial_all);
+}
+static void test_reuse_unbiased_rejecting_unpaired(void) { check_unbiased_with_rejection(false); }
+static void test_reuse_unbiased_rejecting_paired(void) { check_unbiased_with_rejection(true); }
 
 /* The control: a shift that squares x but claims |J| = 1 must fail the same test. */
 static void test_wrong_jacobian_is_caught(void)
@@ -409,4 +441,5 @@ static void test_frame_history_two_rounds(void) { check_history_after(2); }
 
 TEST_MAIN(TEST(test_frame_store_zeroes_nonfinite), TEST(test_frame_history_one_round),
           TEST(test_frame_history_two_rounds), TEST(test_pairing_is_an_involution), TEST(test_reuse_unbiased_unpaired),
-          TEST(test_reuse_unbiased_paired), TEST(test_wrong_jacobian_is_caught))
+          TEST(test_reuse_unbiased_paired), TEST(test_reuse_unbiased_rejecting_unpaired),
+          TEST(test_reuse_unbiased_rejecting_paired), TEST(test_wrong_jacobian_is_caught))
