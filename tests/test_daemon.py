@@ -1537,7 +1537,7 @@ def test_restir_bdpt_session(daemon):
     assert s["params"] == {"variant": "lightweight", "max_depth": 64, "rr_depth": 3, "light_paths": 0,
                            "lt_capacity": 8, "lvc_capacity": 8, "heuristic": "balance", "caustic_temporal": True, "temporal_cap": 20,
                            "moving_cap": 1, "reuse": False, "spatial_neighbors": 2, "spatial_radius": 30,
-                           "paired_spatial": True, "camera_reconnect": True, "copy_mis": False,
+                           "paired_spatial": True, "expected_shading": False, "camera_reconnect": True, "copy_mis": False,
                            "reject_unshiftable": False}
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
                                  "caustic_shifts", "pixel_buckets", "light_blocks"}

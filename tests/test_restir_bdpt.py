@@ -69,7 +69,9 @@ def _sessions(scene_path, tmp_path, method, params, anim, seed0):
 # moving, where most reconnected samples draw their light sample again in the moved scene. The
 # fourth case (caustic-sphere still, with reuse) passes too and is left out for the test's time.
 # The full variant with reuse on the same three: its connections (s >= 2) shift by replaying their
-# light subpath in the target frame's scene and rejoining the camera subpath to it.
+# light subpath in the target frame's scene and rejoining the camera subpath to it. The lightweight
+# variant's reuse cases shade with the expected contribution over the spatial selection
+# (`expected_shading`), the full variant's with the selected sample, so both outputs are tested.
 MATCH_CASES = ([(scene, moving, False, "lightweight") for scene in CASES for moving in (False, True)] +
                [("lamp-in-glass", moving, True, "lightweight") for moving in (False, True)] +
                [("caustic-sphere", True, True, "lightweight")] +
@@ -96,8 +98,9 @@ def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse, varian
     case = CASES[scene]
     anim = _animation(tmp_path, case, moving)
     path = scenes / scene / "scene.json"
-    runs, stats = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": reuse, "variant": variant},
-                            anim, 1000)
+    params = {**case["params"], "reuse": reuse, "variant": variant,
+              "expected_shading": reuse and variant == "lightweight"}
+    runs, stats = _sessions(path, tmp_path, "restir_bdpt", params, anim, 1000)
     _RUNS[(scene, moving, reuse, variant)] = runs
     ref = _reference(path, tmp_path, case, anim, (scene, moving))
     last = [st["last_frame"] for st in stats]
@@ -134,8 +137,9 @@ def test_restir_bdpt_reject_unshiftable_darkens(tmp_path, scenes):
     path = scenes / scene / "scene.json"
     key = (scene, False, True, "lightweight")
     if key not in _RUNS:
-        _RUNS[key] = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": True}, anim, 1000)[0]
-    runs, stats = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": True,
+        _RUNS[key] = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": True,
+                                                                "expected_shading": True}, anim, 1000)[0]
+    runs, stats = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": True, "expected_shading": True,
                                                              "reject_unshiftable": True}, anim, 1000)
     assert sum(st["last_frame"]["lt_unshiftable"] for st in stats) > 0
     base = _RUNS[key].mean(axis=(1, 2, 3))
@@ -146,9 +150,9 @@ def test_restir_bdpt_reject_unshiftable_darkens(tmp_path, scenes):
     assert t < -2.0 and rel > -0.01, (rel, t)
 
 
-@pytest.mark.parametrize("params", [{"reuse": False}, {"reuse": True}, {"variant": "full"},
-                                    {"variant": "full", "reuse": True}],
-                         ids=["default", "reuse", "full", "full-reuse"])
+@pytest.mark.parametrize("params", [{"reuse": False}, {"reuse": True}, {"reuse": True, "expected_shading": True},
+                                    {"variant": "full"}, {"variant": "full", "reuse": True}],
+                         ids=["default", "reuse", "reuse-expected", "full", "full-reuse"])
 def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes, params):
     """Light-traced samples and replayed caustic samples are bucketed by counting sorts in
     light-subpath and source-pixel order, the full variant's light vertex cache is indexed in

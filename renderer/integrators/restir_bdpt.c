@@ -146,7 +146,7 @@ struct restir_bdpt_params restir_bdpt_defaults(void)
                                        .heuristic = BDPT_HEURISTIC_POWER,
                                        .caustic_temporal = true, .temporal_cap = 20, .moving_cap = 1, .reuse = false,
                                        .spatial_neighbors = 2, .spatial_radius = 30.0f, .paired_spatial = true,
-                                       .camera_reconnect = true, .copy_mis = false,
+                                       .expected_shading = false, .camera_reconnect = true, .copy_mis = false,
                                        .reject_unshiftable = false};
 }
 
@@ -502,12 +502,15 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
         struct restir_counters rc = {{0, 0}, 0, 0, 0};
         if (rr.history && !restir_temporal_pass(&rr, (uint8_t *)st->res, &rc, err)) return false;
         struct restir_bdpt_path *final = st->res;
+        /* With expected shading the spatial pass adds its estimate into the image itself. */
+        const bool expected = p->expected_shading && p->spatial_neighbors;
         if (p->spatial_neighbors) {
             if (st->x2c && !parallel_run(threads, st->height, rbdpt_x2_row, c, NULL, NULL, err)) return false;
+            rr.estimate = expected ? out->pixels : NULL;
             if (!restir_spatial_pass(&rr, (const uint8_t *)st->res, (uint8_t *)st->res_spatial, &rc, err)) return false;
             final = st->res_spatial;
         }
-        for (uint32_t i = 0; i < npix; i++)
+        for (uint32_t i = 0; i < npix && !expected; i++)
             out->pixels[i] = vec3_add(out->pixels[i], vec3_scale(final[i].r.F, final[i].r.head.W));
         /* The final buffer becomes the history; the old history is the next frame's scratch. */
         struct restir_bdpt_path *old = st->res_prev;

@@ -107,6 +107,9 @@ struct RESTIRD_STORED_IN_BYTES restir_bdpt_params {
     float spatial_radius;      /* with reuse: pixels, (0, 256] (30) */
     bool paired_spatial;       /* with reuse: neighbours paired so a pair's shifts serve both (true;
                                   restir.h) */
+    bool expected_shading;     /* with reuse and spatial neighbours: the non-caustic reservoirs add the
+                                  spatial pass's expected contribution over its selection instead of
+                                  the selected sample's F W ([ReSTIR PT Enhanced Fig. 5]; restir.h) */
     bool camera_reconnect;     /* with reuse: camera-side samples reconnect (the hybrid shift); false:
                                   they shift by random replay alone (true) */
     bool copy_mis;             /* with reuse, lightweight variant: a reconnection shift keeps the base

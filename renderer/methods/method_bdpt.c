@@ -197,6 +197,8 @@ static const struct method_param rbdpt_params[] = {
     {.key = "spatial_radius", .kind = METHOD_PARAM_FLOAT, .offset = offsetof(struct restir_bdpt_params, spatial_radius),
      .min = 0, .min_open = true, .max = 256, .help = "with reuse: spatial radius in pixels"},
     P(paired_spatial, METHOD_PARAM_BOOL, 0, 1, "with reuse: neighbours paired so a pair's shifts serve both"),
+    P(expected_shading, METHOD_PARAM_BOOL, 0, 1,
+      "with reuse: add the spatial pass's expected contribution over its selection instead of the selected sample's"),
     P(camera_reconnect, METHOD_PARAM_BOOL, 0, 1, "with reuse: camera-side samples reconnect (the hybrid shift)"),
     P(copy_mis, METHOD_PARAM_BOOL, 0, 1, "with reuse, lightweight: keep the base path's MIS weight (biased)"),
     P(reject_unshiftable, METHOD_PARAM_BOOL, 0, 1, "drop non-caustic t = 1 candidates that cannot shift (biased)"),
