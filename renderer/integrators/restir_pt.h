@@ -39,7 +39,7 @@ struct RESTIRD_STORED_IN_BYTES restir_pt_params {
     float reject_normal_cos;     /* a neighbour whose normal's cosine with the pixel's is below
                                     this is not reused; 0 = no normal test (0) */
     float reject_depth;          /* nor one whose hit distance differs by more than this fraction
-                                    of the larger; 0 = no depth test (0; restir_similar) */
+                                    of the larger; 0 = no depth test (0; restir_neighbours_similar) */
     bool paired_spatial;         /* neighbours paired so a pair's shifts serve both (true; restir.h) */
     bool expected_shading;       /* shade with the last spatial pass's expected contribution over
                                     its selection instead of the selected sample's F W: colour

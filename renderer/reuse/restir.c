@@ -140,25 +140,6 @@ static void restir_temporal_pixel(const struct restir_pass *p, uint32_t pixel, s
     hc->M = restir_clamp_m(res.M);
 }
 
-/* Whether pixels a and b may be each other's spatial neighbours (restir_reuse.min_normal_cos,
- * max_depth_rel). Two pixels whose primary rays both escaped (a domain for restir_bdpt) are alike;
- * an escaped one is like no hit. */
-static inline bool restir_similar(const struct restir_reuse *r, uint32_t a, uint32_t b)
-{
-    if (r->max_depth_rel > 0.0f) {
-        const float ta = r->gbuf->px[a].t, tb = r->gbuf->px[b].t;
-        if (isinf(ta) || isinf(tb)) return isinf(ta) && isinf(tb);
-        if (fabsf(ta - tb) > r->max_depth_rel * fmaxf(ta, tb)) return false;
-    }
-    if (r->min_normal_cos > 0.0f && r->gbuf->surf) {
-        const struct gbuffer_surface *sa = &r->gbuf->surf[a], *sb = &r->gbuf->surf[b];
-        if (sa->material == GBUFFER_NO_HIT || sb->material == GBUFFER_NO_HIT)
-            return sa->material == sb->material;
-        if (vec3_dot(sa->ns, sb->ns) < r->min_normal_cos) return false;
-    }
-    return true;
-}
-
 /* Spatial reuse of one pixel with defensive pairwise MIS (Bitterli 2021, GRIS §6.2): the
  * canonical sample keeps weight (1 + sum_n (1 - t_n)) / (k + 1), neighbour n's sample
  * M_n p̂_n / (M_n p̂_n + (M_c / k) p̂_c(T(X_n)) |J|) / (k + 1); k counts the neighbours that
@@ -189,7 +170,7 @@ static void restir_spatial_pixel(const struct restir_pass *p, uint32_t pixel, st
         int qx = px + (int)lrintf(rad * cosf(phi)), qy = py + (int)lrintf(rad * sinf(phi));
         if (qx < 0 || qy < 0 || qx >= (int)r->width || qy >= (int)r->height || (qx == px && qy == py)) continue;
         uint32_t q = (uint32_t)qy * r->width + (uint32_t)qx;
-        if (!ops->domain_valid(r->ctx, (struct restir_domain){q, RESTIR_CURRENT}) || !restir_similar(r, pixel, q))
+        if (!ops->domain_valid(r->ctx, (struct restir_domain){q, RESTIR_CURRENT}) || !restir_neighbours_similar(r, pixel, q))
             continue;
         nb[k++] = q;
     }
@@ -411,12 +392,12 @@ bool restir_pair_partner(const struct restir_reuse *r, uint32_t m, uint32_t pixe
 }
 
 /* The partner of pixel (x, y) in pairing m, when it is on the image, can produce samples and is
- * similar (restir_similar, symmetric: the pair is valid from both sides, as the pairing is). */
+ * similar (restir_neighbours_similar, symmetric: the pair is valid from both sides, as the pairing is). */
 static bool restir_pair_valid(const struct restir_pass *p, uint32_t m, uint32_t x, uint32_t y, uint32_t *partner)
 {
     return restir_partner(p, m, x, y, partner) &&
            p->r->ops->domain_valid(p->r->ctx, (struct restir_domain){*partner, RESTIR_CURRENT}) &&
-           restir_similar(p->r, y * p->r->width + x, *partner);
+           restir_neighbours_similar(p->r, y * p->r->width + x, *partner);
 }
 
 /* The uniform number of pixel's candidate from pairing m (m = neighbors: the canonical one). */

@@ -12,6 +12,7 @@
 #ifndef RESTIRD_RESTIR_H
 #define RESTIRD_RESTIR_H
 
+#include <math.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <time.h>
@@ -99,7 +100,7 @@ struct restir_reuse {
     uint32_t neighbors;
     float radius;
     /* Spatial: a neighbour whose primary hit differs too much from the pixel's is not drawn
-     * (restir_similar): its shading normal's cosine with the pixel's below min_normal_cos (0 = no
+     * (restir_neighbours_similar): its shading normal's cosine with the pixel's below min_normal_cos (0 = no
      * normal test; needs the G-buffer's surfaces, skipped without them), or its hit distance off
      * by more than max_depth_rel of the larger of the two (0 = no depth test). The test reads the
      * G-buffer only, never a sample, and is symmetric, so the pairwise MIS weights of both the
@@ -126,6 +127,26 @@ struct restir_reuse {
 size_t restir_pair_scratch_bytes(uint32_t width, uint32_t height);
 /* Whether a technique's spatial reuse needs that scratch: paired, with neighbours. A session
  * allocates it only then. */
+/* Whether pixels a and b may be each other's spatial neighbours (restir_reuse.min_normal_cos,
+ * max_depth_rel). Two pixels whose primary rays both escaped (a domain for restir_bdpt) are alike;
+ * an escaped one is like no hit. Symmetric in a and b, which paired reuse relies on (tests/unit/test_restir.c
+ * checks it). */
+static inline bool restir_neighbours_similar(const struct restir_reuse *r, uint32_t a, uint32_t b)
+{
+    if (r->max_depth_rel > 0.0f) {
+        const float ta = r->gbuf->px[a].t, tb = r->gbuf->px[b].t;
+        if (isinf(ta) || isinf(tb)) return isinf(ta) && isinf(tb);
+        if (fabsf(ta - tb) > r->max_depth_rel * fmaxf(ta, tb)) return false;
+    }
+    if (r->min_normal_cos > 0.0f && r->gbuf->surf) {
+        const struct gbuffer_surface *sa = &r->gbuf->surf[a], *sb = &r->gbuf->surf[b];
+        if (sa->material == GBUFFER_NO_HIT || sb->material == GBUFFER_NO_HIT)
+            return sa->material == sb->material;
+        if (vec3_dot(sa->ns, sb->ns) < r->min_normal_cos) return false;
+    }
+    return true;
+}
+
 static inline bool restir_pairs_needed(bool paired, uint32_t neighbors) { return paired && neighbors > 0; }
 
 /* A zeroed array of `count` elements of `stride` bytes that starts on a cache line (NULL when out

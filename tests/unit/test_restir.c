@@ -250,7 +250,7 @@ static void check_unbiased(bool paired)
 static void test_reuse_unbiased_unpaired(void) { check_unbiased(false); }
 static void test_reuse_unbiased_paired(void) { check_unbiased(true); }
 
-/* Neighbours rejected by depth (restir_similar): the passes shift fewer samples, across the depth
+/* Neighbours rejected by depth (restir_neighbours_similar): the passes shift fewer samples, across the depth
  * step none, and the estimate stays unbiased, drawn and paired alike, because the test reads only
  * the G-buffer and holds from both sides of a pair. */
 static void check_unbiased_with_rejection(bool paired)
@@ -311,6 +311,39 @@ static void test_pairing_is_an_involution(void)
     }
     printf("  %u of %u pixels had a partner\n", found, total);
     CHECK(found * 10u >= total * 6u);
+}
+
+/* The neighbour test is symmetric: paired reuse counts each pixel's neighbours from its own side and
+ * relies on a pair being valid from both. Depths 1 and 1.1 at a tolerance of 0.095 are the case a
+ * test relative to the centre pixel's depth gets wrong (0.1 > 0.095 * 1 but < 0.095 * 1.1); normals
+ * on both sides of the threshold, escaped rays and misses among random pixels. */
+static void test_neighbour_test_is_symmetric(void)
+{
+    enum { N = 64 };
+    static struct gbuffer_pixel px[N];
+    static struct gbuffer_surface surf[N];
+    struct rng rng = rng_make(11, 0, 0, 0);
+    for (uint32_t i = 0; i < N; i++) {
+        const float u = rng_next_float(&rng), phi = 6.2831853f * rng_next_float(&rng), z = 2.0f * rng_next_float(&rng) - 1.0f;
+        const float s = sqrtf(fmaxf(0.0f, 1.0f - z * z));
+        const bool miss = i % 13 == 5;
+        px[i].t = miss ? INFINITY : 1.0f + 0.3f * u;
+        surf[i] = (struct gbuffer_surface){.ns = {s * cosf(phi), s * sinf(phi), z}, .material = miss ? GBUFFER_NO_HIT : 0};
+    }
+    px[0].t = 1.0f, px[1].t = 1.1f;
+    surf[0].ns = surf[1].ns = (struct vec3){0, 0, 1};
+    struct gbuffer g = {.width = N, .height = 1, .px = px, .surf = surf};
+    struct restir_reuse r = {.width = N, .height = 1, .gbuf = &g, .min_normal_cos = 0.5f, .max_depth_rel = 0.095f};
+    CHECK(restir_neighbours_similar(&r, 0, 1) && restir_neighbours_similar(&r, 1, 0));
+    uint32_t similar = 0;
+    for (uint32_t a = 0; a < N; a++)
+        for (uint32_t b = 0; b < N; b++) {
+            const bool ab = restir_neighbours_similar(&r, a, b);
+            CHECK_MSG(ab == restir_neighbours_similar(&r, b, a), "pixels %u and %u", a, b);
+            similar += ab;
+        }
+    printf("  %u of %u ordered pairs similar\n", similar, N * N);
+    CHECK(similar > N && similar < N * N / 2);  /* both tests reject some pairs and accept others */
 }
 
 /* ---- the frame driver, on the toy technique ---- */
@@ -440,6 +473,6 @@ static void test_frame_history_one_round(void) { check_history_after(1); }
 static void test_frame_history_two_rounds(void) { check_history_after(2); }
 
 TEST_MAIN(TEST(test_frame_store_zeroes_nonfinite), TEST(test_frame_history_one_round),
-          TEST(test_frame_history_two_rounds), TEST(test_pairing_is_an_involution), TEST(test_reuse_unbiased_unpaired),
+          TEST(test_frame_history_two_rounds), TEST(test_pairing_is_an_involution), TEST(test_neighbour_test_is_symmetric), TEST(test_reuse_unbiased_unpaired),
           TEST(test_reuse_unbiased_paired), TEST(test_reuse_unbiased_rejecting_unpaired),
           TEST(test_reuse_unbiased_rejecting_paired), TEST(test_wrong_jacobian_is_caught))
