@@ -53,7 +53,7 @@ FRAMES_LADDER = [1, 4, 8] if QUICK else [1, 2, 4, 8, 16, 32]
 # The real-time ladder: (parameter, values); "x" values multiply the pixel count.
 LADDER = {"pt": ("spp", SPP_LADDER), "sms": ("spp", SMS_LADDER), "sms_ssp": ("spp", SMS_LADDER),
           "bdpt": ("light_paths", ["1x", "2x", "4x", "8x"]), "restir_bdpt": ("light_paths", ["1x", "2x", "4x", "8x"]),
-          "restir_pt": ("spatial_neighbors", [3, 6, 12, 24]), "restir_sss": ("candidates", [1, 2, 4, 8]),
+          "restir_pt": ("spatial_neighbors", [3, 6, 12, 24, 48]), "restir_sss": ("candidates", [1, 2, 4, 8]),
           "restir_sms": ("spatial_neighbors", [1, 2, 4, 8])}
 # Temporal reuse off, and nothing else carried from frame to frame: restir_sms's primary rays
 # otherwise walk from the previous frame's positions (jitter_walk) and its prior unites the walks

@@ -33,7 +33,9 @@ REF_BUDGET_S (seconds of reference rendering per scene). To try a configuration 
 docs/report: REPORT_OUT (the output folder, relative to the checkout: new, empty or an earlier report), REPORT_METHODS (comma list:
 only these methods, in every scene that has them), REPORT_SKIP (comma list of stability, failures)
 and REPORT_PARAMS (a JSON object of method name to parameters given to every session of that
-method, under the ladder's own parameter; bench/regimes.py), e.g.
+method, under the ladder's own parameter; bench/regimes.py); REPORT_REF_BIN renders the
+references with another build whose reference methods give the same pixels, so they are rendered
+once for a series of such runs (bench/references.py), e.g.
 
   QUICK=1 REPORT_NO_CYCLES=1 REPORT_SKIP=stability,failures REPORT_OUT=build/try/reuse \
     REPORT_SCENES=lamp-in-glass REPORT_METHODS=bdpt,restir_bdpt \
@@ -517,7 +519,7 @@ def write_csv(results):
 
 def configuration():
     """The report's lines naming a configuration other than the full default run, if any."""
-    knobs = [f"{k}={os.environ[k]}" for k in ("REPORT_SCENES", "REPORT_METHODS", "REPORT_SKIP", "REPORT_PARAMS")
+    knobs = [f"{k}={os.environ[k]}" for k in ("REPORT_SCENES", "REPORT_METHODS", "REPORT_SKIP", "REPORT_PARAMS", "REPORT_REF_BIN")
              if os.environ.get(k)]
     if not knobs:
         return []
