@@ -125,6 +125,33 @@ def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse, varian
     assert not bad.passed, f"{label}: a bias of x1.03 went unseen: {bad}"
 
 
+# Several spatial rounds without the non-caustic history (the offline configuration of [ReSTIR BDPT
+# Fig. 12]: 3 rounds of spatial reuse, frames independent but for the caustic reservoirs): each
+# round reuses the last one's output, so its neighbours' samples were themselves resampled.
+ROUNDS_PARAMS = {"reuse": True, "reuse_temporal": False, "spatial_rounds": 3, "spatial_neighbors": 3,
+                 "expected_shading": True}
+
+
+@pytest.mark.statistical
+@pytest.mark.parametrize("moving", [False, True], ids=["static", "moving"])
+def test_restir_bdpt_spatial_rounds_match_bdpt(tmp_path, scenes, moving):
+    scene, case = "lamp-in-glass", CASES["lamp-in-glass"]
+    anim = _animation(tmp_path, case, moving)
+    path = scenes / scene / "scene.json"
+    runs, stats = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], **ROUNDS_PARAMS}, anim, 3000)
+    ref = _reference(path, tmp_path, case, anim, (scene, moving))
+    last = [st["last_frame"] for st in stats]
+    # Three rounds of 3 neighbours shift more than one round would (at most 2 shifts a pixel and
+    # neighbour in a round, paired); no history, so no temporal shifts beyond the rounds'.
+    n = 32 * 32
+    assert sum(lf["reuse_shifts"] for lf in last) > K * n * 3, sum(lf["reuse_shifts"] for lf in last)
+    assert np.isfinite(runs).all() and all(st["nonfinite"] == 0 for st in stats)
+    res, bad = ztest_runs(runs, ref), ztest_runs(runs * 1.03, ref)
+    print(f"lamp-in-glass, {'moving' if moving else 'static'}, 3 spatial rounds, no history: {res}; x1.03: {bad}")
+    assert res.passed, res
+    assert not bad.passed, bad
+
+
 @pytest.mark.statistical
 def test_restir_bdpt_reject_unshiftable_darkens(tmp_path, scenes):
     """`reject_unshiftable` ([ReSTIR BDPT §7.2]) drops the non-caustic light-traced candidates whose x_2
@@ -151,8 +178,8 @@ def test_restir_bdpt_reject_unshiftable_darkens(tmp_path, scenes):
 
 
 @pytest.mark.parametrize("params", [{"reuse": False}, {"reuse": True}, {"reuse": True, "expected_shading": True},
-                                    {"variant": "full"}, {"variant": "full", "reuse": True}],
-                         ids=["default", "reuse", "reuse-expected", "full", "full-reuse"])
+                                    {"variant": "full"}, {"variant": "full", "reuse": True}, ROUNDS_PARAMS],
+                         ids=["default", "reuse", "reuse-expected", "full", "full-reuse", "rounds"])
 def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes, params):
     """Light-traced samples and replayed caustic samples are bucketed by counting sorts in
     light-subpath and source-pixel order, the full variant's light vertex cache is indexed in
@@ -174,7 +201,9 @@ def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes, params):
                                           ({"copy_mis": True}, "/params/copy_mis"),
                                           ({"variant": "complete"}, "/params/variant"),
                                           ({"lt_capacity": 65}, "/params/lt_capacity"),
-                                          ({"lvc_capacity": 0}, "/params/lvc_capacity")])
+                                          ({"lvc_capacity": 0}, "/params/lvc_capacity"),
+                                          ({"reuse": True, "spatial_rounds": 9}, "/params/spatial_rounds"),
+                                          ({"reuse": True, "spatial_rounds": 0}, "/params/spatial_rounds")])
 def test_restir_bdpt_refuses_what_it_does_not_do(scenes, tmp_path, params, where):
     """What restir_bdpt does not do is refused, not rendered without it (copy_mis without reuse, or
     with the full variant, whose shifts always recompute the MIS weight); parameters out of range
