@@ -1608,6 +1608,7 @@ def test_restir_bdpt_refuses_translucent(daemon):
     ({"spatial_neighbors": 65}, "/params/spatial_neighbors"),
     ({"reject_normal_cos": 1.5}, "/params/reject_normal_cos"),
     ({"reject_depth": -0.1}, "/params/reject_depth"),
+    ({"temporal_cap_replay": 1001}, "/params/temporal_cap_replay"),
     ({"footprint_c": 0}, "/params/footprint_c"),
     ({"max_depth": 0}, "/params/max_depth"),
     ({"temporal": 1}, "/params/temporal"),

@@ -102,6 +102,25 @@ def test_restir_pt_unbiased(tmp_path, scenes, scene, motion):
 
 
 @pytest.mark.statistical
+def test_restir_pt_rejection_and_replay_cap_unbiased(tmp_path, scenes):
+    """Spatial neighbours rejected by normal and depth (`reject_normal_cos`, `reject_depth`, a
+    symmetric test of the G-buffer) and the history of random-replay-only samples capped at 1
+    (`temporal_cap_replay`, a class every shift keeps), on cornell-glossy with the camera moving
+    (its 0.02 lobe makes many samples replay-only)."""
+    case = CASES["cornell-glossy"]
+    sc = scenes / "cornell-glossy" / "scene.json"
+    anim, ref_anim = _animations(sc, tmp_path, case, True)
+    ref = _reference(sc, tmp_path, case, ref_anim)
+    runs, stats = _sessions(sc, tmp_path, case, anim,
+                            {"reject_normal_cos": 0.5, "reject_depth": 0.1, "temporal_cap_replay": 1})
+    assert stats["last_frame"]["shifts"] > 0 and np.isfinite(runs).all() and stats["nonfinite"] == 0
+    res = ztest_runs(runs, ref)
+    assert res.passed, f"rejection and replay cap: {res}"
+    bad = ztest_runs(runs * case["control"], ref)
+    assert not bad.passed, f"rejection and replay cap: a bias of x{case['control']} went unseen: {bad}"
+
+
+@pytest.mark.statistical
 def test_restir_pt_ris_nee_unbiased(tmp_path, scenes):
     """RIS NEE with 4 candidates and its multi-sample MIS weights ([ReSTIR PT Enhanced §5]), the default
     under two or more lights, asked for here on cornell-glossy (one light: plain NEE by default)

@@ -123,6 +123,9 @@ bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err)
         return err_set(err, ERR_INVALID, "/params/nee_candidates", "nee_candidates must be in 0..64");
     if (p->temporal_cap < 1 || p->temporal_cap > 1000)
         return err_set(err, ERR_INVALID, "/params/temporal_cap", "temporal_cap must be in 1..1000");
+    if (p->temporal_cap_replay > 1000)
+        return err_set(err, ERR_INVALID, "/params/temporal_cap_replay",
+                       "temporal_cap_replay must be in 0..1000 (0 = temporal_cap)");
     if (p->spatial_neighbors > 64)
         return err_set(err, ERR_INVALID, "/params/spatial_neighbors", "spatial_neighbors must be in 0..64");
     if (!(p->spatial_radius >= 1.0f && p->spatial_radius <= 256.0f))
@@ -932,12 +935,22 @@ static bool pt_domain_valid(const void *ctx, struct restir_domain d)
     return c->gbuf[d.frame]->surf[d.pixel].material != GBUFFER_NO_HIT;
 }
 
+/* The samples whose history confidence restir_pt_params.temporal_cap_replay caps: those without a
+ * reconnection vertex. The shift keeps k (pt_shift_impl copies it), so this class is what
+ * restir_ops.capped_low asks for. */
+static bool pt_replay_only(const void *ctx, const void *elem)
+{
+    (void)ctx;
+    return pt_rc(elem) == 0;
+}
+
 const struct restir_ops restir_pt_ops = {
     .stride = sizeof(struct pt_sample),
     .target = pt_target,
     .shift = pt_shift,
     .domain_valid = pt_domain_valid,
     .value = pt_value,
+    .capped_low = pt_replay_only,
 };
 
 void restir_pt_info(const void *elem, struct restir_pt_info *out)
@@ -1088,6 +1101,7 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
     struct restir_reuse *r = restir_frame_reuse(&pp.fr, &restir_pt_ops, &c, 0, params->temporal_cap,
                                                 params->spatial_neighbors, params->spatial_radius,
                                                 params->paired_spatial);
+    r->temporal_cap_low = params->temporal_cap_replay;
     r->min_normal_cos = params->reject_normal_cos;
     r->max_depth_rel = params->reject_depth;
     if (!restir_frame_temporal(&pp.fr, err)) return false;

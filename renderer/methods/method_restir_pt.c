@@ -73,6 +73,8 @@ static const struct method_param rpt_params[] = {
     P(unify_di, METHOD_PARAM_BOOL, 0, 1, "direct light resampled together with indirect"),
     P(temporal, METHOD_PARAM_BOOL, 0, 1, "temporal reuse"),
     P(temporal_cap, METHOD_PARAM_UINT, 1, 1000, "previous confidence capped at this multiple of the current"),
+    P(temporal_cap_replay, METHOD_PARAM_UINT, 0, 1000,
+      "the cap for samples without a reconnection vertex (random replay only); 0 = temporal_cap"),
     P(spatial_neighbors, METHOD_PARAM_UINT, 0, 64, "spatial neighbours per round; 0 = no spatial reuse"),
     P(spatial_radius, METHOD_PARAM_FLOAT, 1, 256, "spatial reuse radius in pixels"),
     P(spatial_rounds, METHOD_PARAM_UINT, 1, 8, "spatial reuse rounds"),

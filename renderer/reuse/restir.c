@@ -96,8 +96,12 @@ static void restir_temporal_pixel(const struct restir_pass *p, uint32_t pixel, s
 
     const struct restir_head *hq = restir_elem(r->history, stride, dq.pixel);
     const float M_c = (float)hc->M;
-    float M_q = (float)hq->M;
-    if (M_q > (float)r->temporal_cap * M_c) M_q = (float)r->temporal_cap * M_c;
+    const float M_q = fminf((float)hq->M, (float)r->temporal_cap * M_c);
+    /* The history's confidence in the MIS weights of one sample: M_q, or for a sample of the low
+     * class (ops->capped_low) capped at temporal_cap_low instead; the same for both weights of a
+     * sample, since its shift keeps its class. */
+    const bool low = r->temporal_cap_low && ops->capped_low;
+    const float M_q_low = low ? fminf((float)hq->M, (float)r->temporal_cap_low * M_c) : M_q;
 
     struct rng rng = rng_make(r->seed, r->frame, pixel, RESTIR_TEMPORAL_STREAM);
     struct reservoir_stream s;
@@ -110,7 +114,7 @@ static void restir_temporal_pixel(const struct restir_pass *p, uint32_t pixel, s
     if (p_c > 0.0f) {
         float j_cq;
         float t_cq = restir_shift(r, hc, dc, dq, NULL, &j_cq, c);
-        float pm[2] = {p_c, t_cq * j_cq}, mm[2] = {M_c, M_q};
+        float pm[2] = {p_c, t_cq * j_cq}, mm[2] = {M_c, low && ops->capped_low(r->ctx, hc) ? M_q_low : M_q};
         float m_c = reuse_mis_balance(mm, pm, 2, 0);
         reservoir_stream_offer(&s, (double)m_c * p_c * hc->W, p_c, M_c, rng_next_float(&rng));
     } else {
@@ -123,7 +127,7 @@ static void restir_temporal_pixel(const struct restir_pass *p, uint32_t pixel, s
         float j_qc;
         float t_qc = restir_shift(r, hq, dq, dc, shifted, &j_qc, c);
         if (t_qc > 0.0f) {
-            float pm[2] = {p_q, t_qc * j_qc}, mm[2] = {M_q, M_c};
+            float pm[2] = {p_q, t_qc * j_qc}, mm[2] = {low && ops->capped_low(r->ctx, hq) ? M_q_low : M_q, M_c};
             float m_q = reuse_mis_balance(mm, pm, 2, 0);
             take_prev = reservoir_stream_offer(&s, (double)m_q * t_qc * hq->W * j_qc, t_qc, M_q, u);
         } else {

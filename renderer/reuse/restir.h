@@ -82,6 +82,12 @@ struct restir_ops {
     /* Optional: the element's contribution vector F in its own domain (the target is a scalar
      * function of it, e.g. its luminance); needed for restir_reuse.estimate. */
     struct vec3 (*value)(const void *ctx, const void *elem);
+    /* Optional: whether the element's sample is of the class whose history confidence is capped at
+     * restir_reuse.temporal_cap_low instead of temporal_cap. Every shift that succeeds must keep
+     * the class (a sample and its shifted copy are of one class), so that both temporal MIS weights
+     * of one sample use the same confidences and still sum to one (GRIS's generalized balance
+     * heuristic allows confidences that are functions of the sample). */
+    bool (*capped_low)(const void *ctx, const void *elem);
 };
 
 struct restir_reuse {
@@ -96,6 +102,9 @@ struct restir_reuse {
      * confidence as a multiple of the current M (ReSTIR PT: 20). */
     const uint8_t *history;
     uint32_t temporal_cap;
+    /* The cap of the samples ops->capped_low names (0: temporal_cap for every sample). The stored
+     * M never depends on the sample: it counts the history at temporal_cap. */
+    uint32_t temporal_cap_low;
     /* Spatial: neighbours per round, and the radius in pixels of the disk they are drawn from. */
     uint32_t neighbors;
     float radius;

@@ -120,6 +120,24 @@ struct toy_stats {
  * (restir_reuse.max_depth_rel). */
 static float toy_depth_rel;
 
+/* With a class other than TOY_CLASS_NONE the temporal pass caps the history of that class's samples
+ * at 1 rather than 20 (restir_ops.capped_low): x < 0.5, which the toy's shift (x kept) keeps, or,
+ * the control, "the element holds a fresh sample" (M = 1), a property of the reservoir rather than
+ * of the sample, so the two weights of one sample use different confidences. */
+enum toy_class { TOY_CLASS_NONE, TOY_CLASS_X, TOY_CLASS_FRESH };
+static enum toy_class toy_class;
+
+static bool toy_capped_low(const void *ctx, const void *elem)
+{
+    (void)ctx;
+    const struct toy_elem *e = elem;
+    return toy_class == TOY_CLASS_X ? e->x < 0.5f : e->head.M == 1;
+}
+
+static const struct restir_ops toy_ops_classes = {
+    .stride = sizeof(struct toy_elem), .target = toy_target, .shift = toy_shift, .domain_valid = toy_domain_valid,
+    .value = toy_value, .capped_low = toy_capped_low};
+
 /* Runs `trials` independent two-frame sessions and gathers the second frame's estimates: the
  * selected sample's F W, or with `expected` the spatial pass's expected contribution over its
  * selection (restir_reuse.estimate). */
@@ -145,9 +163,10 @@ static void toy_run(bool paired, bool wrong_jacobian, bool expected, uint32_t tr
     CHECK(scratch != NULL);
     if (!scratch) return;
     for (uint32_t t = 0; t < trials; t++) {
-        struct restir_reuse r = {.ops = &toy_ops, .ctx = &ctx, .width = W_PX, .height = H_PX, .seed = 1000u + t,
+        struct restir_reuse r = {.ops = toy_class ? &toy_ops_classes : &toy_ops, .ctx = &ctx, .width = W_PX, .height = H_PX, .seed = 1000u + t,
                                  .threads = 1, .gbuf = &g, .temporal_cap = 20, .neighbors = 3, .radius = 8.0f,
-                                 .paired = paired, .pair_scratch = scratch, .max_depth_rel = toy_depth_rel};
+                                 .paired = paired, .pair_scratch = scratch, .max_depth_rel = toy_depth_rel,
+                                 .temporal_cap_low = toy_class ? 1u : 0u};
         struct restir_counters c = {0};
         struct err err = {0};
         for (uint32_t frame = 0; frame < 2; frame++) {
@@ -274,6 +293,31 @@ static void check_unbiased_with_rejection(bool paired)
 }
 static void test_reuse_unbiased_rejecting_unpaired(void) { check_unbiased_with_rejection(false); }
 static void test_reuse_unbiased_rejecting_paired(void) { check_unbiased_with_rejection(true); }
+
+/* A class of samples whose history is capped lower (restir_reuse.temporal_cap_low): unbiased when
+ * the shift keeps the class, biased (the control) when the class is the reservoir's, not the
+ * sample's. */
+static void check_class_cap(enum toy_class cls)
+{
+    static struct toy_stats st;
+    memset(&st, 0, sizeof st);
+    toy_class = cls;
+    toy_run(false, false, false, 4000, &st, NULL);
+    toy_class = TOY_CLASS_NONE;
+    uint32_t pass, valid;
+    double z;
+    toy_z(&st, &pass, &valid, &z);
+    printf("  history capped at 1 for %s: %u of %u pixels pass, total z = %.2f\n",
+           cls == TOY_CLASS_X ? "samples with x < 0.5" : "fresh reservoirs (the control)", pass, valid, z);
+    if (cls == TOY_CLASS_X) {
+        CHECK_MSG(pass * 1000u >= valid * 995u, "%u of %u pixels", pass, valid);
+        CHECK_MSG(fabs(z) < 3.0, "total z %.2f", z);
+    } else {
+        CHECK_MSG(fabs(z) > 5.0, "total z %.2f: a class the shift does not keep went unseen", z);
+    }
+}
+static void test_class_cap_unbiased(void) { check_class_cap(TOY_CLASS_X); }
+static void test_class_cap_of_the_reservoir_is_caught(void) { check_class_cap(TOY_CLASS_FRESH); }
 
 /* The control: a shift that squares x but claims |J| = 1 must fail the same test. */
 static void test_wrong_jacobian_is_caught(void)
@@ -475,4 +519,5 @@ static void test_frame_history_two_rounds(void) { check_history_after(2); }
 TEST_MAIN(TEST(test_frame_store_zeroes_nonfinite), TEST(test_frame_history_one_round),
           TEST(test_frame_history_two_rounds), TEST(test_pairing_is_an_involution), TEST(test_neighbour_test_is_symmetric), TEST(test_reuse_unbiased_unpaired),
           TEST(test_reuse_unbiased_paired), TEST(test_reuse_unbiased_rejecting_unpaired),
-          TEST(test_reuse_unbiased_rejecting_paired), TEST(test_wrong_jacobian_is_caught))
+          TEST(test_reuse_unbiased_rejecting_paired), TEST(test_class_cap_unbiased),
+          TEST(test_class_cap_of_the_reservoir_is_caught), TEST(test_wrong_jacobian_is_caught))
