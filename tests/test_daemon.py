@@ -1469,7 +1469,11 @@ def test_restir_pt_session(daemon):
     given = new_session(daemon, method="restir_pt", width=8, height=8, params={"nee_candidates": 3})
     assert two["params"]["nee_candidates"] == 4 and given["params"]["nee_candidates"] == 3
     unpaired = new_session(daemon, method="restir_pt", width=8, height=8, params={"paired_spatial": False})
-    for x in (two, given, unpaired):
+    # A radius of 0 is the resolution's (20 pixels per 1080 lines, at least 3), and reported.
+    by_size = [new_session(daemon, method="restir_pt", width=w, height=h, params={"spatial_radius": 0})
+               for w, h in ((8, 8), (600, 270))]
+    assert [x["params"]["spatial_radius"] for x in by_size] == [3, 5]
+    for x in (two, given, unpaired, *by_size):
         assert daemon.req("DELETE", x["href"]).status == 204
     assert s["reservoir_bytes_per_pixel"] == 64
     assert s["reservoir_bytes"] == 2 * 64 * 32 * 24 == s["buffers"]["reservoirs"]

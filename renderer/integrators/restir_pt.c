@@ -128,8 +128,9 @@ bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err)
                        "temporal_cap_replay must be in 0..1000 (0 = temporal_cap)");
     if (p->spatial_neighbors > 64)
         return err_set(err, ERR_INVALID, "/params/spatial_neighbors", "spatial_neighbors must be in 0..64");
-    if (!(p->spatial_radius >= 1.0f && p->spatial_radius <= 256.0f))
-        return err_set(err, ERR_INVALID, "/params/spatial_radius", "spatial_radius must be in 1..256 pixels");
+    if (!(p->spatial_radius == 0.0f || (p->spatial_radius >= 1.0f && p->spatial_radius <= 256.0f)))
+        return err_set(err, ERR_INVALID, "/params/spatial_radius",
+                       "spatial_radius must be 0 (by resolution) or in 1..256 pixels");
     if (p->spatial_rounds < 1 || p->spatial_rounds > 8)
         return err_set(err, ERR_INVALID, "/params/spatial_rounds", "spatial_rounds must be in 1..8");
     if (!(p->reject_normal_cos >= 0.0f && p->reject_normal_cos <= 1.0f))
@@ -1099,7 +1100,9 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
     if (!restir_frame_initial(&pp.fr, pt_initial_rows, err)) return false;
     if (!out) return true;   /* restir_pt_initial_only */
     struct restir_reuse *r = restir_frame_reuse(&pp.fr, &restir_pt_ops, &c, 0, params->temporal_cap,
-                                                params->spatial_neighbors, params->spatial_radius,
+                                                params->spatial_neighbors,
+                                                params->spatial_radius > 0.0f ? params->spatial_radius
+                                                                              : restir_radius_auto(st->rs.width, st->rs.height),
                                                 params->paired_spatial);
     r->temporal_cap_low = params->temporal_cap_replay;
     r->min_normal_cos = params->reject_normal_cos;

@@ -23,6 +23,8 @@ static bool rpt_init(void *state, const struct scene *scene, void *params, uint3
     if (!restir_pt_init(state, scene, p, width, height, err)) return false;
     /* The session reports the NEE candidates it uses. */
     if (p->nee_candidates == RESTIR_PT_NEE_BY_SCENE) p->nee_candidates = ((struct restir_pt_state *)state)->nee_by_scene;
+    /* And the radius that its resolution gives (restir_radius_auto). */
+    if (p->spatial_radius == 0.0f) p->spatial_radius = restir_radius_auto(width, height);
     return true;
 }
 
@@ -76,7 +78,7 @@ static const struct method_param rpt_params[] = {
     P(temporal_cap_replay, METHOD_PARAM_UINT, 0, 1000,
       "the cap for samples without a reconnection vertex (random replay only); 0 = temporal_cap"),
     P(spatial_neighbors, METHOD_PARAM_UINT, 0, 64, "spatial neighbours per round; 0 = no spatial reuse"),
-    P(spatial_radius, METHOD_PARAM_FLOAT, 1, 256, "spatial reuse radius in pixels"),
+    P(spatial_radius, METHOD_PARAM_FLOAT, 0, 256, "spatial reuse radius in pixels; 0 = by resolution"),
     P(spatial_rounds, METHOD_PARAM_UINT, 1, 8, "spatial reuse rounds"),
     P(reject_normal_cos, METHOD_PARAM_FLOAT, 0, 1,
       "a spatial neighbour whose shading normal's cosine with the pixel's is below this is not reused; 0 = no test"),

@@ -156,6 +156,19 @@ static inline bool restir_neighbours_similar(const struct restir_reuse *r, uint3
     return true;
 }
 
+/* The spatial radius of a method whose spatial_radius is 0 (auto): a fixed share of the image,
+ * RESTIR_RADIUS_AT_1080 pixels on an image whose shorter side has 1080 (the radius of the ReSTIR
+ * PT code, Lin et al. 2022, at 1920 x 1080), scaled with the shorter side so that the neighbours
+ * stay as alike on a small image as on a large one, and never below RESTIR_RADIUS_MIN pixels (too
+ * few distinct neighbours). docs/benchmarks.md has the measurements behind the two numbers. */
+#define RESTIR_RADIUS_AT_1080 20.0f
+#define RESTIR_RADIUS_MIN 3.0f
+static inline float restir_radius_auto(uint32_t width, uint32_t height)
+{
+    const float r = RESTIR_RADIUS_AT_1080 * (float)(width < height ? width : height) / 1080.0f;
+    return r > RESTIR_RADIUS_MIN ? r : RESTIR_RADIUS_MIN;
+}
+
 static inline bool restir_pairs_needed(bool paired, uint32_t neighbors) { return paired && neighbors > 0; }
 
 /* A zeroed array of `count` elements of `stride` bytes that starts on a cache line (NULL when out
