@@ -1540,7 +1540,8 @@ def test_restir_bdpt_session(daemon):
     assert s["method"] == "restir_bdpt"
     assert s["params"] == {"variant": "lightweight", "max_depth": 64, "rr_depth": 3, "light_paths": 0,
                            "lt_capacity": 8, "lvc_capacity": 8, "heuristic": "balance", "caustic_temporal": True, "temporal_cap": 20,
-                           "moving_cap": 1, "reuse": False, "spatial_neighbors": 2, "spatial_radius": 30,
+                           "moving_cap": 1, "reuse": False, "reuse_temporal": True, "spatial_neighbors": 2,
+                           "spatial_rounds": 1, "spatial_radius": 30,
                            "paired_spatial": True, "expected_shading": False, "camera_reconnect": True, "copy_mis": False,
                            "reject_unshiftable": False}
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
@@ -1569,7 +1570,8 @@ def test_restir_bdpt_reuse_session_buffers(daemon):
     reservoirs, the G-buffer, the spatial pairs' scratch and the per-pixel x_2 cache of 116 bytes
     (the reverse hybrid shift's replayed light vertex); its memory is their sum."""
     s = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24, seed=3,
-                    params={"reuse": True})
+                    params={"reuse": True, "spatial_radius": 0})
+    assert s["params"]["spatial_radius"] == 3  # the resolution's radius (at least 3 pixels)
     n = 32 * 24
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
                                  "caustic_shifts", "pixel_buckets", "light_blocks", "gbuffer", "spatial_pairs",
@@ -1591,7 +1593,9 @@ def test_restir_bdpt_reuse_session_buffers(daemon):
     ({"lvc_capacity": 0}, "/params/lvc_capacity"),
     ({"lvc_size": 8}, "/params/lvc_size"),
     ({"spatial_neighbors": 33}, "/params/spatial_neighbors"),
-    ({"spatial_radius": 0}, "/params/spatial_radius"),
+    ({"spatial_radius": -1}, "/params/spatial_radius"),
+    ({"spatial_radius": 257}, "/params/spatial_radius"),
+    ({"spatial_rounds": 0}, "/params/spatial_rounds"),
     ({"copy_mis": True}, "/params/copy_mis"),
     ({"reject_unshiftable": "yes"}, "/params/reject_unshiftable"),
 ])

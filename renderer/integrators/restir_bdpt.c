@@ -180,8 +180,9 @@ bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *er
         return err_set(err, ERR_INVALID, "/params/moving_cap", "moving_cap must be in 1..65535");
     if (p->spatial_neighbors > 32)
         return err_set(err, ERR_INVALID, "/params/spatial_neighbors", "spatial_neighbors must be in 0..32");
-    if (!(p->spatial_radius > 0.0f && p->spatial_radius <= 256.0f))
-        return err_set(err, ERR_INVALID, "/params/spatial_radius", "spatial_radius must be in (0, 256]");
+    if (!(p->spatial_radius >= 0.0f && p->spatial_radius <= 256.0f))
+        return err_set(err, ERR_INVALID, "/params/spatial_radius",
+                       "spatial_radius must be in [0, 256] pixels (0 = by resolution)");
     if (p->spatial_rounds < 1 || p->spatial_rounds > 8)
         return err_set(err, ERR_INVALID, "/params/spatial_rounds", "spatial_rounds must be in 1..8");
     return true;
@@ -500,7 +501,9 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
                                   .history = p->reuse_temporal && c->has_prev && st->has_history
                                                  ? (const uint8_t *)st->res_prev : NULL,
                                   .temporal_cap = p->temporal_cap, .neighbors = p->spatial_neighbors,
-                                  .radius = p->spatial_radius, .paired = p->paired_spatial,
+                                  .radius = p->spatial_radius > 0.0f ? p->spatial_radius
+                                                                     : restir_radius_auto(st->width, st->height),
+                                  .paired = p->paired_spatial,
                                   .pair_scratch = st->pair_scratch};
         struct restir_counters rc = {{0, 0}, 0, 0, 0};
         if (rr.history && !restir_temporal_pass(&rr, (uint8_t *)st->res, &rc, err)) return false;

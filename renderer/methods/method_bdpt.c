@@ -99,7 +99,15 @@ const struct method_desc method_bdpt = {
 
 METHOD_DEFAULTS_OP(rbdpt_defaults, struct restir_bdpt_params, restir_bdpt_defaults)
 METHOD_VALIDATE_OP(rbdpt_validate, struct restir_bdpt_params, restir_bdpt_params_valid)
-METHOD_INIT_OP(rbdpt_init, struct restir_bdpt_state, struct restir_bdpt_params, restir_bdpt_init)
+static bool rbdpt_init(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
+                       struct err *err)
+{
+    struct restir_bdpt_params *p = params;
+    if (!restir_bdpt_init(state, scene, p, width, height, err)) return false;
+    /* The session reports the radius that its resolution gives (restir_radius_auto). */
+    if (p->spatial_radius == 0.0f) p->spatial_radius = restir_radius_auto(width, height);
+    return true;
+}
 METHOD_STATE_OP(rbdpt_reset, struct restir_bdpt_state, restir_bdpt_reset)
 METHOD_STATE_OP(rbdpt_destroy, struct restir_bdpt_state, restir_bdpt_destroy)
 
@@ -196,8 +204,7 @@ static const struct method_param rbdpt_params[] = {
     P(reuse_temporal, METHOD_PARAM_BOOL, 0, 1, "with reuse: the non-caustic reservoirs reuse the previous frame's"),
     P(spatial_neighbors, METHOD_PARAM_UINT, 0, 32, "with reuse: spatial neighbours per pixel and round"),
     P(spatial_rounds, METHOD_PARAM_UINT, 1, 8, "with reuse: spatial passes in a row, each reusing the last one's output"),
-    {.key = "spatial_radius", .kind = METHOD_PARAM_FLOAT, .offset = offsetof(struct restir_bdpt_params, spatial_radius),
-     .min = 0, .min_open = true, .max = 256, .help = "with reuse: spatial radius in pixels"},
+    P(spatial_radius, METHOD_PARAM_FLOAT, 0, 256, "with reuse: spatial radius in pixels; 0 = by resolution"),
     P(paired_spatial, METHOD_PARAM_BOOL, 0, 1, "with reuse: neighbours paired so a pair's shifts serve both"),
     P(expected_shading, METHOD_PARAM_BOOL, 0, 1,
       "with reuse: add the spatial pass's expected contribution over its selection instead of the selected sample's"),
