@@ -318,8 +318,11 @@ def test_preview_page_is_read_only(daemon):
 def test_methods_registry(daemon):
     """GET /v1/methods lists every method with its parameters; each method's defaults, sent back as
     the page's form sends them (every parameter with a default), make a session that reports the
-    same values; the Python client's spp rule follows the capabilities; and openapi.yaml documents
-    each parameter with the registry's default and range."""
+    same values, also under the converge profile (the params win over it), and a converge session
+    without params reports the converge defaults the registry lists (exactly the methods that
+    reuse frames have any); the Python client's spp rule follows the capabilities; and
+    openapi.yaml documents each parameter with the registry's default, converge default and
+    range."""
     import yaml
     sys_path_client()
     import restir
@@ -345,6 +348,7 @@ def test_methods_registry(daemon):
         for name, p in params.items():
             d, where = doc[name], (m["name"], name)
             assert d.get("default") == (pytest.approx(p["default"]) if p["default"] is not None else None), where
+            assert d.get("x-converge-default") == p.get("converge_default"), where
             if p["type"] in ("integer", "number"):
                 lo = d.get("exclusiveMinimum", d.get("minimum"))
                 hi = d.get("exclusiveMaximum", d.get("maximum"))
@@ -355,14 +359,18 @@ def test_methods_registry(daemon):
             if p["type"] == "string":
                 assert sorted(d["enum"]) == sorted(p["choices"]), where
         sent = {n: p["default"] for n, p in params.items() if p["default"] is not None}
-        r = daemon.req("POST", "/v1/scenes/refractive-slab/sessions",
-                       json_body={"method": m["name"], "width": 8, "height": 8, "params": sent})
-        assert r.status == 201, (m["name"], r.body[:300])
-        s = r.json()
-        assert set(s["params"]) == set(params)
-        for n, v in sent.items():
-            assert s["params"][n] == pytest.approx(v), (m["name"], n)
-        assert daemon.req("DELETE", s["href"]).status == 204
+        converge = {n: p.get("converge_default", p["default"]) for n, p in params.items() if p["default"] is not None}
+        assert (converge != sent) == m["capabilities"]["reuses_frames"], m["name"]
+        for profile, body_params, expect in ((None, sent, sent), ("converge", sent, sent), ("converge", None, converge)):
+            body = {"method": m["name"], "width": 8, "height": 8, "profile": profile, "params": body_params}
+            r = daemon.req("POST", "/v1/scenes/refractive-slab/sessions",
+                           json_body={k: v for k, v in body.items() if v is not None})
+            assert r.status == 201, (m["name"], r.body[:300])
+            s = r.json()
+            assert set(s["params"]) == set(params) and s["profile"] == (profile or "real_time")
+            for n, v in expect.items():
+                assert s["params"][n] == pytest.approx(v), (m["name"], profile, n)
+            assert daemon.req("DELETE", s["href"]).status == 204
         # The client sends spp (without --spp) exactly to the methods whose entry takes it.
         a = restir.build_parser().parse_args(["frame", "s", "-o", "x", "--method", m["name"]])
         registry = {x["name"]: x for x in methods}
@@ -1172,6 +1180,7 @@ CASES = [
     ("duplicate-nested-key", "POST", f"{SC}/sessions", J, b'{"params": {"spp": 1, "spp": 2}}', 422, "invalid-field", "/params/spp"),
     ("unknown-method", "POST", f"{SC}/sessions", J, b'{"method": "magic"}', 422, "invalid-field", "/method"),
     ("params-array", "POST", f"{SC}/sessions", J, b'{"params": []}', 422, "invalid-field", "/params"),
+    ("unknown-profile", "POST", f"{SC}/sessions", J, b'{"method": "restir_pt", "profile": "fast"}', 422, "invalid-field", "/profile"),
     ("camera-2-vector", "POST", f"{S}/frames", J, b'{"camera": {"position": [1, 2]}}', 422, "invalid-field", "/camera/position"),
     ("camera-fov-zero", "POST", f"{S}/frames", J, b'{"camera": {"fov_deg": 0}}', 422, "invalid-field", "/camera/fov_deg"),
     ("camera-unknown-key", "POST", f"{S}/frames", J, b'{"camera": {"zoom": 2}}', 422, "invalid-field", "/camera/zoom"),

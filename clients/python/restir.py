@@ -518,10 +518,12 @@ class Client:
 
     # ---- sessions ----
 
-    def create_session(self, scene, method=None, width=None, height=None, seed=None, params=None):
+    def create_session(self, scene, method=None, width=None, height=None, seed=None, params=None, profile=None):
+        """profile: "real_time" (the daemon's default when None) or "converge" (protocol/API.md,
+        Sessions): the defaults `params` is read over."""
         body = {}
         for key, value in (("method", method), ("width", width), ("height", height), ("seed", seed),
-                           ("params", params)):
+                           ("profile", profile), ("params", params)):
             if value is not None:
                 body[key] = value
         path = "/v1/scenes/%s/sessions" % _q(scene)
@@ -883,6 +885,10 @@ def finite_float(text):
     return v
 
 
+# The command line's profile names, and the protocol's.
+PROFILES = {"real-time": "real_time", "converge": "converge"}
+
+
 def _session_args(p, spp_default):
     p.add_argument("--method", default="pt", help="rendering method (default pt)")
     p.add_argument("--size", type=parse_size, default=(256, 256), metavar="WxH",
@@ -893,6 +899,11 @@ def _session_args(p, spp_default):
                         "frame" % spp_default)
     p.set_defaults(spp_default=spp_default)
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    # Spelled as restir render's --profile; the daemon's names are real_time and converge.
+    p.add_argument("--profile", choices=sorted(PROFILES), default=None,
+                   help="the session's profile: real-time (the daemon's default) or converge (the "
+                        "methods that reuse frames start from defaults that make their frames "
+                        "independent)")
 
 
 def _image_args(p):
@@ -1023,7 +1034,8 @@ def _session_params(args, methods):
 def _make_session(client, args):
     w, h = args.size
     return client.create_session(args.scene, method=args.method, width=w, height=h, seed=args.seed,
-                                 params=_session_params(args, client.methods))
+                                 params=_session_params(args, client.methods),
+                                 profile=PROFILES.get(args.profile))
 
 
 def cmd_health(client, args, out, prog):

@@ -98,6 +98,14 @@ const struct method_desc method_bdpt = {
 /* ---- restir_bdpt ---- */
 
 METHOD_DEFAULTS_OP(rbdpt_defaults, struct restir_bdpt_params, restir_bdpt_defaults)
+/* The converge profile: the caustic reservoirs' temporal reuse off, so that a session's frames
+ * are independent (the non-caustic reuse keeps its default, off: it is temporal and spatial
+ * together). The starting point from the papers, to be tuned by measurement. */
+static void rbdpt_converge(void *params)
+{
+    ((struct restir_bdpt_params *)params)->caustic_temporal = false;
+}
+
 METHOD_VALIDATE_OP(rbdpt_validate, struct restir_bdpt_params, restir_bdpt_params_valid)
 static bool rbdpt_init(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
                        struct err *err)
@@ -222,6 +230,7 @@ const struct method_desc method_restir_bdpt = {
     METHOD_PARAM_TABLE(rbdpt_params),
     METHOD_STAT_TABLE(rbdpt_stats),
     .defaults = rbdpt_defaults,
+    .converge = rbdpt_converge,
     .validate = rbdpt_validate,
     .state_bytes = sizeof(struct restir_bdpt_state),
     .init = rbdpt_init,

@@ -12,6 +12,17 @@ METHOD_FITS(struct restir_pt_params, METHOD_PARAMS_BYTES);
 METHOD_FITS(struct restir_pass_stats, METHOD_COUNTERS_BYTES);
 
 METHOD_DEFAULTS_OP(rpt_defaults, struct restir_pt_params, restir_pt_defaults)
+/* The converge profile: temporal reuse off, so that a session's frames are independent, and the
+ * spatial reuse of [ReSTIR BDPT Fig. 12] in its place (3 rounds of 6 neighbours). The values
+ * are the papers' starting point, to be tuned by measurement. */
+static void rpt_converge(void *params)
+{
+    struct restir_pt_params *p = params;
+    p->temporal = false;
+    p->spatial_rounds = 3;
+    p->spatial_neighbors = 6;
+}
+
 METHOD_VALIDATE_OP(rpt_validate, struct restir_pt_params, restir_pt_params_valid)
 METHOD_SESSION_RESET_OP(rpt_reset, struct restir_pt_state)
 METHOD_STATE_OP(rpt_destroy, struct restir_pt_state, restir_pt_destroy)
@@ -105,6 +116,7 @@ const struct method_desc method_restir_pt = {
     METHOD_PARAM_TABLE(rpt_params),
     METHOD_STAT_TABLE(rpt_stats),
     .defaults = rpt_defaults,
+    .converge = rpt_converge,
     .validate = rpt_validate,
     .state_bytes = sizeof(struct restir_pt_state),
     .init = rpt_init,
