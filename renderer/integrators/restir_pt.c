@@ -94,7 +94,7 @@ struct restir_pt_params restir_pt_defaults(void)
 {
     return (struct restir_pt_params){
         .max_depth = 64, .rr_depth = 1, .rr = true, .nee_candidates = RESTIR_PT_NEE_BY_SCENE, .unify_di = true,
-        .temporal = true, .temporal_cap = 20, .spatial_neighbors = 3, .spatial_radius = 20.0f, .spatial_rounds = 1,
+        .temporal = true, .temporal_cap = 20, .spatial_neighbors = 3, .spatial_radius = 0.0f, .spatial_rounds = 1,
         .paired_spatial = true,
         .expected_shading = true,
         .footprint = true, .footprint_c = 0.02f, .near_distance = 0.03f, .pdf_connect = true, .roughness_min = 0.2f,

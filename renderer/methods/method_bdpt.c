@@ -98,12 +98,17 @@ const struct method_desc method_bdpt = {
 /* ---- restir_bdpt ---- */
 
 METHOD_DEFAULTS_OP(rbdpt_defaults, struct restir_bdpt_params, restir_bdpt_defaults)
-/* The converge profile: the caustic reservoirs' temporal reuse off, so that a session's frames
- * are independent (the non-caustic reuse keeps its default, off: it is temporal and spatial
- * together). The starting point from the papers, to be tuned by measurement. */
+/* The converge profile: nothing carried from frame to frame (neither caustic nor non-caustic
+ * history), so that a session's frames are independent, and three rounds of spatial reuse of 3
+ * neighbours in its place ([ReSTIR BDPT Fig. 12]'s offline mode has 3 rounds of 6; a restir_bdpt
+ * shift replays a light subpath, so fewer neighbours a round). docs/benchmarks.md measures it. */
 static void rbdpt_converge(void *params)
 {
-    ((struct restir_bdpt_params *)params)->caustic_temporal = false;
+    struct restir_bdpt_params *p = params;
+    p->caustic_temporal = false;
+    p->reuse_temporal = false;
+    p->spatial_rounds = 3;
+    p->spatial_neighbors = 3;
 }
 
 METHOD_VALIDATE_OP(rbdpt_validate, struct restir_bdpt_params, restir_bdpt_params_valid)
