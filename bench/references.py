@@ -37,6 +37,17 @@ ROOT = Path(__file__).resolve().parent.parent
 REFS = ROOT / "build" / "refs"
 FIRST_SEED = 1000003
 REF_BIN = os.environ.get("REPORT_REF_BIN")
+QUICK = os.environ.get("QUICK") == "1"
+REF_SPP = 256 if QUICK else 2048
+# The scenes whose reference is not pt's, and the samples of each of their chunks: bdpt where pt
+# practically never reaches the light, sms where caustics through smooth casters are the image.
+REF_BY = {"lamp-in-glass": ("bdpt", 64 if QUICK else 256), "caustic-sphere": ("bdpt", 64 if QUICK else 256),
+          "refractive-slab": ("sms", 32 if QUICK else 64), "reflective-plane": ("sms", 32 if QUICK else 64)}
+
+
+def reference_method(scene):
+    """(method, samples per chunk) of a library scene's reference."""
+    return REF_BY.get(scene, ("pt", REF_SPP // 2))
 
 
 def log(msg):

@@ -66,7 +66,7 @@ from daemon import test_daemon  # noqa: E402
 import svgplot  # noqa: E402
 from curves import loglog_at  # noqa: E402
 from exrimage import read_rgb  # noqa: E402
-from references import Reference  # noqa: E402
+from references import REF_BY, REF_SPP, Reference, reference_method  # noqa: E402
 
 QUICK = os.environ.get("QUICK") == "1"
 BIN = str(ROOT / "build" / "restir")
@@ -82,7 +82,6 @@ THREADS = os.environ.get("BENCH_THREADS", str(os.cpu_count() or 1))
 SIDE = 64 if QUICK else 256
 SIZE = f"{SIDE}x{SIDE}"
 SEEDS = 1 if QUICK else 3
-REF_SPP = 256 if QUICK else 2048
 STAB_SIDE = 32 if QUICK else 64
 REF_BUDGET_S = float(os.environ.get("REF_BUDGET_S", 120 if QUICK else 600))
 LOAD_AT_START = os.getloadavg()[0]
@@ -119,8 +118,6 @@ SKIP = set(env_list("REPORT_SKIP", ["stability", "failures"]) or [])
 # one chunk (a reference starts as two chunks, one per half): pt, or where pt practically never
 # finds the light bdpt (mean of independent frames) through glass and for point-like caustics,
 # sms (spp, no Bernoulli cap: unbiased) for the caustics of the slab and the bumpy mirror.
-REF_BY = {"lamp-in-glass": ("bdpt", 64 if QUICK else 256), "caustic-sphere": ("bdpt", 64 if QUICK else 256),
-          "refractive-slab": ("sms", 32 if QUICK else 64), "reflective-plane": ("sms", 32 if QUICK else 64)}
 PASSES = ["gbuffer_ms", "initial_ms", "temporal_ms", "spatial_ms", "shade_ms", "light_ms", "splat_ms", "sort_ms",
           "camera_ms", "reuse_ms"]
 
@@ -166,7 +163,7 @@ def scene_results(d, scene, methods, descs, extra=()):
     error is small beside the best row's in every metric (errors.long_enough), or REF_BUDGET_S
     is spent."""
     path = ROOT / "scenes" / scene / "scene.json"
-    method, chunk = REF_BY.get(scene, ("pt", REF_SPP // 2))
+    method, chunk = reference_method(scene)
     ref = Reference(path, SIDE, method, chunk, WORK)
     rows = [r for m in methods for r in regimes.measure_method(d, scene, path, descs[m], SEEDS, SIDE, WORK / scene)]
     rows += list(extra)

@@ -1468,7 +1468,7 @@ def test_restir_pt_session(daemon):
     s = new_session(daemon, method="restir_pt", width=32, height=24, seed=3, params={"spatial_neighbors": 4})
     assert s["method"] == "restir_pt"
     p = s["params"]
-    assert p["spatial_neighbors"] == 4 and p["spatial_radius"] == 20 and p["temporal_cap"] == 20
+    assert p["spatial_neighbors"] == 4 and p["spatial_radius"] == 3 and p["temporal_cap"] == 20
     assert p["footprint"] is True and p["footprint_c"] == pytest.approx(0.02) and p["pdf_connect"] is True
     assert p["unify_di"] is True and p["rr"] is True and p["max_depth"] == 64
     # RIS NEE candidates follow the scene: plain NEE under cornell-box's one light, 4 under
@@ -1545,13 +1545,14 @@ def test_restir_bdpt_session(daemon):
     reporting light subpaths, light-traced and caustic samples, shift failures by kind and
     reservoir bytes."""
     s = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24, seed=3,
-                    params={"heuristic": "balance"})
+                    params={"heuristic": "balance", "reuse": False})
     assert s["method"] == "restir_bdpt"
+    # The defaults but reuse's (the resolution's radius at 32 x 24 is the least, 3 pixels).
     assert s["params"] == {"variant": "lightweight", "max_depth": 64, "rr_depth": 3, "light_paths": 0,
                            "lt_capacity": 8, "lvc_capacity": 8, "heuristic": "balance", "caustic_temporal": True, "temporal_cap": 20,
                            "moving_cap": 1, "reuse": False, "reuse_temporal": True, "spatial_neighbors": 2,
-                           "spatial_rounds": 1, "spatial_radius": 30,
-                           "paired_spatial": True, "expected_shading": False, "camera_reconnect": True, "copy_mis": False,
+                           "spatial_rounds": 1, "spatial_radius": 3,
+                           "paired_spatial": True, "expected_shading": True, "camera_reconnect": True, "copy_mis": False,
                            "reject_unshiftable": False}
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
                                  "caustic_shifts", "pixel_buckets", "light_blocks"}
@@ -1578,9 +1579,13 @@ def test_restir_bdpt_reuse_session_buffers(daemon):
     """With reuse a restir_bdpt session adds exactly the reuse's buffers: two more non-caustic
     reservoirs, the G-buffer, the spatial pairs' scratch and the per-pixel x_2 cache of 116 bytes
     (the reverse hybrid shift's replayed light vertex); its memory is their sum."""
-    s = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24, seed=3,
-                    params={"reuse": True, "spatial_radius": 0})
+    s = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24, seed=3)
+    assert s["params"]["reuse"] is True  # the default
     assert s["params"]["spatial_radius"] == 3  # the resolution's radius (at least 3 pixels)
+    wide = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=600, height=270,
+                       params={"reuse": False})
+    assert wide["params"]["spatial_radius"] == 5  # 20 pixels per 1080 of the shorter side
+    assert daemon.req("DELETE", wide["href"]).status == 204
     n = 32 * 24
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
                                  "caustic_shifts", "pixel_buckets", "light_blocks", "gbuffer", "spatial_pairs",
