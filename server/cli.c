@@ -76,8 +76,9 @@ static const struct protocol_limits cli_limits = {.max_side = 16384, .max_pixels
     "give --frames 1 beside --params.\n"                                                       \
     "--profile converge starts a sequence's parameters from the method's converge profile (its\n" \
     "frames independent draws, for an image averaged with --average-last; restir methods --json\n" \
-    "lists each parameter's converge_default) instead of its real-time defaults (the default);\n" \
-    "--params is read over either.\n"
+    "lists each parameter's converge_default) instead of its real-time defaults; --params is\n" \
+    "read over either. The default: converge for --average-last without --animation (a still\n" \
+    "image), else real-time.\n"
 
 /* The usage text, then the methods --method takes, from the registry. */
 static void cli_usage(FILE *out)
@@ -425,6 +426,7 @@ static int cli_render(int argc, char **argv)
     uint32_t average_last = 0;
     bool has_spp = false;
     enum method_profile profile = METHOD_PROFILE_REAL_TIME;
+    bool has_profile = false;
     /* Each option once: a second value would silently replace the first. */
     const char *seen[32];
     size_t seen_count = 0;
@@ -473,6 +475,7 @@ static int cli_render(int argc, char **argv)
             params_json = v;
         } else if (strcmp(a, "--profile") == 0) {
             /* The command line's spelling of the protocol's real_time. */
+            has_profile = true;
             if (strcmp(v, "real-time") == 0) profile = METHOD_PROFILE_REAL_TIME;
             else if (strcmp(v, "converge") == 0) profile = METHOD_PROFILE_CONVERGE;
             else return cli_usage_error("--profile: expected real-time or converge, got '%s'", v);
@@ -526,6 +529,10 @@ static int cli_render(int argc, char **argv)
         return cli_usage_error("%s", "--crop and --frame do not combine with --frames or --animation");
     if (!sequence && params_json)
         return cli_usage_error("--params needs --frames, --animation or a method other than %s", cli_still_methods());
+    /* The mean of a still sequence's last frames is a still image: unless told otherwise, its
+     * frames are the converge profile's (independent draws), not the real-time defaults' (whose
+     * temporal reuse correlates them, so that their mean gains less from each). */
+    if (!has_profile && average_last && !anim_path) profile = METHOD_PROFILE_CONVERGE;
     /* A sequence's parameters: the method's defaults under the profile, --params over them (read
      * as the daemon reads a session's), then the options below over the keys --params leaves out. */
     struct view_params vp = view_params_defaults(rm, width, height);

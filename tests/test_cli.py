@@ -138,6 +138,17 @@ def test_profile_converge_is_its_params_and_params_win(tmp_path, scenes, method)
     profile = render("c.exr", "--profile", "converge")
     assert np.array_equal(profile, render("p.exr", *(["--params", json.dumps(conv)] if conv else [])))
     assert np.array_equal(profile, default) == (not conv)
+    # The mean of a still sequence is a still image: --average-last alone means the converge
+    # profile, with --animation the real-time one.
+    averaged = render("a.exr", "--average-last", "2")
+    assert np.array_equal(averaged, render("ac.exr", "--average-last", "2", "--profile", "converge"))
+    assert np.array_equal(averaged, render("ar.exr", "--average-last", "2", "--profile", "real-time")) == (not conv)
+    anim = tmp_path / "still.json"
+    anim.write_text(json.dumps({"animation": {"fps": 30, "frames": 3, "camera_keys": [
+        {"t": 0, **json.loads((scene / "scene.json").read_text())["camera"]}]}}))
+    animated = render("an.exr", "--average-last", "2", "--animation", str(anim))
+    assert np.array_equal(animated, render("anr.exr", "--average-last", "2", "--animation", str(anim),
+                                           "--profile", "real-time"))
     if "temporal" in conv:
         # Temporal reuse by the user's word, the profile's other values kept.
         mixed = render("m.exr", "--profile", "converge", "--params", '{"temporal": true}')
