@@ -66,6 +66,7 @@ from daemon import test_daemon  # noqa: E402
 import svgplot  # noqa: E402
 from curves import loglog_at  # noqa: E402
 from exrimage import read_rgb  # noqa: E402
+import ratios  # noqa: E402
 from references import REF_BY, REF_SPP, Reference, reference_method  # noqa: E402
 
 QUICK = os.environ.get("QUICK") == "1"
@@ -543,12 +544,13 @@ def write(results, stab, peer, fail, started, elapsed):
           f"- **Real time**: the error of single frames after {regimes.WARMUP} warm-up frames (frames "
           f"{', '.join(str(regimes.WARMUP + o) for o in regimes.MEASURED)} of each session), against the frame's render "
           "time. A method spends a longer frame on more samples of its own kind: spp (pt, sms, sms_ssp), light subpaths "
-          "(bdpt, restir_bdpt: 1, 2, 4, 8 × the pixel count), spatial neighbours (restir_pt: 3, 6, 12, 24; restir_sms: "
+          "(bdpt, restir_bdpt: 1, 2, 4, 8 × the pixel count), spatial neighbours (restir_pt: 3, 6, 12, 24, 48; restir_sms: "
           "1, 2, 4, 8), BSSRDF candidates (restir_sss: 1, 2, 4, 8). Also with the camera sliding and a light moving (below).",
           "- **Converge**: the error of the image a user keeps against the total time since the session began: pt, sms "
           "and sms_ssp the first frame of a session at more spp; bdpt the mean of its first k frames; a method with temporal reuse either "
-          "with it off (the mean of its first k frames, independent draws) or on (its k-th frame alone; its correlated "
-          "frames are never averaged).", "",
+          "in its converge profile (a session's \"profile\": no sample carried between frames; the mean of its first k "
+          "frames, independent draws) or in its real-time defaults (its k-th frame alone; its correlated frames are "
+          "never averaged).", "",
           "Errors against each scene's reference: MAPE as [ReSTIR BDPT footnote 3], relMSE (squared error over the "
           "reference squared plus 0.01) and RMSE, as `restir compare` computes them. Each reference is the mean of two "
           "independent halves; its own error is a half against the whole (bench/errors.py), and a row whose error is "
@@ -578,6 +580,11 @@ def write(results, stab, peer, fail, started, elapsed):
                 md.append(f"| {scene} | {line['ms']:.0f} ms (pt {line['spp']} spp) | {fmt_win(line['relmse'])} | "
                           f"{fmt_win(line['mape'])} | {'' if line['agree'] else 'disagree'} |")
         md.append("")
+    md += ["## Each reuse method against its baselines, at equal time", "",
+           "The ratio of each reuse method's error to its baseline's (below 1: the method's is lower), the baseline's "
+           "curve read at the method's time: in real time the method's frame at its default setting; converging, the "
+           "method's converge profile and the baseline at pt's image time at 4, 16 and 64 spp (`bench/ratios.py`; "
+           "\"—\" where a curve did not reach that time).", "", *ratios.table(OUT), ""]
     md += ["## Error against time", ""]
     for scene, res in results.items():
         rows, black = res["rows"], res["black"]
