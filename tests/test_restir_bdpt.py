@@ -184,7 +184,7 @@ def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes, params):
 
 
 @pytest.mark.parametrize("params,where", [({"variant": "full", "reuse": True, "copy_mis": True}, "/params/copy_mis"),
-                                          ({"copy_mis": True}, "/params/copy_mis"),
+                                          ({"copy_mis": True, "reuse": False}, "/params/copy_mis"),
                                           ({"variant": "complete"}, "/params/variant"),
                                           ({"lt_capacity": 65}, "/params/lt_capacity"),
                                           ({"lvc_capacity": 0}, "/params/lvc_capacity"),
