@@ -11,7 +11,12 @@ beside them; a later run with more chunks cached starts from all of them. The ca
 everything a chunk's pixels depend on: the scene text (with any camera override) and the mesh
 files it names, the size, the method, the chunk's samples and the command that renders it, and
 the renderer's sources (their git tree, or the binary's hash outside a checkout), so a changed
-renderer never mixes old chunks with new ones in one reference."""
+renderer never mixes old chunks with new ones in one reference.
+
+REPORT_REF_BIN names another `restir` binary to render the references with, keyed by its hash: a
+build whose reference methods (pt, bdpt, sms) give the same pixels as the build under test (check
+with scripts/same_output.py), so that trying changes to the reuse methods renders each
+reference once rather than after every change to renderer/."""
 import functools
 import hashlib
 import json
@@ -19,6 +24,8 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+
+import os
 
 import numpy as np
 
@@ -29,6 +36,18 @@ from restir_pt import BIN, run
 ROOT = Path(__file__).resolve().parent.parent
 REFS = ROOT / "build" / "refs"
 FIRST_SEED = 1000003
+REF_BIN = os.environ.get("REPORT_REF_BIN")
+QUICK = os.environ.get("QUICK") == "1"
+REF_SPP = 256 if QUICK else 2048
+# The scenes whose reference is not pt's, and the samples of each of their chunks: bdpt where pt
+# practically never reaches the light, sms where caustics through smooth casters are the image.
+REF_BY = {"lamp-in-glass": ("bdpt", 64 if QUICK else 256), "caustic-sphere": ("bdpt", 64 if QUICK else 256),
+          "refractive-slab": ("sms", 32 if QUICK else 64), "reflective-plane": ("sms", 32 if QUICK else 64)}
+
+
+def reference_method(scene):
+    """(method, samples per chunk) of a library scene's reference."""
+    return REF_BY.get(scene, ("pt", REF_SPP // 2))
 
 
 def log(msg):
@@ -46,7 +65,9 @@ UNIT = {"pt": "spp", "sms": "spp", "bdpt": "frames"}
 @functools.lru_cache(maxsize=None)
 def renderer_version():
     """What the renderer's output depends on: the git tree of renderer/ (unchanged by commits
-    elsewhere), else the hash of the binary."""
+    elsewhere), else the hash of the binary; with REPORT_REF_BIN, that binary's hash."""
+    if REF_BIN:
+        return "bin-" + hashlib.sha256(Path(REF_BIN).read_bytes()).hexdigest()
     res = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD:renderer"], capture_output=True, text=True)
     dirty = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "renderer"], capture_output=True, text=True)
     if res.returncode == 0 and not dirty.stdout.strip():
@@ -108,7 +129,7 @@ class Reference:
                 f"{self.method}, {self.chunk} {UNIT[self.method]})")
             tmp = path.with_suffix(".tmp.exr")
             st = run([str(a) for a in ["render", src, "--size", f"{self.side}x{self.side}",
-                                       *HOW[self.method](self.chunk), "--seed", FIRST_SEED + j, "--json", "-o", tmp]])
+                                       *HOW[self.method](self.chunk), "--seed", FIRST_SEED + j, "--json", "-o", tmp]], REF_BIN)
             path.with_suffix(".json").write_text(json.dumps({"time_ms": st.get("time_ms")}) + "\n")
             tmp.rename(path)
         self.chunks = max(self.chunks, count)

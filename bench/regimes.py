@@ -17,9 +17,10 @@ image the user would keep against the total time spent since the session began: 
 sms_ssp the first frame of a session at a higher spp (its time includes the session's first-frame
 set-up, as every converge time does; real-time frames of these come after sms_ssp's prior has
 gathered its prior_frames); bdpt the mean of its
-first k frames (independent); a method with temporal reuse either with temporal reuse off, the
-mean of its first k frames (independent draws), or with it on, its k-th frame alone (its history
-is its accumulation; averaging its correlated frames would be neither regime).
+first k frames (independent); a method with temporal reuse either in its converge profile (the
+session's "profile": temporal reuse off, more spatial reuse), the mean of its first k frames
+(independent draws), or in the real-time defaults, its k-th frame alone (its history is its
+accumulation; averaging its correlated frames would be neither regime).
 
 Every session's frames depend only on its seed and frame numbers; medians are over seeds (and
 the measured frames of each)."""
@@ -53,20 +54,13 @@ FRAMES_LADDER = [1, 4, 8] if QUICK else [1, 2, 4, 8, 16, 32]
 # The real-time ladder: (parameter, values); "x" values multiply the pixel count.
 LADDER = {"pt": ("spp", SPP_LADDER), "sms": ("spp", SMS_LADDER), "sms_ssp": ("spp", SMS_LADDER),
           "bdpt": ("light_paths", ["1x", "2x", "4x", "8x"]), "restir_bdpt": ("light_paths", ["1x", "2x", "4x", "8x"]),
-          "restir_pt": ("spatial_neighbors", [3, 6, 12, 24]), "restir_sss": ("candidates", [1, 2, 4, 8]),
+          "restir_pt": ("spatial_neighbors", [3, 6, 12, 24, 48]), "restir_sss": ("candidates", [1, 2, 4, 8]),
           "restir_sms": ("spatial_neighbors", [1, 2, 4, 8])}
-# Temporal reuse off, and nothing else carried from frame to frame: restir_sms's primary rays
-# otherwise walk from the previous frame's positions (jitter_walk) and its prior unites the walks
-# of prior_frames frames, either of which would correlate its frames.
-TEMPORAL_OFF = {"restir_pt": {"temporal": False}, "restir_sss": {"temporal": False},
-                "restir_sms": {"temporal": False, "jitter_walk": 0, "prior_frames": 1},
-                "restir_bdpt": {"caustic_temporal": False}}
-
-
 def extra_params(text):
     """REPORT_PARAMS: {method: {param: value}} given to every session of that method, so that a
-    configuration other than the defaults is measured in both regimes. The ladder's parameter and
-    TEMPORAL_OFF's are given over them (they are what a row measures)."""
+    configuration other than the defaults is measured in both regimes. The ladder's parameter is
+    given over them (it is what a row measures); the converge rows' sessions are in the converge
+    profile, whose values these override too."""
     try:
         value = json.loads(text)
     except ValueError as e:
@@ -90,10 +84,12 @@ def log(msg):
 class Session:
     """One daemon session; frames come back with their statistics, images on request."""
 
-    def __init__(self, d, scene, method, params, seed, side, work):
+    def __init__(self, d, scene, method, params, seed, side, work, profile=None):
         params = {**EXTRA_PARAMS.get(method, {}), **params}
-        r = d.req("POST", f"/v1/scenes/{scene}/sessions",
-                  json_body={"method": method, "width": side, "height": side, "seed": seed, "params": params})
+        body = {"method": method, "width": side, "height": side, "seed": seed, "params": params}
+        if profile:
+            body["profile"] = profile
+        r = d.req("POST", f"/v1/scenes/{scene}/sessions", json_body=body)
         if r.status != 201:
             raise SystemExit(f"report: {scene} {method} {params} session: {r!r}")
         s = r.json()
@@ -265,13 +261,14 @@ def measure_method(d, scene, scene_path, desc, seeds, side, work):
         for k, v in conv_on.items():
             rows.append(row(scene, method, "converge", "temporal reuse on", k, "frames", statistics.median(v["ms"]),
                             v["images"]))
-    # Converge by the mean of independent frames: bdpt as it is, the others with temporal reuse off.
-    params = TEMPORAL_OFF.get(method, {}) if stateful else {}
-    variant = "temporal reuse off" if stateful else ""
+    # Converge by the mean of independent frames: bdpt as it is, the others in their converge
+    # profile (the session's "profile": what a user asking for a still image gets).
+    profile = "converge" if stateful else None
+    variant = "converge profile" if stateful else ""
     acc_ms = {k: [] for k in FRAMES_LADDER}
     acc_imgs = {k: [] for k in FRAMES_LADDER}
     for seed in range(seeds):
-        s = Session(d, scene, method, params, 200 + seed, side, work)
+        s = Session(d, scene, method, {}, 200 + seed, side, work, profile)
         acc, total = None, 0.0
         for i in range(max(FRAMES_LADDER)):
             st = s.frame()

@@ -33,7 +33,9 @@ REF_BUDGET_S (seconds of reference rendering per scene). To try a configuration 
 docs/report: REPORT_OUT (the output folder, relative to the checkout: new, empty or an earlier report), REPORT_METHODS (comma list:
 only these methods, in every scene that has them), REPORT_SKIP (comma list of stability, failures)
 and REPORT_PARAMS (a JSON object of method name to parameters given to every session of that
-method, under the ladder's own parameter; bench/regimes.py), e.g.
+method, under the ladder's own parameter; bench/regimes.py); REPORT_REF_BIN renders the
+references with another build whose reference methods give the same pixels, so they are rendered
+once for a series of such runs (bench/references.py), e.g.
 
   QUICK=1 REPORT_NO_CYCLES=1 REPORT_SKIP=stability,failures REPORT_OUT=build/try/reuse \
     REPORT_SCENES=lamp-in-glass REPORT_METHODS=bdpt,restir_bdpt \
@@ -64,7 +66,8 @@ from daemon import test_daemon  # noqa: E402
 import svgplot  # noqa: E402
 from curves import loglog_at  # noqa: E402
 from exrimage import read_rgb  # noqa: E402
-from references import Reference  # noqa: E402
+import ratios  # noqa: E402
+from references import REF_BY, REF_SPP, Reference, reference_method  # noqa: E402
 
 QUICK = os.environ.get("QUICK") == "1"
 BIN = str(ROOT / "build" / "restir")
@@ -80,7 +83,6 @@ THREADS = os.environ.get("BENCH_THREADS", str(os.cpu_count() or 1))
 SIDE = 64 if QUICK else 256
 SIZE = f"{SIDE}x{SIDE}"
 SEEDS = 1 if QUICK else 3
-REF_SPP = 256 if QUICK else 2048
 STAB_SIDE = 32 if QUICK else 64
 REF_BUDGET_S = float(os.environ.get("REF_BUDGET_S", 120 if QUICK else 600))
 LOAD_AT_START = os.getloadavg()[0]
@@ -117,8 +119,6 @@ SKIP = set(env_list("REPORT_SKIP", ["stability", "failures"]) or [])
 # one chunk (a reference starts as two chunks, one per half): pt, or where pt practically never
 # finds the light bdpt (mean of independent frames) through glass and for point-like caustics,
 # sms (spp, no Bernoulli cap: unbiased) for the caustics of the slab and the bumpy mirror.
-REF_BY = {"lamp-in-glass": ("bdpt", 64 if QUICK else 256), "caustic-sphere": ("bdpt", 64 if QUICK else 256),
-          "refractive-slab": ("sms", 32 if QUICK else 64), "reflective-plane": ("sms", 32 if QUICK else 64)}
 PASSES = ["gbuffer_ms", "initial_ms", "temporal_ms", "spatial_ms", "shade_ms", "light_ms", "splat_ms", "sort_ms",
           "camera_ms", "reuse_ms"]
 
@@ -164,7 +164,7 @@ def scene_results(d, scene, methods, descs, extra=()):
     error is small beside the best row's in every metric (errors.long_enough), or REF_BUDGET_S
     is spent."""
     path = ROOT / "scenes" / scene / "scene.json"
-    method, chunk = REF_BY.get(scene, ("pt", REF_SPP // 2))
+    method, chunk = reference_method(scene)
     ref = Reference(path, SIDE, method, chunk, WORK)
     rows = [r for m in methods for r in regimes.measure_method(d, scene, path, descs[m], SEEDS, SIDE, WORK / scene)]
     rows += list(extra)
@@ -517,7 +517,7 @@ def write_csv(results):
 
 def configuration():
     """The report's lines naming a configuration other than the full default run, if any."""
-    knobs = [f"{k}={os.environ[k]}" for k in ("REPORT_SCENES", "REPORT_METHODS", "REPORT_SKIP", "REPORT_PARAMS")
+    knobs = [f"{k}={os.environ[k]}" for k in ("REPORT_SCENES", "REPORT_METHODS", "REPORT_SKIP", "REPORT_PARAMS", "REPORT_REF_BIN")
              if os.environ.get(k)]
     if not knobs:
         return []
@@ -544,12 +544,13 @@ def write(results, stab, peer, fail, started, elapsed):
           f"- **Real time**: the error of single frames after {regimes.WARMUP} warm-up frames (frames "
           f"{', '.join(str(regimes.WARMUP + o) for o in regimes.MEASURED)} of each session), against the frame's render "
           "time. A method spends a longer frame on more samples of its own kind: spp (pt, sms, sms_ssp), light subpaths "
-          "(bdpt, restir_bdpt: 1, 2, 4, 8 × the pixel count), spatial neighbours (restir_pt: 3, 6, 12, 24; restir_sms: "
+          "(bdpt, restir_bdpt: 1, 2, 4, 8 × the pixel count), spatial neighbours (restir_pt: 3, 6, 12, 24, 48; restir_sms: "
           "1, 2, 4, 8), BSSRDF candidates (restir_sss: 1, 2, 4, 8). Also with the camera sliding and a light moving (below).",
           "- **Converge**: the error of the image a user keeps against the total time since the session began: pt, sms "
           "and sms_ssp the first frame of a session at more spp; bdpt the mean of its first k frames; a method with temporal reuse either "
-          "with it off (the mean of its first k frames, independent draws) or on (its k-th frame alone; its correlated "
-          "frames are never averaged).", "",
+          "in its converge profile (a session's \"profile\": no sample carried between frames; the mean of its first k "
+          "frames, independent draws) or in its real-time defaults (its k-th frame alone; its correlated frames are "
+          "never averaged).", "",
           "Errors against each scene's reference: MAPE as [ReSTIR BDPT footnote 3], relMSE (squared error over the "
           "reference squared plus 0.01) and RMSE, as `restir compare` computes them. Each reference is the mean of two "
           "independent halves; its own error is a half against the whole (bench/errors.py), and a row whose error is "
@@ -579,6 +580,11 @@ def write(results, stab, peer, fail, started, elapsed):
                 md.append(f"| {scene} | {line['ms']:.0f} ms (pt {line['spp']} spp) | {fmt_win(line['relmse'])} | "
                           f"{fmt_win(line['mape'])} | {'' if line['agree'] else 'disagree'} |")
         md.append("")
+    md += ["## Each reuse method against its baselines, at equal time", "",
+           "The ratio of each reuse method's error to its baseline's (below 1: the method's is lower), the baseline's "
+           "curve read at the method's time: in real time the method's frame at its default setting; converging, the "
+           "method's converge profile and the baseline at pt's image time at 4, 16 and 64 spp (`bench/ratios.py`; "
+           "\"—\" where a curve did not reach that time).", "", *ratios.table(OUT), ""]
     md += ["## Error against time", ""]
     for scene, res in results.items():
         rows, black = res["rows"], res["black"]

@@ -193,7 +193,7 @@ def biased(tmp):
                 img = tmp / "bias.exr"
                 st = run(["render", str(scene_path), "--size", BIAS_SIZE, "--seed", str(2000 + s), "--json", "-o",
                           str(img), "--method", "restir_bdpt", "--params", json.dumps(params), "--frames",
-                          str(BIAS_FRAMES), "--average-last", str(BIAS_FRAMES)])
+                          str(BIAS_FRAMES), "--average-last", str(BIAS_FRAMES), "--profile", "real-time"])
                 lum[m].append(read_rgb(img).mean(axis=2))
                 ms[m].append(st["time_ms"] / BIAS_FRAMES)
                 dropped[m] += st["last_frame"]["lt_unshiftable"]
@@ -268,7 +268,8 @@ def main():
             r = {"pt": curve(scene_path, ref, tmp, "pt", lambda n: ["--spp", str(n)])}
             for m, args in SESSIONS:
                 r[m] = curve(scene_path, ref, tmp, m.replace(" ", "_").replace(",", ""),
-                             lambda n, a=args: [*a, "--frames", str(n), "--average-last", str(n)])
+                             lambda n, a=args: [*a, "--frames", str(n), "--average-last", str(n),
+                                                   "--profile", "real-time"])
             r["after_warmup"] = {m: after_warmup(scene_path, ref, tmp, f"w{k}", args)
                                  for k, (m, args) in enumerate(SESSIONS) if m != "bdpt"}
             r["vs_restir_pt"] = {}

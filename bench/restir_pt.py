@@ -67,8 +67,8 @@ ABLATION = [("Enhanced (defaults)", "{}"),
             ("no spatial reuse", '{"spatial_neighbors": 0}')]
 
 
-def run(args):
-    res = subprocess.run([BIN, *args, "--threads", THREADS], capture_output=True, text=True)
+def run(args, binary=None):
+    res = subprocess.run([binary or BIN, *args, "--threads", THREADS], capture_output=True, text=True)
     if res.returncode != 0:
         raise SystemExit(f"bench: {' '.join(args)}: {res.stderr.strip()}")
     return json.loads(res.stdout)

@@ -292,7 +292,8 @@ def measure(scene, name, ref, tmp, runs, tag):
         ms, err, top = [], [], []
         for seed in range(STEADY_SEEDS):
             out = tmp / f"{name}-{tag}-steady-{label[:14].replace(' ', '_')}-{seed}.exr"
-            img, st = render(scene, out, method, params, seed, extra=["--frames", str(WARMUP + 1), "--average-last", "1"])
+            img, st = render(scene, out, method, params, seed, extra=["--frames", str(WARMUP + 1), "--average-last", "1",
+                                                                    "--profile", "real-time"])
             ms.append(st["time_ms"] / (WARMUP + 1))
             err.append(rmse(img, ref))
             top.append(top_share(img, ref))

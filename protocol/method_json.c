@@ -170,11 +170,25 @@ static void method_json_caps(struct jsonw *w, unsigned caps)
     jsonw_object_end(w);
 }
 
+/* The bytes a parameter of this kind occupies in its method's parameter struct. */
+static size_t method_json_param_size(enum method_param_kind k)
+{
+    switch (k) {
+    case METHOD_PARAM_UINT: return sizeof(uint32_t);
+    case METHOD_PARAM_BOOL: return sizeof(bool);
+    case METHOD_PARAM_FLOAT: return sizeof(float);
+    case METHOD_PARAM_ENUM: return sizeof(int);
+    }
+    return 0;
+}
+
 void protocol_write_method(struct jsonw *w, const struct method_desc *m, const struct protocol_limits *limits)
 {
-    _Alignas(8) unsigned char defaults[METHOD_PARAMS_BYTES];
+    _Alignas(8) unsigned char defaults[METHOD_PARAMS_BYTES], converge[METHOD_PARAMS_BYTES];
     memset(defaults, 0, sizeof defaults);
-    m->defaults(defaults);
+    memset(converge, 0, sizeof converge);
+    method_profile_defaults(m, METHOD_PROFILE_REAL_TIME, defaults);
+    method_profile_defaults(m, METHOD_PROFILE_CONVERGE, converge);
     jsonw_object_begin(w);
     jsonw_key(w, "name"); jsonw_string(w, m->name);
     jsonw_key(w, "summary"); jsonw_string(w, m->summary);
@@ -191,6 +205,12 @@ void protocol_write_method(struct jsonw *w, const struct method_desc *m, const s
         jsonw_key(w, "default");
         if (mp->flags & METHOD_PARAM_SCENE_DEFAULT) jsonw_null(w);
         else method_json_param_value(w, mp, defaults);
+        /* Only where the converge profile changes the default: absent, a session of either
+         * profile starts from "default". */
+        if (memcmp(defaults + mp->offset, converge + mp->offset, method_json_param_size(mp->kind)) != 0) {
+            jsonw_key(w, "converge_default");
+            method_json_param_value(w, mp, converge);
+        }
         if (mp->kind == METHOD_PARAM_UINT || mp->kind == METHOD_PARAM_FLOAT) {
             double hi = (mp->flags & METHOD_PARAM_SPP_LIMIT) && limits && limits->max_spp < mp->max ? limits->max_spp : mp->max;
             jsonw_key(w, "minimum"); jsonw_double(w, mp->min);

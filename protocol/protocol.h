@@ -48,9 +48,11 @@ bool protocol_check_json(const char *text, size_t len, struct err *err);
 bool protocol_valid_id(const char *s, size_t len);
 
 /* POST /v1/scenes/{scene}/sessions:
- * {"method": "pt", "width": W, "height": H, "seed": S, "params": {...}}; method defaults to
- * "pt", width/height to 256, seed to 0; params are the method's, read through its descriptor's
- * parameter table (methods/method.h), with view_params_defaults for absent ones.
+ * {"method": "pt", "width": W, "height": H, "seed": S, "profile": P, "params": {...}}; method
+ * defaults to "pt", width/height to 256, seed to 0, profile to "real_time" ("converge": the
+ * method's converge adjustments over its defaults, methods/method.h); params are the method's,
+ * read through its descriptor's parameter table (methods/method.h) over the profile's
+ * defaults, which absent ones keep.
  * width and height: 1..max_side, reported at "/width" or "/height"; width * height over
  * max_pixels is reported at "" (the product belongs to neither member alone).
  * seed: integer 0..2^53 (checked as a double: 2^53 + 1 reads as 2^53). *out is written only
@@ -60,9 +62,9 @@ bool protocol_parse_session_create(const char *body, size_t len, const struct pr
 
 /* A session's "params" object on its own, text[0..len) (the CLI's --params), read exactly as
  * protocol_parse_session_create reads it for vp->method, over the values already in
- * vp->method_params (the method's defaults). Bit i of *given is set when the object names
- * vp->method->params[i] (a table has at most 32 parameters, json_check_keys' limit), so a
- * caller can put its own values under the keys left out. Positions in syntax errors count from
+ * vp->method_params (the defaults of the method and its profile). Bit i of *given is set when
+ * the object names vp->method->params[i] (a table has at most 32 parameters, json_check_keys'
+ * limit), so a caller can put its own values under the keys left out. Positions in syntax errors count from
  * text's first byte; pointers name /params/<key> as in a session's body. *vp and *given are
  * written only on success. */
 bool protocol_parse_method_params(const char *text, size_t len, const struct protocol_limits *limits,

@@ -563,6 +563,27 @@ static bool request_key_time(const cJSON *key, const char *ptr, double prev, dou
 
 /* ---- session create ---- */
 
+/* A string naming one of `choices` (NULL-terminated): its index, else an error at p that
+ * lists them ("unknown <what> "x" (a, b or c)"). */
+static bool request_choice(const cJSON *v, const char *p, const char *what, const char *const *choices, int *out,
+                           struct err *err)
+{
+    const char *name = json_string(v, p, err);
+    if (!name) return false;
+    int found = -1;
+    char list[160];
+    size_t n = 0;
+    list[0] = '\0';
+    for (int k = 0; choices[k]; k++) {
+        if (strcmp(name, choices[k]) == 0) found = k;
+        const char *sep = k == 0 ? "" : choices[k + 1] ? ", " : " or ";
+        if (n < sizeof list) n += (size_t)snprintf(list + n, sizeof list - n, "%s%s", sep, choices[k]);
+    }
+    if (found < 0) return err_set(err, ERR_INVALID, p, "unknown %s \"%.64s\" (%s)", what, name, list);
+    *out = found;
+    return true;
+}
+
 /* A method's "params" object, read through its descriptor's parameter table (method.h): every
  * key must be one of the table's, each value of the key's kind and within its range (spp within
  * max_spp too); then the method's own validation checks what the table cannot (its pointers name
@@ -611,18 +632,8 @@ static bool request_method_params(const cJSON *pv, const char *ptr, const struct
             break;
         }
         case METHOD_PARAM_ENUM: {
-            const char *name = json_string(v, p, err);
-            if (!name) return false;
-            int found = -1;
-            char list[160];
-            size_t n = 0;
-            list[0] = '\0';
-            for (int k = 0; mp->choices[k]; k++) {
-                if (strcmp(name, mp->choices[k]) == 0) found = k;
-                const char *sep = k == 0 ? "" : mp->choices[k + 1] ? ", " : " or ";
-                if (n < sizeof list) n += (size_t)snprintf(list + n, sizeof list - n, "%s%s", sep, mp->choices[k]);
-            }
-            if (found < 0) return err_set(err, ERR_INVALID, p, "unknown %s \"%.64s\" (%s)", mp->key, name, list);
+            int found = 0;
+            if (!request_choice(v, p, mp->key, mp->choices, &found, err)) return false;
             memcpy(at, &found, sizeof found);
             break;
         }
@@ -668,7 +679,7 @@ static bool request_side(const cJSON *root, const char *key, const struct protoc
 bool protocol_parse_session_create(const char *body, size_t len, const struct protocol_limits *limits,
                                    struct view_params *out, struct err *err)
 {
-    static const char *const keys[] = {"method", "width", "height", "seed", "params", NULL};
+    static const char *const keys[] = {"method", "width", "height", "seed", "profile", "params", NULL};
     if (!out || !limits) return err_set(err, ERR_INVALID, "", "no output or limits given");
     cJSON *root;
     if (!request_parse(body, len, &root, err)) return false;
@@ -694,6 +705,12 @@ bool protocol_parse_session_create(const char *body, size_t len, const struct pr
                      (unsigned long long)w * h, (unsigned long long)limits->max_pixels);
     /* An unknown method has failed above (ok is false) and has no defaults. */
     struct view_params vp = view_params_defaults(method ? method : method_default(), w, h);
+    /* The profile chooses the defaults that the params below are read over: a parameter the
+     * user sends wins over the profile's value. */
+    const cJSON *fv = request_member(root, "", "profile", p);
+    int profile = METHOD_PROFILE_REAL_TIME;
+    if (ok && fv) ok = request_choice(fv, p, "profile", method_profile_names, &profile, err);
+    if (ok) view_params_set_profile(&vp, (enum method_profile)profile);
     const cJSON *sv = request_member(root, "", "seed", p);
     if (ok && sv) {
         double seed = 0.0;

@@ -71,6 +71,7 @@ static void api_write_session(struct jsonw *w, struct session *s)
     jsonw_key(w, "width"); jsonw_uint(w, p->width);
     jsonw_key(w, "height"); jsonw_uint(w, p->height);
     jsonw_key(w, "seed"); jsonw_uint(w, p->seed);
+    jsonw_key(w, "profile"); jsonw_string(w, method_profile_names[p->profile]);
     jsonw_key(w, "params");
     protocol_write_method_params(w, p->method, p->method_params);
     jsonw_key(w, "frames_rendered"); jsonw_uint(w, frames);

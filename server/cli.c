@@ -39,6 +39,7 @@ static const struct protocol_limits cli_limits = {.max_side = 16384, .max_pixels
     "                [--seed S] [--frame F]\n" \
     "                [--threads T] [--max-depth D] [--rr-depth R] [--no-nee] [--crop X0,Y0,X1,Y1]\n"    \
     "                [--frames F] [--average-last N] [--animation FILE.json] [--params JSON]\n"       \
+    "                [--profile real-time|converge]\n"                                               \
     "                [--half] [--json] -o OUT.exr|OUT.png   (.png: an 8-bit preview, exposure 0, clamp)\n" \
     "  restir compare A.exr B.exr [--fail-mape X] [--fail-relmse X] [--fail-rmse X] [--fail-mean X]\n" \
     "                [--warn-mape X] [--warn-relmse X] [--warn-rmse X] [--warn-mean X]\n"       \
@@ -72,7 +73,12 @@ static const struct protocol_limits cli_limits = {.max_side = 16384, .max_pixels
     "method's own; an option and a key that set the same parameter are refused), e.g.\n"           \
     "--params '{\"spatial_neighbors\": 0}'; restir methods lists every method's parameters. A still\n" \
     "image of pt (the one --crop and --frame take) is not a session's frame and takes no --params:\n" \
-    "give --frames 1 beside --params.\n"
+    "give --frames 1 beside --params.\n"                                                       \
+    "--profile converge starts a sequence's parameters from the method's converge profile (its\n" \
+    "frames independent draws, for an image averaged with --average-last; restir methods --json\n" \
+    "lists each parameter's converge_default) instead of its real-time defaults; --params is\n" \
+    "read over either. The default: converge for --average-last without --animation (a still\n" \
+    "image), else real-time.\n"
 
 /* The usage text, then the methods --method takes, from the registry. */
 static void cli_usage(FILE *out)
@@ -419,6 +425,8 @@ static int cli_render(int argc, char **argv)
     const char *anim_path = NULL, *params_json = NULL;
     uint32_t average_last = 0;
     bool has_spp = false;
+    enum method_profile profile = METHOD_PROFILE_REAL_TIME;
+    bool has_profile = false;
     /* Each option once: a second value would silently replace the first. */
     const char *seen[32];
     size_t seen_count = 0;
@@ -465,6 +473,12 @@ static int cli_render(int argc, char **argv)
             anim_path = v;
         } else if (strcmp(a, "--params") == 0) {
             params_json = v;
+        } else if (strcmp(a, "--profile") == 0) {
+            /* The command line's spelling of the protocol's real_time. */
+            has_profile = true;
+            if (strcmp(v, "real-time") == 0) profile = METHOD_PROFILE_REAL_TIME;
+            else if (strcmp(v, "converge") == 0) profile = METHOD_PROFILE_CONVERGE;
+            else return cli_usage_error("--profile: expected real-time or converge, got '%s'", v);
         } else if (strcmp(a, "--average-last") == 0) {
             if (!cli_parse_u32(v, 1000000, &average_last) || average_last == 0)
                 return cli_usage_error("--average-last: expected 1..1000000, got '%s'", v);
@@ -515,9 +529,14 @@ static int cli_render(int argc, char **argv)
         return cli_usage_error("%s", "--crop and --frame do not combine with --frames or --animation");
     if (!sequence && params_json)
         return cli_usage_error("--params needs --frames, --animation or a method other than %s", cli_still_methods());
-    /* A sequence's parameters: the method's defaults, --params over them (read as the daemon
-     * reads a session's), then the options below over the keys --params leaves out. */
+    /* The mean of a still sequence's last frames is a still image: unless told otherwise, its
+     * frames are the converge profile's (independent draws), not the real-time defaults' (whose
+     * temporal reuse correlates them, so that their mean gains less from each). */
+    if (!has_profile && average_last && !anim_path) profile = METHOD_PROFILE_CONVERGE;
+    /* A sequence's parameters: the method's defaults under the profile, --params over them (read
+     * as the daemon reads a session's), then the options below over the keys --params leaves out. */
     struct view_params vp = view_params_defaults(rm, width, height);
+    view_params_set_profile(&vp, profile);
     uint32_t params_given = 0;
     if (params_json) {
         struct err perr = {0};

@@ -106,8 +106,60 @@ def test_a_params_syntax_error_points_into_the_argument(tmp_path, scenes):
         "starting a key")
 
 
+@pytest.mark.parametrize("value", ["real_time", "realtime", "Converge", ""])
+def test_profile_takes_only_its_two_spellings(tmp_path, scenes, value):
+    assert refused(tmp_path, scenes, "--method", "restir_pt", "--frames", "2", "--profile", value) == (
+        f"restir: --profile: expected real-time or converge, got '{value}'")
+
+
+CONVERGE = {m["name"]: {p["name"]: p["converge_default"] for p in m["params"] if "converge_default" in p}
+            for m in METHODS}
+PROFILE_SCENE = {"restir_sss": "translucent", "restir_bdpt": "caustic-sphere", "restir_sms": "refractive-slab", "sms": "refractive-slab",
+                 "sms_ssp": "refractive-slab"}
+
+
+@pytest.mark.parametrize("method", sorted(CONVERGE))
+def test_profile_converge_is_its_params_and_params_win(tmp_path, scenes, method):
+    """--profile converge renders what --params of the registry's converge defaults renders, bit
+    for bit (nothing for the methods without any), --profile real-time what no profile renders, and
+    a key --params names wins over the profile's value."""
+    scene = scenes / PROFILE_SCENE.get(method, "cornell-box")
+
+    def render(name, *args):
+        res = run_cli("render", scene, "--method", method, "--size", "8x8", "--frames", "3", "--seed", "5", *args,
+                      "-o", tmp_path / name)
+        assert res.returncode == 0, res.stderr
+        return read_exr(tmp_path / name)
+
+    conv = CONVERGE[method]
+    assert bool(conv) == next(m for m in METHODS if m["name"] == method)["capabilities"]["reuses_frames"]
+    default = render("none.exr")
+    assert np.array_equal(render("rt.exr", "--profile", "real-time"), default)
+    profile = render("c.exr", "--profile", "converge")
+    assert np.array_equal(profile, render("p.exr", *(["--params", json.dumps(conv)] if conv else [])))
+    assert np.array_equal(profile, default) == (not conv)
+    # The mean of a still sequence is a still image: --average-last alone means the converge
+    # profile, with --animation the real-time one.
+    averaged = render("a.exr", "--average-last", "2")
+    assert np.array_equal(averaged, render("ac.exr", "--average-last", "2", "--profile", "converge"))
+    assert np.array_equal(averaged, render("ar.exr", "--average-last", "2", "--profile", "real-time")) == (not conv)
+    anim = tmp_path / "still.json"
+    anim.write_text(json.dumps({"animation": {"fps": 30, "frames": 3, "camera_keys": [
+        {"t": 0, **json.loads((scene / "scene.json").read_text())["camera"]}]}}))
+    animated = render("an.exr", "--average-last", "2", "--animation", str(anim))
+    assert np.array_equal(animated, render("anr.exr", "--average-last", "2", "--animation", str(anim),
+                                           "--profile", "real-time"))
+    if "temporal" in conv:
+        # Temporal reuse by the user's word, the profile's other values kept.
+        mixed = render("m.exr", "--profile", "converge", "--params", '{"temporal": true}')
+        assert np.array_equal(mixed, render("mp.exr", "--params", json.dumps({**conv, "temporal": True})))
+        assert not np.array_equal(mixed, profile)
+
+
 def test_other_silent_cases_are_refused(tmp_path, scenes):
     assert refused(tmp_path, scenes, "--spp", "2", "--spp", "3") == "restir: --spp is given twice: give it once"
+    assert refused(tmp_path, scenes, "--frames", "2", "--profile", "converge", "--profile", "converge") == (
+        "restir: --profile is given twice: give it once")
     assert refused(tmp_path, scenes, "--frames", "2", "--average-last", "3") == (
         "restir: --average-last 3 is more frames than --frames 2 renders")
     anim = tmp_path / "anim.json"

@@ -356,6 +356,22 @@ def test_spp_rule_follows_the_registry():
     assert restir._session_params(a, lambda: pytest.fail("fetched the registry")) == {"spp": 2}
 
 
+@pytest.mark.parametrize("command", [["frame", "s", "-o", "x"], ["orbit", "s", "-o", "d"], ["metrics", "s", "-o", "m"]])
+def test_profile_reaches_the_session(fake, command):
+    """--profile is sent as the protocol spells it (restir render's spelling on the command line);
+    without it `frame` (one frame of a fresh session: a still image) sends converge and the others
+    none (the daemon's default, real_time). A session recreated after a fail-over is made with the
+    same body, so it keeps the profile."""
+    c = client_for(fake)
+    c.upload_scene("s", SCENE)
+    p = restir.build_parser()
+    default = "converge" if command[0] == "frame" else None
+    for given, sent in ([], default), (["--profile", "converge"], "converge"), (["--profile", "real-time"], "real_time"):
+        args = p.parse_args(command + ["--method", "restir_pt", "--spp", "1"] + given)
+        s = restir._make_session(c, args)
+        assert s.create_body.get("profile") == sent and json.loads(fake.log[-1][3]).get("profile") == sent
+
+
 def test_other_commands_arguments():
     p = restir.build_parser()
     a = p.parse_args(["orbit", "s", "--frames", "12", "-o", "d", "--center", "1,2,3", "--radius", "5"])
@@ -374,6 +390,7 @@ def test_other_commands_arguments():
     ["frame", "s", "-o", "x", "--size", "0x4"], ["frame", "s", "-o", "x", "--spp", "0"],
     ["orbit", "s", "-o", "d", "--center", "1,2"], ["nonsense"], ["frame", "s", "-o", "x", "--exposure", "nan"],
     ["metrics", "s", "-o", "m.csv", "--reference-method", "bdpt"],
+    ["frame", "s", "-o", "x", "--profile", "real_time"], ["metrics", "s", "-o", "m.csv", "--profile", "fast"],
 ])
 def test_usage_errors_exit_2(argv, capsys):
     with pytest.raises(SystemExit) as exc:
@@ -630,7 +647,7 @@ def test_cli_frame_writes_file_and_cleans_up(fake, tmp_path):
     assert code == 0, err
     assert out_file.read_bytes() == b"IMG:image/x-exr:0"
     create = [json.loads(b) for m, p, _, b in fake.log if m == "POST" and p.endswith("/sessions")][0]
-    assert create == {"method": "pt", "width": 8, "height": 4, "seed": 0, "params": {"spp": 2}}
+    assert create == {"method": "pt", "width": 8, "height": 4, "seed": 0, "params": {"spp": 2}, "profile": "converge"}
     assert not fake.sessions                                     # deleted afterwards
     code, out, err = run_cli(fake, "frame", "lib-box", "-o", str(tmp_path / "f.png"))
     assert code == 0 and (tmp_path / "f.png").read_bytes() == b"IMG:image/png:0"

@@ -318,8 +318,11 @@ def test_preview_page_is_read_only(daemon):
 def test_methods_registry(daemon):
     """GET /v1/methods lists every method with its parameters; each method's defaults, sent back as
     the page's form sends them (every parameter with a default), make a session that reports the
-    same values; the Python client's spp rule follows the capabilities; and openapi.yaml documents
-    each parameter with the registry's default and range."""
+    same values, also under the converge profile (the params win over it), and a converge session
+    without params reports the converge defaults the registry lists (exactly the methods that
+    reuse frames have any); the Python client's spp rule follows the capabilities; and
+    openapi.yaml documents each parameter with the registry's default, converge default and
+    range."""
     import yaml
     sys_path_client()
     import restir
@@ -345,6 +348,7 @@ def test_methods_registry(daemon):
         for name, p in params.items():
             d, where = doc[name], (m["name"], name)
             assert d.get("default") == (pytest.approx(p["default"]) if p["default"] is not None else None), where
+            assert d.get("x-converge-default") == p.get("converge_default"), where
             if p["type"] in ("integer", "number"):
                 lo = d.get("exclusiveMinimum", d.get("minimum"))
                 hi = d.get("exclusiveMaximum", d.get("maximum"))
@@ -355,14 +359,20 @@ def test_methods_registry(daemon):
             if p["type"] == "string":
                 assert sorted(d["enum"]) == sorted(p["choices"]), where
         sent = {n: p["default"] for n, p in params.items() if p["default"] is not None}
-        r = daemon.req("POST", "/v1/scenes/refractive-slab/sessions",
-                       json_body={"method": m["name"], "width": 8, "height": 8, "params": sent})
-        assert r.status == 201, (m["name"], r.body[:300])
-        s = r.json()
-        assert set(s["params"]) == set(params)
-        for n, v in sent.items():
-            assert s["params"][n] == pytest.approx(v), (m["name"], n)
-        assert daemon.req("DELETE", s["href"]).status == 204
+        converge = {n: p.get("converge_default", p["default"]) for n, p in params.items() if p["default"] is not None}
+        assert (converge != sent) == m["capabilities"]["reuses_frames"], m["name"]
+        for profile, body_params, expect in ((None, sent, sent), ("converge", sent, sent), ("converge", None, converge)):
+            body = {"method": m["name"], "width": 8, "height": 8, "profile": profile, "params": body_params}
+            r = daemon.req("POST", "/v1/scenes/refractive-slab/sessions",
+                           json_body={k: v for k, v in body.items() if v is not None})
+            assert r.status == 201, (m["name"], r.body[:300])
+            s = r.json()
+            assert set(s["params"]) == set(params) and s["profile"] == (profile or "real_time")
+            for n, v in expect.items():
+                if m["name"] in ("restir_pt", "restir_bdpt") and n == "spatial_radius" and v == 0:
+                    v = 3  # 0 is the resolution's radius, which the session reports: at 8 x 8 the least, 3
+                assert s["params"][n] == pytest.approx(v), (m["name"], profile, n)
+            assert daemon.req("DELETE", s["href"]).status == 204
         # The client sends spp (without --spp) exactly to the methods whose entry takes it.
         a = restir.build_parser().parse_args(["frame", "s", "-o", "x", "--method", m["name"]])
         registry = {x["name"]: x for x in methods}
@@ -1172,6 +1182,7 @@ CASES = [
     ("duplicate-nested-key", "POST", f"{SC}/sessions", J, b'{"params": {"spp": 1, "spp": 2}}', 422, "invalid-field", "/params/spp"),
     ("unknown-method", "POST", f"{SC}/sessions", J, b'{"method": "magic"}', 422, "invalid-field", "/method"),
     ("params-array", "POST", f"{SC}/sessions", J, b'{"params": []}', 422, "invalid-field", "/params"),
+    ("unknown-profile", "POST", f"{SC}/sessions", J, b'{"method": "restir_pt", "profile": "fast"}', 422, "invalid-field", "/profile"),
     ("camera-2-vector", "POST", f"{S}/frames", J, b'{"camera": {"position": [1, 2]}}', 422, "invalid-field", "/camera/position"),
     ("camera-fov-zero", "POST", f"{S}/frames", J, b'{"camera": {"fov_deg": 0}}', 422, "invalid-field", "/camera/fov_deg"),
     ("camera-unknown-key", "POST", f"{S}/frames", J, b'{"camera": {"zoom": 2}}', 422, "invalid-field", "/camera/zoom"),
@@ -1462,7 +1473,7 @@ def test_restir_pt_session(daemon):
     s = new_session(daemon, method="restir_pt", width=32, height=24, seed=3, params={"spatial_neighbors": 4})
     assert s["method"] == "restir_pt"
     p = s["params"]
-    assert p["spatial_neighbors"] == 4 and p["spatial_radius"] == 20 and p["temporal_cap"] == 20
+    assert p["spatial_neighbors"] == 4 and p["spatial_radius"] == 3 and p["temporal_cap"] == 20
     assert p["footprint"] is True and p["footprint_c"] == pytest.approx(0.02) and p["pdf_connect"] is True
     assert p["unify_di"] is True and p["rr"] is True and p["max_depth"] == 64
     # RIS NEE candidates follow the scene: plain NEE under cornell-box's one light, 4 under
@@ -1472,7 +1483,11 @@ def test_restir_pt_session(daemon):
     given = new_session(daemon, method="restir_pt", width=8, height=8, params={"nee_candidates": 3})
     assert two["params"]["nee_candidates"] == 4 and given["params"]["nee_candidates"] == 3
     unpaired = new_session(daemon, method="restir_pt", width=8, height=8, params={"paired_spatial": False})
-    for x in (two, given, unpaired):
+    # A radius of 0 is the resolution's (20 pixels per 1080 lines, at least 3), and reported.
+    by_size = [new_session(daemon, method="restir_pt", width=w, height=h, params={"spatial_radius": 0})
+               for w, h in ((8, 8), (600, 270))]
+    assert [x["params"]["spatial_radius"] for x in by_size] == [3, 5]
+    for x in (two, given, unpaired, *by_size):
         assert daemon.req("DELETE", x["href"]).status == 204
     assert s["reservoir_bytes_per_pixel"] == 64
     assert s["reservoir_bytes"] == 2 * 64 * 32 * 24 == s["buffers"]["reservoirs"]
@@ -1535,12 +1550,14 @@ def test_restir_bdpt_session(daemon):
     reporting light subpaths, light-traced and caustic samples, shift failures by kind and
     reservoir bytes."""
     s = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24, seed=3,
-                    params={"heuristic": "balance"})
+                    params={"heuristic": "balance", "reuse": False})
     assert s["method"] == "restir_bdpt"
+    # The defaults but reuse's (the resolution's radius at 32 x 24 is the least, 3 pixels).
     assert s["params"] == {"variant": "lightweight", "max_depth": 64, "rr_depth": 3, "light_paths": 0,
                            "lt_capacity": 8, "lvc_capacity": 8, "heuristic": "balance", "caustic_temporal": True, "temporal_cap": 20,
-                           "moving_cap": 1, "reuse": False, "spatial_neighbors": 2, "spatial_radius": 30,
-                           "paired_spatial": True, "camera_reconnect": True, "copy_mis": False,
+                           "moving_cap": 1, "reuse": False, "reuse_temporal": True, "spatial_neighbors": 2,
+                           "spatial_rounds": 1, "spatial_radius": 3,
+                           "paired_spatial": True, "expected_shading": True, "camera_reconnect": True, "copy_mis": False,
                            "reject_unshiftable": False}
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
                                  "caustic_shifts", "pixel_buckets", "light_blocks"}
@@ -1567,8 +1584,13 @@ def test_restir_bdpt_reuse_session_buffers(daemon):
     """With reuse a restir_bdpt session adds exactly the reuse's buffers: two more non-caustic
     reservoirs, the G-buffer, the spatial pairs' scratch and the per-pixel x_2 cache of 116 bytes
     (the reverse hybrid shift's replayed light vertex); its memory is their sum."""
-    s = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24, seed=3,
-                    params={"reuse": True})
+    s = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24, seed=3)
+    assert s["params"]["reuse"] is True  # the default
+    assert s["params"]["spatial_radius"] == 3  # the resolution's radius (at least 3 pixels)
+    wide = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=600, height=270,
+                       params={"reuse": False})
+    assert wide["params"]["spatial_radius"] == 5  # 20 pixels per 1080 of the shorter side
+    assert daemon.req("DELETE", wide["href"]).status == 204
     n = 32 * 24
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
                                  "caustic_shifts", "pixel_buckets", "light_blocks", "gbuffer", "spatial_pairs",
@@ -1590,8 +1612,10 @@ def test_restir_bdpt_reuse_session_buffers(daemon):
     ({"lvc_capacity": 0}, "/params/lvc_capacity"),
     ({"lvc_size": 8}, "/params/lvc_size"),
     ({"spatial_neighbors": 33}, "/params/spatial_neighbors"),
-    ({"spatial_radius": 0}, "/params/spatial_radius"),
-    ({"copy_mis": True}, "/params/copy_mis"),
+    ({"spatial_radius": -1}, "/params/spatial_radius"),
+    ({"spatial_radius": 257}, "/params/spatial_radius"),
+    ({"spatial_rounds": 0}, "/params/spatial_rounds"),
+    ({"copy_mis": True, "reuse": False}, "/params/copy_mis"),
     ({"reject_unshiftable": "yes"}, "/params/reject_unshiftable"),
 ])
 def test_restir_bdpt_bad_params(daemon, params, field):
@@ -1609,6 +1633,9 @@ def test_restir_bdpt_refuses_translucent(daemon):
 
 @pytest.mark.parametrize("params,field", [
     ({"spatial_neighbors": 65}, "/params/spatial_neighbors"),
+    ({"reject_normal_cos": 1.5}, "/params/reject_normal_cos"),
+    ({"reject_depth": -0.1}, "/params/reject_depth"),
+    ({"temporal_cap_replay": 1001}, "/params/temporal_cap_replay"),
     ({"footprint_c": 0}, "/params/footprint_c"),
     ({"max_depth": 0}, "/params/max_depth"),
     ({"temporal": 1}, "/params/temporal"),

@@ -76,8 +76,9 @@ def test_defaults_measure_everything_into_docs_report():
 
 
 def test_params_reach_every_session_beneath_the_rows_own():
-    """A session's parameters: REPORT_PARAMS's for its method, then the row's (the ladder's value,
-    TEMPORAL_OFF), which win; other methods' sessions are untouched."""
+    """A session's parameters: REPORT_PARAMS's for its method, then the row's (the ladder's value),
+    which win; a converge row's session asks for the converge profile, beneath both; other
+    methods' sessions are untouched."""
     code = """
 import json
 class D:
@@ -90,13 +91,13 @@ class D:
         return R()
 d = D()
 regimes.Session(d, "cornell-box", "restir_pt", {"spatial_neighbors": 6}, 0, 16, ".")
-regimes.Session(d, "cornell-box", "restir_pt", regimes.TEMPORAL_OFF["restir_pt"], 0, 16, ".")
+regimes.Session(d, "cornell-box", "restir_pt", {}, 0, 16, ".", "converge")
 regimes.Session(d, "cornell-box", "pt", {"spp": 4}, 0, 16, ".")
-print(json.dumps([b["params"] for b in d.bodies]))
+print(json.dumps([[b["params"], b.get("profile")] for b in d.bodies]))
 """
     rc, out, err = report_module({"REPORT_PARAMS": json.dumps({"restir_pt": {"spatial_neighbors": 99, "temporal": True,
                                                                             "spatial_radius": 5}})}, code)
     assert rc == 0, err
-    assert json.loads(out) == [{"spatial_neighbors": 6, "temporal": True, "spatial_radius": 5},
-                               {"spatial_neighbors": 99, "temporal": False, "spatial_radius": 5},
-                               {"spp": 4}]
+    assert json.loads(out) == [[{"spatial_neighbors": 6, "temporal": True, "spatial_radius": 5}, None],
+                               [{"spatial_neighbors": 99, "temporal": True, "spatial_radius": 5}, "converge"],
+                               [{"spp": 4}, None]]

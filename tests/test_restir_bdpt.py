@@ -16,7 +16,10 @@ by the rough-metal shade). Each runs with the light still and with the light mov
 frames: on caustic-sphere along a short path that keeps the caustic in the crop, on
 lamp-in-glass the filament up and down inside its glass. With the light moving, the caustic
 samples are replayed into the moved scene (their shifts fail at times, which the frame
-counters show) and the reference `bdpt` renders the same frames."""
+counters show) and the reference `bdpt` renders the same frames. The sessions run under the
+real-time profile (the defaults); the lightweight variant's also under the converge profile
+(caustic_temporal off: no caustic sample is replayed into the next frame, so the frames are
+independent)."""
 import json
 
 import numpy as np
@@ -51,9 +54,9 @@ def _animation(tmp_path, case, moving):
     return path
 
 
-def _sessions(scene_path, tmp_path, method, params, anim, seed0):
+def _sessions(scene_path, tmp_path, method, params, anim, seed0, profile="real-time"):
     extra = ["--method", method, "--frames", str(FRAMES), "--average-last", str(FRAMES),
-             "--params", json.dumps(params), "--animation", str(anim)]
+             "--params", json.dumps(params), "--animation", str(anim), "--profile", profile]
     runs, stats = [], []
     for s in range(K):
         img, st = render(scene_path, tmp_path / f"{method}{s}.exr", spp=1, seed=seed0 + s, extra=extra)
@@ -69,13 +72,17 @@ def _sessions(scene_path, tmp_path, method, params, anim, seed0):
 # moving, where most reconnected samples draw their light sample again in the moved scene. The
 # fourth case (caustic-sphere still, with reuse) passes too and is left out for the test's time.
 # The full variant with reuse on the same three: its connections (s >= 2) shift by replaying their
-# light subpath in the target frame's scene and rejoining the camera subpath to it.
-MATCH_CASES = ([(scene, moving, False, "lightweight") for scene in CASES for moving in (False, True)] +
-               [("lamp-in-glass", moving, True, "lightweight") for moving in (False, True)] +
-               [("caustic-sphere", True, True, "lightweight")] +
-               [(scene, moving, False, "full") for scene in CASES for moving in (False, True)] +
-               [("lamp-in-glass", moving, True, "full") for moving in (False, True)] +
-               [("caustic-sphere", True, True, "full")])
+# light subpath in the target frame's scene and rejoining the camera subpath to it. The lightweight
+# variant's reuse cases shade with the expected contribution over the spatial selection
+# (`expected_shading`), the full variant's with the selected sample, so both outputs are tested.
+# The converge profile on the lightweight variant: no history of either reservoir, 3 spatial rounds.
+MATCH_CASES = ([(scene, moving, False, "lightweight", "real-time") for scene in CASES for moving in (False, True)] +
+               [("lamp-in-glass", moving, True, "lightweight", "real-time") for moving in (False, True)] +
+               [("caustic-sphere", True, True, "lightweight", "real-time")] +
+               [(scene, moving, False, "full", "real-time") for scene in CASES for moving in (False, True)] +
+               [("lamp-in-glass", moving, True, "full", "real-time") for moving in (False, True)] +
+               [("caustic-sphere", True, True, "full", "real-time")] +
+               [(scene, moving, True, "lightweight", "converge") for scene in CASES for moving in (False, True)])
 
 _REF = {}
 _RUNS = {}   # restir_bdpt sessions of test_restir_bdpt_matches_bdpt, for the paired test below
@@ -89,16 +96,17 @@ def _reference(path, tmp_path, case, anim, key):
 
 
 @pytest.mark.statistical
-@pytest.mark.parametrize("scene,moving,reuse,variant", MATCH_CASES,
-                         ids=[f"{s}-{'moving' if m else 'static'}-{'reuse' if r else 'default'}-{v}"
-                              for s, m, r, v in MATCH_CASES])
-def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse, variant):
+@pytest.mark.parametrize("scene,moving,reuse,variant,profile", MATCH_CASES,
+                         ids=[f"{s}-{'moving' if m else 'static'}-{'reuse' if r else 'default'}-{v}-{p}"
+                              for s, m, r, v, p in MATCH_CASES])
+def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse, variant, profile):
     case = CASES[scene]
     anim = _animation(tmp_path, case, moving)
     path = scenes / scene / "scene.json"
-    runs, stats = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": reuse, "variant": variant},
-                            anim, 1000)
-    _RUNS[(scene, moving, reuse, variant)] = runs
+    params = {**case["params"], "reuse": reuse, "variant": variant,
+              "expected_shading": reuse and variant == "lightweight"}
+    runs, stats = _sessions(path, tmp_path, "restir_bdpt", params, anim, 1000, profile)
+    _RUNS[(scene, moving, reuse, variant, profile)] = runs
     ref = _reference(path, tmp_path, case, anim, (scene, moving))
     last = [st["last_frame"] for st in stats]
     # The full variant connects camera vertices to cached light vertices, the lightweight one never.
@@ -108,18 +116,26 @@ def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse, varian
     # between frames, nothing was dropped (that would bias) or non-finite.
     assert all(lf["lt_dropped"] == 0 for lf in last) and all(st["nonfinite"] == 0 for st in stats)
     assert sum(lf["light_traced"] for lf in last) > 0 and sum(lf["caustic_samples"] for lf in last) > 0
-    assert sum(lf["caustic_shifts"] for lf in last) > 0
+    # Caustic samples shift into the next frame exactly under the real-time profile.
+    assert (sum(lf["caustic_shifts"] for lf in last) > 0) == (profile == "real-time")
     assert (sum(lf["reuse_shifts"] for lf in last) > 0) == reuse
     assert (sum(lf["reuse_reconnections"] for lf in last) > 0) == reuse
     fails = {k: sum(lf["shift_failures"][k] for lf in last) for k in ("replay", "not_caustic", "inverse")}
     assert np.isfinite(runs).all()
     res = ztest_runs(runs, ref)
     bad = ztest_runs(runs * 1.03, ref)
-    label = f"{scene}, {'moving' if moving else 'static'}, {'all reuse' if reuse else 'caustic reuse'}, {variant}"
+    label = (f"{scene}, {'moving' if moving else 'static'}, {'all reuse' if reuse else 'caustic reuse'}, {variant}, "
+             f"{profile}")
     print(f"{label}: {res}; x1.03: {bad}; last frames' caustic shifts "
           f"{sum(lf['caustic_shifts'] for lf in last)}, failures {fails}")
     assert res.passed, f"{label}: {res}"
     assert not bad.passed, f"{label}: a bias of x1.03 went unseen: {bad}"
+
+
+# Several spatial rounds without the non-caustic history (the converge profile's reuse, whose
+# z-tests are among MATCH_CASES), here with the caustic history kept, for the thread-count test.
+ROUNDS_PARAMS = {"reuse": True, "reuse_temporal": False, "spatial_rounds": 3, "spatial_neighbors": 3,
+                 "expected_shading": True}
 
 
 @pytest.mark.statistical
@@ -132,10 +148,11 @@ def test_restir_bdpt_reject_unshiftable_darkens(tmp_path, scenes):
     scene, case = "lamp-in-glass", CASES["lamp-in-glass"]
     anim = _animation(tmp_path, case, False)
     path = scenes / scene / "scene.json"
-    key = (scene, False, True, "lightweight")
+    key = (scene, False, True, "lightweight", "real-time")
     if key not in _RUNS:
-        _RUNS[key] = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": True}, anim, 1000)[0]
-    runs, stats = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": True,
+        _RUNS[key] = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": True,
+                                                                "expected_shading": True}, anim, 1000)[0]
+    runs, stats = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": True, "expected_shading": True,
                                                              "reject_unshiftable": True}, anim, 1000)
     assert sum(st["last_frame"]["lt_unshiftable"] for st in stats) > 0
     base = _RUNS[key].mean(axis=(1, 2, 3))
@@ -146,16 +163,16 @@ def test_restir_bdpt_reject_unshiftable_darkens(tmp_path, scenes):
     assert t < -2.0 and rel > -0.01, (rel, t)
 
 
-@pytest.mark.parametrize("params", [{"reuse": False}, {"reuse": True}, {"variant": "full"},
-                                    {"variant": "full", "reuse": True}],
-                         ids=["default", "reuse", "full", "full-reuse"])
+@pytest.mark.parametrize("params", [{"reuse": False}, {"expected_shading": False}, {},
+                                    {"variant": "full", "reuse": False}, {"variant": "full"}, ROUNDS_PARAMS],
+                         ids=["no-reuse", "reuse-selected", "default", "full-no-reuse", "full", "rounds"])
 def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes, params):
     """Light-traced samples and replayed caustic samples are bucketed by counting sorts in
     light-subpath and source-pixel order, the full variant's light vertex cache is indexed in
     block order, and the reuse passes draw from per-pixel streams: 1 and 3 threads give the same
     frames, here with the light of caustic-sphere moving along its keys (so caustic shifts run and
     some fail)."""
-    reuse = params.get("reuse", False)
+    reuse = params.get("reuse", True)
     extra = ["--method", "restir_bdpt", "--frames", "4", "--params", json.dumps(params), "--animation",
              str(scenes / "caustic-sphere" / "animations" / "light-path.json")]
     sc = scenes / "caustic-sphere" / "scene.json"
@@ -167,10 +184,12 @@ def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes, params):
 
 
 @pytest.mark.parametrize("params,where", [({"variant": "full", "reuse": True, "copy_mis": True}, "/params/copy_mis"),
-                                          ({"copy_mis": True}, "/params/copy_mis"),
+                                          ({"copy_mis": True, "reuse": False}, "/params/copy_mis"),
                                           ({"variant": "complete"}, "/params/variant"),
                                           ({"lt_capacity": 65}, "/params/lt_capacity"),
-                                          ({"lvc_capacity": 0}, "/params/lvc_capacity")])
+                                          ({"lvc_capacity": 0}, "/params/lvc_capacity"),
+                                          ({"reuse": True, "spatial_rounds": 9}, "/params/spatial_rounds"),
+                                          ({"reuse": True, "spatial_rounds": 0}, "/params/spatial_rounds")])
 def test_restir_bdpt_refuses_what_it_does_not_do(scenes, tmp_path, params, where):
     """What restir_bdpt does not do is refused, not rendered without it (copy_mis without reuse, or
     with the full variant, whose shifts always recompute the MIS weight); parameters out of range

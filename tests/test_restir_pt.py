@@ -11,10 +11,12 @@ spp, a few pixels near the crop's bottom passed or failed with the draw of the r
 paths (5 to 9 values over the threshold, where 7 are allowed), and a 4096-spp reference failed
 them; 256 fresh sessions agree with that reference (the means of its first and last 4 rows
 within 1.2 %), and pass against it with 99.97 % (still) and 100 % (moving) of the values.
-With a moving camera the reference averages pt over the same cameras. Šidák-corrected per-pixel
-z-test at 0.01, >= 99.75 % of pixels passing, global mean within 3 sigma (tests/stats.py). Each
-comparison also rejects the same renders scaled by 1.03 (door-ajar's crop, noisier at this
-budget: 1.05), so the test can see a bias of that size."""
+With a moving camera the reference averages pt over the same cameras. Each case runs under the
+real-time profile (the defaults: temporal reuse) and under the converge profile (no temporal
+reuse, 3 spatial rounds of 6 neighbours: independent frames), averaging the same frames.
+Šidák-corrected per-pixel z-test at 0.01, >= 99.75 % of pixels passing, global mean within 3
+sigma (tests/stats.py). Each comparison also rejects the same renders scaled by 1.03 (door-ajar's
+crop, noisier at this budget: 1.05), so the test can see a bias of that size."""
 import json
 
 import numpy as np
@@ -65,16 +67,24 @@ def _animations(scene_path, tmp_path, case, moving):
     return sessions, reference
 
 
-def _reference(scene_path, tmp_path, case, anim):
+_REF = {}   # the references by scene and motion, shared by the profiles
+
+
+def _reference(scene_path, tmp_path, case, anim, key=None):
+    if key in _REF:
+        return _REF[key]
     n = case["averaged"]
     extra = ["--frames", str(n), "--average-last", str(n), "--animation", str(anim)]
-    return np.stack([render(scene_path, tmp_path / f"ref{s}.exr", spp=case["ref_spp"] // n, seed=100000 + s,
-                            extra=extra)[0] for s in range(K_REF)])
+    ref = np.stack([render(scene_path, tmp_path / f"ref{s}.exr", spp=case["ref_spp"] // n, seed=100000 + s,
+                           extra=extra)[0] for s in range(K_REF)])
+    if key is not None:
+        _REF[key] = ref
+    return ref
 
 
-def _sessions(scene_path, tmp_path, case, anim, params=None):
+def _sessions(scene_path, tmp_path, case, anim, params=None, profile="real-time"):
     extra = ["--method", "restir_pt", "--frames", str(case["frames"]), "--average-last", str(case["averaged"]),
-             "--animation", str(anim), *(["--params", json.dumps(params)] if params else [])]
+             "--animation", str(anim), "--profile", profile, *(["--params", json.dumps(params)] if params else [])]
     runs, stats = [], None
     for s in range(case["k"]):
         img, stats = render(scene_path, tmp_path / f"rp{s}.exr", spp=1, seed=s, extra=extra)
@@ -82,23 +92,52 @@ def _sessions(scene_path, tmp_path, case, anim, params=None):
     return np.stack(runs), stats
 
 
+UNBIASED_CASES = [(scene, motion, profile) for profile in ("real-time", "converge") for scene in sorted(CASES)
+                  for motion in ("static", "moving camera")]
+
+
 @pytest.mark.statistical
-@pytest.mark.parametrize("scene", sorted(CASES))
-@pytest.mark.parametrize("motion", ["static", "moving camera"])
-def test_restir_pt_unbiased(tmp_path, scenes, scene, motion):
+@pytest.mark.parametrize("scene,motion,profile", UNBIASED_CASES, ids=["-".join(c) for c in UNBIASED_CASES])
+def test_restir_pt_unbiased(tmp_path, scenes, scene, motion, profile):
     case = CASES[scene]
+    # A converge session has no history to warm up: with the camera still it renders only the
+    # frames it averages; with the camera moving, the real-time sessions' frames, so that the
+    # reference over the averaged frames' cameras serves both.
+    if profile == "converge" and motion == "static":
+        case = {**case, "frames": case["averaged"]}
     sc = scenes / scene / "scene.json"
     anim, ref_anim = _animations(sc, tmp_path, case, motion != "static")
-    ref = _reference(sc, tmp_path, case, ref_anim)
-    runs, stats = _sessions(sc, tmp_path, case, anim)
-    # The sessions really reused: the last frame shifted samples between pixels and frames.
+    ref = _reference(sc, tmp_path, case, ref_anim, (scene, motion))
+    runs, stats = _sessions(sc, tmp_path, case, anim, profile=profile)
+    # The sessions really reused: the last frame shifted samples between pixels (and, in real
+    # time, frames).
     assert stats["last_frame"]["shifts"] > 0 and stats["reservoir_bytes_per_pixel"] <= 64
     # Non-finite pixel values are zeroed and counted by the shade pass: none may occur.
     assert np.isfinite(runs).all() and stats["nonfinite"] == 0
     res = ztest_runs(runs, ref)
-    assert res.passed, f"{scene}, {motion}: {res}"
     bad = ztest_runs(runs * case["control"], ref)
-    assert not bad.passed, f"{scene}, {motion}: a bias of x{case['control']} went unseen: {bad}"
+    print(f"{scene}, {motion}, {profile}: {res}; x{case['control']}: {bad}")
+    assert res.passed, f"{scene}, {motion}, {profile}: {res}"
+    assert not bad.passed, f"{scene}, {motion}, {profile}: a bias of x{case['control']} went unseen: {bad}"
+
+
+@pytest.mark.statistical
+def test_restir_pt_rejection_and_replay_cap_unbiased(tmp_path, scenes):
+    """Spatial neighbours rejected by normal and depth (`reject_normal_cos`, `reject_depth`, a
+    symmetric test of the G-buffer) and the history of random-replay-only samples capped at 1
+    (`temporal_cap_replay`, a class every shift keeps), on cornell-glossy with the camera moving
+    (its 0.02 lobe makes many samples replay-only)."""
+    case = CASES["cornell-glossy"]
+    sc = scenes / "cornell-glossy" / "scene.json"
+    anim, ref_anim = _animations(sc, tmp_path, case, True)
+    ref = _reference(sc, tmp_path, case, ref_anim)
+    runs, stats = _sessions(sc, tmp_path, case, anim,
+                            {"reject_normal_cos": 0.5, "reject_depth": 0.1, "temporal_cap_replay": 1})
+    assert stats["last_frame"]["shifts"] > 0 and np.isfinite(runs).all() and stats["nonfinite"] == 0
+    res = ztest_runs(runs, ref)
+    assert res.passed, f"rejection and replay cap: {res}"
+    bad = ztest_runs(runs * case["control"], ref)
+    assert not bad.passed, f"rejection and replay cap: a bias of x{case['control']} went unseen: {bad}"
 
 
 @pytest.mark.statistical
@@ -147,7 +186,8 @@ def test_restir_pt_furnace(tmp_path, scenes):
     path = scenes / "furnace" / "albedo-half.json"
     cam = json.loads(path.read_text())["camera"]
     runs = np.stack([render(path, tmp_path / f"f{s}.exr", spp=1, size=f"{size}x{size}", seed=s,
-                            extra=["--method", "restir_pt", "--frames", "12", "--average-last", "4"])[0]
+                            extra=["--method", "restir_pt", "--frames", "12", "--average-last", "4",
+                                   "--profile", "real-time"])[0]
                      for s in range(32)])
     cov = _sphere_coverage(size, cam["position"], cam["look_at"], cam["fov_deg"], [0, 0, 0], 1.0)
     known = (cov == 0) | (cov == 1)

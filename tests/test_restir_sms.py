@@ -23,7 +23,12 @@ tests/test_sms.py, shared with it through its cache).
 
 Each of K sessions renders FRAMES frames and averages the last AVG (one run's mean has a relative
 standard deviation of ~4 % here, so K = 24 runs put the x1.05 control at t ~ 5-6); the frames of one session are
-correlated, the sessions are independent, which is what the z-test's per-pixel variance needs."""
+correlated, the sessions are independent, which is what the z-test's per-pixel variance needs.
+The sessions run under the real-time profile (the defaults); the unbiasedness tests with a still
+and a moving camera also under the converge profile (temporal reuse off, a fresh primary ray
+position and a prior of its own walks every frame: independent frames), averaging the same
+frames (with the camera still, a converge session renders only those: it has no history to warm
+up)."""
 import json
 import shutil
 
@@ -42,12 +47,12 @@ AVG = 24
 PARAMS = {"caustics_only": True, "bernoulli_cap": 0, "tiles": 8}
 
 
-def _runs(tmp_path, sc, params, anim=None, tag="r", frames=FRAMES, avg=AVG, k=K, every=None):
+def _runs(tmp_path, sc, params, anim=None, tag="r", frames=FRAMES, avg=AVG, k=K, every=None, profile="real-time"):
     """K sessions; the last one's statistics (and each one's appended to `every` when given)."""
     runs, stats = [], None
     for s in range(k):
         extra = ["--method", "restir_sms", "--params", json.dumps(params), "--frames", str(frames),
-                 "--average-last", str(avg)]
+                 "--average-last", str(avg), "--profile", profile]
         if anim:
             extra += ["--animation", str(anim)]
         img, stats = render(sc, tmp_path / f"{tag}{s}.exr", seed=s, extra=extra)
@@ -80,39 +85,43 @@ def _moving_camera(tmp_path, sc, frames, avg):
 
 
 @pytest.mark.statistical
-@pytest.mark.parametrize("light_reservoirs", [0, 1])
-def test_restir_sms_unbiased_still_camera(tmp_path, scenes, light_reservoirs, sampler="ssp"):
+@pytest.mark.parametrize("light_reservoirs,profile", [(0, "real-time"), (1, "real-time"), (0, "converge")])
+def test_restir_sms_unbiased_still_camera(tmp_path, scenes, light_reservoirs, profile, sampler="ssp"):
     """The paper's sampler (partitioning with the prior), with a reservoir per light (the default:
     the slab's two) and with one for both; plain SMS candidates are z-tested on reflective-plane
     below (against sms) and were checked here too (global t -0.17, x1.05 t 7.2)."""
     sc = scenes / SCENE / "scene.json"
     ref = _cached_reference(tmp_path, sc)
     runs, st = _runs(tmp_path, sc, {**PARAMS, "sampler": sampler, "light_reservoirs": light_reservoirs},
-                     tag=f"r{light_reservoirs}")
+                     tag=f"r{light_reservoirs}", frames=AVG if profile == "converge" else FRAMES, profile=profile)
     assert np.isfinite(runs).all() and st["nonfinite"] == 0 and st["sms"]["capped"] == 0
     assert st["last_frame"]["shifts"] > 0
     # 64 bytes per reservoir: one per light (the slab's two) when left to the scene.
     assert st["reservoir_bytes_per_pixel"] == 64 * (light_reservoirs or 2)
     res = ztest_runs(runs, ref)
     bad = ztest_runs(runs * 1.05, ref)
-    print(f"restir_sms ({sampler}, still) vs filtered reference: {res}; x1.05: {bad}; last run: {st['last_frame']}, "
+    print(f"restir_sms ({sampler}, still, {profile}) vs filtered reference: {res}; x1.05: {bad}; "
+          f"last run: {st['last_frame']}, "
           f"{st['manifold_shift']}")
     assert res.passed, f"restir_sms vs pt subset caustic: {res}"
     assert not bad.passed, f"a bias of x1.05 went unseen: {bad}"
 
 
 @pytest.mark.statistical
-def test_restir_sms_unbiased_moving_camera(tmp_path, scenes):
+@pytest.mark.parametrize("profile", ["real-time", "converge"])
+def test_restir_sms_unbiased_moving_camera(tmp_path, scenes, profile):
     sc = scenes / SCENE / "scene.json"
     ref = _cached_reference(tmp_path, sc)
     anim = _moving_camera(tmp_path, sc, MOVING_FRAMES, MOVING_AVG)
-    runs, st = _runs(tmp_path, sc, PARAMS, anim=anim, tag="m", frames=MOVING_FRAMES, avg=MOVING_AVG, k=16)
+    runs, st = _runs(tmp_path, sc, PARAMS, anim=anim, tag="m", frames=MOVING_FRAMES, avg=MOVING_AVG, k=16,
+                     profile=profile)
     assert np.isfinite(runs).all() and st["nonfinite"] == 0 and st["sms"]["capped"] == 0
     res = ztest_runs(runs, ref)
     # x1.07: the runs' spread is as large as the still camera's but the control's t there is only
     # 3.7-4.5 against a threshold of ~3.2, too close for a check that must fail every time.
     bad = ztest_runs(runs * 1.07, ref)
-    print(f"restir_sms (moving camera) vs filtered reference: {res}; x1.07: {bad}; last run: {st['last_frame']}")
+    print(f"restir_sms (moving camera, {profile}) vs filtered reference: {res}; x1.07: {bad}; "
+          f"last run: {st['last_frame']}")
     assert res.passed, f"restir_sms under camera motion vs pt subset caustic: {res}"
     assert not bad.passed, f"a bias of x1.07 went unseen: {bad}"
 
@@ -172,7 +181,7 @@ def test_restir_sms_receivers_behind_a_mirror(tmp_path, scenes):
     for s in range(16):
         img, st = render(sc, tmp_path / f"pl{s}.exr", size=PLANE_SIZE, seed=s,
                          extra=["--method", "restir_sms", "--params", json.dumps(params),
-                                "--frames", "24", "--average-last", "16"])
+                                "--frames", "24", "--average-last", "16", "--profile", "real-time"])
         runs.append(img)
         ref, _ = render(sc, tmp_path / f"sms{s}.exr", size=PLANE_SIZE, seed=1000 + s,
                         extra=["--method", "sms", "--params", json.dumps({"spp": 32, "caustics_only": True,
@@ -210,11 +219,12 @@ def test_restir_sms_light_switched_off_stays_unbiased(tmp_path, scenes):
     for s in range(16):
         img, st = render(sc, tmp_path / f"off{s}.exr", seed=s,
                          extra=["--method", "restir_sms", "--params", json.dumps({**PARAMS, "sampler": "sms"}),
-                                "--frames", str(frames), "--average-last", "16", "--animation", str(anim)])
+                                "--frames", str(frames), "--average-last", "16", "--animation", str(anim),
+                                "--profile", "real-time"])
         runs.append(img)
         ref, _ = render(dark / "scene.json", tmp_path / f"dark{s}.exr", seed=1000 + s,
                         extra=["--method", "restir_sms", "--params", json.dumps({**PARAMS, "sampler": "sms"}),
-                               "--frames", str(frames), "--average-last", "16"])
+                               "--frames", str(frames), "--average-last", "16", "--profile", "real-time"])
         base.append(ref)
     runs, base = np.stack(runs), np.stack(base)
     assert np.isfinite(runs).all() and st["nonfinite"] == 0 and st["sms"]["capped"] == 0

@@ -518,10 +518,12 @@ class Client:
 
     # ---- sessions ----
 
-    def create_session(self, scene, method=None, width=None, height=None, seed=None, params=None):
+    def create_session(self, scene, method=None, width=None, height=None, seed=None, params=None, profile=None):
+        """profile: "real_time" (the daemon's default when None) or "converge" (protocol/API.md,
+        Sessions): the defaults `params` is read over."""
         body = {}
         for key, value in (("method", method), ("width", width), ("height", height), ("seed", seed),
-                           ("params", params)):
+                           ("profile", profile), ("params", params)):
             if value is not None:
                 body[key] = value
         path = "/v1/scenes/%s/sessions" % _q(scene)
@@ -883,7 +885,11 @@ def finite_float(text):
     return v
 
 
-def _session_args(p, spp_default):
+# The command line's profile names, and the protocol's.
+PROFILES = {"real-time": "real_time", "converge": "converge"}
+
+
+def _session_args(p, spp_default, profile_default=None):
     p.add_argument("--method", default="pt", help="rendering method (default pt)")
     p.add_argument("--size", type=parse_size, default=(256, 256), metavar="WxH",
                    help="image size (default 256x256)")
@@ -893,6 +899,12 @@ def _session_args(p, spp_default):
                         "frame" % spp_default)
     p.set_defaults(spp_default=spp_default)
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    # Spelled as restir render's --profile; the daemon's names are real_time and converge.
+    p.add_argument("--profile", choices=sorted(PROFILES), default=None,
+                   help="the session's profile: real-time or converge (the methods that reuse frames "
+                        "start from defaults that make their frames independent, for a still image; "
+                        "default %s)" % (profile_default or "the daemon's, real-time"))
+    p.set_defaults(profile_default=profile_default)
 
 
 def _image_args(p):
@@ -926,7 +938,8 @@ def build_parser():
     sp = sub.add_parser("frame", help="render one frame of a scene to a file")
     sp.add_argument("scene")
     sp.add_argument("-o", "--output", required=True, help="output file (.exr, or .png with --png)")
-    _session_args(sp, 4)
+    # One frame of a fresh session is a still image: the converge profile's, unless told otherwise.
+    _session_args(sp, 4, "converge")
     _image_args(sp)
     sp.add_argument("--json", action="store_true", help="print the frame's stats as JSON on stdout")
 
@@ -1023,7 +1036,8 @@ def _session_params(args, methods):
 def _make_session(client, args):
     w, h = args.size
     return client.create_session(args.scene, method=args.method, width=w, height=h, seed=args.seed,
-                                 params=_session_params(args, client.methods))
+                                 params=_session_params(args, client.methods),
+                                 profile=PROFILES.get(args.profile or args.profile_default))
 
 
 def cmd_health(client, args, out, prog):

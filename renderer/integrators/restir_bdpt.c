@@ -144,9 +144,9 @@ struct restir_bdpt_params restir_bdpt_defaults(void)
     return (struct restir_bdpt_params){.variant = RESTIR_BDPT_LIGHTWEIGHT, .max_depth = 64, .rr_depth = 3,
                                        .light_paths = 0, .lt_capacity = 8, .lvc_capacity = 8,
                                        .heuristic = BDPT_HEURISTIC_POWER,
-                                       .caustic_temporal = true, .temporal_cap = 20, .moving_cap = 1, .reuse = false,
-                                       .spatial_neighbors = 2, .spatial_radius = 30.0f, .paired_spatial = true,
-                                       .camera_reconnect = true, .copy_mis = false,
+                                       .caustic_temporal = true, .temporal_cap = 20, .moving_cap = 1, .reuse = true,
+                                       .reuse_temporal = true, .spatial_neighbors = 2, .spatial_rounds = 1, .spatial_radius = 0.0f, .paired_spatial = true,
+                                       .expected_shading = true, .camera_reconnect = true, .copy_mis = false,
                                        .reject_unshiftable = false};
 }
 
@@ -180,8 +180,11 @@ bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *er
         return err_set(err, ERR_INVALID, "/params/moving_cap", "moving_cap must be in 1..65535");
     if (p->spatial_neighbors > 32)
         return err_set(err, ERR_INVALID, "/params/spatial_neighbors", "spatial_neighbors must be in 0..32");
-    if (!(p->spatial_radius > 0.0f && p->spatial_radius <= 256.0f))
-        return err_set(err, ERR_INVALID, "/params/spatial_radius", "spatial_radius must be in (0, 256]");
+    if (!(p->spatial_radius >= 0.0f && p->spatial_radius <= 256.0f))
+        return err_set(err, ERR_INVALID, "/params/spatial_radius",
+                       "spatial_radius must be in [0, 256] pixels (0 = by resolution)");
+    if (p->spatial_rounds < 1 || p->spatial_rounds > 8)
+        return err_set(err, ERR_INVALID, "/params/spatial_rounds", "spatial_rounds must be in 1..8");
     return true;
 }
 
@@ -495,24 +498,35 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
         s.rays_intersect += grays;
         struct restir_reuse rr = {.ops = &rbdpt_ops, .ctx = c, .width = st->width, .height = st->height,
                                   .seed = f->seed, .frame = f->frame, .threads = f->threads, .gbuf = &st->gbuf,
-                                  .history = c->has_prev && st->has_history ? (const uint8_t *)st->res_prev : NULL,
+                                  .history = p->reuse_temporal && c->has_prev && st->has_history
+                                                 ? (const uint8_t *)st->res_prev : NULL,
                                   .temporal_cap = p->temporal_cap, .neighbors = p->spatial_neighbors,
-                                  .radius = p->spatial_radius, .paired = p->paired_spatial,
+                                  .radius = p->spatial_radius > 0.0f ? p->spatial_radius
+                                                                     : restir_radius_auto(st->width, st->height),
+                                  .paired = p->paired_spatial,
                                   .pair_scratch = st->pair_scratch};
         struct restir_counters rc = {{0, 0}, 0, 0, 0};
         if (rr.history && !restir_temporal_pass(&rr, (uint8_t *)st->res, &rc, err)) return false;
-        struct restir_bdpt_path *final = st->res;
-        if (p->spatial_neighbors) {
+        /* With expected shading the last spatial round adds its estimate into the image itself. */
+        const bool expected = p->expected_shading && p->spatial_neighbors;
+        const uint32_t rounds = p->spatial_neighbors ? p->spatial_rounds : 0;
+        for (uint32_t round = 0; round < rounds; round++) {
+            /* Each round reads st->res (which rbdpt_x2_row caches from) and writes st->res_spatial;
+             * the swap after it makes its output the next round's input. */
             if (st->x2c && !parallel_run(threads, st->height, rbdpt_x2_row, c, NULL, NULL, err)) return false;
+            rr.frame = f->frame * 8u + round;  /* a distinct neighbour stream per round */
+            rr.estimate = expected && round + 1 == rounds ? out->pixels : NULL;
             if (!restir_spatial_pass(&rr, (const uint8_t *)st->res, (uint8_t *)st->res_spatial, &rc, err)) return false;
-            final = st->res_spatial;
+            struct restir_bdpt_path *t = st->res;
+            st->res = st->res_spatial;
+            st->res_spatial = t;
         }
-        for (uint32_t i = 0; i < npix; i++)
+        struct restir_bdpt_path *final = st->res;
+        for (uint32_t i = 0; i < npix && !expected; i++)
             out->pixels[i] = vec3_add(out->pixels[i], vec3_scale(final[i].r.F, final[i].r.head.W));
         /* The final buffer becomes the history; the old history is the next frame's scratch. */
-        struct restir_bdpt_path *old = st->res_prev;
+        st->res = st->res_prev;
         st->res_prev = final;
-        if (final == st->res) st->res = old; else st->res_spatial = old;
         s.rays_intersect += rc.rays.intersect;
         s.rays_occluded += rc.rays.occluded;
         s.reuse_shifts = rc.shifts;

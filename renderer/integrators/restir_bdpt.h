@@ -103,10 +103,17 @@ struct RESTIRD_STORED_IN_BYTES restir_bdpt_params {
                                   moved or changed since the previous frame, 1..65535 (1: the history
                                   and the new samples weigh alike there; docs/benchmarks.md) */
     bool reuse;                /* temporal and spatial reuse of the non-caustic reservoir (false) */
-    uint32_t spatial_neighbors; /* with reuse: neighbours per pixel, 0..32 (2) */
+    bool reuse_temporal;       /* with reuse: the non-caustic reservoirs take the previous frame's as
+                                  history (true); false: each frame's reuse is spatial only */
+    uint32_t spatial_neighbors; /* with reuse: neighbours per pixel and round, 0..32 (2) */
+    uint32_t spatial_rounds;   /* with reuse and spatial neighbours: spatial passes in a row, each
+                                  reusing the previous one's output, 1..8 (1) */
     float spatial_radius;      /* with reuse: pixels, (0, 256] (30) */
     bool paired_spatial;       /* with reuse: neighbours paired so a pair's shifts serve both (true;
                                   restir.h) */
+    bool expected_shading;     /* with reuse and spatial neighbours: the non-caustic reservoirs add the
+                                  spatial pass's expected contribution over its selection instead of
+                                  the selected sample's F W ([ReSTIR PT Enhanced Fig. 5]; restir.h) */
     bool camera_reconnect;     /* with reuse: camera-side samples reconnect (the hybrid shift); false:
                                   they shift by random replay alone (true) */
     bool copy_mis;             /* with reuse, lightweight variant: a reconnection shift keeps the base

@@ -430,8 +430,15 @@ static bool rbdpt_domain_valid(const void *ctx, struct restir_domain d)
     return true;
 }
 
+/* A sample's contribution F: its luminance is the target (rbdpt_target). */
+static struct vec3 rbdpt_value(const void *ctx, const void *elem)
+{
+    (void)ctx;
+    return ((const struct restir_bdpt_path *)elem)->r.F;
+}
+
 const struct restir_ops rbdpt_ops = {.stride = sizeof(struct restir_bdpt_path), .target = rbdpt_target,
-                                     .shift = rbdpt_shift, .domain_valid = rbdpt_domain_valid};
+                                     .shift = rbdpt_shift, .domain_valid = rbdpt_domain_valid, .value = rbdpt_value};
 
 /* Before the spatial pass: every pixel's sample of the reverse hybrid shift's class gets its x_2
  * in this frame's scene into the cache, and every connection its light vertex, so that its

@@ -94,7 +94,7 @@ struct restir_pt_params restir_pt_defaults(void)
 {
     return (struct restir_pt_params){
         .max_depth = 64, .rr_depth = 1, .rr = true, .nee_candidates = RESTIR_PT_NEE_BY_SCENE, .unify_di = true,
-        .temporal = true, .temporal_cap = 20, .spatial_neighbors = 3, .spatial_radius = 20.0f, .spatial_rounds = 1,
+        .temporal = true, .temporal_cap = 20, .spatial_neighbors = 3, .spatial_radius = 0.0f, .spatial_rounds = 1,
         .paired_spatial = true,
         .expected_shading = true,
         .footprint = true, .footprint_c = 0.02f, .near_distance = 0.03f, .pdf_connect = true, .roughness_min = 0.2f,
@@ -123,12 +123,20 @@ bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err)
         return err_set(err, ERR_INVALID, "/params/nee_candidates", "nee_candidates must be in 0..64");
     if (p->temporal_cap < 1 || p->temporal_cap > 1000)
         return err_set(err, ERR_INVALID, "/params/temporal_cap", "temporal_cap must be in 1..1000");
+    if (p->temporal_cap_replay > 1000)
+        return err_set(err, ERR_INVALID, "/params/temporal_cap_replay",
+                       "temporal_cap_replay must be in 0..1000 (0 = temporal_cap)");
     if (p->spatial_neighbors > 64)
         return err_set(err, ERR_INVALID, "/params/spatial_neighbors", "spatial_neighbors must be in 0..64");
-    if (!(p->spatial_radius >= 1.0f && p->spatial_radius <= 256.0f))
-        return err_set(err, ERR_INVALID, "/params/spatial_radius", "spatial_radius must be in 1..256 pixels");
+    if (!(p->spatial_radius == 0.0f || (p->spatial_radius >= 1.0f && p->spatial_radius <= 256.0f)))
+        return err_set(err, ERR_INVALID, "/params/spatial_radius",
+                       "spatial_radius must be 0 (by resolution) or in 1..256 pixels");
     if (p->spatial_rounds < 1 || p->spatial_rounds > 8)
         return err_set(err, ERR_INVALID, "/params/spatial_rounds", "spatial_rounds must be in 1..8");
+    if (!(p->reject_normal_cos >= 0.0f && p->reject_normal_cos <= 1.0f))
+        return err_set(err, ERR_INVALID, "/params/reject_normal_cos", "reject_normal_cos must be in [0, 1]");
+    if (!(p->reject_depth >= 0.0f && p->reject_depth <= 1.0f))
+        return err_set(err, ERR_INVALID, "/params/reject_depth", "reject_depth must be in [0, 1]");
     if (!(p->footprint_c > 0.0f && p->footprint_c <= 100.0f))
         return err_set(err, ERR_INVALID, "/params/footprint_c", "footprint_c must be in (0, 100]");
     if (!(p->near_distance >= 0.0f && p->near_distance <= 1.0f))
@@ -928,12 +936,22 @@ static bool pt_domain_valid(const void *ctx, struct restir_domain d)
     return c->gbuf[d.frame]->surf[d.pixel].material != GBUFFER_NO_HIT;
 }
 
+/* The samples whose history confidence restir_pt_params.temporal_cap_replay caps: those without a
+ * reconnection vertex. The shift keeps k (pt_shift_impl copies it), so this class is what
+ * restir_ops.capped_low asks for. */
+static bool pt_replay_only(const void *ctx, const void *elem)
+{
+    (void)ctx;
+    return pt_rc(elem) == 0;
+}
+
 const struct restir_ops restir_pt_ops = {
     .stride = sizeof(struct pt_sample),
     .target = pt_target,
     .shift = pt_shift,
     .domain_valid = pt_domain_valid,
     .value = pt_value,
+    .capped_low = pt_replay_only,
 };
 
 void restir_pt_info(const void *elem, struct restir_pt_info *out)
@@ -1082,8 +1100,13 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
     if (!restir_frame_initial(&pp.fr, pt_initial_rows, err)) return false;
     if (!out) return true;   /* restir_pt_initial_only */
     struct restir_reuse *r = restir_frame_reuse(&pp.fr, &restir_pt_ops, &c, 0, params->temporal_cap,
-                                                params->spatial_neighbors, params->spatial_radius,
+                                                params->spatial_neighbors,
+                                                params->spatial_radius > 0.0f ? params->spatial_radius
+                                                                              : restir_radius_auto(st->rs.width, st->rs.height),
                                                 params->paired_spatial);
+    r->temporal_cap_low = params->temporal_cap_replay;
+    r->min_normal_cos = params->reject_normal_cos;
+    r->max_depth_rel = params->reject_depth;
     if (!restir_frame_temporal(&pp.fr, err)) return false;
     /* Spatial rounds ping-pong between the two buffers and end in res[1], the history. */
     const uint32_t rounds = params->spatial_neighbors > 0 ? params->spatial_rounds : 0;

@@ -33,9 +33,16 @@ struct RESTIRD_STORED_IN_BYTES restir_pt_params {
     bool unify_di;               /* direct light resampled with indirect (true) */
     bool temporal;               /* temporal reuse (true) */
     uint32_t temporal_cap;       /* previous M capped at this multiple of the current M (20) */
+    uint32_t temporal_cap_replay; /* the cap instead in the MIS weights of a sample without a
+                                    reconnection vertex (k = 0: every shift of it is random replay,
+                                    which keeps k); 0 = temporal_cap (0) */
     uint32_t spatial_neighbors;  /* per round (3); 0 = no spatial reuse */
     float spatial_radius;        /* pixels (20) */
     uint32_t spatial_rounds;     /* (1) */
+    float reject_normal_cos;     /* a neighbour whose normal's cosine with the pixel's is below
+                                    this is not reused; 0 = no normal test (0) */
+    float reject_depth;          /* nor one whose hit distance differs by more than this fraction
+                                    of the larger; 0 = no depth test (0; restir_neighbours_similar) */
     bool paired_spatial;         /* neighbours paired so a pair's shifts serve both (true; restir.h) */
     bool expected_shading;       /* shade with the last spatial pass's expected contribution over
                                     its selection instead of the selected sample's F W: colour

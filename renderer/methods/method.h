@@ -107,6 +107,13 @@ struct frame_stats {
     _Alignas(8) unsigned char counters[METHOD_COUNTERS_BYTES];
 };
 
+/* A session's profile: real_time (the defaults, for a user who watches every frame) or
+ * converge (a method's `converge` adjustments over them, for one image averaged over the
+ * session's frames). */
+enum method_profile { METHOD_PROFILE_REAL_TIME, METHOD_PROFILE_CONVERGE };
+/* The profiles' names as the protocol spells them, by enum value, NULL-terminated. */
+extern const char *const method_profile_names[];
+
 struct method_desc {
     const char *name;
     const char *summary;                  /* one line */
@@ -119,6 +126,11 @@ struct method_desc {
 
     /* The defaults (params has METHOD_PARAMS_BYTES of room, zeroed). */
     void (*defaults)(void *params);
+    /* The converge profile (enum method_profile): changes the defaults in params so that a
+     * session's frames are independent draws, whose mean converges to the image. It runs
+     * before the user's params, which override it. NULL: the method's frames are independent
+     * under its defaults already, and the profile changes nothing. */
+    void (*converge)(void *params);
     /* Ranges and combinations the table cannot express; the pointer names /params/<key>. */
     bool (*validate)(const void *params, struct err *err);
     /* Allocates the state for a width x height session on `scene` (state: state_bytes, zeroed,
@@ -143,6 +155,9 @@ struct method_desc {
      * buffers grow with the scene ("; ..."; NULL or nothing written: no hint). */
     void (*size_hint)(const void *params, const struct scene *scene, char *out, size_t size);
 };
+
+/* The method's defaults under a profile into params (METHOD_PARAMS_BYTES, zeroed). */
+void method_profile_defaults(const struct method_desc *m, enum method_profile profile, void *params);
 
 /* The registry, in a fixed order (the order of GET /v1/methods and of error messages). */
 uint32_t method_count(void);

@@ -98,8 +98,29 @@ const struct method_desc method_bdpt = {
 /* ---- restir_bdpt ---- */
 
 METHOD_DEFAULTS_OP(rbdpt_defaults, struct restir_bdpt_params, restir_bdpt_defaults)
+/* The converge profile: nothing carried from frame to frame (neither caustic nor non-caustic
+ * history), so that a session's frames are independent, and three rounds of spatial reuse of 3
+ * neighbours in its place ([ReSTIR BDPT Fig. 12]'s offline mode has 3 rounds of 6; a restir_bdpt
+ * shift replays a light subpath, so fewer neighbours a round). docs/benchmarks.md measures it. */
+static void rbdpt_converge(void *params)
+{
+    struct restir_bdpt_params *p = params;
+    p->caustic_temporal = false;
+    p->reuse_temporal = false;
+    p->spatial_rounds = 3;
+    p->spatial_neighbors = 3;
+}
+
 METHOD_VALIDATE_OP(rbdpt_validate, struct restir_bdpt_params, restir_bdpt_params_valid)
-METHOD_INIT_OP(rbdpt_init, struct restir_bdpt_state, struct restir_bdpt_params, restir_bdpt_init)
+static bool rbdpt_init(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
+                       struct err *err)
+{
+    struct restir_bdpt_params *p = params;
+    if (!restir_bdpt_init(state, scene, p, width, height, err)) return false;
+    /* The session reports the radius that its resolution gives (restir_radius_auto). */
+    if (p->spatial_radius == 0.0f) p->spatial_radius = restir_radius_auto(width, height);
+    return true;
+}
 METHOD_STATE_OP(rbdpt_reset, struct restir_bdpt_state, restir_bdpt_reset)
 METHOD_STATE_OP(rbdpt_destroy, struct restir_bdpt_state, restir_bdpt_destroy)
 
@@ -193,10 +214,13 @@ static const struct method_param rbdpt_params[] = {
     P(temporal_cap, METHOD_PARAM_UINT, 1, 65535, "caustic confidence cap; with reuse, the non-caustic history's multiple"),
     P(moving_cap, METHOD_PARAM_UINT, 1, 65535, "the caustic confidence cap in a frame whose shapes or lights changed"),
     P(reuse, METHOD_PARAM_BOOL, 0, 1, "temporal and spatial reuse of the non-caustic reservoirs"),
-    P(spatial_neighbors, METHOD_PARAM_UINT, 0, 32, "with reuse: spatial neighbours per pixel"),
-    {.key = "spatial_radius", .kind = METHOD_PARAM_FLOAT, .offset = offsetof(struct restir_bdpt_params, spatial_radius),
-     .min = 0, .min_open = true, .max = 256, .help = "with reuse: spatial radius in pixels"},
+    P(reuse_temporal, METHOD_PARAM_BOOL, 0, 1, "with reuse: the non-caustic reservoirs reuse the previous frame's"),
+    P(spatial_neighbors, METHOD_PARAM_UINT, 0, 32, "with reuse: spatial neighbours per pixel and round"),
+    P(spatial_rounds, METHOD_PARAM_UINT, 1, 8, "with reuse: spatial passes in a row, each reusing the last one's output"),
+    P(spatial_radius, METHOD_PARAM_FLOAT, 0, 256, "with reuse: spatial radius in pixels; 0 = by resolution"),
     P(paired_spatial, METHOD_PARAM_BOOL, 0, 1, "with reuse: neighbours paired so a pair's shifts serve both"),
+    P(expected_shading, METHOD_PARAM_BOOL, 0, 1,
+      "with reuse: add the spatial pass's expected contribution over its selection instead of the selected sample's"),
     P(camera_reconnect, METHOD_PARAM_BOOL, 0, 1, "with reuse: camera-side samples reconnect (the hybrid shift)"),
     P(copy_mis, METHOD_PARAM_BOOL, 0, 1, "with reuse, lightweight: keep the base path's MIS weight (biased)"),
     P(reject_unshiftable, METHOD_PARAM_BOOL, 0, 1, "drop non-caustic t = 1 candidates that cannot shift (biased)"),
@@ -211,6 +235,7 @@ const struct method_desc method_restir_bdpt = {
     METHOD_PARAM_TABLE(rbdpt_params),
     METHOD_STAT_TABLE(rbdpt_stats),
     .defaults = rbdpt_defaults,
+    .converge = rbdpt_converge,
     .validate = rbdpt_validate,
     .state_bytes = sizeof(struct restir_bdpt_state),
     .init = rbdpt_init,

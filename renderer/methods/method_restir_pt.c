@@ -12,6 +12,17 @@ METHOD_FITS(struct restir_pt_params, METHOD_PARAMS_BYTES);
 METHOD_FITS(struct restir_pass_stats, METHOD_COUNTERS_BYTES);
 
 METHOD_DEFAULTS_OP(rpt_defaults, struct restir_pt_params, restir_pt_defaults)
+/* The converge profile: temporal reuse off, so that a session's frames are independent, and the
+ * spatial reuse of [ReSTIR BDPT Fig. 12] in its place (3 rounds of 6 neighbours). The values
+ * are the papers' starting point, to be tuned by measurement. */
+static void rpt_converge(void *params)
+{
+    struct restir_pt_params *p = params;
+    p->temporal = false;
+    p->spatial_rounds = 3;
+    p->spatial_neighbors = 6;
+}
+
 METHOD_VALIDATE_OP(rpt_validate, struct restir_pt_params, restir_pt_params_valid)
 METHOD_SESSION_RESET_OP(rpt_reset, struct restir_pt_state)
 METHOD_STATE_OP(rpt_destroy, struct restir_pt_state, restir_pt_destroy)
@@ -23,6 +34,8 @@ static bool rpt_init(void *state, const struct scene *scene, void *params, uint3
     if (!restir_pt_init(state, scene, p, width, height, err)) return false;
     /* The session reports the NEE candidates it uses. */
     if (p->nee_candidates == RESTIR_PT_NEE_BY_SCENE) p->nee_candidates = ((struct restir_pt_state *)state)->nee_by_scene;
+    /* And the radius that its resolution gives (restir_radius_auto). */
+    if (p->spatial_radius == 0.0f) p->spatial_radius = restir_radius_auto(width, height);
     return true;
 }
 
@@ -73,9 +86,15 @@ static const struct method_param rpt_params[] = {
     P(unify_di, METHOD_PARAM_BOOL, 0, 1, "direct light resampled together with indirect"),
     P(temporal, METHOD_PARAM_BOOL, 0, 1, "temporal reuse"),
     P(temporal_cap, METHOD_PARAM_UINT, 1, 1000, "previous confidence capped at this multiple of the current"),
+    P(temporal_cap_replay, METHOD_PARAM_UINT, 0, 1000,
+      "the cap for samples without a reconnection vertex (random replay only); 0 = temporal_cap"),
     P(spatial_neighbors, METHOD_PARAM_UINT, 0, 64, "spatial neighbours per round; 0 = no spatial reuse"),
-    P(spatial_radius, METHOD_PARAM_FLOAT, 1, 256, "spatial reuse radius in pixels"),
+    P(spatial_radius, METHOD_PARAM_FLOAT, 0, 256, "spatial reuse radius in pixels; 0 = by resolution"),
     P(spatial_rounds, METHOD_PARAM_UINT, 1, 8, "spatial reuse rounds"),
+    P(reject_normal_cos, METHOD_PARAM_FLOAT, 0, 1,
+      "a spatial neighbour whose shading normal's cosine with the pixel's is below this is not reused; 0 = no test"),
+    P(reject_depth, METHOD_PARAM_FLOAT, 0, 1,
+      "a spatial neighbour whose hit distance differs by more than this fraction of the larger is not reused; 0 = no test"),
     P(paired_spatial, METHOD_PARAM_BOOL, 0, 1, "neighbours paired so a pair's shifts serve both pixels"),
     P(expected_shading, METHOD_PARAM_BOOL, 0, 1,
       "shade with the last spatial pass's expected contribution over its selection"),
@@ -97,6 +116,7 @@ const struct method_desc method_restir_pt = {
     METHOD_PARAM_TABLE(rpt_params),
     METHOD_STAT_TABLE(rpt_stats),
     .defaults = rpt_defaults,
+    .converge = rpt_converge,
     .validate = rpt_validate,
     .state_bytes = sizeof(struct restir_pt_state),
     .init = rpt_init,

@@ -15,6 +15,18 @@ METHOD_FITS(struct restir_sms_stats, METHOD_COUNTERS_BYTES);
 METHOD_ENUM_IS_INT(enum restir_sms_sampler);
 
 METHOD_DEFAULTS_OP(rsms_defaults, struct restir_sms_params, restir_sms_defaults)
+/* The converge profile: nothing carried from frame to frame, so that a session's frames are
+ * independent: temporal reuse off, primary rays jittered afresh each frame (jitter_walk 0: not
+ * walked from the previous frame's positions) and a prior of the frame's own walks alone
+ * (prior_frames 1). The starting point from the papers, to be tuned by measurement. */
+static void rsms_converge(void *params)
+{
+    struct restir_sms_params *p = params;
+    p->temporal = false;
+    p->jitter_walk = 0.0f;
+    p->ssp.prior_frames = 1;
+}
+
 METHOD_VALIDATE_OP(rsms_validate, struct restir_sms_params, restir_sms_params_valid)
 METHOD_SESSION_RESET_OP(rsms_reset, struct restir_sms_state)
 METHOD_STATE_OP(rsms_destroy, struct restir_sms_state, restir_sms_destroy)
@@ -135,6 +147,7 @@ const struct method_desc method_restir_sms = {
     METHOD_PARAM_TABLE(rsms_params),
     METHOD_STAT_TABLE(rsms_stats),
     .defaults = rsms_defaults,
+    .converge = rsms_converge,
     .validate = rsms_validate,
     .state_bytes = sizeof(struct restir_sms_state),
     .init = rsms_init,

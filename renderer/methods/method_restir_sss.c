@@ -15,6 +15,14 @@ METHOD_ENUM_IS_INT(enum restir_sss_shift);
 METHOD_ENUM_IS_INT(enum restir_sss_target);
 
 METHOD_DEFAULTS_OP(sss_defaults, struct restir_sss_params, restir_sss_defaults)
+/* The converge profile: temporal reuse off, so that a session's frames are independent; the
+ * spatial reuse (spatial_neighbors, one round) keeps its default. The starting point from the
+ * papers, to be tuned by measurement. */
+static void sss_converge(void *params)
+{
+    ((struct restir_sss_params *)params)->temporal = false;
+}
+
 METHOD_VALIDATE_OP(sss_validate, struct restir_sss_params, restir_sss_params_valid)
 METHOD_SESSION_RESET_OP(sss_reset, struct restir_sss_state)
 METHOD_STATE_OP(sss_destroy, struct restir_sss_state, restir_sss_destroy)
@@ -93,6 +101,7 @@ const struct method_desc method_restir_sss = {
     METHOD_PARAM_TABLE(sss_params),
     METHOD_STAT_TABLE(sss_stats),
     .defaults = sss_defaults,
+    .converge = sss_converge,
     .validate = sss_validate,
     .state_bytes = sizeof(struct restir_sss_state),
     .init = sss_init,

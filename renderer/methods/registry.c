@@ -50,6 +50,14 @@ void method_names(char *out, size_t size, const char *separator)
         n += (size_t)snprintf(out + n, size - n, "%s%s", i ? separator : "", methods[i]->name);
 }
 
+const char *const method_profile_names[] = {"real_time", "converge", NULL};
+
+void method_profile_defaults(const struct method_desc *m, enum method_profile profile, void *params)
+{
+    m->defaults(params);
+    if (profile == METHOD_PROFILE_CONVERGE && m->converge) m->converge(params);
+}
+
 const struct method_param *method_param_find(const struct method_desc *m, const char *key)
 {
     for (uint32_t i = 0; i < m->param_count; i++)

@@ -96,8 +96,12 @@ static void restir_temporal_pixel(const struct restir_pass *p, uint32_t pixel, s
 
     const struct restir_head *hq = restir_elem(r->history, stride, dq.pixel);
     const float M_c = (float)hc->M;
-    float M_q = (float)hq->M;
-    if (M_q > (float)r->temporal_cap * M_c) M_q = (float)r->temporal_cap * M_c;
+    const float M_q = fminf((float)hq->M, (float)r->temporal_cap * M_c);
+    /* The history's confidence in the MIS weights of one sample: M_q, or for a sample of the low
+     * class (ops->capped_low) capped at temporal_cap_low instead; the same for both weights of a
+     * sample, since its shift keeps its class. */
+    const bool low = r->temporal_cap_low && ops->capped_low;
+    const float M_q_low = low ? fminf((float)hq->M, (float)r->temporal_cap_low * M_c) : M_q;
 
     struct rng rng = rng_make(r->seed, r->frame, pixel, RESTIR_TEMPORAL_STREAM);
     struct reservoir_stream s;
@@ -110,7 +114,7 @@ static void restir_temporal_pixel(const struct restir_pass *p, uint32_t pixel, s
     if (p_c > 0.0f) {
         float j_cq;
         float t_cq = restir_shift(r, hc, dc, dq, NULL, &j_cq, c);
-        float pm[2] = {p_c, t_cq * j_cq}, mm[2] = {M_c, M_q};
+        float pm[2] = {p_c, t_cq * j_cq}, mm[2] = {M_c, low && ops->capped_low(r->ctx, hc) ? M_q_low : M_q};
         float m_c = reuse_mis_balance(mm, pm, 2, 0);
         reservoir_stream_offer(&s, (double)m_c * p_c * hc->W, p_c, M_c, rng_next_float(&rng));
     } else {
@@ -123,7 +127,7 @@ static void restir_temporal_pixel(const struct restir_pass *p, uint32_t pixel, s
         float j_qc;
         float t_qc = restir_shift(r, hq, dq, dc, shifted, &j_qc, c);
         if (t_qc > 0.0f) {
-            float pm[2] = {p_q, t_qc * j_qc}, mm[2] = {M_q, M_c};
+            float pm[2] = {p_q, t_qc * j_qc}, mm[2] = {low && ops->capped_low(r->ctx, hq) ? M_q_low : M_q, M_c};
             float m_q = reuse_mis_balance(mm, pm, 2, 0);
             take_prev = reservoir_stream_offer(&s, (double)m_q * t_qc * hq->W * j_qc, t_qc, M_q, u);
         } else {
@@ -170,7 +174,8 @@ static void restir_spatial_pixel(const struct restir_pass *p, uint32_t pixel, st
         int qx = px + (int)lrintf(rad * cosf(phi)), qy = py + (int)lrintf(rad * sinf(phi));
         if (qx < 0 || qy < 0 || qx >= (int)r->width || qy >= (int)r->height || (qx == px && qy == py)) continue;
         uint32_t q = (uint32_t)qy * r->width + (uint32_t)qx;
-        if (!ops->domain_valid(r->ctx, (struct restir_domain){q, RESTIR_CURRENT})) continue;
+        if (!ops->domain_valid(r->ctx, (struct restir_domain){q, RESTIR_CURRENT}) || !restir_neighbours_similar(r, pixel, q))
+            continue;
         nb[k++] = q;
     }
     if (k == 0) {
@@ -390,11 +395,13 @@ bool restir_pair_partner(const struct restir_reuse *r, uint32_t m, uint32_t pixe
            restir_partner_of(r, keys[m], restir_pair_log2(r->radius), pixel % r->width, pixel / r->width, partner);
 }
 
-/* The partner of pixel (x, y) in pairing m, when it is on the image and can produce samples. */
+/* The partner of pixel (x, y) in pairing m, when it is on the image, can produce samples and is
+ * similar (restir_neighbours_similar, symmetric: the pair is valid from both sides, as the pairing is). */
 static bool restir_pair_valid(const struct restir_pass *p, uint32_t m, uint32_t x, uint32_t y, uint32_t *partner)
 {
     return restir_partner(p, m, x, y, partner) &&
-           p->r->ops->domain_valid(p->r->ctx, (struct restir_domain){*partner, RESTIR_CURRENT});
+           p->r->ops->domain_valid(p->r->ctx, (struct restir_domain){*partner, RESTIR_CURRENT}) &&
+           restir_neighbours_similar(p->r, y * p->r->width + x, *partner);
 }
 
 /* The uniform number of pixel's candidate from pairing m (m = neighbors: the canonical one). */

@@ -12,6 +12,7 @@
 #ifndef RESTIRD_RESTIR_H
 #define RESTIRD_RESTIR_H
 
+#include <math.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <time.h>
@@ -81,6 +82,12 @@ struct restir_ops {
     /* Optional: the element's contribution vector F in its own domain (the target is a scalar
      * function of it, e.g. its luminance); needed for restir_reuse.estimate. */
     struct vec3 (*value)(const void *ctx, const void *elem);
+    /* Optional: whether the element's sample is of the class whose history confidence is capped at
+     * restir_reuse.temporal_cap_low instead of temporal_cap. Every shift that succeeds must keep
+     * the class (a sample and its shifted copy are of one class), so that both temporal MIS weights
+     * of one sample use the same confidences and still sum to one (GRIS's generalized balance
+     * heuristic allows confidences that are functions of the sample). */
+    bool (*capped_low)(const void *ctx, const void *elem);
 };
 
 struct restir_reuse {
@@ -95,9 +102,22 @@ struct restir_reuse {
      * confidence as a multiple of the current M (ReSTIR PT: 20). */
     const uint8_t *history;
     uint32_t temporal_cap;
+    /* The cap of the samples ops->capped_low names (0: temporal_cap for every sample). The stored
+     * M never depends on the sample: it counts the history at temporal_cap. */
+    uint32_t temporal_cap_low;
     /* Spatial: neighbours per round, and the radius in pixels of the disk they are drawn from. */
     uint32_t neighbors;
     float radius;
+    /* Spatial: a neighbour whose primary hit differs too much from the pixel's is not drawn
+     * (restir_neighbours_similar): its shading normal's cosine with the pixel's below min_normal_cos (0 = no
+     * normal test; needs the G-buffer's surfaces, skipped without them), or its hit distance off
+     * by more than max_depth_rel of the larger of the two (0 = no depth test). The test reads the
+     * G-buffer only, never a sample, and is symmetric, so the pairwise MIS weights of both the
+     * drawn and the paired neighbours still sum to one ([ReSTIR PT] §7: the geometric rejection
+     * of its implementation; there the depth is relative to the centre pixel's, which is not
+     * symmetric). */
+    float min_normal_cos;
+    float max_depth_rel;
     /* Paired spatial reuse (restir.c): the neighbour relation is made symmetric so each pair's
      * two shifts serve both pixels, and neighbours come from B x B blocks, B the largest power of
      * two <= radius. Needs restir_pair_scratch_bytes() of scratch, owned by the technique. */
@@ -116,6 +136,39 @@ struct restir_reuse {
 size_t restir_pair_scratch_bytes(uint32_t width, uint32_t height);
 /* Whether a technique's spatial reuse needs that scratch: paired, with neighbours. A session
  * allocates it only then. */
+/* Whether pixels a and b may be each other's spatial neighbours (restir_reuse.min_normal_cos,
+ * max_depth_rel). Two pixels whose primary rays both escaped (a domain for restir_bdpt) are alike;
+ * an escaped one is like no hit. Symmetric in a and b, which paired reuse relies on (tests/unit/test_restir.c
+ * checks it). */
+static inline bool restir_neighbours_similar(const struct restir_reuse *r, uint32_t a, uint32_t b)
+{
+    if (r->max_depth_rel > 0.0f) {
+        const float ta = r->gbuf->px[a].t, tb = r->gbuf->px[b].t;
+        if (isinf(ta) || isinf(tb)) return isinf(ta) && isinf(tb);
+        if (fabsf(ta - tb) > r->max_depth_rel * fmaxf(ta, tb)) return false;
+    }
+    if (r->min_normal_cos > 0.0f && r->gbuf->surf) {
+        const struct gbuffer_surface *sa = &r->gbuf->surf[a], *sb = &r->gbuf->surf[b];
+        if (sa->material == GBUFFER_NO_HIT || sb->material == GBUFFER_NO_HIT)
+            return sa->material == sb->material;
+        if (vec3_dot(sa->ns, sb->ns) < r->min_normal_cos) return false;
+    }
+    return true;
+}
+
+/* The spatial radius of a method whose spatial_radius is 0 (auto): a fixed share of the image,
+ * RESTIR_RADIUS_AT_1080 pixels on an image whose shorter side has 1080 (the radius of the ReSTIR
+ * PT code, Lin et al. 2022, at 1920 x 1080), scaled with the shorter side so that the neighbours
+ * stay as alike on a small image as on a large one, and never below RESTIR_RADIUS_MIN pixels (too
+ * few distinct neighbours). docs/benchmarks.md has the measurements behind the two numbers. */
+#define RESTIR_RADIUS_AT_1080 20.0f
+#define RESTIR_RADIUS_MIN 3.0f
+static inline float restir_radius_auto(uint32_t width, uint32_t height)
+{
+    const float r = RESTIR_RADIUS_AT_1080 * (float)(width < height ? width : height) / 1080.0f;
+    return r > RESTIR_RADIUS_MIN ? r : RESTIR_RADIUS_MIN;
+}
+
 static inline bool restir_pairs_needed(bool paired, uint32_t neighbors) { return paired && neighbors > 0; }
 
 /* A zeroed array of `count` elements of `stride` bytes that starts on a cache line (NULL when out

@@ -13,8 +13,15 @@ struct view_params view_params_defaults(const struct method_desc *method, uint32
     p.method = method;
     p.width = width;
     p.height = height;
-    method->defaults(p.method_params);
+    method_profile_defaults(method, METHOD_PROFILE_REAL_TIME, p.method_params);
     return p;
+}
+
+void view_params_set_profile(struct view_params *p, enum method_profile profile)
+{
+    p->profile = profile;
+    memset(p->method_params, 0, sizeof p->method_params);
+    method_profile_defaults(p->method, profile, p->method_params);
 }
 
 /* The parameter `key` of p's method if it is of `kind`, else NULL. */

@@ -22,14 +22,18 @@
  * its parameter struct (VIEW_METHOD_PARAMS); the method's descriptor documents them. */
 struct view_params {
     const struct method_desc *method;
+    enum method_profile profile;          /* how method_params' defaults were chosen */
     uint32_t width, height;
     uint64_t seed;
     _Alignas(8) unsigned char method_params[METHOD_PARAMS_BYTES];
 };
 #define VIEW_METHOD_PARAMS(vp, type) ((type *)(void *)(vp)->method_params)
 
-/* The method's defaults for a width x height session, seed 0. */
+/* The method's defaults for a width x height session, seed 0, real_time profile. */
 struct view_params view_params_defaults(const struct method_desc *method, uint32_t width, uint32_t height);
+/* The defaults of p's method under `profile` in place of its parameters: called before the
+ * user's parameters are read over them. */
+void view_params_set_profile(struct view_params *p, enum method_profile profile);
 /* A parameter of the session's method by name (method.h's table): false when the method has no
  * such parameter of that kind (nothing is written then). */
 bool view_params_get_uint(const struct view_params *p, const char *key, uint32_t *out);

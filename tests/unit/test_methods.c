@@ -162,5 +162,41 @@ static void test_enum_choices_follow_the_enums(void)
     CHECK_MSG(enums == 7, "%u enum parameters: add the new one's values above", enums);
 }
 
+/* The converge profile: the real_time profile is the defaults themselves; the converge values
+ * pass the method's own validation, and turn off every temporal switch of the methods that reuse
+ * frames (exactly the methods with a converge operation; the others' frames are independent
+ * already). restir_sms also leaves its primary rays and prior to each frame alone. */
+static void test_converge_profile(void)
+{
+    for (uint32_t i = 0; i < method_count(); i++) {
+        const struct method_desc *m = method_at(i);
+        _Alignas(8) unsigned char defaults[METHOD_PARAMS_BYTES] = {0}, real_time[METHOD_PARAMS_BYTES] = {0},
+                                  converge[METHOD_PARAMS_BYTES] = {0};
+        m->defaults(defaults);
+        method_profile_defaults(m, METHOD_PROFILE_REAL_TIME, real_time);
+        method_profile_defaults(m, METHOD_PROFILE_CONVERGE, converge);
+        CHECK_MSG(memcmp(defaults, real_time, sizeof defaults) == 0, "%s: real_time is not the defaults", m->name);
+        CHECK_MSG((m->converge != NULL) == ((m->caps & METHOD_REUSES_FRAMES) != 0), "%s", m->name);
+        if (!m->converge) CHECK_MSG(memcmp(defaults, converge, sizeof defaults) == 0, "%s", m->name);
+        struct err err = {0};
+        CHECK_MSG(m->validate(converge, &err), "%s converge: %s: %s", m->name, err.where, err.message);
+        for (uint32_t k = 0; k < m->param_count; k++) {
+            const struct method_param *p = &m->params[k];
+            size_t len = strlen(p->key);
+            if (p->kind != METHOD_PARAM_BOOL || len < 8 || strcmp(p->key + len - 8, "temporal") != 0) continue;
+            bool on;
+            memcpy(&on, converge + p->offset, sizeof on);
+            CHECK_MSG(!on, "%s converge: %s is on", m->name, p->key);
+        }
+    }
+    const struct method_desc *sms = method_find("restir_sms");
+    _Alignas(8) unsigned char params[METHOD_PARAMS_BYTES] = {0};
+    method_profile_defaults(sms, METHOD_PROFILE_CONVERGE, params);
+    const struct restir_sms_params *sp = (const struct restir_sms_params *)(const void *)params;
+    CHECK(sp->jitter_walk == 0.0f && sp->ssp.prior_frames == 1);
+    CHECK(strcmp(method_profile_names[METHOD_PROFILE_REAL_TIME], "real_time") == 0 &&
+          strcmp(method_profile_names[METHOD_PROFILE_CONVERGE], "converge") == 0 && !method_profile_names[2]);
+}
+
 TEST_MAIN(TEST(test_names_and_defaults), TEST(test_parameter_tables), TEST(test_statistics_tables),
-          TEST(test_enum_choices_follow_the_enums))
+          TEST(test_enum_choices_follow_the_enums), TEST(test_converge_profile))

@@ -9,6 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "integrators/restir_pt.h"
 #include "methods/path_params.h"
 #include "protocol.h"
 #include "test.h"
@@ -147,6 +148,44 @@ static void test_session_valid(void)
     const struct protocol_limits tiny = {.max_side = 128, .max_pixels = 1u << 20, .max_spp = 4, .max_frames = 1, .max_keys = 1};
     CHECK(!protocol_parse_session_create("{}", 2, &tiny, &p, &err));
     CHECK(err.code == ERR_LIMIT && strcmp(err.where, "/width") == 0 && strstr(err.message, "default"));
+}
+
+/* The profile chooses the defaults and the params are read over them, wherever either stands
+ * in the body; an unknown profile is refused at /profile, naming the two. */
+static void test_session_profile(void)
+{
+    struct view_params p;
+    struct err err;
+#define RPT(vp) VIEW_METHOD_PARAMS(&(vp), const struct restir_pt_params)
+    const struct restir_pt_params d = restir_pt_defaults();
+    const char *body = "{\"method\": \"restir_pt\"}";
+    CHECK(protocol_parse_session_create(body, strlen(body), &LIMITS, &p, &err));
+    CHECK(p.profile == METHOD_PROFILE_REAL_TIME && RPT(p)->temporal == d.temporal &&
+          RPT(p)->spatial_rounds == d.spatial_rounds);
+    body = "{\"method\": \"restir_pt\", \"profile\": \"real_time\"}";
+    CHECK(protocol_parse_session_create(body, strlen(body), &LIMITS, &p, &err));
+    CHECK(p.profile == METHOD_PROFILE_REAL_TIME && RPT(p)->temporal && RPT(p)->spatial_rounds == d.spatial_rounds);
+    body = "{\"method\": \"restir_pt\", \"profile\": \"converge\"}";
+    CHECK(protocol_parse_session_create(body, strlen(body), &LIMITS, &p, &err));
+    CHECK(p.profile == METHOD_PROFILE_CONVERGE && !RPT(p)->temporal && RPT(p)->spatial_rounds == 3 &&
+          RPT(p)->spatial_neighbors == 6 && RPT(p)->max_depth == d.max_depth);
+    body = "{\"params\": {\"temporal\": true, \"spatial_rounds\": 2}, \"profile\": \"converge\", \"method\": \"restir_pt\"}";
+    CHECK(protocol_parse_session_create(body, strlen(body), &LIMITS, &p, &err));
+    CHECK(p.profile == METHOD_PROFILE_CONVERGE && RPT(p)->temporal && RPT(p)->spatial_rounds == 2 &&
+          RPT(p)->spatial_neighbors == 6);
+#undef RPT
+    /* pt's frames are independent: the profile changes none of its parameters. */
+    const struct view_params pt = view_params_defaults(method_find("pt"), 256, 256);
+    body = "{\"profile\": \"converge\"}";
+    CHECK(protocol_parse_session_create(body, strlen(body), &LIMITS, &p, &err));
+    CHECK(p.profile == METHOD_PROFILE_CONVERGE && memcmp(p.method_params, pt.method_params, sizeof pt.method_params) == 0);
+    body = "{\"method\": \"restir_pt\", \"profile\": \"real-time\"}";
+    CHECK(!protocol_parse_session_create(body, strlen(body), &LIMITS, &p, &err));
+    CHECK_MSG(err.code == ERR_INVALID && strcmp(err.where, "/profile") == 0 &&
+              strstr(err.message, "unknown profile \"real-time\" (real_time or converge)"), "%s: %s", err.where, err.message);
+    body = "{\"profile\": 1}";
+    CHECK(!protocol_parse_session_create(body, strlen(body), &LIMITS, &p, &err));
+    CHECK(strcmp(err.where, "/profile") == 0);
 }
 
 /* A params object on its own: the keys it names are reported, the others keep their values. */
@@ -822,7 +861,8 @@ static void test_problem_json(void)
     free(text);
 }
 
-TEST_MAIN(TEST(test_valid_id), TEST(test_pointer_key), TEST(test_session_valid), TEST(test_method_params_alone),
+TEST_MAIN(TEST(test_valid_id), TEST(test_pointer_key), TEST(test_session_valid), TEST(test_session_profile),
+          TEST(test_method_params_alone),
           TEST(test_frame_valid),
           TEST(test_render_valid), TEST(test_reference_valid), TEST(test_malformed_table), TEST(test_malformed_built),
           TEST(test_render_failure_frees), TEST(test_mutations_never_crash),

@@ -112,7 +112,31 @@ struct toy_stats {
     double total_sum, total_sum2;
     uint32_t trials;
     bool first_component;  /* the estimates are of F's first component (toy_exact_x) */
+    uint64_t shifts;       /* shifts the passes made, over all trials */
 };
+
+/* With depth_rel > 0 the toy's primary hits lie at two depths, the left half of the image at 1 and
+ * the right half at 1.5, and the spatial passes reject neighbours across that step
+ * (restir_reuse.max_depth_rel). */
+static float toy_depth_rel;
+
+/* With a class other than TOY_CLASS_NONE the temporal pass caps the history of that class's samples
+ * at 1 rather than 20 (restir_ops.capped_low): x < 0.5, which the toy's shift (x kept) keeps, or,
+ * the control, "the element holds a fresh sample" (M = 1), a property of the reservoir rather than
+ * of the sample, so the two weights of one sample use different confidences. */
+enum toy_class { TOY_CLASS_NONE, TOY_CLASS_X, TOY_CLASS_FRESH };
+static enum toy_class toy_class;
+
+static bool toy_capped_low(const void *ctx, const void *elem)
+{
+    (void)ctx;
+    const struct toy_elem *e = elem;
+    return toy_class == TOY_CLASS_X ? e->x < 0.5f : e->head.M == 1;
+}
+
+static const struct restir_ops toy_ops_classes = {
+    .stride = sizeof(struct toy_elem), .target = toy_target, .shift = toy_shift, .domain_valid = toy_domain_valid,
+    .value = toy_value, .capped_low = toy_capped_low};
 
 /* Runs `trials` independent two-frame sessions and gathers the second frame's estimates: the
  * selected sample's F W, or with `expected` the spatial pass's expected contribution over its
@@ -133,15 +157,16 @@ static void toy_run(bool paired, bool wrong_jacobian, bool expected, uint32_t tr
     static struct vec3 estimate[N_PX];
     static struct gbuffer_pixel px[N_PX];
     for (uint32_t p = 0; p < N_PX; p++)  /* a static camera: each pixel's predecessor is itself */
-        px[p] = (struct gbuffer_pixel){.t = 1.0f, .prev_x = (float)(p % W_PX) + 0.5f, .prev_y = (float)(p / W_PX) + 0.5f};
+        px[p] = (struct gbuffer_pixel){.t = toy_depth_rel > 0.0f && p % W_PX >= W_PX / 2 ? 1.5f : 1.0f, .prev_x = (float)(p % W_PX) + 0.5f, .prev_y = (float)(p / W_PX) + 0.5f};
     struct gbuffer g = {.width = W_PX, .height = H_PX, .px = px};
     void *scratch = malloc(restir_pair_scratch_bytes(W_PX, H_PX));
     CHECK(scratch != NULL);
     if (!scratch) return;
     for (uint32_t t = 0; t < trials; t++) {
-        struct restir_reuse r = {.ops = &toy_ops, .ctx = &ctx, .width = W_PX, .height = H_PX, .seed = 1000u + t,
+        struct restir_reuse r = {.ops = toy_class ? &toy_ops_classes : &toy_ops, .ctx = &ctx, .width = W_PX, .height = H_PX, .seed = 1000u + t,
                                  .threads = 1, .gbuf = &g, .temporal_cap = 20, .neighbors = 3, .radius = 8.0f,
-                                 .paired = paired, .pair_scratch = scratch};
+                                 .paired = paired, .pair_scratch = scratch, .max_depth_rel = toy_depth_rel,
+                                 .temporal_cap_low = toy_class ? 1u : 0u};
         struct restir_counters c = {0};
         struct err err = {0};
         for (uint32_t frame = 0; frame < 2; frame++) {
@@ -154,6 +179,7 @@ static void toy_run(bool paired, bool wrong_jacobian, bool expected, uint32_t tr
             CHECK(restir_spatial_pass(&r, (const uint8_t *)a, (uint8_t *)b, &c, &err));
             memcpy(hist, b, sizeof hist);
         }
+        st->shifts += c.shifts;
         double total = 0.0, total_x = 0.0;
         for (uint32_t p = 0; p < N_PX; p++) {
             if (!toy_valid_pixel(p)) continue;
@@ -243,6 +269,56 @@ static void check_unbiased(bool paired)
 static void test_reuse_unbiased_unpaired(void) { check_unbiased(false); }
 static void test_reuse_unbiased_paired(void) { check_unbiased(true); }
 
+/* Neighbours rejected by depth (restir_neighbours_similar): the passes shift fewer samples, across the depth
+ * step none, and the estimate stays unbiased, drawn and paired alike, because the test reads only
+ * the G-buffer and holds from both sides of a pair. */
+static void check_unbiased_with_rejection(bool paired)
+{
+    static struct toy_stats all, rejecting;
+    toy_depth_rel = 0.0f;
+    toy_run(paired, false, false, 1000, &all, NULL);
+    toy_depth_rel = 0.1f;
+    toy_run(paired, false, false, 4000, &rejecting, NULL);
+    toy_depth_rel = 0.0f;
+    uint32_t pass, valid;
+    double z;
+    toy_z(&rejecting, &pass, &valid, &z);
+    const double per_trial_all = (double)all.shifts / all.trials, per_trial = (double)rejecting.shifts / rejecting.trials;
+    printf("  %s, depth step rejected: %u of %u pixels pass, total z = %.2f; %.1f shifts a trial against %.1f\n",
+           paired ? "paired" : "unpaired", pass, valid, z, per_trial, per_trial_all);
+    CHECK_MSG(pass * 1000u >= valid * 995u, "%u of %u pixels", pass, valid);
+    CHECK_MSG(fabs(z) < 3.0, "total z %.2f", z);
+    CHECK_MSG(per_trial < 0.97 * per_trial_all, "%.1f shifts a trial against %.1f: nothing was rejected", per_trial,
+              per_trial_all);
+}
+static void test_reuse_unbiased_rejecting_unpaired(void) { check_unbiased_with_rejection(false); }
+static void test_reuse_unbiased_rejecting_paired(void) { check_unbiased_with_rejection(true); }
+
+/* A class of samples whose history is capped lower (restir_reuse.temporal_cap_low): unbiased when
+ * the shift keeps the class, biased (the control) when the class is the reservoir's, not the
+ * sample's. */
+static void check_class_cap(enum toy_class cls)
+{
+    static struct toy_stats st;
+    memset(&st, 0, sizeof st);
+    toy_class = cls;
+    toy_run(false, false, false, 4000, &st, NULL);
+    toy_class = TOY_CLASS_NONE;
+    uint32_t pass, valid;
+    double z;
+    toy_z(&st, &pass, &valid, &z);
+    printf("  history capped at 1 for %s: %u of %u pixels pass, total z = %.2f\n",
+           cls == TOY_CLASS_X ? "samples with x < 0.5" : "fresh reservoirs (the control)", pass, valid, z);
+    if (cls == TOY_CLASS_X) {
+        CHECK_MSG(pass * 1000u >= valid * 995u, "%u of %u pixels", pass, valid);
+        CHECK_MSG(fabs(z) < 3.0, "total z %.2f", z);
+    } else {
+        CHECK_MSG(fabs(z) > 5.0, "total z %.2f: a class the shift does not keep went unseen", z);
+    }
+}
+static void test_class_cap_unbiased(void) { check_class_cap(TOY_CLASS_X); }
+static void test_class_cap_of_the_reservoir_is_caught(void) { check_class_cap(TOY_CLASS_FRESH); }
+
 /* The control: a shift that squares x but claims |J| = 1 must fail the same test. */
 static void test_wrong_jacobian_is_caught(void)
 {
@@ -279,6 +355,39 @@ static void test_pairing_is_an_involution(void)
     }
     printf("  %u of %u pixels had a partner\n", found, total);
     CHECK(found * 10u >= total * 6u);
+}
+
+/* The neighbour test is symmetric: paired reuse counts each pixel's neighbours from its own side and
+ * relies on a pair being valid from both. Depths 1 and 1.1 at a tolerance of 0.095 are the case a
+ * test relative to the centre pixel's depth gets wrong (0.1 > 0.095 * 1 but < 0.095 * 1.1); normals
+ * on both sides of the threshold, escaped rays and misses among random pixels. */
+static void test_neighbour_test_is_symmetric(void)
+{
+    enum { N = 64 };
+    static struct gbuffer_pixel px[N];
+    static struct gbuffer_surface surf[N];
+    struct rng rng = rng_make(11, 0, 0, 0);
+    for (uint32_t i = 0; i < N; i++) {
+        const float u = rng_next_float(&rng), phi = 6.2831853f * rng_next_float(&rng), z = 2.0f * rng_next_float(&rng) - 1.0f;
+        const float s = sqrtf(fmaxf(0.0f, 1.0f - z * z));
+        const bool miss = i % 13 == 5;
+        px[i].t = miss ? INFINITY : 1.0f + 0.3f * u;
+        surf[i] = (struct gbuffer_surface){.ns = {s * cosf(phi), s * sinf(phi), z}, .material = miss ? GBUFFER_NO_HIT : 0};
+    }
+    px[0].t = 1.0f, px[1].t = 1.1f;
+    surf[0].ns = surf[1].ns = (struct vec3){0, 0, 1};
+    struct gbuffer g = {.width = N, .height = 1, .px = px, .surf = surf};
+    struct restir_reuse r = {.width = N, .height = 1, .gbuf = &g, .min_normal_cos = 0.5f, .max_depth_rel = 0.095f};
+    CHECK(restir_neighbours_similar(&r, 0, 1) && restir_neighbours_similar(&r, 1, 0));
+    uint32_t similar = 0;
+    for (uint32_t a = 0; a < N; a++)
+        for (uint32_t b = 0; b < N; b++) {
+            const bool ab = restir_neighbours_similar(&r, a, b);
+            CHECK_MSG(ab == restir_neighbours_similar(&r, b, a), "pixels %u and %u", a, b);
+            similar += ab;
+        }
+    printf("  %u of %u ordered pairs similar\n", similar, N * N);
+    CHECK(similar > N && similar < N * N / 2);  /* both tests reject some pairs and accept others */
 }
 
 /* ---- the frame driver, on the toy technique ---- */
@@ -408,5 +517,7 @@ static void test_frame_history_one_round(void) { check_history_after(1); }
 static void test_frame_history_two_rounds(void) { check_history_after(2); }
 
 TEST_MAIN(TEST(test_frame_store_zeroes_nonfinite), TEST(test_frame_history_one_round),
-          TEST(test_frame_history_two_rounds), TEST(test_pairing_is_an_involution), TEST(test_reuse_unbiased_unpaired),
-          TEST(test_reuse_unbiased_paired), TEST(test_wrong_jacobian_is_caught))
+          TEST(test_frame_history_two_rounds), TEST(test_pairing_is_an_involution), TEST(test_neighbour_test_is_symmetric), TEST(test_reuse_unbiased_unpaired),
+          TEST(test_reuse_unbiased_paired), TEST(test_reuse_unbiased_rejecting_unpaired),
+          TEST(test_reuse_unbiased_rejecting_paired), TEST(test_class_cap_unbiased),
+          TEST(test_class_cap_of_the_reservoir_is_caught), TEST(test_wrong_jacobian_is_caught))
