@@ -1552,7 +1552,7 @@ def test_restir_bdpt_session(daemon):
     s = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24, seed=3,
                     params={"heuristic": "balance", "reuse": False})
     assert s["method"] == "restir_bdpt"
-    # The defaults but reuse's (the resolution's radius at 32 x 24 is the least, 3 pixels).
+    # The defaults (the resolution's radius at 32 x 24 is the least, 3 pixels).
     assert s["params"] == {"variant": "lightweight", "max_depth": 64, "rr_depth": 3, "light_paths": 0,
                            "lt_capacity": 8, "lvc_capacity": 8, "heuristic": "balance", "caustic_temporal": True, "temporal_cap": 20,
                            "moving_cap": 1, "reuse": False, "reuse_temporal": True, "spatial_neighbors": 2,
@@ -1584,8 +1584,8 @@ def test_restir_bdpt_reuse_session_buffers(daemon):
     """With reuse a restir_bdpt session adds exactly the reuse's buffers: two more non-caustic
     reservoirs, the G-buffer, the spatial pairs' scratch and the per-pixel x_2 cache of 116 bytes
     (the reverse hybrid shift's replayed light vertex); its memory is their sum."""
-    s = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24, seed=3)
-    assert s["params"]["reuse"] is True  # the default
+    s = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24, seed=3,
+                    params={"reuse": True})
     assert s["params"]["spatial_radius"] == 3  # the resolution's radius (at least 3 pixels)
     wide = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=600, height=270,
                        params={"reuse": False})
@@ -1615,7 +1615,7 @@ def test_restir_bdpt_reuse_session_buffers(daemon):
     ({"spatial_radius": -1}, "/params/spatial_radius"),
     ({"spatial_radius": 257}, "/params/spatial_radius"),
     ({"spatial_rounds": 0}, "/params/spatial_rounds"),
-    ({"copy_mis": True, "reuse": False}, "/params/copy_mis"),
+    ({"copy_mis": True}, "/params/copy_mis"),
     ({"reject_unshiftable": "yes"}, "/params/reject_unshiftable"),
 ])
 def test_restir_bdpt_bad_params(daemon, params, field):

@@ -163,16 +163,16 @@ def test_restir_bdpt_reject_unshiftable_darkens(tmp_path, scenes):
     assert t < -2.0 and rel > -0.01, (rel, t)
 
 
-@pytest.mark.parametrize("params", [{"reuse": False}, {"expected_shading": False}, {},
-                                    {"variant": "full", "reuse": False}, {"variant": "full"}, ROUNDS_PARAMS],
-                         ids=["no-reuse", "reuse-selected", "default", "full-no-reuse", "full", "rounds"])
+@pytest.mark.parametrize("params", [{}, {"reuse": True, "expected_shading": False}, {"reuse": True},
+                                    {"variant": "full"}, {"variant": "full", "reuse": True}, ROUNDS_PARAMS],
+                         ids=["default", "reuse-selected", "reuse", "full", "full-reuse", "rounds"])
 def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes, params):
     """Light-traced samples and replayed caustic samples are bucketed by counting sorts in
     light-subpath and source-pixel order, the full variant's light vertex cache is indexed in
     block order, and the reuse passes draw from per-pixel streams: 1 and 3 threads give the same
     frames, here with the light of caustic-sphere moving along its keys (so caustic shifts run and
     some fail)."""
-    reuse = params.get("reuse", True)
+    reuse = params.get("reuse", False)
     extra = ["--method", "restir_bdpt", "--frames", "4", "--params", json.dumps(params), "--animation",
              str(scenes / "caustic-sphere" / "animations" / "light-path.json")]
     sc = scenes / "caustic-sphere" / "scene.json"
@@ -184,7 +184,7 @@ def test_restir_bdpt_independent_of_thread_count(tmp_path, scenes, params):
 
 
 @pytest.mark.parametrize("params,where", [({"variant": "full", "reuse": True, "copy_mis": True}, "/params/copy_mis"),
-                                          ({"copy_mis": True, "reuse": False}, "/params/copy_mis"),
+                                          ({"copy_mis": True}, "/params/copy_mis"),
                                           ({"variant": "complete"}, "/params/variant"),
                                           ({"lt_capacity": 65}, "/params/lt_capacity"),
                                           ({"lvc_capacity": 0}, "/params/lvc_capacity"),

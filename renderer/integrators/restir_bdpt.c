@@ -144,7 +144,7 @@ struct restir_bdpt_params restir_bdpt_defaults(void)
     return (struct restir_bdpt_params){.variant = RESTIR_BDPT_LIGHTWEIGHT, .max_depth = 64, .rr_depth = 3,
                                        .light_paths = 0, .lt_capacity = 8, .lvc_capacity = 8,
                                        .heuristic = BDPT_HEURISTIC_POWER,
-                                       .caustic_temporal = true, .temporal_cap = 20, .moving_cap = 1, .reuse = true,
+                                       .caustic_temporal = true, .temporal_cap = 20, .moving_cap = 1, .reuse = false,
                                        .reuse_temporal = true, .spatial_neighbors = 2, .spatial_rounds = 1, .spatial_radius = 0.0f, .paired_spatial = true,
                                        .expected_shading = true, .camera_reconnect = true, .copy_mis = false,
                                        .reject_unshiftable = false};

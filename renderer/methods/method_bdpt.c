@@ -98,13 +98,15 @@ const struct method_desc method_bdpt = {
 /* ---- restir_bdpt ---- */
 
 METHOD_DEFAULTS_OP(rbdpt_defaults, struct restir_bdpt_params, restir_bdpt_defaults)
-/* The converge profile: nothing carried from frame to frame (neither caustic nor non-caustic
- * history), so that a session's frames are independent, and three rounds of spatial reuse of 3
- * neighbours in its place ([ReSTIR BDPT Fig. 12]'s offline mode has 3 rounds of 6; a restir_bdpt
- * shift replays a light subpath, so fewer neighbours a round). docs/benchmarks.md measures it. */
+/* The converge profile: the non-caustic reservoirs reused spatially, in three rounds of 3
+ * neighbours ([ReSTIR BDPT Fig. 12]'s offline mode has 3 rounds of 6; a restir_bdpt shift replays
+ * a light subpath, so fewer neighbours a round), and nothing carried from frame to frame (neither
+ * caustic nor non-caustic history), so that a session's frames are independent.
+ * docs/benchmarks.md measures it. */
 static void rbdpt_converge(void *params)
 {
     struct restir_bdpt_params *p = params;
+    p->reuse = true;
     p->caustic_temporal = false;
     p->reuse_temporal = false;
     p->spatial_rounds = 3;
