@@ -170,17 +170,6 @@ static void method_json_caps(struct jsonw *w, unsigned caps)
     jsonw_object_end(w);
 }
 
-/* The bytes a parameter of this kind occupies in its method's parameter struct. */
-static size_t method_json_param_size(enum method_param_kind k)
-{
-    switch (k) {
-    case METHOD_PARAM_UINT: return sizeof(uint32_t);
-    case METHOD_PARAM_BOOL: return sizeof(bool);
-    case METHOD_PARAM_FLOAT: return sizeof(float);
-    case METHOD_PARAM_ENUM: return sizeof(int);
-    }
-    return 0;
-}
 
 void protocol_write_method(struct jsonw *w, const struct method_desc *m, const struct protocol_limits *limits)
 {
@@ -207,7 +196,7 @@ void protocol_write_method(struct jsonw *w, const struct method_desc *m, const s
         else method_json_param_value(w, mp, defaults);
         /* Only where the converge profile changes the default: absent, a session of either
          * profile starts from "default". */
-        if (memcmp(defaults + mp->offset, converge + mp->offset, method_json_param_size(mp->kind)) != 0) {
+        if (memcmp(defaults + mp->offset, converge + mp->offset, method_param_size(mp->kind)) != 0) {
             jsonw_key(w, "converge_default");
             method_json_param_value(w, mp, converge);
         }

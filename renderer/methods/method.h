@@ -47,6 +47,18 @@ enum method_param_kind { METHOD_PARAM_UINT, METHOD_PARAM_BOOL, METHOD_PARAM_FLOA
  * reports the value it chose; the registry shows no default). */
 #define METHOD_PARAM_SCENE_DEFAULT 2u
 
+/* The bytes a parameter of this kind occupies in its method's parameter struct. */
+static inline size_t method_param_size(enum method_param_kind k)
+{
+    switch (k) {
+    case METHOD_PARAM_UINT: return sizeof(uint32_t);
+    case METHOD_PARAM_BOOL: return sizeof(bool);
+    case METHOD_PARAM_FLOAT: return sizeof(float);
+    case METHOD_PARAM_ENUM: return sizeof(int);
+    }
+    return 0;
+}
+
 struct method_param {
     const char *key;                   /* as in a session's "params" object */
     enum method_param_kind kind;       /* UINT: uint32_t; BOOL: bool; FLOAT: float; ENUM: an enum
