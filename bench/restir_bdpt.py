@@ -5,9 +5,9 @@ cost, and a moving light frame by frame.
 
 Benchmarks are not tests: nothing here passes or fails on a timing. In one
 run, on lamp-in-glass and caustic-sphere (BENCH_RBDPT_SCENES) at 256x256 (BENCH_RBDPT_SIZE):
-  0. restir_bdpt runs with its defaults (lightweight, caustic reuse only), without caustic
-     reuse, with the non-caustic reuse (`"reuse": true`), and as the full variant (`"variant":
-     "full"`: bdpt's vertex connections too, caustic reuse), without and with `reuse`;
+  0. restir_bdpt runs with its defaults (lightweight, caustic and non-caustic reuse), without
+     caustic reuse, with caustic reuse only (`"reuse": false`), and as the full variant
+     (`"variant": "full"`: bdpt's vertex connections too), with and without `reuse`;
   1. a `bdpt` reference per scene of REF_FRAMES frames (bench/bdpt.py's, shared cache in
      build/refs/; `pt` cannot converge on these scenes: their light arrives through glass);
   2. MAPE against time ([ReSTIR BDPT footnote 3], `restir compare`), each over SEEDS seeds: `pt` at
@@ -80,12 +80,12 @@ BIASED = [("reuse", {"reuse": True}), ("copy_mis", {"reuse": True, "copy_mis": T
 SESSIONS = [("bdpt", ["--method", "bdpt"]), ("restir_pt", ["--method", "restir_pt"]),
             ("restir_bdpt", ["--method", "restir_bdpt"]),
             ("restir_bdpt, no caustic reuse", ["--method", "restir_bdpt", "--params", '{"caustic_temporal": false}']),
-            ("restir_bdpt, reuse", ["--method", "restir_bdpt", "--params", '{"reuse": true}']),
+            ("restir_bdpt, caustic reuse only", ["--method", "restir_bdpt", "--params", '{"reuse": false}']),
             ("restir_bdpt, full", ["--method", "restir_bdpt", "--params", '{"variant": "full"}']),
-            ("restir_bdpt, full, reuse", ["--method", "restir_bdpt", "--params",
-                                          '{"variant": "full", "reuse": true}'])]
+            ("restir_bdpt, full, caustic reuse only", ["--method", "restir_bdpt", "--params",
+                                                       '{"variant": "full", "reuse": false}'])]
 # The variants of restir_bdpt whose equal-time error and frame cost are compared with restir_pt's.
-COMPARED = ["restir_bdpt", "restir_bdpt, reuse", "restir_bdpt, full", "restir_bdpt, full, reuse"]
+COMPARED = ["restir_bdpt", "restir_bdpt, caustic reuse only", "restir_bdpt, full", "restir_bdpt, full, caustic reuse only"]
 
 
 def render(scene_path, out, seed, args):

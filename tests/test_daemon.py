@@ -1555,7 +1555,8 @@ def test_restir_bdpt_session(daemon):
     # The defaults (the resolution's radius at 32 x 24 is the least, 3 pixels).
     assert s["params"] == {"variant": "lightweight", "max_depth": 64, "rr_depth": 3, "light_paths": 0,
                            "lt_capacity": 8, "lvc_capacity": 8, "heuristic": "balance", "caustic_temporal": True, "temporal_cap": 20,
-                           "moving_cap": 1, "reuse": False, "reuse_temporal": True, "spatial_neighbors": 2,
+                           "moving_cap": 1, "reuse": False, "reuse_temporal": True, "history_check": True,
+                           "spatial_neighbors": 2,
                            "spatial_rounds": 1, "spatial_radius": 3,
                            "paired_spatial": True, "expected_shading": True, "camera_reconnect": True, "copy_mis": False,
                            "reject_unshiftable": False}
@@ -1582,7 +1583,8 @@ def test_restir_bdpt_session(daemon):
 
 def test_restir_bdpt_reuse_session_buffers(daemon):
     """With reuse a restir_bdpt session adds exactly the reuse's buffers: two more non-caustic
-    reservoirs, the G-buffer, the spatial pairs' scratch and the per-pixel x_2 cache of 116 bytes
+    reservoirs, the G-buffers (this frame's and, for the history check, the previous one's; one
+    without temporal reuse), the spatial pairs' scratch and the per-pixel x_2 cache of 116 bytes
     (the reverse hybrid shift's replayed light vertex); its memory is their sum."""
     s = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24, seed=3,
                     params={"reuse": True})
@@ -1593,9 +1595,18 @@ def test_restir_bdpt_reuse_session_buffers(daemon):
     assert daemon.req("DELETE", wide["href"]).status == 204
     n = 32 * 24
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
-                                 "caustic_shifts", "pixel_buckets", "light_blocks", "gbuffer", "spatial_pairs",
+                                 "caustic_shifts", "pixel_buckets", "light_blocks", "gbuffers", "spatial_pairs",
                                  "light_x2_cache"}
     assert s["buffers"]["light_x2_cache"] == 116 * n
+    assert s["buffers"]["gbuffers"] == 2 * 40 * n
+    spatial = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24,
+                          params={"reuse_temporal": False})
+    assert spatial["buffers"]["gbuffers"] == 40 * n
+    assert daemon.req("DELETE", spatial["href"]).status == 204
+    off = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24,
+                      params={"reuse": False})
+    assert "gbuffers" not in off["buffers"] and "spatial_pairs" not in off["buffers"]
+    assert daemon.req("DELETE", off["href"]).status == 204
     assert s["reservoir_bytes"] == (3 * 88 + 2 * 28) * n and s["reservoir_bytes_per_pixel"] == 88
     assert s["memory_bytes"] == sum(s["buffers"].values())
     assert daemon.req("DELETE", s["href"]).status == 204
@@ -1615,7 +1626,7 @@ def test_restir_bdpt_reuse_session_buffers(daemon):
     ({"spatial_radius": -1}, "/params/spatial_radius"),
     ({"spatial_radius": 257}, "/params/spatial_radius"),
     ({"spatial_rounds": 0}, "/params/spatial_rounds"),
-    ({"copy_mis": True}, "/params/copy_mis"),
+    ({"copy_mis": True, "reuse": False}, "/params/copy_mis"),
     ({"reject_unshiftable": "yes"}, "/params/reject_unshiftable"),
 ])
 def test_restir_bdpt_bad_params(daemon, params, field):

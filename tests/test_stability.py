@@ -27,11 +27,7 @@ REF_SPP = 2048
 # the methods whose frames reuse earlier frames (the others' frames are independent).
 METHODS = {"pt": {"spp": 1}, "restir_pt": {}, "bdpt": {}, "sms": {"bernoulli_cap": 0}, "sms_ssp": {"bernoulli_cap": 0},
            "restir_sss": {}, "restir_bdpt": {}, "restir_sms": {"bernoulli_cap": 0, "sampler": "sms"}}
-# restir_bdpt reuses only its caustic reservoirs over frames by default: on its home, cornell-box,
-# which has no specular surface, its frames are independent and it is checked as the methods
-# without reuse. (With `"reuse": true` its first frame after a camera teleport is 1.4x a fresh
-# session's MAPE, which test_camera_teleport would fail: docs/benchmarks.md.)
-REUSING = {"restir_pt", "restir_sss", "restir_sms"}
+REUSING = {"restir_pt", "restir_sss", "restir_sms", "restir_bdpt"}
 # The frame-sequence checks (flicker, correlation, teleport, light off/on) run on every method
 # but sms_ssp: it keeps nothing between frames (its prior is rebuilt from each frame's own scene
 # and camera), and its single 32x32 frames on the slab are too heavy-tailed for these ratios

@@ -144,8 +144,8 @@ struct restir_bdpt_params restir_bdpt_defaults(void)
     return (struct restir_bdpt_params){.variant = RESTIR_BDPT_LIGHTWEIGHT, .max_depth = 64, .rr_depth = 3,
                                        .light_paths = 0, .lt_capacity = 8, .lvc_capacity = 8,
                                        .heuristic = BDPT_HEURISTIC_POWER,
-                                       .caustic_temporal = true, .temporal_cap = 20, .moving_cap = 1, .reuse = false,
-                                       .reuse_temporal = true, .spatial_neighbors = 2, .spatial_rounds = 1, .spatial_radius = 0.0f, .paired_spatial = true,
+                                       .caustic_temporal = true, .temporal_cap = 20, .moving_cap = 1, .reuse = true,
+                                       .reuse_temporal = true, .history_check = true, .spatial_neighbors = 2, .spatial_rounds = 1, .spatial_radius = 0.0f, .paired_spatial = true,
                                        .expected_shading = true, .camera_reconnect = true, .copy_mis = false,
                                        .reject_unshiftable = false};
 }
@@ -204,6 +204,12 @@ static struct bdpt_blocks rbdpt_lvc_blocks_of(const struct restir_bdpt_params *p
     return bdpt_blocks_of(p->light_paths, p->lvc_capacity, 0, width, height);
 }
 
+/* Whether the session keeps the previous frame's G-buffer: only for the history check. */
+static bool rbdpt_checks_history(const struct restir_bdpt_params *p)
+{
+    return p->reuse && p->reuse_temporal && p->history_check;
+}
+
 static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
 {
     struct rbdpt_sizes z;
@@ -215,7 +221,7 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
     z.blocks_b = bdpt_blocks_bytes(&z.lb);
     z.res = (p->reuse ? 3 : 1) * n * sizeof(struct restir_bdpt_path) + 2 * n * sizeof(struct restir_bdpt_reservoir) +
             2 * n * sizeof(struct restir_bdpt_shifted) +
-            (n + 1) * sizeof(uint32_t) + (p->reuse ? n * sizeof(struct gbuffer_pixel) : 0);
+            (n + 1) * sizeof(uint32_t) + (p->reuse ? (rbdpt_checks_history(p) ? 2 : 1) * n * sizeof(struct gbuffer_pixel) : 0);
     z.pairs = p->reuse && p->paired_spatial ? restir_pair_scratch_bytes(width, height) : 0;
     z.x2c = p->reuse ? n * sizeof(struct rbdpt_x2_entry) : 0;
     /* The full variant's LVC: the vertices (and their subpaths with reuse), per block its
@@ -281,7 +287,7 @@ size_t restir_bdpt_block_bytes(const struct restir_bdpt_state *st)
 size_t restir_bdpt_bytes(const struct restir_bdpt_state *st)
 {
     return restir_bdpt_reservoir_bytes(st) + restir_bdpt_lt_bytes(st) + restir_bdpt_shift_bytes(st) +
-           restir_bdpt_bucket_bytes(st) + restir_bdpt_block_bytes(st) + gbuffer_bytes(&st->gbuf) +
+           restir_bdpt_bucket_bytes(st) + restir_bdpt_block_bytes(st) + gbuffer_bytes(&st->gbuf[0]) + gbuffer_bytes(&st->gbuf[1]) +
            restir_bdpt_lvc_bytes(st) + restir_bdpt_pair_bytes(st) + restir_bdpt_x2_bytes(st);
 }
 
@@ -311,7 +317,9 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
         st->res_spatial = calloc(n, sizeof *st->res_spatial);
         if (p->paired_spatial) st->pair_scratch = restir_buffer_alloc(1, z.pairs);
         st->x2c = calloc(n, sizeof *st->x2c);
-        if (st->res_prev && st->res_spatial && !gbuffer_init(&st->gbuf, width, height, err)) {
+        if (st->res_prev && st->res_spatial &&
+            !(gbuffer_init(&st->gbuf[0], width, height, err) &&
+              (!rbdpt_checks_history(p) || gbuffer_init(&st->gbuf[1], width, height, err)))) {
             restir_bdpt_destroy(st);
             return false;
         }
@@ -357,13 +365,15 @@ void restir_bdpt_destroy(struct restir_bdpt_state *st)
     free(st->lvc_path);
     bdpt_blocks_destroy(&st->lvb);
     free(st->lvc_first);
-    gbuffer_destroy(&st->gbuf);
+    gbuffer_destroy(&st->gbuf[0]);
+    gbuffer_destroy(&st->gbuf[1]);
     memset(st, 0, sizeof *st);
 }
 
 void restir_bdpt_reset(struct restir_bdpt_state *st)
 {
     st->has_history = false;
+    st->gbuf_history = false;
 }
 
 static double rbdpt_ms_since(const struct timespec *t0)
@@ -493,11 +503,16 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
         uint64_t grays = 0;
         struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = c->has_prev ? f->prev_scene : NULL,
                                    .prev_camera = c->has_prev ? f->prev_camera : NULL, .seed = f->seed,
-                                   .frame = f->frame, .threads = f->threads};
-        if (!gbuffer_render(&st->gbuf, &gf, &grays, err)) return false;
+                                   .frame = f->frame, .threads = f->threads, .check_history = p->history_check};
+        if (st->gbuf[1].px) {
+            if (!restir_gbuffer_next(st->gbuf, &st->gcur, &st->gbuf_history, gf, &grays, err)) return false;
+            st->gbuf_history = true;
+        } else if (!gbuffer_render(&st->gbuf[0], &gf, &grays, err)) {
+            return false;
+        }
         s.rays_intersect += grays;
         struct restir_reuse rr = {.ops = &rbdpt_ops, .ctx = c, .width = st->width, .height = st->height,
-                                  .seed = f->seed, .frame = f->frame, .threads = f->threads, .gbuf = &st->gbuf,
+                                  .seed = f->seed, .frame = f->frame, .threads = f->threads, .gbuf = &st->gbuf[st->gcur],
                                   .history = p->reuse_temporal && c->has_prev && st->has_history
                                                  ? (const uint8_t *)st->res_prev : NULL,
                                   .temporal_cap = p->temporal_cap, .neighbors = p->spatial_neighbors,

@@ -102,9 +102,11 @@ struct RESTIRD_STORED_IN_BYTES restir_bdpt_params {
     uint32_t moving_cap;       /* the caustic confidence cap instead in a frame whose shapes or lights
                                   moved or changed since the previous frame, 1..65535 (1: the history
                                   and the new samples weigh alike there; docs/benchmarks.md) */
-    bool reuse;                /* temporal and spatial reuse of the non-caustic reservoir (false) */
+    bool reuse;                /* temporal and spatial reuse of the non-caustic reservoir (true) */
     bool reuse_temporal;       /* with reuse: the non-caustic reservoirs take the previous frame's as
                                   history (true); false: each frame's reuse is spatial only */
+    bool history_check;        /* with reuse_temporal: a pixel whose previous pixel (along the motion
+                                  vector) saw another surface takes no history (true; gbuffer.h) */
     uint32_t spatial_neighbors; /* with reuse: neighbours per pixel and round, 0..32 (2) */
     uint32_t spatial_rounds;   /* with reuse and spatial neighbours: spatial passes in a row, each
                                   reusing the previous one's output, 1..8 (1) */
@@ -226,9 +228,12 @@ struct restir_bdpt_state {
     struct restir_bdpt_shifted *shifted_sorted; /* width * height, by landing pixel */
     uint32_t *shift_first;                      /* width * height + 1 */
     /* With reuse: the previous frame's final non-caustic reservoirs, the spatial pass's output,
-     * and the G-buffer whose motion vectors temporal reuse follows. */
+     * and the G-buffers whose motion vectors temporal reuse follows (gbuf[gcur] this frame's, the
+     * other the previous frame's, which the history check reads). */
     struct restir_bdpt_path *res_prev, *res_spatial;
-    struct gbuffer gbuf;
+    struct gbuffer gbuf[2];
+    uint32_t gcur;
+    bool gbuf_history;
     void *pair_scratch;                         /* with reuse and paired_spatial: restir.c's pairs */
     /* With reuse: per pixel the x_2 of its sample of the reverse hybrid shift's class in this
      * frame's scene, so that the shifts of one sample replay its light subpath once (restir_bdpt_reuse.c). */

@@ -66,6 +66,7 @@ struct gbuffer_job {
     struct gbuffer *g;
     const struct gbuffer_frame *f;
     struct camera cam, prev_cam;
+    bool check;  /* the history check applies (gbuffer_render) */
     uint64_t rays[GBUFFER_MAX_WORKERS];
 };
 
@@ -88,12 +89,72 @@ static float gbuffer_reflect(float z)
     return z < 1.0f ? z : 0x1.fffffep-1f;
 }
 
+/* The area a pixel of camera `cam` covers on a surface at distance d along unit direction w,
+ * whose geometric normal is ng: the pixel's solid angle (s^2 cos^3 of the angle off the axis,
+ * s the pixel's side at unit distance) times d^2 / |cos| at the surface. */
+static float gbuffer_footprint(const struct camera *cam, struct vec3 w, float d, struct vec3 ng)
+{
+    const float side = 2.0f * cam->tan_half_fov_y / (float)cam->height;
+    const float c = vec3_dot(w, cam->forward);
+    return side * side * c * c * c * d * d / fmaxf(fabsf(vec3_dot(ng, w)), 1e-3f);
+}
+
+/* The history check of a pixel whose primary hit (on `shape`, normal ng, distance t along unit
+ * direction dir) reprojects to q at image position (px, py) of the previous frame. Returns 0 when
+ * the previous pixel under (px, py) saw another surface: no hit, another shape, or a tangent plane
+ * farther from q than GBUFFER_HISTORY_PLANE_TOL of q's distance from the previous camera (the
+ * plane rather than the hit distance, which on a surface seen at a grazing angle changes by more
+ * than any fixed tolerance across the pixel). A disoccluded point, or one seen across a
+ * silhouette, fails. Otherwise the pixel's share of that history's confidence, min(1, A / A'),
+ * A and A' the areas the current and the previous pixel cover on the surface: a previous pixel
+ * that covered k times this one's area is the history of about k current pixels (after the camera
+ * came closer, or turned to see the surface less obliquely), each of which would otherwise take
+ * its few samples at their full confidence and repeat them over k pixels. Any positive
+ * confidence keeps the temporal pass's MIS weights a partition of unity, so the share biases
+ * nothing. Off screen: 1 (the temporal pass drops it anyway). */
+static float gbuffer_history_share(const struct gbuffer_job *gj, uint32_t shape, struct vec3 ng, struct vec3 dir,
+                                   float t, struct vec3 q, float px, float py)
+{
+    const struct gbuffer_frame *f = gj->f;
+    const struct gbuffer *pg = f->prev_gbuffer;
+    if (!(px >= 0.0f && py >= 0.0f && px < (float)pg->width && py < (float)pg->height)) return 1.0f;
+    const uint32_t ix = (uint32_t)px, iy = (uint32_t)py;
+    const struct gbuffer_pixel *pp = &pg->px[(size_t)iy * pg->width + ix];
+    if (!isfinite(pp->t) || pp->shape != shape) return 0.0f;
+    struct vec3 pp_p, pp_ng;
+    if (pg->surf) {
+        pp_p = pg->surf[(size_t)iy * pg->width + ix].p;
+        pp_ng = pg->surf[(size_t)iy * pg->width + ix].ng;
+    } else {
+        struct vec3 pdir = camera_ray_dir(&gj->prev_cam, (float)ix + pp->jx, (float)iy + pp->jy);
+        struct hit h = surface_hit_at(f->prev_scene, pp->shape, pp->prim, pp->t, pp->b1, pp->b2);
+        struct surface s;
+        surface_from_hit(f->prev_scene, &h, gj->prev_cam.position, pdir, &s);
+        pp_p = s.p;
+        pp_ng = s.ng;
+    }
+    const struct vec3 to_q = vec3_sub(q, gj->prev_cam.position);
+    const float dist = vec3_length(to_q);
+    if (!(fabsf(vec3_dot(pp_ng, vec3_sub(q, pp_p))) <= GBUFFER_HISTORY_PLANE_TOL * dist)) return 0.0f;
+    const float a = gbuffer_footprint(&gj->cam, dir, t, ng);
+    const float a_prev = gbuffer_footprint(&gj->prev_cam, vec3_scale(to_q, 1.0f / dist), dist, pp_ng);
+    return a_prev > a ? a / a_prev : 1.0f;
+}
+
+/* An escaped ray's history: the previous pixel's ray escaped too. */
+static bool gbuffer_same_sky(const struct gbuffer *pg, float px, float py)
+{
+    if (!(px >= 0.0f && py >= 0.0f && px < (float)pg->width && py < (float)pg->height)) return true;
+    return !isfinite(pg->px[(size_t)(uint32_t)py * pg->width + (uint32_t)px].t);
+}
+
 static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct gbuffer_job *gj = ctx;
     struct gbuffer *g = gj->g;
     const struct gbuffer_frame *f = gj->f;
     struct ray_counters rc = {0, 0};
+    const bool check = gj->check;
     uint32_t y1 = (job + 1) * GBUFFER_ROWS_PER_JOB < g->height ? (job + 1) * GBUFFER_ROWS_PER_JOB : g->height;
     for (uint32_t y = job * GBUFFER_ROWS_PER_JOB; y < y1; y++) {
         for (uint32_t x = 0; x < g->width; x++) {
@@ -110,6 +171,7 @@ static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
             struct vec3 dir = camera_ray_dir(&gj->cam, (float)x + gp->jx, (float)y + gp->jy);
             struct hit hit;
             gp->prev_x = gp->prev_y = NAN;
+            gp->prev_share = 1.0f;
             bool found = accel_intersect(f->scene->accel, gj->cam.position, dir, 0.0f, INFINITY, &hit, &rc);
             if (!found) {
                 gp->t = INFINITY;
@@ -117,6 +179,7 @@ static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
                 gp->b1 = gp->b2 = 0.0f;
                 if (g->surf) g->surf[pixel] = (struct gbuffer_surface){.material = GBUFFER_NO_HIT};
                 if (f->prev_scene) camera_project_dir(&gj->prev_cam, dir, &gp->prev_x, &gp->prev_y);
+                if (check && !gbuffer_same_sky(f->prev_gbuffer, gp->prev_x, gp->prev_y)) gp->prev_x = gp->prev_y = NAN;
                 continue;
             }
             gp->t = hit.t;
@@ -129,6 +192,10 @@ static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
             if (f->prev_scene) {
                 struct vec3 q = gbuffer_prev_point(f, hit.shape, s.p);
                 camera_project(&gj->prev_cam, q, &gp->prev_x, &gp->prev_y);
+                if (check) {
+                    gp->prev_share = gbuffer_history_share(gj, hit.shape, s.ng, dir, hit.t, q, gp->prev_x, gp->prev_y);
+                    if (!(gp->prev_share > 0.0f)) gp->prev_x = gp->prev_y = NAN;
+                }
             }
         }
     }
@@ -145,6 +212,11 @@ bool gbuffer_render(struct gbuffer *g, const struct gbuffer_frame *f, uint64_t *
     gj->f = f;
     camera_init(&gj->cam, f->camera, g->width, g->height);
     if (f->prev_scene) camera_init(&gj->prev_cam, f->prev_camera, g->width, g->height);
+    /* With a still camera and scene the previous pixel is this pixel (up to its jitter) and covers
+     * the same area: the check would only drop pixels astride an edge between two shapes, whose
+     * history is as good as any, so it applies only when something moved. */
+    gj->check = f->check_history && f->prev_gbuffer && f->prev_scene &&
+                (memcmp(f->camera, f->prev_camera, sizeof *f->camera) != 0 || scene_moved(f->prev_scene, f->scene));
     unsigned threads = f->threads ? f->threads : parallel_default_threads();
     if (threads > GBUFFER_MAX_WORKERS) threads = GBUFFER_MAX_WORKERS;
     uint32_t jobs = (g->height + GBUFFER_ROWS_PER_JOB - 1) / GBUFFER_ROWS_PER_JOB;

@@ -10,8 +10,10 @@
  * uniform in the pixel (the first frame's is drawn afresh), while consecutive frames look at
  * nearby points of it, where a method's temporal history was gathered.
  * The previous position accounts for camera motion and for shapes that moved between the two
- * frames' scenes (derived scenes keep shape indices). Visibility in the previous frame is not
- * checked here: a temporal shift validates its own vertices.
+ * frames' scenes (derived scenes keep shape indices). Visibility in the previous frame is checked
+ * only on request (gbuffer_frame.check_history): a temporal shift validates its own vertices, but
+ * a method whose history is trusted at many times a frame's confidence loses more to a shift that
+ * fails, or that lands on another surface, than it gains (the history check below).
  * Refs: docs/architecture.md (the G-buffer pass); docs/methods.md, "Reuse shared by the methods"
  * (temporal reuse evaluates the previous domain with the previous camera and scene). */
 #ifndef RESTIRD_GBUFFER_H
@@ -31,6 +33,8 @@ struct gbuffer_pixel {
     float prev_x, prev_y;   /* image position (pixels) of the same point, or of the same
                                direction for an escaped ray, in the previous frame; NAN when
                                there is no previous frame or the point was behind its camera */
+    float prev_share;       /* the share of that pixel's temporal confidence this pixel takes, in
+                               (0, 1]: 1 unless gbuffer_frame.check_history (gbuffer.c) */
 };
 
 /* A primary hit's surface as the G-buffer pass built it, for a method whose shifts come back to
@@ -72,7 +76,15 @@ struct gbuffer_frame {
     float jitter_walk;                    /* 0: a fresh position every frame; in (0, 0.5]: the
                                              largest step per axis from prev_gbuffer's, pixels */
     const struct gbuffer *prev_gbuffer;   /* the previous frame's (same size); NULL = fresh */
+    bool check_history;                   /* with prev_gbuffer, in a frame whose camera or shapes
+                                             moved: a motion vector whose previous pixel saw another
+                                             surface is dropped (prev_x = NAN), and prev_share set
+                                             (gbuffer_history_share) */
 };
+
+/* Relative tolerance of the history check: the reprojected point must lie within this fraction
+ * of its distance to the previous camera from the tangent plane of the previous pixel's hit. */
+#define GBUFFER_HISTORY_PLANE_TOL 0.02f
 
 /* Traces one primary ray per pixel. *rays gets the number of ray queries. */
 bool gbuffer_render(struct gbuffer *g, const struct gbuffer_frame *f, uint64_t *rays, struct err *err);

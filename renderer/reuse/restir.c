@@ -96,12 +96,13 @@ static void restir_temporal_pixel(const struct restir_pass *p, uint32_t pixel, s
 
     const struct restir_head *hq = restir_elem(r->history, stride, dq.pixel);
     const float M_c = (float)hc->M;
-    const float M_q = fminf((float)hq->M, (float)r->temporal_cap * M_c);
+    /* The history's confidence, capped, times this pixel's share of it (gbuffer.h prev_share). */
+    const float M_q = fminf((float)hq->M, (float)r->temporal_cap * M_c) * g->prev_share;
     /* The history's confidence in the MIS weights of one sample: M_q, or for a sample of the low
      * class (ops->capped_low) capped at temporal_cap_low instead; the same for both weights of a
      * sample, since its shift keeps its class. */
     const bool low = r->temporal_cap_low && ops->capped_low;
-    const float M_q_low = low ? fminf((float)hq->M, (float)r->temporal_cap_low * M_c) : M_q;
+    const float M_q_low = low ? fminf((float)hq->M, (float)r->temporal_cap_low * M_c) * g->prev_share : M_q;
 
     struct rng rng = rng_make(r->seed, r->frame, pixel, RESTIR_TEMPORAL_STREAM);
     struct reservoir_stream s;

@@ -1,8 +1,9 @@
 /* test_gbuffer.c — camera projection and G-buffer motion vectors, as round trips: a position
  * projected back through the camera gives the same ray; a pixel's previous position, traced
  * from the previous camera in the previous scene, hits the same surface point (camera motion,
- * a moved shape, both). The jitter walk keeps positions uniform in the pixel. And the primary
- * surfaces a G-buffer keeps. */
+ * a moved shape, both). The jitter walk keeps positions uniform in the pixel. The history check
+ * drops exactly the motion vectors whose previous pixel saw another surface, and the shares of
+ * one previous pixel's history add up to about one. And the primary surfaces a G-buffer keeps. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -318,5 +319,93 @@ static void test_kept_surfaces(void)
     scene_release(s);
 }
 
+/* Renders `cur` after `prev` (same scene), with the history check or without; returns the sum of the kept
+ * pixels' shares and sets *landed to the number of distinct previous pixels they point into, and
+ * counts over the hit pixels whose point projects into the previous image: *onscreen all of them,
+ * *kept those kept, *occluded those kept although the previous camera's ray towards the point
+ * hits another shape (the check must drop every one), *dropped_visible those dropped although
+ * that ray reaches the point. */
+static double history_run(const struct scene *s, const struct camera_desc *prev, const struct camera_desc *cur,
+                          bool check, uint32_t w, uint32_t h, uint32_t *landed, uint32_t *onscreen, uint32_t *kept,
+                          uint32_t *occluded, uint32_t *dropped_visible)
+{
+    struct gbuffer g[2];
+    struct err err = {0};
+    CHECK(gbuffer_init(&g[0], w, h, &err) && gbuffer_init(&g[1], w, h, &err));
+    struct gbuffer_frame f = {.scene = s, .camera = prev, .seed = 7, .frame = 1, .threads = 2};
+    CHECK(gbuffer_render(&g[0], &f, NULL, &err));
+    f = (struct gbuffer_frame){.scene = s, .camera = cur, .prev_scene = s, .prev_camera = prev, .seed = 7,
+                               .frame = 2, .threads = 2, .prev_gbuffer = &g[0], .check_history = check};
+    CHECK(gbuffer_render(&g[1], &f, NULL, &err));
+    struct camera cc, pc;
+    camera_init(&cc, cur, w, h);
+    camera_init(&pc, prev, w, h);
+    uint8_t *hit_prev = calloc((size_t)w * h, 1);
+    double share = 0.0;
+    *landed = *onscreen = *kept = *occluded = *dropped_visible = 0;
+    struct ray_counters rc = {0, 0};
+    for (uint32_t i = 0; hit_prev && i < w * h; i++) {
+        const struct gbuffer_pixel *gp = &g[1].px[i];
+        if (!isfinite(gp->t)) continue;
+        /* The reprojected point, traced from the previous camera without the check. */
+        struct vec3 p = vec3_madd(cc.position, camera_ray_dir(&cc, (float)(i % w) + gp->jx, (float)(i / w) + gp->jy), gp->t);
+        float px, py;
+        if (!camera_project(&pc, p, &px, &py) || !(px >= 0 && py >= 0 && px < (float)w && py < (float)h)) continue;
+        (*onscreen)++;
+        struct vec3 to = vec3_sub(p, pc.position);
+        struct hit h1;
+        bool seen = accel_intersect(s->accel, pc.position, vec3_normalize(to), 0, INFINITY, &h1, &rc) &&
+                    h1.shape == gp->shape && fabsf(h1.t - vec3_length(to)) < 1e-3f * vec3_length(to);
+        if (isfinite(gp->prev_x)) {
+            (*kept)++;
+            CHECK_MSG(gp->prev_share > 0.0f && gp->prev_share <= 1.0f, "pixel %u: share %g", i, (double)gp->prev_share);
+            share += gp->prev_share;
+            size_t q = (size_t)(uint32_t)gp->prev_y * w + (uint32_t)gp->prev_x;
+            *landed += !hit_prev[q];
+            hit_prev[q] = 1;
+            *occluded += !seen && h1.shape != gp->shape;
+        } else {
+            *dropped_visible += seen;
+        }
+    }
+    free(hit_prev);
+    gbuffer_destroy(&g[0]);
+    gbuffer_destroy(&g[1]);
+    return share;
+}
+
+static void test_history_check(void)
+{
+    struct scene *s = fixture_load("scenes/cornell-box/scene.json");
+    if (!s) return;
+    uint32_t landed, on, kept, occluded, dropped;
+    /* The same camera and scene: the check does not apply (gbuffer_render), every pixel keeps all
+     * of its history. */
+    double sum = history_run(s, &s->camera, &s->camera, true, 64, 48, &landed, &on, &kept, &occluded, &dropped);
+    CHECK_MSG(kept == on && sum == (double)kept, "kept %u of %u, shares sum to %.1f", kept, on, sum);
+    /* The camera halfway to the box: each previous pixel is the history of about 2-4 current ones
+     * (their areas on the walls), and their shares add up to about one per previous pixel. */
+    struct camera_desc near = s->camera;
+    near.position = vec3_madd(near.position, vec3_normalize(vec3_sub(near.look_at, near.position)), 450.0f);
+    sum = history_run(s, &s->camera, &near, true, 96, 80, &landed, &on, &kept, &occluded, &dropped);
+    CHECK_MSG(kept > on * 9 / 10, "kept %u of %u", kept, on);
+    CHECK_MSG(landed < kept / 2 && fabs(sum / landed - 1.0) < 0.15, "shares sum to %.1f over %u previous pixels (%u kept)",
+              sum, landed, kept);
+    /* The camera moved sideways and up: the tall box uncovers wall and floor. Without the check
+     * many pixels point into a previous pixel that saw the box; with it almost none (a previous
+     * pixel astride the box's silhouette whose own ray hit the wall keeps its history, rightly),
+     * and of the points seen then, few are dropped (edges between walls). */
+    struct camera_desc side = s->camera;
+    side.position = vec3_add(side.position, vec3_make(-260, 120, 100));
+    uint32_t occluded_unchecked;
+    history_run(s, &s->camera, &side, false, 96, 80, &landed, &on, &kept, &occluded_unchecked, &dropped);
+    sum = history_run(s, &s->camera, &side, true, 96, 80, &landed, &on, &kept, &occluded, &dropped);
+    printf("    history check after a side step: %u of %u kept, %u of them occluded then (%u unchecked), "
+           "%u seen then dropped\n", kept, on, occluded, occluded_unchecked, dropped);
+    CHECK_MSG(occluded_unchecked > 20 * occluded + 100 && dropped < kept / 20,
+              "%u occluded kept (%u unchecked), %u visible dropped of %u kept", occluded, occluded_unchecked, dropped, kept);
+    scene_release(s);
+}
+
 TEST_MAIN(TEST(test_camera_project_round_trip), TEST(test_motion_vectors), TEST(test_jitter_deterministic),
-          TEST(test_jitter_walk), TEST(test_kept_surfaces))
+          TEST(test_jitter_walk), TEST(test_kept_surfaces), TEST(test_history_check))

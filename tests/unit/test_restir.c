@@ -125,6 +125,14 @@ static float toy_depth_rel;
  * the control, "the element holds a fresh sample" (M = 1), a property of the reservoir rather than
  * of the sample, so the two weights of one sample use different confidences. */
 enum toy_class { TOY_CLASS_NONE, TOY_CLASS_X, TOY_CLASS_FRESH };
+
+/* With toy_share each pixel takes a share in [0.05, 1) of its history's confidence
+ * (gbuffer_pixel.prev_share, the history check's), fixed per pixel; otherwise all of it. */
+static bool toy_share;
+static float toy_share_of(uint32_t p)
+{
+    return toy_share ? 0.05f + 0.95f * (float)((p * 2654435761u) >> 16 & 0xffffu) / 65536.0f : 1.0f;
+}
 static enum toy_class toy_class;
 
 static bool toy_capped_low(const void *ctx, const void *elem)
@@ -157,7 +165,9 @@ static void toy_run(bool paired, bool wrong_jacobian, bool expected, uint32_t tr
     static struct vec3 estimate[N_PX];
     static struct gbuffer_pixel px[N_PX];
     for (uint32_t p = 0; p < N_PX; p++)  /* a static camera: each pixel's predecessor is itself */
-        px[p] = (struct gbuffer_pixel){.t = toy_depth_rel > 0.0f && p % W_PX >= W_PX / 2 ? 1.5f : 1.0f, .prev_x = (float)(p % W_PX) + 0.5f, .prev_y = (float)(p / W_PX) + 0.5f};
+        px[p] = (struct gbuffer_pixel){.t = toy_depth_rel > 0.0f && p % W_PX >= W_PX / 2 ? 1.5f : 1.0f,
+                                       .prev_x = (float)(p % W_PX) + 0.5f, .prev_y = (float)(p / W_PX) + 0.5f,
+                                       .prev_share = toy_share_of(p)};
     struct gbuffer g = {.width = W_PX, .height = H_PX, .px = px};
     void *scratch = malloc(restir_pair_scratch_bytes(W_PX, H_PX));
     CHECK(scratch != NULL);
@@ -292,6 +302,28 @@ static void check_unbiased_with_rejection(bool paired)
               per_trial_all);
 }
 static void test_reuse_unbiased_rejecting_unpaired(void) { check_unbiased_with_rejection(false); }
+
+/* A share of the history's confidence per pixel (the history check's, gbuffer.h): both temporal
+ * MIS weights of a pixel use the same shared confidence, so they still sum to one and the
+ * estimate stays unbiased; and the share acts (the same seeds give other estimates). */
+static void test_history_share_unbiased(void)
+{
+    static struct toy_stats full, shared, shared_few;
+    toy_run(true, false, false, 400, &full, NULL);
+    toy_share = true;
+    toy_run(true, false, false, 4000, &shared, NULL);
+    toy_run(true, false, false, 400, &shared_few, NULL);
+    toy_share = false;
+    uint32_t pass, valid;
+    double z;
+    toy_z(&shared, &pass, &valid, &z);
+    uint32_t differ = 0;  /* pixels whose estimates over the same 400 seeds changed */
+    for (uint32_t p = 0; p < N_PX; p++) differ += shared_few.sum[p] != full.sum[p];
+    printf("  history shares in [0.05, 1): %u of %u pixels pass, total z = %.2f\n", pass, valid, z);
+    CHECK_MSG(pass * 1000u >= valid * 995u, "%u of %u pixels", pass, valid);
+    CHECK_MSG(fabs(z) < 3.0, "total z %.2f", z);
+    CHECK_MSG(differ > valid / 2, "the shares changed %u of %u pixels' estimates", differ, valid);
+}
 static void test_reuse_unbiased_rejecting_paired(void) { check_unbiased_with_rejection(true); }
 
 /* A class of samples whose history is capped lower (restir_reuse.temporal_cap_low): unbiased when
@@ -434,7 +466,7 @@ static bool toy_frame_open(struct restir_session *s, struct toy_pass *tp, const 
     for (int i = 0; i < 2; i++)
         for (uint32_t p = 0; p < N_PX; p++)
             s->gbuf[i].px[p] = (struct gbuffer_pixel){.t = 1.0f, .prev_x = (float)(p % W_PX) + 0.5f,
-                                                      .prev_y = (float)(p / W_PX) + 0.5f};
+                                                      .prev_y = (float)(p / W_PX) + 0.5f, .prev_share = 1.0f};
     struct restir_pass_stats local;
     if (!restir_frame_open(&tp->fr, sizeof *tp, s, f, out, false, stats, &local, sizeof local, err)) return false;
     tp->seed = f->seed;
@@ -519,5 +551,5 @@ static void test_frame_history_two_rounds(void) { check_history_after(2); }
 TEST_MAIN(TEST(test_frame_store_zeroes_nonfinite), TEST(test_frame_history_one_round),
           TEST(test_frame_history_two_rounds), TEST(test_pairing_is_an_involution), TEST(test_neighbour_test_is_symmetric), TEST(test_reuse_unbiased_unpaired),
           TEST(test_reuse_unbiased_paired), TEST(test_reuse_unbiased_rejecting_unpaired),
-          TEST(test_reuse_unbiased_rejecting_paired), TEST(test_class_cap_unbiased),
+          TEST(test_reuse_unbiased_rejecting_paired), TEST(test_history_share_unbiased), TEST(test_class_cap_unbiased),
           TEST(test_class_cap_of_the_reservoir_is_caught), TEST(test_wrong_jacobian_is_caught))
