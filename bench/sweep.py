@@ -1,5 +1,6 @@
 """bench/sweep.py — configurations of one method that cost the same per frame, compared at an
-equal number of frames (so at equal time) against the report's reference of the scene.
+equal number of frames (so at equal time) against the report's reference of the scene; or, with
+SWEEP_BUDGET_SPP, configurations of any cost converging a still image at equal CPU time.
 
 Each configuration renders SWEEP_SEEDS sessions of SWEEP_FRAMES frames with `restir render`
 (seeds 7000, 7001, ...: the same for every configuration, so that they differ only by their
@@ -14,23 +15,79 @@ REPORT_PARAMS compares at equal time. Usage:
 
 Environment: SWEEP_SIZE (256: the side of the square image), SWEEP_SEEDS (5), SWEEP_FRAMES
 (33: the frame after the report's 32 warm-up frames), RESTIR_BIN (build/restir), BENCH_THREADS
-(all cores), REPORT_REF_BIN (bench/references.py)."""
+(all cores), REPORT_REF_BIN (bench/references.py).
+
+The converge regime (SWEEP_BUDGET_SPP=N): the budget is the CPU time (user + system, all threads)
+of `pt` at N spp on the scene; each configuration starts from the method's converge profile
+(`--profile converge`: independent frames) and averages as many frames as fit in the budget (its
+frame cost taken from a 1- and a 2-frame session), and pt at N spp is the first row. CPU time
+rather than wall time: the figure holds on a shared machine, where other work stretches the wall
+clock but not the CPU time a render spends (BENCH_THREADS=1 keeps it free of thread waits too).
+SWEEP_BASELINES (e.g. "bdpt") adds those methods with their defaults at the same budget. E.g.
+
+  SWEEP_BUDGET_SPP=16 SWEEP_BASELINES=bdpt BENCH_THREADS=1 /usr/bin/python3 bench/sweep.py \
+      lamp-in-glass restir_bdpt '{}' '{"spatial_rounds": 1}'"""
 import json
 import os
+import resource
 import statistics
+import subprocess
 import sys
 from pathlib import Path
 
 import errors
 from exrimage import read_rgb
 from references import Reference, reference_method
-from restir_pt import run
+from restir_pt import BIN, THREADS, run
 
 ROOT = Path(__file__).resolve().parent.parent
 SIDE = int(os.environ.get("SWEEP_SIZE", "256"))
 SEEDS = int(os.environ.get("SWEEP_SEEDS", "5"))
 FRAMES = int(os.environ.get("SWEEP_FRAMES", "33"))
 FIRST_SEED = 7000
+BUDGET_SPP = int(os.environ.get("SWEEP_BUDGET_SPP", "0"))
+BASELINES = os.environ.get("SWEEP_BASELINES", "").split()
+
+
+def cpu_render(args):
+    """Runs `restir render ARGS` and returns the CPU seconds it spent (its own and its threads')."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    res = subprocess.run([BIN, "render", *map(str, args), "--threads", THREADS], capture_output=True, text=True)
+    if res.returncode != 0:
+        raise SystemExit(f"sweep: {' '.join(map(str, args))}: {res.stderr.strip()}")
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
+
+
+def converge(path, work, ref, method, configs):
+    """The converge regime: every configuration at the CPU time of pt at BUDGET_SPP spp."""
+    base = [path, "--size", f"{SIDE}x{SIDE}", "--json"]
+    budget = statistics.median(cpu_render([*base, "--method", "pt", "--spp", BUDGET_SPP, "--seed", FIRST_SEED + s,
+                                           "-o", work / "budget.exr"]) for s in range(2))
+    threads = "all cores" if THREADS == "0" else f"{THREADS} thread{'' if THREADS == '1' else 's'}"
+    print(f"\nConverge at equal CPU time: {budget:.2f} CPU-s, pt's at {BUDGET_SPP} spp ({threads}).\n")
+    print("| method | params | frames | CPU-s | MAPE | relMSE | RMSE |\n|---|---|---|---|---|---|---|")
+    rows = [("pt", None)] + [(b, "{}") for b in BASELINES] + [(method, c) for c in configs]
+    for m, text in rows:
+        if text is None:
+            args, frames = ["--method", "pt", "--spp", BUDGET_SPP], BUDGET_SPP
+        else:
+            session = [*base, "--method", m, "--params", text, "--profile", "converge", "--seed", FIRST_SEED]
+            one = cpu_render([*session, "--frames", 1, "-o", work / "calib.exr"])
+            two = cpu_render([*session, "--frames", 2, "--average-last", 2, "-o", work / "calib.exr"])
+            per = max(two - one, 1e-3)
+            frames = max(1, round((budget - max(one - per, 0.0)) / per))
+            args = ["--method", m, "--params", text, "--profile", "converge", "--frames", frames,
+                    "--average-last", frames]
+        scores, cpu = [], []
+        for s in range(SEEDS):
+            out = work / f"converge-{s}.exr"
+            cpu.append(cpu_render([*base, *args, "--seed", FIRST_SEED + s, "-o", out]))
+            scores.append(errors.metrics(read_rgb(out), ref.image))
+        med = {k: statistics.median(sc[k] for sc in scores) for k in errors.KEYS}
+        label = f"`{text}`" if text is not None else f"{BUDGET_SPP} spp"
+        print(f"| {m} | {label} | {frames} | {statistics.median(cpu):.2f} | {med['mape']:.4g} | {med['relmse']:.4g} | "
+              f"{med['rmse']:.4g} |", flush=True)
 
 
 def main(argv):
@@ -51,9 +108,13 @@ def main(argv):
     ref_method, chunk = reference_method(scene)
     ref = Reference(path, SIDE, ref_method, chunk, work)
     own = ", ".join(f"{k} {v:.4g}" for k, v in ref.own.items())
-    print(f"# {method} on {scene}, {SIDE}x{SIDE}, frame {FRAMES} of a session, medians over {SEEDS} seeds; "
+    what = (f"converging at pt {BUDGET_SPP} spp's CPU time" if BUDGET_SPP else f"frame {FRAMES} of a session")
+    print(f"# {method} on {scene}, {SIDE}x{SIDE}, {what}, medians over {SEEDS} seeds; "
           f"reference {ref_method} ({ref.samples} samples), its own error {own}")
     print(f"# command: /usr/bin/python3 bench/sweep.py {scene} {method} " + " ".join(f"'{c}'" for c in configs))
+    if BUDGET_SPP:
+        converge(path, work, ref, method, configs)
+        return
     print("\n| params | ms a frame | MAPE | relMSE | RMSE |\n|---|---|---|---|---|")
     for text in configs:
         scores, ms = [], []

@@ -139,13 +139,16 @@ def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse, varian
 # averaged.
 TELEPORT_FROM = {"position": [278, 273, -800], "look_at": [278, 273, 0], "up": [0, 1, 0], "fov_deg": 39.3}
 TELEPORT_TO = {"position": [60, 480, 60], "look_at": [380, 100, 380], "up": [0, 1, 0], "fov_deg": 50.0}
+# Sessions per method: the frames after a jump are heavy-tailed, and with 16 the x1.03 control sat at
+# t = 3.39 against a threshold of 3.46.
+TELEPORT_K = 32
 
 
 @pytest.mark.statistical
 def test_restir_bdpt_camera_teleport_matches_bdpt(tmp_path, scenes):
     """restir_bdpt with its defaults (temporal and spatial reuse of the non-caustic reservoirs,
     the history check) stays unbiased when the camera jumps: the mean of the 8 frames after the
-    jump of 16 sessions matches 16 bdpt sessions of the same frames, and x1.03 is rejected."""
+    jump of 32 sessions matches 32 bdpt sessions of the same frames, and x1.03 is rejected."""
     keys = [{"t": 0, **TELEPORT_FROM}, {"t": 7 / 16, **TELEPORT_FROM}, {"t": 8 / 16, **TELEPORT_TO},
             {"t": 15 / 16, **TELEPORT_TO}]
     anim = tmp_path / "teleport.json"
@@ -155,7 +158,7 @@ def test_restir_bdpt_camera_teleport_matches_bdpt(tmp_path, scenes):
 
     def sessions(method, seed0):
         runs, stats = [], []
-        for k in range(K):
+        for k in range(TELEPORT_K):
             img, st = render(path, tmp_path / f"{method}{k}.exr", spp=1, seed=seed0 + k,
                              extra=["--method", method, "--frames", "16", "--average-last", "8",
                                     "--animation", str(anim), "--profile", "real-time"])
