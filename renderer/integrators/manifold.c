@@ -135,11 +135,21 @@ static bool mf_scatter(struct dv3 wo, struct dv3 n, enum manifold_event ev, doub
  * choice of pole), each as w = cos θ s + sin θ (cos φ t + sin φ n): a = wi, towards the next
  * vertex, and b = the specular scattering of wo. Kept as cos θ, sin θ and the (t, n) components
  * (x, y), whose length is sin θ = |w × s| (accurate near the pole, where sqrt(1 - cos²) is not):
- * the constraint takes one atan2 per angle from them, and a finite difference none. */
+ * the constraint takes one atan2 per angle from them, and their derivatives none. */
 struct mf_dirs { double ca, sa, xa, ya, cb, sb, xb, yb; };
 
-static bool mf_vertex_dirs(struct dv3 prev, struct dv3 p, struct dv3 n, struct dv3 next, struct dv3 tangent,
-                           enum manifold_event ev, double ior, struct mf_dirs *d)
+/* Everything of one vertex's constraint that its derivatives reuse: the unit directions wo
+ * (towards the previous vertex) and wi (towards the next) with their segment lengths, the unit
+ * normal, the frame (s, t) built from the tangent T, |T - n (n·T)| and n·T, the scattered
+ * direction, and the spherical coordinates. */
+struct mf_vstate {
+    struct dv3 wo, wi, n, s, t, pred, tangent;
+    double lo, li, ls, tn;
+    struct mf_dirs d;
+};
+
+static bool mf_vertex_eval(struct dv3 prev, struct dv3 p, struct dv3 n, struct dv3 next, struct dv3 tangent,
+                           enum manifold_event ev, double ior, struct mf_vstate *st)
 {
     struct dv3 wo = dv_sub(prev, p), wi = dv_sub(next, p);
     double lo = dv_len(wo), li = dv_len(wi);
@@ -148,21 +158,25 @@ static bool mf_vertex_dirs(struct dv3 prev, struct dv3 p, struct dv3 n, struct d
     wi = dv_scale(wi, 1.0 / li);
     struct dv3 pred;
     if (!mf_scatter(wo, n, ev, ior, &pred)) return false;
-    struct dv3 s = dv_sub(tangent, dv_scale(n, dv_dot(n, tangent)));
+    double tn = dv_dot(n, tangent);
+    struct dv3 s = dv_sub(tangent, dv_scale(n, tn));
     double ls = dv_len(s);
     if (!(ls > 0.0)) return false;
     s = dv_scale(s, 1.0 / ls);
     struct dv3 t = dv_cross(n, s);
+    struct mf_dirs *d = &st->d;
     d->ca = dv_dot(wi, s), d->xa = dv_dot(wi, t), d->ya = dv_dot(wi, n);
     d->cb = dv_dot(pred, s), d->xb = dv_dot(pred, t), d->yb = dv_dot(pred, n);
     d->sa = sqrt(d->xa * d->xa + d->ya * d->ya);
     d->sb = sqrt(d->xb * d->xb + d->yb * d->yb);
+    st->wo = wo, st->wi = wi, st->n = n, st->s = s, st->t = t, st->pred = pred, st->tangent = tangent;
+    st->lo = lo, st->li = li, st->ls = ls, st->tn = tn;
     return isfinite(d->ca + d->sa + d->xa + d->ya + d->cb + d->sb + d->xb + d->yb);
 }
 
-/* The angle turned from direction (x0, y0) to (x1, y1) of the plane, in [-π, π]. A finite
- * difference turns by ~1e-7 rad, where atan(r) = r - r³/3 to 2e-16 (r ≤ 1e-3) and atan2, the
- * costliest call of a walk, is not needed. */
+/* The angle turned from direction (x0, y0) to (x1, y1) of the plane, in [-π, π]. Near a
+ * solution (and in a finite difference, ~1e-7 rad) the turn is small, where atan(r) = r - r³/3
+ * to 2e-16 (r ≤ 1e-3) and atan2, the costliest call of a walk, is not needed. */
 static double mf_turn(double x0, double y0, double x1, double y1)
 {
     double sn = x0 * y1 - y0 * x1, cs = x0 * x1 + y0 * y1;
@@ -187,16 +201,26 @@ static void mf_dirs_dc(const struct mf_dirs *d0, const struct mf_dirs *d1, doubl
     dc[1] = mf_turn(d0->xa, d0->ya, d1->xa, d1->ya) - mf_turn(d0->xb, d0->yb, d1->xb, d1->yb);
 }
 
-/* The directions of every vertex of the chain for positions p[] and unit normals n[] (frames
- * from g[]), ends x1, xe. */
-static bool mf_eval_dirs(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct dv3 *p,
-                         const struct dv3 *n, const struct mf_geom *g, struct mf_dirs *D)
+/* The constraint's state at every vertex of the chain for positions p[] and unit normals n[]
+ * (frames from g[]), ends x1, xe. */
+static bool mf_eval_states(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct dv3 *p,
+                           const struct dv3 *n, const struct mf_geom *g, struct mf_vstate *S)
 {
     uint32_t k = chain->length;
     for (uint32_t i = 0; i < k; i++) {
         struct dv3 prev = i == 0 ? x1 : p[i - 1], next = i + 1 == k ? xe : p[i + 1];
-        if (!mf_vertex_dirs(prev, p[i], n[i], next, g[i].dpdu, chain->events[i], chain->ior, &D[i])) return false;
+        if (!mf_vertex_eval(prev, p[i], n[i], next, g[i].dpdu, chain->events[i], chain->ior, &S[i])) return false;
     }
+    return true;
+}
+
+/* The same, keeping only the spherical coordinates. */
+static bool mf_eval_dirs(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct dv3 *p,
+                         const struct dv3 *n, const struct mf_geom *g, struct mf_dirs *D)
+{
+    struct mf_vstate S[MANIFOLD_MAX_CHAIN];
+    if (!mf_eval_states(chain, x1, xe, p, n, g, S)) return false;
+    for (uint32_t i = 0; i < chain->length; i++) D[i] = S[i].d;
     return true;
 }
 
@@ -219,12 +243,12 @@ static bool mf_eval_at(const struct manifold_chain *chain, struct dv3 x1, struct
     return isfinite(mf_norm(C, 2 * chain->length));
 }
 
-/* dC / d(u_j, v_j) over the surface model, by finite differences in double. Forward ones for a
- * Newton step, step 1e-7 of the shorter adjacent segment: truncation ~5e-8 and rounding ~1e-8
- * relative, which a step needs no better; they start from D0, the directions at the base points
- * (mf_eval_at's, computed with the same numbers). Central ones (`central`, D0 unused) for the
- * generalized geometry term, which enters the estimate, step 1e-6: truncation ~1e-12, rounding
- * ~1e-10. */
+/* dC / d(u_j, v_j) over the surface model, by finite differences in double: only for the test
+ * hooks, which hold the analytic derivatives (mf_derivatives) against them. Forward ones, the
+ * Newton step's Jacobian before the analytic one, step 1e-7 of the shorter adjacent segment:
+ * truncation ~5e-8 and rounding ~1e-8 relative; they start from D0, the directions at the base
+ * points (mf_eval_at's, computed with the same numbers). Central ones (`central`, D0 unused),
+ * step 1e-6: truncation ~1e-12, rounding ~1e-10. */
 static bool mf_jacobian(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct mf_geom *g,
                         bool central, const struct mf_dirs *D0, double J[MF_N][MF_N])
 {
@@ -260,6 +284,156 @@ static bool mf_jacobian(const struct manifold_chain *chain, struct dv3 x1, struc
         }
     }
     return true;
+}
+
+/* The component of d orthogonal to the unit vector w, over l: the derivative of the unit vector
+ * w = (q - p) / l along a move d of q (for a move d of p, its negative). */
+static inline struct dv3 mf_dunit(struct dv3 w, struct dv3 d, double l)
+{
+    return dv_scale(dv_madd(d, w, -dv_dot(w, d)), 1.0 / l);
+}
+
+/* The derivatives of a direction's spherical coordinates (θ about the pole s, φ = atan2(y, x)
+ * with x = w·t, y = w·n): w moves by dw, the frame (s, t, n) by (ds, dt, dn). θ = atan2(sin θ,
+ * cos θ) with sin θ = |(x, y)| as mf_vertex_eval takes it; both are singular only at the pole,
+ * which no useful path reaches (manifold.h). */
+static void mf_angles_d(struct dv3 w, struct dv3 dw, double c, double sn, double x, double y, const struct mf_vstate *st,
+                        struct dv3 ds, struct dv3 dt, struct dv3 dn, double *dth, double *dph)
+{
+    double dc = dv_dot(dw, st->s) + dv_dot(w, ds);
+    double dx = dv_dot(dw, st->t) + dv_dot(w, dt);
+    double dy = dv_dot(dw, st->n) + dv_dot(w, dn);
+    double dsn = (x * dx + y * dy) / sn;
+    *dth = (c * dsn - sn * dc) / (c * c + sn * sn);
+    *dph = (x * dy - y * dx) / (sn * sn);
+}
+
+/* dC of one vertex when its unit directions move by dwo (towards the previous vertex) and dwi
+ * (towards the next) and its unit normal by dn: the chain rule through mf_scatter, the frame and
+ * the angles of this constraint (Zeltner et al. 2020 §4; Jakob & Marschner 2012 §4 take the
+ * derivatives of their half-vector constraint the same way, vertex by vertex). */
+static void mf_vertex_dc(const struct mf_vstate *st, enum manifold_event ev, double ior, struct dv3 dwo, struct dv3 dwi,
+                         struct dv3 dn, double dc[2])
+{
+    /* The scattered direction. Reflection r = 2 (wo·n) n - wo; refraction (mf_scatter, with nn
+     * the normal on wo's side, ci = wo·nn, η the index ratio across it) r = -wo / η + nn (ci / η
+     * - ct), ct = sqrt(1 - (1 - ci²) / η²) = -r·nn, so dct = ci dci / (η² ct). */
+    double c = dv_dot(st->wo, st->n), dcn = dv_dot(dwo, st->n) + dv_dot(st->wo, dn);
+    struct dv3 dpred;
+    if (ev == MANIFOLD_REFLECT) {
+        dpred = dv_sub(dv_add(dv_scale(st->n, 2.0 * dcn), dv_scale(dn, 2.0 * c)), dwo);
+    } else {
+        bool outside = c > 0.0;
+        double eta = outside ? ior : 1.0 / ior, sg = outside ? 1.0 : -1.0;
+        double ci = sg * c, dci = sg * dcn, ct = -sg * dv_dot(st->pred, st->n);
+        double dct = ci * dci / (eta * eta * ct);
+        dpred = dv_add(dv_scale(dwo, -1.0 / eta),
+                       dv_add(dv_scale(dn, sg * (ci / eta - ct)), dv_scale(st->n, sg * (dci / eta - dct))));
+    }
+    /* The frame moves with the normal: s = q / |q|, q = T - n (n·T) with the tangent T fixed
+     * (the model's dp/du), t = n × s. */
+    struct dv3 dq = dv_add(dv_scale(dn, -st->tn), dv_scale(st->n, -dv_dot(dn, st->tangent)));
+    struct dv3 ds = dv_scale(dv_madd(dq, st->s, -dv_dot(st->s, dq)), 1.0 / st->ls);
+    struct dv3 dt = dv_add(dv_cross(dn, st->s), dv_cross(st->n, ds));
+    const struct mf_dirs *d = &st->d;
+    double tha, pha, thb, phb;
+    mf_angles_d(st->wi, dwi, d->ca, d->sa, d->xa, d->ya, st, ds, dt, dn, &tha, &pha);
+    mf_angles_d(st->pred, dpred, d->cb, d->sb, d->xb, d->yb, st, ds, dt, dn, &thb, &phb);
+    dc[0] = tha - thb;
+    dc[1] = pha - phb;
+}
+
+/* Analytic derivatives of the constraint at the chain's surface models' base points, in one pass
+ * with C: J = dC / d(u_j, v_j) and, when `e` is given, B = dC / d(end point) along e[0], e[1].
+ * C_i depends only on the vertices i - 1, i, i + 1 (and the end point only through the last
+ * vertex's wi), so J is block tridiagonal and B nonzero in the last block row. `C` may be NULL
+ * (a walk has it from the step that accepted the point). */
+static bool mf_derivatives(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct mf_geom *g,
+                           double *C, double J[MF_N][MF_N], const struct dv3 *e, double B[MF_N][2])
+{
+    const uint32_t k = chain->length;
+    struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN], dp[MANIFOLD_MAX_CHAIN][2], dn[MANIFOLD_MAX_CHAIN][2];
+    for (uint32_t i = 0; i < k; i++) {
+        /* n = ñ / |ñ|, dn = (dñ - n (n·dñ)) / |ñ|; a sphere's point follows its normal (p = c + r n),
+         * a triangle's is linear in (u, v). */
+        mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
+        double len = dv_len(g[i].nt);
+        for (int a = 0; a < 2; a++) {
+            dn[i][a] = mf_dunit(n[i], a == 0 ? g[i].dntu : g[i].dntv, len);
+            dp[i][a] = g[i].sphere ? dv_scale(dn[i][a], g[i].r) : a == 0 ? g[i].dpdu : g[i].dpdv;
+        }
+    }
+    struct mf_vstate S[MANIFOLD_MAX_CHAIN];
+    if (!mf_eval_states(chain, x1, xe, p, n, g, S)) return false;
+    if (C) {
+        for (uint32_t i = 0; i < k; i++) mf_dirs_c(&S[i].d, &C[2 * i]);
+        if (!isfinite(mf_norm(C, 2 * k))) return false;
+    }
+    const struct dv3 zero = {0.0, 0.0, 0.0};
+    double worst = 0.0;
+    for (uint32_t i = 0; i < k; i++) {
+        const struct mf_vstate *st = &S[i];
+        for (uint32_t j = 0; j < k; j++) {
+            for (int a = 0; a < 2; a++) {
+                double dc[2] = {0.0, 0.0};
+                if (j == i)   /* the vertex itself: both directions turn, the normal moves */
+                    mf_vertex_dc(st, chain->events[i], chain->ior, mf_dunit(st->wo, dv_scale(dp[j][a], -1.0), st->lo),
+                                 mf_dunit(st->wi, dv_scale(dp[j][a], -1.0), st->li), dn[i][a], dc);
+                else if (j + 1 == i)   /* the previous vertex moves wo */
+                    mf_vertex_dc(st, chain->events[i], chain->ior, mf_dunit(st->wo, dp[j][a], st->lo), zero, zero, dc);
+                else if (j == i + 1)   /* the next vertex moves wi */
+                    mf_vertex_dc(st, chain->events[i], chain->ior, zero, mf_dunit(st->wi, dp[j][a], st->li), zero, dc);
+                J[2 * i][2 * j + a] = dc[0];
+                J[2 * i + 1][2 * j + a] = dc[1];
+                worst = fmax(worst, fabs(dc[0]) + fabs(dc[1]));
+            }
+        }
+    }
+    if (e) {
+        for (uint32_t i = 0; i < k; i++) {
+            for (int a = 0; a < 2; a++) {
+                double dc[2] = {0.0, 0.0};
+                if (i + 1 == k)
+                    mf_vertex_dc(&S[i], chain->events[i], chain->ior, zero, mf_dunit(S[i].wi, e[a], S[i].li), zero, dc);
+                B[2 * i][a] = dc[0];
+                B[2 * i + 1][a] = dc[1];
+                worst = fmax(worst, fabs(dc[0]) + fabs(dc[1]));
+            }
+        }
+    }
+    return isfinite(worst);
+}
+
+/* dC / d(end point) by central differences, step 1e-6 of the last segment (truncation ~1e-12,
+ * rounding ~1e-10): what the analytic B is tested against. */
+static bool mf_end_differences(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe,
+                               const struct mf_geom *g, const struct dv3 *e, double B[MF_N][2])
+{
+    const uint32_t k = chain->length;
+    struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
+    for (uint32_t i = 0; i < k; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
+    double h = 1e-6 * dv_len(dv_sub(xe, p[k - 1]));
+    for (int a = 0; a < 2; a++) {
+        struct mf_dirs Dp[MANIFOLD_MAX_CHAIN], Dm[MANIFOLD_MAX_CHAIN];
+        if (!mf_eval_dirs(chain, x1, dv_madd(xe, e[a], h), p, n, g, Dp) ||
+            !mf_eval_dirs(chain, x1, dv_madd(xe, e[a], -h), p, n, g, Dm))
+            return false;
+        for (uint32_t i = 0; i < k; i++) {
+            double dc[2];
+            mf_dirs_dc(&Dm[i], &Dp[i], dc);
+            B[2 * i][a] = dc[0] / (2.0 * h);
+            B[2 * i + 1][a] = dc[1] / (2.0 * h);
+        }
+    }
+    return true;
+}
+
+/* The end point's orthonormal tangent basis (area scale 1) of the light. */
+static void mf_end_frame(const struct manifold_ends *ends, struct dv3 e[2])
+{
+    struct frame fe = frame_from_normal(vec3_normalize(ends->nge));
+    e[0] = dv(fe.s);
+    e[1] = dv(fe.t);
 }
 
 /* Solves A X = B in place (n x n, `m` right-hand sides in B's columns); Gaussian elimination
@@ -393,22 +567,28 @@ double manifold_constraint_norm(const struct scene *scene, const struct manifold
 }
 
 
+/* The walk. Each accepted point takes one Jacobian, analytic (mf_derivatives), or by forward
+ * differences for manifold_test_walk_forward_differences; a trial point only C. */
 static bool mf_walk(const struct scene *scene, const struct manifold_chain *chain, const struct manifold_ends *ends,
                     struct manifold_vertex *v, uint32_t max_iterations, manifold_region_fn *inside, const void *region,
-                    uint32_t polish_steps, struct manifold_stats *stats, struct ray_counters *rc)
+                    uint32_t polish_steps, bool forward_differences, struct manifold_stats *stats,
+                    struct ray_counters *rc)
 {
     const uint32_t k = chain->length, n2 = 2 * k;
     const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
     struct mf_geom g[MANIFOLD_MAX_CHAIN] = {0};
     struct mf_dirs D[MANIFOLD_MAX_CHAIN];   /* the directions C at g came from */
-    double C[MF_N], step[MF_N][2];
+    double C[MF_N], step[MF_N][2], J[MF_N][MF_N];
     uint32_t it = 0;
     bool ok = false, have_step = false;
     double beta = 1.0;
     if (k == 0 || k > MANIFOLD_MAX_CHAIN) goto done;
     for (uint32_t i = 0; i < k; i++)
         if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) goto done;
-    if (!mf_eval_at(chain, x1, xe, g, C, D)) goto done;
+    /* The start point's C and J in one pass (have_J: J is at g and not yet consumed by mf_solve);
+     * when J is undefined there, C alone, as at a trial point. */
+    bool have_J = !forward_differences && mf_derivatives(chain, x1, xe, g, C, J, NULL, NULL);
+    if (!have_J && !mf_eval_at(chain, x1, xe, g, C, D)) goto done;
     double norm = mf_norm(C, n2);
     uint32_t polish = 0;
     for (;;) {
@@ -424,8 +604,10 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
             break;
         }
         if (!have_step) {
-            double J[MF_N][MF_N];
-            if (!mf_jacobian(chain, x1, xe, g, false, D, J)) break;
+            if (!have_J && !(forward_differences ? mf_jacobian(chain, x1, xe, g, false, D, J)
+                                                 : mf_derivatives(chain, x1, xe, g, NULL, J, NULL, NULL)))
+                break;
+            have_J = false;
             for (uint32_t r = 0; r < n2; r++) step[r][0] = -C[r];
             if (!mf_solve(n2, J, step, 1)) break;
             have_step = true;
@@ -483,14 +665,14 @@ bool manifold_walk(const struct scene *scene, const struct manifold_chain *chain
                    struct manifold_vertex *v, uint32_t max_iterations, struct manifold_stats *stats,
                    struct ray_counters *rc)
 {
-    return mf_walk(scene, chain, ends, v, max_iterations, NULL, NULL, MANIFOLD_POLISH_STEPS, stats, rc);
+    return mf_walk(scene, chain, ends, v, max_iterations, NULL, NULL, MANIFOLD_POLISH_STEPS, false, stats, rc);
 }
 
 bool manifold_walk_unpolished(const struct scene *scene, const struct manifold_chain *chain,
                               const struct manifold_ends *ends, struct manifold_vertex *v, uint32_t max_iterations,
                               struct manifold_stats *stats, struct ray_counters *rc)
 {
-    return mf_walk(scene, chain, ends, v, max_iterations, NULL, NULL, 0, stats, rc);
+    return mf_walk(scene, chain, ends, v, max_iterations, NULL, NULL, 0, false, stats, rc);
 }
 
 bool manifold_walk_within(const struct scene *scene, const struct manifold_chain *chain,
@@ -498,7 +680,15 @@ bool manifold_walk_within(const struct scene *scene, const struct manifold_chain
                           manifold_region_fn *inside, const void *region, struct manifold_stats *stats,
                           struct ray_counters *rc)
 {
-    return mf_walk(scene, chain, ends, v, max_iterations, inside, region, MANIFOLD_POLISH_STEPS, stats, rc);
+    return mf_walk(scene, chain, ends, v, max_iterations, inside, region, MANIFOLD_POLISH_STEPS, false, stats, rc);
+}
+
+bool manifold_test_walk_forward_differences(const struct scene *scene, const struct manifold_chain *chain,
+                                            const struct manifold_ends *ends, struct manifold_vertex *v,
+                                            uint32_t max_iterations, struct manifold_stats *stats,
+                                            struct ray_counters *rc)
+{
+    return mf_walk(scene, chain, ends, v, max_iterations, NULL, NULL, MANIFOLD_POLISH_STEPS, true, stats, rc);
 }
 
 bool manifold_check(const struct scene *scene, const struct manifold_chain *chain, const struct manifold_ends *ends,
@@ -537,26 +727,13 @@ double manifold_geometry(const struct scene *scene, const struct manifold_chain 
         if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) return 0.0;
     const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
     double J[MF_N][MF_N], B[MF_N][2];
-    if (!mf_jacobian(chain, x1, xe, g, true, NULL, J)) return 0.0;
-    /* dC / d(end point) along an orthonormal tangent basis of the light (area scale 1). */
-    struct frame fe = frame_from_normal(vec3_normalize(ends->nge));
+    struct dv3 e[2];
+    mf_end_frame(ends, e);
+    if (!mf_derivatives(chain, x1, xe, g, NULL, J, e, B)) return 0.0;
     struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
     for (uint32_t i = 0; i < k; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
-    double h = 1e-6 * dv_len(dv_sub(xe, p[k - 1]));
-    for (int a = 0; a < 2; a++) {
-        struct dv3 t = dv(a == 0 ? fe.s : fe.t);
-        struct mf_dirs Dp[MANIFOLD_MAX_CHAIN], Dm[MANIFOLD_MAX_CHAIN];
-        if (!mf_eval_dirs(chain, x1, dv_madd(xe, t, h), p, n, g, Dp) ||
-            !mf_eval_dirs(chain, x1, dv_madd(xe, t, -h), p, n, g, Dm))
-            return 0.0;
-        for (uint32_t i = 0; i < k; i++) {
-            double dc[2];
-            mf_dirs_dc(&Dm[i], &Dp[i], dc);
-            B[2 * i][a] = -dc[0] / (2.0 * h);
-            B[2 * i + 1][a] = -dc[1] / (2.0 * h);
-        }
-    }
-    /* Implicit function theorem: d(u, v) / d(end) = -J^-1 dC/d(end); only x2's block matters. */
+    /* Implicit function theorem: d(u, v) / d(end) = -J^-1 dC/d(end); only x2's block matters,
+     * and only through |det|, so the sign is left out. */
     if (!mf_solve(n2, J, B, 2)) return 0.0;
     double det = fabs(B[0][0] * B[1][1] - B[0][1] * B[1][0]);
     struct dv3 w = dv_sub(p[0], x1);
@@ -606,4 +783,22 @@ bool manifold_same(const struct manifold_vertex *a, const struct manifold_vertex
     for (uint32_t i = 0; i < length; i++)
         if (!(dv_len(dv_sub(mf_pd(&a[i]), mf_pd(&b[i]))) <= tol)) return false;
     return true;
+}
+
+bool manifold_test_derivatives(const struct scene *scene, const struct manifold_chain *chain,
+                               const struct manifold_ends *ends, const struct manifold_vertex *v,
+                               bool central_differences, double J[2 * MANIFOLD_MAX_CHAIN][2 * MANIFOLD_MAX_CHAIN],
+                               double B[2 * MANIFOLD_MAX_CHAIN][2])
+{
+    const uint32_t k = chain->length;
+    struct mf_geom g[MANIFOLD_MAX_CHAIN];
+    if (k == 0 || k > MANIFOLD_MAX_CHAIN) return false;
+    for (uint32_t i = 0; i < k; i++)
+        if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) return false;
+    const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
+    struct dv3 e[2];
+    mf_end_frame(ends, e);
+    if (central_differences)
+        return mf_jacobian(chain, x1, xe, g, true, NULL, J) && mf_end_differences(chain, x1, xe, g, e, B);
+    return mf_derivatives(chain, x1, xe, g, NULL, J, e, B);
 }
