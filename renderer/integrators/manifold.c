@@ -231,26 +231,26 @@ static double mf_norm(const double *C, uint32_t n)
     return sqrt(s);
 }
 
-/* C at the chain's surface models' base points, and the directions it came from (D: the
- * Newton step's forward differences start from them). */
+/* C at the chain's surface models' base points, and the vertices' states it came from (S: the
+ * derivatives there start from them, analytic or forward differences). */
 static bool mf_eval_at(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct mf_geom *g,
-                       double *C, struct mf_dirs *D)
+                       double *C, struct mf_vstate *S)
 {
     struct dv3 p[MANIFOLD_MAX_CHAIN] = {0}, n[MANIFOLD_MAX_CHAIN] = {0};
     for (uint32_t i = 0; i < chain->length; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
-    if (!mf_eval_dirs(chain, x1, xe, p, n, g, D)) return false;
-    for (uint32_t i = 0; i < chain->length; i++) mf_dirs_c(&D[i], &C[2 * i]);
+    if (!mf_eval_states(chain, x1, xe, p, n, g, S)) return false;
+    for (uint32_t i = 0; i < chain->length; i++) mf_dirs_c(&S[i].d, &C[2 * i]);
     return isfinite(mf_norm(C, 2 * chain->length));
 }
 
 /* dC / d(u_j, v_j) over the surface model, by finite differences in double: only for the test
  * hooks, which hold the analytic derivatives (mf_derivatives) against them. Forward ones, the
  * Newton step's Jacobian before the analytic one, step 1e-7 of the shorter adjacent segment:
- * truncation ~5e-8 and rounding ~1e-8 relative; they start from D0, the directions at the base
- * points (mf_eval_at's, computed with the same numbers). Central ones (`central`, D0 unused),
+ * truncation ~5e-8 and rounding ~1e-8 relative; they start from S0, the states at the base
+ * points (mf_eval_at's, computed with the same numbers). Central ones (`central`, S0 unused),
  * step 1e-6: truncation ~1e-12, rounding ~1e-10. */
 static bool mf_jacobian(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct mf_geom *g,
-                        bool central, const struct mf_dirs *D0, double J[MF_N][MF_N])
+                        bool central, const struct mf_vstate *S0, double J[MF_N][MF_N])
 {
     uint32_t k = chain->length;
     struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
@@ -277,7 +277,7 @@ static bool mf_jacobian(const struct manifold_chain *chain, struct dv3 x1, struc
             if (!ok) return false;
             for (uint32_t i = 0; i < k; i++) {
                 double dc[2];
-                mf_dirs_dc(central ? &Dm[i] : &D0[i], &Dp[i], dc);
+                mf_dirs_dc(central ? &Dm[i] : &S0[i].d, &Dp[i], dc);
                 J[2 * i][2 * j + a] = dc[0] / (central ? 2.0 * h : h);
                 J[2 * i + 1][2 * j + a] = dc[1] / (central ? 2.0 * h : h);
             }
@@ -286,122 +286,127 @@ static bool mf_jacobian(const struct manifold_chain *chain, struct dv3 x1, struc
     return true;
 }
 
-/* The component of d orthogonal to the unit vector w, over l: the derivative of the unit vector
- * w = (q - p) / l along a move d of q (for a move d of p, its negative). */
-static inline struct dv3 mf_dunit(struct dv3 w, struct dv3 d, double l)
+/* The part of v orthogonal to the unit vector w, over l. For a unit direction w = (q - p) / l,
+ * g·dw = (that of g)·dq: a gradient with respect to w becomes one with respect to q (and its
+ * negative one with respect to p). */
+static inline struct dv3 mf_ortho(struct dv3 w, struct dv3 v, double l)
 {
-    return dv_scale(dv_madd(d, w, -dv_dot(w, d)), 1.0 / l);
+    return dv_scale(dv_madd(v, w, -dv_dot(w, v)), 1.0 / l);
 }
 
-/* The derivatives of a direction's spherical coordinates (θ about the pole s, φ = atan2(y, x)
- * with x = w·t, y = w·n): w moves by dw, the frame (s, t, n) by (ds, dt, dn). θ = atan2(sin θ,
- * cos θ) with sin θ = |(x, y)| as mf_vertex_eval takes it; both are singular only at the pole,
- * which no useful path reaches (manifold.h). */
-static void mf_angles_d(struct dv3 w, struct dv3 dw, double c, double sn, double x, double y, const struct mf_vstate *st,
-                        struct dv3 ds, struct dv3 dt, struct dv3 dn, double *dth, double *dph)
+/* A vector given by its components in a vertex's frame (s, t, n). */
+static inline struct dv3 mf_from_frame(const struct mf_vstate *st, double gs, double gt, double gn)
 {
-    double dc = dv_dot(dw, st->s) + dv_dot(w, ds);
-    double dx = dv_dot(dw, st->t) + dv_dot(w, dt);
-    double dy = dv_dot(dw, st->n) + dv_dot(w, dn);
-    double dsn = (x * dx + y * dy) / sn;
-    *dth = (c * dsn - sn * dc) / (c * c + sn * sn);
-    *dph = (x * dy - y * dx) / (sn * sn);
+    return dv_add(dv_add(dv_scale(st->s, gs), dv_scale(st->t, gt)), dv_scale(st->n, gn));
 }
 
-/* dC of one vertex when its unit directions move by dwo (towards the previous vertex) and dwi
- * (towards the next) and its unit normal by dn: the chain rule through mf_scatter, the frame and
- * the angles of this constraint (Zeltner et al. 2020 §4; Jakob & Marschner 2012 §4 take the
- * derivatives of their half-vector constraint the same way, vertex by vertex). */
-static void mf_vertex_dc(const struct mf_vstate *st, enum manifold_event ev, double ior, struct dv3 dwo, struct dv3 dwi,
-                         struct dv3 dn, double dc[2])
+/* The gradients of a unit direction's spherical coordinates, θ about the pole s (row 0) and φ =
+ * atan2(y, x) (row 1), from c = w·s, (x, y) = (w·t, w·n) and sin θ = |(x, y)| as mf_vertex_eval
+ * takes them: g with respect to w, in frame components, and f with respect to the normal through
+ * the frame, as coefficients of (s·dn, t·dn) (dn ⊥ n, the normal staying a unit vector).
+ *   Direction: dθ = (c d sin θ - sin θ dc) / (c² + sin² θ) = -sin θ dc + (c / sin θ) (x dx + y dy)
+ * (|w| = 1), dφ = (x dy - y dx) / sin² θ. Both are scale-invariant, so g ⊥ w.
+ *   Frame: s = q / |q| with q = T - n (n·T), the tangent T (the model's dp/du) fixed, t = n × s,
+ * and with τ = (n·T) / |q|: w·ds = -y s·dn - τ x t·dn, w·dt = (τ c - y) t·dn, w·dn = c s·dn +
+ * x t·dn, which the angles take to dθ = (y s·dn + τ x t·dn) / sin θ and dφ = (x c s·dn + (sin² θ
+ * - τ c y) t·dn) / sin² θ. Singular only at the pole, which no useful path reaches (manifold.h). */
+static void mf_angles_grad(double c, double sn, double x, double y, double tau, double g[2][3], double f[2][2])
 {
-    /* The scattered direction. Reflection r = 2 (wo·n) n - wo; refraction (mf_scatter, with nn
-     * the normal on wo's side, ci = wo·nn, η the index ratio across it) r = -wo / η + nn (ci / η
-     * - ct), ct = sqrt(1 - (1 - ci²) / η²) = -r·nn, so dct = ci dci / (η² ct). */
-    double c = dv_dot(st->wo, st->n), dcn = dv_dot(dwo, st->n) + dv_dot(st->wo, dn);
-    struct dv3 dpred;
-    if (ev == MANIFOLD_REFLECT) {
-        dpred = dv_sub(dv_add(dv_scale(st->n, 2.0 * dcn), dv_scale(dn, 2.0 * c)), dwo);
-    } else {
-        bool outside = c > 0.0;
-        double eta = outside ? ior : 1.0 / ior, sg = outside ? 1.0 : -1.0;
-        double ci = sg * c, dci = sg * dcn, ct = -sg * dv_dot(st->pred, st->n);
-        double dct = ci * dci / (eta * eta * ct);
-        dpred = dv_add(dv_scale(dwo, -1.0 / eta),
-                       dv_add(dv_scale(dn, sg * (ci / eta - ct)), dv_scale(st->n, sg * (dci / eta - dct))));
-    }
-    /* The frame moves with the normal: s = q / |q|, q = T - n (n·T) with the tangent T fixed
-     * (the model's dp/du), t = n × s. */
-    struct dv3 dq = dv_add(dv_scale(dn, -st->tn), dv_scale(st->n, -dv_dot(dn, st->tangent)));
-    struct dv3 ds = dv_scale(dv_madd(dq, st->s, -dv_dot(st->s, dq)), 1.0 / st->ls);
-    struct dv3 dt = dv_add(dv_cross(dn, st->s), dv_cross(st->n, ds));
+    double is = 1.0 / sn, is2 = is * is;
+    g[0][0] = -sn, g[0][1] = c * x * is, g[0][2] = c * y * is;
+    g[1][0] = 0.0, g[1][1] = -y * is2, g[1][2] = x * is2;
+    f[0][0] = y * is, f[0][1] = tau * x * is;
+    f[1][0] = x * c * is2, f[1][1] = 1.0 - tau * c * y * is2;
+}
+
+/* One vertex's constraint C_i = (θ_a - θ_b, φ_a - φ_b), differentiated (row r for component r):
+ * prev[r] and next[r] the gradients with respect to the previous and the next point (x1, a
+ * neighbouring vertex or the end point), n[r] with respect to the unit normal (its component
+ * along n left out: dn ⊥ n). Moving the vertex itself by dp with its normal by dn changes C_i by
+ * n·dn - (prev + next)·dp. */
+struct mf_vgrad { struct dv3 prev[2], next[2], n[2]; };
+
+/* The chain rule through the angles, the frame and the scattering of this constraint (Zeltner
+ * et al. 2020 §4; Jakob & Marschner 2012 §4 take the derivatives of their half-vector
+ * constraint vertex by vertex the same way), in reverse: one pass per vertex, after which every
+ * entry of J is a dot product. */
+static void mf_vertex_grad(const struct mf_vstate *st, enum manifold_event ev, double ior, struct mf_vgrad *G)
+{
     const struct mf_dirs *d = &st->d;
-    double tha, pha, thb, phb;
-    mf_angles_d(st->wi, dwi, d->ca, d->sa, d->xa, d->ya, st, ds, dt, dn, &tha, &pha);
-    mf_angles_d(st->pred, dpred, d->cb, d->sb, d->xb, d->yb, st, ds, dt, dn, &thb, &phb);
-    dc[0] = tha - thb;
-    dc[1] = pha - phb;
+    const double tau = st->tn / st->ls;
+    double ga[2][3], gb[2][3], fa[2][2], fb[2][2];
+    mf_angles_grad(d->ca, d->sa, d->xa, d->ya, tau, ga, fa);
+    mf_angles_grad(d->cb, d->sb, d->xb, d->yb, tau, gb, fb);
+    const double wo[3] = {dv_dot(st->wo, st->s), dv_dot(st->wo, st->t), dv_dot(st->wo, st->n)};
+    /* The scattered direction moves as dpred = -dwo / η + μ dn + m n (n·dwo + wo·dn). Reflection
+     * (r = 2 (wo·n) n - wo): η = 1, μ = 2 wo·n, m = 2. Refraction (mf_scatter: nn = σ n the normal
+     * on wo's side, ci = wo·nn, η the index ratio across it, r = -wo / η + nn (ci / η - ct) with
+     * ct = sqrt(1 - (1 - ci²) / η²) = -r·nn, so dct = ci dci / (η² ct)): μ = σ (ci / η - ct),
+     * m = 1 / η - ci / (η² ct). */
+    double c = wo[2], ie = 1.0, mu = 2.0 * c, m = 2.0;
+    if (ev == MANIFOLD_REFRACT) {
+        double sg = c > 0.0 ? 1.0 : -1.0, eta = c > 0.0 ? ior : 1.0 / ior;
+        double ci = sg * c, ct = -sg * d->yb;
+        ie = 1.0 / eta;
+        mu = sg * (ci * ie - ct);
+        m = ie - ci / (eta * eta * ct);
+    }
+    for (int r = 0; r < 2; r++) {
+        /* θ_b (φ_b) by wo, projected orthogonal to wo; C = a - b. */
+        double gwo[3] = {-ie * gb[r][0], -ie * gb[r][1], -ie * gb[r][2] + m * gb[r][2]};
+        double pw = wo[0] * gwo[0] + wo[1] * gwo[1] + wo[2] * gwo[2], il = -1.0 / st->lo;
+        G->prev[r] = mf_from_frame(st, (gwo[0] - pw * wo[0]) * il, (gwo[1] - pw * wo[1]) * il,
+                                   (gwo[2] - pw * wo[2]) * il);
+        G->next[r] = dv_scale(mf_from_frame(st, ga[r][0], ga[r][1], ga[r][2]), 1.0 / st->li);
+        /* By n: the frame under both directions, and the scattering through pred. */
+        double ns = fa[r][0] - fb[r][0] - (mu * gb[r][0] + m * gb[r][2] * wo[0]);
+        double nt = fa[r][1] - fb[r][1] - (mu * gb[r][1] + m * gb[r][2] * wo[1]);
+        G->n[r] = mf_from_frame(st, ns, nt, 0.0);
+    }
 }
 
-/* Analytic derivatives of the constraint at the chain's surface models' base points, in one pass
- * with C: J = dC / d(u_j, v_j) and, when `e` is given, B = dC / d(end point) along e[0], e[1].
- * C_i depends only on the vertices i - 1, i, i + 1 (and the end point only through the last
- * vertex's wi), so J is block tridiagonal and B nonzero in the last block row. `C` may be NULL
- * (a walk has it from the step that accepted the point). */
-static bool mf_derivatives(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct mf_geom *g,
-                           double *C, double J[MF_N][MF_N], const struct dv3 *e, double B[MF_N][2])
+/* Analytic derivatives of the constraint at the chain's surface models' base points, from the
+ * vertices' states there (S, which gave C): J = dC / d(u_j, v_j) and, when `e` is given, B =
+ * dC / d(end point) along e[0], e[1]. C_i depends only on the vertices i - 1, i, i + 1 (and the
+ * end point only through the last vertex's wi), so J is block tridiagonal and B nonzero in the
+ * last block row. */
+static bool mf_derivatives(const struct manifold_chain *chain, const struct mf_geom *g, const struct mf_vstate *S,
+                           double J[MF_N][MF_N], const struct dv3 *e, double B[MF_N][2])
 {
     const uint32_t k = chain->length;
-    struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN], dp[MANIFOLD_MAX_CHAIN][2], dn[MANIFOLD_MAX_CHAIN][2];
+    struct dv3 dp[MANIFOLD_MAX_CHAIN][2], dn[MANIFOLD_MAX_CHAIN][2];
     for (uint32_t i = 0; i < k; i++) {
         /* n = ñ / |ñ|, dn = (dñ - n (n·dñ)) / |ñ|; a sphere's point follows its normal (p = c + r n),
          * a triangle's is linear in (u, v). */
-        mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
         double len = dv_len(g[i].nt);
         for (int a = 0; a < 2; a++) {
-            dn[i][a] = mf_dunit(n[i], a == 0 ? g[i].dntu : g[i].dntv, len);
+            dn[i][a] = mf_ortho(S[i].n, a == 0 ? g[i].dntu : g[i].dntv, len);
             dp[i][a] = g[i].sphere ? dv_scale(dn[i][a], g[i].r) : a == 0 ? g[i].dpdu : g[i].dpdv;
         }
     }
-    struct mf_vstate S[MANIFOLD_MAX_CHAIN];
-    if (!mf_eval_states(chain, x1, xe, p, n, g, S)) return false;
-    if (C) {
-        for (uint32_t i = 0; i < k; i++) mf_dirs_c(&S[i].d, &C[2 * i]);
-        if (!isfinite(mf_norm(C, 2 * k))) return false;
-    }
-    const struct dv3 zero = {0.0, 0.0, 0.0};
-    double worst = 0.0;
+    double sum = 0.0;
     for (uint32_t i = 0; i < k; i++) {
-        const struct mf_vstate *st = &S[i];
-        for (uint32_t j = 0; j < k; j++) {
-            for (int a = 0; a < 2; a++) {
-                double dc[2] = {0.0, 0.0};
-                if (j == i)   /* the vertex itself: both directions turn, the normal moves */
-                    mf_vertex_dc(st, chain->events[i], chain->ior, mf_dunit(st->wo, dv_scale(dp[j][a], -1.0), st->lo),
-                                 mf_dunit(st->wi, dv_scale(dp[j][a], -1.0), st->li), dn[i][a], dc);
-                else if (j + 1 == i)   /* the previous vertex moves wo */
-                    mf_vertex_dc(st, chain->events[i], chain->ior, mf_dunit(st->wo, dp[j][a], st->lo), zero, zero, dc);
-                else if (j == i + 1)   /* the next vertex moves wi */
-                    mf_vertex_dc(st, chain->events[i], chain->ior, zero, mf_dunit(st->wi, dp[j][a], st->li), zero, dc);
-                J[2 * i][2 * j + a] = dc[0];
-                J[2 * i + 1][2 * j + a] = dc[1];
-                worst = fmax(worst, fabs(dc[0]) + fabs(dc[1]));
-            }
+        struct mf_vgrad G;
+        mf_vertex_grad(&S[i], chain->events[i], chain->ior, &G);
+        for (int r = 0; r < 2; r++) {
+            struct dv3 own = dv_add(G.prev[r], G.next[r]);
+            for (uint32_t j = 0; j < k; j++)
+                for (int a = 0; a < 2; a++) {
+                    double v = j == i       ? dv_dot(G.n[r], dn[i][a]) - dv_dot(own, dp[i][a])
+                               : j + 1 == i ? dv_dot(G.prev[r], dp[j][a])
+                               : j == i + 1 ? dv_dot(G.next[r], dp[j][a])
+                                            : 0.0;
+                    J[2 * i + r][2 * j + a] = v;
+                    sum += fabs(v);
+                }
+            if (e)
+                for (int a = 0; a < 2; a++) {
+                    B[2 * i + r][a] = i + 1 == k ? dv_dot(G.next[r], e[a]) : 0.0;
+                    sum += fabs(B[2 * i + r][a]);
+                }
         }
     }
-    if (e) {
-        for (uint32_t i = 0; i < k; i++) {
-            for (int a = 0; a < 2; a++) {
-                double dc[2] = {0.0, 0.0};
-                if (i + 1 == k)
-                    mf_vertex_dc(&S[i], chain->events[i], chain->ior, zero, mf_dunit(S[i].wi, e[a], S[i].li), zero, dc);
-                B[2 * i][a] = dc[0];
-                B[2 * i + 1][a] = dc[1];
-                worst = fmax(worst, fabs(dc[0]) + fabs(dc[1]));
-            }
-        }
-    }
-    return isfinite(worst);
+    return isfinite(sum);
 }
 
 /* dC / d(end point) by central differences, step 1e-6 of the last segment (truncation ~1e-12,
@@ -558,17 +563,18 @@ double manifold_constraint_norm(const struct scene *scene, const struct manifold
                                 const struct manifold_ends *ends, const struct manifold_vertex *v)
 {
     struct mf_geom g[MANIFOLD_MAX_CHAIN];
-    struct mf_dirs D[MANIFOLD_MAX_CHAIN];
+    struct mf_vstate S[MANIFOLD_MAX_CHAIN];
     double C[MF_N];
     for (uint32_t i = 0; i < chain->length; i++)
         if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) return INFINITY;
-    if (!mf_eval_at(chain, dv(ends->x1), dv(ends->xe), g, C, D)) return INFINITY;
+    if (!mf_eval_at(chain, dv(ends->x1), dv(ends->xe), g, C, S)) return INFINITY;
     return mf_norm(C, 2 * chain->length);
 }
 
 
-/* The walk. Each accepted point takes one Jacobian, analytic (mf_derivatives), or by forward
- * differences for manifold_test_walk_forward_differences; a trial point only C. */
+/* The walk. Every point takes C with the vertices' states (mf_eval_at); an accepted one also
+ * takes the Jacobian from those states, analytic (mf_derivatives), or by forward differences for
+ * manifold_test_walk_forward_differences. */
 static bool mf_walk(const struct scene *scene, const struct manifold_chain *chain, const struct manifold_ends *ends,
                     struct manifold_vertex *v, uint32_t max_iterations, manifold_region_fn *inside, const void *region,
                     uint32_t polish_steps, bool forward_differences, struct manifold_stats *stats,
@@ -577,18 +583,15 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
     const uint32_t k = chain->length, n2 = 2 * k;
     const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
     struct mf_geom g[MANIFOLD_MAX_CHAIN] = {0};
-    struct mf_dirs D[MANIFOLD_MAX_CHAIN];   /* the directions C at g came from */
-    double C[MF_N], step[MF_N][2], J[MF_N][MF_N];
+    struct mf_vstate S[MANIFOLD_MAX_CHAIN];   /* the states C at g came from */
+    double C[MF_N], step[MF_N][2];
     uint32_t it = 0;
     bool ok = false, have_step = false;
     double beta = 1.0;
     if (k == 0 || k > MANIFOLD_MAX_CHAIN) goto done;
     for (uint32_t i = 0; i < k; i++)
         if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) goto done;
-    /* The start point's C and J in one pass (have_J: J is at g and not yet consumed by mf_solve);
-     * when J is undefined there, C alone, as at a trial point. */
-    bool have_J = !forward_differences && mf_derivatives(chain, x1, xe, g, C, J, NULL, NULL);
-    if (!have_J && !mf_eval_at(chain, x1, xe, g, C, D)) goto done;
+    if (!mf_eval_at(chain, x1, xe, g, C, S)) goto done;
     double norm = mf_norm(C, n2);
     uint32_t polish = 0;
     for (;;) {
@@ -604,10 +607,10 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
             break;
         }
         if (!have_step) {
-            if (!have_J && !(forward_differences ? mf_jacobian(chain, x1, xe, g, false, D, J)
-                                                 : mf_derivatives(chain, x1, xe, g, NULL, J, NULL, NULL)))
+            double J[MF_N][MF_N];
+            if (!(forward_differences ? mf_jacobian(chain, x1, xe, g, false, S, J)
+                                      : mf_derivatives(chain, g, S, J, NULL, NULL)))
                 break;
-            have_J = false;
             for (uint32_t r = 0; r < n2; r++) step[r][0] = -C[r];
             if (!mf_solve(n2, J, step, 1)) break;
             have_step = true;
@@ -619,7 +622,7 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
          * every step cost 1 % of a restir_sms frame's instructions). */
         struct manifold_vertex nv[MANIFOLD_MAX_CHAIN];
         struct mf_geom ng_[MANIFOLD_MAX_CHAIN];
-        struct mf_dirs Dn[MANIFOLD_MAX_CHAIN];
+        struct mf_vstate Sn[MANIFOLD_MAX_CHAIN];
         double Cn[MF_N];
         bool moved = true;
         struct dv3 from = x1;
@@ -634,7 +637,7 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
             from_ng = nv[j].ng;
         }
         double nn = INFINITY;
-        if (moved && mf_eval_at(chain, x1, xe, ng_, Cn, Dn)) nn = mf_norm(Cn, n2);
+        if (moved && mf_eval_at(chain, x1, xe, ng_, Cn, Sn)) nn = mf_norm(Cn, n2);
         if (nn < norm) {
             /* A trust region ends the walk as soon as an accepted step leaves it
              * ([SMS-SSP §3.3]). */
@@ -645,7 +648,7 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
             for (uint32_t j = 0; j < k; j++) {
                 v[j] = nv[j];
                 g[j] = ng_[j];
-                D[j] = Dn[j];
+                S[j] = Sn[j];
             }
             for (uint32_t r = 0; r < n2; r++) C[r] = Cn[r];
             norm = nn;
@@ -726,10 +729,11 @@ double manifold_geometry(const struct scene *scene, const struct manifold_chain 
     for (uint32_t i = 0; i < k; i++)
         if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) return 0.0;
     const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
-    double J[MF_N][MF_N], B[MF_N][2];
+    double C[MF_N], J[MF_N][MF_N], B[MF_N][2];
+    struct mf_vstate S[MANIFOLD_MAX_CHAIN];
     struct dv3 e[2];
     mf_end_frame(ends, e);
-    if (!mf_derivatives(chain, x1, xe, g, NULL, J, e, B)) return 0.0;
+    if (!mf_eval_at(chain, x1, xe, g, C, S) || !mf_derivatives(chain, g, S, J, e, B)) return 0.0;
     struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
     for (uint32_t i = 0; i < k; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
     /* Implicit function theorem: d(u, v) / d(end) = -J^-1 dC/d(end); only x2's block matters,
@@ -800,5 +804,7 @@ bool manifold_test_derivatives(const struct scene *scene, const struct manifold_
     mf_end_frame(ends, e);
     if (central_differences)
         return mf_jacobian(chain, x1, xe, g, true, NULL, J) && mf_end_differences(chain, x1, xe, g, e, B);
-    return mf_derivatives(chain, x1, xe, g, NULL, J, e, B);
+    double C[MF_N];
+    struct mf_vstate S[MANIFOLD_MAX_CHAIN];
+    return mf_eval_at(chain, x1, xe, g, C, S) && mf_derivatives(chain, g, S, J, e, B);
 }
