@@ -135,11 +135,21 @@ static bool mf_scatter(struct dv3 wo, struct dv3 n, enum manifold_event ev, doub
  * choice of pole), each as w = cos θ s + sin θ (cos φ t + sin φ n): a = wi, towards the next
  * vertex, and b = the specular scattering of wo. Kept as cos θ, sin θ and the (t, n) components
  * (x, y), whose length is sin θ = |w × s| (accurate near the pole, where sqrt(1 - cos²) is not):
- * the constraint takes one atan2 per angle from them, and a finite difference none. */
+ * the constraint takes one atan2 per angle from them, and their derivatives none. */
 struct mf_dirs { double ca, sa, xa, ya, cb, sb, xb, yb; };
 
-static bool mf_vertex_dirs(struct dv3 prev, struct dv3 p, struct dv3 n, struct dv3 next, struct dv3 tangent,
-                           enum manifold_event ev, double ior, struct mf_dirs *d)
+/* Everything of one vertex's constraint that its derivatives reuse: the unit directions wo
+ * (towards the previous vertex) and wi (towards the next) with their segment lengths, the unit
+ * normal, the frame (s, t) built from the tangent T, |T - n (n·T)| and n·T, the scattered
+ * direction, and the spherical coordinates. */
+struct mf_vstate {
+    struct dv3 wo, wi, n, s, t, pred, tangent;
+    double lo, li, ls, tn;
+    struct mf_dirs d;
+};
+
+static bool mf_vertex_eval(struct dv3 prev, struct dv3 p, struct dv3 n, struct dv3 next, struct dv3 tangent,
+                           enum manifold_event ev, double ior, struct mf_vstate *st)
 {
     struct dv3 wo = dv_sub(prev, p), wi = dv_sub(next, p);
     double lo = dv_len(wo), li = dv_len(wi);
@@ -148,21 +158,25 @@ static bool mf_vertex_dirs(struct dv3 prev, struct dv3 p, struct dv3 n, struct d
     wi = dv_scale(wi, 1.0 / li);
     struct dv3 pred;
     if (!mf_scatter(wo, n, ev, ior, &pred)) return false;
-    struct dv3 s = dv_sub(tangent, dv_scale(n, dv_dot(n, tangent)));
+    double tn = dv_dot(n, tangent);
+    struct dv3 s = dv_sub(tangent, dv_scale(n, tn));
     double ls = dv_len(s);
     if (!(ls > 0.0)) return false;
     s = dv_scale(s, 1.0 / ls);
     struct dv3 t = dv_cross(n, s);
+    struct mf_dirs *d = &st->d;
     d->ca = dv_dot(wi, s), d->xa = dv_dot(wi, t), d->ya = dv_dot(wi, n);
     d->cb = dv_dot(pred, s), d->xb = dv_dot(pred, t), d->yb = dv_dot(pred, n);
     d->sa = sqrt(d->xa * d->xa + d->ya * d->ya);
     d->sb = sqrt(d->xb * d->xb + d->yb * d->yb);
+    st->wo = wo, st->wi = wi, st->n = n, st->s = s, st->t = t, st->pred = pred, st->tangent = tangent;
+    st->lo = lo, st->li = li, st->ls = ls, st->tn = tn;
     return isfinite(d->ca + d->sa + d->xa + d->ya + d->cb + d->sb + d->xb + d->yb);
 }
 
-/* The angle turned from direction (x0, y0) to (x1, y1) of the plane, in [-π, π]. A finite
- * difference turns by ~1e-7 rad, where atan(r) = r - r³/3 to 2e-16 (r ≤ 1e-3) and atan2, the
- * costliest call of a walk, is not needed. */
+/* The angle turned from direction (x0, y0) to (x1, y1) of the plane, in [-π, π]. Near a
+ * solution (and in a finite difference, ~1e-7 rad) the turn is small, where atan(r) = r - r³/3
+ * to 2e-16 (r ≤ 1e-3) and atan2, the costliest call of a walk, is not needed. */
 static double mf_turn(double x0, double y0, double x1, double y1)
 {
     double sn = x0 * y1 - y0 * x1, cs = x0 * x1 + y0 * y1;
@@ -187,16 +201,26 @@ static void mf_dirs_dc(const struct mf_dirs *d0, const struct mf_dirs *d1, doubl
     dc[1] = mf_turn(d0->xa, d0->ya, d1->xa, d1->ya) - mf_turn(d0->xb, d0->yb, d1->xb, d1->yb);
 }
 
-/* The directions of every vertex of the chain for positions p[] and unit normals n[] (frames
- * from g[]), ends x1, xe. */
-static bool mf_eval_dirs(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct dv3 *p,
-                         const struct dv3 *n, const struct mf_geom *g, struct mf_dirs *D)
+/* The constraint's state at every vertex of the chain for positions p[] and unit normals n[]
+ * (frames from g[]), ends x1, xe. */
+static bool mf_eval_states(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct dv3 *p,
+                           const struct dv3 *n, const struct mf_geom *g, struct mf_vstate *S)
 {
     uint32_t k = chain->length;
     for (uint32_t i = 0; i < k; i++) {
         struct dv3 prev = i == 0 ? x1 : p[i - 1], next = i + 1 == k ? xe : p[i + 1];
-        if (!mf_vertex_dirs(prev, p[i], n[i], next, g[i].dpdu, chain->events[i], chain->ior, &D[i])) return false;
+        if (!mf_vertex_eval(prev, p[i], n[i], next, g[i].dpdu, chain->events[i], chain->ior, &S[i])) return false;
     }
+    return true;
+}
+
+/* The same, keeping only the spherical coordinates. */
+static bool mf_eval_dirs(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct dv3 *p,
+                         const struct dv3 *n, const struct mf_geom *g, struct mf_dirs *D)
+{
+    struct mf_vstate S[MANIFOLD_MAX_CHAIN];
+    if (!mf_eval_states(chain, x1, xe, p, n, g, S)) return false;
+    for (uint32_t i = 0; i < chain->length; i++) D[i] = S[i].d;
     return true;
 }
 
@@ -207,26 +231,26 @@ static double mf_norm(const double *C, uint32_t n)
     return sqrt(s);
 }
 
-/* C at the chain's surface models' base points, and the directions it came from (D: the
- * Newton step's forward differences start from them). */
+/* C at the chain's surface models' base points, and the vertices' states it came from (S: the
+ * derivatives there start from them, analytic or forward differences). */
 static bool mf_eval_at(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct mf_geom *g,
-                       double *C, struct mf_dirs *D)
+                       double *C, struct mf_vstate *S)
 {
     struct dv3 p[MANIFOLD_MAX_CHAIN] = {0}, n[MANIFOLD_MAX_CHAIN] = {0};
     for (uint32_t i = 0; i < chain->length; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
-    if (!mf_eval_dirs(chain, x1, xe, p, n, g, D)) return false;
-    for (uint32_t i = 0; i < chain->length; i++) mf_dirs_c(&D[i], &C[2 * i]);
+    if (!mf_eval_states(chain, x1, xe, p, n, g, S)) return false;
+    for (uint32_t i = 0; i < chain->length; i++) mf_dirs_c(&S[i].d, &C[2 * i]);
     return isfinite(mf_norm(C, 2 * chain->length));
 }
 
-/* dC / d(u_j, v_j) over the surface model, by finite differences in double. Forward ones for a
- * Newton step, step 1e-7 of the shorter adjacent segment: truncation ~5e-8 and rounding ~1e-8
- * relative, which a step needs no better; they start from D0, the directions at the base points
- * (mf_eval_at's, computed with the same numbers). Central ones (`central`, D0 unused) for the
- * generalized geometry term, which enters the estimate, step 1e-6: truncation ~1e-12, rounding
- * ~1e-10. */
+/* dC / d(u_j, v_j) over the surface model, by finite differences in double: only for the test
+ * hooks, which hold the analytic derivatives (mf_derivatives) against them. Forward ones, the
+ * Newton step's Jacobian before the analytic one, step 1e-7 of the shorter adjacent segment:
+ * truncation ~5e-8 and rounding ~1e-8 relative; they start from S0, the states at the base
+ * points (mf_eval_at's, computed with the same numbers). Central ones (`central`, S0 unused),
+ * step 1e-6: truncation ~1e-12, rounding ~1e-10. */
 static bool mf_jacobian(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct mf_geom *g,
-                        bool central, const struct mf_dirs *D0, double J[MF_N][MF_N])
+                        bool central, const struct mf_vstate *S0, double J[MF_N][MF_N])
 {
     uint32_t k = chain->length;
     struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
@@ -253,13 +277,168 @@ static bool mf_jacobian(const struct manifold_chain *chain, struct dv3 x1, struc
             if (!ok) return false;
             for (uint32_t i = 0; i < k; i++) {
                 double dc[2];
-                mf_dirs_dc(central ? &Dm[i] : &D0[i], &Dp[i], dc);
+                mf_dirs_dc(central ? &Dm[i] : &S0[i].d, &Dp[i], dc);
                 J[2 * i][2 * j + a] = dc[0] / (central ? 2.0 * h : h);
                 J[2 * i + 1][2 * j + a] = dc[1] / (central ? 2.0 * h : h);
             }
         }
     }
     return true;
+}
+
+/* The part of v orthogonal to the unit vector w, over l. For a unit direction w = (q - p) / l,
+ * g·dw = (that of g)·dq: a gradient with respect to w becomes one with respect to q (and its
+ * negative one with respect to p). */
+static inline struct dv3 mf_ortho(struct dv3 w, struct dv3 v, double l)
+{
+    return dv_scale(dv_madd(v, w, -dv_dot(w, v)), 1.0 / l);
+}
+
+/* A vector given by its components in a vertex's frame (s, t, n). */
+static inline struct dv3 mf_from_frame(const struct mf_vstate *st, double gs, double gt, double gn)
+{
+    return dv_add(dv_add(dv_scale(st->s, gs), dv_scale(st->t, gt)), dv_scale(st->n, gn));
+}
+
+/* The gradients of a unit direction's spherical coordinates, θ about the pole s (row 0) and φ =
+ * atan2(y, x) (row 1), from c = w·s, (x, y) = (w·t, w·n) and sin θ = |(x, y)| as mf_vertex_eval
+ * takes them: g with respect to w, in frame components, and f with respect to the normal through
+ * the frame, as coefficients of (s·dn, t·dn) (dn ⊥ n, the normal staying a unit vector).
+ *   Direction: dθ = (c d sin θ - sin θ dc) / (c² + sin² θ) = -sin θ dc + (c / sin θ) (x dx + y dy)
+ * (|w| = 1), dφ = (x dy - y dx) / sin² θ. Both are scale-invariant, so g ⊥ w.
+ *   Frame: s = q / |q| with q = T - n (n·T), the tangent T (the model's dp/du) fixed, t = n × s,
+ * and with τ = (n·T) / |q|: w·ds = -y s·dn - τ x t·dn, w·dt = (τ c - y) t·dn, w·dn = c s·dn +
+ * x t·dn, which the angles take to dθ = (y s·dn + τ x t·dn) / sin θ and dφ = (x c s·dn + (sin² θ
+ * - τ c y) t·dn) / sin² θ. Singular only at the pole, which no useful path reaches (manifold.h). */
+static void mf_angles_grad(double c, double sn, double x, double y, double tau, double g[2][3], double f[2][2])
+{
+    double is = 1.0 / sn, is2 = is * is;
+    g[0][0] = -sn, g[0][1] = c * x * is, g[0][2] = c * y * is;
+    g[1][0] = 0.0, g[1][1] = -y * is2, g[1][2] = x * is2;
+    f[0][0] = y * is, f[0][1] = tau * x * is;
+    f[1][0] = x * c * is2, f[1][1] = 1.0 - tau * c * y * is2;
+}
+
+/* One vertex's constraint C_i = (θ_a - θ_b, φ_a - φ_b), differentiated (row r for component r):
+ * prev[r] and next[r] the gradients with respect to the previous and the next point (x1, a
+ * neighbouring vertex or the end point), n[r] with respect to the unit normal (its component
+ * along n left out: dn ⊥ n). Moving the vertex itself by dp with its normal by dn changes C_i by
+ * n·dn - (prev + next)·dp. */
+struct mf_vgrad { struct dv3 prev[2], next[2], n[2]; };
+
+/* The chain rule through the angles, the frame and the scattering of this constraint (Zeltner
+ * et al. 2020 §4; Jakob & Marschner 2012 §4 take the derivatives of their half-vector
+ * constraint vertex by vertex the same way), in reverse: one pass per vertex, after which every
+ * entry of J is a dot product. */
+static void mf_vertex_grad(const struct mf_vstate *st, enum manifold_event ev, double ior, struct mf_vgrad *G)
+{
+    const struct mf_dirs *d = &st->d;
+    const double tau = st->tn / st->ls;
+    double ga[2][3], gb[2][3], fa[2][2], fb[2][2];
+    mf_angles_grad(d->ca, d->sa, d->xa, d->ya, tau, ga, fa);
+    mf_angles_grad(d->cb, d->sb, d->xb, d->yb, tau, gb, fb);
+    const double wo[3] = {dv_dot(st->wo, st->s), dv_dot(st->wo, st->t), dv_dot(st->wo, st->n)};
+    /* The scattered direction moves as dpred = -dwo / η + μ dn + m n (n·dwo + wo·dn). Reflection
+     * (r = 2 (wo·n) n - wo): η = 1, μ = 2 wo·n, m = 2. Refraction (mf_scatter: nn = σ n the normal
+     * on wo's side, ci = wo·nn, η the index ratio across it, r = -wo / η + nn (ci / η - ct) with
+     * ct = sqrt(1 - (1 - ci²) / η²) = -r·nn, so dct = ci dci / (η² ct)): μ = σ (ci / η - ct),
+     * m = 1 / η - ci / (η² ct). */
+    double c = wo[2], ie = 1.0, mu = 2.0 * c, m = 2.0;
+    if (ev == MANIFOLD_REFRACT) {
+        double sg = c > 0.0 ? 1.0 : -1.0, eta = c > 0.0 ? ior : 1.0 / ior;
+        double ci = sg * c, ct = -sg * d->yb;
+        ie = 1.0 / eta;
+        mu = sg * (ci * ie - ct);
+        m = ie - ci / (eta * eta * ct);
+    }
+    for (int r = 0; r < 2; r++) {
+        /* θ_b (φ_b) by wo, projected orthogonal to wo; C = a - b. */
+        double gwo[3] = {-ie * gb[r][0], -ie * gb[r][1], -ie * gb[r][2] + m * gb[r][2]};
+        double pw = wo[0] * gwo[0] + wo[1] * gwo[1] + wo[2] * gwo[2], il = -1.0 / st->lo;
+        G->prev[r] = mf_from_frame(st, (gwo[0] - pw * wo[0]) * il, (gwo[1] - pw * wo[1]) * il,
+                                   (gwo[2] - pw * wo[2]) * il);
+        G->next[r] = dv_scale(mf_from_frame(st, ga[r][0], ga[r][1], ga[r][2]), 1.0 / st->li);
+        /* By n: the frame under both directions, and the scattering through pred. */
+        double ns = fa[r][0] - fb[r][0] - (mu * gb[r][0] + m * gb[r][2] * wo[0]);
+        double nt = fa[r][1] - fb[r][1] - (mu * gb[r][1] + m * gb[r][2] * wo[1]);
+        G->n[r] = mf_from_frame(st, ns, nt, 0.0);
+    }
+}
+
+/* Analytic derivatives of the constraint at the chain's surface models' base points, from the
+ * vertices' states there (S, which gave C): J = dC / d(u_j, v_j) and, when `e` is given, B =
+ * dC / d(end point) along e[0], e[1]. C_i depends only on the vertices i - 1, i, i + 1 (and the
+ * end point only through the last vertex's wi), so J is block tridiagonal and B nonzero in the
+ * last block row. */
+static bool mf_derivatives(const struct manifold_chain *chain, const struct mf_geom *g, const struct mf_vstate *S,
+                           double J[MF_N][MF_N], const struct dv3 *e, double B[MF_N][2])
+{
+    const uint32_t k = chain->length;
+    struct dv3 dp[MANIFOLD_MAX_CHAIN][2], dn[MANIFOLD_MAX_CHAIN][2];
+    for (uint32_t i = 0; i < k; i++) {
+        /* n = ñ / |ñ|, dn = (dñ - n (n·dñ)) / |ñ|; a sphere's point follows its normal (p = c + r n),
+         * a triangle's is linear in (u, v). */
+        double len = dv_len(g[i].nt);
+        for (int a = 0; a < 2; a++) {
+            dn[i][a] = mf_ortho(S[i].n, a == 0 ? g[i].dntu : g[i].dntv, len);
+            dp[i][a] = g[i].sphere ? dv_scale(dn[i][a], g[i].r) : a == 0 ? g[i].dpdu : g[i].dpdv;
+        }
+    }
+    double sum = 0.0;
+    for (uint32_t i = 0; i < k; i++) {
+        struct mf_vgrad G;
+        mf_vertex_grad(&S[i], chain->events[i], chain->ior, &G);
+        for (int r = 0; r < 2; r++) {
+            struct dv3 own = dv_add(G.prev[r], G.next[r]);
+            for (uint32_t j = 0; j < k; j++)
+                for (int a = 0; a < 2; a++) {
+                    double v = j == i       ? dv_dot(G.n[r], dn[i][a]) - dv_dot(own, dp[i][a])
+                               : j + 1 == i ? dv_dot(G.prev[r], dp[j][a])
+                               : j == i + 1 ? dv_dot(G.next[r], dp[j][a])
+                                            : 0.0;
+                    J[2 * i + r][2 * j + a] = v;
+                    sum += fabs(v);
+                }
+            if (e)
+                for (int a = 0; a < 2; a++) {
+                    B[2 * i + r][a] = i + 1 == k ? dv_dot(G.next[r], e[a]) : 0.0;
+                    sum += fabs(B[2 * i + r][a]);
+                }
+        }
+    }
+    return isfinite(sum);
+}
+
+/* dC / d(end point) by central differences, step 1e-6 of the last segment (truncation ~1e-12,
+ * rounding ~1e-10): what the analytic B is tested against. */
+static bool mf_end_differences(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe,
+                               const struct mf_geom *g, const struct dv3 *e, double B[MF_N][2])
+{
+    const uint32_t k = chain->length;
+    struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
+    for (uint32_t i = 0; i < k; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
+    double h = 1e-6 * dv_len(dv_sub(xe, p[k - 1]));
+    for (int a = 0; a < 2; a++) {
+        struct mf_dirs Dp[MANIFOLD_MAX_CHAIN], Dm[MANIFOLD_MAX_CHAIN];
+        if (!mf_eval_dirs(chain, x1, dv_madd(xe, e[a], h), p, n, g, Dp) ||
+            !mf_eval_dirs(chain, x1, dv_madd(xe, e[a], -h), p, n, g, Dm))
+            return false;
+        for (uint32_t i = 0; i < k; i++) {
+            double dc[2];
+            mf_dirs_dc(&Dm[i], &Dp[i], dc);
+            B[2 * i][a] = dc[0] / (2.0 * h);
+            B[2 * i + 1][a] = dc[1] / (2.0 * h);
+        }
+    }
+    return true;
+}
+
+/* The end point's orthonormal tangent basis (area scale 1) of the light. */
+static void mf_end_frame(const struct manifold_ends *ends, struct dv3 e[2])
+{
+    struct frame fe = frame_from_normal(vec3_normalize(ends->nge));
+    e[0] = dv(fe.s);
+    e[1] = dv(fe.t);
 }
 
 /* Solves A X = B in place (n x n, `m` right-hand sides in B's columns); Gaussian elimination
@@ -384,23 +563,27 @@ double manifold_constraint_norm(const struct scene *scene, const struct manifold
                                 const struct manifold_ends *ends, const struct manifold_vertex *v)
 {
     struct mf_geom g[MANIFOLD_MAX_CHAIN];
-    struct mf_dirs D[MANIFOLD_MAX_CHAIN];
+    struct mf_vstate S[MANIFOLD_MAX_CHAIN];
     double C[MF_N];
     for (uint32_t i = 0; i < chain->length; i++)
         if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) return INFINITY;
-    if (!mf_eval_at(chain, dv(ends->x1), dv(ends->xe), g, C, D)) return INFINITY;
+    if (!mf_eval_at(chain, dv(ends->x1), dv(ends->xe), g, C, S)) return INFINITY;
     return mf_norm(C, 2 * chain->length);
 }
 
 
+/* The walk. Every point takes C with the vertices' states (mf_eval_at); an accepted one also
+ * takes the Jacobian from those states, analytic (mf_derivatives), or by forward differences for
+ * manifold_test_walk_forward_differences. */
 static bool mf_walk(const struct scene *scene, const struct manifold_chain *chain, const struct manifold_ends *ends,
                     struct manifold_vertex *v, uint32_t max_iterations, manifold_region_fn *inside, const void *region,
-                    uint32_t polish_steps, struct manifold_stats *stats, struct ray_counters *rc)
+                    uint32_t polish_steps, bool forward_differences, struct manifold_stats *stats,
+                    struct ray_counters *rc)
 {
     const uint32_t k = chain->length, n2 = 2 * k;
     const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
     struct mf_geom g[MANIFOLD_MAX_CHAIN] = {0};
-    struct mf_dirs D[MANIFOLD_MAX_CHAIN];   /* the directions C at g came from */
+    struct mf_vstate S[MANIFOLD_MAX_CHAIN];   /* the states C at g came from */
     double C[MF_N], step[MF_N][2];
     uint32_t it = 0;
     bool ok = false, have_step = false;
@@ -408,7 +591,7 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
     if (k == 0 || k > MANIFOLD_MAX_CHAIN) goto done;
     for (uint32_t i = 0; i < k; i++)
         if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) goto done;
-    if (!mf_eval_at(chain, x1, xe, g, C, D)) goto done;
+    if (!mf_eval_at(chain, x1, xe, g, C, S)) goto done;
     double norm = mf_norm(C, n2);
     uint32_t polish = 0;
     for (;;) {
@@ -425,7 +608,9 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
         }
         if (!have_step) {
             double J[MF_N][MF_N];
-            if (!mf_jacobian(chain, x1, xe, g, false, D, J)) break;
+            if (!(forward_differences ? mf_jacobian(chain, x1, xe, g, false, S, J)
+                                      : mf_derivatives(chain, g, S, J, NULL, NULL)))
+                break;
             for (uint32_t r = 0; r < n2; r++) step[r][0] = -C[r];
             if (!mf_solve(n2, J, step, 1)) break;
             have_step = true;
@@ -437,7 +622,7 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
          * every step cost 1 % of a restir_sms frame's instructions). */
         struct manifold_vertex nv[MANIFOLD_MAX_CHAIN];
         struct mf_geom ng_[MANIFOLD_MAX_CHAIN];
-        struct mf_dirs Dn[MANIFOLD_MAX_CHAIN];
+        struct mf_vstate Sn[MANIFOLD_MAX_CHAIN];
         double Cn[MF_N];
         bool moved = true;
         struct dv3 from = x1;
@@ -452,7 +637,7 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
             from_ng = nv[j].ng;
         }
         double nn = INFINITY;
-        if (moved && mf_eval_at(chain, x1, xe, ng_, Cn, Dn)) nn = mf_norm(Cn, n2);
+        if (moved && mf_eval_at(chain, x1, xe, ng_, Cn, Sn)) nn = mf_norm(Cn, n2);
         if (nn < norm) {
             /* A trust region ends the walk as soon as an accepted step leaves it
              * ([SMS-SSP §3.3]). */
@@ -463,7 +648,7 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
             for (uint32_t j = 0; j < k; j++) {
                 v[j] = nv[j];
                 g[j] = ng_[j];
-                D[j] = Dn[j];
+                S[j] = Sn[j];
             }
             for (uint32_t r = 0; r < n2; r++) C[r] = Cn[r];
             norm = nn;
@@ -483,14 +668,14 @@ bool manifold_walk(const struct scene *scene, const struct manifold_chain *chain
                    struct manifold_vertex *v, uint32_t max_iterations, struct manifold_stats *stats,
                    struct ray_counters *rc)
 {
-    return mf_walk(scene, chain, ends, v, max_iterations, NULL, NULL, MANIFOLD_POLISH_STEPS, stats, rc);
+    return mf_walk(scene, chain, ends, v, max_iterations, NULL, NULL, MANIFOLD_POLISH_STEPS, false, stats, rc);
 }
 
 bool manifold_walk_unpolished(const struct scene *scene, const struct manifold_chain *chain,
                               const struct manifold_ends *ends, struct manifold_vertex *v, uint32_t max_iterations,
                               struct manifold_stats *stats, struct ray_counters *rc)
 {
-    return mf_walk(scene, chain, ends, v, max_iterations, NULL, NULL, 0, stats, rc);
+    return mf_walk(scene, chain, ends, v, max_iterations, NULL, NULL, 0, false, stats, rc);
 }
 
 bool manifold_walk_within(const struct scene *scene, const struct manifold_chain *chain,
@@ -498,7 +683,15 @@ bool manifold_walk_within(const struct scene *scene, const struct manifold_chain
                           manifold_region_fn *inside, const void *region, struct manifold_stats *stats,
                           struct ray_counters *rc)
 {
-    return mf_walk(scene, chain, ends, v, max_iterations, inside, region, MANIFOLD_POLISH_STEPS, stats, rc);
+    return mf_walk(scene, chain, ends, v, max_iterations, inside, region, MANIFOLD_POLISH_STEPS, false, stats, rc);
+}
+
+bool manifold_test_walk_forward_differences(const struct scene *scene, const struct manifold_chain *chain,
+                                            const struct manifold_ends *ends, struct manifold_vertex *v,
+                                            uint32_t max_iterations, struct manifold_stats *stats,
+                                            struct ray_counters *rc)
+{
+    return mf_walk(scene, chain, ends, v, max_iterations, NULL, NULL, MANIFOLD_POLISH_STEPS, true, stats, rc);
 }
 
 bool manifold_check(const struct scene *scene, const struct manifold_chain *chain, const struct manifold_ends *ends,
@@ -536,27 +729,15 @@ double manifold_geometry(const struct scene *scene, const struct manifold_chain 
     for (uint32_t i = 0; i < k; i++)
         if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) return 0.0;
     const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
-    double J[MF_N][MF_N], B[MF_N][2];
-    if (!mf_jacobian(chain, x1, xe, g, true, NULL, J)) return 0.0;
-    /* dC / d(end point) along an orthonormal tangent basis of the light (area scale 1). */
-    struct frame fe = frame_from_normal(vec3_normalize(ends->nge));
+    double C[MF_N], J[MF_N][MF_N], B[MF_N][2];
+    struct mf_vstate S[MANIFOLD_MAX_CHAIN];
+    struct dv3 e[2];
+    mf_end_frame(ends, e);
+    if (!mf_eval_at(chain, x1, xe, g, C, S) || !mf_derivatives(chain, g, S, J, e, B)) return 0.0;
     struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
     for (uint32_t i = 0; i < k; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
-    double h = 1e-6 * dv_len(dv_sub(xe, p[k - 1]));
-    for (int a = 0; a < 2; a++) {
-        struct dv3 t = dv(a == 0 ? fe.s : fe.t);
-        struct mf_dirs Dp[MANIFOLD_MAX_CHAIN], Dm[MANIFOLD_MAX_CHAIN];
-        if (!mf_eval_dirs(chain, x1, dv_madd(xe, t, h), p, n, g, Dp) ||
-            !mf_eval_dirs(chain, x1, dv_madd(xe, t, -h), p, n, g, Dm))
-            return 0.0;
-        for (uint32_t i = 0; i < k; i++) {
-            double dc[2];
-            mf_dirs_dc(&Dm[i], &Dp[i], dc);
-            B[2 * i][a] = -dc[0] / (2.0 * h);
-            B[2 * i + 1][a] = -dc[1] / (2.0 * h);
-        }
-    }
-    /* Implicit function theorem: d(u, v) / d(end) = -J^-1 dC/d(end); only x2's block matters. */
+    /* Implicit function theorem: d(u, v) / d(end) = -J^-1 dC/d(end); only x2's block matters,
+     * and only through |det|, so the sign is left out. */
     if (!mf_solve(n2, J, B, 2)) return 0.0;
     double det = fabs(B[0][0] * B[1][1] - B[0][1] * B[1][0]);
     struct dv3 w = dv_sub(p[0], x1);
@@ -606,4 +787,24 @@ bool manifold_same(const struct manifold_vertex *a, const struct manifold_vertex
     for (uint32_t i = 0; i < length; i++)
         if (!(dv_len(dv_sub(mf_pd(&a[i]), mf_pd(&b[i]))) <= tol)) return false;
     return true;
+}
+
+bool manifold_test_derivatives(const struct scene *scene, const struct manifold_chain *chain,
+                               const struct manifold_ends *ends, const struct manifold_vertex *v,
+                               bool central_differences, double J[2 * MANIFOLD_MAX_CHAIN][2 * MANIFOLD_MAX_CHAIN],
+                               double B[2 * MANIFOLD_MAX_CHAIN][2])
+{
+    const uint32_t k = chain->length;
+    struct mf_geom g[MANIFOLD_MAX_CHAIN];
+    if (k == 0 || k > MANIFOLD_MAX_CHAIN) return false;
+    for (uint32_t i = 0; i < k; i++)
+        if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) return false;
+    const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
+    struct dv3 e[2];
+    mf_end_frame(ends, e);
+    if (central_differences)
+        return mf_jacobian(chain, x1, xe, g, true, NULL, J) && mf_end_differences(chain, x1, xe, g, e, B);
+    double C[MF_N];
+    struct mf_vstate S[MANIFOLD_MAX_CHAIN];
+    return mf_eval_at(chain, x1, xe, g, C, S) && mf_derivatives(chain, g, S, J, e, B);
 }

@@ -15,11 +15,14 @@
  * incidence, where φ about the normal is undefined and its derivative blows up; a pole in the
  * tangent plane only sees grazing directions, which no useful caustic path takes.
  *
- * The Jacobian of C with respect to the vertices' surface parameters is taken by finite
- * differences of C over the exact first-order surface model each vertex carries (position,
- * interpolated normal and their derivatives along the surface parameters), in double
- * precision: forward differences for a Newton step, central ones for the generalized geometry
- * term; the 2k × 2k system (k ≤ MANIFOLD_MAX_CHAIN) is solved directly.
+ * The Jacobian of C with respect to the vertices' surface parameters is analytic, in double
+ * precision, over the exact first-order surface model each vertex carries (position,
+ * interpolated normal and their derivatives along the surface parameters): the chain rule
+ * through the unit directions to the neighbours, the specular scattering, the frame (which
+ * turns with the normal) and the two angles (Zeltner et al. 2020 §4; Jakob & Marschner 2012
+ * §4). C_i depends only on vertices i − 1, i, i + 1, so J is block tridiagonal; a walk takes
+ * it once per accepted point, and the generalized geometry term takes it with the end point's
+ * derivative. The 2k × 2k system (k ≤ MANIFOLD_MAX_CHAIN) is solved directly.
  *
  * Every routine here is deterministic (the Bernoulli trials of SMS depend on that),
  * allocation-free and thread-safe. */
@@ -129,6 +132,21 @@ double manifold_geometry(const struct scene *scene, const struct manifold_chain 
  * expectation. Zero when a vertex's material cannot produce its event. */
 struct vec3 manifold_throughput(const struct scene *scene, const struct manifold_chain *chain,
                                 const struct manifold_ends *ends, const struct manifold_vertex *v);
+
+/* Test hooks. The constraint's derivatives at a path: J = dC / d(u_j, v_j) over each vertex's
+ * surface model (2k × 2k) and B = dC / d(end point) along the light's tangent frame (2k × 2),
+ * analytic as the walks and manifold_geometry take them, or by central differences of C
+ * (`central_differences`, step 1e-6 of the adjacent segments). False when C is undefined. */
+bool manifold_test_derivatives(const struct scene *scene, const struct manifold_chain *chain,
+                               const struct manifold_ends *ends, const struct manifold_vertex *v,
+                               bool central_differences, double J[2 * MANIFOLD_MAX_CHAIN][2 * MANIFOLD_MAX_CHAIN],
+                               double B[2 * MANIFOLD_MAX_CHAIN][2]);
+/* manifold_walk with each Newton step's Jacobian by forward differences (step 1e-7 of the
+ * shorter adjacent segment) instead: what the analytic walk's Newton steps are compared with. */
+bool manifold_test_walk_forward_differences(const struct scene *scene, const struct manifold_chain *chain,
+                                            const struct manifold_ends *ends, struct manifold_vertex *v,
+                                            uint32_t max_iterations, struct manifold_stats *stats,
+                                            struct ray_counters *rc);
 
 /* Same solution: every vertex within `tol` (world units) of the other's. */
 bool manifold_same(const struct manifold_vertex *a, const struct manifold_vertex *b, uint32_t length, float tol);

@@ -24,6 +24,11 @@ static const char *mirror_json = SCENE_HEAD
     "\"shapes\": [{\"type\": \"quad\", \"material\": \"m\", \"caustic_caster\": true,"
     " \"vertices\": [[-2, 0, -2], [-2, 0, 2], [2, 0, 2], [2, 0, -2]]}]}";
 
+/* The flat mirror's chain and ends: the light's mirror image is (0.7, -2, -0.3). */
+static const struct manifold_chain mirror_chain = {.shape = 0, .length = 1, .events = {MANIFOLD_REFLECT}};
+static const struct manifold_ends mirror_ends = {.x1 = {-0.5f, 1.0f, 0.1f}, .ng1 = {0, 1, 0}, .xe = {0.7f, 2.0f, -0.3f},
+                                                 .nge = {0, -1, 0}};
+
 static const char *interface_json = SCENE_HEAD
     "\"materials\": {\"g\": {\"type\": \"dielectric\", \"ior\": 1.5}},"
     "\"shapes\": [{\"type\": \"quad\", \"material\": \"g\", \"caustic_caster\": true,"
@@ -79,9 +84,8 @@ static void test_flat_mirror(void)
 {
     struct scene *s = fixture_load_json(mirror_json, NULL);
     if (!s) return;
-    struct manifold_chain ch = {.shape = 0, .length = 1, .events = {MANIFOLD_REFLECT}};
-    struct manifold_ends e = {.x1 = vec3_make(-0.5f, 1.0f, 0.1f), .ng1 = vec3_make(0, 1, 0),
-                              .xe = vec3_make(0.7f, 2.0f, -0.3f), .nge = vec3_make(0, -1, 0)};
+    struct manifold_chain ch = mirror_chain;
+    struct manifold_ends e = mirror_ends;
     /* Mirror image of the light; the path crosses y = 0 a third of the way to it. */
     struct vec3 img = vec3_make(0.7f, -2.0f, -0.3f);
     struct vec3 expect = vec3_add(e.x1, vec3_scale(vec3_sub(img, e.x1), 1.0f / 3.0f));
@@ -258,21 +262,43 @@ static bool retrace(const struct scene *s, const struct manifold_chain *ch, cons
     return along > 0.0;
 }
 
+/* Walks `v` as manifold_walk does (analytic Jacobians) and a copy of it with the Newton steps'
+ * Jacobians by forward differences: both must succeed or fail alike and end at the same
+ * solution (1e-6); each one's Newton steps add to steps[0] (analytic) and steps[1]. */
+static bool walk_both_ways(const struct scene *s, const struct manifold_chain *ch, const struct manifold_ends *e,
+                           struct manifold_vertex *v, uint32_t max_iterations, uint32_t steps[2],
+                           struct ray_counters *rc)
+{
+    struct manifold_vertex w[MANIFOLD_MAX_CHAIN];
+    memcpy(w, v, ch->length * sizeof *v);
+    struct manifold_stats sa = {0}, sf = {0};
+    bool ok = manifold_walk(s, ch, e, v, max_iterations, &sa, rc);
+    bool okf = manifold_test_walk_forward_differences(s, ch, e, w, max_iterations, &sf, rc);
+    CHECK_MSG(ok == okf, "analytic walk %s, forward differences %s", ok ? "converged" : "failed",
+              okf ? "converged" : "failed");
+    CHECK(!(ok && okf) || manifold_same(v, w, ch->length, 1e-6f));
+    steps[0] += sa.iterations;
+    steps[1] += sf.iterations;
+    return ok;
+}
+
 /* Random seeds on a curved caster; every solution must pass manifold_check and re-trace to
- * the light point within `tol` of the path length. */
+ * the light point within `tol` of the path length. Every walk is also taken with
+ * forward-difference Jacobians (walk_both_ways), the Newton steps adding to all_steps. */
 static void curved(const struct scene *s, const struct manifold_chain *ch, const struct manifold_ends *e,
-                   struct vec3 centre, struct vec3 spread, double tol, const char *what)
+                   struct vec3 centre, struct vec3 spread, double tol, const char *what, uint32_t all_steps[2])
 {
     struct rng r = rng_make(11, ch->shape, ch->length, 0);
     int converged = 0, retraced = 0, tried = 0;
     double worst = 0.0;
+    uint32_t steps[2] = {0, 0};
     for (int t = 0; t < 200; t++) {
         struct manifold_vertex v[MANIFOLD_MAX_CHAIN];
         struct ray_counters rc = {0, 0};
         struct vec3 d = vec3_mul(rand_vec(&r, 1.0f), spread);
         if (!manifold_seed_path(s, ch, e, vec3_add(centre, d), v, &rc)) continue;
         tried++;
-        if (!manifold_walk(s, ch, e, v, MANIFOLD_MAX_ITERATIONS, NULL, &rc) || !manifold_check(s, ch, e, v, &rc))
+        if (!walk_both_ways(s, ch, e, v, MANIFOLD_MAX_ITERATIONS, steps, &rc) || !manifold_check(s, ch, e, v, &rc))
             continue;
         converged++;
         double miss;
@@ -281,15 +307,24 @@ static void curved(const struct scene *s, const struct manifold_chain *ch, const
             if (miss > worst) worst = miss;
         }
     }
-    printf("  %s: %d seeds, %d solutions, worst miss %.3g\n", what, tried, converged, worst);
+    printf("  %s: %d seeds, %d solutions, worst miss %.3g; Newton steps %u analytic, %u forward differences\n",
+           what, tried, converged, worst, steps[0], steps[1]);
+    all_steps[0] += steps[0];
+    all_steps[1] += steps[1];
     CHECK_MSG(converged > 10, "%s: %d of %d", what, converged, tried);
     CHECK_MSG(retraced == converged, "%s: %d of %d retraced", what, retraced, converged);
     CHECK_MSG(worst < tol, "%s: a re-traced path misses the light by %g of its length", what, worst);
 }
 
+/* The walks on the four casters take no more Newton steps in all with analytic Jacobians than
+ * with forward differences (the same seeds reach the same solutions: walk_both_ways). A single
+ * walk may take one more or one fewer: in a walk that wanders near a fold, where J is badly
+ * conditioned, the Jacobians' ~1e-7 difference changes the step by ~1e-3 and the path of step
+ * halvings with it; or the last step lands on the other side of the polishing tolerance. */
 static void test_curved(void)
 {
     struct err err = {0};
+    uint32_t steps[2] = {0, 0};
     /* Meshes with interpolated normals: the bumpy glass slab (two refractions) and the bumpy
      * metal plane (one reflection) of the scene library. */
     struct scene *s = scene_load_file("scenes/refractive-slab/scene.json", &err);
@@ -301,7 +336,8 @@ static void test_curved(void)
                                     .ior = 1.5f};
         struct manifold_ends e = {.x1 = vec3_make(0.1f, 0.0f, 0.05f), .ng1 = vec3_make(0, 1, 0),
                                   .xe = vec3_make(-0.3f, 2.4f, -0.05f), .nge = vec3_make(0, -1, 0)};
-        curved(s, &ch, &e, vec3_make(0.1f, 0.82f, 0.0f), vec3_make(0.3f, 0.0f, 0.3f), 1e-4, "bumpy slab, two refractions");
+        curved(s, &ch, &e, vec3_make(0.1f, 0.82f, 0.0f), vec3_make(0.3f, 0.0f, 0.3f), 1e-4, "bumpy slab, two refractions",
+               steps);
         scene_release(s);
     }
     s = scene_load_file("scenes/reflective-plane/scene.json", &err);
@@ -312,7 +348,8 @@ static void test_curved(void)
         struct manifold_chain ch = {.shape = (uint32_t)plane, .length = 1, .events = {MANIFOLD_REFLECT}};
         struct manifold_ends e = {.x1 = vec3_make(0.1f, 0.8f, -1.2f), .ng1 = vec3_make(0, 0, 1),
                                   .xe = vec3_make(0.0f, 1.0f, 1.3f), .nge = vec3_make(0, -1, 0)};
-        curved(s, &ch, &e, vec3_make(0, 0, 0), vec3_make(0.8f, 0.0f, 0.8f), 1e-4, "bumpy metal plane, one reflection");
+        curved(s, &ch, &e, vec3_make(0, 0, 0), vec3_make(0.8f, 0.0f, 0.8f), 1e-4, "bumpy metal plane, one reflection",
+               steps);
         scene_release(s);
     }
     /* Analytic spheres: Embree intersects them in float, and the hit is re-projected radially,
@@ -323,12 +360,128 @@ static void test_curved(void)
     struct manifold_chain glass = {.shape = 0, .length = 2, .events = {MANIFOLD_REFRACT, MANIFOLD_REFRACT}, .ior = 1.5f};
     struct manifold_ends eg = {.x1 = vec3_make(0.2f, -2.5f, 0.1f), .ng1 = vec3_make(0, 1, 0),
                                .xe = vec3_make(-0.3f, 3.0f, 0.2f), .nge = vec3_make(0, -1, 0)};
-    curved(s, &glass, &eg, vec3_make(0, 0, 0), vec3_splat(0.7f), 2e-3, "glass sphere, two refractions");
+    curved(s, &glass, &eg, vec3_make(0, 0, 0), vec3_splat(0.7f), 2e-3, "glass sphere, two refractions", steps);
     struct manifold_chain mirror = {.shape = 1, .length = 1, .events = {MANIFOLD_REFLECT}};
     struct manifold_ends em = {.x1 = vec3_make(10.5f, 2.0f, 1.0f), .ng1 = vec3_make(0, 1, 0),
                                .xe = vec3_make(8.0f, 1.5f, -1.5f), .nge = vec3_make(1, 0, 0)};
-    curved(s, &mirror, &em, vec3_make(10, 0, 0), vec3_splat(0.7f), 2e-3, "mirror sphere (scaled), one reflection");
+    curved(s, &mirror, &em, vec3_make(10, 0, 0), vec3_splat(0.7f), 2e-3, "mirror sphere (scaled), one reflection", steps);
     scene_release(s);
+    printf("  Newton steps in all: %u analytic, %u forward differences\n", steps[0], steps[1]);
+    CHECK_MSG(steps[0] <= steps[1], "%u Newton steps with analytic Jacobians, %u with differences", steps[0], steps[1]);
+}
+
+/* The largest |a - b| over an r × c block, and the largest |b|. */
+static void block_error(const double *a, const double *b, int rows, int cols, int stride, double *diff, double *scale)
+{
+    for (int i = 0; i < rows; i++)
+        for (int j = 0; j < cols; j++) {
+            *diff = fmax(*diff, fabs(a[i * stride + j] - b[i * stride + j]));
+            *scale = fmax(*scale, fabs(b[i * stride + j]));
+        }
+}
+
+/* Analytic J = dC / d(u, v) and B = dC / d(end point) against central differences at seed paths
+ * aimed around `centre` (not solutions) and at the solutions walked from them: max |ΔJ| ≤
+ * JAC_TOL max |J| + 1e-8, B likewise. */
+#define JAC_TOL 1e-9
+static void derivatives_hold(const struct scene *s, const struct manifold_chain *ch, const struct manifold_ends *e,
+                             struct vec3 centre, struct vec3 spread, const char *what)
+{
+    enum { N = 2 * MANIFOLD_MAX_CHAIN };
+    const int n2 = 2 * (int)ch->length;
+    struct rng r = rng_make(13, ch->shape, ch->length, 1);
+    int checked[2] = {0, 0};
+    double worst[2] = {0.0, 0.0};
+    for (int t = 0; t < 24; t++) {
+        struct manifold_vertex v[MANIFOLD_MAX_CHAIN];
+        struct ray_counters rc = {0, 0};
+        if (!manifold_seed_path(s, ch, e, vec3_add(centre, vec3_mul(rand_vec(&r, 1.0f), spread)), v, &rc)) continue;
+        for (int solved = 0; solved < 2; solved++) {
+            if (solved && !manifold_walk(s, ch, e, v, MANIFOLD_MAX_ITERATIONS, NULL, &rc)) break;
+            double Ja[N][N], Ba[N][2], Jd[N][N], Bd[N][2];
+            bool oka = manifold_test_derivatives(s, ch, e, v, false, Ja, Ba);
+            bool okd = manifold_test_derivatives(s, ch, e, v, true, Jd, Bd);
+            CHECK_MSG(oka || !okd, "%s: analytic derivatives undefined where differences are not", what);
+            if (!oka || !okd) continue;
+            double dj = 0.0, sj = 0.0, db = 0.0, sb = 0.0;
+            block_error(&Ja[0][0], &Jd[0][0], n2, n2, N, &dj, &sj);
+            block_error(&Ba[0][0], &Bd[0][0], n2, 2, 2, &db, &sb);
+            CHECK_MSG(dj <= JAC_TOL * sj + 1e-8 && db <= JAC_TOL * sb + 1e-8,
+                      "%s (%s): max |dJ| %.3g of max |J| %.3g, max |dB| %.3g of %.3g", what,
+                      solved ? "solution" : "seed path", dj, sj, db, sb);
+            checked[solved]++;
+            worst[solved] = fmax(worst[solved], fmax(dj / sj, db / sb));
+        }
+    }
+    printf("  %s: %d seed paths, %d solutions; worst relative error %.2g, %.2g\n", what, checked[0], checked[1],
+           worst[0], worst[1]);
+    CHECK_MSG(checked[0] >= 8 && checked[1] >= 8, "%s: %d seed paths, %d solutions checked", what, checked[0],
+              checked[1]);
+}
+
+static void test_analytic_jacobian(void)
+{
+    struct scene *s = fixture_load_json(mirror_json, NULL);
+    if (s) {
+        struct manifold_chain ch = mirror_chain;
+        struct manifold_ends e = mirror_ends;
+        derivatives_hold(s, &ch, &e, vec3_make(-0.1f, 0, 0), vec3_make(0.8f, 0, 0.8f), "plane mirror");
+        scene_release(s);
+    }
+    s = fixture_load_json(interface_json, NULL);
+    if (s) {
+        struct manifold_chain ch = {.shape = 0, .length = 1, .events = {MANIFOLD_REFRACT}, .ior = 1.5f};
+        struct manifold_ends e = {.x1 = vec3_make(-0.3f, -1.0f, 0.2f), .ng1 = vec3_make(0, 1, 0),
+                                  .xe = vec3_make(0.5f, 1.5f, -0.1f), .nge = vec3_make(0, -1, 0)};
+        derivatives_hold(s, &ch, &e, snell_point(e.x1, 1.0f, 1.5, e.xe, 1.5f, 1.0), vec3_make(0.3f, 0, 0.3f),
+                         "flat refractive interface");
+        scene_release(s);
+    }
+    s = fixture_load_json(slab_json, NULL);
+    if (s) {
+        struct manifold_chain ch = {.shape = 0, .length = 2, .events = {MANIFOLD_REFRACT, MANIFOLD_REFRACT}, .ior = 1.5f};
+        struct manifold_ends e = {.x1 = vec3_make(-0.3f, -1.0f, 0.2f), .ng1 = vec3_make(0, 1, 0),
+                                  .xe = vec3_make(0.6f, 1.5f, -0.4f), .nge = vec3_make(0, -1, 0)};
+        struct vec3 q[2];
+        slab_points(e.x1, e.xe, q);
+        derivatives_hold(s, &ch, &e, q[0], vec3_make(0.8f, 0, 0.8f), "flat slab");
+        scene_release(s);
+    }
+    s = fixture_load_json(spheres_json, NULL);
+    if (s) {
+        struct manifold_chain glass = {.shape = 0, .length = 2, .events = {MANIFOLD_REFRACT, MANIFOLD_REFRACT},
+                                       .ior = 1.5f};
+        struct manifold_ends eg = {.x1 = vec3_make(0.2f, -2.5f, 0.1f), .ng1 = vec3_make(0, 1, 0),
+                                   .xe = vec3_make(-0.3f, 3.0f, 0.2f), .nge = vec3_make(0, -1, 0)};
+        derivatives_hold(s, &glass, &eg, vec3_make(0, 0, 0), vec3_splat(0.7f), "glass sphere");
+        struct manifold_chain mirror = {.shape = 1, .length = 1, .events = {MANIFOLD_REFLECT}};
+        struct manifold_ends em = {.x1 = vec3_make(10.5f, 2.0f, 1.0f), .ng1 = vec3_make(0, 1, 0),
+                                   .xe = vec3_make(8.0f, 1.5f, -1.5f), .nge = vec3_make(1, 0, 0)};
+        derivatives_hold(s, &mirror, &em, vec3_make(10, 0, 0), vec3_splat(0.7f), "mirror sphere (scaled)");
+        scene_release(s);
+    }
+    /* Meshes with interpolated normals: the frame turns with the normal across a triangle. */
+    struct err err = {0};
+    s = scene_load_file("scenes/refractive-slab/scene.json", &err);
+    CHECK_MSG(s && scene_commit(s, &err), "%s", err.message);
+    if (s) {
+        struct manifold_chain ch = {.shape = (uint32_t)scene_find_shape(s, "slab"), .length = 2,
+                                    .events = {MANIFOLD_REFRACT, MANIFOLD_REFRACT}, .ior = 1.5f};
+        struct manifold_ends e = {.x1 = vec3_make(0.1f, 0.0f, 0.05f), .ng1 = vec3_make(0, 1, 0),
+                                  .xe = vec3_make(-0.3f, 2.4f, -0.05f), .nge = vec3_make(0, -1, 0)};
+        derivatives_hold(s, &ch, &e, vec3_make(0.1f, 0.82f, 0), vec3_make(0.3f, 0, 0.3f), "bumpy slab mesh");
+        scene_release(s);
+    }
+    s = scene_load_file("scenes/reflective-plane/scene.json", &err);
+    CHECK_MSG(s && scene_commit(s, &err), "%s", err.message);
+    if (s) {
+        struct manifold_chain ch = {.shape = (uint32_t)scene_find_shape(s, "plane"), .length = 1,
+                                    .events = {MANIFOLD_REFLECT}};
+        struct manifold_ends e = {.x1 = vec3_make(0.1f, 0.8f, -1.2f), .ng1 = vec3_make(0, 0, 1),
+                                  .xe = vec3_make(0.0f, 1.0f, 1.3f), .nge = vec3_make(0, -1, 0)};
+        derivatives_hold(s, &ch, &e, vec3_make(0, 0, 0), vec3_make(0.8f, 0, 0.8f), "bumpy metal plane mesh");
+        scene_release(s);
+    }
 }
 
 /* The manifold shift: walk a solution to a moved x1 in at most 5 steps; walking the result back
@@ -342,25 +495,28 @@ static void test_shift_inverts(void)
                               .xe = vec3_make(-0.3f, 3.0f, 0.2f), .nge = vec3_make(0, -1, 0)};
     struct rng r = rng_make(5, 5, 5, 5);
     int bases = 0, shifted = 0, inverted = 0;
+    uint32_t steps[2] = {0, 0};
     for (int t = 0; t < 100; t++) {
         struct manifold_vertex base[2], y[2], back[2];
         struct ray_counters rc = {0, 0};
         struct vec3 x1 = vec3_add(e.x1, rand_vec(&r, 0.3f));
         struct manifold_ends eb = e;
         eb.x1 = x1;
-        if (!manifold_seed_path(s, &ch, &eb, rand_vec(&r, 0.6f), base, &rc) || !manifold_walk(s, &ch, &eb, base, 20, NULL, &rc) ||
+        if (!manifold_seed_path(s, &ch, &eb, rand_vec(&r, 0.6f), base, &rc) || !walk_both_ways(s, &ch, &eb, base, 20, steps, &rc) ||
             !manifold_check(s, &ch, &eb, base, &rc))
             continue;
         bases++;
         struct manifold_ends es = eb;
         es.x1 = vec3_add(x1, rand_vec(&r, 0.05f));
         memcpy(y, base, sizeof y);
-        if (!manifold_walk(s, &ch, &es, y, 5, NULL, &rc) || !manifold_check(s, &ch, &es, y, &rc)) continue;
+        if (!walk_both_ways(s, &ch, &es, y, 5, steps, &rc) || !manifold_check(s, &ch, &es, y, &rc)) continue;
         shifted++;
         memcpy(back, y, sizeof back);
-        if (manifold_walk(s, &ch, &eb, back, 5, NULL, &rc) && manifold_same(back, base, 2, 1e-4f)) inverted++;
+        if (walk_both_ways(s, &ch, &eb, back, 5, steps, &rc) && manifold_same(back, base, 2, 1e-4f)) inverted++;
     }
-    printf("  %d solutions, %d shifted, %d walked back to the base\n", bases, shifted, inverted);
+    printf("  %d solutions, %d shifted, %d walked back to the base; Newton steps %u analytic, %u forward differences\n",
+           bases, shifted, inverted, steps[0], steps[1]);
+    CHECK_MSG(steps[0] <= steps[1], "%u Newton steps with analytic Jacobians, %u with differences", steps[0], steps[1]);
     CHECK(bases > 20);
     CHECK_MSG(shifted >= bases * 3 / 4, "%d of %d shifted", shifted, bases);
     CHECK_MSG(inverted == shifted, "%d of %d inverted", inverted, shifted);
@@ -420,9 +576,8 @@ static void test_constraint_is_continuous(void)
 {
     struct scene *m = fixture_load_json(mirror_json, NULL);
     if (m) {
-        struct manifold_chain ch = {.shape = 0, .length = 1, .events = {MANIFOLD_REFLECT}};
-        struct manifold_ends e = {.x1 = vec3_make(-0.5f, 1.0f, 0.1f), .ng1 = vec3_make(0, 1, 0),
-                                  .xe = vec3_make(0.7f, 2.0f, -0.3f), .nge = vec3_make(0, -1, 0)};
+        struct manifold_chain ch = mirror_chain;
+        struct manifold_ends e = mirror_ends;
         struct vec3 img = vec3_make(0.7f, -2.0f, -0.3f);
         struct vec3 expect = vec3_add(e.x1, vec3_scale(vec3_sub(img, e.x1), 1.0f / 3.0f));
         constraint_linear_across(m, &ch, &e, &expect, "mirror");
@@ -440,4 +595,4 @@ static void test_constraint_is_continuous(void)
 }
 
 TEST_MAIN(TEST(test_caustic_interfaces_key), TEST(test_flat_mirror), TEST(test_flat_interface), TEST(test_flat_slab), TEST(test_curved),
-          TEST(test_shift_inverts), TEST(test_constraint_is_continuous))
+          TEST(test_analytic_jacobian), TEST(test_shift_inverts), TEST(test_constraint_is_continuous))
