@@ -20,7 +20,7 @@ Environment: SWEEP_SIZE (256: the side of the square image), SWEEP_SEEDS (5), SW
 The converge regime (SWEEP_BUDGET_SPP=N): the budget is the CPU time (user + system, all threads)
 of `pt` at N spp on the scene; each configuration starts from the method's converge profile
 (`--profile converge`: independent frames) and averages as many frames as fit in the budget (its
-frame cost taken from a 1- and a 2-frame session), and pt at N spp is the first row. CPU time
+frame cost taken from a 1- and a 9-frame session), and pt at N spp is the first row. CPU time
 rather than wall time: the figure holds on a shared machine, where other work stretches the wall
 clock but not the CPU time a render spends (BENCH_THREADS=1 keeps it free of thread waits too).
 SWEEP_BASELINES (e.g. "bdpt") adds those methods with their defaults at the same budget. E.g.
@@ -47,6 +47,7 @@ FRAMES = int(os.environ.get("SWEEP_FRAMES", "33"))
 FIRST_SEED = 7000
 BUDGET_SPP = int(os.environ.get("SWEEP_BUDGET_SPP", "0"))
 BASELINES = os.environ.get("SWEEP_BASELINES", "").split()
+CALIB = 8  # frames whose CPU time gives a configuration's frame cost in the converge regime
 
 
 def cpu_render(args):
@@ -73,9 +74,11 @@ def converge(path, work, ref, method, configs):
             args, frames = ["--method", "pt", "--spp", BUDGET_SPP], BUDGET_SPP
         else:
             session = [*base, "--method", m, "--params", text, "--profile", "converge", "--seed", FIRST_SEED]
+            # A frame's CPU time from sessions of 1 and 1 + CALIB frames: the difference leaves out
+            # the start-up (scene, BVH), and over CALIB frames the clock's tick is small beside it.
             one = cpu_render([*session, "--frames", 1, "-o", work / "calib.exr"])
-            two = cpu_render([*session, "--frames", 2, "--average-last", 2, "-o", work / "calib.exr"])
-            per = max(two - one, 1e-3)
+            more = cpu_render([*session, "--frames", 1 + CALIB, "--average-last", 1 + CALIB, "-o", work / "calib.exr"])
+            per = max((more - one) / CALIB, 1e-3)
             frames = max(1, round((budget - max(one - per, 0.0)) / per))
             args = ["--method", m, "--params", text, "--profile", "converge", "--frames", frames,
                     "--average-last", frames]
