@@ -94,7 +94,7 @@ struct restir_pt_params restir_pt_defaults(void)
 {
     return (struct restir_pt_params){
         .max_depth = 64, .rr_depth = 1, .rr = true, .nee_candidates = RESTIR_PT_NEE_BY_SCENE, .unify_di = true,
-        .temporal = true, .temporal_cap = 20, .spatial_neighbors = 3, .spatial_radius = 0.0f, .spatial_rounds = 1,
+        .temporal = true, .temporal_cap = 20, .history_check = true, .spatial_neighbors = 3, .spatial_radius = 0.0f, .spatial_rounds = 1,
         .paired_spatial = true,
         .expected_shading = true,
         .footprint = true, .footprint_c = 0.02f, .near_distance = 0.03f, .pdf_connect = true, .roughness_min = 0.2f,
@@ -1094,7 +1094,7 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
     if (f->scene->shape_count != st->shape_count)
         return err_set(err, ERR_INVALID, NULL, "the scene has %u shapes, the session %u", f->scene->shape_count,
                        st->shape_count);
-    if (!restir_frame_gbuffer(&pp.fr, 0.0f, pt_uses_pairs(params), err)) return false;
+    if (!restir_frame_gbuffer(&pp.fr, 0.0f, pt_uses_pairs(params), params->history_check, err)) return false;
     restir_pt_bind(st, params, f, &c);
     pp.c = &c;
     if (!restir_frame_initial(&pp.fr, pt_initial_rows, err)) return false;

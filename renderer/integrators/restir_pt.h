@@ -36,6 +36,8 @@ struct RESTIRD_STORED_IN_BYTES restir_pt_params {
     uint32_t temporal_cap_replay; /* the cap instead in the MIS weights of a sample without a
                                     reconnection vertex (k = 0: every shift of it is random replay,
                                     which keeps k); 0 = temporal_cap (0) */
+    bool history_check;          /* the G-buffer's history check of the motion vectors in frames
+                                    where something moved (gbuffer.h; true) */
     uint32_t spatial_neighbors;  /* per round (3); 0 = no spatial reuse */
     float spatial_radius;        /* pixels (20) */
     uint32_t spatial_rounds;     /* (1) */

@@ -88,6 +88,8 @@ static const struct method_param rpt_params[] = {
     P(temporal_cap, METHOD_PARAM_UINT, 1, 1000, "previous confidence capped at this multiple of the current"),
     P(temporal_cap_replay, METHOD_PARAM_UINT, 0, 1000,
       "the cap for samples without a reconnection vertex (random replay only); 0 = temporal_cap"),
+    P(history_check, METHOD_PARAM_BOOL, 0, 1,
+      "a pixel whose previous pixel saw another surface takes no history, one that covers less area a share"),
     P(spatial_neighbors, METHOD_PARAM_UINT, 0, 64, "spatial neighbours per round; 0 = no spatial reuse"),
     P(spatial_radius, METHOD_PARAM_FLOAT, 0, 256, "spatial reuse radius in pixels; 0 = by resolution"),
     P(spatial_rounds, METHOD_PARAM_UINT, 1, 8, "spatial reuse rounds"),

@@ -640,7 +640,7 @@ void *restir_frame_open(struct restir_frame *fr, size_t pass_bytes, struct resti
     return stats;
 }
 
-bool restir_frame_gbuffer(struct restir_frame *fr, float jitter_walk, bool pairs, struct err *err)
+bool restir_frame_gbuffer(struct restir_frame *fr, float jitter_walk, bool pairs, bool check_history, struct err *err)
 {
     struct restir_session *s = fr->s;
     const struct method_frame *f = fr->f;
@@ -649,7 +649,7 @@ bool restir_frame_gbuffer(struct restir_frame *fr, float jitter_walk, bool pairs
     clock_gettime(CLOCK_MONOTONIC, &fr->t0);
     struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,
                                .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame,
-                               .threads = fr->threads, .jitter_walk = jitter_walk};
+                               .threads = fr->threads, .jitter_walk = jitter_walk, .check_history = check_history};
     uint64_t grays = 0;
     if (!restir_gbuffer_next(s->gbuf, &s->cur, &s->has_history, gf, &grays, err)) return false;
     fr->stats->gbuffer_ms = parallel_lap_ms(&fr->t0);
