@@ -910,15 +910,18 @@ def test_frame_exr_compression_per_request(daemon):
 
 def test_metrics_series_gives_both_regimes(daemon, tmp_path):
     """A job's series scores each frame (real time) and the image a user keeping the still view
-    would keep (converge): the accumulation for pt, whose frames are independent; the frame
-    itself for restir_pt, whose correlated frames are never averaged."""
+    would keep (converge): the accumulation for pt, whose frames are independent, and for a
+    restir_pt session under the converge profile, whose frames are too; the frame itself for
+    restir_pt under the real-time profile, whose correlated frames are never averaged."""
     const = np.full((16, 16, 3), 0.2, np.float32)
     r = daemon.req("PUT", f"{CORNELL}/references/regimes-ref", body=write_exr(tmp_path / "c.exr", const),
                    headers={"Content-Type": "image/x-exr"})
     assert r.status == 201, repr(r)
     nframes = 4
-    for method, params in (("pt", {"spp": 1}), ("restir_pt", {})):
-        s = new_session(daemon, method=method, width=16, height=16, seed=3, params=params)
+    for method, params, profile in (("pt", {"spp": 1}, "real_time"), ("restir_pt", {}, "real_time"),
+                                    ("restir_pt", {}, "converge")):
+        s = new_session(daemon, method=method, width=16, height=16, seed=3, params=params, profile=profile)
+        averaged = method == "pt" or profile == "converge"
         r = daemon.req("POST", s["href"] + "/renders",
                        json_body={"animation": {"fps": 10, "frames": nframes}, "reference": "regimes-ref"})
         assert r.status == 202, repr(r)
@@ -928,7 +931,7 @@ def test_metrics_series_gives_both_regimes(daemon, tmp_path):
         series = daemon.req("GET", loc + "/metrics").json()["series"]
         for i, row in enumerate(series):
             conv = row["converge"]
-            if method == "pt":
+            if averaged:
                 want = np.mean(imgs[:i + 1], axis=0)
                 assert conv["image"] == "accumulation" and conv["frames"] == i + 1, row
             else:
@@ -936,7 +939,7 @@ def test_metrics_series_gives_both_regimes(daemon, tmp_path):
                 assert conv["image"] == "frame" and conv["frames"] == 0, row
                 assert conv["rmse"] == row["rmse"] and conv["mape"] == row["mape"], row
             assert conv["rmse"] == pytest.approx(np.sqrt(np.mean((want - const) ** 2)), rel=1e-4), (method, i)
-        if method == "pt":  # four frames' mean is closer than one frame
+        if averaged:  # four frames' mean is closer than one frame
             assert series[-1]["converge"]["relmse"] < series[-1]["relmse"]
         lines = daemon.req("GET", loc + "/metrics", headers={"Accept": "text/csv"}).body.decode().strip().splitlines()
         assert lines[0].split(",")[6:] == ["converge_image", "converge_frames", "converge_mape", "converge_rmse",
