@@ -7,7 +7,7 @@ import { ApiError, eventsUrl, getExrBytes, getJson, request, sendJson } from './
 import { orbitAnimation, stillAnimation } from './animation.js';
 import { MapeChart } from './chart.js';
 import { decodeExr } from './exr.js';
-import { describeParam, initialText, loadMethods } from './methods.js';
+import { describeParam, initialText, loadMethods, profileDefault } from './methods.js';
 import { HdrViewer } from './viewer.js';
 
 document.body.dataset.started = 'true'; // boot.js reports a page whose modules never ran
@@ -517,6 +517,7 @@ function updateControls() {
 
 function buildParams() {
   const method = state.methods.get($('method').value);
+  const profile = $('profile').value;
   $('method').title = method ? method.summary : '';
   const box = $('params');
   box.replaceChildren(
@@ -528,12 +529,12 @@ function buildParams() {
       input.dataset.param = p.name;
       if (p.type === 'boolean') {
         input.type = 'checkbox';
-        input.checked = p.default;
+        input.checked = profileDefault(p, profile);
       } else {
         input.type = 'text';
         if (p.type !== 'string') input.inputMode = 'numeric';
         input.size = p.type === 'string' ? 10 : 5;
-        input.value = initialText(p);
+        input.value = initialText(p, profile);
       }
       label.append(`${p.name} `, input);
       return label;
@@ -548,6 +549,7 @@ function sessionRequest() {
   }
   return withDefined({
     method: $('method').value,
+    profile: $('profile').value,
     width: typed($('width')),
     height: typed($('height')),
     seed: typed($('seed')),
@@ -676,6 +678,7 @@ action('use-reference', 'Use reference', async () => {
 });
 
 $('method').addEventListener('change', buildParams);
+$('profile').addEventListener('change', buildParams);
 $('scene').addEventListener('change', () => listExisting().catch((err) => showProblem('Sessions of the scene', err)));
 
 $('session-a').addEventListener('change', () => {

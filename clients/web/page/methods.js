@@ -12,9 +12,17 @@ export async function loadMethods() {
   return new Map(methods.map((m) => [m.name, m]));
 }
 
-// The form's starting text for a parameter: its default ('' when the scene chooses it).
-export function initialText(param) {
-  return param.default === null || param.default === undefined ? '' : String(param.default);
+// A parameter's default under a session profile ('real_time' or 'converge'): the registry gives
+// converge_default where the converge profile changes it.
+export function profileDefault(param, profile) {
+  return profile === 'converge' && param.converge_default !== undefined ? param.converge_default : param.default;
+}
+
+// The form's starting text for a parameter: its default under the profile ('' when the scene
+// chooses it).
+export function initialText(param, profile = 'real_time') {
+  const value = profileDefault(param, profile);
+  return value === null || value === undefined ? '' : String(value);
 }
 
 // What the form offers for a parameter: its range or choices, and its help.

@@ -122,6 +122,36 @@ test('the session form is built from the daemon\'s method registry', async () =>
     );
     assert.deepEqual(await formFields(), want, m.name);
   }
+
+  // The converge profile (in a page of its own, so this page's state stays as it was): the form
+  // shows the registry's converge defaults, and the session made from it is a converge session
+  // with them.
+  const conv = await browser.newPage();
+  await conv.goto(`${base}/`);
+  await conv.waitForSelector('body[data-ready="true"]');
+  await conv.selectOption('#method', 'restir_pt');
+  await conv.selectOption('#profile', 'converge');
+  const rpt = methods.find((m) => m.name === 'restir_pt');
+  const converge = Object.fromEntries(rpt.params.map((p) => {
+    const v = p.converge_default !== undefined ? p.converge_default : p.default;
+    return [p.name, p.type === 'boolean' ? v : v === null ? '' : String(v)];
+  }));
+  assert.equal(converge.temporal, false, 'restir_pt\'s converge profile turns temporal reuse off');
+  assert.deepEqual(
+    await conv.$$eval('#params input', (inputs) =>
+      Object.fromEntries(inputs.map((i) => [i.dataset.param, i.type === 'checkbox' ? i.checked : i.value]))),
+    converge);
+  await conv.fill('#width', '8');
+  await conv.fill('#height', '8');
+  await conv.click('#create-session');
+  await conv.waitForFunction(() => document.getElementById('session-a').value !== '');
+  const madeId = await conv.$eval('#session-a', (s) => s.value);
+  await conv.close();
+  const made = await (await api('GET', `/v1/scenes/cornell-box/sessions/${madeId}`)).json();
+  assert.equal(made.profile, 'converge');
+  assert.equal(made.params.temporal, false);
+  assert.equal(made.params.spatial_rounds, rpt.params.find((p) => p.name === 'spatial_rounds').converge_default);
+  await api('DELETE', made.href);
   await page.selectOption('#method', 'pt');
 
   // A parameter the registry gains appears in the form with no change to the page.
