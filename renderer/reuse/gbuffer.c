@@ -106,15 +106,17 @@ static float gbuffer_footprint(const struct camera *cam, struct vec3 w, float d,
  * plane rather than the hit distance, which on a surface seen at a grazing angle changes by more
  * than any fixed tolerance across the pixel). A disoccluded point, or one seen across a
  * silhouette, fails. Otherwise the pixel's share of that history's confidence, min(1, A / A'),
- * A and A' the areas the current and the previous pixel cover on the surface: a previous pixel
+ * A and A' the areas the current and the previous pixel cover on the surface (A carried to the
+ * previous frame's surface where the shape changed size: surface_area_ratio): a previous pixel
  * that covered k times this one's area is the history of about k current pixels (after the camera
  * came closer, or turned to see the surface less obliquely), each of which would otherwise take
  * its few samples at their full confidence and repeat them over k pixels. Any positive
  * confidence keeps the temporal pass's MIS weights a partition of unity, so the share biases
  * nothing. Off screen: 1 (the temporal pass drops it anyway). */
-static float gbuffer_history_share(const struct gbuffer_job *gj, uint32_t shape, struct vec3 ng, struct vec3 dir,
-                                   float t, struct vec3 q, float px, float py)
+static float gbuffer_history_share(const struct gbuffer_job *gj, const struct gbuffer_pixel *gp, struct vec3 ng,
+                                   struct vec3 dir, struct vec3 q, float px, float py)
 {
+    const uint32_t shape = gp->shape;
     const struct gbuffer_frame *f = gj->f;
     const struct gbuffer *pg = f->prev_gbuffer;
     if (!(px >= 0.0f && py >= 0.0f && px < (float)pg->width && py < (float)pg->height)) return 1.0f;
@@ -136,7 +138,8 @@ static float gbuffer_history_share(const struct gbuffer_job *gj, uint32_t shape,
     const struct vec3 to_q = vec3_sub(q, gj->prev_cam.position);
     const float dist = vec3_length(to_q);
     if (!(fabsf(vec3_dot(pp_ng, vec3_sub(q, pp_p))) <= GBUFFER_HISTORY_PLANE_TOL * dist)) return 0.0f;
-    const float a = gbuffer_footprint(&gj->cam, dir, t, ng);
+    const float a = gbuffer_footprint(&gj->cam, dir, gp->t, ng) *
+                    surface_area_ratio(f->scene, f->prev_scene, shape, gp->prim, gp->b1, gp->b2);
     const float a_prev = gbuffer_footprint(&gj->prev_cam, vec3_scale(to_q, 1.0f / dist), dist, pp_ng);
     return a_prev > a ? a / a_prev : 1.0f;
 }
@@ -193,7 +196,7 @@ static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
                 struct vec3 q = gbuffer_prev_point(f, hit.shape, s.p);
                 camera_project(&gj->prev_cam, q, &gp->prev_x, &gp->prev_y);
                 if (check) {
-                    gp->prev_share = gbuffer_history_share(gj, hit.shape, s.ng, dir, hit.t, q, gp->prev_x, gp->prev_y);
+                    gp->prev_share = gbuffer_history_share(gj, gp, s.ng, dir, q, gp->prev_x, gp->prev_y);
                     if (!(gp->prev_share > 0.0f)) gp->prev_x = gp->prev_y = NAN;
                 }
             }

@@ -407,5 +407,60 @@ static void test_history_check(void)
     scene_release(s);
 }
 
+/* A wall that was half its size in the previous frame (scaled about its centre, camera still):
+ * every previous pixel is the history of about four current ones, so their shares must add up
+ * to about one per previous pixel — which the areas alone (the same world area under the same
+ * camera) would not give; the area ratio of the shape's change does. */
+static void test_history_share_of_a_scaled_shape(void)
+{
+    struct scene *s = fixture_load_json(
+        "{\"camera\": {\"position\": [0, 0, -5], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0], \"fov_deg\": 40},"
+        " \"materials\": {\"grey\": {\"type\": \"diffuse\", \"albedo\": [0.5, 0.5, 0.5]},"
+        "   \"light\": {\"type\": \"diffuse\", \"albedo\": [0, 0, 0], \"emission\": [1, 1, 1]}},"
+        " \"shapes\": [{\"type\": \"quad\", \"name\": \"wall\", \"material\": \"grey\","
+        "   \"vertices\": [[-4, -4, 0], [4, -4, 0], [4, 4, 0], [-4, 4, 0]]},"
+        "  {\"type\": \"quad\", \"material\": \"light\", \"vertices\": [[-1, 5, -3], [1, 5, -3], [1, 5, -1], [-1, 5, -1]]}]}",
+        NULL);
+    if (!s) return;
+    struct err err = {0};
+    struct scene_shape_override ov = {.shape = (uint32_t)scene_find_shape(s, "wall"), .has_to_world = true};
+    ov.to_world = xform_identity();
+    ov.to_world.m[0][0] = ov.to_world.m[1][1] = 0.5f;
+    struct scene *small = scene_derive(s, &ov, 1, &err);
+    CHECK_MSG(small != NULL, "%s", err.message);
+    enum { W = 64 };
+    struct gbuffer g[2];
+    CHECK(small && gbuffer_init(&g[0], W, W, &err) && gbuffer_init(&g[1], W, W, &err));
+    if (small && g[0].px && g[1].px) {
+        struct gbuffer_frame f = {.scene = small, .camera = &s->camera, .seed = 3, .frame = 1, .threads = 2};
+        CHECK(gbuffer_render(&g[0], &f, NULL, &err));
+        f = (struct gbuffer_frame){.scene = s, .camera = &s->camera, .prev_scene = small, .prev_camera = &s->camera,
+                                   .seed = 3, .frame = 2, .threads = 2, .prev_gbuffer = &g[0], .check_history = true};
+        CHECK(gbuffer_render(&g[1], &f, NULL, &err));
+        static uint8_t landed_on[W * W];
+        memset(landed_on, 0, sizeof landed_on);
+        uint32_t kept = 0, landed = 0;
+        double sum = 0.0;
+        for (uint32_t i = 0; i < W * W; i++) {
+            const struct gbuffer_pixel *gp = &g[1].px[i];
+            if (!isfinite(gp->t) || !isfinite(gp->prev_x)) continue;
+            kept++;
+            sum += gp->prev_share;
+            const uint32_t q = (uint32_t)gp->prev_y * W + (uint32_t)gp->prev_x;
+            landed += !landed_on[q];
+            landed_on[q] = 1;
+        }
+        printf("    wall half its size before: %u pixels kept, into %u previous ones, shares sum to %.1f\n", kept,
+               landed, sum);
+        CHECK_MSG(kept > W * W / 2 && landed < kept / 3, "%u kept into %u", kept, landed);
+        CHECK_MSG(fabs(sum / landed - 1.0) < 0.15, "shares sum to %.1f over %u previous pixels", sum, landed);
+    }
+    gbuffer_destroy(&g[0]);
+    gbuffer_destroy(&g[1]);
+    if (small) scene_release(small);
+    scene_release(s);
+}
+
 TEST_MAIN(TEST(test_camera_project_round_trip), TEST(test_motion_vectors), TEST(test_jitter_deterministic),
-          TEST(test_jitter_walk), TEST(test_kept_surfaces), TEST(test_history_check))
+          TEST(test_jitter_walk), TEST(test_kept_surfaces), TEST(test_history_check),
+          TEST(test_history_share_of_a_scaled_shape))
