@@ -28,6 +28,8 @@ def curve(rows, scene, regime, method, variant=""):
 
 
 def at(rs, ms, key):
+    """A curve's error `key` at time ms (its rows, from the CSV or in memory), interpolated log-log
+    inside its measured range (None outside)."""
     return loglog_at([(float(r["ms"]), float(r[key])) for r in rs], ms)
 
 

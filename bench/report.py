@@ -64,7 +64,6 @@ import regimes  # noqa: E402
 import restir_pt  # noqa: E402
 from daemon import test_daemon  # noqa: E402
 import svgplot  # noqa: E402
-from curves import loglog_at  # noqa: E402
 from exrimage import read_rgb  # noqa: E402
 import ratios  # noqa: E402
 from references import REF_BY, REF_SPP, Reference, reference_method  # noqa: E402
@@ -188,11 +187,6 @@ def curves(rows, regime):
     return out
 
 
-def at_time(rs, ms, key):
-    """A curve's error at a time, interpolated log-log inside its measured range (None outside)."""
-    return loglog_at([(r["ms"], r[key]) for r in rs], ms)
-
-
 def budgets(rows, regime):
     """pt's times at three settings: its frame at 1, 4 and 16 spp (real time), or its image at 4,
     16 and 64 spp (converge; 1, 4, 16 in QUICK)."""
@@ -211,7 +205,7 @@ def winners(res, regime):
         line = {"spp": spp, "ms": ms}
         for key in ("relmse", "mape"):
             cands = sorted((v, label) for label, rs in curves(rows, regime).items()
-                           if (v := at_time(rs, ms, key)) is not None)
+                           if (v := ratios.at(rs, ms, key)) is not None)
             limit = errors.factor(key, errors.NOISE_FACTOR) * own[key]
             noisy = [label for v, label in cands if v < limit]
             ranked = [(v, label) for v, label in cands if v >= limit]

@@ -170,7 +170,6 @@ static void method_json_caps(struct jsonw *w, unsigned caps)
     jsonw_object_end(w);
 }
 
-
 void protocol_write_method(struct jsonw *w, const struct method_desc *m, const struct protocol_limits *limits)
 {
     _Alignas(8) unsigned char defaults[METHOD_PARAMS_BYTES], converge[METHOD_PARAMS_BYTES];

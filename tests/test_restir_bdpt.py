@@ -1,5 +1,6 @@
 """restir_bdpt (the session method: the lightweight variant with caustic temporal reuse alone
-(`"reuse": false`) and with the non-caustic reuse of its default `"reuse": true`, and the full variant with its vertex connections) is unbiased against `bdpt` (statistical, tests/README.md): K
+(`"reuse": false`) and with the non-caustic reuse of its default `"reuse": true`, and the full variant
+with its vertex connections) is unbiased against `bdpt` (statistical, tests/README.md): K
 independent sessions of each method (fresh seeds), each the mean of its N frames, compared per
 pixel at 32x32 (Šidák-corrected z-test at 0.01, >= 99.75 % of pixels passing, global mean
 within 3 sigma; tests/stats.py). Frames of one restir_bdpt session are correlated through its
@@ -54,11 +55,14 @@ def _animation(tmp_path, case, moving):
     return path
 
 
-def _sessions(scene_path, tmp_path, method, params, anim, seed0, profile="real-time"):
-    extra = ["--method", method, "--frames", str(FRAMES), "--average-last", str(FRAMES),
+def _sessions(scene_path, tmp_path, method, params, anim, seed0, profile="real-time", k=K, frames=FRAMES,
+              averaged=FRAMES):
+    """k sessions of `frames` frames (seeds seed0, seed0 + 1, ...), each the mean of its last
+    `averaged`: the images (k x H x W x 3) and each session's statistics."""
+    extra = ["--method", method, "--frames", str(frames), "--average-last", str(averaged),
              "--params", json.dumps(params), "--animation", str(anim), "--profile", profile]
     runs, stats = [], []
-    for s in range(K):
+    for s in range(k):
         img, st = render(scene_path, tmp_path / f"{method}{s}.exr", spp=1, seed=seed0 + s, extra=extra)
         runs.append(img)
         stats.append(st)
@@ -156,18 +160,8 @@ def test_restir_bdpt_camera_teleport_matches_bdpt(tmp_path, scenes):
                                               "camera_keys": keys}}))
     path = scenes / "cornell-box" / "scene.json"
 
-    def sessions(method, seed0):
-        runs, stats = [], []
-        for k in range(TELEPORT_K):
-            img, st = render(path, tmp_path / f"{method}{k}.exr", spp=1, seed=seed0 + k,
-                             extra=["--method", method, "--frames", "16", "--average-last", "8",
-                                    "--animation", str(anim), "--profile", "real-time"])
-            runs.append(img)
-            stats.append(st)
-        return np.stack(runs), stats
-
-    runs, stats = sessions("restir_bdpt", 1000)
-    ref, _ = sessions("bdpt", 5000)
+    runs, stats = _sessions(path, tmp_path, "restir_bdpt", {}, anim, 1000, k=TELEPORT_K, frames=16, averaged=8)
+    ref, _ = _sessions(path, tmp_path, "bdpt", {}, anim, 5000, k=TELEPORT_K, frames=16, averaged=8)
     assert all(st["last_frame"]["reuse_shifts"] > 0 for st in stats) and all(st["nonfinite"] == 0 for st in stats)
     res, bad = ztest_runs(runs, ref), ztest_runs(runs * 1.03, ref)
     print(f"cornell-box, camera teleport: {res}; x1.03: {bad}")

@@ -89,6 +89,13 @@ static float gbuffer_reflect(float z)
     return z < 1.0f ? z : 0x1.fffffep-1f;
 }
 
+/* The pixel of g under image position (px, py), or UINT32_MAX off screen (or NaN). */
+static uint32_t gbuffer_pixel_at(const struct gbuffer *g, float px, float py)
+{
+    if (!(px >= 0.0f && py >= 0.0f && px < (float)g->width && py < (float)g->height)) return UINT32_MAX;
+    return (uint32_t)py * g->width + (uint32_t)px;
+}
+
 /* The area a pixel of camera `cam` covers on a surface at distance d along unit direction w,
  * whose geometric normal is ng: the pixel's solid angle (s^2 cos^3 of the angle off the axis,
  * s the pixel's side at unit distance) times d^2 / |cos| at the surface. */
@@ -119,16 +126,17 @@ static float gbuffer_history_share(const struct gbuffer_job *gj, const struct gb
     const uint32_t shape = gp->shape;
     const struct gbuffer_frame *f = gj->f;
     const struct gbuffer *pg = f->prev_gbuffer;
-    if (!(px >= 0.0f && py >= 0.0f && px < (float)pg->width && py < (float)pg->height)) return 1.0f;
-    const uint32_t ix = (uint32_t)px, iy = (uint32_t)py;
-    const struct gbuffer_pixel *pp = &pg->px[(size_t)iy * pg->width + ix];
+    const uint32_t at = gbuffer_pixel_at(pg, px, py);
+    if (at == UINT32_MAX) return 1.0f;
+    const struct gbuffer_pixel *pp = &pg->px[at];
     if (!isfinite(pp->t) || pp->shape != shape) return 0.0f;
     struct vec3 pp_p, pp_ng;
     if (pg->surf) {
-        pp_p = pg->surf[(size_t)iy * pg->width + ix].p;
-        pp_ng = pg->surf[(size_t)iy * pg->width + ix].ng;
+        pp_p = pg->surf[at].p;
+        pp_ng = pg->surf[at].ng;
     } else {
-        struct vec3 pdir = camera_ray_dir(&gj->prev_cam, (float)ix + pp->jx, (float)iy + pp->jy);
+        struct vec3 pdir =
+            camera_ray_dir(&gj->prev_cam, (float)(at % pg->width) + pp->jx, (float)(at / pg->width) + pp->jy);
         struct hit h = surface_hit_at(f->prev_scene, pp->shape, pp->prim, pp->t, pp->b1, pp->b2);
         struct surface s;
         surface_from_hit(f->prev_scene, &h, gj->prev_cam.position, pdir, &s);
@@ -147,8 +155,8 @@ static float gbuffer_history_share(const struct gbuffer_job *gj, const struct gb
 /* An escaped ray's history: the previous pixel's ray escaped too. */
 static bool gbuffer_same_sky(const struct gbuffer *pg, float px, float py)
 {
-    if (!(px >= 0.0f && py >= 0.0f && px < (float)pg->width && py < (float)pg->height)) return true;
-    return !isfinite(pg->px[(size_t)(uint32_t)py * pg->width + (uint32_t)px].t);
+    const uint32_t at = gbuffer_pixel_at(pg, px, py);
+    return at == UINT32_MAX || !isfinite(pg->px[at].t);
 }
 
 static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)

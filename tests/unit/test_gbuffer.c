@@ -319,6 +319,19 @@ static void test_kept_surfaces(void)
     scene_release(s);
 }
 
+/* A pixel with a history: counts it in *kept, its previous pixel in *landed the first time one
+ * lands there (landed_on marks them, w wide), checks its share is in (0, 1] and returns it. */
+static double share_landed(const struct gbuffer_pixel *gp, uint32_t w, uint8_t *landed_on, uint32_t *kept,
+                           uint32_t *landed)
+{
+    CHECK_MSG(gp->prev_share > 0.0f && gp->prev_share <= 1.0f, "share %g", (double)gp->prev_share);
+    (*kept)++;
+    const size_t q = (size_t)(uint32_t)gp->prev_y * w + (uint32_t)gp->prev_x;
+    *landed += !landed_on[q];
+    landed_on[q] = 1;
+    return gp->prev_share;
+}
+
 /* Renders `cur` after `prev` (same scene), with the history check or without; returns the sum of the kept
  * pixels' shares and sets *landed to the number of distinct previous pixels they point into, and
  * counts over the hit pixels whose point projects into the previous image: *onscreen all of them,
@@ -348,7 +361,8 @@ static double history_run(const struct scene *s, const struct camera_desc *prev,
         const struct gbuffer_pixel *gp = &g[1].px[i];
         if (!isfinite(gp->t)) continue;
         /* The reprojected point, traced from the previous camera without the check. */
-        struct vec3 p = vec3_madd(cc.position, camera_ray_dir(&cc, (float)(i % w) + gp->jx, (float)(i / w) + gp->jy), gp->t);
+        struct vec3 d = camera_ray_dir(&cc, (float)(i % w) + gp->jx, (float)(i / w) + gp->jy);
+        struct vec3 p = vec3_madd(cc.position, d, gp->t);
         float px, py;
         if (!camera_project(&pc, p, &px, &py) || !(px >= 0 && py >= 0 && px < (float)w && py < (float)h)) continue;
         (*onscreen)++;
@@ -357,12 +371,7 @@ static double history_run(const struct scene *s, const struct camera_desc *prev,
         bool seen = accel_intersect(s->accel, pc.position, vec3_normalize(to), 0, INFINITY, &h1, &rc) &&
                     h1.shape == gp->shape && fabsf(h1.t - vec3_length(to)) < 1e-3f * vec3_length(to);
         if (isfinite(gp->prev_x)) {
-            (*kept)++;
-            CHECK_MSG(gp->prev_share > 0.0f && gp->prev_share <= 1.0f, "pixel %u: share %g", i, (double)gp->prev_share);
-            share += gp->prev_share;
-            size_t q = (size_t)(uint32_t)gp->prev_y * w + (uint32_t)gp->prev_x;
-            *landed += !hit_prev[q];
-            hit_prev[q] = 1;
+            share += share_landed(gp, w, hit_prev, kept, landed);
             *occluded += !seen && h1.shape != gp->shape;
         } else {
             *dropped_visible += seen;
@@ -389,8 +398,8 @@ static void test_history_check(void)
     near.position = vec3_madd(near.position, vec3_normalize(vec3_sub(near.look_at, near.position)), 450.0f);
     sum = history_run(s, &s->camera, &near, true, 96, 80, &landed, &on, &kept, &occluded, &dropped);
     CHECK_MSG(kept > on * 9 / 10, "kept %u of %u", kept, on);
-    CHECK_MSG(landed < kept / 2 && fabs(sum / landed - 1.0) < 0.15, "shares sum to %.1f over %u previous pixels (%u kept)",
-              sum, landed, kept);
+    CHECK_MSG(landed < kept / 2 && fabs(sum / landed - 1.0) < 0.15,
+              "shares sum to %.1f over %u previous pixels (%u kept)", sum, landed, kept);
     /* The camera moved sideways and up: the tall box uncovers wall and floor. Without the check
      * many pixels point into a previous pixel that saw the box; with it almost none (a previous
      * pixel astride the box's silhouette whose own ray hit the wall keeps its history, rightly),
@@ -403,7 +412,8 @@ static void test_history_check(void)
     printf("    history check after a side step: %u of %u kept, %u of them occluded then (%u unchecked), "
            "%u seen then dropped\n", kept, on, occluded, occluded_unchecked, dropped);
     CHECK_MSG(occluded_unchecked > 20 * occluded + 100 && dropped < kept / 20,
-              "%u occluded kept (%u unchecked), %u visible dropped of %u kept", occluded, occluded_unchecked, dropped, kept);
+              "%u occluded kept (%u unchecked), %u visible dropped of %u kept", occluded, occluded_unchecked, dropped,
+              kept);
     scene_release(s);
 }
 
@@ -419,7 +429,8 @@ static void test_history_share_of_a_scaled_shape(void)
         "   \"light\": {\"type\": \"diffuse\", \"albedo\": [0, 0, 0], \"emission\": [1, 1, 1]}},"
         " \"shapes\": [{\"type\": \"quad\", \"name\": \"wall\", \"material\": \"grey\","
         "   \"vertices\": [[-4, -4, 0], [4, -4, 0], [4, 4, 0], [-4, 4, 0]]},"
-        "  {\"type\": \"quad\", \"material\": \"light\", \"vertices\": [[-1, 5, -3], [1, 5, -3], [1, 5, -1], [-1, 5, -1]]}]}",
+        "  {\"type\": \"quad\", \"material\": \"light\","
+        "   \"vertices\": [[-1, 5, -3], [1, 5, -3], [1, 5, -1], [-1, 5, -1]]}]}",
         NULL);
     if (!s) return;
     struct err err = {0};
@@ -437,19 +448,13 @@ static void test_history_share_of_a_scaled_shape(void)
         f = (struct gbuffer_frame){.scene = s, .camera = &s->camera, .prev_scene = small, .prev_camera = &s->camera,
                                    .seed = 3, .frame = 2, .threads = 2, .prev_gbuffer = &g[0], .check_history = true};
         CHECK(gbuffer_render(&g[1], &f, NULL, &err));
+        uint32_t kept = 0, landed = 0;
         static uint8_t landed_on[W * W];
         memset(landed_on, 0, sizeof landed_on);
-        uint32_t kept = 0, landed = 0;
         double sum = 0.0;
-        for (uint32_t i = 0; i < W * W; i++) {
-            const struct gbuffer_pixel *gp = &g[1].px[i];
-            if (!isfinite(gp->t) || !isfinite(gp->prev_x)) continue;
-            kept++;
-            sum += gp->prev_share;
-            const uint32_t q = (uint32_t)gp->prev_y * W + (uint32_t)gp->prev_x;
-            landed += !landed_on[q];
-            landed_on[q] = 1;
-        }
+        for (uint32_t i = 0; i < W * W; i++)
+            if (isfinite(g[1].px[i].t) && isfinite(g[1].px[i].prev_x))
+                sum += share_landed(&g[1].px[i], W, landed_on, &kept, &landed);
         printf("    wall half its size before: %u pixels kept, into %u previous ones, shares sum to %.1f\n", kept,
                landed, sum);
         CHECK_MSG(kept > W * W / 2 && landed < kept / 3, "%u kept into %u", kept, landed);

@@ -106,8 +106,8 @@ test('the daemon serves the page at / and the page lists the scenes', async () =
 });
 
 // The form's fields for the method now selected: name -> value as the page shows it.
-const formFields = () =>
-  page.$$eval('#params input', (inputs) =>
+const formFields = (p = page) =>
+  p.$$eval('#params input', (inputs) =>
     Object.fromEntries(inputs.map((i) => [i.dataset.param, i.type === 'checkbox' ? i.checked : i.value])),
   );
 
@@ -137,10 +137,7 @@ test('the session form is built from the daemon\'s method registry', async () =>
     return [p.name, p.type === 'boolean' ? v : v === null ? '' : String(v)];
   }));
   assert.equal(converge.temporal, false, 'restir_pt\'s converge profile turns temporal reuse off');
-  assert.deepEqual(
-    await conv.$$eval('#params input', (inputs) =>
-      Object.fromEntries(inputs.map((i) => [i.dataset.param, i.type === 'checkbox' ? i.checked : i.value]))),
-    converge);
+  assert.deepEqual(await formFields(conv), converge);
   await conv.fill('#width', '8');
   await conv.fill('#height', '8');
   await conv.click('#create-session');
