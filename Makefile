@@ -93,8 +93,8 @@ $(OBJ)/server/%.o: server/%.c Makefile | $(DEPS_OK)
 # or in the environment) where the tree is no git checkout, as in the image's build, which
 # .dockerignore keeps .git out of (docker build --build-arg COMMIT=...); else HEAD. The stamp
 # file holds it and is rewritten only when it changes, so a new commit recompiles
-# server/version.c and relinks the two programs, the only ones that link it (not libserver.a,
-# which every unit test links).
+# server/version.c and relinks the two programs and test_api_jobs, the only ones that link it
+# (not libserver.a, which every unit test links).
 BUILD_COMMIT := $(or $(COMMIT),$(shell git rev-parse --short HEAD 2>/dev/null),unknown)
 COMMIT_STAMP := $(OBJ)/commit-stamp
 VERSION_OBJ  := $(OBJ)/server/version.o
@@ -149,6 +149,10 @@ $(OUT)/restird: $(OBJ)/server/main.o $(VERSION_OBJ) $(OBJ)/openapi.o $(OBJ)/webu
 $(OUT)/tests/%: $(OBJ)/tests/unit/%.o $(OBJ)/libserver.a $(OBJ)/libprotocol.a $(OBJ)/librenderer.a
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) $^ $(SERVER_LDLIBS) $(LDLIBS) -o $@
+
+# test_api_jobs runs the API behind its HTTP front, which also serves the API description, the
+# preview page and the build's commit (/metrics): it links them as the daemon does.
+$(OUT)/tests/test_api_jobs: $(OBJ)/openapi.o $(OBJ)/webui_files.o $(VERSION_OBJ)
 
 $(OBJ)/tests/unit/%.o: tests/unit/%.c Makefile | $(DEPS_OK)
 	@mkdir -p $(dir $@)
@@ -216,8 +220,8 @@ test-web: $(OUT)/restird $(WEB_NPM)
 # ThreadSanitizer: the unit tests that start threads, then the pytest tests marked
 # `concurrency` against a TSan daemon. Any report fails the run: the daemon exits with 66 on its
 # first report (halt_on_error), which the tests see as a failed stop or a dead daemon.
-TSAN_UNIT := test_parallel test_registry test_jobs test_restir test_gbuffer test_restir_pt test_restir_sss test_restir_sms \
-             test_restir_bdpt
+TSAN_UNIT := test_parallel test_registry test_jobs test_api_jobs test_restir test_gbuffer test_restir_pt test_restir_sss \
+             test_restir_sms test_restir_bdpt
 TSAN_ENV  := TSAN_OPTIONS="halt_on_error=1 exitcode=66 second_deadlock_stack=1 suppressions=$(abspath tests/tsan.supp)"
 ifeq ($(TSAN),1)
 test-tsan: $(TSAN_UNIT:%=$(OUT)/tests/%) $(OUT)/restird

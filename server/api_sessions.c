@@ -697,22 +697,48 @@ static void api_write_job(struct jsonw *w, struct session *s, const struct job *
     jsonw_object_end(w);
 }
 
+/* The 202 of a job's POST: the job object and its Location, written while the job can be read
+ * (api_job_accepted_write_locked) and sent later (api_job_accepted_send), when nothing of the
+ * job is read any more. */
+struct api_job_accepted {
+    struct jsonw body;
+    char location[256];
+};
+
 /* Call with s->lock held: the job is read whole, and cannot be forgotten meanwhile. */
-static void api_job_answer_locked(struct api_call *c, struct session *s, struct job *j, int status)
+static void api_job_accepted_write_locked(struct session *s, const struct job *j, struct api_job_accepted *a)
 {
-    struct jsonw w;
-    jsonw_init(&w);
-    api_write_job(&w, s, j);
-    if (status == 202)
-        http_response_header(c->resp, "Location", "/v1/scenes/%s/sessions/%s/renders/%s", s->scene_id, s->id, j->id);
-    api_json(c, status, &w);
+    jsonw_init(&a->body);
+    api_write_job(&a->body, s, j);
+    snprintf(a->location, sizeof a->location, "/v1/scenes/%s/sessions/%s/renders/%s", s->scene_id, s->id, j->id);
 }
 
-static void api_job_answer(struct api_call *c, struct session *s, struct job *j, int status)
+static void api_job_accepted_send(struct api_call *c, struct api_job_accepted *a)
 {
+    http_response_header(c->resp, "Location", "%s", a->location);
+    api_json(c, 202, &a->body);
+}
+
+/* Queues job j, just added to the session (api_job_add), and answers 202 with it; when the
+ * queue refuses it, answers 429 and returns false, and the caller forgets j. The answer is
+ * written before j is queued, while j is this request's alone: from jobs_submit on, a worker
+ * may run it to its end and let go of it at once, and the session may then forget (free) it
+ * to make room for another job, so nothing of j is read after. It shows the job queued, as it
+ * is when the POST answers. */
+static bool api_job_submit(struct api_call *c, struct session *s, struct job *j)
+{
+    struct api_job_accepted a;
     pthread_mutex_lock(&s->lock);
-    api_job_answer_locked(c, s, j, status);
+    api_job_accepted_write_locked(s, j, &a);
     pthread_mutex_unlock(&s->lock);
+    struct err e = {0};
+    if (!jobs_submit(c->d->jobs, j, &e)) {
+        jsonw_destroy(&a.body);
+        api_problem(c, 429, "queue-full", NULL, "%s", e.message);
+        return false;
+    }
+    api_job_accepted_send(c, &a);
+    return true;
 }
 
 void api_renders_list(struct api_call *c)
@@ -753,11 +779,14 @@ static bool api_job_replay(struct api_call *c, struct session *s, const char *ke
     if (!key) return false;
     pthread_mutex_lock(&s->lock);
     struct job *prev = session_job_find_key(s, key);
-    if (prev && prev->request_hash == hash) api_job_answer_locked(c, s, prev, 202);
+    bool same = prev && prev->request_hash == hash;
+    struct api_job_accepted a;
+    if (same) api_job_accepted_write_locked(s, prev, &a);
     char id[24] = "";
     if (prev) snprintf(id, sizeof id, "%s", prev->id);
     bool other = prev && prev->request_hash != hash;
     pthread_mutex_unlock(&s->lock);
+    if (same) api_job_accepted_send(c, &a);
     if (other)
         api_problem(c, 409, "conflict", "Idempotency-Key",
                     "Idempotency-Key '%s' was sent with another request, which made job '%s'; use a new key", key, id);
@@ -844,23 +873,16 @@ void api_renders_post(struct api_call *c)
         job_destroy(j);
         goto out;
     }
-    bool ok = true;
     /* The session's camera is stable while it is claimed: it is where the animation starts. */
-    if (!animate_resolve(&rq, s->view.base, &s->view.camera, &j->anim, &e)) {
+    bool ok = animate_resolve(&rq, s->view.base, &s->view.camera, &j->anim, &e);
+    if (!ok) {
         if (e.code == ERR_NOMEM) api_error(c, &e);
         else api_problem(c, 422, "invalid-field", e.where, "%s", e.message);
-        ok = false;
     }
-    if (ok && !jobs_submit(c->d->jobs, j, &e)) {
-        api_problem(c, 429, "queue-full", NULL, "%s", e.message);
-        ok = false;
-    }
-    if (!ok) {
+    if (!ok || !api_job_submit(c, s, j)) {
         session_job_forget(s, j);
         session_unclaim(s);
-        goto out;
     }
-    api_job_answer(c, s, j, 202);
 out:
     protocol_render_request_destroy(&rq);
     session_release(s);
@@ -1089,13 +1111,7 @@ void api_session_reference_post(struct api_call *c)
             return;
         }
     }
-    if (!jobs_submit(c->d->jobs, j, &e)) {
-        api_problem(c, 429, "queue-full", NULL, "%s", e.message);
-        session_job_forget(s, j);
-        session_release(s);
-        return;
-    }
-    api_job_answer(c, s, j, 202);
+    if (!api_job_submit(c, s, j)) session_job_forget(s, j);
     session_release(s);
 }
 

@@ -724,7 +724,7 @@ def test_references_render_upload_metrics_error_map(daemon, tmp_path):
     r = daemon.req("POST", s["href"] + "/references/ref32", json_body={"spp": 32})
     assert r.status == 202, repr(r)
     job = r.json()
-    assert job["kind"] == "reference" and job["status"] in ("queued", "running", "done")
+    assert job["kind"] == "reference" and job["status"] == "queued", job  # as it was queued
     assert job["spp"] == 32 and job["method"] == "pt" and job["href"] == f"{CORNELL}/references/ref32", job
     assert job["progress"]["frames_total"] == 16, job  # 16 passes of spp/16
     loc = r.header("Location")
