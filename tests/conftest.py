@@ -12,6 +12,8 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
+from stats import NullRejected
+
 ROOT = Path(__file__).resolve().parent.parent
 BIN = os.environ.get("RESTIR_BIN", str(ROOT / "build" / "restir"))
 
@@ -23,6 +25,40 @@ def pytest_configure(config):
     # the code they run is exercised under the sanitizers by smaller tests (unit/test_restir_pt.c,
     # test_daemon.py's restir_pt session).
     config.addinivalue_line("markers", "statistical: long statistical comparisons (left out of the sanitizer run)")
+
+
+# Seeds of the confirming run (tests/stats.py, "Confirmation"): while a test runs a second time
+# after one of its comparisons rejected equal means, every seed it gives `render` is shifted by
+# this, past the largest seed a test uses (100000 + run), so that the renders are independent of
+# the first run's. Caches of renders key on seed_offset().
+CONFIRM_SEED_OFFSET = 1 << 20
+_seed_offset = 0
+
+
+def seed_offset():
+    return _seed_offset
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_pyfunc_call(pyfuncitem):
+    """Runs the test; when a comparison rejects equal means (stats.NullRejected), runs it once more
+    on independent seeds and fails only if a comparison rejects again (tests/stats.py). Any other
+    failure, a negative control's included, fails at once."""
+    global _seed_offset
+    args = {name: pyfuncitem.funcargs[name] for name in pyfuncitem._fixtureinfo.argnames}
+    try:
+        pyfuncitem.obj(**args)
+    except NullRejected as first:
+        print(f"\n{pyfuncitem.nodeid}: rejected ({first}); confirming on independent seeds")
+        _seed_offset = CONFIRM_SEED_OFFSET
+        try:
+            pyfuncitem.obj(**args)
+        except NullRejected as second:
+            raise NullRejected(f"rejected on two independent sets of renders: {first}; then {second}") from None
+        finally:
+            _seed_offset = 0
+        print(f"{pyfuncitem.nodeid}: confirmed: the independent renders agree")
+    return True
 
 
 def read_exr(path):
@@ -48,13 +84,14 @@ def methods_taking_spp():
 def render(scene, out, *, spp=4, size="32x32", seed=0, extra=()):
     """Runs `restir render --json` and returns (image RGB, stats dict). `spp` goes to a method
     that takes it, unless --params in `extra` sets spp itself: the CLI refuses --spp for the
-    others (they trace one path per pixel and frame) and an spp given twice."""
+    others (they trace one path per pixel and frame) and an spp given twice. In a confirming run
+    the seed is shifted by seed_offset() (pytest_pyfunc_call)."""
     extra = [str(x) for x in extra]
     taking, default = methods_taking_spp()
     method = extra[extra.index("--method") + 1] if "--method" in extra else default
     params = json.loads(extra[extra.index("--params") + 1]) if "--params" in extra else {}
     spp_args = ["--spp", str(spp)] if method in taking and "spp" not in params else []
-    cmd = [BIN, "render", str(scene), *spp_args, "--size", size, "--seed", str(seed),
+    cmd = [BIN, "render", str(scene), *spp_args, "--size", size, "--seed", str(seed + _seed_offset),
            "--json", "-o", str(out), *extra]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, f"{cmd}: {res.stderr}"

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from conftest import read_exr, render, run_cli
-from stats import ztest_runs
+from stats import assert_agree, ztest_runs
 
 
 def test_cornell_box_renders(tmp_path, scenes):
@@ -39,7 +39,7 @@ def test_pt_unbiased_independent_renders_agree(tmp_path, scenes):
     a = _runs(sc, tmp_path, range(0, 24), spp=32)
     b = _runs(sc, tmp_path, range(1000, 1048), spp=16)
     res = ztest_runs(a, b)
-    assert res.passed, str(res)
+    assert_agree(res)
     # Negative control: the same comparison rejects an image 3 % too bright.
     bad = ztest_runs(a * 1.03, b)
     assert not bad.passed, str(bad)
@@ -83,10 +83,10 @@ def test_furnace_convex_sphere(tmp_path, scenes, name, albedo):
     expected = np.where(cov == 1, albedo, 1.0)[..., None].repeat(3, axis=2)
     assert (cov == 1).sum() > 50 and (cov == 0).sum() > 50  # both regions are tested
     res = ztest_runs(runs[:, known], expected=expected[known])
-    assert res.passed, str(res)
+    assert_agree(res)
     if albedo == 1.0:
         # Albedo 1 under a uniform environment: every pixel is exactly 1 whatever the coverage.
-        assert ztest_runs(runs, expected=1.0).passed
+        assert_agree(ztest_runs(runs, expected=1.0))
     bad = ztest_runs(runs[:, known] * 1.03, expected=expected[known])
     assert not bad.passed, str(bad)
 
@@ -117,7 +117,7 @@ def test_furnace_lossless_specular_sphere(tmp_path, material):
     # Mirror: Fresnel of a conductor with k = 1000 is 1 to within 1e-6.
     assert np.abs(runs - 1.0).max() < 1e-4 if material["type"] == "conductor" else True
     res = ztest_runs(runs, expected=1.0)
-    assert res.passed, str(res)
+    assert_agree(res)
     assert not ztest_runs(runs * 1.03, expected=1.0).passed
 
 
@@ -146,7 +146,7 @@ def test_roulette_ignores_the_radiance_scaling_of_refraction(tmp_path):
     assert weights.size > 1000 and worst < 0.01, f"a path weight 0.95^-n with n {worst:.3f} away from an integer"
     runs = _runs(path, tmp_path, range(100, 124), spp=16, size="16x16", extra=["--rr-depth", "1"])
     res = ztest_runs(runs, expected=1.0)
-    assert res.passed, str(res)
+    assert_agree(res)
     assert not ztest_runs(runs * 1.03, expected=1.0).passed
 
 
@@ -181,7 +181,7 @@ def test_nee_mis_agrees_with_bsdf_sampling(tmp_path):
     nee = _runs(path, tmp_path, range(16), spp=32, size="24x18")
     bsdf = _runs(path, tmp_path, range(500, 516), spp=128, size="24x18", extra=["--no-nee"])
     res = ztest_runs(nee, bsdf)
-    assert res.passed, str(res)
+    assert_agree(res)
     assert not ztest_runs(nee * 1.03, bsdf).passed
 
 
@@ -208,7 +208,7 @@ def test_nee_short_shadow_rays_at_large_coordinates(tmp_path):
     nee = _runs(path, tmp_path, range(16), spp=16, size="16x16", extra=extra)
     bsdf = _runs(path, tmp_path, range(500, 516), spp=256, size="16x16", extra=[*extra, "--no-nee"])
     res = ztest_runs(nee, bsdf)
-    assert res.passed, str(res)
+    assert_agree(res)
     assert not ztest_runs(nee * 1.03, bsdf).passed
 
 
@@ -231,7 +231,7 @@ def test_furnace_closed_emissive_sphere(tmp_path):
     # this failed none of 10.
     runs = _runs(path, tmp_path, range(16), spp=128, size="32x32")
     res = ztest_runs(runs, expected=le / (1 - albedo))
-    assert res.passed, str(res)
+    assert_agree(res)
     assert not ztest_runs(runs * 1.03, expected=le / (1 - albedo)).passed
 
 

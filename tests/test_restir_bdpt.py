@@ -26,8 +26,8 @@ import json
 import numpy as np
 import pytest
 
-from conftest import render, run_cli
-from stats import ztest_runs
+from conftest import render, run_cli, seed_offset
+from stats import assert_agree, ztest_runs
 
 K = 16        # sessions per method
 FRAMES = 64   # frames per session, averaged
@@ -94,6 +94,7 @@ _RUNS = {}   # restir_bdpt sessions of test_restir_bdpt_matches_bdpt, for the pa
 
 def _reference(path, tmp_path, case, anim, key):
     """The bdpt sessions of a case, rendered once for all variants."""
+    key = (*key, seed_offset())
     if key not in _REF:
         _REF[key] = _sessions(path, tmp_path, "bdpt", case["params"], anim, 5000)[0]
     return _REF[key]
@@ -110,7 +111,7 @@ def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse, varian
     params = {**case["params"], "reuse": reuse, "variant": variant,
               "expected_shading": reuse and variant == "lightweight"}
     runs, stats = _sessions(path, tmp_path, "restir_bdpt", params, anim, 1000, profile)
-    _RUNS[(scene, moving, reuse, variant, profile)] = runs
+    _RUNS[(scene, moving, reuse, variant, profile, seed_offset())] = runs
     ref = _reference(path, tmp_path, case, anim, (scene, moving))
     last = [st["last_frame"] for st in stats]
     # The full variant connects camera vertices to cached light vertices, the lightweight one never.
@@ -132,7 +133,7 @@ def test_restir_bdpt_matches_bdpt(tmp_path, scenes, scene, moving, reuse, varian
              f"{profile}")
     print(f"{label}: {res}; x1.03: {bad}; last frames' caustic shifts "
           f"{sum(lf['caustic_shifts'] for lf in last)}, failures {fails}")
-    assert res.passed, f"{label}: {res}"
+    assert_agree(res, label)
     assert not bad.passed, f"{label}: a bias of x1.03 went unseen: {bad}"
 
 
@@ -165,7 +166,7 @@ def test_restir_bdpt_camera_teleport_matches_bdpt(tmp_path, scenes):
     assert all(st["last_frame"]["reuse_shifts"] > 0 for st in stats) and all(st["nonfinite"] == 0 for st in stats)
     res, bad = ztest_runs(runs, ref), ztest_runs(runs * 1.03, ref)
     print(f"cornell-box, camera teleport: {res}; x1.03: {bad}")
-    assert res.passed, res
+    assert_agree(res)
     assert not bad.passed, f"a bias of x1.03 went unseen: {bad}"
 
 
@@ -185,7 +186,7 @@ def test_restir_bdpt_reject_unshiftable_darkens(tmp_path, scenes):
     scene, case = "lamp-in-glass", CASES["lamp-in-glass"]
     anim = _animation(tmp_path, case, False)
     path = scenes / scene / "scene.json"
-    key = (scene, False, True, "lightweight", "real-time")
+    key = (scene, False, True, "lightweight", "real-time", seed_offset())
     if key not in _RUNS:
         _RUNS[key] = _sessions(path, tmp_path, "restir_bdpt", {**case["params"], "reuse": True,
                                                                 "expected_shading": True}, anim, 1000)[0]

@@ -36,7 +36,7 @@ import numpy as np
 import pytest
 
 from conftest import render, sky_all_round
-from stats import ztest_runs
+from stats import assert_agree, ztest_runs
 from test_sms import SCENE, _cached_reference
 
 K = 24
@@ -103,7 +103,7 @@ def test_restir_sms_unbiased_still_camera(tmp_path, scenes, light_reservoirs, pr
     print(f"restir_sms ({sampler}, still, {profile}) vs filtered reference: {res}; x1.05: {bad}; "
           f"last run: {st['last_frame']}, "
           f"{st['manifold_shift']}")
-    assert res.passed, f"restir_sms vs pt subset caustic: {res}"
+    assert_agree(res, "restir_sms vs pt subset caustic")
     assert not bad.passed, f"a bias of x1.05 went unseen: {bad}"
 
 
@@ -122,7 +122,7 @@ def test_restir_sms_unbiased_moving_camera(tmp_path, scenes, profile):
     bad = ztest_runs(runs * 1.07, ref)
     print(f"restir_sms (moving camera, {profile}) vs filtered reference: {res}; x1.07: {bad}; "
           f"last run: {st['last_frame']}")
-    assert res.passed, f"restir_sms under camera motion vs pt subset caustic: {res}"
+    assert_agree(res, "restir_sms under camera motion vs pt subset caustic")
     assert not bad.passed, f"a bias of x1.07 went unseen: {bad}"
 
 
@@ -156,7 +156,7 @@ def test_restir_sms_prior_missing_a_light_stays_unbiased(tmp_path, scenes):
     # pair without a prior) leaves this test the power to see ~10 %, not 5 %: the control is x1.12.
     bad = ztest_runs(runs * 1.12, ref)
     print(f"restir_sms, prior of 1 walk per block: {res}; x1.12: {bad}; prior {st['prior']}")
-    assert res.passed, f"restir_sms with a prior that misses a light vs pt subset caustic: {res}"
+    assert_agree(res, "restir_sms with a prior that misses a light vs pt subset caustic")
     assert not bad.passed, f"a bias of x1.12 went unseen: {bad}"
 
 
@@ -192,7 +192,7 @@ def test_restir_sms_receivers_behind_a_mirror(tmp_path, scenes):
     res = ztest_runs(runs, base)
     bad = ztest_runs(runs * 1.05, base)
     print(f"restir_sms on {PLANE} vs sms: {res}; x1.05: {bad}")
-    assert res.passed, f"restir_sms on {PLANE} vs sms: {res}"
+    assert_agree(res, f"restir_sms on {PLANE} vs sms")
     assert not bad.passed, f"a bias of x1.05 went unseen: {bad}"
 
 
@@ -232,7 +232,7 @@ def test_restir_sms_light_switched_off_stays_unbiased(tmp_path, scenes):
     res = ztest_runs(runs, base)
     bad = ztest_runs(runs * 1.07, base)
     print(f"restir_sms, warm light off at frame 8, vs fresh sessions without it: {res}; x1.07: {bad}")
-    assert res.passed, f"restir_sms after a light went off vs fresh sessions without it: {res}"
+    assert_agree(res, "restir_sms after a light went off vs fresh sessions without it")
     assert not bad.passed, f"a bias of x1.07 went unseen: {bad}"
 
 

@@ -1,9 +1,12 @@
 """The z-test of tests/stats.py on synthetic runs whose truth is known: it passes equal means,
 fails a bias, and leaves out of the per-pixel part exactly the values a reference never resolved
-(min_nonzero_b), without passing a bias or passing when nothing is left to test."""
+(min_nonzero_b), without passing a bias or passing when nothing is left to test; and the
+confirming run of a rejected comparison (conftest.pytest_pyfunc_call) on independent seeds."""
 import numpy as np
+import pytest
 
-from stats import ztest_runs
+import conftest
+from stats import NullRejected, assert_agree, ztest_runs
 
 H, W, C = 16, 16, 3
 KA, KB = 16, 32
@@ -44,3 +47,59 @@ def test_nothing_left_to_test_fails():
     a = _runs(rng, KA)
     res = ztest_runs(a, np.zeros((KB, H, W, C)), min_nonzero_b=1)
     assert res.untested == H * W * C and not res.passed
+
+
+class _Item:
+    """The parts of a pytest item that conftest.pytest_pyfunc_call reads."""
+
+    class _Info:
+        argnames = ()
+
+    def __init__(self, fn):
+        self.obj, self.funcargs, self._fixtureinfo, self.nodeid = fn, {}, self._Info(), fn.__name__
+
+
+def test_a_rejection_is_confirmed_on_independent_seeds():
+    """A comparison that rejects once is run again with every render seed shifted, and the test
+    passes only if that run agrees; two rejections, or any other failure, fail it."""
+    rng = np.random.default_rng(4)
+    agree, differ = ztest_runs(_runs(rng, KA), _runs(rng, KB)), ztest_runs(_runs(rng, KA, 1.05), _runs(rng, KB))
+    assert agree.passed and not differ.passed
+    offsets = []
+
+    def unlucky_once():
+        offsets.append(conftest.seed_offset())
+        assert_agree(differ if conftest.seed_offset() == 0 else agree, "first draw")
+
+    assert conftest.pytest_pyfunc_call(_Item(unlucky_once)) is True
+    assert offsets == [0, conftest.CONFIRM_SEED_OFFSET] and conftest.seed_offset() == 0
+
+    def biased():
+        assert_agree(differ, "biased")
+
+    with pytest.raises(NullRejected, match="two independent sets"):
+        conftest.pytest_pyfunc_call(_Item(biased))
+    assert conftest.seed_offset() == 0
+    offsets.clear()
+
+    def control_accepted():
+        offsets.append(conftest.seed_offset())
+        assert not agree.passed, "a bias went unseen"
+
+    with pytest.raises(AssertionError, match="went unseen") as failure:
+        conftest.pytest_pyfunc_call(_Item(control_accepted))
+    assert not isinstance(failure.value, NullRejected) and offsets == [0]
+
+
+def test_a_confirming_run_renders_other_seeds(tmp_path, scenes):
+    """render() shifts its seed by the offset of a confirming run: seed s then renders what seed
+    s + CONFIRM_SEED_OFFSET renders otherwise."""
+    sc = scenes / "cornell-box" / "scene.json"
+    plain, _ = conftest.render(sc, tmp_path / "a.exr", spp=1, size="8x8", seed=3 + conftest.CONFIRM_SEED_OFFSET)
+    first, _ = conftest.render(sc, tmp_path / "b.exr", spp=1, size="8x8", seed=3)
+    conftest._seed_offset = conftest.CONFIRM_SEED_OFFSET
+    try:
+        shifted, _ = conftest.render(sc, tmp_path / "c.exr", spp=1, size="8x8", seed=3)
+    finally:
+        conftest._seed_offset = 0
+    assert np.array_equal(shifted, plain) and not np.array_equal(shifted, first)

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from conftest import render
-from stats import ztest_runs
+from stats import assert_agree, ztest_runs
 
 
 def _runs(scene, tmp_path, seeds, spp, size, extra=()):
@@ -63,7 +63,7 @@ def test_translucent_furnace_plane(tmp_path, extra):
     assert np.isfinite(runs).all()
     expected = np.array(ALBEDO) * (1 - _fresnel(1.0, IOR))
     res = ztest_runs(runs, expected=np.broadcast_to(expected, runs.shape[1:]))
-    assert res.passed, str(res)
+    assert_agree(res)
     assert not ztest_runs(runs * 1.03, expected=np.broadcast_to(expected, runs.shape[1:])).passed
 
 
@@ -93,7 +93,7 @@ def test_translucent_nee_agrees_with_continuation(tmp_path):
     nee = _runs(path, tmp_path, range(16), spp=32, size="20x20")
     cont = _runs(path, tmp_path, range(500, 516), spp=96, size="20x20", extra=["--no-nee"])
     res = ztest_runs(nee, cont)
-    assert res.passed, str(res)
+    assert_agree(res)
     assert not ztest_runs(nee * 1.03, cont).passed
 
 

@@ -44,6 +44,25 @@ static inline struct rng rng_make(uint64_t seed, uint64_t a, uint64_t b, uint64_
     return r;
 }
 
+/* The streams of one pixel's samples: rng_make's hash of (seed, a, b, c) once per pixel gives the
+ * increment, shared by the pixel's samples, and rng_sample hashes the sample index into a starting
+ * state (one SplitMix64 where rng_make costs five and two steps), so that a path tracer pays the
+ * full derivation once per pixel, not once per sample. A pixel's samples start at unrelated points
+ * of its own sequence: two of a thousand samples drawing a thousand numbers each overlap with a
+ * probability near 1e-10; other pixels use other sequences. */
+struct rng_pixel { uint64_t hash, inc; };
+
+static inline struct rng_pixel rng_pixel_make(uint64_t seed, uint64_t a, uint64_t b, uint64_t c)
+{
+    uint64_t h = rng_mix64(seed ^ rng_mix64(a ^ rng_mix64(b ^ rng_mix64(c))));
+    return (struct rng_pixel){h, (rng_mix64(h + 1) << 1u) | 1u};
+}
+
+static inline struct rng rng_sample(const struct rng_pixel *p, uint64_t sample)
+{
+    return (struct rng){rng_mix64(p->hash ^ sample), p->inc};
+}
+
 /* Stream for one 64-bit key, for streams made by the million (a path vertex's numbers): one
  * SplitMix64 hash spreads the key over PCG32's state and every such stream shares one increment,
  * so distinct keys start at unrelated points of one 2^64 sequence — a few numbers each never

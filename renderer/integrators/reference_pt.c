@@ -22,6 +22,8 @@
 #include "scene/surface.h"
 
 #define PT_TILE 16
+/* rng_pixel_make's last word for the pixel's sample streams (rng.h). */
+#define PT_SAMPLE_STREAM 0x7074ull
 #define PT_MAX_WORKERS 1024
 
 struct pt_job {
@@ -502,8 +504,9 @@ __attribute__((flatten)) static void pt_tile(void *ctx, uint32_t tile, unsigned 
             if (parallel_stopped()) break;  /* the frame was given up: its pixels are not used */
             uint64_t pixel = (uint64_t)y * p->width + x;
             double acc[3] = {0, 0, 0};
+            const struct rng_pixel streams = rng_pixel_make(p->seed, p->frame, pixel, PT_SAMPLE_STREAM);
             for (uint32_t s = 0; s < p->spp; s++) {
-                struct rng rng = rng_make(p->seed, p->frame, pixel, s);
+                struct rng rng = rng_sample(&streams, s);
                 float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
                 struct vec3 dir = camera_ray_dir(&job->camera, (float)x + jx, (float)y + jy);
                 /* SMS draws from its own stream, so the path-traced part of `sms` is the same

@@ -82,6 +82,54 @@ static void test_rng_keyed_first_numbers_chi2(void)
     CHECK(rng_next_u32(&c) == rng_next_u32(&d));  /* deterministic */
 }
 
+/* A pixel's sample streams (rng_pixel_make once, rng_sample per sample), as the path tracer forms
+ * them: the first numbers of neighbouring samples, of the same sample index in neighbouring
+ * pixels, and the first two numbers of one sample are jointly uniform (16 x 16 bins, chi2), and a
+ * sample's later numbers (its 100th) do not repeat another sample's (no two of the pixel's
+ * streams run into each other over 1000 draws). */
+static void test_rng_pixel_samples_chi2(void)
+{
+    enum { B = 16, PIXELS = 4000, SPP = 64 };
+    static int samples[B][B], pixels[B][B], within[B][B];
+    memset(samples, 0, sizeof samples);
+    memset(pixels, 0, sizeof pixels);
+    memset(within, 0, sizeof within);
+    for (uint64_t px = 0; px < PIXELS; px++) {
+        struct rng_pixel p = rng_pixel_make(9, 2, px, 0x7074u), q = rng_pixel_make(9, 2, px + 1, 0x7074u);
+        for (uint64_t s = 0; s < SPP; s++) {
+            struct rng a = rng_sample(&p, s), b = rng_sample(&p, s + 1), c = rng_sample(&q, s);
+            float a0 = rng_next_float(&a), a1 = rng_next_float(&a), b0 = rng_next_float(&b), c0 = rng_next_float(&c);
+            samples[(int)(a0 * B)][(int)(b0 * B)]++;
+            pixels[(int)(a0 * B)][(int)(c0 * B)]++;
+            within[(int)(a0 * B)][(int)(a1 * B)]++;
+        }
+    }
+    double e = (double)PIXELS * SPP / (B * B), chi_s = 0, chi_p = 0, chi_w = 0;
+    for (int i = 0; i < B; i++)
+        for (int j = 0; j < B; j++) {
+            chi_s += (samples[i][j] - e) * (samples[i][j] - e) / e;
+            chi_p += (pixels[i][j] - e) * (pixels[i][j] - e) / e;
+            chi_w += (within[i][j] - e) * (within[i][j] - e) / e;
+        }
+    CHECK_MSG(chi_s < chi2_critical(B * B - 1), "neighbouring samples: chi2 %.2f", chi_s);
+    CHECK_MSG(chi_p < chi2_critical(B * B - 1), "neighbouring pixels: chi2 %.2f", chi_p);
+    CHECK_MSG(chi_w < chi2_critical(B * B - 1), "within a sample: chi2 %.2f", chi_w);
+    /* 64 samples of one pixel, 1000 draws each: no stream reaches another's starting state (as
+     * it would if the samples' states were consecutive points of their shared sequence). */
+    struct rng_pixel p = rng_pixel_make(1, 0, 0, 0x7074u);
+    uint64_t start[SPP];
+    for (uint32_t s = 0; s < SPP; s++) start[s] = rng_sample(&p, s).state;
+    uint32_t runs_into = 0;
+    for (uint32_t s = 0; s < SPP; s++) {
+        struct rng r = rng_sample(&p, s);
+        for (int i = 0; i < 1000; i++) {
+            rng_next_u32(&r);
+            for (uint32_t t = 0; t < SPP; t++) runs_into += r.state == start[t];
+        }
+    }
+    CHECK_MSG(runs_into == 0, "%u draws reached another sample's starting state", runs_into);
+}
+
 static void test_distrib_chi2(void)
 {
     double w[5] = {1.0, 0.0, 3.0, 0.5, 10.0};
@@ -373,6 +421,6 @@ static void test_vec3_v4_max(void)
 }
 
 TEST_MAIN(TEST(test_vec3_v4_max), TEST(test_rng_uniform_chi2), TEST(test_rng_streams_differ),
-          TEST(test_rng_keyed_first_numbers_chi2), TEST(test_distrib_chi2),
+          TEST(test_rng_keyed_first_numbers_chi2), TEST(test_rng_pixel_samples_chi2), TEST(test_distrib_chi2),
           TEST(test_accel_flat_and_two_level), TEST(test_accel_move_instance), TEST(test_offset_avoids_self_hit),
           TEST(test_light_sampler_pdfs), TEST(test_light_sampler_triangle_point_per_shape), TEST(test_camera_rays))
