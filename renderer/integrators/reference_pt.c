@@ -5,7 +5,8 @@
  * with all pdfs in solid angle at the shading point (area pdfs converted by dist^2 / |cos|).
  * Russian roulette survival q = min(0.95, max(throughput)) after rr_depth bounces keeps the
  * estimator unbiased. Random numbers come from a PCG stream per (seed, frame, pixel, sample),
- * so images do not depend on the thread count. */
+ * or with the Sobol' sampler (reference_pt.h, PT_SAMPLER_SOBOL) partly from Owen-scrambled Sobol'
+ * dimensions keyed by (seed, pixel), so images do not depend on the thread count. */
 #include "integrators/reference_pt.h"
 
 #include <stdlib.h>
@@ -19,12 +20,45 @@
 #include "material/material.h"
 #include "core/rng.h"
 #include "core/sampling.h"
+#include "core/sobol.h"
 #include "scene/surface.h"
 
 #define PT_TILE 16
 /* rng_pixel_make's last word for the pixel's sample streams (rng.h). */
 #define PT_SAMPLE_STREAM 0x7074ull
 #define PT_MAX_WORKERS 1024
+
+/* The Sobol' sampler's padded dimensions (core/sobol.h): the pixel position, then at each of the
+ * first PT_SOBOL_BOUNCES vertices the light sample's point, the BSDF sample's direction, the pair
+ * (light pick, lobe choice) and Russian roulette. One dimension per decision, so no two decisions
+ * share a shuffle (which would correlate them); the pick and the lobe choice share one as its two
+ * coordinates, each stratified on its own and jointly. */
+enum { PT_DIM_PIXEL, PT_DIM_FIRST_VERTEX };
+enum { PT_DIM_LIGHT_POINT, PT_DIM_BSDF_DIRECTION, PT_DIM_CHOICES, PT_DIM_RR, PT_DIMS_PER_VERTEX };
+#define PT_SOBOL_DIMS (PT_DIM_FIRST_VERTEX + PT_SOBOL_BOUNCES * PT_DIMS_PER_VERTEX)
+/* rng_pixel_make's last word for a pixel's Sobol' seed. */
+#define PT_SOBOL_STREAM 0x736f626full
+/* A pixel's Sobol' index is the sample's index in the session, frame * spp + sample, in epochs of
+ * 2^31 samples: each epoch (the bits above) gets its own randomisation. A session's frames stay
+ * below frame 2^31, so their epochs are below spp, while reference passes (frames from
+ * REFERENCE_PT_PASS_FRAME0 = 2^31 on) are in epochs from spp up: a reference never shares a
+ * randomisation with the frames it is compared with (its samples would be correlated with
+ * theirs). */
+#define PT_SOBOL_INDEX_BITS 31
+
+/* One sample's Sobol' state: its index, bit-reversed (as sobol.h takes it), and the seeds of every
+ * dimension for the pixel, which depend on (session seed, pixel, epoch) only and so are derived
+ * once per pixel, not per sample. */
+struct pt_sobol {
+    uint32_t index_reversed;
+    struct sobol_seeds dims[PT_SOBOL_DIMS];
+};
+
+static void pt_sobol_pixel(struct pt_sobol *q, uint64_t seed, uint64_t pixel, uint64_t epoch)
+{
+    const uint64_t pixel_seed = rng_pixel_make(seed, epoch, pixel, PT_SOBOL_STREAM).hash;
+    for (uint32_t d = 0; d < PT_SOBOL_DIMS; d++) q->dims[d] = sobol_dimension_seeds(pixel_seed, d);
+}
 
 struct pt_job {
     const struct scene *scene;
@@ -213,14 +247,17 @@ struct pt_sss_io {
  * when both leave on the same side. `flatten` inlines every helper it calls (material, surface,
  * accel, light sampler, from their own files through link-time optimisation), except the
  * out-of-line SMS and subsurface branches: left to its heuristics, link-time optimisation stopped
- * inlining them once this function grew. Without `flatten` here and on pt_tile the diffuse Cornell
- * box costs 1038.3 instructions per ray against 937.9 (glossy: 1437.9 against 1327.3), without it
- * on pt_tile alone 958.8 (see pt_tile), so this function's own share is about 80 instructions per
- * ray (2026-11-28, `RESTIR_BIN=B bash tests/perf/instr_guard.sh`, B each build). */
+ * inlining them once this function grew. Without `flatten` here and on the tile loop the diffuse
+ * Cornell box costs 1038.3 instructions per ray against 937.9 (glossy: 1437.9 against 1327.3),
+ * without it on the tile loop alone 958.8 (see pt_tile_body), so this function's own share is
+ * about 80 instructions per ray (2026-11-28, `RESTIR_BIN=B bash tests/perf/instr_guard.sh`, B each
+ * build). qmc is the sample's Sobol' state with the Sobol' sampler, else NULL: every caller but
+ * pt_tile_sobol passes a constant NULL, and takes this function in with `flatten`, so that the
+ * branches on it fold away. */
 __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params,
                                                         struct vec3 org, struct vec3 dir, struct rng *rng_io,
                                                         struct ray_counters *rc_io, const struct pt_split *split,
-                                                        bool sss_direct)
+                                                        bool sss_direct, const struct pt_sobol *qmc)
 {
     /* The random stream and the ray counters live in locals whose address never leaves this
      * function (pt_sss_primary gets copies): state behind the callers' pointers could be
@@ -345,6 +382,17 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         struct vec3 shadow_org = s.p;
         int shadow_side = -1;
 
+        /* The Sobol' dimensions of this vertex (NULL: every number comes from the PCG stream). With
+         * qmc a constant NULL (pt_tile_random, the other methods' entry points) the branches on it
+         * fold away and the loop is the random sampler's alone. A non-diffuse vertex needs the
+         * lobe choice whether or not it samples a light, so the (pick, lobe) pair is drawn here;
+         * a Lambertian one draws only the pick, and only for NEE. */
+        const struct sobol_seeds *qdims = qmc && depth < PT_SOBOL_BOUNCES
+                                              ? &qmc->dims[PT_DIM_FIRST_VERTEX + depth * PT_DIMS_PER_VERTEX]
+                                              : NULL;
+        float q_pick = 0.0f, q_lobe = 0.0f;
+        if (qdims && !diffuse) sobol_2d(qmc->index_reversed, &qdims[PT_DIM_CHOICES], &q_pick, &q_lobe);
+
         /* Specular manifold sampling owns the caustic chains that start here (sms.h). */
         const bool receiver = canonical && depth <= SMS_RECEIVER_MAX_PREFIX && m->kind != MATERIAL_TRANSLUCENT;
         if (ss && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY)) && !(receiver && split->sms_after_primary)) {
@@ -358,7 +406,15 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         }
         /* Next-event estimation: one light sample, MIS-weighted against BSDF sampling. */
         if (nee && part_rest && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
-            float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
+            float ul, u1, u2;
+            if (qdims) {
+                ul = diffuse ? sobol_1d(qmc->index_reversed, &qdims[PT_DIM_CHOICES]) : q_pick;
+                sobol_2d(qmc->index_reversed, &qdims[PT_DIM_LIGHT_POINT], &u1, &u2);
+            } else {
+                ul = rng_next_float(rng);
+                u1 = rng_next_float(rng);
+                u2 = rng_next_float(rng);
+            }
             struct light_sample ls;
             if (light_sampler_sample(lights, ul, u1, u2, &ls)) {
                 struct vec3 wi_world, Le;
@@ -404,7 +460,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
                     }
                 }
             }
-        } else {
+        } else if (!qdims) {
             /* Keep the random stream aligned whether or not NEE ran. */
             rng_skip(rng);
             rng_skip(rng);
@@ -415,13 +471,27 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         struct bsdf_sample bs;
         struct vec3 weight;  /* f |cos wi| / pdf_w */
         if (diffuse) {
-            rng_skip(rng);  /* the lobe choice: one lobe */
-            float u1 = rng_next_float(rng), u2 = rng_next_float(rng);
+            float u1, u2;
+            if (qdims) {
+                sobol_2d(qmc->index_reversed, &qdims[PT_DIM_BSDF_DIRECTION], &u1, &u2);
+            } else {
+                rng_skip(rng);  /* the lobe choice: one lobe */
+                u1 = rng_next_float(rng);
+                u2 = rng_next_float(rng);
+            }
             if (!material_diffuse_sample(m, wo.z, u1, u2, &bs.wi, &bs.pdf_w, &weight)) break;
             bs.flags = material_diffuse_flags();
             bs.lobe = 0;
         } else {
-            float u_lobe = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
+            float u_lobe, u1, u2;
+            if (qdims) {
+                u_lobe = q_lobe;
+                sobol_2d(qmc->index_reversed, &qdims[PT_DIM_BSDF_DIRECTION], &u1, &u2);
+            } else {
+                u_lobe = rng_next_float(rng);
+                u1 = rng_next_float(rng);
+                u2 = rng_next_float(rng);
+            }
             if (!material_sample(m, wo, u_lobe, u1, u2, TRANSPORT_RADIANCE, &bs)) break;  /* pdf_w > 0 then */
             weight = vec3_scale(bs.f, fabsf(bs.wi.z) / bs.pdf_w);
         }
@@ -439,8 +509,11 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         prev_pdf_w = bs.pdf_w;
         prev_p = s.p;
 
-        float u_rr = rng_next_float(rng);
+        /* Drawn whether or not roulette is played, to keep the PCG stream aligned; a Sobol'
+         * dimension is computed only when it is. */
+        float u_rr = qdims ? 0.0f : rng_next_float(rng);
         if (depth + 1 >= rr_depth) {
+            if (qdims) u_rr = sobol_1d(qmc->index_reversed, &qdims[PT_DIM_RR]);
             /* fminf(0.95f, max) spelled out: fminf is a libm call at -O2 (NaN rules), and a NaN
              * max gives 0.95 either way. */
             float mx = vec3_v4_max_comp(beta) * rr_scale;
@@ -458,32 +531,42 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
     return vec3_v4_unpack(L);
 }
 
-struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
-                                  struct vec3 dir, const struct hit *primary, struct rng *rng, bool sss_direct,
-                                  struct ray_counters *rc)
+/* The two entry points for the other methods' paths take in pt_radiance themselves (`flatten`), so
+ * that its Sobol' branches fold away with qmc a constant NULL there too. Called out of line,
+ * pt_radiance would be compiled once more with qmc unknown, since pt_tile_sobol passes one:
+ * restir_sss spent 0.4 % more instructions (translucent, 64x64, 4 frames) that way, and 0.6 %
+ * fewer this way than before the sampler existed (182,089,056 against 183,158,651, callgrind). */
+__attribute__((flatten)) struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_params *params,
+                                                           struct vec3 org, struct vec3 dir, const struct hit *primary,
+                                                           struct rng *rng, bool sss_direct, struct ray_counters *rc)
 {
     const struct pt_split all = {.owned = true, .rest = true, .primary_given = true, .primary = primary};
-    return pt_radiance(scene, params, org, dir, rng, rc, &all, sss_direct);
+    return pt_radiance(scene, params, org, dir, rng, rc, &all, sss_direct, NULL);
 }
 
-struct vec3 reference_pt_radiance_sms(const struct scene *scene, const struct pt_params *params,
-                                      const struct sms_scene *ss, uint32_t px, uint32_t py, struct vec3 org,
-                                      struct vec3 dir, const struct hit *primary, struct rng *rng,
-                                      struct rng *sms_rng, struct sms_counters *sc, struct ray_counters *rc)
+__attribute__((flatten)) struct vec3
+reference_pt_radiance_sms(const struct scene *scene, const struct pt_params *params, const struct sms_scene *ss,
+                          uint32_t px, uint32_t py, struct vec3 org, struct vec3 dir, const struct hit *primary,
+                          struct rng *rng, struct rng *sms_rng, struct sms_counters *sc, struct ray_counters *rc)
 {
     const struct pt_split split = {.owned = false, .rest = !params->sms->caustics_only, .tracked = true, .ss = ss,
                                    .sc = sc, .sms_rng = sms_rng, .px = px, .py = py, .sms_after_primary = true,
                                    .primary_given = true, .primary = primary};
-    return pt_radiance(scene, params, org, dir, rng, rc, &split, true);
+    return pt_radiance(scene, params, org, dir, rng, rc, &split, true, NULL);
 }
 
-/* Flattened for the same reason as pt_radiance, which it takes in with the camera ray. The price
- * is a second copy of the path loop, as pt_radiance stays out of line for reference_pt_radiance
- * and reference_pt_radiance_sms: pt_tile is 38,139 bytes of code and pt_radiance 36,395, where
- * pt_tile without `flatten` is 2,044 (`nm -S --size-sort build/restir`, GCC 12). It buys about 21
- * instructions per ray, which the budget of tests/perf/instr_budget.json needs (2026-11-28: 958.8
- * without it against 937.9 on the diffuse Cornell box, `bash tests/perf/instr_guard.sh`). */
-__attribute__((flatten)) static void pt_tile(void *ctx, uint32_t tile, unsigned worker)
+/* The tile loop, flattened (by its two callers below) for the same reason as pt_radiance, which
+ * it takes in with the camera ray. The price is a copy of the path loop per caller: pt_tile_random
+ * is 40,911 bytes of code, pt_tile_sobol 45,607, reference_pt_radiance 33,028 and
+ * reference_pt_radiance_sms 36,412, where the tile loop without `flatten` was 2,044 (`nm -S
+ * --size-sort build/restir`, GCC 12). It buys about 21 instructions per ray, which the budget of
+ * tests/perf/instr_budget.json needs (2026-11-28: 958.8 without it against 937.9 on the diffuse
+ * Cornell box, `bash tests/perf/instr_guard.sh`). With `sobol` a constant in each copy, the
+ * random sampler's loop holds no Sobol' code: 928.5 instructions per ray against 925.4 before
+ * the sampler existed (2026-11-29; code placement, as far as callgrind_annotate shows: the extra
+ * instructions are spread thinly over the inlined helpers, none in sobol.h). */
+static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32_t tile, unsigned worker,
+                                                                 const bool sobol)
 {
     struct pt_job *job = ctx;
     const struct pt_params *p = job->params;
@@ -505,9 +588,24 @@ __attribute__((flatten)) static void pt_tile(void *ctx, uint32_t tile, unsigned 
             uint64_t pixel = (uint64_t)y * p->width + x;
             double acc[3] = {0, 0, 0};
             const struct rng_pixel streams = rng_pixel_make(p->seed, p->frame, pixel, PT_SAMPLE_STREAM);
+            struct pt_sobol qmc;
+            const uint64_t first_index = (uint64_t)p->frame * p->spp;
+            uint64_t epoch = UINT64_MAX;  /* none yet: the first sample derives the seeds */
             for (uint32_t s = 0; s < p->spp; s++) {
                 struct rng rng = rng_sample(&streams, s);
-                float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
+                float jx, jy;
+                if (sobol) {
+                    const uint64_t index = first_index + s;
+                    if (index >> PT_SOBOL_INDEX_BITS != epoch) {
+                        epoch = index >> PT_SOBOL_INDEX_BITS;
+                        pt_sobol_pixel(&qmc, p->seed, pixel, epoch);
+                    }
+                    qmc.index_reversed = sobol_reverse_bits((uint32_t)index & ((1u << PT_SOBOL_INDEX_BITS) - 1u));
+                    sobol_2d(qmc.index_reversed, &qmc.dims[PT_DIM_PIXEL], &jx, &jy);
+                } else {
+                    jx = rng_next_float(&rng);
+                    jy = rng_next_float(&rng);
+                }
                 struct vec3 dir = camera_ray_dir(&job->camera, (float)x + jx, (float)y + jy);
                 /* SMS draws from its own stream, so the path-traced part of `sms` is the same
                  * sample as pt's PT_SUBSET_REST image; without SMS nothing draws from it, and
@@ -519,7 +617,8 @@ __attribute__((flatten)) static void pt_tile(void *ctx, uint32_t tile, unsigned 
                 }
                 split.px = x;
                 split.py = y;
-                struct vec3 L = pt_radiance(job->scene, p, job->camera.position, dir, &rng, &rc, &split, true);
+                struct vec3 L = pt_radiance(job->scene, p, job->camera.position, dir, &rng, &rc, &split, true,
+                                            sobol ? &qmc : NULL);
                 if (!vec3_is_finite(L)) {
                     st->nonfinite++;
                     continue;
@@ -541,6 +640,18 @@ __attribute__((flatten)) static void pt_tile(void *ctx, uint32_t tile, unsigned 
     sms_counters_add(&sum->sms, &local.sms);
 }
 
+/* One copy of the tile loop per sampler, each flattened (see pt_tile_body): in the random one
+ * every Sobol' branch folds away. */
+__attribute__((flatten)) static void pt_tile_random(void *ctx, uint32_t tile, unsigned worker)
+{
+    pt_tile_body(ctx, tile, worker, false);
+}
+
+__attribute__((flatten)) static void pt_tile_sobol(void *ctx, uint32_t tile, unsigned worker)
+{
+    pt_tile_body(ctx, tile, worker, true);
+}
+
 bool reference_pt_render(const struct scene *scene, const struct pt_params *params, struct image *out,
                          struct render_stats *stats, parallel_progress_fn *progress, void *progress_ctx,
                          struct err *err)
@@ -557,6 +668,8 @@ bool reference_pt_render_into(const struct scene *scene, const struct pt_params 
 {
     if (!scene->accel || !scene->lights) return err_set(err, ERR_INVALID, NULL, "scene is not committed");
     if (params->spp == 0) return err_set(err, ERR_INVALID, "spp", "spp must be at least 1");
+    if (params->sampler != PT_SAMPLER_RANDOM && params->sampler != PT_SAMPLER_SOBOL)
+        return err_set(err, ERR_INVALID, "sampler", "unknown sampler %d", (int)params->sampler);
     struct pt_params p = *params;
     if (p.crop_x1 == 0 && p.crop_y1 == 0) {
         p.crop_x0 = p.crop_y0 = 0;
@@ -593,7 +706,8 @@ bool reference_pt_render_into(const struct scene *scene, const struct pt_params 
 
     struct timespec t0, t1;
     clock_gettime(CLOCK_MONOTONIC, &t0);
-    bool ok = parallel_run(threads, job->tiles_x * tiles_y, pt_tile, job, progress, progress_ctx, err);
+    parallel_job_fn *tile_fn = p.sampler == PT_SAMPLER_SOBOL ? pt_tile_sobol : pt_tile_random;
+    bool ok = parallel_run(threads, job->tiles_x * tiles_y, tile_fn, job, progress, progress_ctx, err);
     clock_gettime(CLOCK_MONOTONIC, &t1);
 
     if (stats) {

@@ -14,6 +14,16 @@
 #include "integrators/frame.h"
 #include "integrators/sms_ssp.h"
 
+/* The random numbers of pt's paths. PT_SAMPLER_RANDOM: a PCG stream per sample. PT_SAMPLER_SOBOL:
+ * the pixel position and, at the first PT_SOBOL_BOUNCES vertices, the light sample (pick and
+ * point), the BSDF sample (lobe and direction) and Russian roulette take Owen-scrambled Sobol'
+ * dimensions (core/sobol.h), one padded dimension each, with sample index frame * spp + sample, so
+ * a pixel's samples over a session's frames are one stratified sequence; everything else (deeper
+ * vertices, subsurface probes, SMS) keeps the PCG stream. Either is unbiased; Sobol' stratifies
+ * the first bounces, where most of the variance of direct and one-bounce light is. */
+enum pt_sampler { PT_SAMPLER_RANDOM, PT_SAMPLER_SOBOL };
+#define PT_SOBOL_BOUNCES 2
+
 struct pt_params {
     uint32_t width, height;
     uint32_t spp;          /* samples per pixel, >= 1 */
@@ -23,6 +33,7 @@ struct pt_params {
     uint32_t frame;        /* decorrelates frames of one session */
     bool nee;              /* next-event estimation + MIS (default); false = BSDF sampling only,
                               a second unbiased estimator that tests the first one's MIS weights */
+    enum pt_sampler sampler;  /* where a path's random numbers come from (default PT_SAMPLER_RANDOM) */
     unsigned threads;      /* 0 = all cores */
     const struct camera_desc *camera;  /* NULL = the scene's camera */
     /* Optional crop (inclusive-exclusive pixel window); all zero = the whole image. */
@@ -40,7 +51,8 @@ struct pt_params {
     const struct ssp_prior *ssp_prior;
 };
 
-/* Defaults: 16 spp, max_depth 64, rr_depth 3, NEE on, seed 0, all cores, whole image. */
+/* Defaults: 16 spp, max_depth 64, rr_depth 3, NEE on, random sampler, seed 0, all cores, whole
+ * image. */
 struct pt_params reference_pt_defaults(uint32_t width, uint32_t height);
 /* The paths a ReSTIR method traces for the light its reservoirs do not carry, one per pixel from
  * the G-buffer's primary ray: the defaults with the method's depths, NEE on. */

@@ -11,13 +11,15 @@
 
 METHOD_FITS(struct pt_method_params, METHOD_PARAMS_BYTES);
 METHOD_ENUM_IS_INT(enum pt_subset);
+METHOD_ENUM_IS_INT(enum pt_sampler);
 
 /* Depths of every path method: the same bound as the CLI's --max-depth. */
 #define PATH_MAX_DEPTH 1024
 
 struct pt_method_params pt_method_defaults(void)
 {
-    return (struct pt_method_params){.spp = 1, .max_depth = 64, .rr_depth = 3, .nee = true, .subset = PT_SUBSET_ALL};
+    return (struct pt_method_params){.spp = 1, .max_depth = 64, .rr_depth = 3, .nee = true, .subset = PT_SUBSET_ALL,
+                                     .sampler = PT_SAMPLER_RANDOM};
 }
 
 bool pt_method_params_valid(const struct pt_method_params *p, struct err *err)
@@ -51,10 +53,12 @@ static bool pt_render(void *state, const void *params, const struct method_frame
     const struct pt_method_params *pp = params;
     struct pt_params p = pt_method_frame_params(pp, f, out);
     p.subset = pp->subset;
+    p.sampler = pp->sampler;
     return reference_pt_render_into(f->scene, &p, out, &stats->render, progress, progress_ctx, err);
 }
 
 static const char *const pt_subsets[] = {"all", "caustic", "rest", NULL};
+static const char *const pt_samplers[] = {"random", "sobol", NULL};
 
 #define P(key, kind, lo, hi, help) METHOD_PARAM(struct pt_method_params, key, kind, lo, hi, help)
 static const struct method_param pt_params_table[] = {
@@ -65,6 +69,9 @@ static const struct method_param pt_params_table[] = {
     P(nee, METHOD_PARAM_BOOL, 0, 1, "next-event estimation with MIS (false: BSDF sampling only)"),
     METHOD_ENUM(struct pt_method_params, subset, pt_subsets,
                 "which light transport the image holds: all, the caustic paths SMS owns, or the rest"),
+    METHOD_ENUM(struct pt_method_params, sampler, pt_samplers,
+                "random numbers: random (a PCG stream per sample) or sobol (Owen-scrambled Sobol' for the pixel "
+                "position and the first two bounces)"),
 };
 #undef P
 

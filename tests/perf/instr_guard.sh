@@ -3,8 +3,9 @@
 # tests/perf/instr_budget.json (`make test-perf`, part of `make test`). Instruction counts of one
 # binary are the same in every run, whatever else the machine is doing, so unlike a timing this
 # can fail a build: a change that makes the path loop do more work per ray fails here.
-# Two fixed renders are measured: the diffuse Cornell box (the diffuse fast path) and the glossy
-# Cornell box (conductors and a dielectric: material_sample/eval and the specular chains), each
+# Three fixed renders are measured: the diffuse Cornell box (the diffuse fast path), the glossy
+# Cornell box (conductors and a dielectric: material_sample/eval and the specular chains) and the
+# diffuse Cornell box with the Sobol' sampler (the other copy of the tile loop, and sobol.h), each
 # against its own budget entry.
 # Start-up (scene load, BVH build, EXR writing) cancels out: each render runs at two sample
 # counts and only the differences are used, as in bench/instr_per_ray.sh.
@@ -40,6 +41,7 @@ spp_lo=4 spp_hi=12
 renders=(
     "diffuse|scenes/cornell-box/scene.json|--method pt --size 64x64 --threads 1 --max-depth 8"
     "glossy|scenes/cornell-glossy/scene.json|--method pt --size 32x32 --threads 1 --max-depth 8"
+    "diffuse_sobol|scenes/cornell-box/scene.json|--method pt --size 64x64 --threads 1 --max-depth 8 --frames 1 --params {\"sampler\":\"sobol\"}"
 )
 
 # rays SCENE SPP VAR ARGS...: the render's ray count (its --json statistics) into VAR.
