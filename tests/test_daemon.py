@@ -512,7 +512,7 @@ def test_session_create_get_list_reset_delete(daemon):
     dflt = d.json()
     assert (dflt["method"], dflt["width"], dflt["height"], dflt["seed"]) == ("pt", 256, 256, 0)
     assert dflt["params"] == {"spp": 1, "max_depth": 64, "rr_depth": 3, "nee": True, "subset": "all",
-                              "sampler": "random"}
+                              "sampler": "sobol"}
     assert dflt["buffers"]["accumulation"] == 256 * 256 * 12
     assert daemon.req("DELETE", dflt["href"]).status == 204
 

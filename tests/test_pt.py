@@ -407,3 +407,13 @@ def test_compare_metrics(tmp_path, scenes):
     render(sc, tmp_path / "small.exr", spp=1, size="16x16")
     bad = run_cli("compare", tmp_path / "a.exr", tmp_path / "small.exr")
     assert bad.returncode == 3 and "32x32" in bad.stderr and "16x16" in bad.stderr
+
+
+def test_still_image_takes_the_default_sampler(tmp_path, scenes):
+    """pt's default sampler is Sobol' (docs/benchmarks.md, "pt: the sampler"), for a still image
+    too: it is the first frame of a Sobol' session of the same seed, not a random one's."""
+    sc = scenes / "cornell-box" / "scene.json"
+    still, _ = render(sc, tmp_path / "still.exr", spp=4, size="16x16", seed=3)
+    sobol, _ = render(sc, tmp_path / "sobol.exr", spp=4, size="16x16", seed=3, extra=_sampler("sobol"))
+    rand, _ = render(sc, tmp_path / "random.exr", spp=4, size="16x16", seed=3, extra=_sampler("random"))
+    assert np.array_equal(still, sobol) and not np.array_equal(still, rand)

@@ -33,7 +33,8 @@ struct pt_params {
     uint32_t frame;        /* decorrelates frames of one session */
     bool nee;              /* next-event estimation + MIS (default); false = BSDF sampling only,
                               a second unbiased estimator that tests the first one's MIS weights */
-    enum pt_sampler sampler;  /* where a path's random numbers come from (default PT_SAMPLER_RANDOM) */
+    enum pt_sampler sampler;  /* where a path's random numbers come from (reference_pt_defaults: random, as
+                                 the other methods' paths; method pt's default is Sobol', pt_own_defaults) */
     unsigned threads;      /* 0 = all cores */
     const struct camera_desc *camera;  /* NULL = the scene's camera */
     /* Optional crop (inclusive-exclusive pixel window); all zero = the whole image. */

@@ -28,7 +28,17 @@ bool pt_method_params_valid(const struct pt_method_params *p, struct err *err)
     return true;
 }
 
-METHOD_DEFAULTS_OP(pt_defaults, struct pt_method_params, pt_method_defaults)
+/* pt's own defaults: the path methods' with the Sobol' sampler, which measured best at equal CPU
+ * time from 4 samples per pixel on (docs/benchmarks.md, "pt's Sobol' sampler"); the other path
+ * methods take no sampler. */
+struct pt_method_params pt_own_defaults(void)
+{
+    struct pt_method_params p = pt_method_defaults();
+    p.sampler = PT_SAMPLER_SOBOL;
+    return p;
+}
+
+METHOD_DEFAULTS_OP(pt_defaults, struct pt_method_params, pt_own_defaults)
 METHOD_VALIDATE_OP(pt_validate, struct pt_method_params, pt_method_params_valid)
 
 struct pt_params pt_method_frame_params(const struct pt_method_params *pp, const struct method_frame *f,
@@ -70,8 +80,8 @@ static const struct method_param pt_params_table[] = {
     METHOD_ENUM(struct pt_method_params, subset, pt_subsets,
                 "which light transport the image holds: all, the caustic paths SMS owns, or the rest"),
     METHOD_ENUM(struct pt_method_params, sampler, pt_samplers,
-                "random numbers: random (a PCG stream per sample) or sobol (Owen-scrambled Sobol' for the pixel "
-                "position and the first two bounces)"),
+                "random numbers: sobol (Owen-scrambled Sobol' for the pixel position and the first two bounces) or "
+                "random (a PCG stream per sample)"),
 };
 #undef P
 

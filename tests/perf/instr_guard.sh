@@ -39,8 +39,8 @@ cannot_measure() {
 # figure is never compared with a budget set for another command.
 spp_lo=4 spp_hi=12
 renders=(
-    "diffuse|scenes/cornell-box/scene.json|--method pt --size 64x64 --threads 1 --max-depth 8"
-    "glossy|scenes/cornell-glossy/scene.json|--method pt --size 32x32 --threads 1 --max-depth 8"
+    "diffuse|scenes/cornell-box/scene.json|--method pt --size 64x64 --threads 1 --max-depth 8 --frames 1 --params {\"sampler\":\"random\"}"
+    "glossy|scenes/cornell-glossy/scene.json|--method pt --size 32x32 --threads 1 --max-depth 8 --frames 1 --params {\"sampler\":\"random\"}"
     "diffuse_sobol|scenes/cornell-box/scene.json|--method pt --size 64x64 --threads 1 --max-depth 8 --frames 1 --params {\"sampler\":\"sobol\"}"
 )
 
