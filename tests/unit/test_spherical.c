@@ -1,4 +1,5 @@
-/* test_spherical.c — solid-angle sampling of triangles (core/spherical.h).
+/* test_spherical.c — solid-angle sampling of triangles (core/spherical.h) and the light
+ * sampler's next-event entry that uses it (light_sampler_sample_from / light_sampler_pdf_w_from).
  *
  * - Uniformity: directions sampled for a near, a far and a thin triangle are binned by the
  *   barycentric cell of the triangle they pass through (8 x 8 rows of the barycentric grid, 64
@@ -9,7 +10,10 @@
  *   uniform directions (on the sphere, or in a cone around the far triangle), is 1 within four
  *   standard errors, and spherical_triangle_contains agrees with the hit test.
  * - The inverse: sampling then inverting returns (u1, u2), down to tiny solid angles.
- * - The arc tangent the solid angle is taken with agrees with libm's. */
+ * - The arc tangent the solid angle is taken with agrees with libm's.
+ * - The light sampler: for random points and emitters its sampling and its pdf function make the
+ *   same decision and give the same solid-angle pdf, both decisions are exercised, the pick is
+ *   light_sampler_sample's, and its solid-angle samples are uniform too (chi-square as above). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -17,6 +21,8 @@
 #include "core/rng.h"
 #include "core/sampling.h"
 #include "core/spherical.h"
+#include "scene/light_sampler.h"
+#include "scene_fixture.h"
 #include "test.h"
 
 /* ---------------------------------------------------------------- the arc tangent */
@@ -294,5 +300,141 @@ static void test_sample_invert_round_trip(void)
     }
 }
 
+/* ---------------------------------------------------------------- the light sampler */
+
+/* Emissive parallelograms (two triangles each) of random size and orientation around the
+ * origin, a one-sided sphere emitter and an environment, so that every kind of emitter is picked. */
+static struct scene *random_emitters_scene(struct rng *r, int quads)
+{
+    char *json = malloc(16384);
+    if (!json) return NULL;
+    int len = snprintf(json, 16384,
+                       "{\"format\": 1, \"camera\": {\"position\": [0, 0, 30], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0], "
+                       "\"fov_deg\": 30}, \"materials\": {\"lamp\": {\"type\": \"diffuse\", \"albedo\": [0, 0, 0], "
+                       "\"emission\": [2, 3, 4]}, \"lamp2\": {\"type\": \"diffuse\", \"albedo\": [0, 0, 0], "
+                       "\"emission\": [1, 1, 1], \"two_sided\": true}}, \"environment\": {\"radiance\": [0.002, 0.002, 0.002]}, "
+                       "\"shapes\": [{\"type\": \"sphere\", \"material\": \"lamp2\", \"center\": [3, -2, 1], \"radius\": 0.7}");
+    for (int q = 0; q < quads; q++) {
+        float c[3], a[3], b[3];
+        float size = 0.2f + 3.0f * rng_next_float(r);
+        for (int i = 0; i < 3; i++) {
+            c[i] = 8.0f * (rng_next_float(r) - 0.5f);
+            a[i] = size * (rng_next_float(r) - 0.5f);
+            b[i] = size * (rng_next_float(r) - 0.5f) * (q % 3 == 0 ? 0.05f : 1.0f);  /* some slivers */
+        }
+        len += snprintf(json + len, 16384 - (size_t)len,
+                        ", {\"type\": \"quad\", \"material\": \"%s\", \"vertices\": [[%g, %g, %g], [%g, %g, %g], "
+                        "[%g, %g, %g], [%g, %g, %g]]}",
+                        q % 2 ? "lamp2" : "lamp", c[0], c[1], c[2], c[0] + a[0], c[1] + a[1], c[2] + a[2],
+                        c[0] + a[0] + b[0], c[1] + a[1] + b[1], c[2] + a[2] + b[2], c[0] + b[0], c[1] + b[1],
+                        c[2] + b[2]);
+    }
+    snprintf(json + len, 16384 - (size_t)len, "]}");
+    struct scene *s = fixture_load_json(json, NULL);
+    free(json);
+    return s;
+}
+
+static void test_light_sampler_decision_and_pdf_agree(void)
+{
+    struct rng r = rng_make(3, 1, 4, 1);
+    struct scene *s = random_emitters_scene(&r, 12);
+    if (!s) return;
+    const struct light_sampler *ls = s->lights;
+    long solid = 0, area = 0, spheres = 0, env = 0, mismatched = 0;
+    for (int i = 0; i < 200000; i++) {
+        /* Points from inside the cluster of lights out to 10 times its size, and every other one
+         * within 4 units of a point on a light, where solid-angle sampling starts. */
+        float dist = 0.2f + 40.0f * powf(rng_next_float(&r), 3.0f);
+        struct vec3 p = vec3_scale(sampling_uniform_sphere(rng_next_float(&r), rng_next_float(&r)), dist);
+        struct light_sample near;
+        if (i % 2 && light_sampler_sample(ls, rng_next_float(&r), rng_next_float(&r), rng_next_float(&r), &near) &&
+            !near.is_env)
+            p = vec3_add(near.p, vec3_scale(sampling_uniform_sphere(rng_next_float(&r), rng_next_float(&r)),
+                                            4.0f * rng_next_float(&r)));
+        float u_pick = rng_next_float(&r), u1 = rng_next_float(&r), u2 = rng_next_float(&r);
+        struct light_sample a, b = {0};
+        bool ok_from = light_sampler_sample_from(ls, p, u_pick, u1, u2, &a);
+        bool ok = light_sampler_sample(ls, u_pick, u1, u2, &b);
+        CHECK(ok);
+        /* The same emitter as light_sampler_sample for the same u_pick. */
+        CHECK(a.shape == b.shape && a.prim == b.prim && a.is_env == b.is_env);
+        if (!ok_from) continue;
+        if (a.is_env) {
+            CHECK(a.pdf_w == b.pdf_w);
+            env++;
+            continue;
+        }
+        const struct shape *sh = &s->shapes[a.shape];
+        float back = light_sampler_pdf_w_from(ls, p, a.shape, a.prim, a.p);
+        bool decision = sh->kind == SHAPE_MESH && light_sampler_solid_angle_from(ls, p, a.shape, a.prim);
+        /* A sphere's normal is the sampled direction for the sample and (q - centre) / r for the
+         * pdf function: the same to float rounding, which 1 / cos at the light magnifies; the
+         * values are compared where that cosine is above 0.05. */
+        struct vec3 d = vec3_sub(a.p, p);
+        float d2 = vec3_length2(d), cos_light = fabsf(vec3_dot(d, a.n)) / sqrtf(d2);
+        bool compare = sh->kind == SHAPE_MESH || cos_light > 0.05f;
+        float tolerance = sh->kind == SHAPE_MESH ? 2e-6f : 1e-4f;
+        if (decision != a.solid_angle || (compare && !(fabsf(back - a.pdf_w) <= tolerance * a.pdf_w))) {
+            if (mismatched++ < 5)
+                fprintf(stderr, "  p (%g %g %g) emitter %u/%u: sampled %s pdf %g, pdf function %s %g\n", (double)p.x,
+                        (double)p.y, (double)p.z, a.shape, a.prim, a.solid_angle ? "solid angle" : "area",
+                        (double)a.pdf_w, decision ? "solid angle" : "area", (double)back);
+        }
+        /* pdf_a is the same density per area of the light. */
+        float back_w = sampling_area_to_solid_angle(a.pdf_a, d2, vec3_dot(d, a.n) / sqrtf(d2));
+        CHECK_MSG(fabsf(back_w - a.pdf_w) <= 1e-4f * a.pdf_w, "pdf_a %g gives %g, pdf_w %g", (double)a.pdf_a,
+                  (double)back_w, (double)a.pdf_w);
+        if (sh->kind != SHAPE_MESH) spheres++;
+        else if (a.solid_angle) solid++;
+        else area++;
+    }
+    printf("  %ld solid-angle samples, %ld area-sampled triangles, %ld spheres, %ld environment; %ld disagree\n", solid,
+           area, spheres, env, mismatched);
+    CHECK_MSG(mismatched == 0, "%ld samples whose pdf function disagrees", mismatched);
+    CHECK(solid > 10000 && area > 10000 && spheres > 1000 && env > 1000);
+    /* Not an emitter, or no such triangle: no pdf. */
+    CHECK(light_sampler_pdf_w_from(ls, vec3_splat(0.0f), s->shape_count, 0, vec3_splat(1.0f)) == 0.0f);
+    CHECK(!light_sampler_solid_angle_from(ls, vec3_splat(0.0f), 0, 0));  /* the sphere */
+    scene_release(s);
+}
+
+/* light_sampler_sample_from's solid-angle samples of one triangle from a point close to it are
+ * uniform in solid angle: the barycentrics it returns binned as in test_warp_uniform_chi2. */
+static void test_light_sampler_solid_angle_uniform_chi2(void)
+{
+    const char *json = "{\"format\": 1, \"camera\": {\"position\": [0, 0, 5], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0], "
+                       "\"fov_deg\": 30}, \"materials\": {\"lamp\": {\"type\": \"diffuse\", \"albedo\": [0, 0, 0], "
+                       "\"emission\": [1, 1, 1], \"two_sided\": true}}, \"shapes\": [{\"type\": \"quad\", \"material\": "
+                       "\"lamp\", \"vertices\": [[-1, -1, 1], [1.5, -1, 1.2], [1.5, 1.2, 1.2], [-1, 1.2, 1]]}]}";
+    struct scene *s = fixture_load_json(json, NULL);
+    if (!s) return;
+    const struct vec3 p = vec3_make(0.3f, 0.2f, 0.1f);
+    struct vec3 v0, v1, v2, n;
+    /* The first triangle's vertices, from the sampler's own table. */
+    CHECK(light_sampler_triangle_point(s->lights, 0, 0, 0.0f, 0.0f, &v0, &n));
+    CHECK(light_sampler_triangle_point(s->lights, 0, 0, 1.0f, 0.0f, &v1, &n));
+    CHECK(light_sampler_triangle_point(s->lights, 0, 0, 0.0f, 1.0f, &v2, &n));
+    CHECK(light_sampler_solid_angle_from(s->lights, p, 0, 0));
+    double share[CELLS];
+    cell_shares(p, v0, vec3_sub(v1, v0), vec3_sub(v2, v0), share);
+    static long counts[CELLS];
+    struct rng r = rng_make(17, 0, 0, 0);
+    long n_samples = 0;
+    while (n_samples < 400000) {
+        struct light_sample ls;
+        float u_pick = 0.25f * rng_next_float(&r);   /* the first triangle (both have the same power) */
+        if (!light_sampler_sample_from(s->lights, p, u_pick, rng_next_float(&r), rng_next_float(&r), &ls)) continue;
+        CHECK(ls.prim == 0 && ls.solid_angle);
+        counts[cell_of(ls.b1, ls.b2)]++;
+        n_samples++;
+    }
+    double z = cells_z(counts, share, n_samples, "light sampler");
+    printf("  light sampler: chi-square z %.2f\n", z);
+    CHECK_MSG(z < 4.0, "light sampler: chi-square z %.2f", z);
+    scene_release(s);
+}
+
 TEST_MAIN(TEST(test_atan2_upper_matches_libm), TEST(test_warp_uniform_chi2), TEST(test_pdf_integrates_to_one),
-          TEST(test_sample_invert_round_trip))
+          TEST(test_sample_invert_round_trip), TEST(test_light_sampler_decision_and_pdf_agree),
+          TEST(test_light_sampler_solid_angle_uniform_chi2))
