@@ -489,7 +489,8 @@ def test_delete_scene_conflict_force_and_not_loaded(daemon):
 
 def test_session_create_get_list_reset_delete(daemon):
     body = {"method": "pt", "width": 24, "height": 16, "seed": 5,
-            "params": {"spp": 2, "max_depth": 8, "rr_depth": 2, "nee": False, "subset": "rest"}}
+            "params": {"spp": 2, "max_depth": 8, "rr_depth": 2, "nee": False, "subset": "rest",
+                       "light_sampling": "solid_angle"}}
     s = new_session(daemon, **body)
     assert re.fullmatch(r"[A-Za-z0-9_-]{1,64}", s["id"])
     assert s["href"] == f"{CORNELL}/sessions/{s['id']}"
@@ -511,7 +512,8 @@ def test_session_create_get_list_reset_delete(daemon):
     assert d.status == 201, repr(d)
     dflt = d.json()
     assert (dflt["method"], dflt["width"], dflt["height"], dflt["seed"]) == ("pt", 256, 256, 0)
-    assert dflt["params"] == {"spp": 1, "max_depth": 64, "rr_depth": 3, "nee": True, "subset": "all"}
+    assert dflt["params"] == {"spp": 1, "max_depth": 64, "rr_depth": 3, "nee": True, "subset": "all",
+                              "light_sampling": "area"}
     assert dflt["buffers"]["accumulation"] == 256 * 256 * 12
     assert daemon.req("DELETE", dflt["href"]).status == 204
 

@@ -55,7 +55,9 @@ static inline struct vec3 pt_emitter_side(struct vec3 n, struct vec3 wi)
 }
 
 /* A light sample as seen from p: the direction towards it, the radiance it sends to p and the
- * solid-angle pdf of having sampled it. False when it cannot contribute (zero distance or pdf). */
+ * solid-angle pdf of having sampled it, from its area pdf (a sample of light_sampler_sample_from
+ * gives back its pdf_w to within float rounding: its pdf_a is pdf_w converted from p). False
+ * when it cannot contribute (zero distance or pdf). */
 static bool pt_light_toward(const struct scene *scene, const struct light_sample *ls, struct vec3 p, struct vec3 *wi_world,
                             struct vec3 *Le, float *pdf_light_w)
 {
@@ -73,6 +75,13 @@ static bool pt_light_toward(const struct scene *scene, const struct light_sample
     *Le = light_sampler_emitted(ls->material, cos_l);
     *pdf_light_w = sampling_area_to_solid_angle(ls->pdf_a, d2, cos_l);
     return *pdf_light_w > 0.0f;
+}
+
+/* One light sample for next-event estimation at p, as params->light_sampling asks. */
+static inline bool pt_sample_light(const struct light_sampler *lights, bool solid_angle, struct vec3 p, float ul,
+                                   float u1, float u2, struct light_sample *ls)
+{
+    return solid_angle ? light_sampler_sample_from(lights, p, ul, u1, u2, ls) : light_sampler_sample(lights, ul, u1, u2, ls);
 }
 
 /* Subsurface scattering at the primary hit x1 on a translucent material ([ReSTIR SSS §2.1, §3.1]):
@@ -126,7 +135,8 @@ pt_sss_primary(const struct scene *scene, const struct pt_params *params, const 
         if (!nee || !sss_direct) continue;
         float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
         struct light_sample ls;
-        if (!light_sampler_sample(lights, ul, u1, u2, &ls)) continue;
+        const bool solid_angle = params->light_sampling == PT_LIGHT_SAMPLING_SOLID_ANGLE;
+        if (!pt_sample_light(lights, solid_angle, s2.p, ul, u1, u2, &ls)) continue;
         struct vec3 wi_world, Le;
         float pdf_light_w;
         if (!pt_light_toward(scene, &ls, s2.p, &wi_world, &Le, &pdf_light_w)) continue;
@@ -234,6 +244,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
     const struct accel *accel = scene->accel;
     const bool mis = params->nee;
     const bool nee = params->nee && light_sampler_count(lights) > 0;
+    const bool solid_angle = params->light_sampling == PT_LIGHT_SAMPLING_SOLID_ANGLE;
     const uint32_t max_depth = params->max_depth, rr_depth = params->rr_depth;
     vec3_v4 L = {0.0f, 0.0f, 0.0f, 0.0f}, beta = {1.0f, 1.0f, 1.0f, 0.0f};
     /* The product of 1 / material_radiance_scale over the path's refractions: beta times this
@@ -279,9 +290,15 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             if (!vec3_is_zero(Le)) {
                 float w = 1.0f;
                 if (!prev_delta && mis) {
-                    float d2 = vec3_length2(vec3_sub(s.p, prev_p));
-                    float pdf_light_w = sampling_area_to_solid_angle(light_sampler_pdf_a(lights, s.shape, s.prim), d2,
-                                                                     vec3_dot(dir, s.ng));
+                    /* The pdf NEE from the previous vertex has of sampling this point. */
+                    float pdf_light_w;
+                    if (solid_angle) {
+                        pdf_light_w = light_sampler_pdf_w_from(lights, prev_p, s.shape, s.prim, s.p);
+                    } else {
+                        float d2 = vec3_length2(vec3_sub(s.p, prev_p));
+                        pdf_light_w = sampling_area_to_solid_angle(light_sampler_pdf_a(lights, s.shape, s.prim), d2,
+                                                                   vec3_dot(dir, s.ng));
+                    }
                     w = sampling_power_heuristic(prev_pdf_w, pdf_light_w);
                 }
                 L = L + beta * vec3_v4_pack(Le) * w;
@@ -358,7 +375,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         if (nee && part_rest && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
             float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
             struct light_sample ls;
-            if (light_sampler_sample(lights, ul, u1, u2, &ls)) {
+            if (pt_sample_light(lights, solid_angle, s.p, ul, u1, u2, &ls)) {
                 struct vec3 wi_world, Le;
                 float pdf_light_w;
                 bool ok = pt_light_toward(scene, &ls, s.p, &wi_world, &Le, &pdf_light_w);

@@ -14,6 +14,13 @@
 #include "integrators/frame.h"
 #include "integrators/sms_ssp.h"
 
+/* How next-event estimation samples a point on an emissive triangle: uniformly by area (every
+ * emitter, light_sampler_sample), or uniformly in the solid angle the triangle subtends where the
+ * shading point sees it close by (light_sampler_sample_from; spheres and the environment as
+ * with area). Both are unbiased; solid angle has less variance near large lights and costs
+ * more per sample (docs/methods.md). */
+enum pt_light_sampling { PT_LIGHT_SAMPLING_AREA, PT_LIGHT_SAMPLING_SOLID_ANGLE };
+
 struct pt_params {
     uint32_t width, height;
     uint32_t spp;          /* samples per pixel, >= 1 */
@@ -23,6 +30,7 @@ struct pt_params {
     uint32_t frame;        /* decorrelates frames of one session */
     bool nee;              /* next-event estimation + MIS (default); false = BSDF sampling only,
                               a second unbiased estimator that tests the first one's MIS weights */
+    enum pt_light_sampling light_sampling;  /* default PT_LIGHT_SAMPLING_AREA */
     unsigned threads;      /* 0 = all cores */
     const struct camera_desc *camera;  /* NULL = the scene's camera */
     /* Optional crop (inclusive-exclusive pixel window); all zero = the whole image. */
@@ -40,7 +48,7 @@ struct pt_params {
     const struct ssp_prior *ssp_prior;
 };
 
-/* Defaults: 16 spp, max_depth 64, rr_depth 3, NEE on, seed 0, all cores, whole image. */
+/* Defaults: 16 spp, max_depth 64, rr_depth 3, NEE on (area sampling), seed 0, all cores, whole image. */
 struct pt_params reference_pt_defaults(uint32_t width, uint32_t height);
 /* The paths a ReSTIR method traces for the light its reservoirs do not carry, one per pixel from
  * the G-buffer's primary ray: the defaults with the method's depths, NEE on. */

@@ -11,13 +11,15 @@
 
 METHOD_FITS(struct pt_method_params, METHOD_PARAMS_BYTES);
 METHOD_ENUM_IS_INT(enum pt_subset);
+METHOD_ENUM_IS_INT(enum pt_light_sampling);
 
 /* Depths of every path method: the same bound as the CLI's --max-depth. */
 #define PATH_MAX_DEPTH 1024
 
 struct pt_method_params pt_method_defaults(void)
 {
-    return (struct pt_method_params){.spp = 1, .max_depth = 64, .rr_depth = 3, .nee = true, .subset = PT_SUBSET_ALL};
+    return (struct pt_method_params){.spp = 1, .max_depth = 64, .rr_depth = 3, .nee = true, .subset = PT_SUBSET_ALL,
+                                     .light_sampling = PT_LIGHT_SAMPLING_AREA};
 }
 
 bool pt_method_params_valid(const struct pt_method_params *p, struct err *err)
@@ -51,10 +53,12 @@ static bool pt_render(void *state, const void *params, const struct method_frame
     const struct pt_method_params *pp = params;
     struct pt_params p = pt_method_frame_params(pp, f, out);
     p.subset = pp->subset;
+    p.light_sampling = pp->light_sampling;
     return reference_pt_render_into(f->scene, &p, out, &stats->render, progress, progress_ctx, err);
 }
 
 static const char *const pt_subsets[] = {"all", "caustic", "rest", NULL};
+static const char *const pt_light_samplings[] = {"area", "solid_angle", NULL};
 
 #define P(key, kind, lo, hi, help) METHOD_PARAM(struct pt_method_params, key, kind, lo, hi, help)
 static const struct method_param pt_params_table[] = {
@@ -65,6 +69,8 @@ static const struct method_param pt_params_table[] = {
     P(nee, METHOD_PARAM_BOOL, 0, 1, "next-event estimation with MIS (false: BSDF sampling only)"),
     METHOD_ENUM(struct pt_method_params, subset, pt_subsets,
                 "which light transport the image holds: all, the caustic paths SMS owns, or the rest"),
+    METHOD_ENUM(struct pt_method_params, light_sampling, pt_light_samplings,
+                "how next-event estimation samples emissive triangles: area, or the solid angle of those seen close by"),
 };
 #undef P
 

@@ -19,15 +19,16 @@ struct RESTIRD_STORED_IN_BYTES pt_method_params {
     uint32_t spp, max_depth, rr_depth;
     bool nee;
     enum pt_subset subset;       /* which light transport the image holds (sms.h) */
+    enum pt_light_sampling light_sampling;  /* how NEE samples emissive triangles (reference_pt.h) */
 };
 
 struct RESTIRD_STORED_IN_BYTES sms_method_params {
-    struct pt_method_params pt;  /* subset unused: sms renders all of it */
+    struct pt_method_params pt;  /* subset unused: sms renders all of it; light_sampling unused (area) */
     struct sms_params sms;
 };
 
 struct RESTIRD_STORED_IN_BYTES ssp_method_params {
-    struct pt_method_params pt;  /* subset unused */
+    struct pt_method_params pt;  /* subset and light_sampling unused */
     struct ssp_params ssp;
 };
 
@@ -35,7 +36,8 @@ struct RESTIRD_STORED_IN_BYTES ssp_method_params {
 struct pt_method_params pt_method_defaults(void);
 /* spp >= 1 (the parameter tables give the other ranges). */
 bool pt_method_params_valid(const struct pt_method_params *p, struct err *err);
-/* The reference path tracer's parameters for one frame of a path method (subset left at all). */
+/* The reference path tracer's parameters for one frame of a path method (subset left at all,
+ * light_sampling at area). */
 struct pt_params pt_method_frame_params(const struct pt_method_params *pp, const struct method_frame *f,
                                         const struct image *out);
 
