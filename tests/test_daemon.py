@@ -489,7 +489,8 @@ def test_delete_scene_conflict_force_and_not_loaded(daemon):
 
 def test_session_create_get_list_reset_delete(daemon):
     body = {"method": "pt", "width": 24, "height": 16, "seed": 5,
-            "params": {"spp": 2, "max_depth": 8, "rr_depth": 2, "nee": False, "subset": "rest", "sampler": "sobol"}}
+            "params": {"spp": 2, "max_depth": 8, "rr_depth": 2, "nee": False, "subset": "rest", "sampler": "sobol",
+                       "light_sampling": "solid_angle"}}
     s = new_session(daemon, **body)
     assert re.fullmatch(r"[A-Za-z0-9_-]{1,64}", s["id"])
     assert s["href"] == f"{CORNELL}/sessions/{s['id']}"
@@ -512,7 +513,7 @@ def test_session_create_get_list_reset_delete(daemon):
     dflt = d.json()
     assert (dflt["method"], dflt["width"], dflt["height"], dflt["seed"]) == ("pt", 256, 256, 0)
     assert dflt["params"] == {"spp": 1, "max_depth": 64, "rr_depth": 3, "nee": True, "subset": "all",
-                              "sampler": "sobol"}
+                              "sampler": "sobol", "light_sampling": "area"}
     assert dflt["buffers"]["accumulation"] == 256 * 256 * 12
     assert daemon.req("DELETE", dflt["href"]).status == 204
 

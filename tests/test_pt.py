@@ -37,6 +37,12 @@ def _runs(scene, tmp_path, seeds, spp, size="32x32", extra=()):
     return np.stack([render(scene, tmp_path / f"r{s}.exr", spp=spp, size=size, seed=s, extra=extra)[0] for s in seeds])
 
 
+def _light_sampling(mode):
+    """CLI arguments for a pt frame whose next-event estimation samples emitters by `mode` (a
+    still image takes no --params: one frame of a session)."""
+    return ["--frames", "1", "--params", json.dumps({"light_sampling": mode})]
+
+
 def test_pt_unbiased_independent_renders_agree(tmp_path, scenes):
     """Two groups with different seeds and different sample allocations agree per pixel."""
     sc = scenes / "cornell-box" / "scene.json"
@@ -251,20 +257,38 @@ def test_roulette_ignores_the_radiance_scaling_of_refraction(tmp_path):
     assert not ztest_runs(runs * 1.03, expected=1.0).passed
 
 
-def test_nee_mis_agrees_with_bsdf_sampling(tmp_path):
+@pytest.mark.parametrize("light_sampling", ["area", "solid_angle"])
+def test_nee_mis_agrees_with_bsdf_sampling(tmp_path, light_sampling):
     """Two unbiased estimators of the same image must agree: NEE combined with BSDF sampling by
     MIS (the default) and BSDF sampling alone (--no-nee). The scene has every non-delta lobe
     kind (diffuse, GGX conductors at alpha 0.3 and 0.1, rough glass alpha 0.3), a large
     one-sided area light and an environment, so wrong MIS weights, a light pdf in the wrong
     measure or a BSDF pdf that disagrees with its sampling would all show as bias. Checked to
     fail when NEE uses the balance heuristic while emitter hits use the power heuristic
-    (global t 6.8 and 9.1)."""
+    (global t 6.8 and 9.1). With "solid_angle" the points near the lamp sample its solid angle,
+    so the pdf an emitter hit's MIS weight uses must be the one NEE sampled with."""
     path = _every_lobe_scene(tmp_path)
-    nee = _runs(path, tmp_path, range(16), spp=32, size="24x18")
+    nee = _runs(path, tmp_path, range(16), spp=32, size="24x18",
+                extra=_light_sampling(light_sampling) if light_sampling != "area" else ())
     bsdf = _runs(path, tmp_path, range(500, 516), spp=128, size="24x18", extra=["--no-nee"])
     res = ztest_runs(nee, bsdf)
     assert_agree(res)
     assert not ztest_runs(nee * 1.03, bsdf).passed
+
+
+def test_solid_angle_light_sampling_agrees_with_area(tmp_path, scenes):
+    """Next-event estimation sampling the solid angle of the Cornell box's light where a point sees
+    it close by (the walls, the ceiling's neighbourhood, the tall block's top) and by area
+    elsewhere renders the image area sampling does: per pixel and globally, independent seeds.
+    Any disagreement between the light sampler's choice at NEE and at an emitter hit (MIS) or a
+    wrong solid angle would show here."""
+    sc = scenes / "cornell-box" / "scene.json"
+    area = _runs(sc, tmp_path, range(32), spp=64, extra=_light_sampling("area"))
+    solid = _runs(sc, tmp_path, range(600, 632), spp=64, extra=_light_sampling("solid_angle"))
+    res = ztest_runs(solid, area)
+    assert res.passed, str(res)
+    bad = ztest_runs(solid * 1.03, area)
+    assert not bad.passed, str(bad)
 
 
 def test_nee_short_shadow_rays_at_large_coordinates(tmp_path):

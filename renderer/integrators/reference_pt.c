@@ -91,7 +91,9 @@ static inline struct vec3 pt_emitter_side(struct vec3 n, struct vec3 wi)
 }
 
 /* A light sample as seen from p: the direction towards it, the radiance it sends to p and the
- * solid-angle pdf of having sampled it. False when it cannot contribute (zero distance or pdf). */
+ * solid-angle pdf of having sampled it, from its area pdf (a sample of light_sampler_sample_from
+ * gives back its pdf_w to within float rounding: its pdf_a is pdf_w converted from p). False
+ * when it cannot contribute (zero distance or pdf). */
 static bool pt_light_toward(const struct scene *scene, const struct light_sample *ls, struct vec3 p, struct vec3 *wi_world,
                             struct vec3 *Le, float *pdf_light_w)
 {
@@ -109,6 +111,13 @@ static bool pt_light_toward(const struct scene *scene, const struct light_sample
     *Le = light_sampler_emitted(ls->material, cos_l);
     *pdf_light_w = sampling_area_to_solid_angle(ls->pdf_a, d2, cos_l);
     return *pdf_light_w > 0.0f;
+}
+
+/* One light sample for next-event estimation at p, as params->light_sampling asks. */
+static inline bool pt_sample_light(const struct light_sampler *lights, bool solid_angle, struct vec3 p, float ul,
+                                   float u1, float u2, struct light_sample *ls)
+{
+    return solid_angle ? light_sampler_sample_from(lights, p, ul, u1, u2, ls) : light_sampler_sample(lights, ul, u1, u2, ls);
 }
 
 /* Subsurface scattering at the primary hit x1 on a translucent material ([ReSTIR SSS §2.1, §3.1]):
@@ -162,7 +171,8 @@ pt_sss_primary(const struct scene *scene, const struct pt_params *params, const 
         if (!nee || !sss_direct) continue;
         float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
         struct light_sample ls;
-        if (!light_sampler_sample(lights, ul, u1, u2, &ls)) continue;
+        const bool solid_angle = params->light_sampling == PT_LIGHT_SAMPLING_SOLID_ANGLE;
+        if (!pt_sample_light(lights, solid_angle, s2.p, ul, u1, u2, &ls)) continue;
         struct vec3 wi_world, Le;
         float pdf_light_w;
         if (!pt_light_toward(scene, &ls, s2.p, &wi_world, &Le, &pdf_light_w)) continue;
@@ -257,7 +267,8 @@ struct pt_sss_io {
 __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params,
                                                         struct vec3 org, struct vec3 dir, struct rng *rng_io,
                                                         struct ray_counters *rc_io, const struct pt_split *split,
-                                                        bool sss_direct, const struct pt_sobol *qmc)
+                                                        bool sss_direct, const struct pt_sobol *qmc,
+                                                        const bool solid_angle)
 {
     /* The random stream and the ray counters live in locals whose address never leaves this
      * function (pt_sss_primary gets copies): state behind the callers' pointers could be
@@ -318,9 +329,15 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             if (!vec3_is_zero(Le)) {
                 float w = 1.0f;
                 if (!prev_delta && mis) {
-                    float d2 = vec3_length2(vec3_sub(s.p, prev_p));
-                    float pdf_light_w = sampling_area_to_solid_angle(light_sampler_pdf_a(lights, s.shape, s.prim), d2,
-                                                                     vec3_dot(dir, s.ng));
+                    /* The pdf NEE from the previous vertex has of sampling this point. */
+                    float pdf_light_w;
+                    if (solid_angle) {
+                        pdf_light_w = light_sampler_pdf_w_from(lights, prev_p, s.shape, s.prim, s.p);
+                    } else {
+                        float d2 = vec3_length2(vec3_sub(s.p, prev_p));
+                        pdf_light_w = sampling_area_to_solid_angle(light_sampler_pdf_a(lights, s.shape, s.prim), d2,
+                                                                   vec3_dot(dir, s.ng));
+                    }
                     w = sampling_power_heuristic(prev_pdf_w, pdf_light_w);
                 }
                 L = L + beta * vec3_v4_pack(Le) * w;
@@ -416,7 +433,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
                 u2 = rng_next_float(rng);
             }
             struct light_sample ls;
-            if (light_sampler_sample(lights, ul, u1, u2, &ls)) {
+            if (pt_sample_light(lights, solid_angle, s.p, ul, u1, u2, &ls)) {
                 struct vec3 wi_world, Le;
                 float pdf_light_w;
                 bool ok = pt_light_toward(scene, &ls, s.p, &wi_world, &Le, &pdf_light_w);
@@ -532,7 +549,9 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
 }
 
 /* The two entry points for the other methods' paths take in pt_radiance themselves (`flatten`), so
- * that its Sobol' branches fold away with qmc a constant NULL there too. Called out of line,
+ * that its Sobol' and solid-angle branches fold away with qmc a constant NULL and solid_angle a
+ * constant false there too (those paths sample lights by area: pt_params' light_sampling is pt's
+ * alone). Called out of line,
  * pt_radiance would be compiled once more with qmc unknown, since pt_tile_sobol passes one:
  * restir_sss spent 0.4 % more instructions (translucent, 64x64, 4 frames) that way, and 0.6 %
  * fewer this way than before the sampler existed (182,089,056 against 183,158,651, callgrind). */
@@ -541,7 +560,7 @@ __attribute__((flatten)) struct vec3 reference_pt_radiance(const struct scene *s
                                                            struct rng *rng, bool sss_direct, struct ray_counters *rc)
 {
     const struct pt_split all = {.owned = true, .rest = true, .primary_given = true, .primary = primary};
-    return pt_radiance(scene, params, org, dir, rng, rc, &all, sss_direct, NULL);
+    return pt_radiance(scene, params, org, dir, rng, rc, &all, sss_direct, NULL, false);
 }
 
 __attribute__((flatten)) struct vec3
@@ -552,7 +571,7 @@ reference_pt_radiance_sms(const struct scene *scene, const struct pt_params *par
     const struct pt_split split = {.owned = false, .rest = !params->sms->caustics_only, .tracked = true, .ss = ss,
                                    .sc = sc, .sms_rng = sms_rng, .px = px, .py = py, .sms_after_primary = true,
                                    .primary_given = true, .primary = primary};
-    return pt_radiance(scene, params, org, dir, rng, rc, &split, true, NULL);
+    return pt_radiance(scene, params, org, dir, rng, rc, &split, true, NULL, false);
 }
 
 /* The tile loop, flattened (by its two callers below) for the same reason as pt_radiance, which
@@ -566,7 +585,7 @@ reference_pt_radiance_sms(const struct scene *scene, const struct pt_params *par
  * the sampler existed (2026-11-29; code placement, as far as callgrind_annotate shows: the extra
  * instructions are spread thinly over the inlined helpers, none in sobol.h). */
 static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32_t tile, unsigned worker,
-                                                                 const bool sobol)
+                                                                 const bool sobol, const bool solid_angle)
 {
     struct pt_job *job = ctx;
     const struct pt_params *p = job->params;
@@ -618,7 +637,7 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
                 split.px = x;
                 split.py = y;
                 struct vec3 L = pt_radiance(job->scene, p, job->camera.position, dir, &rng, &rc, &split, true,
-                                            sobol ? &qmc : NULL);
+                                            sobol ? &qmc : NULL, solid_angle);
                 if (!vec3_is_finite(L)) {
                     st->nonfinite++;
                     continue;
@@ -640,16 +659,25 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
     sms_counters_add(&sum->sms, &local.sms);
 }
 
-/* One copy of the tile loop per sampler, each flattened (see pt_tile_body): in the random one
- * every Sobol' branch folds away. */
+/* One copy of the tile loop per sampler with area light sampling, and one for solid-angle
+ * sampling (either sampler, read at run time), each flattened (see pt_tile_body): in the first
+ * two every solid-angle branch folds away, and in the random one every Sobol' branch. With the
+ * solid-angle branches left in, the random sampler's loop cost 935.1 instructions per ray against
+ * 929.4 with them folded away (diffuse Cornell box, `bash tests/perf/instr_guard.sh`, 2026-11-29). */
 __attribute__((flatten)) static void pt_tile_random(void *ctx, uint32_t tile, unsigned worker)
 {
-    pt_tile_body(ctx, tile, worker, false);
+    pt_tile_body(ctx, tile, worker, false, false);
 }
 
 __attribute__((flatten)) static void pt_tile_sobol(void *ctx, uint32_t tile, unsigned worker)
 {
-    pt_tile_body(ctx, tile, worker, true);
+    pt_tile_body(ctx, tile, worker, true, false);
+}
+
+__attribute__((flatten)) static void pt_tile_solid_angle(void *ctx, uint32_t tile, unsigned worker)
+{
+    const struct pt_job *job = ctx;
+    pt_tile_body(ctx, tile, worker, job->params->sampler == PT_SAMPLER_SOBOL, true);
 }
 
 bool reference_pt_render(const struct scene *scene, const struct pt_params *params, struct image *out,
@@ -706,7 +734,9 @@ bool reference_pt_render_into(const struct scene *scene, const struct pt_params 
 
     struct timespec t0, t1;
     clock_gettime(CLOCK_MONOTONIC, &t0);
-    parallel_job_fn *tile_fn = p.sampler == PT_SAMPLER_SOBOL ? pt_tile_sobol : pt_tile_random;
+    parallel_job_fn *tile_fn = p.light_sampling == PT_LIGHT_SAMPLING_SOLID_ANGLE ? pt_tile_solid_angle
+                               : p.sampler == PT_SAMPLER_SOBOL                  ? pt_tile_sobol
+                                                                                : pt_tile_random;
     bool ok = parallel_run(threads, job->tiles_x * tiles_y, tile_fn, job, progress, progress_ctx, err);
     clock_gettime(CLOCK_MONOTONIC, &t1);
 

@@ -23,6 +23,12 @@
  * the first bounces, where most of the variance of direct and one-bounce light is. */
 enum pt_sampler { PT_SAMPLER_RANDOM, PT_SAMPLER_SOBOL };
 #define PT_SOBOL_BOUNCES 2
+/* How next-event estimation samples a point on an emissive triangle: uniformly by area (every
+ * emitter, light_sampler_sample), or uniformly in the solid angle the triangle subtends where the
+ * shading point sees it close by (light_sampler_sample_from; spheres and the environment as
+ * with area). Both are unbiased; solid angle has less variance near large lights and costs
+ * more per sample (docs/methods.md). */
+enum pt_light_sampling { PT_LIGHT_SAMPLING_AREA, PT_LIGHT_SAMPLING_SOLID_ANGLE };
 
 struct pt_params {
     uint32_t width, height;
@@ -35,6 +41,7 @@ struct pt_params {
                               a second unbiased estimator that tests the first one's MIS weights */
     enum pt_sampler sampler;  /* where a path's random numbers come from (reference_pt_defaults: random, as
                                  the other methods' paths; method pt's default is Sobol', pt_own_defaults) */
+    enum pt_light_sampling light_sampling;  /* default PT_LIGHT_SAMPLING_AREA */
     unsigned threads;      /* 0 = all cores */
     const struct camera_desc *camera;  /* NULL = the scene's camera */
     /* Optional crop (inclusive-exclusive pixel window); all zero = the whole image. */
@@ -52,8 +59,8 @@ struct pt_params {
     const struct ssp_prior *ssp_prior;
 };
 
-/* Defaults: 16 spp, max_depth 64, rr_depth 3, NEE on, random sampler, seed 0, all cores, whole
- * image. */
+/* Defaults: 16 spp, max_depth 64, rr_depth 3, NEE on (area sampling), random sampler, seed 0, all cores,
+ * whole image. */
 struct pt_params reference_pt_defaults(uint32_t width, uint32_t height);
 /* The paths a ReSTIR method traces for the light its reservoirs do not carry, one per pixel from
  * the G-buffer's primary ray: the defaults with the method's depths, NEE on. */

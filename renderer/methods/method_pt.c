@@ -12,6 +12,7 @@
 METHOD_FITS(struct pt_method_params, METHOD_PARAMS_BYTES);
 METHOD_ENUM_IS_INT(enum pt_subset);
 METHOD_ENUM_IS_INT(enum pt_sampler);
+METHOD_ENUM_IS_INT(enum pt_light_sampling);
 
 /* Depths of every path method: the same bound as the CLI's --max-depth. */
 #define PATH_MAX_DEPTH 1024
@@ -19,7 +20,8 @@ METHOD_ENUM_IS_INT(enum pt_sampler);
 struct pt_method_params pt_method_defaults(void)
 {
     return (struct pt_method_params){.spp = 1, .max_depth = 64, .rr_depth = 3, .nee = true, .subset = PT_SUBSET_ALL,
-                                     .sampler = PT_SAMPLER_RANDOM};
+                                     .sampler = PT_SAMPLER_RANDOM,
+                                     .light_sampling = PT_LIGHT_SAMPLING_AREA};
 }
 
 bool pt_method_params_valid(const struct pt_method_params *p, struct err *err)
@@ -64,11 +66,13 @@ static bool pt_render(void *state, const void *params, const struct method_frame
     struct pt_params p = pt_method_frame_params(pp, f, out);
     p.subset = pp->subset;
     p.sampler = pp->sampler;
+    p.light_sampling = pp->light_sampling;
     return reference_pt_render_into(f->scene, &p, out, &stats->render, progress, progress_ctx, err);
 }
 
 static const char *const pt_subsets[] = {"all", "caustic", "rest", NULL};
 static const char *const pt_samplers[] = {"random", "sobol", NULL};
+static const char *const pt_light_samplings[] = {"area", "solid_angle", NULL};
 
 #define P(key, kind, lo, hi, help) METHOD_PARAM(struct pt_method_params, key, kind, lo, hi, help)
 static const struct method_param pt_params_table[] = {
@@ -82,6 +86,8 @@ static const struct method_param pt_params_table[] = {
     METHOD_ENUM(struct pt_method_params, sampler, pt_samplers,
                 "random numbers: sobol (Owen-scrambled Sobol' for the pixel position and the first two bounces) or "
                 "random (a PCG stream per sample)"),
+    METHOD_ENUM(struct pt_method_params, light_sampling, pt_light_samplings,
+                "how next-event estimation samples emissive triangles: area, or the solid angle of those seen close by"),
 };
 #undef P
 

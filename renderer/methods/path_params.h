@@ -20,15 +20,17 @@ struct RESTIRD_STORED_IN_BYTES pt_method_params {
     bool nee;
     enum pt_subset subset;       /* which light transport the image holds (sms.h) */
     enum pt_sampler sampler;     /* where the paths' random numbers come from (reference_pt.h) */
+    enum pt_light_sampling light_sampling;  /* how NEE samples emissive triangles (reference_pt.h) */
 };
 
 struct RESTIRD_STORED_IN_BYTES sms_method_params {
-    struct pt_method_params pt;  /* subset and sampler unused: sms renders all of it, from PCG streams */
+    struct pt_method_params pt;  /* subset, sampler and light_sampling unused: sms renders all of it, from PCG
+                                    streams, by area */
     struct sms_params sms;
 };
 
 struct RESTIRD_STORED_IN_BYTES ssp_method_params {
-    struct pt_method_params pt;  /* subset and sampler unused */
+    struct pt_method_params pt;  /* subset, sampler and light_sampling unused */
     struct ssp_params ssp;
 };
 
@@ -40,7 +42,7 @@ bool pt_method_params_valid(const struct pt_method_params *p, struct err *err);
 /* pt's defaults: pt_method_defaults with the Sobol' sampler (method_pt.c). */
 struct pt_method_params pt_own_defaults(void);
 /* The reference path tracer's parameters for one frame of a path method (subset left at all, the
- * sampler at random). */
+ * sampler at random, light_sampling at area). */
 struct pt_params pt_method_frame_params(const struct pt_method_params *pp, const struct method_frame *f,
                                         const struct image *out);
 

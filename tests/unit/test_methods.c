@@ -138,6 +138,8 @@ static void test_enum_choices_follow_the_enums(void)
         {"pt", "subset", "rest", PT_SUBSET_REST},
         {"pt", "sampler", "random", PT_SAMPLER_RANDOM},
         {"pt", "sampler", "sobol", PT_SAMPLER_SOBOL},
+        {"pt", "light_sampling", "area", PT_LIGHT_SAMPLING_AREA},
+        {"pt", "light_sampling", "solid_angle", PT_LIGHT_SAMPLING_SOLID_ANGLE},
         {"bdpt", "heuristic", "power", BDPT_HEURISTIC_POWER},
         {"bdpt", "heuristic", "balance", BDPT_HEURISTIC_BALANCE},
         {"restir_bdpt", "heuristic", "balance", BDPT_HEURISTIC_BALANCE},
@@ -162,7 +164,7 @@ static void test_enum_choices_follow_the_enums(void)
     uint32_t enums = 0;
     for (uint32_t m = 0; m < method_count(); m++)
         for (uint32_t k = 0; k < method_at(m)->param_count; k++) enums += method_at(m)->params[k].kind == METHOD_PARAM_ENUM;
-    CHECK_MSG(enums == 8, "%u enum parameters: add the new one's values above", enums);
+    CHECK_MSG(enums == 9, "%u enum parameters: add the new one's values above", enums);
 }
 
 /* Whether two parameter structs of method m hold the same values, parameter by parameter (a

@@ -1,0 +1,288 @@
+/* spherical.h — uniform sampling of the solid angle a triangle subtends from a point: the
+ * spherical triangle that (v0, v1, v2) projects to on the unit sphere around p, its solid angle,
+ * its pdf and the inverse of its sampling map. Header-only, allocation-free.
+ *
+ * Sampling is Arvo's two-stage warp of the unit square (J. Arvo, "Stratified Sampling of
+ * Spherical Triangles", SIGGRAPH 1995, §2): u1 picks the sub-triangle (A, B, C') that shares
+ * the vertex A, the angle alpha there and the side AB with the whole triangle and has area
+ * u1 * Omega (C' on the arc AC), and u2 picks a point on the arc BC' with the cosine of its
+ * distance to B uniform. The map is continuous and area-preserving, so stratified (u1, u2)
+ * stay stratified on the sphere, and the pdf is 1 / Omega everywhere inside.
+ *
+ * Precision: a small or distant triangle is a spherical triangle of small sides whose angle sum
+ * is pi plus a tiny excess, so the textbook forms (Girard's excess, Arvo's cos(A_hat - alpha) -
+ * cos(alpha), the sine of a short side from its cosine) cancel catastrophically. Here the
+ * geometry is in double, the solid angle comes from van Oosterom & Strackee's formula on the
+ * triangle's own edges (no excess), and each difference of nearly equal numbers in the warp is
+ * rewritten as a product of sines; only the sine and cosine of the sub-triangle's half area are
+ * taken in float (see there). */
+#ifndef RESTIRD_SPHERICAL_H
+#define RESTIRD_SPHERICAL_H
+
+#include <math.h>
+#include <stdbool.h>
+
+#include "core/vec.h"
+
+/* Below this solid angle (steradians) spherical_triangle_init turns a triangle away: p in or
+ * next to the triangle's plane, or a triangle of no area, where the solid angle is rounding
+ * noise. The warp itself holds far below it: sampling and inverting again comes back to (u1, u2)
+ * within 1.1e-7 (the float sine of the first stage) for solid angles from 0.3 sr down to 1e-9 sr,
+ * a sliver 500 times longer than wide included (tests/unit/test_spherical.c); with a double
+ * sine, within 2e-13 down to 1e-13 sr. */
+#define SPHERICAL_MIN_SOLID_ANGLE 1e-10
+
+struct spherical_dvec { double x, y, z; };
+
+static inline struct spherical_dvec spherical_dvec(struct vec3 v) { return (struct spherical_dvec){v.x, v.y, v.z}; }
+static inline struct spherical_dvec spherical_add(struct spherical_dvec a, struct spherical_dvec b)
+{
+    return (struct spherical_dvec){a.x + b.x, a.y + b.y, a.z + b.z};
+}
+static inline struct spherical_dvec spherical_sub(struct spherical_dvec a, struct spherical_dvec b)
+{
+    return (struct spherical_dvec){a.x - b.x, a.y - b.y, a.z - b.z};
+}
+static inline struct spherical_dvec spherical_scale(struct spherical_dvec a, double s)
+{
+    return (struct spherical_dvec){a.x * s, a.y * s, a.z * s};
+}
+static inline double spherical_dot(struct spherical_dvec a, struct spherical_dvec b)
+{
+    return a.x * b.x + a.y * b.y + a.z * b.z;
+}
+static inline struct spherical_dvec spherical_cross(struct spherical_dvec a, struct spherical_dvec b)
+{
+    return (struct spherical_dvec){a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+}
+/* a / |a|, and |a| into *len; the zero vector stays zero. */
+static inline struct spherical_dvec spherical_unit(struct spherical_dvec a, double *len)
+{
+    double l = sqrt(spherical_dot(a, a));
+    if (len) *len = l;
+    return l > 0.0 ? spherical_scale(a, 1.0 / l) : a;
+}
+
+#define SPHERICAL_PI 3.14159265358979323846
+
+/* atan2(y, x) for y >= 0, an angle in [0, pi], to 1e-9 relative (libm's atan2 and atan2f cost
+ * 126 and 115 instructions a call here, callgrind; this about 35). The argument is folded into [0, 1] (the smaller of
+ * |x| and y over the larger, with the quadrant restored at the end), then into [-tan(pi/8),
+ * tan(pi/8)] by atan r = pi/4 + atan((r - 1) / (r + 1)), where atan r = r + r^3 P(r^2) with P of
+ * degree 4: a least-squares fit of (atan r - r) / r^3 iterated towards equal relative error
+ * (Lawson's reweighting), 6.7e-10 at most over that interval. */
+static inline double spherical_atan2_upper(double y, double x)
+{
+    double ax = fabs(x);
+    bool steep = y > ax;
+    double r = steep ? ax / y : (ax > 0.0 ? y / ax : 0.0);
+    double base = 0.0;
+    if (r > 0.41421356237309503) {   /* tan(pi/8) */
+        base = 0.25 * SPHERICAL_PI;
+        r = (r - 1.0) / (r + 1.0);
+    }
+    double z = r * r;
+    double p = -0.333333151889049 +
+               z * (0.19998471530162168 + z * (-0.14243533582788628 + z * (0.105938152844006 + z * -0.060782249566231857)));
+    double a = base + r + r * z * p;
+    if (steep) a = 0.5 * SPHERICAL_PI - a;
+    return x < 0.0 ? SPHERICAL_PI - a : a;
+}
+
+/* The spherical triangle (a, b, c) seen from a point: unit directions to the vertices, the
+ * triple product a . (b x c) of those (its sign is the vertices' winding seen from the point) and
+ * the solid angle. */
+struct spherical_triangle {
+    struct spherical_dvec a, b, c;
+    double triple;
+    double solid_angle;
+    struct spherical_dvec to_v0;   /* v0 - p, in double (the light sampler's plane intersection) */
+};
+
+/* Solid angle of the triangle at p with edges relative to p: ra = v0 - p, e1 = v1 - v0,
+ * e2 = v2 - v0 (van Oosterom & Strackee 1983, "The Solid Angle of a Plane Triangle", IEEE
+ * Trans. Biomed. Eng. 30(2)): tan(Omega / 2) = |ra . (rb x rc)| / (|ra||rb||rc| + (ra.rb)|rc|
+ * + (ra.rc)|rb| + (rb.rc)|ra|). The triple product is taken as ra . (e1 x e2), which equals it
+ * and does not cancel when the three directions are nearly parallel; the denominator is a sum
+ * of positive terms for any triangle narrower than a quarter sphere, and atan2 keeps the result
+ * right up to 2 pi (denominator <= 0). Both are divided by |ra||rb||rc| first, which makes them
+ * the unit directions' triple product (returned in *triple) and 1 + a.b + a.c + b.c. len (may be
+ * NULL) receives the vertices' distances. */
+static inline double spherical_solid_angle_edges(struct spherical_dvec ra, struct spherical_dvec e1,
+                                                 struct spherical_dvec e2, double *triple, double len[3])
+{
+    struct spherical_dvec rb = spherical_add(ra, e1), rc = spherical_add(ra, e2);
+    double la = sqrt(spherical_dot(ra, ra)), lb = sqrt(spherical_dot(rb, rb)), lc = sqrt(spherical_dot(rc, rc));
+    double inv = 1.0 / (la * lb * lc);
+    double t = spherical_dot(ra, spherical_cross(e1, e2)) * inv;
+    double den = 1.0 + (spherical_dot(ra, rb) * lc + spherical_dot(ra, rc) * lb + spherical_dot(rb, rc) * la) * inv;
+    if (triple) *triple = t;
+    if (len) {
+        len[0] = la;
+        len[1] = lb;
+        len[2] = lc;
+    }
+    return 2.0 * spherical_atan2_upper(fabs(t), den);
+}
+
+/* Solid angle of the triangle (v0, v1, v2) seen from p, in steradians. */
+static inline double spherical_triangle_solid_angle(struct vec3 p, struct vec3 v0, struct vec3 v1, struct vec3 v2)
+{
+    struct spherical_dvec ra = spherical_sub(spherical_dvec(v0), spherical_dvec(p));
+    struct spherical_dvec e1 = spherical_sub(spherical_dvec(v1), spherical_dvec(v0));
+    struct spherical_dvec e2 = spherical_sub(spherical_dvec(v2), spherical_dvec(v0));
+    return spherical_solid_angle_edges(ra, e1, e2, NULL, NULL);
+}
+
+/* The spherical triangle of the triangle v0 + b1 e1 + b2 e2 seen from p (edges given as the
+ * light sampler stores them). False when its solid angle is not above
+ * SPHERICAL_MIN_SOLID_ANGLE: use area sampling then. */
+static inline bool spherical_triangle_init(struct spherical_triangle *st, struct vec3 p, struct vec3 v0,
+                                           struct vec3 e1, struct vec3 e2)
+{
+    struct spherical_dvec ra = spherical_sub(spherical_dvec(v0), spherical_dvec(p));
+    struct spherical_dvec de1 = spherical_dvec(e1), de2 = spherical_dvec(e2);
+    double len[3];
+    st->solid_angle = spherical_solid_angle_edges(ra, de1, de2, &st->triple, len);
+    if (!(st->solid_angle > SPHERICAL_MIN_SOLID_ANGLE)) return false;
+    st->to_v0 = ra;
+    st->a = spherical_scale(ra, 1.0 / len[0]);
+    st->b = spherical_scale(spherical_add(ra, de1), 1.0 / len[1]);
+    st->c = spherical_scale(spherical_add(ra, de2), 1.0 / len[2]);
+    return true;
+}
+
+/* Solid-angle pdf of spherical_triangle_sample: 1 / Omega for every direction inside. */
+static inline double spherical_triangle_pdf_w(const struct spherical_triangle *st)
+{
+    return 1.0 / st->solid_angle;
+}
+
+/* The interior angle alpha at vertex a, as cos and sin: the angle between the planes (a, b)
+ * and (a, c). With a unit, |(a x b) x (a x c)| = |a . (b x c)|, so sin alpha comes from the
+ * triple product without a difference of nearly equal cosines. Also the unit tangent at a
+ * towards c (c with its a component removed, the unit normal of (a, c) crossed with a), which
+ * the first stage builds C' from. */
+static inline void spherical_angle_at_a(const struct spherical_triangle *st, double *cos_alpha, double *sin_alpha,
+                                        struct spherical_dvec *c_tangent)
+{
+    double lab, lac;
+    struct spherical_dvec nab = spherical_cross(st->a, st->b);
+    struct spherical_dvec nac = spherical_unit(spherical_cross(st->a, st->c), &lac);
+    lab = sqrt(spherical_dot(nab, nab));
+    *cos_alpha = spherical_dot(nab, nac) / lab;
+    *sin_alpha = fabs(st->triple) / (lab * lac);
+    *c_tangent = spherical_cross(nac, st->a);
+}
+
+/* A unit direction uniformly distributed over the spherical triangle (pdf 1 / Omega) for
+ * (u1, u2) in [0, 1]^2, Arvo 1995 §2, in double: the light sampler intersects it with the
+ * triangle's plane in double too, so that a small triangle's point keeps its place. */
+static inline struct spherical_dvec spherical_triangle_sample_d(const struct spherical_triangle *st, float u1, float u2)
+{
+    double cos_alpha, sin_alpha;
+    struct spherical_dvec c_tangent;
+    spherical_angle_at_a(st, &cos_alpha, &sin_alpha, &c_tangent);
+    /* First stage: the sub-triangle of area A_hat = u1 Omega. Arvo's closed form gives the
+     * cosine q of its side AC' as q = ((v t - u s) cos alpha - v) / ((v s + u t) sin alpha), with
+     * s = sin(A_hat - alpha), t = cos(A_hat - alpha), u = t - cos alpha and v = s + sin alpha
+     * cos c (c the side AB). C' needs sin of that side too, and sqrt(1 - q^2) from q is lost to
+     * rounding for a short side (1 - q below 1e-10 keeps fewer than six digits). So the
+     * complement is formed directly: by the angle-sum formulas the denominator minus the
+     * numerator is v (1 - cos A_hat) + u sin A_hat, and the denominator is sin alpha (1 - cos
+     * A_hat + sin alpha sin(alpha - A_hat) (1 - cos c)). With h = A_hat / 2 and g = alpha - h
+     * every difference of nearly equal numbers becomes a product: 1 - cos A_hat = 2 sin^2 h,
+     * u = 2 sin h sin g, v = 2 sin h cos g - sin alpha (1 - cos c), 1 - cos c = |a - b|^2 / 2.
+     * Only h needs a sine and cosine: g's follow from alpha's by the difference formulas
+     * (g > 0, as A_hat <= Omega < 2 alpha). */
+    double h = 0.5 * (double)u1 * st->solid_angle;
+    /* In float: its 1e-7 relative error is far below what the warp needs (a sub-triangle's area
+     * off by that share), and GCC makes one sincosf call of the pair, a quarter of sincos. */
+    double sin_h = sinf((float)h), cos_h = cosf((float)h);
+    double sin_g = sin_alpha * cos_h - cos_alpha * sin_h, cos_g = cos_alpha * cos_h + sin_alpha * sin_h;
+    double one_minus_cos_hat = 2.0 * sin_h * sin_h, sin_hat = 2.0 * sin_h * cos_h;
+    double sin_alpha_minus_hat = sin_g * cos_h - cos_g * sin_h;   /* sin(g - h) */
+    struct spherical_dvec ab = spherical_sub(st->a, st->b);
+    double one_minus_cos_c = 0.5 * spherical_dot(ab, ab);
+    double u = 2.0 * sin_h * sin_g;
+    double v = 2.0 * sin_h * cos_g - sin_alpha * one_minus_cos_c;
+    double den = sin_alpha * (one_minus_cos_hat + sin_alpha * sin_alpha_minus_hat * one_minus_cos_c);
+    double one_minus_q = den != 0.0 ? (v * one_minus_cos_hat + u * sin_hat) / den : 0.0;
+    /* [0, 2] but for rounding; NaN (a degenerate angle) gives the vertex a itself. */
+    one_minus_q = one_minus_q > 0.0 ? (one_minus_q < 2.0 ? one_minus_q : 2.0) : 0.0;
+    double q = 1.0 - one_minus_q, sin_q = sqrt(one_minus_q * (2.0 - one_minus_q));
+    struct spherical_dvec c_hat = spherical_add(spherical_scale(st->a, q), spherical_scale(c_tangent, sin_q));
+    /* Second stage: on the arc from b to C', the cosine z of the distance to b uniform between
+     * 1 and b . C' (the strip of the sub-triangle at distance theta from b is as wide as
+     * sin theta). 1 - z = u2 (1 - b . C') with 1 - b . C' = |C' - b|^2 / 2, and sin = sqrt((1 - z)
+     * (1 + z)): no cancellation when C' is close to b. */
+    struct spherical_dvec cb = spherical_sub(c_hat, st->b);
+    double one_minus_z = (double)u2 * 0.5 * spherical_dot(cb, cb);
+    double z = 1.0 - one_minus_z;
+    double sin_z2 = one_minus_z * (2.0 - one_minus_z);   /* >= 0 but for rounding (fmax is a libm call) */
+    double sin_z = sqrt(sin_z2 > 0.0 ? sin_z2 : 0.0);
+    struct spherical_dvec c_off_b = spherical_sub(c_hat, spherical_scale(st->b, spherical_dot(c_hat, st->b)));
+    struct spherical_dvec tangent = spherical_unit(c_off_b, NULL);
+    return spherical_add(spherical_scale(st->b, z), spherical_scale(tangent, sin_z));
+}
+
+/* The same direction in float (unit length to float rounding). */
+static inline struct vec3 spherical_triangle_sample(const struct spherical_triangle *st, float u1, float u2)
+{
+    struct spherical_dvec d = spherical_triangle_sample_d(st, u1, u2);
+    return vec3_make((float)d.x, (float)d.y, (float)d.z);
+}
+
+/* Whether the unit direction `dir` lies inside the spherical triangle (on the inner side of its
+ * three great circles; the edges count as inside). */
+static inline bool spherical_triangle_contains(const struct spherical_triangle *st, struct vec3 dir)
+{
+    struct spherical_dvec d = spherical_dvec(dir);
+    double w = st->triple < 0.0 ? -1.0 : 1.0;
+    return w * spherical_dot(d, spherical_cross(st->a, st->b)) >= 0.0 &&
+           w * spherical_dot(d, spherical_cross(st->b, st->c)) >= 0.0 &&
+           w * spherical_dot(d, spherical_cross(st->c, st->a)) >= 0.0;
+}
+
+/* The pdf of spherical_triangle_sample towards `dir`: 1 / Omega inside, 0 outside. */
+static inline double spherical_triangle_pdf_w_toward(const struct spherical_triangle *st, struct vec3 dir)
+{
+    return spherical_triangle_contains(st, dir) ? spherical_triangle_pdf_w(st) : 0.0;
+}
+
+/* The inverse of spherical_triangle_sample: the (u1, u2) that map to the unit direction `dir`
+ * inside the triangle. C' is where the great circle through b and dir meets the arc a-c (of
+ * the two antipodal crossings, the one on the side of a + c); u1 is the sub-triangle (a, b, C')'s
+ * share of the solid angle and u2 = (1 - b . dir) / (1 - b . C'), both differences of cosines
+ * again taken as squared chords. */
+static inline void spherical_triangle_invert_d(const struct spherical_triangle *st, struct spherical_dvec dir,
+                                               double *u1, double *u2)
+{
+    struct spherical_dvec d = spherical_unit(dir, NULL);
+    struct spherical_dvec c_hat = spherical_cross(spherical_cross(st->b, d), spherical_cross(st->a, st->c));
+    double len;
+    c_hat = spherical_unit(c_hat, &len);
+    if (!(len > 0.0)) {   /* dir is b (or the sub-triangle is the whole one's edge ab) */
+        *u1 = *u2 = 0.0;
+        return;
+    }
+    if (spherical_dot(c_hat, spherical_add(st->a, st->c)) < 0.0) c_hat = spherical_scale(c_hat, -1.0);
+    struct spherical_dvec e1 = spherical_sub(st->b, st->a), e2 = spherical_sub(c_hat, st->a);
+    double sub = spherical_solid_angle_edges(st->a, e1, e2, NULL, NULL);
+    struct spherical_dvec db = spherical_sub(d, st->b), cb = spherical_sub(c_hat, st->b);
+    double chord2 = spherical_dot(cb, cb);
+    double x1 = sub / st->solid_angle, x2 = chord2 > 0.0 ? spherical_dot(db, db) / chord2 : 0.0;
+    *u1 = x1 < 0.0 ? 0.0 : (x1 > 1.0 ? 1.0 : x1);
+    *u2 = x2 < 0.0 ? 0.0 : (x2 > 1.0 ? 1.0 : x2);
+}
+
+/* The same for a float direction. */
+static inline void spherical_triangle_invert(const struct spherical_triangle *st, struct vec3 dir, float *u1, float *u2)
+{
+    double x1, x2;
+    spherical_triangle_invert_d(st, spherical_dvec(dir), &x1, &x2);
+    *u1 = (float)x1;
+    *u2 = (float)x2;
+}
+
+#endif
