@@ -200,13 +200,22 @@ def _correlation(daemon, tmp_path, ref, method, n=8, warmup=8, same_seed=False):
     return mape(consecutive, ref) / mape(np.mean(independent, axis=0), ref)
 
 
+# pt's frames continue one Sobol' sequence (its default sampler: sample index frame x spp +
+# sample), so 8 consecutive frames are one stratified 8-sample estimate, better than 8 independent
+# frames (measured 0.79 on cornell-box); 8 copies of a frame would give 1/sqrt(8) = 0.35.
+PT_STRATIFIED = (0.55, 0.95)
+
+
 @pytest.mark.parametrize("method", SEQUENCE_SHORT)
 def test_consecutive_frames_are_not_copies(daemon, refs, tmp_path, method):
-    """pt's (and every method's without reuse) frames are independent (ratio near 1); a reusing
-    method's are correlated, but clearly less than copies would be (sqrt(8) = 2.83)."""
+    """Frames of a method without reuse are independent (ratio near 1), pt's stratified (below 1,
+    PT_STRATIFIED); a reusing method's are correlated, but clearly less than copies would be
+    (sqrt(8) = 2.83)."""
     ratio = _correlation(daemon, tmp_path, refs(HOME[method], "start"), method)
     print(f"{method}: error of 8 consecutive frames / 8 independent = {ratio:.2f}")
-    if method not in REUSING:
+    if method == "pt":
+        assert PT_STRATIFIED[0] < ratio < PT_STRATIFIED[1], ratio
+    elif method not in REUSING:
         assert 0.8 < ratio < 1.25, ratio
     else:
         assert ratio < 2.3, ratio
@@ -214,11 +223,11 @@ def test_consecutive_frames_are_not_copies(daemon, refs, tmp_path, method):
 
 def test_correlation_check_sees_copies(daemon, refs, tmp_path):
     """The control: 'independent' sessions that share one seed render identical frames, and the
-    ratio falls to 1/sqrt(8) (the consecutive frames now look far better than the copies): the
+    ratio falls below 1/sqrt(8) (the consecutive frames now look far better than the copies): the
     pt bound above rejects it."""
     ratio = _correlation(daemon, tmp_path, refs("cornell-box", "start"), "pt", same_seed=True)
     print(f"pt with copies: {ratio:.2f}")
-    assert not (0.8 < ratio < 1.25), ratio
+    assert not (PT_STRATIFIED[0] < ratio < PT_STRATIFIED[1]), ratio
 
 
 def _fresh_error(daemon, tmp_path, ref, method, camera, frames, seeds=(31, 32)):

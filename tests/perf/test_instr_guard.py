@@ -65,7 +65,7 @@ def test_budget_without_entry_cannot_be_measured(tmp_path):
                     'for a; do [ "$p" = --spp ] && s=$a; p=$a; done; echo "Collected : $((s * 1000))" >&2')
     budget = tmp_path / "budget.json"
     command = ("restir render scenes/cornell-box/scene.json --method pt --size 64x64 --threads 1 "
-               "--max-depth 8 --spp {4,12}")
+               "--max-depth 8 --frames 1 --params {\"sampler\":\"random\"} --spp {4,12}")
     budget.write_text(json.dumps({"tolerance": 0.02,
                                   "renders": {"diffuse": {"instr_per_ray": 1100, "command": command}}}))
     r = guard(RESTIR_BIN=restir, VALGRIND=valgrind, INSTR_BUDGET=str(budget))
