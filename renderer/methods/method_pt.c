@@ -1,6 +1,7 @@
-/* method_pt.c — method `pt`: the reference path tracer (integrators/reference_pt.h), `spp`
- * independent paths per pixel and frame; frames are independent, so the session's accumulation
- * converges to the ground truth every other method is tested against. */
+/* method_pt.c — method `pt`: the reference path tracer (integrators/reference_pt.h), `spp` paths per
+ * pixel and frame. Its frames are unbiased estimates each, independent draws with the random sampler
+ * and one continued stratified sequence with the Sobol' sampler (the default), so the session's
+ * accumulation converges to the ground truth every other method is tested against. */
 #include <stddef.h>
 #include <string.h>
 
@@ -35,7 +36,17 @@ bool pt_method_params_valid(const struct pt_method_params *p, struct err *err)
  * methods take no sampler. */
 struct pt_method_params pt_own_defaults(void)
 {
-    struct pt_method_params p = pt_method_defaults();
+    /* Field by field into a zeroed block: parameter blocks are compared and hashed bytewise, and
+     * a copy of a local struct carries its padding (after `nee`) along, whatever it holds. */
+    const struct pt_method_params d = pt_method_defaults();
+    struct pt_method_params p;
+    memset(&p, 0, sizeof p);
+    p.spp = d.spp;
+    p.max_depth = d.max_depth;
+    p.rr_depth = d.rr_depth;
+    p.nee = d.nee;
+    p.subset = d.subset;
+    p.light_sampling = d.light_sampling;
     p.sampler = PT_SAMPLER_SOBOL;
     return p;
 }
