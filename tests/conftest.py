@@ -50,6 +50,9 @@ def pytest_pyfunc_call(pyfuncitem):
         pyfuncitem.obj(**args)
     except NullRejected as first:
         print(f"\n{pyfuncitem.nodeid}: rejected ({first}); confirming on independent seeds")
+        if "tmp_path" in args:  # a folder of its own: what the first run wrote stays out of the way
+            args["tmp_path"] = args["tmp_path"] / "confirm"
+            args["tmp_path"].mkdir()
         _seed_offset = CONFIRM_SEED_OFFSET
         try:
             pyfuncitem.obj(**args)

@@ -39,7 +39,8 @@ REF_SPP = 4096
 REF_MIN_HITS = 3
 MAX_UNTESTED = 0.01  # of the image's sum (both sides' means)
 REF_SOURCES = ["renderer/integrators/reference_pt.c", "renderer/integrators/sms.c", "renderer/material/material.c", "renderer/material/bsdf_dielectric.c",
-               "renderer/material/bsdf_diffuse.c", "renderer/scene/light_sampler.c", "renderer/scene/surface.c", "renderer/scene/camera.c"]
+               "renderer/material/bsdf_diffuse.c", "renderer/scene/light_sampler.c", "renderer/scene/surface.c", "renderer/scene/camera.c",
+               "renderer/methods/method_pt.c", "renderer/core/sobol.h", "renderer/core/rng.h"]
 
 
 def _params(d):

@@ -53,26 +53,35 @@ class _Item:
     """The parts of a pytest item that conftest.pytest_pyfunc_call reads."""
 
     class _Info:
-        argnames = ()
+        def __init__(self, argnames):
+            self.argnames = argnames
 
-    def __init__(self, fn):
-        self.obj, self.funcargs, self._fixtureinfo, self.nodeid = fn, {}, self._Info(), fn.__name__
+    def __init__(self, fn, **funcargs):
+        self.obj, self.funcargs, self.nodeid = fn, funcargs, fn.__name__
+        self._fixtureinfo = self._Info(tuple(funcargs))
 
 
-def test_a_rejection_is_confirmed_on_independent_seeds():
-    """A comparison that rejects once is run again with every render seed shifted, and the test
-    passes only if that run agrees; two rejections, or any other failure, fail it."""
+def test_a_rejection_is_confirmed_on_independent_seeds(tmp_path):
+    """A comparison that rejects once is run again with every render seed shifted, in a folder of
+    its own, and the test passes only if that run agrees; two rejections, or any other failure,
+    fail it."""
     rng = np.random.default_rng(4)
     agree, differ = ztest_runs(_runs(rng, KA), _runs(rng, KB)), ztest_runs(_runs(rng, KA, 1.05), _runs(rng, KB))
     assert agree.passed and not differ.passed
     offsets = []
 
-    def unlucky_once():
+    folders = []
+
+    def unlucky_once(tmp_path):
         offsets.append(conftest.seed_offset())
+        folders.append(tmp_path)
+        assert not (tmp_path / "made").exists()  # what the first run made is not in the way
+        (tmp_path / "made").mkdir()
         assert_agree(differ if conftest.seed_offset() == 0 else agree, "first draw")
 
-    assert conftest.pytest_pyfunc_call(_Item(unlucky_once)) is True
+    assert conftest.pytest_pyfunc_call(_Item(unlucky_once, tmp_path=tmp_path)) is True
     assert offsets == [0, conftest.CONFIRM_SEED_OFFSET] and conftest.seed_offset() == 0
+    assert folders[0] == tmp_path and folders[1] != tmp_path
 
     def biased():
         assert_agree(differ, "biased")

@@ -39,11 +39,11 @@ enum { PT_DIM_LIGHT_POINT, PT_DIM_BSDF_DIRECTION, PT_DIM_CHOICES, PT_DIM_RR, PT_
 /* rng_pixel_make's last word for a pixel's Sobol' seed. */
 #define PT_SOBOL_STREAM 0x736f626full
 /* A pixel's Sobol' index is the sample's index in the session, frame * spp + sample, in epochs of
- * 2^31 samples: each epoch (the bits above) gets its own randomisation. A session's frames stay
- * below frame 2^31, so their epochs are below spp, while reference passes (frames from
- * REFERENCE_PT_PASS_FRAME0 = 2^31 on) are in epochs from spp up: a reference never shares a
- * randomisation with the frames it is compared with (its samples would be correlated with
- * theirs). */
+ * 2^31 samples: each epoch (the bits above) gets its own randomisation. A session's frame f at
+ * spp s is in epoch f * s / 2^31, a reference pass (frames from REFERENCE_PT_PASS_FRAME0 = 2^31
+ * on, at its own spp r per pass) in epoch r or above: the two share a randomisation (and their
+ * samples would be correlated) only once f * s reaches 2^31 * r, some 2^31 samples per pixel of
+ * the session. */
 #define PT_SOBOL_INDEX_BITS 31
 
 /* One sample's Sobol' state: its index, bit-reversed (as sobol.h takes it), and the seeds of every
