@@ -22,6 +22,7 @@
 #include <math.h>
 #include <stdbool.h>
 
+#include "core/dvec.h"
 #include "core/vec.h"
 
 /* Below this solid angle (steradians) spherical_triangle_init turns a triangle away: p in or
@@ -32,35 +33,12 @@
  * sine, within 2e-13 down to 1e-13 sr. */
 #define SPHERICAL_MIN_SOLID_ANGLE 1e-10
 
-struct spherical_dvec { double x, y, z; };
-
-static inline struct spherical_dvec spherical_dvec(struct vec3 v) { return (struct spherical_dvec){v.x, v.y, v.z}; }
-static inline struct spherical_dvec spherical_add(struct spherical_dvec a, struct spherical_dvec b)
-{
-    return (struct spherical_dvec){a.x + b.x, a.y + b.y, a.z + b.z};
-}
-static inline struct spherical_dvec spherical_sub(struct spherical_dvec a, struct spherical_dvec b)
-{
-    return (struct spherical_dvec){a.x - b.x, a.y - b.y, a.z - b.z};
-}
-static inline struct spherical_dvec spherical_scale(struct spherical_dvec a, double s)
-{
-    return (struct spherical_dvec){a.x * s, a.y * s, a.z * s};
-}
-static inline double spherical_dot(struct spherical_dvec a, struct spherical_dvec b)
-{
-    return a.x * b.x + a.y * b.y + a.z * b.z;
-}
-static inline struct spherical_dvec spherical_cross(struct spherical_dvec a, struct spherical_dvec b)
-{
-    return (struct spherical_dvec){a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
-}
 /* a / |a|, and |a| into *len; the zero vector stays zero. */
-static inline struct spherical_dvec spherical_unit(struct spherical_dvec a, double *len)
+static inline struct dvec3 spherical_unit(struct dvec3 a, double *len)
 {
-    double l = sqrt(spherical_dot(a, a));
+    double l = dvec3_length(a);
     if (len) *len = l;
-    return l > 0.0 ? spherical_scale(a, 1.0 / l) : a;
+    return l > 0.0 ? dvec3_scale(a, 1.0 / l) : a;
 }
 
 #define SPHERICAL_PI 3.14159265358979323846
@@ -93,10 +71,10 @@ static inline double spherical_atan2_upper(double y, double x)
  * triple product a . (b x c) of those (its sign is the vertices' winding seen from the point) and
  * the solid angle. */
 struct spherical_triangle {
-    struct spherical_dvec a, b, c;
+    struct dvec3 a, b, c;
     double triple;
     double solid_angle;
-    struct spherical_dvec to_v0;   /* v0 - p, in double (the light sampler's plane intersection) */
+    struct dvec3 to_v0;   /* v0 - p, in double (the light sampler's plane intersection) */
 };
 
 /* Solid angle of the triangle at p with edges relative to p: ra = v0 - p, e1 = v1 - v0,
@@ -108,14 +86,14 @@ struct spherical_triangle {
  * right up to 2 pi (denominator <= 0). Both are divided by |ra||rb||rc| first, which makes them
  * the unit directions' triple product (returned in *triple) and 1 + a.b + a.c + b.c. len (may be
  * NULL) receives the vertices' distances. */
-static inline double spherical_solid_angle_edges(struct spherical_dvec ra, struct spherical_dvec e1,
-                                                 struct spherical_dvec e2, double *triple, double len[3])
+static inline double spherical_solid_angle_edges(struct dvec3 ra, struct dvec3 e1,
+                                                 struct dvec3 e2, double *triple, double len[3])
 {
-    struct spherical_dvec rb = spherical_add(ra, e1), rc = spherical_add(ra, e2);
-    double la = sqrt(spherical_dot(ra, ra)), lb = sqrt(spherical_dot(rb, rb)), lc = sqrt(spherical_dot(rc, rc));
+    struct dvec3 rb = dvec3_add(ra, e1), rc = dvec3_add(ra, e2);
+    double la = sqrt(dvec3_dot(ra, ra)), lb = sqrt(dvec3_dot(rb, rb)), lc = sqrt(dvec3_dot(rc, rc));
     double inv = 1.0 / (la * lb * lc);
-    double t = spherical_dot(ra, spherical_cross(e1, e2)) * inv;
-    double den = 1.0 + (spherical_dot(ra, rb) * lc + spherical_dot(ra, rc) * lb + spherical_dot(rb, rc) * la) * inv;
+    double t = dvec3_dot(ra, dvec3_cross(e1, e2)) * inv;
+    double den = 1.0 + (dvec3_dot(ra, rb) * lc + dvec3_dot(ra, rc) * lb + dvec3_dot(rb, rc) * la) * inv;
     if (triple) *triple = t;
     if (len) {
         len[0] = la;
@@ -128,9 +106,9 @@ static inline double spherical_solid_angle_edges(struct spherical_dvec ra, struc
 /* Solid angle of the triangle (v0, v1, v2) seen from p, in steradians. */
 static inline double spherical_triangle_solid_angle(struct vec3 p, struct vec3 v0, struct vec3 v1, struct vec3 v2)
 {
-    struct spherical_dvec ra = spherical_sub(spherical_dvec(v0), spherical_dvec(p));
-    struct spherical_dvec e1 = spherical_sub(spherical_dvec(v1), spherical_dvec(v0));
-    struct spherical_dvec e2 = spherical_sub(spherical_dvec(v2), spherical_dvec(v0));
+    struct dvec3 ra = dvec3_sub(dvec3_from(v0), dvec3_from(p));
+    struct dvec3 e1 = dvec3_sub(dvec3_from(v1), dvec3_from(v0));
+    struct dvec3 e2 = dvec3_sub(dvec3_from(v2), dvec3_from(v0));
     return spherical_solid_angle_edges(ra, e1, e2, NULL, NULL);
 }
 
@@ -140,15 +118,15 @@ static inline double spherical_triangle_solid_angle(struct vec3 p, struct vec3 v
 static inline bool spherical_triangle_init(struct spherical_triangle *st, struct vec3 p, struct vec3 v0,
                                            struct vec3 e1, struct vec3 e2)
 {
-    struct spherical_dvec ra = spherical_sub(spherical_dvec(v0), spherical_dvec(p));
-    struct spherical_dvec de1 = spherical_dvec(e1), de2 = spherical_dvec(e2);
+    struct dvec3 ra = dvec3_sub(dvec3_from(v0), dvec3_from(p));
+    struct dvec3 de1 = dvec3_from(e1), de2 = dvec3_from(e2);
     double len[3];
     st->solid_angle = spherical_solid_angle_edges(ra, de1, de2, &st->triple, len);
     if (!(st->solid_angle > SPHERICAL_MIN_SOLID_ANGLE)) return false;
     st->to_v0 = ra;
-    st->a = spherical_scale(ra, 1.0 / len[0]);
-    st->b = spherical_scale(spherical_add(ra, de1), 1.0 / len[1]);
-    st->c = spherical_scale(spherical_add(ra, de2), 1.0 / len[2]);
+    st->a = dvec3_scale(ra, 1.0 / len[0]);
+    st->b = dvec3_scale(dvec3_add(ra, de1), 1.0 / len[1]);
+    st->c = dvec3_scale(dvec3_add(ra, de2), 1.0 / len[2]);
     return true;
 }
 
@@ -164,24 +142,24 @@ static inline double spherical_triangle_pdf_w(const struct spherical_triangle *s
  * towards c (c with its a component removed, the unit normal of (a, c) crossed with a), which
  * the first stage builds C' from. */
 static inline void spherical_angle_at_a(const struct spherical_triangle *st, double *cos_alpha, double *sin_alpha,
-                                        struct spherical_dvec *c_tangent)
+                                        struct dvec3 *c_tangent)
 {
     double lab, lac;
-    struct spherical_dvec nab = spherical_cross(st->a, st->b);
-    struct spherical_dvec nac = spherical_unit(spherical_cross(st->a, st->c), &lac);
-    lab = sqrt(spherical_dot(nab, nab));
-    *cos_alpha = spherical_dot(nab, nac) / lab;
+    struct dvec3 nab = dvec3_cross(st->a, st->b);
+    struct dvec3 nac = spherical_unit(dvec3_cross(st->a, st->c), &lac);
+    lab = sqrt(dvec3_dot(nab, nab));
+    *cos_alpha = dvec3_dot(nab, nac) / lab;
     *sin_alpha = fabs(st->triple) / (lab * lac);
-    *c_tangent = spherical_cross(nac, st->a);
+    *c_tangent = dvec3_cross(nac, st->a);
 }
 
 /* A unit direction uniformly distributed over the spherical triangle (pdf 1 / Omega) for
  * (u1, u2) in [0, 1]^2, Arvo 1995 §2, in double: the light sampler intersects it with the
  * triangle's plane in double too, so that a small triangle's point keeps its place. */
-static inline struct spherical_dvec spherical_triangle_sample_d(const struct spherical_triangle *st, float u1, float u2)
+static inline struct dvec3 spherical_triangle_sample_d(const struct spherical_triangle *st, float u1, float u2)
 {
     double cos_alpha, sin_alpha;
-    struct spherical_dvec c_tangent;
+    struct dvec3 c_tangent;
     spherical_angle_at_a(st, &cos_alpha, &sin_alpha, &c_tangent);
     /* First stage: the sub-triangle of area A_hat = u1 Omega. Arvo's closed form gives the
      * cosine q of its side AC' as q = ((v t - u s) cos alpha - v) / ((v s + u t) sin alpha), with
@@ -202,8 +180,8 @@ static inline struct spherical_dvec spherical_triangle_sample_d(const struct sph
     double sin_g = sin_alpha * cos_h - cos_alpha * sin_h, cos_g = cos_alpha * cos_h + sin_alpha * sin_h;
     double one_minus_cos_hat = 2.0 * sin_h * sin_h, sin_hat = 2.0 * sin_h * cos_h;
     double sin_alpha_minus_hat = sin_g * cos_h - cos_g * sin_h;   /* sin(g - h) */
-    struct spherical_dvec ab = spherical_sub(st->a, st->b);
-    double one_minus_cos_c = 0.5 * spherical_dot(ab, ab);
+    struct dvec3 ab = dvec3_sub(st->a, st->b);
+    double one_minus_cos_c = 0.5 * dvec3_dot(ab, ab);
     double u = 2.0 * sin_h * sin_g;
     double v = 2.0 * sin_h * cos_g - sin_alpha * one_minus_cos_c;
     double den = sin_alpha * (one_minus_cos_hat + sin_alpha * sin_alpha_minus_hat * one_minus_cos_c);
@@ -211,25 +189,25 @@ static inline struct spherical_dvec spherical_triangle_sample_d(const struct sph
     /* [0, 2] but for rounding; NaN (a degenerate angle) gives the vertex a itself. */
     one_minus_q = one_minus_q > 0.0 ? (one_minus_q < 2.0 ? one_minus_q : 2.0) : 0.0;
     double q = 1.0 - one_minus_q, sin_q = sqrt(one_minus_q * (2.0 - one_minus_q));
-    struct spherical_dvec c_hat = spherical_add(spherical_scale(st->a, q), spherical_scale(c_tangent, sin_q));
+    struct dvec3 c_hat = dvec3_add(dvec3_scale(st->a, q), dvec3_scale(c_tangent, sin_q));
     /* Second stage: on the arc from b to C', the cosine z of the distance to b uniform between
      * 1 and b . C' (the strip of the sub-triangle at distance theta from b is as wide as
      * sin theta). 1 - z = u2 (1 - b . C') with 1 - b . C' = |C' - b|^2 / 2, and sin = sqrt((1 - z)
      * (1 + z)): no cancellation when C' is close to b. */
-    struct spherical_dvec cb = spherical_sub(c_hat, st->b);
-    double one_minus_z = (double)u2 * 0.5 * spherical_dot(cb, cb);
+    struct dvec3 cb = dvec3_sub(c_hat, st->b);
+    double one_minus_z = (double)u2 * 0.5 * dvec3_dot(cb, cb);
     double z = 1.0 - one_minus_z;
     double sin_z2 = one_minus_z * (2.0 - one_minus_z);   /* >= 0 but for rounding (fmax is a libm call) */
     double sin_z = sqrt(sin_z2 > 0.0 ? sin_z2 : 0.0);
-    struct spherical_dvec c_off_b = spherical_sub(c_hat, spherical_scale(st->b, spherical_dot(c_hat, st->b)));
-    struct spherical_dvec tangent = spherical_unit(c_off_b, NULL);
-    return spherical_add(spherical_scale(st->b, z), spherical_scale(tangent, sin_z));
+    struct dvec3 c_off_b = dvec3_sub(c_hat, dvec3_scale(st->b, dvec3_dot(c_hat, st->b)));
+    struct dvec3 tangent = spherical_unit(c_off_b, NULL);
+    return dvec3_add(dvec3_scale(st->b, z), dvec3_scale(tangent, sin_z));
 }
 
 /* The same direction in float (unit length to float rounding). */
 static inline struct vec3 spherical_triangle_sample(const struct spherical_triangle *st, float u1, float u2)
 {
-    struct spherical_dvec d = spherical_triangle_sample_d(st, u1, u2);
+    struct dvec3 d = spherical_triangle_sample_d(st, u1, u2);
     return vec3_make((float)d.x, (float)d.y, (float)d.z);
 }
 
@@ -237,11 +215,11 @@ static inline struct vec3 spherical_triangle_sample(const struct spherical_trian
  * three great circles; the edges count as inside). */
 static inline bool spherical_triangle_contains(const struct spherical_triangle *st, struct vec3 dir)
 {
-    struct spherical_dvec d = spherical_dvec(dir);
+    struct dvec3 d = dvec3_from(dir);
     double w = st->triple < 0.0 ? -1.0 : 1.0;
-    return w * spherical_dot(d, spherical_cross(st->a, st->b)) >= 0.0 &&
-           w * spherical_dot(d, spherical_cross(st->b, st->c)) >= 0.0 &&
-           w * spherical_dot(d, spherical_cross(st->c, st->a)) >= 0.0;
+    return w * dvec3_dot(d, dvec3_cross(st->a, st->b)) >= 0.0 &&
+           w * dvec3_dot(d, dvec3_cross(st->b, st->c)) >= 0.0 &&
+           w * dvec3_dot(d, dvec3_cross(st->c, st->a)) >= 0.0;
 }
 
 /* The pdf of spherical_triangle_sample towards `dir`: 1 / Omega inside, 0 outside. */
@@ -255,23 +233,23 @@ static inline double spherical_triangle_pdf_w_toward(const struct spherical_tria
  * the two antipodal crossings, the one on the side of a + c); u1 is the sub-triangle (a, b, C')'s
  * share of the solid angle and u2 = (1 - b . dir) / (1 - b . C'), both differences of cosines
  * again taken as squared chords. */
-static inline void spherical_triangle_invert_d(const struct spherical_triangle *st, struct spherical_dvec dir,
+static inline void spherical_triangle_invert_d(const struct spherical_triangle *st, struct dvec3 dir,
                                                double *u1, double *u2)
 {
-    struct spherical_dvec d = spherical_unit(dir, NULL);
-    struct spherical_dvec c_hat = spherical_cross(spherical_cross(st->b, d), spherical_cross(st->a, st->c));
+    struct dvec3 d = spherical_unit(dir, NULL);
+    struct dvec3 c_hat = dvec3_cross(dvec3_cross(st->b, d), dvec3_cross(st->a, st->c));
     double len;
     c_hat = spherical_unit(c_hat, &len);
     if (!(len > 0.0)) {   /* dir is b (or the sub-triangle is the whole one's edge ab) */
         *u1 = *u2 = 0.0;
         return;
     }
-    if (spherical_dot(c_hat, spherical_add(st->a, st->c)) < 0.0) c_hat = spherical_scale(c_hat, -1.0);
-    struct spherical_dvec e1 = spherical_sub(st->b, st->a), e2 = spherical_sub(c_hat, st->a);
+    if (dvec3_dot(c_hat, dvec3_add(st->a, st->c)) < 0.0) c_hat = dvec3_scale(c_hat, -1.0);
+    struct dvec3 e1 = dvec3_sub(st->b, st->a), e2 = dvec3_sub(c_hat, st->a);
     double sub = spherical_solid_angle_edges(st->a, e1, e2, NULL, NULL);
-    struct spherical_dvec db = spherical_sub(d, st->b), cb = spherical_sub(c_hat, st->b);
-    double chord2 = spherical_dot(cb, cb);
-    double x1 = sub / st->solid_angle, x2 = chord2 > 0.0 ? spherical_dot(db, db) / chord2 : 0.0;
+    struct dvec3 db = dvec3_sub(d, st->b), cb = dvec3_sub(c_hat, st->b);
+    double chord2 = dvec3_dot(cb, cb);
+    double x1 = sub / st->solid_angle, x2 = chord2 > 0.0 ? dvec3_dot(db, db) / chord2 : 0.0;
     *u1 = x1 < 0.0 ? 0.0 : (x1 > 1.0 ? 1.0 : x1);
     *u2 = x2 < 0.0 ? 0.0 : (x2 > 1.0 ? 1.0 : x2);
 }
@@ -280,7 +258,7 @@ static inline void spherical_triangle_invert_d(const struct spherical_triangle *
 static inline void spherical_triangle_invert(const struct spherical_triangle *st, struct vec3 dir, float *u1, float *u2)
 {
     double x1, x2;
-    spherical_triangle_invert_d(st, spherical_dvec(dir), &x1, &x2);
+    spherical_triangle_invert_d(st, dvec3_from(dir), &x1, &x2);
     *u1 = (float)x1;
     *u2 = (float)x2;
 }

@@ -6,6 +6,7 @@
 
 #include <math.h>
 
+#include "core/dvec.h"
 #include "material/fresnel.h"
 #include "material/microfacet.h"
 #include "scene/scene.h"
@@ -13,31 +14,16 @@
 
 #define MF_N (2 * MANIFOLD_MAX_CHAIN)
 
-struct dv3 { double x, y, z; };
-
-static inline struct dv3 dv(struct vec3 a) { return (struct dv3){a.x, a.y, a.z}; }
-static inline struct vec3 dv_f(struct dv3 a) { return vec3_make((float)a.x, (float)a.y, (float)a.z); }
-static inline struct dv3 dv_add(struct dv3 a, struct dv3 b) { return (struct dv3){a.x + b.x, a.y + b.y, a.z + b.z}; }
-static inline struct dv3 dv_sub(struct dv3 a, struct dv3 b) { return (struct dv3){a.x - b.x, a.y - b.y, a.z - b.z}; }
-static inline struct dv3 dv_scale(struct dv3 a, double s) { return (struct dv3){a.x * s, a.y * s, a.z * s}; }
-static inline struct dv3 dv_madd(struct dv3 a, struct dv3 b, double s) { return dv_add(a, dv_scale(b, s)); }
-static inline double dv_dot(struct dv3 a, struct dv3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
-static inline struct dv3 dv_cross(struct dv3 a, struct dv3 b)
-{
-    return (struct dv3){a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
-}
-static inline double dv_len(struct dv3 a) { return sqrt(dv_dot(a, a)); }
-static inline struct dv3 dv_norm(struct dv3 a) { return dv_scale(a, 1.0 / dv_len(a)); }
 
 /* A mesh vertex's world position and normal in double. Most shapes sit in world space (identity
  * transform), where the transform is skipped: x * 1 + 0 is x exactly, so nothing changes. */
-static inline struct dv3 mf_world_point(const struct accel *accel, uint32_t shape, struct vec3 p)
+static inline struct dvec3 mf_world_point(const struct accel *accel, uint32_t shape, struct vec3 p)
 {
-    return dv(accel_shape_is_identity(accel, shape) ? p : xform_point(accel_shape_to_world(accel, shape), p));
+    return dvec3_from(accel_shape_is_identity(accel, shape) ? p : xform_point(accel_shape_to_world(accel, shape), p));
 }
-static inline struct dv3 mf_world_normal(const struct accel *accel, uint32_t shape, struct vec3 n)
+static inline struct dvec3 mf_world_normal(const struct accel *accel, uint32_t shape, struct vec3 n)
 {
-    return dv(accel_shape_is_identity(accel, shape) ? n : xform_normal(accel_shape_to_object(accel, shape), n));
+    return dvec3_from(accel_shape_is_identity(accel, shape) ? n : xform_normal(accel_shape_to_object(accel, shape), n));
 }
 
 /* First-order surface model around a vertex, in the vertex's own parameters (u, v):
@@ -46,9 +32,9 @@ static inline struct dv3 mf_world_normal(const struct accel *accel, uint32_t sha
  * triangle); spheres: n(u, v) = normalize(d + u t1 + v t2), p = c + r n (exact). */
 struct mf_geom {
     bool sphere;
-    struct dv3 p, dpdu, dpdv;
-    struct dv3 nt, dntu, dntv;   /* unnormalised normal, on the geometric front side */
-    struct dv3 c;
+    struct dvec3 p, dpdu, dpdv;
+    struct dvec3 nt, dntu, dntv;   /* unnormalised normal, on the geometric front side */
+    struct dvec3 c;
     double r;
 };
 
@@ -57,77 +43,77 @@ static bool mf_geom_of(const struct scene *scene, uint32_t shape, const struct m
     const struct shape *s = &scene->shapes[shape];
     const struct accel *accel = scene->accel;
     const struct xform *xf = accel_shape_to_world(accel, shape);
-    struct dv3 ng = dv(v->ng);
+    struct dvec3 ng = dvec3_from(v->ng);
     if (s->kind == SHAPE_MESH) {
         const uint32_t *tri = &s->indices[3 * v->prim];
-        struct dv3 P0 = mf_world_point(accel, shape, s->positions[tri[0]]);
-        struct dv3 P1 = mf_world_point(accel, shape, s->positions[tri[1]]);
-        struct dv3 P2 = mf_world_point(accel, shape, s->positions[tri[2]]);
+        struct dvec3 P0 = mf_world_point(accel, shape, s->positions[tri[0]]);
+        struct dvec3 P1 = mf_world_point(accel, shape, s->positions[tri[1]]);
+        struct dvec3 P2 = mf_world_point(accel, shape, s->positions[tri[2]]);
         double b1 = v->bd[0], b2 = v->bd[1], b0 = 1.0 - b1 - b2;
         g->sphere = false;
-        g->dpdu = dv_sub(P1, P0);
-        g->dpdv = dv_sub(P2, P0);
-        g->p = dv_madd(dv_madd(P0, g->dpdu, b1), g->dpdv, b2);
+        g->dpdu = dvec3_sub(P1, P0);
+        g->dpdv = dvec3_sub(P2, P0);
+        g->p = dvec3_madd(dvec3_madd(P0, g->dpdu, b1), g->dpdv, b2);
         g->nt = ng;
-        g->dntu = g->dntv = (struct dv3){0, 0, 0};
+        g->dntu = g->dntv = (struct dvec3){0, 0, 0};
         if (s->normals) {
-            struct dv3 N[3];
+            struct dvec3 N[3];
             for (int i = 0; i < 3; i++) N[i] = mf_world_normal(accel, shape, s->normals[tri[i]]);
-            struct dv3 nt = dv_add(dv_add(dv_scale(N[0], b0), dv_scale(N[1], b1)), dv_scale(N[2], b2));
-            if (dv_dot(nt, nt) > 1e-12) {
+            struct dvec3 nt = dvec3_add(dvec3_add(dvec3_scale(N[0], b0), dvec3_scale(N[1], b1)), dvec3_scale(N[2], b2));
+            if (dvec3_dot(nt, nt) > 1e-12) {
                 /* As surface_from_hit: the shading normal is kept on the geometric front side. */
-                double sg = dv_dot(nt, ng) < 0.0 ? -1.0 : 1.0;
-                g->nt = dv_scale(nt, sg);
-                g->dntu = dv_scale(dv_sub(N[1], N[0]), sg);
-                g->dntv = dv_scale(dv_sub(N[2], N[0]), sg);
+                double sg = dvec3_dot(nt, ng) < 0.0 ? -1.0 : 1.0;
+                g->nt = dvec3_scale(nt, sg);
+                g->dntu = dvec3_scale(dvec3_sub(N[1], N[0]), sg);
+                g->dntv = dvec3_scale(dvec3_sub(N[2], N[0]), sg);
             }
         }
-        struct dv3 cr = dv_cross(g->dpdu, g->dpdv);
-        return dv_dot(cr, cr) > 0.0;
+        struct dvec3 cr = dvec3_cross(g->dpdu, g->dpdv);
+        return dvec3_dot(cr, cr) > 0.0;
     }
     /* Sphere under a similarity transform (rotation, uniform scale, translation). */
-    struct dv3 ex = dv(xform_vector(xf, vec3_make(1, 0, 0))), ey = dv(xform_vector(xf, vec3_make(0, 1, 0)));
-    double sx = dv_len(ex), sy = dv_len(ey);
-    if (!(fabs(sx - sy) <= 1e-5 * sx) || fabs(dv_dot(ex, ey)) > 1e-5 * sx * sy) return false;
+    struct dvec3 ex = dvec3_from(xform_vector(xf, vec3_make(1, 0, 0))), ey = dvec3_from(xform_vector(xf, vec3_make(0, 1, 0)));
+    double sx = dvec3_length(ex), sy = dvec3_length(ey);
+    if (!(fabs(sx - sy) <= 1e-5 * sx) || fabs(dvec3_dot(ex, ey)) > 1e-5 * sx * sy) return false;
     g->sphere = true;
-    g->c = dv(xform_point(xf, s->center));
+    g->c = dvec3_from(xform_point(xf, s->center));
     g->r = (double)s->radius * sx;
-    struct dv3 d = dv_norm(dv_sub((struct dv3){v->pd[0], v->pd[1], v->pd[2]}, g->c));
-    struct frame f = frame_from_normal(dv_f(d));
+    struct dvec3 d = dvec3_normalize(dvec3_sub((struct dvec3){v->pd[0], v->pd[1], v->pd[2]}, g->c));
+    struct frame f = frame_from_normal(dvec3_to_float(d));
     g->nt = d;
-    g->dntu = dv(f.s);
-    g->dntv = dv(f.t);
-    g->p = dv_madd(g->c, d, g->r);
-    g->dpdu = dv_scale(g->dntu, g->r);
-    g->dpdv = dv_scale(g->dntv, g->r);
+    g->dntu = dvec3_from(f.s);
+    g->dntv = dvec3_from(f.t);
+    g->p = dvec3_madd(g->c, d, g->r);
+    g->dpdu = dvec3_scale(g->dntu, g->r);
+    g->dpdv = dvec3_scale(g->dntv, g->r);
     return true;
 }
 
 /* The model at parameter offset (du, dv): position and unit normal. */
-static void mf_geom_eval(const struct mf_geom *g, double du, double dvv, struct dv3 *p, struct dv3 *n)
+static void mf_geom_eval(const struct mf_geom *g, double du, double dvv, struct dvec3 *p, struct dvec3 *n)
 {
-    struct dv3 nt = dv_madd(dv_madd(g->nt, g->dntu, du), g->dntv, dvv);
-    *n = dv_norm(nt);
-    *p = g->sphere ? dv_madd(g->c, *n, g->r) : dv_madd(dv_madd(g->p, g->dpdu, du), g->dpdv, dvv);
+    struct dvec3 nt = dvec3_madd(dvec3_madd(g->nt, g->dntu, du), g->dntv, dvv);
+    *n = dvec3_normalize(nt);
+    *p = g->sphere ? dvec3_madd(g->c, *n, g->r) : dvec3_madd(dvec3_madd(g->p, g->dpdu, du), g->dpdv, dvv);
 }
 
 /* Specular scattering of wo (unit, pointing away from the surface) about unit normal n. */
-static bool mf_scatter(struct dv3 wo, struct dv3 n, enum manifold_event ev, double ior, struct dv3 *out)
+static bool mf_scatter(struct dvec3 wo, struct dvec3 n, enum manifold_event ev, double ior, struct dvec3 *out)
 {
-    double c = dv_dot(wo, n);
+    double c = dvec3_dot(wo, n);
     if (ev == MANIFOLD_REFLECT) {
-        *out = dv_sub(dv_scale(n, 2.0 * c), wo);
+        *out = dvec3_sub(dvec3_scale(n, 2.0 * c), wo);
         return true;
     }
     /* As the smooth dielectric: the side of wo on the shading normal decides inside/outside. */
     bool outside = c > 0.0;
     double eta = outside ? ior : 1.0 / ior;
-    struct dv3 nn = outside ? n : dv_scale(n, -1.0);
+    struct dvec3 nn = outside ? n : dvec3_scale(n, -1.0);
     double ci = fabs(c);
     double sin2t = (1.0 - ci * ci) / (eta * eta);
     if (!(sin2t < 1.0)) return false;
     double ct = sqrt(1.0 - sin2t);
-    *out = dv_add(dv_scale(wo, -1.0 / eta), dv_scale(nn, ci / eta - ct));
+    *out = dvec3_add(dvec3_scale(wo, -1.0 / eta), dvec3_scale(nn, ci / eta - ct));
     return true;
 }
 
@@ -143,30 +129,30 @@ struct mf_dirs { double ca, sa, xa, ya, cb, sb, xb, yb; };
  * normal, the frame (s, t) built from the tangent T, |T - n (n·T)| and n·T, the scattered
  * direction, and the spherical coordinates. */
 struct mf_vstate {
-    struct dv3 wo, wi, n, s, t, pred, tangent;
+    struct dvec3 wo, wi, n, s, t, pred, tangent;
     double lo, li, ls, tn;
     struct mf_dirs d;
 };
 
-static bool mf_vertex_eval(struct dv3 prev, struct dv3 p, struct dv3 n, struct dv3 next, struct dv3 tangent,
+static bool mf_vertex_eval(struct dvec3 prev, struct dvec3 p, struct dvec3 n, struct dvec3 next, struct dvec3 tangent,
                            enum manifold_event ev, double ior, struct mf_vstate *st)
 {
-    struct dv3 wo = dv_sub(prev, p), wi = dv_sub(next, p);
-    double lo = dv_len(wo), li = dv_len(wi);
+    struct dvec3 wo = dvec3_sub(prev, p), wi = dvec3_sub(next, p);
+    double lo = dvec3_length(wo), li = dvec3_length(wi);
     if (!(lo > 0.0) || !(li > 0.0)) return false;
-    wo = dv_scale(wo, 1.0 / lo);
-    wi = dv_scale(wi, 1.0 / li);
-    struct dv3 pred;
+    wo = dvec3_scale(wo, 1.0 / lo);
+    wi = dvec3_scale(wi, 1.0 / li);
+    struct dvec3 pred;
     if (!mf_scatter(wo, n, ev, ior, &pred)) return false;
-    double tn = dv_dot(n, tangent);
-    struct dv3 s = dv_sub(tangent, dv_scale(n, tn));
-    double ls = dv_len(s);
+    double tn = dvec3_dot(n, tangent);
+    struct dvec3 s = dvec3_sub(tangent, dvec3_scale(n, tn));
+    double ls = dvec3_length(s);
     if (!(ls > 0.0)) return false;
-    s = dv_scale(s, 1.0 / ls);
-    struct dv3 t = dv_cross(n, s);
+    s = dvec3_scale(s, 1.0 / ls);
+    struct dvec3 t = dvec3_cross(n, s);
     struct mf_dirs *d = &st->d;
-    d->ca = dv_dot(wi, s), d->xa = dv_dot(wi, t), d->ya = dv_dot(wi, n);
-    d->cb = dv_dot(pred, s), d->xb = dv_dot(pred, t), d->yb = dv_dot(pred, n);
+    d->ca = dvec3_dot(wi, s), d->xa = dvec3_dot(wi, t), d->ya = dvec3_dot(wi, n);
+    d->cb = dvec3_dot(pred, s), d->xb = dvec3_dot(pred, t), d->yb = dvec3_dot(pred, n);
     d->sa = sqrt(d->xa * d->xa + d->ya * d->ya);
     d->sb = sqrt(d->xb * d->xb + d->yb * d->yb);
     st->wo = wo, st->wi = wi, st->n = n, st->s = s, st->t = t, st->pred = pred, st->tangent = tangent;
@@ -203,20 +189,20 @@ static void mf_dirs_dc(const struct mf_dirs *d0, const struct mf_dirs *d1, doubl
 
 /* The constraint's state at every vertex of the chain for positions p[] and unit normals n[]
  * (frames from g[]), ends x1, xe. */
-static bool mf_eval_states(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct dv3 *p,
-                           const struct dv3 *n, const struct mf_geom *g, struct mf_vstate *S)
+static bool mf_eval_states(const struct manifold_chain *chain, struct dvec3 x1, struct dvec3 xe, const struct dvec3 *p,
+                           const struct dvec3 *n, const struct mf_geom *g, struct mf_vstate *S)
 {
     uint32_t k = chain->length;
     for (uint32_t i = 0; i < k; i++) {
-        struct dv3 prev = i == 0 ? x1 : p[i - 1], next = i + 1 == k ? xe : p[i + 1];
+        struct dvec3 prev = i == 0 ? x1 : p[i - 1], next = i + 1 == k ? xe : p[i + 1];
         if (!mf_vertex_eval(prev, p[i], n[i], next, g[i].dpdu, chain->events[i], chain->ior, &S[i])) return false;
     }
     return true;
 }
 
 /* The same, keeping only the spherical coordinates. */
-static bool mf_eval_dirs(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct dv3 *p,
-                         const struct dv3 *n, const struct mf_geom *g, struct mf_dirs *D)
+static bool mf_eval_dirs(const struct manifold_chain *chain, struct dvec3 x1, struct dvec3 xe, const struct dvec3 *p,
+                         const struct dvec3 *n, const struct mf_geom *g, struct mf_dirs *D)
 {
     struct mf_vstate S[MANIFOLD_MAX_CHAIN];
     if (!mf_eval_states(chain, x1, xe, p, n, g, S)) return false;
@@ -233,10 +219,10 @@ static double mf_norm(const double *C, uint32_t n)
 
 /* C at the chain's surface models' base points, and the vertices' states it came from (S: the
  * derivatives there start from them, analytic or forward differences). */
-static bool mf_eval_at(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct mf_geom *g,
+static bool mf_eval_at(const struct manifold_chain *chain, struct dvec3 x1, struct dvec3 xe, const struct mf_geom *g,
                        double *C, struct mf_vstate *S)
 {
-    struct dv3 p[MANIFOLD_MAX_CHAIN] = {0}, n[MANIFOLD_MAX_CHAIN] = {0};
+    struct dvec3 p[MANIFOLD_MAX_CHAIN] = {0}, n[MANIFOLD_MAX_CHAIN] = {0};
     for (uint32_t i = 0; i < chain->length; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
     if (!mf_eval_states(chain, x1, xe, p, n, g, S)) return false;
     for (uint32_t i = 0; i < chain->length; i++) mf_dirs_c(&S[i].d, &C[2 * i]);
@@ -249,23 +235,23 @@ static bool mf_eval_at(const struct manifold_chain *chain, struct dv3 x1, struct
  * truncation ~5e-8 and rounding ~1e-8 relative; they start from S0, the states at the base
  * points (mf_eval_at's, computed with the same numbers). Central ones (`central`, S0 unused),
  * step 1e-6: truncation ~1e-12, rounding ~1e-10. */
-static bool mf_jacobian(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe, const struct mf_geom *g,
+static bool mf_jacobian(const struct manifold_chain *chain, struct dvec3 x1, struct dvec3 xe, const struct mf_geom *g,
                         bool central, const struct mf_vstate *S0, double J[MF_N][MF_N])
 {
     uint32_t k = chain->length;
-    struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
+    struct dvec3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
     struct mf_dirs Dp[MANIFOLD_MAX_CHAIN], Dm[MANIFOLD_MAX_CHAIN];
     for (uint32_t i = 0; i < k; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
     const double rel = central ? 1e-6 : 1e-7;
     for (uint32_t j = 0; j < k; j++) {
-        struct dv3 prev = j == 0 ? x1 : p[j - 1], next = j + 1 == k ? xe : p[j + 1];
-        double l0 = dv_len(dv_sub(prev, p[j])), l1 = dv_len(dv_sub(next, p[j]));
+        struct dvec3 prev = j == 0 ? x1 : p[j - 1], next = j + 1 == k ? xe : p[j + 1];
+        double l0 = dvec3_length(dvec3_sub(prev, p[j])), l1 = dvec3_length(dvec3_sub(next, p[j]));
         double seg = l0 < l1 ? l0 : l1;
         for (int a = 0; a < 2; a++) {
-            double lt = dv_len(a == 0 ? g[j].dpdu : g[j].dpdv);
+            double lt = dvec3_length(a == 0 ? g[j].dpdu : g[j].dpdv);
             if (!(lt > 0.0) || !(seg > 0.0)) return false;
             double h = rel * seg / lt;
-            struct dv3 pj = p[j], nj = n[j];
+            struct dvec3 pj = p[j], nj = n[j];
             mf_geom_eval(&g[j], a == 0 ? h : 0.0, a == 1 ? h : 0.0, &p[j], &n[j]);
             bool ok = mf_eval_dirs(chain, x1, xe, p, n, g, Dp);
             if (central) {
@@ -289,15 +275,15 @@ static bool mf_jacobian(const struct manifold_chain *chain, struct dv3 x1, struc
 /* The part of v orthogonal to the unit vector w, over l. For a unit direction w = (q - p) / l,
  * g·dw = (that of g)·dq: a gradient with respect to w becomes one with respect to q (and its
  * negative one with respect to p). */
-static inline struct dv3 mf_ortho(struct dv3 w, struct dv3 v, double l)
+static inline struct dvec3 mf_ortho(struct dvec3 w, struct dvec3 v, double l)
 {
-    return dv_scale(dv_madd(v, w, -dv_dot(w, v)), 1.0 / l);
+    return dvec3_scale(dvec3_madd(v, w, -dvec3_dot(w, v)), 1.0 / l);
 }
 
 /* A vector given by its components in a vertex's frame (s, t, n). */
-static inline struct dv3 mf_from_frame(const struct mf_vstate *st, double gs, double gt, double gn)
+static inline struct dvec3 mf_from_frame(const struct mf_vstate *st, double gs, double gt, double gn)
 {
-    return dv_add(dv_add(dv_scale(st->s, gs), dv_scale(st->t, gt)), dv_scale(st->n, gn));
+    return dvec3_add(dvec3_add(dvec3_scale(st->s, gs), dvec3_scale(st->t, gt)), dvec3_scale(st->n, gn));
 }
 
 /* The gradients of a unit direction's spherical coordinates, θ about the pole s (row 0) and φ =
@@ -324,7 +310,7 @@ static void mf_angles_grad(double c, double sn, double x, double y, double tau, 
  * neighbouring vertex or the end point), n[r] with respect to the unit normal (its component
  * along n left out: dn ⊥ n). Moving the vertex itself by dp with its normal by dn changes C_i by
  * n·dn - (prev + next)·dp. */
-struct mf_vgrad { struct dv3 prev[2], next[2], n[2]; };
+struct mf_vgrad { struct dvec3 prev[2], next[2], n[2]; };
 
 /* The chain rule through the angles, the frame and the scattering of this constraint (Zeltner
  * et al. 2020 §4; Jakob & Marschner 2012 §4 take the derivatives of their half-vector
@@ -337,7 +323,7 @@ static void mf_vertex_grad(const struct mf_vstate *st, enum manifold_event ev, d
     double ga[2][3], gb[2][3], fa[2][2], fb[2][2];
     mf_angles_grad(d->ca, d->sa, d->xa, d->ya, tau, ga, fa);
     mf_angles_grad(d->cb, d->sb, d->xb, d->yb, tau, gb, fb);
-    const double wo[3] = {dv_dot(st->wo, st->s), dv_dot(st->wo, st->t), dv_dot(st->wo, st->n)};
+    const double wo[3] = {dvec3_dot(st->wo, st->s), dvec3_dot(st->wo, st->t), dvec3_dot(st->wo, st->n)};
     /* The scattered direction moves as dpred = -dwo / η + μ dn + m n (n·dwo + wo·dn). Reflection
      * (r = 2 (wo·n) n - wo): η = 1, μ = 2 wo·n, m = 2. Refraction (mf_scatter: nn = σ n the normal
      * on wo's side, ci = wo·nn, η the index ratio across it, r = -wo / η + nn (ci / η - ct) with
@@ -357,7 +343,7 @@ static void mf_vertex_grad(const struct mf_vstate *st, enum manifold_event ev, d
         double pw = wo[0] * gwo[0] + wo[1] * gwo[1] + wo[2] * gwo[2], il = -1.0 / st->lo;
         G->prev[r] = mf_from_frame(st, (gwo[0] - pw * wo[0]) * il, (gwo[1] - pw * wo[1]) * il,
                                    (gwo[2] - pw * wo[2]) * il);
-        G->next[r] = dv_scale(mf_from_frame(st, ga[r][0], ga[r][1], ga[r][2]), 1.0 / st->li);
+        G->next[r] = dvec3_scale(mf_from_frame(st, ga[r][0], ga[r][1], ga[r][2]), 1.0 / st->li);
         /* By n: the frame under both directions, and the scattering through pred. */
         double ns = fa[r][0] - fb[r][0] - (mu * gb[r][0] + m * gb[r][2] * wo[0]);
         double nt = fa[r][1] - fb[r][1] - (mu * gb[r][1] + m * gb[r][2] * wo[1]);
@@ -371,17 +357,17 @@ static void mf_vertex_grad(const struct mf_vstate *st, enum manifold_event ev, d
  * end point only through the last vertex's wi), so J is block tridiagonal and B nonzero in the
  * last block row. */
 static bool mf_derivatives(const struct manifold_chain *chain, const struct mf_geom *g, const struct mf_vstate *S,
-                           double J[MF_N][MF_N], const struct dv3 *e, double B[MF_N][2])
+                           double J[MF_N][MF_N], const struct dvec3 *e, double B[MF_N][2])
 {
     const uint32_t k = chain->length;
-    struct dv3 dp[MANIFOLD_MAX_CHAIN][2], dn[MANIFOLD_MAX_CHAIN][2];
+    struct dvec3 dp[MANIFOLD_MAX_CHAIN][2], dn[MANIFOLD_MAX_CHAIN][2];
     for (uint32_t i = 0; i < k; i++) {
         /* n = ñ / |ñ|, dn = (dñ - n (n·dñ)) / |ñ|; a sphere's point follows its normal (p = c + r n),
          * a triangle's is linear in (u, v). */
-        double len = dv_len(g[i].nt);
+        double len = dvec3_length(g[i].nt);
         for (int a = 0; a < 2; a++) {
             dn[i][a] = mf_ortho(S[i].n, a == 0 ? g[i].dntu : g[i].dntv, len);
-            dp[i][a] = g[i].sphere ? dv_scale(dn[i][a], g[i].r) : a == 0 ? g[i].dpdu : g[i].dpdv;
+            dp[i][a] = g[i].sphere ? dvec3_scale(dn[i][a], g[i].r) : a == 0 ? g[i].dpdu : g[i].dpdv;
         }
     }
     double sum = 0.0;
@@ -389,19 +375,19 @@ static bool mf_derivatives(const struct manifold_chain *chain, const struct mf_g
         struct mf_vgrad G;
         mf_vertex_grad(&S[i], chain->events[i], chain->ior, &G);
         for (int r = 0; r < 2; r++) {
-            struct dv3 own = dv_add(G.prev[r], G.next[r]);
+            struct dvec3 own = dvec3_add(G.prev[r], G.next[r]);
             for (uint32_t j = 0; j < k; j++)
                 for (int a = 0; a < 2; a++) {
-                    double v = j == i       ? dv_dot(G.n[r], dn[i][a]) - dv_dot(own, dp[i][a])
-                               : j + 1 == i ? dv_dot(G.prev[r], dp[j][a])
-                               : j == i + 1 ? dv_dot(G.next[r], dp[j][a])
+                    double v = j == i       ? dvec3_dot(G.n[r], dn[i][a]) - dvec3_dot(own, dp[i][a])
+                               : j + 1 == i ? dvec3_dot(G.prev[r], dp[j][a])
+                               : j == i + 1 ? dvec3_dot(G.next[r], dp[j][a])
                                             : 0.0;
                     J[2 * i + r][2 * j + a] = v;
                     sum += fabs(v);
                 }
             if (e)
                 for (int a = 0; a < 2; a++) {
-                    B[2 * i + r][a] = i + 1 == k ? dv_dot(G.next[r], e[a]) : 0.0;
+                    B[2 * i + r][a] = i + 1 == k ? dvec3_dot(G.next[r], e[a]) : 0.0;
                     sum += fabs(B[2 * i + r][a]);
                 }
         }
@@ -411,17 +397,17 @@ static bool mf_derivatives(const struct manifold_chain *chain, const struct mf_g
 
 /* dC / d(end point) by central differences, step 1e-6 of the last segment (truncation ~1e-12,
  * rounding ~1e-10): what the analytic B is tested against. */
-static bool mf_end_differences(const struct manifold_chain *chain, struct dv3 x1, struct dv3 xe,
-                               const struct mf_geom *g, const struct dv3 *e, double B[MF_N][2])
+static bool mf_end_differences(const struct manifold_chain *chain, struct dvec3 x1, struct dvec3 xe,
+                               const struct mf_geom *g, const struct dvec3 *e, double B[MF_N][2])
 {
     const uint32_t k = chain->length;
-    struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
+    struct dvec3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
     for (uint32_t i = 0; i < k; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
-    double h = 1e-6 * dv_len(dv_sub(xe, p[k - 1]));
+    double h = 1e-6 * dvec3_length(dvec3_sub(xe, p[k - 1]));
     for (int a = 0; a < 2; a++) {
         struct mf_dirs Dp[MANIFOLD_MAX_CHAIN], Dm[MANIFOLD_MAX_CHAIN];
-        if (!mf_eval_dirs(chain, x1, dv_madd(xe, e[a], h), p, n, g, Dp) ||
-            !mf_eval_dirs(chain, x1, dv_madd(xe, e[a], -h), p, n, g, Dm))
+        if (!mf_eval_dirs(chain, x1, dvec3_madd(xe, e[a], h), p, n, g, Dp) ||
+            !mf_eval_dirs(chain, x1, dvec3_madd(xe, e[a], -h), p, n, g, Dm))
             return false;
         for (uint32_t i = 0; i < k; i++) {
             double dc[2];
@@ -434,11 +420,11 @@ static bool mf_end_differences(const struct manifold_chain *chain, struct dv3 x1
 }
 
 /* The end point's orthonormal tangent basis (area scale 1) of the light. */
-static void mf_end_frame(const struct manifold_ends *ends, struct dv3 e[2])
+static void mf_end_frame(const struct manifold_ends *ends, struct dvec3 e[2])
 {
     struct frame fe = frame_from_normal(vec3_normalize(ends->nge));
-    e[0] = dv(fe.s);
-    e[1] = dv(fe.t);
+    e[0] = dvec3_from(fe.s);
+    e[1] = dvec3_from(fe.t);
 }
 
 /* Solves A X = B in place (n x n, `m` right-hand sides in B's columns); Gaussian elimination
@@ -479,16 +465,16 @@ static bool mf_solve(uint32_t n, double A[MF_N][MF_N], double B[MF_N][2], uint32
     return true;
 }
 
-static inline struct dv3 mf_pd(const struct manifold_vertex *v) { return (struct dv3){v->pd[0], v->pd[1], v->pd[2]}; }
+static inline struct dvec3 mf_pd(const struct manifold_vertex *v) { return (struct dvec3){v->pd[0], v->pd[1], v->pd[2]}; }
 
 /* The first hit of the ray from `from` along `dir` (double), which must lie on the chain's
  * caster. Embree finds the primitive from the offset float ray; the point is then recomputed
  * in double on that primitive (triangle plane or sphere) from the unoffset double ray. */
-static bool mf_trace(const struct scene *scene, uint32_t shape, struct dv3 from, struct vec3 from_ng, struct dv3 dir,
+static bool mf_trace(const struct scene *scene, uint32_t shape, struct dvec3 from, struct vec3 from_ng, struct dvec3 dir,
                      struct manifold_vertex *v, struct ray_counters *rc)
 {
-    struct vec3 dirf = vec3_normalize(dv_f(dir));
-    struct vec3 org = surface_offset(dv_f(from), from_ng, dirf);
+    struct vec3 dirf = vec3_normalize(dvec3_to_float(dir));
+    struct vec3 org = surface_offset(dvec3_to_float(from), from_ng, dirf);
     struct hit h;
     if (!accel_intersect(scene->accel, org, dirf, 0.0f, INFINITY, &h, rc) || h.shape != shape) return false;
     struct surface s;
@@ -500,36 +486,36 @@ static bool mf_trace(const struct scene *scene, uint32_t shape, struct dv3 from,
     surface_point_code(scene, &h, &s, &v->b1, &v->b2);
     const struct shape *sh = &scene->shapes[shape];
     const struct xform *xf = accel_shape_to_world(scene->accel, shape);
-    dir = dv_norm(dir);
+    dir = dvec3_normalize(dir);
     if (sh->kind == SHAPE_MESH) {
         const uint32_t *tri = &sh->indices[3 * h.prim];
-        struct dv3 P0 = mf_world_point(scene->accel, shape, sh->positions[tri[0]]);
-        struct dv3 e1 = dv_sub(mf_world_point(scene->accel, shape, sh->positions[tri[1]]), P0);
-        struct dv3 e2 = dv_sub(mf_world_point(scene->accel, shape, sh->positions[tri[2]]), P0);
+        struct dvec3 P0 = mf_world_point(scene->accel, shape, sh->positions[tri[0]]);
+        struct dvec3 e1 = dvec3_sub(mf_world_point(scene->accel, shape, sh->positions[tri[1]]), P0);
+        struct dvec3 e2 = dvec3_sub(mf_world_point(scene->accel, shape, sh->positions[tri[2]]), P0);
         /* Möller-Trumbore in double (the hit may sit a rounding error outside the triangle). */
-        struct dv3 pv = dv_cross(dir, e2);
-        double det = dv_dot(e1, pv);
+        struct dvec3 pv = dvec3_cross(dir, e2);
+        double det = dvec3_dot(e1, pv);
         if (!(fabs(det) > 0.0)) return false;
-        struct dv3 tv = dv_sub(from, P0), qv = dv_cross(tv, e1);
-        double b1 = dv_dot(tv, pv) / det, b2 = dv_dot(dir, qv) / det, t = dv_dot(e2, qv) / det;
+        struct dvec3 tv = dvec3_sub(from, P0), qv = dvec3_cross(tv, e1);
+        double b1 = dvec3_dot(tv, pv) / det, b2 = dvec3_dot(dir, qv) / det, t = dvec3_dot(e2, qv) / det;
         if (!(t > 0.0)) return false;
-        struct dv3 p = dv_madd(from, dir, t);
+        struct dvec3 p = dvec3_madd(from, dir, t);
         v->bd[0] = b1;
         v->bd[1] = b2;
         v->pd[0] = p.x, v->pd[1] = p.y, v->pd[2] = p.z;
         return true;
     }
-    struct dv3 c = dv(xform_point(xf, sh->center));
-    double r = (double)sh->radius * dv_len(dv(xform_vector(xf, vec3_make(1, 0, 0))));
-    struct dv3 oc = dv_sub(from, c);
-    double b = dv_dot(oc, dir), q = dv_dot(oc, oc) - r * r, disc = b * b - q;
+    struct dvec3 c = dvec3_from(xform_point(xf, sh->center));
+    double r = (double)sh->radius * dvec3_length(dvec3_from(xform_vector(xf, vec3_make(1, 0, 0))));
+    struct dvec3 oc = dvec3_sub(from, c);
+    double b = dvec3_dot(oc, dir), q = dvec3_dot(oc, oc) - r * r, disc = b * b - q;
     if (!(disc >= 0.0)) disc = 0.0;
     double sq = sqrt(disc), t0 = -b - sq, t1 = -b + sq;
     /* The root Embree found (its distance from the float origin is within rounding of ours). */
-    double th = dv_len(dv_sub(dv(s.p), from));
+    double th = dvec3_length(dvec3_sub(dvec3_from(s.p), from));
     double t = fabs(t0 - th) < fabs(t1 - th) ? t0 : t1;
     if (!(t > 0.0)) return false;
-    struct dv3 p = dv_madd(from, dir, t);
+    struct dvec3 p = dvec3_madd(from, dir, t);
     v->pd[0] = p.x, v->pd[1] = p.y, v->pd[2] = p.z;
     v->bd[0] = v->b1, v->bd[1] = v->b2;
     return true;
@@ -538,20 +524,20 @@ static bool mf_trace(const struct scene *scene, uint32_t shape, struct dv3 from,
 bool manifold_seed_path(const struct scene *scene, const struct manifold_chain *chain, const struct manifold_ends *ends,
                         struct vec3 target, struct manifold_vertex *v, struct ray_counters *rc)
 {
-    struct dv3 from = dv(ends->x1);
+    struct dvec3 from = dvec3_from(ends->x1);
     struct vec3 from_ng = ends->ng1;
-    struct dv3 dir = dv_sub(dv(target), from);
-    if (!(dv_len(dir) > 0.0)) return false;
-    dir = dv_norm(dir);
+    struct dvec3 dir = dvec3_sub(dvec3_from(target), from);
+    if (!(dvec3_length(dir) > 0.0)) return false;
+    dir = dvec3_normalize(dir);
     for (uint32_t i = 0; i < chain->length; i++) {
         if (!mf_trace(scene, chain->shape, from, from_ng, dir, &v[i], rc)) return false;
         if (i + 1 < chain->length) {
             struct mf_geom g;
-            struct dv3 p, n, out;
+            struct dvec3 p, n, out;
             if (!mf_geom_of(scene, chain->shape, &v[i], &g)) return false;
             mf_geom_eval(&g, 0.0, 0.0, &p, &n);
-            if (!mf_scatter(dv_scale(dir, -1.0), n, chain->events[i], chain->ior, &out)) return false;
-            dir = dv_norm(out);
+            if (!mf_scatter(dvec3_scale(dir, -1.0), n, chain->events[i], chain->ior, &out)) return false;
+            dir = dvec3_normalize(out);
         }
         from = mf_pd(&v[i]);
         from_ng = v[i].ng;
@@ -567,7 +553,7 @@ double manifold_constraint_norm(const struct scene *scene, const struct manifold
     double C[MF_N];
     for (uint32_t i = 0; i < chain->length; i++)
         if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) return INFINITY;
-    if (!mf_eval_at(chain, dv(ends->x1), dv(ends->xe), g, C, S)) return INFINITY;
+    if (!mf_eval_at(chain, dvec3_from(ends->x1), dvec3_from(ends->xe), g, C, S)) return INFINITY;
     return mf_norm(C, 2 * chain->length);
 }
 
@@ -581,7 +567,7 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
                     struct ray_counters *rc)
 {
     const uint32_t k = chain->length, n2 = 2 * k;
-    const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
+    const struct dvec3 x1 = dvec3_from(ends->x1), xe = dvec3_from(ends->xe);
     struct mf_geom g[MANIFOLD_MAX_CHAIN] = {0};
     struct mf_vstate S[MANIFOLD_MAX_CHAIN];   /* the states C at g came from */
     double C[MF_N], step[MF_N][2];
@@ -625,13 +611,13 @@ static bool mf_walk(const struct scene *scene, const struct manifold_chain *chai
         struct mf_vstate Sn[MANIFOLD_MAX_CHAIN];
         double Cn[MF_N];
         bool moved = true;
-        struct dv3 from = x1;
+        struct dvec3 from = x1;
         struct vec3 from_ng = ends->ng1;
         for (uint32_t j = 0; j < k && moved; j++) {
-            struct dv3 target = dv_madd(dv_madd(g[j].p, g[j].dpdu, beta * step[2 * j][0]), g[j].dpdv,
+            struct dvec3 target = dvec3_madd(dvec3_madd(g[j].p, g[j].dpdu, beta * step[2 * j][0]), g[j].dpdv,
                                         beta * step[2 * j + 1][0]);
-            struct dv3 dir = dv_sub(target, from);
-            moved = dv_len(dir) > 0.0 && mf_trace(scene, chain->shape, from, from_ng, dir, &nv[j], rc) &&
+            struct dvec3 dir = dvec3_sub(target, from);
+            moved = dvec3_length(dir) > 0.0 && mf_trace(scene, chain->shape, from, from_ng, dir, &nv[j], rc) &&
                     mf_geom_of(scene, chain->shape, &nv[j], &ng_[j]);
             from = mf_pd(&nv[j]);
             from_ng = nv[j].ng;
@@ -703,7 +689,7 @@ bool manifold_check(const struct scene *scene, const struct manifold_chain *chai
         float dist = vec3_length(d);
         if (!(dist > 0.0f)) return false;
         struct manifold_vertex h;
-        if (!mf_trace(scene, chain->shape, dv(from), from_ng, dv(d), &h, rc)) return false;
+        if (!mf_trace(scene, chain->shape, dvec3_from(from), from_ng, dvec3_from(d), &h, rc)) return false;
         if (vec3_length(vec3_sub(h.p, v[i].p)) > 1e-4f * dist + 1e-6f) return false;
         struct vec3 next = i + 1 == chain->length ? ends->xe : v[i + 1].p;
         struct vec3 wo = vec3_normalize(vec3_sub(from, v[i].p)), wi = vec3_normalize(vec3_sub(next, v[i].p));
@@ -728,26 +714,26 @@ double manifold_geometry(const struct scene *scene, const struct manifold_chain 
     struct mf_geom g[MANIFOLD_MAX_CHAIN];
     for (uint32_t i = 0; i < k; i++)
         if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) return 0.0;
-    const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
+    const struct dvec3 x1 = dvec3_from(ends->x1), xe = dvec3_from(ends->xe);
     double C[MF_N], J[MF_N][MF_N], B[MF_N][2];
     struct mf_vstate S[MANIFOLD_MAX_CHAIN];
-    struct dv3 e[2];
+    struct dvec3 e[2];
     mf_end_frame(ends, e);
     if (!mf_eval_at(chain, x1, xe, g, C, S) || !mf_derivatives(chain, g, S, J, e, B)) return 0.0;
-    struct dv3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
+    struct dvec3 p[MANIFOLD_MAX_CHAIN], n[MANIFOLD_MAX_CHAIN];
     for (uint32_t i = 0; i < k; i++) mf_geom_eval(&g[i], 0.0, 0.0, &p[i], &n[i]);
     /* Implicit function theorem: d(u, v) / d(end) = -J^-1 dC/d(end); only x2's block matters,
      * and only through |det|, so the sign is left out. */
     if (!mf_solve(n2, J, B, 2)) return 0.0;
     double det = fabs(B[0][0] * B[1][1] - B[0][1] * B[1][0]);
-    struct dv3 w = dv_sub(p[0], x1);
-    double d2 = dv_dot(w, w);
-    w = dv_scale(w, 1.0 / sqrt(d2));
+    struct dvec3 w = dvec3_sub(p[0], x1);
+    double d2 = dvec3_dot(w, w);
+    w = dvec3_scale(w, 1.0 / sqrt(d2));
     /* Solid angle at x1 per parameter area at x2: |cos| dA / d² with dA = |dp/du × dp/dv| du dv
      * (geometric normal of the surface patch). */
-    struct dv3 cr = dv_cross(g[0].dpdu, g[0].dpdv);
-    double area = dv_len(cr);
-    double cosg = fabs(dv_dot(w, cr)) / area;
+    struct dvec3 cr = dvec3_cross(g[0].dpdu, g[0].dpdv);
+    double area = dvec3_length(cr);
+    double cosg = fabs(dvec3_dot(w, cr)) / area;
     double G = cosg / d2 * area * det;
     return isfinite(G) ? G : 0.0;
 }
@@ -785,7 +771,7 @@ struct vec3 manifold_throughput(const struct scene *scene, const struct manifold
 bool manifold_same(const struct manifold_vertex *a, const struct manifold_vertex *b, uint32_t length, float tol)
 {
     for (uint32_t i = 0; i < length; i++)
-        if (!(dv_len(dv_sub(mf_pd(&a[i]), mf_pd(&b[i]))) <= tol)) return false;
+        if (!(dvec3_length(dvec3_sub(mf_pd(&a[i]), mf_pd(&b[i]))) <= tol)) return false;
     return true;
 }
 
@@ -799,8 +785,8 @@ bool manifold_test_derivatives(const struct scene *scene, const struct manifold_
     if (k == 0 || k > MANIFOLD_MAX_CHAIN) return false;
     for (uint32_t i = 0; i < k; i++)
         if (!mf_geom_of(scene, chain->shape, &v[i], &g[i])) return false;
-    const struct dv3 x1 = dv(ends->x1), xe = dv(ends->xe);
-    struct dv3 e[2];
+    const struct dvec3 x1 = dvec3_from(ends->x1), xe = dvec3_from(ends->xe);
+    struct dvec3 e[2];
     mf_end_frame(ends, e);
     if (central_differences)
         return mf_jacobian(chain, x1, xe, g, true, NULL, J) && mf_end_differences(chain, x1, xe, g, e, B);

@@ -277,11 +277,11 @@ static bool light_sampler_sample_solid_angle(const struct light_entry *e, const 
 {
     *out = (struct light_sample){.shape = e->shape, .prim = e->prim, .material = e->material, .n = e->n,
                                  .solid_angle = true};
-    struct spherical_dvec dir = spherical_triangle_sample_d(st, u1, u2), n = spherical_dvec(e->n);
-    double t = spherical_dot(st->to_v0, n) / spherical_dot(dir, n);
+    struct dvec3 dir = spherical_triangle_sample_d(st, u1, u2), n = dvec3_from(e->n);
+    double t = dvec3_dot(st->to_v0, n) / dvec3_dot(dir, n);
     if (!(t > 0.0) || !isfinite(t)) return false;
-    struct spherical_dvec w = spherical_sub(spherical_scale(dir, t), st->to_v0);   /* p + t dir - p0 */
-    double b1 = spherical_dot(w, spherical_dvec(e->dual1)), b2 = spherical_dot(w, spherical_dvec(e->dual2));
+    struct dvec3 w = dvec3_sub(dvec3_scale(dir, t), st->to_v0);   /* p + t dir - p0 */
+    double b1 = dvec3_dot(w, dvec3_from(e->dual1)), b2 = dvec3_dot(w, dvec3_from(e->dual2));
     b1 = b1 > 0.0 ? b1 : 0.0;
     b2 = b2 > 0.0 ? b2 : 0.0;
     if (b1 + b2 > 1.0) {

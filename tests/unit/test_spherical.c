@@ -122,18 +122,18 @@ static double cells_z(const long counts[CELLS], const double share[CELLS], long 
 
 /* Barycentrics of the point where the ray p + t dir meets the plane of v0 + b1 e1 + b2 e2
  * (Cramer's rule in double). False when it misses the plane in front of p. */
-static bool plane_barycentrics(struct vec3 p, struct spherical_dvec dir, struct vec3 v0, struct vec3 e1,
+static bool plane_barycentrics(struct vec3 p, struct dvec3 dir, struct vec3 v0, struct vec3 e1,
                                struct vec3 e2, double *b1, double *b2, double *t_out)
 {
-    struct spherical_dvec de1 = spherical_dvec(e1), de2 = spherical_dvec(e2);
-    struct spherical_dvec pv = spherical_cross(dir, de2);
-    double det = spherical_dot(de1, pv);
+    struct dvec3 de1 = dvec3_from(e1), de2 = dvec3_from(e2);
+    struct dvec3 pv = dvec3_cross(dir, de2);
+    double det = dvec3_dot(de1, pv);
     if (det == 0.0) return false;
-    struct spherical_dvec tv = spherical_sub(spherical_dvec(p), spherical_dvec(v0));
-    struct spherical_dvec qv = spherical_cross(tv, de1);
-    *b1 = spherical_dot(tv, pv) / det;
-    *b2 = spherical_dot(dir, qv) / det;
-    double t = spherical_dot(de2, qv) / det;
+    struct dvec3 tv = dvec3_sub(dvec3_from(p), dvec3_from(v0));
+    struct dvec3 qv = dvec3_cross(tv, de1);
+    *b1 = dvec3_dot(tv, pv) / det;
+    *b2 = dvec3_dot(dir, qv) / det;
+    double t = dvec3_dot(de2, qv) / det;
     if (t_out) *t_out = t;
     return t > 0.0;
 }
@@ -152,7 +152,7 @@ static const struct tri_case tri_cases[] = {
 };
 
 /* (u1, u2) -> direction, optionally with u1 skewed to u1^1.02 (the negative control). */
-static struct spherical_dvec sample_dir(const struct spherical_triangle *st, float u1, float u2, bool skew)
+static struct dvec3 sample_dir(const struct spherical_triangle *st, float u1, float u2, bool skew)
 {
     if (skew) u1 = powf(u1, 1.02f);
     return spherical_triangle_sample_d(st, u1, u2);
@@ -198,7 +198,7 @@ static void test_warp_uniform_chi2(void)
 /* ---------------------------------------------------------------- the pdf's integral */
 
 /* Möller–Trumbore in double: does the ray from p along dir hit the triangle? */
-static bool ray_hits_triangle(struct vec3 p, struct spherical_dvec dir, struct vec3 v0, struct vec3 v1, struct vec3 v2)
+static bool ray_hits_triangle(struct vec3 p, struct dvec3 dir, struct vec3 v0, struct vec3 v1, struct vec3 v2)
 {
     double b1, b2;
     return plane_barycentrics(p, dir, v0, vec3_sub(v1, v0), vec3_sub(v2, v0), &b1, &b2, NULL) && b1 >= 0.0 &&
@@ -234,10 +234,10 @@ static void test_pdf_integrates_to_one(void)
             double u1 = rng_next_double(&r), u2 = rng_next_double(&r);
             double z = cone ? 1.0 - u1 * (1.0 - cos_max) : 1.0 - 2.0 * u1;
             double s = sqrt(fmax(0.0, 1.0 - z * z)), phi = 2.0 * M_PI * u2;
-            struct spherical_dvec local = {s * cos(phi), s * sin(phi), z};
-            struct spherical_dvec d = cone ? spherical_add(spherical_add(spherical_scale(spherical_dvec(f.s), local.x),
-                                                                         spherical_scale(spherical_dvec(f.t), local.y)),
-                                                           spherical_scale(spherical_dvec(f.n), local.z))
+            struct dvec3 local = {s * cos(phi), s * sin(phi), z};
+            struct dvec3 d = cone ? dvec3_add(dvec3_add(dvec3_scale(dvec3_from(f.s), local.x),
+                                                                         dvec3_scale(dvec3_from(f.t), local.y)),
+                                                           dvec3_scale(dvec3_from(f.n), local.z))
                                            : local;
             bool hit = ray_hits_triangle(tc->p, d, tc->v0, tc->v1, tc->v2);
             struct vec3 df = vec3_make((float)d.x, (float)d.y, (float)d.z);
@@ -285,8 +285,8 @@ static void test_sample_invert_round_trip(void)
             double worst = 0.0;
             for (int i = 0; i < 20000; i++) {
                 float u1 = rng_next_float(&r), u2 = rng_next_float(&r);
-                struct spherical_dvec d = spherical_triangle_sample_d(&st, u1, u2);
-                CHECK(fabs(spherical_dot(d, d) - 1.0) < 1e-12);
+                struct dvec3 d = spherical_triangle_sample_d(&st, u1, u2);
+                CHECK(fabs(dvec3_dot(d, d) - 1.0) < 1e-12);
                 double w1, w2;
                 spherical_triangle_invert_d(&st, d, &w1, &w2);
                 /* u2 is undefined where the arc b-C' has no length (u1 = 0). */
