@@ -419,7 +419,7 @@ static int cli_render(int argc, char **argv)
     const char *scene_path = NULL, *out_path = NULL, *method = method_default()->name;
     uint32_t width = 256, height = 256;
     struct pt_params p = reference_pt_defaults(width, height);
-    p.sampler = pt_own_defaults().sampler;  /* a still image is pt's, with pt's sampler */
+    p.sampler = pt_method_defaults().sampler;  /* a still image is pt's, with pt's sampler */
     bool half = false, json = false;
     uint32_t crop[4] = {0, 0, 0, 0};
     bool has_crop = false, has_frame = false, has_rr_depth = false, has_max_depth = false;

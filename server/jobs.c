@@ -192,7 +192,7 @@ static void jobs_run_reference(struct jobs *q, struct job *j)
     struct sms_params sms = sms_defaults();
     sms.bernoulli_cap = 0;
     if (j->ref_method == PROTOCOL_REFERENCE_SMS) p.sms = &sms;
-    else p.sampler = pt_own_defaults().sampler;  /* pt's reference, with pt's sampler */
+    else p.sampler = pt_method_defaults().sampler;  /* pt's reference, with pt's sampler */
     bool ok = true;
     for (uint32_t i = 0; ok && i < passes; i++) {
         if (atomic_load(&j->cancel) || !gate_enter(q->gate, false, &j->error)) {

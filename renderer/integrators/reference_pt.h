@@ -40,7 +40,7 @@ struct pt_params {
     bool nee;              /* next-event estimation + MIS (default); false = BSDF sampling only,
                               a second unbiased estimator that tests the first one's MIS weights */
     enum pt_sampler sampler;  /* where a path's random numbers come from (reference_pt_defaults: random, as
-                                 the other methods' paths; method pt's default is Sobol', pt_own_defaults) */
+                                 the other methods' paths; method pt's default is Sobol', pt_method_defaults) */
     enum pt_light_sampling light_sampling;  /* default PT_LIGHT_SAMPLING_AREA */
     unsigned threads;      /* 0 = all cores */
     const struct camera_desc *camera;  /* NULL = the scene's camera */

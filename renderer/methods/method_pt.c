@@ -3,7 +3,6 @@
  * and one continued stratified sequence with the Sobol' sampler (the default), so the session's
  * accumulation converges to the ground truth every other method is tested against. */
 #include <stddef.h>
-#include <string.h>
 
 #include "integrators/reference_pt.h"
 #include "methods/adapter.h"
@@ -18,11 +17,12 @@ METHOD_ENUM_IS_INT(enum pt_light_sampling);
 /* Depths of every path method: the same bound as the CLI's --max-depth. */
 #define PATH_MAX_DEPTH 1024
 
+/* The Sobol' sampler measured best at equal CPU time from 4 samples per pixel on (docs/benchmarks.md,
+ * "pt: the sampler"); sms and sms_ssp take no sampler and never read it. */
 struct pt_method_params pt_method_defaults(void)
 {
     return (struct pt_method_params){.spp = 1, .max_depth = 64, .rr_depth = 3, .nee = true, .subset = PT_SUBSET_ALL,
-                                     .sampler = PT_SAMPLER_RANDOM,
-                                     .light_sampling = PT_LIGHT_SAMPLING_AREA};
+                                     .sampler = PT_SAMPLER_SOBOL, .light_sampling = PT_LIGHT_SAMPLING_AREA};
 }
 
 bool pt_method_params_valid(const struct pt_method_params *p, struct err *err)
@@ -31,27 +31,7 @@ bool pt_method_params_valid(const struct pt_method_params *p, struct err *err)
     return true;
 }
 
-/* pt's own defaults: the path methods' with the Sobol' sampler, which measured best at equal CPU
- * time from 4 samples per pixel on (docs/benchmarks.md, "pt's Sobol' sampler"); the other path
- * methods take no sampler. */
-struct pt_method_params pt_own_defaults(void)
-{
-    /* Field by field into a zeroed block: parameter blocks are compared and hashed bytewise, and
-     * a copy of a local struct carries its padding (after `nee`) along, whatever it holds. */
-    const struct pt_method_params d = pt_method_defaults();
-    struct pt_method_params p;
-    memset(&p, 0, sizeof p);
-    p.spp = d.spp;
-    p.max_depth = d.max_depth;
-    p.rr_depth = d.rr_depth;
-    p.nee = d.nee;
-    p.subset = d.subset;
-    p.light_sampling = d.light_sampling;
-    p.sampler = PT_SAMPLER_SOBOL;
-    return p;
-}
-
-METHOD_DEFAULTS_OP(pt_defaults, struct pt_method_params, pt_own_defaults)
+METHOD_DEFAULTS_OP(pt_defaults, struct pt_method_params, pt_method_defaults)
 METHOD_VALIDATE_OP(pt_validate, struct pt_method_params, pt_method_params_valid)
 
 struct pt_params pt_method_frame_params(const struct pt_method_params *pp, const struct method_frame *f,

@@ -35,12 +35,10 @@ struct RESTIRD_STORED_IN_BYTES ssp_method_params {
 };
 
 /* Every path method's spp/max_depth/rr_depth/nee defaults (1 spp per frame, 64, 3, NEE), all
- * transport, the random sampler. */
+ * transport, area light sampling, and pt's Sobol' sampler (the other path methods take none). */
 struct pt_method_params pt_method_defaults(void);
 /* spp >= 1 (the parameter tables give the other ranges). */
 bool pt_method_params_valid(const struct pt_method_params *p, struct err *err);
-/* pt's defaults: pt_method_defaults with the Sobol' sampler (method_pt.c). */
-struct pt_method_params pt_own_defaults(void);
 /* The reference path tracer's parameters for one frame of a path method (subset left at all, the
  * sampler at random, light_sampling at area). */
 struct pt_params pt_method_frame_params(const struct pt_method_params *pp, const struct method_frame *f,
