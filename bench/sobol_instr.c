@@ -3,7 +3,8 @@
  * divides the difference. `sobol_instr MODE N`: N draws of MODE (2d: sobol_2d; 1d: sobol_1d;
  * random2d: two rng_next_float), as a path tracer draws them: the dimension cycles through 0..7
  * with seeds derived once per pixel (every 1024 draws here), and the sample index changes every
- * 8 draws (reversed once per sample). */
+ * 8 draws (reversed once per sample). batch: N sobol_batch_draw of 8 lanes (pt's seven dimensions
+ * of a sample, drawn together); seed: N sobol_batch_seed of 8 lanes (a pixel's seeds). */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -14,7 +15,7 @@
 int main(int argc, char **argv)
 {
     if (argc != 3) {
-        fprintf(stderr, "usage: sobol_instr 2d|1d|random2d N\n");
+        fprintf(stderr, "usage: sobol_instr 2d|1d|random2d|batch|seed N\n");
         return 2;
     }
     const char *mode = argv[1];
@@ -36,6 +37,19 @@ int main(int argc, char **argv)
                 sum += u0 + u1;
             } else {
                 sum += sobol_1d(index_reversed, &seeds[i & 7]);
+            }
+        }
+    } else if (strcmp(mode, "batch") == 0 || strcmp(mode, "seed") == 0) {
+        struct sobol_batch b;
+        float u0[8], u1[8];
+        sobol_batch_seed(&b, rng_mix64(1), 8);
+        for (unsigned long i = 0; i < n; i++) {
+            if (mode[0] == 'b') {
+                sobol_batch_draw(&b, sobol_reverse_bits((uint32_t)i), 8, u0, u1);
+                sum += u0[i & 7] + u1[i & 7];
+            } else {
+                sobol_batch_seed(&b, i, 8);
+                sum += (float)(b.scramble1[i & 7] >> 8);
             }
         }
     } else if (strcmp(mode, "random2d") == 0) {

@@ -29,14 +29,17 @@
 #define PT_MAX_WORKERS 1024
 
 /* The Sobol' sampler's padded dimensions (core/sobol.h): the pixel position, then at each of the
- * first PT_SOBOL_BOUNCES vertices the light sample's point, the BSDF sample's direction, the pair
- * (light pick, lobe choice) and Russian roulette. One dimension per decision, so no two decisions
- * share a shuffle (which would correlate them); the pick and the lobe choice share one as its two
- * coordinates, each stratified on its own and jointly. */
+ * first PT_SOBOL_BOUNCES vertices the light sample's point, the BSDF sample's direction and the
+ * pair (light pick, lobe choice). One dimension per decision, so no two decisions share a shuffle
+ * (which would correlate them); the pick and the lobe choice share one as its two coordinates,
+ * each stratified on its own and jointly. Russian roulette has none: it starts at rr_depth 3 by
+ * default, past the Sobol' vertices, and a session that starts it earlier draws it from the PCG
+ * stream. Seven dimensions fit one group of eight lanes of sobol_batch_draw; with roulette's two
+ * they took two. */
 enum { PT_DIM_PIXEL, PT_DIM_FIRST_VERTEX };
-enum { PT_DIM_LIGHT_POINT, PT_DIM_BSDF_DIRECTION, PT_DIM_CHOICES, PT_DIM_RR, PT_DIMS_PER_VERTEX };
+enum { PT_DIM_LIGHT_POINT, PT_DIM_BSDF_DIRECTION, PT_DIM_CHOICES, PT_DIMS_PER_VERTEX };
 #define PT_SOBOL_DIMS (PT_DIM_FIRST_VERTEX + PT_SOBOL_BOUNCES * PT_DIMS_PER_VERTEX)
-/* rng_pixel_make's last word for a pixel's Sobol' seed. */
+/* The constant in pt_sobol_epoch_key, which keeps the Sobol' seeds apart from other streams. */
 #define PT_SOBOL_STREAM 0x736f626full
 /* A pixel's Sobol' index is the sample's index in the session, frame * spp + sample, in epochs of
  * 2^31 samples: each epoch (the bits above) gets its own randomisation. A session's frame f at
@@ -46,18 +49,29 @@ enum { PT_DIM_LIGHT_POINT, PT_DIM_BSDF_DIRECTION, PT_DIM_CHOICES, PT_DIM_RR, PT_
  * the session. */
 #define PT_SOBOL_INDEX_BITS 31
 
-/* One sample's Sobol' state: its index, bit-reversed (as sobol.h takes it), and the seeds of every
- * dimension for the pixel, which depend on (session seed, pixel, epoch) only and so are derived
- * once per pixel, not per sample. */
+/* One sample's Sobol' numbers and the seeds they come from: the seeds of every dimension depend on
+ * (session seed, pixel, epoch) only, so they are derived once per pixel, not per sample; a
+ * sample then draws all of its dimensions at once (sobol_batch_draw: eight lanes at a time with
+ * AVX2), before its path needs them. Drawing a dimension that the path does not reach costs less
+ * than deciding lazily would: a lane of a batch costs about a seventh of a sobol_2d
+ * (docs/benchmarks.md, "pt's Sobol' sampler"). */
+#define PT_SOBOL_LANES ((PT_SOBOL_DIMS + SOBOL_BATCH_LANES - 1) / SOBOL_BATCH_LANES * SOBOL_BATCH_LANES)
+_Static_assert(PT_SOBOL_LANES <= SOBOL_BATCH_DIMS, "one sobol_batch holds every dimension of a sample");
 struct pt_sobol {
-    uint32_t index_reversed;
-    struct sobol_seeds dims[PT_SOBOL_DIMS];
+    struct sobol_batch seeds;
+    float u0[PT_SOBOL_LANES], u1[PT_SOBOL_LANES];
 };
 
-static void pt_sobol_pixel(struct pt_sobol *q, uint64_t seed, uint64_t pixel, uint64_t epoch)
+/* The hash of (session seed, epoch) that every pixel's Sobol' seed starts from: a tile derives it
+ * once for its first sample's epoch, so that a pixel adds only one SplitMix64 of its own. */
+static inline uint64_t pt_sobol_epoch_key(uint64_t seed, uint64_t epoch)
 {
-    const uint64_t pixel_seed = rng_pixel_make(seed, epoch, pixel, PT_SOBOL_STREAM).hash;
-    for (uint32_t d = 0; d < PT_SOBOL_DIMS; d++) q->dims[d] = sobol_dimension_seeds(pixel_seed, d);
+    return rng_mix64(seed ^ rng_mix64(epoch ^ rng_mix64(PT_SOBOL_STREAM)));
+}
+
+static void pt_sobol_pixel(struct pt_sobol *q, uint64_t epoch_key, uint64_t pixel)
+{
+    sobol_batch_seed(&q->seeds, rng_mix64(epoch_key ^ pixel), PT_SOBOL_LANES);
 }
 
 struct pt_job {
@@ -399,16 +413,12 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         struct vec3 shadow_org = s.p;
         int shadow_side = -1;
 
-        /* The Sobol' dimensions of this vertex (NULL: every number comes from the PCG stream). With
-         * qmc a constant NULL (pt_tile_random, the other methods' entry points) the branches on it
-         * fold away and the loop is the random sampler's alone. A non-diffuse vertex needs the
-         * lobe choice whether or not it samples a light, so the (pick, lobe) pair is drawn here;
-         * a Lambertian one draws only the pick, and only for NEE. */
-        const struct sobol_seeds *qdims = qmc && depth < PT_SOBOL_BOUNCES
-                                              ? &qmc->dims[PT_DIM_FIRST_VERTEX + depth * PT_DIMS_PER_VERTEX]
-                                              : NULL;
-        float q_pick = 0.0f, q_lobe = 0.0f;
-        if (qdims && !diffuse) sobol_2d(qmc->index_reversed, &qdims[PT_DIM_CHOICES], &q_pick, &q_lobe);
+        /* The Sobol' numbers of this vertex's dimensions, when qdims (otherwise every number comes
+         * from the PCG stream). With qmc a constant NULL (pt_tile_random, the other methods' entry
+         * points) the branches on it fold away and the loop is the random sampler's alone. */
+        const bool qdims = qmc && depth < PT_SOBOL_BOUNCES;
+        const uint32_t qbase = PT_DIM_FIRST_VERTEX + (qdims ? depth : 0) * PT_DIMS_PER_VERTEX;
+        const float *qu0 = qmc ? qmc->u0 + qbase : NULL, *qu1 = qmc ? qmc->u1 + qbase : NULL;
 
         /* Specular manifold sampling owns the caustic chains that start here (sms.h). */
         const bool receiver = canonical && depth <= SMS_RECEIVER_MAX_PREFIX && m->kind != MATERIAL_TRANSLUCENT;
@@ -425,8 +435,9 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         if (nee && part_rest && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
             float ul, u1, u2;
             if (qdims) {
-                ul = diffuse ? sobol_1d(qmc->index_reversed, &qdims[PT_DIM_CHOICES]) : q_pick;
-                sobol_2d(qmc->index_reversed, &qdims[PT_DIM_LIGHT_POINT], &u1, &u2);
+                ul = qu0[PT_DIM_CHOICES];
+                u1 = qu0[PT_DIM_LIGHT_POINT];
+                u2 = qu1[PT_DIM_LIGHT_POINT];
             } else {
                 ul = rng_next_float(rng);
                 u1 = rng_next_float(rng);
@@ -490,7 +501,8 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         if (diffuse) {
             float u1, u2;
             if (qdims) {
-                sobol_2d(qmc->index_reversed, &qdims[PT_DIM_BSDF_DIRECTION], &u1, &u2);
+                u1 = qu0[PT_DIM_BSDF_DIRECTION];
+                u2 = qu1[PT_DIM_BSDF_DIRECTION];
             } else {
                 rng_skip(rng);  /* the lobe choice: one lobe */
                 u1 = rng_next_float(rng);
@@ -502,8 +514,9 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         } else {
             float u_lobe, u1, u2;
             if (qdims) {
-                u_lobe = q_lobe;
-                sobol_2d(qmc->index_reversed, &qdims[PT_DIM_BSDF_DIRECTION], &u1, &u2);
+                u_lobe = qu1[PT_DIM_CHOICES];
+                u1 = qu0[PT_DIM_BSDF_DIRECTION];
+                u2 = qu1[PT_DIM_BSDF_DIRECTION];
             } else {
                 u_lobe = rng_next_float(rng);
                 u1 = rng_next_float(rng);
@@ -526,11 +539,11 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         prev_pdf_w = bs.pdf_w;
         prev_p = s.p;
 
-        /* Drawn whether or not roulette is played, to keep the PCG stream aligned; a Sobol'
-         * dimension is computed only when it is. */
+        /* Drawn whether or not roulette is played, to keep the PCG stream aligned (at a Sobol'
+         * vertex nothing else is drawn from it). */
         float u_rr = qdims ? 0.0f : rng_next_float(rng);
         if (depth + 1 >= rr_depth) {
-            if (qdims) u_rr = sobol_1d(qmc->index_reversed, &qdims[PT_DIM_RR]);
+            if (qdims) u_rr = rng_next_float(rng);
             /* fminf(0.95f, max) spelled out: fminf is a libm call at -O2 (NaN rules), and a NaN
              * max gives 0.95 either way. */
             float mx = vec3_v4_max_comp(beta) * rr_scale;
@@ -601,6 +614,8 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
     uint32_t x0 = p->crop_x0 + tx * PT_TILE, y0 = p->crop_y0 + ty * PT_TILE;
     uint32_t x1 = x0 + PT_TILE < p->crop_x1 ? x0 + PT_TILE : p->crop_x1;
     uint32_t y1 = y0 + PT_TILE < p->crop_y1 ? y0 + PT_TILE : p->crop_y1;
+    const uint64_t first_index = (uint64_t)p->frame * p->spp, first_epoch = first_index >> PT_SOBOL_INDEX_BITS;
+    const uint64_t first_epoch_key = sobol ? pt_sobol_epoch_key(p->seed, first_epoch) : 0;
     for (uint32_t y = y0; y < y1; y++) {
         for (uint32_t x = x0; x < x1; x++) {
             if (parallel_stopped()) break;  /* the frame was given up: its pixels are not used */
@@ -608,7 +623,6 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
             double acc[3] = {0, 0, 0};
             const struct rng_pixel streams = rng_pixel_make(p->seed, p->frame, pixel, PT_SAMPLE_STREAM);
             struct pt_sobol qmc;
-            const uint64_t first_index = (uint64_t)p->frame * p->spp;
             uint64_t epoch = UINT64_MAX;  /* none yet: the first sample derives the seeds */
             for (uint32_t s = 0; s < p->spp; s++) {
                 struct rng rng = rng_sample(&streams, s);
@@ -617,10 +631,13 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
                     const uint64_t index = first_index + s;
                     if (index >> PT_SOBOL_INDEX_BITS != epoch) {
                         epoch = index >> PT_SOBOL_INDEX_BITS;
-                        pt_sobol_pixel(&qmc, p->seed, pixel, epoch);
+                        pt_sobol_pixel(&qmc, epoch == first_epoch ? first_epoch_key : pt_sobol_epoch_key(p->seed, epoch),
+                                       pixel);
                     }
-                    qmc.index_reversed = sobol_reverse_bits((uint32_t)index & ((1u << PT_SOBOL_INDEX_BITS) - 1u));
-                    sobol_2d(qmc.index_reversed, &qmc.dims[PT_DIM_PIXEL], &jx, &jy);
+                    sobol_batch_draw(&qmc.seeds, sobol_reverse_bits((uint32_t)index & ((1u << PT_SOBOL_INDEX_BITS) - 1u)),
+                                     PT_SOBOL_LANES, qmc.u0, qmc.u1);
+                    jx = qmc.u0[PT_DIM_PIXEL];
+                    jy = qmc.u1[PT_DIM_PIXEL];
                 } else {
                     jx = rng_next_float(&rng);
                     jy = rng_next_float(&rng);

@@ -16,10 +16,10 @@
 
 /* The random numbers of pt's paths. PT_SAMPLER_RANDOM: a PCG stream per sample. PT_SAMPLER_SOBOL:
  * the pixel position and, at the first PT_SOBOL_BOUNCES vertices, the light sample (pick and
- * point), the BSDF sample (lobe and direction) and Russian roulette take Owen-scrambled Sobol'
- * dimensions (core/sobol.h), one padded dimension each, with sample index frame * spp + sample, so
- * a pixel's samples over a session's frames are one stratified sequence; everything else (deeper
- * vertices, subsurface probes, SMS) keeps the PCG stream. Either is unbiased; Sobol' stratifies
+ * point) and the BSDF sample (lobe and direction) take Owen-scrambled Sobol' dimensions
+ * (core/sobol.h), one padded dimension each, with sample index frame * spp + sample, so a pixel's
+ * samples over a session's frames are one stratified sequence; everything else (deeper vertices,
+ * Russian roulette, subsurface probes, SMS) keeps the PCG stream. Either is unbiased; Sobol' stratifies
  * the first bounces, where most of the variance of direct and one-bounce light is. */
 enum pt_sampler { PT_SAMPLER_RANDOM, PT_SAMPLER_SOBOL };
 #define PT_SOBOL_BOUNCES 2

@@ -306,6 +306,70 @@ static void test_sobol_convergence(void)
               slope_random);
 }
 
+static int cmp_u32(const void *a, const void *b)
+{
+    const uint32_t x = *(const uint32_t *)a, y = *(const uint32_t *)b;
+    return (x > y) - (x < y);
+}
+
+/* The batch functions compute what the one-dimension functions do, on every code path this
+ * processor has (scalar, and AVX2 where present): seeds equal to sobol_dimension_seeds lane by lane
+ * (with the multiplier beside each), and every lane's point equal to sobol_2d's, over random pixel
+ * seeds and indices, for 8 and 16 lanes. Fails when a lane takes another lane's seeds or a vector
+ * step differs from the scalar one. Also: the inner inputs (dim, word) of the seed hash are
+ * distinct for every dimension below 2^16, so no two seed words of a pixel coincide by
+ * construction. */
+static void test_sobol_batch_matches_scalar(void)
+{
+    struct rng r = rng_make(11, 0, 0, 0);
+    uint32_t mismatched = 0, paths = 0;
+    for (int path = 0; path < 2; path++) {
+#ifdef SOBOL_HAVE_AVX2
+        if (path == 1 && !__builtin_cpu_supports("avx2")) continue;
+#else
+        if (path == 1) continue;
+#endif
+        paths++;
+        for (int trial = 0; trial < 2000; trial++) {
+            const uint64_t pixel_seed = (uint64_t)rng_next_u32(&r) << 32 | rng_next_u32(&r);
+            const uint32_t lanes = SOBOL_BATCH_LANES * (1u + (uint32_t)trial % 2u), index_reversed = rng_next_u32(&r);
+            struct sobol_batch b;
+            float u0[SOBOL_BATCH_DIMS], u1[SOBOL_BATCH_DIMS];
+            memset(&b, 0xab, sizeof b);
+            if (path == 0) {
+                sobol_batch_seed_scalar(&b, pixel_seed, lanes);
+                sobol_batch_draw_scalar(&b, index_reversed, lanes, u0, u1);
+            }
+#ifdef SOBOL_HAVE_AVX2
+            if (path == 1) {
+                sobol_batch_seed_avx2(&b, pixel_seed, lanes);
+                sobol_batch_draw_avx2(&b, index_reversed, lanes, u0, u1);
+            }
+#endif
+            for (uint32_t d = 0; d < lanes; d++) {
+                const struct sobol_seeds k = sobol_dimension_seeds(pixel_seed, d);
+                float w0, w1;
+                sobol_2d(index_reversed, &k, &w0, &w1);
+                mismatched += b.shuffle[d] != k.shuffle || b.scramble0[d] != k.scramble0 ||
+                              b.scramble1[d] != k.scramble1 || b.shuffle_mul[d] != ((k.shuffle >> 16) | 1u) ||
+                              b.scramble0_mul[d] != ((k.scramble0 >> 16) | 1u) ||
+                              b.scramble1_mul[d] != ((k.scramble1 >> 16) | 1u) || u0[d] != w0 || u1[d] != w1;
+            }
+        }
+    }
+    printf("  batch Sobol' checked on %u code path(s)\n", paths);
+    CHECK_MSG(mismatched == 0, "%u lanes differ from sobol_dimension_seeds / sobol_2d", mismatched);
+    /* Distinct inner inputs: d * step + w * step2 over d < 2^16, w < 3, sorted. */
+    enum { DIMS = 1 << 16 };
+    static uint32_t inner[3 * DIMS];
+    for (uint32_t d = 0; d < DIMS; d++)
+        for (uint32_t w = 0; w < 3; w++) inner[3 * d + w] = d * SOBOL_SEED_DIM_STEP + w * SOBOL_SEED_WORD_STEP;
+    qsort(inner, 3 * DIMS, sizeof inner[0], cmp_u32);
+    uint32_t repeats = 0;
+    for (uint32_t i = 1; i < 3 * DIMS; i++) repeats += inner[i] == inner[i - 1];
+    CHECK_MSG(repeats == 0, "%u repeated (dimension, word) inputs of the seed hash", repeats);
+}
+
 static void test_distrib_chi2(void)
 {
     double w[5] = {1.0, 0.0, 3.0, 0.5, 10.0};
@@ -599,6 +663,6 @@ static void test_vec3_v4_max(void)
 TEST_MAIN(TEST(test_vec3_v4_max), TEST(test_rng_uniform_chi2), TEST(test_rng_streams_differ),
           TEST(test_rng_keyed_first_numbers_chi2), TEST(test_rng_pixel_samples_chi2), TEST(test_sobol_generator),
           TEST(test_sobol_nets), TEST(test_sobol_scrambling_chi2), TEST(test_sobol_padding_independent_chi2),
-          TEST(test_sobol_convergence), TEST(test_distrib_chi2),
+          TEST(test_sobol_convergence), TEST(test_sobol_batch_matches_scalar), TEST(test_distrib_chi2),
           TEST(test_accel_flat_and_two_level), TEST(test_accel_move_instance), TEST(test_offset_avoids_self_hit),
           TEST(test_light_sampler_pdfs), TEST(test_light_sampler_triangle_point_per_shape), TEST(test_camera_rays))
