@@ -4,7 +4,9 @@ Cycles-converged reference.
 Renders the scene (default: the Cornell box at 256x256) with Cycles at REF_SPP as the reference,
 then, for each seed, Cycles, pt (its default sampler) and pt with the random sampler at SPP, and
 prints each one's RMSE (whole image, and away from the light: pixels farther than 2 from any
-pixel brighter than 1 in the reference), MAPE, and the ratios of pt's to Cycles'. Samples, not
+pixel brighter than 1 in the reference), MAPE, and the ratios of pt's to Cycles', and each
+renderer's per-pixel variance of the luminance over the seeds, near and away from the light (a
+sample position that no seed moves shows as low variance and high error). Samples, not
 seconds: each renderer's work per sample differs, and this machine's timings are noisy; the
 samples' quality is what the comparison isolates. Cycles runs through bench/crosscheck_cycles.py,
 with everything that would change its image in expectation switched off (see there). Both
@@ -179,9 +181,16 @@ def main():
                      "rmse_away_from_light": round(float(np.sqrt(mean[name]["mse_away"] / mean["cycles"]["mse_away"])), 3),
                      "mape": round(mean[name]["mape"] / mean["cycles"]["mape"], 3)}
               for name in ("pt", "pt_random")}
+    # Near the light, error can be variance or a bias that no seed changes (a sample position fixed
+    # per pixel): the per-pixel variance over the seeds tells them apart.
+    spread = {}
+    for name in names:
+        imgs = np.array([read_rgb(out / f"{name}{seed}.exr").mean(axis=2) for seed in seeds])
+        var = imgs.var(axis=0, ddof=1) if len(seeds) > 1 else np.zeros_like(imgs[0])
+        spread[name] = {"variance_near_light": float(var[near].mean()), "variance_away": float(var[~near].mean())}
     print(json.dumps({"scene": scene_name, "size": wh, "threads": threads, "spp": spp, "reference_spp": ref_spp,
-                      "seeds": seeds, "pixels_near_light": int(near.sum()), "mean": mean, "over_cycles": ratios},
-                     indent=1))
+                      "seeds": seeds, "pixels_near_light": int(near.sum()), "mean": mean, "over_cycles": ratios,
+                      "variance_over_seeds": spread}, indent=1))
 
 
 if __name__ == "__main__":
