@@ -47,6 +47,14 @@ struct daemon_config {
     bool metrics_open;
 };
 
+/* The request limits a daemon starts with (main.c; the options --max-side etc. change them), one
+ * definition for the daemon and the tests that build its state. */
+static inline struct protocol_limits daemon_default_limits(void)
+{
+    return (struct protocol_limits){.max_side = 4096, .max_pixels = 16u << 20, .max_spp = 65536, .max_frames = 10000,
+                                    .max_keys = 4096};
+}
+
 struct daemon {
     struct daemon_config cfg;
     struct registry *registry;

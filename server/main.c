@@ -214,8 +214,7 @@ int main(int argc, char **argv)
     cfg->port = 8080;
     main_default_data_dir(cfg->data_dir, sizeof cfg->data_dir);
     main_default_library(cfg->library_dir, sizeof cfg->library_dir);
-    cfg->limits = (struct protocol_limits){.max_side = 4096, .max_pixels = 16u << 20, .max_spp = 65536,
-                                           .max_frames = 10000, .max_keys = 4096};
+    cfg->limits = daemon_default_limits();
     cfg->max_sessions = 64;
     cfg->frames_kept = 16;
     cfg->memory_budget = 8ull << 30;

@@ -196,8 +196,7 @@ static bool fixture_open(struct fixture *f)
     pthread_mutex_init(&f->pool.lock, NULL);
     struct daemon_config *cfg = &f->d.cfg;
     snprintf(cfg->host, sizeof cfg->host, "127.0.0.1");
-    cfg->limits = (struct protocol_limits){.max_side = 4096, .max_pixels = 16u << 20, .max_spp = 65536,
-                                           .max_frames = 10000, .max_keys = 4096};
+    cfg->limits = daemon_default_limits();
     cfg->max_sessions = 4;
     cfg->frames_kept = 2;
     cfg->memory_budget = 1ull << 30;
