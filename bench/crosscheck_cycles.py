@@ -4,6 +4,7 @@
 #   blender -b --factory-startup -P bench/crosscheck_cycles.py -- \
 #       --scene scenes/cornell-box/scene.json --size 128x128 --spp 4096 --seed 0 \
 #       --out build/crosscheck/cycles.exr
+#   ... --runs N --out DIR/cycles-{run}.exr   # N renders in this one process (see --runs)
 #
 # Purpose: an independent radiometric reference for our path tracer (bench/crosscheck.sh,
 # docs/crosscheck.md). Everything in Cycles that would make its image differ in expectation
@@ -12,7 +13,8 @@
 #     the output is a 32-bit float EXR of the render result (scene-linear, no view transform);
 #   - no clamping, no glossy filter, no denoising, no adaptive sampling, no path guiding,
 #     no light threshold, no fast GI, no camera/distance culling, 64 bounces of every kind;
-#   - pixel filter: box, 1 px wide (one uniform sample position per pixel area per sample);
+#   - pixel filter: box, 1 px wide (one uniform sample position per pixel area per sample, but
+#     for Cycles' sample 0, which is at the pixel's centre: see --sample-offset);
 #   - world: black, strength 0 (unless the scene has an environment radiance);
 #   - emitters: Emission shader (strength 1 = radiance equal to its colour; bench/crosscheck.sh
 #     checks that with --probe-emission) mixed with "nothing" (black, no BSDF) on back faces
@@ -53,7 +55,17 @@ def parse_args():
     ap.add_argument("--size", default="128x128", help="WxH (or a single number for a square)")
     ap.add_argument("--spp", type=int, default=1024)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--runs", type=int, default=1,
+                    help="render N images in this one Blender process (the scene built once), "
+                         "run k with Cycles' seed run_seed(seed, k), to --out with '{run}' "
+                         "replaced by k; for per-pixel statistics over seeds (bench/"
+                         "direct_light_cycles.py) without Blender's start-up per image")
     ap.add_argument("--max-bounces", type=int, default=64)
+    ap.add_argument("--sample-offset", type=int, default=0,
+                    help="Cycles' sample offset: the first sample's index. Cycles takes sample 0 at "
+                         "the pixel's centre (integrate_camera_sample: filter_u = filter_v = 0.5) and "
+                         "every other one at a random position, so a 1-spp image over seeds samples "
+                         "the pixel's area only with an offset of 1 or more")
     ap.add_argument("--threads", type=int, default=0, help="0 = all cores")
     ap.add_argument("--out", required=True, help="output EXR (32-bit float RGBA)")
     ap.add_argument("--probe-emission", choices=("front", "back"),
@@ -75,7 +87,24 @@ def parse_args():
         a.width = a.height = int(a.size)
     if not a.probe_emission and not a.scene:
         ap.error("--scene is required (or --probe-emission)")
+    if a.runs < 1 or (a.runs > 1 and "{run}" not in a.out):
+        ap.error("--runs N needs N >= 1, and '{run}' in --out when N > 1")
     return a
+
+
+def run_seed(seed, k):
+    """Cycles' seed of run k: run 0 is --seed itself; the others a 32-bit mix (murmur3's
+    finaliser) of (seed, k), 31 bits (the property's range). Cycles 3.4 XORs its seed into
+    every pixel's hash, so consecutive seeds would differ only in the hash's low bits."""
+    if k == 0:
+        return seed
+    h = (seed * 0x9E3779B1 + k) & 0xFFFFFFFF
+    h ^= h >> 16
+    h = (h * 0x85EBCA6B) & 0xFFFFFFFF
+    h ^= h >> 13
+    h = (h * 0xC2B2AE35) & 0xFFFFFFFF
+    h ^= h >> 16
+    return h & 0x7FFFFFFF
 
 
 # --------------------------------------------------------------------------- transforms
@@ -331,7 +360,7 @@ def setup_render(a, env_radiance):
     c.samples = a.spp
     c.seed = a.seed
     c.use_animated_seed = False
-    c.sample_offset = 0
+    c.sample_offset = a.sample_offset
     c.use_adaptive_sampling = False
     c.use_denoising = False
     c.time_limit = 0.0
@@ -410,14 +439,18 @@ def main():
         bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(a.save_blend))
     # Timed: Cycles' scene sync, BVH build and sampling (not Blender's start-up, not the EXR
     # write), as restird's time_ms covers its frame's rendering.
-    t0 = time.monotonic()
-    bpy.ops.render.render(write_still=False)
-    render_ms = (time.monotonic() - t0) * 1e3
-    bpy.data.images["Render Result"].save_render(out)
-    if not os.path.exists(out):
-        fail("Blender did not write " + out)
-    print("crosscheck_cycles: wrote %s (%dx%d, %d spp, seed %d)" % (out, a.width, a.height, a.spp, a.seed))
-    print("crosscheck_cycles: render_ms %.3f" % render_ms)
+    for k in range(a.runs):
+        seed = run_seed(a.seed, k)
+        bpy.context.scene.cycles.seed = seed
+        path = out.replace("{run}", str(k))
+        t0 = time.monotonic()
+        bpy.ops.render.render(write_still=False)
+        render_ms = (time.monotonic() - t0) * 1e3
+        bpy.data.images["Render Result"].save_render(path)
+        if not os.path.exists(path):
+            fail("Blender did not write " + path)
+        print("crosscheck_cycles: wrote %s (%dx%d, %d spp, seed %d)" % (path, a.width, a.height, a.spp, seed))
+        print("crosscheck_cycles: render_ms %.3f" % render_ms)
 
 
 main()
