@@ -2,8 +2,9 @@
  * sphere, and the constant environment, picked by an alias table proportional to emitted power
  * and sampled uniformly by area (environment: uniformly over the sphere of directions); from a
  * shading point (light_sampler_sample_from), a triangle seen close by is sampled uniformly in
- * the solid angle it subtends instead (core/spherical.h). Geometry is captured in world space
- * at creation (the scene's transforms). */
+ * the solid angle it subtends instead (core/spherical.h), and a quad whose two triangles are both
+ * seen close by uniformly over the solid angle of the whole quad. Geometry is captured in world
+ * space at creation (the scene's transforms). */
 #include "scene/light_sampler.h"
 
 #include <stdio.h>
@@ -24,8 +25,9 @@
  * sampling's d^3 can even follow it better. Measured on the Cornell box's direct light
  * (docs/benchmarks.md, "Solid-angle sampling of triangle lights"): at 1 / 0.2 the back wall's
  * variance is 0.40 of area sampling's for 1.14 times the instructions; at 1 / 0.25, 0.51 for
- * 1.08 times; at 1 / 0.35 the gain is gone; and at 1 / 0.15 the green wall's variance is 1.27
- * times area sampling's. */
+ * 1.08 times; at 1 / 0.35 the gain is gone; at 1 / 0.15 the green wall's variance read 1.27
+ * times area sampling's, which a later comparison with Cycles contradicts (0.5 times; the docs
+ * mark the row). */
 #define LIGHT_SOLID_ANGLE_MIN_RATIO 0.2f
 
 enum light_kind { LIGHT_TRIANGLE, LIGHT_SPHERE, LIGHT_ENV };
@@ -46,6 +48,11 @@ struct light_entry {
      * of the plane: dual1 = (e2 x N) / |N|^2, dual2 = (N x e1) / |N|^2 with N = e1 x e2. */
     struct vec3 dual1, dual2;
     const struct material *material;  /* surfaces: the emitter's (its emission) */
+    /* Triangle of a two-triangle emitter (a quad): the other triangle's entry, else -1. Where both
+     * sample their solid angle from the shading point, the pair is sampled as one: picked by power
+     * together, then one of the two in proportion to its solid angle, so that directions are
+     * uniform over the quad's whole solid angle (light_sampler_sample_from). */
+    int64_t partner;
 };
 
 struct light_sampler {
@@ -128,6 +135,11 @@ struct light_sampler *light_sampler_new(const struct scene *scene, struct err *e
                     e->dual2 = vec3_scale(vec3_cross(cr, e->e1), 1.0f / cr2);
                 }
                 power[k] = PI_F * lum * e->area * sides;
+                e->partner = -1;
+            }
+            if (s->triangle_count == 2) {
+                ls->entries[k - 2].partner = (int64_t)k - 1;
+                ls->entries[k - 1].partner = (int64_t)k - 2;
             }
         } else {
             struct light_entry *e = &ls->entries[k];
@@ -273,7 +285,7 @@ static inline float light_sampler_area_pdf_w(float pdf_a, struct vec3 p, struct 
  * basis (in double: the direction is). The barycentrics are clamped to the triangle (rounding of
  * a direction on an edge) and the point is computed from them as area sampling does. */
 static bool light_sampler_sample_solid_angle(const struct light_entry *e, const struct spherical_triangle *st,
-                                             struct vec3 p, float pmf, float u1, float u2, struct light_sample *out)
+                                             struct vec3 p, float pdf_w, float u1, float u2, struct light_sample *out)
 {
     *out = (struct light_sample){.shape = e->shape, .prim = e->prim, .material = e->material, .n = e->n,
                                  .solid_angle = true};
@@ -292,12 +304,36 @@ static bool light_sampler_sample_solid_angle(const struct light_entry *e, const 
     out->b1 = (float)b1;
     out->b2 = (float)b2;
     out->p = light_sampler_triangle_at(e, out->b1, out->b2);
-    out->pdf_w = light_entry_solid_angle_pdf(pmf, st);
+    out->pdf_w = pdf_w;
     /* The same density per area, for callers that weigh in area measure. */
     struct vec3 d = vec3_sub(out->p, p);
     float d2 = vec3_length2(d);
     out->pdf_a = d2 > 0.0f ? out->pdf_w * fabsf(vec3_dot(d, e->n)) / (d2 * sqrtf(d2)) : 0.0f;
     return out->pdf_w > 0.0f;
+}
+
+/* Whether entry e and its partner both sample their solid angle from p (the two spherical triangles
+ * then in st[0] for the pair's lower entry and st[1] for the higher, and *lower the lower entry's
+ * index). */
+static inline bool light_pair_solid_angle_from(const struct light_sampler *ls, const struct light_entry *e,
+                                               struct vec3 p, const struct spherical_triangle *st_e,
+                                               struct spherical_triangle st[2], int64_t *lower)
+{
+    if (e->partner < 0) return false;
+    const struct light_entry *f = &ls->entries[e->partner];
+    const bool e_lower = e < f;
+    if (!light_entry_solid_angle_from(f, p, &st[e_lower])) return false;
+    st[!e_lower] = *st_e;
+    *lower = e_lower ? e - ls->entries : e->partner;
+    return true;
+}
+
+/* The pair's density in solid angle: picked together, each of its triangles in proportion to its
+ * solid angle, uniform within it: (pmf_A + pmf_B) / (Omega_A + Omega_B) over the whole quad. */
+static inline float light_pair_pdf_w(const struct light_sampler *ls, int64_t lower, const struct spherical_triangle st[2])
+{
+    double pmf = (double)ls->dist.pmf[lower] + (double)ls->dist.pmf[lower + 1];
+    return (float)(pmf / (st[0].solid_angle + st[1].solid_angle));
 }
 
 bool light_sampler_sample_from(const struct light_sampler *ls, struct vec3 p, float u_pick, float u1, float u2,
@@ -308,7 +344,20 @@ bool light_sampler_sample_from(const struct light_sampler *ls, struct vec3 p, fl
     uint32_t i = distrib_sample(&ls->dist, u_pick, &pmf);
     const struct light_entry *e = &ls->entries[i];
     struct spherical_triangle st;
-    if (light_entry_solid_angle_from(e, p, &st)) return light_sampler_sample_solid_angle(e, &st, p, pmf, u1, u2, out);
+    if (light_entry_solid_angle_from(e, p, &st)) {
+        struct spherical_triangle pair[2];
+        int64_t lower;
+        if (!light_pair_solid_angle_from(ls, e, p, &st, pair, &lower))
+            return light_sampler_sample_solid_angle(e, &st, p, light_entry_solid_angle_pdf(pmf, &st), u1, u2, out);
+        /* One of the two by solid angle, u1 rescaled to [0, 1) within the choice (the triangle's
+         * warp takes it as its first number). */
+        const double share0 = pair[0].solid_angle / (pair[0].solid_angle + pair[1].solid_angle);
+        const int k = (double)u1 >= share0;
+        const double u = k ? ((double)u1 - share0) / (1.0 - share0) : (double)u1 / share0;
+        const float uk = u < 1.0 ? (float)u : 0x1.fffffep-1f;
+        return light_sampler_sample_solid_angle(&ls->entries[lower + k], &pair[k], p, light_pair_pdf_w(ls, lower, pair),
+                                                uk, u2, out);
+    }
     light_sampler_sample_entry(e, pmf, u1, u2, out);
     if (!out->is_env) out->pdf_w = light_sampler_area_pdf_w(out->pdf_a, p, out->p, out->n);
     return out->pdf_w > 0.0f;
@@ -322,7 +371,12 @@ float light_sampler_pdf_w_from(const struct light_sampler *ls, struct vec3 p, ui
     const struct light_entry *e = &ls->entries[i];
     float pmf = ls->dist.pmf[i];
     struct spherical_triangle st;
-    if (light_entry_solid_angle_from(e, p, &st)) return light_entry_solid_angle_pdf(pmf, &st);
+    if (light_entry_solid_angle_from(e, p, &st)) {
+        struct spherical_triangle pair[2];
+        int64_t lower;
+        if (light_pair_solid_angle_from(ls, e, p, &st, pair, &lower)) return light_pair_pdf_w(ls, lower, pair);
+        return light_entry_solid_angle_pdf(pmf, &st);
+    }
     struct vec3 n = e->kind == LIGHT_TRIANGLE ? e->n : vec3_normalize(vec3_sub(q, e->p0));
     return light_sampler_area_pdf_w(pmf / e->area, p, q, n);
 }

@@ -357,8 +357,10 @@ static void test_light_sampler_decision_and_pdf_agree(void)
         bool ok_from = light_sampler_sample_from(ls, p, u_pick, u1, u2, &a);
         bool ok = light_sampler_sample(ls, u_pick, u1, u2, &b);
         CHECK(ok);
-        /* The same emitter as light_sampler_sample for the same u_pick. */
-        CHECK(a.shape == b.shape && a.prim == b.prim && a.is_env == b.is_env);
+        /* The same emitter as light_sampler_sample for the same u_pick; a quad's other triangle
+         * only where the pair was sampled by solid angle (then either of its two). */
+        CHECK(a.shape == b.shape && a.is_env == b.is_env);
+        CHECK(a.prim == b.prim || a.solid_angle);
         if (!ok_from) continue;
         if (a.is_env) {
             CHECK(a.pdf_w == b.pdf_w);
@@ -399,8 +401,12 @@ static void test_light_sampler_decision_and_pdf_agree(void)
     scene_release(s);
 }
 
-/* light_sampler_sample_from's solid-angle samples of one triangle from a point close to it are
- * uniform in solid angle: the barycentrics it returns binned as in test_warp_uniform_chi2. */
+/* light_sampler_sample_from's solid-angle samples of a quad from a point close to it are uniform
+ * over the quad's whole solid angle: each triangle is chosen in proportion to its solid angle
+ * (binomial z against Omega_k / (Omega_0 + Omega_1), 0.463 and 0.537 from p), and within
+ * each the barycentrics it returns are uniform in solid angle (binned as in
+ * test_warp_uniform_chi2); every sample's pdf is the pair's, (pmf_0 + pmf_1) / (Omega_0 +
+ * Omega_1). Fails with the triangle picked by power alone, half each (split z 47.4). */
 static void test_light_sampler_solid_angle_uniform_chi2(void)
 {
     const char *json = "{\"format\": 1, \"camera\": {\"position\": [0, 0, 5], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0], "
@@ -410,28 +416,45 @@ static void test_light_sampler_solid_angle_uniform_chi2(void)
     struct scene *s = fixture_load_json(json, NULL);
     if (!s) return;
     const struct vec3 p = vec3_make(0.3f, 0.2f, 0.1f);
-    struct vec3 v0, v1, v2, n;
-    /* The first triangle's vertices, from the sampler's own table. */
-    CHECK(light_sampler_triangle_point(s->lights, 0, 0, 0.0f, 0.0f, &v0, &n));
-    CHECK(light_sampler_triangle_point(s->lights, 0, 0, 1.0f, 0.0f, &v1, &n));
-    CHECK(light_sampler_triangle_point(s->lights, 0, 0, 0.0f, 1.0f, &v2, &n));
-    CHECK(light_sampler_solid_angle_from(s->lights, p, 0, 0));
-    double share[CELLS];
-    cell_shares(p, v0, vec3_sub(v1, v0), vec3_sub(v2, v0), share);
-    static long counts[CELLS];
+    double share[2][CELLS], omega[2];
+    for (uint32_t t = 0; t < 2; t++) {
+        struct vec3 v0, v1, v2, n;
+        /* The triangle's vertices, from the sampler's own table. */
+        CHECK(light_sampler_triangle_point(s->lights, 0, t, 0.0f, 0.0f, &v0, &n));
+        CHECK(light_sampler_triangle_point(s->lights, 0, t, 1.0f, 0.0f, &v1, &n));
+        CHECK(light_sampler_triangle_point(s->lights, 0, t, 0.0f, 1.0f, &v2, &n));
+        CHECK(light_sampler_solid_angle_from(s->lights, p, 0, t));
+        cell_shares(p, v0, vec3_sub(v1, v0), vec3_sub(v2, v0), share[t]);
+        struct spherical_triangle st;
+        CHECK(spherical_triangle_init(&st, p, v0, vec3_sub(v1, v0), vec3_sub(v2, v0)));
+        omega[t] = st.solid_angle;
+    }
+    const float pdf_pair = (float)(1.0 / (omega[0] + omega[1]));  /* one emitter: pmf_0 + pmf_1 = 1 */
+    static long counts[2][CELLS];
     struct rng r = rng_make(17, 0, 0, 0);
-    long n_samples = 0;
+    long n_samples = 0, per[2] = {0, 0}, pdf_off = 0;
     while (n_samples < 400000) {
         struct light_sample ls;
-        float u_pick = 0.25f * rng_next_float(&r);   /* the first triangle (both have the same power) */
-        if (!light_sampler_sample_from(s->lights, p, u_pick, rng_next_float(&r), rng_next_float(&r), &ls)) continue;
-        CHECK(ls.prim == 0 && ls.solid_angle);
-        counts[cell_of(ls.b1, ls.b2)]++;
+        if (!light_sampler_sample_from(s->lights, p, rng_next_float(&r), rng_next_float(&r), rng_next_float(&r), &ls))
+            continue;
+        CHECK(ls.prim < 2 && ls.solid_angle);
+        pdf_off += !(fabsf(ls.pdf_w - pdf_pair) <= 1e-5f * pdf_pair);
+        counts[ls.prim][cell_of(ls.b1, ls.b2)]++;
+        per[ls.prim]++;
         n_samples++;
     }
-    double z = cells_z(counts, share, n_samples, "light sampler");
-    printf("  light sampler: chi-square z %.2f\n", z);
-    CHECK_MSG(z < 4.0, "light sampler: chi-square z %.2f", z);
+    const double expect0 = omega[0] / (omega[0] + omega[1]);
+    const double z_split = ((double)per[0] - expect0 * (double)n_samples) /
+                           sqrt(expect0 * (1.0 - expect0) * (double)n_samples);
+    printf("  light sampler: triangle 0 holds %.4f of the samples, %.4f of the solid angle (z %.2f; Omega %.4f, %.4f)\n",
+           (double)per[0] / (double)n_samples, expect0, z_split, omega[0], omega[1]);
+    CHECK_MSG(fabs(z_split) < 4.0, "light sampler: the split between the triangles is off, z %.2f", z_split);
+    CHECK_MSG(pdf_off == 0, "%ld samples whose pdf is not the pair's %g", pdf_off, (double)pdf_pair);
+    for (int t = 0; t < 2; t++) {
+        double z = cells_z(counts[t], share[t], per[t], "light sampler");
+        printf("  light sampler, triangle %d: chi-square z %.2f\n", t, z);
+        CHECK_MSG(z < 4.0, "light sampler, triangle %d: chi-square z %.2f", t, z);
+    }
     scene_release(s);
 }
 
