@@ -216,7 +216,7 @@ static inline float sobol_sample_1d(uint64_t pixel_seed, uint32_t index, uint32_
  * nibble lookups and a byte swap (pshufb). Eight lanes cost about what one sobol_2d costs in
  * scalar code (`bash bench/sobol_instr.sh`). The multiplier (seed >> 16) | 1 of
  * sobol_owen_reversed is stored beside each seed, so it is derived once per pixel. Lane counts
- * are multiples of SOBOL_BATCH_LANES. */
+ * are at most SOBOL_BATCH_DIMS; multiples of SOBOL_BATCH_LANES take the vector code throughout. */
 #define SOBOL_BATCH_LANES 8
 #define SOBOL_BATCH_DIMS 16
 struct sobol_batch {
@@ -236,30 +236,53 @@ static inline uint32_t sobol_owen_reversed_mul(uint32_t x, uint32_t seed, uint32
     return x;
 }
 
-/* Lanes [0, lanes) take dimensions 0 .. lanes - 1 of the pixel, one by one. */
+/* Lane d takes dimension d of the pixel. */
+static inline void sobol_batch_seed_lane(struct sobol_batch *b, uint64_t pixel_seed, uint32_t d)
+{
+    const struct sobol_seeds k = sobol_dimension_seeds(pixel_seed, d);
+    b->shuffle[d] = k.shuffle;
+    b->shuffle_mul[d] = (k.shuffle >> 16) | 1u;
+    b->scramble0[d] = k.scramble0;
+    b->scramble0_mul[d] = (k.scramble0 >> 16) | 1u;
+    b->scramble1[d] = k.scramble1;
+    b->scramble1_mul[d] = (k.scramble1 >> 16) | 1u;
+}
+
+/* Lane i's 2D point: sobol_2d with the lane's seeds. */
+static inline void sobol_batch_draw_lane(const struct sobol_batch *b, uint32_t index_reversed, uint32_t i, float *u0,
+                                         float *u1)
+{
+    uint32_t index = sobol_reverse_bits(sobol_owen_reversed_mul(index_reversed, b->shuffle[i], b->shuffle_mul[i]));
+    uint32_t r0 = sobol_owen_reversed_mul(index, b->scramble0[i], b->scramble0_mul[i]);
+    uint32_t r1 = sobol_owen_reversed_mul(sobol_dimension1_reversed(index), b->scramble1[i], b->scramble1_mul[i]);
+    u0[i] = sobol_to_float(sobol_reverse_bits(r0));
+    u1[i] = sobol_to_float(sobol_reverse_bits(r1));
+}
+
+/* Lanes [first, lanes) one by one: the scalar path, and the vector paths' tails (kept out of
+ * line there, so that the eight-lane loop does not carry their code). */
+__attribute__((noinline, unused)) static void sobol_batch_seed_from(struct sobol_batch *b, uint64_t pixel_seed,
+                                                                  uint32_t first, uint32_t lanes)
+{
+    for (uint32_t d = first; d < lanes; d++) sobol_batch_seed_lane(b, pixel_seed, d);
+}
+
+__attribute__((noinline, unused)) static void sobol_batch_draw_from(const struct sobol_batch *b,
+                                                                  uint32_t index_reversed, uint32_t first,
+                                                                  uint32_t lanes, float *u0, float *u1)
+{
+    for (uint32_t i = first; i < lanes; i++) sobol_batch_draw_lane(b, index_reversed, i, u0, u1);
+}
+
 static inline void sobol_batch_seed_scalar(struct sobol_batch *b, uint64_t pixel_seed, uint32_t lanes)
 {
-    for (uint32_t d = 0; d < lanes; d++) {
-        const struct sobol_seeds k = sobol_dimension_seeds(pixel_seed, d);
-        b->shuffle[d] = k.shuffle;
-        b->shuffle_mul[d] = (k.shuffle >> 16) | 1u;
-        b->scramble0[d] = k.scramble0;
-        b->scramble0_mul[d] = (k.scramble0 >> 16) | 1u;
-        b->scramble1[d] = k.scramble1;
-        b->scramble1_mul[d] = (k.scramble1 >> 16) | 1u;
-    }
+    sobol_batch_seed_from(b, pixel_seed, 0, lanes);
 }
 
 static inline void sobol_batch_draw_scalar(const struct sobol_batch *b, uint32_t index_reversed, uint32_t lanes,
                                            float *u0, float *u1)
 {
-    for (uint32_t i = 0; i < lanes; i++) {
-        uint32_t index = sobol_reverse_bits(sobol_owen_reversed_mul(index_reversed, b->shuffle[i], b->shuffle_mul[i]));
-        uint32_t r0 = sobol_owen_reversed_mul(index, b->scramble0[i], b->scramble0_mul[i]);
-        uint32_t r1 = sobol_owen_reversed_mul(sobol_dimension1_reversed(index), b->scramble1[i], b->scramble1_mul[i]);
-        u0[i] = sobol_to_float(sobol_reverse_bits(r0));
-        u1[i] = sobol_to_float(sobol_reverse_bits(r1));
-    }
+    sobol_batch_draw_from(b, index_reversed, 0, lanes, u0, u1);
 }
 
 #if defined(__x86_64__) || defined(__i386__)
@@ -313,13 +336,15 @@ __attribute__((target("avx2"))) static inline __m256i sobol_hash32_x8(__m256i x)
     return _mm256_xor_si256(x, _mm256_srli_epi32(x, 16));
 }
 
-__attribute__((target("avx2"))) static void sobol_batch_seed_avx2(struct sobol_batch *b, uint64_t pixel_seed,
-                                                                 uint32_t lanes)
+/* Eight lanes at a time, the rest (a lane count that is no multiple of 8) one by one. */
+__attribute__((target("avx2"))) static inline void sobol_batch_seed_avx2(struct sobol_batch *b, uint64_t pixel_seed,
+                                                                        uint32_t lanes)
 {
     const __m256i lo = _mm256_set1_epi32((int)(uint32_t)pixel_seed);
     const __m256i hi = _mm256_set1_epi32((int)(uint32_t)(pixel_seed >> 32));
     const __m256i one = _mm256_set1_epi32(1);
-    for (uint32_t i = 0; i < lanes; i += 8) {
+    uint32_t i = 0;
+    for (; i + 8 <= lanes; i += 8) {
         __m256i dims = _mm256_add_epi32(_mm256_set1_epi32((int)i), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
         __m256i base = _mm256_add_epi32(hi, _mm256_mullo_epi32(dims, _mm256_set1_epi32((int)SOBOL_SEED_DIM_STEP)));
         uint32_t *words[3] = {b->shuffle + i, b->scramble0 + i, b->scramble1 + i};
@@ -331,13 +356,16 @@ __attribute__((target("avx2"))) static void sobol_batch_seed_avx2(struct sobol_b
             base = _mm256_add_epi32(base, _mm256_set1_epi32((int)SOBOL_SEED_WORD_STEP));
         }
     }
+    if (i < lanes) sobol_batch_seed_from(b, pixel_seed, i, lanes);
 }
 
-__attribute__((target("avx2"))) static void sobol_batch_draw_avx2(const struct sobol_batch *b, uint32_t index_reversed,
-                                                                 uint32_t lanes, float *u0, float *u1)
+__attribute__((target("avx2"))) static inline void sobol_batch_draw_avx2(const struct sobol_batch *b,
+                                                                        uint32_t index_reversed, uint32_t lanes,
+                                                                        float *u0, float *u1)
 {
     const __m256i ir = _mm256_set1_epi32((int)index_reversed);
-    for (uint32_t i = 0; i < lanes; i += 8) {
+    uint32_t i = 0;
+    for (; i + 8 <= lanes; i += 8) {
 #define SOBOL_LOAD(field) _mm256_loadu_si256((const __m256i *)(b->field + i))
         __m256i index = sobol_reverse_bits_x8(sobol_owen_reversed_x8(ir, SOBOL_LOAD(shuffle), SOBOL_LOAD(shuffle_mul)));
         __m256i r0 = sobol_owen_reversed_x8(index, SOBOL_LOAD(scramble0), SOBOL_LOAD(scramble0_mul));
@@ -347,6 +375,7 @@ __attribute__((target("avx2"))) static void sobol_batch_draw_avx2(const struct s
         _mm256_storeu_ps(u0 + i, sobol_to_float_x8(sobol_reverse_bits_x8(r0)));
         _mm256_storeu_ps(u1 + i, sobol_to_float_x8(sobol_reverse_bits_x8(r1)));
     }
+    if (i < lanes) sobol_batch_draw_from(b, index_reversed, i, lanes, u0, u1);
 }
 #endif
 

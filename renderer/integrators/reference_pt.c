@@ -52,9 +52,11 @@ enum { PT_DIM_LIGHT_POINT, PT_DIM_BSDF_DIRECTION, PT_DIM_CHOICES, PT_DIMS_PER_VE
 /* One sample's Sobol' numbers and the seeds they come from: the seeds of every dimension depend on
  * (session seed, pixel, epoch) only, so they are derived once per pixel, not per sample; a
  * sample then draws all of its dimensions at once (sobol_batch_draw: eight lanes at a time with
- * AVX2), before its path needs them. Drawing a dimension that the path does not reach costs less
- * than deciding lazily would: a lane of a batch costs about a seventh of a sobol_2d
- * (docs/benchmarks.md, "pt's Sobol' sampler"). */
+ * AVX2), before its path needs them. With AVX2, drawing a dimension that the path does not reach
+ * costs less than deciding lazily would: a lane of a batch costs about a seventh of a sobol_2d
+ * (docs/benchmarks.md, "pt's Sobol' sampler"). Without it each lane is a sobol_2d, and a path
+ * that ends at its first vertex pays for seven instead of about four (not measured on such a
+ * processor). */
 #define PT_SOBOL_LANES ((PT_SOBOL_DIMS + SOBOL_BATCH_LANES - 1) / SOBOL_BATCH_LANES * SOBOL_BATCH_LANES)
 _Static_assert(PT_SOBOL_LANES <= SOBOL_BATCH_DIMS, "one sobol_batch holds every dimension of a sample");
 struct pt_sobol {

@@ -144,6 +144,7 @@ struct light_sampler *light_sampler_new(const struct scene *scene, struct err *e
         } else {
             struct light_entry *e = &ls->entries[k];
             e->kind = LIGHT_SPHERE;
+            e->partner = -1;
             e->material = m;
             e->shape = i;
             e->prim = 0;
@@ -161,6 +162,7 @@ struct light_sampler *light_sampler_new(const struct scene *scene, struct err *e
         struct vec3 ext = vec3_sub(scene->bounds_max, scene->bounds_min);
         double r = fmax(0.5 * vec3_length(ext), 1e-3);
         ls->entries[k].kind = LIGHT_ENV;
+        ls->entries[k].partner = -1;
         ls->env_entry = k;
         power[k] = 4.0 * PI_F * PI_F * r * r * fmax(vec3_luminance(scene->env_radiance), 1e-6);
         k++;
@@ -257,8 +259,9 @@ float light_sampler_pdf_a(const struct light_sampler *ls, uint32_t shape, uint32
  * p is in front of unless it emits on both sides (behind a one-sided emitter every sample is
  * black, and the cheap one is as good: the Cornell box's ceiling is behind its light), and whose
  * solid angle the warp takes. light_sampler_sample_from and light_sampler_pdf_w_from both decide
- * here, from p and the entry alone, so that the MIS weight of an emitter hit uses the pdf
- * next-event estimation from the same point has. */
+ * here (and, for a quad, in light_pair_solid_angle_from, from the two entries), from p and the
+ * entries alone, so that the MIS weight of an emitter hit uses the pdf next-event estimation
+ * from the same point has. */
 static inline bool light_entry_solid_angle_from(const struct light_entry *e, struct vec3 p, struct spherical_triangle *st)
 {
     return e->kind == LIGHT_TRIANGLE && vec3_length2(vec3_sub(p, e->centroid)) < e->solid_angle_dist2 &&
@@ -354,7 +357,8 @@ bool light_sampler_sample_from(const struct light_sampler *ls, struct vec3 p, fl
         const double share0 = pair[0].solid_angle / (pair[0].solid_angle + pair[1].solid_angle);
         const int k = (double)u1 >= share0;
         const double u = k ? ((double)u1 - share0) / (1.0 - share0) : (double)u1 / share0;
-        const float uk = u < 1.0 ? (float)u : 0x1.fffffep-1f;
+        float uk = (float)u;  /* rounding can reach 1 */
+        if (!(uk < 1.0f)) uk = 0x1.fffffep-1f;
         return light_sampler_sample_solid_angle(&ls->entries[lower + k], &pair[k], p, light_pair_pdf_w(ls, lower, pair),
                                                 uk, u2, out);
     }

@@ -40,18 +40,20 @@ bool light_sampler_sample(const struct light_sampler *ls, float u_pick, float u1
  * BSDF-sampled ray hits an emitter. */
 float light_sampler_pdf_a(const struct light_sampler *ls, uint32_t shape, uint32_t prim);
 /* Next-event estimation from the shading point p: picks an emitter as light_sampler_sample does
- * (the same u_pick gives the same emitter) and samples it by area, except a triangle that p sees
+ * (the same u_pick gives the same shape) and samples it by area, except a triangle that p sees
  * close by (closer to its centroid than 5 times its bounding radius, and in front of it unless it
  * emits on both sides: light_sampler.c says why), whose solid angle from p is sampled uniformly
- * (Arvo 1995) and whose point is where that direction meets it. Sets pdf_w, the solid-angle pdf at p including the pick, for every
- * emitter, and pdf_a (surfaces) to the same density per area of the light; `solid_angle` tells
- * which sampling ran. False when the sample cannot contribute (pdf_w 0). */
+ * (Arvo 1995) and whose point is where that direction meets it. A two-triangle emitter (a quad)
+ * whose triangles both qualify is sampled uniformly over its whole solid angle: either of its
+ * triangles, in proportion to its solid angle. Sets pdf_w, the solid-angle pdf at p including the
+ * pick, for every emitter, and pdf_a (surfaces) to the same density per area of the light;
+ * `solid_angle` tells which sampling ran. False when the sample cannot contribute (pdf_w 0). */
 bool light_sampler_sample_from(const struct light_sampler *ls, struct vec3 p, float u_pick, float u1, float u2,
                                struct light_sample *out);
 /* Solid-angle pdf at p with which light_sampler_sample_from produces the point q on emitter
  * (shape, prim) (a sphere or triangle): for MIS when a BSDF-sampled ray from p hits it. It
- * decides between area and solid-angle sampling as light_sampler_sample_from does, from p and
- * the emitter alone. 0 when (shape, prim) is no emitter. */
+ * decides between area and solid-angle sampling as light_sampler_sample_from does, from p, the
+ * emitter and a quad's other triangle alone. 0 when (shape, prim) is no emitter. */
 float light_sampler_pdf_w_from(const struct light_sampler *ls, struct vec3 p, uint32_t shape, uint32_t prim,
                                struct vec3 q);
 /* That decision: whether light_sampler_sample_from samples the solid angle of emissive triangle

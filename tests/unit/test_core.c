@@ -315,8 +315,9 @@ static int cmp_u32(const void *a, const void *b)
 /* The batch functions compute what the one-dimension functions do, on every code path this
  * processor has (scalar, and AVX2 where present): seeds equal to sobol_dimension_seeds lane by lane
  * (with the multiplier beside each), and every lane's point equal to sobol_2d's, over random pixel
- * seeds and indices, for 8 and 16 lanes. Fails when a lane takes another lane's seeds or a vector
- * step differs from the scalar one. Also: the inner inputs (dim, word) of the seed hash are
+ * seeds and indices, for 5, 8, 13 and 16 lanes (the vector code with and without a scalar tail),
+ * and nothing written past the last lane. Fails when a lane takes another lane's seeds, a vector
+ * step differs from the scalar one, or a group of eight is written where fewer lanes were asked. Also: the inner inputs (dim, word) of the seed hash are
  * distinct for every dimension below 2^16, so no two seed words of a pixel coincide by
  * construction. */
 static void test_sobol_batch_matches_scalar(void)
@@ -332,10 +333,12 @@ static void test_sobol_batch_matches_scalar(void)
         paths++;
         for (int trial = 0; trial < 2000; trial++) {
             const uint64_t pixel_seed = (uint64_t)rng_next_u32(&r) << 32 | rng_next_u32(&r);
-            const uint32_t lanes = SOBOL_BATCH_LANES * (1u + (uint32_t)trial % 2u), index_reversed = rng_next_u32(&r);
+            static const uint32_t lane_counts[] = {5, 8, 13, 16};
+            const uint32_t lanes = lane_counts[trial % 4], index_reversed = rng_next_u32(&r);
             struct sobol_batch b;
             float u0[SOBOL_BATCH_DIMS], u1[SOBOL_BATCH_DIMS];
             memset(&b, 0xab, sizeof b);
+            for (uint32_t d = 0; d < SOBOL_BATCH_DIMS; d++) u0[d] = u1[d] = -1.0f;
             if (path == 0) {
                 sobol_batch_seed_scalar(&b, pixel_seed, lanes);
                 sobol_batch_draw_scalar(&b, index_reversed, lanes, u0, u1);
@@ -355,6 +358,7 @@ static void test_sobol_batch_matches_scalar(void)
                               b.scramble0_mul[d] != ((k.scramble0 >> 16) | 1u) ||
                               b.scramble1_mul[d] != ((k.scramble1 >> 16) | 1u) || u0[d] != w0 || u1[d] != w1;
             }
+            for (uint32_t d = lanes; d < SOBOL_BATCH_DIMS; d++) mismatched += u0[d] != -1.0f || u1[d] != -1.0f;
         }
     }
     printf("  batch Sobol' checked on %u code path(s)\n", paths);

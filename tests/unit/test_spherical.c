@@ -360,7 +360,8 @@ static void test_light_sampler_decision_and_pdf_agree(void)
         /* The same emitter as light_sampler_sample for the same u_pick; a quad's other triangle
          * only where the pair was sampled by solid angle (then either of its two). */
         CHECK(a.shape == b.shape && a.is_env == b.is_env);
-        CHECK(a.prim == b.prim || a.solid_angle);
+        CHECK(a.prim == b.prim || (a.solid_angle && s->shapes[a.shape].kind == SHAPE_MESH &&
+                                    s->shapes[a.shape].triangle_count == 2));
         if (!ok_from) continue;
         if (a.is_env) {
             CHECK(a.pdf_w == b.pdf_w);
@@ -403,20 +404,23 @@ static void test_light_sampler_decision_and_pdf_agree(void)
 
 /* light_sampler_sample_from's solid-angle samples of a quad from a point close to it are uniform
  * over the quad's whole solid angle: each triangle is chosen in proportion to its solid angle
- * (binomial z against Omega_k / (Omega_0 + Omega_1), 0.463 and 0.537 from p), and within
- * each the barycentrics it returns are uniform in solid angle (binned as in
- * test_warp_uniform_chi2); every sample's pdf is the pair's, (pmf_0 + pmf_1) / (Omega_0 +
- * Omega_1). Fails with the triangle picked by power alone, half each (split z 47.4). */
+ * (binomial z against Omega_k / (Omega_0 + Omega_1), 0.608 and 0.392 from p), and within each
+ * the barycentrics it returns are uniform in solid angle (binned as in test_warp_uniform_chi2);
+ * every sample's pdf, and the pdf function's on either triangle, is the pair's, (pmf_0 + pmf_1) /
+ * (Omega_0 + Omega_1), with pick probabilities that differ (a trapezoid) and do not add up to 1
+ * (a sphere beside it). Fails with the triangle picked by power (split z -35.8), and with the
+ * pair's pick probability left out of its pdf. */
 static void test_light_sampler_solid_angle_uniform_chi2(void)
 {
     const char *json = "{\"format\": 1, \"camera\": {\"position\": [0, 0, 5], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0], "
                        "\"fov_deg\": 30}, \"materials\": {\"lamp\": {\"type\": \"diffuse\", \"albedo\": [0, 0, 0], "
                        "\"emission\": [1, 1, 1], \"two_sided\": true}}, \"shapes\": [{\"type\": \"quad\", \"material\": "
-                       "\"lamp\", \"vertices\": [[-1, -1, 1], [1.5, -1, 1.2], [1.5, 1.2, 1.2], [-1, 1.2, 1]]}]}";
+                       "\"lamp\", \"vertices\": [[-1, -1, 1], [1.5, -1, 1.2], [0.8, 1.2, 1.2], [-1, 1.2, 1]]}, "
+                       "{\"type\": \"sphere\", \"material\": \"lamp\", \"center\": [0, 0, -6], \"radius\": 1}]}";
     struct scene *s = fixture_load_json(json, NULL);
     if (!s) return;
     const struct vec3 p = vec3_make(0.3f, 0.2f, 0.1f);
-    double share[2][CELLS], omega[2];
+    double share[2][CELLS], omega[2], pmf[2];
     for (uint32_t t = 0; t < 2; t++) {
         struct vec3 v0, v1, v2, n;
         /* The triangle's vertices, from the sampler's own table. */
@@ -428,14 +432,20 @@ static void test_light_sampler_solid_angle_uniform_chi2(void)
         struct spherical_triangle st;
         CHECK(spherical_triangle_init(&st, p, v0, vec3_sub(v1, v0), vec3_sub(v2, v0)));
         omega[t] = st.solid_angle;
+        /* The triangle's pick probability by power: its area pdf times its area. */
+        pmf[t] = (double)light_sampler_pdf_a(s->lights, 0, t) * 0.5 * vec3_length(vec3_cross(vec3_sub(v1, v0), vec3_sub(v2, v0)));
     }
-    const float pdf_pair = (float)(1.0 / (omega[0] + omega[1]));  /* one emitter: pmf_0 + pmf_1 = 1 */
+    /* A trapezoid beside a sphere: the two triangles' pick probabilities differ, and with the
+     * sphere they do not add up to 1. */
+    CHECK(fabs(pmf[0] - pmf[1]) > 0.05 && pmf[0] + pmf[1] < 0.9);
+    const float pdf_pair = (float)((pmf[0] + pmf[1]) / (omega[0] + omega[1]));
     static long counts[2][CELLS];
     struct rng r = rng_make(17, 0, 0, 0);
     long n_samples = 0, per[2] = {0, 0}, pdf_off = 0;
     while (n_samples < 400000) {
         struct light_sample ls;
-        if (!light_sampler_sample_from(s->lights, p, rng_next_float(&r), rng_next_float(&r), rng_next_float(&r), &ls))
+        if (!light_sampler_sample_from(s->lights, p, rng_next_float(&r), rng_next_float(&r), rng_next_float(&r), &ls) ||
+            ls.shape != 0)
             continue;
         CHECK(ls.prim < 2 && ls.solid_angle);
         pdf_off += !(fabsf(ls.pdf_w - pdf_pair) <= 1e-5f * pdf_pair);
@@ -450,6 +460,14 @@ static void test_light_sampler_solid_angle_uniform_chi2(void)
            (double)per[0] / (double)n_samples, expect0, z_split, omega[0], omega[1]);
     CHECK_MSG(fabs(z_split) < 4.0, "light sampler: the split between the triangles is off, z %.2f", z_split);
     CHECK_MSG(pdf_off == 0, "%ld samples whose pdf is not the pair's %g", pdf_off, (double)pdf_pair);
+    /* The pdf function gives the pair's density on either triangle. */
+    for (uint32_t t = 0; t < 2; t++) {
+        struct vec3 q, n;
+        CHECK(light_sampler_triangle_point(s->lights, 0, t, 0.3f, 0.3f, &q, &n));
+        const float back = light_sampler_pdf_w_from(s->lights, p, 0, t, q);
+        CHECK_MSG(fabsf(back - pdf_pair) <= 1e-5f * pdf_pair, "triangle %u: pdf %g, the pair's %g", t, (double)back,
+                  (double)pdf_pair);
+    }
     for (int t = 0; t < 2; t++) {
         double z = cells_z(counts[t], share[t], per[t], "light sampler");
         printf("  light sampler, triangle %d: chi-square z %.2f\n", t, z);
