@@ -89,15 +89,23 @@ static inline uint32_t sobol_dimension1(uint32_t index)
  * [Laine and Karras 2011; Burley 2020, hash-based Owen scrambling]. Reversed back, bit b counted
  * from the top is flipped by a function of the bits above it: Owen's scrambling tree. The
  * constants are Vegdahl's (2021, "Building a Better LK Hash", psychopath.io), a revision of the
- * Laine-Karras hash that its author measured to come closer to full Owen scrambling. */
-static inline uint32_t sobol_owen_reversed(uint32_t x, uint32_t seed)
+ * Laine-Karras hash that its author measured to come closer to full Owen scrambling. `mul` must
+ * be odd (the multiplication is then a bijection that only carries upwards). */
+static inline uint32_t sobol_owen_reversed_mul(uint32_t x, uint32_t seed, uint32_t mul)
 {
     x ^= x * 0x3d20adeau;
     x += seed;
-    x *= (seed >> 16) | 1u;
+    x *= mul;
     x ^= x * 0x05526c56u;
     x ^= x * 0x53a22864u;
     return x;
+}
+
+/* The multiplier is derived from the seed; sobol_batch stores it beside each seed instead
+ * (sobol_owen_reversed_mul), so that a pixel derives it once. */
+static inline uint32_t sobol_owen_reversed(uint32_t x, uint32_t seed)
+{
+    return sobol_owen_reversed_mul(x, seed, (seed >> 16) | 1u);
 }
 
 /* Owen scrambling of a value in natural bit order (a coordinate, or a sample index: Burley's
@@ -224,17 +232,6 @@ struct sobol_batch {
     uint32_t scramble0[SOBOL_BATCH_DIMS], scramble0_mul[SOBOL_BATCH_DIMS];
     uint32_t scramble1[SOBOL_BATCH_DIMS], scramble1_mul[SOBOL_BATCH_DIMS];
 };
-
-/* sobol_owen_reversed with the multiplier given. */
-static inline uint32_t sobol_owen_reversed_mul(uint32_t x, uint32_t seed, uint32_t mul)
-{
-    x ^= x * 0x3d20adeau;
-    x += seed;
-    x *= mul;
-    x ^= x * 0x05526c56u;
-    x ^= x * 0x53a22864u;
-    return x;
-}
 
 /* Lane d takes dimension d of the pixel. */
 static inline void sobol_batch_seed_lane(struct sobol_batch *b, uint64_t pixel_seed, uint32_t d)
