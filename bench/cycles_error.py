@@ -36,9 +36,7 @@ Needs Debian's blender (3.4; not installed by scripts/install-deps.sh). The 2048
 takes about 6 minutes on two loaded cores."""
 import json
 import os
-import resource
 import statistics
-import subprocess
 import sys
 from pathlib import Path
 
@@ -46,17 +44,16 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "bench"))
+from cputime import run_timed  # noqa: E402
 from exrimage import read_rgb  # noqa: E402
 
 
 def run(cmd, out):
     """Runs cmd, which must write out; returns the CPU seconds (user + system) of its process tree."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    res = subprocess.run(cmd, capture_output=True, text=True)
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    res, cpu = run_timed(cmd)
     if res.returncode != 0 or not out.exists():
         sys.exit(f"cycles_error: {' '.join(cmd)} failed:\n{res.stderr[-2000:]}")
-    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return cpu
 
 
 def cycles(blender, scene, size, spp, seed, out, threads):

@@ -29,13 +29,12 @@ SWEEP_BASELINES (e.g. "bdpt") adds those methods with their defaults at the same
       lamp-in-glass restir_bdpt '{}' '{"spatial_rounds": 1}'"""
 import json
 import os
-import resource
 import statistics
-import subprocess
 import sys
 from pathlib import Path
 
 import errors
+from cputime import run_timed
 from exrimage import read_rgb
 from references import Reference, reference_method
 from restir_pt import BIN, THREADS, run
@@ -52,12 +51,10 @@ CALIB = 8  # frames whose CPU time gives a configuration's frame cost in the con
 
 def cpu_render(args):
     """Runs `restir render ARGS` and returns the CPU seconds it spent (its own and its threads')."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    res = subprocess.run([BIN, "render", *map(str, args), "--threads", THREADS], capture_output=True, text=True)
+    res, cpu = run_timed([BIN, "render", *args, "--threads", THREADS])
     if res.returncode != 0:
         raise SystemExit(f"sweep: {' '.join(map(str, args))}: {res.stderr.strip()}")
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
+    return cpu
 
 
 def converge(path, work, ref, method, configs):
