@@ -1652,6 +1652,8 @@ def test_restir_bdpt_refuses_translucent(daemon):
     ({"reject_normal_cos": 1.5}, "/params/reject_normal_cos"),
     ({"reject_depth": -0.1}, "/params/reject_depth"),
     ({"temporal_cap_replay": 1001}, "/params/temporal_cap_replay"),
+    ({"jitter_walk": 0.6}, "/params/jitter_walk"),
+    ({"jitter_walk": -0.01}, "/params/jitter_walk"),
     ({"footprint_c": 0}, "/params/footprint_c"),
     ({"max_depth": 0}, "/params/max_depth"),
     ({"temporal": 1}, "/params/temporal"),

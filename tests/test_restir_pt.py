@@ -33,7 +33,7 @@ K_REF = 16       # reference renders
 # reference spp, the camera's slide over the session, the camera (None: the scene's) and the
 # scale of the negative control.
 CASES = {
-    "cornell-glossy": {"k": 128, "frames": 16, "averaged": 8, "ref_spp": 512, "move": [60.0, 0.0, 0.0],
+    "cornell-glossy": {"k": 256, "frames": 16, "averaged": 8, "ref_spp": 512, "move": [60.0, 0.0, 0.0],
                        "camera": None, "control": 1.03},
     "door-ajar": {"k": 256, "frames": 40, "averaged": 32, "ref_spp": 4096, "move": [0.06, 0.0, 0.04],
                   "camera": {"position": [0.8, 1.2, 0.4], "look_at": [3.7, 0.4, 5.6], "fov_deg": 14}, "control": 1.05},

@@ -184,20 +184,25 @@ def test_flicker_does_not_grow(daemon, refs, tmp_path, method):
         assert late < pt_late
 
 
-def _correlation(daemon, tmp_path, ref, method, n=8, warmup=8, same_seed=False):
+def _correlation(daemon, tmp_path, ref, method, n=8, warmup=8, same_seed=False, copies=False):
     """MAPE of the mean of n consecutive frames of one session over the MAPE of the mean of the
     same frame index from n independent sessions (seeds differ unless `same_seed`): about 1 for
     independent frames, about sqrt(n) for copies (MAPE, not RMSE: a few bright pixels would
     decide an RMSE at this size)."""
     s = Session(daemon, tmp_path, method, seed=21)
-    consecutive = np.mean(s.frames(warmup + n)[warmup:], axis=0)
+    frames = s.frames(warmup + n)[warmup:]
+    consecutive = np.mean(frames, axis=0)
     s.close()
     independent = []
     for i in range(n):
         s = Session(daemon, tmp_path, method, seed=100 if same_seed else 100 + i)
         independent.append(s.frames(warmup + 1)[-1])
         s.close()
-    return mape(consecutive, ref) / mape(np.mean(independent, axis=0), ref)
+    base = mape(np.mean(independent, axis=0), ref)
+    if copies:
+        # The same measure had the session repeated its first frame n times.
+        return mape(consecutive, ref) / base, mape(frames[0], ref) / base
+    return mape(consecutive, ref) / base
 
 
 # pt's frames continue one Sobol' sequence (its default sampler: sample index frame x spp +
@@ -209,16 +214,19 @@ PT_STRATIFIED = (0.55, 0.95)
 @pytest.mark.parametrize("method", SEQUENCE_SHORT)
 def test_consecutive_frames_are_not_copies(daemon, refs, tmp_path, method):
     """Frames of a method without reuse are independent (ratio near 1), pt's stratified (below 1,
-    PT_STRATIFIED); a reusing method's are correlated, but clearly less than copies would be
-    (sqrt(8) = 2.83)."""
-    ratio = _correlation(daemon, tmp_path, refs(HOME[method], "start"), method)
-    print(f"{method}: error of 8 consecutive frames / 8 independent = {ratio:.2f}")
+    PT_STRATIFIED); a reusing method's are correlated, but less than copies would be: below 0.95
+    of the ratio that 8 copies of the session's first frame give (about sqrt(8) = 2.83, less
+    where a bias floor or a few bright pixels hold the MAPE). restir_pt's walking primary ray
+    (`jitter_walk`) keeps a pixel's samples for many frames: 0.87 of its copies' ratio, restir_bdpt
+    0.90 (2.44 of 2.80, 2.12 of 2.35 on cornell-box)."""
+    ratio, copied = _correlation(daemon, tmp_path, refs(HOME[method], "start"), method, copies=True)
+    print(f"{method}: error of 8 consecutive frames / 8 independent = {ratio:.2f} (8 copies of a frame: {copied:.2f})")
     if method == "pt":
         assert PT_STRATIFIED[0] < ratio < PT_STRATIFIED[1], ratio
     elif method not in REUSING:
         assert 0.8 < ratio < 1.25, ratio
     else:
-        assert ratio < 2.3, ratio
+        assert ratio < 0.95 * copied, (ratio, copied)
 
 
 def test_correlation_check_sees_copies(daemon, refs, tmp_path):
@@ -355,21 +363,26 @@ def _glass_lamp_scene(path):
 def test_light_behind_glass_restir_pt(daemon, tmp_path):
     """restir_pt where NEE is always blocked: frames stay finite, the error of single frames does
     not climb (frames 41-56 no worse than frames 9-24, pooled over three sessions), and the mean
-    of those frames matches the reference's brightness within 5 % (the light arrives through
-    caustic paths only: far too heavy-tailed for a per-pixel z-test at this size; 1-spp pt frames
-    have a MAPE of about 1.6 here and 64 spp still 1.3)."""
+    of frames 9-56 matches the reference's brightness within 5 % over 48 sessions (the light
+    arrives through caustic paths only: far too heavy-tailed for a per-pixel z-test at this size;
+    1-spp pt frames have a MAPE of about 1.6 here and 64 spp still 1.3). The walking primary ray
+    (`jitter_walk`) keeps such a path in a pixel's history for many frames, so one session's mean
+    brightness spreads over about ±12 % (three sessions' mean over ±7 %): 48 sessions bring the
+    mean's standard error to about 2 %."""
     scene = _glass_lamp_scene(tmp_path / "glass-lamp.json")
     r = daemon.req("PUT", "/v1/scenes/glass-lamp", body=scene.read_bytes(), headers={"Content-Type": "application/json"})
     assert r.status in (200, 201), repr(r)
     ref, _ = render(scene, tmp_path / "ref.exr", spp=4096, size=f"{SIZE}x{SIZE}", seed=7)
-    early, late, means = [], [], []
+    early, late = [], []
     for seed in (1, 2, 3):
         s = Session(daemon, tmp_path, "restir_pt", seed=seed, scene="glass-lamp")
         imgs = s.frames(56)
         s.close()
         early += [mape(img, ref) for img in imgs[8:24]]
         late += [mape(img, ref) for img in imgs[40:56]]
-        means += [float(img.mean()) for img in imgs[8:56]]
+    means = [float(render(scene, tmp_path / "m.exr", size=f"{SIZE}x{SIZE}", seed=100 + seed,
+                          extra=("--method", "restir_pt", "--frames", 56, "--average-last", 48))[0].mean())
+             for seed in range(48)]
     e, l, ratio = float(np.median(early)), float(np.median(late)), float(np.mean(means) / ref.mean())
     print(f"glass lamp: restir_pt MAPE frames 9-24 {e:.3f}, 41-56 {l:.3f}; mean / pt mean {ratio:.3f}")
     assert l <= 1.3 * e

@@ -94,7 +94,8 @@ struct restir_pt_params restir_pt_defaults(void)
 {
     return (struct restir_pt_params){
         .max_depth = 64, .rr_depth = 1, .rr = true, .nee_candidates = RESTIR_PT_NEE_BY_SCENE, .unify_di = true,
-        .temporal = true, .temporal_cap = 20, .history_check = true, .spatial_neighbors = 3, .spatial_radius = 0.0f, .spatial_rounds = 1,
+        .temporal = true, .temporal_cap = 20, .history_check = true, .jitter_walk = 0.005f,
+        .spatial_neighbors = 3, .spatial_radius = 0.0f, .spatial_rounds = 1,
         .paired_spatial = true,
         .expected_shading = true,
         .footprint = true, .footprint_c = 0.02f, .near_distance = 0.03f, .pdf_connect = true, .roughness_min = 0.2f,
@@ -121,6 +122,8 @@ bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err)
         return err_set(err, ERR_INVALID, "/params/max_depth", "max_depth must be in 1..%u", PT_MAX_LENGTH - 1);
     if (p->nee_candidates > 64 && p->nee_candidates != RESTIR_PT_NEE_BY_SCENE)
         return err_set(err, ERR_INVALID, "/params/nee_candidates", "nee_candidates must be in 0..64");
+    if (!(p->jitter_walk >= 0.0f && p->jitter_walk <= 0.5f))
+        return err_set(err, ERR_INVALID, "/params/jitter_walk", "jitter_walk must be in [0, 0.5] pixels");
     if (p->temporal_cap < 1 || p->temporal_cap > 1000)
         return err_set(err, ERR_INVALID, "/params/temporal_cap", "temporal_cap must be in 1..1000");
     if (p->temporal_cap_replay > 1000)
@@ -1094,7 +1097,7 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
     if (f->scene->shape_count != st->shape_count)
         return err_set(err, ERR_INVALID, NULL, "the scene has %u shapes, the session %u", f->scene->shape_count,
                        st->shape_count);
-    if (!restir_frame_gbuffer(&pp.fr, 0.0f, pt_uses_pairs(params), params->history_check, err)) return false;
+    if (!restir_frame_gbuffer(&pp.fr, params->jitter_walk, pt_uses_pairs(params), params->history_check, err)) return false;
     restir_pt_bind(st, params, f, &c);
     pp.c = &c;
     if (!restir_frame_initial(&pp.fr, pt_initial_rows, err)) return false;

@@ -38,6 +38,9 @@ struct RESTIRD_STORED_IN_BYTES restir_pt_params {
                                     which keeps k); 0 = temporal_cap (0) */
     bool history_check;          /* the G-buffer's history check of the motion vectors in frames
                                     where something moved (gbuffer.h; true) */
+    float jitter_walk;           /* the primary ray's position in the pixel moves by at most this
+                                    many pixels per axis and frame (gbuffer.h); 0 = a fresh
+                                    position every frame (0.005) */
     uint32_t spatial_neighbors;  /* per round (3); 0 = no spatial reuse */
     float spatial_radius;        /* pixels (20) */
     uint32_t spatial_rounds;     /* (1) */

@@ -19,6 +19,7 @@ static void rpt_converge(void *params)
 {
     struct restir_pt_params *p = params;
     p->temporal = false;
+    p->jitter_walk = 0.0f;
     p->spatial_rounds = 3;
     p->spatial_neighbors = 6;
 }
@@ -90,6 +91,7 @@ static const struct method_param rpt_params[] = {
       "the cap for samples without a reconnection vertex (random replay only); 0 = temporal_cap"),
     P(history_check, METHOD_PARAM_BOOL, 0, 1,
       "a pixel whose previous pixel saw another surface takes no history, one that covers less area a share"),
+    P(jitter_walk, METHOD_PARAM_FLOAT, 0, 0.5, "pixels the primary ray's position may move per frame and axis; 0 = afresh"),
     P(spatial_neighbors, METHOD_PARAM_UINT, 0, 64, "spatial neighbours per round; 0 = no spatial reuse"),
     P(spatial_radius, METHOD_PARAM_FLOAT, 0, 256, "spatial reuse radius in pixels; 0 = by resolution"),
     P(spatial_rounds, METHOD_PARAM_UINT, 1, 8, "spatial reuse rounds"),

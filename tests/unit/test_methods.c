@@ -199,6 +199,12 @@ static void test_converge_profile(void)
         for (uint32_t k = 0; k < m->param_count; k++) {
             const struct method_param *p = &m->params[k];
             size_t len = strlen(p->key);
+            /* A walking primary ray ties each frame's position to the last one's. */
+            if (strcmp(p->key, "jitter_walk") == 0) {
+                float walk;
+                memcpy(&walk, converge + p->offset, sizeof walk);
+                CHECK_MSG(walk == 0.0f, "%s converge: jitter_walk %g", m->name, walk);
+            }
             if (p->kind != METHOD_PARAM_BOOL || len < 8 || strcmp(p->key + len - 8, "temporal") != 0) continue;
             bool on;
             memcpy(&on, converge + p->offset, sizeof on);

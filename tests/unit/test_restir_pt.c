@@ -298,6 +298,47 @@ static void test_session_bytes_planned_match_allocated(void)
     scene_release(sc);
 }
 
-TEST_MAIN(TEST(test_reservoir_is_compact), TEST(test_session_bytes_planned_match_allocated), TEST(test_identity_shift_reproduces_initial_contribution),
+/* The session's jitter_walk reaches its G-buffer: with the default each pixel's primary ray moves
+ * by at most the default step per axis between consecutive frames; with 0 most move further (a
+ * fresh position every frame). Out of [0, 0.5] it is refused naming the parameter. */
+static void test_jitter_walk_reaches_the_gbuffer(void)
+{
+    struct scene *sc = fixture_load("scenes/cornell-glossy/scene.json");
+    if (!sc) return;
+    enum { W = 16, H = 16, N = W * H };
+    const float step = restir_pt_defaults().jitter_walk;
+    CHECK(step > 0.0f && step <= 0.5f);
+    struct err err = {0};
+    for (int walk = 0; walk < 2; walk++) {
+        struct restir_pt_params p = restir_pt_defaults();
+        if (!walk) p.jitter_walk = 0.0f;
+        struct restir_pt_state st;
+        struct image out;
+        CHECK(restir_pt_init(&st, sc, &p, W, H, &err) && image_init(&out, W, H, &err));
+        float jx[N], jy[N], worst = 0.0f;
+        for (uint32_t t = 0; t < 3; t++) {
+            struct method_frame f = {.scene = sc, .camera = &sc->camera, .prev_scene = t ? sc : NULL,
+                                     .prev_camera = &sc->camera, .seed = 4, .frame = t, .threads = 1};
+            CHECK_MSG(restir_pt_render(&st, &p, &f, &out, NULL, &err), "%s", err.message);
+            const struct gbuffer_pixel *px = st.rs.gbuf[st.rs.cur].px;
+            for (uint32_t i = 0; i < N; i++) {
+                if (t) worst = fmaxf(worst, fmaxf(fabsf(px[i].jx - jx[i]), fabsf(px[i].jy - jy[i])));
+                jx[i] = px[i].jx, jy[i] = px[i].jy;
+            }
+        }
+        if (walk) CHECK_MSG(worst <= step * (1.0f + 1e-6f), "walk %g: largest move %g", step, worst);
+        else CHECK_MSG(worst > 0.5f, "no walk: largest move only %g", worst);
+        image_destroy(&out);
+        restir_pt_destroy(&st);
+    }
+    struct restir_pt_params bad = restir_pt_defaults();
+    bad.jitter_walk = 0.51f;
+    CHECK(!restir_pt_params_valid(&bad, &err) && strcmp(err.where, "/params/jitter_walk") == 0);
+    bad.jitter_walk = NAN;
+    CHECK(!restir_pt_params_valid(&bad, &err) && strcmp(err.where, "/params/jitter_walk") == 0);
+    scene_release(sc);
+}
+
+TEST_MAIN(TEST(test_reservoir_is_compact), TEST(test_jitter_walk_reaches_the_gbuffer), TEST(test_session_bytes_planned_match_allocated), TEST(test_identity_shift_reproduces_initial_contribution),
           TEST(test_spatial_round_trips_enhanced), TEST(test_spatial_round_trips_classic),
           TEST(test_temporal_round_trips_camera), TEST(test_temporal_round_trips_moving_shape))
