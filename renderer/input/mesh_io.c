@@ -637,6 +637,14 @@ static bool mesh_io_check_import(const struct aiScene *s, const char *name, stru
     return true;
 }
 
+static bool mesh_io_has_polygons(const struct aiScene *s)
+{
+    for (unsigned m = 0; m < s->mNumMeshes; m++)
+        for (unsigned f = 0; f < s->mMeshes[m]->mNumFaces; f++)
+            if (s->mMeshes[m]->mFaces[f].mNumIndices > 3) return true;
+    return false;
+}
+
 /* Merges the triangles of every part into one mesh; points and lines are dropped. */
 static bool mesh_io_merge(const struct aiScene *s, const char *name, struct mesh *out, struct err *err)
 {
@@ -723,10 +731,15 @@ bool mesh_io_load_memory(const void *data, size_t len, const char *name_for_erro
         while (n > 0 && (msg[n - 1] == ' ' || msg[n - 1] == '\n')) n--;
         err_set(err, ERR_PARSE, name, "cannot read the mesh: %.*s", n, msg);
     } else if (mesh_io_check_import(s, name, err)) {
-        /* Triangulate only after the check: it reads vertex positions through the indices. */
-        s = aiApplyPostProcessing(s, aiProcess_Triangulate);
-        if (!s) err_set(err, ERR_PARSE, name, "cannot triangulate the mesh: %s", aiGetErrorString());
-        else ok = mesh_io_merge(s, name, out, err);
+        /* Triangulate only after the check: it reads vertex positions through the indices. And
+         * only when some face has more than three corners: a mesh the importer marked as holding
+         * polygons whose faces are all points, lines and triangles (a malformed binary PLY can
+         * give one) trips an assertion in assimp's triangulation, which aborts the process. */
+        if (mesh_io_has_polygons(s)) {
+            s = aiApplyPostProcessing(s, aiProcess_Triangulate);
+            if (!s) err_set(err, ERR_PARSE, name, "cannot triangulate the mesh: %s", aiGetErrorString());
+        }
+        if (s) ok = mesh_io_merge(s, name, out, err);
     }
     if (s) aiReleaseImport(s);
     pthread_mutex_unlock(&mesh_io_lock);

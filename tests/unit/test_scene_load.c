@@ -464,6 +464,11 @@ static void test_mesh_io_memory_errors(void)
      * indices); the row walk must refuse it first. */
     CHECK(!mesh_io_load_file("tests/scenes_bad/meshes/list-overrun.ply", "list-overrun.ply", NULL, &m, &err));
     CHECK(err.code == ERR_PARSE && strcmp(err.where, "list-overrun.ply") == 0);
+    /* A binary PLY read off by one byte: the importer marks its mesh as holding polygons, but
+     * every face it read has at most three corners. Assimp's triangulation asserts on that and
+     * aborted the process; the mesh is not triangulated, and it has no triangles. */
+    CHECK(!mesh_io_load_file("tests/fuzz/mesh_ply/crash-triangulate-assert-no-polygon", "t.ply", "ply", &m, &err));
+    CHECK(err.code == ERR_INVALID && strstr(err.message, "no triangles") != NULL);
     /* Assimp itself rejects this one (no vertices, no faces): its message is kept. */
     CHECK(!mesh_io_load_file("tests/scenes_bad/meshes/empty.ply", "empty.ply", NULL, &m, &err));
     CHECK(err.code == ERR_PARSE && strstr(err.message, "cannot read the mesh: ") != NULL);
