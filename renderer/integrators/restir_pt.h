@@ -42,7 +42,7 @@ struct RESTIRD_STORED_IN_BYTES restir_pt_params {
                                     many pixels per axis and frame (gbuffer.h); 0 = a fresh
                                     position every frame (0.005) */
     uint32_t spatial_neighbors;  /* per round (3); 0 = no spatial reuse */
-    float spatial_radius;        /* pixels (20) */
+    float spatial_radius;        /* pixels; 0 = by resolution (restir_radius_auto; 0) */
     uint32_t spatial_rounds;     /* (1) */
     float reject_normal_cos;     /* a neighbour whose normal's cosine with the pixel's is below
                                     this is not reused; 0 = no normal test (0) */
