@@ -31,12 +31,16 @@ static const char *jobs_status_name(enum job_status s)
 
 /* Call with the session lock held. A reference an animation is measured against (its pixels,
  * and its bytes in the memory budget once it has been deleted) is held while the job runs, not
- * while its record is kept: it is let go before the job is seen to end. */
+ * while its record is kept: it is let go before the job is seen to end. So is an animation's
+ * claim on its session, in the same step: a client that sees the job ended (its status, or the
+ * `done` event posted after this) may render the session's next frame at once, and would be
+ * refused as busy if the claim were given back later. */
 static void jobs_set_status_locked(struct job *j, enum job_status st)
 {
     if (st >= JOB_DONE) {
         ref_image_release(j->reference);
         j->reference = NULL;
+        if (j->kind == JOB_ANIMATION && j->status < JOB_DONE) session_unclaim_locked(j->session);
     }
     j->status = st;
 }
@@ -262,14 +266,13 @@ static void *jobs_worker(void *arg)
             else
                 jobs_run_reference(q, j);
         }
-        /* Only this thread writes the status, so it is read here without the lock. */
+        /* Only this thread writes the status, so it is read here without the lock. An
+         * animation's claim went with its final status (jobs_set_status_locked). */
         if (j->status != JOB_FAILED) jobs_post(j, "done");
-        bool animation = j->kind == JOB_ANIMATION;
         /* The last touch: once released, a job added to the session may free it at once. */
         pthread_mutex_lock(&s->lock);
         j->released = true;
         pthread_mutex_unlock(&s->lock);
-        if (animation) session_unclaim(s);
         session_release(s);
     }
 }

@@ -261,11 +261,16 @@ bool session_claim(struct session *s, struct err *err)
     return ok;
 }
 
+void session_unclaim_locked(struct session *s)
+{
+    s->busy = false;
+    pthread_cond_broadcast(&s->cond);
+}
+
 void session_unclaim(struct session *s)
 {
     pthread_mutex_lock(&s->lock);
-    s->busy = false;
-    pthread_cond_broadcast(&s->cond);
+    session_unclaim_locked(s);
     pthread_mutex_unlock(&s->lock);
 }
 

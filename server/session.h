@@ -155,6 +155,8 @@ size_t session_bytes(struct session *s);
 /* Claims the session for one frame or a job; ERR_CONFLICT when busy or deleted. */
 bool session_claim(struct session *s, struct err *err);
 void session_unclaim(struct session *s);
+/* The same with s->lock held by the caller. */
+void session_unclaim_locked(struct session *s);
 
 /* Renders the next frame of a claimed session through the gate (bounded = a synchronous
  * request, which may be refused with ERR_BUSY when the queue is full), keeps it, and posts a

@@ -35,18 +35,17 @@ struct jobs {
     unsigned held_count;
 };
 
-/* What a worker does last with every job it takes (jobs_worker): the final status, the job let
- * go of, the animation's claim and the session reference jobs_submit took given back. From here
+/* What a worker does last with every job it takes (jobs_worker): the final status with the
+ * animation's claim, the job let go of and the session reference jobs_submit took given back. From here
  * on, a job added to the session may free this one. */
 static void pool_end_job(struct job *j, enum job_status status)
 {
     struct session *s = j->session;
-    bool animation = j->kind == JOB_ANIMATION;
     pthread_mutex_lock(&s->lock);
     j->status = status;
+    if (j->kind == JOB_ANIMATION) session_unclaim_locked(s);
     j->released = true;
     pthread_mutex_unlock(&s->lock);
-    if (animation) session_unclaim(s);
     session_release(s);
 }
 

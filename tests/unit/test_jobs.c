@@ -103,6 +103,29 @@ static bool add_tiny_reference(struct fixture *f, unsigned i)
     return queued;
 }
 
+/* Adds and queues an animation of `frames` still frames at 30 fps, claiming the session as
+ * POST …/renders does; NULL (after a failed CHECK) when it could not. */
+static struct job *submit_animation(struct fixture *f, uint32_t frames)
+{
+    struct err e = {0};
+    struct job *j = job_new(f->s, JOB_ANIMATION, NULL, 0, &e);
+    CHECK(j != NULL);
+    if (!j) return NULL;
+    j->fps = 30;
+    j->frames_total = frames;
+    j->frames = calloc(frames, sizeof *j->frames);
+    j->rows = calloc(frames, sizeof *j->rows);
+    bool exists, added = j->frames && j->rows && session_job_add(f->s, j, true, &exists, &e);
+    CHECK_MSG(added, "%s", e.message);
+    if (!added) {
+        job_destroy(j);
+        return NULL;
+    }
+    bool queued = jobs_submit(f->q, j, &e);
+    CHECK_MSG(queued, "%s", e.message);
+    return queued ? j : NULL;
+}
+
 /* Adds tiny references, as many as 20000 or as fit in 3 s, each as soon as the session has a
  * record to spare. */
 static void add_tiny_references(struct fixture *f)
@@ -221,25 +244,11 @@ static void test_animation_ends_cancelled_when_its_session_is_deleted_mid_frame(
         fixture_close(&f);
         return;
     }
-    struct err e = {0};
-    struct job *j = job_new(f.s, JOB_ANIMATION, NULL, 0, &e);
-    CHECK(j != NULL);
+    struct job *j = submit_animation(&f, 2);
     if (!j) {
         fixture_close(&f);
         return;
     }
-    j->fps = 30;
-    j->frames_total = 2;
-    j->frames = calloc(2, sizeof *j->frames);
-    j->rows = calloc(2, sizeof *j->rows);
-    bool exists, added = j->frames && j->rows && session_job_add(f.s, j, true, &exists, &e);
-    CHECK_MSG(added, "%s", e.message);
-    if (!added) {
-        job_destroy(j);
-        fixture_close(&f);
-        return;
-    }
-    CHECK_MSG(jobs_submit(f.q, j, &e), "%s", e.message);
     for (int ms = 0; ms < 10000 && job_status(f.s, j) <= JOB_RUNNING && !gate_rendering(&f.gate); ms++) sleep_ms(1);
     CHECK(job_status(f.s, j) == JOB_RUNNING);
     CHECK(sessions_remove(f.table, "cb", f.s->id));
@@ -255,6 +264,51 @@ static void test_animation_ends_cancelled_when_its_session_is_deleted_mid_frame(
     fixture_close(&f);
 }
 
+/* A client that sees an animation ended (its status, or the `done` event) renders the session's
+ * next frame at once: the session must not still be claimed by the ended job, or that frame is
+ * refused as busy. The status and the claim are read in one step, as a request reads them; the
+ * worker used to give the claim back only after posting `done`. */
+static void test_an_ended_animation_has_given_its_session_back(void)
+{
+    struct fixture f;
+    if (!fixture_open(&f, 8, 1)) {
+        fixture_close(&f);
+        return;
+    }
+    int still_claimed = 0, rounds = 0;
+    for (; rounds < 200; rounds++) {
+        struct job *j = submit_animation(&f, 1);
+        if (!j) break;
+        enum job_status st = JOB_QUEUED;
+        bool busy = true;
+        struct timespec t0, t;
+        clock_gettime(CLOCK_MONOTONIC, &t0);
+        do {  /* spins: the window between the two used to be microseconds */
+            pthread_mutex_lock(&f.s->lock);
+            st = j->status;
+            busy = f.s->busy;
+            pthread_mutex_unlock(&f.s->lock);
+            clock_gettime(CLOCK_MONOTONIC, &t);
+        } while (st <= JOB_RUNNING && t.tv_sec - t0.tv_sec < 20);
+        CHECK_MSG(st == JOB_DONE, "round %d: status %d, error %s", rounds, (int)st, j->error.message);
+        if (st != JOB_DONE) break;
+        still_claimed += busy;
+        bool released = false;  /* the next add may forget this record only once it is let go */
+        for (int ms = 0; ms < 10000 && !released; ms++) {
+            pthread_mutex_lock(&f.s->lock);
+            released = j->released;
+            pthread_mutex_unlock(&f.s->lock);
+            if (!released) sleep_ms(1);
+        }
+        CHECK(released);
+        if (!released) break;
+    }
+    CHECK_MSG(still_claimed == 0, "the session was still claimed when %d of %d ended animations were seen done",
+              still_claimed, rounds);
+    fixture_close(&f);
+}
+
 TEST_MAIN(TEST(test_finished_jobs_are_forgotten_only_once_their_worker_let_go),
           TEST(test_jobs_read_by_id_stay_valid_while_submissions_forget_old_ones),
-          TEST(test_animation_ends_cancelled_when_its_session_is_deleted_mid_frame))
+          TEST(test_animation_ends_cancelled_when_its_session_is_deleted_mid_frame),
+          TEST(test_an_ended_animation_has_given_its_session_back))
