@@ -122,8 +122,7 @@ bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err)
         return err_set(err, ERR_INVALID, "/params/max_depth", "max_depth must be in 1..%u", PT_MAX_LENGTH - 1);
     if (p->nee_candidates > 64 && p->nee_candidates != RESTIR_PT_NEE_BY_SCENE)
         return err_set(err, ERR_INVALID, "/params/nee_candidates", "nee_candidates must be in 0..64");
-    if (!(p->jitter_walk >= 0.0f && p->jitter_walk <= 0.5f))
-        return err_set(err, ERR_INVALID, "/params/jitter_walk", "jitter_walk must be in [0, 0.5] pixels");
+    if (!gbuffer_jitter_walk_valid(p->jitter_walk, err)) return false;
     if (p->temporal_cap < 1 || p->temporal_cap > 1000)
         return err_set(err, ERR_INVALID, "/params/temporal_cap", "temporal_cap must be in 1..1000");
     if (p->temporal_cap_replay > 1000)

@@ -61,8 +61,7 @@ bool restir_sms_params_valid(const struct restir_sms_params *p, struct err *err)
         return err_set(err, ERR_INVALID, "/params/spatial_neighbors", "must be in [0, 32], got %u", p->spatial_neighbors);
     if (!(p->spatial_radius >= 1.0f && p->spatial_radius <= 256.0f))
         return err_set(err, ERR_INVALID, "/params/spatial_radius", "must be in [1, 256] pixels");
-    if (!(p->jitter_walk >= 0.0f && p->jitter_walk <= 0.5f))
-        return err_set(err, ERR_INVALID, "/params/jitter_walk", "must be in [0, 0.5] pixels");
+    if (!gbuffer_jitter_walk_valid(p->jitter_walk, err)) return false;
     if (p->light_reservoirs > RESTIR_SMS_MAX_LIGHT_RESERVOIRS)
         return err_set(err, ERR_INVALID, "/params/light_reservoirs", "must be in [0, %u] (0: one per emissive shape), got %u",
                        RESTIR_SMS_MAX_LIGHT_RESERVOIRS, p->light_reservoirs);

@@ -213,6 +213,12 @@ static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
     gj->rays[worker] += rc.intersect + rc.occluded;
 }
 
+bool gbuffer_jitter_walk_valid(float jitter_walk, struct err *err)
+{
+    if (jitter_walk >= 0.0f && jitter_walk <= 0.5f) return true;
+    return err_set(err, ERR_INVALID, "/params/jitter_walk", "must be in [0, 0.5] pixels");
+}
+
 bool gbuffer_render(struct gbuffer *g, const struct gbuffer_frame *f, uint64_t *rays, struct err *err)
 {
     /* On the stack (8 KiB of counters): a steady-state frame allocates nothing. */

@@ -82,6 +82,12 @@ struct gbuffer_frame {
                                              (gbuffer_history_share) */
 };
 
+/* Whether a method's `jitter_walk` parameter is a step gbuffer_render takes: 0 (a fresh
+ * position every frame) up to half a pixel, a step that already spreads the next position over
+ * the whole pixel (a larger one would keep no more of the history's place than a fresh draw).
+ * The error names /params/jitter_walk. */
+bool gbuffer_jitter_walk_valid(float jitter_walk, struct err *err);
+
 /* Relative tolerance of the history check: the reprojected point must lie within this fraction
  * of its distance to the previous camera from the tangent plane of the previous pixel's hit. */
 #define GBUFFER_HISTORY_PLANE_TOL 0.02f

@@ -13,6 +13,7 @@
 
 #include "integrators/restir_sms.h"
 #include "scene/scene.h"
+#include "jitter_moves.h"
 #include "session_buffers.h"
 #include "test.h"
 #include "scene_fixture.h"
@@ -358,11 +359,7 @@ static void test_jitter_walk_reaches_the_gbuffer(void)
             struct method_frame f = {.scene = sc, .camera = &sc->camera, .prev_scene = t ? sc : NULL,
                                          .prev_camera = &sc->camera, .seed = 4, .frame = t, .threads = 1};
             CHECK_MSG(restir_sms_render(&st, &p, &f, &out, NULL, &err), "%s", err.message);
-            const struct gbuffer_pixel *px = st.rs.gbuf[st.rs.cur].px;
-            for (uint32_t i = 0; i < N; i++) {
-                if (t) worst = fmaxf(worst, fmaxf(fabsf(px[i].jx - jx[i]), fabsf(px[i].jy - jy[i])));
-                jx[i] = px[i].jx, jy[i] = px[i].jy;
-            }
+            worst = fmaxf(worst, jitter_largest_move(st.rs.gbuf[st.rs.cur].px, N, jx, jy, t == 0));
         }
         if (walk) CHECK_MSG(worst <= 0.1f * (1.0f + 1e-6f), "walk 0.1: largest move %g", worst);
         else CHECK_MSG(worst > 0.5f, "no walk: largest move only %g", worst);
