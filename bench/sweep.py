@@ -6,7 +6,11 @@ Each configuration renders SWEEP_SEEDS sessions of SWEEP_FRAMES frames with `res
 (seeds 7000, 7001, ...: the same for every configuration, so that they differ only by their
 parameters); the last frame is scored against the scene's reference of `make bench-report`
 (bench/references.py: the same chunks, cache and own error) and the medians over the seeds are
-printed with the median frame time, which shows whether the costs really are equal. A
+printed with the median frame time, which shows whether the costs really are equal, and the
+median CPU time a frame (the session's, all threads and its start-up included, over its frames):
+on a shared machine the wall clock of one run can stretch several times, its CPU time far less
+(BENCH_THREADS=1 keeps thread waits out of it too), so that column is the one to read the costs
+of configurations, or of methods swept one after the other, against each other. A
 configuration that costs more than another is not compared here: `make bench-report` with
 REPORT_PARAMS compares at equal time. Usage:
 
@@ -37,7 +41,7 @@ import errors
 from cputime import run_timed
 from exrimage import read_rgb
 from references import Reference, reference_method
-from restir_pt import BIN, THREADS, run
+from restir_pt import BIN, THREADS
 
 ROOT = Path(__file__).resolve().parent.parent
 SIDE = int(os.environ.get("SWEEP_SIZE", "256"))
@@ -115,18 +119,22 @@ def main(argv):
     if BUDGET_SPP:
         converge(path, work, ref, method, configs)
         return
-    print("\n| params | ms a frame | MAPE | relMSE | RMSE |\n|---|---|---|---|---|")
+    print("\n| params | ms a frame | CPU-ms a frame | MAPE | relMSE | RMSE |\n|---|---|---|---|---|---|")
     for text in configs:
-        scores, ms = [], []
+        scores, ms, cpu_ms = [], [], []
         for s in range(SEEDS):
             out = work / f"{scene}-{method}-{s}.exr"
-            st = run(["render", str(path), "--size", f"{SIDE}x{SIDE}", "--method", method, "--frames", str(FRAMES),
-                      "--seed", str(FIRST_SEED + s), "--params", text, "--json", "-o", str(out)])
-            ms.append(st["time_ms"] / FRAMES)
+            res, cpu = run_timed([BIN, "render", path, "--size", f"{SIDE}x{SIDE}", "--method", method, "--frames",
+                                  FRAMES, "--seed", FIRST_SEED + s, "--params", text, "--json", "-o", out,
+                                  "--threads", THREADS])
+            if res.returncode != 0:
+                raise SystemExit(f"sweep: {method} {text}: {res.stderr.strip()}")
+            ms.append(json.loads(res.stdout)["time_ms"] / FRAMES)
+            cpu_ms.append(1000.0 * cpu / FRAMES)
             scores.append(errors.metrics(read_rgb(out), ref.image))
         med = {k: statistics.median(sc[k] for sc in scores) for k in errors.KEYS}
-        print(f"| `{text}` | {statistics.median(ms):.1f} | {med['mape']:.4g} | {med['relmse']:.4g} | {med['rmse']:.4g} |",
-              flush=True)
+        print(f"| `{text}` | {statistics.median(ms):.1f} | {statistics.median(cpu_ms):.1f} | {med['mape']:.4g} | "
+              f"{med['relmse']:.4g} | {med['rmse']:.4g} |", flush=True)
 
 
 if __name__ == "__main__":
