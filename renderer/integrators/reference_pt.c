@@ -284,7 +284,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
                                                         struct vec3 org, struct vec3 dir, struct rng *rng_io,
                                                         struct ray_counters *rc_io, const struct pt_split *split,
                                                         bool sss_direct, const struct pt_sobol *qmc,
-                                                        const bool solid_angle)
+                                                        const bool solid_angle, struct accel_query *aq)
 {
     /* The random stream and the ray counters live in locals whose address never leaves this
      * function (pt_sss_primary gets copies): state behind the callers' pointers could be
@@ -325,7 +325,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             found = split->primary != NULL;
             if (found) hit = *split->primary;
         } else {
-            found = accel_intersect(accel, org, dir, 0.0f, INFINITY, &hit, rc);
+            found = accel_query_intersect(accel, aq, org, dir, INFINITY, &hit, rc);
         }
         if (!found) {
             if (part_rest && !vec3_is_zero(scene->env_radiance) && !skip_emission) {
@@ -480,7 +480,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
                                  * absolute 1/65536, below a long ray's intersection error. */
                                 tmax = vec3_is_zero(sdir) ? 0.0f : 1.0f - 1e-4f;
                             }
-                            if (tmax > 0.0f && !accel_occluded(accel, shadow_org, sdir, 0.0f, tmax, rc)) {
+                            if (tmax > 0.0f && !accel_query_occluded(accel, aq, shadow_org, sdir, tmax, rc)) {
                                 float pdf_bsdf_w = diffuse ? material_diffuse_pdf(wo.z, wi.z) : material_pdf(m, wo, wi);
                                 float w = sampling_power_heuristic(pdf_light_w, pdf_bsdf_w);
                                 struct vec3 c = vec3_scale(vec3_mul(f, Le), fabsf(wi.z) * w / pdf_light_w);
@@ -575,7 +575,9 @@ __attribute__((flatten)) struct vec3 reference_pt_radiance(const struct scene *s
                                                            struct rng *rng, bool sss_direct, struct ray_counters *rc)
 {
     const struct pt_split all = {.owned = true, .rest = true, .primary_given = true, .primary = primary};
-    return pt_radiance(scene, params, org, dir, rng, rc, &all, sss_direct, NULL, false);
+    struct accel_query aq;
+    accel_query_init(&aq);
+    return pt_radiance(scene, params, org, dir, rng, rc, &all, sss_direct, NULL, false, &aq);
 }
 
 __attribute__((flatten)) struct vec3
@@ -586,7 +588,9 @@ reference_pt_radiance_sms(const struct scene *scene, const struct pt_params *par
     const struct pt_split split = {.owned = false, .rest = !params->sms->caustics_only, .tracked = true, .ss = ss,
                                    .sc = sc, .sms_rng = sms_rng, .px = px, .py = py, .sms_after_primary = true,
                                    .primary_given = true, .primary = primary};
-    return pt_radiance(scene, params, org, dir, rng, rc, &split, true, NULL, false);
+    struct accel_query aq;
+    accel_query_init(&aq);
+    return pt_radiance(scene, params, org, dir, rng, rc, &split, true, NULL, false, &aq);
 }
 
 /* The tile loop, flattened (by its two callers below) for the same reason as pt_radiance, which
@@ -618,6 +622,9 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
     uint32_t y1 = y0 + PT_TILE < p->crop_y1 ? y0 + PT_TILE : p->crop_y1;
     const uint64_t first_index = (uint64_t)p->frame * p->spp, first_epoch = first_index >> PT_SOBOL_INDEX_BITS;
     const uint64_t first_epoch_key = sobol ? pt_sobol_epoch_key(p->seed, first_epoch) : 0;
+    /* Set up once for the tile's rays (accel.h). */
+    struct accel_query aq;
+    accel_query_init(&aq);
     for (uint32_t y = y0; y < y1; y++) {
         for (uint32_t x = x0; x < x1; x++) {
             if (parallel_stopped()) break;  /* the frame was given up: its pixels are not used */
@@ -656,7 +663,7 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
                 split.px = x;
                 split.py = y;
                 struct vec3 L = pt_radiance(job->scene, p, job->camera.position, dir, &rng, &rc, &split, true,
-                                            sobol ? &qmc : NULL, solid_angle);
+                                            sobol ? &qmc : NULL, solid_angle, &aq);
                 if (!vec3_is_finite(L)) {
                     st->nonfinite++;
                     continue;

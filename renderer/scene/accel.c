@@ -273,6 +273,34 @@ static void accel_ray_hit(struct RTCRayHit *out, struct vec3 org, struct vec3 di
     out->hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
 }
 
+/* A closest-hit query's answer as a struct hit (false: no hit). */
+static inline bool accel_hit_from(const struct accel *a, const struct RTCRayHit *rh, struct hit *hit)
+{
+    if (rh->hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+
+    /* Embree's Ng is unnormalised and, for instanced hits, in the instance's object space. For
+     * triangles it already points to the counter-clockwise (front) side, for spheres outwards
+     * (both checked by tests/unit/test_core.c). */
+    unsigned iid = rh->hit.instID[0];
+    struct vec3 ng = vec3_make(rh->hit.Ng_x, rh->hit.Ng_y, rh->hit.Ng_z);
+    uint32_t shape;
+    if (iid == RTC_INVALID_GEOMETRY_ID) {
+        shape = a->top_shape[rh->hit.geomID];
+    } else if (iid == a->static_inst_id) {
+        shape = a->static_shape[rh->hit.geomID];
+    } else {
+        shape = a->top_shape[iid];
+        ng = xform_normal(&a->to_object[shape], ng);
+    }
+    hit->t = rh->ray.tfar;
+    hit->shape = shape;
+    hit->prim = rh->hit.primID;
+    hit->b1 = rh->hit.u;
+    hit->b2 = rh->hit.v;
+    hit->ng = vec3_normalize(ng);
+    return true;
+}
+
 bool accel_intersect(const struct accel *a, struct vec3 org, struct vec3 dir, float tmin, float tmax,
                      struct hit *hit, struct ray_counters *counters)
 {
@@ -282,29 +310,66 @@ bool accel_intersect(const struct accel *a, struct vec3 org, struct vec3 dir, fl
     accel_ray_hit(&rh, org, dir, tmin, tmax);
     rtcIntersect1(a->top, &ctx, &rh);
     counters->intersect++;
-    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+    return accel_hit_from(a, &rh, hit);
+}
 
-    /* Embree's Ng is unnormalised and, for instanced hits, in the instance's object space. For
-     * triangles it already points to the counter-clockwise (front) side, for spheres outwards
-     * (both checked by tests/unit/test_core.c). */
-    unsigned iid = rh.hit.instID[0];
-    struct vec3 ng = vec3_make(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
-    uint32_t shape;
-    if (iid == RTC_INVALID_GEOMETRY_ID) {
-        shape = a->top_shape[rh.hit.geomID];
-    } else if (iid == a->static_inst_id) {
-        shape = a->static_shape[rh.hit.geomID];
-    } else {
-        shape = a->top_shape[iid];
-        ng = xform_normal(&a->to_object[shape], ng);
-    }
-    hit->t = rh.ray.tfar;
-    hit->shape = shape;
-    hit->prim = rh.hit.primID;
-    hit->b1 = rh.hit.u;
-    hit->b2 = rh.hit.v;
-    hit->ng = vec3_normalize(ng);
-    return true;
+/* struct accel_query's bytes as Embree's structs. may_alias: the bytes are declared as a char
+ * array (accel.h keeps Embree's types out of its includers), and are only ever accessed as
+ * these types. */
+struct accel_query_rtc {
+    struct RTCIntersectContext ctx;
+    struct RTCRayHit rh;   /* closest-hit queries */
+    struct RTCRay ray;     /* occlusion queries */
+} __attribute__((may_alias));
+_Static_assert(sizeof(struct accel_query_rtc) <= sizeof(struct accel_query), "accel_query holds Embree's structs");
+_Static_assert(_Alignof(struct accel_query_rtc) <= _Alignof(struct accel_query), "accel_query is aligned for them");
+
+static inline struct accel_query_rtc *accel_query_rtc(struct accel_query *q)
+{
+    return (struct accel_query_rtc *)(void *)q->opaque;
+}
+
+void accel_query_init(struct accel_query *q)
+{
+    struct accel_query_rtc *r = accel_query_rtc(q);
+    rtcInitIntersectContext(&r->ctx);
+    accel_ray_hit(&r->rh, vec3_splat(0.0f), vec3_make(0.0f, 0.0f, 1.0f), 0.0f, INFINITY);
+    r->ray = r->rh.ray;
+}
+
+bool accel_query_intersect(const struct accel *a, struct accel_query *q, struct vec3 org, struct vec3 dir,
+                           float tmax, struct hit *hit, struct ray_counters *counters)
+{
+    struct accel_query_rtc *r = accel_query_rtc(q);
+    /* Only what a query changes: the ray, the tfar a hit shortened and the hit record. */
+    r->rh.ray.org_x = org.x;
+    r->rh.ray.org_y = org.y;
+    r->rh.ray.org_z = org.z;
+    r->rh.ray.dir_x = dir.x;
+    r->rh.ray.dir_y = dir.y;
+    r->rh.ray.dir_z = dir.z;
+    r->rh.ray.tfar = tmax;
+    r->rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    r->rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(a->top, &r->ctx, &r->rh);
+    counters->intersect++;
+    return accel_hit_from(a, &r->rh, hit);
+}
+
+bool accel_query_occluded(const struct accel *a, struct accel_query *q, struct vec3 org, struct vec3 dir,
+                          float tmax, struct ray_counters *counters)
+{
+    struct accel_query_rtc *r = accel_query_rtc(q);
+    r->ray.org_x = org.x;
+    r->ray.org_y = org.y;
+    r->ray.org_z = org.z;
+    r->ray.dir_x = dir.x;
+    r->ray.dir_y = dir.y;
+    r->ray.dir_z = dir.z;
+    r->ray.tfar = tmax;   /* Embree sets it to -inf on a hit */
+    rtcOccluded1(a->top, &r->ctx, &r->ray);
+    counters->occluded++;
+    return r->ray.tfar < 0.0f;
 }
 
 /* Candidates kept by one accel_intersect_shape_all traversal. Larger than BSSRDF_MAX_HITS (16)

@@ -44,6 +44,21 @@ uint32_t accel_intersect_shape_all(const struct accel *accel, uint32_t shape, st
  * can be passed as it is, with tmax 1. */
 bool accel_occluded(const struct accel *accel, struct vec3 org, struct vec3 dir, float tmin, float tmax,
                     struct ray_counters *counters);
+/* Embree's query structs, kept by a caller that sends many rays from one thread (pt's tile
+ * loop): the fields that are the same for every ray (the intersection context, tmin 0, the ray's
+ * time, mask, id and flags) are written once by accel_query_init instead of once per ray, which
+ * is about seven stores of every query (Embree writes only tfar and the hit record; it restores
+ * whatever it changes for an instance's traversal). The layout is accel.c's; a query may be used
+ * by one thread at a time only. */
+struct accel_query {
+    _Alignas(16) unsigned char opaque[160];
+};
+void accel_query_init(struct accel_query *q);
+/* accel_intersect and accel_occluded with tmin 0, through q (set up by accel_query_init). */
+bool accel_query_intersect(const struct accel *accel, struct accel_query *q, struct vec3 org, struct vec3 dir,
+                           float tmax, struct hit *hit, struct ray_counters *counters);
+bool accel_query_occluded(const struct accel *accel, struct accel_query *q, struct vec3 org, struct vec3 dir,
+                          float tmax, struct ray_counters *counters);
 /* Moves a shape that was declared movable; false otherwise. Takes effect after
  * accel_commit_top. Not thread-safe against concurrent queries. */
 bool accel_set_transform(struct accel *accel, uint32_t shape, const struct xform *to_world);
