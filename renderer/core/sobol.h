@@ -32,6 +32,7 @@
 #ifndef RESTIRD_SOBOL_H
 #define RESTIRD_SOBOL_H
 
+#include <stddef.h>
 #include <stdint.h>
 
 #include "core/rng.h"
@@ -271,6 +272,15 @@ __attribute__((noinline, unused)) static void sobol_batch_draw_from(const struct
     for (uint32_t i = first; i < lanes; i++) sobol_batch_draw_lane(b, index_reversed, i, u0, u1);
 }
 
+/* Samples first .. first + count - 1 (natural order, first + count <= 2^32), sample i's lanes at
+ * u0 + i * stride and u1 + i * stride. */
+static inline void sobol_batch_draw_run_scalar(const struct sobol_batch *b, uint32_t first, uint32_t count,
+                                               uint32_t lanes, float *u0, float *u1, uint32_t stride)
+{
+    for (uint32_t i = 0; i < count; i++)
+        sobol_batch_draw_from(b, sobol_reverse_bits(first + i), 0, lanes, u0 + (size_t)i * stride, u1 + (size_t)i * stride);
+}
+
 static inline void sobol_batch_seed_scalar(struct sobol_batch *b, uint64_t pixel_seed, uint32_t lanes)
 {
     sobol_batch_seed_from(b, pixel_seed, 0, lanes);
@@ -286,14 +296,24 @@ static inline void sobol_batch_draw_scalar(const struct sobol_batch *b, uint32_t
 #include <immintrin.h>
 #define SOBOL_HAVE_AVX2 1
 
-/* The scalar steps above, eight lanes at a time. */
-__attribute__((target("avx2"))) static inline __m256i sobol_owen_reversed_x8(__m256i x, __m256i seed, __m256i mul)
+/* The scalar steps above, eight lanes at a time. The scramble's first step, which depends on x
+ * alone, is a function of its own (sobol_batch_draw_run takes it for eight samples at once). */
+__attribute__((target("avx2"))) static inline __m256i sobol_owen_reversed_pre_x8(__m256i x)
 {
-    x = _mm256_xor_si256(x, _mm256_mullo_epi32(x, _mm256_set1_epi32(0x3d20adea)));
+    return _mm256_xor_si256(x, _mm256_mullo_epi32(x, _mm256_set1_epi32(0x3d20adea)));
+}
+
+__attribute__((target("avx2"))) static inline __m256i sobol_owen_reversed_post_x8(__m256i x, __m256i seed, __m256i mul)
+{
     x = _mm256_add_epi32(x, seed);
     x = _mm256_mullo_epi32(x, mul);
     x = _mm256_xor_si256(x, _mm256_mullo_epi32(x, _mm256_set1_epi32(0x05526c56)));
     return _mm256_xor_si256(x, _mm256_mullo_epi32(x, _mm256_set1_epi32(0x53a22864)));
+}
+
+__attribute__((target("avx2"))) static inline __m256i sobol_owen_reversed_x8(__m256i x, __m256i seed, __m256i mul)
+{
+    return sobol_owen_reversed_post_x8(sobol_owen_reversed_pre_x8(x), seed, mul);
 }
 
 /* Each byte's nibbles reversed by table lookup and swapped, then each lane's bytes swapped (the
@@ -374,6 +394,40 @@ __attribute__((target("avx2"))) static inline void sobol_batch_draw_avx2(const s
     }
     if (i < lanes) sobol_batch_draw_from(b, index_reversed, i, lanes, u0, u1);
 }
+
+/* The eight lanes of sobol_batch_draw_avx2 after the shuffle's first step (pre: that step of the
+ * reversed index, in every lane). */
+__attribute__((target("avx2"))) static inline void sobol_batch_draw8_pre_avx2(const struct sobol_batch *b, __m256i pre,
+                                                                             float *u0, float *u1)
+{
+#define SOBOL_LOAD(field) _mm256_loadu_si256((const __m256i *)b->field)
+    __m256i index = sobol_reverse_bits_x8(sobol_owen_reversed_post_x8(pre, SOBOL_LOAD(shuffle), SOBOL_LOAD(shuffle_mul)));
+    __m256i r0 = sobol_owen_reversed_x8(index, SOBOL_LOAD(scramble0), SOBOL_LOAD(scramble0_mul));
+    __m256i r1 = sobol_owen_reversed_x8(sobol_dimension1_reversed_x8(index), SOBOL_LOAD(scramble1),
+                                        SOBOL_LOAD(scramble1_mul));
+#undef SOBOL_LOAD
+    _mm256_storeu_ps(u0, sobol_to_float_x8(sobol_reverse_bits_x8(r0)));
+    _mm256_storeu_ps(u1, sobol_to_float_x8(sobol_reverse_bits_x8(r1)));
+}
+
+/* A run of samples with eight lanes each, in one call: the constants stay in registers across the
+ * run, and the samples' indices are reversed, and put through the shuffle's first step, eight at a
+ * time. */
+__attribute__((target("avx2"))) static inline void sobol_batch_draw_run8_avx2(const struct sobol_batch *b,
+                                                                             uint32_t first, uint32_t count,
+                                                                             float *u0, float *u1, uint32_t stride)
+{
+    const __m256i step = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    for (uint32_t i = 0; i < count; i += 8) {
+        uint32_t pre[8];
+        _mm256_storeu_si256((__m256i *)pre, sobol_owen_reversed_pre_x8(sobol_reverse_bits_x8(
+                                                 _mm256_add_epi32(_mm256_set1_epi32((int)(first + i)), step))));
+        const uint32_t n = count - i < 8 ? count - i : 8;
+        for (uint32_t j = 0; j < n; j++)
+            sobol_batch_draw8_pre_avx2(b, _mm256_set1_epi32((int)pre[j]), u0 + (size_t)(i + j) * stride,
+                                       u1 + (size_t)(i + j) * stride);
+    }
+}
 #endif
 
 /* Lanes [0, lanes) take the seeds of the pixel's dimensions 0 .. lanes - 1: sobol_dimension_seeds
@@ -401,6 +455,22 @@ static inline void sobol_batch_draw(const struct sobol_batch *b, uint32_t index_
     }
 #endif
     sobol_batch_draw_scalar(b, index_reversed, lanes, u0, u1);
+}
+
+/* sobol_batch_draw for samples first .. first + count - 1 (natural order; first + count <= 2^32):
+ * sample i's lanes at u0 + i * stride and u1 + i * stride. A pixel's samples drawn as one run
+ * instead of one call each: with AVX2 and eight lanes, the constants are set up and the processor
+ * checked once per run, and the indices reversed eight at a time. */
+static inline void sobol_batch_draw_run(const struct sobol_batch *b, uint32_t first, uint32_t count, uint32_t lanes,
+                                        float *u0, float *u1, uint32_t stride)
+{
+#ifdef SOBOL_HAVE_AVX2
+    if (lanes == SOBOL_BATCH_LANES && __builtin_cpu_supports("avx2")) {
+        sobol_batch_draw_run8_avx2(b, first, count, u0, u1, stride);
+        return;
+    }
+#endif
+    sobol_batch_draw_run_scalar(b, first, count, lanes, u0, u1, stride);
 }
 
 #endif

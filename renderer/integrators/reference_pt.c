@@ -59,9 +59,18 @@ enum { PT_DIM_LIGHT_POINT, PT_DIM_BSDF_DIRECTION, PT_DIM_CHOICES, PT_DIMS_PER_VE
  * processor). */
 #define PT_SOBOL_LANES ((PT_SOBOL_DIMS + SOBOL_BATCH_LANES - 1) / SOBOL_BATCH_LANES * SOBOL_BATCH_LANES)
 _Static_assert(PT_SOBOL_LANES <= SOBOL_BATCH_DIMS, "one sobol_batch holds every dimension of a sample");
+/* One sample's numbers, lane d for dimension d. */
 struct pt_sobol {
-    struct sobol_batch seeds;
     float u0[PT_SOBOL_LANES], u1[PT_SOBOL_LANES];
+};
+/* A pixel's seeds, and the numbers of up to PT_SOBOL_RUN of its samples, drawn by one
+ * sobol_batch_draw_run before the first of them is traced: drawn sample by sample, each draw paid
+ * again for its call, the processor check, the vector constants and its index's bit reversal,
+ * some 45 instructions a sample (about 10 a ray on the diffuse Cornell box). 1 KiB of stack. */
+#define PT_SOBOL_RUN 16
+struct pt_sobol_pixel {
+    struct sobol_batch seeds;
+    struct pt_sobol run[PT_SOBOL_RUN];
 };
 
 /* The hash of (session seed, epoch) that every pixel's Sobol' seed starts from: a tile derives it
@@ -71,7 +80,7 @@ static inline uint64_t pt_sobol_epoch_key(uint64_t seed, uint64_t epoch)
     return rng_mix64(seed ^ rng_mix64(epoch ^ rng_mix64(PT_SOBOL_STREAM)));
 }
 
-static void pt_sobol_pixel(struct pt_sobol *q, uint64_t epoch_key, uint64_t pixel)
+static void pt_sobol_pixel(struct pt_sobol_pixel *q, uint64_t epoch_key, uint64_t pixel)
 {
     sobol_batch_seed(&q->seeds, rng_mix64(epoch_key ^ pixel), PT_SOBOL_LANES);
 }
@@ -631,22 +640,34 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
             uint64_t pixel = (uint64_t)y * p->width + x;
             double acc[3] = {0, 0, 0};
             const struct rng_pixel streams = rng_pixel_make(p->seed, p->frame, pixel, PT_SAMPLE_STREAM);
-            struct pt_sobol qmc;
+            struct pt_sobol_pixel qpix;
+            const struct pt_sobol *qmc = NULL;
             uint64_t epoch = UINT64_MAX;  /* none yet: the first sample derives the seeds */
+            uint32_t run_first = 0, run_end = 0;  /* the samples whose numbers qpix.run holds */
             for (uint32_t s = 0; s < p->spp; s++) {
                 struct rng rng = rng_sample(&streams, s);
                 float jx, jy;
                 if (sobol) {
-                    const uint64_t index = first_index + s;
-                    if (index >> PT_SOBOL_INDEX_BITS != epoch) {
-                        epoch = index >> PT_SOBOL_INDEX_BITS;
-                        pt_sobol_pixel(&qmc, epoch == first_epoch ? first_epoch_key : pt_sobol_epoch_key(p->seed, epoch),
-                                       pixel);
+                    if (s == run_end) {
+                        const uint64_t index = first_index + s;
+                        if (index >> PT_SOBOL_INDEX_BITS != epoch) {
+                            epoch = index >> PT_SOBOL_INDEX_BITS;
+                            pt_sobol_pixel(&qpix, epoch == first_epoch ? first_epoch_key : pt_sobol_epoch_key(p->seed, epoch),
+                                           pixel);
+                        }
+                        /* A run ends at the pixel's last sample, and at the end of an epoch (the
+                         * next one has other seeds). */
+                        const uint32_t in_epoch = (uint32_t)index & ((1u << PT_SOBOL_INDEX_BITS) - 1u);
+                        uint32_t n = p->spp - s < PT_SOBOL_RUN ? p->spp - s : PT_SOBOL_RUN;
+                        if (n > (1u << PT_SOBOL_INDEX_BITS) - in_epoch) n = (1u << PT_SOBOL_INDEX_BITS) - in_epoch;
+                        sobol_batch_draw_run(&qpix.seeds, in_epoch, n, PT_SOBOL_LANES, qpix.run[0].u0, qpix.run[0].u1,
+                                             (uint32_t)(sizeof qpix.run[0] / sizeof(float)));
+                        run_first = s;
+                        run_end = s + n;
                     }
-                    sobol_batch_draw(&qmc.seeds, sobol_reverse_bits((uint32_t)index & ((1u << PT_SOBOL_INDEX_BITS) - 1u)),
-                                     PT_SOBOL_LANES, qmc.u0, qmc.u1);
-                    jx = qmc.u0[PT_DIM_PIXEL];
-                    jy = qmc.u1[PT_DIM_PIXEL];
+                    qmc = &qpix.run[s - run_first];
+                    jx = qmc->u0[PT_DIM_PIXEL];
+                    jy = qmc->u1[PT_DIM_PIXEL];
                 } else {
                     jx = rng_next_float(&rng);
                     jy = rng_next_float(&rng);
@@ -663,7 +684,7 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
                 split.px = x;
                 split.py = y;
                 struct vec3 L = pt_radiance(job->scene, p, job->camera.position, dir, &rng, &rc, &split, true,
-                                            sobol ? &qmc : NULL, solid_angle, &aq);
+                                            sobol ? qmc : NULL, solid_angle, &aq);
                 if (!vec3_is_finite(L)) {
                     st->nonfinite++;
                     continue;
