@@ -274,6 +274,43 @@ struct pt_sss_io {
     bool skip_emission;
 };
 
+/* What pt_radiance reads of the scene, the parameters and the split that no path changes: a
+ * caller's local, made once by pt_tile_body for all the paths of its tile (by the other entry
+ * points once per path). Its address goes nowhere but pt_radiance, which is inlined, so the
+ * compiler keeps these values where they are across the Embree calls; read from the split and
+ * the parameters, which outside code can reach (pt_sms_at gets the split), they were read again
+ * and copied for every path, some 25 instructions a sample. */
+struct pt_setup {
+    const struct material *materials;
+    const struct light_sampler *lights;
+    const struct accel *accel;
+    const struct sms_scene *ss;
+    uint32_t max_depth, rr_depth;
+    bool part_owned, part_rest, tracked;
+    bool mis;            /* params->nee: MIS weights on emission found by BSDF sampling */
+    bool nee;            /* ... and there are lights to sample */
+    bool canonical;      /* the first vertex may be an SMS receiver (pt_radiance's `canonical`) */
+    bool primary_given;  /* split->primary_given */
+};
+
+static inline struct pt_setup pt_setup_make(const struct scene *scene, const struct pt_params *params,
+                                            const struct pt_split *split)
+{
+    return (struct pt_setup){.materials = scene->materials,
+                             .lights = scene->lights,
+                             .accel = scene->accel,
+                             .ss = split->ss,
+                             .max_depth = params->max_depth,
+                             .rr_depth = params->rr_depth,
+                             .part_owned = split->owned,
+                             .part_rest = split->rest,
+                             .tracked = split->tracked,
+                             .mis = params->nee,
+                             .nee = params->nee && light_sampler_count(scene->lights) > 0,
+                             .canonical = split->ss && (split->sms_after_primary || params->ssp),
+                             .primary_given = split->primary_given};
+}
+
 /* Radiance along one camera ray. The per-vertex work around the two ray queries is most of
  * what a ray costs besides Embree's traversal (docs/benchmarks.md, instructions per ray; `make
  * test-perf` keeps it from growing), so the loop keeps it lean: parameters are read into locals
@@ -290,26 +327,25 @@ struct pt_sss_io {
  * pt_tile_sobol passes a constant NULL, and takes this function in with `flatten`, so that the
  * branches on it fold away. */
 __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params,
-                                                        struct vec3 org, struct vec3 dir, struct rng *rng_io,
-                                                        struct ray_counters *rc_io, const struct pt_split *split,
-                                                        bool sss_direct, const struct pt_sobol *qmc,
-                                                        const bool solid_angle, struct accel_query *aq)
+                                                        const struct pt_setup *setup, struct vec3 org, struct vec3 dir,
+                                                        struct rng *rng_local, struct ray_counters *rc,
+                                                        const struct pt_split *split, bool sss_direct,
+                                                        const struct pt_sobol *qmc, const bool solid_angle,
+                                                        struct accel_query *aq)
 {
-    /* The random stream and the ray counters live in locals whose address never leaves this
-     * function (pt_sss_primary gets copies): state behind the callers' pointers could be
-     * changed by any Embree call as far as the compiler knows, so it would be stored and
-     * reloaded around every ray. */
-    struct rng rng_local = *rng_io, *rng = &rng_local;
-    struct ray_counters rc_local = {0, 0}, *rc = &rc_local;
-    /* Read once, for the same reason. */
-    const bool part_owned = split->owned, part_rest = split->rest, tracked = split->tracked;
-    const struct sms_scene *ss = split->ss;
-    const struct material *materials = scene->materials;
-    const struct light_sampler *lights = scene->lights;
-    const struct accel *accel = scene->accel;
-    const bool mis = params->nee;
-    const bool nee = params->nee && light_sampler_count(lights) > 0;
-    const uint32_t max_depth = params->max_depth, rr_depth = params->rr_depth;
+    /* The random stream and the ray counters are the caller's locals, whose address goes nowhere
+     * else (pt_sss_primary gets copies): state behind pointers from further out could be changed
+     * by any Embree call as far as the compiler knows, so it would be stored and reloaded around
+     * every ray. The rest comes from `setup`, for the same reason. */
+    struct rng *rng = rng_local;
+    const bool part_owned = setup->part_owned, part_rest = setup->part_rest, tracked = setup->tracked;
+    const struct sms_scene *ss = setup->ss;
+    const struct material *materials = setup->materials;
+    const struct light_sampler *lights = setup->lights;
+    const struct accel *accel = setup->accel;
+    const bool mis = setup->mis;
+    const bool nee = setup->nee;
+    const uint32_t max_depth = setup->max_depth, rr_depth = setup->rr_depth;
     vec3_v4 L = {0.0f, 0.0f, 0.0f, 0.0f}, beta = {1.0f, 1.0f, 1.0f, 0.0f};
     /* The product of 1 / material_radiance_scale over the path's refractions: beta times this
      * is the throughput the path will have outside the glass it is in, which is what Russian
@@ -325,12 +361,12 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
     bool skip_emission = false;  /* after subsurface scattering with NEE (pt_sss_primary) */
     /* Every vertex so far delta and through its canonical lobe (sms.h): the next non-delta
      * vertex is the pixel's receiver, restir_sms's and the one sms_ssp's prior was built at. */
-    bool canonical = ss && (split->sms_after_primary || params->ssp);
+    bool canonical = setup->canonical;
 
     for (uint32_t depth = 0;; depth++) {
         struct hit hit;
         bool found;
-        if (depth == 0 && split->primary_given) {
+        if (depth == 0 && setup->primary_given) {
             found = split->primary != NULL;
             if (found) hit = *split->primary;
         } else {
@@ -382,15 +418,15 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             /* Direct light at the entry points belongs to the rest of the light transport; the
              * track stays where it was, so no path through subsurface scattering counts as owned
              * by specular manifold sampling (which does not sample from entry points). */
-            struct pt_sss_io io = {.s = s, .beta = vec3_v4_unpack(beta), .L = vec3_v4_unpack(L), .rng = rng_local,
-                                   .rc = rc_local, .org = org, .dir = dir, .prev_p = prev_p,
+            struct pt_sss_io io = {.s = s, .beta = vec3_v4_unpack(beta), .L = vec3_v4_unpack(L), .rng = *rng_local,
+                                   .rc = *rc, .org = org, .dir = dir, .prev_p = prev_p,
                                    .skip_emission = skip_emission};
             bool more = pt_sss_primary(scene, params, m, &io.s, vec3_neg(dir), &io.beta, &io.L, &io.rng, &io.rc,
                                        &io.org, &io.dir, &io.prev_p, &io.skip_emission, direct_here);
             beta = vec3_v4_pack(io.beta);
             L = vec3_v4_pack(io.L);
-            rng_local = io.rng;
-            rc_local = io.rc;
+            *rng_local = io.rng;
+            *rc = io.rc;
             org = io.org;
             dir = io.dir;
             prev_p = io.prev_p;
@@ -438,9 +474,9 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             /* The block's prior describes its receivers' solutions; seen from any other vertex
              * its tiles are arbitrary, and a solution outside them would carry the uniform
              * share's weight, N² / (9 (1 − α)). Elsewhere seeds come from plain partitioning. */
-            struct pt_sss_io io = {.s = s, .rc = rc_local};  /* copies, as for pt_sss_primary */
+            struct pt_sss_io io = {.s = s, .rc = *rc};  /* copies, as for pt_sss_primary */
             L = L + beta * vec3_v4_pack(pt_sms_at(scene, params, split, receiver, &io.s, m, wo, room, &io.rc));
-            rc_local = io.rc;
+            *rc = io.rc;
         }
         /* Next-event estimation: one light sample, MIS-weighted against BSDF sampling. */
         if (nee && part_rest && (flags & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
@@ -566,9 +602,6 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
         org = side == shadow_side ? shadow_org : surface_offset_along(s.p, side ? vec3_neg(s.ng) : s.ng);
         dir = wi_world;
     }
-    *rng_io = rng_local;
-    rc_io->intersect += rc_local.intersect;
-    rc_io->occluded += rc_local.occluded;
     return vec3_v4_unpack(L);
 }
 
@@ -584,9 +617,17 @@ __attribute__((flatten)) struct vec3 reference_pt_radiance(const struct scene *s
                                                            struct rng *rng, bool sss_direct, struct ray_counters *rc)
 {
     const struct pt_split all = {.owned = true, .rest = true, .primary_given = true, .primary = primary};
+    const struct pt_setup setup = pt_setup_make(scene, params, &all);
     struct accel_query aq;
     accel_query_init(&aq);
-    return pt_radiance(scene, params, org, dir, rng, rc, &all, sss_direct, NULL, false, &aq);
+    /* Locals for pt_radiance (see there). */
+    struct rng rng_local = *rng;
+    struct ray_counters rc_local = {0, 0};
+    struct vec3 L = pt_radiance(scene, params, &setup, org, dir, &rng_local, &rc_local, &all, sss_direct, NULL, false, &aq);
+    *rng = rng_local;
+    rc->intersect += rc_local.intersect;
+    rc->occluded += rc_local.occluded;
+    return L;
 }
 
 __attribute__((flatten)) struct vec3
@@ -597,9 +638,16 @@ reference_pt_radiance_sms(const struct scene *scene, const struct pt_params *par
     const struct pt_split split = {.owned = false, .rest = !params->sms->caustics_only, .tracked = true, .ss = ss,
                                    .sc = sc, .sms_rng = sms_rng, .px = px, .py = py, .sms_after_primary = true,
                                    .primary_given = true, .primary = primary};
+    const struct pt_setup setup = pt_setup_make(scene, params, &split);
     struct accel_query aq;
     accel_query_init(&aq);
-    return pt_radiance(scene, params, org, dir, rng, rc, &split, true, NULL, false, &aq);
+    struct rng rng_local = *rng;
+    struct ray_counters rc_local = {0, 0};
+    struct vec3 L = pt_radiance(scene, params, &setup, org, dir, &rng_local, &rc_local, &split, true, NULL, false, &aq);
+    *rng = rng_local;
+    rc->intersect += rc_local.intersect;
+    rc->occluded += rc_local.occluded;
+    return L;
 }
 
 /* The tile loop, flattened (by its two callers below) for the same reason as pt_radiance, which
@@ -631,9 +679,10 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
     uint32_t y1 = y0 + PT_TILE < p->crop_y1 ? y0 + PT_TILE : p->crop_y1;
     const uint64_t first_index = (uint64_t)p->frame * p->spp, first_epoch = first_index >> PT_SOBOL_INDEX_BITS;
     const uint64_t first_epoch_key = sobol ? pt_sobol_epoch_key(p->seed, first_epoch) : 0;
-    /* Set up once for the tile's rays (accel.h). */
+    /* Set up once for the tile's rays (accel.h) and paths. */
     struct accel_query aq;
     accel_query_init(&aq);
+    const struct pt_setup setup = pt_setup_make(job->scene, p, &split);
     for (uint32_t y = y0; y < y1; y++) {
         for (uint32_t x = x0; x < x1; x++) {
             if (parallel_stopped()) break;  /* the frame was given up: its pixels are not used */
@@ -683,7 +732,7 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
                 }
                 split.px = x;
                 split.py = y;
-                struct vec3 L = pt_radiance(job->scene, p, job->camera.position, dir, &rng, &rc, &split, true,
+                struct vec3 L = pt_radiance(job->scene, p, &setup, job->camera.position, dir, &rng, &rc, &split, true,
                                             sobol ? qmc : NULL, solid_angle, &aq);
                 if (!vec3_is_finite(L)) {
                     st->nonfinite++;
