@@ -523,6 +523,53 @@ static void test_accel_move_instance(void)
     scene_release(s);
 }
 
+/* accel_query_intersect and accel_query_occluded answer as accel_intersect and accel_occluded do,
+ * hit for hit, over one query reused for a mixed run of rays (hits, misses, blocked and free
+ * segments, in the flat and both two-level layouts): fails when a field that the query functions
+ * leave to accel_query_init is changed by a query (a miss after a hit would then see the hit's
+ * shortened tfar, or a hit record would survive into the next query). */
+static void test_accel_query_matches(void)
+{
+    for (int layout = 0; layout < 3; layout++) {
+        struct scene *s = make_scene(false);
+        struct err err = {0};
+        CHECK_MSG(scene_commit(s, &err), "%s", err.message);
+        if (layout > 0) {
+            bool movable[3] = {true, layout == 2, layout == 2};
+            accel_free(s->accel);
+            s->accel = accel_new(s, movable, &err);
+            CHECK(s->accel != NULL);
+        }
+        struct accel_query q;
+        accel_query_init(&q);
+        struct rng r = rng_make(17, (uint64_t)layout, 0, 0);
+        struct ray_counters rc = {0, 0}, rq = {0, 0};
+        uint32_t mismatched = 0, hits = 0, blocked = 0;
+        for (int i = 0; i < 4000; i++) {
+            struct vec3 o = vec3_make(12.0f * rng_next_float(&r) - 6.0f, 6.0f * rng_next_float(&r) - 1.0f,
+                                      12.0f * rng_next_float(&r) - 6.0f);
+            struct vec3 d = vec3_normalize(vec3_make(2.0f * rng_next_float(&r) - 1.0f, 2.0f * rng_next_float(&r) - 1.0f,
+                                                     2.0f * rng_next_float(&r) - 1.0f));
+            float tmax = i % 3 == 0 ? INFINITY : 10.0f * rng_next_float(&r);
+            struct hit a, b;
+            memset(&a, 0, sizeof a);
+            memset(&b, 0, sizeof b);
+            bool ha = accel_intersect(s->accel, o, d, 0.0f, tmax, &a, &rc);
+            bool hb = accel_query_intersect(s->accel, &q, o, d, tmax, &b, &rq);
+            mismatched += ha != hb || memcmp(&a, &b, sizeof a) != 0;
+            hits += ha;
+            bool oa = accel_occluded(s->accel, o, d, 0.0f, tmax, &rc);
+            bool ob = accel_query_occluded(s->accel, &q, o, d, tmax, &rq);
+            mismatched += oa != ob;
+            blocked += oa;
+        }
+        CHECK_MSG(mismatched == 0, "layout %d: %u query answers differ", layout, mismatched);
+        CHECK(hits > 500 && hits < 3500 && blocked > 500 && blocked < 3500);  /* both answers exercised */
+        CHECK(rc.intersect == rq.intersect && rc.occluded == rq.occluded);
+        scene_release(s);
+    }
+}
+
 static void test_offset_avoids_self_hit(void)
 {
     struct scene *s = make_scene(false);
@@ -668,5 +715,5 @@ TEST_MAIN(TEST(test_vec3_v4_max), TEST(test_rng_uniform_chi2), TEST(test_rng_str
           TEST(test_rng_keyed_first_numbers_chi2), TEST(test_rng_pixel_samples_chi2), TEST(test_sobol_generator),
           TEST(test_sobol_nets), TEST(test_sobol_scrambling_chi2), TEST(test_sobol_padding_independent_chi2),
           TEST(test_sobol_convergence), TEST(test_sobol_batch_matches_scalar), TEST(test_distrib_chi2),
-          TEST(test_accel_flat_and_two_level), TEST(test_accel_move_instance), TEST(test_offset_avoids_self_hit),
+          TEST(test_accel_flat_and_two_level), TEST(test_accel_move_instance), TEST(test_accel_query_matches), TEST(test_offset_avoids_self_hit),
           TEST(test_light_sampler_pdfs), TEST(test_light_sampler_triangle_point_per_shape), TEST(test_camera_rays))
