@@ -683,6 +683,11 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
     struct accel_query aq;
     accel_query_init(&aq);
     const struct pt_setup setup = pt_setup_make(job->scene, p, &split);
+    /* Locals for the same reason as setup: the camera and the sample count behind job and p would
+     * be read again (and the image size converted to float again) for every sample. */
+    const struct camera cam = job->camera;
+    const uint32_t spp = p->spp;
+    const struct scene *scene = job->scene;
     for (uint32_t y = y0; y < y1; y++) {
         for (uint32_t x = x0; x < x1; x++) {
             if (parallel_stopped()) break;  /* the frame was given up: its pixels are not used */
@@ -693,7 +698,9 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
             const struct pt_sobol *qmc = NULL;
             uint64_t epoch = UINT64_MAX;  /* none yet: the first sample derives the seeds */
             uint32_t run_first = 0, run_end = 0;  /* the samples whose numbers qpix.run holds */
-            for (uint32_t s = 0; s < p->spp; s++) {
+            split.px = x;
+            split.py = y;
+            for (uint32_t s = 0; s < spp; s++) {
                 struct rng rng = rng_sample(&streams, s);
                 float jx, jy;
                 if (sobol) {
@@ -707,7 +714,7 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
                         /* A run ends at the pixel's last sample, and at the end of an epoch (the
                          * next one has other seeds). */
                         const uint32_t in_epoch = (uint32_t)index & ((1u << PT_SOBOL_INDEX_BITS) - 1u);
-                        uint32_t n = p->spp - s < PT_SOBOL_RUN ? p->spp - s : PT_SOBOL_RUN;
+                        uint32_t n = spp - s < PT_SOBOL_RUN ? spp - s : PT_SOBOL_RUN;
                         if (n > (1u << PT_SOBOL_INDEX_BITS) - in_epoch) n = (1u << PT_SOBOL_INDEX_BITS) - in_epoch;
                         sobol_batch_draw_run(&qpix.seeds, in_epoch, n, PT_SOBOL_LANES, qpix.run[0].u0, qpix.run[0].u1,
                                              (uint32_t)(sizeof qpix.run[0] / sizeof(float)));
@@ -721,18 +728,16 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
                     jx = rng_next_float(&rng);
                     jy = rng_next_float(&rng);
                 }
-                struct vec3 dir = camera_ray_dir(&job->camera, (float)x + jx, (float)y + jy);
+                struct vec3 dir = camera_ray_dir(&cam, (float)x + jx, (float)y + jy);
                 /* SMS draws from its own stream, so the path-traced part of `sms` is the same
                  * sample as pt's PT_SUBSET_REST image; without SMS nothing draws from it, and
                  * hashing it would cost every sample two rng_make. */
                 struct rng sms_rng;
-                if (split.ss) {
+                if (setup.ss) {
                     sms_rng = rng_make(p->seed, p->frame, pixel, ((uint64_t)1 << 40) | s);
                     split.sms_rng = &sms_rng;
                 }
-                split.px = x;
-                split.py = y;
-                struct vec3 L = pt_radiance(job->scene, p, &setup, job->camera.position, dir, &rng, &rc, &split, true,
+                struct vec3 L = pt_radiance(scene, p, &setup, cam.position, dir, &rng, &rc, &split, true,
                                             sobol ? qmc : NULL, solid_angle, &aq);
                 if (!vec3_is_finite(L)) {
                     st->nonfinite++;
@@ -742,9 +747,9 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
                 acc[1] += L.y;
                 acc[2] += L.z;
             }
-            double inv = 1.0 / p->spp;
+            double inv = 1.0 / spp;
             job->out->pixels[pixel] = vec3_make((float)(acc[0] * inv), (float)(acc[1] * inv), (float)(acc[2] * inv));
-            st->samples += p->spp;
+            st->samples += spp;
         }
     }
     struct render_stats *sum = &job->worker_stats[worker];
