@@ -26,12 +26,14 @@ void camera_init(struct camera *cam, const struct camera_desc *desc, uint32_t wi
     cam->aspect = (float)width / (float)height;
     cam->width = width;
     cam->height = height;
+    cam->width_f = (float)width;
+    cam->height_f = (float)height;
 }
 
 struct vec3 camera_ray_dir(const struct camera *cam, float px, float py)
 {
-    float sx = (2.0f * px / (float)cam->width - 1.0f) * cam->tan_half_fov_y * cam->aspect;
-    float sy = (1.0f - 2.0f * py / (float)cam->height) * cam->tan_half_fov_y;
+    float sx = (2.0f * px / cam->width_f - 1.0f) * cam->tan_half_fov_y * cam->aspect;
+    float sy = (1.0f - 2.0f * py / cam->height_f) * cam->tan_half_fov_y;
     return vec3_normalize(vec3_add(cam->forward, vec3_add(vec3_scale(cam->right, sx), vec3_scale(cam->up, sy))));
 }
 

@@ -12,6 +12,9 @@ struct camera {
     struct vec3 position, forward, right, up;
     float tan_half_fov_y, aspect;
     uint32_t width, height;
+    /* (float)width and (float)height, which camera_ray_dir divides by: converted once here
+     * instead of for every camera ray. */
+    float width_f, height_f;
 };
 
 /* Whether `desc` can form an image: position != look_at, and up not parallel to the viewing
