@@ -206,14 +206,18 @@ static inline void light_sampler_sample_entry(const struct light_entry *e, float
                                               struct light_sample *out)
 {
     *out = (struct light_sample){.shape = e->shape, .prim = e->prim, .material = e->material};
-    switch (e->kind) {
-    case LIGHT_TRIANGLE: {
+    /* Triangles, the common emitters, tested first: as a switch case, GCC tested the other two
+     * kinds before them (four more instructions per light sample in pt's loop). */
+    if (__builtin_expect(e->kind == LIGHT_TRIANGLE, 1)) {
         sampling_uniform_triangle(u1, u2, &out->b1, &out->b2);
         out->p = light_sampler_triangle_at(e, out->b1, out->b2);
         out->n = e->n;
         out->pdf_a = pmf / e->area;
-        break;
+        return;
     }
+    switch (e->kind) {
+    case LIGHT_TRIANGLE:  /* above */
+        break;
     case LIGHT_SPHERE: {
         struct vec3 d = sampling_uniform_sphere(u1, u2);
         out->p = vec3_madd(e->p0, d, e->e1.x);
