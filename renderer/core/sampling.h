@@ -25,12 +25,16 @@ static inline void sampling_sincos_quarter(float t, float *s, float *c)
 static inline void sampling_concentric_disk(float u1, float u2, float *dx, float *dy)
 {
     float a = 2.0f * u1 - 1.0f, b = 2.0f * u2 - 1.0f;
-    if (a == 0.0f && b == 0.0f) { *dx = 0.0f; *dy = 0.0f; return; }
     float s, c;
     if (fabsf(a) > fabsf(b)) {
         sampling_sincos_quarter((PI_F / 4.0f) * (b / a), &s, &c);
         *dx = a * c;
         *dy = a * s;
+    } else if (b == 0.0f) {
+        /* The centre (a = b = 0: |a| <= |b| = 0), tested in this branch only, where it can be:
+         * one comparison on half of the samples instead of two on all of them. */
+        *dx = 0.0f;
+        *dy = 0.0f;
     } else {
         sampling_sincos_quarter((PI_F / 4.0f) * (a / b), &s, &c);
         *dx = b * s;
