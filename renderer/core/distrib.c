@@ -7,6 +7,7 @@
 bool distrib_init(struct distrib *d, const double *weights, uint32_t count, struct err *err)
 {
     d->count = 0;
+    d->count_f = 0.0f;
     d->threshold = NULL;
     d->alias = NULL;
     d->pmf = NULL;
@@ -54,6 +55,7 @@ bool distrib_init(struct distrib *d, const double *weights, uint32_t count, stru
     free(small);
     free(large);
     d->count = count;
+    d->count_f = (float)count;
     d->total = total;
     return true;
 }
@@ -67,11 +69,12 @@ void distrib_destroy(struct distrib *d)
     d->alias = NULL;
     d->pmf = NULL;
     d->count = 0;
+    d->count_f = 0.0f;
 }
 
 uint32_t distrib_sample(const struct distrib *d, float u, float *pmf)
 {
-    float x = u * (float)d->count;
+    float x = u * d->count_f;
     uint32_t col = (uint32_t)x;
     if (col >= d->count) col = d->count - 1;
     float frac = x - (float)col;

@@ -9,6 +9,7 @@
 
 struct distrib {
     uint32_t count;
+    float count_f;      /* (float)count, which distrib_sample scales u by: converted once */
     float *threshold;   /* per column: keep the column when the fraction < threshold */
     uint32_t *alias;    /* per column: the other entry */
     float *pmf;         /* probability of each entry */
