@@ -51,8 +51,8 @@ enum { PT_DIM_LIGHT_POINT, PT_DIM_BSDF_DIRECTION, PT_DIM_CHOICES, PT_DIMS_PER_VE
 
 /* One sample's Sobol' numbers and the seeds they come from: the seeds of every dimension depend on
  * (session seed, pixel, epoch) only, so they are derived once per pixel, not per sample; a
- * sample then draws all of its dimensions at once (sobol_batch_draw: eight lanes at a time with
- * AVX2), before its path needs them. With AVX2, drawing a dimension that the path does not reach
+ * sample's dimensions are then drawn all at once (eight lanes at a time with AVX2), before its
+ * path needs them, and a pixel's samples together (sobol_batch_draw_run, below). With AVX2, drawing a dimension that the path does not reach
  * costs less than deciding lazily would: a lane of a batch costs about a seventh of a sobol_2d
  * (docs/benchmarks.md, "pt's Sobol' sampler"). Without it each lane is a sobol_2d, and a path
  * that ends at its first vertex pays for seven instead of about four (not measured on such a
@@ -313,22 +313,24 @@ static inline struct pt_setup pt_setup_make(const struct scene *scene, const str
 
 /* Radiance along one camera ray. The per-vertex work around the two ray queries is most of
  * what a ray costs besides Embree's traversal (docs/benchmarks.md, instructions per ray; `make
- * test-perf` keeps it from growing), so the loop keeps it lean: parameters are read into locals
- * once (every Embree call is opaque to the compiler, so values behind pointers would be reloaded
- * after each ray), and the offset origin of the shadow ray is reused by the continuation ray
- * when both leave on the same side. `flatten` inlines every helper it calls (material, surface,
+ * test-perf` keeps it from growing), so the loop keeps it lean: what no path changes comes from
+ * the caller's pt_setup, and the random stream and the ray counters are the caller's locals
+ * (every Embree call is opaque to the compiler, so values behind pointers that outside code can
+ * reach would be reloaded after each ray), Embree's query structs are the caller's accel_query
+ * (their constant fields written once), and the offset origin of the shadow ray is reused by the
+ * continuation ray when both leave on the same side. `flatten` inlines every helper it calls (material, surface,
  * accel, light sampler, from their own files through link-time optimisation), except the
  * out-of-line SMS and subsurface branches: left to its heuristics, link-time optimisation stopped
  * inlining them once this function grew. Without `flatten` here and on the tile loop the diffuse
  * Cornell box costs 1038.3 instructions per ray against 937.9 (glossy: 1437.9 against 1327.3),
  * without it on the tile loop alone 958.8 (see pt_tile_body), so this function's own share is
  * about 80 instructions per ray (2026-11-28, `RESTIR_BIN=B bash tests/perf/instr_guard.sh`, B each
- * build). qmc is the sample's Sobol' state with the Sobol' sampler, else NULL: every caller but
+ * build). qmc is the sample's Sobol' numbers with the Sobol' sampler, else NULL: every caller but
  * pt_tile_sobol passes a constant NULL, and takes this function in with `flatten`, so that the
  * branches on it fold away. */
 __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params,
                                                         const struct pt_setup *setup, struct vec3 org, struct vec3 dir,
-                                                        struct rng *rng_local, struct ray_counters *rc,
+                                                        struct rng *rng, struct ray_counters *rc,
                                                         const struct pt_split *split, bool sss_direct,
                                                         const struct pt_sobol *qmc, const bool solid_angle,
                                                         struct accel_query *aq)
@@ -337,7 +339,6 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
      * else (pt_sss_primary gets copies): state behind pointers from further out could be changed
      * by any Embree call as far as the compiler knows, so it would be stored and reloaded around
      * every ray. The rest comes from `setup`, for the same reason. */
-    struct rng *rng = rng_local;
     const bool part_owned = setup->part_owned, part_rest = setup->part_rest, tracked = setup->tracked;
     const struct sms_scene *ss = setup->ss;
     const struct material *materials = setup->materials;
@@ -418,14 +419,14 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
             /* Direct light at the entry points belongs to the rest of the light transport; the
              * track stays where it was, so no path through subsurface scattering counts as owned
              * by specular manifold sampling (which does not sample from entry points). */
-            struct pt_sss_io io = {.s = s, .beta = vec3_v4_unpack(beta), .L = vec3_v4_unpack(L), .rng = *rng_local,
+            struct pt_sss_io io = {.s = s, .beta = vec3_v4_unpack(beta), .L = vec3_v4_unpack(L), .rng = *rng,
                                    .rc = *rc, .org = org, .dir = dir, .prev_p = prev_p,
                                    .skip_emission = skip_emission};
             bool more = pt_sss_primary(scene, params, m, &io.s, vec3_neg(dir), &io.beta, &io.L, &io.rng, &io.rc,
                                        &io.org, &io.dir, &io.prev_p, &io.skip_emission, direct_here);
             beta = vec3_v4_pack(io.beta);
             L = vec3_v4_pack(io.L);
-            *rng_local = io.rng;
+            *rng = io.rng;
             *rc = io.rc;
             org = io.org;
             dir = io.dir;
