@@ -320,6 +320,52 @@ static int cmp_u32(const void *a, const void *b)
  * step differs from the scalar one, or a group of eight is written where fewer lanes were asked. Also: the inner inputs (dim, word) of the seed hash are
  * distinct for every dimension below 2^16, so no two seed words of a pixel coincide by
  * construction. */
+/* sobol_batch_draw_run gives every sample of a run what sobol_batch_draw gives it alone, on
+ * every code path this processor has (the scalar one, and the AVX2 one where present), for run
+ * lengths around the eight samples the vector path reverses at once and a stride with room
+ * between samples, which must stay untouched. Fails when a sample takes another's index, a step
+ * of the run's vector path differs from the per-sample one, or a run writes past its samples. */
+static void test_sobol_batch_run_matches(void)
+{
+    struct rng r = rng_make(13, 0, 0, 0);
+    enum { MAX_RUN = 21, STRIDE = 20 };  /* 20 floats a sample: 8 lanes of u0, gap, 8 of u1, gap */
+    uint32_t mismatched = 0, paths = 0;
+    for (int path = 0; path < 2; path++) {
+#ifdef SOBOL_HAVE_AVX2
+        if (path == 1 && !__builtin_cpu_supports("avx2")) continue;
+#else
+        if (path == 1) continue;
+#endif
+        paths++;
+        for (int trial = 0; trial < 400; trial++) {
+            const uint64_t pixel_seed = (uint64_t)rng_next_u32(&r) << 32 | rng_next_u32(&r);
+            const uint32_t count = 1 + (uint32_t)trial % MAX_RUN;
+            /* Near the top of the index range too: first + count stays within 2^32. */
+            const uint32_t first = trial % 5 == 4 ? 0xffffffffu - count : rng_next_u32(&r) >> 1;
+            struct sobol_batch b;
+            sobol_batch_seed_scalar(&b, pixel_seed, SOBOL_BATCH_LANES);
+            float out[MAX_RUN * STRIDE + 8];
+            for (size_t i = 0; i < sizeof out / sizeof out[0]; i++) out[i] = -1.0f;
+            if (path == 0)
+                sobol_batch_draw_run_scalar(&b, first, count, SOBOL_BATCH_LANES, out, out + 10, STRIDE);
+#ifdef SOBOL_HAVE_AVX2
+            if (path == 1) sobol_batch_draw_run8_avx2(&b, first, count, out, out + 10, STRIDE);
+#endif
+            for (uint32_t i = 0; i < count; i++) {
+                float w0[SOBOL_BATCH_DIMS], w1[SOBOL_BATCH_DIMS];
+                sobol_batch_draw_scalar(&b, sobol_reverse_bits(first + i), SOBOL_BATCH_LANES, w0, w1);
+                const float *u0 = out + i * STRIDE, *u1 = u0 + 10;
+                for (uint32_t l = 0; l < SOBOL_BATCH_LANES; l++) mismatched += u0[l] != w0[l] || u1[l] != w1[l];
+                mismatched += u0[8] != -1.0f || u0[9] != -1.0f || u1[8] != -1.0f || u1[9] != -1.0f;
+            }
+            for (size_t i = (size_t)count * STRIDE; i < sizeof out / sizeof out[0]; i++) mismatched += out[i] != -1.0f;
+        }
+    }
+    printf("  Sobol' runs checked on %u code path(s)\n", paths);
+    CHECK_MSG(mismatched == 0, "%u numbers of a run differ from sobol_batch_draw's or were written outside it",
+              mismatched);
+}
+
 static void test_sobol_batch_matches_scalar(void)
 {
     struct rng r = rng_make(11, 0, 0, 0);
@@ -714,6 +760,6 @@ static void test_vec3_v4_max(void)
 TEST_MAIN(TEST(test_vec3_v4_max), TEST(test_rng_uniform_chi2), TEST(test_rng_streams_differ),
           TEST(test_rng_keyed_first_numbers_chi2), TEST(test_rng_pixel_samples_chi2), TEST(test_sobol_generator),
           TEST(test_sobol_nets), TEST(test_sobol_scrambling_chi2), TEST(test_sobol_padding_independent_chi2),
-          TEST(test_sobol_convergence), TEST(test_sobol_batch_matches_scalar), TEST(test_distrib_chi2),
+          TEST(test_sobol_convergence), TEST(test_sobol_batch_matches_scalar), TEST(test_sobol_batch_run_matches), TEST(test_distrib_chi2),
           TEST(test_accel_flat_and_two_level), TEST(test_accel_move_instance), TEST(test_accel_query_matches), TEST(test_offset_avoids_self_hit),
           TEST(test_light_sampler_pdfs), TEST(test_light_sampler_triangle_point_per_shape), TEST(test_camera_rays))
