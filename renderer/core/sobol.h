@@ -278,7 +278,8 @@ static inline void sobol_batch_draw_run_scalar(const struct sobol_batch *b, uint
                                                uint32_t lanes, float *u0, float *u1, uint32_t stride)
 {
     for (uint32_t i = 0; i < count; i++)
-        sobol_batch_draw_from(b, sobol_reverse_bits(first + i), 0, lanes, u0 + (size_t)i * stride, u1 + (size_t)i * stride);
+        sobol_batch_draw_from(b, sobol_reverse_bits(first + i), 0, lanes, u0 + (size_t)i * stride,
+                              u1 + (size_t)i * stride);
 }
 
 static inline void sobol_batch_seed_scalar(struct sobol_batch *b, uint64_t pixel_seed, uint32_t lanes)
@@ -401,7 +402,8 @@ __attribute__((target("avx2"))) static inline void sobol_batch_draw8_pre_avx2(co
                                                                              float *u0, float *u1)
 {
 #define SOBOL_LOAD(field) _mm256_loadu_si256((const __m256i *)b->field)
-    __m256i index = sobol_reverse_bits_x8(sobol_owen_reversed_post_x8(pre, SOBOL_LOAD(shuffle), SOBOL_LOAD(shuffle_mul)));
+    __m256i index =
+        sobol_reverse_bits_x8(sobol_owen_reversed_post_x8(pre, SOBOL_LOAD(shuffle), SOBOL_LOAD(shuffle_mul)));
     __m256i r0 = sobol_owen_reversed_x8(index, SOBOL_LOAD(scramble0), SOBOL_LOAD(scramble0_mul));
     __m256i r1 = sobol_owen_reversed_x8(sobol_dimension1_reversed_x8(index), SOBOL_LOAD(scramble1),
                                         SOBOL_LOAD(scramble1_mul));

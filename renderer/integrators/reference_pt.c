@@ -52,11 +52,11 @@ enum { PT_DIM_LIGHT_POINT, PT_DIM_BSDF_DIRECTION, PT_DIM_CHOICES, PT_DIMS_PER_VE
 /* One sample's Sobol' numbers and the seeds they come from: the seeds of every dimension depend on
  * (session seed, pixel, epoch) only, so they are derived once per pixel, not per sample; a
  * sample's dimensions are then drawn all at once (eight lanes at a time with AVX2), before its
- * path needs them, and a pixel's samples together (sobol_batch_draw_run, below). With AVX2, drawing a dimension that the path does not reach
- * costs less than deciding lazily would: a lane of a batch costs about a seventh of a sobol_2d
- * (docs/benchmarks.md, "pt's Sobol' sampler"). Without it each lane is a sobol_2d, and a path
- * that ends at its first vertex pays for seven instead of about four (not measured on such a
- * processor). */
+ * path needs them, and a pixel's samples together (sobol_batch_draw_run, below). With AVX2,
+ * drawing a dimension that the path does not reach costs less than deciding lazily would: a lane
+ * of a batch costs about a seventh of a sobol_2d (docs/benchmarks.md, "pt's Sobol' sampler").
+ * Without it each lane is a sobol_2d, and a path that ends at its first vertex pays for seven
+ * instead of about four (not measured on such a processor). */
 #define PT_SOBOL_LANES ((PT_SOBOL_DIMS + SOBOL_BATCH_LANES - 1) / SOBOL_BATCH_LANES * SOBOL_BATCH_LANES)
 _Static_assert(PT_SOBOL_LANES <= SOBOL_BATCH_DIMS, "one sobol_batch holds every dimension of a sample");
 /* One sample's numbers, lane d for dimension d. */
@@ -318,16 +318,16 @@ static inline struct pt_setup pt_setup_make(const struct scene *scene, const str
  * (every Embree call is opaque to the compiler, so values behind pointers that outside code can
  * reach would be reloaded after each ray), Embree's query structs are the caller's accel_query
  * (their constant fields written once), and the offset origin of the shadow ray is reused by the
- * continuation ray when both leave on the same side. `flatten` inlines every helper it calls (material, surface,
- * accel, light sampler, from their own files through link-time optimisation), except the
- * out-of-line SMS and subsurface branches: left to its heuristics, link-time optimisation stopped
- * inlining them once this function grew. Without `flatten` here and on the tile loop the diffuse
- * Cornell box costs 1038.3 instructions per ray against 937.9 (glossy: 1437.9 against 1327.3),
- * without it on the tile loop alone 958.8 (see pt_tile_body), so this function's own share is
- * about 80 instructions per ray (2026-11-28, `RESTIR_BIN=B bash tests/perf/instr_guard.sh`, B each
- * build). qmc is the sample's Sobol' numbers with the Sobol' sampler, else NULL: every caller but
- * pt_tile_sobol passes a constant NULL, and takes this function in with `flatten`, so that the
- * branches on it fold away. */
+ * continuation ray when both leave on the same side. `flatten` inlines every helper it calls
+ * (material, surface, accel, light sampler, from their own files through link-time
+ * optimisation), except the out-of-line SMS and subsurface branches: left to its heuristics,
+ * link-time optimisation stopped inlining them once this function grew. Without `flatten` here
+ * and on the tile loop the diffuse Cornell box costs 1038.3 instructions per ray against 937.9
+ * (glossy: 1437.9 against 1327.3), without it on the tile loop alone 958.8 (see pt_tile_body),
+ * so this function's own share is about 80 instructions per ray (2026-11-28, `RESTIR_BIN=B bash
+ * tests/perf/instr_guard.sh`, B each build). qmc is the sample's Sobol' numbers with the Sobol'
+ * sampler, else NULL: every caller but pt_tile_sobol passes a constant NULL, and takes this
+ * function in with `flatten`, so that the branches on it fold away. */
 __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params,
                                                         const struct pt_setup *setup, struct vec3 org, struct vec3 dir,
                                                         struct rng *rng, struct ray_counters *rc,
@@ -624,7 +624,8 @@ __attribute__((flatten)) struct vec3 reference_pt_radiance(const struct scene *s
     /* Locals for pt_radiance (see there). */
     struct rng rng_local = *rng;
     struct ray_counters rc_local = {0, 0};
-    struct vec3 L = pt_radiance(scene, params, &setup, org, dir, &rng_local, &rc_local, &all, sss_direct, NULL, false, &aq);
+    struct vec3 L =
+        pt_radiance(scene, params, &setup, org, dir, &rng_local, &rc_local, &all, sss_direct, NULL, false, &aq);
     *rng = rng_local;
     rc->intersect += rc_local.intersect;
     rc->occluded += rc_local.occluded;
@@ -644,7 +645,8 @@ reference_pt_radiance_sms(const struct scene *scene, const struct pt_params *par
     accel_query_init(&aq);
     struct rng rng_local = *rng;
     struct ray_counters rc_local = {0, 0};
-    struct vec3 L = pt_radiance(scene, params, &setup, org, dir, &rng_local, &rc_local, &split, true, NULL, false, &aq);
+    struct vec3 L =
+        pt_radiance(scene, params, &setup, org, dir, &rng_local, &rc_local, &split, true, NULL, false, &aq);
     *rng = rng_local;
     rc->intersect += rc_local.intersect;
     rc->occluded += rc_local.occluded;
@@ -709,8 +711,9 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
                         const uint64_t index = first_index + s;
                         if (index >> PT_SOBOL_INDEX_BITS != epoch) {
                             epoch = index >> PT_SOBOL_INDEX_BITS;
-                            pt_sobol_pixel(&qpix, epoch == first_epoch ? first_epoch_key : pt_sobol_epoch_key(p->seed, epoch),
-                                           pixel);
+                            const uint64_t key =
+                                epoch == first_epoch ? first_epoch_key : pt_sobol_epoch_key(p->seed, epoch);
+                            pt_sobol_pixel(&qpix, key, pixel);
                         }
                         /* A run ends at the pixel's last sample, and at the end of an epoch (the
                          * next one has other seeds). */

@@ -594,7 +594,8 @@ static void test_accel_query_matches(void)
         for (int i = 0; i < 4000; i++) {
             struct vec3 o = vec3_make(12.0f * rng_next_float(&r) - 6.0f, 6.0f * rng_next_float(&r) - 1.0f,
                                       12.0f * rng_next_float(&r) - 6.0f);
-            struct vec3 d = vec3_normalize(vec3_make(2.0f * rng_next_float(&r) - 1.0f, 2.0f * rng_next_float(&r) - 1.0f,
+            struct vec3 d = vec3_normalize(vec3_make(2.0f * rng_next_float(&r) - 1.0f,
+                                                     2.0f * rng_next_float(&r) - 1.0f,
                                                      2.0f * rng_next_float(&r) - 1.0f));
             float tmax = i % 3 == 0 ? INFINITY : 10.0f * rng_next_float(&r);
             struct hit a, b;
@@ -760,6 +761,7 @@ static void test_vec3_v4_max(void)
 TEST_MAIN(TEST(test_vec3_v4_max), TEST(test_rng_uniform_chi2), TEST(test_rng_streams_differ),
           TEST(test_rng_keyed_first_numbers_chi2), TEST(test_rng_pixel_samples_chi2), TEST(test_sobol_generator),
           TEST(test_sobol_nets), TEST(test_sobol_scrambling_chi2), TEST(test_sobol_padding_independent_chi2),
-          TEST(test_sobol_convergence), TEST(test_sobol_batch_matches_scalar), TEST(test_sobol_batch_run_matches), TEST(test_distrib_chi2),
-          TEST(test_accel_flat_and_two_level), TEST(test_accel_move_instance), TEST(test_accel_query_matches), TEST(test_offset_avoids_self_hit),
-          TEST(test_light_sampler_pdfs), TEST(test_light_sampler_triangle_point_per_shape), TEST(test_camera_rays))
+          TEST(test_sobol_convergence), TEST(test_sobol_batch_matches_scalar), TEST(test_sobol_batch_run_matches),
+          TEST(test_distrib_chi2), TEST(test_accel_flat_and_two_level), TEST(test_accel_move_instance),
+          TEST(test_accel_query_matches), TEST(test_offset_avoids_self_hit), TEST(test_light_sampler_pdfs),
+          TEST(test_light_sampler_triangle_point_per_shape), TEST(test_camera_rays))
