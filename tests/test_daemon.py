@@ -1589,8 +1589,9 @@ def test_restir_bdpt_session(daemon):
 def test_restir_bdpt_reuse_session_buffers(daemon):
     """With reuse a restir_bdpt session adds exactly the reuse's buffers: two more non-caustic
     reservoirs, the G-buffers (this frame's and, for the history check, the previous one's; one
-    without temporal reuse), the spatial pairs' scratch and the per-pixel x_2 cache of 116 bytes
-    (the reverse hybrid shift's replayed light vertex); its memory is their sum."""
+    without temporal reuse), the spatial pairs' scratch and the per-pixel x_2 cache of 2 x 116
+    bytes (the reverse hybrid shift's replayed light vertex, this frame's and the previous one's);
+    its memory is their sum."""
     s = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24, seed=3,
                     params={"reuse": True})
     assert s["params"]["spatial_radius"] == 3  # the resolution's radius (at least 3 pixels)
@@ -1602,7 +1603,7 @@ def test_restir_bdpt_reuse_session_buffers(daemon):
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
                                  "caustic_shifts", "pixel_buckets", "light_blocks", "gbuffers", "spatial_pairs",
                                  "light_x2_cache"}
-    assert s["buffers"]["light_x2_cache"] == 116 * n
+    assert s["buffers"]["light_x2_cache"] == 2 * 116 * n
     assert s["buffers"]["gbuffers"] == 2 * 40 * n
     spatial = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24,
                           params={"reuse_temporal": False})

@@ -223,7 +223,7 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
             2 * n * sizeof(struct restir_bdpt_shifted) +
             (n + 1) * sizeof(uint32_t) + (p->reuse ? (rbdpt_checks_history(p) ? 2 : 1) * n * sizeof(struct gbuffer_pixel) : 0);
     z.pairs = p->reuse && p->paired_spatial ? restir_pair_scratch_bytes(width, height) : 0;
-    z.x2c = p->reuse ? n * sizeof(struct rbdpt_x2_entry) : 0;
+    z.x2c = p->reuse ? 2 * n * sizeof(struct rbdpt_x2_entry) : 0;   /* this render's and the previous one's */
     /* The full variant's LVC: the vertices (and their subpaths with reuse), per block its
      * counters (lvb, the layout of bdpt's) and its prefix sum (one more). */
     bool full = p->variant == RESTIR_BDPT_FULL;
@@ -242,7 +242,7 @@ uint64_t restir_bdpt_bytes_planned(const struct restir_bdpt_params *p, uint32_t 
 
 size_t restir_bdpt_x2_bytes(const struct restir_bdpt_state *st)
 {
-    return st->x2c ? (size_t)st->width * st->height * sizeof *st->x2c : 0;
+    return st->x2c_base ? 2 * (size_t)st->width * st->height * sizeof *st->x2c_base : 0;
 }
 
 size_t restir_bdpt_pair_bytes(const struct restir_bdpt_state *st)
@@ -316,7 +316,11 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
         st->res_prev = calloc(n, sizeof *st->res_prev);
         st->res_spatial = calloc(n, sizeof *st->res_spatial);
         if (p->paired_spatial) st->pair_scratch = restir_buffer_alloc(1, z.pairs);
-        st->x2c = calloc(n, sizeof *st->x2c);
+        st->x2c_base = calloc(2 * n, sizeof *st->x2c_base);
+        if (st->x2c_base) {
+            st->x2c = st->x2c_base;
+            st->x2c_prev = st->x2c_base + n;
+        }
         if (st->res_prev && st->res_spatial &&
             !(gbuffer_init(&st->gbuf[0], width, height, err) &&
               (!rbdpt_checks_history(p) || gbuffer_init(&st->gbuf[1], width, height, err)))) {
@@ -360,7 +364,7 @@ void restir_bdpt_destroy(struct restir_bdpt_state *st)
     free(st->res_prev);
     free(st->res_spatial);
     free(st->pair_scratch);
-    free(st->x2c);
+    free(st->x2c_base);
     free(st->lvc);
     free(st->lvc_path);
     bdpt_blocks_destroy(&st->lvb);
@@ -428,6 +432,25 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;
     c->full = p->variant == RESTIR_BDPT_FULL;
     c->out = out;
+    if (st->x2c && st->x2c_prev) {
+        /* The x_2 cache: the previous render's entries become read-only (the history's samples
+         * find theirs there), and stay valid while the scene object, the seed and what a light
+         * subpath's replay depends on are the same (scenes are immutable: an edit makes a new
+         * one, so pointer identity across consecutive renders means the same scene). */
+        struct rbdpt_x2_entry *t = st->x2c;
+        st->x2c = st->x2c_prev;
+        st->x2c_prev = t;
+        const uint32_t params[4] = {p->variant, p->max_depth, p->rr_depth, p->heuristic};
+        const bool same = st->x2c_tick > 0 && f->prev_scene == f->scene && st->x2c_scene == f->scene &&
+                          st->x2c_seed == f->seed && memcmp(st->x2c_params, params, sizeof params) == 0;
+        st->x2c_tick++;
+        if (!same) st->x2c_tick_from = st->x2c_tick;
+        st->x2c_scene = f->scene;
+        st->x2c_seed = f->seed;
+        memcpy(st->x2c_params, params, sizeof params);
+    }
+    c->tick = st->x2c_tick;
+    c->tick_from = st->x2c_tick_from;
 
     struct restir_bdpt_stats s = {0};
     struct timespec t0;
@@ -592,6 +615,9 @@ static struct rbdpt_ctx *rbdpt_test_ctx(struct restir_bdpt_state *st, const stru
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;
     c->full = p->variant == RESTIR_BDPT_FULL;
     c->reconnections = reconnections;
+    /* The cache as the last render left it, valid only in that render's scene. */
+    c->tick = st->x2c_tick;
+    c->tick_from = f->scene == st->x2c_scene ? st->x2c_tick_from : UINT32_MAX;
     return c;
 }
 

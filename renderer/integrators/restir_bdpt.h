@@ -178,7 +178,14 @@ struct restir_bdpt_reservoir {
  * throughput times the connection's contribution, MIS weight left out. */
 struct restir_bdpt_rc {
     uint32_t k;
-    uint32_t shape, prim;
+    union {
+        uint32_t shape;
+        /* t = 1 of the reverse hybrid shift's class (k = 1): the pixel whose x_2 cache entry (of
+         * the render that placed the sample there) holds its x_2 — a hint, checked against the
+         * entry's key (restir_bdpt_reuse.c). */
+        uint32_t x2_pixel;
+    };
+    uint32_t prim;
     float b1, b2;              /* x_k's point code (surface_at) */
     float wk_u, wk_v;          /* octahedral w_k (world) */
     struct vec3 L;
@@ -236,8 +243,17 @@ struct restir_bdpt_state {
     bool gbuf_history;
     void *pair_scratch;                         /* with reuse and paired_spatial: restir.c's pairs */
     /* With reuse: per pixel the x_2 of its sample of the reverse hybrid shift's class in this
-     * frame's scene, so that the shifts of one sample replay its light subpath once (restir_bdpt_reuse.c). */
-    struct rbdpt_x2_entry *x2c;
+     * frame's scene, so that the shifts of one sample replay its light subpath once (restir_bdpt_reuse.c).
+     * x2c_prev is the previous render's, read-only during a render (its samples, now the history,
+     * find their x_2 there through rc.x2_pixel); the two halves of one allocation (x2c_base)
+     * swap at each render. x2c_tick numbers the renders; entries made since render x2c_tick_from
+     * were made in the scene x2c_scene with seed x2c_seed and the light-subpath parameters
+     * x2c_params, and stay valid while these do not change. */
+    struct rbdpt_x2_entry *x2c, *x2c_prev, *x2c_base;
+    uint32_t x2c_tick, x2c_tick_from;
+    const struct scene *x2c_scene;
+    uint64_t x2c_seed;
+    uint32_t x2c_params[4];
     /* The full variant's light vertex cache, in bdpt's layout: per block a region of lvb.region
      * vertices, lvb.count of them used (lvb has no ray counters), lvc_first the prefix sums
      * (blocks + 1). NULL and empty otherwise. */

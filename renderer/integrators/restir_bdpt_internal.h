@@ -34,8 +34,9 @@
 #define RBDPT_CAMERA_JITTER_DRAWS 2u
 #define RBDPT_CAMERA_VERTEX_DRAWS 7u
 
-/* A pixel's entry of the light-side cache of its sample, computed in frame `frame`'s scene, and
- * whose sample it is (light subpath, origin frame, `depth_key`):
+/* A pixel's entry of the light-side cache of its sample, computed in the scene of the render
+ * numbered `tick` (struct restir_bdpt_state's x2c_tick), and whose sample it is (light subpath,
+ * origin frame, `depth_key`):
  *  - kind RBDPT_CACHE_X2, a t = 1 sample of the reverse hybrid shift's class: what struct
  *    rbdpt_x2 holds, less what follows from the rest (the shading frame is frame_from_normal(ns),
  *    as surface_from_hit builds it); depth_key is x_1's light depth;
@@ -53,7 +54,7 @@ struct rbdpt_x2_entry {
         };
         struct bdpt_light_vertex lv;
     };
-    uint32_t light_path, origin_frame, frame;
+    uint32_t light_path, origin_frame, tick;
     uint16_t depth_key;
     uint8_t near, kind;
 };
@@ -85,6 +86,9 @@ struct rbdpt_ctx {
     float n_light;
     uint64_t seed;
     uint32_t frame;
+    /* The x_2 cache's validity: entries made at renders tick_from .. tick (this render) were made
+     * in this render's scene with these random streams, so they equal a replay here (rbdpt_x2_valid). */
+    uint32_t tick, tick_from;
     bool power;
     bool full;                   /* the full variant: all techniques, an LVC */
     bool static_scene;           /* the previous frame's scene equals this one (scene_moved) */
@@ -108,6 +112,16 @@ struct rbdpt_ris {
 };
 
 /* ---- shared by the parts -------------------------------------------------------------------- */
+
+/* Whether cache entry e holds what a replay in view v would give: v is this render's scene and
+ * e was made in it (this render or an earlier one since which scene, seed and the parameters
+ * the light subpaths depend on are unchanged: a light subpath's vertices are a function of
+ * these alone, so the entry and the replay agree to the bit). */
+static inline bool rbdpt_x2_valid(const struct rbdpt_ctx *c, const struct rbdpt_view *v,
+                                  const struct rbdpt_x2_entry *e)
+{
+    return v->scene == c->view[0].scene && e->tick >= c->tick_from && e->tick <= c->tick;
+}
 
 static inline float rbdpt_mis_f(float x, bool power) { return power ? x * x : x; }
 

@@ -223,7 +223,7 @@ void rbdpt_light_vertex_keep(const struct rbdpt_ctx *c, uint32_t pixel, const st
                              const struct bdpt_light_vertex *lv)
 {
     c->st->x2c[pixel] = (struct rbdpt_x2_entry){.lv = *lv, .light_path = src->rc.light_path,
-                                                .origin_frame = src->r.origin_frame, .frame = c->frame,
+                                                .origin_frame = src->r.origin_frame, .tick = c->tick,
                                                 .depth_key = (uint16_t)lv->depth, .kind = RBDPT_CACHE_LV};
 }
 
@@ -238,7 +238,7 @@ bool rbdpt_light_vertex_of(const struct rbdpt_ctx *c, const struct rbdpt_view *v
     const uint32_t depth = (src->r.head.bits & 0xffu) - 1u;
     struct rbdpt_x2_entry *e =
         c->st->x2c && pixel != UINT32_MAX && v->scene == c->view[0].scene ? &c->st->x2c[pixel] : NULL;
-    if (e && e->kind == RBDPT_CACHE_LV && e->frame == c->frame && e->light_path == src->rc.light_path &&
+    if (e && e->kind == RBDPT_CACHE_LV && rbdpt_x2_valid(c, v, e) && e->light_path == src->rc.light_path &&
         e->origin_frame == src->r.origin_frame && e->depth_key == depth) {
         *lv = e->lv;
         return true;

@@ -9,7 +9,11 @@
 
 /* The x_2 cache (st->x2c): rbdpt_x2_keep stores what the replay of a sample's light subpath
  * gave in this frame's scene, rbdpt_x2_cached gives it back to a shift in that same scene —
- * the same numbers, so an image does not depend on whether a shift found its x_2 here. */
+ * the same numbers, so an image does not depend on whether a shift found its x_2 here. In a
+ * still scene the previous render's entries are as good: a sample of the history (most of a
+ * pixel's samples, with temporal reuse) finds its x_2 in st->x2c_prev at rc.x2_pixel, where
+ * that render's x_2 pass put it, instead of replaying its light subpath in the temporal pass
+ * and again in this render's x_2 pass. */
 static void rbdpt_x2_keep(const struct rbdpt_ctx *c, uint32_t pixel, const struct restir_bdpt_path *res,
                           const struct rbdpt_x2 *x2)
 {
@@ -19,18 +23,38 @@ static void rbdpt_x2_keep(const struct rbdpt_ctx *c, uint32_t pixel, const struc
                                  .beta = x2->beta, .rr_beta = x2->rr_beta, .dvcm = x2->mis.dvcm,
                                  .dvc = x2->mis.dvc, .u_rr = x2->u_rr, .depth = x2->depth,
                                  .light_path = res->r.light_path, .origin_frame = res->r.origin_frame,
-                                 .frame = c->frame, .depth_key = (uint16_t)(res->r.head.bits >> 8),
+                                 .tick = c->tick, .depth_key = (uint16_t)(res->r.head.bits >> 8),
                                  .near = x2->mis.near, .kind = RBDPT_CACHE_X2};
+}
+
+/* Entry e if it holds sample src's x_2, valid in view v. */
+static bool rbdpt_x2_entry_of(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct rbdpt_x2_entry *e,
+                              const struct restir_bdpt_path *src)
+{
+    return e->kind == RBDPT_CACHE_X2 && e->light_path == src->r.light_path && e->origin_frame == src->r.origin_frame &&
+           e->depth_key == (uint16_t)(src->r.head.bits >> 8) && rbdpt_x2_valid(c, v, e);
+}
+
+/* The entry holding src's x_2 (a sample of `pixel`, UINT32_MAX: of none in this render): that
+ * pixel's in this render's cache, else the one its hint names in the previous render's; NULL
+ * when neither holds it. */
+static const struct rbdpt_x2_entry *rbdpt_x2_find(const struct rbdpt_ctx *c, const struct rbdpt_view *v,
+                                                  uint32_t pixel, const struct restir_bdpt_path *src)
+{
+    const struct restir_bdpt_state *st = c->st;
+    if (!st->x2c) return NULL;
+    if (pixel != UINT32_MAX && rbdpt_x2_entry_of(c, v, &st->x2c[pixel], src)) return &st->x2c[pixel];
+    const uint32_t h = src->rc.x2_pixel;
+    if (st->x2c_prev && h < st->width * st->height && rbdpt_x2_entry_of(c, v, &st->x2c_prev[h], src))
+        return &st->x2c_prev[h];
+    return NULL;
 }
 
 static bool rbdpt_x2_cached(const struct rbdpt_ctx *c, const struct rbdpt_view *v, uint32_t pixel,
                             const struct restir_bdpt_path *src, struct rbdpt_x2 *x2)
 {
-    if (!c->st->x2c || pixel == UINT32_MAX || v->scene != c->view[0].scene) return false;
-    const struct rbdpt_x2_entry *e = &c->st->x2c[pixel];
-    if (e->kind != RBDPT_CACHE_X2 || e->frame != c->frame || e->light_path != src->r.light_path ||
-        e->origin_frame != src->r.origin_frame || e->depth_key != (uint16_t)(src->r.head.bits >> 8))
-        return false;
+    const struct rbdpt_x2_entry *e = rbdpt_x2_find(c, v, pixel, src);
+    if (!e) return false;
     *x2 = (struct rbdpt_x2){.s = {.p = e->p, .ng = e->ng, .ns = e->ns, .frame = frame_from_normal(e->ns),
                                   .shape = e->shape, .prim = e->prim, .material = e->material},
                             .m = &v->scene->materials[e->material], .wo_world = e->wo_world, .beta = e->beta,
@@ -286,7 +310,10 @@ bool rbdpt_reverse_record(const struct rbdpt_ctx *c, uint32_t pixel, struct rest
     res->rc.b2 = sub[1];
     res->rc.pdf = pdf;
     res->rc.mis_a = mis_w;
-    if (c->st->x2c) rbdpt_x2_keep(c, pixel, res, &x2);
+    if (c->st->x2c) {
+        rbdpt_x2_keep(c, pixel, res, &x2);
+        res->rc.x2_pixel = pixel;
+    }
     return true;
 }
 
@@ -453,19 +480,28 @@ void rbdpt_x2_row(void *ctx, uint32_t row, unsigned worker)
     struct ray_counters rc = {0, 0};
     for (uint32_t x = 0; x < st->width; x++) {
         uint32_t pixel = row * st->width + x;
-        const struct restir_bdpt_path *res = &st->res[pixel];
+        struct restir_bdpt_path *res = &st->res[pixel];
         struct rbdpt_x2 x2;
         if (rbdpt_is_connection(res) && res->r.head.W > 0.0f) {
             struct bdpt_light_vertex lv;
             rbdpt_light_vertex_of(c, &c->view[0], pixel, res, true, &lv, &rc);
             continue;
         }
-        if ((res->r.head.bits & 0xffu) != RESTIR_BDPT_TECH_LT || res->rc.k != 1 || !(res->r.head.W > 0.0f) ||
-            rbdpt_x2_cached(c, &c->view[0], pixel, res, &x2))
-            continue;
-        if (rbdpt_trace_light(c, &c->view[0], res->r.origin_frame, res->r.light_path,
-                              (uint32_t)(res->r.head.bits >> 8) - 1u, NULL, 0, NULL, NULL, NULL, NULL, &x2, &rc))
+        if ((res->r.head.bits & 0xffu) != RESTIR_BDPT_TECH_LT || res->rc.k != 1 || !(res->r.head.W > 0.0f)) continue;
+        /* Found in this pixel's entry, copied from the previous render's (a sample of the
+         * history), or replayed; the spatial pass's outputs carry the hint along. */
+        const struct rbdpt_x2_entry *e = rbdpt_x2_find(c, &c->view[0], pixel, res);
+        if (e && e != &st->x2c[pixel]) {
+            st->x2c[pixel] = *e;
+            st->x2c[pixel].tick = c->tick;
+        } else if (!e && rbdpt_trace_light(c, &c->view[0], res->r.origin_frame, res->r.light_path,
+                                           (uint32_t)(res->r.head.bits >> 8) - 1u, NULL, 0, NULL, NULL, NULL, NULL, &x2,
+                                           &rc)) {
             rbdpt_x2_keep(c, pixel, res, &x2);
+        } else if (!e) {
+            continue;
+        }
+        res->rc.x2_pixel = pixel;
     }
     wk->rays_intersect += rc.intersect;
     wk->rays_occluded += rc.occluded;
