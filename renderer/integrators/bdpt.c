@@ -298,7 +298,7 @@ bool bdpt_eye_link(const struct camera *cam, float plane_dist2, const struct acc
     if (!(cos_c_ng * wc_local.z > 0.0f) || cos_o_ng == 0.0f) return false;
     struct vec3 f = material_eval(m, wc_local, wo_local, TRANSPORT_RADIANCE);
     if (vec3_is_zero(f)) return false;
-    if (!bdpt_visible(accel, s->p, s->ng, cam->position, NULL, rc)) return false;
+    if (accel && !bdpt_visible(accel, s->p, s->ng, cam->position, NULL, rc)) return false;
     out->px = px;
     out->py = py;
     out->ix = ix;

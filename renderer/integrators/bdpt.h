@@ -166,7 +166,7 @@ bool bdpt_visible(const struct accel *accel, struct vec3 a, struct vec3 na, stru
  * plane_dist2 in pixel units. The MIS weight is the caller's: its contribution is
  * beta f · w · corr · camera_pdf_w / (dist2 N_L) in pixel (ix, iy). False when the vertex is
  * behind the camera or off the image, faces away from the eye, sends nothing towards it or is
- * hidden from it. */
+ * hidden from it; `accel` NULL: s is known to be visible from the eye (no ray is traced). */
 struct bdpt_eye_link {
     float px, py;               /* the image-plane position in pixels */
     uint32_t ix, iy;            /* its pixel */

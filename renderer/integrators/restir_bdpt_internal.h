@@ -278,8 +278,8 @@ struct rbdpt_resume {
 /* The light pass (rbdpt_light_block, one parallel_run job per block of light subpaths) and the
  * replays of one light subpath that the camera pass and the shifts ask for. */
 bool rbdpt_t1_eval(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct rbdpt_x2 *x2,
-                   const struct surface *x1, struct ray_counters *rays, uint32_t *pixel, struct vec3 *C,
-                   float sub[2], float *pdf, float *mis_w);
+                   const struct surface *x1, bool eye_sees, struct ray_counters *rays, uint32_t *pixel,
+                   struct vec3 *C, float sub[2], float *pdf, float *mis_w);
 bool rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view *v, uint32_t origin_frame,
                        uint32_t i, uint32_t only_depth, struct restir_bdpt_lt_sample *out, uint32_t cap,
                        uint32_t *stored, uint32_t *dropped, uint64_t *vertices, struct rbdpt_lvc_block *lvc,

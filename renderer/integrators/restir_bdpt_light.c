@@ -7,14 +7,17 @@
 
 /* ---- light subpaths ------------------------------------------------------------------------ */
 
-/* t = 1: the light vertex at `s` seen by the eye of view `v` (bdpt_eye_link); lightweight MIS. */
+/* t = 1: the light vertex at `s` seen by the eye of view `v` (bdpt_eye_link); lightweight MIS.
+ * `eye_sees`: s is known to be visible from the eye, so no shadow ray is traced. */
 static bool rbdpt_connect_camera(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct surface *s,
                                  const struct material *m, struct vec3 wo_world, struct vec3 beta,
-                                 const struct restir_bdpt_mis *mis, struct ray_counters *rc, uint32_t *pixel,
-                                 struct vec3 *value, float sub[2], float *camera_pdf_a_out, float *mis_out)
+                                 const struct restir_bdpt_mis *mis, bool eye_sees, struct ray_counters *rc,
+                                 uint32_t *pixel, struct vec3 *value, float sub[2], float *camera_pdf_a_out,
+                                 float *mis_out)
 {
     struct bdpt_eye_link e;
-    if (!bdpt_eye_link(&v->cam, v->plane_dist2, v->scene->accel, s, m, wo_world, rc, &e)) return false;
+    if (!bdpt_eye_link(&v->cam, v->plane_dist2, eye_sees ? NULL : v->scene->accel, s, m, wo_world, rc, &e))
+        return false;
     float w = restir_bdpt_mis_camera(mis, e.camera_pdf_a, c->n_light, e.rev_w, c->power);
     *value = vec3_scale(vec3_mul(beta, e.f), w * e.corr * e.camera_pdf_w / (e.dist2 * c->n_light));
     *pixel = e.iy * v->cam.width + e.ix;
@@ -32,8 +35,8 @@ static bool rbdpt_connect_camera(const struct rbdpt_ctx *c, const struct rbdpt_v
  * denominator p_2(w) |cos_1| / d^2 / p_camera,A(x_1) (dw at x_2 per unit of image area).
  * False when it contributes nothing. */
 bool rbdpt_t1_eval(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct rbdpt_x2 *x2,
-                   const struct surface *x1, struct ray_counters *rays, uint32_t *pixel, struct vec3 *C,
-                   float sub[2], float *pdf, float *mis_w)
+                   const struct surface *x1, bool eye_sees, struct ray_counters *rays, uint32_t *pixel,
+                   struct vec3 *C, float sub[2], float *pdf, float *mis_w)
 {
     const struct material *m1 = &v->scene->materials[x1->material];
     if (!(material_flags(m1) & (BSDF_DIFFUSE | BSDF_GLOSSY))) return false;
@@ -60,7 +63,8 @@ bool rbdpt_t1_eval(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const 
     restir_bdpt_mis_scatter(&mis, cos_i_ng, p2, material_pdf(x2->m, wi, wo), false, c->power);
     restir_bdpt_mis_hit(&mis, d2, cos_1, c->power);
     float camera_pdf_a;
-    if (!rbdpt_connect_camera(c, v, x1, m1, vec3_neg(w), beta, &mis, rays, pixel, C, sub, &camera_pdf_a, mis_w) ||
+    if (!rbdpt_connect_camera(c, v, x1, m1, vec3_neg(w), beta, &mis, eye_sees, rays, pixel, C, sub, &camera_pdf_a,
+                              mis_w) ||
         !vec3_is_finite(*C) || vec3_is_zero(*C))
         return false;
     *pdf = p2 * fabsf(cos_1) / d2 / camera_pdf_a;
@@ -122,9 +126,9 @@ bool rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view *v, ui
             struct vec3 val;
             const bool hybrid = track && depth >= 2 && x2_rough;
             float sub[2], pdf;
-            bool made = out && (hybrid ? rbdpt_t1_eval(c, v, &x2, &s, rc, &px, &val, sub, &pdf, NULL)
-                                       : rbdpt_connect_camera(c, v, &s, m, wo_world, beta, &mis, rc, &px, &val, NULL,
-                                                              NULL, NULL) &&
+            bool made = out && (hybrid ? rbdpt_t1_eval(c, v, &x2, &s, false, rc, &px, &val, sub, &pdf, NULL)
+                                       : rbdpt_connect_camera(c, v, &s, m, wo_world, beta, &mis, false, rc, &px, &val,
+                                                              NULL, NULL, NULL) &&
                                              vec3_is_finite(val) && !vec3_is_zero(val));
             if (made) {
                 if (*stored < cap) {

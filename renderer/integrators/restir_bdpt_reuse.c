@@ -275,7 +275,8 @@ static bool rbdpt_reverse(const struct rbdpt_ctx *c, const struct rbdpt_view *v,
     surface_from_hit(v->scene, &hit, cam->position, dir, &x1);
     uint32_t px;
     float mis_w;
-    if (!rbdpt_t1_eval(c, v, &x2, &x1, rays, &px, C, NULL, pdf, &mis_w) || px != pixel) return false;
+    /* x'_1 is the eye ray's first hit: the eye sees it, and no shadow ray asks again. */
+    if (!rbdpt_t1_eval(c, v, &x2, &x1, true, rays, &px, C, NULL, pdf, &mis_w) || px != pixel) return false;
     if (!bdpt_visible(v->scene->accel, x2.s.p, x2.s.ng, x1.p, &x1.ng, rays)) return false;
     /* copy_mis: the weight the sample was drawn with ([ReSTIR BDPT §6.4]), not the new path's. */
     if (c->p->copy_mis) *C = vec3_scale(*C, src->rc.mis_a / mis_w);
@@ -305,7 +306,8 @@ bool rbdpt_reverse_record(const struct rbdpt_ctx *c, uint32_t pixel, struct rest
     uint32_t px;
     struct vec3 C;
     float sub[2], pdf, mis_w;
-    if (!rbdpt_t1_eval(c, v, &x2, &x1, rays, &px, &C, sub, &pdf, &mis_w)) return false;
+    /* The light pass made this very sample (the replay is exact): the eye saw x_1 then. */
+    if (!rbdpt_t1_eval(c, v, &x2, &x1, true, rays, &px, &C, sub, &pdf, &mis_w)) return false;
     res->rc.b1 = sub[0];
     res->rc.b2 = sub[1];
     res->rc.pdf = pdf;
