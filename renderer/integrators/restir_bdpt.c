@@ -432,25 +432,37 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;
     c->full = p->variant == RESTIR_BDPT_FULL;
     c->out = out;
-    if (st->x2c && st->x2c_prev) {
-        /* The x_2 cache: the previous render's entries become read-only (the history's samples
-         * find theirs there), and stay valid while the scene object, the seed and what a light
-         * subpath's replay depends on are the same (scenes are immutable: an edit makes a new
-         * one, so pointer identity across consecutive renders means the same scene). */
-        struct rbdpt_x2_entry *t = st->x2c;
-        st->x2c = st->x2c_prev;
-        st->x2c_prev = t;
+    {
+        /* Renders are numbered. The x_2 cache's entries stay valid while the scene object, the
+         * seed and what a light subpath's replay depends on are the same (scenes are immutable:
+         * an edit makes a new one, so pointer identity across consecutive renders means the same
+         * scene); a render is still when, besides, the camera and every parameter are the
+         * previous render's, so a shift evaluates a sample there exactly as it did then. */
         const uint32_t params[4] = {p->variant, p->max_depth, p->rr_depth, p->heuristic};
         const bool same = st->x2c_tick > 0 && f->prev_scene == f->scene && st->x2c_scene == f->scene &&
                           st->x2c_seed == f->seed && memcmp(st->x2c_params, params, sizeof params) == 0;
+        const bool still = same && c->has_prev && memcmp(&st->last_params, p, sizeof *p) == 0 &&
+                           memcmp(f->camera, f->prev_camera, sizeof *f->camera) == 0 &&
+                           memcmp(&st->last_camera, f->camera, sizeof *f->camera) == 0;
         st->x2c_tick++;
         if (!same) st->x2c_tick_from = st->x2c_tick;
+        if (!still) st->still_from = st->x2c_tick;
         st->x2c_scene = f->scene;
         st->x2c_seed = f->seed;
         memcpy(st->x2c_params, params, sizeof params);
+        memcpy(&st->last_params, p, sizeof *p);
+        st->last_camera = *f->camera;
+        if (st->x2c && st->x2c_prev) {
+            /* The previous render's entries become read-only: the history's samples find theirs
+             * there. */
+            struct rbdpt_x2_entry *t = st->x2c;
+            st->x2c = st->x2c_prev;
+            st->x2c_prev = t;
+        }
     }
     c->tick = st->x2c_tick;
     c->tick_from = st->x2c_tick_from;
+    c->still_from = st->still_from;
 
     struct restir_bdpt_stats s = {0};
     struct timespec t0;
@@ -618,6 +630,7 @@ static struct rbdpt_ctx *rbdpt_test_ctx(struct restir_bdpt_state *st, const stru
     /* The cache as the last render left it, valid only in that render's scene. */
     c->tick = st->x2c_tick;
     c->tick_from = f->scene == st->x2c_scene ? st->x2c_tick_from : UINT32_MAX;
+    c->still_from = UINT32_MAX;   /* no shift is taken as already evaluated */
     return c;
 }
 

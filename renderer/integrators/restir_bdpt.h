@@ -191,8 +191,13 @@ struct restir_bdpt_rc {
     struct vec3 L;
     float pdf;
     float mis_a, mis_b, mis_c; /* the suffix's MIS constants (lightweight: a and b; full: all three) */
-    uint32_t light_path;       /* full variant, s >= 2: the light subpath the connection joins (frame
+    union {
+        uint32_t light_path;   /* full variant, s >= 2: the light subpath the connection joins (frame
                                   r.origin_frame) */
+        /* Any other sample: the render (x2c_tick) whose shift into the pixel the sample sits in
+         * computed its F and rc there; 0 for an initial candidate (restir_bdpt_reuse.c). */
+        uint32_t eval_tick;
+    };
 };
 
 /* A non-caustic reservoir: the reservoir and its sample's reconnection. */
@@ -254,6 +259,11 @@ struct restir_bdpt_state {
     const struct scene *x2c_scene;
     uint64_t x2c_seed;
     uint32_t x2c_params[4];
+    /* Renders after still_from saw the same scene object, camera, seed and parameters as the
+     * render before them (last_camera, last_params: the previous render's). */
+    uint32_t still_from;
+    struct camera_desc last_camera;
+    struct restir_bdpt_params last_params;
     /* The full variant's light vertex cache, in bdpt's layout: per block a region of lvb.region
      * vertices, lvb.count of them used (lvb has no ray counters), lvc_first the prefix sums
      * (blocks + 1). NULL and empty otherwise. */

@@ -89,6 +89,7 @@ struct rbdpt_ctx {
     /* The x_2 cache's validity: entries made at renders tick_from .. tick (this render) were made
      * in this render's scene with these random streams, so they equal a replay here (rbdpt_x2_valid). */
     uint32_t tick, tick_from;
+    uint32_t still_from;         /* renders after it had the view and parameters of the one before */
     bool power;
     bool full;                   /* the full variant: all techniques, an LVC */
     bool static_scene;           /* the previous frame's scene equals this one (scene_moved) */

@@ -387,12 +387,33 @@ void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain from, 
     struct vec3 C = {0, 0, 0};
     struct restir_bdpt_rc rc = src->rc;
     const struct scene *scene_from = c->view[from.frame == RESTIR_PREVIOUS ? 1 : 0].scene;
+    const bool connection = rbdpt_is_connection(src);
+    /* A sample of the history shifted into the pixel it sat in, when the previous render computed
+     * its F there by a shift and nothing has changed since (two still renders in a row: the
+     * previous one's shift saw the same scene on both sides, so it did not trace its suffix
+     * again): this shift is the identity and would repeat that computation on the same inputs
+     * (the same replays, cache entries and rays), giving the same F and rc and a Jacobian of
+     * exactly 1 (rc.pdf over itself; surface_area_ratio of one scene is 1). Its answer is taken
+     * as it is, without the rays. */
+    if (from.frame == RESTIR_PREVIOUS && to.frame == RESTIR_CURRENT && from.pixel == to.pixel && !connection &&
+        src->rc.eval_tick == c->tick - 1u && src->rc.eval_tick > c->still_from) {
+        const uint32_t tech = src->r.head.bits & 0xffu;
+        if ((tech == RESTIR_BDPT_TECH_LT && src->rc.k) || (tech != RESTIR_BDPT_TECH_LT && src->rc.k >= 2))
+            atomic_fetch_add_explicit(c->reconnections, 1, memory_order_relaxed);
+        *target = vec3_luminance(src->r.F);
+        if (dst_v && *target > 0.0f) {
+            struct restir_bdpt_path *dst = dst_v;
+            *dst = *src;
+            dst->rc.eval_tick = c->tick;
+        }
+        return;
+    }
     /* s >= 2: the sample's light vertex in the target scene, needed unless the hybrid shift keeps
      * it (reconnected before the connecting vertex, in a scene where the light subpath replays
      * to the same vertices). */
     struct bdpt_light_vertex lv = {0};
     const struct bdpt_light_vertex *lvp = NULL;
-    if (rbdpt_is_connection(src)) {
+    if (connection) {
         const uint32_t tech = src->r.head.bits & 0xffu, e = (uint32_t)(src->r.head.bits >> 8);
         const bool moved = (scene_from != v->scene && !c->static_scene) || c->force_retrace;
         if (src->rc.k < 2 || src->rc.k + tech == e || moved) lvp = &lv;
@@ -441,6 +462,7 @@ void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain from, 
         *dst = *src;
         dst->r.F = C;
         dst->rc = rc;
+        if (!connection) dst->rc.eval_tick = c->tick;
     }
 }
 
