@@ -376,6 +376,19 @@ enum rbdpt_replay rbdpt_replay_caustic(const struct rbdpt_ctx *c, const struct r
     return RBDPT_REPLAY_OK;
 }
 
+/* Whether this render and the previous one have the same view and parameters (struct
+ * restir_bdpt_state's still_from). A caustic sample's F and pixel then come from the same
+ * computation in both frames: the light pass and a replay run rbdpt_trace_light on the same
+ * random numbers in the same scene and camera, and a caustic sample never takes the hybrid
+ * evaluation (its x_2 scattered by a delta lobe, so x_2 is not rough). So the replay of the
+ * previous frame's sample into this frame lands in the pixel whose reservoir held it, with
+ * that reservoir's F, and the inverse replay of this frame's sample gives back its own pixel
+ * and F: the shifts of Appendix A are the identity there, taken without the rays. */
+static bool rbdpt_caustic_still(const struct rbdpt_ctx *c)
+{
+    return c->tick > c->still_from;
+}
+
 /* The caustic reservoir's confidence (eq. 27): 1 for this frame's initial samples plus the
  * confidence of the previous caustic reservoir that the primary hit maps to with the previous
  * camera — independent of where caustic samples happen to land. */
@@ -468,7 +481,12 @@ void rbdpt_camera_tile(void *ctx, uint32_t tile, unsigned worker)
                     struct vec3 Fp;
                     double denom = rcau.target;
                     wk->shifts++;
-                    if (rbdpt_replay_caustic(c, &c->view[1], rcau.origin_frame, rcau.light_path,
+                    if (rbdpt_caustic_still(c)) {
+                        v = pixel;
+                        Fp = rcau.F;
+                    }
+                    if (rbdpt_caustic_still(c) ||
+                        rbdpt_replay_caustic(c, &c->view[1], rcau.origin_frame, rcau.light_path,
                                              (uint32_t)(rcau.bits >> 8) - 1u, &v, &Fp, &rc) == RBDPT_REPLAY_OK) {
                         denom += (double)st->caustic_prev[v].head.M * vec3_luminance(Fp);
                     } else {
@@ -514,10 +532,11 @@ void rbdpt_history_row(void *ctx, uint32_t row, unsigned worker)
         if (!(prev->head.W > 0.0f) || !(p_prev > 0.0f)) continue;
         wk->shifts++;
         uint32_t depth = (uint32_t)(prev->head.bits >> 8) - 1u;
-        uint32_t q;
-        struct vec3 F;
-        enum rbdpt_replay res = rbdpt_replay_caustic(c, &c->view[0], prev->origin_frame, prev->light_path, depth, &q,
-                                                     &F, &rc);
+        uint32_t q = v;
+        struct vec3 F = prev->F;
+        enum rbdpt_replay res = rbdpt_caustic_still(c) ? RBDPT_REPLAY_OK
+                                                       : rbdpt_replay_caustic(c, &c->view[0], prev->origin_frame,
+                                                                              prev->light_path, depth, &q, &F, &rc);
         if (res != RBDPT_REPLAY_OK) {
             if (res == RBDPT_REPLAY_FAILED) wk->replay_failed++; else wk->not_caustic++;
             continue;
