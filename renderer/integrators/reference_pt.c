@@ -606,6 +606,27 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
     return vec3_v4_unpack(L);
 }
 
+/* One path of an entry point outside pt's tile loop: the set-up, the Embree query and locals of
+ * the random stream and counters that the tile loop keeps per tile, made for this path (the
+ * locals' addresses go nowhere but the inlined pt_radiance; see pt_setup), then handed back.
+ * Inlined into each flattened caller. */
+static inline struct vec3 pt_radiance_one(const struct scene *scene, const struct pt_params *params,
+                                          const struct pt_split *split, struct vec3 org, struct vec3 dir,
+                                          struct rng *rng, bool sss_direct, struct ray_counters *rc)
+{
+    const struct pt_setup setup = pt_setup_make(scene, params, split);
+    struct accel_query aq;
+    accel_query_init(&aq);
+    struct rng rng_local = *rng;
+    struct ray_counters rc_local = {0, 0};
+    struct vec3 L =
+        pt_radiance(scene, params, &setup, org, dir, &rng_local, &rc_local, split, sss_direct, NULL, false, &aq);
+    *rng = rng_local;
+    rc->intersect += rc_local.intersect;
+    rc->occluded += rc_local.occluded;
+    return L;
+}
+
 /* The two entry points for the other methods' paths take in pt_radiance themselves (`flatten`), so
  * that its Sobol' and solid-angle branches fold away with qmc a constant NULL and solid_angle a
  * constant false there too (those paths sample lights by area: pt_params' light_sampling is pt's
@@ -618,18 +639,7 @@ __attribute__((flatten)) struct vec3 reference_pt_radiance(const struct scene *s
                                                            struct rng *rng, bool sss_direct, struct ray_counters *rc)
 {
     const struct pt_split all = {.owned = true, .rest = true, .primary_given = true, .primary = primary};
-    const struct pt_setup setup = pt_setup_make(scene, params, &all);
-    struct accel_query aq;
-    accel_query_init(&aq);
-    /* Locals for pt_radiance (see there). */
-    struct rng rng_local = *rng;
-    struct ray_counters rc_local = {0, 0};
-    struct vec3 L =
-        pt_radiance(scene, params, &setup, org, dir, &rng_local, &rc_local, &all, sss_direct, NULL, false, &aq);
-    *rng = rng_local;
-    rc->intersect += rc_local.intersect;
-    rc->occluded += rc_local.occluded;
-    return L;
+    return pt_radiance_one(scene, params, &all, org, dir, rng, sss_direct, rc);
 }
 
 __attribute__((flatten)) struct vec3
@@ -640,17 +650,7 @@ reference_pt_radiance_sms(const struct scene *scene, const struct pt_params *par
     const struct pt_split split = {.owned = false, .rest = !params->sms->caustics_only, .tracked = true, .ss = ss,
                                    .sc = sc, .sms_rng = sms_rng, .px = px, .py = py, .sms_after_primary = true,
                                    .primary_given = true, .primary = primary};
-    const struct pt_setup setup = pt_setup_make(scene, params, &split);
-    struct accel_query aq;
-    accel_query_init(&aq);
-    struct rng rng_local = *rng;
-    struct ray_counters rc_local = {0, 0};
-    struct vec3 L =
-        pt_radiance(scene, params, &setup, org, dir, &rng_local, &rc_local, &split, true, NULL, false, &aq);
-    *rng = rng_local;
-    rc->intersect += rc_local.intersect;
-    rc->occluded += rc_local.occluded;
-    return L;
+    return pt_radiance_one(scene, params, &split, org, dir, rng, true, rc);
 }
 
 /* The tile loop, flattened (by its two callers below) for the same reason as pt_radiance, which

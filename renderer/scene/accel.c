@@ -253,22 +253,34 @@ void accel_free(struct accel *a)
     free(a);
 }
 
+/* The part of an Embree ray a query sets every time: origin, direction and far end. */
+static inline void accel_ray_aim(struct RTCRay *r, struct vec3 org, struct vec3 dir, float tmax)
+{
+    r->org_x = org.x;
+    r->org_y = org.y;
+    r->org_z = org.z;
+    r->dir_x = dir.x;
+    r->dir_y = dir.y;
+    r->dir_z = dir.z;
+    r->tfar = tmax;
+}
+
+/* The rest of a single ray, the same for every query: from tmin, at time 0, seen by all masks. */
+static inline void accel_ray_fixed(struct RTCRay *r, float tmin)
+{
+    r->tnear = tmin;
+    r->time = 0.0f;
+    r->mask = 0xFFFFFFFFu;
+    r->id = 0;
+    r->flags = 0;
+}
+
 /* A single ray over [tmin, tmax] with no hit yet, written in place (returned by value, the
  * 80-byte struct was built in a temporary and copied). */
 static void accel_ray_hit(struct RTCRayHit *out, struct vec3 org, struct vec3 dir, float tmin, float tmax)
 {
-    out->ray.org_x = org.x;
-    out->ray.org_y = org.y;
-    out->ray.org_z = org.z;
-    out->ray.dir_x = dir.x;
-    out->ray.dir_y = dir.y;
-    out->ray.dir_z = dir.z;
-    out->ray.tnear = tmin;
-    out->ray.tfar = tmax;
-    out->ray.time = 0.0f;
-    out->ray.mask = 0xFFFFFFFFu;
-    out->ray.id = 0;
-    out->ray.flags = 0;
+    accel_ray_aim(&out->ray, org, dir, tmax);
+    accel_ray_fixed(&out->ray, tmin);
     out->hit.geomID = RTC_INVALID_GEOMETRY_ID;
     out->hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
 }
@@ -342,13 +354,7 @@ bool accel_query_intersect(const struct accel *a, struct accel_query *q, struct 
 {
     struct accel_query_rtc *r = accel_query_rtc(q);
     /* Only what a query changes: the ray, the tfar a hit shortened and the hit record. */
-    r->rh.ray.org_x = org.x;
-    r->rh.ray.org_y = org.y;
-    r->rh.ray.org_z = org.z;
-    r->rh.ray.dir_x = dir.x;
-    r->rh.ray.dir_y = dir.y;
-    r->rh.ray.dir_z = dir.z;
-    r->rh.ray.tfar = tmax;
+    accel_ray_aim(&r->rh.ray, org, dir, tmax);
     r->rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
     r->rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
     rtcIntersect1(a->top, &r->ctx, &r->rh);
@@ -360,13 +366,7 @@ bool accel_query_occluded(const struct accel *a, struct accel_query *q, struct v
                           float tmax, struct ray_counters *counters)
 {
     struct accel_query_rtc *r = accel_query_rtc(q);
-    r->ray.org_x = org.x;
-    r->ray.org_y = org.y;
-    r->ray.org_z = org.z;
-    r->ray.dir_x = dir.x;
-    r->ray.dir_y = dir.y;
-    r->ray.dir_z = dir.z;
-    r->ray.tfar = tmax;   /* Embree sets it to -inf on a hit */
+    accel_ray_aim(&r->ray, org, dir, tmax);   /* Embree sets tfar to -inf on a hit */
     rtcOccluded1(a->top, &r->ctx, &r->ray);
     counters->occluded++;
     return r->ray.tfar < 0.0f;
@@ -524,18 +524,8 @@ bool accel_occluded(const struct accel *a, struct vec3 org, struct vec3 dir, flo
     struct RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
     struct RTCRay ray;
-    ray.org_x = org.x;
-    ray.org_y = org.y;
-    ray.org_z = org.z;
-    ray.dir_x = dir.x;
-    ray.dir_y = dir.y;
-    ray.dir_z = dir.z;
-    ray.tnear = tmin;
-    ray.tfar = tmax;
-    ray.time = 0.0f;
-    ray.mask = 0xFFFFFFFFu;
-    ray.id = 0;
-    ray.flags = 0;
+    accel_ray_aim(&ray, org, dir, tmax);
+    accel_ray_fixed(&ray, tmin);
     rtcOccluded1(a->top, &ctx, &ray);
     counters->occluded++;
     return ray.tfar < 0.0f;  /* Embree sets tfar = -inf on a hit */

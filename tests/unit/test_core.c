@@ -312,14 +312,16 @@ static int cmp_u32(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
-/* The batch functions compute what the one-dimension functions do, on every code path this
- * processor has (scalar, and AVX2 where present): seeds equal to sobol_dimension_seeds lane by lane
- * (with the multiplier beside each), and every lane's point equal to sobol_2d's, over random pixel
- * seeds and indices, for 5, 8, 13 and 16 lanes (the vector code with and without a scalar tail),
- * and nothing written past the last lane. Fails when a lane takes another lane's seeds, a vector
- * step differs from the scalar one, or a group of eight is written where fewer lanes were asked. Also: the inner inputs (dim, word) of the seed hash are
- * distinct for every dimension below 2^16, so no two seed words of a pixel coincide by
- * construction. */
+/* Whether this processor runs the batch's code path `path`: 0 the scalar one, 1 the AVX2 one. */
+static bool sobol_path_present(int path)
+{
+#ifdef SOBOL_HAVE_AVX2
+    return path == 0 || __builtin_cpu_supports("avx2");
+#else
+    return path == 0;
+#endif
+}
+
 /* sobol_batch_draw_run gives every sample of a run what sobol_batch_draw gives it alone, on
  * every code path this processor has (the scalar one, and the AVX2 one where present), for run
  * lengths around the eight samples the vector path reverses at once and a stride with room
@@ -331,11 +333,7 @@ static void test_sobol_batch_run_matches(void)
     enum { MAX_RUN = 21, STRIDE = 20 };  /* 20 floats a sample: 8 lanes of u0, gap, 8 of u1, gap */
     uint32_t mismatched = 0, paths = 0;
     for (int path = 0; path < 2; path++) {
-#ifdef SOBOL_HAVE_AVX2
-        if (path == 1 && !__builtin_cpu_supports("avx2")) continue;
-#else
-        if (path == 1) continue;
-#endif
+        if (!sobol_path_present(path)) continue;
         paths++;
         for (int trial = 0; trial < 400; trial++) {
             const uint64_t pixel_seed = (uint64_t)rng_next_u32(&r) << 32 | rng_next_u32(&r);
@@ -366,16 +364,20 @@ static void test_sobol_batch_run_matches(void)
               mismatched);
 }
 
+/* The batch functions compute what the one-dimension functions do, on every code path this
+ * processor has (scalar, and AVX2 where present): seeds equal to sobol_dimension_seeds lane by lane
+ * (with the multiplier beside each), and every lane's point equal to sobol_2d's, over random pixel
+ * seeds and indices, for 5, 8, 13 and 16 lanes (the vector code with and without a scalar tail),
+ * and nothing written past the last lane. Fails when a lane takes another lane's seeds, a vector
+ * step differs from the scalar one, or a group of eight is written where fewer lanes were asked. Also: the inner inputs (dim, word) of the seed hash are
+ * distinct for every dimension below 2^16, so no two seed words of a pixel coincide by
+ * construction. */
 static void test_sobol_batch_matches_scalar(void)
 {
     struct rng r = rng_make(11, 0, 0, 0);
     uint32_t mismatched = 0, paths = 0;
     for (int path = 0; path < 2; path++) {
-#ifdef SOBOL_HAVE_AVX2
-        if (path == 1 && !__builtin_cpu_supports("avx2")) continue;
-#else
-        if (path == 1) continue;
-#endif
+        if (!sobol_path_present(path)) continue;
         paths++;
         for (int trial = 0; trial < 2000; trial++) {
             const uint64_t pixel_seed = (uint64_t)rng_next_u32(&r) << 32 | rng_next_u32(&r);
