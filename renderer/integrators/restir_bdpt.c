@@ -446,7 +446,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
                            memcmp(&st->last_camera, f->camera, sizeof *f->camera) == 0;
         st->x2c_tick++;
         if (!same) st->x2c_tick_from = st->x2c_tick;
-        if (!still) st->still_from = st->x2c_tick;
+        if (!still || st->still_withheld) st->still_from = st->x2c_tick;
         st->x2c_scene = f->scene;
         st->x2c_seed = f->seed;
         memcpy(st->x2c_params, params, sizeof params);

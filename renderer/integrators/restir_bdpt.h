@@ -262,6 +262,10 @@ struct restir_bdpt_state {
     /* Renders after still_from saw the same scene object, camera, seed and parameters as the
      * render before them (last_camera, last_params: the previous render's). */
     uint32_t still_from;
+    /* Set, no render counts as still: every shift and caustic replay is computed in full. The
+     * shortcuts must not change an image, and tests/unit/test_restir_bdpt.c renders with them and
+     * without them to show it. false after init. */
+    bool still_withheld;
     struct camera_desc last_camera;
     struct restir_bdpt_params last_params;
     /* The full variant's light vertex cache, in bdpt's layout: per block a region of lvb.region

@@ -792,6 +792,59 @@ static void test_x2_cache_changes_nothing(void)
     x2_cache_case(RESTIR_BDPT_FULL);
 }
 
+/* A still view's shortcuts (a history sample shifted into its own pixel taken as evaluated the
+ * render before, caustic replays taken as stored) only save work: a session rendered with them
+ * and with them withheld gives bit-identical frames, and with them fewer rays (else they were
+ * never taken). The camera moves once, at frame 3, so that a still run ends and a new one begins
+ * (frame 3 renders in full, frames 4 and 5 are still again). */
+static void still_case(enum restir_bdpt_variant variant)
+{
+    struct scene *sc = fixture_load("scenes/lamp-in-glass/scene.json");
+    if (!sc) return;
+    struct camera_desc moved = LAMP_CROP;
+    moved.position.x += 0.01f;
+    struct err err = {0};
+    struct restir_bdpt_params p = restir_bdpt_defaults();
+    p.variant = variant;
+    const uint32_t W = 32, H = 32, FRAMES = 6;
+    struct image img[2];
+    uint64_t rays[2] = {0, 0};
+    bool same_frames = true;
+    struct restir_bdpt_state st[2];
+    for (int k = 0; k < 2; k++) {
+        CHECK(image_init(&img[k], W, H, &err));
+        CHECK_MSG(restir_bdpt_init(&st[k], sc, &p, W, H, &err), "%s", err.message);
+    }
+    st[0].still_withheld = true;
+    for (uint32_t f = 0; f < FRAMES; f++) {
+        const struct camera_desc *cam = f < 3 ? &LAMP_CROP : &moved;
+        const struct camera_desc *prev = f == 0 ? NULL : f - 1 < 3 ? &LAMP_CROP : &moved;
+        struct method_frame fr = {.scene = sc, .camera = cam, .prev_scene = f ? sc : NULL, .prev_camera = prev,
+                                  .seed = 5, .frame = f, .threads = 2};
+        for (int k = 0; k < 2; k++) {
+            struct restir_bdpt_stats s;
+            CHECK_MSG(restir_bdpt_render(&st[k], &p, &fr, &img[k], &s, &err), "%s", err.message);
+            rays[k] += s.rays_intersect + s.rays_occluded;
+        }
+        same_frames = same_frames && memcmp(img[0].pixels, img[1].pixels, (size_t)W * H * sizeof *img[0].pixels) == 0;
+    }
+    printf("    %s, %u frames: %llu rays with the shortcuts withheld, %llu with them\n",
+           restir_bdpt_variant_name(variant), FRAMES, (unsigned long long)rays[0], (unsigned long long)rays[1]);
+    CHECK(same_frames);
+    CHECK(rays[1] < rays[0]);
+    for (int k = 0; k < 2; k++) {
+        restir_bdpt_destroy(&st[k]);
+        image_destroy(&img[k]);
+    }
+    scene_release(sc);
+}
+
+static void test_still_shortcuts_change_nothing(void)
+{
+    still_case(RESTIR_BDPT_LIGHTWEIGHT);
+    still_case(RESTIR_BDPT_FULL);
+}
+
 /* Paired: the same sessions (same seeds, so the same non-caustic reservoirs frame by frame) with
  * caustic temporal reuse on and off; the difference of their images is the difference of the
  * caustic estimates alone, which must be 0 in expectation. With `moving`, the light slides and
@@ -1013,6 +1066,7 @@ static void test_view_method(void)
 
 TEST_MAIN(TEST(test_mis_lightweight), TEST(test_mis_full), TEST(test_mis_reconnect), TEST(test_params), TEST(test_view_method), TEST(test_thread_determinism),
           TEST(test_moving_cap),
-          TEST(test_caustic_replay_round_trip), TEST(test_shift_round_trips), TEST(test_full_reconnect_mis), TEST(test_x2_cache_changes_nothing), TEST(test_matches_bdpt_caustic_sphere),
+          TEST(test_caustic_replay_round_trip), TEST(test_shift_round_trips), TEST(test_full_reconnect_mis), TEST(test_x2_cache_changes_nothing), TEST(test_still_shortcuts_change_nothing),
+          TEST(test_matches_bdpt_caustic_sphere),
           TEST(test_matches_bdpt_lamp_in_glass), TEST(test_caustic_temporal_paired),
           TEST(test_caustic_temporal_paired_moving))
