@@ -12,9 +12,13 @@ METHOD_FITS(struct restir_pt_params, METHOD_PARAMS_BYTES);
 METHOD_FITS(struct restir_pass_stats, METHOD_COUNTERS_BYTES);
 
 METHOD_DEFAULTS_OP(rpt_defaults, struct restir_pt_params, restir_pt_defaults)
-/* The converge profile: temporal reuse off, so that a session's frames are independent, and the
- * spatial reuse of [ReSTIR BDPT Fig. 12] in its place (3 rounds of 6 neighbours). The values
- * are the papers' starting point, to be tuned by measurement. */
+/* The converge profile: temporal reuse off and a fresh primary ray position every frame, so that
+ * a session's frames are independent, and the spatial reuse of [ReSTIR BDPT Fig. 12] in its place
+ * (3 rounds of 6 neighbours). Measured at equal CPU time on the mean of the frames
+ * (docs/benchmarks.md, "restir_pt's converge profile with history"): a history capped at 1 to 20
+ * frames with the real-time walk correlates the frames more than it lowers each one's error (on
+ * cornell-glossy about 3x the RMSE of the same rounds without it, on door-ajar 2.4-4x the relMSE
+ * of this profile), and fewer rounds or neighbours trade cornell-glossy's relMSE for door-ajar's. */
 static void rpt_converge(void *params)
 {
     struct restir_pt_params *p = params;
