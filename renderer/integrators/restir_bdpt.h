@@ -91,7 +91,9 @@ struct RESTIRD_STORED_IN_BYTES restir_bdpt_params {
     enum restir_bdpt_variant variant;  /* lightweight (default) or full */
     uint32_t max_depth;        /* scattering events of a full path, 1..RESTIR_BDPT_MAX_DEPTH (64, as bdpt) */
     uint32_t rr_depth;         /* Russian roulette after this many bounces of a subpath (3) */
-    uint32_t light_paths;      /* N_L per frame; 0 = the pixel count (default) */
+    uint32_t light_paths;      /* N_L per frame; 0 = light_paths_per_pixel times the pixel count (default) */
+    uint32_t light_paths_per_pixel; /* with light_paths 0: N_L over the pixel count, 1..16 (1;
+                                       docs/benchmarks.md measures 2 in the converge profile) */
     uint32_t lt_capacity;      /* light-traced samples kept per light subpath on average, 1..64 (8) */
     uint32_t lvc_capacity;     /* full variant: light vertices cached per light subpath on average,
                                   1..64 (8, as bdpt) */
@@ -250,10 +252,12 @@ struct restir_bdpt_state {
     /* With reuse: per pixel the x_2 of its sample of the reverse hybrid shift's class in this
      * frame's scene, so that the shifts of one sample replay its light subpath once (restir_bdpt_reuse.c).
      * x2c_prev is the previous render's, read-only during a render (its samples, now the history,
-     * find their x_2 there through rc.x2_pixel); the two halves of one allocation (x2c_base)
-     * swap at each render. x2c_tick numbers the renders; entries made since render x2c_tick_from
-     * were made in the scene x2c_scene with seed x2c_seed and the light-subpath parameters
-     * x2c_params, and stay valid while these do not change. */
+     * find their x_2 there through rc.x2_pixel), or from the second spatial round on the previous
+     * round's (the samples it moved find theirs there likewise); the two halves of one allocation
+     * (x2c_base) swap at each render and each spatial round after the first. x2c_tick numbers the
+     * renders; entries made since render x2c_tick_from were made in the scene x2c_scene with seed
+     * x2c_seed and the light-subpath parameters x2c_params, and stay valid while these do not
+     * change. */
     struct rbdpt_x2_entry *x2c, *x2c_prev, *x2c_base;
     uint32_t x2c_tick, x2c_tick_from;
     const struct scene *x2c_scene;

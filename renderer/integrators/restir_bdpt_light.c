@@ -231,23 +231,37 @@ void rbdpt_light_vertex_keep(const struct rbdpt_ctx *c, uint32_t pixel, const st
                                                 .depth_key = (uint16_t)lv->depth, .kind = RBDPT_CACHE_LV};
 }
 
-/* A connection's light vertex (rbdpt_replay_light_vertex) through the cache entry of `pixel`,
- * whose sample src is (UINT32_MAX: none; st->x2c, see rbdpt_x2_keep): found there when it was
- * kept in this frame's scene, else replayed, and with `keep` (only the job that owns the pixel)
- * kept there. The entry holds what the replay gave, so an image does not depend on it. */
+/* Whether cache entry e holds the light vertex at light depth `depth` of connection src's light
+ * subpath, valid in view v. */
+static bool rbdpt_lv_entry_of(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const struct rbdpt_x2_entry *e,
+                              const struct restir_bdpt_path *src, uint32_t depth)
+{
+    return e->kind == RBDPT_CACHE_LV && rbdpt_x2_valid(c, v, e) && e->light_path == src->rc.light_path &&
+           e->origin_frame == src->r.origin_frame && e->depth_key == depth;
+}
+
+/* A connection's light vertex (rbdpt_replay_light_vertex) through the cache entries of `pixel`,
+ * whose sample src is (UINT32_MAX: none; st->x2c, see rbdpt_x2_keep): found in this render's
+ * entry, or in the same pixel's entry of st->x2c_prev (the previous render's, or from the second
+ * spatial round on the previous round's) when it was kept in this frame's scene, else replayed;
+ * with `keep` (only the job that owns the pixel) kept in this render's entry. The entries hold what
+ * the replay gave, so an image does not depend on them. */
 bool rbdpt_light_vertex_of(const struct rbdpt_ctx *c, const struct rbdpt_view *v, uint32_t pixel,
                            const struct restir_bdpt_path *src, bool keep, struct bdpt_light_vertex *lv,
                            struct ray_counters *rays)
 {
     const uint32_t depth = (src->r.head.bits & 0xffu) - 1u;
-    struct rbdpt_x2_entry *e =
-        c->st->x2c && pixel != UINT32_MAX && v->scene == c->view[0].scene ? &c->st->x2c[pixel] : NULL;
-    if (e && e->kind == RBDPT_CACHE_LV && rbdpt_x2_valid(c, v, e) && e->light_path == src->rc.light_path &&
-        e->origin_frame == src->r.origin_frame && e->depth_key == depth) {
-        *lv = e->lv;
+    const struct restir_bdpt_state *st = c->st;
+    const bool cached = st->x2c && pixel != UINT32_MAX && v->scene == c->view[0].scene;
+    if (cached && rbdpt_lv_entry_of(c, v, &st->x2c[pixel], src, depth)) {
+        *lv = st->x2c[pixel].lv;
         return true;
     }
-    if (!rbdpt_replay_light_vertex(c, v, src->r.origin_frame, src->rc.light_path, depth, lv, rays)) return false;
-    if (e && keep) rbdpt_light_vertex_keep(c, pixel, src, lv);
+    if (cached && st->x2c_prev && rbdpt_lv_entry_of(c, v, &st->x2c_prev[pixel], src, depth)) {
+        *lv = st->x2c_prev[pixel].lv;
+    } else if (!rbdpt_replay_light_vertex(c, v, src->r.origin_frame, src->rc.light_path, depth, lv, rays)) {
+        return false;
+    }
+    if (cached && keep) rbdpt_light_vertex_keep(c, pixel, src, lv);
     return true;
 }

@@ -491,11 +491,12 @@ static struct vec3 rbdpt_value(const void *ctx, const void *elem)
 const struct restir_ops rbdpt_ops = {.stride = sizeof(struct restir_bdpt_path), .target = rbdpt_target,
                                      .shift = rbdpt_shift, .domain_valid = rbdpt_domain_valid, .value = rbdpt_value};
 
-/* Before the spatial pass: every pixel's sample of the reverse hybrid shift's class gets its x_2
+/* Before each spatial round: every pixel's sample of the reverse hybrid shift's class gets its x_2
  * in this frame's scene into the cache, and every connection its light vertex, so that its
  * shifts to the neighbours (and theirs) do not each replay its light subpath; most were kept
- * when the sample was drawn, the rest came from the history. One job per row, each writing its
- * own pixels. */
+ * when the sample was drawn, the rest came from the history, or in a later round from the
+ * previous round's entries (st->x2c_prev: the pixel a moved sample came from). One job per row,
+ * each writing its own pixels. */
 void rbdpt_x2_row(void *ctx, uint32_t row, unsigned worker)
 {
     struct rbdpt_ctx *c = ctx;
