@@ -750,8 +750,9 @@ static void test_full_reconnect_mis(void)
 
 /* The x_2 cache of the reverse hybrid shift only saves replays: the same session rendered with
  * the cache and without it (its buffer withheld) gives bit-identical frames, and with it fewer
- * rays (else the cache would never be hit). */
-static void x2_cache_case(enum restir_bdpt_variant variant)
+ * rays (else the cache would never be hit). With 3 spatial rounds (the converge profile's), the
+ * later rounds read the entries of the round before. */
+static void x2_cache_case(enum restir_bdpt_variant variant, uint32_t rounds)
 {
     struct scene *sc = fixture_load("scenes/lamp-in-glass/scene.json");
     if (!sc) return;
@@ -759,6 +760,7 @@ static void x2_cache_case(enum restir_bdpt_variant variant)
     struct restir_bdpt_params p = restir_bdpt_defaults();
     p.reuse = true;
     p.variant = variant;
+    p.spatial_rounds = rounds;
     const uint32_t W = 32, H = 32;
     struct image img[2];
     uint64_t rays[2] = {0, 0};
@@ -779,8 +781,8 @@ static void x2_cache_case(enum restir_bdpt_variant variant)
         st.x2c = keep;
         restir_bdpt_destroy(&st);
     }
-    printf("    %s, 4 frames: %llu rays without the cache, %llu with it\n", restir_bdpt_variant_name(variant),
-           (unsigned long long)rays[0], (unsigned long long)rays[1]);
+    printf("    %s, %u spatial round(s), 4 frames: %llu rays without the cache, %llu with it\n",
+           restir_bdpt_variant_name(variant), rounds, (unsigned long long)rays[0], (unsigned long long)rays[1]);
     CHECK(memcmp(img[0].pixels, img[1].pixels, (size_t)W * H * sizeof *img[0].pixels) == 0);
     CHECK(rays[1] < rays[0]);
     image_destroy(&img[0]);
@@ -791,8 +793,10 @@ static void x2_cache_case(enum restir_bdpt_variant variant)
 /* The same for the full variant, whose cache also keeps the light vertices of connections. */
 static void test_x2_cache_changes_nothing(void)
 {
-    x2_cache_case(RESTIR_BDPT_LIGHTWEIGHT);
-    x2_cache_case(RESTIR_BDPT_FULL);
+    x2_cache_case(RESTIR_BDPT_LIGHTWEIGHT, 1);
+    x2_cache_case(RESTIR_BDPT_FULL, 1);
+    x2_cache_case(RESTIR_BDPT_LIGHTWEIGHT, 3);
+    x2_cache_case(RESTIR_BDPT_FULL, 3);
 }
 
 /* A still view's shortcuts (a history sample shifted into its own pixel taken as evaluated the
