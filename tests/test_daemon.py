@@ -1559,7 +1559,7 @@ def test_restir_bdpt_session(daemon):
     assert s["method"] == "restir_bdpt"
     # The defaults (the resolution's radius at 32 x 24 is the least, 3 pixels).
     assert s["params"] == {"variant": "lightweight", "max_depth": 64, "rr_depth": 3, "light_paths": 0,
-                           "light_paths_per_pixel": 1, "lt_capacity": 8, "lvc_capacity": 8, "heuristic": "balance", "caustic_temporal": True, "temporal_cap": 20,
+                           "lt_capacity": 8, "lvc_capacity": 8, "heuristic": "balance", "caustic_temporal": True, "temporal_cap": 20,
                            "moving_cap": 1, "reuse": False, "reuse_temporal": True, "history_check": True,
                            "spatial_neighbors": 2,
                            "spatial_rounds": 1, "spatial_radius": 3,

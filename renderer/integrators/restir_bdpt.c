@@ -142,7 +142,7 @@ float restir_bdpt_mis_reconnect(enum restir_bdpt_rc_kind kind, float a, float b,
 struct restir_bdpt_params restir_bdpt_defaults(void)
 {
     return (struct restir_bdpt_params){.variant = RESTIR_BDPT_LIGHTWEIGHT, .max_depth = 64, .rr_depth = 3,
-                                       .light_paths = 0, .light_paths_per_pixel = 1, .lt_capacity = 8, .lvc_capacity = 8,
+                                       .light_paths = 0, .lt_capacity = 8, .lvc_capacity = 8,
                                        .heuristic = BDPT_HEURISTIC_POWER,
                                        .caustic_temporal = true, .temporal_cap = 20, .moving_cap = 1, .reuse = true,
                                        .reuse_temporal = true, .history_check = true, .spatial_neighbors = 2, .spatial_rounds = 1, .spatial_radius = 0.0f, .paired_spatial = true,
@@ -166,10 +166,8 @@ bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *er
         return err_set(err, ERR_INVALID, "/params/max_depth", "max_depth must be in 1..%u", RESTIR_BDPT_MAX_DEPTH);
     if (p->rr_depth > 1024) return err_set(err, ERR_INVALID, "/params/rr_depth", "rr_depth must be in 0..1024");
     if (p->light_paths > (1u << 26))
-        return err_set(err, ERR_INVALID, "/params/light_paths", "light_paths must be in 0..%u (0 = by the pixel count)",
+        return err_set(err, ERR_INVALID, "/params/light_paths", "light_paths must be in 0..%u (0 = the pixel count)",
                        1u << 26);
-    if (p->light_paths_per_pixel < 1 || p->light_paths_per_pixel > 16)
-        return err_set(err, ERR_INVALID, "/params/light_paths_per_pixel", "light_paths_per_pixel must be in 1..16");
     if (p->lt_capacity < 1 || p->lt_capacity > 64)
         return err_set(err, ERR_INVALID, "/params/lt_capacity", "lt_capacity must be in 1..64");
     if (p->lvc_capacity < 1 || p->lvc_capacity > 64)
@@ -200,19 +198,10 @@ struct rbdpt_sizes {
     uint64_t lt, pixels, blocks_b, res, lvc, pairs, x2c;
 };
 
-/* N_L: light_paths, or with 0 light_paths_per_pixel times the pixel count, at most light_paths'
- * largest value. */
-static uint32_t rbdpt_light_paths(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
-{
-    if (p->light_paths) return p->light_paths;
-    const uint64_t n = (uint64_t)p->light_paths_per_pixel * width * height;
-    return n < (1u << 26) ? (uint32_t)n : 1u << 26;
-}
-
 /* The full variant's LVC blocks: those of the light pass, lvc_capacity slots per path, no rays. */
 static struct bdpt_blocks rbdpt_lvc_blocks_of(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
 {
-    return bdpt_blocks_of(rbdpt_light_paths(p, width, height), p->lvc_capacity, 0, width, height);
+    return bdpt_blocks_of(p->light_paths, p->lvc_capacity, 0, width, height);
 }
 
 /* Whether the session keeps the previous frame's G-buffer: only for the history check. */
@@ -225,7 +214,7 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
 {
     struct rbdpt_sizes z;
     uint64_t n = (uint64_t)width * height;
-    z.lb = bdpt_blocks_of(rbdpt_light_paths(p, width, height), p->lt_capacity, 3, width, height);
+    z.lb = bdpt_blocks_of(p->light_paths, p->lt_capacity, 3, width, height);
     const uint64_t blocks = z.lb.blocks;
     z.lt = 2 * blocks * z.lb.region * sizeof(struct restir_bdpt_lt_sample);
     z.pixels = (n + 1) * sizeof(uint32_t);
@@ -307,7 +296,7 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
 {
     memset(st, 0, sizeof *st);
     if (!restir_bdpt_params_valid(p, err) || !bdpt_scene_supported(scene, "restir_bdpt", err) ||
-        !bdpt_blocks_alloc(&st->lb, rbdpt_light_paths(p, width, height), p->lt_capacity, 3, width, height, err))
+        !bdpt_blocks_alloc(&st->lb, p->light_paths, p->lt_capacity, 3, width, height, err))
         return false;
     struct rbdpt_sizes z = rbdpt_sizes_of(p, width, height);
     size_t n = (size_t)width * height;
@@ -340,7 +329,7 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
         }
     }
     if (p->variant == RESTIR_BDPT_FULL) {
-        if (!bdpt_blocks_alloc(&st->lvb, rbdpt_light_paths(p, width, height), p->lvc_capacity, 0, width, height, err)) {
+        if (!bdpt_blocks_alloc(&st->lvb, p->light_paths, p->lvc_capacity, 0, width, height, err)) {
             restir_bdpt_destroy(st);
             return false;
         }

@@ -91,9 +91,7 @@ struct RESTIRD_STORED_IN_BYTES restir_bdpt_params {
     enum restir_bdpt_variant variant;  /* lightweight (default) or full */
     uint32_t max_depth;        /* scattering events of a full path, 1..RESTIR_BDPT_MAX_DEPTH (64, as bdpt) */
     uint32_t rr_depth;         /* Russian roulette after this many bounces of a subpath (3) */
-    uint32_t light_paths;      /* N_L per frame; 0 = light_paths_per_pixel times the pixel count (default) */
-    uint32_t light_paths_per_pixel; /* with light_paths 0: N_L over the pixel count, 1..16 (1;
-                                       docs/benchmarks.md measures 2 in the converge profile) */
+    uint32_t light_paths;      /* N_L per frame; 0 = the pixel count (default) */
     uint32_t lt_capacity;      /* light-traced samples kept per light subpath on average, 1..64 (8) */
     uint32_t lvc_capacity;     /* full variant: light vertices cached per light subpath on average,
                                   1..64 (8, as bdpt) */

@@ -103,8 +103,8 @@ METHOD_DEFAULTS_OP(rbdpt_defaults, struct restir_bdpt_params, restir_bdpt_defaul
  * a light subpath, so fewer neighbours a round), and nothing carried from frame to frame (neither
  * caustic nor non-caustic history), so that a session's frames are independent: a history capped
  * as low as 1 left more error at equal time than none. One light subpath per pixel, as in real
- * time: twice as many (light_paths_per_pixel 2) gain on lamp-in-glass at equal time but lose on
- * cornell-box and caustic-sphere. docs/benchmarks.md measures it. */
+ * time: twice as many gain on lamp-in-glass at equal time but lose on cornell-box and
+ * caustic-sphere. docs/benchmarks.md measures it. */
 static void rbdpt_converge(void *params)
 {
     struct restir_bdpt_params *p = params;
@@ -210,8 +210,7 @@ static const struct method_param rbdpt_params[] = {
                 "lightweight (s = 0, s = 1, t = 1 resampled per pixel) or full (adds vertex connections)"),
     P(max_depth, METHOD_PARAM_UINT, 1, RESTIR_BDPT_MAX_DEPTH, "scattering events of a full path"),
     P(rr_depth, METHOD_PARAM_UINT, 0, 1024, "Russian roulette after this many bounces of a subpath"),
-    P(light_paths, METHOD_PARAM_UINT, 0, 1u << 26, "light subpaths per frame; 0 = light_paths_per_pixel x the pixel count"),
-    P(light_paths_per_pixel, METHOD_PARAM_UINT, 1, 16, "with light_paths 0: light subpaths per frame over the pixel count"),
+    P(light_paths, METHOD_PARAM_UINT, 0, 1u << 26, "light subpaths per frame; 0 = the pixel count"),
     P(lt_capacity, METHOD_PARAM_UINT, 1, 64, "light-traced samples kept per light subpath on average"),
     P(lvc_capacity, METHOD_PARAM_UINT, 1, 64, "full variant: light vertices cached per light subpath on average"),
     METHOD_ENUM(struct restir_bdpt_params, heuristic, bdpt_heuristics, "the MIS heuristic: power or balance"),

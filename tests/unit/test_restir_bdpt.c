@@ -377,9 +377,6 @@ static void test_params(void)
     p.lt_capacity = 0;
     CHECK(!restir_bdpt_params_valid(&p, &err) && strcmp(err.where, "/params/lt_capacity") == 0);
     p = restir_bdpt_defaults();
-    p.light_paths_per_pixel = 17;
-    CHECK(!restir_bdpt_params_valid(&p, &err) && strcmp(err.where, "/params/light_paths_per_pixel") == 0);
-    p = restir_bdpt_defaults();
     p.max_depth = 0;
     CHECK(!restir_bdpt_params_valid(&p, &err) && strcmp(err.where, "/params/max_depth") == 0);
     p.max_depth = RESTIR_BDPT_MAX_DEPTH;  /* the deepest a sample's 8-bit vertex count holds */
