@@ -76,10 +76,10 @@ static const struct protocol_limits cli_limits = {.max_side = 16384, .max_pixels
     "image of pt (the one --crop and --frame take) is not a session's frame and takes no --params:\n" \
     "give --frames 1 beside --params.\n"                                                       \
     "--profile converge starts a sequence's parameters from the method's converge profile (its\n" \
-    "frames independent draws, for an image averaged with --average-last; restir methods --json\n" \
-    "lists each parameter's converge_default) instead of its real-time defaults; --params is\n" \
-    "read over either. The default: converge for --average-last without --animation (a still\n" \
-    "image), else real-time.\n"
+    "frames unbiased draws of their own, for an image averaged with --average-last; restir\n" \
+    "methods --json lists each parameter's converge_default) instead of its real-time defaults;\n" \
+    "--params is read over either. The default: converge for --average-last without --animation\n" \
+    "(a still image), else real-time.\n"
 
 /* The usage text, then the methods --method takes, from the registry. */
 static void cli_usage(FILE *out)
@@ -532,7 +532,7 @@ static int cli_render(int argc, char **argv)
     if (!sequence && params_json)
         return cli_usage_error("--params needs --frames, --animation or a method other than %s", cli_still_methods());
     /* The mean of a still sequence's last frames is a still image: unless told otherwise, its
-     * frames are the converge profile's (independent draws), not the real-time defaults' (whose
+     * frames are the converge profile's (unbiased draws of their own), not the real-time defaults' (whose
      * temporal reuse correlates them, so that their mean gains less from each). */
     if (!has_profile && average_last && !anim_path) profile = METHOD_PROFILE_CONVERGE;
     /* A sequence's parameters: the method's defaults under the profile, --params over them (read

@@ -94,7 +94,7 @@ static void jobs_fail(struct job *j, int status, const char *slug)
 
 /* The row's converge figure (struct job_row): the frame's own for a method that reuses earlier
  * frames under the real-time profile (its correlated frames are not averaged), else the
- * accumulation's — under the converge profile such a method's frames are independent draws, and
+ * accumulation's — under the converge profile such a method's frames are unbiased draws of their own, and
  * their mean is the image it converges. An animation job holds the session's claim for its whole
  * run (jobs_run), so the accumulation is read here between its frames without claiming again. */
 static void jobs_converge_metrics(struct session *s, const struct image *ref, struct job_row *row)

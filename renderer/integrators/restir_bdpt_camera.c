@@ -423,7 +423,8 @@ void rbdpt_camera_tile(void *ctx, uint32_t tile, unsigned worker)
             uint32_t pixel = y * w + x;
             struct rng rng = rng_make(c->seed, c->frame, RBDPT_CAMERA_STREAM + pixel, 0);
             struct rng pick = rng_make(c->seed, c->frame, RBDPT_PICK_STREAM + pixel, 0);
-            float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
+            float jx, jy;
+            rbdpt_jitter(c, c->frame, pixel, &rng, &jx, &jy);
             struct vec3 dir = camera_ray_dir(&c->view[0].cam, (float)x + jx, (float)y + jy);
             struct rbdpt_ris r = {0.0, 0.0f, {0, 0, 0}, 0, UINT32_MAX, 0};
             struct rbdpt_ris rcau = r;

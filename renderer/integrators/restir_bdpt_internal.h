@@ -19,6 +19,7 @@
 #include "core/rng.h"
 #include "core/sampling.h"
 #include "scene/surface.h"
+#include "reuse/gbuffer.h"
 
 #define RBDPT_BLOCK_PATHS BDPT_BLOCK_PATHS   /* the light pass's blocks are bdpt's (struct bdpt_blocks) */
 #define RBDPT_TILE 16u
@@ -125,6 +126,17 @@ static inline bool rbdpt_x2_valid(const struct rbdpt_ctx *c, const struct rbdpt_
 }
 
 static inline float rbdpt_mis_f(float x, bool power) { return power ? x * x : x; }
+
+/* The primary ray's position in the pixel of the camera subpath of (origin_frame, origin pixel):
+ * the G-buffer's stratified point for that frame (gbuffer_fresh_position), the same wherever the
+ * subpath is replayed. The stream's jitter draws are still consumed, so that the numbers after
+ * them (RBDPT_CAMERA_JITTER_DRAWS) stay where every replay skips to. */
+static inline void rbdpt_jitter(const struct rbdpt_ctx *c, uint32_t origin_frame, uint32_t origin_pixel,
+                                struct rng *rng, float *jx, float *jy)
+{
+    for (uint32_t n = 0; n < RBDPT_CAMERA_JITTER_DRAWS; n++) (void)rng_next_u32(rng);
+    gbuffer_fresh_position(c->seed, origin_pixel, origin_frame, jx, jy);
+}
 
 /* The full variant's light vertex cache of one block: `region` vertices, `count` used, the
  * excess counted in `dropped`. */

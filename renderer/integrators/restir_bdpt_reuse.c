@@ -81,7 +81,8 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
     const bool nee = tech == 1u;
     const uint32_t draws = rbdpt_vertex_draws(c);
     struct rng rng = rng_make(c->seed, src->r.origin_frame, RBDPT_CAMERA_STREAM + src->r.light_path, 0);
-    float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
+    float jx, jy;
+    rbdpt_jitter(c, src->r.origin_frame, src->r.light_path, &rng, &jx, &jy);
     const uint32_t w = c->st->width;
     struct vec3 dir = camera_ray_dir(cam, (float)(pixel % w) + jx, (float)(pixel / w) + jy);
     float cos0 = vec3_dot(dir, cam->forward);
@@ -441,7 +442,8 @@ void rbdpt_shift(const void *ctx, const void *src_v, struct restir_domain from, 
         atomic_fetch_add_explicit(c->reconnections, 1, memory_order_relaxed);
     } else {
         struct rng rng = rng_make(c->seed, src->r.origin_frame, RBDPT_CAMERA_STREAM + src->r.light_path, 0);
-        float jx = rng_next_float(&rng), jy = rng_next_float(&rng);
+        float jx, jy;
+        rbdpt_jitter(c, src->r.origin_frame, src->r.light_path, &rng, &jx, &jy);
         struct vec3 dir = camera_ray_dir(&v->cam, (float)(to.pixel % w) + jx, (float)(to.pixel / w) + jy);
         struct rbdpt_want want = {.bits = src->r.head.bits, .k = 0, .lv = lvp, .lv_path = src->rc.light_path,
                                   .found = false};

@@ -8,6 +8,7 @@
 #include "scene/camera.h"
 #include "core/parallel.h"
 #include "core/rng.h"
+#include "core/sobol.h"
 #include "scene/surface.h"
 
 bool gbuffer_init(struct gbuffer *g, uint32_t width, uint32_t height, struct err *err)
@@ -159,6 +160,13 @@ static bool gbuffer_same_sky(const struct gbuffer *pg, float px, float py)
     return at == UINT32_MAX || !isfinite(pg->px[at].t);
 }
 
+/* Point `frame` of the pixel's Sobol' sequence (gbuffer.h). */
+void gbuffer_fresh_position(uint64_t seed, uint64_t pixel, uint32_t frame, float *jx, float *jy)
+{
+    const uint64_t pixel_seed = rng_mix64(seed ^ rng_mix64(pixel ^ rng_mix64(GBUFFER_STREAM)));
+    sobol_sample_2d(pixel_seed, frame, 0, jx, jy);
+}
+
 static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct gbuffer_job *gj = ctx;
@@ -171,13 +179,14 @@ static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
         for (uint32_t x = 0; x < g->width; x++) {
             uint64_t pixel = (uint64_t)y * g->width + x;
             struct gbuffer_pixel *gp = &g->px[pixel];
-            struct rng rng = rng_make(f->seed, f->frame, pixel, GBUFFER_STREAM);
-            gp->jx = rng_next_float(&rng);
-            gp->jy = rng_next_float(&rng);
             if (f->prev_gbuffer && f->jitter_walk > 0.0f) {
+                struct rng rng = rng_make(f->seed, f->frame, pixel, GBUFFER_STREAM);
+                const float sx = rng_next_float(&rng), sy = rng_next_float(&rng);
                 const struct gbuffer_pixel *pp = &f->prev_gbuffer->px[pixel];
-                gp->jx = gbuffer_reflect(pp->jx + (2.0f * gp->jx - 1.0f) * f->jitter_walk);
-                gp->jy = gbuffer_reflect(pp->jy + (2.0f * gp->jy - 1.0f) * f->jitter_walk);
+                gp->jx = gbuffer_reflect(pp->jx + (2.0f * sx - 1.0f) * f->jitter_walk);
+                gp->jy = gbuffer_reflect(pp->jy + (2.0f * sy - 1.0f) * f->jitter_walk);
+            } else {
+                gbuffer_fresh_position(f->seed, pixel, f->frame, &gp->jx, &gp->jy);
             }
             struct vec3 dir = camera_ray_dir(&gj->cam, (float)x + gp->jx, (float)y + gp->jy);
             struct hit hit;

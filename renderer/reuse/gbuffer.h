@@ -2,8 +2,9 @@
  * the previous frame (the motion vector temporal reuse follows). A session keeps two (current
  * and previous) and swaps them; they are allocated once, never per frame.
  * The primary ray goes through a uniformly jittered position in the pixel (the box filter the
- * reference path tracer integrates), drawn from the pixel's own stream for the frame, so a
- * method that starts its paths at the G-buffer's hits estimates the same pixel integral as `pt`.
+ * reference path tracer integrates), the frame's point of the pixel's own stratified sequence
+ * (gbuffer_fresh_position), so a method that starts its paths at the G-buffer's hits estimates
+ * the same pixel integral as `pt`.
  * With a jitter walk the position is instead the previous frame's moved by a uniform step of at
  * most `jitter_walk` pixels per axis, reflected at the pixel's edges: the uniform distribution is
  * stationary under a symmetric step reflected at the edges, so every frame's position is still
@@ -61,8 +62,8 @@ void gbuffer_destroy(struct gbuffer *g);
 size_t gbuffer_bytes(const struct gbuffer *g);          /* the pixels, surfaces not included */
 size_t gbuffer_surface_bytes(const struct gbuffer *g);  /* 0 without surfaces */
 
-/* Random stream id of the jitter: rng_make(seed, frame, pixel, GBUFFER_STREAM). Methods use
- * other ids for their own random numbers. */
+/* Random stream id of the jitter walk's steps, rng_make(seed, frame, pixel, GBUFFER_STREAM), and
+ * the key of the fresh positions' Sobol' seeds. Methods use other ids for their own random numbers. */
 #define GBUFFER_STREAM 0x6762ull
 
 struct gbuffer_frame {
@@ -81,6 +82,15 @@ struct gbuffer_frame {
                                              surface is dropped (prev_x = NAN), and prev_share set
                                              (gbuffer_history_share) */
 };
+
+/* The primary ray's position in the pixel in a frame without a jitter walk: point `frame` of the
+ * pixel's own Owen-scrambled Sobol' sequence (core/sobol.h; Burley 2020), randomised by (seed,
+ * pixel). Each frame's position is uniform in the pixel, so every frame is unbiased on its own,
+ * and the positions of any 2^k consecutive frames from a multiple of 2^k form a (0,k,2)-net: a
+ * mean of frames (the converge profiles') samples the pixel's area stratified, as pt's samples
+ * do, where independent positions leave edges and small bright features noisier. A method that
+ * draws its own primary rays (restir_bdpt, whose shifts replay them) takes its positions here too. */
+void gbuffer_fresh_position(uint64_t seed, uint64_t pixel, uint32_t frame, float *jx, float *jy);
 
 /* Whether a method's `jitter_walk` parameter is a step gbuffer_render takes: 0 (a fresh
  * position every frame) up to half a pixel, a step that already spreads the next position over

@@ -245,6 +245,82 @@ static void test_jitter_walk(void)
     scene_release(s);
 }
 
+/* Fresh positions (gbuffer_fresh_position) are stratified over a pixel's consecutive frames: the
+ * 16 frames of an aligned block hold one point in each elementary interval of area 1/16 (all five
+ * shapes), so the mean of a smooth function over 2^k frames errs far less than over independent
+ * positions; and one frame's positions over many pixels are uniform. Independent positions (the
+ * pixel's random stream, as before) are the control: they fail the net test, and their error
+ * falls as 1/sqrt(frames). */
+static bool net16(const float *x, const float *y)
+{
+    for (int a = 0; a <= 4; a++) {  /* intervals of 2^-a by 2^-(4-a) */
+        int nx = 1 << a, ny = 1 << (4 - a), cell[16] = {0};
+        for (int i = 0; i < 16; i++) cell[(int)(x[i] * nx) * ny + (int)(y[i] * ny)]++;
+        for (int c = 0; c < 16; c++)
+            if (cell[c] != 1) return false;
+    }
+    return true;
+}
+
+static void random_position(uint64_t seed, uint64_t pixel, uint32_t frame, float *jx, float *jy)
+{
+    struct rng r = rng_make(seed, frame, pixel, GBUFFER_STREAM);
+    *jx = rng_next_float(&r);
+    *jy = rng_next_float(&r);
+}
+
+/* RMS over pixels of the error of the mean of x*y over frames [0, n) (exact mean 1/4). */
+static double smooth_mean_rms(void (*pos)(uint64_t, uint64_t, uint32_t, float *, float *), uint32_t n)
+{
+    double sq = 0.0;
+    for (uint64_t px = 0; px < 1024; px++) {
+        double sum = 0.0;
+        for (uint32_t f = 0; f < n; f++) {
+            float x, y;
+            pos(11, px, f, &x, &y);
+            sum += (double)x * y;
+        }
+        sq += (sum / n - 0.25) * (sum / n - 0.25);
+    }
+    return sqrt(sq / 1024);
+}
+
+static void test_fresh_positions_stratified(void)
+{
+    uint32_t nets = 0, random_nets = 0;
+    for (uint64_t px = 0; px < 256; px++) {
+        for (uint32_t block = 0; block < 4; block++) {
+            float x[16], y[16], rx[16], ry[16];
+            for (uint32_t i = 0; i < 16; i++) {
+                gbuffer_fresh_position(3, px, 16 * block + i, &x[i], &y[i]);
+                random_position(3, px, 16 * block + i, &rx[i], &ry[i]);
+            }
+            nets += net16(x, y);
+            random_nets += net16(rx, ry);
+        }
+    }
+    printf("    aligned 16-frame blocks that are (0,4,2)-nets: %u of 1024 (independent positions: %u)\n", nets,
+           random_nets);
+    CHECK_MSG(nets == 1024, "%u of 1024 blocks are nets", nets);
+    CHECK_MSG(random_nets == 0, "the control: %u blocks of independent positions are nets", random_nets);
+
+    /* One frame over 4096 pixels: uniform (chi-square, 63 dof, threshold at p = 0.0005). */
+    enum { N = 4096 };
+    static float jx[N], jy[N];
+    for (uint32_t i = 0; i < N; i++) gbuffer_fresh_position(3, i, 7, &jx[i], &jy[i]);
+    double chi2 = jitter_chi2(jx, jy, N);
+    CHECK_MSG(chi2 < 113.7, "frame 7's positions over %d pixels: chi-square %.1f", N, chi2);
+
+    /* The mean over 64 frames against over 4: 1/4 of the error for independent positions
+     * (1/sqrt(16)); far less stratified. */
+    double s4 = smooth_mean_rms(gbuffer_fresh_position, 4), s64 = smooth_mean_rms(gbuffer_fresh_position, 64);
+    double r4 = smooth_mean_rms(random_position, 4), r64 = smooth_mean_rms(random_position, 64);
+    printf("    mean of x*y: RMS error 4 frames %.2e, 64 frames %.2e (ratio %.4f); independent %.2e, %.2e (%.3f)\n",
+           s4, s64, s64 / s4, r4, r64, r64 / r4);
+    CHECK_MSG(s64 / s4 < 0.05, "stratified error ratio %.4f", s64 / s4);
+    CHECK_MSG(r64 / r4 > 0.18 && r64 / r4 < 0.33, "independent positions' ratio %.3f, expected about 0.25", r64 / r4);
+}
+
 /* Checks the kept surfaces of one rendered G-buffer; returns the pixels whose ray escaped. */
 static uint32_t check_kept_surfaces(const struct gbuffer *g, const struct scene *s)
 {
@@ -403,7 +479,10 @@ static void test_history_check(void)
     /* The camera moved sideways and up: the tall box uncovers wall and floor. Without the check
      * many pixels point into a previous pixel that saw the box; with it almost none (a previous
      * pixel astride the box's silhouette whose own ray hit the wall keeps its history, rightly),
-     * and of the points seen then, few are dropped (edges between walls). */
+     * and of the points seen then, few are dropped (edges between walls). How many silhouette
+     * pixels there are depends on where in them the rays went: 13 against 372 unchecked with
+     * independent positions, 22 against 368 with the stratified ones; without the check the two
+     * counts are equal. */
     struct camera_desc side = s->camera;
     side.position = vec3_add(side.position, vec3_make(-260, 120, 100));
     uint32_t occluded_unchecked;
@@ -411,7 +490,7 @@ static void test_history_check(void)
     sum = history_run(s, &s->camera, &side, true, 96, 80, &landed, &on, &kept, &occluded, &dropped);
     printf("    history check after a side step: %u of %u kept, %u of them occluded then (%u unchecked), "
            "%u seen then dropped\n", kept, on, occluded, occluded_unchecked, dropped);
-    CHECK_MSG(occluded_unchecked > 20 * occluded + 100 && dropped < kept / 20,
+    CHECK_MSG(occluded_unchecked > 10 * occluded + 100 && dropped < kept / 20,
               "%u occluded kept (%u unchecked), %u visible dropped of %u kept", occluded, occluded_unchecked, dropped,
               kept);
     scene_release(s);
@@ -467,5 +546,5 @@ static void test_history_share_of_a_scaled_shape(void)
 }
 
 TEST_MAIN(TEST(test_camera_project_round_trip), TEST(test_motion_vectors), TEST(test_jitter_deterministic),
-          TEST(test_jitter_walk), TEST(test_kept_surfaces), TEST(test_history_check),
+          TEST(test_jitter_walk), TEST(test_fresh_positions_stratified), TEST(test_kept_surfaces), TEST(test_history_check),
           TEST(test_history_share_of_a_scaled_shape))
