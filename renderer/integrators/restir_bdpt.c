@@ -538,7 +538,8 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
         uint64_t grays = 0;
         struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = c->has_prev ? f->prev_scene : NULL,
                                    .prev_camera = c->has_prev ? f->prev_camera : NULL, .seed = f->seed,
-                                   .frame = f->frame, .threads = f->threads, .check_history = p->history_check};
+                                   .frame = f->frame, .threads = f->threads, .check_history = p->history_check,
+                                   .stratify = true};
         if (st->gbuf[1].px) {
             if (!restir_gbuffer_next(st->gbuf, &st->gcur, &st->gbuf_history, gf, &grays, err)) return false;
             st->gbuf_history = true;

@@ -185,8 +185,12 @@ static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
                 const struct gbuffer_pixel *pp = &f->prev_gbuffer->px[pixel];
                 gp->jx = gbuffer_reflect(pp->jx + (2.0f * sx - 1.0f) * f->jitter_walk);
                 gp->jy = gbuffer_reflect(pp->jy + (2.0f * sy - 1.0f) * f->jitter_walk);
-            } else {
+            } else if (f->stratify) {
                 gbuffer_fresh_position(f->seed, pixel, f->frame, &gp->jx, &gp->jy);
+            } else {
+                struct rng rng = rng_make(f->seed, f->frame, pixel, GBUFFER_STREAM);
+                gp->jx = rng_next_float(&rng);
+                gp->jy = rng_next_float(&rng);
             }
             struct vec3 dir = camera_ray_dir(&gj->cam, (float)x + gp->jx, (float)y + gp->jy);
             struct hit hit;

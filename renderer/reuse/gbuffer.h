@@ -2,9 +2,10 @@
  * the previous frame (the motion vector temporal reuse follows). A session keeps two (current
  * and previous) and swaps them; they are allocated once, never per frame.
  * The primary ray goes through a uniformly jittered position in the pixel (the box filter the
- * reference path tracer integrates), the frame's point of the pixel's own stratified sequence
- * (gbuffer_fresh_position), so a method that starts its paths at the G-buffer's hits estimates
- * the same pixel integral as `pt`.
+ * reference path tracer integrates): the frame's point of the pixel's own stratified sequence
+ * (gbuffer_fresh_position) where the method keeps no temporal history, else a draw of the pixel's
+ * random stream for the frame. Either way a method that starts its paths at the G-buffer's hits
+ * estimates the same pixel integral as `pt`.
  * With a jitter walk the position is instead the previous frame's moved by a uniform step of at
  * most `jitter_walk` pixels per axis, reflected at the pixel's edges: the uniform distribution is
  * stationary under a symmetric step reflected at the edges, so every frame's position is still
@@ -62,8 +63,9 @@ void gbuffer_destroy(struct gbuffer *g);
 size_t gbuffer_bytes(const struct gbuffer *g);          /* the pixels, surfaces not included */
 size_t gbuffer_surface_bytes(const struct gbuffer *g);  /* 0 without surfaces */
 
-/* Random stream id of the jitter walk's steps, rng_make(seed, frame, pixel, GBUFFER_STREAM), and
- * the key of the fresh positions' Sobol' seeds. Methods use other ids for their own random numbers. */
+/* Random stream id of the independent fresh positions and the jitter walk's steps, rng_make(seed,
+ * frame, pixel, GBUFFER_STREAM), and the key of the stratified positions' Sobol' seeds. Methods
+ * use other ids for their own random numbers. */
 #define GBUFFER_STREAM 0x6762ull
 
 struct gbuffer_frame {
@@ -74,6 +76,10 @@ struct gbuffer_frame {
     uint64_t seed;
     uint32_t frame;
     unsigned threads;                     /* 0 = all cores */
+    bool stratify;                        /* a fresh position is the frame's point of the pixel's
+                                             stratified sequence (gbuffer_fresh_position: frames
+                                             without temporal history); else a draw of the pixel's
+                                             random stream, independent of the previous frame's */
     float jitter_walk;                    /* 0: a fresh position every frame; in (0, 0.5]: the
                                              largest step per axis from prev_gbuffer's, pixels */
     const struct gbuffer *prev_gbuffer;   /* the previous frame's (same size); NULL = fresh */

@@ -637,6 +637,7 @@ void *restir_frame_open(struct restir_frame *fr, size_t pass_bytes, struct resti
     fr->threads = restir_threads(f->threads);
     /* Before the G-buffer pass, which drops a history the frame cannot use. */
     fr->history = s->has_history && f->prev_scene && temporal;
+    fr->temporal = temporal;
     return stats;
 }
 
@@ -649,7 +650,8 @@ bool restir_frame_gbuffer(struct restir_frame *fr, float jitter_walk, bool pairs
     clock_gettime(CLOCK_MONOTONIC, &fr->t0);
     struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,
                                .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame,
-                               .threads = fr->threads, .jitter_walk = jitter_walk, .check_history = check_history};
+                               .threads = fr->threads, .jitter_walk = jitter_walk, .check_history = check_history,
+                               .stratify = !fr->temporal};
     uint64_t grays = 0;
     if (!restir_gbuffer_next(s->gbuf, &s->cur, &s->has_history, gf, &grays, err)) return false;
     fr->stats->gbuffer_ms = parallel_lap_ms(&fr->t0);

@@ -275,6 +275,10 @@ struct restir_frame {
                                         * asserts its stats' `pass` at offset 0) */
     struct camera camera;              /* f->camera at the session's size */
     unsigned threads;
+    bool temporal;                     /* the method reuses its previous frames (its parameter): the
+                                        * G-buffer then draws fresh positions independently, since a
+                                        * stratified sequence's consecutive points lie apart, farther
+                                        * from where the history was gathered (gbuffer_frame.stratify) */
     bool history;                      /* temporal reuse has the previous frame's reservoirs */
     bool estimated;                    /* the last spatial round added its expected contribution to out */
     struct timespec t0;                /* the clock of the pass that runs */

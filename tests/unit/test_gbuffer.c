@@ -169,6 +169,22 @@ static void test_jitter_deterministic(void)
     uint32_t differ = 0;
     for (uint32_t i = 0; i < 33 * 17; i++) differ += a.px[i].jx != b.px[i].jx;
     CHECK(differ > 33 * 17 * 9 / 10);
+    /* Without stratify (a method with temporal reuse) a fresh position is the pixel's random
+     * stream's; with it, the frame's point of the pixel's Sobol' sequence. */
+    uint32_t streamed = 0, sequenced = 0;
+    for (uint32_t i = 0; i < 33 * 17; i++) {
+        struct rng r = rng_make(9, 5, i, GBUFFER_STREAM);
+        float rx = rng_next_float(&r), ry = rng_next_float(&r);
+        streamed += b.px[i].jx == rx && b.px[i].jy == ry;
+    }
+    f.stratify = true;
+    CHECK(gbuffer_render(&b, &f, NULL, &err));
+    for (uint32_t i = 0; i < 33 * 17; i++) {
+        float sx, sy;
+        gbuffer_fresh_position(9, i, 5, &sx, &sy);
+        sequenced += b.px[i].jx == sx && b.px[i].jy == sy;
+    }
+    CHECK_MSG(streamed == 33 * 17 && sequenced == 33 * 17, "%u and %u of %u", streamed, sequenced, 33 * 17);
     gbuffer_destroy(&a);
     gbuffer_destroy(&b);
     scene_release(s);
