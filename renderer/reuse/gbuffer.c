@@ -179,18 +179,18 @@ static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
         for (uint32_t x = 0; x < g->width; x++) {
             uint64_t pixel = (uint64_t)y * g->width + x;
             struct gbuffer_pixel *gp = &g->px[pixel];
-            if (f->prev_gbuffer && f->jitter_walk > 0.0f) {
-                struct rng rng = rng_make(f->seed, f->frame, pixel, GBUFFER_STREAM);
-                const float sx = rng_next_float(&rng), sy = rng_next_float(&rng);
-                const struct gbuffer_pixel *pp = &f->prev_gbuffer->px[pixel];
-                gp->jx = gbuffer_reflect(pp->jx + (2.0f * sx - 1.0f) * f->jitter_walk);
-                gp->jy = gbuffer_reflect(pp->jy + (2.0f * sy - 1.0f) * f->jitter_walk);
-            } else if (f->stratify) {
+            const bool walk = f->prev_gbuffer && f->jitter_walk > 0.0f;
+            if (f->stratify && !walk) {
                 gbuffer_fresh_position(f->seed, pixel, f->frame, &gp->jx, &gp->jy);
             } else {
                 struct rng rng = rng_make(f->seed, f->frame, pixel, GBUFFER_STREAM);
                 gp->jx = rng_next_float(&rng);
                 gp->jy = rng_next_float(&rng);
+                if (walk) {
+                    const struct gbuffer_pixel *pp = &f->prev_gbuffer->px[pixel];
+                    gp->jx = gbuffer_reflect(pp->jx + (2.0f * gp->jx - 1.0f) * f->jitter_walk);
+                    gp->jy = gbuffer_reflect(pp->jy + (2.0f * gp->jy - 1.0f) * f->jitter_walk);
+                }
             }
             struct vec3 dir = camera_ray_dir(&gj->cam, (float)x + gp->jx, (float)y + gp->jy);
             struct hit hit;

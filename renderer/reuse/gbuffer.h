@@ -89,7 +89,8 @@ struct gbuffer_frame {
                                              (gbuffer_history_share) */
 };
 
-/* The primary ray's position in the pixel in a frame without a jitter walk: point `frame` of the
+/* The primary ray's position in the pixel in a frame without a jitter walk or temporal history
+ * (gbuffer_frame.stratify): point `frame` of the
  * pixel's own Owen-scrambled Sobol' sequence (core/sobol.h; Burley 2020), randomised by (seed,
  * pixel). Each frame's position is uniform in the pixel, so every frame is unbiased on its own,
  * and the positions of any 2^k consecutive frames from a multiple of 2^k form a (0,k,2)-net: a

@@ -166,10 +166,7 @@ static void shift_case(enum restir_sss_shift shift, bool temporal)
     /* Only the sequential shift re-inverts the numbers: they must really change. */
     if (shift == RESTIR_SSS_SEQUENTIAL) CHECK(t.moved_u > t.forward_ok / 2);
     if (shift == RESTIR_SSS_RECONNECTION) CHECK(t.moved_u == 0);
-    /* Enough of them to exercise the Jacobian: 4.9 % of the round trips with the G-buffer's
-     * positions of frame 0, 6.1 % with those drawn before they were stratified. */
-    if (shift == RESTIR_SSS_DELAYED && !temporal)
-        CHECK_MSG(t.nontrivial_jacobians > t.round_trips / 40, "%d of %d", t.nontrivial_jacobians, t.round_trips);
+    if (shift == RESTIR_SSS_DELAYED && !temporal) CHECK(t.nontrivial_jacobians > t.round_trips / 20);
     restir_sss_destroy(&st);
     scene_release(sc);
 }
