@@ -42,25 +42,39 @@ SQUARED = {"relmse"}
 KEYS = ("mape", "rmse", "relmse")
 
 
-def metrics(img, ref):
-    """MAPE, RMSE and relMSE of img against ref (H x W x >=3 arrays; RGB used), as
-    metrics_compare() computes them: pixels with a non-finite channel in either image are left
-    out; MAPE's denominator is the reference plus 1 % of its mean; relMSE's adds RELMSE_EPS to
-    the reference squared."""
+def pixel_terms(img, ref):
+    """Each pixel's share of metrics(img, ref): per pixel the mean over RGB of MAPE's, relMSE's
+    and the squared error's terms ("mape", "relmse", "sq"), and the mask of the pixels scored
+    ("ok": no non-finite channel in either image; the terms are 0 elsewhere). metrics() is the
+    mean of each over the scored pixels (RMSE its square root), so a region's share of an
+    image's error is the sum of its pixels' terms. None when no pixel is scored."""
     a = np.asarray(img, dtype=np.float64)[..., :3]
     r = np.asarray(ref, dtype=np.float64)[..., :3]
     if a.shape != r.shape:
         raise ValueError(f"image is {a.shape[1]}x{a.shape[0]} but reference is {r.shape[1]}x{r.shape[0]}")
     ok = np.isfinite(a).all(axis=-1) & np.isfinite(r).all(axis=-1)
-    a, r = a[ok], r[ok]
-    if a.size == 0:
-        return {k: math.nan for k in KEYS}
-    mean = float(r.mean())
+    if not ok.any():
+        return None
+    a, r = np.where(ok[..., None], a, 0.0), np.where(ok[..., None], r, 0.0)
+    mean = float(r[ok].mean())
     d = a - r
     sq = d * d
-    return {"mape": float(np.mean(np.abs(d) / (r + MAPE_MEAN_FRACTION * mean))) if mean > 0 else math.nan,
-            "rmse": float(math.sqrt(sq.mean())),
-            "relmse": float(np.mean(sq / (r * r + RELMSE_EPS)))}
+    mape = np.abs(d) / (r + MAPE_MEAN_FRACTION * mean) if mean > 0 else np.full_like(d, math.nan)
+    return {"mape": np.where(ok, mape.mean(-1), 0.0), "relmse": (sq / (r * r + RELMSE_EPS)).mean(-1),
+            "sq": sq.mean(-1), "ok": ok}
+
+
+def metrics(img, ref):
+    """MAPE, RMSE and relMSE of img against ref (H x W x >=3 arrays; RGB used), as
+    metrics_compare() computes them: pixels with a non-finite channel in either image are left
+    out; MAPE's denominator is the reference plus 1 % of its mean; relMSE's adds RELMSE_EPS to
+    the reference squared."""
+    t = pixel_terms(img, ref)
+    if t is None:
+        return {k: math.nan for k in KEYS}
+    ok = t["ok"]
+    return {"mape": float(t["mape"][ok].mean()), "rmse": float(math.sqrt(t["sq"][ok].mean())),
+            "relmse": float(t["relmse"][ok].mean())}
 
 
 def combine(half_a, half_b):

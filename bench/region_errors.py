@@ -8,10 +8,12 @@ whose primary hit is translucent in colour, the others black). REF: the referenc
 halves joined by commas, averaged). Each further argument is a group of images (commas), scored
 one by one and the figures averaged over the group (seeds).
 
-MAPE and relMSE are means of per-pixel terms (bench/errors.py: MAPE's denominator takes 1 % of
-the whole reference's mean), so the whole image's figure is the pixel-weighted mix of the two
+MAPE and relMSE are means of per-pixel terms (errors.pixel_terms, the same as errors.metrics and
+`restir compare`: MAPE's denominator takes 1 % of the whole reference's mean; pixels with a
+non-finite channel are left out), so the whole image's figure is the pixel-weighted mix of the two
 parts' and "if exact inside" is the outside's sum over all pixels: the floor a method that
 improves only the region can reach. RMSE is the square root of such a mean."""
+import math
 import sys
 from pathlib import Path
 
@@ -22,25 +24,20 @@ import errors  # noqa: E402
 from exrimage import read_rgb  # noqa: E402
 
 
-def terms(img, ref):
-    """Per-pixel MAPE, relMSE and squared-error terms (each the mean over RGB), as errors.metrics."""
-    a = np.asarray(img, dtype=np.float64)[..., :3]
-    r = np.asarray(ref, dtype=np.float64)[..., :3]
-    d = a - r
-    return {"mape": (np.abs(d) / (r + errors.MAPE_MEAN_FRACTION * r.mean())).mean(-1),
-            "relmse": (d * d / (r * r + errors.RELMSE_EPS)).mean(-1),
-            "mse": (d * d).mean(-1)}
-
-
 def region_figures(img, ref, mask):
-    t = terms(img, ref)
-    n = mask.size
+    """Each metric over the whole image, inside the mask, outside it, and over the whole image
+    were the inside exact (the outside's terms over all scored pixels), from errors.pixel_terms."""
+    t = errors.pixel_terms(img, ref)
+    if t is None:
+        raise SystemExit("region_errors: no pixel has finite values in both the image and the reference")
+    ok = t["ok"]
+    inside, outside = ok & mask, ok & ~mask
     out = {}
-    for key, v in t.items():
-        name = "rmse" if key == "mse" else key
-        f = np.sqrt if key == "mse" else (lambda x: x)
-        out[name] = {"all": float(f(v.mean())), "inside": float(f(v[mask].mean())),
-                     "outside": float(f(v[~mask].mean())), "if_exact_inside": float(f(v[~mask].sum() / n))}
+    for key, name, f in (("mape", "mape", float), ("relmse", "relmse", float), ("sq", "rmse", math.sqrt)):
+        v = t[key]
+        out[name] = {"all": f(v[ok].mean()), "inside": f(v[inside].mean()) if inside.any() else math.nan,
+                     "outside": f(v[outside].mean()) if outside.any() else math.nan,
+                     "if_exact_inside": f(v[outside].sum() / ok.sum())}
     return out
 
 
