@@ -2,9 +2,10 @@
  * sphere, and the constant environment, picked by an alias table proportional to emitted power
  * and sampled uniformly by area (environment: uniformly over the sphere of directions); from a
  * shading point (light_sampler_sample_from), a triangle seen close by is sampled uniformly in
- * the solid angle it subtends instead (core/spherical.h), and a quad whose two triangles are both
- * seen close by uniformly over the solid angle of the whole quad. Geometry is captured in world
- * space at creation (the scene's transforms). */
+ * the solid angle it subtends instead (core/spherical.h), a rectangle (two triangles) seen close
+ * by uniformly in its solid angle as one spherical rectangle, and another quad whose two
+ * triangles are both seen close by uniformly over its whole solid angle as a pair of spherical
+ * triangles. Geometry is captured in world space at creation (the scene's transforms). */
 #include "scene/light_sampler.h"
 
 #include <stdio.h>
@@ -32,6 +33,23 @@
 
 enum light_kind { LIGHT_TRIANGLE, LIGHT_SPHERE, LIGHT_ENV };
 
+/* A two-triangle emitter whose four corners form a rectangle: sampled from a shading point close
+ * by as one spherical rectangle (Urena et al. 2013, core/spherical.h), which costs one warp where
+ * the pair of spherical triangles costs two solid angles and a warp. The same distance rule as a
+ * triangle's, from the rectangle's centre with half its diagonal as the radius. */
+struct light_rect {
+    struct dvec3 x, y, z;       /* unit edge directions, orthogonal, and z = x cross y */
+    double lx, ly;              /* the points are corner + s x + t y, s in [0, lx], t in [0, ly] */
+    /* The barycentrics of triangle k (entry first + k) at (s, t): b1 = bary[k][0] + bary[k][1] s
+     * + bary[k][2] t, b2 likewise from bary[k][3..5] (its dual basis applied to corner + s x +
+     * t y - p0). */
+    double bary[2][6];
+    struct vec3 corner, centre, n;   /* n: the triangles' unit front normal */
+    float solid_angle_dist2;
+    bool one_sided;
+    uint32_t first;             /* the lower of the two triangles' entries */
+};
+
 struct light_entry {
     enum light_kind kind;
     uint32_t shape, prim;
@@ -53,6 +71,8 @@ struct light_entry {
      * together, then one of the two in proportion to its solid angle, so that directions are
      * uniform over the quad's whole solid angle (light_sampler_sample_from). */
     int64_t partner;
+    /* A pair that forms a rectangle: its entry in light_sampler.rects, else -1 (both entries). */
+    int32_t rect;
 };
 
 struct light_sampler {
@@ -62,11 +82,65 @@ struct light_sampler {
     int64_t *shape_first;    /* shape -> index of its first entry, or -1 */
     uint32_t shape_count;
     int64_t env_entry;       /* -1 without environment */
+    struct light_rect *rects;
+    uint32_t rect_count;
 };
 
 static struct vec3 light_sampler_world(const struct shape *s, uint32_t v)
 {
     return xform_point(&s->to_world, s->positions[v]);
+}
+
+/* Whether the two triangles of entries e and f (sharing two vertex indices, as a quad's do) form
+ * a rectangle, and if so its light_rect. The corners that are not shared, a of e and b of f,
+ * are opposite; with c1, c2 the shared ones, a + (c1 - a) + (c2 - a) must be b and the two edges
+ * at a orthogonal, both to 1e-5 of the edges' lengths (float vertices after a transform); the
+ * triangles must face the same way. A quad off a rectangle by less than that is sampled as the
+ * rectangle: a sample a little outside a triangle is clamped onto its edge. */
+static bool light_rect_of(const struct shape *s, uint32_t t, const struct light_entry *e, const struct light_entry *f,
+                          struct light_rect *r)
+{
+    const uint32_t *ia = &s->indices[3 * t], *ib = &s->indices[3 * t + 3];
+    int a = -1, b = -1, shared = 0;
+    for (int i = 0; i < 3; i++) {
+        bool in_b = ia[i] == ib[0] || ia[i] == ib[1] || ia[i] == ib[2];
+        bool in_a = ib[i] == ia[0] || ib[i] == ia[1] || ib[i] == ia[2];
+        shared += in_b;
+        if (!in_b) a = i;
+        if (!in_a) b = i;
+    }
+    if (shared != 2 || a < 0 || b < 0) return false;
+    struct vec3 pa = light_sampler_world(s, ia[a]), pb = light_sampler_world(s, ib[b]);
+    struct vec3 c1 = light_sampler_world(s, ia[(a + 1) % 3]), c2 = light_sampler_world(s, ia[(a + 2) % 3]);
+    struct vec3 ex = vec3_sub(c1, pa), ey = vec3_sub(c2, pa);
+    float lx = vec3_length(ex), ly = vec3_length(ey);
+    if (!(lx > 0.0f && ly > 0.0f) || !(e->area > 0.0f && f->area > 0.0f)) return false;
+    float tol = 1e-5f * (lx + ly);
+    if (fabsf(vec3_dot(ex, ey)) > tol * fmaxf(lx, ly) ||
+        vec3_length(vec3_sub(vec3_add(pa, vec3_add(ex, ey)), pb)) > tol || vec3_dot(e->n, f->n) < 0.99999f)
+        return false;
+    r->corner = pa;
+    r->lx = lx;
+    r->ly = ly;
+    r->x = dvec3_scale(dvec3_from(ex), 1.0 / lx);
+    r->y = dvec3_scale(dvec3_from(ey), 1.0 / ly);
+    r->z = dvec3_cross(r->x, r->y);
+    for (int k = 0; k < 2; k++) {
+        const struct light_entry *tri = k ? f : e;
+        const struct dvec3 off = dvec3_sub(dvec3_from(pa), dvec3_from(tri->p0));
+        const struct dvec3 dual[2] = {dvec3_from(tri->dual1), dvec3_from(tri->dual2)};
+        for (int j = 0; j < 2; j++) {
+            r->bary[k][3 * j] = dvec3_dot(dual[j], off);
+            r->bary[k][3 * j + 1] = dvec3_dot(dual[j], r->x);
+            r->bary[k][3 * j + 2] = dvec3_dot(dual[j], r->y);
+        }
+    }
+    r->centre = vec3_scale(vec3_add(pa, pb), 0.5f);
+    r->n = e->n;
+    float radius2 = 0.25f * (lx * lx + ly * ly);
+    r->solid_angle_dist2 = radius2 / (LIGHT_SOLID_ANGLE_MIN_RATIO * LIGHT_SOLID_ANGLE_MIN_RATIO);
+    r->one_sided = e->one_sided;
+    return true;
 }
 
 struct light_sampler *light_sampler_new(const struct scene *scene, struct err *err)
@@ -78,11 +152,13 @@ struct light_sampler *light_sampler_new(const struct scene *scene, struct err *e
     ls->shape_first = malloc((scene->shape_count ? scene->shape_count : 1) * sizeof *ls->shape_first);
     if (!ls->shape_first) goto nomem;
 
-    uint64_t count = 0;
+    uint64_t count = 0, pairs = 0;
     for (uint32_t i = 0; i < scene->shape_count; i++) {
         const struct shape *s = &scene->shapes[i];
-        if (material_is_emissive(&scene->materials[s->material]))
+        if (material_is_emissive(&scene->materials[s->material])) {
             count += s->kind == SHAPE_MESH ? s->triangle_count : 1;
+            pairs += s->kind == SHAPE_MESH && s->triangle_count == 2;
+        }
     }
     bool has_env = !vec3_is_zero(scene->env_radiance);
     count += has_env;
@@ -92,8 +168,9 @@ struct light_sampler *light_sampler_new(const struct scene *scene, struct err *e
         return NULL;
     }
     ls->entries = calloc(count ? count : 1, sizeof *ls->entries);
+    ls->rects = malloc((pairs ? pairs : 1) * sizeof *ls->rects);
     double *power = calloc(count ? count : 1, sizeof *power);
-    if (!ls->entries || !power) {
+    if (!ls->entries || !ls->rects || !power) {
         free(power);
         goto nomem;
     }
@@ -136,15 +213,22 @@ struct light_sampler *light_sampler_new(const struct scene *scene, struct err *e
                 }
                 power[k] = PI_F * lum * e->area * sides;
                 e->partner = -1;
+                e->rect = -1;
             }
             if (s->triangle_count == 2) {
                 ls->entries[k - 2].partner = (int64_t)k - 1;
                 ls->entries[k - 1].partner = (int64_t)k - 2;
+                struct light_rect *r = &ls->rects[ls->rect_count];
+                if (light_rect_of(s, 0, &ls->entries[k - 2], &ls->entries[k - 1], r)) {
+                    r->first = k - 2;
+                    ls->entries[k - 2].rect = ls->entries[k - 1].rect = (int32_t)ls->rect_count++;
+                }
             }
         } else {
             struct light_entry *e = &ls->entries[k];
             e->kind = LIGHT_SPHERE;
             e->partner = -1;
+            e->rect = -1;
             e->material = m;
             e->shape = i;
             e->prim = 0;
@@ -163,6 +247,7 @@ struct light_sampler *light_sampler_new(const struct scene *scene, struct err *e
         double r = fmax(0.5 * vec3_length(ext), 1e-3);
         ls->entries[k].kind = LIGHT_ENV;
         ls->entries[k].partner = -1;
+        ls->entries[k].rect = -1;
         ls->env_entry = k;
         power[k] = 4.0 * PI_F * PI_F * r * r * fmax(vec3_luminance(scene->env_radiance), 1e-6);
         k++;
@@ -188,6 +273,7 @@ void light_sampler_free(struct light_sampler *ls)
     distrib_destroy(&ls->dist);
     free(ls->entries);
     free(ls->shape_first);
+    free(ls->rects);
     free(ls);
 }
 
@@ -287,20 +373,14 @@ static inline float light_sampler_area_pdf_w(float pdf_a, struct vec3 p, struct 
     return d2 > 0.0f ? sampling_area_to_solid_angle(pdf_a, d2, vec3_dot(d, n) / sqrtf(d2)) : 0.0f;
 }
 
-/* A direction uniform in the solid angle of triangle e from p, and the point where it meets the
- * triangle's plane, p + t dir with t = (p0 - p) . n / dir . n, as barycentrics from the dual
- * basis (in double: the direction is). The barycentrics are clamped to the triangle (rounding of
- * a direction on an edge) and the point is computed from them as area sampling does. */
-static bool light_sampler_sample_solid_angle(const struct light_entry *e, const struct spherical_triangle *st,
-                                             struct vec3 p, float pdf_w, float u1, float u2, struct light_sample *out)
+/* The sample at barycentrics (b1, b2) of triangle e, found by a solid-angle warp from p with
+ * density pdf_w there: the barycentrics are clamped to the triangle (rounding of a direction on
+ * an edge) and the point is computed from them as area sampling does. */
+static bool light_sampler_solid_angle_point(const struct light_entry *e, struct vec3 p, double b1, double b2,
+                                            float pdf_w, struct light_sample *out)
 {
     *out = (struct light_sample){.shape = e->shape, .prim = e->prim, .material = e->material, .n = e->n,
                                  .solid_angle = true};
-    struct dvec3 dir = spherical_triangle_sample_d(st, u1, u2), n = dvec3_from(e->n);
-    double t = dvec3_dot(st->to_v0, n) / dvec3_dot(dir, n);
-    if (!(t > 0.0) || !isfinite(t)) return false;
-    struct dvec3 w = dvec3_sub(dvec3_scale(dir, t), st->to_v0);   /* p + t dir - p0 */
-    double b1 = dvec3_dot(w, dvec3_from(e->dual1)), b2 = dvec3_dot(w, dvec3_from(e->dual2));
     b1 = b1 > 0.0 ? b1 : 0.0;
     b2 = b2 > 0.0 ? b2 : 0.0;
     if (b1 + b2 > 1.0) {
@@ -317,6 +397,60 @@ static bool light_sampler_sample_solid_angle(const struct light_entry *e, const 
     float d2 = vec3_length2(d);
     out->pdf_a = d2 > 0.0f ? out->pdf_w * fabsf(vec3_dot(d, e->n)) / (d2 * sqrtf(d2)) : 0.0f;
     return out->pdf_w > 0.0f;
+}
+
+/* A direction uniform in the solid angle of triangle e from p, and the point where it meets the
+ * triangle's plane, p + t dir with t = (p0 - p) . n / dir . n, as barycentrics from the dual
+ * basis (in double: the direction is). */
+static bool light_sampler_sample_solid_angle(const struct light_entry *e, const struct spherical_triangle *st,
+                                             struct vec3 p, float pdf_w, float u1, float u2, struct light_sample *out)
+{
+    struct dvec3 dir = spherical_triangle_sample_d(st, u1, u2), n = dvec3_from(e->n);
+    double t = dvec3_dot(st->to_v0, n) / dvec3_dot(dir, n);
+    if (!(t > 0.0) || !isfinite(t)) {
+        *out = (struct light_sample){.shape = e->shape, .prim = e->prim, .material = e->material, .n = e->n,
+                                     .solid_angle = true};
+        return false;
+    }
+    struct dvec3 w = dvec3_sub(dvec3_scale(dir, t), st->to_v0);   /* p + t dir - p0 */
+    return light_sampler_solid_angle_point(e, p, dvec3_dot(w, dvec3_from(e->dual1)), dvec3_dot(w, dvec3_from(e->dual2)),
+                                           pdf_w, out);
+}
+
+/* Whether light_sampler_sample_from samples rectangle r's solid angle from p (the spherical
+ * rectangle then in *sr): the rule of light_entry_solid_angle_from, from the rectangle's centre. */
+static inline bool light_rect_solid_angle_from(const struct light_rect *r, struct vec3 p, struct spherical_rect *sr)
+{
+    return vec3_length2(vec3_sub(p, r->centre)) < r->solid_angle_dist2 &&
+           (!r->one_sided || vec3_dot(vec3_sub(p, r->corner), r->n) > 0.0f) &&
+           spherical_rect_init(sr, dvec3_sub(dvec3_from(r->corner), dvec3_from(p)), r->x, r->y, r->z, r->lx, r->ly);
+}
+
+/* The rectangle's density in solid angle: its two triangles picked together, uniform over the
+ * spherical rectangle, (pmf_A + pmf_B) / Omega. */
+static inline float light_rect_pdf_w(const struct light_sampler *ls, const struct light_rect *r,
+                                     const struct spherical_rect *sr)
+{
+    return (float)(((double)ls->dist.pmf[r->first] + (double)ls->dist.pmf[r->first + 1]) / sr->solid_angle);
+}
+
+/* A point of rectangle r uniform in its solid angle from p, on whichever of the two triangles
+ * holds it (on the shared diagonal either). */
+static bool light_rect_sample(const struct light_sampler *ls, const struct light_rect *r, const struct spherical_rect *sr,
+                              struct vec3 p, float u1, float u2, struct light_sample *out)
+{
+    double s, t;
+    spherical_rect_sample_st(sr, u1, u2, &s, &t);
+    int k = 0;
+    const double *c = r->bary[0];
+    double b1 = c[0] + c[1] * s + c[2] * t, b2 = c[3] + c[4] * s + c[5] * t;
+    if (!(b1 >= 0.0 && b2 >= 0.0 && b1 + b2 <= 1.0)) {
+        k = 1;
+        c = r->bary[1];
+        b1 = c[0] + c[1] * s + c[2] * t;
+        b2 = c[3] + c[4] * s + c[5] * t;
+    }
+    return light_sampler_solid_angle_point(&ls->entries[r->first + k], p, b1, b2, light_rect_pdf_w(ls, r, sr), out);
 }
 
 /* Whether entry e and its partner both sample their solid angle from p (the two spherical triangles
@@ -351,7 +485,11 @@ bool light_sampler_sample_from(const struct light_sampler *ls, struct vec3 p, fl
     uint32_t i = distrib_sample(&ls->dist, u_pick, &pmf);
     const struct light_entry *e = &ls->entries[i];
     struct spherical_triangle st;
-    if (light_entry_solid_angle_from(e, p, &st)) {
+    if (e->rect >= 0) {
+        const struct light_rect *r = &ls->rects[e->rect];
+        struct spherical_rect sr;
+        if (light_rect_solid_angle_from(r, p, &sr)) return light_rect_sample(ls, r, &sr, p, u1, u2, out);
+    } else if (light_entry_solid_angle_from(e, p, &st)) {
         struct spherical_triangle pair[2];
         int64_t lower;
         if (!light_pair_solid_angle_from(ls, e, p, &st, pair, &lower))
@@ -379,7 +517,11 @@ float light_sampler_pdf_w_from(const struct light_sampler *ls, struct vec3 p, ui
     const struct light_entry *e = &ls->entries[i];
     float pmf = ls->dist.pmf[i];
     struct spherical_triangle st;
-    if (light_entry_solid_angle_from(e, p, &st)) {
+    if (e->rect >= 0) {
+        const struct light_rect *r = &ls->rects[e->rect];
+        struct spherical_rect sr;
+        if (light_rect_solid_angle_from(r, p, &sr)) return light_rect_pdf_w(ls, r, &sr);
+    } else if (light_entry_solid_angle_from(e, p, &st)) {
         struct spherical_triangle pair[2];
         int64_t lower;
         if (light_pair_solid_angle_from(ls, e, p, &st, pair, &lower)) return light_pair_pdf_w(ls, lower, pair);
@@ -392,8 +534,14 @@ float light_sampler_pdf_w_from(const struct light_sampler *ls, struct vec3 p, ui
 bool light_sampler_solid_angle_from(const struct light_sampler *ls, struct vec3 p, uint32_t shape, uint32_t prim)
 {
     int64_t i = light_sampler_entry_of(ls, shape, prim);
+    if (i < 0) return false;
+    const struct light_entry *e = &ls->entries[i];
+    if (e->rect >= 0) {
+        struct spherical_rect sr;
+        return light_rect_solid_angle_from(&ls->rects[e->rect], p, &sr);
+    }
     struct spherical_triangle st;
-    return i >= 0 && light_entry_solid_angle_from(&ls->entries[i], p, &st);
+    return light_entry_solid_angle_from(e, p, &st);
 }
 
 bool light_sampler_triangle_point(const struct light_sampler *ls, uint32_t shape, uint32_t prim, float b1, float b2,

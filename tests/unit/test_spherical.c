@@ -11,9 +11,13 @@
  *   standard errors, and spherical_triangle_contains agrees with the hit test.
  * - The inverse: sampling then inverting returns (u1, u2), down to tiny solid angles.
  * - The arc tangent the solid angle is taken with agrees with libm's.
+ * - Rectangles (spherical_rect_*): samples binned by an 8 x 8 grid of the rectangle are uniform
+ *   in solid angle (chi-square against each cell's solid angle as two triangles'), the solid
+ *   angle agrees with the two triangles' sum, and controls with u1 or u2 skewed are rejected.
  * - The light sampler: for random points and emitters its sampling and its pdf function make the
  *   same decision and give the same solid-angle pdf, both decisions are exercised, the pick is
- *   light_sampler_sample's, and its solid-angle samples are uniform too (chi-square as above). */
+ *   light_sampler_sample's, and its solid-angle samples are uniform too (chi-square as above),
+ *   over a quad's two triangles and over a rectangle's. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -300,6 +304,114 @@ static void test_sample_invert_round_trip(void)
     }
 }
 
+
+/* ---------------------------------------------------------------- rectangles */
+
+struct rect_case {
+    const char *name;
+    struct vec3 corner, ex, ey;   /* orthogonal edges; p at the origin */
+};
+
+/* A rectangle about as close as it is large, one seen at a grazing angle from beside its edge,
+ * one 30 times farther than its size (the light sampler's rule stops at 5 radii), and a strip
+ * 60 times longer than wide that p sees across; each rotated out of the axes. */
+static const struct rect_case rect_cases[] = {
+    {"near", {-0.7f, -0.5f, 0.6f}, {1.3f, 0.2f, 0.1f}, {-0.16f, 0.9f, 0.28f}},
+    {"grazing", {1.2f, -0.5f, 0.05f}, {1.5f, 0.0f, 0.3f}, {0.0f, 1.0f, 0.0f}},
+    {"far", {0.2f, 30.0f, 2.0f}, {0.8f, 0.1f, 0.3f}, {-0.15f, 0.6f, 0.2f}},
+    {"strip", {-3.0f, 0.5f, 1.0f}, {6.0f, 0.0f, 0.0f}, {0.0f, 0.06f, 0.08f}},
+};
+
+/* The cell of the 8 x 8 grid of the rectangle (s, t in [0, 1]) holding (s, t). */
+static int rect_cell_of(double s, double t)
+{
+    int i = (int)floor(s * CELLS_N), j = (int)floor(t * CELLS_N);
+    i = i < 0 ? 0 : (i > CELLS_N - 1 ? CELLS_N - 1 : i);
+    j = j < 0 ? 0 : (j > CELLS_N - 1 ? CELLS_N - 1 : j);
+    return i * CELLS_N + j;
+}
+
+/* Each cell's solid angle (as its two triangles') over the sum: the shares; the sum in *total. */
+static void rect_cell_shares(struct vec3 p, struct vec3 corner, struct vec3 ex, struct vec3 ey, double share[CELLS],
+                             double *total)
+{
+    *total = 0.0;
+    for (int c = 0; c < CELLS; c++) share[c] = 0.0;
+    for (int i = 0; i < CELLS_N; i++) {
+        for (int j = 0; j < CELLS_N; j++) {
+            /* In double: float corners would move a thin strip's cells by 1e-6 of their width. */
+            struct dvec3 q[4];
+            for (int k = 0; k < 4; k++) {
+                double s = (double)(i + (k == 1 || k == 2)) / CELLS_N, t = (double)(j + (k >= 2)) / CELLS_N;
+                q[k] = dvec3_add(dvec3_sub(dvec3_from(corner), dvec3_from(p)),
+                                 dvec3_add(dvec3_scale(dvec3_from(ex), s), dvec3_scale(dvec3_from(ey), t)));
+            }
+            double w = spherical_solid_angle_edges(q[0], dvec3_sub(q[1], q[0]), dvec3_sub(q[2], q[0]), NULL, NULL) +
+                       spherical_solid_angle_edges(q[0], dvec3_sub(q[2], q[0]), dvec3_sub(q[3], q[0]), NULL, NULL);
+            share[i * CELLS_N + j] = w;
+            *total += w;
+        }
+    }
+    for (int c = 0; c < CELLS; c++) share[c] /= *total;
+}
+
+/* Chi-square z of spherical_rect_sample's points over the cells, u1 (skew 1) or u2 (skew 2)
+ * taken to the power 1.03 for the controls; the solid angle over the cells' sum in *ratio. The
+ * rectangle's frame is the edges' directions and lengths in double, as the light sampler's is
+ * from its float table. */
+static double rect_chi2_z(const struct rect_case *rc, int skew, long n, uint64_t seed, double *ratio)
+{
+    const double lx = dvec3_length(dvec3_from(rc->ex)), ly = dvec3_length(dvec3_from(rc->ey));
+    const struct dvec3 x = dvec3_scale(dvec3_from(rc->ex), 1.0 / lx), y = dvec3_scale(dvec3_from(rc->ey), 1.0 / ly);
+    const struct vec3 p = vec3_splat(0.0f);
+    struct spherical_rect sr;
+    CHECK_MSG(spherical_rect_init(&sr, dvec3_from(rc->corner), x, y, dvec3_cross(x, y), lx, ly), "%s: init", rc->name);
+    double share[CELLS], total;
+    rect_cell_shares(p, rc->corner, rc->ex, rc->ey, share, &total);
+    *ratio = sr.solid_angle / total;
+    static long counts[CELLS];
+    for (int c = 0; c < CELLS; c++) counts[c] = 0;
+    struct rng r = rng_make(seed, 5, 6, 7);
+    long off = 0;
+    for (long i = 0; i < n; i++) {
+        float u1 = rng_next_float(&r), u2 = rng_next_float(&r);
+        if (skew == 1) u1 = powf(u1, 1.03f);
+        if (skew == 2) u2 = powf(u2, 1.03f);
+        struct dvec3 w = dvec3_sub(spherical_rect_sample(&sr, u1, u2), dvec3_from(rc->corner));
+        double s = dvec3_dot(w, x) / lx, t = dvec3_dot(w, y) / ly, h = dvec3_dot(w, dvec3_cross(x, y));
+        off += !(s > -1e-6 && s < 1.0 + 1e-6 && t > -1e-6 && t < 1.0 + 1e-6 && fabs(h) < 1e-6 * (lx + ly));
+        counts[rect_cell_of(s, t)]++;
+    }
+    CHECK_MSG(off == 0, "%s: %ld of %ld points off the rectangle", rc->name, off, n);
+    double chi2 = 0.0;
+    for (int c = 0; c < CELLS_N * CELLS_N; c++) {
+        double e = share[c] * (double)n;
+        CHECK_MSG(e >= 20.0, "%s: cell %d expects only %.1f samples", rc->name, c, e);
+        chi2 += (counts[c] - e) * (counts[c] - e) / e;
+    }
+    return chi2_as_z(chi2, CELLS_N * CELLS_N - 1);
+}
+
+static void test_rect_warp_uniform_chi2(void)
+{
+    const long n = 400000;
+    for (size_t k = 0; k < sizeof rect_cases / sizeof rect_cases[0]; k++) {
+        double ratio;
+        double z = rect_chi2_z(&rect_cases[k], 0, n, 21 + k, &ratio);
+        double z_u1 = rect_chi2_z(&rect_cases[k], 1, n, 21 + k, &(double){0});
+        double z_u2 = rect_chi2_z(&rect_cases[k], 2, n, 21 + k, &(double){0});
+        printf("  %s: solid angle / the triangles' - 1: %.2g, chi-square z %.2f (skewed controls %.2f, %.2f)\n",
+               rect_cases[k].name, ratio - 1.0, z, z_u1, z_u2);
+        CHECK_MSG(fabs(ratio - 1.0) < 1e-7, "%s: solid angle off by %.3g", rect_cases[k].name, ratio - 1.0);
+        CHECK_MSG(z < 4.0, "%s: chi-square z %.2f", rect_cases[k].name, z);
+        CHECK_MSG(z_u1 > 4.0 && z_u2 > 4.0, "%s: a skewed control passes (z %.2f, %.2f)", rect_cases[k].name, z_u1, z_u2);
+    }
+    /* In the rectangle's plane: nothing to sample. */
+    struct spherical_rect sr;
+    CHECK(!spherical_rect_init(&sr, (struct dvec3){1.0, 0.0, 0.0}, (struct dvec3){1.0, 0.0, 0.0},
+                               (struct dvec3){0.0, 1.0, 0.0}, (struct dvec3){0.0, 0.0, 1.0}, 1.0, 1.0));
+}
+
 /* ---------------------------------------------------------------- the light sampler */
 
 /* Emissive parallelograms (two triangles each) of random size and orientation around the
@@ -322,9 +434,13 @@ static struct scene *random_emitters_scene(struct rng *r, int quads)
             a[i] = size * (rng_next_float(r) - 0.5f);
             b[i] = size * (rng_next_float(r) - 0.5f) * (q % 3 == 0 ? 0.05f : 1.0f);  /* some slivers */
         }
+        if (q % 4 == 1) {  /* some rectangles, sampled as spherical rectangles */
+            float ab = a[0] * b[0] + a[1] * b[1] + a[2] * b[2], aa = a[0] * a[0] + a[1] * a[1] + a[2] * a[2];
+            for (int i = 0; i < 3; i++) b[i] -= ab / aa * a[i];
+        }
         len += snprintf(json + len, 16384 - (size_t)len,
-                        ", {\"type\": \"quad\", \"material\": \"%s\", \"vertices\": [[%g, %g, %g], [%g, %g, %g], "
-                        "[%g, %g, %g], [%g, %g, %g]]}",
+                        ", {\"type\": \"quad\", \"material\": \"%s\", \"vertices\": [[%.9g, %.9g, %.9g], "
+                        "[%.9g, %.9g, %.9g], [%.9g, %.9g, %.9g], [%.9g, %.9g, %.9g]]}",
                         q % 2 ? "lamp2" : "lamp", c[0], c[1], c[2], c[0] + a[0], c[1] + a[1], c[2] + a[2],
                         c[0] + a[0] + b[0], c[1] + a[1] + b[1], c[2] + a[2] + b[2], c[0] + b[0], c[1] + b[1],
                         c[2] + b[2]);
@@ -402,6 +518,16 @@ static void test_light_sampler_decision_and_pdf_agree(void)
     scene_release(s);
 }
 
+/* A sample of light_sampler_sample_from at p with random numbers from r, if it fell on shape 0
+ * (the tests' quad), which it must have sampled by solid angle. */
+static bool quad_sample_from(const struct light_sampler *lights, struct vec3 p, struct rng *r, struct light_sample *ls)
+{
+    float u_pick = rng_next_float(r), u1 = rng_next_float(r), u2 = rng_next_float(r);
+    if (!light_sampler_sample_from(lights, p, u_pick, u1, u2, ls) || ls->shape != 0) return false;
+    CHECK(ls->prim < 2 && ls->solid_angle);
+    return true;
+}
+
 /* light_sampler_sample_from's solid-angle samples of a quad from a point close to it are uniform
  * over the quad's whole solid angle: each triangle is chosen in proportion to its solid angle
  * (binomial z against Omega_k / (Omega_0 + Omega_1), 0.608 and 0.392 from p), and within each
@@ -444,10 +570,7 @@ static void test_light_sampler_solid_angle_uniform_chi2(void)
     long n_samples = 0, per[2] = {0, 0}, pdf_off = 0;
     while (n_samples < 400000) {
         struct light_sample ls;
-        if (!light_sampler_sample_from(s->lights, p, rng_next_float(&r), rng_next_float(&r), rng_next_float(&r), &ls) ||
-            ls.shape != 0)
-            continue;
-        CHECK(ls.prim < 2 && ls.solid_angle);
+        if (!quad_sample_from(s->lights, p, &r, &ls)) continue;
         pdf_off += !(fabsf(ls.pdf_w - pdf_pair) <= 1e-5f * pdf_pair);
         counts[ls.prim][cell_of(ls.b1, ls.b2)]++;
         per[ls.prim]++;
@@ -476,6 +599,76 @@ static void test_light_sampler_solid_angle_uniform_chi2(void)
     scene_release(s);
 }
 
+
+/* A rectangle's samples from a point close to it (light_sampler_sample_from) are uniform over
+ * its whole solid angle as one spherical rectangle: binned by an 8 x 8 grid of the rectangle,
+ * chi-square against each cell's solid angle; every sample's pdf, and the pdf function's on
+ * either triangle, is (pmf_0 + pmf_1) / Omega with Omega the two triangles' solid angles
+ * (van Oosterom & Strackee, not the rectangle's own angle sum). The rectangle is rotated out of
+ * the axes and sits beside a sphere, so that its pick probability is not 1. */
+static void test_light_sampler_rect_uniform_chi2(void)
+{
+    /* corner (-1, -0.8, 1), edges (2, 0.4, 0.3) and (-0.3, 1.5, 0) (orthogonal: -0.6 + 0.6 + 0). */
+    const char *json = "{\"format\": 1, \"camera\": {\"position\": [0, 0, 5], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0], "
+                       "\"fov_deg\": 30}, \"materials\": {\"lamp\": {\"type\": \"diffuse\", \"albedo\": [0, 0, 0], "
+                       "\"emission\": [1, 1, 1]}}, \"shapes\": [{\"type\": \"quad\", \"material\": "
+                       "\"lamp\", \"vertices\": [[-1, -0.8, 1], [1, -0.4, 1.3], [0.7, 1.1, 1.3], [-1.3, 0.7, 1]]}, "
+                       "{\"type\": \"sphere\", \"material\": \"lamp\", \"center\": [0, 0, -6], \"radius\": 1}]}";
+    struct scene *s = fixture_load_json(json, NULL);
+    if (!s) return;
+    const struct vec3 corner = vec3_make(-1.0f, -0.8f, 1.0f), ex = vec3_make(2.0f, 0.4f, 0.3f),
+                      ey = vec3_make(-0.3f, 1.5f, 0.0f);
+    /* In front of the one-sided lamp: its normal, ex x ey = (-0.45, -0.09, 3.12), points to +z
+     * for (v0, v1, v2) as the loader orders them; p is on the side the lamp faces. */
+    struct vec3 n;
+    CHECK(light_sampler_triangle_point(s->lights, 0, 0, 0.0f, 0.0f, &(struct vec3){0}, &n));
+    const struct vec3 p = vec3_add(vec3_make(0.1f, 0.2f, 1.15f), vec3_scale(n, 0.8f));
+    double share[CELLS], omega;
+    rect_cell_shares(p, corner, ex, ey, share, &omega);
+    double pmf = 0.0;
+    for (uint32_t t = 0; t < 2; t++) {
+        CHECK(light_sampler_solid_angle_from(s->lights, p, 0, t));
+        pmf += (double)light_sampler_pdf_a(s->lights, 0, t) * 0.5 * (double)vec3_length(vec3_cross(ex, ey));
+    }
+    CHECK(pmf > 0.05 && pmf < 0.95);
+    const float pdf_rect = (float)(pmf / omega);
+    static long counts[CELLS];
+    struct rng r = rng_make(19, 0, 0, 0);
+    long n_samples = 0, per[2] = {0, 0}, pdf_off = 0, off = 0;
+    const float lx = vec3_length(ex), ly = vec3_length(ey);
+    while (n_samples < 400000) {
+        struct light_sample ls;
+        if (!quad_sample_from(s->lights, p, &r, &ls)) continue;
+        pdf_off += !(fabsf(ls.pdf_w - pdf_rect) <= 1e-5f * pdf_rect);
+        struct vec3 w = vec3_sub(ls.p, corner);
+        double u = vec3_dot(w, ex) / (lx * lx), v = vec3_dot(w, ey) / (ly * ly);
+        off += !(u > -1e-5 && u < 1.0 + 1e-5 && v > -1e-5 && v < 1.0 + 1e-5);
+        counts[rect_cell_of(u, v)]++;
+        per[ls.prim]++;
+        n_samples++;
+    }
+    CHECK_MSG(off == 0, "%ld samples off the rectangle", off);
+    CHECK_MSG(per[0] > 0 && per[1] > 0, "one triangle never sampled (%ld, %ld)", per[0], per[1]);
+    CHECK_MSG(pdf_off == 0, "%ld samples whose pdf is not the rectangle's %g", pdf_off, (double)pdf_rect);
+    for (uint32_t t = 0; t < 2; t++) {
+        struct vec3 q;
+        CHECK(light_sampler_triangle_point(s->lights, 0, t, 0.3f, 0.3f, &q, &n));
+        const float back = light_sampler_pdf_w_from(s->lights, p, 0, t, q);
+        CHECK_MSG(fabsf(back - pdf_rect) <= 1e-5f * pdf_rect, "triangle %u: pdf %g, the rectangle's %g", t, (double)back,
+                  (double)pdf_rect);
+    }
+    double chi2 = 0.0;
+    for (int c = 0; c < CELLS_N * CELLS_N; c++) {
+        double e = share[c] * (double)n_samples;
+        chi2 += (counts[c] - e) * (counts[c] - e) / e;
+    }
+    double z = chi2_as_z(chi2, CELLS_N * CELLS_N - 1);
+    printf("  light sampler, rectangle: Omega %.4f, triangles %ld / %ld, chi-square z %.2f\n", omega, per[0], per[1], z);
+    CHECK_MSG(z < 4.0, "light sampler, rectangle: chi-square z %.2f", z);
+    scene_release(s);
+}
+
 TEST_MAIN(TEST(test_atan2_upper_matches_libm), TEST(test_warp_uniform_chi2), TEST(test_pdf_integrates_to_one),
-          TEST(test_sample_invert_round_trip), TEST(test_light_sampler_decision_and_pdf_agree),
-          TEST(test_light_sampler_solid_angle_uniform_chi2))
+          TEST(test_sample_invert_round_trip), TEST(test_rect_warp_uniform_chi2),
+          TEST(test_light_sampler_decision_and_pdf_agree), TEST(test_light_sampler_solid_angle_uniform_chi2),
+          TEST(test_light_sampler_rect_uniform_chi2))
