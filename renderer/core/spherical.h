@@ -366,12 +366,4 @@ static inline void spherical_rect_sample_st(const struct spherical_rect *sr, flo
     *t = yv - sr->y0;
 }
 
-/* The same point relative to p. */
-static inline struct dvec3 spherical_rect_sample(const struct spherical_rect *sr, float u1, float u2)
-{
-    double s, t;
-    spherical_rect_sample_st(sr, u1, u2, &s, &t);
-    return dvec3_add(dvec3_add(dvec3_scale(sr->x, sr->x0 + s), dvec3_scale(sr->y, sr->y0 + t)), dvec3_scale(sr->z, sr->z0));
-}
-
 #endif

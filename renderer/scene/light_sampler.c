@@ -91,16 +91,16 @@ static struct vec3 light_sampler_world(const struct shape *s, uint32_t v)
     return xform_point(&s->to_world, s->positions[v]);
 }
 
-/* Whether the two triangles of entries e and f (sharing two vertex indices, as a quad's do) form
- * a rectangle, and if so its light_rect. The corners that are not shared, a of e and b of f,
+/* Whether the two triangles of shape s, entries e and f (sharing two vertex indices, as a quad's
+ * do), form a rectangle, and if so its light_rect. The corners that are not shared, a of e and b of f,
  * are opposite; with c1, c2 the shared ones, a + (c1 - a) + (c2 - a) must be b and the two edges
  * at a orthogonal, both to 1e-5 of the edges' lengths (float vertices after a transform); the
  * triangles must face the same way. A quad off a rectangle by less than that is sampled as the
  * rectangle: a sample a little outside a triangle is clamped onto its edge. */
-static bool light_rect_of(const struct shape *s, uint32_t t, const struct light_entry *e, const struct light_entry *f,
+static bool light_rect_of(const struct shape *s, const struct light_entry *e, const struct light_entry *f,
                           struct light_rect *r)
 {
-    const uint32_t *ia = &s->indices[3 * t], *ib = &s->indices[3 * t + 3];
+    const uint32_t *ia = &s->indices[0], *ib = &s->indices[3];
     int a = -1, b = -1, shared = 0;
     for (int i = 0; i < 3; i++) {
         bool in_b = ia[i] == ib[0] || ia[i] == ib[1] || ia[i] == ib[2];
@@ -219,7 +219,7 @@ struct light_sampler *light_sampler_new(const struct scene *scene, struct err *e
                 ls->entries[k - 2].partner = (int64_t)k - 1;
                 ls->entries[k - 1].partner = (int64_t)k - 2;
                 struct light_rect *r = &ls->rects[ls->rect_count];
-                if (light_rect_of(s, 0, &ls->entries[k - 2], &ls->entries[k - 1], r)) {
+                if (light_rect_of(s, &ls->entries[k - 2], &ls->entries[k - 1], r)) {
                     r->first = k - 2;
                     ls->entries[k - 2].rect = ls->entries[k - 1].rect = (int32_t)ls->rect_count++;
                 }

@@ -1,8 +1,9 @@
 /* light_sampler.h — picks emitters proportionally to emitted power (alias table over emissive
  * triangles, emissive spheres and the constant environment) and samples points on them
  * uniformly by area, or, from a known shading point, triangles and rectangles seen close by
- * uniformly in the solid angle they subtend there (light_sampler_sample_from). pdfs are explicit about their
- * measure: pdf_a on surfaces, pdf_w for the environment and for samples from a shading point.
+ * uniformly in the solid angle they subtend there (light_sampler_sample_from). pdfs are explicit
+ * about their measure: pdf_a on surfaces, pdf_w for the environment and for samples from a
+ * shading point.
  * Immutable after creation; thread-safe. */
 #ifndef RESTIRD_LIGHT_SAMPLER_H
 #define RESTIRD_LIGHT_SAMPLER_H
@@ -47,15 +48,16 @@ float light_sampler_pdf_a(const struct light_sampler *ls, uint32_t shape, uint32
  * a rectangle is sampled as one (Urena et al. 2013) when p is within 5 half diagonals of its
  * centre and in front of it; another two-triangle emitter (a quad) whose triangles both qualify
  * is sampled uniformly over its whole solid angle: either of its triangles, in proportion to its
- * solid angle. Either way the sample's prim is the triangle holding the point. Sets pdf_w, the solid-angle pdf at p including the
- * pick, for every emitter, and pdf_a (surfaces) to the same density per area of the light;
+ * solid angle. Either way the sample's prim is the triangle holding the point. Sets pdf_w, the
+ * solid-angle pdf at p including the pick, for every emitter, and pdf_a (surfaces) to the same density per area of the light;
  * `solid_angle` tells which sampling ran. False when the sample cannot contribute (pdf_w 0). */
 bool light_sampler_sample_from(const struct light_sampler *ls, struct vec3 p, float u_pick, float u1, float u2,
                                struct light_sample *out);
 /* Solid-angle pdf at p with which light_sampler_sample_from produces the point q on emitter
  * (shape, prim) (a sphere or triangle): for MIS when a BSDF-sampled ray from p hits it. It
  * decides between area and solid-angle sampling as light_sampler_sample_from does, from p, the
- * emitter and a quad's other triangle (or its rectangle) alone. 0 when (shape, prim) is no emitter. */
+ * emitter and a quad's other triangle (or its rectangle) alone. 0 when (shape, prim) is no
+ * emitter. */
 float light_sampler_pdf_w_from(const struct light_sampler *ls, struct vec3 p, uint32_t shape, uint32_t prim,
                                struct vec3 q);
 /* That decision: whether light_sampler_sample_from samples the solid angle of emissive triangle

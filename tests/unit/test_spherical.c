@@ -355,7 +355,7 @@ static void rect_cell_shares(struct vec3 p, struct vec3 corner, struct vec3 ex, 
     for (int c = 0; c < CELLS; c++) share[c] /= *total;
 }
 
-/* Chi-square z of spherical_rect_sample's points over the cells, u1 (skew 1) or u2 (skew 2)
+/* Chi-square z of spherical_rect_sample_st's points over the cells, u1 (skew 1) or u2 (skew 2)
  * taken to the power 1.03 for the controls; the solid angle over the cells' sum in *ratio. The
  * rectangle's frame is the edges' directions and lengths in double, as the light sampler's is
  * from its float table. */
@@ -365,6 +365,7 @@ static double rect_chi2_z(const struct rect_case *rc, int skew, long n, uint64_t
     const struct dvec3 x = dvec3_scale(dvec3_from(rc->ex), 1.0 / lx), y = dvec3_scale(dvec3_from(rc->ey), 1.0 / ly);
     const struct vec3 p = vec3_splat(0.0f);
     struct spherical_rect sr;
+    /* p at the origin: corner - p is the corner. */
     CHECK_MSG(spherical_rect_init(&sr, dvec3_from(rc->corner), x, y, dvec3_cross(x, y), lx, ly), "%s: init", rc->name);
     double share[CELLS], total;
     rect_cell_shares(p, rc->corner, rc->ex, rc->ey, share, &total);
@@ -377,9 +378,16 @@ static double rect_chi2_z(const struct rect_case *rc, int skew, long n, uint64_t
         float u1 = rng_next_float(&r), u2 = rng_next_float(&r);
         if (skew == 1) u1 = powf(u1, 1.03f);
         if (skew == 2) u2 = powf(u2, 1.03f);
-        struct dvec3 w = dvec3_sub(spherical_rect_sample(&sr, u1, u2), dvec3_from(rc->corner));
-        double s = dvec3_dot(w, x) / lx, t = dvec3_dot(w, y) / ly, h = dvec3_dot(w, dvec3_cross(x, y));
-        off += !(s > -1e-6 && s < 1.0 + 1e-6 && t > -1e-6 && t < 1.0 + 1e-6 && fabs(h) < 1e-6 * (lx + ly));
+        double s, t;
+        spherical_rect_sample_st(&sr, u1, u2, &s, &t);
+        s /= lx;
+        t /= ly;
+        /* Outside [0, 1]^2 (beyond the rounding of (x1 - x0) / lx) or NaN: counted here, and kept
+         * out of the cells. */
+        if (!(s >= 0.0 && s <= 1.0 + 1e-9 && t >= 0.0 && t <= 1.0 + 1e-9)) {
+            off++;
+            continue;
+        }
         counts[rect_cell_of(s, t)]++;
     }
     CHECK_MSG(off == 0, "%s: %ld of %ld points off the rectangle", rc->name, off, n);
