@@ -1496,9 +1496,15 @@ def test_restir_pt_session(daemon):
         assert daemon.req("DELETE", x["href"]).status == 204
     assert s["reservoir_bytes_per_pixel"] == 64
     assert s["reservoir_bytes"] == 2 * 64 * 32 * 24 == s["buffers"]["reservoirs"]
-    own = {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "primitive_table", "primary_hits"}
+    own = {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "primitive_table", "primary_hits",
+           "emission"}
     assert set(s["buffers"]) == own | {"spatial_pairs"}
     assert set(unpaired["buffers"]) == own  # the pairs' scratch only with paired spatial reuse
+    # Two G-buffers' emission (12 bytes a pixel), edge marks (1) and corners (4 a corner).
+    assert s["buffers"]["emission"] == 2 * (32 * 24 * 13 + 33 * 25 * 4)
+    one_ray = new_session(daemon, method="restir_pt", width=8, height=8, params={"emission_samples": 1})
+    assert set(one_ray["buffers"]) == own - {"emission"} | {"spatial_pairs"}  # the primary ray's own: no buffer
+    assert daemon.req("DELETE", one_ray["href"]).status == 204
     first = post_frame(daemon, s, accept="application/json").json()
     assert first["passes"]["temporal_ms"] >= 0 and first["passes"]["shifts"] > 0
     moved = {"camera": {"position": [288, 273, -800]}}
@@ -1561,7 +1567,7 @@ def test_restir_bdpt_session(daemon):
     assert s["params"] == {"variant": "lightweight", "max_depth": 64, "rr_depth": 3, "light_paths": 0,
                            "lt_capacity": 8, "lvc_capacity": 8, "heuristic": "balance", "caustic_temporal": True, "temporal_cap": 20,
                            "moving_cap": 1, "reuse": False, "reuse_temporal": True, "history_check": True,
-                           "spatial_neighbors": 2,
+                           "emission_samples": 16, "spatial_neighbors": 2,
                            "spatial_rounds": 1, "spatial_radius": 3,
                            "paired_spatial": True, "expected_shading": True, "camera_reconnect": True, "copy_mis": False,
                            "reject_unshiftable": False}
@@ -1602,16 +1608,18 @@ def test_restir_bdpt_reuse_session_buffers(daemon):
     n = 32 * 24
     assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "light_traced_samples",
                                  "caustic_shifts", "pixel_buckets", "light_blocks", "gbuffers", "spatial_pairs",
-                                 "light_x2_cache"}
+                                 "light_x2_cache", "emission"}
     assert s["buffers"]["light_x2_cache"] == 2 * 116 * n
     assert s["buffers"]["gbuffers"] == 2 * 40 * n
+    # The emission seen directly (gbuffer.h): 12 + 1 bytes a pixel and 4 a pixel corner, per G-buffer.
+    assert s["buffers"]["emission"] == 2 * (13 * n + 33 * 25 * 4)
     spatial = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24,
                           params={"reuse_temporal": False})
     assert spatial["buffers"]["gbuffers"] == 40 * n
     assert daemon.req("DELETE", spatial["href"]).status == 204
     off = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24,
                       params={"reuse": False})
-    assert "gbuffers" not in off["buffers"] and "spatial_pairs" not in off["buffers"]
+    assert not {"gbuffers", "spatial_pairs", "emission"} & set(off["buffers"])
     assert daemon.req("DELETE", off["href"]).status == 204
     assert s["reservoir_bytes"] == (3 * 88 + 2 * 28) * n and s["reservoir_bytes_per_pixel"] == 88
     assert s["memory_bytes"] == sum(s["buffers"].values())
@@ -1624,6 +1632,8 @@ def test_restir_bdpt_reuse_session_buffers(daemon):
     ({"lt_capacity": 0}, "/params/lt_capacity"),
     ({"temporal_cap": 0}, "/params/temporal_cap"),
     ({"moving_cap": 0}, "/params/moving_cap"),
+    ({"emission_samples": 0}, "/params/emission_samples"),
+    ({"emission_samples": 300}, "/params/emission_samples"),
     ({"caustic_temporal": 1}, "/params/caustic_temporal"),
     ({"heuristic": "max"}, "/params/heuristic"),
     ({"lvc_capacity": 0}, "/params/lvc_capacity"),
@@ -1655,6 +1665,8 @@ def test_restir_bdpt_refuses_translucent(daemon):
     ({"temporal_cap_replay": 1001}, "/params/temporal_cap_replay"),
     ({"jitter_walk": 0.6}, "/params/jitter_walk"),
     ({"jitter_walk": -0.01}, "/params/jitter_walk"),
+    ({"emission_samples": 0}, "/params/emission_samples"),
+    ({"emission_samples": 257}, "/params/emission_samples"),
     ({"footprint_c": 0}, "/params/footprint_c"),
     ({"max_depth": 0}, "/params/max_depth"),
     ({"temporal": 1}, "/params/temporal"),

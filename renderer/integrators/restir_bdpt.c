@@ -145,7 +145,7 @@ struct restir_bdpt_params restir_bdpt_defaults(void)
                                        .light_paths = 0, .lt_capacity = 8, .lvc_capacity = 8,
                                        .heuristic = BDPT_HEURISTIC_POWER,
                                        .caustic_temporal = true, .temporal_cap = 20, .moving_cap = 1, .reuse = true,
-                                       .reuse_temporal = true, .history_check = true, .spatial_neighbors = 2, .spatial_rounds = 1, .spatial_radius = 0.0f, .paired_spatial = true,
+                                       .reuse_temporal = true, .history_check = true, .emission_samples = 16, .spatial_neighbors = 2, .spatial_rounds = 1, .spatial_radius = 0.0f, .paired_spatial = true,
                                        .expected_shading = true, .camera_reconnect = true, .copy_mis = false,
                                        .reject_unshiftable = false};
 }
@@ -178,6 +178,9 @@ bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *er
         return err_set(err, ERR_INVALID, "/params/temporal_cap", "temporal_cap must be in 1..65535");
     if (p->moving_cap < 1 || p->moving_cap > 65535)
         return err_set(err, ERR_INVALID, "/params/moving_cap", "moving_cap must be in 1..65535");
+    if (p->emission_samples < 1 || p->emission_samples > GBUFFER_EMISSION_SAMPLES_MAX)
+        return err_set(err, ERR_INVALID, "/params/emission_samples", "emission_samples must be in 1..%u",
+                       GBUFFER_EMISSION_SAMPLES_MAX);
     if (p->spatial_neighbors > 32)
         return err_set(err, ERR_INVALID, "/params/spatial_neighbors", "spatial_neighbors must be in 0..32");
     if (!(p->spatial_radius >= 0.0f && p->spatial_radius <= 256.0f))
@@ -210,6 +213,16 @@ static bool rbdpt_checks_history(const struct restir_bdpt_params *p)
     return p->reuse && p->reuse_temporal && p->history_check;
 }
 
+/* With reuse the G-buffer pass estimates the emission seen directly (gbuffer.h) and the camera
+ * subpaths offer no candidate that ends on the primary hit: those paths (the camera sees an
+ * emitter) have one strategy only, s = 0 with MIS weight 1, so they leave the reservoirs' integrand
+ * whole, and a shift, which keeps a path's length, never makes one. (bdpt's scenes always have an
+ * emitting shape.) */
+static bool rbdpt_emission_apart(const struct restir_bdpt_params *p)
+{
+    return p->reuse && p->emission_samples > 1;
+}
+
 static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
 {
     struct rbdpt_sizes z;
@@ -221,7 +234,11 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
     z.blocks_b = bdpt_blocks_bytes(&z.lb);
     z.res = (p->reuse ? 3 : 1) * n * sizeof(struct restir_bdpt_path) + 2 * n * sizeof(struct restir_bdpt_reservoir) +
             2 * n * sizeof(struct restir_bdpt_shifted) +
-            (n + 1) * sizeof(uint32_t) + (p->reuse ? (rbdpt_checks_history(p) ? 2 : 1) * n * sizeof(struct gbuffer_pixel) : 0);
+            (n + 1) * sizeof(uint32_t) +
+            (p->reuse ? (rbdpt_checks_history(p) ? 2 : 1) *
+                            (n * sizeof(struct gbuffer_pixel) +
+                             (rbdpt_emission_apart(p) ? gbuffer_emission_bytes_planned(width, height) : 0))
+                      : 0);
     z.pairs = p->reuse && p->paired_spatial ? restir_pair_scratch_bytes(width, height) : 0;
     z.x2c = p->reuse ? 2 * n * sizeof(struct rbdpt_x2_entry) : 0;   /* this render's and the previous one's */
     /* The full variant's LVC: the vertices (and their subpaths with reuse), per block its
@@ -288,6 +305,7 @@ size_t restir_bdpt_bytes(const struct restir_bdpt_state *st)
 {
     return restir_bdpt_reservoir_bytes(st) + restir_bdpt_lt_bytes(st) + restir_bdpt_shift_bytes(st) +
            restir_bdpt_bucket_bytes(st) + restir_bdpt_block_bytes(st) + gbuffer_bytes(&st->gbuf[0]) + gbuffer_bytes(&st->gbuf[1]) +
+           gbuffer_emission_bytes(&st->gbuf[0]) + gbuffer_emission_bytes(&st->gbuf[1]) +
            restir_bdpt_lvc_bytes(st) + restir_bdpt_pair_bytes(st) + restir_bdpt_x2_bytes(st);
 }
 
@@ -323,7 +341,9 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
         }
         if (st->res_prev && st->res_spatial &&
             !(gbuffer_init(&st->gbuf[0], width, height, err) &&
-              (!rbdpt_checks_history(p) || gbuffer_init(&st->gbuf[1], width, height, err)))) {
+              (!rbdpt_checks_history(p) || gbuffer_init(&st->gbuf[1], width, height, err)) &&
+              (!rbdpt_emission_apart(p) || (gbuffer_keep_emission(&st->gbuf[0], err) &&
+                                            (!rbdpt_checks_history(p) || gbuffer_keep_emission(&st->gbuf[1], err)))))) {
             restir_bdpt_destroy(st);
             return false;
         }
@@ -431,6 +451,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     c->frame = f->frame;
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;
     c->full = p->variant == RESTIR_BDPT_FULL;
+    c->emission_apart = rbdpt_emission_apart(p) && st->gbuf[0].emission;
     c->out = out;
     {
         /* Renders are numbered. The x_2 cache's entries stay valid while the scene object, the
@@ -539,7 +560,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
         struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = c->has_prev ? f->prev_scene : NULL,
                                    .prev_camera = c->has_prev ? f->prev_camera : NULL, .seed = f->seed,
                                    .frame = f->frame, .threads = f->threads, .check_history = p->history_check,
-                                   .stratify = true};
+                                   .stratify = true, .emission_samples = p->emission_samples};
         if (st->gbuf[1].px) {
             if (!restir_gbuffer_next(st->gbuf, &st->gcur, &st->gbuf_history, gf, &grays, err)) return false;
             st->gbuf_history = true;
@@ -547,6 +568,9 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
             return false;
         }
         s.rays_intersect += grays;
+        const struct vec3 *seen = st->gbuf[st->gcur].emission;
+        if (c->emission_apart && seen)
+            for (uint32_t i = 0; i < npix; i++) out->pixels[i] = vec3_add(out->pixels[i], seen[i]);
         struct restir_reuse rr = {.ops = &rbdpt_ops, .ctx = c, .width = st->width, .height = st->height,
                                   .seed = f->seed, .frame = f->frame, .threads = f->threads, .gbuf = &st->gbuf[st->gcur],
                                   .history = p->reuse_temporal && c->has_prev && st->has_history
@@ -637,6 +661,7 @@ static struct rbdpt_ctx *rbdpt_test_ctx(struct restir_bdpt_state *st, const stru
     c->frame = f->frame;
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;
     c->full = p->variant == RESTIR_BDPT_FULL;
+    c->emission_apart = rbdpt_emission_apart(p) && st->gbuf[0].emission;
     c->reconnections = reconnections;
     /* The cache as the last render left it, valid only in that render's scene. */
     c->tick = st->x2c_tick;

@@ -107,6 +107,9 @@ struct RESTIRD_STORED_IN_BYTES restir_bdpt_params {
                                   history (true); false: each frame's reuse is spatial only */
     bool history_check;        /* with reuse_temporal: a pixel whose previous pixel (along the motion
                                   vector) saw another surface takes no history (true; gbuffer.h) */
+    uint32_t emission_samples; /* with reuse: rays a frame for the emission seen directly in a pixel
+                                  an emitter's edge crosses (gbuffer.h), taken out of the camera
+                                  subpaths' candidates; 1 = the camera subpath's own, 1..256 (16) */
     uint32_t spatial_neighbors; /* with reuse: neighbours per pixel and round, 0..32 (2) */
     uint32_t spatial_rounds;   /* with reuse and spatial neighbours: spatial passes in a row, each
                                   reusing the previous one's output, 1..8 (1) */

@@ -157,8 +157,9 @@ void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdpt_view 
             for (int j = 0; j < 3; j++) restir_bdpt_mis_hit(&basis[j], hit_d2, cos_hit, c->power);
         }
         const struct material *m = &scene->materials[s.material];
-        /* Path vertices after the camera of an emitter hit here: depth + 1. */
-        if (material_is_emissive(m)) {
+        /* Path vertices after the camera of an emitter hit here: depth + 1. With emission_apart
+         * the G-buffer pass estimates the primary hit's (rbdpt_emission_apart). */
+        if (material_is_emissive(m) && !(depth == 0 && c->emission_apart)) {
             struct vec3 Le = light_sampler_emitted(m, -cos_hit);
             if (!vec3_is_zero(Le)) {
                 float w = 1.0f, direct_pdf_a = 0.0f, emission_pdf_w = 0.0f;

@@ -93,6 +93,8 @@ struct rbdpt_ctx {
     uint32_t still_from;         /* renders after it had the view and parameters of the one before */
     bool power;
     bool full;                   /* the full variant: all techniques, an LVC */
+    bool emission_apart;         /* the G-buffer's estimate of the emission seen directly stands for
+                                    the camera subpaths' candidates that end on the primary hit */
     bool static_scene;           /* the previous frame's scene equals this one (scene_moved) */
     bool force_retrace;          /* tests: reconnection shifts trace every suffix again */
     _Atomic uint64_t *reconnections;  /* with reuse: hybrid shifts attempted (rbdpt_reconnect) */

@@ -95,7 +95,7 @@ struct restir_pt_params restir_pt_defaults(void)
     return (struct restir_pt_params){
         .max_depth = 64, .rr_depth = 1, .rr = true, .nee_candidates = RESTIR_PT_NEE_BY_SCENE, .unify_di = true,
         .temporal = true, .temporal_cap = 20, .history_check = true, .jitter_walk = 0.005f,
-        .spatial_neighbors = 3, .spatial_radius = 0.0f, .spatial_rounds = 1,
+        .emission_samples = 16, .spatial_neighbors = 3, .spatial_radius = 0.0f, .spatial_rounds = 1,
         .paired_spatial = true,
         .expected_shading = true,
         .footprint = true, .footprint_c = 0.02f, .near_distance = 0.03f, .pdf_connect = true, .roughness_min = 0.2f,
@@ -116,6 +116,16 @@ uint32_t restir_pt_nee_by_scene(const struct scene *scene)
     return emitters >= 2 ? 4u : 1u;
 }
 
+/* The G-buffers estimate the emission seen directly (gbuffer.h) when more than the primary ray's
+ * own is asked for and an emitting shape can make edge pixels. */
+static bool pt_keeps_emission(const struct restir_pt_params *p, const struct scene *scene)
+{
+    if (p->emission_samples <= 1) return false;
+    for (uint32_t i = 0; i < scene->shape_count; i++)
+        if (material_is_emissive(&scene->materials[scene->shapes[i].material])) return true;
+    return false;
+}
+
 bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err)
 {
     if (p->max_depth < 1 || p->max_depth > PT_MAX_LENGTH - 1)
@@ -123,6 +133,9 @@ bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err)
     if (p->nee_candidates > 64 && p->nee_candidates != RESTIR_PT_NEE_BY_SCENE)
         return err_set(err, ERR_INVALID, "/params/nee_candidates", "nee_candidates must be in 0..64");
     if (!gbuffer_jitter_walk_valid(p->jitter_walk, err)) return false;
+    if (p->emission_samples < 1 || p->emission_samples > GBUFFER_EMISSION_SAMPLES_MAX)
+        return err_set(err, ERR_INVALID, "/params/emission_samples", "emission_samples must be in 1..%u",
+                       GBUFFER_EMISSION_SAMPLES_MAX);
     if (p->temporal_cap < 1 || p->temporal_cap > 1000)
         return err_set(err, ERR_INVALID, "/params/temporal_cap", "temporal_cap must be in 1..1000");
     if (p->temporal_cap_replay > 1000)
@@ -483,7 +496,8 @@ static bool pt_rc_beta(const struct pt_vertex *prev, int lobe, struct vec3 xk_p,
 
 /* Samples one path from the pixel's primary hit and resamples its candidates into `out`; light
  * that reaches the pixel outside the reservoir — emission seen directly (the environment for an
- * escaped primary ray), and direct light when it is not unified — goes to *direct. */
+ * escaped primary ray; the G-buffer's estimate when it keeps one, gbuffer.h), and direct light
+ * when it is not unified — goes to *direct. */
 static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct pt_sample *out, struct vec3 *direct)
 {
     const struct pt_ctx *c = t->c;
@@ -491,11 +505,12 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
     const struct scene *scene = c->scene[RESTIR_CURRENT];
     struct ray_counters *rays = &t->cnt->rays;
     memset(out, 0, sizeof *out);
-    *direct = scene->env_radiance;
+    const struct vec3 *seen = c->gbuf[RESTIR_CURRENT]->emission;
+    *direct = seen ? seen[pixel] : scene->env_radiance;
     struct pt_thread th = *t;
     struct pt_vertex v;
     if (!pt_primary(c, (struct restir_domain){pixel, RESTIR_CURRENT}, &v, &th.footprint)) return;
-    *direct = light_sampler_emitted(v.m, vec3_dot(vec3_sub(c->eye[RESTIR_CURRENT], v.s.p), v.s.ng));
+    if (!seen) *direct = light_sampler_emitted(v.m, vec3_dot(vec3_sub(c->eye[RESTIR_CURRENT], v.s.p), v.s.ng));
 
     const uint32_t seed = pt_path_seed(c->seed, c->frame, pixel);
     struct rng sel = rng_make(c->seed, c->frame, pixel, PT_SELECT_STREAM);
@@ -994,7 +1009,8 @@ bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, const
         return err_set(err, ERR_LIMIT, NULL, "the scene has %llu primitives; restir_pt stores at most 2^32 - 1",
                        (unsigned long long)total);
     }
-    if (!restir_session_init(&st->rs, width, height, 1, sizeof(struct pt_sample), true, pt_uses_pairs(params), err)) {
+    if (!restir_session_init(&st->rs, width, height, 1, sizeof(struct pt_sample), true, pt_uses_pairs(params), err) ||
+        (pt_keeps_emission(params, scene) && !restir_session_keep_emission(&st->rs, err))) {
         restir_pt_destroy(st);
         return false;
     }
@@ -1009,12 +1025,14 @@ void restir_pt_destroy(struct restir_pt_state *st)
 }
 
 uint64_t restir_pt_bytes_planned(const struct restir_pt_params *params, uint32_t width, uint32_t height,
-                                 uint32_t shape_count)
+                                 const struct scene *scene)
 {
+    const uint32_t shape_count = scene->shape_count;
     uint64_t pixels = (uint64_t)width * height;
     return 2 * pixels * (sizeof(struct pt_sample) + sizeof(struct gbuffer_pixel) + sizeof(struct gbuffer_surface)) +
            ((uint64_t)shape_count + 1) * sizeof(uint32_t) +
-           (pt_uses_pairs(params) ? restir_pair_scratch_bytes(width, height) : 0);
+           (pt_uses_pairs(params) ? restir_pair_scratch_bytes(width, height) : 0) +
+           (pt_keeps_emission(params, scene) ? 2 * (uint64_t)gbuffer_emission_bytes_planned(width, height) : 0);
 }
 
 struct pt_pass {
@@ -1096,7 +1114,8 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
     if (f->scene->shape_count != st->shape_count)
         return err_set(err, ERR_INVALID, NULL, "the scene has %u shapes, the session %u", f->scene->shape_count,
                        st->shape_count);
-    if (!restir_frame_gbuffer(&pp.fr, params->jitter_walk, pt_uses_pairs(params), params->history_check, err)) return false;
+    if (!restir_frame_gbuffer(&pp.fr, params->jitter_walk, pt_uses_pairs(params), params->history_check,
+                              params->emission_samples, err)) return false;
     restir_pt_bind(st, params, f, &c);
     pp.c = &c;
     if (!restir_frame_initial(&pp.fr, pt_initial_rows, err)) return false;

@@ -41,6 +41,9 @@ struct RESTIRD_STORED_IN_BYTES restir_pt_params {
     float jitter_walk;           /* the primary ray's position in the pixel moves by at most this
                                     many pixels per axis and frame (gbuffer.h); 0 = a fresh
                                     position every frame (0.005) */
+    uint32_t emission_samples;   /* rays per frame for the emission seen directly in a pixel whose
+                                    area holds an emitter's edge (gbuffer.h); 1 = the primary
+                                    ray's own (16) */
     uint32_t spatial_neighbors;  /* per round (3); 0 = no spatial reuse */
     float spatial_radius;        /* pixels; 0 = by resolution (restir_radius_auto; 0) */
     uint32_t spatial_rounds;     /* (1) */
@@ -89,9 +92,9 @@ struct restir_pt_state {
 bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, const struct restir_pt_params *params,
                     uint32_t width, uint32_t height, struct err *err);
 void restir_pt_destroy(struct restir_pt_state *st);
-/* What restir_pt_init allocates for these parameters, size and shape count (before allocating it). */
+/* What restir_pt_init allocates for these parameters, size and scene (before allocating it). */
 uint64_t restir_pt_bytes_planned(const struct restir_pt_params *params, uint32_t width, uint32_t height,
-                                 uint32_t shape_count);
+                                 const struct scene *scene);
 
 
 /* Renders one frame into `out` (width x height) and makes it the history of the next. */

@@ -556,7 +556,7 @@ static bool sms_frame(struct restir_sms_state *st, const struct restir_sms_param
     if (sms_uses_prior(params) && st->prior.frames != params->ssp.prior_frames)
         return err_set(err, ERR_INVALID, "/params/prior_frames", "the session keeps %u frames of prior walks, not %u",
                        st->prior.frames, params->ssp.prior_frames);
-    if (!restir_frame_gbuffer(&pp.fr, params->jitter_walk, sms_uses_pairs(params), false, err)) return false;
+    if (!restir_frame_gbuffer(&pp.fr, params->jitter_walk, sms_uses_pairs(params), false, 1, err)) return false;
 
     if (!sms_bind(st, params, f, c, err)) return false;
     pp.c = c;

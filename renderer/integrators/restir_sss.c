@@ -661,7 +661,7 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
         return false;
     if (restir_sss_layers(params) != st->rs.layers)
         return err_set(err, ERR_INVALID, "/params/target", "the session's reservoirs were made for the other target");
-    if (!restir_frame_gbuffer(&pp.fr, 0.0f, sss_uses_pairs(params), false, err)) return false;
+    if (!restir_frame_gbuffer(&pp.fr, 0.0f, sss_uses_pairs(params), false, 1, err)) return false;
     restir_sss_bind(st, params, f, &c);
     pp.c = &c;
     pp.pt = reference_pt_rest(st->rs.width, st->rs.height, params->max_depth, params->rr_depth);

@@ -164,6 +164,8 @@ static uint32_t rbdpt_buffers(const void *state, const void *params, struct view
     method_buffer(out, room, &n, "light_blocks", restir_bdpt_block_bytes(st));
     if (st->lvc) method_buffer(out, room, &n, "light_vertex_cache", restir_bdpt_lvc_bytes(st));
     if (st->gbuf[0].px) method_buffer(out, room, &n, "gbuffers", gbuffer_bytes(&st->gbuf[0]) + gbuffer_bytes(&st->gbuf[1]));
+    if (st->gbuf[0].emission)
+        method_buffer(out, room, &n, "emission", gbuffer_emission_bytes(&st->gbuf[0]) + gbuffer_emission_bytes(&st->gbuf[1]));
     if (st->pair_scratch) method_buffer(out, room, &n, "spatial_pairs", restir_bdpt_pair_bytes(st));
     if (st->x2c) method_buffer(out, room, &n, "light_x2_cache", restir_bdpt_x2_bytes(st));
     return n;
@@ -221,6 +223,8 @@ static const struct method_param rbdpt_params[] = {
     P(reuse_temporal, METHOD_PARAM_BOOL, 0, 1, "with reuse: the non-caustic reservoirs reuse the previous frame's"),
     P(history_check, METHOD_PARAM_BOOL, 0, 1,
       "with reuse_temporal: a pixel whose previous pixel saw another surface takes no history"),
+    P(emission_samples, METHOD_PARAM_UINT, 1, 256,
+      "with reuse: rays per frame for the emission seen directly in pixels an emitter's edge crosses; 1 = the camera subpath's own"),
     P(spatial_neighbors, METHOD_PARAM_UINT, 0, 32, "with reuse: spatial neighbours per pixel and round"),
     P(spatial_rounds, METHOD_PARAM_UINT, 1, 8, "with reuse: spatial passes in a row, each reusing the last one's output"),
     P(spatial_radius, METHOD_PARAM_FLOAT, 0, 256, "with reuse: spatial radius in pixels; 0 = by resolution"),

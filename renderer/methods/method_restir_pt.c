@@ -54,7 +54,7 @@ static bool rpt_render(void *state, const void *params, const struct method_fram
 
 static uint64_t rpt_bytes_planned(const void *params, const struct scene *scene, uint32_t width, uint32_t height)
 {
-    return restir_pt_bytes_planned(params, width, height, scene->shape_count);
+    return restir_pt_bytes_planned(params, width, height, scene);
 }
 
 static uint32_t rpt_reservoir_bytes(const void *params, const struct scene *scene)
@@ -73,6 +73,7 @@ static uint32_t rpt_buffers(const void *state, const void *params, struct view_b
     method_buffer(out, room, &n, "primitive_table", ((size_t)st->shape_count + 1) * sizeof *st->prim_first);
     if (st->rs.pair_scratch) method_buffer(out, room, &n, "spatial_pairs", restir_session_pair_bytes(&st->rs));
     method_buffer(out, room, &n, "primary_hits", restir_session_hit_bytes(&st->rs));
+    if (st->rs.gbuf[0].emission) method_buffer(out, room, &n, "emission", restir_session_emission_bytes(&st->rs));
     return n;
 }
 
@@ -96,6 +97,8 @@ static const struct method_param rpt_params[] = {
     P(history_check, METHOD_PARAM_BOOL, 0, 1,
       "a pixel whose previous pixel saw another surface takes no history, one that covers less area a share"),
     P(jitter_walk, METHOD_PARAM_FLOAT, 0, 0.5, "pixels the primary ray's position may move per frame and axis; 0 = afresh"),
+    P(emission_samples, METHOD_PARAM_UINT, 1, 256,
+      "rays per frame for the emission seen directly in pixels an emitter's edge crosses; 1 = the primary ray's own"),
     P(spatial_neighbors, METHOD_PARAM_UINT, 0, 64, "spatial neighbours per round; 0 = no spatial reuse"),
     P(spatial_radius, METHOD_PARAM_FLOAT, 0, 256, "spatial reuse radius in pixels; 0 = by resolution"),
     P(spatial_rounds, METHOD_PARAM_UINT, 1, 8, "spatial reuse rounds"),

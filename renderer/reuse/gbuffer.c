@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "scene/camera.h"
+#include "scene/light_sampler.h"
 #include "core/parallel.h"
 #include "core/rng.h"
 #include "core/sobol.h"
@@ -16,6 +17,11 @@ bool gbuffer_init(struct gbuffer *g, uint32_t width, uint32_t height, struct err
     g->width = g->height = 0;
     g->px = NULL;
     g->surf = NULL;
+    g->emission = NULL;
+    g->edge = NULL;
+    g->corner = NULL;
+    g->edge_scene = NULL;
+    g->edge_samples = 0;
     if (width == 0 || height == 0 || width > 16384 || height > 16384)
         return err_set(err, ERR_LIMIT, NULL, "G-buffer size %ux%u outside 1..16384", width, height);
     g->px = calloc((size_t)width * height, sizeof *g->px);
@@ -41,10 +47,42 @@ bool gbuffer_keep_surfaces(struct gbuffer *g, struct err *err)
     return true;
 }
 
+size_t gbuffer_emission_bytes_planned(uint32_t width, uint32_t height)
+{
+    const size_t pixels = (size_t)width * height;
+    return pixels * (sizeof(struct vec3) + sizeof(uint8_t)) + ((size_t)width + 1) * (height + 1) * sizeof(uint32_t);
+}
+
+/* Frees what gbuffer_keep_emission allocated. */
+static void gbuffer_drop_emission(struct gbuffer *g)
+{
+    free(g->emission);
+    free(g->edge);
+    free(g->corner);
+    g->emission = NULL;
+    g->edge = NULL;
+    g->corner = NULL;
+    g->edge_scene = NULL;
+}
+
+bool gbuffer_keep_emission(struct gbuffer *g, struct err *err)
+{
+    if (g->emission) return true;
+    const size_t pixels = (size_t)g->width * g->height;
+    g->emission = calloc(pixels, sizeof *g->emission);
+    g->edge = calloc(pixels, sizeof *g->edge);
+    g->corner = calloc(((size_t)g->width + 1) * (g->height + 1), sizeof *g->corner);
+    g->edge_scene = NULL;
+    if (g->emission && g->edge && g->corner) return true;
+    gbuffer_drop_emission(g);
+    return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u pixels' emission", g->width, g->height);
+}
+
 void gbuffer_destroy(struct gbuffer *g)
 {
     free(g->px);
     free(g->surf);
+    gbuffer_drop_emission(g);
     g->px = NULL;
     g->surf = NULL;
     g->width = g->height = 0;
@@ -58,6 +96,11 @@ size_t gbuffer_bytes(const struct gbuffer *g)
 size_t gbuffer_surface_bytes(const struct gbuffer *g)
 {
     return g->surf ? (size_t)g->width * g->height * sizeof *g->surf : 0;
+}
+
+size_t gbuffer_emission_bytes(const struct gbuffer *g)
+{
+    return g->emission ? gbuffer_emission_bytes_planned(g->width, g->height) : 0;
 }
 
 #define GBUFFER_ROWS_PER_JOB 4u
@@ -160,6 +203,140 @@ static bool gbuffer_same_sky(const struct gbuffer *pg, float px, float py)
     return at == UINT32_MAX || !isfinite(pg->px[at].t);
 }
 
+void gbuffer_emission_position(uint64_t seed, uint64_t pixel, uint32_t frame, uint32_t k, uint32_t samples, float *jx,
+                               float *jy)
+{
+    const uint64_t pixel_seed = rng_mix64(seed ^ rng_mix64(pixel ^ rng_mix64(GBUFFER_EMISSION_STREAM)));
+    sobol_sample_2d(pixel_seed, frame * samples + k, 0, jx, jy);
+}
+
+/* What a ray from the camera sees first, as far as the edge pixels go: an emitting shape (its
+ * index), or nothing (a surface that does not emit towards the camera, or the environment).
+ * The environment's edges are left out on purpose: estimated apart, the emission seen directly
+ * loses the one position's agreement between it and the rest of the pixel's light, which a lit
+ * environment and the surfaces it lights usually have (scenes/furnace: relMSE 2x at equal time),
+ * and which an emitting shape, many times brighter than what surrounds it, does not
+ * (docs/benchmarks.md, "Emission seen directly"). */
+#define GBUFFER_SEES_NOTHING UINT32_MAX
+
+/* The emission a camera ray along `dir` meets first (*sees: what it is), its hit already traced
+ * (found: whether it hit). */
+static struct vec3 gbuffer_emitted(const struct scene *scene, bool found, const struct hit *hit, struct vec3 dir,
+                                   uint32_t *sees)
+{
+    if (!found) {
+        *sees = GBUFFER_SEES_NOTHING;
+        return scene->env_radiance;
+    }
+    const struct material *m = &scene->materials[scene->shapes[hit->shape].material];
+    struct vec3 Le = material_is_emissive(m) ? light_sampler_emitted(m, -vec3_dot(dir, hit->ng)) : vec3_splat(0.0f);
+    *sees = vec3_is_zero(Le) ? GBUFFER_SEES_NOTHING : hit->shape;
+    return Le;
+}
+
+/* Rows of pixel corners: what each corner's ray sees (gbuffer_find_edges). */
+static void gbuffer_corner_rows(void *ctx, uint32_t job, unsigned worker)
+{
+    struct gbuffer_job *gj = ctx;
+    struct gbuffer *g = gj->g;
+    struct ray_counters rc = {0, 0};
+    const uint32_t w1 = g->width + 1, h1 = g->height + 1;
+    const uint32_t y1 = (job + 1) * GBUFFER_ROWS_PER_JOB < h1 ? (job + 1) * GBUFFER_ROWS_PER_JOB : h1;
+    for (uint32_t y = job * GBUFFER_ROWS_PER_JOB; y < y1; y++) {
+        for (uint32_t x = 0; x < w1; x++) {
+            struct vec3 dir = camera_ray_dir(&gj->cam, (float)x, (float)y);
+            struct hit hit;
+            bool found = accel_intersect(gj->f->scene->accel, gj->cam.position, dir, 0.0f, INFINITY, &hit, &rc);
+            gbuffer_emitted(gj->f->scene, found, &hit, dir, &g->corner[(size_t)y * w1 + x]);
+        }
+    }
+    gj->rays[worker] += rc.intersect + rc.occluded;
+}
+
+/* An emitter that covers less than a pixel may fall between the corners: the pixels of every
+ * emitting shape whose bounding box projects onto at most GBUFFER_SMALL_EMITTER_PX pixels a side
+ * (and one pixel around) are edge pixels too. A shape partly behind the camera is not small. */
+#define GBUFFER_SMALL_EMITTER_PX 8.0f
+static void gbuffer_mark_small_emitters(struct gbuffer_job *gj)
+{
+    struct gbuffer *g = gj->g;
+    const struct scene *scene = gj->f->scene;
+    for (uint32_t i = 0; i < scene->shape_count; i++) {
+        const struct shape *sh = &scene->shapes[i];
+        if (!material_is_emissive(&scene->materials[sh->material])) continue;
+        struct vec3 lo = vec3_splat(INFINITY), hi = vec3_splat(-INFINITY);
+        const struct xform *to_world = accel_shape_to_world(scene->accel, i);
+        const uint32_t n = sh->kind == SHAPE_MESH ? sh->vertex_count : 8u;
+        for (uint32_t v = 0; v < n; v++) {
+            struct vec3 p = sh->kind == SHAPE_MESH
+                                ? sh->positions[v]
+                                : vec3_add(sh->center, vec3_make(v & 1u ? sh->radius : -sh->radius,
+                                                                 v & 2u ? sh->radius : -sh->radius,
+                                                                 v & 4u ? sh->radius : -sh->radius));
+            p = xform_point(to_world, p);
+            lo = vec3_make(fminf(lo.x, p.x), fminf(lo.y, p.y), fminf(lo.z, p.z));
+            hi = vec3_make(fmaxf(hi.x, p.x), fmaxf(hi.y, p.y), fmaxf(hi.z, p.z));
+        }
+        float x0 = INFINITY, y0 = INFINITY, x1 = -INFINITY, y1 = -INFINITY;
+        bool small = n > 0;
+        for (uint32_t c = 0; c < 8u && small; c++) {
+            struct vec3 q = vec3_make(c & 1u ? hi.x : lo.x, c & 2u ? hi.y : lo.y, c & 4u ? hi.z : lo.z);
+            float px, py;
+            if (!camera_project(&gj->cam, q, &px, &py)) small = false;
+            x0 = fminf(x0, px), y0 = fminf(y0, py), x1 = fmaxf(x1, px), y1 = fmaxf(y1, py);
+        }
+        if (!small || x1 - x0 > GBUFFER_SMALL_EMITTER_PX || y1 - y0 > GBUFFER_SMALL_EMITTER_PX) continue;
+        if (x1 < -1.0f || y1 < -1.0f || x0 > (float)g->width + 1.0f || y0 > (float)g->height + 1.0f) continue;
+        const uint32_t xa = x0 > 1.0f ? (uint32_t)x0 - 1u : 0u, ya = y0 > 1.0f ? (uint32_t)y0 - 1u : 0u;
+        const uint32_t xb = x1 + 1.0f < (float)g->width - 1.0f ? (uint32_t)(x1 + 1.0f) : g->width - 1u;
+        const uint32_t yb = y1 + 1.0f < (float)g->height - 1.0f ? (uint32_t)(y1 + 1.0f) : g->height - 1u;
+        for (uint32_t y = ya; y <= yb; y++)
+            for (uint32_t x = xa; x <= xb; x++)
+                if (!g->edge[(size_t)y * g->width + x]) g->edge[(size_t)y * g->width + x] = 1u;
+    }
+}
+
+/* The edge pixels of this camera and scene: a pixel is one when its four corners do not all see
+ * the same emitting shape or none (an emitter's edge crosses it), and so is every
+ * pixel beside one; and the pixels of emitters too small for the corners to see
+ * (gbuffer_mark_small_emitters). They depend on the
+ * camera and the scene alone, never on a frame's random numbers, so which estimate a pixel's
+ * emission takes biases nothing. Kept until the camera or the scene changes. */
+static bool gbuffer_find_edges(struct gbuffer_job *gj, unsigned threads, struct err *err)
+{
+    struct gbuffer *g = gj->g;
+    const struct gbuffer_frame *f = gj->f;
+    if (g->edge_scene == f->scene && memcmp(&g->edge_camera, f->camera, sizeof *f->camera) == 0) return true;
+    const uint32_t w = g->width, h = g->height, w1 = w + 1;
+    if (!parallel_run(threads, (h + 1 + GBUFFER_ROWS_PER_JOB - 1) / GBUFFER_ROWS_PER_JOB, gbuffer_corner_rows, gj,
+                      NULL, NULL, err))
+        return false;
+    /* edge = 2: the pixel's own corners differ; 1: beside such a pixel. */
+    for (uint32_t y = 0; y < h; y++) {
+        for (uint32_t x = 0; x < w; x++) {
+            const uint32_t *c = &g->corner[(size_t)y * w1 + x];
+            g->edge[(size_t)y * w + x] = (c[0] != c[1] || c[0] != c[w1] || c[0] != c[w1 + 1]) ? 2u : 0u;
+        }
+    }
+    for (uint32_t y = 0; y < h; y++) {
+        for (uint32_t x = 0; x < w; x++) {
+            uint8_t *e = &g->edge[(size_t)y * w + x];
+            if (*e == 2u) continue;
+            for (uint32_t yy = y ? y - 1 : 0; yy <= y + 1 && yy < h && !*e; yy++)
+                for (uint32_t xx = x ? x - 1 : 0; xx <= x + 1 && xx < w && !*e; xx++)
+                    if (g->edge[(size_t)yy * w + xx] == 2u) *e = 1u;
+        }
+    }
+    gbuffer_mark_small_emitters(gj);
+    size_t edges = 0;
+    for (size_t i = 0; i < (size_t)w * h; i++) edges += g->edge[i] != 0;
+    const size_t share = edges ? (size_t)w * h / edges : GBUFFER_EMISSION_SAMPLES_MAX;
+    g->edge_samples = share < 1 ? 1u : share > GBUFFER_EMISSION_SAMPLES_MAX ? GBUFFER_EMISSION_SAMPLES_MAX : (uint32_t)share;
+    g->edge_camera = *f->camera;
+    g->edge_scene = f->scene;
+    return true;
+}
+
 /* Point `frame` of the pixel's Sobol' sequence (gbuffer.h). */
 void gbuffer_fresh_position(uint64_t seed, uint64_t pixel, uint32_t frame, float *jx, float *jy)
 {
@@ -197,6 +374,26 @@ static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
             gp->prev_x = gp->prev_y = NAN;
             gp->prev_share = 1.0f;
             bool found = accel_intersect(f->scene->accel, gj->cam.position, dir, 0.0f, INFINITY, &hit, &rc);
+            if (g->emission) {
+                uint32_t sees;
+                struct vec3 Le = gbuffer_emitted(f->scene, found, &hit, dir, &sees);
+                const uint32_t k_count = f->emission_samples < g->edge_samples ? f->emission_samples : g->edge_samples;
+                if (k_count > 1 && g->edge[pixel]) {
+                    /* The primary ray's own emission stays with the reservoir's path position
+                     * only when the pixel is not an edge pixel: here K rays of their own. */
+                    Le = vec3_splat(0.0f);
+                    for (uint32_t k = 0; k < k_count; k++) {
+                        float ex, ey;
+                        gbuffer_emission_position(f->seed, pixel, f->frame, k, k_count, &ex, &ey);
+                        struct vec3 edir = camera_ray_dir(&gj->cam, (float)x + ex, (float)y + ey);
+                        struct hit eh;
+                        bool ef = accel_intersect(f->scene->accel, gj->cam.position, edir, 0.0f, INFINITY, &eh, &rc);
+                        Le = vec3_add(Le, gbuffer_emitted(f->scene, ef, &eh, edir, &sees));
+                    }
+                    Le = vec3_scale(Le, 1.0f / (float)k_count);
+                }
+                g->emission[pixel] = Le;
+            }
             if (!found) {
                 gp->t = INFINITY;
                 gp->shape = gp->prim = 0;
@@ -250,7 +447,8 @@ bool gbuffer_render(struct gbuffer *g, const struct gbuffer_frame *f, uint64_t *
     unsigned threads = f->threads ? f->threads : parallel_default_threads();
     if (threads > GBUFFER_MAX_WORKERS) threads = GBUFFER_MAX_WORKERS;
     uint32_t jobs = (g->height + GBUFFER_ROWS_PER_JOB - 1) / GBUFFER_ROWS_PER_JOB;
-    bool ok = parallel_run(threads, jobs, gbuffer_rows, gj, NULL, NULL, err);
+    bool ok = !(g->emission && f->emission_samples > 1) || gbuffer_find_edges(gj, threads, err);
+    ok = ok && parallel_run(threads, jobs, gbuffer_rows, gj, NULL, NULL, err);
     if (rays) {
         *rays = 0;
         for (unsigned i = 0; i < threads; i++) *rays += gj->rays[i];

@@ -16,6 +16,16 @@
  * only on request (gbuffer_frame.check_history): a temporal shift validates its own vertices, but
  * a method whose history is trusted at many times a frame's confidence loses more to a shift that
  * fails, or that lands on another surface, than it gains (the history check below).
+ * Emission seen directly (gbuffer_keep_emission): the light of paths that end on the primary hit
+ * is an integral over the pixel's area of its own, apart from everything a method's reservoir
+ * carries (those paths have at least one more vertex), so it may be estimated with more primary
+ * rays than the one the reservoir's paths start from. Where a pixel's area holds an emitter's edge,
+ * one position per frame makes the edge flicker between the emitter's radiance and its
+ * surroundings' for many frames of a mean; a method whose frame costs several `pt` samples then
+ * loses the edge pixels to `pt` by far (docs/benchmarks.md, "Emission seen directly"). The pass
+ * finds those pixels once per camera and scene from rays through the pixels' corners and spends
+ * gbuffer_frame.emission_samples rays on each of them. Only emitting shapes make edge pixels, not
+ * the lit environment's horizon (gbuffer.c says why).
  * Refs: docs/architecture.md (the G-buffer pass); docs/methods.md, "Reuse shared by the methods"
  * (temporal reuse evaluates the previous domain with the previous camera and scene). */
 #ifndef RESTIRD_GBUFFER_H
@@ -53,20 +63,39 @@ struct gbuffer {
     uint32_t width, height;
     struct gbuffer_pixel *px;      /* width * height, row-major, top row first */
     struct gbuffer_surface *surf;  /* the same pixels' surfaces; NULL unless gbuffer_keep_surfaces */
+    struct vec3 *emission;         /* the pixels' directly seen emission this frame (an unbiased
+                                      estimate of its mean over the pixel's area: the primary hit's
+                                      own, or gbuffer_frame.emission_samples rays' mean on an edge
+                                      pixel); NULL unless gbuffer_keep_emission */
+    uint8_t *edge;                 /* 1 where the pixel's area may hold an emitter's edge */
+    uint32_t *corner;              /* (width + 1) x (height + 1): what each pixel corner's ray sees
+                                      (an emitting shape, or none) */
+    struct camera_desc edge_camera;  /* the camera and scene `edge` was found for */
+    const struct scene *edge_scene;
+    uint32_t edge_samples;         /* the most rays an edge pixel takes: as many edge pixels' rays as
+                                      the image has pixels, so that no scene's edges cost more than
+                                      one primary ray a pixel */
 };
 
 /* Allocates (ERR_LIMIT / ERR_NOMEM). */
 bool gbuffer_init(struct gbuffer *g, uint32_t width, uint32_t height, struct err *err);
 /* From now on gbuffer_render also writes g->surf (ERR_NOMEM). */
 bool gbuffer_keep_surfaces(struct gbuffer *g, struct err *err);
+/* From now on gbuffer_render also writes g->emission (ERR_NOMEM). */
+bool gbuffer_keep_emission(struct gbuffer *g, struct err *err);
+/* What gbuffer_keep_emission allocates for a width x height G-buffer. */
+size_t gbuffer_emission_bytes_planned(uint32_t width, uint32_t height);
 void gbuffer_destroy(struct gbuffer *g);
 size_t gbuffer_bytes(const struct gbuffer *g);          /* the pixels, surfaces not included */
 size_t gbuffer_surface_bytes(const struct gbuffer *g);  /* 0 without surfaces */
+size_t gbuffer_emission_bytes(const struct gbuffer *g); /* 0 without emission */
 
 /* Random stream id of the independent fresh positions and the jitter walk's steps, rng_make(seed,
  * frame, pixel, GBUFFER_STREAM), and the key of the stratified positions' Sobol' seeds. Methods
  * use other ids for their own random numbers. */
 #define GBUFFER_STREAM 0x6762ull
+/* The key of the directly seen emission's positions (gbuffer_emission_position). */
+#define GBUFFER_EMISSION_STREAM 0x67656dull
 
 struct gbuffer_frame {
     const struct scene *scene;            /* this frame */
@@ -87,7 +116,20 @@ struct gbuffer_frame {
                                              moved: a motion vector whose previous pixel saw another
                                              surface is dropped (prev_x = NAN), and prev_share set
                                              (gbuffer_history_share) */
+    uint32_t emission_samples;            /* with g->emission: the rays an edge pixel's directly
+                                             seen emission takes (1: the primary ray's own only),
+                                             at most g->edge_samples */
 };
+
+/* The most rays a method may spend on a pixel's directly seen emission per frame. */
+#define GBUFFER_EMISSION_SAMPLES_MAX 256u
+
+/* Position k of the K an edge pixel's directly seen emission takes in `frame`: point frame K + k
+ * of a Sobol' sequence of the pixel's own (gbuffer_fresh_position's, another key), so the
+ * positions of every frame are stratified in the pixel and those of consecutive frames fill in
+ * each other's gaps. */
+void gbuffer_emission_position(uint64_t seed, uint64_t pixel, uint32_t frame, uint32_t k, uint32_t samples, float *jx,
+                               float *jy);
 
 /* The primary ray's position in the pixel in a frame without a jitter walk or temporal history
  * (gbuffer_frame.stratify): point `frame` of the

@@ -333,6 +333,16 @@ size_t restir_session_hit_bytes(const struct restir_session *s)
     return gbuffer_surface_bytes(&s->gbuf[0]) + gbuffer_surface_bytes(&s->gbuf[1]);
 }
 
+bool restir_session_keep_emission(struct restir_session *s, struct err *err)
+{
+    return gbuffer_keep_emission(&s->gbuf[0], err) && gbuffer_keep_emission(&s->gbuf[1], err);
+}
+
+size_t restir_session_emission_bytes(const struct restir_session *s)
+{
+    return gbuffer_emission_bytes(&s->gbuf[0]) + gbuffer_emission_bytes(&s->gbuf[1]);
+}
+
 size_t restir_session_pair_bytes(const struct restir_session *s)
 {
     return s->pair_scratch ? restir_pair_scratch_bytes(s->width, s->height) : 0;
@@ -641,7 +651,8 @@ void *restir_frame_open(struct restir_frame *fr, size_t pass_bytes, struct resti
     return stats;
 }
 
-bool restir_frame_gbuffer(struct restir_frame *fr, float jitter_walk, bool pairs, bool check_history, struct err *err)
+bool restir_frame_gbuffer(struct restir_frame *fr, float jitter_walk, bool pairs, bool check_history,
+                          uint32_t emission_samples, struct err *err)
 {
     struct restir_session *s = fr->s;
     const struct method_frame *f = fr->f;
@@ -651,7 +662,7 @@ bool restir_frame_gbuffer(struct restir_frame *fr, float jitter_walk, bool pairs
     struct gbuffer_frame gf = {.scene = f->scene, .camera = f->camera, .prev_scene = f->prev_scene,
                                .prev_camera = f->prev_camera, .seed = f->seed, .frame = f->frame,
                                .threads = fr->threads, .jitter_walk = jitter_walk, .check_history = check_history,
-                               .stratify = !fr->temporal};
+                               .stratify = !fr->temporal, .emission_samples = emission_samples};
     uint64_t grays = 0;
     if (!restir_gbuffer_next(s->gbuf, &s->cur, &s->has_history, gf, &grays, err)) return false;
     fr->stats->gbuffer_ms = parallel_lap_ms(&fr->t0);

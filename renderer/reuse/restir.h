@@ -217,6 +217,10 @@ size_t restir_session_reservoir_bytes(const struct restir_session *s);
 size_t restir_session_gbuffer_bytes(const struct restir_session *s);
 size_t restir_session_hit_bytes(const struct restir_session *s);
 size_t restir_session_pair_bytes(const struct restir_session *s);
+/* Both G-buffers estimate each pixel's directly seen emission (gbuffer_keep_emission), and its
+ * bytes. */
+bool restir_session_keep_emission(struct restir_session *s, struct err *err);
+size_t restir_session_emission_bytes(const struct restir_session *s);
 
 /* The partner of `pixel` in pairing m (< 64) of the round r->frame names (false: off the image);
  * for tests: the pairing is an involution. */
@@ -296,9 +300,10 @@ void *restir_frame_open(struct restir_frame *fr, size_t pass_bytes, struct resti
                         const struct method_frame *f, struct image *out, bool temporal, void *stats, void *local,
                         size_t stats_bytes, struct err *err);
 /* After the method's own checks: refuses paired spatial reuse (pairs) in a session made without
- * its scratch, starts the clock and renders the G-buffer pass (restir_gbuffer_next; jitter_walk and
- * check_history as gbuffer_frame's), whose time and rays go to the stats. */
-bool restir_frame_gbuffer(struct restir_frame *fr, float jitter_walk, bool pairs, bool check_history, struct err *err);
+ * its scratch, starts the clock and renders the G-buffer pass (restir_gbuffer_next; jitter_walk,
+ * check_history and emission_samples as gbuffer_frame's), whose time and rays go to the stats. */
+bool restir_frame_gbuffer(struct restir_frame *fr, float jitter_walk, bool pairs, bool check_history,
+                          uint32_t emission_samples, struct err *err);
 /* The initial pass: fn(fr, job) over the rows (fr is the start of the pass struct); then its time
  * and the workers' `counters` go to the stats, and the clock restarts for the reuse passes. A frame
  * without an output ends here and leaves the session without a history. */
