@@ -216,8 +216,8 @@ static bool rbdpt_checks_history(const struct restir_bdpt_params *p)
 /* With reuse the G-buffer pass estimates the emission seen directly (gbuffer.h) and the camera
  * subpaths offer no candidate that ends on the primary hit: those paths (the camera sees an
  * emitter) have one strategy only, s = 0 with MIS weight 1, so they leave the reservoirs' integrand
- * whole, and a shift, which keeps a path's length, never makes one. (bdpt's scenes always have an
- * emitting shape.) */
+ * whole, and a shift, which keeps a path's length, never makes one. (A scene without an emitting
+ * shape, which renders black, keeps the buffers and finds no edge pixels.) */
 static bool rbdpt_emission_apart(const struct restir_bdpt_params *p)
 {
     return p->reuse && p->emission_samples > 1;
@@ -568,8 +568,9 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
             return false;
         }
         s.rays_intersect += grays;
+        /* Every G-buffer of the session keeps its emission when emission_apart is on. */
         const struct vec3 *seen = st->gbuf[st->gcur].emission;
-        if (c->emission_apart && seen)
+        if (c->emission_apart)
             for (uint32_t i = 0; i < npix; i++) out->pixels[i] = vec3_add(out->pixels[i], seen[i]);
         struct restir_reuse rr = {.ops = &rbdpt_ops, .ctx = c, .width = st->width, .height = st->height,
                                   .seed = f->seed, .frame = f->frame, .threads = f->threads, .gbuf = &st->gbuf[st->gcur],

@@ -20,7 +20,7 @@ bool gbuffer_init(struct gbuffer *g, uint32_t width, uint32_t height, struct err
     g->emission = NULL;
     g->edge = NULL;
     g->corner = NULL;
-    g->edge_scene = NULL;
+    g->edge_serial = 0;
     g->edge_samples = 0;
     if (width == 0 || height == 0 || width > 16384 || height > 16384)
         return err_set(err, ERR_LIMIT, NULL, "G-buffer size %ux%u outside 1..16384", width, height);
@@ -62,7 +62,7 @@ static void gbuffer_drop_emission(struct gbuffer *g)
     g->emission = NULL;
     g->edge = NULL;
     g->corner = NULL;
-    g->edge_scene = NULL;
+    g->edge_serial = 0;
 }
 
 bool gbuffer_keep_emission(struct gbuffer *g, struct err *err)
@@ -72,7 +72,7 @@ bool gbuffer_keep_emission(struct gbuffer *g, struct err *err)
     g->emission = calloc(pixels, sizeof *g->emission);
     g->edge = calloc(pixels, sizeof *g->edge);
     g->corner = calloc(((size_t)g->width + 1) * (g->height + 1), sizeof *g->corner);
-    g->edge_scene = NULL;
+    g->edge_serial = 0;
     if (g->emission && g->edge && g->corner) return true;
     gbuffer_drop_emission(g);
     return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u pixels' emission", g->width, g->height);
@@ -206,8 +206,11 @@ static bool gbuffer_same_sky(const struct gbuffer *pg, float px, float py)
 void gbuffer_emission_position(uint64_t seed, uint64_t pixel, uint32_t frame, uint32_t k, uint32_t samples, float *jx,
                                float *jy)
 {
-    const uint64_t pixel_seed = rng_mix64(seed ^ rng_mix64(pixel ^ rng_mix64(GBUFFER_EMISSION_STREAM)));
-    sobol_sample_2d(pixel_seed, frame * samples + k, 0, jx, jy);
+    /* Past 2^32 points the sequence starts again under another scramble. */
+    const uint64_t index = (uint64_t)frame * samples + k;
+    const uint64_t pixel_seed =
+        rng_mix64(seed ^ rng_mix64(pixel ^ rng_mix64(GBUFFER_EMISSION_STREAM ^ (index >> 32))));
+    sobol_sample_2d(pixel_seed, (uint32_t)index, 0, jx, jy);
 }
 
 /* What a ray from the camera sees first, as far as the edge pixels go: an emitting shape (its
@@ -234,7 +237,10 @@ static struct vec3 gbuffer_emitted(const struct scene *scene, bool found, const 
     return Le;
 }
 
-/* Rows of pixel corners: what each corner's ray sees (gbuffer_find_edges). */
+/* A corner whose ray gbuffer_corner_rows must trace: it lies in an emitting shape's projection. */
+#define GBUFFER_CORNER_TRACE (UINT32_MAX - 1u)
+
+/* Rows of pixel corners: what each corner marked GBUFFER_CORNER_TRACE sees (gbuffer_find_edges). */
 static void gbuffer_corner_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct gbuffer_job *gj = ctx;
@@ -244,96 +250,136 @@ static void gbuffer_corner_rows(void *ctx, uint32_t job, unsigned worker)
     const uint32_t y1 = (job + 1) * GBUFFER_ROWS_PER_JOB < h1 ? (job + 1) * GBUFFER_ROWS_PER_JOB : h1;
     for (uint32_t y = job * GBUFFER_ROWS_PER_JOB; y < y1; y++) {
         for (uint32_t x = 0; x < w1; x++) {
+            uint32_t *corner = &g->corner[(size_t)y * w1 + x];
+            if (*corner != GBUFFER_CORNER_TRACE) continue;
             struct vec3 dir = camera_ray_dir(&gj->cam, (float)x, (float)y);
             struct hit hit;
             bool found = accel_intersect(gj->f->scene->accel, gj->cam.position, dir, 0.0f, INFINITY, &hit, &rc);
-            gbuffer_emitted(gj->f->scene, found, &hit, dir, &g->corner[(size_t)y * w1 + x]);
+            gbuffer_emitted(gj->f->scene, found, &hit, dir, corner);
         }
     }
     gj->rays[worker] += rc.intersect + rc.occluded;
 }
 
-/* An emitter that covers less than a pixel may fall between the corners: the pixels of every
- * emitting shape whose bounding box projects onto at most GBUFFER_SMALL_EMITTER_PX pixels a side
- * (and one pixel around) are edge pixels too. A shape partly behind the camera is not small. */
-#define GBUFFER_SMALL_EMITTER_PX 8.0f
-static void gbuffer_mark_small_emitters(struct gbuffer_job *gj)
+/* The image box (pixels) an emitting shape's world bounding box projects onto; false when a
+ * corner of that box is not in front of the camera (the shape may then cover any pixel). */
+static bool gbuffer_emitter_box(const struct camera *cam, const struct scene *scene, uint32_t i, float box[4])
 {
-    struct gbuffer *g = gj->g;
-    const struct scene *scene = gj->f->scene;
-    for (uint32_t i = 0; i < scene->shape_count; i++) {
-        const struct shape *sh = &scene->shapes[i];
-        if (!material_is_emissive(&scene->materials[sh->material])) continue;
-        struct vec3 lo = vec3_splat(INFINITY), hi = vec3_splat(-INFINITY);
-        const struct xform *to_world = accel_shape_to_world(scene->accel, i);
-        const uint32_t n = sh->kind == SHAPE_MESH ? sh->vertex_count : 8u;
-        for (uint32_t v = 0; v < n; v++) {
-            struct vec3 p = sh->kind == SHAPE_MESH
-                                ? sh->positions[v]
-                                : vec3_add(sh->center, vec3_make(v & 1u ? sh->radius : -sh->radius,
-                                                                 v & 2u ? sh->radius : -sh->radius,
-                                                                 v & 4u ? sh->radius : -sh->radius));
-            p = xform_point(to_world, p);
-            lo = vec3_make(fminf(lo.x, p.x), fminf(lo.y, p.y), fminf(lo.z, p.z));
-            hi = vec3_make(fmaxf(hi.x, p.x), fmaxf(hi.y, p.y), fmaxf(hi.z, p.z));
-        }
-        float x0 = INFINITY, y0 = INFINITY, x1 = -INFINITY, y1 = -INFINITY;
-        bool small = n > 0;
-        for (uint32_t c = 0; c < 8u && small; c++) {
-            struct vec3 q = vec3_make(c & 1u ? hi.x : lo.x, c & 2u ? hi.y : lo.y, c & 4u ? hi.z : lo.z);
-            float px, py;
-            if (!camera_project(&gj->cam, q, &px, &py)) small = false;
-            x0 = fminf(x0, px), y0 = fminf(y0, py), x1 = fmaxf(x1, px), y1 = fmaxf(y1, py);
-        }
-        if (!small || x1 - x0 > GBUFFER_SMALL_EMITTER_PX || y1 - y0 > GBUFFER_SMALL_EMITTER_PX) continue;
-        if (x1 < -1.0f || y1 < -1.0f || x0 > (float)g->width + 1.0f || y0 > (float)g->height + 1.0f) continue;
-        const uint32_t xa = x0 > 1.0f ? (uint32_t)x0 - 1u : 0u, ya = y0 > 1.0f ? (uint32_t)y0 - 1u : 0u;
-        const uint32_t xb = x1 + 1.0f < (float)g->width - 1.0f ? (uint32_t)(x1 + 1.0f) : g->width - 1u;
-        const uint32_t yb = y1 + 1.0f < (float)g->height - 1.0f ? (uint32_t)(y1 + 1.0f) : g->height - 1u;
-        for (uint32_t y = ya; y <= yb; y++)
-            for (uint32_t x = xa; x <= xb; x++)
-                if (!g->edge[(size_t)y * g->width + x]) g->edge[(size_t)y * g->width + x] = 1u;
+    const struct shape *sh = &scene->shapes[i];
+    struct vec3 lo = vec3_splat(INFINITY), hi = vec3_splat(-INFINITY);
+    const struct xform *to_world = accel_shape_to_world(scene->accel, i);
+    const uint32_t n = sh->kind == SHAPE_MESH ? sh->vertex_count : 8u;
+    if (n == 0) return false;
+    for (uint32_t v = 0; v < n; v++) {
+        struct vec3 p = sh->kind == SHAPE_MESH ? sh->positions[v]
+                                               : vec3_add(sh->center, vec3_make(v & 1u ? sh->radius : -sh->radius,
+                                                                                v & 2u ? sh->radius : -sh->radius,
+                                                                                v & 4u ? sh->radius : -sh->radius));
+        p = xform_point(to_world, p);
+        lo = vec3_make(fminf(lo.x, p.x), fminf(lo.y, p.y), fminf(lo.z, p.z));
+        hi = vec3_make(fmaxf(hi.x, p.x), fmaxf(hi.y, p.y), fmaxf(hi.z, p.z));
     }
+    box[0] = box[1] = INFINITY;
+    box[2] = box[3] = -INFINITY;
+    for (uint32_t c = 0; c < 8u; c++) {
+        struct vec3 q = vec3_make(c & 1u ? hi.x : lo.x, c & 2u ? hi.y : lo.y, c & 4u ? hi.z : lo.z);
+        float px, py;
+        if (!camera_project(cam, q, &px, &py) || !isfinite(px) || !isfinite(py)) return false;
+        box[0] = fminf(box[0], px), box[1] = fminf(box[1], py), box[2] = fmaxf(box[2], px), box[3] = fmaxf(box[3], py);
+    }
+    return true;
 }
 
+/* Integer range [*a, *b] of lo - 1 .. hi + 1 within 0 .. last; false when it is empty. */
+static bool gbuffer_range(float lo, float hi, uint32_t last, uint32_t *a, uint32_t *b)
+{
+    if (hi + 1.0f < 0.0f || lo - 1.0f > (float)last) return false;
+    *a = lo - 1.0f > 0.0f ? (uint32_t)(lo - 1.0f) : 0u;
+    *b = hi + 1.0f < (float)last ? (uint32_t)(hi + 1.0f) : last;
+    return true;
+}
+
+/* An emitter that covers less than a pixel may fall between the corners: the pixels of every
+ * emitting shape whose bounding box projects onto at most GBUFFER_SMALL_EMITTER_PX pixels a side
+ * (and one pixel around) are edge pixels too. */
+#define GBUFFER_SMALL_EMITTER_PX 8.0f
+
 /* The edge pixels of this camera and scene: a pixel is one when its four corners do not all see
- * the same emitting shape or none (an emitter's edge crosses it), and so is every
- * pixel beside one; and the pixels of emitters too small for the corners to see
- * (gbuffer_mark_small_emitters). They depend on the
- * camera and the scene alone, never on a frame's random numbers, so which estimate a pixel's
- * emission takes biases nothing. Kept until the camera or the scene changes. */
-static bool gbuffer_find_edges(struct gbuffer_job *gj, unsigned threads, struct err *err)
+ * the same emitting shape or none (an emitter's edge crosses it), and so is every pixel beside
+ * one; and the pixels of emitters too small for the corners to see. Only corners inside an
+ * emitting shape's projected box (one pixel around) are traced: the others cannot see an
+ * emitter. The edges depend on the camera and the scene alone, never on a frame's random numbers,
+ * so which estimate a pixel's emission takes biases nothing. Kept until the camera or the scene
+ * changes (by its serial, not its address, which a later scene may reuse); taken from `other`
+ * (the session's other G-buffer) when it holds this camera's and scene's. */
+static bool gbuffer_find_edges(struct gbuffer_job *gj, const struct gbuffer *other, unsigned threads,
+                               struct err *err)
 {
     struct gbuffer *g = gj->g;
     const struct gbuffer_frame *f = gj->f;
-    if (g->edge_scene == f->scene && memcmp(&g->edge_camera, f->camera, sizeof *f->camera) == 0) return true;
     const uint32_t w = g->width, h = g->height, w1 = w + 1;
+    const size_t pixels = (size_t)w * h;
+    if (g->edge_serial == f->scene->serial && memcmp(&g->edge_camera, f->camera, sizeof *f->camera) == 0) return true;
+    if (other && other->edge && other->width == w && other->height == h && other->edge_serial == f->scene->serial &&
+        memcmp(&other->edge_camera, f->camera, sizeof *f->camera) == 0) {
+        memcpy(g->edge, other->edge, pixels * sizeof *g->edge);
+        g->edge_samples = other->edge_samples;
+        g->edge_camera = *f->camera;
+        g->edge_serial = f->scene->serial;
+        return true;
+    }
+    const struct scene *scene = f->scene;
+    const size_t corners = (size_t)w1 * (h + 1);
+    for (size_t i = 0; i < corners; i++) g->corner[i] = GBUFFER_SEES_NOTHING;
+    memset(g->edge, 0, pixels * sizeof *g->edge);
+    bool trace_all = false;
+    for (uint32_t i = 0; i < scene->shape_count; i++) {
+        if (!material_is_emissive(&scene->materials[scene->shapes[i].material])) continue;
+        float box[4];
+        uint32_t xa, xb, ya, yb;
+        if (!gbuffer_emitter_box(&gj->cam, scene, i, box)) {
+            trace_all = true;
+        } else if (gbuffer_range(box[0], box[2], w, &xa, &xb) && gbuffer_range(box[1], box[3], h, &ya, &yb)) {
+            for (uint32_t y = ya; y <= yb; y++)
+                for (uint32_t x = xa; x <= xb; x++) g->corner[(size_t)y * w1 + x] = GBUFFER_CORNER_TRACE;
+            /* Small: its pixels (and one around) are edge pixels whatever the corners see. */
+            if (box[2] - box[0] <= GBUFFER_SMALL_EMITTER_PX && box[3] - box[1] <= GBUFFER_SMALL_EMITTER_PX &&
+                gbuffer_range(box[0], box[2], w - 1, &xa, &xb) && gbuffer_range(box[1], box[3], h - 1, &ya, &yb))
+                for (uint32_t y = ya; y <= yb; y++)
+                    for (uint32_t x = xa; x <= xb; x++) g->edge[(size_t)y * w + x] = 1u;
+        }
+    }
+    if (trace_all)
+        for (size_t c = 0; c < corners; c++) g->corner[c] = GBUFFER_CORNER_TRACE;
     if (!parallel_run(threads, (h + 1 + GBUFFER_ROWS_PER_JOB - 1) / GBUFFER_ROWS_PER_JOB, gbuffer_corner_rows, gj,
                       NULL, NULL, err))
         return false;
-    /* edge = 2: the pixel's own corners differ; 1: beside such a pixel. */
+    /* edge = 2: the pixel's own corners differ; 1: beside such a pixel, or a small emitter's. */
     for (uint32_t y = 0; y < h; y++) {
         for (uint32_t x = 0; x < w; x++) {
             const uint32_t *c = &g->corner[(size_t)y * w1 + x];
-            g->edge[(size_t)y * w + x] = (c[0] != c[1] || c[0] != c[w1] || c[0] != c[w1 + 1]) ? 2u : 0u;
+            if (c[0] != c[1] || c[0] != c[w1] || c[0] != c[w1 + 1]) g->edge[(size_t)y * w + x] = 2u;
         }
     }
     for (uint32_t y = 0; y < h; y++) {
         for (uint32_t x = 0; x < w; x++) {
             uint8_t *e = &g->edge[(size_t)y * w + x];
-            if (*e == 2u) continue;
+            if (*e) continue;
             for (uint32_t yy = y ? y - 1 : 0; yy <= y + 1 && yy < h && !*e; yy++)
                 for (uint32_t xx = x ? x - 1 : 0; xx <= x + 1 && xx < w && !*e; xx++)
                     if (g->edge[(size_t)yy * w + xx] == 2u) *e = 1u;
         }
     }
-    gbuffer_mark_small_emitters(gj);
     size_t edges = 0;
-    for (size_t i = 0; i < (size_t)w * h; i++) edges += g->edge[i] != 0;
-    const size_t share = edges ? (size_t)w * h / edges : GBUFFER_EMISSION_SAMPLES_MAX;
-    g->edge_samples = share < 1 ? 1u : share > GBUFFER_EMISSION_SAMPLES_MAX ? GBUFFER_EMISSION_SAMPLES_MAX : (uint32_t)share;
+    for (size_t i = 0; i < pixels; i++) edges += g->edge[i] != 0;
+    /* At most as many edge rays as pixels, and a power of two: a frame's rays are then a whole
+     * block of the pixel's Sobol' sequence (gbuffer_emission_position). */
+    const size_t share = edges ? pixels / edges : GBUFFER_EMISSION_SAMPLES_MAX;
+    uint32_t cap = 1u;
+    while ((size_t)cap * 2u <= share && cap * 2u <= GBUFFER_EMISSION_SAMPLES_MAX) cap *= 2u;
+    g->edge_samples = cap;
     g->edge_camera = *f->camera;
-    g->edge_scene = f->scene;
+    g->edge_serial = scene->serial;
     return true;
 }
 
@@ -377,7 +423,8 @@ static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
             if (g->emission) {
                 uint32_t sees;
                 struct vec3 Le = gbuffer_emitted(f->scene, found, &hit, dir, &sees);
-                const uint32_t k_count = f->emission_samples < g->edge_samples ? f->emission_samples : g->edge_samples;
+                uint32_t k_count = 1u;   /* the largest power of two within both bounds */
+                while (k_count * 2u <= f->emission_samples && k_count * 2u <= g->edge_samples) k_count *= 2u;
                 if (k_count > 1 && g->edge[pixel]) {
                     /* The primary ray's own emission stays with the reservoir's path position
                      * only when the pixel is not an edge pixel: here K rays of their own. */
@@ -447,7 +494,7 @@ bool gbuffer_render(struct gbuffer *g, const struct gbuffer_frame *f, uint64_t *
     unsigned threads = f->threads ? f->threads : parallel_default_threads();
     if (threads > GBUFFER_MAX_WORKERS) threads = GBUFFER_MAX_WORKERS;
     uint32_t jobs = (g->height + GBUFFER_ROWS_PER_JOB - 1) / GBUFFER_ROWS_PER_JOB;
-    bool ok = !(g->emission && f->emission_samples > 1) || gbuffer_find_edges(gj, threads, err);
+    bool ok = !(g->emission && f->emission_samples > 1) || gbuffer_find_edges(gj, f->prev_gbuffer, threads, err);
     ok = ok && parallel_run(threads, jobs, gbuffer_rows, gj, NULL, NULL, err);
     if (rays) {
         *rays = 0;

@@ -23,8 +23,8 @@
  * one position per frame makes the edge flicker between the emitter's radiance and its
  * surroundings' for many frames of a mean; a method whose frame costs several `pt` samples then
  * loses the edge pixels to `pt` by far (docs/benchmarks.md, "Emission seen directly"). The pass
- * finds those pixels once per camera and scene from rays through the pixels' corners and spends
- * gbuffer_frame.emission_samples rays on each of them. Only emitting shapes make edge pixels, not
+ * finds those pixels once per camera and scene from rays through the pixel corners that lie in an
+ * emitting shape's projection, and spends gbuffer_frame.emission_samples rays on each of them. Only emitting shapes make edge pixels, not
  * the lit environment's horizon (gbuffer.c says why).
  * Refs: docs/architecture.md (the G-buffer pass); docs/methods.md, "Reuse shared by the methods"
  * (temporal reuse evaluates the previous domain with the previous camera and scene). */
@@ -65,16 +65,18 @@ struct gbuffer {
     struct gbuffer_surface *surf;  /* the same pixels' surfaces; NULL unless gbuffer_keep_surfaces */
     struct vec3 *emission;         /* the pixels' directly seen emission this frame (an unbiased
                                       estimate of its mean over the pixel's area: the primary hit's
-                                      own, or gbuffer_frame.emission_samples rays' mean on an edge
-                                      pixel); NULL unless gbuffer_keep_emission */
-    uint8_t *edge;                 /* 1 where the pixel's area may hold an emitter's edge */
+                                      own, or on an edge pixel the mean of the rays it takes); NULL
+                                      unless gbuffer_keep_emission */
+    uint8_t *edge;                 /* nonzero where the pixel's area may hold an emitter's edge (2:
+                                      its corners see different emitters; 1: beside such a pixel,
+                                      or in a small emitter's box) */
     uint32_t *corner;              /* (width + 1) x (height + 1): what each pixel corner's ray sees
                                       (an emitting shape, or none) */
-    struct camera_desc edge_camera;  /* the camera and scene `edge` was found for */
-    const struct scene *edge_scene;
-    uint32_t edge_samples;         /* the most rays an edge pixel takes: as many edge pixels' rays as
-                                      the image has pixels, so that no scene's edges cost more than
-                                      one primary ray a pixel */
+    struct camera_desc edge_camera;  /* the camera and scene (its serial) `edge` was found for */
+    uint64_t edge_serial;
+    uint32_t edge_samples;         /* the most rays an edge pixel takes: a power of two, at most the
+                                      pixels per edge pixel, so that no scene's edges take more
+                                      rays a frame than the image has pixels */
 };
 
 /* Allocates (ERR_LIMIT / ERR_NOMEM). */
@@ -118,7 +120,8 @@ struct gbuffer_frame {
                                              (gbuffer_history_share) */
     uint32_t emission_samples;            /* with g->emission: the rays an edge pixel's directly
                                              seen emission takes (1: the primary ray's own only),
-                                             at most g->edge_samples */
+                                             rounded down to a power of two and at most
+                                             g->edge_samples */
 };
 
 /* The most rays a method may spend on a pixel's directly seen emission per frame. */

@@ -3,6 +3,7 @@
  * light_sampler.c. */
 #include "scene/scene.h"
 
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -31,6 +32,8 @@ static void scene_free(struct scene *scene)
 
 bool scene_commit(struct scene *scene, struct err *err)
 {
+    static _Atomic uint64_t serials = 0;
+    scene->serial = atomic_fetch_add(&serials, 1) + 1;
     struct vec3 lo = vec3_splat(INFINITY), hi = vec3_splat(-INFINITY);
     for (uint32_t i = 0; i < scene->shape_count; i++) {
         const struct shape *s = &scene->shapes[i];

@@ -57,6 +57,7 @@ struct scene {
     struct accel *accel;
     struct light_sampler *lights;
     struct vec3 bounds_min, bounds_max;
+    uint64_t serial;   /* unique in the process: caches keyed by a scene use it, not its address */
     int refcount;
     /* A derived scene (scene_derive) borrows the mesh arrays of the scene it was derived from
      * and holds a reference to it; NULL for a loaded scene, which owns its arrays. */

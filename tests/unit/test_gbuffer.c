@@ -685,6 +685,98 @@ static void test_emission_seen_directly(void)
     if (tiny) scene_release(tiny);
 }
 
+/* The edge pixels of a G-buffer that has seen camera A, then B, then a scene whose light moved
+ * (another scene, maybe at the same address) equal those of a fresh G-buffer for each; a G-buffer
+ * whose session's other G-buffer holds this camera's and scene's takes them from there without a
+ * corner ray; and an edge pixel takes the largest power of two of rays within emission_samples
+ * and the pixels per edge pixel (a 6 x 6 image, where edges are a third of the pixels, takes 2). */
+static uint64_t edge_frame(struct gbuffer *g, const struct scene *s, const struct camera_desc *cam,
+                           const struct gbuffer *other, uint32_t k)
+{
+    struct err err = {0};
+    uint64_t rays = 0;
+    struct gbuffer_frame f = {.scene = s, .camera = cam, .seed = 2, .frame = 3, .threads = 2, .stratify = true,
+                              .emission_samples = k, .prev_gbuffer = other, .prev_scene = other ? s : NULL,
+                              .prev_camera = other ? cam : NULL};
+    CHECK_MSG(gbuffer_render(g, &f, &rays, &err), "%s", err.message);
+    return rays;
+}
+
+static uint32_t edge_count(const struct gbuffer *g)
+{
+    uint32_t n = 0;
+    for (uint32_t i = 0; i < g->width * g->height; i++) n += g->edge[i] != 0;
+    return n;
+}
+
+static void test_emission_edges_follow_the_camera(void)
+{
+    struct scene *s = fixture_load("scenes/cornell-box/scene.json");
+    if (!s) return;
+    enum { W = 48, H = 40 };
+    struct err err = {0};
+    struct gbuffer g, fresh, other;
+    CHECK(gbuffer_init(&g, W, H, &err) && gbuffer_init(&fresh, W, H, &err) && gbuffer_init(&other, W, H, &err));
+    CHECK(gbuffer_keep_emission(&g, &err) && gbuffer_keep_emission(&fresh, &err) &&
+          gbuffer_keep_emission(&other, &err));
+    struct camera_desc a = s->camera, b = s->camera;
+    b.position.x += 60.0f;
+    b.look_at.y += 40.0f;
+    edge_frame(&g, s, &a, NULL, 16);
+    static uint8_t edges_a[W * H];
+    memcpy(edges_a, g.edge, sizeof edges_a);
+    CHECK(edge_count(&g) > 0);
+    edge_frame(&g, s, &b, NULL, 16);
+    edge_frame(&fresh, s, &b, NULL, 16);
+    CHECK_MSG(memcmp(g.edge, fresh.edge, W * H) == 0 && memcmp(g.edge, edges_a, W * H) != 0,
+              "camera B: %u edge pixels, a fresh G-buffer %u", edge_count(&g), edge_count(&fresh));
+    edge_frame(&g, s, &a, NULL, 16);
+    CHECK(memcmp(g.edge, edges_a, W * H) == 0);
+
+    /* From the other G-buffer: the primary rays and the edge pixels' own, no corner ray. */
+    const uint64_t copied = edge_frame(&other, s, &a, &g, 16);
+    CHECK(memcmp(other.edge, edges_a, W * H) == 0);
+    CHECK_MSG(copied == (uint64_t)W * H + 16u * edge_count(&g), "%llu rays, expected %u + 16 x %u",
+              (unsigned long long)copied, W * H, edge_count(&g));
+    const uint64_t own = edge_frame(&fresh, s, &a, NULL, 16);
+    CHECK_MSG(own > copied, "a G-buffer that finds its edges traced %llu rays, one that copies them %llu",
+              (unsigned long long)own, (unsigned long long)copied);
+
+    /* The light moved: another scene, so the edges are found again. */
+    int light = scene_find_shape(s, "ceiling_light");
+    CHECK(light >= 0);
+    struct scene_shape_override ov = {.shape = (uint32_t)light, .has_to_world = true};
+    ov.to_world = xform_identity();
+    ov.to_world.m[0][3] = 120.0f;
+    struct scene *d = light >= 0 ? scene_derive(s, &ov, 1, &err) : NULL;
+    CHECK_MSG(d != NULL, "%s", err.message);
+    if (d) {
+        CHECK(d->serial != s->serial);
+        edge_frame(&g, d, &a, NULL, 16);
+        edge_frame(&fresh, d, &a, NULL, 16);
+        CHECK(memcmp(g.edge, fresh.edge, W * H) == 0 && memcmp(g.edge, edges_a, W * H) != 0);
+        scene_release(d);
+    }
+
+    /* The cap: at 6 x 6 about a third of the pixels are edge pixels. */
+    struct gbuffer tiny;
+    CHECK(gbuffer_init(&tiny, 6, 6, &err) && gbuffer_keep_emission(&tiny, &err));
+    edge_frame(&tiny, s, &a, NULL, 16);
+    const uint32_t e = edge_count(&tiny);
+    uint32_t cap = 1;
+    while (cap * 2 <= 36 / e) cap *= 2;
+    CHECK_MSG(e > 4 && tiny.edge_samples == cap && cap < 16, "%u edge pixels of 36: cap %u, expected %u", e,
+              tiny.edge_samples, cap);
+    const uint64_t rays = edge_frame(&tiny, s, &a, NULL, 16);
+    CHECK_MSG(rays == 36u + (uint64_t)cap * e, "%llu rays for %u edge pixels at %u", (unsigned long long)rays, e, cap);
+    gbuffer_destroy(&tiny);
+    gbuffer_destroy(&g);
+    gbuffer_destroy(&fresh);
+    gbuffer_destroy(&other);
+    scene_release(s);
+}
+
 TEST_MAIN(TEST(test_camera_project_round_trip), TEST(test_motion_vectors), TEST(test_jitter_deterministic),
           TEST(test_jitter_walk), TEST(test_fresh_positions_stratified), TEST(test_kept_surfaces), TEST(test_history_check),
-          TEST(test_history_share_of_a_scaled_shape), TEST(test_emission_seen_directly))
+          TEST(test_history_share_of_a_scaled_shape), TEST(test_emission_seen_directly),
+          TEST(test_emission_edges_follow_the_camera))
