@@ -1500,8 +1500,9 @@ def test_restir_pt_session(daemon):
            "emission"}
     assert set(s["buffers"]) == own | {"spatial_pairs"}
     assert set(unpaired["buffers"]) == own  # the pairs' scratch only with paired spatial reuse
-    # Two G-buffers' emission (12 bytes a pixel), edge marks (1) and corners (4 a corner).
-    assert s["buffers"]["emission"] == 2 * (32 * 24 * 13 + 33 * 25 * 4)
+    # One copy for both G-buffers: emission (12 bytes a pixel), edge marks (1), corners (4 a corner)
+    # and the edges' key (56).
+    assert s["buffers"]["emission"] == 32 * 24 * 13 + 33 * 25 * 4 + 56
     one_ray = new_session(daemon, method="restir_pt", width=8, height=8, params={"emission_samples": 1})
     assert set(one_ray["buffers"]) == own - {"emission"} | {"spatial_pairs"}  # the primary ray's own: no buffer
     assert daemon.req("DELETE", one_ray["href"]).status == 204
@@ -1611,8 +1612,9 @@ def test_restir_bdpt_reuse_session_buffers(daemon):
                                  "light_x2_cache", "emission"}
     assert s["buffers"]["light_x2_cache"] == 2 * 116 * n
     assert s["buffers"]["gbuffers"] == 2 * 40 * n
-    # The emission seen directly (gbuffer.h): 12 + 1 bytes a pixel and 4 a pixel corner, per G-buffer.
-    assert s["buffers"]["emission"] == 2 * (13 * n + 33 * 25 * 4)
+    # The emission seen directly (gbuffer.h), one copy for both G-buffers: 12 + 1 bytes a pixel, 4 a
+    # pixel corner and the edges' key (56).
+    assert s["buffers"]["emission"] == 13 * n + 33 * 25 * 4 + 56
     spatial = new_session(daemon, scene="caustic-sphere", method="restir_bdpt", width=32, height=24,
                           params={"reuse_temporal": False})
     assert spatial["buffers"]["gbuffers"] == 40 * n

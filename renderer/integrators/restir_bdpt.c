@@ -235,9 +235,8 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
     z.res = (p->reuse ? 3 : 1) * n * sizeof(struct restir_bdpt_path) + 2 * n * sizeof(struct restir_bdpt_reservoir) +
             2 * n * sizeof(struct restir_bdpt_shifted) +
             (n + 1) * sizeof(uint32_t) +
-            (p->reuse ? (rbdpt_checks_history(p) ? 2 : 1) *
-                            (n * sizeof(struct gbuffer_pixel) +
-                             (rbdpt_emission_apart(p) ? gbuffer_emission_bytes_planned(width, height) : 0))
+            (p->reuse ? (rbdpt_checks_history(p) ? 2 : 1) * n * sizeof(struct gbuffer_pixel) +
+                            (rbdpt_emission_apart(p) ? gbuffer_emission_bytes_planned(width, height) : 0)
                       : 0);
     z.pairs = p->reuse && p->paired_spatial ? restir_pair_scratch_bytes(width, height) : 0;
     z.x2c = p->reuse ? 2 * n * sizeof(struct rbdpt_x2_entry) : 0;   /* this render's and the previous one's */
@@ -342,11 +341,12 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
         if (st->res_prev && st->res_spatial &&
             !(gbuffer_init(&st->gbuf[0], width, height, err) &&
               (!rbdpt_checks_history(p) || gbuffer_init(&st->gbuf[1], width, height, err)) &&
-              (!rbdpt_emission_apart(p) || (gbuffer_keep_emission(&st->gbuf[0], err) &&
-                                            (!rbdpt_checks_history(p) || gbuffer_keep_emission(&st->gbuf[1], err)))))) {
+              (!rbdpt_emission_apart(p) || gbuffer_keep_emission(&st->gbuf[0], err)))) {
             restir_bdpt_destroy(st);
             return false;
         }
+        /* A frame reads only its own G-buffer's emission: one copy serves both. */
+        if (st->gbuf[1].px && st->gbuf[0].emission) gbuffer_share_emission(&st->gbuf[1], &st->gbuf[0]);
     }
     if (p->variant == RESTIR_BDPT_FULL) {
         if (!bdpt_blocks_alloc(&st->lvb, p->light_paths, p->lvc_capacity, 0, width, height, err)) {

@@ -1032,7 +1032,7 @@ uint64_t restir_pt_bytes_planned(const struct restir_pt_params *params, uint32_t
     return 2 * pixels * (sizeof(struct pt_sample) + sizeof(struct gbuffer_pixel) + sizeof(struct gbuffer_surface)) +
            ((uint64_t)shape_count + 1) * sizeof(uint32_t) +
            (pt_uses_pairs(params) ? restir_pair_scratch_bytes(width, height) : 0) +
-           (pt_keeps_emission(params, scene) ? 2 * (uint64_t)gbuffer_emission_bytes_planned(width, height) : 0);
+           (pt_keeps_emission(params, scene) ? (uint64_t)gbuffer_emission_bytes_planned(width, height) : 0);
 }
 
 struct pt_pass {

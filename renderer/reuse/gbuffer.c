@@ -20,8 +20,8 @@ bool gbuffer_init(struct gbuffer *g, uint32_t width, uint32_t height, struct err
     g->emission = NULL;
     g->edge = NULL;
     g->corner = NULL;
-    g->edge_serial = 0;
-    g->edge_samples = 0;
+    g->edges = NULL;
+    g->owns_emission = false;
     if (width == 0 || height == 0 || width > 16384 || height > 16384)
         return err_set(err, ERR_LIMIT, NULL, "G-buffer size %ux%u outside 1..16384", width, height);
     g->px = calloc((size_t)width * height, sizeof *g->px);
@@ -50,32 +50,47 @@ bool gbuffer_keep_surfaces(struct gbuffer *g, struct err *err)
 size_t gbuffer_emission_bytes_planned(uint32_t width, uint32_t height)
 {
     const size_t pixels = (size_t)width * height;
-    return pixels * (sizeof(struct vec3) + sizeof(uint8_t)) + ((size_t)width + 1) * (height + 1) * sizeof(uint32_t);
+    return pixels * (sizeof(struct vec3) + sizeof(uint8_t)) + ((size_t)width + 1) * (height + 1) * sizeof(uint32_t) +
+           sizeof(struct gbuffer_edges);
 }
 
 /* Frees what gbuffer_keep_emission allocated. */
 static void gbuffer_drop_emission(struct gbuffer *g)
 {
-    free(g->emission);
-    free(g->edge);
-    free(g->corner);
+    if (g->owns_emission) {
+        free(g->emission);
+        free(g->edge);
+        free(g->corner);
+        free(g->edges);
+    }
     g->emission = NULL;
     g->edge = NULL;
     g->corner = NULL;
-    g->edge_serial = 0;
+    g->edges = NULL;
+    g->owns_emission = false;
 }
 
 bool gbuffer_keep_emission(struct gbuffer *g, struct err *err)
 {
     if (g->emission) return true;
     const size_t pixels = (size_t)g->width * g->height;
+    g->owns_emission = true;
     g->emission = calloc(pixels, sizeof *g->emission);
     g->edge = calloc(pixels, sizeof *g->edge);
     g->corner = calloc(((size_t)g->width + 1) * (g->height + 1), sizeof *g->corner);
-    g->edge_serial = 0;
-    if (g->emission && g->edge && g->corner) return true;
+    g->edges = calloc(1, sizeof *g->edges);   /* serial 0: no scene's */
+    if (g->emission && g->edge && g->corner && g->edges) return true;
     gbuffer_drop_emission(g);
     return err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u pixels' emission", g->width, g->height);
+}
+
+void gbuffer_share_emission(struct gbuffer *g, const struct gbuffer *from)
+{
+    gbuffer_drop_emission(g);
+    g->emission = from->emission;
+    g->edge = from->edge;
+    g->corner = from->corner;
+    g->edges = from->edges;
 }
 
 void gbuffer_destroy(struct gbuffer *g)
@@ -100,7 +115,7 @@ size_t gbuffer_surface_bytes(const struct gbuffer *g)
 
 size_t gbuffer_emission_bytes(const struct gbuffer *g)
 {
-    return g->emission ? gbuffer_emission_bytes_planned(g->width, g->height) : 0;
+    return g->emission && g->owns_emission ? gbuffer_emission_bytes_planned(g->width, g->height) : 0;
 }
 
 #define GBUFFER_ROWS_PER_JOB 4u
@@ -310,24 +325,15 @@ static bool gbuffer_range(float lo, float hi, uint32_t last, uint32_t *a, uint32
  * emitting shape's projected box (one pixel around) are traced: the others cannot see an
  * emitter. The edges depend on the camera and the scene alone, never on a frame's random numbers,
  * so which estimate a pixel's emission takes biases nothing. Kept until the camera or the scene
- * changes (by its serial, not its address, which a later scene may reuse); taken from `other`
- * (the session's other G-buffer) when it holds this camera's and scene's. */
-static bool gbuffer_find_edges(struct gbuffer_job *gj, const struct gbuffer *other, unsigned threads,
-                               struct err *err)
+ * changes (by its serial, not its address, which a later scene may reuse). */
+static bool gbuffer_find_edges(struct gbuffer_job *gj, unsigned threads, struct err *err)
 {
     struct gbuffer *g = gj->g;
     const struct gbuffer_frame *f = gj->f;
     const uint32_t w = g->width, h = g->height, w1 = w + 1;
     const size_t pixels = (size_t)w * h;
-    if (g->edge_serial == f->scene->serial && memcmp(&g->edge_camera, f->camera, sizeof *f->camera) == 0) return true;
-    if (other && other->edge && other->width == w && other->height == h && other->edge_serial == f->scene->serial &&
-        memcmp(&other->edge_camera, f->camera, sizeof *f->camera) == 0) {
-        memcpy(g->edge, other->edge, pixels * sizeof *g->edge);
-        g->edge_samples = other->edge_samples;
-        g->edge_camera = *f->camera;
-        g->edge_serial = f->scene->serial;
-        return true;
-    }
+    struct gbuffer_edges *key = g->edges;
+    if (key->serial == f->scene->serial && memcmp(&key->camera, f->camera, sizeof *f->camera) == 0) return true;
     const struct scene *scene = f->scene;
     const size_t corners = (size_t)w1 * (h + 1);
     for (size_t i = 0; i < corners; i++) g->corner[i] = GBUFFER_SEES_NOTHING;
@@ -377,9 +383,9 @@ static bool gbuffer_find_edges(struct gbuffer_job *gj, const struct gbuffer *oth
     const size_t share = edges ? pixels / edges : GBUFFER_EMISSION_SAMPLES_MAX;
     uint32_t cap = 1u;
     while ((size_t)cap * 2u <= share && cap * 2u <= GBUFFER_EMISSION_SAMPLES_MAX) cap *= 2u;
-    g->edge_samples = cap;
-    g->edge_camera = *f->camera;
-    g->edge_serial = scene->serial;
+    key->samples = cap;
+    key->camera = *f->camera;
+    key->serial = scene->serial;
     return true;
 }
 
@@ -424,7 +430,7 @@ static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
                 uint32_t sees;
                 struct vec3 Le = gbuffer_emitted(f->scene, found, &hit, dir, &sees);
                 uint32_t k_count = 1u;   /* the largest power of two within both bounds */
-                while (k_count * 2u <= f->emission_samples && k_count * 2u <= g->edge_samples) k_count *= 2u;
+                while (k_count * 2u <= f->emission_samples && k_count * 2u <= g->edges->samples) k_count *= 2u;
                 if (k_count > 1 && g->edge[pixel]) {
                     /* The primary ray's own emission stays with the reservoir's path position
                      * only when the pixel is not an edge pixel: here K rays of their own. */
@@ -494,7 +500,7 @@ bool gbuffer_render(struct gbuffer *g, const struct gbuffer_frame *f, uint64_t *
     unsigned threads = f->threads ? f->threads : parallel_default_threads();
     if (threads > GBUFFER_MAX_WORKERS) threads = GBUFFER_MAX_WORKERS;
     uint32_t jobs = (g->height + GBUFFER_ROWS_PER_JOB - 1) / GBUFFER_ROWS_PER_JOB;
-    bool ok = !(g->emission && f->emission_samples > 1) || gbuffer_find_edges(gj, f->prev_gbuffer, threads, err);
+    bool ok = !(g->emission && f->emission_samples > 1) || gbuffer_find_edges(gj, threads, err);
     ok = ok && parallel_run(threads, jobs, gbuffer_rows, gj, NULL, NULL, err);
     if (rays) {
         *rays = 0;

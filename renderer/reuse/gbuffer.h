@@ -24,8 +24,10 @@
  * surroundings' for many frames of a mean; a method whose frame costs several `pt` samples then
  * loses the edge pixels to `pt` by far (docs/benchmarks.md, "Emission seen directly"). The pass
  * finds those pixels once per camera and scene from rays through the pixel corners that lie in an
- * emitting shape's projection, and spends gbuffer_frame.emission_samples rays on each of them. Only emitting shapes make edge pixels, not
- * the lit environment's horizon (gbuffer.c says why).
+ * emitting shape's projection, and spends gbuffer_frame.emission_samples rays on each of them.
+ * Only emitting shapes make edge pixels, not the lit environment's horizon (gbuffer.c says why).
+ * A frame reads only its own G-buffer's emission, so a session's two G-buffers share one copy
+ * (gbuffer_share_emission).
  * Refs: docs/architecture.md (the G-buffer pass); docs/methods.md, "Reuse shared by the methods"
  * (temporal reuse evaluates the previous domain with the previous camera and scene). */
 #ifndef RESTIRD_GBUFFER_H
@@ -72,11 +74,17 @@ struct gbuffer {
                                       or in a small emitter's box) */
     uint32_t *corner;              /* (width + 1) x (height + 1): what each pixel corner's ray sees
                                       (an emitting shape, or none) */
-    struct camera_desc edge_camera;  /* the camera and scene (its serial) `edge` was found for */
-    uint64_t edge_serial;
-    uint32_t edge_samples;         /* the most rays an edge pixel takes: a power of two, at most the
-                                      pixels per edge pixel, so that no scene's edges take more
-                                      rays a frame than the image has pixels */
+    struct gbuffer_edges *edges;   /* for whom `edge` holds, and its ray count */
+    bool owns_emission;            /* false: the arrays above are another G-buffer's */
+};
+
+/* The camera and scene (its serial) the edge pixels were found for, and the most rays an edge
+ * pixel takes: a power of two, at most the pixels per edge pixel, so that no scene's edges take
+ * more rays a frame than the image has pixels. */
+struct gbuffer_edges {
+    struct camera_desc camera;
+    uint64_t serial;
+    uint32_t samples;
 };
 
 /* Allocates (ERR_LIMIT / ERR_NOMEM). */
@@ -85,12 +93,15 @@ bool gbuffer_init(struct gbuffer *g, uint32_t width, uint32_t height, struct err
 bool gbuffer_keep_surfaces(struct gbuffer *g, struct err *err);
 /* From now on gbuffer_render also writes g->emission (ERR_NOMEM). */
 bool gbuffer_keep_emission(struct gbuffer *g, struct err *err);
+/* From now on gbuffer_render writes g's emission into `from`'s arrays (which gbuffer_keep_emission
+ * made, and which must outlive g's use of them): for a session's other G-buffer, of the same size. */
+void gbuffer_share_emission(struct gbuffer *g, const struct gbuffer *from);
 /* What gbuffer_keep_emission allocates for a width x height G-buffer. */
 size_t gbuffer_emission_bytes_planned(uint32_t width, uint32_t height);
 void gbuffer_destroy(struct gbuffer *g);
 size_t gbuffer_bytes(const struct gbuffer *g);          /* the pixels, surfaces not included */
 size_t gbuffer_surface_bytes(const struct gbuffer *g);  /* 0 without surfaces */
-size_t gbuffer_emission_bytes(const struct gbuffer *g); /* 0 without emission */
+size_t gbuffer_emission_bytes(const struct gbuffer *g); /* 0 without emission or when shared */
 
 /* Random stream id of the independent fresh positions and the jitter walk's steps, rng_make(seed,
  * frame, pixel, GBUFFER_STREAM), and the key of the stratified positions' Sobol' seeds. Methods
@@ -121,7 +132,7 @@ struct gbuffer_frame {
     uint32_t emission_samples;            /* with g->emission: the rays an edge pixel's directly
                                              seen emission takes (1: the primary ray's own only),
                                              rounded down to a power of two and at most
-                                             g->edge_samples */
+                                             g->edges->samples */
 };
 
 /* The most rays a method may spend on a pixel's directly seen emission per frame. */

@@ -335,7 +335,9 @@ size_t restir_session_hit_bytes(const struct restir_session *s)
 
 bool restir_session_keep_emission(struct restir_session *s, struct err *err)
 {
-    return gbuffer_keep_emission(&s->gbuf[0], err) && gbuffer_keep_emission(&s->gbuf[1], err);
+    if (!gbuffer_keep_emission(&s->gbuf[0], err)) return false;
+    gbuffer_share_emission(&s->gbuf[1], &s->gbuf[0]);
+    return true;
 }
 
 size_t restir_session_emission_bytes(const struct restir_session *s)

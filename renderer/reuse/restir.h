@@ -217,8 +217,8 @@ size_t restir_session_reservoir_bytes(const struct restir_session *s);
 size_t restir_session_gbuffer_bytes(const struct restir_session *s);
 size_t restir_session_hit_bytes(const struct restir_session *s);
 size_t restir_session_pair_bytes(const struct restir_session *s);
-/* Both G-buffers estimate each pixel's directly seen emission (gbuffer_keep_emission), and its
- * bytes. */
+/* Both G-buffers estimate each pixel's directly seen emission, into one copy (gbuffer_keep_emission,
+ * gbuffer_share_emission), and its bytes. */
 bool restir_session_keep_emission(struct restir_session *s, struct err *err);
 size_t restir_session_emission_bytes(const struct restir_session *s);
 

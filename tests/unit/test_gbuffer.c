@@ -686,9 +686,9 @@ static void test_emission_seen_directly(void)
 }
 
 /* The edge pixels of a G-buffer that has seen camera A, then B, then a scene whose light moved
- * (another scene, maybe at the same address) equal those of a fresh G-buffer for each; a G-buffer
- * whose session's other G-buffer holds this camera's and scene's takes them from there without a
- * corner ray; and an edge pixel takes the largest power of two of rays within emission_samples
+ * (another scene, maybe at the same address) equal those of a fresh G-buffer for each; the
+ * session's other G-buffer, which shares them (gbuffer_share_emission), uses them without a corner
+ * ray; and an edge pixel takes the largest power of two of rays within emission_samples
  * and the pixels per edge pixel (a 6 x 6 image, where edges are a third of the pixels, takes 2). */
 static uint64_t edge_frame(struct gbuffer *g, const struct scene *s, const struct camera_desc *cam,
                            const struct gbuffer *other, uint32_t k)
@@ -717,8 +717,9 @@ static void test_emission_edges_follow_the_camera(void)
     struct err err = {0};
     struct gbuffer g, fresh, other;
     CHECK(gbuffer_init(&g, W, H, &err) && gbuffer_init(&fresh, W, H, &err) && gbuffer_init(&other, W, H, &err));
-    CHECK(gbuffer_keep_emission(&g, &err) && gbuffer_keep_emission(&fresh, &err) &&
-          gbuffer_keep_emission(&other, &err));
+    CHECK(gbuffer_keep_emission(&g, &err) && gbuffer_keep_emission(&fresh, &err));
+    gbuffer_share_emission(&other, &g);   /* a session's other G-buffer */
+    CHECK(gbuffer_emission_bytes(&other) == 0 && other.emission == g.emission);
     struct camera_desc a = s->camera, b = s->camera;
     b.position.x += 60.0f;
     b.look_at.y += 40.0f;
@@ -733,7 +734,7 @@ static void test_emission_edges_follow_the_camera(void)
     edge_frame(&g, s, &a, NULL, 16);
     CHECK(memcmp(g.edge, edges_a, W * H) == 0);
 
-    /* From the other G-buffer: the primary rays and the edge pixels' own, no corner ray. */
+    /* The other G-buffer shares the edges: the primary rays and the edge pixels' own, no corner ray. */
     const uint64_t copied = edge_frame(&other, s, &a, &g, 16);
     CHECK(memcmp(other.edge, edges_a, W * H) == 0);
     CHECK_MSG(copied == (uint64_t)W * H + 16u * edge_count(&g), "%llu rays, expected %u + 16 x %u",
@@ -765,8 +766,8 @@ static void test_emission_edges_follow_the_camera(void)
     const uint32_t e = edge_count(&tiny);
     uint32_t cap = 1;
     while (cap * 2 <= 36 / e) cap *= 2;
-    CHECK_MSG(e > 4 && tiny.edge_samples == cap && cap < 16, "%u edge pixels of 36: cap %u, expected %u", e,
-              tiny.edge_samples, cap);
+    CHECK_MSG(e > 4 && tiny.edges->samples == cap && cap < 16, "%u edge pixels of 36: cap %u, expected %u", e,
+              tiny.edges->samples, cap);
     const uint64_t rays = edge_frame(&tiny, s, &a, NULL, 16);
     CHECK_MSG(rays == 36u + (uint64_t)cap * e, "%llu rays for %u edge pixels at %u", (unsigned long long)rays, e, cap);
     gbuffer_destroy(&tiny);
