@@ -178,9 +178,7 @@ bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *er
         return err_set(err, ERR_INVALID, "/params/temporal_cap", "temporal_cap must be in 1..65535");
     if (p->moving_cap < 1 || p->moving_cap > 65535)
         return err_set(err, ERR_INVALID, "/params/moving_cap", "moving_cap must be in 1..65535");
-    if (p->emission_samples < 1 || p->emission_samples > GBUFFER_EMISSION_SAMPLES_MAX)
-        return err_set(err, ERR_INVALID, "/params/emission_samples", "emission_samples must be in 1..%u",
-                       GBUFFER_EMISSION_SAMPLES_MAX);
+    if (!gbuffer_emission_samples_valid(p->emission_samples, err)) return false;
     if (p->spatial_neighbors > 32)
         return err_set(err, ERR_INVALID, "/params/spatial_neighbors", "spatial_neighbors must be in 0..32");
     if (!(p->spatial_radius >= 0.0f && p->spatial_radius <= 256.0f))

@@ -133,9 +133,7 @@ bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err)
     if (p->nee_candidates > 64 && p->nee_candidates != RESTIR_PT_NEE_BY_SCENE)
         return err_set(err, ERR_INVALID, "/params/nee_candidates", "nee_candidates must be in 0..64");
     if (!gbuffer_jitter_walk_valid(p->jitter_walk, err)) return false;
-    if (p->emission_samples < 1 || p->emission_samples > GBUFFER_EMISSION_SAMPLES_MAX)
-        return err_set(err, ERR_INVALID, "/params/emission_samples", "emission_samples must be in 1..%u",
-                       GBUFFER_EMISSION_SAMPLES_MAX);
+    if (!gbuffer_emission_samples_valid(p->emission_samples, err)) return false;
     if (p->temporal_cap < 1 || p->temporal_cap > 1000)
         return err_set(err, ERR_INVALID, "/params/temporal_cap", "temporal_cap must be in 1..1000");
     if (p->temporal_cap_replay > 1000)

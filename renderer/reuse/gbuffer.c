@@ -476,6 +476,13 @@ static void gbuffer_rows(void *ctx, uint32_t job, unsigned worker)
     gj->rays[worker] += rc.intersect + rc.occluded;
 }
 
+bool gbuffer_emission_samples_valid(uint32_t samples, struct err *err)
+{
+    if (samples >= 1 && samples <= GBUFFER_EMISSION_SAMPLES_MAX) return true;
+    return err_set(err, ERR_INVALID, "/params/emission_samples", "emission_samples must be in 1..%u",
+                   GBUFFER_EMISSION_SAMPLES_MAX);
+}
+
 bool gbuffer_jitter_walk_valid(float jitter_walk, struct err *err)
 {
     if (jitter_walk >= 0.0f && jitter_walk <= 0.5f) return true;

@@ -138,6 +138,10 @@ struct gbuffer_frame {
 /* The most rays a method may spend on a pixel's directly seen emission per frame. */
 #define GBUFFER_EMISSION_SAMPLES_MAX 256u
 
+/* Whether a method's `emission_samples` parameter is in 1..GBUFFER_EMISSION_SAMPLES_MAX; the error
+ * names /params/emission_samples. */
+bool gbuffer_emission_samples_valid(uint32_t samples, struct err *err);
+
 /* Position k of the K an edge pixel's directly seen emission takes in `frame`: point frame K + k
  * of a Sobol' sequence of the pixel's own (gbuffer_fresh_position's, another key), so the
  * positions of every frame are stratified in the pixel and those of consecutive frames fill in
