@@ -574,6 +574,60 @@ static void restir_rows(void *ctx, uint32_t job, unsigned worker)
     restir_counters_add(&p->counters[worker], &c);
 }
 
+/* A paired pass's pixels block by block. Pairing m pairs each pixel with one in its own block of
+ * the grid of B x B blocks shifted by the pairing's offset (restir_partner_of), so a block holds
+ * every pair it starts and the elements they touch. Taken row by row, a pass reaches B - 1 rows
+ * ahead for its partners: at 256x256 and B = 16 that band of reservoirs, G-buffer surfaces and
+ * pair accumulators is about 1 MB, past the second-level cache; a block's is 64 kB. A job is one
+ * band of blocks, taken left to right, so that two threads work B rows apart rather than on the
+ * two sides of a block's edge, which share cache lines in each row (jobs of one block each were
+ * 12 % slower than rows with two threads, and 7 % faster with one). Each pixel still takes part in
+ * each pairing exactly once and its candidates arrive in pairing order, so the order of the
+ * pixels within a pass changes nothing in the result. */
+struct restir_blocks {
+    uint32_t log2, ox, oy;  /* B = 1 << log2; the grid's offset, as restir_partner_of takes it */
+};
+
+static struct restir_blocks restir_blocks_of(const struct restir_pass *p)
+{
+    const uint32_t mask = (1u << p->pair_log2) - 1;
+    const uint64_t h = p->pair_key[p->matching];
+    return (struct restir_blocks){p->pair_log2, (uint32_t)h & mask, (uint32_t)(h >> 20) & mask};
+}
+
+/* The pixels [*lo, *hi) of the image's `extent` that lie in block `index` of a grid offset by `offset`. */
+static void restir_block_span(uint32_t index, uint32_t log2, uint32_t offset, uint32_t extent, uint32_t *lo,
+                              uint32_t *hi)
+{
+    const uint64_t g0 = (uint64_t)index << log2, g1 = g0 + (1u << log2);
+    *lo = g0 > offset ? (uint32_t)(g0 - offset) : 0;
+    *hi = g1 - offset < extent ? (uint32_t)(g1 - offset) : extent;
+}
+
+static uint32_t restir_band_count(const struct restir_pass *p)
+{
+    const struct restir_blocks b = restir_blocks_of(p);
+    return (p->r->height + b.oy + (1u << b.log2) - 1) >> b.log2;
+}
+
+static void restir_band(void *ctx, uint32_t job, unsigned worker)
+{
+    struct restir_pass *p = ctx;
+    const struct restir_reuse *r = p->r;
+    const struct restir_blocks b = restir_blocks_of(p);
+    const uint32_t columns = (r->width + b.ox + (1u << b.log2) - 1) >> b.log2;
+    uint32_t y0, y1;
+    restir_block_span(job, b.log2, b.oy, r->height, &y0, &y1);
+    struct restir_counters c = {0};
+    for (uint32_t col = 0; col < columns; col++) {
+        uint32_t x0, x1;
+        restir_block_span(col, b.log2, b.ox, r->width, &x0, &x1);
+        for (uint32_t y = y0; y < y1; y++)
+            for (uint32_t x = x0; x < x1; x++) p->pixel(p, y * r->width + x, &c);
+    }
+    restir_counters_add(&p->counters[worker], &c);
+}
+
 static bool restir_run(const struct restir_reuse *r, restir_pixel_fn *fn, const uint8_t *in, uint8_t *out,
                        uint32_t matching, struct restir_counters *c, struct err *err)
 {
@@ -591,8 +645,9 @@ static bool restir_run(const struct restir_reuse *r, restir_pixel_fn *fn, const 
     }
     unsigned threads = r->threads ? r->threads : parallel_default_threads();
     if (threads > RESTIR_MAX_WORKERS) threads = RESTIR_MAX_WORKERS;
-    uint32_t jobs = (r->height + RESTIR_ROWS_PER_JOB - 1) / RESTIR_ROWS_PER_JOB;
-    if (!parallel_run(threads, jobs, restir_rows, &pass, NULL, NULL, err)) return false;
+    const bool bands = fn == restir_pair_pixel;
+    uint32_t jobs = bands ? restir_band_count(&pass) : (r->height + RESTIR_ROWS_PER_JOB - 1) / RESTIR_ROWS_PER_JOB;
+    if (!parallel_run(threads, jobs, bands ? restir_band : restir_rows, &pass, NULL, NULL, err)) return false;
     for (unsigned i = 0; i < threads; i++) restir_counters_add(c, &pass.counters[i]);
     return true;
 }
