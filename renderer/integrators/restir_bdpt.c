@@ -214,14 +214,16 @@ static bool rbdpt_checks_history(const struct restir_bdpt_params *p)
 /* With reuse the G-buffer pass estimates the emission seen directly (gbuffer.h) and the camera
  * subpaths offer no candidate that ends on the primary hit: those paths (the camera sees an
  * emitter) have one strategy only, s = 0 with MIS weight 1, so they leave the reservoirs' integrand
- * whole, and a shift, which keeps a path's length, never makes one. (A scene without an emitting
- * shape, which renders black, keeps the buffers and finds no edge pixels.) */
-static bool rbdpt_emission_apart(const struct restir_bdpt_params *p)
+ * whole, and a shift, which keeps a path's length, never makes one. A scene without an emitting
+ * shape has no edge pixels and keeps no buffers for them (it renders black: restir_bdpt's light
+ * subpaths start on shapes). */
+static bool rbdpt_emission_apart(const struct restir_bdpt_params *p, const struct scene *scene)
 {
-    return p->reuse && p->emission_samples > 1;
+    return p->reuse && p->emission_samples > 1 && scene_has_emitting_shape(scene);
 }
 
-static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
+static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, const struct scene *scene, uint32_t width,
+                                         uint32_t height)
 {
     struct rbdpt_sizes z;
     uint64_t n = (uint64_t)width * height;
@@ -234,7 +236,7 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
             2 * n * sizeof(struct restir_bdpt_shifted) +
             (n + 1) * sizeof(uint32_t) +
             (p->reuse ? (rbdpt_checks_history(p) ? 2 : 1) * n * sizeof(struct gbuffer_pixel) +
-                            (rbdpt_emission_apart(p) ? gbuffer_emission_bytes_planned(width, height) : 0)
+                            (rbdpt_emission_apart(p, scene) ? gbuffer_emission_bytes_planned(width, height) : 0)
                       : 0);
     z.pairs = p->reuse && p->paired_spatial ? restir_pair_scratch_bytes(width, height) : 0;
     z.x2c = p->reuse ? 2 * n * sizeof(struct rbdpt_x2_entry) : 0;   /* this render's and the previous one's */
@@ -248,9 +250,10 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, uin
     return z;
 }
 
-uint64_t restir_bdpt_bytes_planned(const struct restir_bdpt_params *p, uint32_t width, uint32_t height)
+uint64_t restir_bdpt_bytes_planned(const struct restir_bdpt_params *p, const struct scene *scene, uint32_t width,
+                                   uint32_t height)
 {
-    struct rbdpt_sizes z = rbdpt_sizes_of(p, width, height);
+    struct rbdpt_sizes z = rbdpt_sizes_of(p, scene, width, height);
     return z.lt + z.pixels + z.blocks_b + z.res + z.lvc + z.pairs + z.x2c;
 }
 
@@ -313,7 +316,7 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
     if (!restir_bdpt_params_valid(p, err) || !bdpt_scene_supported(scene, "restir_bdpt", err) ||
         !bdpt_blocks_alloc(&st->lb, p->light_paths, p->lt_capacity, 3, width, height, err))
         return false;
-    struct rbdpt_sizes z = rbdpt_sizes_of(p, width, height);
+    struct rbdpt_sizes z = rbdpt_sizes_of(p, scene, width, height);
     size_t n = (size_t)width * height;
     st->width = width;
     st->height = height;
@@ -339,7 +342,7 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
         if (st->res_prev && st->res_spatial &&
             !(gbuffer_init(&st->gbuf[0], width, height, err) &&
               (!rbdpt_checks_history(p) || gbuffer_init(&st->gbuf[1], width, height, err)) &&
-              (!rbdpt_emission_apart(p) || gbuffer_keep_emission(&st->gbuf[0], err)))) {
+              (!rbdpt_emission_apart(p, scene) || gbuffer_keep_emission(&st->gbuf[0], err)))) {
             restir_bdpt_destroy(st);
             return false;
         }
@@ -362,7 +365,7 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
                                              (p->reuse && !st->lvc_path)))) {
         restir_bdpt_destroy(st);
         return err_set(err, ERR_NOMEM, NULL, "out of memory for restir_bdpt (%llu bytes)",
-                       (unsigned long long)restir_bdpt_bytes_planned(p, width, height));
+                       (unsigned long long)restir_bdpt_bytes_planned(p, scene, width, height));
     }
     return true;
 }
@@ -411,7 +414,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
 {
     if (!restir_bdpt_params_valid(p, err) || !bdpt_frame_valid(f, "restir_bdpt", out, st->width, st->height, err))
         return false;
-    struct rbdpt_sizes z = rbdpt_sizes_of(p, st->width, st->height);
+    struct rbdpt_sizes z = rbdpt_sizes_of(p, f->scene, st->width, st->height);
     if (!bdpt_blocks_same(&st->lb, z.lb) || !bdpt_blocks_same(&st->lvb, z.lvb))
         return err_set(err, ERR_INVALID, NULL, "the parameters changed the buffers' sizes since init");
     unsigned threads = f->threads ? f->threads : parallel_default_threads();
@@ -449,7 +452,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     c->frame = f->frame;
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;
     c->full = p->variant == RESTIR_BDPT_FULL;
-    c->emission_apart = rbdpt_emission_apart(p) && st->gbuf[0].emission;
+    c->emission_apart = st->gbuf[0].emission != NULL;  /* kept only when rbdpt_emission_apart */
     c->out = out;
     {
         /* Renders are numbered. The x_2 cache's entries stay valid while the scene object, the
@@ -660,7 +663,7 @@ static struct rbdpt_ctx *rbdpt_test_ctx(struct restir_bdpt_state *st, const stru
     c->frame = f->frame;
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;
     c->full = p->variant == RESTIR_BDPT_FULL;
-    c->emission_apart = rbdpt_emission_apart(p) && st->gbuf[0].emission;
+    c->emission_apart = st->gbuf[0].emission != NULL;  /* kept only when rbdpt_emission_apart */
     c->reconnections = reconnections;
     /* The cache as the last render left it, valid only in that render's scene. */
     c->tick = st->x2c_tick;

@@ -312,7 +312,8 @@ struct RESTIRD_STORED_IN_BYTES restir_bdpt_stats {
 };
 
 
-uint64_t restir_bdpt_bytes_planned(const struct restir_bdpt_params *p, uint32_t width, uint32_t height);
+uint64_t restir_bdpt_bytes_planned(const struct restir_bdpt_params *p, const struct scene *scene, uint32_t width,
+                                   uint32_t height);
 bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, const struct restir_bdpt_params *p,
                       uint32_t width, uint32_t height, struct err *err);
 void restir_bdpt_destroy(struct restir_bdpt_state *st);

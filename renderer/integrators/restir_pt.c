@@ -120,10 +120,7 @@ uint32_t restir_pt_nee_by_scene(const struct scene *scene)
  * own is asked for and an emitting shape can make edge pixels. */
 static bool pt_keeps_emission(const struct restir_pt_params *p, const struct scene *scene)
 {
-    if (p->emission_samples <= 1) return false;
-    for (uint32_t i = 0; i < scene->shape_count; i++)
-        if (material_is_emissive(&scene->materials[scene->shapes[i].material])) return true;
-    return false;
+    return p->emission_samples > 1 && scene_has_emitting_shape(scene);
 }
 
 bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err)

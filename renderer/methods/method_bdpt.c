@@ -142,8 +142,7 @@ static bool rbdpt_render(void *state, const void *params, const struct method_fr
 
 static uint64_t rbdpt_bytes_planned(const void *params, const struct scene *scene, uint32_t width, uint32_t height)
 {
-    (void)scene;
-    return restir_bdpt_bytes_planned(params, width, height);
+    return restir_bdpt_bytes_planned(params, scene, width, height);
 }
 
 static uint32_t rbdpt_reservoir_bytes(const void *params, const struct scene *scene)

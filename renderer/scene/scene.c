@@ -172,3 +172,10 @@ bool scene_has_translucent(const struct scene *scene)
         if (scene->materials[i].kind == MATERIAL_TRANSLUCENT) return true;
     return false;
 }
+
+bool scene_has_emitting_shape(const struct scene *scene)
+{
+    for (uint32_t i = 0; i < scene->shape_count; i++)
+        if (material_is_emissive(&scene->materials[scene->shapes[i].material])) return true;
+    return false;
+}

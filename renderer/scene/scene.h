@@ -78,6 +78,8 @@ bool scene_moved(const struct scene *a, const struct scene *b);
 /* Whether any material is `translucent` (subsurface scattering): methods that do not sample the
  * BSSRDF refuse such scenes rather than render its BSDF stand-in everywhere. */
 bool scene_has_translucent(const struct scene *scene);
+/* Whether a shape emits (an environment light is not a shape). */
+bool scene_has_emitting_shape(const struct scene *scene);
 /* Reference counting; scene_release frees at zero. A new scene has refcount 1. */
 void scene_retain(struct scene *scene);
 void scene_release(struct scene *scene);

@@ -390,9 +390,27 @@ static void test_params(void)
     p.light_paths = 1000;
     struct restir_bdpt_state st;
     CHECK(restir_bdpt_init(&st, sc, &p, 40, 24, &err));
-    CHECK(restir_bdpt_bytes(&st) == restir_bdpt_bytes_planned(&p, 40, 24));
+    CHECK(restir_bdpt_bytes(&st) == restir_bdpt_bytes_planned(&p, sc, 40, 24));
+    restir_bdpt_destroy(&st);
+    /* With reuse, the emission seen directly is estimated apart where a shape emits, and a scene
+     * without one (a dark box: restir_bdpt takes no environment light) keeps no buffers for it. */
+    p.reuse = true;
+    CHECK(restir_bdpt_init(&st, sc, &p, 40, 24, &err));
+    CHECK_MSG(st.gbuf[0].emission != NULL, "caustic-sphere, reuse: no emission buffer");
+    CHECK(restir_bdpt_bytes(&st) == restir_bdpt_bytes_planned(&p, sc, 40, 24));
     restir_bdpt_destroy(&st);
     scene_release(sc);
+    struct scene *dark = fixture_load_json(
+        "{\"format\": 1, \"camera\": {\"position\": [0, 0, 3], \"look_at\": [0, 0, 0], \"up\": [0, 1, 0], \"fov_deg\": 40},"
+        " \"materials\": {\"grey\": {\"type\": \"diffuse\", \"albedo\": [0.5, 0.5, 0.5]}},"
+        " \"shapes\": [{\"type\": \"quad\", \"material\": \"grey\","
+        " \"vertices\": [[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]]}]}", ".");
+    if (!dark) return;
+    CHECK(restir_bdpt_init(&st, dark, &p, 40, 24, &err));
+    CHECK_MSG(st.gbuf[0].emission == NULL, "no emitting shape, reuse: an emission buffer all the same");
+    CHECK(restir_bdpt_bytes(&st) == restir_bdpt_bytes_planned(&p, dark, 40, 24));
+    restir_bdpt_destroy(&st);
+    scene_release(dark);
 }
 
 struct series {
