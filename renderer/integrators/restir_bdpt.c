@@ -452,7 +452,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     c->frame = f->frame;
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;
     c->full = p->variant == RESTIR_BDPT_FULL;
-    c->emission_apart = st->gbuf[0].emission != NULL;  /* kept only when rbdpt_emission_apart */
+    c->emission_apart = p->reuse && st->gbuf[0].emission != NULL;  /* kept only when rbdpt_emission_apart */
     c->out = out;
     {
         /* Renders are numbered. The x_2 cache's entries stay valid while the scene object, the
@@ -663,7 +663,7 @@ static struct rbdpt_ctx *rbdpt_test_ctx(struct restir_bdpt_state *st, const stru
     c->frame = f->frame;
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;
     c->full = p->variant == RESTIR_BDPT_FULL;
-    c->emission_apart = st->gbuf[0].emission != NULL;  /* kept only when rbdpt_emission_apart */
+    c->emission_apart = p->reuse && st->gbuf[0].emission != NULL;  /* kept only when rbdpt_emission_apart */
     c->reconnections = reconnections;
     /* The cache as the last render left it, valid only in that render's scene. */
     c->tick = st->x2c_tick;

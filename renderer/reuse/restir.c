@@ -27,6 +27,7 @@ struct restir_pass {
     uint32_t matching;  /* paired spatial reuse: which pairing of the round */
     uint64_t pair_key[65];  /* paired spatial reuse: each pairing's hash key (restir_pair_keys) */
     uint32_t pair_log2;     /* and log2 of its block size */
+    uint32_t band_groups;   /* a paired pass in bands: jobs per band (restir_band) */
     struct restir_counters counters[RESTIR_MAX_WORKERS];
 };
 
@@ -581,18 +582,27 @@ static void restir_rows(void *ctx, uint32_t job, unsigned worker)
  * pair accumulators is about 1 MB, past the second-level cache; a block's is 64 kB. A job is one
  * band of blocks, taken left to right, so that two threads work B rows apart rather than on the
  * two sides of a block's edge, which share cache lines in each row (jobs of one block each were
- * 12 % slower than rows with two threads, and 7 % faster with one). Each pixel still takes part in
- * each pairing exactly once and its candidates arrive in pairing order, so the order of the
- * pixels within a pass changes nothing in the result. */
+ * 12 % slower than rows with two threads, and 7 % faster with one). Where there are few bands for
+ * the threads a band is split into groups of columns (RESTIR_JOBS_PER_THREAD jobs a thread), and
+ * where the whole image holds fewer blocks than that (a radius near the image's size: blocks
+ * then save nothing either) the pass keeps to rows. Each pixel still takes part in each pairing
+ * exactly once and its candidates arrive in pairing order, so the order of the pixels within a
+ * pass changes nothing in the result. */
+#define RESTIR_JOBS_PER_THREAD 4u
+
 struct restir_blocks {
-    uint32_t log2, ox, oy;  /* B = 1 << log2; the grid's offset, as restir_partner_of takes it */
+    uint32_t log2, ox, oy;    /* B = 1 << log2; the grid's offset, as restir_partner_of takes it */
+    uint32_t bands, columns;  /* the grid's rows and columns that meet the image */
 };
 
 static struct restir_blocks restir_blocks_of(const struct restir_pass *p)
 {
     const uint32_t mask = (1u << p->pair_log2) - 1;
     const uint64_t h = p->pair_key[p->matching];
-    return (struct restir_blocks){p->pair_log2, (uint32_t)h & mask, (uint32_t)(h >> 20) & mask};
+    struct restir_blocks b = {p->pair_log2, (uint32_t)h & mask, (uint32_t)(h >> 20) & mask, 0, 0};
+    b.bands = (p->r->height + b.oy + mask) >> b.log2;
+    b.columns = (p->r->width + b.ox + mask) >> b.log2;
+    return b;
 }
 
 /* The pixels [*lo, *hi) of the image's `extent` that lie in block `index` of a grid offset by `offset`. */
@@ -604,22 +614,17 @@ static void restir_block_span(uint32_t index, uint32_t log2, uint32_t offset, ui
     *hi = g1 - offset < extent ? (uint32_t)(g1 - offset) : extent;
 }
 
-static uint32_t restir_band_count(const struct restir_pass *p)
-{
-    const struct restir_blocks b = restir_blocks_of(p);
-    return (p->r->height + b.oy + (1u << b.log2) - 1) >> b.log2;
-}
-
 static void restir_band(void *ctx, uint32_t job, unsigned worker)
 {
     struct restir_pass *p = ctx;
     const struct restir_reuse *r = p->r;
     const struct restir_blocks b = restir_blocks_of(p);
-    const uint32_t columns = (r->width + b.ox + (1u << b.log2) - 1) >> b.log2;
+    const uint32_t band = job / p->band_groups, group = job % p->band_groups;
     uint32_t y0, y1;
-    restir_block_span(job, b.log2, b.oy, r->height, &y0, &y1);
+    restir_block_span(band, b.log2, b.oy, r->height, &y0, &y1);
     struct restir_counters c = {0};
-    for (uint32_t col = 0; col < columns; col++) {
+    const uint32_t col1 = (uint32_t)((uint64_t)(group + 1) * b.columns / p->band_groups);
+    for (uint32_t col = (uint32_t)((uint64_t)group * b.columns / p->band_groups); col < col1; col++) {
         uint32_t x0, x1;
         restir_block_span(col, b.log2, b.ox, r->width, &x0, &x1);
         for (uint32_t y = y0; y < y1; y++)
@@ -645,8 +650,18 @@ static bool restir_run(const struct restir_reuse *r, restir_pixel_fn *fn, const 
     }
     unsigned threads = r->threads ? r->threads : parallel_default_threads();
     if (threads > RESTIR_MAX_WORKERS) threads = RESTIR_MAX_WORKERS;
-    const bool bands = fn == restir_pair_pixel;
-    uint32_t jobs = bands ? restir_band_count(&pass) : (r->height + RESTIR_ROWS_PER_JOB - 1) / RESTIR_ROWS_PER_JOB;
+    uint32_t jobs = (r->height + RESTIR_ROWS_PER_JOB - 1) / RESTIR_ROWS_PER_JOB;
+    const uint32_t want = RESTIR_JOBS_PER_THREAD * threads;
+    bool bands = false;
+    if (fn == restir_pair_pixel) {
+        const struct restir_blocks b = restir_blocks_of(&pass);
+        if ((uint64_t)b.bands * b.columns >= want) {
+            bands = true;
+            pass.band_groups = (want + b.bands - 1) / b.bands;
+            if (pass.band_groups > b.columns) pass.band_groups = b.columns;
+            jobs = b.bands * pass.band_groups;
+        }
+    }
     if (!parallel_run(threads, jobs, bands ? restir_band : restir_rows, &pass, NULL, NULL, err)) return false;
     for (unsigned i = 0; i < threads; i++) restir_counters_add(c, &pass.counters[i]);
     return true;
