@@ -222,6 +222,13 @@ static bool rbdpt_emission_apart(const struct restir_bdpt_params *p, const struc
     return p->reuse && p->emission_samples > 1 && scene_has_emitting_shape(scene);
 }
 
+/* Whether a frame estimates it apart: the session kept the buffers (rbdpt_emission_apart, decided
+ * at init) and reuses. */
+static bool rbdpt_frame_emission_apart(const struct restir_bdpt_state *st, const struct restir_bdpt_params *p)
+{
+    return p->reuse && st->gbuf[0].emission != NULL;
+}
+
 static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, const struct scene *scene, uint32_t width,
                                          uint32_t height)
 {
@@ -452,7 +459,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
     c->frame = f->frame;
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;
     c->full = p->variant == RESTIR_BDPT_FULL;
-    c->emission_apart = p->reuse && st->gbuf[0].emission != NULL;  /* kept only when rbdpt_emission_apart */
+    c->emission_apart = rbdpt_frame_emission_apart(st, p);
     c->out = out;
     {
         /* Renders are numbered. The x_2 cache's entries stay valid while the scene object, the
@@ -663,7 +670,7 @@ static struct rbdpt_ctx *rbdpt_test_ctx(struct restir_bdpt_state *st, const stru
     c->frame = f->frame;
     c->power = p->heuristic == BDPT_HEURISTIC_POWER;
     c->full = p->variant == RESTIR_BDPT_FULL;
-    c->emission_apart = p->reuse && st->gbuf[0].emission != NULL;  /* kept only when rbdpt_emission_apart */
+    c->emission_apart = rbdpt_frame_emission_apart(st, p);
     c->reconnections = reconnections;
     /* The cache as the last render left it, valid only in that render's scene. */
     c->tick = st->x2c_tick;

@@ -8,6 +8,7 @@
  * spatial rounds leave the history. */
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "reuse/restir.h"
 #include "core/rng.h"
@@ -363,6 +364,52 @@ static void test_wrong_jacobian_is_caught(void)
     CHECK_MSG(fabs(z) > 5.0, "total z %.2f: the test cannot see a wrong Jacobian", z);
 }
 
+/* A paired spatial pass gives the same reservoirs, byte for byte, whatever its thread count: it
+ * visits pixels by bands of blocks (split into groups of columns for more threads) or by rows
+ * (an image of few blocks), and a pixel's candidates must not depend on which. Radius 4 (blocks of
+ * 4: bands, then groups), 8 (bands with one thread, rows with more) and 64 (one block: rows);
+ * 1, 3 and 5 threads, three rounds. */
+static void test_paired_pass_threads_agree(void)
+{
+    static struct toy_elem a[N_PX], out[3][N_PX];
+    static struct gbuffer_pixel px[N_PX];
+    for (uint32_t p = 0; p < N_PX; p++)
+        px[p] = (struct gbuffer_pixel){.t = 1.0f, .prev_x = (float)(p % W_PX) + 0.5f,
+                                       .prev_y = (float)(p / W_PX) + 0.5f, .prev_share = 1.0f};
+    struct gbuffer g = {.width = W_PX, .height = H_PX, .px = px};
+    void *scratch = malloc(restir_pair_scratch_bytes(W_PX, H_PX));
+    CHECK(scratch != NULL);
+    if (!scratch) return;
+    struct toy_ctx ctx = {0};
+    const float radii[3] = {4.0f, 8.0f, 64.0f};
+    const unsigned threads[3] = {1, 3, 5};
+    for (int ri = 0; ri < 3; ri++) {
+        uint64_t shifts[3] = {0};
+        for (int ti = 0; ti < 3; ti++) {
+            struct restir_reuse r = {.ops = &toy_ops, .ctx = &ctx, .width = W_PX, .height = H_PX, .seed = 77,
+                                     .threads = threads[ti], .gbuf = &g, .temporal_cap = 20, .neighbors = 5,
+                                     .radius = radii[ri], .paired = true, .pair_scratch = scratch};
+            struct restir_counters c = {0};
+            struct err err = {0};
+            toy_initial(a, r.seed, 0);
+            memset(out[ti], 0, sizeof out[ti]);
+            for (uint32_t round = 0; round < 3; round++) {
+                r.frame = round;
+                CHECK(restir_spatial_pass(&r, (const uint8_t *)a, (uint8_t *)out[ti], &c, &err));
+                memcpy(a, out[ti], sizeof a);   /* the next round reads this one's output */
+            }
+            shifts[ti] = c.shifts;
+        }
+        for (int ti = 1; ti < 3; ti++)
+            CHECK_MSG(memcmp(out[0], out[ti], sizeof out[0]) == 0 && shifts[0] == shifts[ti],
+                      "radius %.0f: %u threads differ from 1 (%llu shifts against %llu)", (double)radii[ri],
+                      threads[ti], (unsigned long long)shifts[ti], (unsigned long long)shifts[0]);
+        printf("  radius %.0f: %llu shifts, the same reservoirs with 1, 3 and 5 threads\n", (double)radii[ri],
+               (unsigned long long)shifts[0]);
+    }
+    free(scratch);
+}
+
 /* Each pairing is an involution, partners stay inside the block (B - 1 pixels per axis), never
  * the pixel itself, and every pixel not at an image edge has a partner most of the time. */
 static void test_pairing_is_an_involution(void)
@@ -549,7 +596,7 @@ static void test_frame_history_one_round(void) { check_history_after(1); }
 static void test_frame_history_two_rounds(void) { check_history_after(2); }
 
 TEST_MAIN(TEST(test_frame_store_zeroes_nonfinite), TEST(test_frame_history_one_round),
-          TEST(test_frame_history_two_rounds), TEST(test_pairing_is_an_involution), TEST(test_neighbour_test_is_symmetric), TEST(test_reuse_unbiased_unpaired),
+          TEST(test_frame_history_two_rounds), TEST(test_pairing_is_an_involution), TEST(test_paired_pass_threads_agree), TEST(test_neighbour_test_is_symmetric), TEST(test_reuse_unbiased_unpaired),
           TEST(test_reuse_unbiased_paired), TEST(test_reuse_unbiased_rejecting_unpaired),
           TEST(test_reuse_unbiased_rejecting_paired), TEST(test_history_share_unbiased), TEST(test_class_cap_unbiased),
           TEST(test_class_cap_of_the_reservoir_is_caught), TEST(test_wrong_jacobian_is_caught))
