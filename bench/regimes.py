@@ -51,9 +51,11 @@ MOVING_LIGHT = {"cornell-box": "ceiling_light", "cornell-glossy": "ceiling_light
 SPP_LADDER = [1, 4, 16] if QUICK else [1, 2, 4, 8, 16, 32, 64]
 SMS_LADDER = [1, 4] if QUICK else [1, 2, 4, 8, 16]
 FRAMES_LADDER = [1, 4, 8] if QUICK else [1, 2, 4, 8, 16, 32]
-# The real-time ladder: (parameter, values); "x" values multiply the pixel count.
+# The real-time ladder: (parameter, values), the first value the method's default; "x" values
+# multiply the pixel count, "auto" is the parameter's 0 (restir_bdpt: the pixel count, or no light
+# subpaths in a scene without a caustic caster).
 LADDER = {"pt": ("spp", SPP_LADDER), "sms": ("spp", SMS_LADDER), "sms_ssp": ("spp", SMS_LADDER),
-          "bdpt": ("light_paths", ["1x", "2x", "4x", "8x"]), "restir_bdpt": ("light_paths", ["1x", "2x", "4x", "8x"]),
+          "bdpt": ("light_paths", ["1x", "2x", "4x", "8x"]), "restir_bdpt": ("light_paths", ["auto", "2x", "4x", "8x"]),
           "restir_pt": ("spatial_neighbors", [3, 6, 12, 24, 48]), "restir_sss": ("candidates", [1, 2, 4, 8]),
           "restir_sms": ("spatial_neighbors", [1, 2, 4, 8])}
 def extra_params(text):
@@ -157,6 +159,8 @@ def moving_bodies(scene, scene_path):
 
 def ladder_params(method, value, side):
     key, _ = LADDER[method]
+    if value == "auto":
+        return {key: 0}
     if isinstance(value, str) and value.endswith("x"):
         return {key: int(value[:-1]) * side * side}
     return {key: value}

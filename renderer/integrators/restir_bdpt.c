@@ -8,7 +8,9 @@
  * Lightweight MIS. A path x_0 .. x_k (x_0 the camera, x_k on an emitter) is produced here by at
  * most three techniques: s = 0 (the camera subpath hits x_k), s = 1 (NEE from x_{k-1}) and
  * t = 1 (a light subpath reaches x_1 and connects to the eye), with the power or balance
- * heuristic over exactly these three. The quantities are SmallVCM's dVCM / dVC (bdpt_mis.h)
+ * heuristic over exactly these three — t = 1 only on a path through a caustic caster (a delta
+ * or near-specular lobe: rbdpt_mis_vertex; on the others it adds variance and nothing else), so
+ * any other path is weighed over s = 0 and s = 1 alone. The quantities are SmallVCM's dVCM / dVC (bdpt_mis.h)
  * with every term of a vertex-connection technique left out: on either subpath, dVCM before
  * the first scattering names the far end's nearest technique that we keep (t = 1 on the
  * camera side; s = 1 on the light side, whose dVC at the start is s = 0), and after it dVCM
@@ -76,21 +78,27 @@ void restir_bdpt_mis_scatter(struct restir_bdpt_mis *m, float cos_out, float pdf
 
 float restir_bdpt_mis_emission(const struct restir_bdpt_mis *cam, float direct_pdf_a, float emission_pdf_w, bool power)
 {
-    return 1.0f / (1.0f + rbdpt_mis_f(direct_pdf_a, power) * cam->dvcm + rbdpt_mis_f(emission_pdf_w, power) * cam->dvc);
+    /* After the first scattering dVCM is s = 1's term and dVC t = 1's (see above). */
+    const float t1 = rbdpt_mis_keeps_t1(cam) ? rbdpt_mis_f(emission_pdf_w, power) * cam->dvc : 0.0f;
+    return 1.0f / (1.0f + rbdpt_mis_f(direct_pdf_a, power) * cam->dvcm + t1);
 }
 
 float restir_bdpt_mis_nee(const struct restir_bdpt_mis *cam, float bsdf_fwd_w, float bsdf_rev_w, float direct_pdf_w,
                           float emission_pdf_w, float cos_camera, float cos_light, bool power)
 {
     float w_light = rbdpt_mis_f(bsdf_fwd_w / direct_pdf_w, power);
-    float w_camera = rbdpt_mis_f(emission_pdf_w * fabsf(cos_camera) / (direct_pdf_w * fabsf(cos_light)), power) *
-                     ((cam->near ? cam->dvcm : 0.0f) + cam->dvc * rbdpt_mis_f(bsdf_rev_w, power));
+    /* The techniques with more light vertices: t = 1 (and the full variant's connections). */
+    float w_camera = !rbdpt_mis_keeps_t1(cam)
+                         ? 0.0f
+                         : rbdpt_mis_f(emission_pdf_w * fabsf(cos_camera) / (direct_pdf_w * fabsf(cos_light)), power) *
+                               ((cam->near ? cam->dvcm : 0.0f) + cam->dvc * rbdpt_mis_f(bsdf_rev_w, power));
     return 1.0f / (w_light + 1.0f + w_camera);
 }
 
 float restir_bdpt_mis_camera(const struct restir_bdpt_mis *light, float camera_pdf_a, float light_paths,
                              float light_rev_w, bool power)
 {
+    if (!rbdpt_mis_keeps_t1(light)) return 0.0f;
     float w_light = rbdpt_mis_f(camera_pdf_a / light_paths, power) *
                     ((light->near ? light->dvcm : 0.0f) + light->dvc * rbdpt_mis_f(light_rev_w, power));
     return 1.0f / (w_light + 1.0f);
@@ -128,6 +136,8 @@ void restir_bdpt_rc_mis_nee(float bsdf_fwd_w, float bsdf_rev_w, float direct_pdf
 float restir_bdpt_mis_reconnect(enum restir_bdpt_rc_kind kind, float a, float b, const struct restir_bdpt_mis *m,
                                 float pdf_fwd, float pdf_rev, bool power)
 {
+    /* b carries t = 1's terms: m is the new prefix with the kept suffix's caster flag. */
+    if (!rbdpt_mis_keeps_t1(m)) b = 0.0f;
     switch (kind) {
     case RBDPT_RC_AFTER: return 1.0f / (a + b * m->dvc);
     case RBDPT_RC_EMIT_LAST: return 1.0f / (1.0f + a * rbdpt_mis_f(1.0f / pdf_fwd, power) + b * m->dvc);
@@ -166,7 +176,7 @@ bool restir_bdpt_params_valid(const struct restir_bdpt_params *p, struct err *er
         return err_set(err, ERR_INVALID, "/params/max_depth", "max_depth must be in 1..%u", RESTIR_BDPT_MAX_DEPTH);
     if (p->rr_depth > 1024) return err_set(err, ERR_INVALID, "/params/rr_depth", "rr_depth must be in 0..1024");
     if (p->light_paths > (1u << 26))
-        return err_set(err, ERR_INVALID, "/params/light_paths", "light_paths must be in 0..%u (0 = the pixel count)",
+        return err_set(err, ERR_INVALID, "/params/light_paths", "light_paths must be in 0..%u (0 = automatic)",
                        1u << 26);
     if (p->lt_capacity < 1 || p->lt_capacity > 64)
         return err_set(err, ERR_INVALID, "/params/lt_capacity", "lt_capacity must be in 1..64");
@@ -229,12 +239,41 @@ static bool rbdpt_frame_emission_apart(const struct restir_bdpt_state *st, const
     return p->reuse && st->gbuf[0].emission != NULL;
 }
 
-static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, const struct scene *scene, uint32_t width,
-                                         uint32_t height)
+/* Whether some shape's material is a caustic caster (rbdpt_caster): only a path through one keeps
+ * the lightweight variant's t = 1 technique. */
+static bool rbdpt_scene_has_caustic_caster(const struct scene *scene)
+{
+    for (uint32_t i = 0; i < scene->shape_count; i++)
+        if (rbdpt_caster(&scene->materials[scene->shapes[i].material])) return true;
+    return false;
+}
+
+uint32_t restir_bdpt_light_paths(const struct restir_bdpt_params *p, const struct scene *scene, uint32_t width,
+                                 uint32_t height)
+{
+    if (p->light_paths) return p->light_paths;
+    /* The lightweight variant weighs t = 1 only on paths through a caustic caster
+     * (rbdpt_mis_vertex): in a scene without one its light subpaths would make no sample, and it
+     * traces none (N_L = 0
+     * also leaves t = 1's terms out of the camera side's weights). The full variant's light
+     * subpaths also feed its vertex connections; it keeps them. */
+    if (p->variant == RESTIR_BDPT_LIGHTWEIGHT && !rbdpt_scene_has_caustic_caster(scene)) return 0;
+    return width * height;
+}
+
+/* The light pass's blocks for `light_paths` resolved subpaths (none: no blocks). */
+static struct bdpt_blocks rbdpt_light_blocks_of(uint32_t light_paths, const struct restir_bdpt_params *p,
+                                                uint32_t width, uint32_t height)
+{
+    return light_paths ? bdpt_blocks_of(light_paths, p->lt_capacity, 3, width, height) : (struct bdpt_blocks){0};
+}
+
+static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, const struct scene *scene,
+                                         uint32_t light_paths, uint32_t width, uint32_t height)
 {
     struct rbdpt_sizes z;
     uint64_t n = (uint64_t)width * height;
-    z.lb = bdpt_blocks_of(p->light_paths, p->lt_capacity, 3, width, height);
+    z.lb = rbdpt_light_blocks_of(light_paths, p, width, height);
     const uint64_t blocks = z.lb.blocks;
     z.lt = 2 * blocks * z.lb.region * sizeof(struct restir_bdpt_lt_sample);
     z.pixels = (n + 1) * sizeof(uint32_t);
@@ -260,7 +299,7 @@ static struct rbdpt_sizes rbdpt_sizes_of(const struct restir_bdpt_params *p, con
 uint64_t restir_bdpt_bytes_planned(const struct restir_bdpt_params *p, const struct scene *scene, uint32_t width,
                                    uint32_t height)
 {
-    struct rbdpt_sizes z = rbdpt_sizes_of(p, scene, width, height);
+    struct rbdpt_sizes z = rbdpt_sizes_of(p, scene, restir_bdpt_light_paths(p, scene, width, height), width, height);
     return z.lt + z.pixels + z.blocks_b + z.res + z.lvc + z.pairs + z.x2c;
 }
 
@@ -320,10 +359,16 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
                       uint32_t width, uint32_t height, struct err *err)
 {
     memset(st, 0, sizeof *st);
-    if (!restir_bdpt_params_valid(p, err) || !bdpt_scene_supported(scene, "restir_bdpt", err) ||
-        !bdpt_blocks_alloc(&st->lb, p->light_paths, p->lt_capacity, 3, width, height, err))
-        return false;
-    struct rbdpt_sizes z = rbdpt_sizes_of(p, scene, width, height);
+    if (!restir_bdpt_params_valid(p, err) || !bdpt_scene_supported(scene, "restir_bdpt", err)) return false;
+    /* Decided once, from the scene the session starts with (as the emission buffer): a session
+     * whose scene later gains a caustic caster keeps no light subpaths, and its weights over s = 0
+     * and s = 1 stay a partition of unity (every emitter is a shape, which s = 0 can hit through
+     * any chain of surfaces), with caustics left to s = 0 alone. */
+    st->auto_light_paths = restir_bdpt_light_paths(&(struct restir_bdpt_params){.variant = p->variant}, scene, width,
+                                                   height);
+    const uint32_t light_paths = p->light_paths ? p->light_paths : st->auto_light_paths;
+    if (light_paths && !bdpt_blocks_alloc(&st->lb, light_paths, p->lt_capacity, 3, width, height, err)) return false;
+    struct rbdpt_sizes z = rbdpt_sizes_of(p, scene, light_paths, width, height);
     size_t n = (size_t)width * height;
     st->width = width;
     st->height = height;
@@ -365,7 +410,7 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
         st->lvc_first = calloc((size_t)z.lb.blocks + 1, sizeof *st->lvc_first);
         if (p->reuse) st->lvc_path = malloc((size_t)z.lb.blocks * z.lvb.region * sizeof *st->lvc_path);
     }
-    if (!st->lt || !st->lt_sorted || !st->pixel_first ||
+    if ((lt_n && (!st->lt || !st->lt_sorted)) || !st->pixel_first ||
         !st->res || !st->caustic || !st->caustic_prev || !st->shifted || !st->shifted_sorted || !st->shift_first ||
         (p->reuse && (!st->res_prev || !st->res_spatial || !st->x2c || (p->paired_spatial && !st->pair_scratch))) ||
         (p->variant == RESTIR_BDPT_FULL && (!st->lvc || !st->lvc_first ||
@@ -421,7 +466,8 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
 {
     if (!restir_bdpt_params_valid(p, err) || !bdpt_frame_valid(f, "restir_bdpt", out, st->width, st->height, err))
         return false;
-    struct rbdpt_sizes z = rbdpt_sizes_of(p, f->scene, st->width, st->height);
+    struct rbdpt_sizes z =
+        rbdpt_sizes_of(p, f->scene, p->light_paths ? p->light_paths : st->auto_light_paths, st->width, st->height);
     if (!bdpt_blocks_same(&st->lb, z.lb) || !bdpt_blocks_same(&st->lvb, z.lvb))
         return err_set(err, ERR_INVALID, NULL, "the parameters changed the buffers' sizes since init");
     unsigned threads = f->threads ? f->threads : parallel_default_threads();

@@ -91,7 +91,7 @@ struct RESTIRD_STORED_IN_BYTES restir_bdpt_params {
     enum restir_bdpt_variant variant;  /* lightweight (default) or full */
     uint32_t max_depth;        /* scattering events of a full path, 1..RESTIR_BDPT_MAX_DEPTH (64, as bdpt) */
     uint32_t rr_depth;         /* Russian roulette after this many bounces of a subpath (3) */
-    uint32_t light_paths;      /* N_L per frame; 0 = the pixel count (default) */
+    uint32_t light_paths;      /* N_L per frame; 0 (default) = automatic (restir_bdpt_light_paths) */
     uint32_t lt_capacity;      /* light-traced samples kept per light subpath on average, 1..64 (8) */
     uint32_t lvc_capacity;     /* full variant: light vertices cached per light subpath on average,
                                   1..64 (8, as bdpt) */
@@ -163,8 +163,9 @@ struct restir_bdpt_reservoir {
  *     w_k hits the emitter) or Le / p_light (s = 1: w_k is the light sample's direction);
  *   - `mis_a`, `mis_b`, `mis_c`: the suffix's part of the MIS weight, so that the shifted path's
  *     weight follows from its new prefix alone (the recursive reconnection MIS of
- *     [ReSTIR BDPT §6.2]; lightweight: restir_bdpt_mis_reconnect's two constants; full: the
- *     weight is
+ *     [ReSTIR BDPT §6.2]; lightweight: restir_bdpt_mis_reconnect's two constants, and mis_c 1
+ *     when a vertex past x_k is a caustic caster, else 0 (the path keeps the t = 1 technique whatever
+ *     its new prefix: rbdpt_mis_vertex); full: the weight is
  *     1 / (1 + a dVCM + b dVC + c) with dVCM, dVC those after x_k's scattering, which the suffix
  *     maps affinely onto the last vertex's — see restir_bdpt_internal.h);
  *   - `pdf`: p_{k-1}(w_{k-1}) |cos_k| / d^2 p_k(w_k) (p_k = 1 for a light sample's direction), the
@@ -230,6 +231,7 @@ struct restir_bdpt_shifted {
 
 struct restir_bdpt_state {
     uint32_t width, height;
+    uint32_t auto_light_paths;               /* what light_paths 0 means in this session (0: none) */
     struct bdpt_blocks lb;                   /* region: light tracing samples per block; rays: 3 per
                                               * block (intersect, occluded rays, light vertices) */
     struct restir_bdpt_lt_sample *lt;        /* lb.blocks * lb.region, per-block regions */
@@ -311,7 +313,11 @@ struct RESTIRD_STORED_IN_BYTES restir_bdpt_stats {
     uint64_t rays_intersect, rays_occluded;
 };
 
-
+/* The light subpaths a frame traces: light_paths when set; otherwise the pixel count, except in a
+ * lightweight session whose scene has no caustic caster (no delta or near-specular lobe), which
+ * traces none: its MIS leaves the t = 1 technique out on every path. */
+uint32_t restir_bdpt_light_paths(const struct restir_bdpt_params *p, const struct scene *scene, uint32_t width,
+                                 uint32_t height);
 uint64_t restir_bdpt_bytes_planned(const struct restir_bdpt_params *p, const struct scene *scene, uint32_t width,
                                    uint32_t height);
 bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, const struct restir_bdpt_params *p,
@@ -372,6 +378,9 @@ struct restir_bdpt_mis {
     float dvcm, dvc;
     bool near;                 /* no scattering yet (or `full`): dvcm still names a wanted technique */
     bool full;
+    /* Lightweight: a vertex so far is a caustic caster (rbdpt_mis_vertex). Only such a path
+     * keeps the t = 1 technique; the others are weighed over s = 0 and s = 1 alone. */
+    bool caster;
 };
 struct restir_bdpt_mis restir_bdpt_mis_camera_start(float light_paths, float camera_pdf_w, bool power);
 struct restir_bdpt_mis restir_bdpt_mis_light_start(float direct_pdf_a, float emission_pdf_w, float cos_light,

@@ -179,6 +179,7 @@ void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdpt_view 
                     } else {
                         restir_bdpt_rc_mis_emission(&mis, direct_pdf_a, emission_pdf_w, hit_d2, cos_hit, last,
                                                     suffix.dvc, c->power, &rce.mis_a, &rce.mis_b);
+                        rce.mis_c = suffix.caster ? 1.0f : 0.0f;
                     }
                     if (p->copy_mis) rce.L = vec3_scale(rce.L, w);
                 }
@@ -218,6 +219,10 @@ void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdpt_view 
             rc_k.pdf = pdf * fabsf(cos_k) / d2;
             wo_world = vec3_neg(w);
         }
+        /* x_{depth+1} is one of the scattering vertices of every path that continues from here
+         * (after the hybrid block above, which may start mis again from the previous vertex). */
+        rbdpt_mis_vertex(&mis, m);
+        if (rc_k.k && rc_k.k <= depth) rbdpt_mis_vertex(&suffix, m);
         struct vec3 wo = frame_to_local(&s.frame, wo_world);
         bool connectable = (material_flags(m) & (BSDF_DIFFUSE | BSDF_GLOSSY)) != 0;
         float ul = rng_next_float(rng), u1 = rng_next_float(rng), u2 = rng_next_float(rng);
@@ -251,6 +256,7 @@ void rbdpt_camera_candidates(const struct rbdpt_ctx *c, const struct rbdpt_view 
                             if (!c->full) {
                                 restir_bdpt_rc_mis_nee(fwd, rev, direct_pdf_w, emission_pdf_w, cos_ng, cos_l, last,
                                                        suffix.dvc, c->power, &rcn.mis_a, &rcn.mis_b);
+                                rcn.mis_c = suffix.caster ? 1.0f : 0.0f;
                             } else if (!last) {   /* (a light sample leaving x_k is drawn again by a shift) */
                                 /* restir_bdpt_mis_nee's K */
                                 const float k_cam = rbdpt_mis_f(emission_pdf_w * fabsf(cos_ng) /

@@ -57,7 +57,8 @@ struct rbdpt_x2_entry {
     };
     uint32_t light_path, origin_frame, tick;
     uint16_t depth_key;
-    uint8_t near, kind;
+    uint8_t near;              /* bit 0: the MIS state's near, bit 1: its caster */
+    uint8_t kind;
 };
 
 /* ---- per-frame context -------------------------------------------------------------------- */
@@ -154,6 +155,38 @@ static inline bool rbdpt_rough(const struct material *m)
 {
     unsigned f = material_flags(m);
     return (f & (BSDF_DIFFUSE | BSDF_GLOSSY)) && !(f & BSDF_DELTA);
+}
+
+/* A caustic caster: a material with a delta lobe, or a glossy lobe smoother than GGX alpha
+ * RBDPT_CASTER_ROUGHNESS (restir_pt's default roughness_min for reconnection, below which a lobe
+ * counts as near-specular). The light a diffuse surface receives off one is found by the camera's
+ * techniques only through a narrow lobe, by light tracing easily. */
+#define RBDPT_CASTER_ROUGHNESS 0.2f
+static inline bool rbdpt_caster(const struct material *m)
+{
+    if (!rbdpt_rough(m)) return true;
+    const int n = material_lobe_count(m);
+    for (int i = 0; i < n; i++)
+        if ((material_lobe_flags(m, i) & BSDF_GLOSSY) && material_lobe_roughness(m, i) < RBDPT_CASTER_ROUGHNESS)
+            return true;
+    return false;
+}
+/* The lightweight variant's techniques of a path: s = 0 and s = 1 always, t = 1 only if one of
+ * its scattering vertices x_1 .. x_{k-1} is a caustic caster. A path without one is one the
+ * camera's techniques sample well, and a light-traced sample of it lands in a pixel by chance: it
+ * adds variance to the reservoirs and, spread by the spatial passes, to the neighbours
+ * (docs/benchmarks.md, "Light subpaths where nothing is specular"). Both subpaths call this at
+ * every scattering vertex, so the choice is a function of the path and the weights stay a
+ * partition of unity on each. */
+static inline void rbdpt_mis_vertex(struct restir_bdpt_mis *mis, const struct material *m)
+{
+    if (rbdpt_caster(m)) mis->caster = true;
+}
+
+/* Whether the t = 1 technique's terms count in the weights of the path `mis` has seen. */
+static inline bool rbdpt_mis_keeps_t1(const struct restir_bdpt_mis *mis)
+{
+    return mis->full || mis->caster;
 }
 
 /* A light subpath's vertex x_2 (light depth `depth` >= 1) as it was before it scattered towards

@@ -62,6 +62,7 @@ bool rbdpt_t1_eval(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const 
     struct restir_bdpt_mis mis = x2->mis;
     restir_bdpt_mis_scatter(&mis, cos_i_ng, p2, material_pdf(x2->m, wi, wo), false, c->power);
     restir_bdpt_mis_hit(&mis, d2, cos_1, c->power);
+    rbdpt_mis_vertex(&mis, m1);
     float camera_pdf_a;
     if (!rbdpt_connect_camera(c, v, x1, m1, vec3_neg(w), beta, &mis, eye_sees, rays, pixel, C, sub, &camera_pdf_a,
                               mis_w) ||
@@ -112,6 +113,7 @@ bool rbdpt_trace_light(const struct rbdpt_ctx *c, const struct rbdpt_view *v, ui
         surface_from_hit(scene, &hit, org, dir, &s);
         restir_bdpt_mis_hit(&mis, vec3_length2(vec3_sub(s.p, prev_p)), vec3_dot(dir, s.ng), c->power);
         const struct material *m = &scene->materials[s.material];
+        rbdpt_mis_vertex(&mis, m);
         struct vec3 wo_world = vec3_neg(dir);
         if (!x2_out && (!only_depth || depth == only_depth) && (material_flags(m) & (BSDF_DIFFUSE | BSDF_GLOSSY))) {
             if (vertices) (*vertices)++;

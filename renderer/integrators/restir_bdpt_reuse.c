@@ -24,7 +24,7 @@ static void rbdpt_x2_keep(const struct rbdpt_ctx *c, uint32_t pixel, const struc
                                  .dvc = x2->mis.dvc, .u_rr = x2->u_rr, .depth = x2->depth,
                                  .light_path = res->r.light_path, .origin_frame = res->r.origin_frame,
                                  .tick = c->tick, .depth_key = (uint16_t)(res->r.head.bits >> 8),
-                                 .near = x2->mis.near, .kind = RBDPT_CACHE_X2};
+                                 .near = (uint8_t)(x2->mis.near | x2->mis.caster << 1), .kind = RBDPT_CACHE_X2};
 }
 
 /* Entry e if it holds sample src's x_2, valid in view v. */
@@ -58,7 +58,7 @@ static bool rbdpt_x2_cached(const struct rbdpt_ctx *c, const struct rbdpt_view *
     *x2 = (struct rbdpt_x2){.s = {.p = e->p, .ng = e->ng, .ns = e->ns, .frame = frame_from_normal(e->ns),
                                   .shape = e->shape, .prim = e->prim, .material = e->material},
                             .m = &v->scene->materials[e->material], .wo_world = e->wo_world, .beta = e->beta,
-                            .rr_beta = e->rr_beta, .mis = {e->dvcm, e->dvc, e->near != 0, c->full},
+                            .rr_beta = e->rr_beta, .mis = {e->dvcm, e->dvc, (e->near & 1) != 0, c->full, (e->near & 2) != 0},
                             .u_rr = e->u_rr, .depth = e->depth};
     return true;
 }
@@ -103,6 +103,7 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
         m = &scene->materials[s.material];
         const bool rough = rbdpt_rough(m);
         if (j >= 2 && prev_rough && rough) return false;
+        rbdpt_mis_vertex(&mis, m);
         if (j + 1 == k) break;
         for (uint32_t n = 0; n < draws - 4u; n++) rng_next_float(&rng);   /* the light sample's (and vertex choice) */
         struct vec3 wo = frame_to_local(&s.frame, vec3_neg(dir));
@@ -123,6 +124,8 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
     surface_at(scene, src->rc.shape, src->rc.prim, src->rc.b1, src->rc.b2, &sk);
     const struct material *mk = &scene->materials[sk.material];
     if (!rbdpt_rough(mk)) return false;
+    /* x_k is rough, and may still be a caustic caster (a narrow glossy lobe). */
+    rbdpt_mis_vertex(&mis, mk);
     /* y_{k-1} -> x_k. */
     struct vec3 w1 = vec3_sub(sk.p, s.p);
     float d2 = vec3_length2(w1);
@@ -203,9 +206,13 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
         restir_bdpt_mis_scatter(&mis, vec3_dot(wk_world, sk.ng), fwd, rev, false, c->power);
         if (!retrace && c->full)
             mis_w = rbdpt_full_weight(&src->rc, &mis);
-        else if (!retrace && !c->p->copy_mis)
+        else if (!retrace && !c->p->copy_mis) {
+            /* The kept suffix's vertices are the new path's too. */
+            struct restir_bdpt_mis whole = mis;
+            whole.caster = whole.caster || src->rc.mis_c != 0.0f;
             mis_w = restir_bdpt_mis_reconnect(k + 1 == e ? RBDPT_RC_EMIT_LAST : RBDPT_RC_AFTER, src->rc.mis_a,
-                                              src->rc.mis_b, &mis, fwd, rev, c->power);
+                                              src->rc.mis_b, &whole, fwd, rev, c->power);
+        }
     }
     if (!(mis_w > 0.0f) || !isfinite(mis_w)) return false;
     if (!bdpt_visible(scene->accel, s.p, s.ng, sk.p, &sk.ng, rays)) return false;
@@ -217,6 +224,7 @@ static bool rbdpt_reconnect(const struct rbdpt_ctx *c, const struct rbdpt_view *
         surface_oct_encode(wk_world, &rc_out->wk_u, &rc_out->wk_v);
         restir_bdpt_rc_mis_nee(fwd, rev, direct_pdf_w, emission_pdf_w, vec3_dot(wk_world, sk.ng), cos_l, true, 1.0f,
                                c->power, &rc_out->mis_a, &rc_out->mis_b);
+        rc_out->mis_c = 0.0f;   /* no vertex past x_k */
         if (c->p->copy_mis) {
             L_k = vec3_scale(L_k, mis_w);
             mis_w = 1.0f;
