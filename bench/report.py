@@ -538,7 +538,7 @@ def write(results, stab, peer, fail, started, elapsed):
           f"- **Real time**: the error of single frames after {regimes.WARMUP} warm-up frames (frames "
           f"{', '.join(str(regimes.WARMUP + o) for o in regimes.MEASURED)} of each session), against the frame's render "
           "time. A method spends a longer frame on more samples of its own kind: spp (pt, sms, sms_ssp), light subpaths "
-          "(bdpt, restir_bdpt: 1, 2, 4, 8 × the pixel count), spatial neighbours (restir_pt: 3, 6, 12, 24, 48; restir_sms: "
+          "(bdpt: 1, 2, 4, 8 × the pixel count; restir_bdpt: its default, then 2, 4, 8 × the pixel count), spatial neighbours (restir_pt: 3, 6, 12, 24, 48; restir_sms: "
           "1, 2, 4, 8), BSSRDF candidates (restir_sss: 1, 2, 4, 8). Also with the camera sliding and a light moving (below).",
           "- **Converge**: the error of the image a user keeps against the total time since the session began: pt, sms "
           "and sms_ssp the first frame of a session at more spp; bdpt the mean of its first k frames; a method with temporal reuse either "

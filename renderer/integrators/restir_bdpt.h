@@ -194,7 +194,8 @@ struct restir_bdpt_rc {
     float wk_u, wk_v;          /* octahedral w_k (world) */
     struct vec3 L;
     float pdf;
-    float mis_a, mis_b, mis_c; /* the suffix's MIS constants (lightweight: a and b; full: all three) */
+    float mis_a, mis_b, mis_c; /* the suffix's MIS constants (lightweight: a and b, and in c its caster
+                                  flag; full: all three) */
     union {
         uint32_t light_path;   /* full variant, s >= 2: the light subpath the connection joins (frame
                                   r.origin_frame) */

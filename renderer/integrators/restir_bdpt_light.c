@@ -15,6 +15,8 @@ static bool rbdpt_connect_camera(const struct rbdpt_ctx *c, const struct rbdpt_v
                                  uint32_t *pixel, struct vec3 *value, float sub[2], float *camera_pdf_a_out,
                                  float *mis_out)
 {
+    /* A path without a caustic caster has no t = 1 technique (rbdpt_mis_vertex): no shadow ray. */
+    if (!rbdpt_mis_keeps_t1(mis)) return false;
     struct bdpt_eye_link e;
     if (!bdpt_eye_link(&v->cam, v->plane_dist2, eye_sees ? NULL : v->scene->accel, s, m, wo_world, rc, &e))
         return false;
@@ -40,6 +42,9 @@ bool rbdpt_t1_eval(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const 
 {
     const struct material *m1 = &v->scene->materials[x1->material];
     if (!(material_flags(m1) & (BSDF_DIFFUSE | BSDF_GLOSSY))) return false;
+    struct restir_bdpt_mis whole = x2->mis;   /* x_1 joins the path's vertices */
+    rbdpt_mis_vertex(&whole, m1);
+    if (!rbdpt_mis_keeps_t1(&whole)) return false;   /* no t = 1 technique on this path */
     struct vec3 w = vec3_sub(x1->p, x2->s.p);
     float d2 = vec3_length2(w);
     if (!(d2 > 0.0f)) return false;
