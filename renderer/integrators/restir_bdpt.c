@@ -10,8 +10,8 @@
  * t = 1 (a light subpath reaches x_1 and connects to the eye), with the power or balance
  * heuristic over exactly these three — t = 1 only on a path through a caustic caster (a delta
  * or near-specular lobe: rbdpt_mis_vertex; on the others it adds variance and nothing else), so
- * any other path is weighed over s = 0 and s = 1 alone. The quantities are SmallVCM's dVCM / dVC (bdpt_mis.h)
- * with every term of a vertex-connection technique left out: on either subpath, dVCM before
+ * any other path is weighed over s = 0 and s = 1 alone. The quantities are SmallVCM's dVCM /
+ * dVC (bdpt_mis.h) with every term of a vertex-connection technique left out: on either subpath, dVCM before
  * the first scattering names the far end's nearest technique that we keep (t = 1 on the
  * camera side; s = 1 on the light side, whose dVC at the start is s = 0), and after it dVCM
  * names a connection technique (dropped from dVC's accumulation and from every weight), while
@@ -248,17 +248,28 @@ static bool rbdpt_scene_has_caustic_caster(const struct scene *scene)
     return false;
 }
 
+/* What light_paths 0 means for `variant` in `scene`. The lightweight variant weighs t = 1 only on
+ * paths through a caustic caster (rbdpt_mis_vertex): in a scene without one its light subpaths
+ * would make no sample, and it traces none (N_L = 0 also leaves t = 1's terms out of the camera
+ * side's weights). The full variant's light subpaths also feed its vertex connections; it keeps
+ * them. */
+static uint32_t rbdpt_auto_light_paths(enum restir_bdpt_variant variant, const struct scene *scene, uint32_t width,
+                                       uint32_t height)
+{
+    if (variant == RESTIR_BDPT_LIGHTWEIGHT && !rbdpt_scene_has_caustic_caster(scene)) return 0;
+    return width * height;
+}
+
 uint32_t restir_bdpt_light_paths(const struct restir_bdpt_params *p, const struct scene *scene, uint32_t width,
                                  uint32_t height)
 {
-    if (p->light_paths) return p->light_paths;
-    /* The lightweight variant weighs t = 1 only on paths through a caustic caster
-     * (rbdpt_mis_vertex): in a scene without one its light subpaths would make no sample, and it
-     * traces none (N_L = 0
-     * also leaves t = 1's terms out of the camera side's weights). The full variant's light
-     * subpaths also feed its vertex connections; it keeps them. */
-    if (p->variant == RESTIR_BDPT_LIGHTWEIGHT && !rbdpt_scene_has_caustic_caster(scene)) return 0;
-    return width * height;
+    return p->light_paths ? p->light_paths : rbdpt_auto_light_paths(p->variant, scene, width, height);
+}
+
+/* The light subpaths a frame of session st traces (its automatic count decided at init). */
+static uint32_t rbdpt_session_light_paths(const struct restir_bdpt_state *st, const struct restir_bdpt_params *p)
+{
+    return p->light_paths ? p->light_paths : st->auto_light_paths;
 }
 
 /* The light pass's blocks for `light_paths` resolved subpaths (none: no blocks). */
@@ -364,9 +375,8 @@ bool restir_bdpt_init(struct restir_bdpt_state *st, const struct scene *scene, c
      * whose scene later gains a caustic caster keeps no light subpaths, and its weights over s = 0
      * and s = 1 stay a partition of unity (every emitter is a shape, which s = 0 can hit through
      * any chain of surfaces), with caustics left to s = 0 alone. */
-    st->auto_light_paths = restir_bdpt_light_paths(&(struct restir_bdpt_params){.variant = p->variant}, scene, width,
-                                                   height);
-    const uint32_t light_paths = p->light_paths ? p->light_paths : st->auto_light_paths;
+    st->auto_light_paths = rbdpt_auto_light_paths(p->variant, scene, width, height);
+    const uint32_t light_paths = rbdpt_session_light_paths(st, p);
     if (light_paths && !bdpt_blocks_alloc(&st->lb, light_paths, p->lt_capacity, 3, width, height, err)) return false;
     struct rbdpt_sizes z = rbdpt_sizes_of(p, scene, light_paths, width, height);
     size_t n = (size_t)width * height;
@@ -466,8 +476,7 @@ bool restir_bdpt_render(struct restir_bdpt_state *st, const struct restir_bdpt_p
 {
     if (!restir_bdpt_params_valid(p, err) || !bdpt_frame_valid(f, "restir_bdpt", out, st->width, st->height, err))
         return false;
-    struct rbdpt_sizes z =
-        rbdpt_sizes_of(p, f->scene, p->light_paths ? p->light_paths : st->auto_light_paths, st->width, st->height);
+    struct rbdpt_sizes z = rbdpt_sizes_of(p, f->scene, rbdpt_session_light_paths(st, p), st->width, st->height);
     if (!bdpt_blocks_same(&st->lb, z.lb) || !bdpt_blocks_same(&st->lvb, z.lvb))
         return err_set(err, ERR_INVALID, NULL, "the parameters changed the buffers' sizes since init");
     unsigned threads = f->threads ? f->threads : parallel_default_threads();

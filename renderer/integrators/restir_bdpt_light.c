@@ -42,9 +42,9 @@ bool rbdpt_t1_eval(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const 
 {
     const struct material *m1 = &v->scene->materials[x1->material];
     if (!(material_flags(m1) & (BSDF_DIFFUSE | BSDF_GLOSSY))) return false;
-    struct restir_bdpt_mis whole = x2->mis;   /* x_1 joins the path's vertices */
-    rbdpt_mis_vertex(&whole, m1);
-    if (!rbdpt_mis_keeps_t1(&whole)) return false;   /* no t = 1 technique on this path */
+    struct restir_bdpt_mis mis = x2->mis;
+    rbdpt_mis_vertex(&mis, m1);   /* x_1 joins the path's vertices */
+    if (!rbdpt_mis_keeps_t1(&mis)) return false;   /* no t = 1 technique on this path */
     struct vec3 w = vec3_sub(x1->p, x2->s.p);
     float d2 = vec3_length2(w);
     if (!(d2 > 0.0f)) return false;
@@ -64,10 +64,8 @@ bool rbdpt_t1_eval(const struct rbdpt_ctx *c, const struct rbdpt_view *v, const 
         if (!(q > 0.0f) || x2->u_rr >= q) return false;
         beta = vec3_scale(beta, 1.0f / q);
     }
-    struct restir_bdpt_mis mis = x2->mis;
     restir_bdpt_mis_scatter(&mis, cos_i_ng, p2, material_pdf(x2->m, wi, wo), false, c->power);
     restir_bdpt_mis_hit(&mis, d2, cos_1, c->power);
-    rbdpt_mis_vertex(&mis, m1);
     float camera_pdf_a;
     if (!rbdpt_connect_camera(c, v, x1, m1, vec3_neg(w), beta, &mis, eye_sees, rays, pixel, C, sub, &camera_pdf_a,
                               mis_w) ||
