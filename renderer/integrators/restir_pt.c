@@ -93,7 +93,7 @@ static inline uint16_t pt_bits(uint32_t d, uint32_t k, bool nee, int lobe_prev, 
 struct restir_pt_params restir_pt_defaults(void)
 {
     return (struct restir_pt_params){
-        .max_depth = 64, .rr_depth = 1, .rr = true, .nee_candidates = RESTIR_PT_NEE_BY_SCENE, .unify_di = true,
+        .max_depth = 64, .candidates = 1, .rr_depth = 1, .rr = true, .nee_candidates = RESTIR_PT_NEE_BY_SCENE, .unify_di = true,
         .temporal = true, .temporal_cap = 20, .history_check = true, .jitter_walk = 0.005f,
         .emission_samples = 16, .spatial_neighbors = 3, .spatial_radius = 0.0f, .spatial_rounds = 1,
         .paired_spatial = true,
@@ -127,6 +127,8 @@ bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err)
 {
     if (p->max_depth < 1 || p->max_depth > PT_MAX_LENGTH - 1)
         return err_set(err, ERR_INVALID, "/params/max_depth", "max_depth must be in 1..%u", PT_MAX_LENGTH - 1);
+    if (p->candidates < 1 || p->candidates > 64)
+        return err_set(err, ERR_INVALID, "/params/candidates", "candidates must be in 1..64");
     if (p->nee_candidates > 64 && p->nee_candidates != RESTIR_PT_NEE_BY_SCENE)
         return err_set(err, ERR_INVALID, "/params/nee_candidates", "nee_candidates must be in 0..64");
     if (!gbuffer_jitter_walk_valid(p->jitter_walk, err)) return false;
@@ -489,28 +491,21 @@ static bool pt_rc_beta(const struct pt_vertex *prev, int lobe, struct vec3 xk_p,
     return true;
 }
 
-/* Samples one path from the pixel's primary hit and resamples its candidates into `out`; light
- * that reaches the pixel outside the reservoir — emission seen directly (the environment for an
- * escaped primary ray; the G-buffer's estimate when it keeps one, gbuffer.h), and direct light
- * when it is not unified — goes to *direct. */
-static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct pt_sample *out, struct vec3 *direct)
+/* One candidate path from the primary hit x_1 (v), its candidates offered to `rs` at weights
+ * scaled by inv_m (1 / the pixel's path candidates: each path is one of M draws of the same
+ * source, [GRIS §4], so the RIS weights carry 1/M), the direct light it finds outside the
+ * reservoir added to *direct at the same scale. */
+static void pt_initial_path(const struct pt_thread *t, struct pt_vertex v, uint32_t seed, float inv_m,
+                            struct reservoir_stream *rs_out, struct rng *sel_io, struct pt_sample *out,
+                            struct vec3 *direct)
 {
     const struct pt_ctx *c = t->c;
     const struct restir_pt_params *p = c->p;
     const struct scene *scene = c->scene[RESTIR_CURRENT];
     struct ray_counters *rays = &t->cnt->rays;
-    memset(out, 0, sizeof *out);
-    const struct vec3 *seen = c->gbuf[RESTIR_CURRENT]->emission;
-    *direct = seen ? seen[pixel] : scene->env_radiance;
-    struct pt_thread th = *t;
-    struct pt_vertex v;
-    if (!pt_primary(c, (struct restir_domain){pixel, RESTIR_CURRENT}, &v, &th.footprint)) return;
-    if (!seen) *direct = light_sampler_emitted(v.m, vec3_dot(vec3_sub(c->eye[RESTIR_CURRENT], v.s.p), v.s.ng));
-
-    const uint32_t seed = pt_path_seed(c->seed, c->frame, pixel);
-    struct rng sel = rng_make(c->seed, c->frame, pixel, PT_SELECT_STREAM);
-    struct reservoir_stream rs;
-    reservoir_stream_begin(&rs);
+    const struct pt_thread th = *t;
+    struct reservoir_stream rs = *rs_out;
+    struct rng sel = *sel_io;
     struct vec3 beta = vec3_splat(1.0f);      /* prod f |cos| / p over x_1 .. x_{j-1} */
     struct vec3 beta_suf = vec3_splat(1.0f);  /* the same over the vertices after x_k */
     struct pt_vertex prev = v;                /* x_{j-1} (j >= 2) */
@@ -550,7 +545,7 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
                     beta_rc_done = true;
                 }
                 struct vec3 F = vec3_mul(rc_here ? beta_rc : beta, end);
-                double W_u = (double)ls.W * p1 / src;  /* [ReSTIR PT Enhanced §5]: W_ris p_light */
+                double W_u = (double)ls.W * p1 * inv_m / src;  /* [ReSTIR PT Enhanced §5]: W_ris p_light */
                 float target = vec3_luminance(F);
                 if (!offer) {
                     *direct = vec3_add(*direct, vec3_scale(F, (float)W_u));
@@ -623,7 +618,7 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
                 struct vec3 end = vec3_scale(scene->env_radiance, pt_mis_bsdf(c, delta, stp.pdf_marg, lp));
                 struct vec3 F = vec3_mul(beta, end);
                 float target = vec3_luminance(F);
-                if (reservoir_stream_offer(&rs, target / src, target, 0.0f, rng_next_float(&sel))) {
+                if (reservoir_stream_offer(&rs, target * inv_m / src, target, 0.0f, rng_next_float(&sel))) {
                     struct pt_rc_record r = rc;
                     struct vec3 rad = found_here ? scene->env_radiance : vec3_mul(beta_suf, end);
                     pt_store(out, seed, d, false, F, &r, rad, found_here ? lp : 0.0f);
@@ -631,7 +626,7 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
             } else if (!vec3_is_zero(scene->env_radiance)) {
                 float lp = pt_env_pdf_w(scene);
                 *direct = vec3_add(*direct, vec3_scale(vec3_mul(beta, scene->env_radiance),
-                                                       pt_mis_bsdf(c, delta, stp.pdf_marg, lp) / (float)src));
+                                                       pt_mis_bsdf(c, delta, stp.pdf_marg, lp) * inv_m / (float)src));
             }
             break;
         }
@@ -656,8 +651,8 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
                 struct vec3 F = vec3_mul(beta_end, end);
                 float target = vec3_luminance(F);
                 if (!offer) {
-                    *direct = vec3_add(*direct, vec3_scale(F, (float)(1.0 / src)));
-                } else if (reservoir_stream_offer(&rs, target / src, target, 0.0f, rng_next_float(&sel))) {
+                    *direct = vec3_add(*direct, vec3_scale(F, (float)(inv_m / src)));
+                } else if (reservoir_stream_offer(&rs, target * inv_m / src, target, 0.0f, rng_next_float(&sel))) {
                     struct pt_rc_record r = rc;
                     struct vec3 rad = vec3_mul(beta_suf, end);
                     float light_pdf = 0.0f;
@@ -677,10 +672,42 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
         v = nv;
         seg = nseg;
     }
+    *rs_out = rs;
+    *sel_io = sel;
+}
+
+/* Samples the pixel's `candidates` paths from its primary hit and resamples their candidates into
+ * `out`; light that reaches the pixel outside the reservoir — emission seen directly (the
+ * environment for an escaped primary ray; the G-buffer's estimate when it keeps one, gbuffer.h),
+ * and direct light when it is not unified — goes to *direct. */
+static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct pt_sample *out, struct vec3 *direct)
+{
+    const struct pt_ctx *c = t->c;
+    const struct scene *scene = c->scene[RESTIR_CURRENT];
+    memset(out, 0, sizeof *out);
+    const struct vec3 *seen = c->gbuf[RESTIR_CURRENT]->emission;
+    *direct = seen ? seen[pixel] : scene->env_radiance;
+    struct pt_thread th = *t;
+    struct pt_vertex v;
+    if (!pt_primary(c, (struct restir_domain){pixel, RESTIR_CURRENT}, &v, &th.footprint)) return;
+    if (!seen) *direct = light_sampler_emitted(v.m, vec3_dot(vec3_sub(c->eye[RESTIR_CURRENT], v.s.p), v.s.ng));
+
+    const uint32_t m = c->p->candidates;
+    const float inv_m = 1.0f / (float)m;
+    const uint32_t seed0 = pt_path_seed(c->seed, c->frame, pixel);
+    struct rng sel = rng_make(c->seed, c->frame, pixel, PT_SELECT_STREAM);
+    struct reservoir_stream rs;
+    reservoir_stream_begin(&rs);
+    for (uint32_t i = 0; i < m; i++) {
+        /* The first path keeps the seed of a one-candidate frame; the others get seeds of their
+         * own (a replay needs only the selected path's seed, stored with the sample). */
+        const uint32_t seed = i == 0 ? seed0 : (uint32_t)rng_mix64((uint64_t)seed0 << 32 | i);
+        pt_initial_path(&th, v, seed, inv_m, &rs, &sel, out, direct);
+    }
     t->cnt->rejected += rs.rejected;
     struct reservoir r = reservoir_stream_finish(&rs);
     out->head.W = r.W;
-    out->head.M = 1;  /* one path: all its candidates together have confidence 1 */
+    out->head.M = 1;  /* one pixel's draw: all its paths' candidates together have confidence 1 */
 }
 
 /* ---- the hybrid shift ----------------------------------------------------------------------- */

@@ -26,6 +26,8 @@
 
 struct RESTIRD_STORED_IN_BYTES restir_pt_params {
     uint32_t max_depth;          /* as `pt`: scattering events before the path stops (64) */
+    uint32_t candidates;         /* initial paths per pixel and frame, resampled into its
+                                    reservoir (1) */
     uint32_t rr_depth;           /* Russian roulette from this vertex on (1) */
     bool rr;                     /* Russian roulette on initial paths (decoupled from PSS) */
     uint32_t nee_candidates;     /* RIS NEE candidates; 1 = plain NEE, 0 = no NEE
