@@ -371,6 +371,8 @@ def test_methods_registry(daemon):
             for n, v in expect.items():
                 if m["name"] in ("restir_pt", "restir_bdpt") and n == "spatial_radius" and v == 0:
                     v = 3  # 0 is the resolution's radius, which the session reports: at 8 x 8 the least, 3
+                if m["name"] == "restir_pt" and n == "candidates" and v == 0:
+                    v = 8  # 0 is the scene's count, which the session reports: 8 with refractive-slab's glass
                 assert s["params"][n] == pytest.approx(v), (m["name"], profile, n)
             assert daemon.req("DELETE", s["href"]).status == 204
         # The client sends spp (without --spp) exactly to the methods whose entry takes it.
@@ -1487,12 +1489,18 @@ def test_restir_pt_session(daemon):
     two = new_session(daemon, scene="refractive-slab", method="restir_pt", width=8, height=8)
     given = new_session(daemon, method="restir_pt", width=8, height=8, params={"nee_candidates": 3})
     assert two["params"]["nee_candidates"] == 4 and given["params"]["nee_candidates"] == 3
+    # So do the converge profile's initial paths: 8 with refractive-slab's glass, 1 in the
+    # all-diffuse cornell-box; the real-time default is 1 everywhere.
+    assert p["candidates"] == 1 and two["params"]["candidates"] == 1
+    still = [new_session(daemon, scene=sc, method="restir_pt", width=8, height=8, profile="converge")
+             for sc in ("refractive-slab", "cornell-box")]
+    assert [x["params"]["candidates"] for x in still] == [8, 1]
     unpaired = new_session(daemon, method="restir_pt", width=8, height=8, params={"paired_spatial": False})
     # A radius of 0 is the resolution's (20 pixels per 1080 lines, at least 3), and reported.
     by_size = [new_session(daemon, method="restir_pt", width=w, height=h, params={"spatial_radius": 0})
                for w, h in ((8, 8), (600, 270))]
     assert [x["params"]["spatial_radius"] for x in by_size] == [3, 5]
-    for x in (two, given, unpaired, *by_size):
+    for x in (two, given, unpaired, *by_size, *still):
         assert daemon.req("DELETE", x["href"]).status == 204
     assert s["reservoir_bytes_per_pixel"] == 64
     assert s["reservoir_bytes"] == 2 * 64 * 32 * 24 == s["buffers"]["reservoirs"]

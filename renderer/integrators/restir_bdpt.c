@@ -243,9 +243,7 @@ static bool rbdpt_frame_emission_apart(const struct restir_bdpt_state *st, const
  * the lightweight variant's t = 1 technique. */
 static bool rbdpt_scene_has_caustic_caster(const struct scene *scene)
 {
-    for (uint32_t i = 0; i < scene->shape_count; i++)
-        if (rbdpt_caster(&scene->materials[scene->shapes[i].material])) return true;
-    return false;
+    return scene_has_near_specular(scene, RBDPT_CASTER_ROUGHNESS);
 }
 
 /* What light_paths 0 means for `variant` in `scene`. The lightweight variant weighs t = 1 only on

@@ -164,12 +164,7 @@ static inline bool rbdpt_rough(const struct material *m)
 #define RBDPT_CASTER_ROUGHNESS 0.2f
 static inline bool rbdpt_caster(const struct material *m)
 {
-    if (!rbdpt_rough(m)) return true;
-    const int n = material_lobe_count(m);
-    for (int i = 0; i < n; i++)
-        if ((material_lobe_flags(m, i) & BSDF_GLOSSY) && material_lobe_roughness(m, i) < RBDPT_CASTER_ROUGHNESS)
-            return true;
-    return false;
+    return material_near_specular(m, RBDPT_CASTER_ROUGHNESS);
 }
 /* The lightweight variant's techniques of a path: s = 0 and s = 1 always, t = 1 only if one of
  * its scattering vertices x_1 .. x_{k-1} is a caustic caster. A path without one is one the

@@ -116,6 +116,18 @@ uint32_t restir_pt_nee_by_scene(const struct scene *scene)
     return emitters >= 2 ? 4u : 1u;
 }
 
+/* Several initial paths pay where no shift moves a path: one through a near-specular vertex
+ * (below the connectability threshold) is random-replayed by every shift, and a neighbour's replay
+ * from another primary hit seldom finds the same narrow lobe again, so a pixel's estimate of such
+ * light is as good as the paths it traced itself. At pt's CPU time for 64 spp, 8 paths cut the
+ * converge profile's relMSE 3x on cornell-glossy, 6x on reflective-plane, 1.7x on door-ajar; on
+ * cornell-box, all diffuse, fewer frames at the same time cost 15-20 % relMSE and RMSE
+ * (docs/benchmarks.md, "Several initial paths a pixel"). */
+uint32_t restir_pt_candidates_by_scene(const struct scene *scene, float roughness_min)
+{
+    return scene_has_near_specular(scene, roughness_min) ? 8u : 1u;
+}
+
 /* The G-buffers estimate the emission seen directly (gbuffer.h) when more than the primary ray's
  * own is asked for and an emitting shape can make edge pixels. */
 static bool pt_keeps_emission(const struct restir_pt_params *p, const struct scene *scene)
@@ -127,8 +139,8 @@ bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err)
 {
     if (p->max_depth < 1 || p->max_depth > PT_MAX_LENGTH - 1)
         return err_set(err, ERR_INVALID, "/params/max_depth", "max_depth must be in 1..%u", PT_MAX_LENGTH - 1);
-    if (p->candidates < 1 || p->candidates > 64)
-        return err_set(err, ERR_INVALID, "/params/candidates", "candidates must be in 1..64");
+    if (p->candidates > 64)
+        return err_set(err, ERR_INVALID, "/params/candidates", "candidates must be in 0..64 (0 = by scene)");
     if (p->nee_candidates > 64 && p->nee_candidates != RESTIR_PT_NEE_BY_SCENE)
         return err_set(err, ERR_INVALID, "/params/nee_candidates", "nee_candidates must be in 0..64");
     if (!gbuffer_jitter_walk_valid(p->jitter_walk, err)) return false;
@@ -169,6 +181,7 @@ struct pt_ctx {
     uint64_t seed;
     uint32_t frame;
     uint32_t nee_m;                      /* RIS candidates; 0 = no NEE */
+    uint32_t candidates;                 /* initial paths a pixel (>= 1) */
     float near_dist2;                    /* without footprint: squared minimum segment length */
     float pdf_max;                       /* pdf_connect: a lobe is rough when p(w) <= this */
 };
@@ -692,7 +705,7 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
     if (!pt_primary(c, (struct restir_domain){pixel, RESTIR_CURRENT}, &v, &th.footprint)) return;
     if (!seen) *direct = light_sampler_emitted(v.m, vec3_dot(vec3_sub(c->eye[RESTIR_CURRENT], v.s.p), v.s.ng));
 
-    const uint32_t m = c->p->candidates;
+    const uint32_t m = c->candidates;
     const float inv_m = 1.0f / (float)m;
     const uint32_t seed0 = pt_path_seed(c->seed, c->frame, pixel);
     struct rng sel = rng_make(c->seed, c->frame, pixel, PT_SELECT_STREAM);
@@ -1017,6 +1030,7 @@ bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, const
         return err_set(err, ERR_INVALID, "/method",
                        "restir_pt does not sample subsurface scattering (the scene has translucent materials)");
     st->nee_by_scene = restir_pt_nee_by_scene(scene);
+    st->candidates_by_scene = restir_pt_candidates_by_scene(scene, params->roughness_min);
     st->shape_count = scene->shape_count;
     st->prim_first = malloc(((size_t)scene->shape_count + 1) * sizeof *st->prim_first);
     if (!st->prim_first) return err_set(err, ERR_NOMEM, NULL, "out of memory for a restir_pt session");
@@ -1117,6 +1131,7 @@ void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *p
     c->seed = f->seed;
     c->frame = f->frame;
     c->nee_m = params->nee_candidates == RESTIR_PT_NEE_BY_SCENE ? st->nee_by_scene : params->nee_candidates;
+    c->candidates = params->candidates == RESTIR_PT_CANDIDATES_BY_SCENE ? st->candidates_by_scene : params->candidates;
     struct vec3 ext = vec3_sub(f->scene->bounds_max, f->scene->bounds_min);
     float radius = 0.5f * vec3_length(ext);
     c->near_dist2 = (params->near_distance * radius) * (params->near_distance * radius);

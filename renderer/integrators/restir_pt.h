@@ -27,7 +27,8 @@
 struct RESTIRD_STORED_IN_BYTES restir_pt_params {
     uint32_t max_depth;          /* as `pt`: scattering events before the path stops (64) */
     uint32_t candidates;         /* initial paths per pixel and frame, resampled into its
-                                    reservoir (1) */
+                                    reservoir (1; RESTIR_PT_CANDIDATES_BY_SCENE:
+                                    restir_pt_candidates_by_scene) */
     uint32_t rr_depth;           /* Russian roulette from this vertex on (1) */
     bool rr;                     /* Russian roulette on initial paths (decoupled from PSS) */
     uint32_t nee_candidates;     /* RIS NEE candidates; 1 = plain NEE, 0 = no NEE
@@ -67,11 +68,17 @@ struct RESTIRD_STORED_IN_BYTES restir_pt_params {
 
 /* nee_candidates of the defaults: chosen from the session's scene at restir_pt_init. */
 #define RESTIR_PT_NEE_BY_SCENE UINT32_MAX
+/* candidates 0 (the converge profile's): chosen from the session's scene at restir_pt_init. */
+#define RESTIR_PT_CANDIDATES_BY_SCENE 0u
 
 struct restir_pt_params restir_pt_defaults(void);
 /* The RIS NEE candidates a scene gets by default: 4 with two or more emitters (emissive
  * shapes; a lit environment counts as one), 1 (plain NEE) with a single one. */
 uint32_t restir_pt_nee_by_scene(const struct scene *scene);
+/* The initial paths a scene gets for candidates 0: 8 where a shape's material is near-specular
+ * below roughness_min (scene_has_near_specular: paths through it are replayed by every shift, so
+ * a pixel has only the paths it traced itself), else 1. */
+uint32_t restir_pt_candidates_by_scene(const struct scene *scene, float roughness_min);
 /* ERR_INVALID naming the parameter (where = "/params/<name>") when out of range. */
 bool restir_pt_params_valid(const struct restir_pt_params *p, struct err *err);
 
@@ -84,6 +91,7 @@ struct restir_pt_state {
     uint32_t *prim_first;      /* shape -> first scene-wide primitive id (shape_count + 1) */
     uint32_t nee_by_scene;     /* restir_pt_nee_by_scene of the scene at init: fixed for the session,
                                   as the integrand's MIS weights must not change between frames */
+    uint32_t candidates_by_scene; /* restir_pt_candidates_by_scene at init */
 };
 
 /* Bytes of one reservoir (the payload included). */

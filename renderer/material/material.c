@@ -136,3 +136,13 @@ bool material_sample(const struct material *m, struct vec3 wo, float u_lobe, flo
      * infinite weight) ends the path instead of poisoning the image. */
     return out->pdf_w > 0.0f && isfinite(out->pdf_w) && vec3_is_finite(out->f) && vec3_is_finite(out->wi);
 }
+
+bool material_near_specular(const struct material *m, float alpha_min)
+{
+    const unsigned f = material_flags(m);
+    if (!(f & (BSDF_DIFFUSE | BSDF_GLOSSY)) || (f & BSDF_DELTA)) return true;
+    const int n = material_lobe_count(m);
+    for (int i = 0; i < n; i++)
+        if ((material_lobe_flags(m, i) & BSDF_GLOSSY) && material_lobe_roughness(m, i) < alpha_min) return true;
+    return false;
+}

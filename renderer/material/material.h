@@ -79,6 +79,10 @@ unsigned material_lobe_flags(const struct material *m, int lobe);
 float material_lobe_roughness(const struct material *m, int lobe);
 /* Union of the flags of all lobes. */
 unsigned material_flags(const struct material *m);
+/* Whether m scatters through a near-specular lobe: a delta lobe, no diffuse or glossy one, or a
+ * glossy lobe of GGX roughness below alpha_min. A path through such a vertex is found by the
+ * camera's sampling only through a narrow lobe, and no shift reconnects at it. */
+bool material_near_specular(const struct material *m, float alpha_min);
 static inline bool material_is_emissive(const struct material *m) { return !vec3_is_zero(m->emission); }
 
 /* BSDF value f(wo, wi) summed over non-delta lobes; 0 for delta-only materials. */

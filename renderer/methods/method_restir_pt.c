@@ -13,22 +13,21 @@ METHOD_FITS(struct restir_pass_stats, METHOD_COUNTERS_BYTES);
 
 METHOD_DEFAULTS_OP(rpt_defaults, struct restir_pt_params, restir_pt_defaults)
 /* The converge profile: temporal reuse off and a fresh primary ray position every frame, so that
- * a session's frames are independent, and the spatial reuse of [ReSTIR BDPT Fig. 12] in its place
- * (3 rounds of 6 neighbours), over reservoirs that each resample 8 initial paths. Measured at equal
- * CPU time on the mean of the frames (docs/benchmarks.md, "restir_pt's converge profile with
- * history" and "Several initial paths a pixel"): a history capped at 1 to 20 frames with the
- * real-time walk correlates the frames more than it lowers each one's error (on cornell-glossy
- * about 3x the RMSE of the same rounds without it, on door-ajar 2.4-4x the relMSE of this
- * profile); fewer rounds or neighbours trade cornell-glossy's relMSE for door-ajar's; and where
- * no shift moves a path (caustics off a near-specular surface, replayed only), a frame is only as
- * good as the paths it traced itself, so 8 of them cut the relMSE on cornell-glossy and the SMS
- * scenes 3-8x at the same CPU time and lower it on door-ajar too. */
+ * a session's frames are independent; the spatial reuse of [ReSTIR BDPT Fig. 12] in its place (3
+ * rounds of 6 neighbours); and in a scene with a near-specular surface 8 initial paths a pixel
+ * (restir_pt_candidates_by_scene). Measured at equal CPU time on the mean of the frames
+ * (docs/benchmarks.md, "restir_pt's converge profile with history" and "Several initial paths a
+ * pixel"): a history capped at 1 to 20 frames with the real-time walk correlates the frames more
+ * than it lowers each one's error (on cornell-glossy about 3x the RMSE of the same rounds without
+ * it, on door-ajar 2.4-4x the relMSE of this profile); fewer rounds or neighbours trade
+ * cornell-glossy's relMSE for door-ajar's; and a path that no shift moves is only as good as the
+ * pixel's own paths. */
 static void rpt_converge(void *params)
 {
     struct restir_pt_params *p = params;
     p->temporal = false;
     p->jitter_walk = 0.0f;
-    p->candidates = 8;
+    p->candidates = RESTIR_PT_CANDIDATES_BY_SCENE;
     p->spatial_rounds = 3;
     p->spatial_neighbors = 6;
 }
@@ -44,6 +43,8 @@ static bool rpt_init(void *state, const struct scene *scene, void *params, uint3
     if (!restir_pt_init(state, scene, p, width, height, err)) return false;
     /* The session reports the NEE candidates it uses. */
     if (p->nee_candidates == RESTIR_PT_NEE_BY_SCENE) p->nee_candidates = ((struct restir_pt_state *)state)->nee_by_scene;
+    if (p->candidates == RESTIR_PT_CANDIDATES_BY_SCENE)
+        p->candidates = ((struct restir_pt_state *)state)->candidates_by_scene;
     /* And the radius that its resolution gives (restir_radius_auto). */
     if (p->spatial_radius == 0.0f) p->spatial_radius = restir_radius_auto(width, height);
     return true;
@@ -89,7 +90,8 @@ static const struct method_stat rpt_stats[] = {
 #define P(key, kind, lo, hi, help) METHOD_PARAM(struct restir_pt_params, key, kind, lo, hi, help)
 static const struct method_param rpt_params[] = {
     P(max_depth, METHOD_PARAM_UINT, 1, 126, "scattering events before a path stops"),
-    P(candidates, METHOD_PARAM_UINT, 1, 64, "initial paths per pixel and frame, resampled into its reservoir"),
+    P(candidates, METHOD_PARAM_UINT, 0, 64,
+      "initial paths per pixel and frame, resampled into its reservoir; 0 = by scene (8 with a near-specular surface, else 1)"),
     P(rr_depth, METHOD_PARAM_UINT, 0, 1000000, "Russian roulette from this vertex on"),
     P(rr, METHOD_PARAM_BOOL, 0, 1, "Russian roulette on initial paths (decoupled from the primary sample space)"),
     {.key = "nee_candidates", .kind = METHOD_PARAM_UINT, .offset = offsetof(struct restir_pt_params, nee_candidates),

@@ -179,3 +179,10 @@ bool scene_has_emitting_shape(const struct scene *scene)
         if (material_is_emissive(&scene->materials[scene->shapes[i].material])) return true;
     return false;
 }
+
+bool scene_has_near_specular(const struct scene *scene, float alpha_min)
+{
+    for (uint32_t i = 0; i < scene->shape_count; i++)
+        if (material_near_specular(&scene->materials[scene->shapes[i].material], alpha_min)) return true;
+    return false;
+}

@@ -80,6 +80,8 @@ bool scene_moved(const struct scene *a, const struct scene *b);
 bool scene_has_translucent(const struct scene *scene);
 /* Whether a shape emits (an environment light is not a shape). */
 bool scene_has_emitting_shape(const struct scene *scene);
+/* Whether a shape's material is near-specular (material_near_specular at alpha_min). */
+bool scene_has_near_specular(const struct scene *scene, float alpha_min);
 /* Reference counting; scene_release frees at zero. A new scene has refcount 1. */
 void scene_retain(struct scene *scene);
 void scene_release(struct scene *scene);

@@ -269,6 +269,33 @@ static void test_identity_shift_reproduces_initial_contribution(void)
     scene_release(sc);
 }
 
+/* candidates 0 (the converge profile's) resolves from the scene at init: 8 where a material is
+ * near-specular below roughness_min, 1 in an all-diffuse scene. */
+static void test_candidates_by_scene(void)
+{
+    struct scene *box = fixture_load("scenes/cornell-box/scene.json");
+    struct scene *glossy = fixture_load("scenes/cornell-glossy/scene.json");
+    if (box && glossy) {
+        CHECK(restir_pt_candidates_by_scene(box, 0.2f) == 1);
+        CHECK(restir_pt_candidates_by_scene(glossy, 0.2f) == 8);
+        /* cornell-glossy's glass sphere is a delta lobe whatever the threshold. */
+        CHECK(restir_pt_candidates_by_scene(glossy, 1e-4f) == 8);
+        struct err err = {0};
+        struct restir_pt_params p = restir_pt_defaults();
+        p.candidates = RESTIR_PT_CANDIDATES_BY_SCENE;
+        CHECK(restir_pt_params_valid(&p, &err));
+        struct restir_pt_state st;
+        CHECK(restir_pt_init(&st, glossy, &p, SIZE, SIZE, &err) && st.candidates_by_scene == 8);
+        restir_pt_destroy(&st);
+        CHECK(restir_pt_init(&st, box, &p, SIZE, SIZE, &err) && st.candidates_by_scene == 1);
+        restir_pt_destroy(&st);
+        p.candidates = 65;
+        CHECK(!restir_pt_params_valid(&p, &err) && strcmp(err.where, "/params/candidates") == 0);
+    }
+    if (box) scene_release(box);
+    if (glossy) scene_release(glossy);
+}
+
 static void test_reservoir_is_compact(void)
 {
     CHECK(restir_pt_ops.stride == RESTIR_PT_RESERVOIR_BYTES);
@@ -344,6 +371,6 @@ static void test_jitter_walk_reaches_the_gbuffer(void)
     scene_release(sc);
 }
 
-TEST_MAIN(TEST(test_reservoir_is_compact), TEST(test_jitter_walk_reaches_the_gbuffer), TEST(test_session_bytes_planned_match_allocated), TEST(test_identity_shift_reproduces_initial_contribution),
+TEST_MAIN(TEST(test_reservoir_is_compact), TEST(test_candidates_by_scene), TEST(test_jitter_walk_reaches_the_gbuffer), TEST(test_session_bytes_planned_match_allocated), TEST(test_identity_shift_reproduces_initial_contribution),
           TEST(test_spatial_round_trips_enhanced), TEST(test_spatial_round_trips_classic),
           TEST(test_temporal_round_trips_camera), TEST(test_temporal_round_trips_moving_shape))
