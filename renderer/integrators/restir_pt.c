@@ -505,9 +505,9 @@ static bool pt_rc_beta(const struct pt_vertex *prev, int lobe, struct vec3 xk_p,
 }
 
 /* One candidate path from the primary hit x_1 (v), its candidates offered to `rs` at weights
- * scaled by inv_m (1 / the pixel's path candidates: each path is one of M draws of the same
- * source, [GRIS §4], so the RIS weights carry 1/M), the direct light it finds outside the
- * reservoir added to *direct at the same scale. */
+ * scaled by inv_m (each path is one of M draws from the same source, so their resampling MIS
+ * weights are the uniform 1/M: Lin et al. 2022), the direct light it finds outside the reservoir
+ * added to *direct at the same scale. */
 static void pt_initial_path(const struct pt_thread *t, struct pt_vertex v, uint32_t seed, float inv_m,
                             struct reservoir_stream *rs_out, struct rng *sel_io, struct pt_sample *out,
                             struct vec3 *direct)
