@@ -280,6 +280,17 @@ static void test_candidates_by_scene(void)
         CHECK(restir_pt_candidates_by_scene(glossy, 0.2f) == 8);
         /* cornell-glossy's glass sphere is a delta lobe whatever the threshold. */
         CHECK(restir_pt_candidates_by_scene(glossy, 1e-4f) == 8);
+        /* The glossy branch of the test, material by material: copper (GGX 0.1) is near-specular
+         * below 0.2 and not below 0.05, aluminium (0.3) not below 0.2, the white wall never. */
+        const int copper = scene_find_shape(glossy, "copper_sphere"), alu = scene_find_shape(glossy, "aluminium_sphere");
+        CHECK(copper >= 0 && alu >= 0);
+        if (copper >= 0 && alu >= 0) {
+            const struct material *cu = &glossy->materials[glossy->shapes[copper].material];
+            const struct material *al = &glossy->materials[glossy->shapes[alu].material];
+            CHECK(material_near_specular(cu, 0.2f) && !material_near_specular(cu, 0.05f));
+            CHECK(!material_near_specular(al, 0.2f) && material_near_specular(al, 0.35f));
+            CHECK(!material_near_specular(&glossy->materials[glossy->shapes[0].material], 1.0f));
+        }
         struct err err = {0};
         struct restir_pt_params p = restir_pt_defaults();
         p.candidates = RESTIR_PT_CANDIDATES_BY_SCENE;
