@@ -77,6 +77,27 @@ def metrics(img, ref):
             "relmse": float(t["relmse"][ok].mean())}
 
 
+# renderer/core/vec.h: vec3_luminance, the reuse methods' target.
+LUMINANCE = (0.2126, 0.7152, 0.0722)
+
+
+def colour_exact(img, ref):
+    """img with each pixel's colour replaced by the reference's at the pixel's own luminance:
+    ref * lum(img) / lum(ref) (pixels whose reference is black, or with a non-finite channel,
+    keep img's value). Its metrics() are what img's error would be were only its luminance
+    wrong; the rest of img's error is colour. A reuse method that selects one path per pixel by
+    luminance gives each pixel one path's colour, which averaging fewer paths leaves noisier
+    than pt's sum of all of them (docs/benchmarks.md, "restir_pt in real time: each pixel shows one
+    path's colour")."""
+    a = np.asarray(img, dtype=np.float64)[..., :3]
+    r = np.asarray(ref, dtype=np.float64)[..., :3]
+    w = np.asarray(LUMINANCE)
+    la, lr = (a * w).sum(-1), (r * w).sum(-1)
+    keep = ~(lr > 0) | ~np.isfinite(la) | ~np.isfinite(lr)
+    scale = np.where(keep, 0.0, la / np.where(keep, 1.0, lr))
+    return np.where(keep[..., None], a, r * scale[..., None])
+
+
 def combine(half_a, half_b):
     """The full reference of two halves rendered with the same number of samples."""
     return (np.asarray(half_a, dtype=np.float64) + np.asarray(half_b, dtype=np.float64)) / 2.0

@@ -19,7 +19,9 @@ REPORT_PARAMS compares at equal time. Usage:
 
 Environment: SWEEP_SIZE (256: the side of the square image), SWEEP_SEEDS (5), SWEEP_FRAMES
 (33: the frame after the report's 32 warm-up frames), RESTIR_BIN (build/restir), BENCH_THREADS
-(all cores), REPORT_REF_BIN (bench/references.py).
+(all cores), REPORT_REF_BIN (bench/references.py), SWEEP_COLOUR=1 (two more columns: MAPE and
+relMSE were each pixel's colour exact, errors.colour_exact, so that the rest of the error is
+colour).
 
 The converge regime (SWEEP_BUDGET_SPP=N): the budget is the CPU time (user + system, all threads)
 of `pt` at N spp on the scene; each configuration starts from the method's converge profile
@@ -56,6 +58,7 @@ FRAMES = int(os.environ.get("SWEEP_FRAMES", "33"))
 FIRST_SEED = 7000
 BUDGET_SPP = int(os.environ.get("SWEEP_BUDGET_SPP", "0"))
 BASELINES = os.environ.get("SWEEP_BASELINES", "").split()
+COLOUR = os.environ.get("SWEEP_COLOUR") == "1"
 CALIB = 8  # frames whose CPU time gives a configuration's frame cost in the converge regime
 
 
@@ -128,7 +131,8 @@ def main(argv):
     if BUDGET_SPP:
         converge(path, work, ref, method, configs)
         return
-    print("\n| params | ms a frame | CPU-ms a frame | MAPE | relMSE | RMSE |\n|---|---|---|---|---|---|")
+    extra = (" MAPE, colour exact | relMSE, colour exact |", "---|---|") if COLOUR else ("", "")
+    print(f"\n| params | ms a frame | CPU-ms a frame | MAPE | relMSE | RMSE |{extra[0]}\n|---|---|---|---|---|---|{extra[1]}")
     for text in configs:
         scores, ms, cpu_ms = [], [], []
         for s in range(SEEDS):
@@ -140,10 +144,15 @@ def main(argv):
                 raise SystemExit(f"sweep: {method} {text}: {res.stderr.strip()}")
             ms.append(json.loads(res.stdout)["time_ms"] / FRAMES)
             cpu_ms.append(1000.0 * cpu / FRAMES)
-            scores.append(errors.metrics(read_rgb(out), ref.image))
-        med = {k: statistics.median(sc[k] for sc in scores) for k in errors.KEYS}
+            img = read_rgb(out)
+            scores.append(errors.metrics(img, ref.image))
+            if COLOUR:
+                exact = errors.metrics(errors.colour_exact(img, ref.image), ref.image)
+                scores[-1].update({"mape_ce": exact["mape"], "relmse_ce": exact["relmse"]})
+        med = {k: statistics.median(sc[k] for sc in scores) for k in scores[0]}
+        cols = f" {med['mape_ce']:.4g} | {med['relmse_ce']:.4g} |" if COLOUR else ""
         print(f"| `{text}` | {statistics.median(ms):.1f} | {statistics.median(cpu_ms):.1f} | {med['mape']:.4g} | "
-              f"{med['relmse']:.4g} | {med['rmse']:.4g} |", flush=True)
+              f"{med['relmse']:.4g} | {med['rmse']:.4g} |{cols}", flush=True)
 
 
 if __name__ == "__main__":

@@ -150,3 +150,27 @@ def test_reference_halves_are_independent_chunks(tmp_path, monkeypatch):
     assert np.allclose(ref.half_a, (c[0] + c[2]) / 2) and np.allclose(ref.half_b, (c[1] + c[3]) / 2)
     again = references.Reference(scene, 8, "pt", 1, tmp_path)
     assert again.chunks == 4 and np.array_equal(again.image, ref.image)
+
+
+def test_colour_exact_separates_luminance_from_colour():
+    """errors.colour_exact keeps an image whose only error is luminance (every pixel the
+    reference's colour at another brightness) and makes exact one whose only error is colour
+    (the reference's luminance in another colour); a black or non-finite reference pixel keeps
+    the image's value."""
+    rng = np.random.default_rng(11)
+    ref = rng.uniform(0.05, 2.0, (16, 24, 3))
+    w = np.asarray(errors.LUMINANCE)
+    bright = ref * rng.lognormal(0.0, 0.5, (16, 24, 1))
+    assert np.allclose(errors.colour_exact(bright, ref), bright, rtol=1e-12)
+    assert errors.metrics(bright, ref)["mape"] > 0.3
+
+    tint = ref * rng.uniform(0.3, 3.0, ref.shape)
+    tint *= ((ref * w).sum(-1) / (tint * w).sum(-1))[..., None]  # the reference's luminance, other colours
+    assert errors.metrics(tint, ref)["mape"] > 0.3
+    exact = errors.metrics(errors.colour_exact(tint, ref), ref)
+    assert exact["mape"] < 1e-12 and exact["relmse"] < 1e-24
+
+    ref[2, 3] = 0.0
+    ref[4, 5, 1] = np.nan
+    out = errors.colour_exact(tint, ref)
+    assert np.array_equal(out[2, 3], tint[2, 3]) and np.array_equal(out[4, 5], tint[4, 5])
