@@ -23,7 +23,16 @@ session's "profile": temporal reuse off, more spatial reuse), the mean of its fi
 accumulation; averaging its correlated frames would be neither regime).
 
 Every session's frames depend only on its seed and frame numbers; medians are over seeds (and
-the measured frames of each)."""
+the measured frames of each).
+
+A frame's time is its CPU time over its threads (frame_ms: the daemon's render_cpu_ms divided by
+the frame's threads), the wall-clock time the frame would take with every thread busy on a machine
+with nothing else to do: on a shared machine the wall clock of a frame stretches whenever another
+process takes a turn on a core, and by different amounts for rows measured minutes apart, which
+moves a ratio between two methods by more than the methods differ; the CPU time does not stretch
+so. What it leaves out is a thread's wait at a pass's join, which a multi-pass frame pays and a
+one-pass frame barely does (about 5 % of a restir_pt frame on two threads: docs/benchmarks.md,
+"Is the frame cost the worker pool's?")."""
 import json
 import math
 import os
@@ -157,6 +166,13 @@ def moving_bodies(scene, scene_path):
     return {"moving camera": camera, "moving light": light}
 
 
+def frame_ms(st):
+    """A frame's time for the report: its CPU time over its threads (module text), or its wall
+    time from a daemon that does not report CPU time."""
+    cpu = st.get("render_cpu_ms")
+    return cpu / max(1, st.get("threads") or 1) if cpu is not None else st["render_ms"]
+
+
 def ladder_params(method, value, side):
     key, _ = LADDER[method]
     if value == "auto":
@@ -203,13 +219,13 @@ def measure_method(d, scene, scene_path, desc, seeds, side, work):
                 s = Session(d, scene, method, {"spp": spp}, seed, side, work)
                 mem = s.memory
                 st = s.frame()
-                conv_ms.append(st["render_ms"])
+                conv_ms.append(frame_ms(st))
                 conv_imgs.append(s.image(st, work / f"{tag}-{spp}-{seed}-first.exr"))
                 per = []
                 for i in range(1, start + len(MEASURED)):
                     st = s.frame()
                     if i >= start:
-                        per.append(st["render_ms"])
+                        per.append(frame_ms(st))
                         imgs.append(s.image(st, work / f"{tag}-{spp}-{seed}-{i}.exr"))
                 s.close()
                 ms.append(statistics.median(per))
@@ -233,12 +249,12 @@ def measure_method(d, scene, scene_path, desc, seeds, side, work):
             total, per = 0.0, []
             for i in range(count):
                 st = s.frame()
-                total += st["render_ms"]
+                total += frame_ms(st)
                 if default and (i + 1) in conv_on:
                     conv_on[i + 1]["ms"].append(total)
                     conv_on[i + 1]["images"].append(s.image(st, work / f"{tag}-on-{i + 1}-{seed}.exr"))
                 if (i - WARMUP in MEASURED) if stateful else i >= 1:
-                    per.append(st["render_ms"])
+                    per.append(frame_ms(st))
                     passes.append(frame_passes(st))
                     imgs.append(s.image(st, work / f"{tag}-rt-{value}-{seed}-{i}.exr"))
             s.close()
@@ -256,7 +272,7 @@ def measure_method(d, scene, scene_path, desc, seeds, side, work):
                 for i in range(last + 1):
                     st = s.frame(body_of(i))
                     if i - WARMUP in MEASURED:
-                        per.append(st["render_ms"])
+                        per.append(frame_ms(st))
                         imgs.append(s.image(st, work / f"{tag}-{variant.replace(' ', '_')}-{seed}-{i}.exr"))
                 s.close()
                 ms.append(statistics.median(per))
@@ -276,7 +292,7 @@ def measure_method(d, scene, scene_path, desc, seeds, side, work):
         acc, total = None, 0.0
         for i in range(max(FRAMES_LADDER)):
             st = s.frame()
-            total += st["render_ms"]
+            total += frame_ms(st)
             img = read_rgb(s.image(st, work / "frame.exr"))
             acc = img if acc is None else acc + img
             if i + 1 in acc_ms:

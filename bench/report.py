@@ -536,8 +536,9 @@ def write(results, stab, peer, fail, started, elapsed):
           f"Images {SIZE}, medians over {SEEDS} seed(s). Two regimes ([docs/benchmarks.md](../benchmarks.md#two-regimes)):",
           "",
           f"- **Real time**: the error of single frames after {regimes.WARMUP} warm-up frames (frames "
-          f"{', '.join(str(regimes.WARMUP + o) for o in regimes.MEASURED)} of each session), against the frame's render "
-          "time. A method spends a longer frame on more samples of its own kind: spp (pt, sms, sms_ssp), light subpaths "
+          f"{', '.join(str(regimes.WARMUP + o) for o in regimes.MEASURED)} of each session), against the frame's time (its CPU "
+          "time over its threads: the wall-clock time with every thread busy and nothing else running, which other work "
+          "on a shared machine does not stretch). A method spends a longer frame on more samples of its own kind: spp (pt, sms, sms_ssp), light subpaths "
           "(bdpt: 1, 2, 4, 8 × the pixel count; restir_bdpt: its default, then 2, 4, 8 × the pixel count), spatial neighbours (restir_pt: 3, 6, 12, 24, 48; restir_sms: "
           "1, 2, 4, 8), BSSRDF candidates (restir_sss: 1, 2, 4, 8). Also with the camera sliding and a light moving (below).",
           "- **Converge**: the error of the image a user keeps against the total time since the session began: pt, sms "
@@ -583,7 +584,7 @@ def write(results, stab, peer, fail, started, elapsed):
     for scene, res in results.items():
         rows, black = res["rows"], res["black"]
         md += [f"### {scene}", ""]
-        for regime, xl in (("real-time", "frame time (ms)"), ("converge", "total time (ms)")):
+        for regime, xl in (("real-time", "frame time (CPU ms a thread)"), ("converge", "total time (CPU ms a thread)")):
             cs = curves(rows, regime)
             xs = [r["ms"] for rs in cs.values() for r in rs]
             for key, name in (("relmse", "relMSE"), ("mape", "MAPE")):

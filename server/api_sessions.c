@@ -291,6 +291,7 @@ static void api_frame_json_fn(struct api_call *c, struct jsonw *w, void *ctx)
     jsonw_key(w, "frame"); jsonw_uint(w, f->n);
     jsonw_key(w, "time_s"); jsonw_double(w, f->stats->time_s);
     jsonw_key(w, "render_ms"); jsonw_double(w, r->render_ms);
+    jsonw_key(w, "render_cpu_ms"); jsonw_double(w, r->render_cpu_ms);
     jsonw_key(w, "scene_update_ms"); jsonw_double(w, f->stats->scene_update_ms);
     jsonw_key(w, "rays"); jsonw_uint(w, (uint64_t)rays);
     jsonw_key(w, "rays_per_s"); jsonw_double(w, r->render_ms > 0 ? rays / (r->render_ms * 1e-3) : 0.0);

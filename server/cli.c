@@ -391,6 +391,7 @@ static int cli_render_sequence(struct scene *scene, const struct view_params *vp
         st->samples += fs.render.samples;
         st->nonfinite += fs.render.nonfinite;
         st->render_ms += fs.render.render_ms + fs.scene_update_ms;
+        st->render_cpu_ms += fs.render.render_cpu_ms;
         st->threads = fs.render.threads;
         sms_counters_add(&st->sms, &fs.render.sms);
         *last = fs;
@@ -632,9 +633,9 @@ static int cli_render(int argc, char **argv)
     unsigned threads = st.threads;
     if (json) {
         printf("{\"method\":\"%s\",\"width\":%u,\"height\":%u,\"spp\":%u,\"frames\":%u,\"seed\":%" PRIu64 ",\"threads\":%u,"
-               "\"time_ms\":%.3f,\"rays\":%" PRIu64 ",\"rays_intersect\":%" PRIu64 ",\"rays_occluded\":%" PRIu64
+               "\"time_ms\":%.3f,\"cpu_ms\":%.3f,\"rays\":%" PRIu64 ",\"rays_intersect\":%" PRIu64 ",\"rays_occluded\":%" PRIu64
                ",\"rays_per_s\":%.6g,\"samples\":%" PRIu64 ",\"nonfinite\":%" PRIu64 ",\"mean\":[%.9g,%.9g,%.9g]",
-               method, width, height, frame_spp, rendered, p.seed, threads, st.render_ms, rays,
+               method, width, height, frame_spp, rendered, p.seed, threads, st.render_ms, st.render_cpu_ms, rays,
                st.rays_intersect, st.rays_occluded, rays_per_s, st.samples, st.nonfinite, mean[0], mean[1], mean[2]);
         /* The last frame's method counters, as its descriptor lays them out. */
         protocol_print_method_counters(stdout, rm, &last, session_bytes, reservoir_bytes);

@@ -585,9 +585,12 @@ def test_frame_png_and_json(daemon):
     r = post_frame(daemon, s, accept="application/json")
     assert r.header("Content-Type").startswith("application/json"), repr(r)
     st = r.json()
-    for key in ["frame", "time_s", "render_ms", "scene_update_ms", "rays", "rays_per_s", "samples",
+    for key in ["frame", "time_s", "render_ms", "render_cpu_ms", "scene_update_ms", "rays", "rays_per_s", "samples",
                 "nonfinite", "threads", "accumulated", "href"]:
         assert key in st, (key, st)
+    # The CPU time of all the frame's threads: some, and no more than its threads could spend in
+    # its wall-clock time (the CPU reading spans a little more of the frame than render_ms's).
+    assert 0 < st["render_cpu_ms"] <= st["threads"] * (st["render_ms"] + 5.0), st
     assert st["frame"] == 1 and r.header("X-Frame") == "1"
     assert st["samples"] == 32 * 24 * 2 and st["rays"] >= st["samples"] and st["rays_per_s"] > 0
     assert st["nonfinite"] == 0 and st["threads"] == 2 and st["accumulated"] == 2

@@ -48,6 +48,7 @@ struct parallel_batch {
     _Atomic uint64_t next;
     _Atomic uint32_t done; /* jobs finished, for progress only */
     _Atomic bool stop;     /* parallel_stop was called: running jobs may end early */
+    _Atomic uint64_t helper_cpu_ns; /* CPU time the threads other than the caller spent on it */
 };
 
 /* The batch whose job this thread is running (NULL outside a job), for parallel_stopped. */
@@ -75,9 +76,28 @@ bool parallel_stopped(void)
     return parallel_current && atomic_load_explicit(&parallel_current->stop, memory_order_relaxed);
 }
 
-static void parallel_batch_work(struct parallel_batch *b, unsigned worker)
+/* CPU time the calling thread's parallel_runs had other threads spend (parallel_cpu_ms). */
+static _Thread_local uint64_t parallel_helpers_ns;
+
+static uint64_t parallel_thread_cpu_ns(void)
+{
+    struct timespec t;
+    if (clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t) != 0) return 0;
+    return (uint64_t)t.tv_sec * 1000000000u + (uint64_t)t.tv_nsec;
+}
+
+double parallel_cpu_ms(void)
+{
+    return (double)(parallel_thread_cpu_ns() + parallel_helpers_ns) * 1e-6;
+}
+
+/* `helper`: this thread is not the batch's caller, so its CPU time (with that of the helpers of
+ * any parallel_run its jobs made) is added to the batch's, which the caller takes over when the
+ * batch ends; the caller's own is in its thread clock already. */
+static void parallel_batch_work(struct parallel_batch *b, unsigned worker, bool helper)
 {
     struct parallel_batch *outer = parallel_current;  /* a job may run a parallel_run of its own */
+    const uint64_t cpu0 = helper ? parallel_thread_cpu_ns() : 0, nested0 = parallel_helpers_ns;
     parallel_current = b;
     for (;;) {
         uint64_t job = atomic_fetch_add_explicit(&b->next, 1, memory_order_relaxed);
@@ -86,6 +106,17 @@ static void parallel_batch_work(struct parallel_batch *b, unsigned worker)
         atomic_fetch_add_explicit(&b->done, 1, memory_order_release);
     }
     parallel_current = outer;
+    if (helper) {
+        uint64_t spent = parallel_thread_cpu_ns() - cpu0 + (parallel_helpers_ns - nested0);
+        parallel_helpers_ns = nested0;
+        atomic_fetch_add_explicit(&b->helper_cpu_ns, spent, memory_order_relaxed);
+    }
+}
+
+/* The caller of a finished batch takes over its helpers' CPU time. */
+static void parallel_take_helpers(struct parallel_batch *b)
+{
+    parallel_helpers_ns += atomic_load_explicit(&b->helper_cpu_ns, memory_order_relaxed);
 }
 
 static void parallel_sleep_tick(void)
@@ -127,7 +158,7 @@ struct spawned_worker {
 static void *spawned_worker_main(void *arg)
 {
     struct spawned_worker *w = arg;
-    parallel_batch_work(w->batch, w->index);
+    parallel_batch_work(w->batch, w->index, true);
     return NULL;
 }
 
@@ -144,7 +175,7 @@ static bool parallel_run_spawned(struct parallel_batch *b, unsigned helpers, uns
         if (pthread_create(&w[started].tid, NULL, spawned_worker_main, &w[started]) != 0) break;
     }
     if (base == 1 || started == 0) {
-        parallel_batch_work(b, 0);
+        parallel_batch_work(b, 0, false);
     } else if (progress) {
         uint32_t done;
         while (!parallel_stopping && (done = atomic_load_explicit(&b->done, memory_order_acquire)) < b->job_count) {
@@ -155,6 +186,7 @@ static bool parallel_run_spawned(struct parallel_batch *b, unsigned helpers, uns
     }
     for (unsigned i = 0; i < started; i++) pthread_join(w[i].tid, NULL);
     free(w);
+    parallel_take_helpers(b);
     if (progress) progress(progress_ctx, b->job_count, b->job_count);
     return true;
 }
@@ -204,7 +236,7 @@ static void *pool_worker_main(void *arg)
         struct parallel_batch *b = pool.batch;
         unsigned index = pool.base + w->slot;
         pthread_mutex_unlock(&pool.mu);
-        parallel_batch_work(b, index);
+        parallel_batch_work(b, index, true);
         pthread_mutex_lock(&pool.mu);
         if (--pool.running == 0) pthread_cond_signal(&pool.finished);
     }
@@ -246,6 +278,7 @@ bool parallel_run(unsigned threads, uint32_t job_count, parallel_job_fn *fn, voi
     atomic_init(&b.next, 0);
     atomic_init(&b.done, 0);
     atomic_init(&b.stop, false);
+    atomic_init(&b.helper_cpu_ns, 0);
     parallel_stopping = false;
 
     /* Without a progress callback the caller is worker 0 and takes jobs as well. */
@@ -254,7 +287,7 @@ bool parallel_run(unsigned threads, uint32_t job_count, parallel_job_fn *fn, voi
     uint32_t helper_jobs = job_count > base ? job_count - base : 0;
     if (helpers > helper_jobs) helpers = helper_jobs;
     if (helpers == 0) {
-        parallel_batch_work(&b, 0);
+        parallel_batch_work(&b, 0, false);
         if (progress) progress(progress_ctx, job_count, job_count);
         return true;
     }
@@ -281,7 +314,7 @@ bool parallel_run(unsigned threads, uint32_t job_count, parallel_job_fn *fn, voi
      * changes `workers`. */
     for (unsigned i = 0; i < helpers; i++) pthread_cond_signal(&pool.workers[i]->wake);
 
-    if (base == 1 || helpers == 0) parallel_batch_work(&b, 0);
+    if (base == 1 || helpers == 0) parallel_batch_work(&b, 0, false);
 
     pthread_mutex_lock(&pool.mu);
     if (base == 1) {
@@ -318,6 +351,7 @@ bool parallel_run(unsigned threads, uint32_t job_count, parallel_job_fn *fn, voi
     pool.busy = false;
     pthread_cond_broadcast(&pool.released);
     pthread_mutex_unlock(&pool.mu);
+    parallel_take_helpers(&b);
     if (progress) progress(progress_ctx, job_count, job_count);
     return true;
 }

@@ -21,6 +21,12 @@ unsigned parallel_threads(unsigned requested, unsigned cap);
 /* Milliseconds on CLOCK_MONOTONIC since *t0, and *t0 moved to now: one clock times consecutive
  * passes of a frame. */
 double parallel_lap_ms(struct timespec *t0);
+/* CPU time in milliseconds, a counter that only grows, for the calling thread: its own CPU time
+ * plus what the threads of its finished parallel_runs spent on them (and on the parallel_runs
+ * their jobs made in turn). The difference of two readings around a piece of work is that work's
+ * CPU time on every thread it used, free of the time other processes took from the machine,
+ * which a shared machine's wall clock is not. */
+double parallel_cpu_ms(void);
 /* Runs all jobs with `threads` workers (0 = default, at most 1024) and returns when every job
  * has run exactly once. `worker` is < threads and unique among the threads running jobs of this
  * call at the same moment (per-worker scratch indexed by it needs no locking). `progress` (may

@@ -258,10 +258,12 @@ bool view_render(struct view *v, const struct view_frame_change *change, struct 
                                    .threads = v->threads};
     struct frame_stats fs;
     memset(&fs, 0, sizeof fs);
+    const double cpu0 = parallel_cpu_ms();
     if (!v->params.method->render(v->state, v->params.method_params, &f, out, &fs, progress, progress_ctx, err)) {
         scene_release(scene);
         return false;
     }
+    fs.render.render_cpu_ms = parallel_cpu_ms() - cpu0;
 
     /* Commit: the current frame becomes the previous one. */
     scene_release(v->prev_scene);

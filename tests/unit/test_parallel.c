@@ -356,8 +356,89 @@ static void test_many_small_runs_are_fast(void)
     parallel_shutdown();
 }
 
+/* ---- parallel_cpu_ms: the CPU time of every thread a call used -------------------------------- */
+
+#define BURN_MS 4.0
+
+static double thread_cpu_ms(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return (double)t.tv_sec * 1e3 + (double)t.tv_nsec * 1e-6;
+}
+
+/* Spends BURN_MS of its own thread's CPU time, whichever thread that is. */
+static void burn_job(void *ctx, uint32_t job, unsigned worker)
+{
+    (void)ctx, (void)job, (void)worker;
+    double t0 = thread_cpu_ms();
+    volatile unsigned sink = 0;
+    while (thread_cpu_ms() - t0 < BURN_MS) sink = sink + 1;
+}
+
+/* A job that runs 4 burning jobs of its own on 2 threads. */
+static void nested_burn_job(void *ctx, uint32_t job, unsigned worker)
+{
+    (void)job, (void)worker;
+    struct err err = {0};
+    parallel_run(2, 4, burn_job, ctx, NULL, NULL, &err);
+}
+
+static void noop_progress(void *ctx, uint32_t done, uint32_t total) { (void)ctx, (void)done, (void)total; }
+
+struct cpu_caller {
+    unsigned threads;
+    uint32_t jobs;
+    double ms;
+};
+
+static void *cpu_caller_main(void *arg)
+{
+    struct cpu_caller *c = arg;
+    struct err err = {0};
+    double t0 = parallel_cpu_ms();
+    parallel_run(c->threads, c->jobs, burn_job, NULL, NULL, NULL, &err);
+    c->ms = parallel_cpu_ms() - t0;
+    return NULL;
+}
+
+/* Each case's jobs burn jobs x BURN_MS of CPU time in all, on whichever threads run them; the
+ * caller's reading must count all of it (the helpers' too: with a progress callback the caller
+ * runs no job, so counting its own thread alone reads about 0) and not much more (waiting for the
+ * helpers costs no CPU). Two callers at once: one of them runs on the threads created for it
+ * (the pool is busy), and each counts its own jobs only. */
+static void test_cpu_time_counts_every_thread(void)
+{
+    struct err err = {0};
+    struct { unsigned threads; uint32_t jobs; parallel_progress_fn *progress; parallel_job_fn *fn; double burnt; } cases[] = {
+        {1, 8, NULL, burn_job, 8 * BURN_MS},
+        {4, 16, NULL, burn_job, 16 * BURN_MS},
+        {4, 16, noop_progress, burn_job, 16 * BURN_MS},
+        {2, 2, NULL, nested_burn_job, 8 * BURN_MS},
+        {2, 2, noop_progress, nested_burn_job, 8 * BURN_MS},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        double t0 = parallel_cpu_ms();
+        CHECK(parallel_run(cases[i].threads, cases[i].jobs, cases[i].fn, NULL, cases[i].progress, NULL, &err));
+        double ms = parallel_cpu_ms() - t0;
+        printf("  case %zu: %.1f CPU-ms for %.1f burnt\n", i, ms, cases[i].burnt);
+        CHECK(ms >= cases[i].burnt);
+        CHECK(ms < 1.5 * cases[i].burnt + 10.0);
+    }
+    struct cpu_caller callers[2] = {{3, 12, 0.0}, {3, 6, 0.0}};
+    pthread_t tid[2];
+    for (int i = 0; i < 2; i++) CHECK(pthread_create(&tid[i], NULL, cpu_caller_main, &callers[i]) == 0);
+    for (int i = 0; i < 2; i++) pthread_join(tid[i], NULL);
+    for (int i = 0; i < 2; i++) {
+        double burnt = callers[i].jobs * BURN_MS;
+        printf("  concurrent caller %d: %.1f CPU-ms for %.1f burnt\n", i, callers[i].ms, burnt);
+        CHECK(callers[i].ms >= burnt);
+        CHECK(callers[i].ms < 1.5 * burnt + 10.0);
+    }
+}
+
 TEST_MAIN(TEST(test_every_job_runs_once), TEST(test_more_threads_than_default_and_clamp),
           TEST(test_progress_during_and_at_end), TEST(test_concurrent_callers),
           TEST(test_nested_call_does_not_deadlock), TEST(test_shutdown_then_run),
           TEST(test_shutdown_while_others_run), TEST(test_many_small_runs_are_fast),
-          TEST(test_stop_from_progress))
+          TEST(test_stop_from_progress), TEST(test_cpu_time_counts_every_thread))
