@@ -44,3 +44,15 @@ def test_params_with_a_still_pt_image_is_refused_as_documented(tmp_path, scenes)
             "docs/methods.md": (ROOT / "docs" / "methods.md").read_text()}
     for name, text in docs.items():
         assert re.search(r"takes\s+no\s+`?--params`?[^.]*--frames 1", text), name
+
+
+def test_json_reports_the_cpu_time_of_every_path(tmp_path, scenes):
+    # cpu_ms, the CPU time of all the render's threads (parallel_cpu_ms), for the still pt image
+    # (reference_pt_render) as for a session's frames (view_render): some, and no more than the
+    # threads could spend in the render's wall-clock time_ms (the CPU reading spans a little more).
+    for args in (["--spp", "8"], ["--method", "restir_pt", "--frames", "3"], ["--method", "bdpt", "--frames", "2"]):
+        res = run_cli("render", scenes / "cornell-box", "--size", "32x32", "--threads", "2", "--json", *args,
+                      "-o", tmp_path / "x.exr")
+        assert res.returncode == 0, (args, res.stderr)
+        st = json.loads(res.stdout)
+        assert 0 < st["cpu_ms"] <= st["threads"] * (st["time_ms"] + 5.0 * st["frames"]), (args, st)

@@ -101,3 +101,18 @@ print(json.dumps([[b["params"], b.get("profile")] for b in d.bodies]))
     assert json.loads(out) == [[{"spatial_neighbors": 6, "temporal": True, "spatial_radius": 5}, None],
                                [{"spatial_neighbors": 99, "temporal": True, "spatial_radius": 5}, "converge"],
                                [{"spp": 4}, None]]
+
+
+def test_a_frames_time_is_its_cpu_time_over_its_threads():
+    """regimes.frame_ms: the daemon's render_cpu_ms over the frame's threads (the wall time with
+    every thread busy, which other work on the machine does not stretch), and render_ms from a
+    daemon that reports no CPU time."""
+    code = """
+import json
+print(json.dumps([regimes.frame_ms({"render_ms": 100.0, "render_cpu_ms": 150.0, "threads": 2}),
+                  regimes.frame_ms({"render_ms": 100.0, "render_cpu_ms": 30.0, "threads": 1}),
+                  regimes.frame_ms({"render_ms": 100.0, "threads": 2})]))
+"""
+    rc, out, err = report_module({}, code)
+    assert rc == 0, err
+    assert json.loads(out) == [75.0, 30.0, 100.0]

@@ -23,7 +23,8 @@
  *   path allocates.
  * - Steady state (the pool exists and is free): two mutex round trips, one condvar signal per
  *   helper and a wait for the helpers that started on the batch (one that had not woken by the
- *   time every job was claimed is not waited for); no allocation.
+ *   time every job was claimed is not waited for); no allocation. Each helper reads its thread's
+ *   CPU clock twice, for parallel_cpu_ms.
  * - If threads cannot be created (or memory for them is short), the jobs run on the threads
  *   that exist, at worst on the calling thread alone: slower but still correct. */
 #include "core/parallel.h"

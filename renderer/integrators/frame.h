@@ -31,8 +31,9 @@ struct render_stats {
     uint64_t nonfinite;    /* samples dropped because their value was NaN or Inf */
     unsigned threads;      /* worker threads used */
     double render_ms;
-    /* CPU time of the frame on every thread it used (parallel_cpu_ms), set by view_render: on a
-     * shared machine a steadier measure of the frame's cost than render_ms. */
+    /* CPU time of the frame on every thread it used (parallel_cpu_ms), set by view_render for a
+     * session's frame and by reference_pt_render for a still image: on a shared machine a
+     * steadier measure of the frame's cost than render_ms. */
     double render_cpu_ms;
     struct sms_counters sms;   /* sms, sms_ssp, restir_sms: [SMS-SSP Table 1] counters */
 };

@@ -839,11 +839,13 @@ bool reference_pt_render_into(const struct scene *scene, const struct pt_params 
 
     struct timespec t0, t1;
     clock_gettime(CLOCK_MONOTONIC, &t0);
+    const double cpu0 = parallel_cpu_ms();
     parallel_job_fn *tile_fn = p.light_sampling == PT_LIGHT_SAMPLING_SOLID_ANGLE ? pt_tile_solid_angle
                                : p.sampler == PT_SAMPLER_SOBOL                  ? pt_tile_sobol
                                                                                 : pt_tile_random;
     bool ok = parallel_run(threads, job->tiles_x * tiles_y, tile_fn, job, progress, progress_ctx, err);
     clock_gettime(CLOCK_MONOTONIC, &t1);
+    const double cpu_ms = parallel_cpu_ms() - cpu0;
 
     if (stats) {
         memset(stats, 0, sizeof *stats);
@@ -856,6 +858,7 @@ bool reference_pt_render_into(const struct scene *scene, const struct pt_params 
         }
         stats->threads = threads;
         stats->render_ms = (double)(t1.tv_sec - t0.tv_sec) * 1e3 + (double)(t1.tv_nsec - t0.tv_nsec) * 1e-6;
+        stats->render_cpu_ms = cpu_ms;
     }
     return ok;
 }
