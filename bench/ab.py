@@ -9,7 +9,9 @@ must render the same frames for the comparison to mean anything), warms both up,
 rounds of one frame of A and one of B in turn, and a last frame of A. A round's ratio divides B's
 frame time by the mean of the two A frames around it, rendered within a fraction of a second of
 it, so a machine whose speed drifts by tens of per cent within seconds still gives a steady
-median. Prints the median of the rounds' ratios B/A and their quartiles, the median frame time of
+median. A frame's time is its CPU time over its threads (daemon.frame_time_ms) when both builds
+report it, else both wall times (render_ms), so that an older build is compared like for like.
+Prints the median of the rounds' ratios B/A and their quartiles, the median frame time of
 each, and for the ReSTIR methods the median time of each pass. Defaults: cornell-box, restir_pt,
 {}, 256x256, 16 warm-up frames, 60 rounds, all cores. Benchmarks are not tests: nothing fails on
 a timing."""
@@ -20,7 +22,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from daemon import Daemon  # noqa: E402
+from daemon import Daemon, frame_time_ms  # noqa: E402
 
 
 def main():
@@ -51,11 +53,12 @@ def main():
     finally:
         da.close()
         db.close()
-    ta, tb = [f["render_ms"] for f in fa], [f["render_ms"] for f in fb]
+    both_cpu = all("render_cpu_ms" in f for f in fa + fb)
+    ta, tb = ([frame_time_ms(f) if both_cpu else f["render_ms"] for f in fs] for fs in (fa, fb))
     ratios = [t / ((ta[i] + ta[i + 1]) / 2) for i, t in enumerate(tb)]
     q1, _, q3 = statistics.quantiles(ratios, n=4)
     print(f"{o.scene} {o.method} {o.params} {o.size}, {o.rounds} rounds: B/A {statistics.median(ratios):.3f} "
-          f"[{q1:.3f}-{q3:.3f}]; frame ms A {statistics.median(ta):.1f}, B {statistics.median(tb):.1f}")
+          f"[{q1:.3f}-{q3:.3f}]; frame {'CPU ms a thread' if both_cpu else 'ms'} A {statistics.median(ta):.1f}, B {statistics.median(tb):.1f}")
     if "passes" in fb[0]:
         for k in ("gbuffer_ms", "initial_ms", "temporal_ms", "spatial_ms", "shade_ms"):
             print(f"  {k}: A {statistics.median(f['passes'][k] for f in fa):.2f}, "

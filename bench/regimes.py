@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from daemon import frame_time_ms
 from exrimage import read_rgb, write_rgb
 
 QUICK = os.environ.get("QUICK") == "1"
@@ -166,11 +167,9 @@ def moving_bodies(scene, scene_path):
     return {"moving camera": camera, "moving light": light}
 
 
-def frame_ms(st):
-    """A frame's time for the report: its CPU time over its threads (module text), or its wall
-    time from a daemon that does not report CPU time."""
-    cpu = st.get("render_cpu_ms")
-    return cpu / max(1, st.get("threads") or 1) if cpu is not None else st["render_ms"]
+# A frame's time for the report: its CPU time over its threads (module text), or its wall time
+# from a daemon that does not report CPU time.
+frame_ms = frame_time_ms
 
 
 def ladder_params(method, value, side):
