@@ -29,7 +29,9 @@ of `pt` at N spp on the scene; each configuration starts from the method's conve
 frame cost taken from a 1- and a 9-frame session), and pt at N spp is the first row. CPU time
 rather than wall time: the figure holds on a shared machine, where other work stretches the wall
 clock but not the CPU time a render spends (BENCH_THREADS=1 keeps it free of thread waits too).
-SWEEP_BASELINES (e.g. "bdpt") adds those methods with their defaults at the same budget. A row
+SWEEP_BASELINES (e.g. "bdpt") adds those methods with their defaults at the same budget, or with
+parameters after a colon, in JSON without spaces (e.g. 'sms:{"spp":1}': one sample a frame, so that
+the budget holds several of its frames rather than a fraction of one). A row
 spends whole frames, so its CPU time misses the budget by up to half a frame, more when the frame
 cost measured in calibration differs from the one in the runs (a loaded machine): the last three
 columns scale its errors to the budget as independent frames' errors scale with time (relMSE as
@@ -79,7 +81,7 @@ def converge(path, work, ref, method, configs):
     print(f"\nConverge at equal CPU time: {budget:.2f} CPU-s, pt's at {BUDGET_SPP} spp ({threads}).\n")
     print("| method | params | frames | CPU-s | MAPE | relMSE | RMSE | at the budget: MAPE | relMSE | RMSE |\n"
           "|---|---|---|---|---|---|---|---|---|---|")
-    rows = [("pt", None)] + [(b, "{}") for b in BASELINES] + [(method, c) for c in configs]
+    rows = [("pt", None)] + [baseline(b) for b in BASELINES] + [(method, c) for c in configs]
     for m, text in rows:
         if text is None:
             args, frames = ["--method", "pt", "--spp", BUDGET_SPP], BUDGET_SPP
@@ -106,6 +108,18 @@ def converge(path, work, ref, method, configs):
               f"{med['rmse'] * spent ** 0.5:.4g} |", flush=True)
 
 
+def baseline(entry):
+    """(method, parameters' JSON text) of a SWEEP_BASELINES entry: METHOD or METHOD:{JSON}."""
+    m, _, text = entry.partition(":")
+    text = text or "{}"
+    try:
+        if not isinstance(json.loads(text), dict):
+            raise ValueError("not an object")
+    except ValueError as e:
+        raise SystemExit(f"sweep: SWEEP_BASELINES {entry!r}: parameters must be a JSON object ({e})")
+    return m, text
+
+
 def main(argv):
     if len(argv) < 3:
         raise SystemExit(__doc__)
@@ -116,6 +130,8 @@ def main(argv):
                 raise ValueError("not an object")
         except ValueError as e:
             raise SystemExit(f"sweep: {text!r}: parameters must be a JSON object ({e})")
+    for entry in BASELINES:
+        baseline(entry)
     path = ROOT / "scenes" / scene / "scene.json"
     if not path.is_file():
         raise SystemExit(f"sweep: no scene {scene!r} in scenes/")
