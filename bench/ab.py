@@ -9,7 +9,7 @@ must render the same frames for the comparison to mean anything), warms both up,
 rounds of one frame of A and one of B in turn, and a last frame of A. A round's ratio divides B's
 frame time by the mean of the two A frames around it, rendered within a fraction of a second of
 it, so a machine whose speed drifts by tens of per cent within seconds still gives a steady
-median. A frame's time is its CPU time over its threads (daemon.frame_time_ms) when both builds
+median. A frame's time is its CPU time over its threads (cputime.frame_time_ms) when both builds
 report it, else both wall times (render_ms), so that an older build is compared like for like.
 Prints the median of the rounds' ratios B/A and their quartiles, the median frame time of
 each, and for the ReSTIR methods the median time of each pass. Defaults: cornell-box, restir_pt,
@@ -22,7 +22,8 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from daemon import Daemon, frame_time_ms  # noqa: E402
+from cputime import frame_time_ms  # noqa: E402
+from daemon import Daemon  # noqa: E402
 
 
 def main():

@@ -1,6 +1,7 @@
 """CPU time of a child process: user + system seconds of its whole process tree (its threads and
-the processes it waits for), from the difference of getrusage(RUSAGE_CHILDREN) around the run.
-CPU seconds rather than wall time, because this machine is shared (docs/benchmarks.md)."""
+the processes it waits for), from the difference of getrusage(RUSAGE_CHILDREN) around the run;
+and a daemon frame's CPU time over its threads (frame_time_ms). CPU seconds rather than wall time,
+because this machine is shared (docs/benchmarks.md). Stdlib only."""
 import resource
 import subprocess
 
@@ -11,3 +12,13 @@ def run_timed(cmd):
     res = subprocess.run([str(c) for c in cmd], capture_output=True, text=True)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return res, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def frame_time_ms(frame):
+    """A frame's time from its JSON: the CPU time of all its threads over their number
+    (render_cpu_ms / threads), which is its wall time with every thread busy and nothing else on
+    the machine, and which other work on a shared machine stretches far less than the wall clock
+    (docs/benchmarks.md, "Two regimes"); render_ms, the wall time, from a daemon that does not
+    report CPU time."""
+    cpu = frame.get("render_cpu_ms")
+    return cpu / max(1, frame.get("threads") or 1) if cpu is not None else frame["render_ms"]

@@ -1,28 +1,20 @@
 """bench/daemon.py — a build/restird for a benchmark: tests/daemon.py's daemon (an ephemeral
 loopback port, a scratch data folder, logs beside it), plus one keep-alive connection over which
 sessions are created and frames rendered, each frame's time as the daemon measured it (no HTTP
-in it): its CPU time over its threads (frame_time_ms). Stdlib only."""
+in it): its CPU time over its threads (cputime.frame_time_ms). Stdlib only."""
 import http.client
 import importlib.util
 import json
 import tempfile
 from pathlib import Path
 
+from cputime import frame_time_ms  # noqa: F401 (the benches' frame time, re-exported)
+
 # tests/daemon.py under another name: this module is `daemon` too.
 _spec = importlib.util.spec_from_file_location("restird_test_daemon",
                                                Path(__file__).resolve().parent.parent / "tests" / "daemon.py")
 test_daemon = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(test_daemon)
-
-
-def frame_time_ms(frame):
-    """A frame's time from its JSON: the CPU time of all its threads over their number
-    (render_cpu_ms / threads), which is its wall time with every thread busy and nothing else on
-    the machine, and which other work on a shared machine stretches far less than the wall clock
-    (docs/benchmarks.md, "Two regimes"); render_ms, the wall time, from a daemon that does not
-    report CPU time."""
-    cpu = frame.get("render_cpu_ms")
-    return cpu / max(1, frame.get("threads") or 1) if cpu is not None else frame["render_ms"]
 
 
 class Daemon:

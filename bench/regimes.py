@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from daemon import frame_time_ms
+from cputime import frame_time_ms
 from exrimage import read_rgb, write_rgb
 
 QUICK = os.environ.get("QUICK") == "1"
