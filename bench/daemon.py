@@ -8,7 +8,7 @@ import json
 import tempfile
 from pathlib import Path
 
-from cputime import frame_time_ms  # noqa: F401 (the benches' frame time, re-exported)
+from cputime import frame_time_ms
 
 # tests/daemon.py under another name: this module is `daemon` too.
 _spec = importlib.util.spec_from_file_location("restird_test_daemon",
