@@ -108,16 +108,20 @@ def converge(path, work, ref, method, configs):
               f"{med['rmse'] * spent ** 0.5:.4g} |", flush=True)
 
 
-def baseline(entry):
-    """(method, parameters' JSON text) of a SWEEP_BASELINES entry: METHOD or METHOD:{JSON}."""
-    m, _, text = entry.partition(":")
-    text = text or "{}"
+def params_text(text, what):
+    """text, when it is a JSON object; else stops, naming `what` (the argument or the entry)."""
     try:
         if not isinstance(json.loads(text), dict):
             raise ValueError("not an object")
     except ValueError as e:
-        raise SystemExit(f"sweep: SWEEP_BASELINES {entry!r}: parameters must be a JSON object ({e})")
-    return m, text
+        raise SystemExit(f"sweep: {what}: parameters must be a JSON object ({e})")
+    return text
+
+
+def baseline(entry):
+    """(method, parameters' JSON text) of a SWEEP_BASELINES entry: METHOD or METHOD:{JSON}."""
+    m, _, text = entry.partition(":")
+    return m, params_text(text or "{}", f"SWEEP_BASELINES {entry!r}")
 
 
 def main(argv):
@@ -125,11 +129,7 @@ def main(argv):
         raise SystemExit(__doc__)
     scene, method, configs = argv[0], argv[1], argv[2:]
     for text in configs:
-        try:
-            if not isinstance(json.loads(text), dict):
-                raise ValueError("not an object")
-        except ValueError as e:
-            raise SystemExit(f"sweep: {text!r}: parameters must be a JSON object ({e})")
+        params_text(text, repr(text))
     for entry in BASELINES:
         baseline(entry)
     path = ROOT / "scenes" / scene / "scene.json"

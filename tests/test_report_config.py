@@ -1,6 +1,7 @@
-"""The report's configuration variables (bench/report.py, bench/regimes.py): a bad value is refused
-naming the variable and the item, a filter measures what it names and nothing else, and the
-parameters REPORT_PARAMS gives a method reach every session of it beneath the row's own."""
+"""The report's configuration variables (bench/report.py, bench/regimes.py) and bench/sweep.py's
+parameters: a bad value is refused naming the variable and the item, a filter measures what it
+names and nothing else, and the parameters REPORT_PARAMS gives a method reach every session of it
+beneath the row's own."""
 import json
 import os
 import subprocess
@@ -120,3 +121,19 @@ print(json.dumps([[regimes.frame_ms(f) for f in frames], [d.frame_ms(i) for i in
     rc, out, err = report_module({}, code)
     assert rc == 0, err
     assert json.loads(out) == [[75.0, 30.0, 100.0]] * 2
+
+
+@pytest.mark.parametrize("args, env, message", [
+    (["[1]"], {}, "sweep: '[1]': parameters must be a JSON object (not an object)"),
+    (["{"], {}, "sweep: '{': parameters must be a JSON object (Expecting property name"),
+    (["{}"], {"SWEEP_BASELINES": "bdpt sms:[]"}, "sweep: SWEEP_BASELINES 'sms:[]': parameters must be a JSON object"),
+    (["{}"], {"SWEEP_BASELINES": "sms:{spp}"}, "sweep: SWEEP_BASELINES 'sms:{spp}': parameters must be a JSON object"),
+])
+def test_sweep_refuses_parameters_that_are_not_an_object(args, env, message):
+    """bench/sweep.py names the configuration or the SWEEP_BASELINES entry that is not a JSON object,
+    and stops before rendering anything (no reference: the scene named does not exist either)."""
+    full = {k: v for k, v in os.environ.items() if not k.startswith("SWEEP_")}
+    full.update(env)
+    r = subprocess.run([sys.executable, str(ROOT / "bench" / "sweep.py"), "no-such-scene", "restir_sms", *args],
+                       env=full, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1 and r.stderr.strip().startswith(message), r.stderr
