@@ -28,6 +28,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from cputime import cli_frame_ms  # noqa: E402
 from restir_pt import pt_mape_at  # noqa: E402
 from svgplot import loglog  # noqa: E402
 
@@ -89,7 +90,7 @@ def measure(scene_path, ref, tmp, name, args_of):
             img = tmp / f"{name}{n}_{s}.exr"
             st = run(["render", str(scene_path), "--size", SIZE, "--seed", str(s), "--json", "-o", str(img),
                       *args_of(n)])
-            ms.append(st["time_ms"])
+            ms.append(cli_frame_ms(st))
             mape.append(compare(img, ref))
         rows.append({"n": n, "ms": statistics.median(ms), "mape": statistics.median(mape)})
     return rows

@@ -1,6 +1,7 @@
 """CPU time of a child process: user + system seconds of its whole process tree (its threads and
 the processes it waits for), from the difference of getrusage(RUSAGE_CHILDREN) around the run;
-and a daemon frame's CPU time over its threads (frame_time_ms). CPU seconds rather than wall time,
+a daemon frame's CPU time over its threads (frame_time_ms), and the same of a `restir render --json`
+summary (cli_frame_ms). CPU seconds rather than wall time,
 because this machine is shared (docs/benchmarks.md). Stdlib only."""
 import resource
 import subprocess
@@ -22,3 +23,16 @@ def frame_time_ms(frame):
     report CPU time."""
     cpu = frame.get("render_cpu_ms")
     return cpu / max(1, frame.get("threads") or 1) if cpu is not None else frame["render_ms"]
+
+
+def cli_frame_ms(summary, frames=1, last_frame=False):
+    """A frame's time from a `restir render --json` summary, by CPU as frame_time_ms: the
+    session's cpu_ms over its threads and its `frames`; with last_frame, the last frame's own
+    (last_frame_cpu_ms over the threads: the frame after a warm-up, alone), None from a CLI that
+    does not report it. The wall time_ms over `frames` from a CLI that reports no CPU time."""
+    threads = max(1, summary.get("threads") or 1)
+    if last_frame:
+        cpu = summary.get("last_frame_cpu_ms")
+        return None if cpu is None else cpu / threads
+    cpu = summary.get("cpu_ms")
+    return (summary["time_ms"] if cpu is None else cpu / threads) / frames

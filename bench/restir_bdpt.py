@@ -54,6 +54,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bdpt as bdpt_bench  # noqa: E402
 from bdpt import compare, run  # noqa: E402
+from cputime import cli_frame_ms  # noqa: E402
 from exrimage import read_rgb  # noqa: E402
 from restir_pt import pt_mape_at  # noqa: E402
 from svgplot import chart, loglog  # noqa: E402
@@ -98,7 +99,7 @@ def curve(scene_path, ref, tmp, name, args_of):
         ms, mape = [], []
         for s in range(SEEDS):
             img = tmp / f"{name}{n}_{s}.exr"
-            ms.append(render(scene_path, img, s, args_of(n))["time_ms"])
+            ms.append(cli_frame_ms(render(scene_path, img, s, args_of(n))))
             mape.append(compare(img, ref))
         rows.append({"n": n, "ms": statistics.median(ms), "mape": statistics.median(mape)})
     return rows
@@ -124,7 +125,7 @@ def after_warmup(scene_path, ref, tmp, name, args):
     for s in range(SEEDS):
         img = tmp / f"{name}_w{s}.exr"
         st = render(scene_path, img, s, [*args, "--frames", str(WARMUP + 1)])
-        ms.append(st["time_ms"] / (WARMUP + 1))
+        ms.append(cli_frame_ms(st, WARMUP + 1))
         mape.append(compare(img, ref))
         cm.append(masked_mape(read_rgb(img), r, mask))
     return {"frame_ms": statistics.median(ms), "mape": statistics.median(mape), "caustic_mape": statistics.median(cm),
@@ -195,7 +196,7 @@ def biased(tmp):
                           str(img), "--method", "restir_bdpt", "--params", json.dumps(params), "--frames",
                           str(BIAS_FRAMES), "--average-last", str(BIAS_FRAMES), "--profile", "real-time"])
                 lum[m].append(read_rgb(img).mean(axis=2))
-                ms[m].append(st["time_ms"] / BIAS_FRAMES)
+                ms[m].append(cli_frame_ms(st, BIAS_FRAMES))
                 dropped[m] += st["last_frame"]["lt_unshiftable"]
         base = np.stack(lum[BIASED[0][0]])
         h, w = base.shape[1:]

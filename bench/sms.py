@@ -70,6 +70,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import ctool  # noqa: E402
+from cputime import cli_frame_ms  # noqa: E402
 from curves import loglog_at  # noqa: E402
 from exrimage import read_rgb  # noqa: E402
 from svgplot import loglog  # noqa: E402
@@ -278,7 +279,7 @@ def measure(scene, name, ref, tmp, runs, tag):
                     img, st = render(scene, out, method, extra, seed, frames=spp)
                 else:
                     img, st = render(scene, out, method, {"spp": spp, **extra}, seed)
-                ms.append(st["time_ms"])
+                ms.append(cli_frame_ms(st))
                 err.append(rmse(img, ref))
                 if label in t1 and spp == 1:
                     t1[label].append(table1(st["sms"], st.get("prior")))
@@ -294,7 +295,7 @@ def measure(scene, name, ref, tmp, runs, tag):
             out = tmp / f"{name}-{tag}-steady-{label[:14].replace(' ', '_')}-{seed}.exr"
             img, st = render(scene, out, method, params, seed, extra=["--frames", str(WARMUP + 1), "--average-last", "1",
                                                                     "--profile", "real-time"])
-            ms.append(st["time_ms"] / (WARMUP + 1))
+            ms.append(cli_frame_ms(st, WARMUP + 1))
             err.append(rmse(img, ref))
             top.append(top_share(img, ref))
         steady[label] = (statistics.median(ms), statistics.median(err), math.sqrt(sum(e * e for e in err) / len(err)),

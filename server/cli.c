@@ -631,11 +631,16 @@ static int cli_render(int argc, char **argv)
     uint64_t rays = st.rays_intersect + st.rays_occluded;
     double rays_per_s = st.render_ms > 0 ? rays / (st.render_ms * 1e-3) : 0.0;
     unsigned threads = st.threads;
+    /* The last frame's CPU time on all its threads, so that a benchmark can time the frame after a
+     * warm-up by CPU as the daemon's render_cpu_ms does; a still pt image is its only frame. */
+    double last_cpu_ms = sequence ? last.render.render_cpu_ms : st.render_cpu_ms;
     if (json) {
         printf("{\"method\":\"%s\",\"width\":%u,\"height\":%u,\"spp\":%u,\"frames\":%u,\"seed\":%" PRIu64 ",\"threads\":%u,"
-               "\"time_ms\":%.3f,\"cpu_ms\":%.3f,\"rays\":%" PRIu64 ",\"rays_intersect\":%" PRIu64 ",\"rays_occluded\":%" PRIu64
+               "\"time_ms\":%.3f,\"cpu_ms\":%.3f,\"last_frame_cpu_ms\":%.3f,\"rays\":%" PRIu64
+               ",\"rays_intersect\":%" PRIu64 ",\"rays_occluded\":%" PRIu64
                ",\"rays_per_s\":%.6g,\"samples\":%" PRIu64 ",\"nonfinite\":%" PRIu64 ",\"mean\":[%.9g,%.9g,%.9g]",
-               method, width, height, frame_spp, rendered, p.seed, threads, st.render_ms, st.render_cpu_ms, rays,
+               method, width, height, frame_spp, rendered, p.seed, threads, st.render_ms, st.render_cpu_ms, last_cpu_ms,
+               rays,
                st.rays_intersect, st.rays_occluded, rays_per_s, st.samples, st.nonfinite, mean[0], mean[1], mean[2]);
         /* The last frame's method counters, as its descriptor lays them out. */
         protocol_print_method_counters(stdout, rm, &last, session_bytes, reservoir_bytes);

@@ -56,3 +56,9 @@ def test_json_reports_the_cpu_time_of_every_path(tmp_path, scenes):
         assert res.returncode == 0, (args, res.stderr)
         st = json.loads(res.stdout)
         assert 0 < st["cpu_ms"] <= st["threads"] * (st["time_ms"] + 5.0 * st["frames"]), (args, st)
+        # last_frame_cpu_ms, the last frame's alone (what a benchmark times after a warm-up): the
+        # whole of a still image's, a part of a sequence's.
+        if st["frames"] == 1:
+            assert st["last_frame_cpu_ms"] == st["cpu_ms"], (args, st)
+        else:
+            assert 0 < st["last_frame_cpu_ms"] < st["cpu_ms"], (args, st)

@@ -123,6 +123,27 @@ print(json.dumps([[regimes.frame_ms(f) for f in frames], [d.frame_ms(i) for i in
     assert json.loads(out) == [[75.0, 30.0, 100.0]] * 2
 
 
+def test_the_cli_benches_time_a_frame_by_its_cpu_time():
+    """cputime.cli_frame_ms, as bench/restir_pt.py, bench/bdpt.py, bench/restir_bdpt.py and
+    bench/sms.py time a `restir render --json` summary: the session's cpu_ms over its threads and
+    frames; the frame after a warm-up by its own last_frame_cpu_ms (restir_pt.restir_frame_ms);
+    the wall time and the passes' wall times from a CLI that reports no CPU time."""
+    code = """
+import json
+import cputime
+import restir_pt
+passes = {"gbuffer_ms": 1.0, "initial_ms": 2.0, "temporal_ms": 3.0, "spatial_ms": 4.0, "shade_ms": 5.0}
+cpu = {"time_ms": 90.0, "cpu_ms": 160.0, "last_frame_cpu_ms": 60.0, "threads": 2, "last_frame": passes}
+wall = {"time_ms": 90.0, "threads": 2, "last_frame": passes}
+print(json.dumps([cputime.cli_frame_ms(cpu, 4), cputime.cli_frame_ms(cpu, last_frame=True),
+                  restir_pt.restir_frame_ms(cpu), cputime.cli_frame_ms(wall, 3),
+                  cputime.cli_frame_ms(wall, last_frame=True), restir_pt.restir_frame_ms(wall)]))
+"""
+    rc, out, err = report_module({}, code)
+    assert rc == 0, err
+    assert json.loads(out) == [20.0, 30.0, 30.0, 30.0, None, 15.0]
+
+
 @pytest.mark.parametrize("args, env, message", [
     (["[1]"], {}, "sweep: '[1]': parameters must be a JSON object (not an object)"),
     (["{"], {}, "sweep: '{': parameters must be a JSON object (Expecting property name"),
