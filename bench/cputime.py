@@ -22,17 +22,18 @@ def frame_time_ms(frame):
     (docs/benchmarks.md, "Two regimes"); render_ms, the wall time, from a daemon that does not
     report CPU time."""
     cpu = frame.get("render_cpu_ms")
-    return cpu / max(1, frame.get("threads") or 1) if cpu is not None else frame["render_ms"]
+    return _per_thread(cpu, frame) if cpu is not None else frame["render_ms"]
 
 
 def cli_frame_ms(summary, frames=1, last_frame=False):
-    """A frame's time from a `restir render --json` summary, by CPU as frame_time_ms: the
-    session's cpu_ms over its threads and its `frames`; with last_frame, the last frame's own
-    (last_frame_cpu_ms over the threads: the frame after a warm-up, alone), None from a CLI that
-    does not report it. The wall time_ms over `frames` from a CLI that reports no CPU time."""
-    threads = max(1, summary.get("threads") or 1)
+    """A frame's time from this checkout's `restir render --json` summary, by CPU as
+    frame_time_ms: the session's cpu_ms over its threads and its `frames`; with last_frame, the
+    last frame's own (last_frame_cpu_ms: the frame after a warm-up, alone)."""
     if last_frame:
-        cpu = summary.get("last_frame_cpu_ms")
-        return None if cpu is None else cpu / threads
-    cpu = summary.get("cpu_ms")
-    return (summary["time_ms"] if cpu is None else cpu / threads) / frames
+        return _per_thread(summary["last_frame_cpu_ms"], summary)
+    return _per_thread(summary["cpu_ms"], summary) / frames
+
+
+def _per_thread(cpu_ms, stats):
+    """CPU milliseconds over the threads that spent them (the wall time with all of them busy)."""
+    return cpu_ms / max(1, stats.get("threads") or 1)

@@ -100,16 +100,6 @@ def reference(scene):
     return path, ref
 
 
-def restir_frame_ms(stats):
-    """The last frame's CPU time over its threads; the sum of its passes' wall times from a CLI
-    that does not report it."""
-    ms = cli_frame_ms(stats, last_frame=True)
-    if ms is not None:
-        return ms
-    lf = stats["last_frame"]
-    return lf["gbuffer_ms"] + lf["initial_ms"] + lf["temporal_ms"] + lf["spatial_ms"] + lf["shade_ms"]
-
-
 def measure_pt(scene_path, ref, tmp):
     rows = []
     for spp in PT_SPPS:
@@ -130,7 +120,7 @@ def measure_restir(scene_path, ref, tmp, params):
         img = tmp / f"rp_{s}.exr"
         st = run(["render", str(scene_path), "--method", "restir_pt", "--size", SIZE, "--seed", str(s),
                   "--frames", str(WARMUP + 1), "--params", params, "--json", "-o", str(img)])
-        ms.append(restir_frame_ms(st))
+        ms.append(cli_frame_ms(st, last_frame=True))
         mape.append(compare(img, ref))
         passes.append(st["last_frame"])
     med = {k: statistics.median(p[k] for p in passes) for k in ("gbuffer_ms", "initial_ms", "temporal_ms",
