@@ -27,7 +27,8 @@ correlated, the sessions are independent, which is what the z-test's per-pixel v
 The sessions run under the real-time profile (the defaults); the unbiasedness tests with a still
 and a moving camera also under the converge profile (temporal and spatial reuse off, a fresh primary
 ray position every frame, plain SMS candidates unless the parameters name the sampler, and with
-the partitioned one a prior of the frame's own walks: independent frames), averaging the same
+the partitioned one a prior of the frame's own walks: independent frames; the still camera with
+both samplers), averaging the same
 frames (with the camera still, a converge session renders only those: it has no history to warm
 up)."""
 import json
@@ -86,23 +87,30 @@ def _moving_camera(tmp_path, sc, frames, avg):
 
 
 @pytest.mark.statistical
-@pytest.mark.parametrize("light_reservoirs,profile", [(0, "real-time"), (1, "real-time"), (0, "converge")])
-def test_restir_sms_unbiased_still_camera(tmp_path, scenes, light_reservoirs, profile, sampler="ssp"):
+@pytest.mark.parametrize("light_reservoirs,profile,sampler", [(0, "real-time", "ssp"), (1, "real-time", "ssp"),
+                                                              (0, "converge", "ssp"), (0, "converge", None)])
+def test_restir_sms_unbiased_still_camera(tmp_path, scenes, light_reservoirs, profile, sampler):
     """The paper's sampler (partitioning with the prior), with a reservoir per light (the default:
-    the slab's two) and with one for both; plain SMS candidates are z-tested on reflective-plane
-    below (against sms) and were checked here too (global t -0.17, x1.05 t 7.2)."""
+    the slab's two) and with one for both, in both profiles; and the converge profile with its
+    own sampler (plain SMS candidates: `sampler` None leaves the profile's choice). Plain SMS
+    candidates under real-time reuse are z-tested on reflective-plane below (against sms)."""
     sc = scenes / SCENE / "scene.json"
     ref = _cached_reference(tmp_path, sc)
-    runs, st = _runs(tmp_path, sc, {**PARAMS, "sampler": sampler, "light_reservoirs": light_reservoirs},
-                     tag=f"r{light_reservoirs}", frames=AVG if profile == "converge" else FRAMES, profile=profile)
+    params = {**PARAMS, "light_reservoirs": light_reservoirs}
+    if sampler:
+        params["sampler"] = sampler
+    runs, st = _runs(tmp_path, sc, params, tag=f"r{light_reservoirs}",
+                     frames=AVG if profile == "converge" else FRAMES, profile=profile)
     assert np.isfinite(runs).all() and st["nonfinite"] == 0 and st["sms"]["capped"] == 0
+    # The converge profile's own sampler is plain SMS, which walks no prior; the partitioned one does.
+    assert (st["prior"]["samples"] > 0) == (sampler == "ssp")
     # The converge profile reuses nothing (no history, no spatial neighbour), so it shifts nothing.
     assert (st["last_frame"]["shifts"] > 0) == (profile == "real-time")
     # 64 bytes per reservoir: one per light (the slab's two) when left to the scene.
     assert st["reservoir_bytes_per_pixel"] == 64 * (light_reservoirs or 2)
     res = ztest_runs(runs, ref)
     bad = ztest_runs(runs * 1.05, ref)
-    print(f"restir_sms ({sampler}, still, {profile}) vs filtered reference: {res}; x1.05: {bad}; "
+    print(f"restir_sms ({sampler or 'sms: the profile default'}, still, {profile}) vs filtered reference: {res}; x1.05: {bad}; "
           f"last run: {st['last_frame']}, "
           f"{st['manifold_shift']}")
     assert_agree(res, "restir_sms vs pt subset caustic")
