@@ -59,6 +59,7 @@ ROOT = Path(__file__).resolve().parent.parent
 # (test_stability, test_failure_cases, stats) come from tests/.
 sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT / "bench"))
+import cputime  # noqa: E402
 import errors  # noqa: E402
 import regimes  # noqa: E402
 import restir_pt  # noqa: E402
@@ -390,9 +391,10 @@ PRIOR_SPP, PRIOR_FRAMES = 4, 9
 
 
 def prior_misses_a_light(side):
-    """Per setting on refractive-slab: time, RMSE against the uncapped sms reference, and the
-    manifold walks' success rate. sms and sms_ssp at PRIOR_SPP spp; restir_sms the last frame of
-    a PRIOR_FRAMES-frame session (its reservoirs carry the history)."""
+    """Per setting on refractive-slab: CPU time a frame (cputime.cli_frame_ms: the session's over
+    its threads and frames), RMSE against the uncapped sms reference, and the manifold walks'
+    success rate. sms and sms_ssp at PRIOR_SPP spp; restir_sms the last frame of a
+    PRIOR_FRAMES-frame session (its reservoirs carry the history)."""
     scene = ROOT / "scenes" / "refractive-slab" / "scene.json"
     ref = Reference(scene, side, "sms", REF_BY["refractive-slab"][1], WORK).path
     rows = {}
@@ -408,7 +410,7 @@ def prior_misses_a_light(side):
             st = run(["render", scene, "--method", method, "--size", f"{side}x{side}", "--seed", 60 + seed, *how,
                       "--json", "-o", img])
             frames = PRIOR_FRAMES if method == "restir_sms" else 1
-            ms.append(st["time_ms"] / frames)
+            ms.append(cputime.cli_frame_ms(st, frames))
             rmse.append(compare(img, ref)["rmse"])
             rate.append(st["sms"]["solutions"] / max(1, st["sms"]["samples"]))
             prior.append(st.get("prior", {}).get("solutions", 0))
@@ -713,7 +715,7 @@ def write(results, stab, peer, fail, started, elapsed):
         md += ["", "### The sample-space prior misses a light ([SMS-SSP Fig. 10])", "",
                f"scenes/refractive-slab (two lights) at {pr['side']}×{pr['side']}, medians over seeds, RMSE against the "
                f"uncapped `sms` reference: `sms` and `sms_ssp` at {pr['spp']} spp, `restir_sms` its last frame of "
-               f"{pr['frames']} (time per frame). With 2 prior walks per 16×16 block (the default is 128) most blocks "
+               f"{pr['frames']} (ms: CPU time a frame, the session's mean). With 2 prior walks per 16×16 block (the default is 128) most blocks "
                "find no solution for one or both of the two (light, caster) pairs; a pair without one falls back to "
                "partitioning without a prior there, and `prior: false` is that fallback everywhere. The estimates stay unbiased (`tests/test_restir_sms.py`, `tests/test_sms.py`); "
                "what the missed light costs is solutions and error.", "",
