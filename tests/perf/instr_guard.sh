@@ -55,19 +55,26 @@ rays() {
         cannot_measure "$bin render $scene --spp $spp --json printed no /rays" "$work/r.txt"
     printf -v "$var" '%s' "$n"
 }
-# instr SCENE SPP VAR ARGS...: the instructions callgrind collected over the whole render into VAR.
+# instr SCENE SPP VAR EVAR ARGS...: the instructions callgrind collected over the whole render into
+# VAR, and those of them spent in Embree's library (its functions' own costs, callgrind_annotate)
+# into EVAR. The budget holds the whole; the split is printed beside it, so that a change shows
+# whether it moved our work or Embree's (docs/benchmarks.md, "Quads merged into one geometry").
 instr() {
-    local scene=$1 spp=$2 var=$3 n
-    shift 3
+    local scene=$1 spp=$2 var=$3 evar=$4 n e
+    shift 4
     "$valgrind" --tool=callgrind --callgrind-out-file="$work/cg.out" "$bin" render "$scene" "$@" \
         --spp "$spp" -o "$work/i.exr" >/dev/null 2>"$work/vg.txt" ||
         cannot_measure "$valgrind --tool=callgrind $bin render $scene --spp $spp failed (status $?)" "$work/vg.txt"
     n=$(grep -o 'Collected : [0-9]*' "$work/vg.txt" | awk '{print $3}') || true
     [ -n "$n" ] || cannot_measure "callgrind printed no 'Collected :' line for $scene --spp $spp" "$work/vg.txt"
+    e=$(callgrind_annotate --inclusive=no --threshold=100 --auto=no "$work/cg.out" 2>>"$work/vg.txt" |
+        awk '/libembree3/ { gsub(",", "", $1); s += $1 } END { printf "%d", s }') ||
+        cannot_measure "callgrind_annotate could not read $scene --spp $spp's profile" "$work/vg.txt"
     printf -v "$var" '%s' "$n"
+    printf -v "$evar" '%s' "$e"
 }
 
-status=0 r_lo='' r_hi='' i_lo='' i_hi=''
+status=0 r_lo='' r_hi='' i_lo='' i_hi='' e_lo='' e_hi=''
 for render in "${renders[@]}"; do
     IFS='|' read -r name scene arg_text <<<"$render"
     read -r -a args <<<"$arg_text"
@@ -76,13 +83,13 @@ for render in "${renders[@]}"; do
     rays "$scene" $spp_hi r_hi "${args[@]}"
     [ "$r_hi" -gt "$r_lo" ] ||
         cannot_measure "$name: --spp $spp_hi traced $r_hi rays, --spp $spp_lo $r_lo: no difference to divide by"
-    instr "$scene" $spp_lo i_lo "${args[@]}"
-    instr "$scene" $spp_hi i_hi "${args[@]}"
+    instr "$scene" $spp_lo i_lo e_lo "${args[@]}"
+    instr "$scene" $spp_hi i_hi e_hi "${args[@]}"
     verdict=0
-    /usr/bin/python3 - "$budget" "$name" "$command_text" "$r_lo" "$r_hi" "$i_lo" "$i_hi" <<'PY' || verdict=$?
+    /usr/bin/python3 - "$budget" "$name" "$command_text" "$r_lo" "$r_hi" "$i_lo" "$i_hi" "$e_lo" "$e_hi" <<'PY' || verdict=$?
 import json, sys
 path, name, command = sys.argv[1:4]
-r_lo, r_hi, i_lo, i_hi = map(int, sys.argv[4:])
+r_lo, r_hi, i_lo, i_hi, e_lo, e_hi = map(int, sys.argv[4:])
 try:
     b = json.load(open(path))
     entry = b["renders"][name]
@@ -95,11 +102,13 @@ if entry.get("command") != command:
           f"this test runs {command!r}", file=sys.stderr)
     sys.exit(2)
 per_ray = (i_hi - i_lo) / (r_hi - r_lo)
+embree = (e_hi - e_lo) / (r_hi - r_lo)
 limit = budget * (1.0 + tolerance)
 floor = budget * (1.0 - tolerance)
 verdict = "ok" if per_ray <= limit else "OVER BUDGET"
 print(f"test-perf: pt {name}, {per_ray:.1f} instructions per ray ({i_hi - i_lo} instructions / "
-      f"{r_hi - r_lo} rays); budget {budget} + {tolerance * 100:g} % = {limit:.1f}: {verdict}")
+      f"{r_hi - r_lo} rays; Embree {embree:.1f}, the rest {per_ray - embree:.1f}); "
+      f"budget {budget} + {tolerance * 100:g} % = {limit:.1f}: {verdict}")
 if per_ray > limit:
     print(f"test-perf: the path loop does more work per ray than {path} allows; find where with "
           f"valgrind --tool=callgrind and callgrind_annotate (docs/benchmarks.md)", file=sys.stderr)

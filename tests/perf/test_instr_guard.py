@@ -58,11 +58,28 @@ def test_crashing_callgrind_cannot_be_measured(tmp_path):
     assert "status 139" in r.stderr
 
 
-def test_budget_without_entry_cannot_be_measured(tmp_path):
-    # Counts from fakes (1000 instructions per ray), a budget file that lacks the glossy render.
+# A "valgrind" that counts 1000 instructions per ray, 400 of them in Embree's library: it prints
+# the total and writes a callgrind profile with the two objects' own costs.
+PROFILED = ('for a; do [ "$p" = --spp ] && s=$a; case $a in --callgrind-out-file=*) f=${a#*=};; esac; p=$a; done; '
+            'printf "version: 1\\nevents: Ir\\nob=/usr/lib/libembree3.so.3\\nfl=???\\nfn=0x1\\n1 %d\\n'
+            'ob=/bin/restir\\nfl=a.c\\nfn=main\\n1 %d\\n" $((s * 400)) $((s * 600)) > "$f"; '
+            'echo "Collected : $((s * 1000))" >&2')
+
+
+def test_unreadable_profile_cannot_be_measured(tmp_path):
+    # The total is printed but no profile written: Embree's share cannot be read from it.
     restir = fake(tmp_path, "restir", 'for a; do [ "$p" = --spp ] && s=$a; p=$a; done; echo "{\\"rays\\": $s}"')
     valgrind = fake(tmp_path, "valgrind",
                     'for a; do [ "$p" = --spp ] && s=$a; p=$a; done; echo "Collected : $((s * 1000))" >&2')
+    r = guard(RESTIR_BIN=restir, VALGRIND=valgrind)
+    assert r.returncode == 2, r.stderr
+    assert "callgrind_annotate could not read scenes/cornell-box/scene.json --spp 4's profile" in r.stderr
+
+
+def test_budget_without_entry_cannot_be_measured(tmp_path):
+    # Counts from fakes (1000 instructions per ray), a budget file that lacks the glossy render.
+    restir = fake(tmp_path, "restir", 'for a; do [ "$p" = --spp ] && s=$a; p=$a; done; echo "{\\"rays\\": $s}"')
+    valgrind = fake(tmp_path, "valgrind", PROFILED)
     budget = tmp_path / "budget.json"
     command = ("restir render scenes/cornell-box/scene.json --method pt --size 64x64 --threads 1 "
                "--max-depth 8 --frames 1 --params {\"sampler\":\"random\"} --spp {4,12}")
@@ -71,5 +88,6 @@ def test_budget_without_entry_cannot_be_measured(tmp_path):
     r = guard(RESTIR_BIN=restir, VALGRIND=valgrind, INSTR_BUDGET=str(budget))
     assert r.returncode == 2, r.stderr
     assert "pt diffuse, 1000.0 instructions per ray" in r.stdout
+    assert "Embree 400.0, the rest 600.0" in r.stdout
     assert "NOTICE" in r.stdout and "to 1000.0" in r.stdout
     assert "no budget for /renders/glossy" in r.stderr
