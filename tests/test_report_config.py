@@ -125,9 +125,10 @@ print(json.dumps([[regimes.frame_ms(f) for f in frames], [d.frame_ms(i) for i in
 
 def test_the_cli_benches_time_a_frame_by_its_cpu_time():
     """cputime.cli_frame_ms, as bench/restir_pt.py, bench/bdpt.py, bench/restir_bdpt.py,
-    bench/sms.py and bench/report.py's failure case of the prior time a `restir render --json` summary: the session's cpu_ms over its threads and
-    frames, never its wall time_ms; the frame after a warm-up by its own last_frame_cpu_ms, never
-    the session's mean. One thread when the summary names none (as frame_time_ms)."""
+    bench/sms.py and bench/report.py's failure case of the prior time a `restir render --json`
+    summary: the session's cpu_ms over its threads and frames, never its wall time_ms; the frame
+    after a warm-up by its own last_frame_cpu_ms, never the session's mean. One thread when the
+    summary names none (as frame_time_ms)."""
     code = """
 import json
 import cputime

@@ -110,9 +110,8 @@ def test_restir_sms_unbiased_still_camera(tmp_path, scenes, light_reservoirs, pr
     assert st["reservoir_bytes_per_pixel"] == 64 * (light_reservoirs or 2)
     res = ztest_runs(runs, ref)
     bad = ztest_runs(runs * 1.05, ref)
-    print(f"restir_sms ({sampler or 'sms: the profile default'}, still, {profile}) vs filtered reference: {res}; x1.05: {bad}; "
-          f"last run: {st['last_frame']}, "
-          f"{st['manifold_shift']}")
+    print(f"restir_sms ({sampler or 'sms: the profile default'}, still, {profile}) vs filtered reference: {res}; "
+          f"x1.05: {bad}; last run: {st['last_frame']}, {st['manifold_shift']}")
     assert_agree(res, "restir_sms vs pt subset caustic")
     assert not bad.passed, f"a bias of x1.05 went unseen: {bad}"
 
