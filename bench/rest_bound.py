@@ -1,15 +1,23 @@
-"""bench/rest_bound.py — how far reusing the caustics alone can take restir_sms in real time.
+"""bench/rest_bound.py — what the rest of the light costs restir_sms in real time, and what reusing it
+gains.
 
-A restir_sms frame takes its caustics from its reservoirs and the rest of its light from one
-path-traced sample a pixel. Exact caustics (sms with caustics_only at 256 spp) over the rest at 1
-and 2 spp (pt with subset "rest", the light SMS does not own: sms.h) is the least error such a
-frame could have; it is printed beside restir_sms's frame 33 and sms at 1 and 2 spp, all scored
-against the scene's reference of `make bench-report` (bench/references.py), medians over 3 seeds,
-256x256. For restir_sms's frames it also prints the largest per-pixel shares of relMSE (the
-pixels that set it). docs/benchmarks.md reads the figures. Usage:
+A restir_sms frame takes its caustics from its reservoirs; the rest of its light (sms.h's split)
+comes either from one path-traced sample a pixel (`"rest": "pt"`) or from a restir_pt session
+restricted to that subset (`"rest": "restir_pt"`, the default). Exact caustics (sms with
+caustics_only at 256 spp) over the rest at 1 and 2 spp (pt with subset "rest") is the least error
+a frame of the first kind could have, and over restir_pt's rest at frame 33 what the second kind's
+rest leaves. These are printed beside restir_sms's frame 33 with either rest and sms at 1 and 2
+spp, all scored against the scene's reference of `make bench-report` (bench/references.py),
+medians over 3 seeds, 256x256, one thread, with each render's CPU time a frame (of the last frame
+for the sessions). The last columns put restir_sms's frame beside sms at the same CPU time: sms's
+1-spp error scaled as independent samples' errors scale (MAPE and RMSE by 1 / sqrt(c), relMSE by
+1 / c, c = the frame's CPU time over sms's at 1 spp). For restir_sms's frames it also prints the
+largest per-pixel shares of relMSE (the pixels that set it). docs/benchmarks.md reads the figures.
+Usage:
 
   /usr/bin/python3 bench/rest_bound.py reflective-plane
   /usr/bin/python3 bench/rest_bound.py refractive-slab"""
+import json
 import statistics
 import subprocess
 import sys
@@ -24,14 +32,16 @@ from restir_pt import BIN
 
 ROOT = Path(__file__).resolve().parent.parent
 SEEDS = 3
+KEYS = ("mape", "relmse", "rmse")
 
 
 def render(scene, out, *args):
-    res = subprocess.run([BIN, "render", str(scene), "--size", "256x256", "-o", str(out), *map(str, args)],
-                         capture_output=True, text=True)
+    """The image and the CPU time (ms) of its last frame."""
+    res = subprocess.run([BIN, "render", str(scene), "--size", "256x256", "--threads", "1", "--json", "-o", str(out),
+                          *map(str, args)], capture_output=True, text=True)
     if res.returncode != 0:
         raise SystemExit(f"rest_bound: {res.stderr.strip()}")
-    return read_rgb(out)[..., :3]
+    return read_rgb(out)[..., :3], json.loads(res.stdout)["last_frame_cpu_ms"]
 
 
 def main(argv):
@@ -44,29 +54,45 @@ def main(argv):
     work.mkdir(parents=True, exist_ok=True)
     method, chunk = reference_method(argv[0])
     ref = Reference(scene, 256, method, chunk, work).image
-    caustics = render(scene, work / "bound-caustics.exr", "--method", "sms", "--frames", 1, "--params",
-                      '{"spp": 256, "caustics_only": true}', "--seed", 9)
-    rows = {k: [] for k in ("rest 1 spp + exact caustics", "rest 2 spp + exact caustics", "restir_sms, frame 33",
-                            "sms, 1 spp", "sms, 2 spp")}
+    caustics, _ = render(scene, work / "bound-caustics.exr", "--method", "sms", "--frames", 1, "--params",
+                         '{"spp": 256, "caustics_only": true}', "--seed", 9)
+    rows = {}
+
+    def score(name, img, ms):
+        rows.setdefault(name, []).append({**errors.metrics(img, ref), "ms": ms})
+
     for s in range(SEEDS):
         for spp in (1, 2):
-            rest = render(scene, work / "bound-rest.exr", "--method", "pt", "--frames", 1, "--params",
-                          f'{{"spp": {spp}, "subset": "rest"}}', "--seed", 600 + s)
-            rows[f"rest {spp} spp + exact caustics"].append(errors.metrics(rest + caustics, ref))
-        img = render(scene, work / "bound-restir_sms.exr", "--method", "restir_sms", "--frames", 33, "--seed", 700 + s)
-        rows["restir_sms, frame 33"].append(errors.metrics(img, ref))
-        terms = errors.pixel_terms(img, ref)["relmse"]
-        top = np.sort(terms.ravel())[::-1][:3] / terms.sum()
-        print(f"# restir_sms seed {700 + s}: relMSE {terms.mean():.4g}, its 3 largest pixels hold "
-              + ", ".join(f"{t:.2f}" for t in top), flush=True)
+            rest, ms = render(scene, work / "bound-rest.exr", "--method", "pt", "--frames", 1, "--params",
+                              f'{{"spp": {spp}, "subset": "rest"}}', "--seed", 600 + s)
+            score(f"pt's rest at {spp} spp + exact caustics", rest + caustics, ms)
+        rest, ms = render(scene, work / "bound-rest.exr", "--method", "restir_pt", "--frames", 33, "--params",
+                          '{"subset": "rest"}', "--seed", 600 + s)
+        score("restir_pt's rest, frame 33 + exact caustics", rest + caustics, ms)
+        for rest_by in ("pt", "restir_pt"):
+            img, ms = render(scene, work / "bound-restir_sms.exr", "--method", "restir_sms", "--frames", 33,
+                             "--params", json.dumps({"rest": rest_by}), "--seed", 700 + s)
+            score(f"restir_sms (rest {rest_by}), frame 33", img, ms)
+            terms = errors.pixel_terms(img, ref)["relmse"]
+            top = np.sort(terms.ravel())[::-1][:3] / terms.sum()
+            print(f"# restir_sms (rest {rest_by}) seed {700 + s}: relMSE {terms.mean():.4g}, its 3 largest pixels "
+                  "hold " + ", ".join(f"{t:.2f}" for t in top), flush=True)
         for spp in (1, 2):
-            rows[f"sms, {spp} spp"].append(errors.metrics(
-                render(scene, work / "bound-sms.exr", "--method", "sms", "--frames", 1, "--params",
-                       f'{{"spp": {spp}}}', "--seed", 800 + s), ref))
-    print("\n| scene | image | MAPE | relMSE | RMSE |\n|---|---|---|---|---|")
-    for name, scores in rows.items():
-        print(f"| {argv[0]} | {name} | " + " | ".join(f"{statistics.median(x[k] for x in scores):.4g}"
-                                                  for k in ("mape", "relmse", "rmse")) + " |")
+            img, ms = render(scene, work / "bound-sms.exr", "--method", "sms", "--frames", 1, "--params",
+                             f'{{"spp": {spp}}}', "--seed", 800 + s)
+            score(f"sms, {spp} spp", img, ms)
+    med = {name: {k: statistics.median(x[k] for x in scores) for k in (*KEYS, "ms")} for name, scores in rows.items()}
+    sms1 = med["sms, 1 spp"]
+    print("\n| scene | image | MAPE | relMSE | RMSE | CPU ms a frame | over sms at equal CPU time: MAPE | relMSE |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name, m in med.items():
+        ratio = ""
+        if name.startswith("restir_sms"):
+            c = m["ms"] / sms1["ms"]
+            ratio = f" {m['mape'] / (sms1['mape'] / c ** 0.5):.2f} | {m['relmse'] / (sms1['relmse'] / c):.2f} |"
+        else:
+            ratio = " | |"
+        print(f"| {argv[0]} | {name} | " + " | ".join(f"{m[k]:.4g}" for k in KEYS) + f" | {m['ms']:.0f} |{ratio}")
 
 
 if __name__ == "__main__":

@@ -1721,8 +1721,9 @@ def test_restir_sss_session(daemon):
 def test_restir_sms_session(daemon):
     """A restir_sms session on refractive-slab: its parameters with defaults, exactly its own
     buffers (two 64-byte reservoir buffers, two G-buffers, two receiver buffers, the prior, the
-    spatial pairs; without the prior under the sms sampler, without the pairs unpaired), frames
-    with per-pass times, the manifold shifts' counters and [SMS-SSP Table 1]'s; bad values are
+    spatial pairs, and the rest's restir_pt session and frame; without the prior under the sms
+    sampler, without the pairs unpaired, without the rest's with `rest` pt), frames with per-pass
+    times, the rest's time, the manifold shifts' counters and [SMS-SSP Table 1]'s; bad values are
     refused naming the field."""
     s = new_session(daemon, scene="refractive-slab", method="restir_sms", width=24, height=24, seed=2,
                     params={"bernoulli_cap": 0})
@@ -1733,13 +1734,20 @@ def test_restir_sms_session(daemon):
     assert p["light_reservoirs"] == 2  # one per light, as the session resolved it on the slab
     assert s["reservoir_bytes_per_pixel"] == 2 * 64
     assert s["reservoir_bytes"] == 2 * 2 * 64 * 24 * 24 == s["buffers"]["reservoirs"]
+    assert p["rest"] == "restir_pt"  # by_scene, resolved: the slab has no translucent material
     own = {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "receivers"}
-    assert set(s["buffers"]) == own | {"prior", "spatial_pairs"}
+    rest = {"rest_reservoirs", "rest_gbuffers", "rest_primitive_table", "rest_spatial_pairs", "rest_frame"}
+    assert set(s["buffers"]) == own | {"prior", "spatial_pairs"} | rest
+    assert s["buffers"]["rest_reservoirs"] == 2 * 64 * 24 * 24 and s["buffers"]["rest_frame"] == 12 * 24 * 24
     # 2 x 2 blocks of 16 x 16 pixels, 8 pair entries of 168 bytes, in 1 + prior_frames tables.
     assert p["prior_frames"] == 4 and s["buffers"]["prior"] == (1 + 4) * 2 * 2 * 8 * 168
-    for params, extra in [({"sampler": "sms"}, {"spatial_pairs"}), ({"paired_spatial": False}, {"prior"})]:
+    for params, extra in [({"sampler": "sms"}, {"spatial_pairs"} | rest),
+                          ({"paired_spatial": False}, {"prior"} | rest),
+                          ({"rest": "pt"}, {"prior", "spatial_pairs"}),
+                          ({"caustics_only": True}, {"prior", "spatial_pairs"})]:
         t = new_session(daemon, scene="refractive-slab", method="restir_sms", width=8, height=8, params=params)
         assert set(t["buffers"]) == own | extra, params
+        assert t["params"]["rest"] == ("restir_pt" if extra & rest else "pt"), params
         assert daemon.req("DELETE", t["href"]).status == 204
     for asked, kept in [(1, 1), (3, 3), (0, 2)]:
         t = new_session(daemon, scene="refractive-slab", method="restir_sms", width=8, height=8,
@@ -1750,7 +1758,7 @@ def test_restir_sms_session(daemon):
     st = post_frame(daemon, s, accept="application/json").json()
     assert st["passes"]["shifts"] > 0 and st["nonfinite"] == 0
     assert st["manifold_shift"]["newton"] > 0 and 0 < st["manifold_shift"]["success_rate"] <= 1
-    assert st["sms"]["solutions"] > 0 and st["prior"]["samples"] > 0
+    assert st["sms"]["solutions"] > 0 and st["prior"]["samples"] > 0 and st["rest_ms"] > 0
     img = frame_rgb(daemon, s)
     assert img.shape == (24, 24, 3) and np.isfinite(img).all() and img.mean() > 0.01
     assert daemon.req("DELETE", s["href"]).status == 204
@@ -1760,7 +1768,9 @@ def test_restir_sms_session(daemon):
                           ({"jitter_walk": 0.6}, "/params/jitter_walk"), ({"jitter_walk": -0.1}, "/params/jitter_walk"),
                           ({"light_reservoirs": 9}, "/params/light_reservoirs"),
                           ({"light_reservoirs": -1}, "/params/light_reservoirs"),
-                          ({"prior_frames": 0}, "/params/prior_frames"), ({"prior_frames": 17}, "/params/prior_frames")]:
+                          ({"prior_frames": 0}, "/params/prior_frames"), ({"prior_frames": 17}, "/params/prior_frames"),
+                          ({"rest": "bdpt"}, "/params/rest"), ({"rest": 1}, "/params/rest"),
+                          ({"rest": "restir_pt", "max_depth": 127}, "/params/max_depth")]:
         r = daemon.req("POST", "/v1/scenes/refractive-slab/sessions",
                        json_body={"method": "restir_sms", "width": 8, "height": 8, "params": params})
         assert_problem(r, 422, "invalid-field", field)

@@ -293,3 +293,28 @@ def test_restir_sms_expected_shading_changes_only_the_shading(tmp_path, scenes):
     no_spatial_on, _ = run("ns_on", spatial_neighbors=0)
     no_spatial_off, _ = run("ns_off", spatial_neighbors=0, expected_shading=False)
     assert np.array_equal(no_spatial_on, no_spatial_off)
+
+
+@pytest.mark.parametrize("profile", ["real-time", "converge"])
+def test_restir_sms_rest_is_restir_pt_beside_the_caustics(tmp_path, scenes, profile):
+    """By default (`rest` by_scene, restir_pt on a scene without translucent materials) a restir_sms
+    frame is exactly the sum of two estimates, each z-tested on its own: a restir_pt session
+    restricted to the light SMS does not own (`subset` "rest": test_restir_pt.py's
+    test_restir_pt_rest_subset_unbiased) and restir_sms's caustics alone (`caustics_only`: the tests
+    above), each with the same seed, in either profile (the rest takes restir_pt's converge profile
+    when restir_sms's frames are independent). With `rest` "pt" the frame is another (one path a
+    pixel for the rest)."""
+    sc = scenes / SCENE / "scene.json"
+    common = ["--frames", "6", "--profile", profile]
+    full, st = render(sc, tmp_path / "full.exr", seed=5, extra=["--method", "restir_sms", *common])
+    assert st["rest_ms"] > 0, st
+    rest, rst = render(sc, tmp_path / "rest.exr", seed=5,
+                       extra=["--method", "restir_pt", "--params", json.dumps({"subset": "rest"}), *common])
+    caustics, _ = render(sc, tmp_path / "caustics.exr", seed=5,
+                         extra=["--method", "restir_sms", "--params", json.dumps({"caustics_only": True}), *common])
+    assert rst["last_frame"]["shifts"] > 0 and rest.mean() > 0 and caustics.mean() > 0
+    np.testing.assert_allclose(full, rest + caustics, rtol=1e-5, atol=1e-6)
+    by_pt, pst = render(sc, tmp_path / "pt.exr", seed=5,
+                        extra=["--method", "restir_sms", "--params", json.dumps({"rest": "pt"}), *common])
+    assert pst["rest_ms"] == 0, pst
+    assert not np.allclose(by_pt, full, rtol=1e-3)

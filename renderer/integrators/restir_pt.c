@@ -58,6 +58,7 @@
 #define PT_PURPOSE_RR 3u
 #define PT_MAX_RC 63u                           /* reconnection index fits 6 bits */
 #define PT_MAX_LENGTH 127u                      /* path length fits 7 bits */
+_Static_assert(PT_MAX_LENGTH - 1 == RESTIR_PT_MAX_DEPTH, "the documented longest path");
 #define PT_ENV_PRIM UINT32_MAX                  /* rc_prim of an environment light sample */
 
 /* head.bits: length d (7 bits), reconnection index k (6), NEE technique (1), lobe at x_{k-1}
@@ -99,7 +100,27 @@ struct restir_pt_params restir_pt_defaults(void)
         .paired_spatial = true,
         .expected_shading = true,
         .footprint = true, .footprint_c = 0.02f, .near_distance = 0.03f, .pdf_connect = true, .roughness_min = 0.2f,
+        .subset = PT_SUBSET_ALL,
     };
+}
+
+/* The converge profile: temporal reuse off and a fresh primary ray position every frame, so that
+ * a session's frames are independent; the spatial reuse of [ReSTIR BDPT Fig. 12] in its place (3
+ * rounds of 6 neighbours); and in a scene with a near-specular surface 8 initial paths a pixel
+ * (restir_pt_candidates_by_scene). Measured at equal CPU time on the mean of the frames
+ * (docs/benchmarks.md, "restir_pt's converge profile with history" and "Several initial paths a
+ * pixel"): a history capped at 1 to 20 frames with the real-time walk correlates the frames more
+ * than it lowers each one's error (on cornell-glossy about 3x the RMSE of the same rounds without
+ * it, on door-ajar 2.4-4x the relMSE of this profile); fewer rounds or neighbours trade
+ * cornell-glossy's relMSE for door-ajar's; and a path that no shift moves is only as good as the
+ * pixel's own paths. */
+void restir_pt_converge(struct restir_pt_params *p)
+{
+    p->temporal = false;
+    p->jitter_walk = 0.0f;
+    p->candidates = RESTIR_PT_CANDIDATES_BY_SCENE;
+    p->spatial_rounds = 3;
+    p->spatial_neighbors = 6;
 }
 
 /* RIS among light candidates ([ReSTIR PT Enhanced §5]) pays where choosing a light by its power
@@ -184,6 +205,8 @@ struct pt_ctx {
     uint32_t candidates;                 /* initial paths a pixel (>= 1) */
     float near_dist2;                    /* without footprint: squared minimum segment length */
     float pdf_max;                       /* pdf_connect: a lobe is rough when p(w) <= this */
+    bool keep_owned, keep_rest;          /* the subset's two halves (sms.h) */
+    bool tracked;                        /* a subset: each path's caustic chain is followed */
 };
 _Static_assert(sizeof(struct pt_ctx) <= RESTIR_PT_CTX_BYTES, "context fits the test buffer");
 
@@ -464,6 +487,24 @@ struct pt_rc_record {
     float rc_pdf;
 };
 
+/* The subset (restir_pt_params.subset; sms.h): whether the emission that a BSDF-sampled path meets
+ * after the scattering events in `track` belongs to it. Emission reached by next-event estimation,
+ * the environment and the emission seen directly always belong to the rest. A shift keeps the
+ * class of what it reconnects: x_k scatters through a rough lobe, which restarts the track, so a
+ * suffix it copies ends as it did in the base path; what a shift replays or re-traces is tracked
+ * afresh. */
+static inline void pt_track(const struct pt_ctx *c, const struct scene *scene, struct sms_track *track,
+                            const struct surface *s, unsigned flags)
+{
+    if (c->tracked) sms_track_scatter(scene, track, s, flags);
+}
+
+static inline bool pt_keeps_hit(const struct pt_ctx *c, const struct scene *scene, const struct sms_track *track)
+{
+    if (!c->tracked) return true;
+    return sms_track_owned(scene, track) ? c->keep_owned : c->keep_rest;
+}
+
 static void pt_store(struct pt_sample *out, uint32_t seed, uint32_t d, bool nee, struct vec3 F,
                      const struct pt_rc_record *rc, struct vec3 rad, float light_pdf)
 {
@@ -529,7 +570,8 @@ static void pt_initial_path(const struct pt_thread *t, struct pt_vertex v, uint3
                                                  roulette (reference_pt.c) */
     struct pt_segment seg = {0};              /* enters x_j (j >= 2) */
     struct pt_rc_record rc = {0};             /* the first connectable pair of the continuation */
-    const bool nee_on = c->nee_m > 0 && light_sampler_count(scene->lights) > 0;
+    const bool nee_on = c->nee_m > 0 && light_sampler_count(scene->lights) > 0 && c->keep_rest;
+    struct sms_track track = sms_track_start();   /* from the camera on (pt_keeps_hit) */
 
     for (uint32_t j = 1; j <= p->max_depth; j++) {
         const uint32_t d = j + 1;  /* length of the paths that end after x_j */
@@ -599,6 +641,7 @@ static void pt_initial_path(const struct pt_thread *t, struct pt_vertex v, uint3
         /* BSDF sampling continues the path. */
         struct pt_step stp;
         if (!pt_bsdf_step(c, &v, seed, j, &stp)) break;
+        pt_track(c, scene, &track, &v.s, stp.bs.flags);
         bool found_here = false;
         if (rc.k == 0 && pt_connectable(&th, j, &seg, false, stp.rough, stp.pdf_marg)) {
             rc = pt_rc_at(c, &v, stp.dir, seg.lobe, stp.bs.lobe, seg.pdf_lobe * seg.cos_end / seg.dist2 * stp.bs.pdf_w, j);
@@ -626,7 +669,8 @@ static void pt_initial_path(const struct pt_thread *t, struct pt_vertex v, uint3
         const bool delta = (stp.bs.flags & BSDF_DELTA) != 0;
         struct hit hit;
         if (!pt_trace(scene, &v, stp.dir, &hit, rays)) {
-            if (!vec3_is_zero(scene->env_radiance) && offer) {
+            const bool env = c->keep_rest && !vec3_is_zero(scene->env_radiance);
+            if (env && offer) {
                 float lp = pt_env_pdf_w(scene);
                 struct vec3 end = vec3_scale(scene->env_radiance, pt_mis_bsdf(c, delta, stp.pdf_marg, lp));
                 struct vec3 F = vec3_mul(beta, end);
@@ -636,7 +680,7 @@ static void pt_initial_path(const struct pt_thread *t, struct pt_vertex v, uint3
                     struct vec3 rad = found_here ? scene->env_radiance : vec3_mul(beta_suf, end);
                     pt_store(out, seed, d, false, F, &r, rad, found_here ? lp : 0.0f);
                 }
-            } else if (!vec3_is_zero(scene->env_radiance)) {
+            } else if (env) {
                 float lp = pt_env_pdf_w(scene);
                 *direct = vec3_add(*direct, vec3_scale(vec3_mul(beta, scene->env_radiance),
                                                        pt_mis_bsdf(c, delta, stp.pdf_marg, lp) * inv_m / (float)src));
@@ -650,7 +694,7 @@ static void pt_initial_path(const struct pt_thread *t, struct pt_vertex v, uint3
         struct pt_segment nseg = {0};
         if (rc.k == 0) pt_segment_geo(c, &v, stp.bs.lobe, nv.s.p, nv.s.ng, &nseg);
 
-        if (material_is_emissive(nv.m)) {
+        if (material_is_emissive(nv.m) && pt_keeps_hit(c, scene, &track)) {
             struct vec3 Le = light_sampler_emitted(nv.m, -vec3_dot(stp.dir, nv.s.ng));
             if (!vec3_is_zero(Le)) {
                 float lp = pt_light_pdf_w(scene, nv.s.shape, nv.s.prim, dist2, vec3_dot(stp.dir, nv.s.ng));
@@ -699,11 +743,13 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
     const struct scene *scene = c->scene[RESTIR_CURRENT];
     memset(out, 0, sizeof *out);
     const struct vec3 *seen = c->gbuf[RESTIR_CURRENT]->emission;
-    *direct = seen ? seen[pixel] : scene->env_radiance;
+    /* Emission seen directly belongs to the rest (pt_keeps_hit). */
+    *direct = !c->keep_rest ? vec3_splat(0.0f) : seen ? seen[pixel] : scene->env_radiance;
     struct pt_thread th = *t;
     struct pt_vertex v;
     if (!pt_primary(c, (struct restir_domain){pixel, RESTIR_CURRENT}, &v, &th.footprint)) return;
-    if (!seen) *direct = light_sampler_emitted(v.m, vec3_dot(vec3_sub(c->eye[RESTIR_CURRENT], v.s.p), v.s.ng));
+    if (!seen && c->keep_rest)
+        *direct = light_sampler_emitted(v.m, vec3_dot(vec3_sub(c->eye[RESTIR_CURRENT], v.s.p), v.s.ng));
 
     const uint32_t m = c->candidates;
     const float inv_m = 1.0f / (float)m;
@@ -736,6 +782,8 @@ static bool pt_suffix(const struct pt_thread *t, const struct scene *scene, cons
     struct vec3 dir = wk, beta = vec3_splat(1.0f);
     bool delta = false;
     float pdf_marg = 0.0f;
+    struct sms_track track = sms_track_start();
+    pt_track(c, scene, &track, &xk->s, 0);   /* x_k's lobe is rough: the chain starts here */
     for (uint32_t j = k;; j++) {
         struct hit hit;
         bool found = pt_trace(scene, &v, dir, &hit, &t->cnt->rays);
@@ -743,11 +791,13 @@ static bool pt_suffix(const struct pt_thread *t, const struct scene *scene, cons
             struct vec3 Le;
             float lp;
             if (!found) {
+                if (!c->keep_rest) return false;
                 Le = scene->env_radiance;
                 lp = pt_env_pdf_w(scene);
             } else {
                 struct pt_vertex nv;
                 pt_vertex_from_hit(scene, &v, dir, &hit, &nv);
+                if (!pt_keeps_hit(c, scene, &track)) return false;
                 float dist2 = vec3_length2(vec3_sub(nv.s.p, v.s.p));
                 float cosl = vec3_dot(dir, nv.s.ng);
                 Le = light_sampler_emitted(nv.m, -cosl);
@@ -768,6 +818,7 @@ static bool pt_suffix(const struct pt_thread *t, const struct scene *scene, cons
         pt_vertex_from_hit(scene, &v, dir, &hit, &nv);
         struct pt_step stp;
         if (!pt_bsdf_step(c, &nv, seed, j + 1, &stp)) return false;
+        pt_track(c, scene, &track, &nv.s, stp.bs.flags);
         beta = vec3_mul(beta, stp.factor);
         delta = (stp.bs.flags & BSDF_DELTA) != 0;
         pdf_marg = stp.pdf_marg;
@@ -798,11 +849,13 @@ static void pt_shift_impl(const struct pt_ctx *c, struct restir_counters *cnt, c
     const uint32_t last = k ? k - 1 : d - 1;  /* the last vertex random replay reaches */
     struct vec3 beta = vec3_splat(1.0f);
     struct pt_segment seg = {0};
+    struct sms_track track = sms_track_start();
 
     /* Random replay of y_1 .. y_last: none of its pairs may be connectable (invertibility). */
     for (uint32_t j = 1; j < last; j++) {
         struct pt_step stp;
         if (!pt_bsdf_step(c, &v, seed, j, &stp)) return;
+        pt_track(c, scene, &track, &v.s, stp.bs.flags);
         if (pt_connectable(&t, j, &seg, false, stp.rough, stp.pdf_marg)) return;
         beta = vec3_mul(beta, stp.factor);
         struct hit hit;
@@ -820,10 +873,12 @@ static void pt_shift_impl(const struct pt_ctx *c, struct restir_counters *cnt, c
         struct pt_step stp;
         if (!pt_bsdf_step(c, &v, seed, last, &stp)) return;
         if (pt_connectable(&t, last, &seg, false, stp.rough, stp.pdf_marg)) return;
+        pt_track(c, scene, &track, &v.s, stp.bs.flags);
         const bool delta = (stp.bs.flags & BSDF_DELTA) != 0;
         struct hit hit;
         struct vec3 end;
         if (!pt_trace(scene, &v, stp.dir, &hit, rays)) {
+            if (!c->keep_rest) return;
             end = vec3_scale(scene->env_radiance, pt_mis_bsdf(c, delta, stp.pdf_marg, pt_env_pdf_w(scene)));
         } else {
             struct pt_vertex nv;
@@ -832,6 +887,7 @@ static void pt_shift_impl(const struct pt_ctx *c, struct restir_counters *cnt, c
             struct pt_segment nseg;
             pt_segment_geo(c, &v, stp.bs.lobe, nv.s.p, nv.s.ng, &nseg);
             if (pt_connectable(&t, d, &nseg, true, false, 0.0f)) return;
+            if (!pt_keeps_hit(c, scene, &track)) return;
             struct vec3 Le = light_sampler_emitted(nv.m, -vec3_dot(stp.dir, nv.s.ng));
             float lp = pt_light_pdf_w(scene, nv.s.shape, nv.s.prim, dist2, vec3_dot(stp.dir, nv.s.ng));
             end = vec3_scale(Le, pt_mis_bsdf(c, delta, stp.pdf_marg, lp));
@@ -1136,6 +1192,9 @@ void restir_pt_bind(struct restir_pt_state *st, const struct restir_pt_params *p
     float radius = 0.5f * vec3_length(ext);
     c->near_dist2 = (params->near_distance * radius) * (params->near_distance * radius);
     c->pdf_max = 1.0f / sqrtf(params->roughness_min);
+    c->keep_owned = params->subset != PT_SUBSET_REST;
+    c->keep_rest = params->subset != PT_SUBSET_CAUSTIC;
+    c->tracked = params->subset != PT_SUBSET_ALL;
 }
 
 bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params *params,

@@ -23,6 +23,7 @@
 #include "reuse/restir.h"
 #include "integrators/frame.h"
 #include "scene/scene.h"
+#include "integrators/sms.h"
 
 struct RESTIRD_STORED_IN_BYTES restir_pt_params {
     uint32_t max_depth;          /* as `pt`: scattering events before the path stops (64) */
@@ -64,6 +65,9 @@ struct RESTIRD_STORED_IN_BYTES restir_pt_params {
                                     scene's bounding radius (0.03) */
     bool pdf_connect;            /* PDF-based connectability (eq. 26) vs lobe roughness */
     float roughness_min;         /* alpha_min of both tests (0.2) */
+    enum pt_subset subset;       /* the light transport the image holds, split as pt's (sms.h):
+                                    all, the caustic paths specular manifold sampling owns, or the
+                                    rest (all) */
 };
 
 /* nee_candidates of the defaults: chosen from the session's scene at restir_pt_init. */
@@ -71,7 +75,13 @@ struct RESTIRD_STORED_IN_BYTES restir_pt_params {
 /* candidates 0 (the converge profile's): chosen from the session's scene at restir_pt_init. */
 #define RESTIR_PT_CANDIDATES_BY_SCENE 0u
 
+/* The longest paths a reservoir holds (its length field). */
+#define RESTIR_PT_MAX_DEPTH 126u
+
 struct restir_pt_params restir_pt_defaults(void);
+/* The converge profile over p (the method's `--profile converge`, and restir_sms's rest when its
+ * frames are independent): frames that are independent draws. */
+void restir_pt_converge(struct restir_pt_params *p);
 /* The RIS NEE candidates a scene gets by default: 4 with two or more emitters (emissive
  * shapes; a lit environment counts as one), 1 (plain NEE) with a single one. */
 uint32_t restir_pt_nee_by_scene(const struct scene *scene);

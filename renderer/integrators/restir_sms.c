@@ -42,8 +42,26 @@ struct restir_sms_params restir_sms_defaults(void)
     struct restir_sms_params p = {.ssp = ssp_defaults(), .shift_iterations = 5, .temporal = true,
                                   .temporal_cap = 20, .spatial_neighbors = 1, .spatial_radius = 30.0f,
                                   .paired_spatial = true, .expected_shading = true, .jitter_walk = 0.1f,
-                                  .light_reservoirs = RESTIR_SMS_LIGHT_RESERVOIRS_BY_SCENE, .max_depth = 64, .rr_depth = 3};
+                                  .light_reservoirs = RESTIR_SMS_LIGHT_RESERVOIRS_BY_SCENE, .max_depth = 64, .rr_depth = 3,
+                                  .rest = RESTIR_SMS_REST_BY_SCENE};
     return p;
+}
+
+enum restir_sms_rest restir_sms_rest_of(const struct restir_sms_params *p, const struct scene *scene)
+{
+    if (p->ssp.sms.caustics_only) return RESTIR_SMS_REST_PT;   /* no rest at all: the pt path's SMS */
+    if (p->rest != RESTIR_SMS_REST_BY_SCENE) return p->rest;
+    const bool fits = p->max_depth >= 1 && p->max_depth <= RESTIR_PT_MAX_DEPTH;
+    return fits && !scene_has_translucent(scene) ? RESTIR_SMS_REST_RESTIR_PT : RESTIR_SMS_REST_PT;
+}
+
+struct restir_pt_params restir_sms_rest_params(const struct restir_sms_params *p)
+{
+    struct restir_pt_params rp = restir_pt_defaults();
+    if (!p->temporal) restir_pt_converge(&rp);
+    rp.subset = PT_SUBSET_REST;
+    rp.max_depth = p->max_depth;
+    return rp;
 }
 
 bool restir_sms_params_valid(const struct restir_sms_params *p, struct err *err)
@@ -66,6 +84,11 @@ bool restir_sms_params_valid(const struct restir_sms_params *p, struct err *err)
         return err_set(err, ERR_INVALID, "/params/light_reservoirs", "must be in [0, %u] (0: one per emissive shape), got %u",
                        RESTIR_SMS_MAX_LIGHT_RESERVOIRS, p->light_reservoirs);
     if (p->max_depth > 1024) return err_set(err, ERR_INVALID, "/params/max_depth", "must be at most 1024");
+    if ((unsigned)p->rest > RESTIR_SMS_REST_RESTIR_PT) return err_set(err, ERR_INVALID, "/params/rest", "unknown rest");
+    if (p->rest == RESTIR_SMS_REST_RESTIR_PT && !p->ssp.sms.caustics_only &&
+        (p->max_depth < 1 || p->max_depth > RESTIR_PT_MAX_DEPTH))
+        return err_set(err, ERR_INVALID, "/params/max_depth", "must be in 1..%u with rest restir_pt, got %u",
+                       RESTIR_PT_MAX_DEPTH, p->max_depth);
     return true;
 }
 
@@ -414,6 +437,18 @@ bool restir_sms_init(struct restir_sms_state *st, const struct scene *scene, con
         if (!(st->recv[i] = calloc(n, sizeof(struct restir_sms_receiver))))
             ok = err_set(err, ERR_NOMEM, NULL, "out of memory for %ux%u receivers", width, height);
     ok = ok && (!sms_uses_prior(params) || ssp_prior_init(&st->prior, width, height, params->ssp.prior_frames, err));
+    if (ok && restir_sms_rest_of(params, scene) == RESTIR_SMS_REST_RESTIR_PT) {
+        if (scene_has_translucent(scene)) {
+            ok = err_set(err, ERR_INVALID, "/params/rest",
+                         "restir_pt does not sample subsurface scattering (the scene has translucent materials): "
+                         "give \"pt\"");
+        } else {
+            struct restir_pt_params rp = restir_sms_rest_params(params);
+            st->has_rest = true;
+            ok = restir_pt_init(&st->rest, scene, &rp, width, height, err) &&
+                 image_init(&st->rest_image, width, height, err);
+        }
+    }
     if (!ok) restir_sms_destroy(st);
     return ok;
 }
@@ -423,6 +458,10 @@ void restir_sms_destroy(struct restir_sms_state *st)
     restir_session_destroy(&st->rs);
     for (int i = 0; i < 2; i++) free(st->recv[i]);
     ssp_prior_destroy(&st->prior);
+    if (st->has_rest) {
+        restir_pt_destroy(&st->rest);
+        image_destroy(&st->rest_image);
+    }
     memset(st, 0, sizeof *st);
 }
 
@@ -436,6 +475,15 @@ size_t restir_sms_prior_bytes(const struct restir_sms_state *st)
     return st->prior.entries ? ssp_prior_bytes(st->rs.width, st->rs.height, st->prior.frames) : 0;
 }
 
+/* The rest's restir_pt session and its frame, when rest is restir_pt. */
+static uint64_t sms_rest_bytes(const struct restir_sms_params *params, const struct scene *scene, uint32_t width,
+                               uint32_t height)
+{
+    if (restir_sms_rest_of(params, scene) != RESTIR_SMS_REST_RESTIR_PT) return 0;
+    struct restir_pt_params rp = restir_sms_rest_params(params);
+    return restir_pt_bytes_planned(&rp, width, height, scene) + (uint64_t)width * height * sizeof(struct vec3);
+}
+
 uint64_t restir_sms_bytes_planned(const struct restir_sms_params *params, const struct scene *scene, uint32_t width,
                                   uint32_t height)
 {
@@ -443,7 +491,7 @@ uint64_t restir_sms_bytes_planned(const struct restir_sms_params *params, const 
     return 2 * (uint64_t)width * height *
                (layers * sizeof(struct sms_sample) + sizeof(struct gbuffer_pixel) + sizeof(struct restir_sms_receiver)) +
            (sms_uses_prior(params) ? ssp_prior_bytes(width, height, params->ssp.prior_frames) : 0) +
-           (sms_uses_pairs(params) ? restir_pair_scratch_bytes(width, height) : 0);
+           (sms_uses_pairs(params) ? restir_pair_scratch_bytes(width, height) : 0) + sms_rest_bytes(params, scene, width, height);
 }
 
 struct sms_pass {
@@ -451,6 +499,7 @@ struct sms_pass {
     const struct sms_ctx *c;
     struct restir_sms_receiver *recv;   /* this frame's, which the initial pass finds */
     struct pt_params pt;
+    const struct vec3 *rest;   /* the rest's restir_pt frame, or NULL: the pt path renders the rest */
     struct sms_counters sms[RESTIR_MAX_WORKERS];
     struct restir_sms_stats local;   /* the counters of a frame whose caller keeps none */
 };
@@ -489,8 +538,9 @@ static void sms_initial_rows(void *ctx, uint32_t job, unsigned worker)
             if (!pp->fr.out) continue;
             struct rng rng = rng_make(c->seed, c->frame, pixel, SMS_PT_STREAM);
             struct rng srng = rng_make(c->seed, c->frame, pixel, SMS_PT_SMS_STREAM);
-            pp->fr.out->pixels[pixel] = reference_pt_radiance_sms(c->scene[RESTIR_CURRENT], &pp->pt, &c->ss, x, y,
-                                                                  cam->position, dir, primary, &rng, &srng, sc, rc);
+            struct vec3 L = reference_pt_radiance_sms(c->scene[RESTIR_CURRENT], &pp->pt, &c->ss, x, y,
+                                                      cam->position, dir, primary, &rng, &srng, sc, rc);
+            pp->fr.out->pixels[pixel] = pp->rest ? vec3_add(L, pp->rest[pixel]) : L;
         }
     }
     pp->fr.counters[worker].rays.intersect += rays.intersect;
@@ -557,6 +607,23 @@ static bool sms_frame(struct restir_sms_state *st, const struct restir_sms_param
         return err_set(err, ERR_INVALID, "/params/prior_frames", "the session keeps %u frames of prior walks, not %u",
                        st->prior.frames, params->ssp.prior_frames);
     if (!restir_frame_gbuffer(&pp.fr, params->jitter_walk, sms_uses_pairs(params), false, 1, err)) return false;
+    if ((restir_sms_rest_of(params, f->scene) == RESTIR_SMS_REST_RESTIR_PT) != st->has_rest)
+        return err_set(err, ERR_INVALID, "/params/rest", "the session was made for the rest by %s",
+                       st->has_rest ? "restir_pt" : "pt");
+    /* The rest's frame first, with its own G-buffer (restir_pt's jitter walk) and passes. */
+    pp.rest = NULL;
+    struct sms_params pt_sms = params->ssp.sms;
+    if (st->has_rest && out) {
+        struct restir_pt_params rp = restir_sms_rest_params(params);
+        struct restir_pass_stats rest_stats = {0};
+        if (!restir_pt_render(&st->rest, &rp, f, &st->rest_image, &rest_stats, err)) return false;
+        stats->pass.rays_intersect += rest_stats.rays_intersect;
+        stats->pass.rays_occluded += rest_stats.rays_occluded;
+        stats->pass.nonfinite += rest_stats.nonfinite;
+        stats->rest_ms = parallel_lap_ms(&pp.fr.t0);
+        pp.rest = st->rest_image.pixels;
+        pt_sms.caustics_only = true;   /* the pt path's SMS estimates at later vertices only */
+    }
 
     if (!sms_bind(st, params, f, c, err)) return false;
     pp.c = c;
@@ -577,7 +644,7 @@ static bool sms_frame(struct restir_sms_state *st, const struct restir_sms_param
     /* The rest's SMS estimates, at every non-delta vertex but the receiver, are plain SMS with
      * either sampler: the prior describes receivers only, and without it partitioning has more
      * variance than SMS's seeds over the whole caster (restir_sms.h). */
-    pp.pt.sms = &params->ssp.sms;
+    pp.pt.sms = &pt_sms;
     if (!restir_frame_initial(&pp.fr, sms_initial_rows, err)) return false;
     for (unsigned i = 0; i < pp.fr.threads; i++) sms_counters_add(&stats->sms, &pp.sms[i]);
     if (!out) return true;

@@ -50,10 +50,11 @@
  * shifts multiply by up to n (reservoirs left empty cost no shift).
  *
  * Everything else a pixel receives comes from one path per pixel and frame from the same
- * primary ray (the G-buffer's jitter): the path-traced rest of the light transport and plain SMS
- * estimates at every other non-delta vertex (reference_pt_radiance_sms, which leaves out exactly
- * the receiver when its path took the canonical prefix, whose expectation T_prefix · SMS the
- * reservoirs carry), so the image estimates exactly what `pt` does (or, with caustics_only, pt's
+ * primary ray (the G-buffer's jitter), with plain SMS estimates at every other non-delta vertex
+ * (reference_pt_radiance_sms, which leaves out exactly the receiver when its path took the
+ * canonical prefix, whose expectation T_prefix · SMS the reservoirs carry), and from whatever
+ * renders the rest of the light (`rest`, below): that same path, or a restir_pt session restricted
+ * to the rest; so the image estimates exactly what `pt` does (or, with caustics_only, pt's
  * caustic subset). Those other vertices take plain SMS with either sampler: the prior describes
  * the receivers only, and partitioning without it draws rare solutions from a 9 / N² share of
  * the seeds, whose weights were most of a frame's error (docs/benchmarks.md).
@@ -71,12 +72,24 @@
 #include "integrators/frame.h"
 #include "scene/scene.h"
 #include "integrators/sms_ssp.h"
+#include "integrators/restir_pt.h"
 
 /* The candidates' sampler: [SMS-SSP]'s sample-space partitioning with the per-frame prior (`ssp`,
  * the paper's), or plain SMS (`sms`, Zeltner et al. 2020: seeds over the caster's bounding box,
  * no prior), whose estimates have a lighter tail on our scenes (docs/benchmarks.md). The SMS
  * estimates at the pt path's later vertices use the same sampler. */
 enum restir_sms_sampler { RESTIR_SMS_SAMPLER_SSP, RESTIR_SMS_SAMPLER_SMS };
+
+/* Who renders the light manifold sampling does not own (sms.h's rest: all but the caustic chains).
+ * `pt`: one path-traced sample a pixel and frame from the G-buffer's primary ray, which bounds the
+ * frame's error from below whatever the caustics' reuse achieves (docs/benchmarks.md, "What one
+ * reservoir per pixel cannot go below"). `restir_pt`: a restir_pt session restricted to that
+ * subset (its `subset` "rest"), its reservoirs beside the caustic ones, as ReSTIR BDPT keeps
+ * reservoirs for both kinds of path; the pt path then adds only the SMS estimates at its later
+ * vertices. Both halves are unbiased, so is their sum. `by_scene` (the default) takes restir_pt
+ * unless the scene has translucent materials (restir_pt does not sample subsurface scattering) or
+ * max_depth is outside restir_pt's 1..RESTIR_PT_MAX_DEPTH. */
+enum restir_sms_rest { RESTIR_SMS_REST_BY_SCENE, RESTIR_SMS_REST_PT, RESTIR_SMS_REST_RESTIR_PT };
 
 struct RESTIRD_STORED_IN_BYTES restir_sms_params {
     enum restir_sms_sampler sampler; /* (ssp) */
@@ -99,13 +112,22 @@ struct RESTIRD_STORED_IN_BYTES restir_sms_params {
     uint32_t light_reservoirs;    /* reservoirs per pixel, each resampling only the paths to its
                                      share of the emitters (restir_sms_light_reservoir); BY_SCENE
                                      (the default): one per emissive shape, at most MAX */
-    uint32_t max_depth, rr_depth; /* of the pt path that supplies the rest of the image (64, 3) */
+    uint32_t max_depth, rr_depth; /* of the pt path that supplies the rest of the image (64, 3;
+                                     max_depth also the rest's restir_pt paths') */
+    enum restir_sms_rest rest;    /* (by_scene) */
 };
 
 #define RESTIR_SMS_MAX_LIGHT_RESERVOIRS 8u
 #define RESTIR_SMS_LIGHT_RESERVOIRS_BY_SCENE 0u
 
 struct restir_sms_params restir_sms_defaults(void);
+/* p->rest on the scene, by_scene resolved; pt with caustics_only (the pt path adds only its SMS
+ * estimates then). */
+enum restir_sms_rest restir_sms_rest_of(const struct restir_sms_params *p, const struct scene *scene);
+/* The parameters of the rest's restir_pt session: restir_pt's defaults with subset "rest" and
+ * restir_sms's max_depth; without temporal reuse (restir_sms's converge profile), restir_pt's
+ * converge profile, so that the frames stay independent. */
+struct restir_pt_params restir_sms_rest_params(const struct restir_sms_params *p);
 /* ERR_INVALID naming the parameter (where = "/params/<name>"). */
 bool restir_sms_params_valid(const struct restir_sms_params *p, struct err *err);
 
@@ -115,6 +137,7 @@ struct RESTIRD_STORED_IN_BYTES restir_sms_stats {
     uint64_t shift_newton;          /* Newton steps of the shifts' walks (forward and back) */
     uint64_t shift_not_invertible;  /* shifts whose walk back missed the base chain */
     struct sms_counters sms;        /* the candidates and the SMS estimates at later vertices */
+    double rest_ms;                 /* the rest's restir_pt frame (rest = restir_pt), before the prior */
     struct ssp_prior_counters prior;
 };
 
@@ -134,6 +157,9 @@ struct restir_sms_state {
     struct restir_session rs;              /* restir_sms_layers reservoirs per pixel */
     struct restir_sms_receiver *recv[2];   /* with rs.gbuf[rs.cur] and rs.gbuf[rs.cur ^ 1] */
     struct ssp_prior prior;   /* the ssp sampler's; no entries with the sms sampler */
+    bool has_rest;                 /* rest = restir_pt: */
+    struct restir_pt_state rest;   /*   its session, */
+    struct image rest_image;       /*   and its frame, to which the initial pass adds the caustics */
 };
 
 #define RESTIR_SMS_RESERVOIR_BYTES 64u   /* per reservoir; a pixel has light_reservoirs of them */

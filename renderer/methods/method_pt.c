@@ -61,7 +61,7 @@ static bool pt_render(void *state, const void *params, const struct method_frame
     return reference_pt_render_into(f->scene, &p, out, &stats->render, progress, progress_ctx, err);
 }
 
-static const char *const pt_subsets[] = {"all", "caustic", "rest", NULL};
+const char *const pt_subset_names[] = {"all", "caustic", "rest", NULL};
 static const char *const pt_samplers[] = {"random", "sobol", NULL};
 static const char *const pt_light_samplings[] = {"area", "solid_angle", NULL};
 
@@ -72,7 +72,7 @@ static const struct method_param pt_params_table[] = {
     P(max_depth, METHOD_PARAM_UINT, 0, PATH_MAX_DEPTH, "scattering events before a path stops; 0 = emitters only"),
     P(rr_depth, METHOD_PARAM_UINT, 0, PATH_MAX_DEPTH, "Russian roulette after this many bounces"),
     P(nee, METHOD_PARAM_BOOL, 0, 1, "next-event estimation with MIS (false: BSDF sampling only)"),
-    METHOD_ENUM(struct pt_method_params, subset, pt_subsets,
+    METHOD_ENUM(struct pt_method_params, subset, pt_subset_names,
                 "which light transport the image holds: all, the caustic paths SMS owns, or the rest"),
     METHOD_ENUM(struct pt_method_params, sampler, pt_samplers,
                 "random numbers: sobol (Owen-scrambled Sobol' for the pixel position and the first two bounces) or "

@@ -7,30 +7,15 @@
 #include "methods/adapter.h"
 #include "methods/method.h"
 #include "methods/passes.h"
+#include "methods/path_params.h"
 
 METHOD_FITS(struct restir_pt_params, METHOD_PARAMS_BYTES);
 METHOD_FITS(struct restir_pass_stats, METHOD_COUNTERS_BYTES);
+METHOD_ENUM_IS_INT(enum pt_subset);
 
 METHOD_DEFAULTS_OP(rpt_defaults, struct restir_pt_params, restir_pt_defaults)
-/* The converge profile: temporal reuse off and a fresh primary ray position every frame, so that
- * a session's frames are independent; the spatial reuse of [ReSTIR BDPT Fig. 12] in its place (3
- * rounds of 6 neighbours); and in a scene with a near-specular surface 8 initial paths a pixel
- * (restir_pt_candidates_by_scene). Measured at equal CPU time on the mean of the frames
- * (docs/benchmarks.md, "restir_pt's converge profile with history" and "Several initial paths a
- * pixel"): a history capped at 1 to 20 frames with the real-time walk correlates the frames more
- * than it lowers each one's error (on cornell-glossy about 3x the RMSE of the same rounds without
- * it, on door-ajar 2.4-4x the relMSE of this profile); fewer rounds or neighbours trade
- * cornell-glossy's relMSE for door-ajar's; and a path that no shift moves is only as good as the
- * pixel's own paths. */
-static void rpt_converge(void *params)
-{
-    struct restir_pt_params *p = params;
-    p->temporal = false;
-    p->jitter_walk = 0.0f;
-    p->candidates = RESTIR_PT_CANDIDATES_BY_SCENE;
-    p->spatial_rounds = 3;
-    p->spatial_neighbors = 6;
-}
+/* The converge profile: restir_pt_converge. */
+static void rpt_converge(void *params) { restir_pt_converge(params); }
 
 METHOD_VALIDATE_OP(rpt_validate, struct restir_pt_params, restir_pt_params_valid)
 METHOD_SESSION_RESET_OP(rpt_reset, struct restir_pt_state)
@@ -124,6 +109,8 @@ static const struct method_param rpt_params[] = {
     P(pdf_connect, METHOD_PARAM_BOOL, 0, 1, "PDF-based connectability (else lobe roughness)"),
     {.key = "roughness_min", .kind = METHOD_PARAM_FLOAT, .offset = offsetof(struct restir_pt_params, roughness_min),
      .min = 0, .min_open = true, .max = 1, .help = "alpha_min of both connectability tests"},
+    METHOD_ENUM(struct restir_pt_params, subset, pt_subset_names,
+                "which light transport the image holds, as pt's: all, the caustic paths SMS owns, or the rest"),
 };
 #undef P
 

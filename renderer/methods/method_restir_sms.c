@@ -1,6 +1,6 @@
 /* method_restir_sms.c — method `restir_sms`: spatiotemporal resampling of specular manifold
  * samples (integrators/restir_sms.h): manifold sampling candidates at the primary hits, reused
- * through the manifold shift; the rest of the image is the path tracer's. */
+ * through the manifold shift; the rest of the light is restir_pt's (or the path tracer's). */
 #include <stddef.h>
 #include <stdio.h>
 
@@ -13,6 +13,7 @@
 METHOD_FITS(struct restir_sms_params, METHOD_PARAMS_BYTES);
 METHOD_FITS(struct restir_sms_stats, METHOD_COUNTERS_BYTES);
 METHOD_ENUM_IS_INT(enum restir_sms_sampler);
+METHOD_ENUM_IS_INT(enum restir_sms_rest);
 
 METHOD_DEFAULTS_OP(rsms_defaults, struct restir_sms_params, restir_sms_defaults)
 /* The converge profile: nothing carried from frame to frame, so that a session's frames are
@@ -36,7 +37,13 @@ static void rsms_converge(void *params)
 }
 
 METHOD_VALIDATE_OP(rsms_validate, struct restir_sms_params, restir_sms_params_valid)
-METHOD_SESSION_RESET_OP(rsms_reset, struct restir_sms_state)
+/* Both sessions forget their history: the caustics' and, with rest = restir_pt, the rest's. */
+static void rsms_reset(void *state)
+{
+    struct restir_sms_state *st = state;
+    restir_session_reset(&st->rs);
+    if (st->has_rest) restir_session_reset(&st->rest.rs);
+}
 METHOD_STATE_OP(rsms_destroy, struct restir_sms_state, restir_sms_destroy)
 
 static bool rsms_init(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
@@ -45,8 +52,9 @@ static bool rsms_init(void *state, const struct scene *scene, void *params, uint
     struct restir_sms_params *p = params;
     struct sms_scene ss;
     if (!sms_scene_init(scene, &ss, err) || !restir_sms_init(state, scene, p, width, height, err)) return false;
-    /* The session reports the reservoirs per pixel it uses. */
+    /* The session reports the reservoirs per pixel it uses, and who renders the rest. */
     p->light_reservoirs = ((struct restir_sms_state *)state)->rs.layers;
+    p->rest = restir_sms_rest_of(p, scene);
     return true;
 }
 
@@ -56,7 +64,7 @@ static bool rsms_render(void *state, const void *params, const struct method_fra
     struct restir_sms_stats *c = METHOD_COUNTERS(struct restir_sms_stats, stats);
     if (!restir_sms_render(state, params, f, out, c, err)) return false;
     /* The prior pass counts as part of the initial pass (it only serves the candidates). */
-    struct render_stats r = method_pass_render_stats(out, f->threads, &c->pass, c->prior_ms);
+    struct render_stats r = method_pass_render_stats(out, f->threads, &c->pass, c->prior_ms + c->rest_ms);
     r.sms = c->sms;
     return method_frame_done(stats, r, progress, progress_ctx);
 }
@@ -83,6 +91,16 @@ static uint32_t rsms_buffers(const void *state, const void *params, struct view_
     method_buffer(out, room, &n, "receivers", restir_sms_receiver_bytes(st));
     if (st->prior.entries) method_buffer(out, room, &n, "prior", restir_sms_prior_bytes(st));
     if (st->rs.pair_scratch) method_buffer(out, room, &n, "spatial_pairs", restir_session_pair_bytes(&st->rs));
+    if (st->has_rest) {
+        const struct restir_session *r = &st->rest.rs;
+        method_buffer(out, room, &n, "rest_reservoirs", restir_session_reservoir_bytes(r));
+        method_buffer(out, room, &n, "rest_gbuffers", restir_session_gbuffer_bytes(r) + restir_session_hit_bytes(r) +
+                                                          (r->gbuf[0].emission ? restir_session_emission_bytes(r) : 0));
+        method_buffer(out, room, &n, "rest_primitive_table", ((size_t)st->rest.shape_count + 1) * sizeof *st->rest.prim_first);
+        if (r->pair_scratch) method_buffer(out, room, &n, "rest_spatial_pairs", restir_session_pair_bytes(r));
+        method_buffer(out, room, &n, "rest_frame",
+                      (size_t)st->rest_image.width * st->rest_image.height * sizeof *st->rest_image.pixels);
+    }
     return n;
 }
 
@@ -100,6 +118,8 @@ static void rsms_size_hint(const void *params, const struct scene *scene, char *
 static const struct method_stat rsms_stats[] = {
     METHOD_PASS_STATS(T, pass., RSMS_INITIAL),
     METHOD_PRIOR_STATS(T, prior.),
+    /* The rest's restir_pt frame (rest = restir_pt), counted in the frame's time and rays. */
+    {"rest_ms", NULL, METHOD_STAT_MS, offsetof(T, rest_ms), 0},
     /* The resampling column of [SMS-SSP Table 1]: the shifts' Newton steps (both walks) and the
      * walks back that missed the base chain. */
     {"manifold_shift", NULL, METHOD_STAT_BEGIN, 0, 0},
@@ -113,6 +133,7 @@ static const struct method_stat rsms_stats[] = {
 #undef T
 
 static const char *const rsms_samplers[] = {"ssp", "sms", NULL};
+static const char *const rsms_rests[] = {"by_scene", "pt", "restir_pt", NULL};
 
 #define P(key, kind, lo, hi, help) METHOD_PARAM(struct restir_sms_params, key, kind, lo, hi, help)
 #define S(key, member, kind, lo, hi, help) METHOD_PARAM_AT(key, struct restir_sms_params, member, kind, lo, hi, help)
@@ -122,8 +143,13 @@ static const struct method_param rsms_params[] = {
     P(shift_iterations, METHOD_PARAM_UINT, 1, MANIFOLD_MAX_ITERATIONS, "Newton steps of each walk of a shift"),
     P(temporal_cap, METHOD_PARAM_UINT, 1, 1000, "previous confidence capped at this multiple of the current"),
     P(spatial_neighbors, METHOD_PARAM_UINT, 0, 32, "spatial neighbours; 0 = no spatial reuse"),
-    P(max_depth, METHOD_PARAM_UINT, 0, 1024, "scattering events of the path-traced rest"),
-    P(rr_depth, METHOD_PARAM_UINT, 0, SMS_HARD_TRIAL_LIMIT, "Russian roulette of the path-traced rest"),
+    {.key = "rest", .kind = METHOD_PARAM_ENUM, .offset = offsetof(struct restir_sms_params, rest), .choices = rsms_rests,
+     .flags = METHOD_PARAM_SCENE_DEFAULT,
+     .help = "who renders the light SMS does not own: restir_pt (its reservoirs, subset rest) or pt (one path a "
+             "frame); by_scene (the default) = restir_pt unless the scene has translucent materials"},
+    P(max_depth, METHOD_PARAM_UINT, 0, 1024,
+      "scattering events of the path that carries the SMS estimates at later vertices (and of the rest)"),
+    P(rr_depth, METHOD_PARAM_UINT, 0, SMS_HARD_TRIAL_LIMIT, "Russian roulette of that path"),
     P(temporal, METHOD_PARAM_BOOL, 0, 1, "temporal reuse"),
     P(spatial_radius, METHOD_PARAM_FLOAT, 1, 256, "spatial radius in pixels"),
     P(paired_spatial, METHOD_PARAM_BOOL, 0, 1, "neighbours paired so a pair's shifts serve both pixels"),

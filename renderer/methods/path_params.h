@@ -34,6 +34,9 @@ struct RESTIRD_STORED_IN_BYTES ssp_method_params {
     struct ssp_params ssp;
 };
 
+/* The names of enum pt_subset's values, in order, NULL-terminated: pt's and restir_pt's `subset`. */
+extern const char *const pt_subset_names[];
+
 /* Every path method's spp/max_depth/rr_depth/nee defaults (1 spp per frame, 64, 3, NEE), all
  * transport, area light sampling, and pt's Sobol' sampler (the other path methods take none). */
 struct pt_method_params pt_method_defaults(void);

@@ -153,6 +153,12 @@ static void test_enum_choices_follow_the_enums(void)
         {"restir_sss", "target", "per_channel", RESTIR_SSS_TARGET_PER_CHANNEL},
         {"restir_sms", "sampler", "ssp", RESTIR_SMS_SAMPLER_SSP},
         {"restir_sms", "sampler", "sms", RESTIR_SMS_SAMPLER_SMS},
+        {"restir_sms", "rest", "by_scene", RESTIR_SMS_REST_BY_SCENE},
+        {"restir_sms", "rest", "pt", RESTIR_SMS_REST_PT},
+        {"restir_sms", "rest", "restir_pt", RESTIR_SMS_REST_RESTIR_PT},
+        {"restir_pt", "subset", "all", PT_SUBSET_ALL},
+        {"restir_pt", "subset", "caustic", PT_SUBSET_CAUSTIC},
+        {"restir_pt", "subset", "rest", PT_SUBSET_REST},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         const struct method_param *p = method_param_find(method_find(cases[i].method), cases[i].key);
@@ -164,7 +170,7 @@ static void test_enum_choices_follow_the_enums(void)
     uint32_t enums = 0;
     for (uint32_t m = 0; m < method_count(); m++)
         for (uint32_t k = 0; k < method_at(m)->param_count; k++) enums += method_at(m)->params[k].kind == METHOD_PARAM_ENUM;
-    CHECK_MSG(enums == 9, "%u enum parameters: add the new one's values above", enums);
+    CHECK_MSG(enums == 11, "%u enum parameters: add the new one's values above", enums);
 }
 
 /* Whether two parameter structs of method m hold the same values, parameter by parameter (a
