@@ -86,12 +86,10 @@ def main(argv):
     print("\n| scene | image | MAPE | relMSE | RMSE | CPU ms a frame | over sms at equal CPU time: MAPE | relMSE |")
     print("|---|---|---|---|---|---|---|---|")
     for name, m in med.items():
-        ratio = ""
+        ratio = " | |"
         if name.startswith("restir_sms"):
             c = m["ms"] / sms1["ms"]
             ratio = f" {m['mape'] / (sms1['mape'] / c ** 0.5):.2f} | {m['relmse'] / (sms1['relmse'] / c):.2f} |"
-        else:
-            ratio = " | |"
         print(f"| {argv[0]} | {name} | " + " | ".join(f"{m[k]:.4g}" for k in KEYS) + f" | {m['ms']:.0f} |{ratio}")
 
 
