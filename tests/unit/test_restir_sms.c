@@ -331,6 +331,10 @@ static void test_session_bytes_planned_match_allocated(void)
     asked.light_reservoirs = 1;
     CHECK(!restir_sms_render(&st, &asked, &f, &out, NULL, &err) && strcmp(err.where, "/params/light_reservoirs") == 0);
     asked.light_reservoirs = RESTIR_SMS_LIGHT_RESERVOIRS_BY_SCENE;
+    /* The session keeps a restir_pt rest (by_scene on the slab): a render asking for pt's is refused. */
+    asked.rest = RESTIR_SMS_REST_PT;
+    CHECK(!restir_sms_render(&st, &asked, &f, &out, NULL, &err) && strcmp(err.where, "/params/rest") == 0);
+    asked.rest = RESTIR_SMS_REST_BY_SCENE;
     CHECK(restir_sms_render(&st, &asked, &f, &out, NULL, &err));
     image_destroy(&out);
     restir_sms_destroy(&st);
