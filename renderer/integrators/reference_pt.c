@@ -673,7 +673,7 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
     struct render_stats *st = &local;
     struct ray_counters rc = {0, 0};
     struct pt_split split = {.owned = p->subset != PT_SUBSET_REST && !p->sms, .rest = p->subset != PT_SUBSET_CAUSTIC,
-                             .ss = job->sms_scene, .sc = &st->sms};
+                             .ss = job->sms_scene, .sc = &st->sms, .primary_given = true};
     if (p->sms) split.rest = !p->sms->caustics_only;
     split.tracked = p->subset != PT_SUBSET_ALL || p->sms;
     uint32_t tx = tile % job->tiles_x, ty = tile / job->tiles_x;
@@ -698,58 +698,74 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
             double acc[3] = {0, 0, 0};
             const struct rng_pixel streams = rng_pixel_make(p->seed, p->frame, pixel, PT_SAMPLE_STREAM);
             struct pt_sobol_pixel qpix;
-            const struct pt_sobol *qmc = NULL;
             uint64_t epoch = UINT64_MAX;  /* none yet: the first sample derives the seeds */
             uint32_t run_first = 0, run_end = 0;  /* the samples whose numbers qpix.run holds */
             split.px = x;
             split.py = y;
-            for (uint32_t s = 0; s < spp; s++) {
-                struct rng rng = rng_sample(&streams, s);
-                float jx, jy;
-                if (sobol) {
-                    if (s == run_end) {
-                        const uint64_t index = first_index + s;
-                        if (index >> PT_SOBOL_INDEX_BITS != epoch) {
-                            epoch = index >> PT_SOBOL_INDEX_BITS;
-                            const uint64_t key =
-                                epoch == first_epoch ? first_epoch_key : pt_sobol_epoch_key(p->seed, epoch);
-                            pt_sobol_pixel(&qpix, key, pixel);
-                        }
-                        /* A run ends at the pixel's last sample, and at the end of an epoch (the
-                         * next one has other seeds). */
-                        const uint32_t in_epoch = (uint32_t)index & ((1u << PT_SOBOL_INDEX_BITS) - 1u);
-                        uint32_t n = spp - s < PT_SOBOL_RUN ? spp - s : PT_SOBOL_RUN;
-                        if (n > (1u << PT_SOBOL_INDEX_BITS) - in_epoch) n = (1u << PT_SOBOL_INDEX_BITS) - in_epoch;
-                        sobol_batch_draw_run(&qpix.seeds, in_epoch, n, PT_SOBOL_LANES, qpix.run[0].u0, qpix.run[0].u1,
-                                             (uint32_t)(sizeof qpix.run[0] / sizeof(float)));
-                        run_first = s;
-                        run_end = s + n;
+            /* The pixel's samples go in groups of up to ACCEL_BUNDLE whose camera rays are traced
+             * as one packet (accel_intersect_bundle; they leave one point through one pixel, so
+             * they visit nearly the same BVH nodes). A group stays within one run of Sobol'
+             * numbers. Each sample keeps its own stream and numbers, so the image is the one the
+             * samples would give traced one by one. */
+            for (uint32_t s = 0; s < spp;) {
+                if (sobol && s == run_end) {
+                    const uint64_t index = first_index + s;
+                    if (index >> PT_SOBOL_INDEX_BITS != epoch) {
+                        epoch = index >> PT_SOBOL_INDEX_BITS;
+                        const uint64_t key =
+                            epoch == first_epoch ? first_epoch_key : pt_sobol_epoch_key(p->seed, epoch);
+                        pt_sobol_pixel(&qpix, key, pixel);
                     }
-                    qmc = &qpix.run[s - run_first];
-                    jx = qmc->u0[PT_DIM_PIXEL];
-                    jy = qmc->u1[PT_DIM_PIXEL];
-                } else {
-                    jx = rng_next_float(&rng);
-                    jy = rng_next_float(&rng);
+                    /* A run ends at the pixel's last sample, and at the end of an epoch (the next
+                     * one has other seeds). */
+                    const uint32_t in_epoch = (uint32_t)index & ((1u << PT_SOBOL_INDEX_BITS) - 1u);
+                    uint32_t n = spp - s < PT_SOBOL_RUN ? spp - s : PT_SOBOL_RUN;
+                    if (n > (1u << PT_SOBOL_INDEX_BITS) - in_epoch) n = (1u << PT_SOBOL_INDEX_BITS) - in_epoch;
+                    sobol_batch_draw_run(&qpix.seeds, in_epoch, n, PT_SOBOL_LANES, qpix.run[0].u0, qpix.run[0].u1,
+                                         (uint32_t)(sizeof qpix.run[0] / sizeof(float)));
+                    run_first = s;
+                    run_end = s + n;
                 }
-                struct vec3 dir = camera_ray_dir(&cam, (float)x + jx, (float)y + jy);
-                /* SMS draws from its own stream, so the path-traced part of `sms` is the same
-                 * sample as pt's PT_SUBSET_REST image; without SMS nothing draws from it, and
-                 * hashing it would cost every sample two rng_make. */
-                struct rng sms_rng;
-                if (setup.ss) {
-                    sms_rng = rng_make(p->seed, p->frame, pixel, ((uint64_t)1 << 40) | s);
-                    split.sms_rng = &sms_rng;
+                const uint32_t left = (sobol ? run_end : spp) - s;
+                const uint32_t g = left < ACCEL_BUNDLE ? left : ACCEL_BUNDLE;
+                struct rng rngs[ACCEL_BUNDLE];
+                struct vec3 dirs[ACCEL_BUNDLE];
+                struct hit hits[ACCEL_BUNDLE];
+                bool found[ACCEL_BUNDLE];
+                for (uint32_t i = 0; i < g; i++) {
+                    rngs[i] = rng_sample(&streams, s + i);
+                    float jx, jy;
+                    if (sobol) {
+                        jx = qpix.run[s + i - run_first].u0[PT_DIM_PIXEL];
+                        jy = qpix.run[s + i - run_first].u1[PT_DIM_PIXEL];
+                    } else {
+                        jx = rng_next_float(&rngs[i]);
+                        jy = rng_next_float(&rngs[i]);
+                    }
+                    dirs[i] = camera_ray_dir(&cam, (float)x + jx, (float)y + jy);
                 }
-                struct vec3 L = pt_radiance(scene, p, &setup, cam.position, dir, &rng, &rc, &split, true,
-                                            sobol ? qmc : NULL, solid_angle, &aq);
-                if (!vec3_is_finite(L)) {
-                    st->nonfinite++;
-                    continue;
+                accel_intersect_bundle(scene->accel, cam.position, dirs, g, hits, found, &rc);
+                for (uint32_t i = 0; i < g; i++, s++) {
+                    /* SMS draws from its own stream, so the path-traced part of `sms` is the same
+                     * sample as pt's PT_SUBSET_REST image; without SMS nothing draws from it, and
+                     * hashing it would cost every sample two rng_make. */
+                    struct rng sms_rng;
+                    if (setup.ss) {
+                        sms_rng = rng_make(p->seed, p->frame, pixel, ((uint64_t)1 << 40) | s);
+                        split.sms_rng = &sms_rng;
+                    }
+                    split.primary = found[i] ? &hits[i] : NULL;
+                    struct rng rng = rngs[i];
+                    struct vec3 L = pt_radiance(scene, p, &setup, cam.position, dirs[i], &rng, &rc, &split, true,
+                                                sobol ? &qpix.run[s - run_first] : NULL, solid_angle, &aq);
+                    if (!vec3_is_finite(L)) {
+                        st->nonfinite++;
+                        continue;
+                    }
+                    acc[0] += L.x;
+                    acc[1] += L.y;
+                    acc[2] += L.z;
                 }
-                acc[0] += L.x;
-                acc[1] += L.y;
-                acc[2] += L.z;
             }
             double inv = 1.0 / spp;
             job->out->pixels[pixel] = vec3_make((float)(acc[0] * inv), (float)(acc[1] * inv), (float)(acc[2] * inv));

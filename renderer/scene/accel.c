@@ -566,3 +566,60 @@ bool accel_shape_is_identity(const struct accel *a, uint32_t shape)
 {
     return a->is_identity[shape];
 }
+
+/* Up to ACCEL_BUNDLE rays from one origin (a pixel's camera rays) traced as one Embree packet:
+ * they share the BVH nodes they visit, so each node is fetched and tested once for all of them
+ * instead of once per ray. A single ray goes through the one-ray kernel, which a one-lane packet
+ * is slower than (docs/benchmarks.md, "Camera rays in packets"). */
+uint32_t accel_intersect_bundle(const struct accel *a, struct vec3 org, const struct vec3 *dirs, uint32_t n,
+                                struct hit *hits, bool *found, struct ray_counters *counters)
+{
+    if (n == 1) {
+        found[0] = accel_intersect(a, org, dirs[0], 0.0f, INFINITY, &hits[0], counters);
+        return found[0] ? 1u : 0u;
+    }
+    struct RTCIntersectContext ctx;
+    rtcInitIntersectContext(&ctx);
+    ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+    _Alignas(32) int valid[ACCEL_BUNDLE];
+    struct RTCRayHit8 p;
+    _Static_assert(ACCEL_BUNDLE == 8, "the packet is Embree's 8-wide one");
+    for (uint32_t i = 0; i < ACCEL_BUNDLE; i++) {
+        bool on = i < n;
+        /* A lane past n is switched off; its ray is still a valid one (Embree reads it). */
+        struct vec3 d = on ? dirs[i] : vec3_make(0.0f, 0.0f, 1.0f);
+        valid[i] = on ? -1 : 0;
+        p.ray.org_x[i] = org.x;
+        p.ray.org_y[i] = org.y;
+        p.ray.org_z[i] = org.z;
+        p.ray.tnear[i] = 0.0f;
+        p.ray.dir_x[i] = d.x;
+        p.ray.dir_y[i] = d.y;
+        p.ray.dir_z[i] = d.z;
+        p.ray.time[i] = 0.0f;
+        p.ray.tfar[i] = INFINITY;
+        p.ray.mask[i] = 0xFFFFFFFFu;
+        p.ray.id[i] = i;
+        p.ray.flags[i] = 0;
+        p.hit.geomID[i] = RTC_INVALID_GEOMETRY_ID;
+        p.hit.instID[0][i] = RTC_INVALID_GEOMETRY_ID;
+    }
+    rtcIntersect8(valid, a->top, &ctx, &p);
+    counters->intersect += n;
+    uint32_t count = 0;
+    for (uint32_t i = 0; i < n; i++) {
+        struct RTCRayHit rh;
+        rh.ray.tfar = p.ray.tfar[i];
+        rh.hit.Ng_x = p.hit.Ng_x[i];
+        rh.hit.Ng_y = p.hit.Ng_y[i];
+        rh.hit.Ng_z = p.hit.Ng_z[i];
+        rh.hit.u = p.hit.u[i];
+        rh.hit.v = p.hit.v[i];
+        rh.hit.primID = p.hit.primID[i];
+        rh.hit.geomID = p.hit.geomID[i];
+        rh.hit.instID[0] = p.hit.instID[0][i];
+        found[i] = accel_hit_from(a, &rh, &hits[i]);
+        count += found[i];
+    }
+    return count;
+}

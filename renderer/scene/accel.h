@@ -31,6 +31,13 @@ void accel_free(struct accel *accel);
 /* Closest hit with t in (tmin, tmax); `dir` must be unit length. */
 bool accel_intersect(const struct accel *accel, struct vec3 org, struct vec3 dir, float tmin, float tmax,
                      struct hit *hit, struct ray_counters *counters);
+/* accel_intersect with tmin 0 and tmax infinity for n <= ACCEL_BUNDLE rays from one origin,
+ * traced together (cheaper than one by one when their directions are close, as a pixel's camera
+ * rays are). found[i] tells whether ray i hit, hits[i] is its hit then. Counts n intersect
+ * queries; returns how many rays hit. */
+#define ACCEL_BUNDLE 8u
+uint32_t accel_intersect_bundle(const struct accel *accel, struct vec3 org, const struct vec3 *dirs, uint32_t n,
+                                struct hit *hits, bool *found, struct ray_counters *counters);
 /* Every intersection with the one shape `shape` along org + t dir, t in (tmin, tmax), other
  * shapes ignored, in increasing t (so an index into the list names a hit deterministically: the
  * probe rays of bssrdf.h). Writes at most max_hits and returns how many; hits beyond max_hits are

@@ -571,6 +571,22 @@ static void test_accel_move_instance(void)
     scene_release(s);
 }
 
+/* make_scene committed in one of three accel layouts: 0 flat (nothing movable, one BVH), 1 the
+ * first shape movable (two levels), 2 every shape movable. */
+static struct scene *make_scene_layout(int layout)
+{
+    struct scene *s = make_scene(false);
+    struct err err = {0};
+    CHECK_MSG(scene_commit(s, &err), "%s", err.message);
+    if (layout > 0) {
+        bool movable[3] = {true, layout == 2, layout == 2};
+        accel_free(s->accel);
+        s->accel = accel_new(s, movable, &err);
+        CHECK(s->accel != NULL);
+    }
+    return s;
+}
+
 /* accel_query_intersect and accel_query_occluded answer as accel_intersect and accel_occluded do,
  * hit for hit, over one query reused for a mixed run of rays (hits, misses, blocked and free
  * segments, in the flat and both two-level layouts): fails when a field that the query functions
@@ -579,15 +595,7 @@ static void test_accel_move_instance(void)
 static void test_accel_query_matches(void)
 {
     for (int layout = 0; layout < 3; layout++) {
-        struct scene *s = make_scene(false);
-        struct err err = {0};
-        CHECK_MSG(scene_commit(s, &err), "%s", err.message);
-        if (layout > 0) {
-            bool movable[3] = {true, layout == 2, layout == 2};
-            accel_free(s->accel);
-            s->accel = accel_new(s, movable, &err);
-            CHECK(s->accel != NULL);
-        }
+        struct scene *s = make_scene_layout(layout);
         struct accel_query q;
         accel_query_init(&q);
         struct rng r = rng_make(17, (uint64_t)layout, 0, 0);
@@ -615,6 +623,67 @@ static void test_accel_query_matches(void)
         CHECK_MSG(mismatched == 0, "layout %d: %u query answers differ", layout, mismatched);
         CHECK(hits > 500 && hits < 3500 && blocked > 500 && blocked < 3500);  /* both answers exercised */
         CHECK(rc.intersect == rq.intersect && rc.occluded == rq.occluded);
+        scene_release(s);
+    }
+}
+
+/* accel_intersect_bundle gives each ray accel_intersect's answer: bundles of 1 to 8 rays from one
+ * origin, close together (a pixel's camera rays) and spread out, in the three layouts. Triangles
+ * must match to the bit; the ellipsoid (shape 2) within a few float steps, since Embree's packet
+ * sphere kernel rounds differently from its single-ray one. */
+static void test_accel_bundle_matches(void)
+{
+    for (int layout = 0; layout < 3; layout++) {
+        struct scene *s = make_scene_layout(layout);
+        struct rng r = rng_make(23, (uint64_t)layout, 0, 0);
+        struct ray_counters rc = {0, 0}, rb = {0, 0};
+        uint32_t mismatched = 0, hits = 0, misses = 0, spheres = 0, counted_wrong = 0;
+        for (int b = 0; b < 1500; b++) {
+            uint32_t n = 1 + (uint32_t)b % ACCEL_BUNDLE;
+            float spread = b % 2 ? 0.002f : 1.0f;
+            struct vec3 o = vec3_make(12.0f * rng_next_float(&r) - 6.0f, 6.0f * rng_next_float(&r) - 1.0f,
+                                      12.0f * rng_next_float(&r) - 6.0f);
+            struct vec3 c = vec3_make(2.0f * rng_next_float(&r) - 1.0f, 2.0f * rng_next_float(&r) - 1.0f,
+                                      2.0f * rng_next_float(&r) - 1.0f);
+            struct vec3 dirs[ACCEL_BUNDLE];
+            for (uint32_t i = 0; i < n; i++)
+                dirs[i] = vec3_normalize(vec3_make(c.x + spread * (2.0f * rng_next_float(&r) - 1.0f),
+                                                   c.y + spread * (2.0f * rng_next_float(&r) - 1.0f),
+                                                   c.z + spread * (2.0f * rng_next_float(&r) - 1.0f)));
+            struct hit got[ACCEL_BUNDLE];
+            bool found[ACCEL_BUNDLE];
+            memset(got, 0, sizeof got);
+            uint32_t count = accel_intersect_bundle(s->accel, o, dirs, n, got, found, &rb);
+            uint32_t want_count = 0;
+            for (uint32_t i = 0; i < n; i++) {
+                struct hit want;
+                memset(&want, 0, sizeof want);
+                bool h = accel_intersect(s->accel, o, dirs[i], 0.0f, INFINITY, &want, &rc);
+                want_count += h;
+                if (h != found[i]) {
+                    mismatched++;
+                    continue;
+                }
+                if (!h) {
+                    misses++;
+                    continue;
+                }
+                hits++;
+                if (want.shape == 2 && got[i].shape == 2) {
+                    spheres++;
+                    float tol = 4e-6f * fmaxf(want.t, 1.0f);
+                    mismatched += got[i].prim != want.prim || fabsf(got[i].t - want.t) > tol ||
+                                  vec3_length(vec3_sub(got[i].ng, want.ng)) > 4e-6f;
+                } else {
+                    mismatched += memcmp(&got[i], &want, sizeof want) != 0;
+                }
+            }
+            counted_wrong += count != want_count;
+        }
+        CHECK_MSG(mismatched == 0, "layout %d: %u bundle answers differ", layout, mismatched);
+        CHECK_MSG(counted_wrong == 0, "layout %d: %u bundles returned a wrong hit count", layout, counted_wrong);
+        CHECK(hits > 500 && misses > 500 && spheres > 100);  /* hits, misses and the ellipsoid exercised */
+        CHECK(rc.intersect == rb.intersect && rb.occluded == 0);
         scene_release(s);
     }
 }
@@ -765,5 +834,5 @@ TEST_MAIN(TEST(test_vec3_v4_max), TEST(test_rng_uniform_chi2), TEST(test_rng_str
           TEST(test_sobol_nets), TEST(test_sobol_scrambling_chi2), TEST(test_sobol_padding_independent_chi2),
           TEST(test_sobol_convergence), TEST(test_sobol_batch_matches_scalar), TEST(test_sobol_batch_run_matches),
           TEST(test_distrib_chi2), TEST(test_accel_flat_and_two_level), TEST(test_accel_move_instance),
-          TEST(test_accel_query_matches), TEST(test_offset_avoids_self_hit), TEST(test_light_sampler_pdfs),
+          TEST(test_accel_query_matches), TEST(test_accel_bundle_matches), TEST(test_offset_avoids_self_hit), TEST(test_light_sampler_pdfs),
           TEST(test_light_sampler_triangle_point_per_shape), TEST(test_camera_rays))
