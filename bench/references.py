@@ -23,6 +23,7 @@ import json
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import os
@@ -50,8 +51,13 @@ def reference_method(scene):
     return REF_BY.get(scene, ("pt", REF_SPP // 2))
 
 
+# Each line ends with the minutes since this module was loaded, at the start of the run, so a
+# long run's log shows where its time went.
+LOG_T0 = time.monotonic()
+
+
 def log(msg):
-    print(f"report: {msg}", file=sys.stderr, flush=True)
+    print(f"report: {msg} [{(time.monotonic() - LOG_T0) / 60:.1f} min]", file=sys.stderr, flush=True)
 
 
 # How a chunk of `n` samples is rendered by each unbiased reference method: pt at n spp; sms at n

@@ -123,8 +123,13 @@ PASSES = ["gbuffer_ms", "initial_ms", "temporal_ms", "spatial_ms", "shade_ms", "
           "camera_ms", "reuse_ms"]
 
 
+# Each line ends with the minutes since this module was loaded, at the start of the run, so a
+# long run's log shows where its time went.
+LOG_T0 = time.monotonic()
+
+
 def log(msg):
-    print(f"report: {msg}", file=sys.stderr, flush=True)
+    print(f"report: {msg} [{(time.monotonic() - LOG_T0) / 60:.1f} min]", file=sys.stderr, flush=True)
 
 
 def run(args):
