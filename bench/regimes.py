@@ -202,9 +202,18 @@ def param_default(desc, name, fallback):
     return next((p.get("default") for p in desc["params"] if p["name"] == name), fallback)
 
 
-def measure_method(d, scene, scene_path, desc, seeds, side, work):
+def past(reach, regime, ms):
+    """Whether a rung measured at ms lies beyond the time `reach` says the tables read the ladder
+    at in that regime (no reach: never)."""
+    return reach is not None and ms > reach[regime]
+
+
+def measure_method(d, scene, scene_path, desc, seeds, side, work, reach=None):
     """Every row of one method on one scene, both regimes (images on disk, metrics later).
-    desc: the method's entry of GET /v1/methods."""
+    desc: the method's entry of GET /v1/methods. reach: None, or the longest times the report's
+    tables read this method's curves at ({"real-time": ms, "converge": ms}, report.ladder_reach):
+    a ladder then stops after its first rung past them, in both regimes for a ladder of spp, so
+    every curve still brackets every time it is read at and no rung is rendered only for a chart."""
     work = Path(work)
     work.mkdir(parents=True, exist_ok=True)
     method, caps = desc["name"], desc["capabilities"]
@@ -238,6 +247,9 @@ def measure_method(d, scene, scene_path, desc, seeds, side, work):
             rows.append(row(scene, method, "converge", "", spp, "spp", statistics.median(conv_ms), conv_imgs, mem))
             log(f"{scene} {method} {spp} spp: {statistics.median(ms):.1f} ms a frame, {statistics.median(conv_ms):.1f} ms "
                 "the first")
+            if past(reach, "real-time", statistics.median(ms)) and past(reach, "converge", statistics.median(conv_ms)):
+                log(f"{scene} {method}: the ladder stops at {spp} spp, past the times the tables read it at")
+                break
         return rows
     # Real time, still: each ladder value; the default value's sessions also give the converge
     # rows with temporal reuse on (frame k alone, k <= WARMUP).
@@ -267,6 +279,9 @@ def measure_method(d, scene, scene_path, desc, seeds, side, work):
         rows.append(row(scene, method, "real-time", "", value, key, statistics.median(ms), imgs, mem,
                         median_passes(passes)))
         log(f"{scene} {method} real-time {key}={value}: {statistics.median(ms):.1f} ms")
+        if past(reach, "real-time", statistics.median(ms)):
+            log(f"{scene} {method}: the ladder stops at {key}={value}, past the times the tables read it at")
+            break
     if stateful:
         for variant, body_of in moving_bodies(scene, scene_path).items():
             ms, imgs = [], []

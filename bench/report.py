@@ -171,7 +171,9 @@ def scene_results(d, scene, methods, descs, extra=()):
     path = ROOT / "scenes" / scene / "scene.json"
     method, chunk = reference_method(scene)
     ref = Reference(path, SIDE, method, chunk, WORK)
-    rows = [r for m in methods for r in regimes.measure_method(d, scene, path, descs[m], SEEDS, SIDE, WORK / scene)]
+    rows = []
+    for m in measure_order(methods):
+        rows += regimes.measure_method(d, scene, path, descs[m], SEEDS, SIDE, WORK / scene, ladder_reach(rows, m))
     rows += list(extra)
     while True:
         score(rows, ref)
@@ -199,6 +201,34 @@ def budgets(rows, regime):
     want = (1, 4, 16) if regime == "real-time" or QUICK else (4, 16, 64)
     pt = {r["setting"]: r["ms"] for r in rows if r["method"] == "pt" and r["regime"] == regime}
     return [(spp, pt[spp]) for spp in want if spp in pt]
+
+
+def measure_order(methods):
+    """pt first (its times are the budgets), then each method before the baselines it is compared
+    with (ratios.PAIRS), so that a baseline's ladder is measured knowing how far it must reach."""
+    order = [m for m in methods if m == "pt"]
+    rest = [m for m in methods if m != "pt"]
+    while rest:
+        ready = [m for m in rest if not any(m in ratios.PAIRS.get(u, []) for u in rest if u != m)]
+        m = (ready or rest)[0]
+        order.append(m)
+        rest.remove(m)
+    return order
+
+
+def ladder_reach(rows, method):
+    """The longest times the tables read a method's curves at (regimes.measure_method's reach),
+    from the scene's rows so far: in real time pt's frame at its largest budget, or the default
+    frame of a method compared with this one (ratios.PAIRS: its ratio reads this curve at that
+    frame's time) if longer; converging, pt's image at its largest budget. None, every rung
+    measured, for pt itself and where pt is not measured."""
+    rt, cv = budgets(rows, "real-time"), budgets(rows, "converge")
+    if method == "pt" or not rt or not cv:
+        return None
+    users = {u for u, bs in ratios.PAIRS.items() if method in bs}
+    defaults = [r["ms"] for r in rows if r["method"] in users and r["regime"] == "real-time" and not r["variant"]
+                and str(r["setting"]) == str(regimes.LADDER[r["method"]][1][0])]
+    return {"real-time": max([ms for _, ms in rt] + defaults), "converge": max(ms for _, ms in cv)}
 
 
 def winners(res, regime):
@@ -547,7 +577,10 @@ def write(results, stab, peer, fail, started, elapsed):
           "time over its threads: the wall-clock time with every thread busy and nothing else running, which other work "
           "on a shared machine does not stretch). A method spends a longer frame on more samples of its own kind: spp (pt, sms, sms_ssp), light subpaths "
           "(bdpt: 1, 2, 4, 8 × the pixel count; restir_bdpt: its default, then 2, 4, 8 × the pixel count), spatial neighbours (restir_pt: 3, 6, 12, 24, 48; restir_sms: "
-          "1, 2, 4, 8), BSSRDF candidates (restir_sss: 1, 2, 4, 8). Also with the camera sliding and a light moving (below).",
+          "1, 2, 4, 8), BSSRDF candidates (restir_sss: 1, 2, 4, 8). A ladder stops after its first rung past the longest time "
+          "the tables below read it at (pt's frame at 16 spp, or the default frame of a method whose ratio reads this "
+          "one's curve; for spp, also pt's image at its largest converge budget), so its curve brackets every such "
+          "time. Also with the camera sliding and a light moving (below).",
           "- **Converge**: the error of the image a user keeps against the total time since the session began: pt, sms "
           "and sms_ssp the first frame of a session at more spp; bdpt the mean of its first k frames; a method with temporal reuse either "
           "in its converge profile (a session's \"profile\": no sample carried between frames; the mean of its first k "
