@@ -2,9 +2,21 @@
 the processes it waits for), from the difference of getrusage(RUSAGE_CHILDREN) around the run;
 a daemon frame's CPU time over its threads (frame_time_ms), and the same of a `restir render --json`
 summary (cli_frame_ms). CPU seconds rather than wall time,
-because this machine is shared (docs/benchmarks.md). Stdlib only."""
+because this machine is shared (docs/benchmarks.md). And the report's progress lines, stamped with
+the wall-clock minutes since the run began (progress). Stdlib only."""
 import resource
 import subprocess
+import sys
+import time
+
+# When the run began: the first import of this module, at the start of any bench script.
+RUN_T0 = time.monotonic()
+
+
+def progress(msg):
+    """One line of the report's log on stderr, ending with the minutes since the run began, so a
+    long run's log shows where its time went."""
+    print(f"report: {msg} [{(time.monotonic() - RUN_T0) / 60:.1f} min]", file=sys.stderr, flush=True)
 
 
 def run_timed(cmd):

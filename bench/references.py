@@ -22,8 +22,6 @@ import hashlib
 import json
 import shutil
 import subprocess
-import sys
-import time
 from pathlib import Path
 
 import os
@@ -31,6 +29,7 @@ import os
 import numpy as np
 
 import errors
+from cputime import progress as log
 from exrimage import read_rgb, write_rgb
 from restir_pt import BIN, run
 
@@ -49,15 +48,6 @@ REF_BY = {"lamp-in-glass": ("bdpt", 64 if QUICK else 256), "caustic-sphere": ("b
 def reference_method(scene):
     """(method, samples per chunk) of a library scene's reference."""
     return REF_BY.get(scene, ("pt", REF_SPP // 2))
-
-
-# Each line ends with the minutes since this module was loaded, at the start of the run, so a
-# long run's log shows where its time went.
-LOG_T0 = time.monotonic()
-
-
-def log(msg):
-    print(f"report: {msg} [{(time.monotonic() - LOG_T0) / 60:.1f} min]", file=sys.stderr, flush=True)
 
 
 # How a chunk of `n` samples is rendered by each unbiased reference method: pt at n spp; sms at n

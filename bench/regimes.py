@@ -37,13 +37,11 @@ import json
 import math
 import os
 import statistics
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-from cputime import frame_time_ms
+from cputime import frame_time_ms, progress as log
 from exrimage import read_rgb, write_rgb
 
 QUICK = os.environ.get("QUICK") == "1"
@@ -88,15 +86,6 @@ def extra_params(text):
 
 
 EXTRA_PARAMS = extra_params(os.environ.get("REPORT_PARAMS", "{}"))
-
-
-# Each line ends with the minutes since this module was loaded, at the start of the run, so a
-# long run's log shows where its time went.
-LOG_T0 = time.monotonic()
-
-
-def log(msg):
-    print(f"report: {msg} [{(time.monotonic() - LOG_T0) / 60:.1f} min]", file=sys.stderr, flush=True)
 
 
 class Session:

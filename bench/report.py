@@ -60,6 +60,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT / "bench"))
 import cputime  # noqa: E402
+from cputime import progress as log  # noqa: E402
 import errors  # noqa: E402
 import regimes  # noqa: E402
 import restir_pt  # noqa: E402
@@ -121,15 +122,6 @@ SKIP = set(env_list("REPORT_SKIP", ["stability", "failures"]) or [])
 # sms (spp, no Bernoulli cap: unbiased) for the caustics of the slab and the bumpy mirror.
 PASSES = ["gbuffer_ms", "initial_ms", "temporal_ms", "spatial_ms", "shade_ms", "light_ms", "splat_ms", "sort_ms",
           "camera_ms", "reuse_ms"]
-
-
-# Each line ends with the minutes since this module was loaded, at the start of the run, so a
-# long run's log shows where its time went.
-LOG_T0 = time.monotonic()
-
-
-def log(msg):
-    print(f"report: {msg} [{(time.monotonic() - LOG_T0) / 60:.1f} min]", file=sys.stderr, flush=True)
 
 
 def run(args):

@@ -156,3 +156,38 @@ def test_sweep_refuses_parameters_that_are_not_an_object(args, env, message):
     r = subprocess.run([sys.executable, str(ROOT / "bench" / "sweep.py"), "no-such-scene", "restir_sms", *args],
                        env=full, capture_output=True, text=True, timeout=60)
     assert r.returncode == 1 and r.stderr.strip().startswith(message), r.stderr
+
+
+def test_each_method_is_measured_before_its_baselines():
+    """bench/report.py's measure_order: pt first (its times are the budgets), and every method
+    before each other baseline its ratio is read against (ratios.PAIRS), on every scene."""
+    rc, out, err = report_module({}, "import json; print(json.dumps({s: report.measure_order(ms) "
+                                     "for s, ms in report.ALL_SCENES.items()}))")
+    assert rc == 0, err
+    pairs = {"restir_pt": ["pt"], "restir_bdpt": ["restir_pt", "bdpt"], "restir_sss": ["pt"], "restir_sms": ["sms"]}
+    for scene, order in json.loads(out).items():
+        assert sorted(order) == sorted(set(order)) and order[0] == "pt", (scene, order)
+        for method, baselines in pairs.items():
+            for b in baselines:
+                if method in order and b in order and b != "pt":
+                    assert order.index(method) < order.index(b), (scene, order)
+
+
+def test_a_ladder_reaches_past_every_time_a_table_reads_it_at():
+    """bench/report.py's ladder_reach: pt's largest real-time budget (its 16-spp frame), or the
+    default frame of a method compared with this one if longer; pt's 64-spp image converging; no
+    limit for pt itself or without pt's rows."""
+    code = """import json
+rows = [{"method": "pt", "regime": g, "variant": "", "setting": s, "ms": (10.0 if g == "real-time" else 11.0) * s}
+        for g in ("real-time", "converge") for s in (1, 2, 4, 8, 16, 32, 64)]
+rows += [{"method": "restir_bdpt", "regime": "real-time", "variant": "", "setting": "auto", "ms": 500.0},
+         {"method": "restir_bdpt", "regime": "real-time", "variant": "", "setting": "2x", "ms": 900.0},
+         {"method": "restir_bdpt", "regime": "real-time", "variant": "moving camera", "setting": "auto", "ms": 950.0},
+         {"method": "restir_sms", "regime": "real-time", "variant": "", "setting": 1, "ms": 100.0}]
+print(json.dumps([report.ladder_reach(rows, m) for m in ("restir_pt", "bdpt", "sms", "sms_ssp", "pt")]
+                 + [report.ladder_reach([], "sms")]))"""
+    rc, out, err = report_module({}, code)
+    assert rc == 0, err
+    both = {"real-time": 500.0, "converge": 704.0}
+    alone = {"real-time": 160.0, "converge": 704.0}
+    assert json.loads(out) == [both, both, alone, alone, None, None]
