@@ -33,7 +33,7 @@ int main(int argc, char **argv)
     struct restir_sss_state st;
     struct method_frame f = {.scene = sc, .camera = &sc->camera, .seed = 1, .frame = 0, .threads = 0};
     struct image img;
-    if (!restir_sss_init(&st, &p, w, h, &err) || !restir_sss_initial_only(&st, &p, &f, &err) ||
+    if (!restir_sss_init(&st, sc, &p, w, h, &err) || !restir_sss_initial_only(&st, &p, &f, &err) ||
         !image_init(&img, w, h, &err)) {
         fprintf(stderr, "%s\n", err.message);
         return 1;

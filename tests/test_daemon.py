@@ -1693,29 +1693,40 @@ def test_restir_pt_bad_params(daemon, params, field):
 
 def test_restir_sss_session(daemon):
     """A restir_sss session on the translucent scene: its parameters with defaults, exactly its
-    own buffers (two 60-byte reservoir buffers and two G-buffers), frames with per-pass times and
-    reuse; bad values and unknown keys are refused naming the field."""
+    own buffers (two 72-byte reservoir buffers and two G-buffers, and the rest's restir_pt session
+    and frame, which `rest` pt goes without), frames with per-pass times and reuse; bad values and
+    unknown keys are refused naming the field."""
     s = new_session(daemon, scene="translucent", method="restir_sss", width=24, height=24, seed=2,
                     params={"shift": "delayed"})
     p = s["params"]
     assert p["shift"] == "delayed" and p["candidates"] == 1 and p["spatial_neighbors"] == 4
     assert p["temporal_cap"] == 20 and p["kappa_orientation"] == pytest.approx(0.5) and p["spatial_radius"] == 0
-    assert s["reservoir_bytes_per_pixel"] == 60
-    assert s["reservoir_bytes"] == 2 * 60 * 24 * 24 == s["buffers"]["reservoirs"]
-    assert set(s["buffers"]) == {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers",
-                                 "primary_hits", "spatial_pairs"}
+    assert p["rest"] == "restir_pt"  # by_scene, resolved
+    assert s["reservoir_bytes_per_pixel"] == 72
+    assert s["reservoir_bytes"] == 2 * 72 * 24 * 24 == s["buffers"]["reservoirs"]
+    own = {"frame", "accumulation", "shape_changes", "reservoirs", "gbuffers", "primary_hits", "spatial_pairs"}
+    assert set(s["buffers"]) == own | {"rest_reservoirs", "rest_gbuffers", "rest_primitive_table",
+                                       "rest_spatial_pairs", "rest_frame"}
+    assert s["buffers"]["rest_reservoirs"] == 2 * 64 * 24 * 24
     post_frame(daemon, s, accept="application/json")
+    t0 = time.monotonic()
     st = post_frame(daemon, s, accept="application/json").json()
-    assert st["passes"]["shifts"] > 0 and st["nonfinite"] == 0
+    wall_ms = (time.monotonic() - t0) * 1e3
+    # The rest's time is part of the frame's, which the request's wall time bounds.
+    assert st["passes"]["shifts"] > 0 and st["nonfinite"] == 0 and 0 < st["rest_ms"] < st["render_ms"] < wall_ms
     img = frame_rgb(daemon, s)
     assert img.shape == (24, 24, 3) and np.isfinite(img).all() and img.mean() > 0.01
     assert daemon.req("DELETE", s["href"]).status == 204
     for params, field in [({"shift": "sequential", "spatial_neighbors": 5}, "/params/spatial_neighbors"),
                           ({"shift": 3}, "/params/shift"), ({"index_shortcut": True}, "/params/index_shortcut"),
-                          ({"candidates": 0}, "/params/candidates"), ({"spp": 2}, "/params/spp")]:
+                          ({"candidates": 0}, "/params/candidates"), ({"spp": 2}, "/params/spp"),
+                          ({"rest": "bdpt"}, "/params/rest"), ({"rest": "restir_pt", "max_depth": 0}, "/params/max_depth")]:
         r = daemon.req("POST", "/v1/scenes/translucent/sessions",
                        json_body={"method": "restir_sss", "width": 8, "height": 8, "params": params})
         assert_problem(r, 422, "invalid-field", field)
+    s = new_session(daemon, scene="translucent", method="restir_sss", width=8, height=8, params={"rest": "pt"})
+    assert s["params"]["rest"] == "pt" and set(s["buffers"]) == own
+    assert daemon.req("DELETE", s["href"]).status == 204
 
 
 def test_restir_sms_session(daemon):
@@ -1755,10 +1766,12 @@ def test_restir_sms_session(daemon):
         assert t["params"]["light_reservoirs"] == kept and t["buffers"]["reservoirs"] == 2 * kept * 64 * 8 * 8
         assert daemon.req("DELETE", t["href"]).status == 204
     post_frame(daemon, s, accept="application/json")
+    t0 = time.monotonic()
     st = post_frame(daemon, s, accept="application/json").json()
+    wall_ms = (time.monotonic() - t0) * 1e3
     assert st["passes"]["shifts"] > 0 and st["nonfinite"] == 0
     assert st["manifold_shift"]["newton"] > 0 and 0 < st["manifold_shift"]["success_rate"] <= 1
-    assert st["sms"]["solutions"] > 0 and st["prior"]["samples"] > 0 and st["rest_ms"] > 0
+    assert st["sms"]["solutions"] > 0 and st["prior"]["samples"] > 0 and 0 < st["rest_ms"] < st["render_ms"] < wall_ms
     img = frame_rgb(daemon, s)
     assert img.shape == (24, 24, 3) and np.isfinite(img).all() and img.mean() > 0.01
     assert daemon.req("DELETE", s["href"]).status == 204

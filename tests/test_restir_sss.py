@@ -11,7 +11,10 @@ per_channel target (three reservoirs per pixel, each reused on its own) is teste
 whose passes differ most: hybrid under camera motion and sequential's two spatial passes. The
 sessions run under the real-time profile (the defaults, temporal reuse); the default shift also
 under the converge profile (no temporal reuse, the confidence cap its default: there is no history
-for it to cap), averaging the same frames as the real-time sessions."""
+for it to cap), averaging the same frames as the real-time sessions. Each profile's default rest
+(restir_pt's reservoirs in real time, one pt path a pixel converging) is tested, and the other rest
+under each profile once. The reservoirs hold direct light and, within max_depth >= 2, the light
+arriving at the entry points after a bounce; max_depth 1 tests the direct part alone."""
 import json
 
 import numpy as np
@@ -76,19 +79,24 @@ def _reference(sc, tmp_path, moving, depth=()):
 
 
 @pytest.mark.statistical
-@pytest.mark.parametrize("shift,motion,max_depth,target,profile",
-                         [(shift, motion, None, "luminance", "real-time")
+@pytest.mark.parametrize("shift,motion,max_depth,target,profile,rest",
+                         [(shift, motion, None, "luminance", "real-time", "by_scene")
                           for shift in ("reconnection", "delayed", "hybrid", "sequential")
                           for motion in ("static", "moving camera")] +
                          # The direct-lighting case of [ReSTIR SSS §3] (camera, entry, exit, light), which
                          # its evaluation and bench/restir_sss.py's BENCH_SSS_MAX_DEPTH=1 use: pt then
                          # stops after next-event estimation at the exit points and restir_sss
                          # traces no rest on the object; both must still estimate the same paths.
-                         [("hybrid", "static", 1, "luminance", "real-time"),
-                          ("hybrid", "moving camera", None, "per_channel", "real-time"),
-                          ("sequential", "static", None, "per_channel", "real-time")] +
-                         [("hybrid", motion, None, "luminance", "converge") for motion in ("static", "moving camera")])
-def test_restir_sss_unbiased(tmp_path, scenes, shift, motion, max_depth, target, profile):
+                         [("hybrid", "static", 1, "luminance", "real-time", "by_scene"),
+                          ("hybrid", "moving camera", None, "per_channel", "real-time", "by_scene"),
+                          ("sequential", "static", None, "per_channel", "real-time", "by_scene")] +
+                         [("hybrid", motion, None, "luminance", "converge", "by_scene")
+                          for motion in ("static", "moving camera")] +
+                         # The rest asked for against the profile's default (restir_pt's reservoirs in
+                         # real time, one pt path a pixel when converging).
+                         [("hybrid", "moving camera", None, "luminance", "real-time", "pt"),
+                          ("hybrid", "static", None, "luminance", "converge", "restir_pt")])
+def test_restir_sss_unbiased(tmp_path, scenes, shift, motion, max_depth, target, profile, rest):
     sc = scenes / "translucent" / "scene.json"
     moving = motion != "static"
     converge = profile == "converge"
@@ -99,8 +107,8 @@ def test_restir_sss_unbiased(tmp_path, scenes, shift, motion, max_depth, target,
     depth = ("--max-depth", str(max_depth)) if max_depth is not None else ()
     ref = _reference(sc, tmp_path, moving, depth)
     anim, _ = _animations(tmp_path, moving, frames)   # after the reference's, which writes its own
-    params = {"shift": shift, "target": target, **({} if converge else {"temporal_cap": TEMPORAL_CAP}),
-              **({"max_depth": max_depth} if max_depth else {})}
+    params = {"shift": shift, "target": target, "rest": rest,
+              **({} if converge else {"temporal_cap": TEMPORAL_CAP}), **({"max_depth": max_depth} if max_depth else {})}
     extra = ["--method", "restir_sss", "--frames", str(frames), "--average-last", str(AVERAGED),
              "--animation", str(anim), "--profile", profile, "--params", json.dumps(params)]
     runs, stats = [], None
@@ -109,13 +117,16 @@ def test_restir_sss_unbiased(tmp_path, scenes, shift, motion, max_depth, target,
         runs.append(img)
     runs = np.stack(runs)
     layers = 3 if target == "per_channel" else 1
-    assert stats["last_frame"]["shifts"] > 0 and stats["reservoir_bytes_per_pixel"] == 60 * layers
+    assert stats["last_frame"]["shifts"] > 0 and stats["reservoir_bytes_per_pixel"] == 72 * layers
+    by_restir_pt = rest == "restir_pt" or (rest == "by_scene" and not converge)
+    assert (stats["rest_ms"] > 0) == by_restir_pt, stats
     assert np.isfinite(runs).all() and stats["nonfinite"] == 0
     res = ztest_runs(runs, ref)
     bad = ztest_runs(runs * 1.03, ref)
-    print(f"{shift}, {motion}, {target}, {profile}: {res}; x1.03: {bad}")
-    assert_agree(res, f"{shift}, {motion}, {target}, {profile}")
-    assert not bad.passed, f"{shift}, {motion}, {target}, {profile}: a bias of x1.03 went unseen: {bad}"
+    what = f"{shift}, {motion}, {target}, {profile}, rest {rest}"
+    print(f"{what}: {res}; x1.03: {bad}")
+    assert_agree(res, what)
+    assert not bad.passed, f"{what}: a bias of x1.03 went unseen: {bad}"
 
 
 def test_restir_sss_bad_params(tmp_path, scenes):

@@ -246,6 +246,14 @@ struct pt_split {
      * ray escaped) stands for the first query, so the ray is not traced twice. */
     bool primary_given;
     const struct hit *primary;
+    /* The emission seen at the first hit (or the environment the camera ray escapes to) is left
+     * out: restir_sss's rest by restir_pt, whose session adds it at every pixel. */
+    bool skip_primary_emission;
+    /* The depth of the first vertex: 0 for a camera ray; 1 for the ray that leaves a subsurface
+     * entry point (restir_sss's indirect samples), so that the vertex it finds scatters as the
+     * second vertex of a pt path does (a translucent surface there by its BSDF) and max_depth and
+     * rr_depth count as in pt. */
+    uint32_t first_depth;
 };
 
 /* Specular manifold sampling's estimate at a vertex (methods sms and restir_sms only): kept out
@@ -291,6 +299,7 @@ struct pt_setup {
     bool nee;            /* ... and there are lights to sample */
     bool canonical;      /* the first vertex may be an SMS receiver (pt_radiance's `canonical`) */
     bool primary_given;  /* split->primary_given */
+    uint32_t first_depth;  /* split->first_depth */
 };
 
 static inline struct pt_setup pt_setup_make(const struct scene *scene, const struct pt_params *params,
@@ -308,7 +317,8 @@ static inline struct pt_setup pt_setup_make(const struct scene *scene, const str
                              .mis = params->nee,
                              .nee = params->nee && light_sampler_count(scene->lights) > 0,
                              .canonical = split->ss && (split->sms_after_primary || params->ssp),
-                             .primary_given = split->primary_given};
+                             .primary_given = split->primary_given,
+                             .first_depth = split->first_depth};
 }
 
 /* Radiance along one camera ray. The per-vertex work around the two ray queries is most of
@@ -359,15 +369,16 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
     bool prev_delta = true;    /* camera rays and delta scattering get no MIS on emission */
     struct vec3 prev_p = org;
     struct sms_track track = sms_track_start();
-    bool skip_emission = false;  /* after subsurface scattering with NEE (pt_sss_primary) */
+    bool skip_emission = split->skip_primary_emission;  /* else after subsurface scattering with NEE
+                                                           (pt_sss_primary) */
     /* Every vertex so far delta and through its canonical lobe (sms.h): the next non-delta
      * vertex is the pixel's receiver, restir_sms's and the one sms_ssp's prior was built at. */
     bool canonical = setup->canonical;
 
-    for (uint32_t depth = 0;; depth++) {
+    for (uint32_t depth = setup->first_depth;; depth++) {
         struct hit hit;
         bool found;
-        if (depth == 0 && setup->primary_given) {
+        if (depth == setup->first_depth && setup->primary_given) {
             found = split->primary != NULL;
             if (found) hit = *split->primary;
         } else {
@@ -636,10 +647,22 @@ static inline struct vec3 pt_radiance_one(const struct scene *scene, const struc
  * fewer this way than before the sampler existed (182,089,056 against 183,158,651, callgrind). */
 __attribute__((flatten)) struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_params *params,
                                                            struct vec3 org, struct vec3 dir, const struct hit *primary,
-                                                           struct rng *rng, bool sss_direct, struct ray_counters *rc)
+                                                           struct rng *rng, bool sss_direct, bool primary_emission,
+                                                           struct ray_counters *rc)
 {
-    const struct pt_split all = {.owned = true, .rest = true, .primary_given = true, .primary = primary};
+    const struct pt_split all = {.owned = true, .rest = true, .primary_given = true, .primary = primary,
+                                 .skip_primary_emission = !primary_emission};
     return pt_radiance_one(scene, params, &all, org, dir, rng, sss_direct, rc);
+}
+
+__attribute__((flatten)) struct vec3 reference_pt_radiance_after_sss(const struct scene *scene,
+                                                                     const struct pt_params *params, struct vec3 org,
+                                                                     struct vec3 dir, const struct hit *first,
+                                                                     struct rng *rng, struct ray_counters *rc)
+{
+    const struct pt_split after = {.owned = true, .rest = true, .primary_given = true, .primary = first,
+                                   .skip_primary_emission = true, .first_depth = 1};
+    return pt_radiance_one(scene, params, &after, org, dir, rng, true, rc);
 }
 
 __attribute__((flatten)) struct vec3

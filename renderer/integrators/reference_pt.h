@@ -85,11 +85,24 @@ struct ray_counters;
  * from the caller's random stream. sss_direct false leaves out the direct light at subsurface
  * entry points (the NEE at the probe hits of a translucent primary hit, and the emission the
  * path would reach with its first step from there when params->nee is on): restir_sss adds that
- * part from its reservoirs. Thread-safe, allocation-free. */
+ * part from its reservoirs. primary_emission false leaves out the emission seen at the first hit
+ * (or the environment, when the ray escaped): restir_sss's rest by restir_pt adds that at every
+ * pixel. Thread-safe, allocation-free. */
 struct hit;
 struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
                                   struct vec3 dir, const struct hit *primary, struct rng *rng, bool sss_direct,
-                                  struct ray_counters *rc);
+                                  bool primary_emission, struct ray_counters *rc);
+
+/* Radiance arriving at a subsurface entry point along the ray (org, unit dir) that leaves it,
+ * whose first hit the caller already has (`first`; NULL when the ray escaped), as `pt` estimates
+ * the rest of its path after subsurface scattering at the primary hit: the vertex found is the
+ * path's second (depth 1, so params' max_depth and rr_depth count as in pt, and a translucent
+ * surface there scatters by its BSDF), and its emission (or the environment) is left out, since
+ * next-event estimation at the entry point carries that light. restir_sss's indirect samples.
+ * Thread-safe, allocation-free. */
+struct vec3 reference_pt_radiance_after_sss(const struct scene *scene, const struct pt_params *params,
+                                            struct vec3 org, struct vec3 dir, const struct hit *first,
+                                            struct rng *rng, struct ray_counters *rc);
 
 /* Radiance along one camera ray whose first hit the caller already has (`primary`, as above) as
  * `sms` / `sms_ssp` estimate it (params->sms set; params->ssp and ssp_prior for sample-space

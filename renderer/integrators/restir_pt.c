@@ -322,6 +322,13 @@ static bool pt_connectable(const struct pt_thread *t, uint32_t j, const struct p
     return a * t->footprint <= 1.0f;
 }
 
+/* Whether opaque_primary leaves the paths of this primary surface to another method (restir_sss,
+ * whose BSSRDF samples them); the emission seen there is still ours (pt_initial_pixel). */
+static inline bool pt_left_out(const struct pt_ctx *c, const struct scene *scene, const struct gbuffer_surface *h)
+{
+    return c->p->opaque_primary && scene->materials[h->material].kind == MATERIAL_TRANSLUCENT;
+}
+
 /* The primary vertex of a domain and its eq. 5 threshold (c/100) |x0 - x1|^2 / (cos / 4 pi):
  * the G-buffer's surface, the same numbers for the initial pass and every shift into the pixel.
  * x_1 never reconnects (k >= 2), so its primitive and point code are not loaded. */
@@ -330,6 +337,7 @@ static bool pt_primary(const struct pt_ctx *c, struct restir_domain d, struct pt
     const struct gbuffer_surface *h = &c->gbuf[d.frame]->surf[d.pixel];
     if (h->material == GBUFFER_NO_HIT) return false;
     const struct scene *scene = c->scene[d.frame];
+    if (pt_left_out(c, scene, h)) return false;
     v->s.p = h->p, v->s.ng = h->ng, v->s.ns = h->ns;
     v->s.frame = frame_from_normal(h->ns);
     v->s.material = h->material;
@@ -747,6 +755,16 @@ static void pt_initial_pixel(const struct pt_thread *t, uint32_t pixel, struct p
     *direct = !c->keep_rest ? vec3_splat(0.0f) : seen ? seen[pixel] : scene->env_radiance;
     struct pt_thread th = *t;
     struct pt_vertex v;
+    const struct gbuffer_surface *h = &c->gbuf[RESTIR_CURRENT]->surf[pixel];
+    if (h->material != GBUFFER_NO_HIT && pt_left_out(c, scene, h)) {
+        /* Its paths are restir_sss's; the emission seen there stays ours, as everywhere (the
+         * G-buffer's estimate counts every emitter in the pixel's area, whatever surface the
+         * primary ray found). */
+        if (!seen && c->keep_rest)
+            *direct = light_sampler_emitted(&scene->materials[h->material],
+                                            vec3_dot(vec3_sub(c->eye[RESTIR_CURRENT], h->p), h->ng));
+        return;
+    }
     if (!pt_primary(c, (struct restir_domain){pixel, RESTIR_CURRENT}, &v, &th.footprint)) return;
     if (!seen && c->keep_rest)
         *direct = light_sampler_emitted(v.m, vec3_dot(vec3_sub(c->eye[RESTIR_CURRENT], v.s.p), v.s.ng));
@@ -1041,7 +1059,8 @@ static void pt_shift(const void *ctx, const void *src, struct restir_domain from
 static bool pt_domain_valid(const void *ctx, struct restir_domain d)
 {
     const struct pt_ctx *c = ctx;
-    return c->gbuf[d.frame]->surf[d.pixel].material != GBUFFER_NO_HIT;
+    const struct gbuffer_surface *h = &c->gbuf[d.frame]->surf[d.pixel];
+    return h->material != GBUFFER_NO_HIT && !pt_left_out(c, c->scene[d.frame], h);
 }
 
 /* The samples whose history confidence restir_pt_params.temporal_cap_replay caps: those without a
@@ -1082,7 +1101,7 @@ bool restir_pt_init(struct restir_pt_state *st, const struct scene *scene, const
                     uint32_t width, uint32_t height, struct err *err)
 {
     memset(st, 0, sizeof *st);
-    if (scene_has_translucent(scene))
+    if (scene_has_translucent(scene) && !params->opaque_primary)
         return err_set(err, ERR_INVALID, "/method",
                        "restir_pt does not sample subsurface scattering (the scene has translucent materials)");
     st->nee_by_scene = restir_pt_nee_by_scene(scene);
@@ -1235,6 +1254,18 @@ bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params 
     if (params->spatial_neighbors == 0) restir_session_swap(&st->rs);
     restir_frame_reused(&pp.fr);
     return restir_frame_shade(&pp.fr, pt_shade_rows, err);
+}
+
+bool restir_pt_render_rest(struct restir_pt_state *st, const struct restir_pt_params *params,
+                           const struct method_frame *f, struct image *out, struct restir_pass_stats *into,
+                           struct err *err)
+{
+    struct restir_pass_stats s = {0};
+    if (!restir_pt_render(st, params, f, out, &s, err)) return false;
+    into->rays_intersect += s.rays_intersect;
+    into->rays_occluded += s.rays_occluded;
+    into->nonfinite += s.nonfinite;
+    return true;
 }
 
 bool restir_pt_initial_only(struct restir_pt_state *st, const struct restir_pt_params *params,

@@ -68,6 +68,12 @@ struct RESTIRD_STORED_IN_BYTES restir_pt_params {
     enum pt_subset subset;       /* the light transport the image holds, split as pt's (sms.h):
                                     all, the caustic paths specular manifold sampling owns, or the
                                     rest (all) */
+    bool opaque_primary;         /* only the pixels whose primary surface is not translucent: the
+                                    share of the image restir_sss's `rest` takes from restir_pt,
+                                    whose BSSRDF paths at translucent primary surfaces it leaves
+                                    to restir_sss; translucent surfaces further along a path are
+                                    the translucent BSDF, as for `pt` (false: a scene with
+                                    translucent materials is refused) */
 };
 
 /* nee_candidates of the defaults: chosen from the session's scene at restir_pt_init. */
@@ -121,6 +127,11 @@ uint64_t restir_pt_bytes_planned(const struct restir_pt_params *params, uint32_t
 bool restir_pt_render(struct restir_pt_state *st, const struct restir_pt_params *params,
                       const struct method_frame *f, struct image *out, struct restir_pass_stats *stats,
                       struct err *err);
+/* The same as another method's rest (restir_sms, restir_sss): the frame's rays and non-finite
+ * pixels added to `into`, the caller's counters. */
+bool restir_pt_render_rest(struct restir_pt_state *st, const struct restir_pt_params *params,
+                           const struct method_frame *f, struct image *out, struct restir_pass_stats *into,
+                           struct err *err);
 
 /* For tests of the shift: the G-buffers and initial reservoirs of a frame (no reuse), then the
  * shift of one reservoir element between domains. restir_pt_bind fills an opaque context of

@@ -615,11 +615,7 @@ static bool sms_frame(struct restir_sms_state *st, const struct restir_sms_param
     struct sms_params pt_sms = params->ssp.sms;
     if (st->has_rest && out) {
         struct restir_pt_params rp = restir_sms_rest_params(params);
-        struct restir_pass_stats rest_stats = {0};
-        if (!restir_pt_render(&st->rest, &rp, f, &st->rest_image, &rest_stats, err)) return false;
-        stats->pass.rays_intersect += rest_stats.rays_intersect;
-        stats->pass.rays_occluded += rest_stats.rays_occluded;
-        stats->pass.nonfinite += rest_stats.nonfinite;
+        if (!restir_pt_render_rest(&st->rest, &rp, f, &st->rest_image, &stats->pass, err)) return false;
         stats->rest_ms = parallel_lap_ms(&pp.fr.t0);
         pp.rest = st->rest_image.pixels;
         pt_sms.caustics_only = true;   /* the pt path's SMS estimates at later vertices only */

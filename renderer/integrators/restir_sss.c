@@ -1,7 +1,7 @@
 /* restir_sss.c — method `restir_sss` (see restir_sss.h): candidate generation by BSSRDF
  * importance sampling, the reconnection / delayed reconnection / hybrid shifts, and the frame.
- * The reuse passes are restir.c's; the rest of the image is reference_pt_radiance's.
- * Refs: [ReSTIR SSS §3.1] (eq. 10, Algorithm 3), §3.2 (eq. 11), §4.1, §5.1;
+ * The reuse passes are restir.c's; the rest of the image is reference_pt_radiance's or restir_pt's.
+ * Refs: [ReSTIR SSS §3.1] (eq. 10, Algorithm 3), §3.2 (eq. 11), §4.1, §5.1, §5.3;
  * docs/methods.md (restir_sss). */
 #include "integrators/restir_sss.h"
 
@@ -22,7 +22,7 @@
 #include "scene/surface.h"
 
 #define SSS_STREAM 0x737373ull        /* candidate generation */
-#define SSS_PT_STREAM 0x737370ull     /* the pt path of the rest of the image */
+#define SSS_PT_STREAM 0x737370ull     /* the pt path of the rest, and the paths of indirect samples */
 #define SSS_ENV_SHAPE UINT32_MAX      /* x3 is a direction to the environment */
 #define SSS_HIT_UNKNOWN 15u           /* sequential shortcut: the index was not found (§4.3) */
 #define SSS_PICK_STREAM 0x737369ull   /* the shortcut's random pick of an unknown index */
@@ -31,15 +31,29 @@
 /* The reservoir element (Algorithm 3): x2 and x3 as point codes, the technique, the random
  * numbers of the disk point and the intersection index, and the path's contribution F in its own
  * pixel (f times the technique's balance weight, RGB); its target is sss_target_of(F) for its
- * reservoir's channel. */
+ * reservoir's channel.
+ *
+ * x3 is a light point (direct light at the entry point x2) or, for an indirect sample, the first
+ * surface the path meets after x2, with L3 the radiance the rest of the path brings from it
+ * towards x2 (its own emission left out: that is the direct samples' light). The paper resamples
+ * direct light only and names this extension ([ReSTIR SSS §5.3]: a reconnection vertex and its
+ * incoming radiance, as ReSTIR PT stores): the reconnection shift keeps x2 and x3, so the
+ * direction x2 -> x3 and L3 stay exact; the delayed shift moves x2, and L3 still holds where x3
+ * is Lambertian (its outgoing radiance is the same in every direction of the side it leaves).
+ * Without it the indirect light at translucent pixels came from one path a frame, which on the
+ * scene `translucent` was 3/4 of their error (docs/benchmarks.md, "restir_sss: indirect light
+ * in the reservoirs"). */
 struct sss_sample {
-    struct restir_head head;   /* bits: axis (2) | channel (2) << 2 | hit index (4) << 4 */
+    /* bits: axis (2) | channel (2) << 2 | hit index (4) << 4 | indirect << 8 | x3 seen from its
+     * back << 9 */
+    struct restir_head head;
     uint32_t x2_shape, x2_prim;
     float x2_b1, x2_b2;
     uint32_t x3_shape, x3_prim;
     float x3_b1, x3_b2;
     float u_radius, u_angle;
     float F[3];
+    float L3[3];   /* indirect samples: the radiance from x3 towards x2; else 0 */
 };
 _Static_assert(sizeof(struct sss_sample) == RESTIR_SSS_RESERVOIR_BYTES, "reservoir element size");
 
@@ -63,9 +77,16 @@ static inline float sss_target_of(int channel, struct vec3 F)
 static inline int sss_axis(const struct sss_sample *s) { return s->head.bits & 3u; }
 static inline int sss_channel(const struct sss_sample *s) { return (s->head.bits >> 2) & 3u; }
 static inline uint32_t sss_hit(const struct sss_sample *s) { return (s->head.bits >> 4) & 15u; }
+static inline bool sss_indirect(const struct sss_sample *s) { return (s->head.bits >> 8) & 1u; }
+static inline bool sss_x3_back(const struct sss_sample *s) { return (s->head.bits >> 9) & 1u; }
 static inline uint16_t sss_bits(int axis, int channel, uint32_t hit)
 {
     return (uint16_t)((unsigned)axis | (unsigned)channel << 2 | hit << 4);
+}
+/* The technique and hit index replaced, the kind of x3 kept. */
+static inline uint16_t sss_bits_of(const struct sss_sample *s, int axis, int channel, uint32_t hit)
+{
+    return (uint16_t)(sss_bits(axis, channel, hit) | (s->head.bits & 0x300u));
 }
 
 struct restir_sss_params restir_sss_defaults(void)
@@ -73,7 +94,29 @@ struct restir_sss_params restir_sss_defaults(void)
     return (struct restir_sss_params){.shift = RESTIR_SSS_HYBRID, .candidates = 1, .temporal = true,
                                       .temporal_cap = 20, .spatial_neighbors = 4, .spatial_radius = 0.0f,
                                       .kappa_orientation = 0.5f, .max_depth = 64, .rr_depth = 3,
-                                      .paired_spatial = true, .expected_shading = true};
+                                      .paired_spatial = true, .expected_shading = true,
+                                      .rest = RESTIR_SSS_REST_BY_SCENE};
+}
+
+/* by_scene, measured on the scene `translucent` at 256x256 against pt at equal time
+ * (docs/benchmarks.md, "restir_sss: indirect light in the reservoirs, and who renders the rest"):
+ * in real time (temporal reuse on) restir_pt's rest took the frame's MAPE from 0.71x pt's to
+ * 0.36x; converging (temporal off) its converge profile costs 2.3x the pt rest's frame, and the
+ * accumulated image's relMSE read 1.73x pt's against the pt rest's 0.93x. */
+enum restir_sss_rest restir_sss_rest_of(const struct restir_sss_params *p)
+{
+    if (p->rest != RESTIR_SSS_REST_BY_SCENE) return p->rest;
+    return p->temporal && p->max_depth >= 1 && p->max_depth <= RESTIR_PT_MAX_DEPTH ? RESTIR_SSS_REST_RESTIR_PT
+                                                                                    : RESTIR_SSS_REST_PT;
+}
+
+struct restir_pt_params restir_sss_rest_params(const struct restir_sss_params *p)
+{
+    struct restir_pt_params rp = restir_pt_defaults();
+    if (!p->temporal) restir_pt_converge(&rp);
+    rp.opaque_primary = true;
+    rp.max_depth = p->max_depth;
+    return rp;
 }
 
 static const char *const sss_shift_names[] = {"reconnection", "delayed", "hybrid", "sequential"};
@@ -111,6 +154,10 @@ bool restir_sss_params_valid(const struct restir_sss_params *p, struct err *err)
     if (!(p->kappa_orientation >= -1.0f && p->kappa_orientation <= 1.0f))
         return err_set(err, ERR_INVALID, "/params/kappa_orientation", "must be in [-1, 1]");
     if (p->max_depth > 1024) return err_set(err, ERR_INVALID, "/params/max_depth", "must be at most 1024");
+    if ((unsigned)p->rest > RESTIR_SSS_REST_RESTIR_PT) return err_set(err, ERR_INVALID, "/params/rest", "unknown rest");
+    if (p->rest == RESTIR_SSS_REST_RESTIR_PT && (p->max_depth < 1 || p->max_depth > RESTIR_PT_MAX_DEPTH))
+        return err_set(err, ERR_INVALID, "/params/max_depth", "must be in 1..%u with rest restir_pt, got %u",
+                       RESTIR_PT_MAX_DEPTH, p->max_depth);
     return true;
 }
 
@@ -125,6 +172,8 @@ struct sss_ctx {
     uint32_t frame;
     enum restir_sss_shift pass_shift;   /* the shift of the pass running (sequential: per pass) */
     int channel;                        /* the reservoirs' target: -1 luminance, else F_channel */
+    bool moved;                         /* the previous frame's scene differs (scene_moved) */
+    const struct pt_params *pt;         /* the paths of indirect samples (NULL: none are drawn) */
 };
 _Static_assert(sizeof(struct sss_ctx) <= RESTIR_SSS_CTX_BYTES, "context fits the test buffer");
 
@@ -157,16 +206,33 @@ static bool sss_primary(const struct sss_ctx *c, struct restir_domain d, struct 
     return true;
 }
 
-/* The light end x3 as rebuilt in a scene: a point (with normal) or a direction. */
+/* The end x3 as rebuilt in a scene: a light point (with normal) or a direction, or an indirect
+ * sample's surface point. */
 struct sss_x3 {
     bool is_env;
     struct vec3 p, n, dir;
-    struct vec3 Le_scale;   /* emitted radiance of the emitter's material (front side) */
+    struct vec3 Le_scale;   /* emitted radiance of the emitter's material (front side); indirect: L3 */
     bool two_sided;
+    bool indirect, back;    /* an indirect sample's x3, and L3 leaving it on the side -n */
+    bool lambertian;        /* indirect: x3's L3 holds in any direction of its side */
+    struct vec3 ns;         /* indirect: x3's shading normal */
 };
 
-static bool sss_light_at(const struct scene *scene, const struct sss_sample *s, struct sss_x3 *x3)
+static bool sss_x3_at(const struct scene *scene, const struct sss_sample *s, struct sss_x3 *x3)
 {
+    if (sss_indirect(s)) {
+        struct surface h;
+        surface_at(scene, s->x3_shape, s->x3_prim, s->x3_b1, s->x3_b2, &h);
+        x3->is_env = false;
+        x3->p = h.p, x3->n = h.ng, x3->ns = h.ns;
+        x3->Le_scale = vec3_make(s->L3[0], s->L3[1], s->L3[2]);
+        x3->two_sided = false;
+        x3->indirect = true;
+        x3->back = sss_x3_back(s);
+        x3->lambertian = material_diffuse_path(&scene->materials[h.material]);
+        return true;
+    }
+    x3->indirect = false;
     if (s->x3_shape == SSS_ENV_SHAPE) {
         if (vec3_is_zero(scene->env_radiance)) return false;
         x3->is_env = true;
@@ -210,7 +276,13 @@ static struct vec3 sss_eval(const struct scene *scene, const struct sss_x1 *x1, 
         if (!(d2 > 0.0f)) return zero;
         wi = vec3_scale(d, 1.0f / sqrtf(d2));
         float cos_l = -vec3_dot(wi, x3->n);
-        if (!(cos_l > 0.0f) && !(x3->two_sided && cos_l < 0.0f)) return zero;
+        if (x3->indirect) {
+            /* L3 leaves x3 on the side it was found from, by both normals (pt's test at x3). */
+            float side = x3->back ? -1.0f : 1.0f;
+            if (!(side * cos_l > 0.0f) || !(-side * vec3_dot(wi, x3->ns) > 0.0f)) return zero;
+        } else if (!(cos_l > 0.0f) && !(x3->two_sided && cos_l < 0.0f)) {
+            return zero;
+        }
         Le = x3->Le_scale;
         geo = fabsf(cos_l) / d2;
     }
@@ -236,18 +308,99 @@ static struct vec3 sss_eval(const struct scene *scene, const struct sss_x1 *x1, 
 }
 
 /* Hybrid criterion (§4.1): reconnect iff |x2 - x1| >= 2 max(d) or n1 . n2 <= kappa. */
-static bool sss_reconnects(const struct sss_ctx *c, const struct sss_x1 *x1, const struct surface *x2)
+static bool sss_reconnects(const struct sss_ctx *c, const struct sss_x1 *x1, const struct surface *x2,
+                           bool x3_fixed)
 {
     switch (c->pass_shift) {
     case RESTIR_SSS_RECONNECTION: return true;
     case RESTIR_SSS_DELAYED: return false;
     default: break;
     }
+    /* An indirect sample whose x3 is not Lambertian has no delayed shift (sss_sample). */
+    if (x3_fixed) return true;
     float kd = 2.0f * vec3_max_comp(x1->m->sss_d);
     return vec3_length(vec3_sub(x2->p, x1->s.p)) >= kd || vec3_dot(x1->s.ns, x2->ns) <= c->p->kappa_orientation;
 }
 
 /* ---- candidates ----------------------------------------------------------------------------- */
+
+/* The selection of one candidate by every layer's reservoir (each with its own target). */
+struct sss_offer {
+    uint32_t layers;
+    struct reservoir_stream *rs;
+    struct rng *rng, *rng_layers;
+    struct sss_sample *const *out;
+    float inv_m;
+};
+
+static void sss_offer(const struct sss_offer *o, const struct sss_sample *cand, struct vec3 F, double p)
+{
+    for (uint32_t l = 0; l < o->layers; l++) {
+        float target = sss_target_of(o->layers > 1 ? (int)l : -1, F);
+        if (!(target > 0.0f)) continue;
+        float u = rng_next_float(l == 0 ? o->rng : o->rng_layers);
+        if (reservoir_stream_offer(&o->rs[l], (double)target / p * o->inv_m, target, 0.0f, u)) *o->out[l] = *cand;
+    }
+}
+
+/* The probe's indirect candidate: one of its n hits picked uniformly (as pt's path continues,
+ * [ReSTIR SSS §5.3]), a cosine-sampled direction from it through the entry lobe, and the radiance
+ * that pt's path would bring back along it (reference_pt_radiance_after_sss). Its pdf: the
+ * technique's, 1/n, and the cosine density in x3's area measure. */
+static void sss_indirect_candidate(const struct sss_ctx *c, const struct sss_x1 *x1, const struct hit *hits, uint32_t n,
+                                   const struct bssrdf_probe *probe, int axis, int channel, float ur, float ua,
+                                   float upick, float ud1, float ud2, struct rng *rng_pt, const struct sss_offer *o,
+                                   struct ray_counters *rc)
+{
+    const struct scene *scene = c->scene[RESTIR_CURRENT];
+    uint32_t pick = (uint32_t)(upick * (float)n);
+    if (pick >= n) pick = n - 1;
+    struct surface x2;
+    float b1, b2;
+    surface_from_hit(scene, &hits[pick], probe->org, probe->dir, &x2);
+    surface_point_code(scene, &hits[pick], &x2, &b1, &b2);
+    surface_at(scene, hits[pick].shape, hits[pick].prim, b1, b2, &x2);
+    struct vec3 wl = sampling_cosine_hemisphere(ud1, ud2);
+    if (!(wl.z > 0.0f)) return;
+    struct vec3 wi = frame_to_world(&x2.frame, wl);
+    if (!(vec3_dot(wi, x2.ng) > 0.0f)) return;
+    struct vec3 org = surface_offset_along(x2.p, x2.ng);
+    struct hit h3;
+    if (!accel_intersect(scene->accel, org, wi, 0.0f, INFINITY, &h3, rc)) return;  /* the environment: direct */
+    struct vec3 L3 = reference_pt_radiance_after_sss(scene, c->pt, org, wi, &h3, rng_pt, rc);
+    if (vec3_is_zero(L3) || !isfinite(L3.x + L3.y + L3.z)) return;
+    struct sss_sample cand;
+    memset(&cand, 0, sizeof cand);
+    struct surface s3;
+    surface_from_hit(scene, &h3, org, wi, &s3);
+    cand.x3_shape = h3.shape;
+    cand.x3_prim = h3.prim;
+    surface_point_code(scene, &h3, &s3, &cand.x3_b1, &cand.x3_b2);
+    surface_at(scene, h3.shape, h3.prim, cand.x3_b1, cand.x3_b2, &s3);
+    const bool back = vec3_dot(vec3_sub(x2.p, s3.p), s3.ng) < 0.0f;
+    cand.head.bits = (uint16_t)(sss_bits(axis, channel, pick) | 1u << 8 | (unsigned)back << 9);
+    cand.x2_shape = hits[pick].shape;
+    cand.x2_prim = hits[pick].prim;
+    cand.x2_b1 = b1;
+    cand.x2_b2 = b2;
+    cand.u_radius = ur;
+    cand.u_angle = ua;
+    cand.L3[0] = L3.x, cand.L3[1] = L3.y, cand.L3[2] = L3.z;
+    struct sss_x3 x3;
+    if (!sss_x3_at(scene, &cand, &x3)) return;
+    /* x3 is the ray's first hit: visible (not traced again from the rebuilt points). */
+    struct vec3 F = sss_eval(scene, x1, &x2, &x3, axis, channel, false, NULL, rc);
+    if (vec3_is_zero(F)) return;
+    struct vec3 d = vec3_sub(x3.p, x2.p);
+    float d2 = vec3_length2(d);
+    struct vec3 w3 = vec3_scale(d, 1.0f / sqrtf(d2));
+    double p = (double)(bssrdf_technique_prob(axis, channel) *
+                        bssrdf_pdf_technique(x1->m, x1->s.p, &x1->s.frame, axis, channel, x2.p, x2.ng)) /
+               (double)n * (double)(vec3_dot(w3, x2.ns) / PI_F) * (double)(fabsf(vec3_dot(w3, x3.n)) / d2);
+    if (!(p > 0.0)) return;
+    cand.F[0] = F.x, cand.F[1] = F.y, cand.F[2] = F.z;
+    sss_offer(o, &cand, F, p);
+}
 
 /* The pixel's initial reservoirs, one per layer (out[l]): every layer resamples the same
  * candidates with its own target and its own selection numbers. */
@@ -259,16 +412,19 @@ static void sss_initial_pixel(const struct sss_ctx *c, uint32_t pixel, uint32_t 
     if (!sss_primary(c, (struct restir_domain){pixel, RESTIR_CURRENT}, &x1)) return;
     const struct scene *scene = c->scene[RESTIR_CURRENT];
     struct rng rng = rng_make(c->seed, c->frame, pixel, SSS_STREAM);
+    struct rng rng_pt = rng_make(c->seed, c->frame, pixel, SSS_PT_STREAM);
     /* Layers 1 and 2 (per_channel) draw their selections from a stream of their own, so layer 0
      * and a luminance reservoir see the same numbers. */
     struct rng rng_layers = {0, 0};
     if (layers > 1) rng_layers = rng_make(c->seed, c->frame, pixel, SSS_LAYER_STREAM);
     struct reservoir_stream rs[3];
     for (uint32_t l = 0; l < layers; l++) reservoir_stream_begin(&rs[l]);
-    const float inv_m = 1.0f / (float)c->p->candidates;
+    const struct sss_offer offer = {.layers = layers, .rs = rs, .rng = &rng, .rng_layers = &rng_layers, .out = out,
+                                    .inv_m = 1.0f / (float)c->p->candidates};
     for (uint32_t i = 0; i < c->p->candidates; i++) {
         float ut = rng_next_float(&rng), ur = rng_next_float(&rng), ua = rng_next_float(&rng);
         float ul = rng_next_float(&rng), u1 = rng_next_float(&rng), u2 = rng_next_float(&rng);
+        float upick = rng_next_float(&rng), ud1 = rng_next_float(&rng), ud2 = rng_next_float(&rng);
         /* A probe is one candidate (confidence 1) whether or not it finds anything (§3.1). */
         for (uint32_t l = 0; l < layers; l++) reservoir_stream_offer(&rs[l], 0.0, 0.0f, 1.0f, 0.0f);
         int axis, channel;
@@ -279,6 +435,9 @@ static void sss_initial_pixel(const struct sss_ctx *c, uint32_t pixel, uint32_t 
         uint32_t n = accel_intersect_shape_all(scene->accel, x1.s.shape, probe.org, probe.dir, 0.0f, probe.tmax, hits,
                                                BSSRDF_MAX_HITS, rc);
         if (n == 0) continue;
+        if (c->pt)
+            sss_indirect_candidate(c, &x1, hits, n, &probe, axis, channel, ur, ua, upick, ud1, ud2, &rng_pt, &offer,
+                                   rc);
         /* One light sample shared by all the probe's hits (§5.2). */
         struct light_sample ls;
         if (!light_sampler_sample(scene->lights, ul, u1, u2, &ls)) continue;
@@ -306,7 +465,7 @@ static void sss_initial_pixel(const struct sss_ctx *c, uint32_t pixel, uint32_t 
             pdf_light = ls.pdf_a;
         }
         struct sss_x3 x3;
-        if (!(pdf_light > 0.0f) || !sss_light_at(scene, &cand, &x3)) continue;
+        if (!(pdf_light > 0.0f) || !sss_x3_at(scene, &cand, &x3)) continue;
         for (uint32_t j = 0; j < n; j++) {
             struct surface x2;
             float b1, b2;
@@ -327,12 +486,7 @@ static void sss_initial_pixel(const struct sss_ctx *c, uint32_t pixel, uint32_t 
             cand.x2_b1 = b1;
             cand.x2_b2 = b2;
             cand.F[0] = F.x, cand.F[1] = F.y, cand.F[2] = F.z;
-            for (uint32_t l = 0; l < layers; l++) {
-                float target = sss_target_of(layers > 1 ? (int)l : -1, F);
-                if (!(target > 0.0f)) continue;
-                float u = rng_next_float(l == 0 ? &rng : &rng_layers);
-                if (reservoir_stream_offer(&rs[l], (double)target / p * inv_m, target, 0.0f, u)) *out[l] = cand;
-            }
+            sss_offer(&offer, &cand, F, p);
         }
     }
     for (uint32_t l = 0; l < layers; l++) {
@@ -377,7 +531,7 @@ static bool sss_invert(const struct sss_ctx *c, const struct scene *scene, const
         }
     }
     if (found == SSS_HIT_UNKNOWN && !c->p->index_shortcut) return false;
-    y->head.bits = sss_bits(axis, channel, found);
+    y->head.bits = sss_bits_of(y, axis, channel, found);
     return true;
 }
 
@@ -396,9 +550,13 @@ static void sss_shift_impl(const struct sss_ctx *c, const struct sss_sample *x, 
     struct surface x2;
     surface_at(sf, x->x2_shape, x->x2_prim, x->x2_b1, x->x2_b2, &x2);
     const int axis = sss_axis(x), channel = sss_channel(x);
-    const bool reconnect = sss_reconnects(c, &x1, &x2);
     struct sss_x3 x3;
-    if (!sss_light_at(st, x, &x3)) return;
+    if (!sss_x3_at(st, x, &x3)) return;
+    const bool x3_fixed = x3.indirect && !x3.lambertian;
+    const bool reconnect = sss_reconnects(c, &x1, &x2, x3_fixed);
+    /* An indirect sample's L3 was found in its own frame's scene: it holds in another frame only
+     * while nothing in the scene moved. */
+    if (x3.indirect && from.frame != to.frame && c->moved) return;
     float jac = 1.0f;
     if (x->x3_shape != SSS_ENV_SHAPE) jac *= surface_area_ratio(sf, st, x->x3_shape, x->x3_prim, x->x3_b1, x->x3_b2);
     struct surface y2;
@@ -413,7 +571,9 @@ static void sss_shift_impl(const struct sss_ctx *c, const struct sss_sample *x, 
             !sss_invert(c, st, &y1, &y2, axis, channel, y, dst_wanted, &cnt->rays))
             return;
     } else {
-        /* Delayed reconnection (§3.2.2): replay the probe from y1, take the same hit index. */
+        /* Delayed reconnection (§3.2.2): replay the probe from y1, take the same hit index. An
+         * indirect sample's L3 holds towards y2 only from a Lambertian x3. */
+        if (x3_fixed) return;
         struct bssrdf_probe probe;
         if (!bssrdf_probe_make(y1.m, y1.s.p, &y1.s.frame, axis, channel, x->u_radius, x->u_angle, &probe)) return;
         struct hit hits[BSSRDF_MAX_HITS];
@@ -426,7 +586,7 @@ static void sss_shift_impl(const struct sss_ctx *c, const struct sss_sample *x, 
             struct rng pick = rng_make(c->seed, c->frame, (uint64_t)from.pixel << 32 | to.pixel, SSS_PICK_STREAM);
             j = (uint32_t)(rng_next_float(&pick) * (float)n);
             if (j >= n) j = n - 1;
-            y->head.bits = sss_bits(axis, channel, j);
+            y->head.bits = sss_bits_of(y, axis, channel, j);
         }
         if (j >= n) return;
         surface_from_hit(st, &hits[j], probe.org, probe.dir, &y2);
@@ -443,7 +603,7 @@ static void sss_shift_impl(const struct sss_ctx *c, const struct sss_sample *x, 
         visibility = true;
     }
     /* The offset path must make the same choice (§4.1), so the shift stays invertible. */
-    if (c->pass_shift == RESTIR_SSS_HYBRID && sss_reconnects(c, &y1, &y2) != reconnect) return;
+    if (c->pass_shift == RESTIR_SSS_HYBRID && sss_reconnects(c, &y1, &y2, x3_fixed) != reconnect) return;
     struct vec3 F = sss_eval(st, &y1, &y2, &x3, axis, channel, visibility, NULL, &cnt->rays);
     float t = sss_target_of(c->channel, F);
     if (!(t > 0.0f) || !(jac > 0.0f) || !isfinite(jac)) return;
@@ -507,13 +667,17 @@ void restir_sss_info(const void *ctx, const void *elem, uint32_t pixel, struct r
     out->axis = sss_axis(s), out->channel = sss_channel(s), out->hit = (int)sss_hit(s);
     out->u_radius = s->u_radius, out->u_angle = s->u_angle;
     out->F = vec3_make(s->F[0], s->F[1], s->F[2]);
+    out->indirect = sss_indirect(s);
     struct sss_x1 x1;
     if (s->head.W > 0.0f && sss_primary(c, (struct restir_domain){pixel, RESTIR_CURRENT}, &x1)) {
         struct surface x2;
         surface_at(c->scene[RESTIR_CURRENT], s->x2_shape, s->x2_prim, s->x2_b1, s->x2_b2, &x2);
         struct sss_ctx ch = *c;
         ch.pass_shift = RESTIR_SSS_HYBRID;
-        out->reconnect = sss_reconnects(&ch, &x1, &x2);
+        struct sss_x3 x3;
+        const bool x3_fixed = sss_x3_at(c->scene[RESTIR_CURRENT], s, &x3) && x3.indirect && !x3.lambertian;
+        out->reconnect = sss_reconnects(&ch, &x1, &x2, x3_fixed);
+        out->x3_fixed = x3_fixed;
     }
 }
 
@@ -524,39 +688,67 @@ static bool sss_uses_pairs(const struct restir_sss_params *p)
     return restir_pairs_needed(p->paired_spatial, p->spatial_neighbors);
 }
 
-bool restir_sss_init(struct restir_sss_state *st, const struct restir_sss_params *params, uint32_t width,
-                     uint32_t height, struct err *err)
+bool restir_sss_init(struct restir_sss_state *st, const struct scene *scene, const struct restir_sss_params *params,
+                     uint32_t width, uint32_t height, struct err *err)
 {
     memset(st, 0, sizeof *st);
-    return restir_session_init(&st->rs, width, height, restir_sss_layers(params), sizeof(struct sss_sample), true,
-                               sss_uses_pairs(params), err);
+    bool ok = restir_session_init(&st->rs, width, height, restir_sss_layers(params), sizeof(struct sss_sample), true,
+                                  sss_uses_pairs(params), err);
+    if (ok && restir_sss_rest_of(params) == RESTIR_SSS_REST_RESTIR_PT) {
+        struct restir_pt_params rp = restir_sss_rest_params(params);
+        st->has_rest = true;
+        ok = restir_pt_init(&st->rest, scene, &rp, width, height, err) && image_init(&st->rest_image, width, height, err);
+    }
+    if (!ok) restir_sss_destroy(st);
+    return ok;
 }
 
 void restir_sss_destroy(struct restir_sss_state *st)
 {
     restir_session_destroy(&st->rs);
+    if (st->has_rest) {
+        restir_pt_destroy(&st->rest);
+        image_destroy(&st->rest_image);
+    }
+    memset(st, 0, sizeof *st);
 }
 
-uint64_t restir_sss_bytes_planned(const struct restir_sss_params *params, uint32_t width, uint32_t height)
+void restir_sss_reset(struct restir_sss_state *st)
 {
+    restir_session_reset(&st->rs);
+    if (st->has_rest) restir_session_reset(&st->rest.rs);
+}
+
+uint64_t restir_sss_bytes_planned(const struct restir_sss_params *params, const struct scene *scene, uint32_t width,
+                                  uint32_t height)
+{
+    uint64_t rest = 0;
+    if (restir_sss_rest_of(params) == RESTIR_SSS_REST_RESTIR_PT) {
+        struct restir_pt_params rp = restir_sss_rest_params(params);
+        rest = restir_pt_bytes_planned(&rp, width, height, scene) + (uint64_t)width * height * sizeof(struct vec3);
+    }
     return 2 * (uint64_t)width * height *
                (restir_sss_layers(params) * sizeof(struct sss_sample) + sizeof(struct gbuffer_pixel) +
                 sizeof(struct gbuffer_surface)) +
-           (sss_uses_pairs(params) ? restir_pair_scratch_bytes(width, height) : 0);
+           (sss_uses_pairs(params) ? restir_pair_scratch_bytes(width, height) : 0) + rest;
 }
 
 struct sss_pass {
     struct restir_frame fr;   /* first: the driver's rows reach it through the pass */
     const struct sss_ctx *c;
     struct pt_params pt;
+    const struct vec3 *rest;   /* the rest's restir_pt frame, or NULL: the pt path renders the rest */
     struct restir_sss_stats local;   /* the counters of a frame whose caller keeps none */
 };
 RESTIR_FRAME_FIRST(struct sss_pass);
 /* The frame's stats pointer is this struct's `pass`. */
 _Static_assert(offsetof(struct restir_sss_stats, pass) == 0, "restir_sss_stats must begin with its pass stats");
 
-/* Initial pass: candidates into the working buffer, and the pt path for the rest of the image
- * from the same primary ray (the G-buffer's jitter). */
+/* Initial pass: candidates into the working buffer, and the rest of the image: restir_pt's
+ * frame, or the pt path from the same primary ray (the G-buffer's jitter). Where the primary
+ * surface is translucent the reservoirs carry all the light pt's path would bring (it has no
+ * surface reflection: pt_sss_primary) but the emission seen there, which restir_pt's frame holds
+ * at every pixel, or which is added here. */
 static void sss_initial_rows(void *ctx, uint32_t job, unsigned worker)
 {
     struct sss_pass *pp = ctx;
@@ -576,13 +768,25 @@ static void sss_initial_rows(void *ctx, uint32_t job, unsigned worker)
             sss_initial_pixel(c, pixel, layers, out, rc);
             if (!pp->fr.out) continue;
             const struct gbuffer_pixel *g = &c->gbuf[RESTIR_CURRENT]->px[pixel];
+            const struct gbuffer_surface *h = &c->gbuf[RESTIR_CURRENT]->surf[pixel];
+            const struct scene *scene = c->scene[RESTIR_CURRENT];
+            const struct material *m = h->material == GBUFFER_NO_HIT ? NULL : &scene->materials[h->material];
+            const bool translucent = m && m->kind == MATERIAL_TRANSLUCENT;
+            if (pp->rest) {
+                pp->fr.out->pixels[pixel] = pp->rest[pixel];
+                continue;
+            }
             struct vec3 dir = camera_ray_dir(&pp->fr.camera, (float)x + g->jx, (float)y + g->jy);
+            if (translucent) {
+                pp->fr.out->pixels[pixel] = light_sampler_emitted(m, -vec3_dot(dir, h->ng));
+                continue;
+            }
             struct rng rng = rng_make(c->seed, c->frame, pixel, SSS_PT_STREAM);
             /* The G-buffer pass traced this ray already: its hit starts the path. */
             struct hit first;
-            const struct hit *primary = gbuffer_hit(c->scene[RESTIR_CURRENT], g, &first);
-            pp->fr.out->pixels[pixel] = reference_pt_radiance(c->scene[RESTIR_CURRENT], &pp->pt,
-                                                              pp->fr.camera.position, dir, primary, &rng, false, rc);
+            const struct hit *primary = gbuffer_hit(scene, g, &first);
+            pp->fr.out->pixels[pixel] =
+                reference_pt_radiance(scene, &pp->pt, pp->fr.camera.position, dir, primary, &rng, false, true, rc);
         }
     }
     pp->fr.counters[worker].rays.intersect += rays.intersect;
@@ -625,6 +829,8 @@ void restir_sss_bind(struct restir_sss_state *st, const struct restir_sss_params
     c->pass_shift = params->shift == RESTIR_SSS_SEQUENTIAL ? RESTIR_SSS_RECONNECTION : params->shift;
     c->channel = -1;   /* the luminance target, or layer 0's channel: restir_sss_render sets it per layer */
     if (restir_sss_layers(params) > 1) c->channel = 0;
+    c->moved = f->prev_scene && scene_moved(f->prev_scene, f->scene);
+    c->pt = NULL;      /* restir_sss_render points it at the frame's path parameters */
 }
 
 /* The automatic spatial radius (§5.1): 2 max(d) of the translucent materials seen, projected at
@@ -661,10 +867,24 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
         return false;
     if (restir_sss_layers(params) != st->rs.layers)
         return err_set(err, ERR_INVALID, "/params/target", "the session's reservoirs were made for the other target");
+    if ((restir_sss_rest_of(params) == RESTIR_SSS_REST_RESTIR_PT) != st->has_rest)
+        return err_set(err, ERR_INVALID, "/params/rest", "the session was made for the rest by %s",
+                       st->has_rest ? "restir_pt" : "pt");
+    /* The rest's frame first, with its own G-buffer (restir_pt's jitter walk) and passes. */
+    pp.rest = NULL;
+    if (st->has_rest && out) {
+        clock_gettime(CLOCK_MONOTONIC, &pp.fr.t0);   /* restir_frame_gbuffer starts it after the rest */
+        struct restir_pt_params rp = restir_sss_rest_params(params);
+        if (!restir_pt_render_rest(&st->rest, &rp, f, &st->rest_image, &stats->pass, err)) return false;
+        stats->rest_ms = parallel_lap_ms(&pp.fr.t0);
+        pp.rest = st->rest_image.pixels;
+    }
     if (!restir_frame_gbuffer(&pp.fr, 0.0f, sss_uses_pairs(params), false, 1, err)) return false;
     restir_sss_bind(st, params, f, &c);
     pp.c = &c;
     pp.pt = reference_pt_rest(st->rs.width, st->rs.height, params->max_depth, params->rr_depth);
+    /* Indirect samples start at the path's second vertex: none within max_depth 1. */
+    c.pt = params->max_depth >= 2 ? &pp.pt : NULL;
     if (!restir_frame_initial(&pp.fr, sss_initial_rows, err)) return false;
     if (!out) return true;   /* restir_sss_initial_only */
     float radius = params->spatial_radius > 0.0f ? params->spatial_radius

@@ -91,16 +91,7 @@ static uint32_t rsms_buffers(const void *state, const void *params, struct view_
     method_buffer(out, room, &n, "receivers", restir_sms_receiver_bytes(st));
     if (st->prior.entries) method_buffer(out, room, &n, "prior", restir_sms_prior_bytes(st));
     if (st->rs.pair_scratch) method_buffer(out, room, &n, "spatial_pairs", restir_session_pair_bytes(&st->rs));
-    if (st->has_rest) {
-        const struct restir_session *r = &st->rest.rs;
-        method_buffer(out, room, &n, "rest_reservoirs", restir_session_reservoir_bytes(r));
-        method_buffer(out, room, &n, "rest_gbuffers", restir_session_gbuffer_bytes(r) + restir_session_hit_bytes(r) +
-                                                          (r->gbuf[0].emission ? restir_session_emission_bytes(r) : 0));
-        method_buffer(out, room, &n, "rest_primitive_table", ((size_t)st->rest.shape_count + 1) * sizeof *st->rest.prim_first);
-        if (r->pair_scratch) method_buffer(out, room, &n, "rest_spatial_pairs", restir_session_pair_bytes(r));
-        method_buffer(out, room, &n, "rest_frame",
-                      (size_t)st->rest_image.width * st->rest_image.height * sizeof *st->rest_image.pixels);
-    }
+    if (st->has_rest) method_rest_buffers(out, room, &n, &st->rest, &st->rest_image);
     return n;
 }
 

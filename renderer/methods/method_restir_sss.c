@@ -1,7 +1,7 @@
 /* method_restir_sss.c — method `restir_sss`: ReSTIR for subsurface scattering
  * (integrators/restir_sss.h): BSSRDF probe candidates at translucent primary hits, reused
  * temporally and spatially through the reconnection, delayed, hybrid or sequential shift; the rest
- * of the image is the path tracer's. */
+ * of the light is restir_pt's (or the path tracer's). */
 #include <stddef.h>
 
 #include "integrators/restir_sss.h"
@@ -13,6 +13,7 @@ METHOD_FITS(struct restir_sss_params, METHOD_PARAMS_BYTES);
 METHOD_FITS(struct restir_sss_stats, METHOD_COUNTERS_BYTES);
 METHOD_ENUM_IS_INT(enum restir_sss_shift);
 METHOD_ENUM_IS_INT(enum restir_sss_target);
+METHOD_ENUM_IS_INT(enum restir_sss_rest);
 
 METHOD_DEFAULTS_OP(sss_defaults, struct restir_sss_params, restir_sss_defaults)
 /* The converge profile: temporal reuse off, so that a session's frames are independent; the
@@ -24,14 +25,20 @@ static void sss_converge(void *params)
 }
 
 METHOD_VALIDATE_OP(sss_validate, struct restir_sss_params, restir_sss_params_valid)
-METHOD_SESSION_RESET_OP(sss_reset, struct restir_sss_state)
+/* Both sessions forget their history: the BSSRDF reservoirs' and, with rest restir_pt, the rest's. */
+static void sss_reset(void *state)
+{
+    restir_sss_reset(state);
+}
 METHOD_STATE_OP(sss_destroy, struct restir_sss_state, restir_sss_destroy)
 
 static bool sss_init(void *state, const struct scene *scene, void *params, uint32_t width, uint32_t height,
                      struct err *err)
 {
-    (void)scene;
-    return restir_sss_init(state, params, width, height, err);
+    struct restir_sss_params *p = params;
+    if (!restir_sss_init(state, scene, p, width, height, err)) return false;
+    p->rest = restir_sss_rest_of(p);   /* the session reports who renders the rest */
+    return true;
 }
 
 static bool sss_render(void *state, const void *params, const struct method_frame *f, struct image *out,
@@ -39,13 +46,13 @@ static bool sss_render(void *state, const void *params, const struct method_fram
 {
     struct restir_sss_stats *c = METHOD_COUNTERS(struct restir_sss_stats, stats);
     return restir_sss_render(state, params, f, out, c, err) &&
-           method_frame_done(stats, method_pass_render_stats(out, f->threads, &c->pass, 0.0), progress, progress_ctx);
+           method_frame_done(stats, method_pass_render_stats(out, f->threads, &c->pass, c->rest_ms), progress,
+                             progress_ctx);
 }
 
 static uint64_t sss_bytes_planned(const void *params, const struct scene *scene, uint32_t width, uint32_t height)
 {
-    (void)scene;
-    return restir_sss_bytes_planned(params, width, height);
+    return restir_sss_bytes_planned(params, scene, width, height);
 }
 
 static uint32_t sss_reservoir_bytes(const void *params, const struct scene *scene)
@@ -63,15 +70,19 @@ static uint32_t sss_buffers(const void *state, const void *params, struct view_b
     method_buffer(out, room, &n, "gbuffers", restir_session_gbuffer_bytes(&st->rs));
     method_buffer(out, room, &n, "primary_hits", restir_session_hit_bytes(&st->rs));
     if (st->rs.pair_scratch) method_buffer(out, room, &n, "spatial_pairs", restir_session_pair_bytes(&st->rs));
+    if (st->has_rest) method_rest_buffers(out, room, &n, &st->rest, &st->rest_image);
     return n;
 }
 
 static const struct method_stat sss_stats[] = {
     METHOD_PASS_STATS(struct restir_sss_stats, pass., METHOD_PASS_INITIAL(struct restir_sss_stats, pass.)),
+    /* The rest's restir_pt frame (rest restir_pt), counted in the frame's time and rays. */
+    {"rest_ms", NULL, METHOD_STAT_MS, offsetof(struct restir_sss_stats, rest_ms), 0},
 };
 
 static const char *const sss_shifts[] = {"reconnection", "delayed", "hybrid", "sequential", NULL};
 static const char *const sss_targets[] = {"luminance", "per_channel", NULL};
+static const char *const sss_rests[] = {"by_scene", "pt", "restir_pt", NULL};
 
 #define P(key, kind, lo, hi, help) METHOD_PARAM(struct restir_sss_params, key, kind, lo, hi, help)
 static const struct method_param sss_params[] = {
@@ -91,6 +102,11 @@ static const struct method_param sss_params[] = {
       "shade with the last spatial pass's expected contribution over its selection"),
     METHOD_ENUM(struct restir_sss_params, target, sss_targets,
                 "the resampling target: luminance (one reservoir per pixel) or per channel (three)"),
+    {.key = "rest", .kind = METHOD_PARAM_ENUM, .offset = offsetof(struct restir_sss_params, rest), .choices = sss_rests,
+     .flags = METHOD_PARAM_SCENE_DEFAULT,
+     .help = "who renders the light the BSSRDF reservoirs do not carry: restir_pt (its reservoirs at the pixels "
+             "not on translucent materials) or pt (one path a pixel there); by_scene (the default) = restir_pt with "
+             "temporal reuse on and max_depth in its 1..126, else pt"},
 };
 #undef P
 

@@ -11,6 +11,7 @@
 
 #include "methods/method.h"
 #include "reuse/restir.h"
+#include "integrators/restir_pt.h"
 
 #define METHOD_PASS_INITIAL(type, MEMBER) {"initial_ms", NULL, METHOD_STAT_MS, offsetof(type, MEMBER initial_ms), 0}
 
@@ -34,6 +35,20 @@ static inline struct render_stats method_pass_render_stats(const struct image *o
     return method_frame_render_stats(out, threads, c->rays_intersect, c->rays_occluded, c->nonfinite,
                                      c->gbuffer_ms + extra_ms + c->initial_ms + c->temporal_ms + c->spatial_ms +
                                          c->shade_ms);
+}
+
+/* The buffers of a restir_pt session kept as another method's rest (restir_sms, restir_sss), and
+ * its frame, under names of their own. */
+static inline void method_rest_buffers(struct view_buffer_bytes *out, uint32_t room, uint32_t *n,
+                                       const struct restir_pt_state *rest, const struct image *frame)
+{
+    const struct restir_session *r = &rest->rs;
+    method_buffer(out, room, n, "rest_reservoirs", restir_session_reservoir_bytes(r));
+    method_buffer(out, room, n, "rest_gbuffers", restir_session_gbuffer_bytes(r) + restir_session_hit_bytes(r) +
+                                                     (r->gbuf[0].emission ? restir_session_emission_bytes(r) : 0));
+    method_buffer(out, room, n, "rest_primitive_table", ((size_t)rest->shape_count + 1) * sizeof *rest->prim_first);
+    if (r->pair_scratch) method_buffer(out, room, n, "rest_spatial_pairs", restir_session_pair_bytes(r));
+    method_buffer(out, room, n, "rest_frame", (size_t)frame->width * frame->height * sizeof *frame->pixels);
 }
 
 /* A ReSTIR method's reset: its session forgets the history. */

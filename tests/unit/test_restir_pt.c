@@ -147,6 +147,44 @@ static void test_spatial_round_trips_classic(void)
                  "cornell-glossy, roughness + distance");
 }
 
+/* opaque_primary (restir_sss's rest): the translucent scene is refused without it, naming the
+ * method; with it, no pixel whose primary surface is translucent holds a path or is a domain a
+ * shift may enter, and the paths of the other pixels, which meet the translucent BSDF at later
+ * vertices, shift and come back. */
+static void test_opaque_primary(void)
+{
+    struct scene *sc = fixture_load("scenes/translucent/scene.json");
+    if (!sc) return;
+    struct err err = {0};
+    struct restir_pt_params p = restir_pt_defaults();
+    struct restir_pt_state st;
+    CHECK(!restir_pt_init(&st, sc, &p, SIZE, SIZE, &err) && strcmp(err.where, "/method") == 0);
+    p.opaque_primary = true;
+    CHECK(restir_pt_init(&st, sc, &p, SIZE, SIZE, &err));
+    struct method_frame f = {.scene = sc, .camera = &sc->camera, .seed = 3, .threads = 1};
+    CHECK(restir_pt_initial_only(&st, &p, &f, &err));
+    _Alignas(16) uint8_t ctx[RESTIR_PT_CTX_BYTES];
+    restir_pt_bind(&st, &p, &f, ctx);
+    uint32_t translucent = 0, held = 0;
+    for (uint32_t px = 0; px < SIZE * SIZE; px++) {
+        const struct gbuffer_surface *h = &st.rs.gbuf[st.rs.cur].surf[px];
+        const uint8_t *e = st.rs.res[0] + (size_t)px * restir_pt_ops.stride;
+        bool has = ((const struct restir_head *)e)->W > 0.0f;
+        if (h->material == GBUFFER_NO_HIT || sc->materials[h->material].kind != MATERIAL_TRANSLUCENT) {
+            held += has;
+            continue;
+        }
+        translucent++;
+        CHECK_MSG(!has, "pixel %u on a translucent surface holds a path", px);
+        CHECK(!restir_pt_ops.domain_valid(ctx, (struct restir_domain){px, RESTIR_CURRENT}));
+    }
+    CHECK_MSG(translucent > SIZE * SIZE / 20 && held > SIZE * SIZE / 10, "translucent pixels %u, with a path %u",
+              translucent, held);
+    restir_pt_destroy(&st);
+    scene_release(sc);
+    spatial_case("scenes/translucent/scene.json", &p, 12, 1u << KIND_RECONNECT, "translucent, opaque_primary");
+}
+
 /* Temporal round trips: frame 1's samples to frame 0's domains and back, and frame 0's final
  * reservoirs (the history) to frame 1 and back; the camera moves, and with `move_shape` the
  * gold sphere moves too, so paths through it are re-traced in the other frame's scene. */
@@ -384,4 +422,4 @@ static void test_jitter_walk_reaches_the_gbuffer(void)
 
 TEST_MAIN(TEST(test_reservoir_is_compact), TEST(test_candidates_by_scene), TEST(test_jitter_walk_reaches_the_gbuffer), TEST(test_session_bytes_planned_match_allocated), TEST(test_identity_shift_reproduces_initial_contribution),
           TEST(test_spatial_round_trips_enhanced), TEST(test_spatial_round_trips_classic),
-          TEST(test_temporal_round_trips_camera), TEST(test_temporal_round_trips_moving_shape))
+          TEST(test_temporal_round_trips_camera), TEST(test_temporal_round_trips_moving_shape), TEST(test_opaque_primary))
