@@ -14,7 +14,8 @@ under the converge profile (no temporal reuse, the confidence cap its default: t
 for it to cap), averaging the same frames as the real-time sessions. Each profile's default rest
 (restir_pt's reservoirs in real time, one pt path a pixel converging) is tested, and the other rest
 under each profile once. The reservoirs hold direct light and, within max_depth >= 2, the light
-arriving at the entry points after a bounce; max_depth 1 tests the direct part alone."""
+arriving at the entry points after a bounce; max_depth 1 tests the direct part alone, and a
+variant of the scene whose sphere the lamp cannot see tests the indirect samples alone."""
 import json
 
 import numpy as np
@@ -88,6 +89,9 @@ def _reference(sc, tmp_path, moving, depth=()):
                          # stops after next-event estimation at the exit points and restir_sss
                          # traces no rest on the object; both must still estimate the same paths.
                          [("hybrid", "static", 1, "luminance", "real-time", "by_scene"),
+                          # One bounce after the entry points (NEE at x3, emission found from it):
+                          # the indirect samples' paths count their depth as pt's do.
+                          ("hybrid", "static", 2, "luminance", "real-time", "by_scene"),
                           ("hybrid", "moving camera", None, "per_channel", "real-time", "by_scene"),
                           ("sequential", "static", None, "per_channel", "real-time", "by_scene")] +
                          [("hybrid", motion, None, "luminance", "converge", "by_scene")
@@ -205,3 +209,40 @@ def test_restir_sss_environment_unbiased(tmp_path, scenes):
     assert_agree(res, "environment")
     bad = ztest_runs(runs * 1.03, ref)
     assert not bad.passed, f"environment: a bias of x1.03 went unseen: {bad}"
+
+
+@pytest.mark.statistical
+@pytest.mark.parametrize("shift,max_depth", [("hybrid", 2), ("hybrid", None), ("delayed", None)])
+def test_restir_sss_indirect_only_unbiased(tmp_path, scenes, shift, max_depth):
+    """The same z-test on the wax sphere lit only after a bounce: the occluder raised to 1.2 hides
+    the sphere from the lamp, whose light reaches it from the floor beside the occluder. Every
+    reservoir sample that carries light is then an indirect one (x3 the surface after the entry
+    point, with its incoming radiance), so the shifts, Jacobians and depths of those samples decide
+    the image alone: at max_depth 2 pt counts one bounce after the entry points (next-event
+    estimation at x3, emission found from it), and so must they."""
+    doc = json.loads((scenes / "translucent" / "scene.json").read_text())
+    for shape in doc["shapes"]:
+        if shape.get("name") == "occluder":
+            shape["vertices"] = [[0.9, 0, -0.7], [0.9, 1.2, -0.7], [0.9, 1.2, 0.7], [0.9, 0, 0.7]]
+    sc = tmp_path / "scene.json"
+    sc.write_text(json.dumps(doc))
+    camera = {"position": [2.0, 1.0, 3.0], "look_at": [0.0, 0.5, 0.0], "fov_deg": 12}
+    depth = ["--max-depth", str(max_depth)] if max_depth else []
+    anim = _animation(tmp_path, "still.json", FRAMES, [{"t": 0, **camera}])
+    ref_anim = _animation(tmp_path, "still_ref.json", AVERAGED, [{"t": 0, **camera}])
+    ref = np.stack([render(sc, tmp_path / f"ref{s}.exr", spp=REF_SPP // AVERAGED, size=SIZE, seed=100000 + s,
+                           extra=["--frames", str(AVERAGED), "--average-last", str(AVERAGED), "--animation",
+                                  str(ref_anim), *depth])[0]
+                    for s in range(K_REF)])
+    assert ref.mean() > 1e-3, "the sphere must receive light after a bounce"
+    params = {"shift": shift, "temporal_cap": TEMPORAL_CAP, **({"max_depth": max_depth} if max_depth else {})}
+    extra = ["--method", "restir_sss", "--frames", str(FRAMES), "--average-last", str(AVERAGED),
+             "--animation", str(anim), "--profile", "real-time", "--params", json.dumps(params)]
+    runs = np.stack([render(sc, tmp_path / f"s{s}.exr", spp=1, size=SIZE, seed=s, extra=extra)[0] for s in range(K)])
+    assert np.isfinite(runs).all()
+    what = f"indirect only, {shift}, max_depth {max_depth}"
+    res = ztest_runs(runs, ref)
+    bad = ztest_runs(runs * 1.03, ref)
+    print(f"{what}: {res}; x1.03: {bad}")
+    assert_agree(res, what)
+    assert not bad.passed, f"{what}: a bias of x1.03 went unseen: {bad}"

@@ -151,6 +151,9 @@ static void test_enum_choices_follow_the_enums(void)
         {"restir_sss", "shift", "sequential", RESTIR_SSS_SEQUENTIAL},
         {"restir_sss", "target", "luminance", RESTIR_SSS_TARGET_LUMINANCE},
         {"restir_sss", "target", "per_channel", RESTIR_SSS_TARGET_PER_CHANNEL},
+        {"restir_sss", "rest", "by_scene", RESTIR_SSS_REST_BY_SCENE},
+        {"restir_sss", "rest", "pt", RESTIR_SSS_REST_PT},
+        {"restir_sss", "rest", "restir_pt", RESTIR_SSS_REST_RESTIR_PT},
         {"restir_sms", "sampler", "ssp", RESTIR_SMS_SAMPLER_SSP},
         {"restir_sms", "sampler", "sms", RESTIR_SMS_SAMPLER_SMS},
         {"restir_sms", "rest", "by_scene", RESTIR_SMS_REST_BY_SCENE},
@@ -170,7 +173,7 @@ static void test_enum_choices_follow_the_enums(void)
     uint32_t enums = 0;
     for (uint32_t m = 0; m < method_count(); m++)
         for (uint32_t k = 0; k < method_at(m)->param_count; k++) enums += method_at(m)->params[k].kind == METHOD_PARAM_ENUM;
-    CHECK_MSG(enums == 11, "%u enum parameters: add the new one's values above", enums);
+    CHECK_MSG(enums == 12, "%u enum parameters: add the new one's values above", enums);
 }
 
 /* Whether two parameter structs of method m hold the same values, parameter by parameter (a
