@@ -155,8 +155,8 @@ static inline bool pt_sample_light(const struct light_sampler *lights, bool soli
  * estimator of the same integral. The path continues from one entry point picked uniformly
  * (weight N, the number of hits) with a cosine-sampled direction. Returns false when the path
  * ends; otherwise updates beta, the next ray and the vertex it leaves from. With sss_direct false
- * the NEE at the entry points is left out (restir_sss resamples that part) and so is the
- * continuation's emission that would duplicate it. Out of line: at most once per path, and inlined
+ * (a split whose rest is someone else's: sms's caustics_only) the NEE at the entry points is left
+ * out and so is the continuation's emission that would duplicate it. Out of line: at most once per path, and inlined
  * into the flattened path loop (pt_radiance) it would only crowd it. */
 __attribute__((noinline, cold)) static bool
 pt_sss_primary(const struct scene *scene, const struct pt_params *params, const struct material *m,
@@ -246,8 +246,8 @@ struct pt_split {
      * ray escaped) stands for the first query, so the ray is not traced twice. */
     bool primary_given;
     const struct hit *primary;
-    /* The emission seen at the first hit (or the environment the camera ray escapes to) is left
-     * out: restir_sss's rest by restir_pt, whose session adds it at every pixel. */
+    /* The emission seen at the first hit (or the environment the ray escapes to) is left out: the
+     * ray from a subsurface entry point, whose direct light next-event estimation there counts. */
     bool skip_primary_emission;
     /* The depth of the first vertex: 0 for a camera ray; 1 for the ray that leaves a subsurface
      * entry point (restir_sss's indirect samples), so that the vertex it finds scatters as the
@@ -341,7 +341,7 @@ static inline struct pt_setup pt_setup_make(const struct scene *scene, const str
 __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scene, const struct pt_params *params,
                                                         const struct pt_setup *setup, struct vec3 org, struct vec3 dir,
                                                         struct rng *rng, struct ray_counters *rc,
-                                                        const struct pt_split *split, bool sss_direct,
+                                                        const struct pt_split *split,
                                                         const struct pt_sobol *qmc, const bool solid_angle,
                                                         struct accel_query *aq)
 {
@@ -425,7 +425,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
              * max_depth 1 (the direct-lighting case of [ReSTIR SSS §3], which its evaluation uses)
              * nothing is left to add once NEE at the entry points is someone else's, and no
              * continuation ray needs tracing. */
-            const bool direct_here = sss_direct && part_rest;
+            const bool direct_here = part_rest;
             if (nee && !direct_here && depth + 1 >= max_depth) break;
             /* Direct light at the entry points belongs to the rest of the light transport; the
              * track stays where it was, so no path through subsurface scattering counts as owned
@@ -623,7 +623,7 @@ __attribute__((flatten)) static struct vec3 pt_radiance(const struct scene *scen
  * Inlined into each flattened caller. */
 static inline struct vec3 pt_radiance_one(const struct scene *scene, const struct pt_params *params,
                                           const struct pt_split *split, struct vec3 org, struct vec3 dir,
-                                          struct rng *rng, bool sss_direct, struct ray_counters *rc)
+                                          struct rng *rng, struct ray_counters *rc)
 {
     const struct pt_setup setup = pt_setup_make(scene, params, split);
     struct accel_query aq;
@@ -631,7 +631,7 @@ static inline struct vec3 pt_radiance_one(const struct scene *scene, const struc
     struct rng rng_local = *rng;
     struct ray_counters rc_local = {0, 0};
     struct vec3 L =
-        pt_radiance(scene, params, &setup, org, dir, &rng_local, &rc_local, split, sss_direct, NULL, false, &aq);
+        pt_radiance(scene, params, &setup, org, dir, &rng_local, &rc_local, split, NULL, false, &aq);
     *rng = rng_local;
     rc->intersect += rc_local.intersect;
     rc->occluded += rc_local.occluded;
@@ -647,12 +647,10 @@ static inline struct vec3 pt_radiance_one(const struct scene *scene, const struc
  * fewer this way than before the sampler existed (182,089,056 against 183,158,651, callgrind). */
 __attribute__((flatten)) struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_params *params,
                                                            struct vec3 org, struct vec3 dir, const struct hit *primary,
-                                                           struct rng *rng, bool sss_direct, bool primary_emission,
-                                                           struct ray_counters *rc)
+                                                           struct rng *rng, struct ray_counters *rc)
 {
-    const struct pt_split all = {.owned = true, .rest = true, .primary_given = true, .primary = primary,
-                                 .skip_primary_emission = !primary_emission};
-    return pt_radiance_one(scene, params, &all, org, dir, rng, sss_direct, rc);
+    const struct pt_split all = {.owned = true, .rest = true, .primary_given = true, .primary = primary};
+    return pt_radiance_one(scene, params, &all, org, dir, rng, rc);
 }
 
 __attribute__((flatten)) struct vec3 reference_pt_radiance_after_sss(const struct scene *scene,
@@ -662,7 +660,7 @@ __attribute__((flatten)) struct vec3 reference_pt_radiance_after_sss(const struc
 {
     const struct pt_split after = {.owned = true, .rest = true, .primary_given = true, .primary = first,
                                    .skip_primary_emission = true, .first_depth = 1};
-    return pt_radiance_one(scene, params, &after, org, dir, rng, true, rc);
+    return pt_radiance_one(scene, params, &after, org, dir, rng, rc);
 }
 
 __attribute__((flatten)) struct vec3
@@ -673,7 +671,7 @@ reference_pt_radiance_sms(const struct scene *scene, const struct pt_params *par
     const struct pt_split split = {.owned = false, .rest = !params->sms->caustics_only, .tracked = true, .ss = ss,
                                    .sc = sc, .sms_rng = sms_rng, .px = px, .py = py, .sms_after_primary = true,
                                    .primary_given = true, .primary = primary};
-    return pt_radiance_one(scene, params, &split, org, dir, rng, true, rc);
+    return pt_radiance_one(scene, params, &split, org, dir, rng, rc);
 }
 
 /* The tile loop, flattened (by its two callers below) for the same reason as pt_radiance, which
@@ -779,7 +777,7 @@ static inline __attribute__((always_inline)) void pt_tile_body(void *ctx, uint32
                     }
                     split.primary = found[i] ? &hits[i] : NULL;
                     struct rng rng = rngs[i];
-                    struct vec3 L = pt_radiance(scene, p, &setup, cam.position, dirs[i], &rng, &rc, &split, true,
+                    struct vec3 L = pt_radiance(scene, p, &setup, cam.position, dirs[i], &rng, &rc, &split,
                                                 sobol ? &qpix.run[s - run_first] : NULL, solid_angle, &aq);
                     if (!vec3_is_finite(L)) {
                         st->nonfinite++;

@@ -82,16 +82,11 @@ struct rng;
 struct ray_counters;
 /* Radiance along one camera ray (org, unit dir) whose first hit the caller already has
  * (`primary`, as accel_intersect reports it; NULL when the ray escaped), as `pt` estimates it,
- * from the caller's random stream. sss_direct false leaves out the direct light at subsurface
- * entry points (the NEE at the probe hits of a translucent primary hit, and the emission the
- * path would reach with its first step from there when params->nee is on): restir_sss adds that
- * part from its reservoirs. primary_emission false leaves out the emission seen at the first hit
- * (or the environment, when the ray escaped): restir_sss's rest by restir_pt adds that at every
- * pixel. Thread-safe, allocation-free. */
+ * from the caller's random stream (restir_sss's pt rest). Thread-safe, allocation-free. */
 struct hit;
 struct vec3 reference_pt_radiance(const struct scene *scene, const struct pt_params *params, struct vec3 org,
-                                  struct vec3 dir, const struct hit *primary, struct rng *rng, bool sss_direct,
-                                  bool primary_emission, struct ray_counters *rc);
+                                  struct vec3 dir, const struct hit *primary, struct rng *rng,
+                                  struct ray_counters *rc);
 
 /* Radiance arriving at a subsurface entry point along the ray (org, unit dir) that leaves it,
  * whose first hit the caller already has (`first`; NULL when the ray escaped), as `pt` estimates

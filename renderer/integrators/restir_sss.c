@@ -786,7 +786,7 @@ static void sss_initial_rows(void *ctx, uint32_t job, unsigned worker)
             struct hit first;
             const struct hit *primary = gbuffer_hit(scene, g, &first);
             pp->fr.out->pixels[pixel] =
-                reference_pt_radiance(scene, &pp->pt, pp->fr.camera.position, dir, primary, &rng, false, true, rc);
+                reference_pt_radiance(scene, &pp->pt, pp->fr.camera.position, dir, primary, &rng, rc);
         }
     }
     pp->fr.counters[worker].rays.intersect += rays.intersect;
