@@ -123,6 +123,14 @@ void restir_pt_converge(struct restir_pt_params *p)
     p->spatial_neighbors = 6;
 }
 
+struct restir_pt_params restir_pt_rest_params(bool independent_frames, uint32_t max_depth)
+{
+    struct restir_pt_params rp = restir_pt_defaults();
+    if (independent_frames) restir_pt_converge(&rp);
+    rp.max_depth = max_depth;
+    return rp;
+}
+
 /* RIS among light candidates ([ReSTIR PT Enhanced §5]) pays where choosing a light by its power
  * alone is poor: several emitters at different distances and orientations from the shading point.
  * With one emitter the candidates differ only in the cosines and distances over it; on cornell-box,

@@ -88,6 +88,11 @@ struct restir_pt_params restir_pt_defaults(void);
 /* The converge profile over p (the method's `--profile converge`, and restir_sms's rest when its
  * frames are independent): frames that are independent draws. */
 void restir_pt_converge(struct restir_pt_params *p);
+/* The parameters of a restir_pt session that renders the light another method leaves (restir_sss's
+ * and restir_sms's `rest`): the defaults, or the converge profile when that method's frames are to
+ * be independent (its temporal reuse off), and the method's max_depth. The caller says which light
+ * (subset, opaque_primary). */
+struct restir_pt_params restir_pt_rest_params(bool independent_frames, uint32_t max_depth);
 /* The RIS NEE candidates a scene gets by default: 4 with two or more emitters (emissive
  * shapes; a lit environment counts as one), 1 (plain NEE) with a single one. */
 uint32_t restir_pt_nee_by_scene(const struct scene *scene);

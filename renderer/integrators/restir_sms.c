@@ -57,10 +57,8 @@ enum restir_sms_rest restir_sms_rest_of(const struct restir_sms_params *p, const
 
 struct restir_pt_params restir_sms_rest_params(const struct restir_sms_params *p)
 {
-    struct restir_pt_params rp = restir_pt_defaults();
-    if (!p->temporal) restir_pt_converge(&rp);
+    struct restir_pt_params rp = restir_pt_rest_params(!p->temporal, p->max_depth);
     rp.subset = PT_SUBSET_REST;
-    rp.max_depth = p->max_depth;
     return rp;
 }
 

@@ -112,10 +112,8 @@ enum restir_sss_rest restir_sss_rest_of(const struct restir_sss_params *p)
 
 struct restir_pt_params restir_sss_rest_params(const struct restir_sss_params *p)
 {
-    struct restir_pt_params rp = restir_pt_defaults();
-    if (!p->temporal) restir_pt_converge(&rp);
+    struct restir_pt_params rp = restir_pt_rest_params(!p->temporal, p->max_depth);
     rp.opaque_primary = true;
-    rp.max_depth = p->max_depth;
     return rp;
 }
 
