@@ -139,7 +139,9 @@ def test_restir_sss_bad_params(tmp_path, scenes):
                                 ({"shift": "sequential", "spatial_neighbors": 3}, "/params/spatial_neighbors", "even"),
                                 ({"index_shortcut": True}, "/params/index_shortcut", "only the sequential"),
                                 ({"target": "rgb"}, "/params/target", "unknown target \"rgb\" (luminance or per_channel)"),
-                                ({"target": 3}, "/params/target", "string")]:
+                                ({"target": 3}, "/params/target", "string"),
+                                ({"rest_samples": 0}, "/params/rest_samples", "must be >= 1, got 0"),
+                                ({"rest_samples": 65}, "/params/rest_samples", "must be <= 64, got 65")]:
         res = run_cli("render", sc, "--method", "restir_sss", "--size", "8x8", "--params", json.dumps(params),
                       "-o", tmp_path / "x.exr")
         assert res.returncode == 2 and field in res.stderr and text in res.stderr, res.stderr
@@ -246,3 +248,32 @@ def test_restir_sss_indirect_only_unbiased(tmp_path, scenes, shift, max_depth):
     print(f"{what}: {res}; x1.03: {bad}")
     assert_agree(res, what)
     assert not bad.passed, f"{what}: a bias of x1.03 went unseen: {bad}"
+
+
+@pytest.mark.statistical
+def test_restir_sss_converge_rest_unbiased(tmp_path, scenes):
+    """The converge profile's rest on a wider view, where most pixels are not on the wax (the
+    narrowed view above holds few of them): there the profile traces rest_samples pt paths a
+    pixel and frame from the primary hit and averages them. Still camera, the mean of AVERAGED
+    frames of independent sessions against pt. (The library view's far corners hold pixels that
+    pt lights in a few of 384 samples: a per-pixel test there sees the tail, not a bias.)"""
+    sc = scenes / "translucent" / "scene.json"
+    camera = {"position": [2.0, 1.0, 3.0], "look_at": [0.1, 0.5, 0.0], "fov_deg": 24}
+    anim = _animation(tmp_path, "still.json", AVERAGED, [{"t": 0, **camera}])
+    ref = np.stack([render(sc, tmp_path / f"ref{s}.exr", spp=REF_SPP // AVERAGED, size=SIZE, seed=100000 + s,
+                           extra=["--frames", str(AVERAGED), "--average-last", str(AVERAGED), "--animation",
+                                  str(anim)])[0]
+                    for s in range(K_REF)])
+    extra = ["--method", "restir_sss", "--frames", str(AVERAGED), "--average-last", str(AVERAGED),
+             "--animation", str(anim), "--profile", "converge"]
+    runs, stats = [], None
+    for s in range(K):
+        img, stats = render(sc, tmp_path / f"s{s}.exr", spp=1, size=SIZE, seed=s, extra=extra)
+        runs.append(img)
+    runs = np.stack(runs)
+    assert stats["rest_ms"] == 0 and np.isfinite(runs).all(), stats   # the pt rest
+    res = ztest_runs(runs, ref)
+    bad = ztest_runs(runs * 1.03, ref)
+    print(f"converge rest: {res}; x1.03: {bad}")
+    assert_agree(res, "converge rest")
+    assert not bad.passed, f"converge rest: a bias of x1.03 went unseen: {bad}"

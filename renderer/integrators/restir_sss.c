@@ -95,7 +95,7 @@ struct restir_sss_params restir_sss_defaults(void)
                                       .temporal_cap = 20, .spatial_neighbors = 4, .spatial_radius = 0.0f,
                                       .kappa_orientation = 0.5f, .max_depth = 64, .rr_depth = 3,
                                       .paired_spatial = true, .expected_shading = true,
-                                      .rest = RESTIR_SSS_REST_BY_SCENE};
+                                      .rest = RESTIR_SSS_REST_BY_SCENE, .rest_samples = 1};
 }
 
 /* by_scene, measured on the scene `translucent` at 256x256 against pt at equal time
@@ -153,6 +153,9 @@ bool restir_sss_params_valid(const struct restir_sss_params *p, struct err *err)
         return err_set(err, ERR_INVALID, "/params/kappa_orientation", "must be in [-1, 1]");
     if (p->max_depth > 1024) return err_set(err, ERR_INVALID, "/params/max_depth", "must be at most 1024");
     if ((unsigned)p->rest > RESTIR_SSS_REST_RESTIR_PT) return err_set(err, ERR_INVALID, "/params/rest", "unknown rest");
+    if (p->rest_samples < 1 || p->rest_samples > RESTIR_SSS_MAX_REST_SAMPLES)
+        return err_set(err, ERR_INVALID, "/params/rest_samples", "must be in [1, %u], got %u",
+                       RESTIR_SSS_MAX_REST_SAMPLES, p->rest_samples);
     if (p->rest == RESTIR_SSS_REST_RESTIR_PT && (p->max_depth < 1 || p->max_depth > RESTIR_PT_MAX_DEPTH))
         return err_set(err, ERR_INVALID, "/params/max_depth", "must be in 1..%u with rest restir_pt, got %u",
                        RESTIR_PT_MAX_DEPTH, p->max_depth);
@@ -736,6 +739,7 @@ struct sss_pass {
     const struct sss_ctx *c;
     struct pt_params pt;
     const struct vec3 *rest;   /* the rest's restir_pt frame, or NULL: the pt path renders the rest */
+    uint32_t rest_samples;     /* pt paths a pixel for the rest (params->rest_samples) */
     struct restir_sss_stats local;   /* the counters of a frame whose caller keeps none */
 };
 RESTIR_FRAME_FIRST(struct sss_pass);
@@ -780,11 +784,15 @@ static void sss_initial_rows(void *ctx, uint32_t job, unsigned worker)
                 continue;
             }
             struct rng rng = rng_make(c->seed, c->frame, pixel, SSS_PT_STREAM);
-            /* The G-buffer pass traced this ray already: its hit starts the path. */
+            /* The G-buffer pass traced this ray already: its hit starts the paths. Several paths
+             * continue the same primary hit, so whether a pixel gets them depends on nothing the
+             * paths estimate (the hit's material decided it): their mean stays unbiased. */
             struct hit first;
             const struct hit *primary = gbuffer_hit(scene, g, &first);
-            pp->fr.out->pixels[pixel] =
-                reference_pt_radiance(scene, &pp->pt, pp->fr.camera.position, dir, primary, &rng, rc);
+            struct vec3 L = {0.0f, 0.0f, 0.0f};
+            for (uint32_t i = 0; i < pp->rest_samples; i++)
+                L = vec3_add(L, reference_pt_radiance(scene, &pp->pt, pp->fr.camera.position, dir, primary, &rng, rc));
+            pp->fr.out->pixels[pixel] = vec3_scale(L, 1.0f / (float)pp->rest_samples);
         }
     }
     pp->fr.counters[worker].rays.intersect += rays.intersect;
@@ -881,6 +889,7 @@ bool restir_sss_render(struct restir_sss_state *st, const struct restir_sss_para
     restir_sss_bind(st, params, f, &c);
     pp.c = &c;
     pp.pt = reference_pt_rest(st->rs.width, st->rs.height, params->max_depth, params->rr_depth);
+    pp.rest_samples = params->rest_samples;
     /* Indirect samples start at the path's second vertex: none within max_depth 1. */
     c.pt = params->max_depth >= 2 ? &pp.pt : NULL;
     if (!restir_frame_initial(&pp.fr, sss_initial_rows, err)) return false;

@@ -83,6 +83,9 @@ struct RESTIRD_STORED_IN_BYTES restir_sss_params {
                                      its selection (restir.h; [ReSTIR PT Enhanced Fig. 5]) (true) */
     enum restir_sss_target target; /* (luminance) */
     enum restir_sss_rest rest;    /* (by_scene) */
+    uint32_t rest_samples;        /* rest pt: paths a pixel and frame at the pixels whose primary
+                                     surface is not translucent, continuations of the same primary
+                                     hit, averaged (1; the converge profile: 2) */
 };
 
 struct restir_sss_params restir_sss_defaults(void);
@@ -110,6 +113,7 @@ struct restir_sss_state {
     struct image rest_image;       /*   and its frame, to which the initial pass adds the rest */
 };
 
+#define RESTIR_SSS_MAX_REST_SAMPLES 64u   /* rest_samples's bound */
 #define RESTIR_SSS_RESERVOIR_BYTES 72u   /* per reservoir; a pixel has restir_sss_layers of them */
 
 /* Sized for params' target and rest, which a session keeps; the pair scratch only for paired
