@@ -54,8 +54,8 @@ enum restir_sss_target {
 
 /* Who renders the rest of the light: all but what reaches the entry points x2 of the translucent
  * primary surfaces, which the BSSRDF reservoirs carry (direct and, within max_depth >= 2,
- * indirect). `pt`: one path per pixel and frame from the same primary ray at the other pixels
- * (reference_pt_radiance), and the emission seen at the translucent ones. `restir_pt`: a
+ * indirect). `pt`: rest_samples paths per pixel and frame from the same primary hit at the other
+ * pixels (reference_pt_radiance), and the emission seen at the translucent ones. `restir_pt`: a
  * restir_pt session (its `opaque_primary`) for the pixels whose primary surface is not
  * translucent and for the emission seen directly everywhere. Each part estimates its own share of
  * the pixel (each with its own primary ray), so the sum is unbiased. `by_scene` (the default) takes restir_pt with temporal reuse on (the real-time profile) where
