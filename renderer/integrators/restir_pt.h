@@ -85,8 +85,9 @@ struct RESTIRD_STORED_IN_BYTES restir_pt_params {
 #define RESTIR_PT_MAX_DEPTH 126u
 
 struct restir_pt_params restir_pt_defaults(void);
-/* The converge profile over p (the method's `--profile converge`, and restir_sms's rest when its
- * frames are independent): frames that are independent draws. */
+/* The converge profile over p (the method's `--profile converge`, and the rest of restir_sss and
+ * restir_sms when their frames are independent: restir_pt_rest_params): frames that are
+ * independent draws. */
 void restir_pt_converge(struct restir_pt_params *p);
 /* The parameters of a restir_pt session that renders the light another method leaves (restir_sss's
  * and restir_sms's `rest`): the defaults, or the converge profile when that method's frames are to

@@ -784,9 +784,9 @@ static void sss_initial_rows(void *ctx, uint32_t job, unsigned worker)
                 continue;
             }
             struct rng rng = rng_make(c->seed, c->frame, pixel, SSS_PT_STREAM);
-            /* The G-buffer pass traced this ray already: its hit starts the paths. Several paths
-             * continue the same primary hit, so whether a pixel gets them depends on nothing the
-             * paths estimate (the hit's material decided it): their mean stays unbiased. */
+            /* The G-buffer pass traced this ray already: its hit starts the paths. How many a
+             * pixel gets is fixed once its primary hit is known, so their mean estimates what one
+             * path from that hit does. */
             struct hit first;
             const struct hit *primary = gbuffer_hit(scene, g, &first);
             struct vec3 L = {0.0f, 0.0f, 0.0f};

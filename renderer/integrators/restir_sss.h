@@ -58,8 +58,9 @@ enum restir_sss_target {
  * pixels (reference_pt_radiance), and the emission seen at the translucent ones. `restir_pt`: a
  * restir_pt session (its `opaque_primary`) for the pixels whose primary surface is not
  * translucent and for the emission seen directly everywhere. Each part estimates its own share of
- * the pixel (each with its own primary ray), so the sum is unbiased. `by_scene` (the default) takes restir_pt with temporal reuse on (the real-time profile) where
- * max_depth is in its 1..RESTIR_PT_MAX_DEPTH, else pt (restir_sss_rest_of says why). */
+ * the pixel (each with its own primary ray), so the sum is unbiased. `by_scene` (the default)
+ * takes restir_pt with temporal reuse on (the real-time profile) where max_depth is in its
+ * 1..RESTIR_PT_MAX_DEPTH, else pt (restir_sss_rest_of says why). */
 enum restir_sss_rest { RESTIR_SSS_REST_BY_SCENE, RESTIR_SSS_REST_PT, RESTIR_SSS_REST_RESTIR_PT };
 
 struct RESTIRD_STORED_IN_BYTES restir_sss_params {

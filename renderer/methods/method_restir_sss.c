@@ -109,8 +109,8 @@ static const struct method_param sss_params[] = {
     {.key = "rest", .kind = METHOD_PARAM_ENUM, .offset = offsetof(struct restir_sss_params, rest), .choices = sss_rests,
      .flags = METHOD_PARAM_SCENE_DEFAULT,
      .help = "who renders the light the BSSRDF reservoirs do not carry: restir_pt (its reservoirs at the pixels "
-             "not on translucent materials) or pt (rest_samples paths a pixel there); by_scene (the default) = restir_pt with "
-             "temporal reuse on and max_depth in its 1..126, else pt"},
+             "not on translucent materials) or pt (rest_samples paths a pixel there); by_scene (the default) = "
+             "restir_pt with temporal reuse on and max_depth in its 1..126, else pt"},
     P(rest_samples, METHOD_PARAM_UINT, 1, RESTIR_SSS_MAX_REST_SAMPLES,
       "rest pt: paths a pixel and frame at the pixels not on translucent materials, from the same primary hit"),
 };
